@@ -1,0 +1,171 @@
+//! Command-line interface: argument parsing, file I/O and exit codes around the pure core.
+
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Arc;
+
+use anyhow::{bail, Context};
+use baton_proto::check::{check_source, CheckedChart, Report};
+use baton_proto::diag::LineIndex;
+use baton_proto::sim::{parse_inputs, simulate, SimOutput};
+use clap::{Parser, Subcommand};
+
+/// Exit status of `baton check` and `baton sim` when the chart has errors.
+const EXIT_INVALID: u8 = 1;
+/// Exit status for usage and I/O errors (clap uses it too).
+const EXIT_USAGE: u8 = 2;
+
+#[derive(Parser)]
+#[command(name = "baton", version, about = "Sequential function charts (IEC 61131-3), checked and run")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Check a chart: syntax, names, types, safety and reachability. Exit 0 when valid, 1 on errors.
+    Check {
+        /// The chart: IEC 61131-3 textual SFC (`.st`).
+        chart: PathBuf,
+    },
+    /// Run a chart on virtual time and print its events as JSON Lines.
+    Sim {
+        chart: PathBuf,
+        /// Input script, JSON Lines: {"t_ms": 100, "set": {"start": true}}.
+        #[arg(long)]
+        inputs: Option<PathBuf>,
+        /// Time between two scan cycles.
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..))]
+        cycle_ms: u64,
+        /// Time of the last cycle.
+        #[arg(long, default_value_t = 1000)]
+        until_ms: u64,
+        /// Which chart to run when the file holds several PROGRAMs or FUNCTION_BLOCKs with SFC bodies.
+        #[arg(long)]
+        pou: Option<String>,
+    },
+}
+
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Check { chart } => check(&chart),
+        Command::Sim { chart, inputs, cycle_ms, until_ms, pou } => {
+            sim(&chart, inputs.as_deref(), cycle_ms, until_ms, pou.as_deref())
+        }
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(EXIT_USAGE)
+        }
+    }
+}
+
+fn read(path: &Path) -> anyhow::Result<String> {
+    std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+fn print_diagnostics(path: &Path, src: &str, report: &Report, keep: impl Fn(u32) -> bool) {
+    let index = LineIndex::new(src);
+    let shown = path.display().to_string();
+    let mut err = std::io::stderr().lock();
+    for d in report.diagnostics.iter().filter(|d| keep(d.span.start)) {
+        let _ = write!(err, "{}", index.render(&shown, d));
+    }
+}
+
+fn check(path: &Path) -> anyhow::Result<ExitCode> {
+    let src = read(path)?;
+    let report = check_source(&src);
+    print_diagnostics(path, &src, &report, |_| true);
+    let errors = report.error_count();
+    let warnings = report.diagnostics.len() - errors;
+    if errors > 0 {
+        eprintln!("{}: {errors} error(s), {warnings} warning(s)", path.display());
+        return Ok(ExitCode::from(EXIT_INVALID));
+    }
+    for c in &report.charts {
+        if let Some(p) = &c.program {
+            println!(
+                "{}: chart `{}` is valid: {} steps, {} transitions, {} actions, {} warning(s)",
+                path.display(),
+                p.name,
+                p.steps.len(),
+                p.transitions.len(),
+                p.actions.len(),
+                warnings
+            );
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn pick<'r>(report: &'r Report, pou: Option<&str>) -> anyhow::Result<&'r CheckedChart> {
+    let names = || report.charts.iter().map(|c| c.chart.name.name.as_str()).collect::<Vec<_>>().join(", ");
+    match pou {
+        Some(name) => report
+            .charts
+            .iter()
+            .find(|c| c.chart.name.name.eq_ignore_ascii_case(name))
+            .with_context(|| format!("no chart named `{name}` in this file (it has: {})", names())),
+        None => match &report.charts[..] {
+            [one] => Ok(one),
+            [] => bail!("no sequential function chart in this file"),
+            _ => bail!("this file holds several charts ({}): choose one with --pou NAME", names()),
+        },
+    }
+}
+
+fn sim(
+    path: &Path,
+    inputs: Option<&Path>,
+    cycle_ms: u64,
+    until_ms: u64,
+    pou: Option<&str>,
+) -> anyhow::Result<ExitCode> {
+    let src = read(path)?;
+    let report = check_source(&src);
+    if report.charts.is_empty() {
+        print_diagnostics(path, &src, &report, |_| true);
+        return Ok(ExitCode::from(EXIT_INVALID));
+    }
+    let chosen = pick(&report, pou)?;
+    let span = chosen.chart.span;
+    let inside = |at: u32| span.start <= at && at <= span.end;
+    print_diagnostics(path, &src, &report, inside);
+    let Some(program) = &chosen.program else {
+        eprintln!("{}: chart `{}` has errors; nothing was run", path.display(), chosen.chart.name.name);
+        return Ok(ExitCode::from(EXIT_INVALID));
+    };
+    let program = Arc::new(program.clone());
+    let records = match inputs {
+        Some(p) => {
+            let text = read(p)?;
+            parse_inputs(&text, &program).with_context(|| format!("bad input script {}", p.display()))?
+        }
+        None => Vec::new(),
+    };
+    let mut out = BufWriter::new(std::io::stdout().lock());
+    let mut write_error = None;
+    simulate(program, &records, cycle_ms, until_ms, |output| match output {
+        SimOutput::Trace(record) => {
+            if write_error.is_none() {
+                let line = serde_json::to_string(&record).map_err(std::io::Error::other);
+                if let Err(e) = line.and_then(|l| writeln!(out, "{l}")) {
+                    write_error = Some(e);
+                }
+            }
+        }
+        SimOutput::Fault { t_ms, message } => eprintln!("warning: t_ms={t_ms}: {message}"),
+    })?;
+    match write_error.map_or_else(|| out.flush(), Err) {
+        // A closed pipe (`baton sim … | head`) is the reader's choice, not an error.
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(ExitCode::SUCCESS),
+        Err(e) => Err(e).context("cannot write the trace"),
+        Ok(()) => Ok(ExitCode::SUCCESS),
+    }
+}

@@ -1,0 +1,197 @@
+//! Safety and reachability of a chart's net, with every transition condition taken as free (possibly TRUE).
+//!
+//! Two passes. The structural pass gives every step the *thread* that can hold its token: each initial step
+//! starts a thread, a simultaneous divergence starts one child thread per branch, and a convergence that joins
+//! exactly the children of one divergence hands the token back to their parent. When every step gets exactly
+//! one thread and every convergence joins a complete set of sibling threads, each thread holds at most one
+//! token at any time, so the chart is safe, and a step is reachable exactly when it got a thread. This is
+//! linear in the size of the chart. Anything that does not fit this shape (a branch left through a selection,
+//! a convergence of mutually exclusive steps, initial steps that meet) is settled by the exhaustive pass,
+//! which explores the reachable situations (sets of active steps) up to `ANALYSIS_SITUATIONS_MAX`.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+
+use crate::limits::ANALYSIS_SITUATIONS_MAX;
+use crate::program::{Program, StepId, TransitionId};
+
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Finding {
+    /// `transition` can clear while `step`, one of its targets but not one of its sources, is active.
+    Unsafe {
+        transition: TransitionId,
+        step: StepId,
+    },
+    /// A convergence whose source steps are each reachable but never all active at once.
+    DeadConvergence {
+        transition: TransitionId,
+    },
+    UnreachableStep {
+        step: StepId,
+    },
+    /// The exhaustive pass stopped after this many situations; unreachability was not judged.
+    Incomplete {
+        situations: usize,
+    },
+}
+
+pub fn analyse(program: &Program) -> Vec<Finding> {
+    match structural(program) {
+        Some(threads) => threads
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| t.is_none())
+            .map(|(i, _)| Finding::UnreachableStep { step: StepId(i as u32) })
+            .collect(),
+        None => exhaustive(program),
+    }
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+struct Thread {
+    parent: u32,
+    divergence: u32,
+    branch: u32,
+}
+
+const ROOT: u32 = u32::MAX;
+
+/// The thread of every step (None: unreachable), or None when the net does not have the structured shape.
+fn structural(program: &Program) -> Option<Vec<Option<u32>>> {
+    let mut threads: Vec<Thread> = Vec::new();
+    let mut interned: HashMap<Thread, u32> = HashMap::new();
+    let mut intern = |t: Thread, threads: &mut Vec<Thread>| {
+        *interned.entry(t).or_insert_with(|| {
+            threads.push(t);
+            threads.len() as u32 - 1
+        })
+    };
+    let mut label: Vec<Option<u32>> = vec![None; program.steps.len()];
+    let mut queue: VecDeque<StepId> = VecDeque::new();
+    for (n, &s) in program.initial_steps.iter().enumerate() {
+        let root = intern(Thread { parent: ROOT, divergence: ROOT, branch: n as u32 }, &mut threads);
+        label[s.index()] = Some(root);
+        queue.push_back(s);
+    }
+    // How many of each transition's sources have a thread; it is judged when all have.
+    let mut labelled_sources: Vec<u32> = vec![0; program.transitions.len()];
+    while let Some(s) = queue.pop_front() {
+        for &t in &program.steps[s.index()].outgoing {
+            let info = &program.transitions[t.index()];
+            labelled_sources[t.index()] += 1;
+            if labelled_sources[t.index()] as usize != info.sources.len() {
+                continue;
+            }
+            let thread = if let [only] = info.sources[..] {
+                label[only.index()]?
+            } else {
+                join(program, &info.sources, &label, &threads)?
+            };
+            for (branch, &target) in info.targets.iter().enumerate() {
+                let wanted = if info.targets.len() == 1 {
+                    thread
+                } else {
+                    intern(Thread { parent: thread, divergence: t.0, branch: branch as u32 }, &mut threads)
+                };
+                match label[target.index()] {
+                    None => {
+                        label[target.index()] = Some(wanted);
+                        queue.push_back(target);
+                    }
+                    Some(have) if have == wanted => {}
+                    Some(_) => return None,
+                }
+            }
+        }
+    }
+    Some(label)
+}
+
+/// The parent thread of a convergence's sources, when they are exactly the branches of one divergence.
+fn join(program: &Program, sources: &[StepId], label: &[Option<u32>], threads: &[Thread]) -> Option<u32> {
+    let first = threads[label[sources[0].index()]? as usize];
+    if first.parent == ROOT {
+        return None;
+    }
+    let branches = program.transitions[first.divergence as usize].targets.len();
+    if sources.len() != branches {
+        return None;
+    }
+    let mut seen = vec![false; branches];
+    for s in sources {
+        let t = threads[label[s.index()]? as usize];
+        if t.parent != first.parent
+            || t.divergence != first.divergence
+            || std::mem::replace(&mut seen[t.branch as usize], true)
+        {
+            return None;
+        }
+    }
+    Some(first.parent)
+}
+
+/// Explores every reachable situation, firing one transition at a time.
+fn exhaustive(program: &Program) -> Vec<Finding> {
+    let mut findings = Vec::new();
+    let mut reached = vec![false; program.steps.len()];
+    let mut enabled = vec![false; program.transitions.len()];
+    let mut unsafe_pairs: HashSet<(TransitionId, StepId)> = HashSet::new();
+    let mut initial: Vec<StepId> = program.initial_steps.clone();
+    initial.sort();
+    let mut seen: HashSet<Vec<StepId>> = HashSet::new();
+    let mut queue = VecDeque::new();
+    seen.insert(initial.clone());
+    queue.push_back(initial);
+    let mut complete = true;
+    let mut candidates = Vec::new();
+    while let Some(situation) = queue.pop_front() {
+        candidates.clear();
+        for s in &situation {
+            reached[s.index()] = true;
+            candidates.extend_from_slice(&program.steps[s.index()].outgoing);
+        }
+        candidates.sort();
+        candidates.dedup();
+        for &t in &candidates {
+            let info = &program.transitions[t.index()];
+            if !info.sources.iter().all(|s| situation.binary_search(s).is_ok()) {
+                continue;
+            }
+            enabled[t.index()] = true;
+            let mut next: Vec<StepId> = situation.iter().copied().filter(|s| !info.sources.contains(s)).collect();
+            for &target in &info.targets {
+                match next.binary_search(&target) {
+                    Ok(_) => {
+                        unsafe_pairs.insert((t, target));
+                    }
+                    Err(at) => next.insert(at, target),
+                }
+            }
+            if seen.len() >= ANALYSIS_SITUATIONS_MAX {
+                complete = false;
+                continue;
+            }
+            if seen.insert(next.clone()) {
+                queue.push_back(next);
+            }
+        }
+    }
+    findings.extend(unsafe_pairs.into_iter().map(|(transition, step)| Finding::Unsafe { transition, step }));
+    if complete {
+        for (i, t) in program.transitions.iter().enumerate() {
+            if !enabled[i] && t.sources.len() > 1 && t.sources.iter().all(|s| reached[s.index()]) {
+                findings.push(Finding::DeadConvergence { transition: TransitionId(i as u32) });
+            }
+        }
+        findings.extend(
+            reached
+                .iter()
+                .enumerate()
+                .filter(|(_, r)| !**r)
+                .map(|(i, _)| Finding::UnreachableStep { step: StepId(i as u32) }),
+        );
+    } else {
+        findings.push(Finding::Incomplete { situations: seen.len() });
+    }
+    findings.sort();
+    findings
+}

@@ -1,0 +1,97 @@
+//! `check_source`: parse, compile and analyse every chart of a source text, reporting every problem at once.
+
+use crate::analysis::{analyse, Finding};
+use crate::compile::compile;
+use crate::diag::{Diagnostic, Span};
+use crate::limits::{DIAGNOSTICS_MAX, SOURCE_BYTES_MAX};
+use crate::model::Chart;
+use crate::parser::parse;
+use crate::program::Program;
+
+pub struct CheckedChart {
+    pub chart: Chart,
+    /// Present when the chart has no errors.
+    pub program: Option<Program>,
+}
+
+pub struct Report {
+    pub charts: Vec<CheckedChart>,
+    /// In source order.
+    pub diagnostics: Vec<Diagnostic>,
+}
+
+impl Report {
+    pub fn error_count(&self) -> usize {
+        self.diagnostics.iter().filter(|d| d.is_error()).count()
+    }
+}
+
+pub fn check_source(src: &str) -> Report {
+    if src.len() > SOURCE_BYTES_MAX {
+        let message = format!("the file is larger than {} MiB", SOURCE_BYTES_MAX >> 20);
+        return Report { charts: Vec::new(), diagnostics: vec![Diagnostic::error(Span::default(), message)] };
+    }
+    let parsed = parse(src);
+    let mut diagnostics = parsed.diagnostics;
+    if parsed.charts.is_empty() && !diagnostics.iter().any(Diagnostic::is_error) {
+        diagnostics.push(Diagnostic::error(Span::new(0, 0), "no sequential function chart found: expected `INITIAL_STEP` in a PROGRAM, a FUNCTION_BLOCK or at the top level"));
+    }
+    let mut charts = Vec::with_capacity(parsed.charts.len());
+    for chart in parsed.charts {
+        let inside = |d: &Diagnostic| chart.span.start <= d.span.start && d.span.end <= chart.span.end;
+        let parse_errors = diagnostics.iter().any(|d| d.is_error() && inside(d));
+        let mut own = Vec::new();
+        let compiled = compile(&chart, &mut own);
+        if compiled.net_ok && !compiled.program.initial_steps.is_empty() {
+            for finding in analyse(&compiled.program) {
+                own.push(describe(&chart, &compiled.program, finding));
+            }
+        }
+        let ok = !parse_errors && !own.iter().any(Diagnostic::is_error);
+        diagnostics.extend(own);
+        charts.push(CheckedChart { program: ok.then_some(compiled.program), chart });
+    }
+    diagnostics.sort_by_key(|d| d.span.start);
+    if diagnostics.len() > DIAGNOSTICS_MAX {
+        let more = diagnostics.len() - DIAGNOSTICS_MAX;
+        let last = diagnostics[DIAGNOSTICS_MAX - 1].span;
+        diagnostics.truncate(DIAGNOSTICS_MAX);
+        diagnostics.push(Diagnostic::error(last, format!("{more} more problems not shown")));
+    }
+    Report { charts, diagnostics }
+}
+
+/// The net analysis runs only on charts whose steps and transitions all resolved, so ids follow the chart's
+/// declaration order.
+fn describe(chart: &Chart, program: &Program, finding: Finding) -> Diagnostic {
+    match finding {
+        Finding::Unsafe { transition, step } => {
+            let t = &chart.transitions[transition.index()];
+            let message = format!(
+                "unsafe chart: step `{}` can receive a second token, because transition `{}` can clear while `{}` is still active",
+                program.steps[step.index()].name,
+                t.display_name(),
+                program.steps[step.index()].name
+            );
+            Diagnostic::error(t.arc_span, message)
+        }
+        Finding::DeadConvergence { transition } => {
+            let t = &chart.transitions[transition.index()];
+            let names: Vec<String> = t.from.iter().map(|s| format!("`{}`", s.name)).collect();
+            let message = format!(
+                "simultaneous convergence `{}` can never clear: steps {} are never active at the same time",
+                t.display_name(),
+                names.join(", ")
+            );
+            Diagnostic::error(t.arc_span, message)
+        }
+        Finding::UnreachableStep { step } => {
+            let s = &chart.steps[step.index()];
+            Diagnostic::error(s.name.span, format!("step `{}` is unreachable: no evolution from the initial steps activates it", s.name.name))
+        }
+        Finding::Incomplete { situations } => Diagnostic::warning(
+            chart.name.span,
+            format!("chart `{}` has more than {situations} reachable situations: safety was checked only among them, and reachability not at all", chart.name.name),
+        ),
+    }
+}

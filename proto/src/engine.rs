@@ -1,0 +1,465 @@
+//! The SFC engine: a pure, deterministic state machine that runs a `Program` one scan cycle at a time.
+//!
+//! A cycle at time t (IEC 61131-3 with matiec's evaluation order): inputs set before the cycle are already
+//! applied; every transition leaving an active step is judged against one snapshot, in rank order, and a
+//! transition cannot clear when a higher-ranked one already consumed one of its source steps; the sources of
+//! cleared transitions are deactivated, then their targets activated with activation time t; finally every
+//! action's Q is computed from its associations (IEC ACTION_CONTROL) and the bodies of actions whose Q is TRUE
+//! run, plus one final run with Q = FALSE when Q falls.
+//!
+//! The cost of a cycle depends on the active steps, their transitions and associations, and the actions with
+//! stored state, never on the size of the chart: per-element scratch is indexed by id and stamped with the
+//! cycle number instead of being cleared.
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+
+use crate::eval::{self, Env, EnvMut, Fault};
+use crate::model::Qualifier;
+use crate::program::{ActionId, DurationSrc, Program, StepId, TransitionId, VarId};
+use crate::types::{Type, Value};
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Event {
+    pub t_ms: u64,
+    pub kind: EventKind,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum EventKind {
+    Fire(TransitionId),
+    Deactivate(StepId),
+    Activate(StepId),
+    ActionOn(ActionId),
+    ActionOff(ActionId),
+    /// A run-time fault: the condition counted as FALSE, or the body stopped where it happened.
+    Fault(FaultSource, Fault),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum FaultSource {
+    Transition(TransitionId),
+    Action(ActionId),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Input {
+    Set(VarId, Value),
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum InputError {
+    #[error("no variable with id {0}")]
+    UnknownVar(u32),
+    #[error("`{name}` is a CONSTANT")]
+    Constant { name: String },
+    #[error("`{name}` is {expected}, and {value} is not a {expected} value")]
+    Type { name: String, expected: Type, value: Value },
+    #[error("time went backwards: a cycle at {now_ms} ms after one at {last_ms} ms")]
+    TimeWentBack { last_ms: u64, now_ms: u64 },
+}
+
+const NEVER: u64 = u64::MAX;
+
+#[derive(Clone, Copy)]
+struct StepState {
+    active: bool,
+    activated_ms: u64,
+    /// `S.T` as it was at the last deactivation.
+    t_last_ms: i64,
+    activated_cycle: u64,
+    /// Index into `Engine::active` while active.
+    slot: u32,
+}
+
+#[derive(Clone, Copy, Default)]
+struct ActionState {
+    q: bool,
+    stored_s: bool,
+    /// SD stored: since when, and the delay.
+    stored_sd: Option<(u64, i64)>,
+    stored_ds: bool,
+    /// SL stored: since when, and the limit.
+    stored_sl: Option<(u64, i64)>,
+}
+
+impl ActionState {
+    fn live(&self) -> bool {
+        self.q || self.stored_s || self.stored_sd.is_some() || self.stored_ds || self.stored_sl.is_some()
+    }
+}
+
+/// What the associations of one cycle ask of one action.
+#[derive(Clone, Copy, Default)]
+struct Demand {
+    direct: bool,
+    reset: bool,
+    set_s: bool,
+    set_sd: Option<i64>,
+    set_ds: bool,
+    set_sl: Option<i64>,
+}
+
+pub struct Engine {
+    program: Arc<Program>,
+    now_ms: u64,
+    /// Index of the next cycle.
+    cycle: u64,
+    started: bool,
+    vars: Vec<Value>,
+    steps: Vec<StepState>,
+    active: Vec<StepId>,
+    actions: Vec<ActionState>,
+    /// Actions whose Q is TRUE or that hold a stored qualifier: they are judged every cycle.
+    live: Vec<ActionId>,
+    events: VecDeque<Event>,
+    collisions: u64,
+    // Scratch, reused across cycles.
+    candidates: Vec<TransitionId>,
+    consumed_stamp: Vec<u64>,
+    fired: Vec<TransitionId>,
+    deactivated: Vec<StepId>,
+    demand: Vec<Demand>,
+    demand_stamp: Vec<u64>,
+    judged: Vec<ActionId>,
+}
+
+impl Engine {
+    /// The initial situation: every initial step active since t = 0, reported as `Activate` events at t = 0.
+    pub fn new(program: Arc<Program>) -> Engine {
+        let n_steps = program.steps.len();
+        let n_actions = program.actions.len();
+        let mut engine = Engine {
+            vars: program.vars.iter().map(|v| v.init).collect(),
+            steps: vec![
+                StepState {
+                    active: false,
+                    activated_ms: 0,
+                    t_last_ms: 0,
+                    activated_cycle: NEVER,
+                    slot: u32::MAX
+                };
+                n_steps
+            ],
+            active: Vec::new(),
+            actions: vec![ActionState::default(); n_actions],
+            live: Vec::new(),
+            events: VecDeque::new(),
+            collisions: 0,
+            candidates: Vec::new(),
+            consumed_stamp: vec![NEVER; n_steps],
+            fired: Vec::new(),
+            deactivated: Vec::new(),
+            demand: vec![Demand::default(); n_actions],
+            demand_stamp: vec![NEVER; n_actions],
+            judged: Vec::new(),
+            now_ms: 0,
+            cycle: 0,
+            started: false,
+            program,
+        };
+        let initial = engine.program.initial_steps.clone();
+        for s in initial {
+            engine.activate(s);
+        }
+        engine
+    }
+
+    pub fn program(&self) -> &Arc<Program> {
+        &self.program
+    }
+
+    /// Sets a variable before the next cycle.
+    pub fn handle(&mut self, input: Input) -> Result<(), InputError> {
+        let Input::Set(id, value) = input;
+        let var = self.program.vars.get(id.index()).ok_or(InputError::UnknownVar(id.0))?;
+        if var.constant {
+            return Err(InputError::Constant { name: var.name.clone() });
+        }
+        let fits = match (&var.ty, value) {
+            (Type::Bool, Value::Bool(_))
+            | (Type::Time, Value::Time(_))
+            | (Type::Real { .. }, Value::Real(_) | Value::Int(_)) => true,
+            (Type::Int(k), Value::Int(v)) => k.contains(v),
+            _ => false,
+        };
+        if !fits {
+            return Err(InputError::Type { name: var.name.clone(), expected: var.ty.clone(), value });
+        }
+        self.vars[id.index()] = var.ty.coerce(value);
+        Ok(())
+    }
+
+    /// Runs one scan cycle at `now_ms`.
+    pub fn handle_cycle(&mut self, now_ms: u64) -> Result<(), InputError> {
+        if self.started && now_ms < self.now_ms {
+            return Err(InputError::TimeWentBack { last_ms: self.now_ms, now_ms });
+        }
+        self.started = true;
+        self.now_ms = now_ms;
+        self.clear_transitions();
+        self.evolve();
+        self.control_actions();
+        self.cycle += 1;
+        Ok(())
+    }
+
+    pub fn poll_event(&mut self) -> Option<Event> {
+        self.events.pop_front()
+    }
+
+    pub fn is_active(&self, step: StepId) -> bool {
+        self.steps[step.index()].active
+    }
+
+    /// The active steps, in no particular order.
+    pub fn active_steps(&self) -> &[StepId] {
+        &self.active
+    }
+
+    pub fn value(&self, var: VarId) -> Value {
+        self.vars[var.index()]
+    }
+
+    /// How many times a step received a token while it held one. A validated chart never does: a non-zero
+    /// count is a bug in the validator.
+    pub fn collisions(&self) -> u64 {
+        self.collisions
+    }
+
+    fn push(&mut self, kind: EventKind) {
+        self.events.push_back(Event { t_ms: self.now_ms, kind });
+    }
+
+    /// Step (c): judge every transition leaving an active step against the same snapshot, in rank order.
+    fn clear_transitions(&mut self) {
+        let program = Arc::clone(&self.program);
+        self.candidates.clear();
+        for s in &self.active {
+            self.candidates.extend_from_slice(&program.steps[s.index()].outgoing);
+        }
+        self.candidates.sort_unstable_by_key(|t| program.transitions[t.index()].rank);
+        self.candidates.dedup();
+        self.fired.clear();
+        let stamp = self.cycle;
+        let candidates = std::mem::take(&mut self.candidates);
+        for &t in &candidates {
+            let info = &program.transitions[t.index()];
+            let enabled =
+                info.sources.iter().all(|s| self.steps[s.index()].active && self.consumed_stamp[s.index()] != stamp);
+            if !enabled {
+                continue;
+            }
+            match eval::eval(&info.condition, self) {
+                Ok(v) if v.as_bool() => {
+                    for s in &info.sources {
+                        self.consumed_stamp[s.index()] = stamp;
+                    }
+                    self.fired.push(t);
+                }
+                Ok(_) => {}
+                Err(fault) => self.push(EventKind::Fault(FaultSource::Transition(t), fault)),
+            }
+        }
+        self.candidates = candidates;
+    }
+
+    /// Step (d): deactivate the sources of the cleared transitions, then activate their targets.
+    fn evolve(&mut self) {
+        let program = Arc::clone(&self.program);
+        let fired = std::mem::take(&mut self.fired);
+        for &t in &fired {
+            self.push(EventKind::Fire(t));
+        }
+        self.deactivated.clear();
+        for &t in &fired {
+            for &s in &program.transitions[t.index()].sources {
+                self.deactivate(s);
+            }
+        }
+        for &t in &fired {
+            for &s in &program.transitions[t.index()].targets {
+                if self.steps[s.index()].active {
+                    self.collisions += 1;
+                } else {
+                    self.activate(s);
+                }
+            }
+        }
+        self.fired = fired;
+    }
+
+    fn activate(&mut self, s: StepId) {
+        let slot = self.active.len() as u32;
+        let state = &mut self.steps[s.index()];
+        state.active = true;
+        state.activated_ms = self.now_ms;
+        state.activated_cycle = self.cycle;
+        state.slot = slot;
+        self.active.push(s);
+        self.push(EventKind::Activate(s));
+    }
+
+    fn deactivate(&mut self, s: StepId) {
+        let state = &mut self.steps[s.index()];
+        if !state.active {
+            return;
+        }
+        state.active = false;
+        state.t_last_ms = (self.now_ms - state.activated_ms) as i64;
+        let slot = state.slot as usize;
+        self.active.swap_remove(slot);
+        if let Some(&moved) = self.active.get(slot) {
+            self.steps[moved.index()].slot = slot as u32;
+        }
+        self.deactivated.push(s);
+        self.push(EventKind::Deactivate(s));
+    }
+
+    fn duration_ms(&self, d: Option<DurationSrc>) -> i64 {
+        match d {
+            Some(DurationSrc::Ms(ms)) => ms,
+            Some(DurationSrc::Var(v)) => self.vars[v.index()].as_i64().max(0),
+            None => 0,
+        }
+    }
+
+    fn demand(&mut self, a: ActionId) -> &mut Demand {
+        let i = a.index();
+        if self.demand_stamp[i] != self.cycle {
+            self.demand_stamp[i] = self.cycle;
+            self.demand[i] = Demand::default();
+            self.judged.push(a);
+        }
+        &mut self.demand[i]
+    }
+
+    /// Step (e): compute every concerned action's Q, then run the bodies.
+    fn control_actions(&mut self) {
+        let program = Arc::clone(&self.program);
+        self.judged.clear();
+        for i in 0..self.active.len() {
+            let s = self.active[i];
+            let state = self.steps[s.index()];
+            let elapsed = (self.now_ms - state.activated_ms) as i64;
+            let just_activated = state.activated_cycle == self.cycle;
+            for assoc in &program.steps[s.index()].associations {
+                let dur = self.duration_ms(assoc.duration);
+                let d = self.demand(assoc.action);
+                match assoc.qualifier {
+                    Qualifier::N => d.direct = true,
+                    Qualifier::R => d.reset = true,
+                    Qualifier::S => d.set_s = true,
+                    Qualifier::L => d.direct |= elapsed < dur,
+                    Qualifier::D => d.direct |= elapsed >= dur,
+                    Qualifier::P | Qualifier::P1 => d.direct |= just_activated,
+                    Qualifier::P0 => {}
+                    Qualifier::SD => d.set_sd = Some(d.set_sd.map_or(dur, |x| x.min(dur))),
+                    Qualifier::DS => d.set_ds |= elapsed >= dur,
+                    Qualifier::SL => d.set_sl = Some(d.set_sl.map_or(dur, |x| x.min(dur))),
+                }
+            }
+        }
+        for i in 0..self.deactivated.len() {
+            let s = self.deactivated[i];
+            for assoc in &program.steps[s.index()].associations {
+                let d = self.demand(assoc.action);
+                if assoc.qualifier == Qualifier::P0 {
+                    d.direct = true;
+                }
+            }
+        }
+        for i in 0..self.live.len() {
+            let a = self.live[i];
+            self.demand(a);
+        }
+        let mut judged = std::mem::take(&mut self.judged);
+        judged.sort_unstable();
+        self.live.clear();
+        let now = self.now_ms;
+        // (action, Q before, Q now), in action order.
+        let mut changes: Vec<(ActionId, bool, bool)> = Vec::with_capacity(judged.len());
+        for &a in &judged {
+            let d = self.demand[a.index()];
+            let st = &mut self.actions[a.index()];
+            if d.reset {
+                // Reset dominates: R clears every stored qualifier, even one set in the same cycle.
+                st.stored_s = false;
+                st.stored_sd = None;
+                st.stored_ds = false;
+                st.stored_sl = None;
+            } else {
+                st.stored_s |= d.set_s;
+                st.stored_ds |= d.set_ds;
+                if st.stored_sd.is_none() {
+                    st.stored_sd = d.set_sd.map(|dur| (now, dur));
+                }
+                if st.stored_sl.is_none() {
+                    st.stored_sl = d.set_sl.map(|dur| (now, dur));
+                }
+            }
+            let since = |start: u64| (now - start) as i64;
+            let q = d.direct
+                || st.stored_s
+                || st.stored_ds
+                || st.stored_sd.is_some_and(|(start, dur)| since(start) >= dur)
+                || st.stored_sl.is_some_and(|(start, dur)| since(start) < dur);
+            let before = st.q;
+            st.q = q;
+            if st.live() {
+                self.live.push(a);
+            }
+            changes.push((a, before, q));
+        }
+        for &(a, before, q) in &changes {
+            if q && !before {
+                self.push(EventKind::ActionOn(a));
+            } else if before && !q {
+                self.push(EventKind::ActionOff(a));
+            }
+        }
+        for &(a, before, q) in &changes {
+            // A body runs while Q is TRUE, and once more with Q = FALSE in the cycle Q falls.
+            if !(q || before) {
+                continue;
+            }
+            let action = &program.actions[a.index()];
+            if let Some(var) = action.bool_var {
+                self.vars[var.index()] = Value::Bool(q);
+            }
+            if let Err(fault) = eval::run(&action.body, self) {
+                self.push(EventKind::Fault(FaultSource::Action(a), fault));
+            }
+        }
+        self.judged = judged;
+    }
+}
+
+impl Env for Engine {
+    fn var(&self, id: VarId) -> Value {
+        self.vars[id.index()]
+    }
+
+    fn step_x(&self, id: StepId) -> bool {
+        self.steps[id.index()].active
+    }
+
+    fn step_t(&self, id: StepId) -> i64 {
+        let s = &self.steps[id.index()];
+        if s.active {
+            (self.now_ms - s.activated_ms) as i64
+        } else {
+            s.t_last_ms
+        }
+    }
+
+    fn action_q(&self, id: ActionId) -> bool {
+        self.actions[id.index()].q
+    }
+}
+
+impl EnvMut for Engine {
+    fn set_var(&mut self, id: VarId, value: Value) {
+        self.vars[id.index()] = self.program.vars[id.index()].ty.coerce(value);
+    }
+}

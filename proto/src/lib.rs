@@ -1,0 +1,17 @@
+//! Baton's pure core: the SFC chart model, the textual SFC parser, the validator and the engine.
+//!
+//! Nothing here does I/O or reads a clock: time comes in as milliseconds, events go out as values.
+
+pub mod analysis;
+pub mod check;
+pub mod compile;
+pub mod diag;
+pub mod engine;
+pub mod eval;
+pub mod lexer;
+pub mod limits;
+pub mod model;
+pub mod parser;
+pub mod program;
+pub mod sim;
+pub mod types;

@@ -1,0 +1,243 @@
+//! The chart model: what a parser (textual SFC today, PLCopen XML later) produces, before names are resolved.
+
+use crate::diag::Span;
+
+/// A name as written, with where it was written. Names compare without regard to case.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Ident {
+    pub name: String,
+    pub span: Span,
+}
+
+impl Ident {
+    /// The key under which the name is looked up: IEC 61131-3 identifiers are case-insensitive.
+    pub fn key(&self) -> String {
+        self.name.to_ascii_uppercase()
+    }
+}
+
+/// A `{ … }` pragma, kept with the element it belongs to.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Pragma {
+    /// The text between the braces, trimmed.
+    pub text: String,
+    pub span: Span,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PouKind {
+    Program,
+    FunctionBlock,
+    /// SFC elements written at the top level of a file, outside any POU.
+    Bare,
+}
+
+/// One sequential function chart: the SFC body of a PROGRAM or FUNCTION_BLOCK, or a bare list of elements.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Chart {
+    pub name: Ident,
+    pub kind: PouKind,
+    pub vars: Vec<VarDecl>,
+    pub steps: Vec<Step>,
+    pub transitions: Vec<Transition>,
+    pub actions: Vec<Action>,
+    /// Pragmas that follow no element of the chart.
+    pub pragmas: Vec<Pragma>,
+    /// The whole POU, or the run of bare elements.
+    pub span: Span,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VarSection {
+    Local,
+    Input,
+    Output,
+    InOut,
+    External,
+    Global,
+    Temp,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct VarDecl {
+    pub name: Ident,
+    pub section: VarSection,
+    pub constant: bool,
+    /// The type's name as written.
+    pub type_name: Ident,
+    pub init: Option<Expr>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Step {
+    pub name: Ident,
+    pub initial: bool,
+    pub associations: Vec<Association>,
+    pub pragmas: Vec<Pragma>,
+    /// From the keyword to `END_STEP`.
+    pub span: Span,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Qualifier {
+    N,
+    R,
+    S,
+    L,
+    D,
+    P,
+    P0,
+    P1,
+    SD,
+    DS,
+    SL,
+}
+
+impl Qualifier {
+    pub fn from_word(word: &str) -> Option<Qualifier> {
+        Some(match word.to_ascii_uppercase().as_str() {
+            "N" => Qualifier::N,
+            "R" => Qualifier::R,
+            "S" => Qualifier::S,
+            "L" => Qualifier::L,
+            "D" => Qualifier::D,
+            "P" => Qualifier::P,
+            "P0" => Qualifier::P0,
+            "P1" => Qualifier::P1,
+            "SD" => Qualifier::SD,
+            "DS" => Qualifier::DS,
+            "SL" => Qualifier::SL,
+            _ => return None,
+        })
+    }
+
+    /// L, D, SD, DS and SL need a duration.
+    pub fn is_timed(self) -> bool {
+        matches!(self, Qualifier::L | Qualifier::D | Qualifier::SD | Qualifier::DS | Qualifier::SL)
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum Duration {
+    Literal { ms: i64, span: Span },
+    Var(Ident),
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Association {
+    pub action: Ident,
+    pub qualifier: Qualifier,
+    /// Where the qualifier was written; the action name's span when it was left out (N).
+    pub qualifier_span: Span,
+    pub duration: Option<Duration>,
+    pub indicators: Vec<Ident>,
+    pub span: Span,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Transition {
+    pub name: Option<Ident>,
+    pub priority: Option<(u32, Span)>,
+    pub from: Vec<Ident>,
+    pub to: Vec<Ident>,
+    pub condition: Expr,
+    pub pragmas: Vec<Pragma>,
+    /// From the keyword to `END_TRANSITION`.
+    pub span: Span,
+    /// The span of `FROM … TO …`, used to report problems with the net.
+    pub arc_span: Span,
+}
+
+impl Transition {
+    /// The transition's name, or `FROM->TO` when it has none (`(A,B)->C` for several steps).
+    pub fn display_name(&self) -> String {
+        if let Some(name) = &self.name {
+            return name.name.clone();
+        }
+        fn list(steps: &[Ident]) -> String {
+            match steps {
+                [one] => one.name.clone(),
+                many => format!("({})", many.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join(",")),
+            }
+        }
+        format!("{}->{}", list(&self.from), list(&self.to))
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Action {
+    pub name: Ident,
+    pub body: Vec<Stmt>,
+    pub pragmas: Vec<Pragma>,
+    pub span: Span,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum Stmt {
+    Assign { target: Ident, value: Expr, span: Span },
+    If { branches: Vec<(Expr, Vec<Stmt>)>, otherwise: Vec<Stmt>, span: Span },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UnOp {
+    Neg,
+    Not,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BinOp {
+    Or,
+    Xor,
+    And,
+    Eq,
+    Ne,
+    Lt,
+    Le,
+    Gt,
+    Ge,
+    Add,
+    Sub,
+    Mul,
+    Div,
+    Mod,
+}
+
+impl BinOp {
+    pub fn symbol(self) -> &'static str {
+        match self {
+            BinOp::Or => "OR",
+            BinOp::Xor => "XOR",
+            BinOp::And => "AND",
+            BinOp::Eq => "=",
+            BinOp::Ne => "<>",
+            BinOp::Lt => "<",
+            BinOp::Le => "<=",
+            BinOp::Gt => ">",
+            BinOp::Ge => ">=",
+            BinOp::Add => "+",
+            BinOp::Sub => "-",
+            BinOp::Mul => "*",
+            BinOp::Div => "/",
+            BinOp::Mod => "MOD",
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum ExprKind {
+    Bool(bool),
+    Int(i64),
+    Real(f64),
+    Time(i64),
+    Name(Ident),
+    /// `step.X`, `step.T`, `action.Q`.
+    Field(Ident, Ident),
+    Unary(UnOp, Box<Expr>),
+    Binary(BinOp, Box<Expr>, Box<Expr>),
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Expr {
+    pub kind: ExprKind,
+    pub span: Span,
+}

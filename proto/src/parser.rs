@@ -1,0 +1,665 @@
+//! Parses IEC 61131-3 textual SFC into the chart model, recovering after errors so that all are reported.
+//!
+//! POUs without an SFC body (ST functions, configurations, type declarations) are skipped: a chart file may
+//! hold a whole project.
+
+use crate::diag::{Diagnostic, Span};
+use crate::lexer::{lex, Kw, RawPragma, Tok, Token};
+use crate::limits::{BRANCHES_MAX, NESTING_DEPTH_MAX};
+use crate::model::*;
+
+pub struct Parsed {
+    pub charts: Vec<Chart>,
+    pub diagnostics: Vec<Diagnostic>,
+}
+
+pub fn parse(src: &str) -> Parsed {
+    let lexed = lex(src);
+    let mut p = Parser { src, toks: lexed.tokens, pos: 0, diags: lexed.diagnostics, depth: 0 };
+    let mut charts = p.file();
+    attach_pragmas(src, &mut charts, &lexed.pragmas);
+    Parsed { charts, diagnostics: p.diags }
+}
+
+/// Parse failed here; the error is already recorded.
+struct Failed;
+type PResult<T> = Result<T, Failed>;
+
+struct Parser<'a> {
+    src: &'a str,
+    toks: Vec<Token>,
+    pos: usize,
+    diags: Vec<Diagnostic>,
+    depth: usize,
+}
+
+fn is_element_start(tok: Tok) -> bool {
+    matches!(tok, Tok::Kw(Kw::InitialStep | Kw::Step | Kw::Transition | Kw::Action))
+}
+
+fn is_var_block(tok: Tok) -> bool {
+    matches!(
+        tok,
+        Tok::Kw(
+            Kw::Var
+                | Kw::VarInput
+                | Kw::VarOutput
+                | Kw::VarInOut
+                | Kw::VarExternal
+                | Kw::VarGlobal
+                | Kw::VarTemp
+                | Kw::VarAccess
+                | Kw::VarConfig
+        )
+    )
+}
+
+fn is_top_level(tok: Tok) -> bool {
+    matches!(tok, Tok::Kw(Kw::Program | Kw::FunctionBlock | Kw::Function | Kw::Configuration | Kw::Type))
+        || is_element_start(tok)
+        || is_var_block(tok)
+}
+
+impl Parser<'_> {
+    fn peek(&self) -> Tok {
+        self.toks[self.pos].tok
+    }
+
+    fn peek_at(&self, ahead: usize) -> Tok {
+        self.toks[(self.pos + ahead).min(self.toks.len() - 1)].tok
+    }
+
+    fn span(&self) -> Span {
+        self.toks[self.pos].span
+    }
+
+    fn prev_span(&self) -> Span {
+        self.toks[self.pos.saturating_sub(1)].span
+    }
+
+    fn bump(&mut self) -> Token {
+        let t = self.toks[self.pos];
+        if t.tok != Tok::Eof {
+            self.pos += 1;
+        }
+        t
+    }
+
+    fn eat(&mut self, tok: Tok) -> bool {
+        if self.peek() == tok {
+            self.bump();
+            true
+        } else {
+            false
+        }
+    }
+
+    fn text(&self, span: Span) -> &str {
+        &self.src[span.start as usize..span.end as usize]
+    }
+
+    fn found(&self) -> String {
+        match self.peek() {
+            Tok::Eof => "end of file".to_string(),
+            _ => format!("`{}`", self.text(self.span())),
+        }
+    }
+
+    fn error_here(&mut self, expected: &str) -> Failed {
+        let message = format!("expected {expected}, found {}", self.found());
+        self.diags.push(Diagnostic::error(self.span(), message));
+        Failed
+    }
+
+    fn expect(&mut self, tok: Tok, expected: &str) -> PResult<Token> {
+        if self.peek() == tok {
+            Ok(self.bump())
+        } else {
+            Err(self.error_here(expected))
+        }
+    }
+
+    fn ident(&mut self, what: &str) -> PResult<Ident> {
+        if self.peek() == Tok::Ident {
+            let t = self.bump();
+            Ok(Ident { name: self.text(t.span).to_string(), span: t.span })
+        } else {
+            Err(self.error_here(what))
+        }
+    }
+
+    /// Skips to just after `end` (and a following `;`), or up to (not over) a token that `stop` accepts.
+    fn recover(&mut self, end: Kw, stop: fn(Tok) -> bool) {
+        loop {
+            let tok = self.peek();
+            if tok == Tok::Eof || stop(tok) {
+                return;
+            }
+            self.bump();
+            if tok == Tok::Kw(end) {
+                self.eat(Tok::Semi);
+                return;
+            }
+        }
+    }
+
+    /// Skips a whole block we do not execute, up to and including its end keyword.
+    fn skip_block(&mut self, end: Kw) {
+        let start = self.bump().span;
+        while self.peek() != Tok::Kw(end) {
+            if self.peek() == Tok::Eof {
+                let message = format!("`{}` is never closed: expected `{}`", self.text(start), end.text());
+                self.diags.push(Diagnostic::error(start, message));
+                return;
+            }
+            self.bump();
+        }
+        self.bump();
+        self.eat(Tok::Semi);
+    }
+
+    fn file(&mut self) -> Vec<Chart> {
+        let mut charts = Vec::new();
+        let mut bare: Option<Chart> = None;
+        let mut bare_vars = Vec::new();
+        loop {
+            match self.peek() {
+                Tok::Eof => break,
+                Tok::Kw(Kw::Program) => charts.extend(self.pou(PouKind::Program, Kw::EndProgram)),
+                Tok::Kw(Kw::FunctionBlock) => charts.extend(self.pou(PouKind::FunctionBlock, Kw::EndFunctionBlock)),
+                Tok::Kw(Kw::Function) => self.skip_block(Kw::EndFunction),
+                Tok::Kw(Kw::Configuration) => self.skip_block(Kw::EndConfiguration),
+                Tok::Kw(Kw::Type) => self.skip_block(Kw::EndType),
+                tok if is_var_block(tok) => {
+                    let vars = self.var_block();
+                    match &mut bare {
+                        Some(chart) => chart.vars.extend(vars),
+                        None => bare_vars.extend(vars),
+                    }
+                }
+                tok if is_element_start(tok) => {
+                    let chart = bare.get_or_insert_with(|| Chart {
+                        name: Ident { name: "main".to_string(), span: self.toks[self.pos].span },
+                        kind: PouKind::Bare,
+                        vars: std::mem::take(&mut bare_vars),
+                        steps: Vec::new(),
+                        transitions: Vec::new(),
+                        actions: Vec::new(),
+                        pragmas: Vec::new(),
+                        span: self.toks[self.pos].span,
+                    });
+                    self.element(chart);
+                    chart.span = chart.span.to(self.prev_span());
+                }
+                _ => {
+                    self.error_here("PROGRAM, FUNCTION_BLOCK or an SFC element");
+                    self.bump();
+                    while !is_top_level(self.peek()) && self.peek() != Tok::Eof {
+                        self.bump();
+                    }
+                }
+            }
+        }
+        charts.extend(bare);
+        charts
+    }
+
+    fn pou(&mut self, kind: PouKind, end: Kw) -> Option<Chart> {
+        let start = self.bump().span;
+        let Ok(name) = self.ident("a name") else {
+            self.recover(end, |_| false);
+            return None;
+        };
+        // FUNCTION_BLOCK … EXTENDS/IMPLEMENTS … : nothing Baton needs.
+        while self.peek() == Tok::Ident || self.peek() == Tok::Comma {
+            self.bump();
+        }
+        let mut chart = Chart {
+            name,
+            kind,
+            vars: Vec::new(),
+            steps: Vec::new(),
+            transitions: Vec::new(),
+            actions: Vec::new(),
+            pragmas: Vec::new(),
+            span: start,
+        };
+        loop {
+            let tok = self.peek();
+            if is_var_block(tok) {
+                let vars = self.var_block();
+                chart.vars.extend(vars);
+            } else if is_element_start(tok) {
+                self.element(&mut chart);
+            } else if tok == Tok::Kw(end) || tok == Tok::Eof {
+                break;
+            } else if chart.steps.is_empty() && chart.transitions.is_empty() && chart.actions.is_empty() {
+                // A body in another language: this POU is not a chart.
+                self.recover(end, |_| false);
+                return None;
+            } else {
+                self.error_here(&format!("an SFC element or `{}`", end.text()));
+                self.bump();
+                while !is_element_start(self.peek()) && self.peek() != Tok::Kw(end) && self.peek() != Tok::Eof {
+                    self.bump();
+                }
+            }
+        }
+        let closing = self.expect(Tok::Kw(end), &format!("`{}`", end.text()));
+        chart.span = start.to(self.prev_span());
+        let has_sfc = !chart.steps.is_empty() || !chart.transitions.is_empty();
+        if closing.is_ok() {
+            self.eat(Tok::Semi);
+        }
+        has_sfc.then_some(chart)
+    }
+
+    fn var_block(&mut self) -> Vec<VarDecl> {
+        let kw = self.bump();
+        let section = match kw.tok {
+            Tok::Kw(Kw::VarInput) => VarSection::Input,
+            Tok::Kw(Kw::VarOutput) => VarSection::Output,
+            Tok::Kw(Kw::VarInOut) => VarSection::InOut,
+            Tok::Kw(Kw::VarExternal) => VarSection::External,
+            Tok::Kw(Kw::VarGlobal) => VarSection::Global,
+            Tok::Kw(Kw::VarTemp) => VarSection::Temp,
+            Tok::Kw(Kw::VarAccess | Kw::VarConfig) => {
+                self.pos -= 1;
+                self.skip_block(Kw::EndVar);
+                return Vec::new();
+            }
+            _ => VarSection::Local,
+        };
+        let mut constant = false;
+        while let Tok::Kw(k @ (Kw::Constant | Kw::Retain | Kw::NonRetain)) = self.peek() {
+            constant |= k == Kw::Constant;
+            self.bump();
+        }
+        let mut vars = Vec::new();
+        while self.peek() != Tok::Kw(Kw::EndVar) {
+            if self.peek() == Tok::Eof || is_element_start(self.peek()) {
+                self.error_here("`END_VAR`");
+                return vars;
+            }
+            if self.declaration(section, constant, &mut vars).is_err() {
+                while !matches!(self.peek(), Tok::Semi | Tok::Kw(Kw::EndVar) | Tok::Eof) {
+                    self.bump();
+                }
+                self.eat(Tok::Semi);
+            }
+        }
+        self.bump();
+        vars
+    }
+
+    fn declaration(&mut self, section: VarSection, constant: bool, out: &mut Vec<VarDecl>) -> PResult<()> {
+        let mut names = vec![self.ident("a variable name")?];
+        while self.eat(Tok::Comma) {
+            names.push(self.ident("a variable name")?);
+        }
+        if self.eat(Tok::Kw(Kw::At)) {
+            self.expect(Tok::Located, "a location such as `%IX0.1`")?;
+        }
+        self.expect(Tok::Colon, "`:`")?;
+        let type_name = self.ident("a type name")?;
+        let elementary = crate::types::Type::from_name(&type_name.key()).is_some();
+        let mut init = None;
+        if elementary {
+            if self.eat(Tok::Assign) {
+                init = Some(self.expr()?);
+            }
+        } else {
+            // ARRAY[…] OF …, STRING[n], structured initialisers: declared, never executed.
+            while !matches!(self.peek(), Tok::Semi | Tok::Kw(Kw::EndVar) | Tok::Eof) {
+                self.bump();
+            }
+        }
+        self.expect(Tok::Semi, "`;`")?;
+        for name in names {
+            out.push(VarDecl { name, section, constant, type_name: type_name.clone(), init: init.clone() });
+        }
+        Ok(())
+    }
+
+    fn element(&mut self, chart: &mut Chart) {
+        let (result, end) = match self.peek() {
+            Tok::Kw(Kw::InitialStep | Kw::Step) => (self.step().map(|s| chart.steps.push(s)), Kw::EndStep),
+            Tok::Kw(Kw::Transition) => (self.transition().map(|t| chart.transitions.push(t)), Kw::EndTransition),
+            _ => (self.action().map(|a| chart.actions.push(a)), Kw::EndAction),
+        };
+        if result.is_err() {
+            self.recover(end, is_element_start);
+        }
+    }
+
+    fn step(&mut self) -> PResult<Step> {
+        let kw = self.bump();
+        let initial = kw.tok == Tok::Kw(Kw::InitialStep);
+        let name = self.ident("a step name")?;
+        self.expect(Tok::Colon, "`:`")?;
+        let mut associations = Vec::new();
+        while self.peek() != Tok::Kw(Kw::EndStep) {
+            associations.push(self.association()?);
+            self.expect(Tok::Semi, "`;`")?;
+        }
+        let end = self.bump().span;
+        self.eat(Tok::Semi);
+        Ok(Step { name, initial, associations, pragmas: Vec::new(), span: kw.span.to(end) })
+    }
+
+    fn association(&mut self) -> PResult<Association> {
+        let action = self.ident("an action association such as `Fill(N)`, or `END_STEP`")?;
+        self.expect(Tok::LParen, "`(`")?;
+        let mut qualifier = Qualifier::N;
+        let mut qualifier_span = action.span;
+        if self.peek() == Tok::Ident {
+            let t = self.bump();
+            qualifier = Qualifier::from_word(self.text(t.span)).ok_or_else(|| {
+                let message = format!(
+                    "unknown action qualifier `{}`: expected one of N, R, S, L, D, P, P0, P1, SD, DS, SL",
+                    self.text(t.span)
+                );
+                self.diags.push(Diagnostic::error(t.span, message));
+                Failed
+            })?;
+            qualifier_span = t.span;
+        }
+        let mut duration = None;
+        let mut indicators = Vec::new();
+        let mut first = true;
+        while self.eat(Tok::Comma) {
+            if first && qualifier.is_timed() {
+                duration = Some(match self.peek() {
+                    Tok::Time(ms) => Duration::Literal { ms, span: self.bump().span },
+                    Tok::Ident => Duration::Var(self.ident("a duration")?),
+                    _ => return Err(self.error_here("a duration such as `T#2s` or a TIME variable")),
+                });
+            } else {
+                indicators.push(self.ident("an indicator variable")?);
+            }
+            first = false;
+        }
+        let close = self.expect(Tok::RParen, "`,` or `)`")?;
+        Ok(Association { span: action.span.to(close.span), action, qualifier, qualifier_span, duration, indicators })
+    }
+
+    fn step_list(&mut self) -> PResult<Vec<Ident>> {
+        if !self.eat(Tok::LParen) {
+            return Ok(vec![self.ident("a step name or `(`")?]);
+        }
+        let mut steps = vec![self.ident("a step name")?];
+        while self.eat(Tok::Comma) {
+            steps.push(self.ident("a step name")?);
+        }
+        self.expect(Tok::RParen, "`,` or `)`")?;
+        if steps.len() > BRANCHES_MAX {
+            let span = steps[0].span;
+            self.diags.push(Diagnostic::error(span, format!("more than {BRANCHES_MAX} steps in one list")));
+            return Err(Failed);
+        }
+        Ok(steps)
+    }
+
+    fn transition(&mut self) -> PResult<Transition> {
+        let kw = self.bump();
+        let name = if self.peek() == Tok::Ident { Some(self.ident("a transition name")?) } else { None };
+        let mut priority = None;
+        if self.eat(Tok::LParen) {
+            let word = self.ident("`PRIORITY`")?;
+            if word.key() != "PRIORITY" {
+                self.diags.push(Diagnostic::error(word.span, format!("expected `PRIORITY`, found `{}`", word.name)));
+                return Err(Failed);
+            }
+            self.expect(Tok::Assign, "`:=`")?;
+            let span = self.span();
+            match self.peek() {
+                Tok::Int(n) if (0..=i64::from(u32::MAX)).contains(&n) => {
+                    self.bump();
+                    priority = Some((n as u32, span));
+                }
+                _ => return Err(self.error_here("a non-negative integer priority")),
+            }
+            self.expect(Tok::RParen, "`)`")?;
+        }
+        let from_kw = self.expect(Tok::Kw(Kw::From), "`FROM`")?;
+        let from = self.step_list()?;
+        self.expect(Tok::Kw(Kw::To), "`TO`")?;
+        let to = self.step_list()?;
+        let arc_span = from_kw.span.to(self.prev_span());
+        if self.peek() == Tok::Colon {
+            let span = self.span();
+            self.diags.push(Diagnostic::error(
+                span,
+                "Instruction List transition conditions are not supported: write `:= expression;`",
+            ));
+            return Err(Failed);
+        }
+        self.expect(Tok::Assign, "`:=` and a condition")?;
+        let condition = self.expr()?;
+        self.expect(Tok::Semi, "`;`")?;
+        let end = self.expect(Tok::Kw(Kw::EndTransition), "`END_TRANSITION`")?;
+        self.eat(Tok::Semi);
+        Ok(Transition {
+            name,
+            priority,
+            from,
+            to,
+            condition,
+            pragmas: Vec::new(),
+            span: kw.span.to(end.span),
+            arc_span,
+        })
+    }
+
+    fn action(&mut self) -> PResult<Action> {
+        let kw = self.bump();
+        let name = self.ident("an action name")?;
+        self.expect(Tok::Colon, "`:`")?;
+        let body = self.statements()?;
+        let end = self.expect(Tok::Kw(Kw::EndAction), "`END_ACTION`")?;
+        self.eat(Tok::Semi);
+        Ok(Action { name, body, pragmas: Vec::new(), span: kw.span.to(end.span) })
+    }
+
+    fn statements(&mut self) -> PResult<Vec<Stmt>> {
+        let mut out = Vec::new();
+        loop {
+            match self.peek() {
+                Tok::Semi => {
+                    self.bump();
+                }
+                Tok::Kw(Kw::If) => out.push(self.if_stmt()?),
+                Tok::Ident if self.peek_at(1) == Tok::Assign => {
+                    let target = self.ident("a variable")?;
+                    self.bump();
+                    let value = self.expr()?;
+                    let semi = self.expect(Tok::Semi, "`;`")?;
+                    out.push(Stmt::Assign { span: target.span.to(semi.span), target, value });
+                }
+                Tok::Kw(Kw::EndAction | Kw::Elsif | Kw::Else | Kw::EndIf) | Tok::Eof => return Ok(out),
+                _ => {
+                    return Err(self.error_here("a statement (`variable := expression;` or `IF … END_IF;`)"));
+                }
+            }
+        }
+    }
+
+    fn nest(&mut self) -> PResult<()> {
+        self.depth += 1;
+        if self.depth > NESTING_DEPTH_MAX {
+            let span = self.span();
+            self.diags.push(Diagnostic::error(span, format!("nested more than {NESTING_DEPTH_MAX} levels deep")));
+            return Err(Failed);
+        }
+        Ok(())
+    }
+
+    fn if_stmt(&mut self) -> PResult<Stmt> {
+        self.nest()?;
+        let result = self.if_stmt_inner();
+        self.depth -= 1;
+        result
+    }
+
+    fn if_stmt_inner(&mut self) -> PResult<Stmt> {
+        let start = self.bump().span;
+        let mut branches = Vec::new();
+        let cond = self.expr()?;
+        self.expect(Tok::Kw(Kw::Then), "`THEN`")?;
+        branches.push((cond, self.statements()?));
+        let mut otherwise = Vec::new();
+        loop {
+            match self.peek() {
+                Tok::Kw(Kw::Elsif) => {
+                    self.bump();
+                    let cond = self.expr()?;
+                    self.expect(Tok::Kw(Kw::Then), "`THEN`")?;
+                    branches.push((cond, self.statements()?));
+                }
+                Tok::Kw(Kw::Else) => {
+                    self.bump();
+                    otherwise = self.statements()?;
+                }
+                _ => break,
+            }
+        }
+        let end = self.expect(Tok::Kw(Kw::EndIf), "`END_IF`")?;
+        self.eat(Tok::Semi);
+        Ok(Stmt::If { branches, otherwise, span: start.to(end.span) })
+    }
+
+    pub fn expr(&mut self) -> PResult<Expr> {
+        self.binary(0)
+    }
+
+    fn binary(&mut self, min_level: u8) -> PResult<Expr> {
+        let mut lhs = self.unary()?;
+        loop {
+            let (op, level) = match self.peek() {
+                Tok::Kw(Kw::Or) => (BinOp::Or, 1),
+                Tok::Kw(Kw::Xor) => (BinOp::Xor, 2),
+                Tok::Kw(Kw::And) | Tok::Amp => (BinOp::And, 3),
+                Tok::Eq => (BinOp::Eq, 4),
+                Tok::Ne => (BinOp::Ne, 4),
+                Tok::Lt => (BinOp::Lt, 5),
+                Tok::Le => (BinOp::Le, 5),
+                Tok::Gt => (BinOp::Gt, 5),
+                Tok::Ge => (BinOp::Ge, 5),
+                Tok::Plus => (BinOp::Add, 6),
+                Tok::Minus => (BinOp::Sub, 6),
+                Tok::Star => (BinOp::Mul, 7),
+                Tok::Slash => (BinOp::Div, 7),
+                Tok::Kw(Kw::Mod) => (BinOp::Mod, 7),
+                Tok::StarStar => {
+                    let span = self.span();
+                    self.diags.push(Diagnostic::error(span, "the `**` operator is not supported"));
+                    return Err(Failed);
+                }
+                _ => return Ok(lhs),
+            };
+            if level <= min_level {
+                return Ok(lhs);
+            }
+            self.bump();
+            self.nest()?;
+            let rhs = self.binary(level);
+            self.depth -= 1;
+            let rhs = rhs?;
+            let span = lhs.span.to(rhs.span);
+            lhs = Expr { kind: ExprKind::Binary(op, Box::new(lhs), Box::new(rhs)), span };
+        }
+    }
+
+    fn unary(&mut self) -> PResult<Expr> {
+        let op = match self.peek() {
+            Tok::Minus => UnOp::Neg,
+            Tok::Kw(Kw::Not) => UnOp::Not,
+            _ => return self.primary(),
+        };
+        let start = self.bump().span;
+        self.nest()?;
+        let operand = self.unary();
+        self.depth -= 1;
+        let operand = operand?;
+        // Fold a minus sign into a numeric literal so that `-32768` is one INT literal.
+        let span = start.to(operand.span);
+        let kind = match (op, &operand.kind) {
+            (UnOp::Neg, ExprKind::Int(v)) => ExprKind::Int(v.wrapping_neg()),
+            (UnOp::Neg, ExprKind::Real(v)) => ExprKind::Real(-v),
+            (UnOp::Neg, ExprKind::Time(v)) => ExprKind::Time(-v),
+            _ => ExprKind::Unary(op, Box::new(operand)),
+        };
+        Ok(Expr { kind, span })
+    }
+
+    fn primary(&mut self) -> PResult<Expr> {
+        let span = self.span();
+        let kind = match self.peek() {
+            Tok::Int(v) => ExprKind::Int(v),
+            Tok::Real(v) => ExprKind::Real(v),
+            Tok::Time(v) => ExprKind::Time(v),
+            Tok::Kw(Kw::True) => ExprKind::Bool(true),
+            Tok::Kw(Kw::False) => ExprKind::Bool(false),
+            Tok::LParen => {
+                self.bump();
+                self.nest()?;
+                let inner = self.expr();
+                self.depth -= 1;
+                let inner = inner?;
+                let close = self.expect(Tok::RParen, "`)`")?;
+                return Ok(Expr { kind: inner.kind, span: span.to(close.span) });
+            }
+            Tok::Ident => {
+                let name = self.ident("a name")?;
+                if self.peek() == Tok::LParen {
+                    let message = format!(
+                        "function calls such as `{}(…)` are not supported in conditions and actions",
+                        name.name
+                    );
+                    self.diags.push(Diagnostic::error(name.span, message));
+                    return Err(Failed);
+                }
+                if self.eat(Tok::Dot) {
+                    let field = self.ident("`X`, `T` or `Q` after `.`")?;
+                    let span = name.span.to(field.span);
+                    return Ok(Expr { kind: ExprKind::Field(name, field), span });
+                }
+                return Ok(Expr { span: name.span, kind: ExprKind::Name(name) });
+            }
+            _ => return Err(self.error_here("an expression")),
+        };
+        self.bump();
+        Ok(Expr { kind, span })
+    }
+}
+
+/// Gives each pragma to the element it stands in, or else to the element it follows, or else to its chart;
+/// pragmas outside every chart are dropped, as a standard tool would ignore them.
+fn attach_pragmas(src: &str, charts: &mut [Chart], pragmas: &[RawPragma]) {
+    for raw in pragmas {
+        let text = src[raw.inner.start as usize..raw.inner.end as usize].trim().to_string();
+        let pragma = Pragma { text, span: raw.span };
+        let Some(chart) = charts.iter_mut().find(|c| c.span.start <= raw.span.start && raw.span.end <= c.span.end)
+        else {
+            continue;
+        };
+        let at = raw.span.start;
+        // Elements of each kind are in source order, so the last one starting before the pragma is found by
+        // binary search; the closest of the three kinds is the element the pragma follows or stands in.
+        let step = chart.steps.partition_point(|s| s.span.start <= at).checked_sub(1);
+        let trans = chart.transitions.partition_point(|t| t.span.start <= at).checked_sub(1);
+        let action = chart.actions.partition_point(|a| a.span.start <= at).checked_sub(1);
+        let starts = [
+            step.map(|i| chart.steps[i].span.start),
+            trans.map(|i| chart.transitions[i].span.start),
+            action.map(|i| chart.actions[i].span.start),
+        ];
+        let best = starts.iter().enumerate().filter_map(|(k, s)| s.map(|s| (s, k))).max();
+        match best {
+            Some((_, 0)) => chart.steps[step.unwrap_or_default()].pragmas.push(pragma),
+            Some((_, 1)) => chart.transitions[trans.unwrap_or_default()].pragmas.push(pragma),
+            Some(_) => chart.actions[action.unwrap_or_default()].pragmas.push(pragma),
+            None => chart.pragmas.push(pragma),
+        }
+    }
+}

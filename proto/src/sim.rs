@@ -1,0 +1,176 @@
+//! Virtual-time simulation as `baton sim` runs it: a JSON Lines input script in, trace records out.
+
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+
+use crate::engine::{Engine, EventKind, FaultSource, Input};
+use crate::eval::Fault;
+use crate::lexer::{lex, Tok};
+use crate::program::{Program, VarId};
+use crate::types::{Type, Value};
+
+/// One line of a trace: `{"t_ms": 20, "event": "activate", "name": "Fill"}`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TraceRecord {
+    pub t_ms: u64,
+    pub event: String,
+    pub name: String,
+}
+
+/// One line of an input script: `{"t_ms": 100, "set": {"start": true, "level": 42}}`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct InputLine {
+    t_ms: u64,
+    set: serde_json::Map<String, serde_json::Value>,
+}
+
+/// A resolved input: at `t_ms`, set these variables, in this order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InputRecord {
+    pub t_ms: u64,
+    pub set: Vec<(VarId, Value)>,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("line {line}: {message}")]
+pub struct InputsError {
+    pub line: usize,
+    pub message: String,
+}
+
+/// Parses and resolves an input script against a program; every problem names its line.
+pub fn parse_inputs(text: &str, program: &Program) -> Result<Vec<InputRecord>, InputsError> {
+    let mut out = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let line = i + 1;
+        if raw.trim().is_empty() {
+            continue;
+        }
+        let err = |message: String| InputsError { line, message };
+        let parsed: InputLine = serde_json::from_str(raw).map_err(|e| {
+            err(format!("{e}; expected a record such as {{\"t_ms\": 100, \"set\": {{\"start\": true}}}}"))
+        })?;
+        let mut set = Vec::with_capacity(parsed.set.len());
+        for (name, json) in &parsed.set {
+            let id = program.var_by_name(name).ok_or_else(|| err(format!("unknown variable `{name}`")))?;
+            let var = &program.vars[id.index()];
+            if var.constant {
+                return Err(err(format!("`{}` is a CONSTANT and cannot be set", var.name)));
+            }
+            let value = json_value(&var.ty, json)
+                .ok_or_else(|| err(format!("`{}` is {}, and {json} is not a {} value", var.name, var.ty, var.ty)))?;
+            set.push((id, value));
+        }
+        out.push(InputRecord { t_ms: parsed.t_ms, set });
+    }
+    Ok(out)
+}
+
+fn json_value(ty: &Type, json: &serde_json::Value) -> Option<Value> {
+    match ty {
+        Type::Bool => json.as_bool().map(Value::Bool),
+        Type::Int(k) => json.as_i64().filter(|v| k.contains(*v)).map(Value::Int),
+        Type::Real { .. } => json.as_f64().map(|r| ty.coerce(Value::Real(r))),
+        Type::Time => match json {
+            serde_json::Value::String(s) => match lex(s).tokens[..] {
+                [t, e] if e.tok == Tok::Eof => match t.tok {
+                    Tok::Time(ms) => Some(Value::Time(ms)),
+                    _ => None,
+                },
+                _ => None,
+            },
+            other => other.as_i64().map(Value::Time),
+        },
+        Type::Unsupported(_) => None,
+    }
+}
+
+/// Something the simulation reports: a trace record, or a run-time fault (which `baton sim` prints apart).
+#[derive(Clone, Debug, PartialEq)]
+pub enum SimOutput {
+    Trace(TraceRecord),
+    Fault { t_ms: u64, message: String },
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum SimError {
+    #[error("the cycle time must be at least 1 ms")]
+    ZeroCycle,
+}
+
+/// Runs cycles at t = 0, cycle_ms, 2·cycle_ms, … up to and including `until_ms`. Before each cycle, every input
+/// whose time has come is applied, in file order.
+pub fn simulate(
+    program: Arc<Program>,
+    inputs: &[InputRecord],
+    cycle_ms: u64,
+    until_ms: u64,
+    mut sink: impl FnMut(SimOutput),
+) -> Result<(), SimError> {
+    if cycle_ms == 0 {
+        return Err(SimError::ZeroCycle);
+    }
+    let mut order: Vec<usize> = (0..inputs.len()).collect();
+    order.sort_by_key(|&i| (inputs[i].t_ms, i));
+    let mut next_input = 0;
+    let mut batch = Vec::new();
+    let mut engine = Engine::new(program);
+    drain(&mut engine, &mut sink);
+    let mut now = 0u64;
+    while now <= until_ms {
+        batch.clear();
+        while next_input < order.len() && inputs[order[next_input]].t_ms <= now {
+            batch.push(order[next_input]);
+            next_input += 1;
+        }
+        batch.sort_unstable();
+        for &i in &batch {
+            for &(var, value) in &inputs[i].set {
+                // Values were checked against the program when the script was parsed.
+                if let Err(e) = engine.handle(Input::Set(var, value)) {
+                    sink(SimOutput::Fault { t_ms: now, message: e.to_string() });
+                }
+            }
+        }
+        if let Err(e) = engine.handle_cycle(now) {
+            sink(SimOutput::Fault { t_ms: now, message: e.to_string() });
+        }
+        drain(&mut engine, &mut sink);
+        let Some(next) = now.checked_add(cycle_ms) else { break };
+        now = next;
+    }
+    Ok(())
+}
+
+fn drain(engine: &mut Engine, sink: &mut impl FnMut(SimOutput)) {
+    while let Some(ev) = engine.poll_event() {
+        let program = engine.program();
+        let (event, name) = match ev.kind {
+            EventKind::Activate(s) => ("activate", &program.steps[s.index()].name),
+            EventKind::Deactivate(s) => ("deactivate", &program.steps[s.index()].name),
+            EventKind::Fire(t) => ("fire", &program.transitions[t.index()].name),
+            EventKind::ActionOn(a) => ("action_on", &program.actions[a.index()].name),
+            EventKind::ActionOff(a) => ("action_off", &program.actions[a.index()].name),
+            EventKind::Fault(source, fault) => {
+                let what = match fault {
+                    Fault::DivisionByZero => "division by zero",
+                };
+                let message = match source {
+                    FaultSource::Transition(t) => format!(
+                        "{what} in the condition of transition `{}` (taken as FALSE)",
+                        program.transitions[t.index()].name
+                    ),
+                    FaultSource::Action(a) => format!(
+                        "{what} in action `{}` (the rest of its body was skipped)",
+                        program.actions[a.index()].name
+                    ),
+                };
+                sink(SimOutput::Fault { t_ms: ev.t_ms, message });
+                continue;
+            }
+        };
+        sink(SimOutput::Trace(TraceRecord { t_ms: ev.t_ms, event: event.to_string(), name: name.clone() }));
+    }
+}

@@ -1,0 +1,214 @@
+//! Elementary data types and run-time values of the Structured Text subset Baton executes.
+
+use std::fmt;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum IntKind {
+    Sint,
+    Int,
+    Dint,
+    Lint,
+    Usint,
+    Uint,
+    Udint,
+    Ulint,
+    Byte,
+    Word,
+    Dword,
+    Lword,
+}
+
+impl IntKind {
+    fn bits(self) -> u32 {
+        match self {
+            IntKind::Sint | IntKind::Usint | IntKind::Byte => 8,
+            IntKind::Int | IntKind::Uint | IntKind::Word => 16,
+            IntKind::Dint | IntKind::Udint | IntKind::Dword => 32,
+            IntKind::Lint | IntKind::Ulint | IntKind::Lword => 64,
+        }
+    }
+
+    fn signed(self) -> bool {
+        matches!(self, IntKind::Sint | IntKind::Int | IntKind::Dint | IntKind::Lint)
+    }
+
+    /// Wraps a value to this type's width, the way a PLC's integer arithmetic overflows.
+    pub fn wrap(self, v: i64) -> i64 {
+        let bits = self.bits();
+        if bits == 64 {
+            return v;
+        }
+        let masked = v & ((1i64 << bits) - 1);
+        if self.signed() && masked >= 1i64 << (bits - 1) {
+            masked - (1i64 << bits)
+        } else {
+            masked
+        }
+    }
+
+    pub fn contains(self, v: i64) -> bool {
+        self.wrap(v) == v && (self.signed() || v >= 0)
+    }
+
+    /// Orders integer kinds by width so that mixed arithmetic takes the wider one.
+    fn rank(self) -> (u32, bool) {
+        (self.bits(), !self.signed())
+    }
+
+    pub fn wider(self, other: IntKind) -> IntKind {
+        if other.rank() > self.rank() {
+            other
+        } else {
+            self
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub enum Type {
+    Bool,
+    Int(IntKind),
+    /// REAL (single precision) when false, LREAL when true.
+    Real {
+        long: bool,
+    },
+    Time,
+    /// A declared type Baton does not execute (STRING, arrays, function block instances…): it may be declared,
+    /// not used.
+    Unsupported(String),
+}
+
+impl Type {
+    /// The elementary type with this (upper-case) name.
+    pub fn from_name(upper: &str) -> Option<Type> {
+        Some(match upper {
+            "BOOL" => Type::Bool,
+            "SINT" => Type::Int(IntKind::Sint),
+            "INT" => Type::Int(IntKind::Int),
+            "DINT" => Type::Int(IntKind::Dint),
+            "LINT" => Type::Int(IntKind::Lint),
+            "USINT" => Type::Int(IntKind::Usint),
+            "UINT" => Type::Int(IntKind::Uint),
+            "UDINT" => Type::Int(IntKind::Udint),
+            "ULINT" => Type::Int(IntKind::Ulint),
+            "BYTE" => Type::Int(IntKind::Byte),
+            "WORD" => Type::Int(IntKind::Word),
+            "DWORD" => Type::Int(IntKind::Dword),
+            "LWORD" => Type::Int(IntKind::Lword),
+            "REAL" => Type::Real { long: false },
+            "LREAL" => Type::Real { long: true },
+            "TIME" | "LTIME" => Type::Time,
+            _ => return None,
+        })
+    }
+
+    pub fn default_value(&self) -> Value {
+        match self {
+            Type::Bool | Type::Unsupported(_) => Value::Bool(false),
+            Type::Int(_) => Value::Int(0),
+            Type::Real { .. } => Value::Real(0.0),
+            Type::Time => Value::Time(0),
+        }
+    }
+
+    /// Converts a value of a compatible type into this type's representation (wrapping integers, rounding
+    /// REAL to single precision). The type checker guarantees compatibility.
+    pub fn coerce(&self, v: Value) -> Value {
+        match (self, v) {
+            (Type::Int(k), Value::Int(i)) => Value::Int(k.wrap(i)),
+            (Type::Real { long }, Value::Int(i)) => Value::Real(round_real(i as f64, *long)),
+            (Type::Real { long }, Value::Real(r)) => Value::Real(round_real(r, *long)),
+            (_, v) => v,
+        }
+    }
+}
+
+fn round_real(r: f64, long: bool) -> f64 {
+    if long {
+        r
+    } else {
+        r as f32 as f64
+    }
+}
+
+impl fmt::Display for Type {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let name = match self {
+            Type::Bool => "BOOL",
+            Type::Int(k) => match k {
+                IntKind::Sint => "SINT",
+                IntKind::Int => "INT",
+                IntKind::Dint => "DINT",
+                IntKind::Lint => "LINT",
+                IntKind::Usint => "USINT",
+                IntKind::Uint => "UINT",
+                IntKind::Udint => "UDINT",
+                IntKind::Ulint => "ULINT",
+                IntKind::Byte => "BYTE",
+                IntKind::Word => "WORD",
+                IntKind::Dword => "DWORD",
+                IntKind::Lword => "LWORD",
+            },
+            Type::Real { long: false } => "REAL",
+            Type::Real { long: true } => "LREAL",
+            Type::Time => "TIME",
+            Type::Unsupported(name) => name,
+        };
+        f.write_str(name)
+    }
+}
+
+/// A run-time value. TIME is held in milliseconds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Value {
+    Bool(bool),
+    Int(i64),
+    Real(f64),
+    Time(i64),
+}
+
+impl Value {
+    pub fn as_bool(self) -> bool {
+        matches!(self, Value::Bool(true))
+    }
+
+    pub fn as_i64(self) -> i64 {
+        match self {
+            Value::Bool(b) => b as i64,
+            Value::Int(i) | Value::Time(i) => i,
+            Value::Real(r) => r as i64,
+        }
+    }
+
+    pub fn as_f64(self) -> f64 {
+        match self {
+            Value::Real(r) => r,
+            other => other.as_i64() as f64,
+        }
+    }
+}
+
+impl fmt::Display for Value {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Value::Bool(b) => write!(f, "{}", if *b { "TRUE" } else { "FALSE" }),
+            Value::Int(i) => write!(f, "{i}"),
+            Value::Real(r) => write!(f, "{r}"),
+            Value::Time(ms) => write!(f, "T#{ms}ms"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn integers_wrap_like_a_plc() {
+        assert_eq!(IntKind::Int.wrap(32_768), -32_768);
+        assert_eq!(IntKind::Usint.wrap(256), 0);
+        assert_eq!(IntKind::Uint.wrap(-1), 65_535);
+        assert!(IntKind::Dint.contains(-5));
+        assert!(!IntKind::Uint.contains(-1));
+    }
+}
