@@ -373,7 +373,7 @@ impl<'a> Compiler<'a> {
             let (condition, ty) = self.expr(&t.condition, vars);
             if ty != Ty::Bool && ty != Ty::Err {
                 self.error(t.condition.span, format!("a transition condition must be BOOL, found {}", ty.name()));
-            } else if is_constant(&condition) && eval(&condition, &NoEnv) == Ok(Value::Bool(false)) {
+            } else if ty == Ty::Bool && is_constant(&condition) && eval(&condition, &NoEnv) == Ok(Value::Bool(false)) {
                 let name = t.display_name();
                 self.diags.push(Diagnostic::warning(
                     t.condition.span,

@@ -418,15 +418,18 @@ impl Engine {
                 self.push(EventKind::ActionOff(a));
             }
         }
+        // Boolean actions' variables follow Q before any body runs, so that every body sees this cycle's Qs.
+        for &(a, before, q) in &changes {
+            if let (Some(var), true) = (program.actions[a.index()].bool_var, q || before) {
+                self.vars[var.index()] = Value::Bool(q);
+            }
+        }
         for &(a, before, q) in &changes {
             // A body runs while Q is TRUE, and once more with Q = FALSE in the cycle Q falls.
             if !(q || before) {
                 continue;
             }
             let action = &program.actions[a.index()];
-            if let Some(var) = action.bool_var {
-                self.vars[var.index()] = Value::Bool(q);
-            }
             if let Err(fault) = eval::run(&action.body, self) {
                 self.push(EventKind::Fault(FaultSource::Action(a), fault));
             }

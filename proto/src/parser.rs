@@ -354,14 +354,17 @@ impl Parser<'_> {
         let mut qualifier_span = action.span;
         if self.peek() == Tok::Ident {
             let t = self.bump();
-            qualifier = Qualifier::from_word(self.text(t.span)).ok_or_else(|| {
-                let message = format!(
-                    "unknown action qualifier `{}`: expected one of N, R, S, L, D, P, P0, P1, SD, DS, SL",
-                    self.text(t.span)
-                );
-                self.diags.push(Diagnostic::error(t.span, message));
-                Failed
-            })?;
+            // An unknown qualifier is reported and read as N, so that the rest of the step is still checked.
+            match Qualifier::from_word(self.text(t.span)) {
+                Some(q) => qualifier = q,
+                None => {
+                    let message = format!(
+                        "unknown action qualifier `{}`: expected one of N, R, S, L, D, P, P0, P1, SD, DS, SL",
+                        self.text(t.span)
+                    );
+                    self.diags.push(Diagnostic::error(t.span, message));
+                }
+            }
             qualifier_span = t.span;
         }
         let mut duration = None;
@@ -661,5 +664,48 @@ fn attach_pragmas(src: &str, charts: &mut [Chart], pragmas: &[RawPragma]) {
             Some(_) => chart.actions[action.unwrap_or_default()].pragmas.push(pragma),
             None => chart.pragmas.push(pragma),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pragmas_attach_to_the_element_they_stand_in_or_follow() {
+        let src = "PROGRAM P {chart_note}\nINITIAL_STEP A: {agent := 'r1'} END_STEP\n{after_a}\n\
+                   TRANSITION FROM A TO B := TRUE; {inside_t} END_TRANSITION\nSTEP B: END_STEP\nEND_PROGRAM\n{outside}";
+        let parsed = parse(src);
+        assert!(parsed.diagnostics.is_empty(), "{:?}", parsed.diagnostics);
+        let chart = &parsed.charts[0];
+        let texts = |p: &[Pragma]| p.iter().map(|p| p.text.clone()).collect::<Vec<_>>();
+        assert_eq!(texts(&chart.pragmas), ["chart_note"]);
+        assert_eq!(texts(&chart.steps[0].pragmas), ["agent := 'r1'", "after_a"]);
+        assert_eq!(texts(&chart.transitions[0].pragmas), ["inside_t"]);
+        assert!(chart.steps[1].pragmas.is_empty());
+    }
+
+    #[test]
+    fn bare_elements_form_one_chart_with_top_level_declarations() {
+        let parsed =
+            parse("VAR go : BOOL; END_VAR\nINITIAL_STEP A: END_STEP\nTRANSITION FROM A TO A := go; END_TRANSITION");
+        assert!(parsed.diagnostics.is_empty());
+        assert_eq!(parsed.charts.len(), 1);
+        assert_eq!(parsed.charts[0].kind, PouKind::Bare);
+        assert_eq!(parsed.charts[0].vars.len(), 1);
+    }
+
+    #[test]
+    fn deep_nesting_is_an_error_not_a_stack_overflow() {
+        let src = format!(
+            "INITIAL_STEP A: END_STEP TRANSITION FROM A TO A := {}TRUE{}; END_TRANSITION",
+            "(".repeat(5000),
+            ")".repeat(5000)
+        );
+        let parsed = parse(&src);
+        assert!(parsed.diagnostics.iter().any(|d| d.message.contains("nested more than")));
+        let src =
+            format!("INITIAL_STEP A: END_STEP TRANSITION FROM A TO A := {}TRUE; END_TRANSITION", "NOT ".repeat(5000));
+        assert!(!parse(&src).diagnostics.is_empty());
     }
 }

@@ -1,0 +1,150 @@
+//! Chart generators: structured charts (sequences, selections, simultaneous branches, loops) that are safe by
+//! construction, and the large charts the benchmarks use.
+
+use std::fmt::Write;
+
+/// One structured element, to be laid out as steps and transitions.
+#[derive(Clone, Debug)]
+pub enum Shape {
+    Step,
+    Selection(Vec<Vec<Shape>>),
+    Parallel(Vec<Vec<Shape>>),
+    /// The body, then a choice between jumping back to its start and leaving.
+    Loop(Vec<Shape>),
+}
+
+/// Builds chart text from shapes. Transition conditions read BOOL inputs `c0 … c{inputs-1}`, chosen in turn.
+pub struct ChartBuilder {
+    steps: Vec<String>,
+    transitions: Vec<(Vec<usize>, Vec<usize>)>,
+    inputs: usize,
+}
+
+impl ChartBuilder {
+    pub fn new(inputs: usize) -> ChartBuilder {
+        ChartBuilder { steps: Vec::new(), transitions: Vec::new(), inputs: inputs.max(1) }
+    }
+
+    fn step(&mut self) -> usize {
+        self.steps.push(format!("S{}", self.steps.len()));
+        self.steps.len() - 1
+    }
+
+    fn arc(&mut self, from: Vec<usize>, to: Vec<usize>) {
+        self.transitions.push((from, to));
+    }
+
+    /// Lays out a sequence of shapes after `entry`; returns the last step.
+    pub fn sequence(&mut self, entry: usize, shapes: &[Shape]) -> usize {
+        shapes.iter().fold(entry, |at, shape| self.shape(at, shape))
+    }
+
+    fn shape(&mut self, entry: usize, shape: &Shape) -> usize {
+        match shape {
+            Shape::Step => {
+                let s = self.step();
+                self.arc(vec![entry], vec![s]);
+                s
+            }
+            Shape::Selection(branches) => {
+                let join = self.step();
+                for branch in branches {
+                    let first = self.step();
+                    self.arc(vec![entry], vec![first]);
+                    let last = self.sequence(first, branch);
+                    self.arc(vec![last], vec![join]);
+                }
+                join
+            }
+            Shape::Parallel(branches) => {
+                let firsts: Vec<usize> = branches.iter().map(|_| self.step()).collect();
+                self.arc(vec![entry], firsts.clone());
+                let lasts: Vec<usize> = firsts.iter().zip(branches).map(|(&f, b)| self.sequence(f, b)).collect();
+                let join = self.step();
+                self.arc(lasts, vec![join]);
+                join
+            }
+            Shape::Loop(body) => {
+                let first = self.step();
+                self.arc(vec![entry], vec![first]);
+                let last = self.sequence(first, body);
+                self.arc(vec![last], vec![first]);
+                let exit = self.step();
+                self.arc(vec![last], vec![exit]);
+                exit
+            }
+        }
+    }
+
+    /// A whole chart: initial step `S0`, the shapes, then a jump back to `S0` when `cyclic`.
+    pub fn chart(shapes: &[Shape], inputs: usize, cyclic: bool) -> String {
+        let mut b = ChartBuilder::new(inputs);
+        let init = b.step();
+        let last = b.sequence(init, shapes);
+        if cyclic && last != init {
+            b.arc(vec![last], vec![init]);
+        }
+        b.render()
+    }
+
+    pub fn render(&self) -> String {
+        let mut out = String::with_capacity(self.steps.len() * 80);
+        out.push_str("PROGRAM Generated\nVAR\n");
+        for i in 0..self.inputs {
+            let _ = writeln!(out, "  c{i} : BOOL;");
+        }
+        out.push_str("END_VAR\n");
+        for (i, name) in self.steps.iter().enumerate() {
+            let kw = if i == 0 { "INITIAL_STEP" } else { "STEP" };
+            let _ = writeln!(out, "{kw} {name}: END_STEP");
+        }
+        let list = |ids: &[usize]| match ids {
+            [one] => format!("S{one}"),
+            many => format!("({})", many.iter().map(|i| format!("S{i}")).collect::<Vec<_>>().join(", ")),
+        };
+        for (k, (from, to)) in self.transitions.iter().enumerate() {
+            let _ =
+                writeln!(out, "TRANSITION FROM {} TO {} := c{}; END_TRANSITION", list(from), list(to), k % self.inputs);
+        }
+        out.push_str("END_PROGRAM\n");
+        out
+    }
+}
+
+/// A deterministic structured chart of about `steps` steps: sequences, selections, simultaneous branches and
+/// loops in turn, nested two deep. Used for the parse + check benchmark.
+pub fn large_structured_chart(steps: usize) -> String {
+    let pattern = vec![
+        Shape::Step,
+        Shape::Selection(vec![vec![Shape::Step, Shape::Step], vec![Shape::Step]]),
+        Shape::Parallel(vec![
+            vec![Shape::Step, Shape::Selection(vec![vec![Shape::Step], vec![Shape::Step]])],
+            vec![Shape::Step],
+            vec![Shape::Loop(vec![Shape::Step])],
+        ]),
+        Shape::Loop(vec![Shape::Step, Shape::Step]),
+    ];
+    // The pattern above lays out 26 steps.
+    let repeats = steps.div_ceil(26);
+    let shapes: Vec<Shape> = std::iter::repeat_n(pattern, repeats).flatten().collect();
+    ChartBuilder::chart(&shapes, 8, true)
+}
+
+/// `rings` independent networks (each its own initial step), each a loop of `ring_len` steps whose transitions
+/// read `go`; every step drives action `Work` (N) and a counter action. With `go` TRUE every token moves every
+/// cycle: `rings` active steps and `rings` cleared transitions per cycle, whatever `ring_len` is.
+pub fn rings(rings: usize, ring_len: usize) -> String {
+    let mut out = String::with_capacity(rings * ring_len * 90);
+    out.push_str("PROGRAM Rings\nVAR\n  go : BOOL := TRUE;\n  work : DINT;\nEND_VAR\n");
+    out.push_str("ACTION Work:\n  work := work + 1;\nEND_ACTION\n");
+    for r in 0..rings {
+        for i in 0..ring_len {
+            let kw = if i == 0 { "INITIAL_STEP" } else { "STEP" };
+            let _ = writeln!(out, "{kw} R{r}_{i}: Work(N); END_STEP");
+            let next = (i + 1) % ring_len;
+            let _ = writeln!(out, "TRANSITION FROM R{r}_{i} TO R{r}_{next} := go; END_TRANSITION");
+        }
+    }
+    out.push_str("END_PROGRAM\n");
+    out
+}
