@@ -129,8 +129,9 @@ fn join(program: &Program, sources: &[StepId], label: &[Option<u32>], threads: &
     Some(first.parent)
 }
 
-/// Explores every reachable situation, firing one transition at a time.
-fn exhaustive(program: &Program) -> Vec<Finding> {
+/// Explores every reachable situation, firing one transition at a time. `analyse` uses it only where the
+/// structural pass cannot decide; it is public so that tests can hold the two passes against each other.
+pub fn exhaustive(program: &Program) -> Vec<Finding> {
     let mut findings = Vec::new();
     let mut reached = vec![false; program.steps.len()];
     let mut enabled = vec![false; program.transitions.len()];

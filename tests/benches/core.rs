@@ -1,1 +1,49 @@
-fn main() {}
+//! Benchmarks of the SFC core: parse + check of a 100,000-step chart, and the cost of one engine cycle on a
+//! 1,000-step and a 100,000-step chart with the same 100 active steps. Run with
+//! `cargo bench -p baton-tests --bench core`.
+
+use std::hint::black_box;
+use std::sync::Arc;
+use std::time::Duration;
+
+use baton_proto::check::check_source;
+use baton_proto::engine::Engine;
+use baton_tests::gen::{large_structured_chart, rings};
+use criterion::{criterion_group, criterion_main, Criterion};
+
+fn parse_and_check(c: &mut Criterion) {
+    let src = large_structured_chart(100_000);
+    let report = check_source(&src);
+    let program = report.charts[0].program.as_ref().expect("the generated chart is valid");
+    eprintln!("chart: {} steps, {} transitions, {} bytes", program.steps.len(), program.transitions.len(), src.len());
+    let mut group = c.benchmark_group("check");
+    group.sample_size(10).measurement_time(Duration::from_secs(10));
+    group.bench_function("parse_check_100k_steps", |b| b.iter(|| check_source(black_box(&src))));
+    group.finish();
+}
+
+fn engine_cycle(c: &mut Criterion) {
+    let mut group = c.benchmark_group("cycle");
+    for (label, ring_len) in [("1k_steps_100_active", 10), ("100k_steps_100_active", 1000)] {
+        let report = check_source(&rings(100, ring_len));
+        let program = Arc::new(report.charts[0].program.clone().expect("the ring chart is valid"));
+        let mut engine = Engine::new(program);
+        let mut now = 0u64;
+        group.bench_function(label, |b| {
+            b.iter(|| {
+                now += 10;
+                engine.handle_cycle(now).expect("time moves forward");
+                let mut events = 0;
+                while engine.poll_event().is_some() {
+                    events += 1;
+                }
+                black_box(events)
+            })
+        });
+        assert_eq!(engine.active_steps().len(), 100, "every ring keeps one token");
+    }
+    group.finish();
+}
+
+criterion_group!(benches, parse_and_check, engine_cycle);
+criterion_main!(benches);

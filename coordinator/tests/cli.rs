@@ -1,0 +1,104 @@
+//! The `baton` binary as a user runs it: exit codes, output formats, and bad input.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn baton(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_baton")).args(args).output().expect("baton runs")
+}
+
+fn repo(path: &str) -> String {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join(path).to_string_lossy().into_owned()
+}
+
+fn temp_file(name: &str, text: &str) -> String {
+    let dir = std::env::temp_dir().join(format!("baton-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let path = dir.join(name);
+    std::fs::write(&path, text).expect("temp file");
+    path.to_string_lossy().into_owned()
+}
+
+#[test]
+fn check_exit_codes() {
+    let valid = baton(&["check", &repo("examples/tank.st")]);
+    assert_eq!(valid.status.code(), Some(0), "{}", String::from_utf8_lossy(&valid.stderr));
+    assert!(String::from_utf8_lossy(&valid.stdout).contains("chart `Tank` is valid"));
+
+    let invalid = baton(&["check", &repo("tests/diagnostics/names.st")]);
+    assert_eq!(invalid.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&invalid.stderr);
+    assert!(stderr.contains("names.st:13:25: error: unknown step `Nowhere`"), "{stderr}");
+    assert!(stderr.contains("^^^^^^^"), "offending text is underlined: {stderr}");
+
+    let warned = baton(&["check", &repo("tests/diagnostics/warnings_only.st")]);
+    assert_eq!(warned.status.code(), Some(0), "warnings keep exit 0");
+    assert!(String::from_utf8_lossy(&warned.stderr).contains("warning:"));
+
+    assert_eq!(baton(&["check", "/nonexistent/chart.st"]).status.code(), Some(2));
+    assert_eq!(baton(&["check"]).status.code(), Some(2));
+}
+
+#[test]
+fn sim_prints_json_lines_in_cycle_order() {
+    let out = baton(&[
+        "sim",
+        &repo("examples/tank.st"),
+        "--inputs",
+        &repo("examples/tank.inputs.jsonl"),
+        "--cycle-ms",
+        "10",
+        "--until-ms",
+        "160",
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("each line is JSON"))
+        .collect();
+    assert_eq!(lines[0], serde_json::json!({"t_ms": 0, "event": "activate", "name": "Idle"}));
+    assert!(lines.contains(&serde_json::json!({"t_ms": 50, "event": "fire", "name": "Start"})));
+    let times: Vec<u64> = lines.iter().map(|l| l["t_ms"].as_u64().expect("t_ms")).collect();
+    assert!(times.windows(2).all(|w| w[0] <= w[1]), "events come in time order");
+    assert!(times.iter().all(|&t| t <= 160), "no cycle after --until-ms");
+}
+
+#[test]
+fn sim_rejects_a_malformed_input_file_with_exit_2() {
+    let chart = repo("examples/tank.st");
+    for (name, text, expect) in [
+        ("garbage.jsonl", "{\"t_ms\": 10, \"set\": {\"start\": true}}\nnot json\n", "line 2"),
+        ("unknown.jsonl", "{\"t_ms\": 10, \"set\": {\"stop\": true}}\n", "unknown variable `stop`"),
+        ("type.jsonl", "{\"t_ms\": 10, \"set\": {\"level\": 1.5}}\n", "`level` is INT"),
+        ("negative.jsonl", "{\"t_ms\": -1, \"set\": {}}\n", "line 1"),
+    ] {
+        let inputs = temp_file(name, text);
+        let out = baton(&["sim", &chart, "--inputs", &inputs]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{name}: {stderr}");
+        assert!(stderr.contains(expect), "{name}: {stderr}");
+        assert!(out.stdout.is_empty(), "{name}: nothing runs on bad input");
+    }
+}
+
+#[test]
+fn sim_refuses_an_invalid_chart_with_exit_1() {
+    let out = baton(&["sim", &repo("tests/diagnostics/unsafe_exit_from_parallel.st")]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unsafe chart"));
+    assert!(out.stdout.is_empty());
+}
+
+#[test]
+fn sim_needs_pou_when_a_file_holds_several_charts() {
+    let two = temp_file(
+        "two.st",
+        "PROGRAM A INITIAL_STEP S: END_STEP END_PROGRAM\nPROGRAM B INITIAL_STEP S: END_STEP END_PROGRAM\n",
+    );
+    let out = baton(&["sim", &two]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--pou"));
+    let out = baton(&["sim", &two, "--pou", "b", "--until-ms", "0"]);
+    assert_eq!(out.status.code(), Some(0));
+    assert_eq!(String::from_utf8_lossy(&out.stdout), "{\"t_ms\":0,\"event\":\"activate\",\"name\":\"S\"}\n");
+}

@@ -1,0 +1,126 @@
+//! Property tests: generated charts against the validator and the engine; arbitrary text against the parser.
+
+use std::sync::Arc;
+
+use baton_proto::analysis::{analyse, exhaustive};
+use baton_proto::check::check_source;
+use baton_proto::engine::{Engine, Input};
+use baton_proto::types::Value;
+use baton_tests::gen::{ChartBuilder, Shape};
+use proptest::prelude::*;
+
+fn shape(depth: u32) -> impl Strategy<Value = Shape> {
+    let leaf = Just(Shape::Step);
+    leaf.prop_recursive(depth, 24, 3, |inner| {
+        let seq = prop::collection::vec(inner, 0..3);
+        prop_oneof![
+            2 => Just(Shape::Step),
+            1 => prop::collection::vec(seq.clone(), 2..4).prop_map(Shape::Selection),
+            1 => prop::collection::vec(seq.clone(), 2..4).prop_map(Shape::Parallel),
+            1 => seq.prop_map(Shape::Loop),
+        ]
+    })
+}
+
+const INPUTS: usize = 4;
+
+/// Runs a valid chart for `cycles` cycles, setting the BOOL inputs c0…c3 from `toggles` before each cycle, and
+/// returns how many times a step received a token while holding one.
+fn collisions(src: &str, toggles: &[u8]) -> u64 {
+    let report = check_source(src);
+    let program = Arc::new(report.charts[0].program.clone().expect("valid chart"));
+    let inputs: Vec<_> = (0..INPUTS).map(|i| program.var_by_name(&format!("c{i}")).expect("input")).collect();
+    let mut engine = Engine::new(program);
+    for (cycle, bits) in toggles.iter().enumerate() {
+        for (i, var) in inputs.iter().enumerate() {
+            engine.handle(Input::Set(*var, Value::Bool(bits & (1 << i) != 0))).expect("BOOL input");
+        }
+        engine.handle_cycle(cycle as u64 * 10).expect("time moves forward");
+        while engine.poll_event().is_some() {}
+    }
+    engine.collisions()
+}
+
+proptest! {
+    /// Structured charts are safe by construction: the validator must accept them, and the engine must never
+    /// put two tokens on one step, whatever the inputs do.
+    #[test]
+    fn random_safe_charts_never_put_two_tokens_on_a_step(
+        shapes in prop::collection::vec(shape(3), 1..6),
+        cyclic in any::<bool>(),
+        toggles in prop::collection::vec(any::<u8>(), 1..200),
+    ) {
+        let src = ChartBuilder::chart(&shapes, INPUTS, cyclic);
+        let report = check_source(&src);
+        let errors: Vec<_> = report.diagnostics.iter().filter(|d| d.is_error()).map(|d| d.message.clone()).collect();
+        prop_assert!(errors.is_empty(), "validator rejected a safe chart: {errors:?}\n{src}");
+        prop_assert_eq!(collisions(&src, &toggles), 0);
+    }
+
+    /// On structured charts the linear structural pass must agree with the exhaustive exploration.
+    #[test]
+    fn structural_analysis_agrees_with_exhaustive_exploration(shapes in prop::collection::vec(shape(2), 1..4), cyclic in any::<bool>()) {
+        let src = ChartBuilder::chart(&shapes, INPUTS, cyclic);
+        let report = check_source(&src);
+        let program = report.charts[0].program.as_ref().expect("valid chart");
+        prop_assert_eq!(analyse(program), exhaustive(program));
+    }
+
+    /// Arbitrary nets: whenever the validator accepts one, running it never collides. This holds the
+    /// exhaustive pass (which such nets mostly need) to its word.
+    #[test]
+    fn accepted_arbitrary_nets_are_safe(
+        n_steps in 2usize..7,
+        arcs in prop::collection::vec((prop::collection::vec(0usize..7, 1..3), prop::collection::vec(0usize..7, 1..3)), 0..5),
+        toggles in prop::collection::vec(any::<u8>(), 1..100),
+    ) {
+        let mut src = String::from("VAR c0 : BOOL; c1 : BOOL; c2 : BOOL; c3 : BOOL; END_VAR\nINITIAL_STEP S0: END_STEP\n");
+        // A chain through every step keeps most nets reachable, so that many are accepted and then run.
+        for i in 1..n_steps {
+            src.push_str(&format!("STEP S{i}: END_STEP\nTRANSITION FROM S{} TO S{i} := c{}; END_TRANSITION\n", i - 1, i % INPUTS));
+        }
+        for (k, (from, to)) in arcs.iter().enumerate() {
+            let list = |v: &[usize]| {
+                let mut v: Vec<usize> = v.iter().map(|s| s % n_steps).collect();
+                v.sort();
+                v.dedup();
+                format!("({})", v.iter().map(|s| format!("S{s}")).collect::<Vec<_>>().join(", "))
+            };
+            src.push_str(&format!("TRANSITION FROM {} TO {} := c{}; END_TRANSITION\n", list(from), list(to), k % INPUTS));
+        }
+        let report = check_source(&src);
+        if report.error_count() == 0 {
+            prop_assert_eq!(collisions(&src, &toggles), 0, "accepted but unsafe:\n{}", src);
+        }
+    }
+
+    #[test]
+    fn parser_and_validator_never_panic_on_arbitrary_text(src in ".{0,400}") {
+        let _ = check_source(&src);
+    }
+
+    #[test]
+    fn parser_and_validator_never_panic_on_token_soup(words in prop::collection::vec(prop::sample::select(vec![
+        "PROGRAM", "END_PROGRAM", "FUNCTION_BLOCK", "VAR", "END_VAR", "INITIAL_STEP", "STEP", "END_STEP", "TRANSITION",
+        "END_TRANSITION", "FROM", "TO", "ACTION", "END_ACTION", "IF", "THEN", "ELSIF", "ELSE", "END_IF", "PRIORITY",
+        "a", "b", "S1", "S2", "x", ":", ":=", ";", ",", "(", ")", ".", "X", "T", "Q", "N", "S", "SD", "L", "T#1s",
+        "1", "2.5", "TRUE", "NOT", "AND", "+", "/", "0", "=", "<", "BOOL", "INT", "TIME", "{p}", "(*", "*)", "'s",
+    ]), 0..120)) {
+        let _ = check_source(&words.join(" "));
+    }
+
+    #[test]
+    fn parser_and_validator_never_panic_on_mutated_charts(
+        cut in any::<prop::sample::Index>(),
+        len in 0usize..40,
+        insert in "[ -~]{0,8}",
+    ) {
+        let base = include_str!("../scenarios/st_arithmetic/chart.st");
+        let at = cut.index(base.len());
+        let end = (at + len).min(base.len());
+        if base.is_char_boundary(at) && base.is_char_boundary(end) {
+            let mutated = format!("{}{}{}", &base[..at], insert, &base[end..]);
+            let _ = check_source(&mutated);
+        }
+    }
+}
