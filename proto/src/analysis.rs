@@ -75,19 +75,16 @@ fn structural(program: &Program) -> Option<Vec<Option<u32>>> {
     // How many of each transition's sources have a thread; it is judged when all have.
     let mut labelled_sources: Vec<u32> = vec![0; program.transitions.len()];
     while let Some(s) = queue.pop_front() {
-        for &t in &program.steps[s.index()].outgoing {
-            let info = &program.transitions[t.index()];
+        for &t in program.outgoing(s) {
+            let (sources, targets) = (program.sources(t), program.targets(t));
             labelled_sources[t.index()] += 1;
-            if labelled_sources[t.index()] as usize != info.sources.len() {
+            if labelled_sources[t.index()] as usize != sources.len() {
                 continue;
             }
-            let thread = if let [only] = info.sources[..] {
-                label[only.index()]?
-            } else {
-                join(program, &info.sources, &label, &threads)?
-            };
-            for (branch, &target) in info.targets.iter().enumerate() {
-                let wanted = if info.targets.len() == 1 {
+            let thread =
+                if let [only] = sources[..] { label[only.index()]? } else { join(program, sources, &label, &threads)? };
+            for (branch, &target) in targets.iter().enumerate() {
+                let wanted = if targets.len() == 1 {
                     thread
                 } else {
                     intern(Thread { parent: thread, divergence: t.0, branch: branch as u32 }, &mut threads)
@@ -112,7 +109,7 @@ fn join(program: &Program, sources: &[StepId], label: &[Option<u32>], threads: &
     if first.parent == ROOT {
         return None;
     }
-    let branches = program.transitions[first.divergence as usize].targets.len();
+    let branches = program.targets(TransitionId(first.divergence)).len();
     if sources.len() != branches {
         return None;
     }
@@ -148,18 +145,18 @@ pub fn exhaustive(program: &Program) -> Vec<Finding> {
         candidates.clear();
         for s in &situation {
             reached[s.index()] = true;
-            candidates.extend_from_slice(&program.steps[s.index()].outgoing);
+            candidates.extend_from_slice(program.outgoing(*s));
         }
         candidates.sort();
         candidates.dedup();
         for &t in &candidates {
-            let info = &program.transitions[t.index()];
-            if !info.sources.iter().all(|s| situation.binary_search(s).is_ok()) {
+            let sources = program.sources(t);
+            if !sources.iter().all(|s| situation.binary_search(s).is_ok()) {
                 continue;
             }
             enabled[t.index()] = true;
-            let mut next: Vec<StepId> = situation.iter().copied().filter(|s| !info.sources.contains(s)).collect();
-            for &target in &info.targets {
+            let mut next: Vec<StepId> = situation.iter().copied().filter(|s| !sources.contains(s)).collect();
+            for &target in program.targets(t) {
                 match next.binary_search(&target) {
                     Ok(_) => {
                         unsafe_pairs.insert((t, target));
@@ -178,8 +175,9 @@ pub fn exhaustive(program: &Program) -> Vec<Finding> {
     }
     findings.extend(unsafe_pairs.into_iter().map(|(transition, step)| Finding::Unsafe { transition, step }));
     if complete {
-        for (i, t) in program.transitions.iter().enumerate() {
-            if !enabled[i] && t.sources.len() > 1 && t.sources.iter().all(|s| reached[s.index()]) {
+        for i in 0..program.transitions.len() {
+            let sources = program.sources(TransitionId(i as u32));
+            if !enabled[i] && sources.len() > 1 && sources.iter().all(|s| reached[s.index()]) {
                 findings.push(Finding::DeadConvergence { transition: TransitionId(i as u32) });
             }
         }

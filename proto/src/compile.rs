@@ -136,12 +136,9 @@ impl<'a> Compiler<'a> {
             }
             self.steps.insert(step.name.key(), StepId(steps.len() as u32));
             step_sources.push(step);
-            steps.push(StepInfo {
-                name: step.name.name.clone(),
-                initial: step.initial,
-                outgoing: Vec::new(),
+            steps.push(StepParts {
+                info: StepInfo { name: step.name.name.clone(), initial: step.initial, pragmas: step.pragmas.clone() },
                 associations: Vec::new(),
-                pragmas: step.pragmas.clone(),
             });
         }
         let (mut actions, action_sources) = self.declare_actions();
@@ -152,21 +149,11 @@ impl<'a> Compiler<'a> {
             actions[id].body = self.statements(&action.body, &vars);
         }
         self.warn_unused_actions();
-        let initial_steps: Vec<StepId> =
-            steps.iter().enumerate().filter(|(_, s)| s.initial).map(|(i, _)| StepId(i as u32)).collect();
-        if initial_steps.is_empty() {
+        if !chart.steps.iter().any(|s| s.initial) {
             let message = format!("chart `{}` has no initial step: declare one with `INITIAL_STEP`", chart.name.name);
             self.error(chart.name.span, message);
         }
-        let mut order: Vec<usize> = (0..transitions.len()).collect();
-        order.sort_by_key(|&i| transitions[i].rank);
-        for i in order {
-            let t: &TransitionInfo = &transitions[i];
-            for s in &t.sources {
-                steps[s.index()].outgoing.push(TransitionId(i as u32));
-            }
-        }
-        let program = Program { name: chart.name.name.clone(), vars, steps, transitions, actions, initial_steps };
+        let program = Program::assemble(chart.name.name.clone(), vars, steps, transitions, actions);
         Compiled { program, net_ok }
     }
 
@@ -247,10 +234,10 @@ impl<'a> Compiler<'a> {
         &mut self,
         vars: &[VarInfo],
         sources: &[&Step],
-        steps: &mut [StepInfo],
+        steps: &mut [StepParts],
         actions: &mut Vec<ActionInfo>,
     ) {
-        for (info, step) in steps.iter_mut().zip(sources) {
+        for (parts, step) in steps.iter_mut().zip(sources) {
             let mut assocs = Vec::with_capacity(step.associations.len());
             for a in &step.associations {
                 let Some(action) = self.action_for(a, vars, actions) else { continue };
@@ -267,9 +254,9 @@ impl<'a> Compiler<'a> {
                         None => self.error(ind.span, format!("undeclared indicator variable `{}`", ind.name)),
                     }
                 }
-                assocs.push(Assoc { action, qualifier: a.qualifier, duration, indicators });
+                assocs.push((Assoc { action, qualifier: a.qualifier, duration }, indicators));
             }
-            info.associations = assocs;
+            parts.associations = assocs;
         }
     }
 
@@ -358,7 +345,7 @@ impl<'a> Compiler<'a> {
         ok.then_some(ids)
     }
 
-    fn transitions(&mut self, vars: &[VarInfo], out: &mut Vec<TransitionInfo>) -> bool {
+    fn transitions(&mut self, vars: &[VarInfo], out: &mut Vec<TransitionParts>) -> bool {
         let chart = self.chart;
         let mut names: HashMap<String, Span> = HashMap::new();
         let mut net_ok = true;
@@ -384,14 +371,8 @@ impl<'a> Compiler<'a> {
                 net_ok = false;
                 continue;
             };
-            out.push(TransitionInfo {
-                name: t.display_name(),
-                sources,
-                targets,
-                condition,
-                rank: 0,
-                pragmas: t.pragmas.clone(),
-            });
+            let info = TransitionInfo { name: t.display_name(), condition, pragmas: t.pragmas.clone() };
+            out.push(TransitionParts { info, sources, targets, rank: 0 });
         }
         // Clearing order: explicit priorities first, lower number first, then declaration order.
         if net_ok {

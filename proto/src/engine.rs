@@ -115,7 +115,8 @@ pub struct Engine {
     events: VecDeque<Event>,
     collisions: u64,
     // Scratch, reused across cycles.
-    candidates: Vec<TransitionId>,
+    /// Transitions leaving active steps, with their ranks.
+    candidates: Vec<(u32, TransitionId)>,
     consumed_stamp: Vec<u64>,
     fired: Vec<TransitionId>,
     deactivated: Vec<StepId>,
@@ -235,24 +236,24 @@ impl Engine {
     fn clear_transitions(&mut self) {
         let program = Arc::clone(&self.program);
         self.candidates.clear();
-        for s in &self.active {
-            self.candidates.extend_from_slice(&program.steps[s.index()].outgoing);
+        for &s in &self.active {
+            self.candidates.extend(program.outgoing(s).iter().map(|&t| (program.rank(t), t)));
         }
-        self.candidates.sort_unstable_by_key(|t| program.transitions[t.index()].rank);
+        self.candidates.sort_unstable();
         self.candidates.dedup();
         self.fired.clear();
         let stamp = self.cycle;
         let candidates = std::mem::take(&mut self.candidates);
-        for &t in &candidates {
-            let info = &program.transitions[t.index()];
+        for &(_, t) in &candidates {
+            let sources = program.sources(t);
             let enabled =
-                info.sources.iter().all(|s| self.steps[s.index()].active && self.consumed_stamp[s.index()] != stamp);
+                sources.iter().all(|s| self.steps[s.index()].active && self.consumed_stamp[s.index()] != stamp);
             if !enabled {
                 continue;
             }
-            match eval::eval(&info.condition, self) {
+            match eval::eval(&program.transitions[t.index()].condition, self) {
                 Ok(v) if v.as_bool() => {
-                    for s in &info.sources {
+                    for s in sources {
                         self.consumed_stamp[s.index()] = stamp;
                     }
                     self.fired.push(t);
@@ -273,12 +274,12 @@ impl Engine {
         }
         self.deactivated.clear();
         for &t in &fired {
-            for &s in &program.transitions[t.index()].sources {
+            for &s in program.sources(t) {
                 self.deactivate(s);
             }
         }
         for &t in &fired {
-            for &s in &program.transitions[t.index()].targets {
+            for &s in program.targets(t) {
                 if self.steps[s.index()].active {
                     self.collisions += 1;
                 } else {
@@ -343,7 +344,7 @@ impl Engine {
             let state = self.steps[s.index()];
             let elapsed = (self.now_ms - state.activated_ms) as i64;
             let just_activated = state.activated_cycle == self.cycle;
-            for assoc in &program.steps[s.index()].associations {
+            for assoc in program.associations(s) {
                 let dur = self.duration_ms(assoc.duration);
                 let d = self.demand(assoc.action);
                 match assoc.qualifier {
@@ -362,7 +363,7 @@ impl Engine {
         }
         for i in 0..self.deactivated.len() {
             let s = self.deactivated[i];
-            for assoc in &program.steps[s.index()].associations {
+            for assoc in program.associations(s) {
                 let d = self.demand(assoc.action);
                 if assoc.qualifier == Qualifier::P0 {
                     d.direct = true;

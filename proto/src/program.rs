@@ -22,6 +22,9 @@ id!(TransitionId);
 id!(ActionId);
 id!(VarId);
 
+/// A chart ready to run. What the engine reads every cycle (outgoing transitions, associations, arcs, ranks) is
+/// kept flat, in id order, apart from what it rarely reads (names, pragmas): a cycle then touches a few
+/// neighbouring cache lines per active step however large the chart is.
 #[derive(Clone, Debug)]
 pub struct Program {
     pub name: String,
@@ -30,6 +33,32 @@ pub struct Program {
     pub transitions: Vec<TransitionInfo>,
     pub actions: Vec<ActionInfo>,
     pub initial_steps: Vec<StepId>,
+    /// Step s leaves through `outgoing[outgoing_at[s]..outgoing_at[s + 1]]`, in rank order.
+    outgoing_at: Vec<u32>,
+    outgoing: Vec<TransitionId>,
+    /// Step s's associations are `assocs[assoc_at[s]..assoc_at[s + 1]]`; `indicators` runs beside `assocs`.
+    assoc_at: Vec<u32>,
+    assocs: Vec<Assoc>,
+    indicators: Vec<Vec<VarId>>,
+    /// Transition t's sources are `arcs[arcs_at[2t]..arcs_at[2t + 1]]`, its targets up to `arcs_at[2t + 2]`.
+    arcs_at: Vec<u32>,
+    arcs: Vec<StepId>,
+    /// Position in the clearing order: explicit priorities first (lower first), then declaration order.
+    ranks: Vec<u32>,
+}
+
+/// A step as `compile` hands it to `Program::assemble`.
+pub struct StepParts {
+    pub info: StepInfo,
+    pub associations: Vec<(Assoc, Vec<VarId>)>,
+}
+
+/// A transition as `compile` hands it to `Program::assemble`.
+pub struct TransitionParts {
+    pub info: TransitionInfo,
+    pub sources: Vec<StepId>,
+    pub targets: Vec<StepId>,
+    pub rank: u32,
 }
 
 #[derive(Clone, Debug)]
@@ -46,18 +75,14 @@ pub struct VarInfo {
 pub struct StepInfo {
     pub name: String,
     pub initial: bool,
-    /// Transitions leaving this step, in rank order.
-    pub outgoing: Vec<TransitionId>,
-    pub associations: Vec<Assoc>,
     pub pragmas: Vec<Pragma>,
 }
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Copy, Debug)]
 pub struct Assoc {
     pub action: ActionId,
     pub qualifier: Qualifier,
     pub duration: Option<DurationSrc>,
-    pub indicators: Vec<VarId>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -70,11 +95,7 @@ pub enum DurationSrc {
 pub struct TransitionInfo {
     /// Its name, or `FROM->TO`.
     pub name: String,
-    pub sources: Vec<StepId>,
-    pub targets: Vec<StepId>,
     pub condition: CExpr,
-    /// Position in the clearing order: explicit priorities first (lower first), then declaration order.
-    pub rank: u32,
     pub pragmas: Vec<Pragma>,
 }
 
@@ -134,7 +155,102 @@ pub enum CStmt {
     If { branches: Vec<(CExpr, Vec<CStmt>)>, otherwise: Vec<CStmt> },
 }
 
+fn range(at: &[u32], i: usize) -> std::ops::Range<usize> {
+    at[i] as usize..at[i + 1] as usize
+}
+
 impl Program {
+    pub fn assemble(
+        name: String,
+        vars: Vec<VarInfo>,
+        steps: Vec<StepParts>,
+        transitions: Vec<TransitionParts>,
+        actions: Vec<ActionInfo>,
+    ) -> Program {
+        let initial_steps =
+            steps.iter().enumerate().filter(|(_, s)| s.info.initial).map(|(i, _)| StepId(i as u32)).collect();
+        let mut leaving: Vec<Vec<TransitionId>> = vec![Vec::new(); steps.len()];
+        let mut by_rank: Vec<usize> = (0..transitions.len()).collect();
+        by_rank.sort_by_key(|&i| transitions[i].rank);
+        for i in by_rank {
+            for s in &transitions[i].sources {
+                leaving[s.index()].push(TransitionId(i as u32));
+            }
+        }
+        let mut outgoing_at = Vec::with_capacity(steps.len() + 1);
+        let mut outgoing = Vec::with_capacity(transitions.len());
+        for list in leaving {
+            outgoing_at.push(outgoing.len() as u32);
+            outgoing.extend(list);
+        }
+        outgoing_at.push(outgoing.len() as u32);
+        let (mut assoc_at, mut assocs, mut indicators) = (Vec::with_capacity(steps.len() + 1), Vec::new(), Vec::new());
+        let mut infos = Vec::with_capacity(steps.len());
+        for step in steps {
+            assoc_at.push(assocs.len() as u32);
+            for (assoc, inds) in step.associations {
+                assocs.push(assoc);
+                indicators.push(inds);
+            }
+            infos.push(step.info);
+        }
+        assoc_at.push(assocs.len() as u32);
+        let (mut arcs_at, mut arcs, mut ranks) =
+            (Vec::with_capacity(2 * transitions.len() + 1), Vec::new(), Vec::new());
+        let mut tinfos = Vec::with_capacity(transitions.len());
+        for t in transitions {
+            arcs_at.push(arcs.len() as u32);
+            arcs.extend(t.sources);
+            arcs_at.push(arcs.len() as u32);
+            arcs.extend(t.targets);
+            ranks.push(t.rank);
+            tinfos.push(t.info);
+        }
+        arcs_at.push(arcs.len() as u32);
+        Program {
+            name,
+            vars,
+            steps: infos,
+            transitions: tinfos,
+            actions,
+            initial_steps,
+            outgoing_at,
+            outgoing,
+            assoc_at,
+            assocs,
+            indicators,
+            arcs_at,
+            arcs,
+            ranks,
+        }
+    }
+
+    /// Transitions leaving a step, in rank order.
+    pub fn outgoing(&self, s: StepId) -> &[TransitionId] {
+        &self.outgoing[range(&self.outgoing_at, s.index())]
+    }
+
+    pub fn associations(&self, s: StepId) -> &[Assoc] {
+        &self.assocs[range(&self.assoc_at, s.index())]
+    }
+
+    /// The indicator variables of each of a step's associations, in the same order as `associations`.
+    pub fn indicators(&self, s: StepId) -> &[Vec<VarId>] {
+        &self.indicators[range(&self.assoc_at, s.index())]
+    }
+
+    pub fn sources(&self, t: TransitionId) -> &[StepId] {
+        &self.arcs[range(&self.arcs_at, 2 * t.index())]
+    }
+
+    pub fn targets(&self, t: TransitionId) -> &[StepId] {
+        &self.arcs[range(&self.arcs_at, 2 * t.index() + 1)]
+    }
+
+    pub fn rank(&self, t: TransitionId) -> u32 {
+        self.ranks[t.index()]
+    }
+
     pub fn step_by_name(&self, name: &str) -> Option<StepId> {
         self.steps.iter().position(|s| s.name.eq_ignore_ascii_case(name)).map(|i| StepId(i as u32))
     }

@@ -124,8 +124,8 @@ pub fn large_structured_chart(steps: usize) -> String {
         ]),
         Shape::Loop(vec![Shape::Step, Shape::Step]),
     ];
-    // The pattern above lays out 26 steps.
-    let repeats = steps.div_ceil(26);
+    // The pattern above lays out 25 steps.
+    let repeats = steps.div_ceil(25);
     let shapes: Vec<Shape> = std::iter::repeat_n(pattern, repeats).flatten().collect();
     ChartBuilder::chart(&shapes, 8, true)
 }
