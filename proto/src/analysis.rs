@@ -175,9 +175,9 @@ pub fn exhaustive(program: &Program) -> Vec<Finding> {
     }
     findings.extend(unsafe_pairs.into_iter().map(|(transition, step)| Finding::Unsafe { transition, step }));
     if complete {
-        for i in 0..program.transitions.len() {
+        for (i, &was_enabled) in enabled.iter().enumerate() {
             let sources = program.sources(TransitionId(i as u32));
-            if !enabled[i] && sources.len() > 1 && sources.iter().all(|s| reached[s.index()]) {
+            if !was_enabled && sources.len() > 1 && sources.iter().all(|s| reached[s.index()]) {
                 findings.push(Finding::DeadConvergence { transition: TransitionId(i as u32) });
             }
         }
