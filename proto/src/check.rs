@@ -3,7 +3,7 @@
 use crate::analysis::{analyse, Finding};
 use crate::compile::compile;
 use crate::diag::{Diagnostic, Span};
-use crate::limits::{DIAGNOSTICS_MAX, SOURCE_BYTES_MAX};
+use crate::limits::{CHART_ELEMENTS_MAX, DIAGNOSTICS_MAX, SOURCE_BYTES_MAX};
 use crate::model::Chart;
 use crate::parser::parse;
 use crate::program::Program;
@@ -40,6 +40,14 @@ pub fn check_source(src: &str) -> Report {
     for chart in parsed.charts {
         let inside = |d: &Diagnostic| chart.span.start <= d.span.start && d.span.end <= chart.span.end;
         let parse_errors = diagnostics.iter().any(|d| d.is_error() && inside(d));
+        let largest = chart.steps.len().max(chart.transitions.len()).max(chart.actions.len());
+        if largest > CHART_ELEMENTS_MAX {
+            let message =
+                format!("chart `{}` has more than {CHART_ELEMENTS_MAX} steps, transitions or actions", chart.name.name);
+            diagnostics.push(Diagnostic::error(chart.name.span, message));
+            charts.push(CheckedChart { program: None, chart });
+            continue;
+        }
         let mut own = Vec::new();
         let compiled = compile(&chart, &mut own);
         if compiled.net_ok && !compiled.program.initial_steps.is_empty() {
