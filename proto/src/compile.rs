@@ -408,9 +408,7 @@ impl<'a> Compiler<'a> {
                         self.error(target.span, format!("`{}` is a CONSTANT and cannot be assigned", var.name));
                         continue;
                     }
-                    if let Type::Unsupported(name) = &var.ty {
-                        let message = format!("variable `{}` has type {name}, which Baton does not execute", var.name);
-                        self.error(target.span, message);
+                    if self.reject_unsupported(target.span, var) {
                         continue;
                     }
                     if !assignable(Ty::of(&var.ty), vty) {
@@ -494,12 +492,17 @@ impl<'a> Compiler<'a> {
         }
     }
 
+    /// Reports a use of a variable whose type Baton does not execute; true when it did.
+    fn reject_unsupported(&mut self, span: Span, var: &VarInfo) -> bool {
+        let Type::Unsupported(ty) = &var.ty else { return false };
+        self.error(span, format!("variable `{}` has type {ty}, which Baton does not execute", var.name));
+        true
+    }
+
     fn name(&mut self, name: &Ident, vars: &[VarInfo]) -> (CExpr, Ty) {
         if let Some(&id) = self.vars.get(&name.key()) {
             let var = &vars[id.index()];
-            if let Type::Unsupported(ty) = &var.ty {
-                let message = format!("variable `{}` has type {ty}, which Baton does not execute", var.name);
-                self.error(name.span, message);
+            if self.reject_unsupported(name.span, var) {
                 return (FALSE, Ty::Err);
             }
             return (CExpr::Var(id), Ty::of(&var.ty));

@@ -209,17 +209,9 @@ impl Engine {
         self.events.pop_front()
     }
 
-    pub fn is_active(&self, step: StepId) -> bool {
-        self.steps[step.index()].active
-    }
-
     /// The active steps, in no particular order.
     pub fn active_steps(&self) -> &[StepId] {
         &self.active
-    }
-
-    pub fn value(&self, var: VarId) -> Value {
-        self.vars[var.index()]
     }
 
     /// How many times a step received a token while it held one. A validated chart never does: a non-zero

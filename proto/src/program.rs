@@ -251,10 +251,6 @@ impl Program {
         self.ranks[t.index()]
     }
 
-    pub fn step_by_name(&self, name: &str) -> Option<StepId> {
-        self.steps.iter().position(|s| s.name.eq_ignore_ascii_case(name)).map(|i| StepId(i as u32))
-    }
-
     pub fn var_by_name(&self, name: &str) -> Option<VarId> {
         self.vars.iter().position(|v| v.name.eq_ignore_ascii_case(name)).map(|i| VarId(i as u32))
     }
