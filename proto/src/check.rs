@@ -3,6 +3,7 @@
 use crate::analysis::{analyse, Finding};
 use crate::compile::compile;
 use crate::diag::{Diagnostic, Span};
+use crate::layout::{layout, Layout};
 use crate::limits::{CHART_ELEMENTS_MAX, DIAGNOSTICS_MAX, SOURCE_BYTES_MAX};
 use crate::model::Chart;
 use crate::parser::parse;
@@ -12,6 +13,8 @@ pub struct CheckedChart {
     pub chart: Chart,
     /// Present when the chart has no errors.
     pub program: Option<Program>,
+    /// Where each part runs in a distributed run; present with `program`.
+    pub layout: Option<Layout>,
 }
 
 pub struct Report {
@@ -45,7 +48,7 @@ pub fn check_source(src: &str) -> Report {
             let message =
                 format!("chart `{}` has more than {CHART_ELEMENTS_MAX} steps, transitions or actions", chart.name.name);
             diagnostics.push(Diagnostic::error(chart.name.span, message));
-            charts.push(CheckedChart { program: None, chart });
+            charts.push(CheckedChart { program: None, layout: None, chart });
             continue;
         }
         let mut own = Vec::new();
@@ -55,9 +58,15 @@ pub fn check_source(src: &str) -> Report {
                 own.push(describe(&chart, &compiled.program, finding));
             }
         }
-        let ok = !parse_errors && !own.iter().any(Diagnostic::is_error);
+        let mut ok = !parse_errors && !own.iter().any(Diagnostic::is_error);
+        let mut placed = None;
+        if ok {
+            let laid_out = layout(&chart, &compiled.program, &mut own);
+            ok = !own.iter().any(Diagnostic::is_error);
+            placed = ok.then_some(laid_out);
+        }
         diagnostics.extend(own);
-        charts.push(CheckedChart { program: ok.then_some(compiled.program), chart });
+        charts.push(CheckedChart { program: ok.then_some(compiled.program), layout: placed, chart });
     }
     diagnostics.sort_by_key(|d| d.span.start);
     if diagnostics.len() > DIAGNOSTICS_MAX {

@@ -225,7 +225,12 @@ impl<'a> Compiler<'a> {
             }
             self.actions.insert(action.name.key(), ActionId(actions.len() as u32));
             sources.push(action);
-            actions.push(ActionInfo { name: action.name.name.clone(), body: Vec::new(), bool_var: None });
+            actions.push(ActionInfo {
+                name: action.name.name.clone(),
+                body: Vec::new(),
+                bool_var: None,
+                pragmas: action.pragmas.clone(),
+            });
         }
         (actions, sources)
     }
@@ -269,7 +274,12 @@ impl<'a> Compiler<'a> {
             Some(&v) if vars[v.index()].ty == Type::Bool => {
                 let id = ActionId(actions.len() as u32);
                 self.actions.insert(a.action.key(), id);
-                actions.push(ActionInfo { name: vars[v.index()].name.clone(), body: Vec::new(), bool_var: Some(v) });
+                actions.push(ActionInfo {
+                    name: vars[v.index()].name.clone(),
+                    body: Vec::new(),
+                    bool_var: Some(v),
+                    pragmas: Vec::new(),
+                });
                 Some(id)
             }
             Some(&v) => {

@@ -47,6 +47,47 @@ pub enum Input {
     Set(VarId, Value),
 }
 
+/// What a distributed runtime tells an engine that another engine did: a token arrived (the step becomes active
+/// here), or a transition that this engine does not judge cleared elsewhere (this engine mirrors it).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RemoteInput {
+    Activate(StepId),
+    Fire(TransitionId),
+}
+
+/// Whether an engine judges a transition, and whether it activates the transition's targets when it clears.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TransitionScope {
+    /// Judged here; its targets become active here.
+    Local,
+    /// Judged here; its sources are deactivated here and its targets become active in another engine.
+    Exit,
+    /// Judged by another engine, which reports it as `RemoteInput::Fire`.
+    Remote,
+}
+
+/// The part of a chart one engine runs. A chart that runs on one machine has `Scope::whole`; in a distributed
+/// run the coordinator and each agent run complementary scopes of the same program.
+#[derive(Clone, Debug)]
+pub struct Scope {
+    /// Per transition.
+    pub transitions: Vec<TransitionScope>,
+    /// Per step: whether this engine runs the step's actions.
+    pub runs_actions: Vec<bool>,
+    /// Whether the initial steps start active here.
+    pub initial: bool,
+}
+
+impl Scope {
+    pub fn whole(program: &Program) -> Scope {
+        Scope {
+            transitions: vec![TransitionScope::Local; program.transitions.len()],
+            runs_actions: vec![true; program.steps.len()],
+            initial: true,
+        }
+    }
+}
+
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum InputError {
     #[error("no variable with id {0}")]
@@ -57,6 +98,16 @@ pub enum InputError {
     Type { name: String, expected: Type, value: Value },
     #[error("time went backwards: a cycle at {now_ms} ms after one at {last_ms} ms")]
     TimeWentBack { last_ms: u64, now_ms: u64 },
+    #[error("no step with id {0}")]
+    UnknownStep(u32),
+    #[error("no transition with id {0}")]
+    UnknownTransition(u32),
+    #[error("step `{0}` is already active")]
+    AlreadyActive(String),
+    #[error("transition `{0}` is judged by this engine, not reported by another")]
+    NotRemote(String),
+    #[error("transition `{0}` cannot have cleared: not all of its source steps are active")]
+    NotEnabled(String),
 }
 
 const NEVER: u64 = u64::MAX;
@@ -68,6 +119,9 @@ struct StepState {
     /// `S.T` as it was at the last deactivation.
     t_last_ms: i64,
     activated_cycle: u64,
+    /// The cycle before which a remote input activated the step: its actions run first in that cycle, and its
+    /// transitions are judged from the next one, as if it had been activated by a cycle of this engine.
+    remote_cycle: u64,
     /// Index into `Engine::active` while active.
     slot: u32,
 }
@@ -102,6 +156,9 @@ struct Demand {
 
 pub struct Engine {
     program: Arc<Program>,
+    scope: Scope,
+    /// Whether the last cycle or remote input changed the situation.
+    changed: bool,
     now_ms: u64,
     /// Index of the next cycle.
     cycle: u64,
@@ -128,6 +185,15 @@ pub struct Engine {
 impl Engine {
     /// The initial situation: every initial step active since t = 0, reported as `Activate` events at t = 0.
     pub fn new(program: Arc<Program>) -> Engine {
+        let scope = Scope::whole(&program);
+        Engine::with_scope(program, scope)
+    }
+
+    /// An engine that runs only `scope` of the program; with `scope.initial` FALSE it starts with no active
+    /// step and waits for tokens (`RemoteInput::Activate`).
+    pub fn with_scope(program: Arc<Program>, scope: Scope) -> Engine {
+        assert_eq!(scope.transitions.len(), program.transitions.len(), "scope built for another program");
+        assert_eq!(scope.runs_actions.len(), program.steps.len(), "scope built for another program");
         let n_steps = program.steps.len();
         let n_actions = program.actions.len();
         let mut engine = Engine {
@@ -138,6 +204,7 @@ impl Engine {
                     activated_ms: 0,
                     t_last_ms: 0,
                     activated_cycle: NEVER,
+                    remote_cycle: NEVER,
                     slot: u32::MAX
                 };
                 n_steps
@@ -157,9 +224,11 @@ impl Engine {
             now_ms: 0,
             cycle: 0,
             started: false,
+            changed: false,
+            scope,
             program,
         };
-        let initial = engine.program.initial_steps.clone();
+        let initial = if engine.scope.initial { engine.program.initial_steps.clone() } else { Vec::new() };
         for s in initial {
             engine.activate(s);
         }
@@ -193,16 +262,85 @@ impl Engine {
 
     /// Runs one scan cycle at `now_ms`.
     pub fn handle_cycle(&mut self, now_ms: u64) -> Result<(), InputError> {
+        self.advance(now_ms)?;
+        self.changed = false;
+        self.clear_transitions();
+        self.evolve();
+        self.control_actions();
+        self.deactivated.clear();
+        self.cycle += 1;
+        Ok(())
+    }
+
+    /// Applies what another engine did, at `now_ms`, at once. The actions of the steps it activates or
+    /// deactivates are judged in the next cycle, which sees them as activated or deactivated in that cycle.
+    pub fn handle_remote(&mut self, now_ms: u64, input: RemoteInput) -> Result<(), InputError> {
+        let program = Arc::clone(&self.program);
+        match input {
+            RemoteInput::Activate(s) => {
+                let state = self.steps.get(s.index()).ok_or(InputError::UnknownStep(s.0))?;
+                if state.active {
+                    return Err(InputError::AlreadyActive(program.steps[s.index()].name.clone()));
+                }
+                self.advance(now_ms)?;
+                self.activate(s);
+                self.steps[s.index()].remote_cycle = self.cycle;
+            }
+            RemoteInput::Fire(t) => {
+                let scope = *self.scope.transitions.get(t.index()).ok_or(InputError::UnknownTransition(t.0))?;
+                let name = || program.transitions[t.index()].name.clone();
+                if scope != TransitionScope::Remote {
+                    return Err(InputError::NotRemote(name()));
+                }
+                if !program.sources(t).iter().all(|s| self.steps[s.index()].active) {
+                    return Err(InputError::NotEnabled(name()));
+                }
+                self.advance(now_ms)?;
+                self.push(EventKind::Fire(t));
+                for &s in program.sources(t) {
+                    self.deactivate(s);
+                }
+                self.activate_targets(t);
+                for &s in program.targets(t) {
+                    self.steps[s.index()].remote_cycle = self.cycle;
+                }
+            }
+        }
+        self.changed = true;
+        Ok(())
+    }
+
+    fn advance(&mut self, now_ms: u64) -> Result<(), InputError> {
         if self.started && now_ms < self.now_ms {
             return Err(InputError::TimeWentBack { last_ms: self.now_ms, now_ms });
         }
         self.started = true;
         self.now_ms = now_ms;
-        self.clear_transitions();
-        self.evolve();
-        self.control_actions();
-        self.cycle += 1;
         Ok(())
+    }
+
+    /// Whether the last cycle, or a remote input since, activated or deactivated a step: if so, another cycle
+    /// right away may clear more transitions.
+    pub fn changed(&self) -> bool {
+        self.changed
+    }
+
+    /// The time of the last cycle or remote input.
+    pub fn now_ms(&self) -> u64 {
+        self.now_ms
+    }
+
+    pub fn is_active(&self, s: StepId) -> bool {
+        self.steps[s.index()].active
+    }
+
+    pub fn value(&self, v: VarId) -> Value {
+        self.vars[v.index()]
+    }
+
+    /// Whether no active step has a transition left: the chart can never evolve again.
+    pub fn is_terminal(&self) -> bool {
+        self.active.iter().all(|&s| self.program.outgoing(s).is_empty())
     }
 
     pub fn poll_event(&mut self) -> Option<Event> {
@@ -228,9 +366,17 @@ impl Engine {
     fn clear_transitions(&mut self) {
         let program = Arc::clone(&self.program);
         self.candidates.clear();
+        let mut deferred = false;
         for &s in &self.active {
-            self.candidates.extend(program.outgoing(s).iter().map(|&t| (program.rank(t), t)));
+            if self.steps[s.index()].remote_cycle == self.cycle {
+                deferred = true;
+                continue;
+            }
+            let judged_here = |t: &&TransitionId| self.scope.transitions[t.index()] != TransitionScope::Remote;
+            self.candidates.extend(program.outgoing(s).iter().filter(judged_here).map(|&t| (program.rank(t), t)));
         }
+        // A step activated remotely is judged in the next cycle, which must then run.
+        self.changed |= deferred;
         self.candidates.sort_unstable();
         self.candidates.dedup();
         self.fired.clear();
@@ -264,22 +410,29 @@ impl Engine {
         for &t in &fired {
             self.push(EventKind::Fire(t));
         }
-        self.deactivated.clear();
         for &t in &fired {
             for &s in program.sources(t) {
                 self.deactivate(s);
             }
         }
         for &t in &fired {
-            for &s in program.targets(t) {
-                if self.steps[s.index()].active {
-                    self.collisions += 1;
-                } else {
-                    self.activate(s);
-                }
+            if self.scope.transitions[t.index()] == TransitionScope::Local {
+                self.activate_targets(t);
             }
         }
+        self.changed |= !fired.is_empty();
         self.fired = fired;
+    }
+
+    fn activate_targets(&mut self, t: TransitionId) {
+        let program = Arc::clone(&self.program);
+        for &s in program.targets(t) {
+            if self.steps[s.index()].active {
+                self.collisions += 1;
+            } else {
+                self.activate(s);
+            }
+        }
     }
 
     fn activate(&mut self, s: StepId) {
@@ -333,6 +486,9 @@ impl Engine {
         self.judged.clear();
         for i in 0..self.active.len() {
             let s = self.active[i];
+            if !self.scope.runs_actions[s.index()] {
+                continue;
+            }
             let state = self.steps[s.index()];
             let elapsed = (self.now_ms - state.activated_ms) as i64;
             let just_activated = state.activated_cycle == self.cycle;
@@ -355,6 +511,9 @@ impl Engine {
         }
         for i in 0..self.deactivated.len() {
             let s = self.deactivated[i];
+            if !self.scope.runs_actions[s.index()] {
+                continue;
+            }
             for assoc in program.associations(s) {
                 let d = self.demand(assoc.action);
                 if assoc.qualifier == Qualifier::P0 {

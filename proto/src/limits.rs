@@ -18,6 +18,28 @@ pub const ANALYSIS_SITUATIONS_MAX: usize = 200_000;
 /// Diagnostics reported for one file before the rest are summarised.
 pub const DIAGNOSTICS_MAX: usize = 1_000;
 
+/// One message on Baton's keys. A chart's source travels in a reply, so it gets its own, larger limit.
+pub const MESSAGE_BYTES_MAX: usize = 1024 * 1024;
+
+/// A chart source served to agents.
+pub const CHART_SOURCE_BYTES_MAX: usize = 16 * 1024 * 1024;
+
+/// Reports of one token that arrived ahead of a missing one and wait for it; more are dropped (and resent).
+pub const REPORTS_AHEAD_MAX: usize = 256;
+
+/// Unacknowledged reports an agent keeps per token for resending.
+pub const REPORTS_UNACKED_MAX: usize = 1024;
+
+/// Finished tokens an agent remembers, to recognise a late duplicate dispatch.
+pub const FINISHED_TOKENS_REMEMBERED: usize = 65_536;
+
+/// Cycles run back to back while each one changes the situation, before waiting for the next tick.
+pub const IMMEDIATE_CYCLES_MAX: usize = 64;
+
+/// Agents one coordinator tracks.
+pub const AGENTS_MAX: usize = 4096;
+
+const _: () = assert!(CHART_SOURCE_BYTES_MAX >= MESSAGE_BYTES_MAX);
 const _: () = assert!(SOURCE_BYTES_MAX < u32::MAX as usize);
 const _: () = assert!(CHART_ELEMENTS_MAX < u32::MAX as usize);
 const _: () = assert!(BRANCHES_MAX <= CHART_ELEMENTS_MAX);

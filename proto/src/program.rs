@@ -105,6 +105,7 @@ pub struct ActionInfo {
     pub body: Vec<CStmt>,
     /// For a boolean action (no body, named after a BOOL variable): the variable its Q drives.
     pub bool_var: Option<VarId>,
+    pub pragmas: Vec<Pragma>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -4,7 +4,7 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
-use crate::engine::{Engine, EventKind, FaultSource, Input};
+use crate::engine::{Engine, Event, EventKind, FaultSource, Input};
 use crate::eval::Fault;
 use crate::lexer::{lex, Tok};
 use crate::program::{Program, VarId};
@@ -16,6 +16,30 @@ pub struct TraceRecord {
     pub t_ms: u64,
     pub event: String,
     pub name: String,
+    /// In a distributed run: the agent the event happened on (or a token was sent to).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub agent: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub token: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub epoch: Option<u32>,
+    /// What went wrong, for `fault` and `skill_fault` records.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub message: Option<String>,
+}
+
+impl TraceRecord {
+    pub fn new(t_ms: u64, event: &str, name: &str) -> TraceRecord {
+        TraceRecord {
+            t_ms,
+            event: event.to_string(),
+            name: name.to_string(),
+            agent: None,
+            token: None,
+            epoch: None,
+            message: None,
+        }
+    }
 }
 
 /// One line of an input script: `{"t_ms": 100, "set": {"start": true, "level": 42}}`.
@@ -59,7 +83,7 @@ pub fn parse_inputs(text: &str, program: &Program) -> Result<Vec<InputRecord>, I
             if var.constant {
                 return Err(err(format!("`{}` is a CONSTANT and cannot be set", var.name)));
             }
-            let value = json_value(&var.ty, json)
+            let value = parse_value(&var.ty, json)
                 .ok_or_else(|| err(format!("`{}` is {}, and {json} is not a {} value", var.name, var.ty, var.ty)))?;
             set.push((id, value));
         }
@@ -68,7 +92,9 @@ pub fn parse_inputs(text: &str, program: &Program) -> Result<Vec<InputRecord>, I
     Ok(out)
 }
 
-fn json_value(ty: &Type, json: &serde_json::Value) -> Option<Value> {
+/// A JSON value as a value of type `ty`: a boolean, an integer in range, a number, or a duration as
+/// milliseconds or a `T#…` literal.
+pub fn parse_value(ty: &Type, json: &serde_json::Value) -> Option<Value> {
     match ty {
         Type::Bool => json.as_bool().map(Value::Bool),
         Type::Int(k) => json.as_i64().filter(|v| k.contains(*v)).map(Value::Int),
@@ -146,31 +172,35 @@ pub fn simulate(
 
 fn drain(engine: &mut Engine, sink: &mut impl FnMut(SimOutput)) {
     while let Some(ev) = engine.poll_event() {
-        let program = engine.program();
-        let (event, name) = match ev.kind {
-            EventKind::Activate(s) => ("activate", &program.steps[s.index()].name),
-            EventKind::Deactivate(s) => ("deactivate", &program.steps[s.index()].name),
-            EventKind::Fire(t) => ("fire", &program.transitions[t.index()].name),
-            EventKind::ActionOn(a) => ("action_on", &program.actions[a.index()].name),
-            EventKind::ActionOff(a) => ("action_off", &program.actions[a.index()].name),
-            EventKind::Fault(source, fault) => {
-                let what = match fault {
-                    Fault::DivisionByZero => "division by zero",
-                };
-                let message = match source {
-                    FaultSource::Transition(t) => format!(
-                        "{what} in the condition of transition `{}` (taken as FALSE)",
-                        program.transitions[t.index()].name
-                    ),
-                    FaultSource::Action(a) => format!(
-                        "{what} in action `{}` (the rest of its body was skipped)",
-                        program.actions[a.index()].name
-                    ),
-                };
-                sink(SimOutput::Fault { t_ms: ev.t_ms, message });
-                continue;
-            }
-        };
-        sink(SimOutput::Trace(TraceRecord { t_ms: ev.t_ms, event: event.to_string(), name: name.clone() }));
+        sink(output_of(engine.program(), ev));
+    }
+}
+
+/// An engine event as a trace record (or, for a fault, a message), with the program's names.
+pub fn output_of(program: &Program, ev: Event) -> SimOutput {
+    let (event, name) = match ev.kind {
+        EventKind::Activate(s) => ("activate", &program.steps[s.index()].name),
+        EventKind::Deactivate(s) => ("deactivate", &program.steps[s.index()].name),
+        EventKind::Fire(t) => ("fire", &program.transitions[t.index()].name),
+        EventKind::ActionOn(a) => ("action_on", &program.actions[a.index()].name),
+        EventKind::ActionOff(a) => ("action_off", &program.actions[a.index()].name),
+        EventKind::Fault(source, fault) => {
+            return SimOutput::Fault { t_ms: ev.t_ms, message: fault_message(program, source, fault) }
+        }
+    };
+    SimOutput::Trace(TraceRecord::new(ev.t_ms, event, name))
+}
+
+pub fn fault_message(program: &Program, source: FaultSource, fault: Fault) -> String {
+    let what = match fault {
+        Fault::DivisionByZero => "division by zero",
+    };
+    match source {
+        FaultSource::Transition(t) => {
+            format!("{what} in the condition of transition `{}` (taken as FALSE)", program.transitions[t.index()].name)
+        }
+        FaultSource::Action(a) => {
+            format!("{what} in action `{}` (the rest of its body was skipped)", program.actions[a.index()].name)
+        }
     }
 }

@@ -2,6 +2,7 @@
 
 pub mod gen;
 pub mod scenario;
+pub mod simnet;
 
 use std::path::PathBuf;
 

@@ -1,0 +1,99 @@
+//! Every Zenoh key expression Baton uses, built here and nowhere else.
+//!
+//! ```text
+//! baton/alive/<agent>                 liveliness token of a live agent
+//! baton/agent/<agent>/info            queryable: the agent's roles and lease (AgentInfo)
+//! baton/agent/<agent>/cmd             coordinator → agent: Dispatch, Ack (ToAgent)
+//! baton/run/<run>/report              agents → coordinator: token reports (Report)
+//! baton/run/<run>/vars/<writer>       variable updates from the coordinator or an agent (VarUpdate)
+//! baton/run/<run>/chart               queryable: the chart's source (ChartSource)
+//! baton/run/<run>/status              queryable: active steps, tokens, agents (StatusReport)
+//! baton/run/<run>/set                 queryable: set an input (SetRequest → SetReply)
+//! baton/run/<run>/trace               the run's trace records, live (TraceRecord)
+//! ```
+//! Agent names and roles are restricted to letters, digits, `_` and `-` (`layout::is_valid_name`), so they are
+//! always single chunks; a run is 32 hex digits.
+
+use crate::wire::RunId;
+
+const ROOT: &str = "baton";
+
+pub fn alive(agent: &str) -> String {
+    format!("{ROOT}/alive/{agent}")
+}
+
+pub fn alive_any() -> String {
+    format!("{ROOT}/alive/*")
+}
+
+/// The agent named by a liveliness key, if it is one of ours.
+pub fn agent_of_alive(key: &str) -> Option<&str> {
+    key.strip_prefix(ROOT)?.strip_prefix("/alive/").filter(|rest| !rest.is_empty() && !rest.contains('/'))
+}
+
+pub fn agent_info(agent: &str) -> String {
+    format!("{ROOT}/agent/{agent}/info")
+}
+
+pub fn agent_cmd(agent: &str) -> String {
+    format!("{ROOT}/agent/{agent}/cmd")
+}
+
+pub fn report(run: RunId) -> String {
+    format!("{ROOT}/run/{}/report", run.key())
+}
+
+pub fn vars(run: RunId, writer: &str) -> String {
+    format!("{ROOT}/run/{}/vars/{writer}", run.key())
+}
+
+/// Variable updates of every run: an agent listens to all runs it takes part in.
+pub fn vars_any_run() -> String {
+    format!("{ROOT}/run/*/vars/*")
+}
+
+pub fn chart(run: RunId) -> String {
+    format!("{ROOT}/run/{}/chart", run.key())
+}
+
+pub fn status(run: RunId) -> String {
+    format!("{ROOT}/run/{}/status", run.key())
+}
+
+pub fn status_any_run() -> String {
+    format!("{ROOT}/run/*/status")
+}
+
+pub fn set(run: RunId) -> String {
+    format!("{ROOT}/run/{}/set", run.key())
+}
+
+pub fn set_any_run() -> String {
+    format!("{ROOT}/run/*/set")
+}
+
+pub fn trace(run: RunId) -> String {
+    format!("{ROOT}/run/{}/trace", run.key())
+}
+
+pub fn trace_any_run() -> String {
+    format!("{ROOT}/run/*/trace")
+}
+
+/// Everything under Baton's root, for tools that watch or test the whole protocol.
+pub fn everything() -> String {
+    format!("{ROOT}/**")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn liveliness_keys_name_their_agent() {
+        assert_eq!(agent_of_alive(&alive("r1")), Some("r1"));
+        assert_eq!(agent_of_alive("baton/alive/"), None);
+        assert_eq!(agent_of_alive("baton/alive/a/b"), None);
+        assert_eq!(agent_of_alive("other/alive/a"), None);
+    }
+}

@@ -1,0 +1,580 @@
+//! Where each part of a chart runs in a distributed run: step placement from `{agent := …}` and
+//! `{role := …}` pragmas, segments (the runs of steps that travel as one token), waiting steps, the one writer
+//! of each variable, skill bindings, and the engine scopes of the coordinator and of the agents.
+//!
+//! Rules, checked here so that a chart that passes `baton check` runs the same on one machine or many:
+//! - a segment is a maximal run of steps placed the same way, linked by transitions with one source and one
+//!   target; simultaneous divergences and convergences are always judged by the coordinator;
+//! - a placed step that feeds a simultaneous convergence is a *waiting step*: its token returns as soon as it
+//!   is active, so it may hold no actions;
+//! - an action runs in one place, each variable has one writer, and a transition judged on an agent reads only
+//!   steps of its own placement.
+
+use std::collections::BTreeMap;
+use std::fmt;
+
+use crate::diag::{Diagnostic, Span};
+use crate::engine::{Scope, TransitionScope};
+use crate::lexer::{lex, Kw, Tok};
+use crate::model::{Chart, Pragma};
+use crate::program::{ActionId, CExpr, CStmt, Program, StepId, TransitionId, VarId};
+use crate::types::Value;
+
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Placement {
+    Coordinator,
+    /// Pinned to the agent with this name.
+    Agent(String),
+    /// Any live agent that has this role.
+    Role(String),
+}
+
+impl fmt::Display for Placement {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Placement::Coordinator => write!(f, "the coordinator"),
+            Placement::Agent(a) => write!(f, "agent `{a}`"),
+            Placement::Role(r) => write!(f, "role `{r}`"),
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct SegmentId(pub u32);
+
+impl SegmentId {
+    pub fn index(self) -> usize {
+        self.0 as usize
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct Segment {
+    pub placement: Placement,
+    /// In id order; the first is the name the segment is known by.
+    pub steps: Vec<StepId>,
+}
+
+/// A pragma value: `'text'`, a number, a duration or a boolean.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Param {
+    Str(String),
+    Value(Value),
+}
+
+impl Param {
+    pub fn as_str(&self) -> Option<&str> {
+        match self {
+            Param::Str(s) => Some(s),
+            Param::Value(_) => None,
+        }
+    }
+
+    /// A number or a duration, in its own unit (a duration in ms).
+    pub fn as_f64(&self) -> Option<f64> {
+        match self {
+            Param::Value(Value::Int(i) | Value::Time(i)) => Some(*i as f64),
+            Param::Value(Value::Real(r)) => Some(*r),
+            _ => None,
+        }
+    }
+}
+
+/// `ACTION Pick: {skill := 'motion', ms := 800} END_ACTION`: the action starts skill `motion` on its agent.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SkillBinding {
+    pub skill: String,
+    pub params: BTreeMap<String, Param>,
+}
+
+#[derive(Clone, Debug)]
+pub struct Layout {
+    /// Per step.
+    pub placement: Vec<Placement>,
+    /// Per step: the segment of a placed step; `None` for coordinator steps and waiting steps.
+    pub segment_of: Vec<Option<SegmentId>>,
+    pub segments: Vec<Segment>,
+    /// Per step: a placed step that feeds a simultaneous convergence; the coordinator holds it.
+    pub waiting: Vec<bool>,
+    /// Per variable: who writes it. Variables nobody writes belong to the coordinator and are inputs.
+    pub writer: Vec<Placement>,
+    /// Per variable: no action writes it, so a client may set it (`baton set`).
+    pub settable: Vec<bool>,
+    /// Per action.
+    pub skills: Vec<Option<SkillBinding>>,
+    /// Per action: where it runs (the placement of the steps that use it).
+    pub action_placement: Vec<Placement>,
+}
+
+impl Layout {
+    pub fn is_distributed(&self) -> bool {
+        !self.segments.is_empty()
+    }
+
+    /// The coordinator judges every transition that does not leave a placed, non-waiting step, and mirrors the
+    /// others as agents report them.
+    pub fn coordinator_scope(&self, program: &Program) -> Scope {
+        let transitions = (0..program.transitions.len())
+            .map(|t| match self.agent_judges(program, TransitionId(t as u32)) {
+                Some(_) => TransitionScope::Remote,
+                None => TransitionScope::Local,
+            })
+            .collect();
+        let runs_actions = self.placement.iter().map(|p| *p == Placement::Coordinator).collect();
+        Scope { transitions, runs_actions, initial: true }
+    }
+
+    /// An agent judges the transitions leaving its segments' steps; those that stay inside a segment are local,
+    /// the others hand the token back. It starts with no active step.
+    pub fn agent_scope(&self, program: &Program) -> Scope {
+        let transitions = (0..program.transitions.len())
+            .map(|t| {
+                let t = TransitionId(t as u32);
+                match self.agent_judges(program, t) {
+                    Some(g) if self.is_internal(program, t, g) => TransitionScope::Local,
+                    Some(_) => TransitionScope::Exit,
+                    None => TransitionScope::Remote,
+                }
+            })
+            .collect();
+        let runs_actions = self.segment_of.iter().map(Option::is_some).collect();
+        Scope { transitions, runs_actions, initial: false }
+    }
+
+    /// The segment whose agent judges `t`: that of its single source, when the source is in a segment.
+    pub fn agent_judges(&self, program: &Program, t: TransitionId) -> Option<SegmentId> {
+        match program.sources(t) {
+            [s] => self.segment_of[s.index()],
+            _ => None,
+        }
+    }
+
+    /// A transition with one source and one target in the same segment.
+    pub fn is_internal(&self, program: &Program, t: TransitionId, g: SegmentId) -> bool {
+        matches!((program.sources(t), program.targets(t)), ([_], [target]) if self.segment_of[target.index()] == Some(g))
+    }
+
+    /// The variables written where `placement` runs.
+    pub fn written_by<'a>(&'a self, placement: &'a Placement) -> impl Iterator<Item = VarId> + 'a {
+        self.writer.iter().enumerate().filter(move |(_, w)| *w == placement).map(|(i, _)| VarId(i as u32))
+    }
+}
+
+/// Parses `key := literal {, key := literal}`; `None` when the pragma is not of that form (another tool's).
+pub fn parse_pragma(text: &str) -> Option<Vec<(String, Param)>> {
+    let lexed = lex(text);
+    if !lexed.diagnostics.is_empty() {
+        return None;
+    }
+    let toks = &lexed.tokens;
+    let mut out = Vec::new();
+    let mut i = 0;
+    loop {
+        let key = match toks.get(i)?.tok {
+            Tok::Ident => text[toks[i].span.start as usize..toks[i].span.end as usize].to_ascii_lowercase(),
+            _ => return None,
+        };
+        if toks.get(i + 1)?.tok != Tok::Assign {
+            return None;
+        }
+        let (value, used) = literal(text, &toks[i + 2..])?;
+        out.push((key, value));
+        i += 2 + used;
+        match toks.get(i)?.tok {
+            Tok::Comma => i += 1,
+            Tok::Eof => return Some(out),
+            _ => return None,
+        }
+    }
+}
+
+fn literal(text: &str, toks: &[crate::lexer::Token]) -> Option<(Param, usize)> {
+    let first = toks.first()?;
+    let negative = first.tok == Tok::Minus;
+    let tok = if negative { toks.get(1)? } else { first };
+    let param = match tok.tok {
+        Tok::Str if !negative => {
+            let raw = &text[tok.span.start as usize + 1..tok.span.end as usize - 1];
+            Param::Str(raw.replace("$'", "'").replace("$$", "$"))
+        }
+        Tok::Int(v) => Param::Value(Value::Int(if negative { -v } else { v })),
+        Tok::Real(v) => Param::Value(Value::Real(if negative { -v } else { v })),
+        Tok::Time(v) if !negative => Param::Value(Value::Time(v)),
+        Tok::Kw(Kw::True) if !negative => Param::Value(Value::Bool(true)),
+        Tok::Kw(Kw::False) if !negative => Param::Value(Value::Bool(false)),
+        _ => return None,
+    };
+    Some((param, 1 + usize::from(negative)))
+}
+
+/// Agent names and roles become key-expression chunks: keep them to letters, digits, `_` and `-`.
+pub fn is_valid_name(name: &str) -> bool {
+    !name.is_empty() && name.len() <= 64 && name.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+}
+
+/// Lays out a compiled chart. `chart` is the chart `program` was compiled from without errors, so step and
+/// declared action ids follow its declaration order.
+pub fn layout(chart: &Chart, program: &Program, diags: &mut Vec<Diagnostic>) -> Layout {
+    let n_steps = program.steps.len();
+    let step_span = |s: StepId| chart.steps.get(s.index()).map_or(chart.name.span, |st| st.name.span);
+    let placement: Vec<Placement> = (0..n_steps).map(|i| step_placement(&program.steps[i].pragmas, diags)).collect();
+    let mut waiting = vec![false; n_steps];
+    for t in 0..program.transitions.len() {
+        let sources = program.sources(TransitionId(t as u32));
+        if sources.len() > 1 {
+            for s in sources {
+                waiting[s.index()] = placement[s.index()] != Placement::Coordinator;
+            }
+        }
+    }
+    for (i, &w) in waiting.iter().enumerate() {
+        if w && !program.associations(StepId(i as u32)).is_empty() {
+            diags.push(Diagnostic::error(step_span(StepId(i as u32)), format!(
+                "step `{}` is placed on {} and feeds a simultaneous convergence, so its token returns to the coordinator as soon as it is active and its actions could not run: end the branch with an empty waiting step",
+                program.steps[i].name, placement[i]
+            )));
+        }
+    }
+    let (segment_of, segments) = segments(program, &placement, &waiting);
+    check_entries(program, &segment_of, diags, &step_span);
+    let action_placement = action_placements(program, &placement, diags, &step_span);
+    let skills = skill_bindings(program, &action_placement, diags, chart);
+    let (writer, settable) = writers(chart, program, &action_placement, diags);
+    check_remote_reads(chart, program, &placement, &segment_of, &action_placement, diags);
+    Layout { placement, segment_of, segments, waiting, writer, settable, skills, action_placement }
+}
+
+fn step_placement(pragmas: &[Pragma], diags: &mut Vec<Diagnostic>) -> Placement {
+    let mut found: Option<Placement> = None;
+    for pragma in pragmas {
+        let Some(pairs) = parse_pragma(&pragma.text) else { continue };
+        if !pairs.iter().any(|(k, _)| k == "agent" || k == "role") {
+            continue;
+        }
+        for (key, value) in pairs {
+            let err = |m: String| Diagnostic::error(pragma.span, m);
+            let name = match value.as_str() {
+                Some(n) if is_valid_name(n) => n.to_string(),
+                _ => {
+                    diags.push(err(format!(
+                        "`{key}` needs a quoted name of letters, digits, `_` or `-`, such as '{key}1'"
+                    )));
+                    continue;
+                }
+            };
+            let placed = match key.as_str() {
+                "agent" => Placement::Agent(name),
+                "role" => Placement::Role(name),
+                other => {
+                    diags.push(err(format!(
+                        "unknown placement key `{other}`: a step takes `agent := 'name'` or `role := 'name'`"
+                    )));
+                    continue;
+                }
+            };
+            if let Some(previous) = &found {
+                diags.push(err(format!("the step is already placed on {previous}: a step has one placement")));
+                continue;
+            }
+            found = Some(placed);
+        }
+    }
+    found.unwrap_or(Placement::Coordinator)
+}
+
+/// Union-find over placed, non-waiting steps joined by one-source, one-target transitions of the same placement.
+fn segments(program: &Program, placement: &[Placement], waiting: &[bool]) -> (Vec<Option<SegmentId>>, Vec<Segment>) {
+    let n = placement.len();
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    let placed = |s: StepId| placement[s.index()] != Placement::Coordinator && !waiting[s.index()];
+    for t in 0..program.transitions.len() {
+        let t = TransitionId(t as u32);
+        if let ([a], [b]) = (program.sources(t), program.targets(t)) {
+            if placed(*a) && placed(*b) && placement[a.index()] == placement[b.index()] {
+                let (ra, rb) = (root(&mut parent, a.index()), root(&mut parent, b.index()));
+                parent[ra.max(rb)] = ra.min(rb);
+            }
+        }
+    }
+    let mut segment_of = vec![None; n];
+    let mut segments: Vec<Segment> = Vec::new();
+    let mut by_root: BTreeMap<usize, SegmentId> = BTreeMap::new();
+    for i in 0..n {
+        if !placed(StepId(i as u32)) {
+            continue;
+        }
+        let r = root(&mut parent, i);
+        let id = *by_root.entry(r).or_insert_with(|| {
+            segments.push(Segment { placement: placement[i].clone(), steps: Vec::new() });
+            SegmentId(segments.len() as u32 - 1)
+        });
+        segments[id.index()].steps.push(StepId(i as u32));
+        segment_of[i] = Some(id);
+    }
+    (segment_of, segments)
+}
+
+/// A token enters a segment at one step: a transition that is not inside a segment may activate at most one of
+/// its steps, and may not lead back into the segment it leaves.
+fn check_entries(
+    program: &Program,
+    segment_of: &[Option<SegmentId>],
+    diags: &mut Vec<Diagnostic>,
+    step_span: &dyn Fn(StepId) -> Span,
+) {
+    for t in 0..program.transitions.len() {
+        let t = TransitionId(t as u32);
+        let from = match program.sources(t) {
+            [s] => segment_of[s.index()],
+            _ => None,
+        };
+        let internal = matches!(program.targets(t), [target] if from.is_some() && segment_of[target.index()] == from);
+        if internal {
+            continue;
+        }
+        let mut seen: Vec<SegmentId> = Vec::new();
+        for &target in program.targets(t) {
+            let Some(g) = segment_of[target.index()] else { continue };
+            let name = &program.transitions[t.index()].name;
+            if seen.contains(&g) || Some(g) == from {
+                diags.push(Diagnostic::error(step_span(target), format!(
+                    "transition `{name}` enters the segment of step `{}` twice or from inside it: a segment travels as one token, entered at one step",
+                    program.steps[target.index()].name
+                )));
+            }
+            seen.push(g);
+        }
+    }
+}
+
+fn action_placements(
+    program: &Program,
+    placement: &[Placement],
+    diags: &mut Vec<Diagnostic>,
+    step_span: &dyn Fn(StepId) -> Span,
+) -> Vec<Placement> {
+    let mut used: Vec<Option<(Placement, StepId)>> = vec![None; program.actions.len()];
+    for s in 0..program.steps.len() {
+        let s = StepId(s as u32);
+        for assoc in program.associations(s) {
+            let here = &placement[s.index()];
+            match &used[assoc.action.index()] {
+                None => used[assoc.action.index()] = Some((here.clone(), s)),
+                Some((there, first)) if there != here => diags.push(Diagnostic::error(step_span(s), format!(
+                    "action `{}` runs on {here} for step `{}` but on {there} for step `{}`: an action runs in one place",
+                    program.actions[assoc.action.index()].name, program.steps[s.index()].name, program.steps[first.index()].name
+                ))),
+                Some(_) => {}
+            }
+        }
+    }
+    used.into_iter().map(|u| u.map_or(Placement::Coordinator, |(p, _)| p)).collect()
+}
+
+fn skill_bindings(
+    program: &Program,
+    action_placement: &[Placement],
+    diags: &mut Vec<Diagnostic>,
+    chart: &Chart,
+) -> Vec<Option<SkillBinding>> {
+    let mut out = Vec::with_capacity(program.actions.len());
+    for (i, action) in program.actions.iter().enumerate() {
+        let mut binding: Option<SkillBinding> = None;
+        for pragma in &action.pragmas {
+            let Some(pairs) = parse_pragma(&pragma.text) else { continue };
+            let Some((_, skill)) = pairs.iter().find(|(k, _)| k == "skill") else { continue };
+            let Some(skill) = skill.as_str().filter(|s| is_valid_name(s)).map(str::to_string) else {
+                diags.push(Diagnostic::error(pragma.span, "`skill` needs a quoted skill name, such as 'motion'"));
+                continue;
+            };
+            if binding.is_some() {
+                diags.push(Diagnostic::error(
+                    pragma.span,
+                    format!("action `{}` is bound to a skill twice", action.name),
+                ));
+                continue;
+            }
+            if action_placement[i] == Placement::Coordinator {
+                let span = chart.actions.get(i).map_or(pragma.span, |a| a.name.span);
+                diags.push(Diagnostic::warning(span, format!(
+                    "action `{}` is bound to skill `{skill}` but runs on the coordinator, which runs no skills: place its steps on an agent",
+                    action.name
+                )));
+            }
+            let params = pairs.into_iter().filter(|(k, _)| k != "skill").collect();
+            binding = Some(SkillBinding { skill, params });
+        }
+        out.push(binding);
+    }
+    out
+}
+
+fn assigned(body: &[CStmt], out: &mut Vec<VarId>) {
+    for stmt in body {
+        match stmt {
+            CStmt::Assign { var, .. } => out.push(*var),
+            CStmt::If { branches, otherwise } => {
+                for (_, b) in branches {
+                    assigned(b, out);
+                }
+                assigned(otherwise, out);
+            }
+        }
+    }
+}
+
+/// Each variable has one writer: the place that runs every action writing it (by assignment, as a boolean
+/// action, or as an indicator driven by a skill).
+fn writers(
+    chart: &Chart,
+    program: &Program,
+    action_placement: &[Placement],
+    diags: &mut Vec<Diagnostic>,
+) -> (Vec<Placement>, Vec<bool>) {
+    let n = program.vars.len();
+    let mut writes: Vec<Vec<(Placement, String)>> = vec![Vec::new(); n];
+    let mut note = |v: VarId, p: &Placement, by: String| {
+        if !writes[v.index()].iter().any(|(q, _)| q == p) {
+            writes[v.index()].push((p.clone(), by));
+        }
+    };
+    for (i, action) in program.actions.iter().enumerate() {
+        let mut vars = Vec::new();
+        assigned(&action.body, &mut vars);
+        vars.extend(action.bool_var);
+        for v in vars {
+            note(v, &action_placement[i], format!("action `{}`", action.name));
+        }
+    }
+    for s in 0..program.steps.len() {
+        let s = StepId(s as u32);
+        for (assoc, inds) in program.associations(s).iter().zip(program.indicators(s)) {
+            for &v in inds {
+                let by = format!(
+                    "the indicator of `{}` in step `{}`",
+                    program.actions[assoc.action.index()].name,
+                    program.steps[s.index()].name
+                );
+                note(v, &action_placement[assoc.action.index()], by);
+            }
+        }
+    }
+    let mut writer = Vec::with_capacity(n);
+    let mut settable = Vec::with_capacity(n);
+    for (i, w) in writes.iter().enumerate() {
+        if w.len() > 1 {
+            let span = chart
+                .vars
+                .iter()
+                .find(|d| d.name.name.eq_ignore_ascii_case(&program.vars[i].name))
+                .map_or(chart.name.span, |d| d.name.span);
+            let places: Vec<String> = w.iter().map(|(p, by)| format!("{by} on {p}")).collect();
+            diags.push(Diagnostic::error(
+                span,
+                format!(
+                    "variable `{}` has more than one writer ({}): each variable is written in one place",
+                    program.vars[i].name,
+                    places.join(", ")
+                ),
+            ));
+        }
+        writer.push(w.first().map_or(Placement::Coordinator, |(p, _)| p.clone()));
+        settable.push(w.is_empty() && !program.vars[i].constant);
+    }
+    (writer, settable)
+}
+
+fn expr_refs(e: &CExpr, steps: &mut Vec<StepId>, actions: &mut Vec<ActionId>) {
+    match e {
+        CExpr::Const(_) | CExpr::Var(_) => {}
+        CExpr::StepX(s) | CExpr::StepT(s) => steps.push(*s),
+        CExpr::ActionQ(a) => actions.push(*a),
+        CExpr::Not(x) | CExpr::Neg(x, _) => expr_refs(x, steps, actions),
+        CExpr::Logic(_, a, b) | CExpr::Cmp(_, a, b) => {
+            expr_refs(a, steps, actions);
+            expr_refs(b, steps, actions);
+        }
+        CExpr::Arith { lhs, rhs, .. } => {
+            expr_refs(lhs, steps, actions);
+            expr_refs(rhs, steps, actions);
+        }
+    }
+}
+
+fn body_refs(body: &[CStmt], steps: &mut Vec<StepId>, actions: &mut Vec<ActionId>) {
+    for stmt in body {
+        match stmt {
+            CStmt::Assign { value, .. } => expr_refs(value, steps, actions),
+            CStmt::If { branches, otherwise } => {
+                for (c, b) in branches {
+                    expr_refs(c, steps, actions);
+                    body_refs(b, steps, actions);
+                }
+                body_refs(otherwise, steps, actions);
+            }
+        }
+    }
+}
+
+/// An agent knows only the steps and actions it runs: code judged or run there may read `S.X`, `S.T` and
+/// `A.Q` only of its own placement's steps and actions.
+fn check_remote_reads(
+    chart: &Chart,
+    program: &Program,
+    placement: &[Placement],
+    segment_of: &[Option<SegmentId>],
+    action_placement: &[Placement],
+    diags: &mut Vec<Diagnostic>,
+) {
+    let mut check = |what: String, here: &Placement, span: Span, steps: &[StepId], actions: &[ActionId]| {
+        for s in steps {
+            if segment_of[s.index()].is_none() || placement[s.index()] != *here {
+                diags.push(Diagnostic::error(span, format!(
+                    "{what} runs on {here} but reads step `{}`, which it cannot see there: an agent sees only the steps of its own placement",
+                    program.steps[s.index()].name
+                )));
+                return;
+            }
+        }
+        for a in actions {
+            if action_placement[a.index()] != *here {
+                diags.push(Diagnostic::error(
+                    span,
+                    format!(
+                        "{what} runs on {here} but reads action `{}`, which runs on {}",
+                        program.actions[a.index()].name,
+                        action_placement[a.index()]
+                    ),
+                ));
+                return;
+            }
+        }
+    };
+    for t in 0..program.transitions.len() {
+        let tid = TransitionId(t as u32);
+        let [s] = program.sources(tid) else { continue };
+        if segment_of[s.index()].is_none() {
+            continue;
+        }
+        let (mut steps, mut actions) = (Vec::new(), Vec::new());
+        expr_refs(&program.transitions[t].condition, &mut steps, &mut actions);
+        let span = chart.transitions.get(t).map_or(chart.name.span, |tr| tr.span);
+        check(format!("transition `{}`", program.transitions[t].name), &placement[s.index()], span, &steps, &actions);
+    }
+    for (i, action) in program.actions.iter().enumerate() {
+        if action_placement[i] == Placement::Coordinator {
+            continue;
+        }
+        let (mut steps, mut actions) = (Vec::new(), Vec::new());
+        body_refs(&action.body, &mut steps, &mut actions);
+        let span = chart.actions.get(i).map_or(chart.name.span, |a| a.name.span);
+        check(format!("action `{}`", action.name), &action_placement[i], span, &steps, &actions);
+    }
+}

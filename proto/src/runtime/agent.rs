@@ -1,0 +1,471 @@
+//! An agent's half of a distributed run, as a pure state machine: one `AgentRun` per run the agent takes part in.
+//!
+//! A dispatched token activates its entry step in the agent's engine, whose scope judges the transitions of the
+//! placed steps. Each cycle's clearings and action changes are reported to the coordinator, numbered per token;
+//! when no step of the token's segment is active any more, the last report says `done`. Reports are kept until
+//! acknowledged and resent with backoff, so a lost message or a coordinator restart loses nothing. Skills are
+//! started and stopped as their actions' Q rises and falls; their results come back as indicator variables.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::sync::Arc;
+
+use crate::engine::{Engine, EventKind, Input, RemoteInput};
+use crate::layout::{Layout, Placement, SegmentId, SkillBinding};
+use crate::limits::{FINISHED_TOKENS_REMEMBERED, IMMEDIATE_CYCLES_MAX, REPORTS_UNACKED_MAX};
+use crate::program::{ActionId, Program, StepId, VarId};
+use crate::sim::fault_message;
+use crate::types::Value;
+use crate::wire::{AgentEvent, AgentEventKind, ChartHash, Report, RunId, TokenId, VarUpdate, VarValue};
+
+use super::{Level, COORDINATOR};
+
+/// First and largest delay before an unacknowledged report is sent again.
+const RESEND_FIRST_MS: u64 = 200;
+const RESEND_MAX_MS: u64 = 5_000;
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum AgentOutput {
+    Report(Report),
+    Vars(VarUpdate),
+    /// Start the skill bound to `action`; its result comes back through `handle_skill_result`.
+    StartSkill {
+        action: ActionId,
+        name: String,
+        binding: SkillBinding,
+    },
+    /// The action's Q fell: cancel its skill if it still runs.
+    StopSkill {
+        action: ActionId,
+    },
+    Log {
+        level: Level,
+        message: String,
+    },
+}
+
+/// A dispatch, decoded: run `segment` from `entry`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Dispatch {
+    pub token: TokenId,
+    pub epoch: u32,
+    pub segment: u32,
+    pub entry: u32,
+    pub vars: Vec<VarValue>,
+    pub vars_seq: u64,
+}
+
+struct Unacked {
+    report: Report,
+    resend_at_ms: u64,
+    backoff_ms: u64,
+}
+
+struct HeldToken {
+    epoch: u32,
+    segment: SegmentId,
+    arrived_ms: u64,
+    next_seq: u32,
+    events: Vec<AgentEvent>,
+    done: bool,
+    unacked: VecDeque<Unacked>,
+}
+
+pub struct AgentRun {
+    name: String,
+    serves: Vec<Placement>,
+    run: RunId,
+    hash: ChartHash,
+    program: Arc<Program>,
+    layout: Arc<Layout>,
+    engine: Engine,
+    now_ms: u64,
+    tokens: HashMap<TokenId, HeldToken>,
+    by_segment: HashMap<SegmentId, TokenId>,
+    finished: HashSet<TokenId>,
+    finished_order: VecDeque<TokenId>,
+    owned: Vec<VarId>,
+    published: Vec<Value>,
+    vars_seq: u64,
+    peer_seq: HashMap<String, u64>,
+    /// Per action: the segments with a step that uses it.
+    action_segments: Vec<Vec<SegmentId>>,
+    running_skills: HashSet<ActionId>,
+    outbox: VecDeque<AgentOutput>,
+    dropped: u64,
+}
+
+impl AgentRun {
+    pub fn new(
+        name: &str,
+        roles: &[String],
+        run: RunId,
+        hash: ChartHash,
+        program: Arc<Program>,
+        layout: Arc<Layout>,
+    ) -> AgentRun {
+        let mut serves = vec![Placement::Agent(name.to_string())];
+        serves.extend(roles.iter().map(|r| Placement::Role(r.clone())));
+        let owned: Vec<VarId> =
+            (0..program.vars.len()).filter(|&i| serves.contains(&layout.writer[i])).map(|i| VarId(i as u32)).collect();
+        let engine = Engine::with_scope(Arc::clone(&program), layout.agent_scope(&program));
+        let published = owned.iter().map(|&v| engine.value(v)).collect();
+        let mut action_segments = vec![Vec::new(); program.actions.len()];
+        for (g, seg) in layout.segments.iter().enumerate() {
+            for &s in &seg.steps {
+                for assoc in program.associations(s) {
+                    let list: &mut Vec<SegmentId> = &mut action_segments[assoc.action.index()];
+                    if !list.contains(&SegmentId(g as u32)) {
+                        list.push(SegmentId(g as u32));
+                    }
+                }
+            }
+        }
+        AgentRun {
+            name: name.to_string(),
+            serves,
+            run,
+            hash,
+            program,
+            layout,
+            engine,
+            now_ms: 0,
+            tokens: HashMap::new(),
+            by_segment: HashMap::new(),
+            finished: HashSet::new(),
+            finished_order: VecDeque::new(),
+            owned,
+            published,
+            vars_seq: 0,
+            peer_seq: HashMap::new(),
+            action_segments,
+            running_skills: HashSet::new(),
+            outbox: VecDeque::new(),
+            dropped: 0,
+        }
+    }
+
+    pub fn hash(&self) -> &ChartHash {
+        &self.hash
+    }
+
+    pub fn program(&self) -> &Arc<Program> {
+        &self.program
+    }
+
+    pub fn tokens_held(&self) -> usize {
+        self.tokens.values().filter(|t| !t.done).count()
+    }
+
+    /// Messages dropped as duplicates, stale or invalid.
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+
+    pub fn poll_output(&mut self) -> Option<AgentOutput> {
+        self.outbox.pop_front()
+    }
+
+    fn log(&mut self, level: Level, message: String) {
+        self.outbox.push_back(AgentOutput::Log { level, message });
+    }
+
+    fn drop_msg(&mut self, message: String) {
+        self.dropped += 1;
+        self.log(Level::Warn, message);
+    }
+
+    fn advance(&mut self, now_ms: u64) {
+        self.now_ms = self.now_ms.max(now_ms);
+    }
+
+    /// A token arrives. A duplicate (same token and epoch) or a token already finished changes nothing.
+    pub fn handle_dispatch(&mut self, now_ms: u64, d: Dispatch) {
+        self.advance(now_ms);
+        if self.finished.contains(&d.token) || self.tokens.get(&d.token).is_some_and(|t| t.epoch >= d.epoch) {
+            self.dropped += 1;
+            return;
+        }
+        let Some(segment) = self.layout.segments.get(d.segment as usize) else {
+            return self.drop_msg(format!("dispatch of token {} names unknown segment {}", d.token, d.segment));
+        };
+        let g = SegmentId(d.segment);
+        let entry = StepId(d.entry);
+        if !segment.steps.contains(&entry) {
+            return self.drop_msg(format!("dispatch of token {} enters its segment at a step outside it", d.token));
+        }
+        if !self.serves.contains(&segment.placement) {
+            let p = segment.placement.to_string();
+            return self.drop_msg(format!(
+                "token {} dropped: its segment is placed on {p}, which `{}` does not serve",
+                d.token, self.name
+            ));
+        }
+        if let Some(other) = self.by_segment.get(&g) {
+            let other = *other;
+            return self
+                .drop_msg(format!("token {} dropped: token {other} already runs the same segment here", d.token));
+        }
+        for vv in &d.vars {
+            match vv.resolve(&self.program) {
+                Some((var, value)) if !self.owned.contains(&var) => {
+                    // Inputs and variables of other places: the coordinator's view as of the dispatch.
+                    let _ = self.engine.handle(Input::Set(var, value));
+                }
+                Some(_) => {}
+                None => self.dropped += 1,
+            }
+        }
+        let seen = self.peer_seq.entry(COORDINATOR.to_string()).or_insert(0);
+        *seen = (*seen).max(d.vars_seq);
+        if let Err(e) = self.engine.handle_remote(self.now_ms, RemoteInput::Activate(entry)) {
+            return self.drop_msg(format!("token {} dropped: {e}", d.token));
+        }
+        let held = HeldToken {
+            epoch: d.epoch,
+            segment: g,
+            arrived_ms: self.now_ms,
+            next_seq: 0,
+            events: Vec::new(),
+            done: false,
+            unacked: VecDeque::new(),
+        };
+        self.tokens.insert(d.token, held);
+        self.by_segment.insert(g, d.token);
+    }
+
+    /// The coordinator applied this token's reports up to `seq`.
+    pub fn handle_ack(&mut self, token: TokenId, epoch: u32, seq: u32, done: bool) {
+        let Some(held) = self.tokens.get_mut(&token) else { return };
+        if held.epoch != epoch {
+            return;
+        }
+        while held.unacked.front().is_some_and(|u| u.report.seq <= seq) {
+            held.unacked.pop_front();
+        }
+        if done && held.done && held.unacked.is_empty() {
+            self.tokens.remove(&token);
+            if self.finished_order.len() >= FINISHED_TOKENS_REMEMBERED {
+                if let Some(old) = self.finished_order.pop_front() {
+                    self.finished.remove(&old);
+                }
+            }
+            self.finished.insert(token);
+            self.finished_order.push_back(token);
+        }
+    }
+
+    /// Variables published by the coordinator or another agent; the latest update of each writer wins.
+    pub fn handle_vars(&mut self, update: &VarUpdate) {
+        if update.from == self.name {
+            return;
+        }
+        let seen = self.peer_seq.entry(update.from.clone()).or_insert(0);
+        if update.seq <= *seen {
+            return;
+        }
+        *seen = update.seq;
+        for vv in &update.vars {
+            match vv.resolve(&self.program) {
+                Some((var, value)) if !self.owned.contains(&var) => {
+                    let _ = self.engine.handle(Input::Set(var, value));
+                }
+                _ => self.dropped += 1,
+            }
+        }
+    }
+
+    /// A skill finished: its action's indicator variables say so (first: done, second: fault).
+    pub fn handle_skill_result(&mut self, now_ms: u64, action: ActionId, result: Result<(), String>) {
+        self.advance(now_ms);
+        if !self.running_skills.remove(&action) {
+            return;
+        }
+        let ok = result.is_ok();
+        self.set_indicators(action, Some(ok), Some(!ok));
+        let kind = match result {
+            Ok(()) => AgentEventKind::SkillDone { action: action.0 },
+            Err(message) => AgentEventKind::SkillFault { action: action.0, message },
+        };
+        self.record(action_token(&self.action_segments, &self.by_segment, action), kind);
+    }
+
+    /// Sets the indicators of `action`'s associations on the active steps: the first to `done`, the second
+    /// to `fault` (where given).
+    fn set_indicators(&mut self, action: ActionId, done: Option<bool>, fault: Option<bool>) {
+        let program = Arc::clone(&self.program);
+        let mut sets: Vec<(VarId, bool)> = Vec::new();
+        for &s in self.engine.active_steps() {
+            for (assoc, inds) in program.associations(s).iter().zip(program.indicators(s)) {
+                if assoc.action != action {
+                    continue;
+                }
+                if let (Some(&v), Some(b)) = (inds.first(), done) {
+                    sets.push((v, b));
+                }
+                if let (Some(&v), Some(b)) = (inds.get(1), fault) {
+                    sets.push((v, b));
+                }
+            }
+        }
+        for (v, b) in sets {
+            let _ = self.engine.handle(Input::Set(v, Value::Bool(b)));
+        }
+    }
+
+    fn record(&mut self, token: Option<TokenId>, kind: AgentEventKind) {
+        let Some(token) = token else { return };
+        let Some(held) = self.tokens.get_mut(&token) else { return };
+        let dt_ms = self.now_ms.saturating_sub(held.arrived_ms);
+        held.events.push(AgentEvent { dt_ms, kind });
+    }
+
+    /// Runs cycles until the situation settles, then reports.
+    pub fn handle_cycle(&mut self, now_ms: u64) {
+        self.advance(now_ms);
+        for _ in 0..IMMEDIATE_CYCLES_MAX {
+            if let Err(e) = self.engine.handle_cycle(self.now_ms) {
+                self.log(Level::Error, format!("cycle refused: {e}"));
+                break;
+            }
+            self.drain_engine();
+            if !self.engine.changed() {
+                break;
+            }
+        }
+        self.report();
+    }
+
+    fn drain_engine(&mut self) {
+        let program = Arc::clone(&self.program);
+        while let Some(ev) = self.engine.poll_event() {
+            match ev.kind {
+                EventKind::Fire(t) => {
+                    let token = program
+                        .sources(t)
+                        .first()
+                        .and_then(|s| self.layout.segment_of[s.index()])
+                        .and_then(|g| self.by_segment.get(&g).copied());
+                    self.record(token, AgentEventKind::Fire { transition: t.0 });
+                }
+                EventKind::ActionOn(a) => {
+                    let token = action_token(&self.action_segments, &self.by_segment, a);
+                    self.record(token, AgentEventKind::ActionOn { action: a.0 });
+                    if let Some(binding) = self.layout.skills[a.index()].clone() {
+                        self.set_indicators(a, Some(false), Some(false));
+                        self.running_skills.insert(a);
+                        let name = program.actions[a.index()].name.clone();
+                        self.outbox.push_back(AgentOutput::StartSkill { action: a, name, binding });
+                    }
+                }
+                EventKind::ActionOff(a) => {
+                    let token = action_token(&self.action_segments, &self.by_segment, a);
+                    self.record(token, AgentEventKind::ActionOff { action: a.0 });
+                    if self.running_skills.remove(&a) {
+                        self.outbox.push_back(AgentOutput::StopSkill { action: a });
+                    }
+                }
+                EventKind::Fault(source, fault) => {
+                    let message = fault_message(&program, source, fault);
+                    let token = match source {
+                        crate::engine::FaultSource::Transition(t) => program
+                            .sources(t)
+                            .first()
+                            .and_then(|s| self.layout.segment_of[s.index()])
+                            .and_then(|g| self.by_segment.get(&g).copied()),
+                        crate::engine::FaultSource::Action(a) => {
+                            action_token(&self.action_segments, &self.by_segment, a)
+                        }
+                    };
+                    self.record(token, AgentEventKind::Fault { message });
+                }
+                EventKind::Activate(_) | EventKind::Deactivate(_) => {}
+            }
+        }
+    }
+
+    /// Sends what happened since the last report: the changed variables this agent writes (published to every
+    /// reader, and carried in the first report so that the coordinator sees them before the clearings they
+    /// led to), then one report per token with news.
+    fn report(&mut self) {
+        let mut changed = Vec::new();
+        for (i, &v) in self.owned.iter().enumerate() {
+            let value = self.engine.value(v);
+            if self.published[i] != value {
+                self.published[i] = value;
+                changed.push(VarValue::new(v, value));
+            }
+        }
+        if !changed.is_empty() {
+            self.vars_seq += 1;
+            let update =
+                VarUpdate { run: self.run, from: self.name.clone(), seq: self.vars_seq, vars: changed.clone() };
+            self.outbox.push_back(AgentOutput::Vars(update));
+        }
+        let mut ids: Vec<TokenId> = self.tokens.keys().copied().collect();
+        ids.sort_unstable();
+        for id in ids {
+            let segment_active = {
+                let held = &self.tokens[&id];
+                self.layout.segments[held.segment.index()].steps.iter().any(|&s| self.engine.is_active(s))
+            };
+            let Some(held) = self.tokens.get_mut(&id) else { continue };
+            if held.done {
+                continue;
+            }
+            let done = !segment_active;
+            if held.events.is_empty() && !done && changed.is_empty() {
+                continue;
+            }
+            let report = Report {
+                run: self.run,
+                agent: self.name.clone(),
+                token: id,
+                epoch: held.epoch,
+                seq: held.next_seq,
+                events: std::mem::take(&mut held.events),
+                vars: std::mem::take(&mut changed),
+                vars_seq: self.vars_seq,
+                done,
+            };
+            held.next_seq += 1;
+            held.done = done;
+            if done {
+                self.by_segment.remove(&held.segment);
+            }
+            if held.unacked.len() < REPORTS_UNACKED_MAX {
+                held.unacked.push_back(Unacked {
+                    report: report.clone(),
+                    resend_at_ms: self.now_ms + RESEND_FIRST_MS,
+                    backoff_ms: RESEND_FIRST_MS,
+                });
+            }
+            self.outbox.push_back(AgentOutput::Report(report));
+        }
+    }
+
+    /// Sends again the reports the coordinator has not acknowledged in time, with doubling delays.
+    pub fn handle_resend(&mut self, now_ms: u64) {
+        self.advance(now_ms);
+        let mut again = Vec::new();
+        for held in self.tokens.values_mut() {
+            for u in held.unacked.iter_mut() {
+                if u.resend_at_ms <= now_ms {
+                    u.backoff_ms = (u.backoff_ms * 2).min(RESEND_MAX_MS);
+                    u.resend_at_ms = now_ms + u.backoff_ms;
+                    again.push(u.report.clone());
+                }
+            }
+        }
+        again.sort_by_key(|r| (r.token, r.seq));
+        self.outbox.extend(again.into_iter().map(AgentOutput::Report));
+    }
+}
+
+/// The token an action's event belongs to: that of the first segment using the action that has a token here.
+fn action_token(
+    action_segments: &[Vec<SegmentId>],
+    by_segment: &HashMap<SegmentId, TokenId>,
+    a: ActionId,
+) -> Option<TokenId> {
+    action_segments.get(a.index())?.iter().find_map(|g| by_segment.get(g).copied())
+}

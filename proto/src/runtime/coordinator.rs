@@ -1,0 +1,696 @@
+//! The coordinator's half of a distributed run, as a pure state machine.
+//!
+//! It runs the whole chart in one engine whose scope leaves the transitions of placed steps to agents. When a
+//! transition activates the first step of a segment, it creates a token and dispatches it to a live agent that
+//! matches the segment's placement (or keeps it waiting until one appears). Agents report the transitions
+//! they clear; the coordinator mirrors them in its engine, in order, once per report sequence number, so a
+//! duplicated or reordered report changes nothing. A simultaneous convergence is an ordinary transition of the
+//! coordinator's engine: it clears when every source step is active here (each input arrived) and its
+//! condition is TRUE.
+
+use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
+use std::sync::Arc;
+
+use crate::engine::{Engine, Event, EventKind, Input, RemoteInput};
+use crate::layout::{Layout, Placement, SegmentId};
+use crate::limits::{AGENTS_MAX, FINISHED_TOKENS_REMEMBERED, IMMEDIATE_CYCLES_MAX, REPORTS_AHEAD_MAX};
+use crate::program::{Program, StepId, TransitionId, VarId};
+use crate::sim::{output_of, parse_value, SimOutput, TraceRecord};
+use crate::types::Value;
+use crate::wire::{
+    AgentEventKind, AgentInfo, ChartHash, Report, RunId, StatusAgent, StatusReport, StatusStep, StatusToken, ToAgent,
+    TokenId, VarUpdate, VarValue,
+};
+
+use super::{Level, COORDINATOR};
+
+/// What the coordinator asks its shell to do.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CoordOutput {
+    Send { agent: String, msg: ToAgent },
+    Vars(VarUpdate),
+    Trace(TraceRecord),
+    Log { level: Level, message: String },
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CoordStats {
+    pub dispatched: u64,
+    pub returned: u64,
+    /// Reports and updates that were malformed, stale, duplicated or from the wrong agent.
+    pub dropped: u64,
+}
+
+struct AgentState {
+    roles: Vec<String>,
+    alive: bool,
+    tokens: usize,
+}
+
+struct TokenState {
+    segment: SegmentId,
+    entry: StepId,
+    epoch: u32,
+    agent: Option<String>,
+    next_seq: u32,
+    ahead: BTreeMap<u32, Report>,
+    dispatched_ms: u64,
+}
+
+pub struct Coordinator {
+    run: RunId,
+    hash: ChartHash,
+    program: Arc<Program>,
+    layout: Arc<Layout>,
+    engine: Engine,
+    now_ms: u64,
+    agents: BTreeMap<String, AgentState>,
+    tokens: HashMap<TokenId, TokenState>,
+    by_segment: Vec<Option<TokenId>>,
+    /// Tokens no live agent can take yet, oldest first.
+    waiting: Vec<TokenId>,
+    /// Finished tokens and their last report, to answer a late duplicate with the same acknowledgement.
+    finished: HashMap<TokenId, (u32, u32, String)>,
+    finished_order: VecDeque<TokenId>,
+    owned: Vec<VarId>,
+    published: Vec<Option<Value>>,
+    vars_seq: u64,
+    /// The last variable update applied from each agent.
+    agent_vars_seq: HashMap<String, u64>,
+    new_token: Box<dyn FnMut() -> TokenId + Send>,
+    round_robin: usize,
+    outbox: VecDeque<CoordOutput>,
+    stats: CoordStats,
+}
+
+impl Coordinator {
+    /// `new_token` gives each token its id: random in a real run, counted in a simulation.
+    pub fn new(
+        program: Arc<Program>,
+        layout: Arc<Layout>,
+        run: RunId,
+        hash: ChartHash,
+        new_token: Box<dyn FnMut() -> TokenId + Send>,
+    ) -> Coordinator {
+        let engine = Engine::with_scope(Arc::clone(&program), layout.coordinator_scope(&program));
+        let owned: Vec<VarId> = layout.written_by(&Placement::Coordinator).collect();
+        Coordinator {
+            run,
+            hash,
+            by_segment: vec![None; layout.segments.len()],
+            published: vec![None; owned.len()],
+            owned,
+            program,
+            layout,
+            engine,
+            now_ms: 0,
+            agents: BTreeMap::new(),
+            tokens: HashMap::new(),
+            waiting: Vec::new(),
+            finished: HashMap::new(),
+            finished_order: VecDeque::new(),
+            vars_seq: 0,
+            agent_vars_seq: HashMap::new(),
+            new_token,
+            round_robin: 0,
+            outbox: VecDeque::new(),
+            stats: CoordStats::default(),
+        }
+    }
+
+    pub fn program(&self) -> &Arc<Program> {
+        &self.program
+    }
+
+    pub fn run(&self) -> RunId {
+        self.run
+    }
+
+    pub fn stats(&self) -> CoordStats {
+        self.stats
+    }
+
+    pub fn poll_output(&mut self) -> Option<CoordOutput> {
+        self.outbox.pop_front()
+    }
+
+    /// The run is over: no active step has a transition left and no token is out.
+    pub fn is_terminal(&self) -> bool {
+        self.tokens.is_empty() && self.engine.is_terminal()
+    }
+
+    /// A variable's current value here.
+    pub fn value(&self, v: VarId) -> Value {
+        self.engine.value(v)
+    }
+
+    pub fn tokens_in_flight(&self) -> usize {
+        self.tokens.len()
+    }
+
+    fn advance(&mut self, now_ms: u64) {
+        self.now_ms = self.now_ms.max(now_ms);
+    }
+
+    fn log(&mut self, level: Level, message: String) {
+        self.outbox.push_back(CoordOutput::Log { level, message });
+    }
+
+    fn drop_msg(&mut self, message: String) {
+        self.stats.dropped += 1;
+        self.log(Level::Warn, message);
+    }
+
+    fn trace(&mut self, rec: TraceRecord) {
+        self.outbox.push_back(CoordOutput::Trace(rec));
+    }
+
+    /// Runs cycles at `now_ms` until the situation settles (or `IMMEDIATE_CYCLES_MAX` cycles ran), then
+    /// publishes the variables the coordinator writes that changed.
+    pub fn handle_cycle(&mut self, now_ms: u64) {
+        self.advance(now_ms);
+        for _ in 0..IMMEDIATE_CYCLES_MAX {
+            if let Err(e) = self.engine.handle_cycle(self.now_ms) {
+                self.log(Level::Error, format!("cycle refused: {e}"));
+                break;
+            }
+            self.drain_engine();
+            if !self.engine.changed() {
+                break;
+            }
+        }
+        self.publish_vars();
+    }
+
+    fn publish_vars(&mut self) {
+        let mut changed = Vec::new();
+        for (i, &v) in self.owned.iter().enumerate() {
+            let value = self.engine.value(v);
+            if self.published[i] != Some(value) {
+                self.published[i] = Some(value);
+                changed.push(VarValue::new(v, value));
+            }
+        }
+        if !changed.is_empty() {
+            self.vars_seq += 1;
+            let update = VarUpdate { run: self.run, from: COORDINATOR.to_string(), seq: self.vars_seq, vars: changed };
+            self.outbox.push_back(CoordOutput::Vars(update));
+        }
+    }
+
+    /// The agent that holds the token of a placed step's segment, if it is out.
+    fn holder(&self, s: StepId) -> Option<&str> {
+        self.segment_holder(self.layout.segment_of[s.index()]?)
+    }
+
+    fn segment_holder(&self, g: SegmentId) -> Option<&str> {
+        self.tokens.get(&self.by_segment[g.index()]?)?.agent.as_deref()
+    }
+
+    fn drain_engine(&mut self) {
+        while let Some(ev) = self.engine.poll_event() {
+            self.on_engine_event(ev);
+        }
+    }
+
+    fn on_engine_event(&mut self, ev: Event) {
+        let program = Arc::clone(&self.program);
+        let mut created = None;
+        if let EventKind::Activate(s) = ev.kind {
+            if let Some(g) = self.layout.segment_of[s.index()] {
+                if self.by_segment[g.index()].is_none() {
+                    created = Some(self.new_token(g, s));
+                }
+            }
+        }
+        let by = match ev.kind {
+            EventKind::Activate(s) | EventKind::Deactivate(s) => self.holder(s),
+            EventKind::Fire(t) => self.layout.agent_judges(&program, t).and_then(|g| self.segment_holder(g)),
+            _ => None,
+        };
+        let agent = by.map(str::to_string);
+        let mut rec = match output_of(&program, ev) {
+            SimOutput::Trace(rec) => rec,
+            SimOutput::Fault { t_ms, message } => {
+                self.log(Level::Error, message.clone());
+                let mut rec = TraceRecord::new(t_ms, "fault", &program.name);
+                rec.message = Some(message);
+                rec
+            }
+        };
+        rec.agent = agent;
+        self.trace(rec);
+        if let Some(id) = created {
+            self.emit_dispatch_or_wait(id);
+        }
+    }
+
+    fn new_token(&mut self, g: SegmentId, entry: StepId) -> TokenId {
+        let id = (self.new_token)();
+        let tok = TokenState {
+            segment: g,
+            entry,
+            epoch: 1,
+            agent: None,
+            next_seq: 0,
+            ahead: BTreeMap::new(),
+            dispatched_ms: self.now_ms,
+        };
+        self.tokens.insert(id, tok);
+        self.by_segment[g.index()] = Some(id);
+        if let Some(agent) = self.choose_agent(&self.layout.segments[g.index()].placement.clone()) {
+            self.assign(id, agent);
+        }
+        id
+    }
+
+    fn choose_agent(&mut self, placement: &Placement) -> Option<String> {
+        match placement {
+            Placement::Coordinator => None,
+            Placement::Agent(name) => self.agents.get(name).filter(|a| a.alive).map(|_| name.clone()),
+            Placement::Role(role) => {
+                let able: Vec<(&String, usize)> = self
+                    .agents
+                    .iter()
+                    .filter(|(_, a)| a.alive && a.roles.iter().any(|r| r == role))
+                    .map(|(n, a)| (n, a.tokens))
+                    .collect();
+                let least = able.iter().map(|(_, n)| *n).min()?;
+                let tied: Vec<&String> = able.iter().filter(|(_, n)| *n == least).map(|(name, _)| *name).collect();
+                let pick = tied[self.round_robin % tied.len()].clone();
+                self.round_robin = self.round_robin.wrapping_add(1);
+                Some(pick)
+            }
+        }
+    }
+
+    fn assign(&mut self, id: TokenId, agent: String) {
+        if let Some(a) = self.agents.get_mut(&agent) {
+            a.tokens += 1;
+        }
+        if let Some(tok) = self.tokens.get_mut(&id) {
+            tok.agent = Some(agent);
+        }
+    }
+
+    /// Sends a token to its agent, or says why it waits.
+    fn emit_dispatch_or_wait(&mut self, id: TokenId) {
+        let Some(tok) = self.tokens.get(&id) else { return };
+        let entry_name = self.program.steps[tok.entry.index()].name.clone();
+        let placement = self.layout.segments[tok.segment.index()].placement.clone();
+        let epoch = tok.epoch;
+        let Some(agent) = tok.agent.clone() else {
+            if !self.waiting.contains(&id) {
+                self.waiting.push(id);
+                let mut rec = TraceRecord::new(self.now_ms, "wait", &entry_name);
+                rec.token = Some(id.to_string());
+                rec.epoch = Some(epoch);
+                self.trace(rec);
+                let why = match &placement {
+                    Placement::Agent(a) => format!("no live agent named `{a}`"),
+                    Placement::Role(r) => format!("no live agent with role `{r}`"),
+                    Placement::Coordinator => "it is placed on the coordinator".to_string(),
+                };
+                self.log(Level::Warn, format!("token for step `{entry_name}` waits: {why}"));
+            }
+            return;
+        };
+        let vars = (0..self.program.vars.len())
+            .filter(|&i| self.layout.writer[i] != placement)
+            .map(|i| VarValue::new(VarId(i as u32), self.engine.value(VarId(i as u32))))
+            .collect();
+        let msg = ToAgent::Dispatch {
+            run: self.run,
+            chart: self.hash.clone(),
+            token: id,
+            epoch,
+            segment: tok.segment.0,
+            entry: tok.entry.0,
+            vars,
+            vars_seq: self.vars_seq,
+        };
+        if let Some(tok) = self.tokens.get_mut(&id) {
+            tok.dispatched_ms = self.now_ms;
+        }
+        self.stats.dispatched += 1;
+        let mut rec = TraceRecord::new(self.now_ms, "dispatch", &entry_name);
+        rec.agent = Some(agent.clone());
+        rec.token = Some(id.to_string());
+        rec.epoch = Some(epoch);
+        self.trace(rec);
+        self.outbox.push_back(CoordOutput::Send { agent, msg });
+    }
+
+    /// An agent announced itself (or came back). Tokens waiting for it leave now.
+    pub fn handle_agent_up(&mut self, now_ms: u64, info: AgentInfo) {
+        self.advance(now_ms);
+        if !crate::layout::is_valid_name(&info.name) || !info.roles.iter().all(|r| crate::layout::is_valid_name(r)) {
+            self.drop_msg(format!("agent announcement with an invalid name or role ignored: {:?}", info.name));
+            return;
+        }
+        if !self.agents.contains_key(&info.name) && self.agents.len() >= AGENTS_MAX {
+            self.drop_msg(format!("agent `{}` ignored: already tracking {AGENTS_MAX} agents", info.name));
+            return;
+        }
+        let name = info.name.clone();
+        let entry =
+            self.agents.entry(name.clone()).or_insert(AgentState { roles: Vec::new(), alive: false, tokens: 0 });
+        let was_alive = entry.alive;
+        entry.roles = info.roles.clone();
+        entry.alive = true;
+        if !was_alive {
+            let mut rec = TraceRecord::new(self.now_ms, "agent_up", &name);
+            rec.agent = Some(name.clone());
+            self.trace(rec);
+            let roles =
+                if info.roles.is_empty() { String::new() } else { format!(" (roles: {})", info.roles.join(", ")) };
+            self.log(Level::Info, format!("agent `{name}` is live{roles}"));
+        }
+        let waiting = std::mem::take(&mut self.waiting);
+        for id in waiting {
+            let Some(tok) = self.tokens.get(&id) else { continue };
+            let placement = self.layout.segments[tok.segment.index()].placement.clone();
+            match self.choose_agent(&placement) {
+                Some(agent) => {
+                    self.assign(id, agent);
+                    self.emit_dispatch_or_wait(id);
+                }
+                None => self.waiting.push(id),
+            }
+        }
+    }
+
+    /// An agent's liveliness token is gone. Its tokens stay where they are until it comes back: re-running a
+    /// motion elsewhere can be unsafe, so nothing is moved behind the user's back.
+    pub fn handle_agent_down(&mut self, now_ms: u64, name: &str) {
+        self.advance(now_ms);
+        let Some(agent) = self.agents.get_mut(name) else { return };
+        if !agent.alive {
+            return;
+        }
+        agent.alive = false;
+        let held = agent.tokens;
+        let mut rec = TraceRecord::new(self.now_ms, "agent_down", name);
+        rec.agent = Some(name.to_string());
+        self.trace(rec);
+        let level = if held > 0 { Level::Error } else { Level::Info };
+        self.log(level, format!("agent `{name}` is gone, holding {held} token(s)"));
+    }
+
+    /// A report from an agent, decoded. Reports of a token apply once each, in sequence order.
+    pub fn handle_report(&mut self, now_ms: u64, report: Report) {
+        self.advance(now_ms);
+        if report.run != self.run {
+            return self.drop_msg(format!("report from `{}` for another run dropped", report.agent));
+        }
+        let Some(tok) = self.tokens.get_mut(&report.token) else {
+            if let Some((epoch, seq, agent)) = self.finished.get(&report.token).cloned() {
+                if report.epoch == epoch && report.agent == agent {
+                    // A duplicate of a finished token's report: acknowledge again, apply nothing.
+                    self.stats.dropped += 1;
+                    let msg = ToAgent::Ack { run: self.run, token: report.token, epoch, seq, done: true };
+                    self.outbox.push_back(CoordOutput::Send { agent, msg });
+                    return;
+                }
+            }
+            return self.drop_msg(format!("report from `{}` for unknown token {} dropped", report.agent, report.token));
+        };
+        if report.epoch != tok.epoch {
+            let epoch = tok.epoch;
+            return self.drop_msg(format!(
+                "report from `{}` for token {} dropped: epoch {} is stale (current {epoch})",
+                report.agent, report.token, report.epoch
+            ));
+        }
+        if tok.agent.as_deref() != Some(report.agent.as_str()) {
+            return self.drop_msg(format!(
+                "report for token {} dropped: it came from `{}`, which does not hold it",
+                report.token, report.agent
+            ));
+        }
+        if report.seq < tok.next_seq {
+            let (agent, epoch, seq) = (report.agent.clone(), tok.epoch, tok.next_seq - 1);
+            self.stats.dropped += 1;
+            let msg = ToAgent::Ack { run: self.run, token: report.token, epoch, seq, done: false };
+            self.outbox.push_back(CoordOutput::Send { agent, msg });
+            return;
+        }
+        if report.seq > tok.next_seq {
+            if tok.ahead.len() < REPORTS_AHEAD_MAX {
+                tok.ahead.insert(report.seq, report);
+            } else {
+                self.stats.dropped += 1;
+            }
+            return;
+        }
+        let id = report.token;
+        let mut next = Some(report);
+        while let Some(r) = next {
+            let done = r.done;
+            self.apply_report(r);
+            if done {
+                break;
+            }
+            next = self.tokens.get_mut(&id).and_then(|t| {
+                let seq = t.next_seq;
+                t.ahead.remove(&seq)
+            });
+        }
+    }
+
+    fn apply_report(&mut self, r: Report) {
+        let Some(tok) = self.tokens.get(&r.token) else { return };
+        let (segment, dispatched_ms, epoch) = (tok.segment, tok.dispatched_ms, tok.epoch);
+        let placement = self.layout.segments[segment.index()].placement.clone();
+        let program = Arc::clone(&self.program);
+        if r.vars_seq > self.agent_vars_seq.get(&r.agent).copied().unwrap_or(0) {
+            self.agent_vars_seq.insert(r.agent.clone(), r.vars_seq);
+            self.apply_agent_vars(&r.agent, &r.vars);
+        }
+        let mut floor = self.engine.now_ms();
+        for ev in &r.events {
+            // Agent times are offsets from the token's arrival; they are mapped onto this clock, never before
+            // what the coordinator already recorded and never after now.
+            let t_ms = dispatched_ms.saturating_add(ev.dt_ms).clamp(floor, self.now_ms.max(floor));
+            floor = t_ms;
+            let rec = |event: &str, name: &str, message: Option<String>| {
+                let mut rec = TraceRecord::new(t_ms, event, name);
+                rec.agent = Some(r.agent.clone());
+                rec.message = message;
+                rec
+            };
+            match &ev.kind {
+                AgentEventKind::Fire { transition } => {
+                    let t = TransitionId(*transition);
+                    let ok = (*transition as usize) < program.transitions.len()
+                        && self.layout.agent_judges(&program, t) == Some(segment);
+                    if !ok {
+                        self.drop_msg(format!(
+                            "`{}` reported transition {transition}, which is not its to clear",
+                            r.agent
+                        ));
+                        continue;
+                    }
+                    if let Err(e) = self.engine.handle_remote(t_ms, RemoteInput::Fire(t)) {
+                        self.drop_msg(format!("`{}` reported a clearing this coordinator cannot mirror: {e}", r.agent));
+                        continue;
+                    }
+                    self.drain_engine();
+                }
+                AgentEventKind::ActionOn { action } | AgentEventKind::ActionOff { action } => {
+                    let Some(info) = program.actions.get(*action as usize) else {
+                        self.drop_msg(format!("`{}` reported unknown action {action}", r.agent));
+                        continue;
+                    };
+                    if self.layout.action_placement[*action as usize] != placement {
+                        self.drop_msg(format!(
+                            "`{}` reported action `{}`, which does not run there",
+                            r.agent, info.name
+                        ));
+                        continue;
+                    }
+                    let on = matches!(ev.kind, AgentEventKind::ActionOn { .. });
+                    let rec = rec(if on { "action_on" } else { "action_off" }, &info.name, None);
+                    self.trace(rec);
+                }
+                AgentEventKind::SkillDone { action } => {
+                    let Some(info) = program.actions.get(*action as usize) else { continue };
+                    let rec = rec("skill_done", &info.name, None);
+                    self.trace(rec);
+                }
+                AgentEventKind::SkillFault { action, message } => {
+                    let Some(info) = program.actions.get(*action as usize) else { continue };
+                    let rec = rec("skill_fault", &info.name, Some(message.clone()));
+                    self.log(
+                        Level::Warn,
+                        format!("skill of action `{}` on `{}` failed: {message}", info.name, r.agent),
+                    );
+                    self.trace(rec);
+                }
+                AgentEventKind::Fault { message } => {
+                    let rec = rec("fault", &program.name, Some(message.clone()));
+                    self.log(Level::Error, format!("on `{}`: {message}", r.agent));
+                    self.trace(rec);
+                }
+            }
+        }
+        let agent = r.agent.clone();
+        self.outbox.push_back(CoordOutput::Send {
+            agent: agent.clone(),
+            msg: ToAgent::Ack { run: self.run, token: r.token, epoch, seq: r.seq, done: r.done },
+        });
+        if let Some(tok) = self.tokens.get_mut(&r.token) {
+            tok.next_seq = r.seq + 1;
+        }
+        if r.done {
+            self.finish(r.token, epoch, r.seq, agent);
+        }
+    }
+
+    fn finish(&mut self, id: TokenId, epoch: u32, seq: u32, agent: String) {
+        let Some(tok) = self.tokens.remove(&id) else { return };
+        self.by_segment[tok.segment.index()] = None;
+        if let Some(a) = self.agents.get_mut(&agent) {
+            a.tokens = a.tokens.saturating_sub(1);
+        }
+        let still =
+            self.layout.segments[tok.segment.index()].steps.iter().find(|&&s| self.engine.is_active(s)).copied();
+        if let Some(s) = still {
+            let name = self.program.steps[s.index()].name.clone();
+            self.log(
+                Level::Error,
+                format!("token {id} came back from `{agent}` while its step `{name}` is still active"),
+            );
+        }
+        self.stats.returned += 1;
+        let mut rec = TraceRecord::new(self.now_ms, "return", &self.program.steps[tok.entry.index()].name);
+        rec.agent = Some(agent.clone());
+        rec.token = Some(id.to_string());
+        rec.epoch = Some(epoch);
+        self.trace(rec);
+        if self.finished_order.len() >= FINISHED_TOKENS_REMEMBERED {
+            if let Some(old) = self.finished_order.pop_front() {
+                self.finished.remove(&old);
+            }
+        }
+        self.finished.insert(id, (epoch, seq, agent));
+        self.finished_order.push_back(id);
+    }
+
+    fn serves(&self, agent: &str, placement: &Placement) -> bool {
+        match placement {
+            Placement::Coordinator => false,
+            Placement::Agent(a) => a == agent,
+            Placement::Role(r) => self.agents.get(agent).is_some_and(|s| s.roles.iter().any(|x| x == r)),
+        }
+    }
+
+    fn apply_agent_vars(&mut self, agent: &str, vars: &[VarValue]) {
+        let mut refused: HashSet<u32> = HashSet::new();
+        for vv in vars {
+            let Some((var, value)) = vv.resolve(&self.program) else {
+                refused.insert(vv.var);
+                continue;
+            };
+            if !self.serves(agent, &self.layout.writer[var.index()]) {
+                refused.insert(vv.var);
+                continue;
+            }
+            if let Err(e) = self.engine.handle(Input::Set(var, value)) {
+                self.log(Level::Warn, format!("value from `{agent}` refused: {e}"));
+            }
+        }
+        if !refused.is_empty() {
+            self.drop_msg(format!(
+                "`{agent}` sent {} variable value(s) it does not write, or of the wrong type",
+                refused.len()
+            ));
+        }
+    }
+
+    /// A variable update published by an agent (also sent to agents that read it).
+    pub fn handle_vars(&mut self, now_ms: u64, update: VarUpdate) {
+        self.advance(now_ms);
+        if update.from == COORDINATOR {
+            return;
+        }
+        if update.run != self.run {
+            return self.drop_msg(format!("variable update from `{}` for another run dropped", update.from));
+        }
+        if !self.agents.contains_key(&update.from) {
+            return self.drop_msg(format!("variable update from unknown agent `{}` dropped", update.from));
+        }
+        if update.seq <= self.agent_vars_seq.get(&update.from).copied().unwrap_or(0) {
+            return;
+        }
+        self.agent_vars_seq.insert(update.from.clone(), update.seq);
+        self.apply_agent_vars(&update.from, &update.vars);
+    }
+
+    /// `baton set NAME=VALUE`: sets an input (a variable no action writes) before the next cycle.
+    pub fn handle_set(&mut self, now_ms: u64, name: &str, value: &serde_json::Value) -> Result<String, String> {
+        self.advance(now_ms);
+        let var = self
+            .program
+            .var_by_name(name)
+            .ok_or_else(|| format!("chart `{}` has no variable `{name}`", self.program.name))?;
+        let program = Arc::clone(&self.program);
+        let info = &program.vars[var.index()];
+        if !self.layout.settable[var.index()] {
+            let why = if info.constant {
+                "it is a CONSTANT".to_string()
+            } else {
+                format!("the chart writes it on {}", self.layout.writer[var.index()])
+            };
+            return Err(format!("`{}` cannot be set: {why}", info.name));
+        }
+        let v = parse_value(&info.ty, value)
+            .ok_or_else(|| format!("`{}` is {}, and {value} is not a {} value", info.name, info.ty, info.ty))?;
+        self.engine.handle(Input::Set(var, v)).map_err(|e| e.to_string())?;
+        let mut rec = TraceRecord::new(self.now_ms, "set", &info.name);
+        rec.message = Some(v.to_string());
+        self.trace(rec);
+        Ok(format!("{} := {v}", info.name))
+    }
+
+    pub fn status(&self) -> StatusReport {
+        let mut active_steps: Vec<StatusStep> = self
+            .engine
+            .active_steps()
+            .iter()
+            .map(|&s| StatusStep {
+                name: self.program.steps[s.index()].name.clone(),
+                placement: self.layout.placement[s.index()].to_string(),
+                agent: self.holder(s).map(str::to_string),
+            })
+            .collect();
+        active_steps.sort_by(|a, b| a.name.cmp(&b.name));
+        let mut tokens: Vec<StatusToken> = self
+            .tokens
+            .iter()
+            .map(|(id, t)| StatusToken {
+                token: *id,
+                epoch: t.epoch,
+                entry: self.program.steps[t.entry.index()].name.clone(),
+                agent: t.agent.clone(),
+                since_ms: t.dispatched_ms,
+            })
+            .collect();
+        tokens.sort_by_key(|t| (t.since_ms, t.token));
+        let agents = self
+            .agents
+            .iter()
+            .filter(|(_, a)| a.alive)
+            .map(|(name, a)| StatusAgent { name: name.clone(), roles: a.roles.clone(), tokens: a.tokens })
+            .collect();
+        StatusReport {
+            run: self.run,
+            chart: self.program.name.clone(),
+            hash: self.hash.clone(),
+            t_ms: self.now_ms,
+            active_steps,
+            tokens,
+            agents,
+        }
+    }
+}

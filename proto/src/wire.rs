@@ -1,0 +1,334 @@
+//! The messages Baton's processes exchange over Zenoh, and their encoding (JSON, one message per sample).
+//!
+//! Only these types are serialized: engine and runtime state convert to them by explicit code, so a refactor
+//! cannot silently change the protocol. Every message carries the protocol version; a decoder refuses other
+//! versions, oversized payloads and malformed JSON with an error, never a panic.
+
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+use uuid::Uuid;
+
+use crate::limits::MESSAGE_BYTES_MAX;
+use crate::program::{Program, VarId};
+use crate::types::{Type, Value};
+
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// One run of a chart by one coordinator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct RunId(pub Uuid);
+
+impl RunId {
+    /// As it appears in key expressions: 32 lowercase hex digits.
+    pub fn key(&self) -> String {
+        self.0.simple().to_string()
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct TokenId(pub Uuid);
+
+impl std::fmt::Display for TokenId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
+/// The chart version: a hash of the chart's source text and POU name.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct ChartHash(pub String);
+
+impl ChartHash {
+    /// FNV-1a, 64 bits: enough to tell chart versions apart (this is a version stamp, not a signature).
+    pub fn of(source: &str, pou: &str) -> ChartHash {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        for b in source.bytes().chain([0]).chain(pou.bytes()) {
+            h ^= u64::from(b);
+            h = h.wrapping_mul(0x0100_0000_01b3);
+        }
+        ChartHash(format!("{h:016x}"))
+    }
+}
+
+/// A variable's value on the wire: `{"var": 3, "bool": true}`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VarValue {
+    pub var: u32,
+    #[serde(flatten)]
+    pub value: WireValue,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WireValue {
+    Bool(bool),
+    Int(i64),
+    Real(f64),
+    TimeMs(i64),
+}
+
+impl From<Value> for WireValue {
+    fn from(v: Value) -> WireValue {
+        match v {
+            Value::Bool(b) => WireValue::Bool(b),
+            Value::Int(i) => WireValue::Int(i),
+            Value::Real(r) => WireValue::Real(r),
+            Value::Time(t) => WireValue::TimeMs(t),
+        }
+    }
+}
+
+impl From<WireValue> for Value {
+    fn from(v: WireValue) -> Value {
+        match v {
+            WireValue::Bool(b) => Value::Bool(b),
+            WireValue::Int(i) => Value::Int(i),
+            WireValue::Real(r) => Value::Real(r),
+            WireValue::TimeMs(t) => Value::Time(t),
+        }
+    }
+}
+
+impl VarValue {
+    pub fn new(var: VarId, value: Value) -> VarValue {
+        VarValue { var: var.0, value: value.into() }
+    }
+
+    /// The variable and value, if the variable exists and the value fits its type.
+    pub fn resolve(&self, program: &Program) -> Option<(VarId, Value)> {
+        let info = program.vars.get(self.var as usize)?;
+        let value = Value::from(self.value);
+        let fits = match (&info.ty, value) {
+            (Type::Bool, Value::Bool(_)) | (Type::Time, Value::Time(_)) | (Type::Real { .. }, Value::Real(_)) => true,
+            (Type::Int(k), Value::Int(v)) => k.contains(v),
+            _ => false,
+        };
+        fits.then_some((VarId(self.var), value))
+    }
+}
+
+/// Coordinator → agent, on the agent's command key.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ToAgent {
+    /// Run `segment` from step `entry`. `vars` holds the current value of every variable the agent does not
+    /// write, as of the coordinator's variable update number `vars_seq`.
+    Dispatch {
+        run: RunId,
+        chart: ChartHash,
+        token: TokenId,
+        epoch: u32,
+        segment: u32,
+        entry: u32,
+        vars: Vec<VarValue>,
+        vars_seq: u64,
+    },
+    /// Every report of this token up to `seq` is applied; with `done`, the token is finished and may be forgotten.
+    Ack { run: RunId, token: TokenId, epoch: u32, seq: u32, done: bool },
+}
+
+/// What happened on an agent while it held a token, `dt_ms` after the token arrived there.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AgentEvent {
+    pub dt_ms: u64,
+    #[serde(flatten)]
+    pub kind: AgentEventKind,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum AgentEventKind {
+    Fire { transition: u32 },
+    ActionOn { action: u32 },
+    ActionOff { action: u32 },
+    Fault { message: String },
+    SkillDone { action: u32 },
+    SkillFault { action: u32, message: String },
+}
+
+/// Agent → coordinator, on the run's report key: the events of one token, numbered per token from 0.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Report {
+    pub run: RunId,
+    pub agent: String,
+    pub token: TokenId,
+    pub epoch: u32,
+    pub seq: u32,
+    pub events: Vec<AgentEvent>,
+    /// Variables the agent writes that changed, as of its variable update number `vars_seq`.
+    pub vars: Vec<VarValue>,
+    pub vars_seq: u64,
+    /// The token left the agent: no step of its segment is active there any more.
+    pub done: bool,
+}
+
+/// Published by whoever writes variables (the coordinator or an agent), on the run's variable keys.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VarUpdate {
+    pub run: RunId,
+    pub from: String,
+    pub seq: u64,
+    pub vars: Vec<VarValue>,
+}
+
+/// An agent's answer to the info query.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AgentInfo {
+    pub name: String,
+    pub roles: Vec<String>,
+    pub lease_ms: u64,
+}
+
+/// The coordinator's answer to the chart query: what an agent needs to run segments of this run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ChartSource {
+    pub hash: ChartHash,
+    pub pou: String,
+    pub source: String,
+}
+
+/// `baton set`: a request to set one input of a running chart.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SetRequest {
+    pub name: String,
+    pub value: serde_json::Value,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SetReply {
+    pub chart: String,
+    pub ok: bool,
+    pub message: String,
+}
+
+/// `baton status`: a running chart's situation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StatusReport {
+    pub run: RunId,
+    pub chart: String,
+    pub hash: ChartHash,
+    pub t_ms: u64,
+    pub active_steps: Vec<StatusStep>,
+    pub tokens: Vec<StatusToken>,
+    pub agents: Vec<StatusAgent>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StatusStep {
+    pub name: String,
+    pub placement: String,
+    pub agent: Option<String>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StatusToken {
+    pub token: TokenId,
+    pub epoch: u32,
+    pub entry: String,
+    pub agent: Option<String>,
+    pub since_ms: u64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StatusAgent {
+    pub name: String,
+    pub roles: Vec<String>,
+    pub tokens: usize,
+}
+
+#[derive(Serialize)]
+struct EnvelopeOut<'a, T> {
+    v: u32,
+    #[serde(flatten)]
+    msg: &'a T,
+}
+
+#[derive(Deserialize)]
+struct EnvelopeIn<T> {
+    v: u32,
+    #[serde(flatten)]
+    msg: T,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum WireError {
+    #[error("message of {0} bytes is larger than the limit of {MESSAGE_BYTES_MAX}")]
+    TooLarge(usize),
+    #[error("malformed message: {0}")]
+    Malformed(String),
+    #[error("protocol version {0}, this build speaks {PROTOCOL_VERSION}")]
+    Version(u32),
+}
+
+pub fn encode<T: Serialize>(msg: &T) -> Vec<u8> {
+    // Serializing these plain structs cannot fail: no maps with non-string keys, no foreign Serialize impls.
+    serde_json::to_vec(&EnvelopeOut { v: PROTOCOL_VERSION, msg }).expect("wire types serialize")
+}
+
+pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, WireError> {
+    if bytes.len() > MESSAGE_BYTES_MAX {
+        return Err(WireError::TooLarge(bytes.len()));
+    }
+    match serde_json::from_slice::<EnvelopeIn<T>>(bytes) {
+        Ok(env) if env.v == PROTOCOL_VERSION => Ok(env.msg),
+        Ok(env) => Err(WireError::Version(env.v)),
+        Err(e) => {
+            // A message of another version may not fit this version's types: say which it was.
+            #[derive(Deserialize)]
+            struct Version {
+                v: u32,
+            }
+            match serde_json::from_slice::<Version>(bytes) {
+                Ok(Version { v }) if v != PROTOCOL_VERSION => Err(WireError::Version(v)),
+                _ => Err(WireError::Malformed(e.to_string())),
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn messages_round_trip_and_carry_the_version() {
+        let msg = ToAgent::Ack {
+            run: RunId(Uuid::from_u128(7)),
+            token: TokenId(Uuid::from_u128(9)),
+            epoch: 2,
+            seq: 3,
+            done: true,
+        };
+        let bytes = encode(&msg);
+        assert!(std::str::from_utf8(&bytes).unwrap().contains("\"v\":1"));
+        assert_eq!(decode::<ToAgent>(&bytes), Ok(msg));
+        let report = Report {
+            run: RunId(Uuid::from_u128(1)),
+            agent: "r1".into(),
+            token: TokenId(Uuid::from_u128(2)),
+            epoch: 1,
+            seq: 0,
+            events: vec![AgentEvent { dt_ms: 5, kind: AgentEventKind::Fire { transition: 3 } }],
+            vars: vec![VarValue { var: 1, value: WireValue::Bool(true) }],
+            vars_seq: 4,
+            done: true,
+        };
+        assert_eq!(decode::<Report>(&encode(&report)), Ok(report));
+    }
+
+    #[test]
+    fn bad_bytes_are_errors() {
+        assert!(matches!(decode::<ToAgent>(b"\xff\x00garbage"), Err(WireError::Malformed(_))));
+        assert!(matches!(decode::<ToAgent>(br#"{"v":1,"type":"launch_missiles"}"#), Err(WireError::Malformed(_))));
+        assert_eq!(decode::<ToAgent>(br#"{"v":99,"type":"ack"}"#), Err(WireError::Version(99)));
+        let big = vec![b' '; MESSAGE_BYTES_MAX + 1];
+        assert_eq!(decode::<ToAgent>(&big), Err(WireError::TooLarge(MESSAGE_BYTES_MAX + 1)));
+    }
+
+    #[test]
+    fn chart_hashes_tell_versions_apart() {
+        assert_eq!(ChartHash::of("a", "P"), ChartHash::of("a", "P"));
+        assert_ne!(ChartHash::of("a", "P"), ChartHash::of("b", "P"));
+        assert_ne!(ChartHash::of("a", "P"), ChartHash::of("a", "Q"));
+    }
+}

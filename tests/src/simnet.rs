@@ -1,0 +1,241 @@
+//! Deterministic simulation of a distributed run: the real coordinator and agent state machines from
+//! `baton_proto::runtime`, a simulated network and simulated skills, one thread, one seed, virtual time.
+//!
+//! Every message goes through the real wire encoding. The network can duplicate, reorder and delay messages;
+//! a run that goes wrong prints its seed so that it can be replayed exactly.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use baton_proto::check::check_source;
+use baton_proto::layout::{Layout, Param};
+use baton_proto::program::{ActionId, Program};
+use baton_proto::runtime::agent::{AgentOutput, AgentRun, Dispatch};
+use baton_proto::runtime::coordinator::{CoordOutput, Coordinator};
+use baton_proto::sim::TraceRecord;
+use baton_proto::wire::{self, AgentInfo, ChartHash, Report, RunId, ToAgent, TokenId, VarUpdate};
+use uuid::Uuid;
+
+/// What the simulated network does to messages.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Faults {
+    /// Probability that a message is delivered twice.
+    pub duplicate: f64,
+    /// Deliver messages in random order rather than sent order.
+    pub reorder: bool,
+    /// Largest extra delay of a message, in ms.
+    pub delay_ms_max: u64,
+}
+
+enum Packet {
+    ToAgent(usize, Vec<u8>),
+    Report(Vec<u8>),
+    Vars(Vec<u8>),
+}
+
+struct SimAgent {
+    name: String,
+    run: AgentRun,
+    /// Running skills: action → (finish time, result).
+    skills: BTreeMap<ActionId, (u64, Result<(), String>)>,
+}
+
+pub struct SimCluster {
+    pub coordinator: Coordinator,
+    agents: Vec<SimAgent>,
+    net: Vec<(u64, Packet)>,
+    rng: u64,
+    faults: Faults,
+    pub now_ms: u64,
+    pub trace: Vec<TraceRecord>,
+    pub seed: u64,
+    pub messages: u64,
+}
+
+/// The first chart of `source`, compiled and laid out; panics with the diagnostics if it has errors.
+pub fn compile(source: &str) -> (Arc<Program>, Arc<Layout>) {
+    let mut report = check_source(source);
+    assert_eq!(report.error_count(), 0, "chart has errors: {:#?}", report.diagnostics);
+    let checked = report.charts.remove(0);
+    (Arc::new(checked.program.expect("program")), Arc::new(checked.layout.expect("layout")))
+}
+
+impl SimCluster {
+    /// Agents as (name, roles).
+    pub fn new(source: &str, agents: &[(&str, &[&str])], faults: Faults, seed: u64) -> SimCluster {
+        let (program, layout) = compile(source);
+        let run = RunId(Uuid::from_u128(1));
+        let hash = ChartHash::of(source, &program.name);
+        let mut counter = 0u128;
+        let new_token = Box::new(move || {
+            counter += 1;
+            TokenId(Uuid::from_u128(1000 + counter))
+        });
+        let mut coordinator = Coordinator::new(Arc::clone(&program), Arc::clone(&layout), run, hash.clone(), new_token);
+        let sim_agents = agents
+            .iter()
+            .map(|(name, roles)| {
+                let roles: Vec<String> = roles.iter().map(|r| r.to_string()).collect();
+                coordinator
+                    .handle_agent_up(0, AgentInfo { name: name.to_string(), roles: roles.clone(), lease_ms: 1000 });
+                SimAgent {
+                    name: name.to_string(),
+                    run: AgentRun::new(name, &roles, run, hash.clone(), Arc::clone(&program), Arc::clone(&layout)),
+                    skills: BTreeMap::new(),
+                }
+            })
+            .collect();
+        SimCluster {
+            coordinator,
+            agents: sim_agents,
+            net: Vec::new(),
+            rng: seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1,
+            faults,
+            now_ms: 0,
+            trace: Vec::new(),
+            seed,
+            messages: 0,
+        }
+    }
+
+    fn random(&mut self) -> u64 {
+        // xorshift64*: deterministic from the seed.
+        self.rng ^= self.rng >> 12;
+        self.rng ^= self.rng << 25;
+        self.rng ^= self.rng >> 27;
+        self.rng.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+
+    fn chance(&mut self, p: f64) -> bool {
+        p > 0.0 && (self.random() % 1_000_000) as f64 / 1_000_000.0 < p
+    }
+
+    fn send(&mut self, packet: Packet) {
+        self.messages += 1;
+        let delay = if self.faults.delay_ms_max > 0 { self.random() % (self.faults.delay_ms_max + 1) } else { 0 };
+        let copy = match &packet {
+            Packet::ToAgent(i, b) => Packet::ToAgent(*i, b.clone()),
+            Packet::Report(b) => Packet::Report(b.clone()),
+            Packet::Vars(b) => Packet::Vars(b.clone()),
+        };
+        self.net.push((self.now_ms + delay, packet));
+        if self.chance(self.faults.duplicate) {
+            let later = self.now_ms + delay + self.random() % 5;
+            self.net.push((later, copy));
+        }
+    }
+
+    /// Runs until the chart reaches a terminal situation or `limit_ms` of virtual time passed; returns whether
+    /// it finished.
+    pub fn run(&mut self, limit_ms: u64) -> bool {
+        while self.now_ms <= limit_ms {
+            self.deliver();
+            self.coordinator.handle_cycle(self.now_ms);
+            self.flush_coordinator();
+            for i in 0..self.agents.len() {
+                let now = self.now_ms;
+                let due: Vec<(ActionId, Result<(), String>)> = self.agents[i]
+                    .skills
+                    .iter()
+                    .filter(|(_, (at, _))| *at <= now)
+                    .map(|(a, (_, r))| (*a, r.clone()))
+                    .collect();
+                for (a, r) in due {
+                    self.agents[i].skills.remove(&a);
+                    self.agents[i].run.handle_skill_result(now, a, r);
+                }
+                self.agents[i].run.handle_cycle(now);
+                if now % 50 == 0 {
+                    self.agents[i].run.handle_resend(now);
+                }
+                self.flush_agent(i);
+            }
+            if self.coordinator.is_terminal() && self.net.is_empty() {
+                return true;
+            }
+            self.now_ms += 1;
+        }
+        false
+    }
+
+    fn deliver(&mut self) {
+        loop {
+            let ready: Vec<usize> = (0..self.net.len()).filter(|&i| self.net[i].0 <= self.now_ms).collect();
+            if ready.is_empty() {
+                return;
+            }
+            let pick =
+                if self.faults.reorder { ready[(self.random() % ready.len() as u64) as usize] } else { ready[0] };
+            let (_, packet) = self.net.remove(pick);
+            match packet {
+                Packet::ToAgent(i, bytes) => {
+                    match wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages") {
+                        ToAgent::Dispatch { token, epoch, segment, entry, vars, vars_seq, .. } => {
+                            let d = Dispatch { token, epoch, segment, entry, vars, vars_seq };
+                            self.agents[i].run.handle_dispatch(self.now_ms, d);
+                        }
+                        ToAgent::Ack { token, epoch, seq, done, .. } => {
+                            self.agents[i].run.handle_ack(token, epoch, seq, done)
+                        }
+                    }
+                }
+                Packet::Report(bytes) => {
+                    let report: Report = wire::decode(&bytes).expect("agents send valid reports");
+                    self.coordinator.handle_report(self.now_ms, report);
+                }
+                Packet::Vars(bytes) => {
+                    let update: VarUpdate = wire::decode(&bytes).expect("valid update");
+                    self.coordinator.handle_vars(self.now_ms, update.clone());
+                    for a in &mut self.agents {
+                        a.run.handle_vars(&update);
+                    }
+                }
+            }
+            self.flush_coordinator();
+        }
+    }
+
+    fn flush_coordinator(&mut self) {
+        while let Some(out) = self.coordinator.poll_output() {
+            match out {
+                CoordOutput::Send { agent, msg } => {
+                    let i = self.agents.iter().position(|a| a.name == agent).expect("known agent");
+                    self.send(Packet::ToAgent(i, wire::encode(&msg)));
+                }
+                CoordOutput::Vars(update) => self.send(Packet::Vars(wire::encode(&update))),
+                CoordOutput::Trace(rec) => self.trace.push(rec),
+                CoordOutput::Log { .. } => {}
+            }
+        }
+    }
+
+    fn flush_agent(&mut self, i: usize) {
+        while let Some(out) = self.agents[i].run.poll_output() {
+            match out {
+                AgentOutput::Report(r) => self.send(Packet::Report(wire::encode(&r))),
+                AgentOutput::Vars(u) => self.send(Packet::Vars(wire::encode(&u))),
+                AgentOutput::StartSkill { action, binding, .. } => {
+                    let ms = binding.params.get("ms").and_then(Param::as_f64).unwrap_or(0.0) as u64;
+                    let rate = binding.params.get("fault_rate").and_then(Param::as_f64).unwrap_or(0.0);
+                    let result = if self.chance(rate) { Err("simulated fault".to_string()) } else { Ok(()) };
+                    self.agents[i].skills.insert(action, (self.now_ms + ms, result));
+                }
+                AgentOutput::StopSkill { action } => {
+                    self.agents[i].skills.remove(&action);
+                }
+                AgentOutput::Log { .. } => {}
+            }
+        }
+    }
+
+    /// A variable's value on the coordinator, by name.
+    pub fn value(&self, name: &str) -> Option<baton_proto::types::Value> {
+        let var = self.coordinator.program().var_by_name(name)?;
+        Some(self.coordinator.value(var))
+    }
+
+    /// The trace's records of one kind, as (t_ms, name, agent).
+    pub fn events(&self, event: &str) -> Vec<(u64, String, Option<String>)> {
+        self.trace.iter().filter(|r| r.event == event).map(|r| (r.t_ms, r.name.clone(), r.agent.clone())).collect()
+    }
+}

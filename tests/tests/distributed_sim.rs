@@ -1,0 +1,91 @@
+//! The distributed runtime's state machines in deterministic simulation: real coordinator and agents, a
+//! simulated network that duplicates, reorders and delays, virtual time.
+
+use baton_tests::simnet::{Faults, SimCluster};
+
+fn chart(name: &str) -> String {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("charts").join(name);
+    std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+const THREE: &[(&str, &[&str])] = &[("r1", &[]), ("r2", &[]), ("r3", &[])];
+
+#[test]
+fn three_branches_converge_after_the_slowest() {
+    let mut sim = SimCluster::new(&chart("three_branches.st"), THREE, Faults::default(), 1);
+    assert!(sim.run(5_000), "did not finish; trace: {:#?}", sim.trace);
+    let dispatched: Vec<_> = sim.events("dispatch").into_iter().map(|(_, n, a)| (n, a.unwrap())).collect();
+    assert_eq!(dispatched.len(), 3, "{dispatched:?}");
+    let returns = sim.events("return");
+    let last_return = returns.iter().map(|r| r.0).max().unwrap();
+    let done = sim.events("activate").into_iter().find(|e| e.1 == "Done").expect("Done activated");
+    assert!(done.0 >= last_return, "Done at {} before the last return at {last_return}", done.0);
+    assert_eq!(returns.iter().max_by_key(|r| r.0).unwrap().2.as_deref(), Some("r2"), "r2 is the slowest");
+    assert!(done.0 >= 300, "B's motion takes 300 ms; Done at {}", done.0);
+}
+
+fn cell() -> String {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/cell.st");
+    std::fs::read_to_string(path).expect("examples/cell.st")
+}
+
+const CELL_AGENTS: &[(&str, &[&str])] = &[("robot1", &["assembler"]), ("robot2", &["assembler"])];
+
+/// Invariants every run of the cell must keep, whatever the network did.
+fn check_cell_run(sim: &SimCluster) {
+    let seed = sim.seed;
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(3)), "seed {seed}: three parts done");
+    let dispatches = sim.events("dispatch");
+    let returns = sim.events("return");
+    assert_eq!(dispatches.len(), returns.len(), "seed {seed}: every token came back");
+    // 3 parts × (2 picks + 1 assembly segment).
+    assert_eq!(dispatches.len(), 9, "seed {seed}: {dispatches:?}");
+    // Every convergence clears only after both pick tokens of that part returned.
+    let mut picks_back = 0;
+    for r in &sim.trace {
+        match (r.event.as_str(), r.name.as_str()) {
+            ("return", "Pick1" | "Pick2") => picks_back += 1,
+            ("fire", "(Picked1,Picked2)->Assemble") => {
+                assert_eq!(picks_back, 2, "seed {seed}: convergence at {} ms with {picks_back} pick(s) back", r.t_ms);
+                picks_back = 0;
+            }
+            _ => {}
+        }
+    }
+    // Activations and deactivations of each step alternate: no step ever got a second token.
+    let mut active = std::collections::HashSet::new();
+    for r in &sim.trace {
+        match r.event.as_str() {
+            "activate" => assert!(active.insert(r.name.clone()), "seed {seed}: `{}` activated twice", r.name),
+            "deactivate" => assert!(active.remove(&r.name), "seed {seed}: `{}` deactivated while inactive", r.name),
+            _ => {}
+        }
+    }
+    assert_eq!(active.into_iter().collect::<Vec<_>>(), ["Finished"], "seed {seed}");
+}
+
+#[test]
+fn the_cell_runs_to_the_end() {
+    let mut sim = SimCluster::new(&cell(), CELL_AGENTS, Faults::default(), 7);
+    assert!(sim.run(60_000), "did not finish");
+    check_cell_run(&sim);
+}
+
+#[test]
+fn duplicated_reordered_and_delayed_messages_change_nothing() {
+    for seed in 0..40 {
+        let faults = Faults { duplicate: 0.3, reorder: true, delay_ms_max: 8 };
+        let mut sim = SimCluster::new(&cell(), CELL_AGENTS, faults, seed);
+        assert!(sim.run(120_000), "seed {seed}: did not finish");
+        check_cell_run(&sim);
+    }
+}
+
+#[test]
+fn a_role_served_by_two_agents_shares_the_work() {
+    let mut sim = SimCluster::new(&cell(), CELL_AGENTS, Faults::default(), 3);
+    assert!(sim.run(60_000));
+    let assemblers: std::collections::BTreeSet<String> =
+        sim.events("dispatch").into_iter().filter(|d| d.1 == "Assemble").filter_map(|d| d.2).collect();
+    assert_eq!(assemblers.into_iter().collect::<Vec<_>>(), ["robot1", "robot2"]);
+}
