@@ -1,3 +1,23 @@
-//! The Baton agent library. It will run dispatched chart segments with the `baton-proto` engine on a robot or
-//! cell and hand tokens back over Zenoh; that distributed runtime is the next milestone, so this crate holds
-//! only the workspace's place for it today.
+//! The Baton agent: runs the segments of a chart that a coordinator dispatches to it, with the same engine,
+//! on its own clock, and hands the tokens back over Zenoh. Embed it in a robot program with your own skills:
+//!
+//! ```no_run
+//! # async fn example() -> anyhow::Result<()> {
+//! use baton_agent::{run, AgentConfig, Skills};
+//! let config = AgentConfig {
+//!     name: "robot1".into(),
+//!     roles: vec!["picker".into()],
+//!     connect: vec!["tcp/127.0.0.1:7447".into()],
+//!     lease_ms: 10_000,
+//!     cycle_ms: 10,
+//!     verbose: false,
+//! };
+//! run(config, Skills::builtin()).await
+//! # }
+//! ```
+
+pub mod shell;
+pub mod skill;
+
+pub use shell::{run, AgentConfig};
+pub use skill::{Skill, SkillCall, SkillFuture, Skills};

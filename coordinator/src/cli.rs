@@ -46,6 +46,51 @@ enum Command {
         #[arg(long)]
         pou: Option<String>,
     },
+    /// Coordinate a chart across agents over Zenoh; exit 0 when it reaches a terminal situation.
+    Run {
+        chart: PathBuf,
+        /// Embed a Zenoh router listening here, such as tcp/127.0.0.1:7447.
+        #[arg(long, value_name = "ENDPOINT", conflicts_with = "connect", required_unless_present = "connect")]
+        listen: Vec<String>,
+        /// Join the router (zenohd or another baton) at this endpoint.
+        #[arg(long, value_name = "ENDPOINT")]
+        connect: Vec<String>,
+        /// Write the run's events as JSON Lines, flushed after every event.
+        #[arg(long, value_name = "FILE")]
+        trace: Option<PathBuf>,
+        /// Write the final summary as JSON.
+        #[arg(long, value_name = "FILE")]
+        summary: Option<PathBuf>,
+        /// Set an input before the first cycle (repeatable): --set parts=5.
+        #[arg(long = "set", value_name = "NAME=VALUE", value_parser = crate::client::parse_assignment)]
+        sets: Vec<(String, serde_json::Value)>,
+        /// Time between two scan cycles when nothing else happens.
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..))]
+        cycle_ms: u64,
+        #[arg(long)]
+        pou: Option<String>,
+        /// Find routers and peers by multicast scouting too (off by default).
+        #[arg(long)]
+        multicast_scouting: bool,
+        /// Print only warnings, errors and the summary.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+    /// Set an input of the charts running behind a router: baton set --connect EP NAME=VALUE.
+    Set {
+        #[arg(long, value_name = "ENDPOINT", required = true)]
+        connect: Vec<String>,
+        #[arg(value_name = "NAME=VALUE", value_parser = crate::client::parse_assignment)]
+        assignment: (String, serde_json::Value),
+    },
+    /// Print the active steps, tokens in flight and live agents of the charts running behind a router.
+    Status {
+        #[arg(long, value_name = "ENDPOINT", required = true)]
+        connect: Vec<String>,
+        /// One JSON object per running chart.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 pub fn main() -> ExitCode {
@@ -55,6 +100,33 @@ pub fn main() -> ExitCode {
         Command::Sim { chart, inputs, cycle_ms, until_ms, pou } => {
             sim(&chart, inputs.as_deref(), cycle_ms, until_ms, pou.as_deref())
         }
+        Command::Run { chart, listen, connect, trace, summary, sets, cycle_ms, pou, multicast_scouting, quiet } => {
+            let opts = crate::run::RunOptions {
+                chart,
+                pou,
+                listen,
+                connect,
+                trace,
+                summary,
+                cycle_ms,
+                sets,
+                multicast_scouting,
+                quiet,
+            };
+            block_on(async move {
+                let summary = crate::run::run(opts).await?;
+                summary.print();
+                Ok(ExitCode::SUCCESS)
+            })
+        }
+        Command::Set { connect, assignment: (name, value) } => block_on(async move {
+            let taken = crate::client::set(&connect, &name, value).await?;
+            Ok(if taken { ExitCode::SUCCESS } else { ExitCode::from(EXIT_INVALID) })
+        }),
+        Command::Status { connect, json } => block_on(async move {
+            crate::client::status(&connect, json).await?;
+            Ok(ExitCode::SUCCESS)
+        }),
     };
     match result {
         Ok(code) => code,
@@ -63,6 +135,13 @@ pub fn main() -> ExitCode {
             ExitCode::from(EXIT_USAGE)
         }
     }
+}
+
+/// Zenoh needs the multi-thread runtime (its blocking calls panic inside a current-thread one).
+fn block_on(fut: impl std::future::Future<Output = anyhow::Result<ExitCode>>) -> anyhow::Result<ExitCode> {
+    let runtime =
+        tokio::runtime::Builder::new_multi_thread().enable_all().build().context("cannot start the runtime")?;
+    runtime.block_on(fut)
 }
 
 fn read(path: &Path) -> anyhow::Result<String> {
@@ -104,7 +183,7 @@ fn check(path: &Path) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-fn pick<'r>(report: &'r Report, pou: Option<&str>) -> anyhow::Result<&'r CheckedChart> {
+pub fn pick<'r>(report: &'r Report, pou: Option<&str>) -> anyhow::Result<&'r CheckedChart> {
     let names = || report.charts.iter().map(|c| c.chart.name.name.as_str()).collect::<Vec<_>>().join(", ");
     match pou {
         Some(name) => report

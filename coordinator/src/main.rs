@@ -1,7 +1,9 @@
-//! `baton`: checks and simulates IEC 61131-3 sequential function charts.
+//! `baton`: checks, simulates and coordinates IEC 61131-3 sequential function charts.
 
 mod cli;
+mod client;
 mod demo_chart;
+mod run;
 
 use std::process::ExitCode;
 

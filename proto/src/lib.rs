@@ -13,6 +13,7 @@ pub mod layout;
 pub mod lexer;
 pub mod limits;
 pub mod model;
+pub mod netconfig;
 pub mod parser;
 pub mod program;
 pub mod runtime;

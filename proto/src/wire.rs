@@ -252,8 +252,8 @@ struct EnvelopeIn<T> {
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum WireError {
-    #[error("message of {0} bytes is larger than the limit of {MESSAGE_BYTES_MAX}")]
-    TooLarge(usize),
+    #[error("message of {0} bytes is larger than the limit of {1}")]
+    TooLarge(usize, usize),
     #[error("malformed message: {0}")]
     Malformed(String),
     #[error("protocol version {0}, this build speaks {PROTOCOL_VERSION}")]
@@ -266,8 +266,13 @@ pub fn encode<T: Serialize>(msg: &T) -> Vec<u8> {
 }
 
 pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, WireError> {
-    if bytes.len() > MESSAGE_BYTES_MAX {
-        return Err(WireError::TooLarge(bytes.len()));
+    decode_with_limit(bytes, MESSAGE_BYTES_MAX)
+}
+
+/// `decode` with another size limit, for the few replies that may be larger (a chart's source).
+pub fn decode_with_limit<T: DeserializeOwned>(bytes: &[u8], limit: usize) -> Result<T, WireError> {
+    if bytes.len() > limit {
+        return Err(WireError::TooLarge(bytes.len(), limit));
     }
     match serde_json::from_slice::<EnvelopeIn<T>>(bytes) {
         Ok(env) if env.v == PROTOCOL_VERSION => Ok(env.msg),
@@ -322,7 +327,7 @@ mod tests {
         assert!(matches!(decode::<ToAgent>(br#"{"v":1,"type":"launch_missiles"}"#), Err(WireError::Malformed(_))));
         assert_eq!(decode::<ToAgent>(br#"{"v":99,"type":"ack"}"#), Err(WireError::Version(99)));
         let big = vec![b' '; MESSAGE_BYTES_MAX + 1];
-        assert_eq!(decode::<ToAgent>(&big), Err(WireError::TooLarge(MESSAGE_BYTES_MAX + 1)));
+        assert_eq!(decode::<ToAgent>(&big), Err(WireError::TooLarge(MESSAGE_BYTES_MAX + 1, MESSAGE_BYTES_MAX)));
     }
 
     #[test]

@@ -83,7 +83,10 @@ pub struct AgentRun {
     by_segment: HashMap<SegmentId, TokenId>,
     finished: HashSet<TokenId>,
     finished_order: VecDeque<TokenId>,
+    /// Variables this agent may write; `pinned` marks those only it writes (placed on it by name), the others
+    /// belong to a role it shares with other agents and follow whichever of them wrote last.
     owned: Vec<VarId>,
+    pinned: Vec<bool>,
     published: Vec<Value>,
     vars_seq: u64,
     peer_seq: HashMap<String, u64>,
@@ -109,6 +112,7 @@ impl AgentRun {
             (0..program.vars.len()).filter(|&i| serves.contains(&layout.writer[i])).map(|i| VarId(i as u32)).collect();
         let engine = Engine::with_scope(Arc::clone(&program), layout.agent_scope(&program));
         let published = owned.iter().map(|&v| engine.value(v)).collect();
+        let pinned = owned.iter().map(|v| layout.writer[v.index()] == Placement::Agent(name.to_string())).collect();
         let mut action_segments = vec![Vec::new(); program.actions.len()];
         for (g, seg) in layout.segments.iter().enumerate() {
             for &s in &seg.steps {
@@ -134,6 +138,7 @@ impl AgentRun {
             finished: HashSet::new(),
             finished_order: VecDeque::new(),
             owned,
+            pinned,
             published,
             vars_seq: 0,
             peer_seq: HashMap::new(),
@@ -206,13 +211,9 @@ impl AgentRun {
                 .drop_msg(format!("token {} dropped: token {other} already runs the same segment here", d.token));
         }
         for vv in &d.vars {
-            match vv.resolve(&self.program) {
-                Some((var, value)) if !self.owned.contains(&var) => {
-                    // Inputs and variables of other places: the coordinator's view as of the dispatch.
-                    let _ = self.engine.handle(Input::Set(var, value));
-                }
-                Some(_) => {}
-                None => self.dropped += 1,
+            // Inputs and variables of other places: the coordinator's view as of the dispatch.
+            if !self.accept_external(vv) {
+                self.dropped += 1;
             }
         }
         let seen = self.peer_seq.entry(COORDINATOR.to_string()).or_insert(0);
@@ -265,13 +266,23 @@ impl AgentRun {
         }
         *seen = update.seq;
         for vv in &update.vars {
-            match vv.resolve(&self.program) {
-                Some((var, value)) if !self.owned.contains(&var) => {
-                    let _ = self.engine.handle(Input::Set(var, value));
-                }
-                _ => self.dropped += 1,
+            if !self.accept_external(vv) {
+                self.dropped += 1;
             }
         }
+    }
+
+    /// Takes a value written elsewhere, unless this agent alone writes the variable.
+    fn accept_external(&mut self, vv: &VarValue) -> bool {
+        let Some((var, value)) = vv.resolve(&self.program) else { return false };
+        if let Some(i) = self.owned.iter().position(|&v| v == var) {
+            if self.pinned[i] {
+                return false;
+            }
+            // A role's variable another agent wrote: take it as already published, not as our own change.
+            self.published[i] = value;
+        }
+        self.engine.handle(Input::Set(var, value)).is_ok()
     }
 
     /// A skill finished: its action's indicator variables say so (first: done, second: fault).

@@ -316,7 +316,8 @@ impl Coordinator {
             return;
         };
         let vars = (0..self.program.vars.len())
-            .filter(|&i| self.layout.writer[i] != placement)
+            // Everything but what the agent alone writes: a role's variables follow the last agent that wrote them.
+            .filter(|&i| self.layout.writer[i] != Placement::Agent(agent.clone()))
             .map(|i| VarValue::new(VarId(i as u32), self.engine.value(VarId(i as u32))))
             .collect();
         let msg = ToAgent::Dispatch {

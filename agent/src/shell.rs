@@ -1,0 +1,372 @@
+//! The agent's Zenoh shell: announces the agent, takes tokens, runs `AgentRun` state machines and skills, and
+//! reports back. It decides nothing about charts: every rule lives in `baton_proto::runtime::agent`.
+
+use std::collections::{HashMap, VecDeque};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::anyhow;
+use baton_proto::check::check_source;
+use baton_proto::keys;
+use baton_proto::layout::{is_valid_name, Layout};
+use baton_proto::limits::CHART_SOURCE_BYTES_MAX;
+use baton_proto::netconfig::{Mode, NetConfig};
+use baton_proto::program::{ActionId, Program};
+use baton_proto::runtime::agent::{AgentOutput, AgentRun, Dispatch};
+use baton_proto::runtime::Level;
+use baton_proto::wire::{self, AgentInfo, ChartHash, ChartSource, RunId, ToAgent, VarUpdate};
+use tokio::sync::mpsc;
+use tokio::task::AbortHandle;
+use zenoh::qos::CongestionControl;
+use zenoh::sample::Sample;
+use zenoh::Session;
+
+use crate::skill::{SkillCall, Skills};
+
+/// Runs an agent takes part in at once; the oldest idle run is forgotten to make room.
+const RUNS_MAX: usize = 64;
+/// Dispatches kept while the chart of their run is fetched.
+const PENDING_DISPATCHES_MAX: usize = 1024;
+const CHART_FETCH_TIMEOUT: Duration = Duration::from_secs(5);
+
+#[derive(Clone, Debug)]
+pub struct AgentConfig {
+    pub name: String,
+    pub roles: Vec<String>,
+    pub connect: Vec<String>,
+    pub lease_ms: u64,
+    pub cycle_ms: u64,
+    /// Print every log line, not only warnings and errors.
+    pub verbose: bool,
+}
+
+impl AgentConfig {
+    pub fn validate(&self) -> anyhow::Result<()> {
+        for n in std::iter::once(&self.name).chain(&self.roles) {
+            if !is_valid_name(n) {
+                anyhow::bail!("`{n}` is not a valid agent name or role: use letters, digits, `_` and `-` (at most 64)");
+            }
+        }
+        if self.connect.is_empty() {
+            anyhow::bail!("give the router's endpoint with --connect, such as tcp/127.0.0.1:7447");
+        }
+        if self.cycle_ms == 0 {
+            anyhow::bail!("--cycle-ms must be at least 1");
+        }
+        Ok(())
+    }
+}
+
+enum Event {
+    Chart(RunId, Result<(ChartHash, Arc<Program>, Arc<Layout>), String>),
+    Skill(RunId, ActionId, Result<(), String>),
+}
+
+struct Run {
+    state: AgentRun,
+    last_used: Instant,
+}
+
+struct Shell {
+    config: AgentConfig,
+    skills: Skills,
+    session: Session,
+    started: Instant,
+    runs: HashMap<RunId, Run>,
+    pending: HashMap<RunId, VecDeque<(ChartHash, Dispatch)>>,
+    running: HashMap<(RunId, ActionId), AbortHandle>,
+    events: mpsc::UnboundedSender<Event>,
+    dropped: u64,
+}
+
+/// Runs the agent until interrupted (Ctrl-C or SIGTERM).
+pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
+    config.validate()?;
+    let net = NetConfig {
+        mode: Mode::Client,
+        listen: Vec::new(),
+        connect: config.connect.clone(),
+        lease_ms: Some(config.lease_ms),
+        wait_for_router: true,
+        multicast_scouting: false,
+    };
+    let zconfig = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"))?;
+    let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
+    let name = config.name.clone();
+    let _alive = session
+        .liveliness()
+        .declare_token(keys::alive(&name))
+        .await
+        .map_err(|e| anyhow!("cannot declare the liveliness token: {e}"))?;
+    let info_q = session.declare_queryable(keys::agent_info(&name)).await.map_err(|e| anyhow!("{e}"))?;
+    let cmd_sub = session.declare_subscriber(keys::agent_cmd(&name)).await.map_err(|e| anyhow!("{e}"))?;
+    let vars_sub = session.declare_subscriber(keys::vars_any_run()).await.map_err(|e| anyhow!("{e}"))?;
+    let (tx, mut rx) = mpsc::unbounded_channel();
+    let mut shell = Shell {
+        config: config.clone(),
+        skills,
+        session: session.clone(),
+        started: Instant::now(),
+        runs: HashMap::new(),
+        pending: HashMap::new(),
+        running: HashMap::new(),
+        events: tx,
+        dropped: 0,
+    };
+    let roles =
+        if config.roles.is_empty() { String::new() } else { format!(" with role(s) {}", config.roles.join(", ")) };
+    eprintln!(
+        "baton-agent `{name}`{roles} ready on {} (skills: {})",
+        config.connect.join(", "),
+        shell.skills.names().join(", ")
+    );
+    let info = wire::encode(&AgentInfo { name: name.clone(), roles: config.roles.clone(), lease_ms: config.lease_ms });
+    let mut tick = tokio::time::interval(Duration::from_millis(config.cycle_ms));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    loop {
+        tokio::select! {
+            s = cmd_sub.recv_async() => {
+                let Ok(s) = s else { break };
+                shell.on_cmd(&s);
+                while let Ok(Some(s)) = cmd_sub.try_recv() {
+                    shell.on_cmd(&s);
+                }
+            }
+            s = vars_sub.recv_async() => {
+                let Ok(s) = s else { break };
+                shell.on_vars(&s);
+            }
+            q = info_q.recv_async() => {
+                let Ok(q) = q else { break };
+                if let Err(e) = q.reply(q.key_expr().clone(), info.clone()).await {
+                    eprintln!("warning: cannot answer an info query: {e}");
+                }
+            }
+            Some(ev) = rx.recv() => shell.on_event(ev),
+            _ = tick.tick() => shell.resend(),
+            _ = tokio::signal::ctrl_c() => break,
+            _ = sigterm.recv() => break,
+        }
+        shell.cycle().await;
+    }
+    eprintln!("baton-agent `{name}` stopping ({} message(s) dropped)", shell.dropped_total());
+    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    Ok(())
+}
+
+impl Shell {
+    fn now_ms(&self) -> u64 {
+        self.started.elapsed().as_millis() as u64
+    }
+
+    fn dropped_total(&self) -> u64 {
+        self.dropped + self.runs.values().map(|r| r.state.dropped()).sum::<u64>()
+    }
+
+    fn drop_msg(&mut self, why: String) {
+        self.dropped += 1;
+        eprintln!("warning: dropped a message: {why}");
+    }
+
+    fn on_cmd(&mut self, sample: &Sample) {
+        let msg: ToAgent = match wire::decode(&sample.payload().to_bytes()) {
+            Ok(m) => m,
+            Err(e) => return self.drop_msg(format!("on {}: {e}", sample.key_expr())),
+        };
+        let now = self.now_ms();
+        match msg {
+            ToAgent::Dispatch { run, chart, token, epoch, segment, entry, vars, vars_seq } => {
+                let d = Dispatch { token, epoch, segment, entry, vars, vars_seq };
+                match self.runs.get_mut(&run) {
+                    Some(r) if *r.state.hash() == chart => {
+                        r.last_used = Instant::now();
+                        r.state.handle_dispatch(now, d);
+                    }
+                    Some(_) => self.drop_msg(format!("dispatch for run {} with another chart version", run.key())),
+                    None => self.queue_for_chart(run, chart, d),
+                }
+            }
+            ToAgent::Ack { run, token, epoch, seq, done } => {
+                if let Some(r) = self.runs.get_mut(&run) {
+                    r.state.handle_ack(token, epoch, seq, done);
+                }
+            }
+        }
+    }
+
+    /// Keeps a dispatch until its run's chart arrives; the first one starts the fetch.
+    fn queue_for_chart(&mut self, run: RunId, hash: ChartHash, d: Dispatch) {
+        let first = !self.pending.contains_key(&run);
+        let queue = self.pending.entry(run).or_default();
+        if queue.len() >= PENDING_DISPATCHES_MAX {
+            return self.drop_msg(format!("too many dispatches waiting for the chart of run {}", run.key()));
+        }
+        queue.push_back((hash.clone(), d));
+        if first {
+            let session = self.session.clone();
+            let tx = self.events.clone();
+            tokio::spawn(async move {
+                let result = fetch_chart(&session, run, &hash).await;
+                let _ = tx.send(Event::Chart(run, result));
+            });
+        }
+    }
+
+    fn on_vars(&mut self, sample: &Sample) {
+        let update: VarUpdate = match wire::decode(&sample.payload().to_bytes()) {
+            Ok(u) => u,
+            Err(e) => return self.drop_msg(format!("on {}: {e}", sample.key_expr())),
+        };
+        if let Some(r) = self.runs.get_mut(&update.run) {
+            r.state.handle_vars(&update);
+        }
+    }
+
+    fn on_event(&mut self, ev: Event) {
+        let now = self.now_ms();
+        match ev {
+            Event::Chart(run, Ok((hash, program, layout))) => {
+                let queued = self.pending.remove(&run).unwrap_or_default();
+                self.make_room();
+                let state = AgentRun::new(&self.config.name, &self.config.roles, run, hash.clone(), program, layout);
+                let mut r = Run { state, last_used: Instant::now() };
+                for (h, d) in queued {
+                    if h == hash {
+                        r.state.handle_dispatch(now, d);
+                    }
+                }
+                eprintln!("joined run {} of chart `{}`", run.key(), r.state.program().name);
+                self.runs.insert(run, r);
+            }
+            Event::Chart(run, Err(why)) => {
+                let n = self.pending.remove(&run).map_or(0, |q| q.len());
+                self.dropped += n as u64;
+                eprintln!("error: cannot take part in run {}: {why} ({n} token(s) dropped)", run.key());
+            }
+            Event::Skill(run, action, result) => {
+                self.running.remove(&(run, action));
+                if let Some(r) = self.runs.get_mut(&run) {
+                    r.state.handle_skill_result(now, action, result);
+                }
+            }
+        }
+    }
+
+    /// Forgets the least recently used run that holds no token when the table is full.
+    fn make_room(&mut self) {
+        if self.runs.len() < RUNS_MAX {
+            return;
+        }
+        let idle = self.runs.iter().filter(|(_, r)| r.state.tokens_held() == 0).min_by_key(|(_, r)| r.last_used);
+        if let Some((&id, _)) = idle {
+            self.runs.remove(&id);
+        }
+    }
+
+    fn resend(&mut self) {
+        let now = self.now_ms();
+        for r in self.runs.values_mut() {
+            r.state.handle_resend(now);
+        }
+    }
+
+    /// Runs a cycle of every run and carries out what they ask.
+    async fn cycle(&mut self) {
+        let now = self.now_ms();
+        let ids: Vec<RunId> = self.runs.keys().copied().collect();
+        for id in ids {
+            let mut outputs = Vec::new();
+            if let Some(r) = self.runs.get_mut(&id) {
+                r.state.handle_cycle(now);
+                while let Some(out) = r.state.poll_output() {
+                    outputs.push(out);
+                }
+            }
+            for out in outputs {
+                self.carry_out(id, out).await;
+            }
+        }
+    }
+
+    async fn carry_out(&mut self, run: RunId, out: AgentOutput) {
+        match out {
+            AgentOutput::Report(report) => self.put(keys::report(run), wire::encode(&report)).await,
+            AgentOutput::Vars(update) => self.put(keys::vars(run, &self.config.name), wire::encode(&update)).await,
+            AgentOutput::StartSkill { action, name, binding } => {
+                let tx = self.events.clone();
+                let Some(skill) = self.skills.get(&binding.skill) else {
+                    let why = format!(
+                        "agent `{}` has no skill `{}` (it has: {})",
+                        self.config.name,
+                        binding.skill,
+                        self.skills.names().join(", ")
+                    );
+                    let _ = tx.send(Event::Skill(run, action, Err(why)));
+                    return;
+                };
+                let call = SkillCall { agent: self.config.name.clone(), action: name, params: binding.params };
+                let task = tokio::spawn(async move {
+                    let result = skill.start(call).await;
+                    let _ = tx.send(Event::Skill(run, action, result));
+                });
+                if let Some(old) = self.running.insert((run, action), task.abort_handle()) {
+                    old.abort();
+                }
+            }
+            AgentOutput::StopSkill { action } => {
+                if let Some(task) = self.running.remove(&(run, action)) {
+                    task.abort();
+                }
+            }
+            AgentOutput::Log { level, message } => {
+                if level >= Level::Warn || self.config.verbose {
+                    let tag = match level {
+                        Level::Info => "info",
+                        Level::Warn => "warning",
+                        Level::Error => "error",
+                    };
+                    eprintln!("{tag}: {message}");
+                }
+            }
+        }
+    }
+
+    async fn put(&self, key: String, payload: Vec<u8>) {
+        let put = self.session.put(&key, payload).congestion_control(CongestionControl::Block).express(true);
+        if let Err(e) = put.await {
+            eprintln!("warning: cannot publish on {key}: {e}");
+        }
+    }
+}
+
+/// Asks the coordinator of `run` for its chart and compiles it; the chart must hash to `hash`.
+async fn fetch_chart(
+    session: &Session,
+    run: RunId,
+    hash: &ChartHash,
+) -> Result<(ChartHash, Arc<Program>, Arc<Layout>), String> {
+    let replies = session
+        .get(keys::chart(run))
+        .timeout(CHART_FETCH_TIMEOUT)
+        .await
+        .map_err(|e| format!("cannot ask for the chart: {e}"))?;
+    let reply = replies.recv_async().await.map_err(|_| "the coordinator did not send the chart".to_string())?;
+    let sample = reply.result().map_err(|e| format!("the chart query failed: {e:?}"))?;
+    let src: ChartSource = wire::decode_with_limit(&sample.payload().to_bytes(), CHART_SOURCE_BYTES_MAX)
+        .map_err(|e| format!("chart reply: {e}"))?;
+    if ChartHash::of(&src.source, &src.pou) != *hash || src.hash != *hash {
+        return Err("the chart received does not match the version of the token".to_string());
+    }
+    let mut report = check_source(&src.source);
+    let i = report
+        .charts
+        .iter()
+        .position(|c| c.chart.name.name == src.pou)
+        .ok_or_else(|| format!("the chart source has no POU `{}`", src.pou))?;
+    let checked = report.charts.swap_remove(i);
+    match (checked.program, checked.layout) {
+        (Some(p), Some(l)) => Ok((hash.clone(), Arc::new(p), Arc::new(l))),
+        _ => Err(format!("chart `{}` has errors here", src.pou)),
+    }
+}

@@ -1,0 +1,164 @@
+//! Skills: what an agent does when one of its actions becomes active.
+//!
+//! A chart binds an action to a skill with a pragma, `ACTION Pick: {skill := 'motion', ms := 800} END_ACTION`.
+//! When the action's Q rises on the agent, the agent starts the skill with the pragma's other keys as
+//! parameters; when Q falls before the skill finished, the skill's future is dropped, which cancels it. The
+//! result reaches the chart through the association's indicator variables: `Pick(N, done, fault)` sets `done`
+//! when the skill succeeds and `fault` when it fails (both are reset when the skill starts).
+//!
+//! Users who embed the agent in their own robot program implement `Skill` and register it with
+//! `Skills::with`; `baton-agent` ships `motion` (a simulated motion) and `shell` (a command, opt-in).
+
+use std::collections::{BTreeMap, HashMap};
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Duration;
+
+use baton_proto::layout::Param;
+
+/// One start of a skill.
+#[derive(Clone, Debug)]
+pub struct SkillCall {
+    /// The agent's name.
+    pub agent: String,
+    /// The chart's action that started the skill.
+    pub action: String,
+    /// The binding pragma's keys other than `skill`, lowercased.
+    pub params: BTreeMap<String, Param>,
+}
+
+impl SkillCall {
+    pub fn number(&self, key: &str) -> Option<f64> {
+        self.params.get(key).and_then(Param::as_f64)
+    }
+
+    pub fn text(&self, key: &str) -> Option<&str> {
+        self.params.get(key).and_then(Param::as_str)
+    }
+}
+
+/// The skill's outcome: `Err` carries a message for the trace and the log.
+pub type SkillFuture = Pin<Box<dyn Future<Output = Result<(), String>> + Send>>;
+
+pub trait Skill: Send + Sync {
+    /// Starts the skill. Dropping the future cancels it.
+    fn start(&self, call: SkillCall) -> SkillFuture;
+}
+
+/// The skills an agent offers, by name.
+#[derive(Clone, Default)]
+pub struct Skills {
+    by_name: HashMap<String, Arc<dyn Skill>>,
+}
+
+impl Skills {
+    /// `motion` only; `shell` is added by `with_shell`, because it runs whatever command a chart names.
+    pub fn builtin() -> Skills {
+        Skills::default().with("motion", SimulatedMotion)
+    }
+
+    pub fn with_shell(self) -> Skills {
+        self.with("shell", ShellCommand)
+    }
+
+    pub fn with(mut self, name: &str, skill: impl Skill + 'static) -> Skills {
+        self.by_name.insert(name.to_string(), Arc::new(skill));
+        self
+    }
+
+    pub fn get(&self, name: &str) -> Option<Arc<dyn Skill>> {
+        self.by_name.get(name).cloned()
+    }
+
+    pub fn names(&self) -> Vec<String> {
+        let mut names: Vec<String> = self.by_name.keys().cloned().collect();
+        names.sort();
+        names
+    }
+}
+
+/// A uniform random number in [0, 1), from the operating system's generator (through `uuid`).
+fn uniform() -> f64 {
+    (uuid::Uuid::new_v4().as_u128() >> 75) as f64 / (1u64 << 53) as f64
+}
+
+/// `{skill := 'motion', ms := 800, fault_rate := 0.1}`: takes `ms` milliseconds (default 500), then fails with
+/// probability `fault_rate` (default 0).
+pub struct SimulatedMotion;
+
+impl Skill for SimulatedMotion {
+    fn start(&self, call: SkillCall) -> SkillFuture {
+        let ms = call.number("ms").unwrap_or(500.0).clamp(0.0, 86_400_000.0) as u64;
+        let fault_rate = call.number("fault_rate").unwrap_or(0.0);
+        Box::pin(async move {
+            tokio::time::sleep(Duration::from_millis(ms)).await;
+            if uniform() < fault_rate {
+                Err(format!("simulated fault after {ms} ms (fault_rate {fault_rate})"))
+            } else {
+                Ok(())
+            }
+        })
+    }
+}
+
+/// `{skill := 'shell', cmd := 'gripper close'}`: runs `cmd` with `sh -c`; succeeds on exit status 0. The
+/// command is killed if the action ends first.
+pub struct ShellCommand;
+
+impl Skill for ShellCommand {
+    fn start(&self, call: SkillCall) -> SkillFuture {
+        let cmd = call.text("cmd").map(str::to_string);
+        let agent = call.agent.clone();
+        let action = call.action.clone();
+        Box::pin(async move {
+            let cmd = cmd.ok_or_else(|| "the shell skill needs `cmd := '…'`".to_string())?;
+            let status = tokio::process::Command::new("sh")
+                .arg("-c")
+                .arg(&cmd)
+                .env("BATON_AGENT", agent)
+                .env("BATON_ACTION", action)
+                .kill_on_drop(true)
+                .status()
+                .await
+                .map_err(|e| format!("cannot run `{cmd}`: {e}"))?;
+            if status.success() {
+                Ok(())
+            } else {
+                Err(format!("`{cmd}` ended with {status}"))
+            }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn call(params: &[(&str, Param)]) -> SkillCall {
+        SkillCall {
+            agent: "a".into(),
+            action: "Act".into(),
+            params: params.iter().map(|(k, v)| (k.to_string(), v.clone())).collect(),
+        }
+    }
+
+    #[tokio::test]
+    async fn motion_succeeds_or_faults_as_configured() {
+        use baton_proto::types::Value;
+        let ok = SimulatedMotion.start(call(&[("ms", Param::Value(Value::Int(1)))])).await;
+        assert_eq!(ok, Ok(()));
+        let bad = SimulatedMotion
+            .start(call(&[("ms", Param::Value(Value::Int(0))), ("fault_rate", Param::Value(Value::Real(1.0)))]))
+            .await;
+        assert!(bad.unwrap_err().contains("simulated fault"));
+    }
+
+    #[tokio::test]
+    async fn shell_reports_the_exit_status() {
+        assert_eq!(ShellCommand.start(call(&[("cmd", Param::Str("true".into()))])).await, Ok(()));
+        let err = ShellCommand.start(call(&[("cmd", Param::Str("exit 3".into()))])).await.unwrap_err();
+        assert!(err.contains("exit status: 3"), "{err}");
+        assert!(ShellCommand.start(call(&[])).await.unwrap_err().contains("needs `cmd"));
+    }
+}

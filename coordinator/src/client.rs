@@ -1,0 +1,114 @@
+//! `baton set` and `baton status`: one-shot clients of running charts, over Zenoh queries.
+
+use std::time::Duration;
+
+use anyhow::{anyhow, bail};
+use baton_proto::keys;
+use baton_proto::netconfig::{Mode, NetConfig};
+use baton_proto::wire::{self, SetReply, SetRequest, StatusReport};
+use zenoh::Session;
+
+const QUERY_TIMEOUT: Duration = Duration::from_secs(3);
+
+async fn open(connect: &[String]) -> anyhow::Result<Session> {
+    let net = NetConfig {
+        mode: Mode::Client,
+        listen: Vec::new(),
+        connect: connect.to_vec(),
+        lease_ms: None,
+        wait_for_router: false,
+        multicast_scouting: false,
+    };
+    let config = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"))?;
+    zenoh::open(config).await.map_err(|e| anyhow!("cannot reach a router at {}: {e}", connect.join(", ")))
+}
+
+/// Replies of every running chart to a query on `key`, decoded; undecodable ones are reported and skipped.
+async fn ask<T: serde::de::DeserializeOwned>(
+    session: &Session,
+    key: String,
+    payload: Option<Vec<u8>>,
+) -> anyhow::Result<Vec<T>> {
+    let mut get = session.get(key).timeout(QUERY_TIMEOUT);
+    if let Some(p) = payload {
+        get = get.payload(p);
+    }
+    let replies = get.await.map_err(|e| anyhow!("{e}"))?;
+    let mut out = Vec::new();
+    while let Ok(reply) = replies.recv_async().await {
+        match reply.result() {
+            Ok(sample) => match wire::decode(&sample.payload().to_bytes()) {
+                Ok(v) => out.push(v),
+                Err(e) => eprintln!("warning: an unreadable reply from {}: {e}", sample.key_expr()),
+            },
+            Err(e) => eprintln!("warning: an error reply: {e:?}"),
+        }
+    }
+    Ok(out)
+}
+
+/// A command-line value: JSON (`true`, `42`, `1.5`) or else a string (`T#2s`).
+pub fn parse_assignment(text: &str) -> Result<(String, serde_json::Value), String> {
+    let (name, value) = text.split_once('=').ok_or_else(|| format!("`{text}` is not NAME=VALUE"))?;
+    let name = name.trim();
+    if name.is_empty() {
+        return Err(format!("`{text}` has no variable name"));
+    }
+    let value = value.trim();
+    let json = serde_json::from_str(value).unwrap_or_else(|_| serde_json::Value::String(value.to_string()));
+    Ok((name.to_string(), json))
+}
+
+/// Sets an input of every chart running behind the router; true when at least one took it.
+pub async fn set(connect: &[String], name: &str, value: serde_json::Value) -> anyhow::Result<bool> {
+    let session = open(connect).await?;
+    let request = wire::encode(&SetRequest { name: name.to_string(), value });
+    let replies: Vec<SetReply> = ask(&session, keys::set_any_run(), Some(request)).await?;
+    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    if replies.is_empty() {
+        bail!("no running chart answered behind {}", connect.join(", "));
+    }
+    for r in &replies {
+        if r.ok {
+            println!("{}: {}", r.chart, r.message);
+        } else {
+            eprintln!("{}: {}", r.chart, r.message);
+        }
+    }
+    Ok(replies.iter().any(|r| r.ok))
+}
+
+pub async fn status(connect: &[String], json: bool) -> anyhow::Result<()> {
+    let session = open(connect).await?;
+    let mut reports: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
+    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    if reports.is_empty() {
+        bail!("no running chart answered behind {}", connect.join(", "));
+    }
+    reports.sort_by(|a, b| a.chart.cmp(&b.chart));
+    if json {
+        for r in &reports {
+            println!("{}", serde_json::to_string(r)?);
+        }
+        return Ok(());
+    }
+    for r in &reports {
+        println!("chart `{}` (run {}, version {}), running for {} ms", r.chart, r.run.key(), r.hash.0, r.t_ms);
+        println!("  active steps:");
+        for s in &r.active_steps {
+            let at = s.agent.as_ref().map_or(String::new(), |a| format!(" on `{a}`"));
+            println!("    {} ({}){at}", s.name, s.placement);
+        }
+        println!("  tokens in flight: {}", r.tokens.len());
+        for t in &r.tokens {
+            let at = t.agent.as_ref().map_or("waiting for an agent".to_string(), |a| format!("on `{a}`"));
+            println!("    {} epoch {} at {} {at}, since {} ms", t.token, t.epoch, t.entry, t.since_ms);
+        }
+        println!("  live agents: {}", r.agents.len());
+        for a in &r.agents {
+            let roles = if a.roles.is_empty() { String::new() } else { format!(" roles {}", a.roles.join(", ")) };
+            println!("    {}{roles}, {} token(s)", a.name, a.tokens);
+        }
+    }
+    Ok(())
+}

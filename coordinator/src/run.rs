@@ -1,0 +1,454 @@
+//! `baton run`: the coordinator's Zenoh shell. It turns samples into inputs of the pure `Coordinator`, runs its
+//! cycles, publishes what it asks for, writes the trace and answers the chart, status and set queries. It
+//! decides nothing about charts: every rule lives in `baton_proto::runtime::coordinator`.
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, bail, Context};
+use baton_proto::check::check_source;
+use baton_proto::keys;
+use baton_proto::layout::Layout;
+use baton_proto::netconfig::{Mode, NetConfig};
+use baton_proto::program::Program;
+use baton_proto::runtime::coordinator::{CoordOutput, Coordinator};
+use baton_proto::runtime::Level;
+use baton_proto::sim::TraceRecord;
+use baton_proto::wire::{self, AgentInfo, ChartHash, ChartSource, RunId, SetReply, SetRequest, TokenId};
+use serde::Serialize;
+use tokio::sync::mpsc;
+use zenoh::pubsub::Publisher;
+use zenoh::qos::CongestionControl;
+use zenoh::query::Query;
+use zenoh::sample::{Sample, SampleKind};
+use zenoh::Session;
+
+const INFO_QUERY_TIMEOUT: Duration = Duration::from_secs(3);
+
+pub struct RunOptions {
+    pub chart: PathBuf,
+    pub pou: Option<String>,
+    pub listen: Vec<String>,
+    pub connect: Vec<String>,
+    pub trace: Option<PathBuf>,
+    pub summary: Option<PathBuf>,
+    pub cycle_ms: u64,
+    pub sets: Vec<(String, serde_json::Value)>,
+    pub multicast_scouting: bool,
+    pub quiet: bool,
+}
+
+/// What `baton run` prints at the end, and writes with `--summary FILE`.
+#[derive(Serialize)]
+pub struct Summary {
+    pub chart: String,
+    pub run: String,
+    pub duration_ms: u64,
+    pub tokens_dispatched: u64,
+    pub tokens_returned: u64,
+    pub messages_dropped: u64,
+    /// Per step: how many times it was active and for how long in all.
+    pub steps: BTreeMap<String, StepTime>,
+    /// Final values of the chart's variables.
+    pub vars: BTreeMap<String, String>,
+}
+
+#[derive(Serialize, Default, Clone, Copy)]
+pub struct StepTime {
+    pub activations: u64,
+    pub active_ms: u64,
+}
+
+/// A compiled chart ready to coordinate.
+pub struct Loaded {
+    pub source: String,
+    pub pou: String,
+    pub program: Arc<Program>,
+    pub layout: Arc<Layout>,
+}
+
+/// Reads and checks the chart; every problem is printed, as `baton check` would.
+pub fn load(chart: &std::path::Path, pou: Option<&str>) -> anyhow::Result<Loaded> {
+    let source = std::fs::read_to_string(chart).with_context(|| format!("cannot read {}", chart.display()))?;
+    let report = check_source(&source);
+    let index = baton_proto::diag::LineIndex::new(&source);
+    for d in &report.diagnostics {
+        eprint!("{}", index.render(&chart.display().to_string(), d));
+    }
+    let chosen = crate::cli::pick(&report, pou)?;
+    let (Some(program), Some(layout)) = (&chosen.program, &chosen.layout) else {
+        bail!("chart `{}` has errors; nothing was run", chosen.chart.name.name);
+    };
+    Ok(Loaded {
+        pou: chosen.chart.name.name.clone(),
+        program: Arc::new(program.clone()),
+        layout: Arc::new(layout.clone()),
+        source,
+    })
+}
+
+enum Event {
+    AgentUp(AgentInfo),
+    AgentUnreachable(String, String),
+}
+
+struct Shell {
+    session: Session,
+    core: Coordinator,
+    started: Instant,
+    trace: Option<BufWriter<File>>,
+    trace_error: bool,
+    quiet: bool,
+    publishers: HashMap<String, Publisher<'static>>,
+    vars_pub: Publisher<'static>,
+    steps: BTreeMap<String, (StepTime, Option<u64>)>,
+    decode_drops: u64,
+}
+
+pub async fn run(opts: RunOptions) -> anyhow::Result<Summary> {
+    let loaded = load(&opts.chart, opts.pou.as_deref())?;
+    if opts.listen.is_empty() == opts.connect.is_empty() {
+        bail!("give either --listen ENDPOINT (embed a router) or --connect ENDPOINT (join one)");
+    }
+    let net = NetConfig {
+        mode: if opts.listen.is_empty() { Mode::Client } else { Mode::Router },
+        listen: opts.listen.clone(),
+        connect: opts.connect.clone(),
+        lease_ms: None,
+        wait_for_router: true,
+        multicast_scouting: opts.multicast_scouting,
+    };
+    let zconfig = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"))?;
+    let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
+    let run = RunId(uuid::Uuid::new_v4());
+    let hash = ChartHash::of(&loaded.source, &loaded.pou);
+    let chart_reply =
+        wire::encode(&ChartSource { hash: hash.clone(), pou: loaded.pou.clone(), source: loaded.source.clone() });
+    let mut core = Coordinator::new(
+        Arc::clone(&loaded.program),
+        Arc::clone(&loaded.layout),
+        run,
+        hash,
+        Box::new(|| TokenId(uuid::Uuid::new_v4())),
+    );
+    for (name, value) in &opts.sets {
+        core.handle_set(0, name, value).map_err(|e| anyhow!("--set {name}: {e}"))?;
+    }
+    let zerr = |e: zenoh::Error| anyhow!("{e}");
+    let report_sub = session.declare_subscriber(keys::report(run)).await.map_err(zerr)?;
+    let vars_sub = session.declare_subscriber(keys::vars(run, "*")).await.map_err(zerr)?;
+    let alive_sub = session.liveliness().declare_subscriber(keys::alive_any()).history(true).await.map_err(zerr)?;
+    let chart_q = session.declare_queryable(keys::chart(run)).await.map_err(zerr)?;
+    let status_q = session.declare_queryable(keys::status(run)).await.map_err(zerr)?;
+    let set_q = session.declare_queryable(keys::set(run)).await.map_err(zerr)?;
+    let vars_pub = session
+        .declare_publisher(keys::vars(run, baton_proto::runtime::COORDINATOR))
+        .congestion_control(CongestionControl::Block)
+        .express(true)
+        .await
+        .map_err(zerr)?;
+    let trace = match &opts.trace {
+        Some(p) => Some(BufWriter::new(File::create(p).with_context(|| format!("cannot create {}", p.display()))?)),
+        None => None,
+    };
+    let where_ = if opts.listen.is_empty() {
+        format!("joined {}", opts.connect.join(", "))
+    } else {
+        format!("router on {}", opts.listen.join(", "))
+    };
+    if !opts.quiet {
+        eprintln!("baton: running chart `{}` as run {} ({where_})", loaded.pou, run.key());
+    }
+    let mut shell = Shell {
+        session: session.clone(),
+        core,
+        started: Instant::now(),
+        trace,
+        trace_error: false,
+        quiet: opts.quiet,
+        publishers: HashMap::new(),
+        vars_pub,
+        steps: BTreeMap::new(),
+        decode_drops: 0,
+    };
+    let (tx, mut rx) = mpsc::unbounded_channel::<Event>();
+    let mut tick = tokio::time::interval(Duration::from_millis(opts.cycle_ms.max(1)));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    let mut interrupted = false;
+    shell.cycle().await?;
+    while !shell.core.is_terminal() {
+        tokio::select! {
+            s = report_sub.recv_async() => {
+                let Ok(s) = s else { break };
+                shell.on_report(&s);
+                while let Ok(Some(s)) = report_sub.try_recv() {
+                    shell.on_report(&s);
+                }
+            }
+            s = vars_sub.recv_async() => {
+                let Ok(s) = s else { break };
+                shell.on_vars(&s);
+            }
+            s = alive_sub.recv_async() => {
+                let Ok(s) = s else { break };
+                shell.on_alive(&s, &tx);
+            }
+            Some(ev) = rx.recv() => shell.on_event(ev),
+            q = chart_q.recv_async() => {
+                let Ok(q) = q else { break };
+                reply(&q, chart_reply.clone()).await;
+            }
+            q = status_q.recv_async() => {
+                let Ok(q) = q else { break };
+                let status = wire::encode(&shell.core.status());
+                reply(&q, status).await;
+            }
+            q = set_q.recv_async() => {
+                let Ok(q) = q else { break };
+                let answer = shell.on_set(&q);
+                reply(&q, wire::encode(&answer)).await;
+            }
+            _ = tick.tick() => {}
+            _ = tokio::signal::ctrl_c() => { interrupted = true; break }
+            _ = sigterm.recv() => { interrupted = true; break }
+        }
+        shell.cycle().await?;
+    }
+    let summary = shell.summary(&loaded);
+    if let Some(t) = &mut shell.trace {
+        t.flush().context("cannot write the trace")?;
+    }
+    drop(shell);
+    session.close().await.map_err(zerr)?;
+    if interrupted {
+        bail!("interrupted before the chart reached a terminal situation");
+    }
+    if let Some(p) = &opts.summary {
+        let text = serde_json::to_string_pretty(&summary)?;
+        std::fs::write(p, text).with_context(|| format!("cannot write {}", p.display()))?;
+    }
+    Ok(summary)
+}
+
+async fn reply(q: &Query, payload: Vec<u8>) {
+    if let Err(e) = q.reply(q.key_expr().clone(), payload).await {
+        eprintln!("warning: cannot answer a query on {}: {e}", q.key_expr());
+    }
+}
+
+impl Shell {
+    fn now_ms(&self) -> u64 {
+        self.started.elapsed().as_millis() as u64
+    }
+
+    fn on_report(&mut self, s: &Sample) {
+        match wire::decode(&s.payload().to_bytes()) {
+            Ok(report) => {
+                let now = self.now_ms();
+                self.core.handle_report(now, report);
+            }
+            Err(e) => self.decode_drop(s, e),
+        }
+    }
+
+    fn on_vars(&mut self, s: &Sample) {
+        match wire::decode(&s.payload().to_bytes()) {
+            Ok(update) => {
+                let now = self.now_ms();
+                self.core.handle_vars(now, update);
+            }
+            Err(e) => self.decode_drop(s, e),
+        }
+    }
+
+    fn decode_drop(&mut self, s: &Sample, e: wire::WireError) {
+        self.decode_drops += 1;
+        eprintln!("warning: dropped a message on {}: {e}", s.key_expr());
+    }
+
+    /// A live agent is asked for its roles before the coordinator counts on it.
+    fn on_alive(&mut self, s: &Sample, tx: &mpsc::UnboundedSender<Event>) {
+        let Some(name) = keys::agent_of_alive(s.key_expr().as_str()).map(str::to_string) else { return };
+        match s.kind() {
+            SampleKind::Put => {
+                let session = self.session.clone();
+                let tx = tx.clone();
+                tokio::spawn(async move {
+                    let ev = match ask_info(&session, &name).await {
+                        Ok(info) if info.name == name => Event::AgentUp(info),
+                        Ok(info) => Event::AgentUnreachable(name, format!("it calls itself `{}`", info.name)),
+                        Err(why) => Event::AgentUnreachable(name, why),
+                    };
+                    let _ = tx.send(ev);
+                });
+            }
+            SampleKind::Delete => {
+                let now = self.now_ms();
+                self.core.handle_agent_down(now, &name);
+            }
+        }
+    }
+
+    fn on_event(&mut self, ev: Event) {
+        let now = self.now_ms();
+        match ev {
+            Event::AgentUp(info) => self.core.handle_agent_up(now, info),
+            Event::AgentUnreachable(name, why) => {
+                eprintln!("warning: agent `{name}` is live but did not say who it is: {why}")
+            }
+        }
+    }
+
+    fn on_set(&mut self, q: &Query) -> SetReply {
+        let chart = self.core.program().name.clone();
+        let request: Result<SetRequest, _> = match q.payload() {
+            Some(p) => wire::decode(&p.to_bytes()),
+            None => return SetReply { chart, ok: false, message: "the request carries no value".into() },
+        };
+        let now = self.now_ms();
+        match request {
+            Ok(r) => match self.core.handle_set(now, &r.name, &r.value) {
+                Ok(message) => SetReply { chart, ok: true, message },
+                Err(message) => SetReply { chart, ok: false, message },
+            },
+            Err(e) => SetReply { chart, ok: false, message: format!("malformed request: {e}") },
+        }
+    }
+
+    async fn cycle(&mut self) -> anyhow::Result<()> {
+        let now = self.now_ms();
+        self.core.handle_cycle(now);
+        while let Some(out) = self.core.poll_output() {
+            match out {
+                CoordOutput::Send { agent, msg } => {
+                    let payload = wire::encode(&msg);
+                    let publisher = match self.publishers.get(&agent) {
+                        Some(p) => p,
+                        None => {
+                            let p = self
+                                .session
+                                .declare_publisher(keys::agent_cmd(&agent))
+                                .congestion_control(CongestionControl::Block)
+                                .express(true)
+                                .await
+                                .map_err(|e| anyhow!("{e}"))?;
+                            self.publishers.entry(agent.clone()).or_insert(p)
+                        }
+                    };
+                    if let Err(e) = publisher.put(payload).await {
+                        eprintln!("warning: cannot send to `{agent}`: {e}");
+                    }
+                }
+                CoordOutput::Vars(update) => {
+                    if let Err(e) = self.vars_pub.put(wire::encode(&update)).await {
+                        eprintln!("warning: cannot publish variables: {e}");
+                    }
+                }
+                CoordOutput::Trace(rec) => self.record(rec),
+                CoordOutput::Log { level, message } => {
+                    let tag = match level {
+                        Level::Info => "info",
+                        Level::Warn => "warning",
+                        Level::Error => "error",
+                    };
+                    if level > Level::Info || !self.quiet {
+                        eprintln!("{tag}: {message}");
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn record(&mut self, rec: TraceRecord) {
+        match rec.event.as_str() {
+            "activate" => {
+                let e = self.steps.entry(rec.name.clone()).or_default();
+                e.0.activations += 1;
+                e.1 = Some(rec.t_ms);
+            }
+            "deactivate" => {
+                if let Some((time, since)) = self.steps.get_mut(&rec.name) {
+                    if let Some(t0) = since.take() {
+                        time.active_ms += rec.t_ms.saturating_sub(t0);
+                    }
+                }
+            }
+            _ => {}
+        }
+        if let Some(w) = &mut self.trace {
+            let written = serde_json::to_writer(&mut *w, &rec)
+                .map_err(std::io::Error::other)
+                .and_then(|()| w.write_all(b"\n"))
+                .and_then(|()| w.flush());
+            if let Err(e) = written {
+                if !self.trace_error {
+                    eprintln!("error: cannot write the trace: {e}");
+                    self.trace_error = true;
+                }
+            }
+        }
+    }
+
+    fn summary(&self, loaded: &Loaded) -> Summary {
+        let now = self.now_ms();
+        let stats = self.core.stats();
+        let steps = self
+            .steps
+            .iter()
+            .map(|(name, (t, since))| {
+                let mut t = *t;
+                if let Some(t0) = since {
+                    t.active_ms += now.saturating_sub(*t0);
+                }
+                (name.clone(), t)
+            })
+            .collect();
+        let vars = loaded
+            .program
+            .vars
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| !v.constant)
+            .map(|(i, v)| (v.name.clone(), self.core.value(baton_proto::program::VarId(i as u32)).to_string()))
+            .collect();
+        Summary {
+            chart: loaded.pou.clone(),
+            run: self.core.run().key(),
+            duration_ms: now,
+            tokens_dispatched: stats.dispatched,
+            tokens_returned: stats.returned,
+            messages_dropped: stats.dropped + self.decode_drops,
+            steps,
+            vars,
+        }
+    }
+}
+
+async fn ask_info(session: &Session, name: &str) -> Result<AgentInfo, String> {
+    let replies = session.get(keys::agent_info(name)).timeout(INFO_QUERY_TIMEOUT).await.map_err(|e| e.to_string())?;
+    let reply = replies.recv_async().await.map_err(|_| "no answer to the info query".to_string())?;
+    let sample = reply.result().map_err(|e| format!("{e:?}"))?;
+    wire::decode(&sample.payload().to_bytes()).map_err(|e| e.to_string())
+}
+
+impl Summary {
+    pub fn print(&self) {
+        println!("chart `{}` finished in {} ms", self.chart, self.duration_ms);
+        println!(
+            "tokens: {} dispatched, {} returned; {} message(s) dropped",
+            self.tokens_dispatched, self.tokens_returned, self.messages_dropped
+        );
+        println!("{:<24} {:>11} {:>14}", "step", "activations", "active ms");
+        for (name, t) in &self.steps {
+            println!("{name:<24} {:>11} {:>14}", t.activations, t.active_ms);
+        }
+        let vars: Vec<String> = self.vars.iter().map(|(k, v)| format!("{k} = {v}")).collect();
+        println!("variables: {}", vars.join(", "));
+    }
+}

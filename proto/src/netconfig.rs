@@ -1,0 +1,74 @@
+//! The Zenoh session configuration every Baton process uses, as JSON5 text for `zenoh::Config::from_json5`:
+//! built here once so that the coordinator, the agent and the tools agree (proto itself has no Zenoh).
+//!
+//! Multicast scouting is off unless asked for: a run joins exactly the endpoints it is given.
+
+use serde_json::json;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// Embeds a router: `--listen`.
+    Router,
+    /// Joins a router: `--connect`.
+    Client,
+}
+
+#[derive(Clone, Debug)]
+pub struct NetConfig {
+    pub mode: Mode,
+    pub listen: Vec<String>,
+    pub connect: Vec<String>,
+    /// The lease this process announces: a peer that hears nothing from it for this long drops it.
+    pub lease_ms: Option<u64>,
+    /// Keep retrying to connect (long-running processes) rather than failing at once (one-shot tools).
+    pub wait_for_router: bool,
+    pub multicast_scouting: bool,
+}
+
+impl NetConfig {
+    pub fn json5(&self) -> String {
+        let mode = match self.mode {
+            Mode::Router => "router",
+            Mode::Client => "client",
+        };
+        let mut cfg = json!({
+            "mode": mode,
+            "listen": { "endpoints": self.listen },
+            "connect": {
+                "endpoints": self.connect,
+                "timeout_ms": if self.wait_for_router { -1 } else { 10_000 },
+                "exit_on_failure": !self.wait_for_router,
+                "retry": { "period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2 },
+            },
+            "scouting": {
+                "multicast": { "enabled": self.multicast_scouting },
+                "gossip": { "enabled": true },
+            },
+        });
+        if let Some(lease) = self.lease_ms {
+            cfg["transport"] = json!({ "link": { "tx": { "lease": lease } } });
+        }
+        cfg.to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scouting_is_off_and_the_lease_is_set() {
+        let cfg = NetConfig {
+            mode: Mode::Client,
+            listen: vec![],
+            connect: vec!["tcp/127.0.0.1:7447".into()],
+            lease_ms: Some(2000),
+            wait_for_router: true,
+            multicast_scouting: false,
+        };
+        let v: serde_json::Value = serde_json::from_str(&cfg.json5()).unwrap();
+        assert_eq!(v["scouting"]["multicast"]["enabled"], false);
+        assert_eq!(v["transport"]["link"]["tx"]["lease"], 2000);
+        assert_eq!(v["connect"]["timeout_ms"], -1);
+    }
+}
