@@ -93,14 +93,16 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
     let zconfig = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"))?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     let name = config.name.clone();
+    // Everything a coordinator may use is declared before the liveliness token announces the agent: a
+    // coordinator asks for the info as soon as it sees the token, and may dispatch right after.
+    let info_q = session.declare_queryable(keys::agent_info(&name)).await.map_err(|e| anyhow!("{e}"))?;
+    let cmd_sub = session.declare_subscriber(keys::agent_cmd(&name)).await.map_err(|e| anyhow!("{e}"))?;
+    let vars_sub = session.declare_subscriber(keys::vars_any_run()).await.map_err(|e| anyhow!("{e}"))?;
     let _alive = session
         .liveliness()
         .declare_token(keys::alive(&name))
         .await
         .map_err(|e| anyhow!("cannot declare the liveliness token: {e}"))?;
-    let info_q = session.declare_queryable(keys::agent_info(&name)).await.map_err(|e| anyhow!("{e}"))?;
-    let cmd_sub = session.declare_subscriber(keys::agent_cmd(&name)).await.map_err(|e| anyhow!("{e}"))?;
-    let vars_sub = session.declare_subscriber(keys::vars_any_run()).await.map_err(|e| anyhow!("{e}"))?;
     let (tx, mut rx) = mpsc::unbounded_channel();
     let mut shell = Shell {
         config: config.clone(),

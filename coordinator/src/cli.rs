@@ -83,6 +83,18 @@ enum Command {
         #[arg(value_name = "NAME=VALUE", value_parser = crate::client::parse_assignment)]
         assignment: (String, serde_json::Value),
     },
+    /// Run the bundled multi-robot cell: a router, a coordinator and simulated robots on loopback.
+    Demo {
+        /// Picking robots (each a `baton-agent` process); robot1 and robot2 also assemble.
+        #[arg(long, default_value_t = 2)]
+        agents: usize,
+        /// Parts the cell makes before it stops.
+        #[arg(long, default_value_t = 3)]
+        parts: u32,
+        /// Keep the chart, trace, summary and logs in this folder.
+        #[arg(long, value_name = "DIR")]
+        keep: Option<PathBuf>,
+    },
     /// Print the active steps, tokens in flight and live agents of the charts running behind a router.
     Status {
         #[arg(long, value_name = "ENDPOINT", required = true)]
@@ -123,6 +135,9 @@ pub fn main() -> ExitCode {
             let taken = crate::client::set(&connect, &name, value).await?;
             Ok(if taken { ExitCode::SUCCESS } else { ExitCode::from(EXIT_INVALID) })
         }),
+        Command::Demo { agents, parts, keep } => {
+            block_on(crate::demo::demo(crate::demo::DemoOptions { agents, parts, keep }))
+        }
         Command::Status { connect, json } => block_on(async move {
             crate::client::status(&connect, json).await?;
             Ok(ExitCode::SUCCESS)

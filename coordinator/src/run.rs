@@ -28,6 +28,7 @@ use zenoh::sample::{Sample, SampleKind};
 use zenoh::Session;
 
 const INFO_QUERY_TIMEOUT: Duration = Duration::from_secs(3);
+const INFO_QUERY_ATTEMPTS: u32 = 5;
 
 pub struct RunOptions {
     pub chart: PathBuf,
@@ -430,7 +431,20 @@ impl Shell {
     }
 }
 
+/// Asks a live agent who it is, a few times: its answer may trail its liveliness token through a router.
 async fn ask_info(session: &Session, name: &str) -> Result<AgentInfo, String> {
+    let mut last = String::new();
+    for attempt in 0..INFO_QUERY_ATTEMPTS {
+        match ask_info_once(session, name).await {
+            Ok(info) => return Ok(info),
+            Err(why) => last = why,
+        }
+        tokio::time::sleep(Duration::from_millis(100 << attempt)).await;
+    }
+    Err(last)
+}
+
+async fn ask_info_once(session: &Session, name: &str) -> Result<AgentInfo, String> {
     let replies = session.get(keys::agent_info(name)).timeout(INFO_QUERY_TIMEOUT).await.map_err(|e| e.to_string())?;
     let reply = replies.recv_async().await.map_err(|_| "no answer to the info query".to_string())?;
     let sample = reply.result().map_err(|e| format!("{e:?}"))?;

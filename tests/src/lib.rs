@@ -1,5 +1,6 @@
 //! Test support for Baton: the scenario driver and chart generators shared by tests and benchmarks.
 
+pub mod cluster;
 pub mod gen;
 pub mod scenario;
 pub mod simnet;

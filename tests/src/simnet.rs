@@ -145,7 +145,7 @@ impl SimCluster {
                     self.agents[i].run.handle_skill_result(now, a, r);
                 }
                 self.agents[i].run.handle_cycle(now);
-                if now % 50 == 0 {
+                if now.is_multiple_of(50) {
                     self.agents[i].run.handle_resend(now);
                 }
                 self.flush_agent(i);

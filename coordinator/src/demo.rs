@@ -1,0 +1,283 @@
+//! `baton demo`: a router, a coordinator and simulated robots as separate processes on loopback, running the
+//! bundled cell chart, with live progress and a summary.
+
+use std::collections::BTreeMap;
+use std::io::{BufRead, BufReader, IsTerminal};
+use std::path::{Path, PathBuf};
+use std::process::{ExitCode, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, bail, Context};
+use baton_proto::netconfig::{Mode, NetConfig};
+use baton_proto::sim::TraceRecord;
+use indicatif::{ProgressBar, ProgressStyle};
+use tokio::process::{Child, Command};
+
+use crate::demo_chart::cell_chart;
+
+/// The demo gives up after this long: the default cell finishes in a few seconds.
+const DEMO_TIMEOUT: Duration = Duration::from_secs(300);
+
+pub struct DemoOptions {
+    pub agents: usize,
+    pub parts: u32,
+    /// Keep the run's files (chart, trace, summary, agent logs) here instead of a temporary folder.
+    pub keep: Option<PathBuf>,
+}
+
+/// `baton-agent`, next to this executable (as cargo builds them) or on the PATH.
+pub fn agent_binary() -> anyhow::Result<PathBuf> {
+    let exe = std::env::current_exe().context("cannot locate this executable")?;
+    let beside = exe.with_file_name(format!("baton-agent{}", std::env::consts::EXE_SUFFIX));
+    if beside.is_file() {
+        return Ok(beside);
+    }
+    let on_path = std::env::var_os("PATH")
+        .map(|p| std::env::split_paths(&p).map(|d| d.join("baton-agent")).find(|c| c.is_file()))
+        .unwrap_or_default();
+    on_path.ok_or_else(|| {
+        anyhow!(
+            "`baton-agent` is neither beside {} nor on the PATH: build both with `cargo build --release`",
+            exe.display()
+        )
+    })
+}
+
+/// A free TCP port on 127.0.0.1: bound, read, released.
+pub fn free_port() -> anyhow::Result<u16> {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").context("cannot bind a loopback port")?;
+    Ok(l.local_addr()?.port())
+}
+
+pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
+    if opts.agents == 0 || opts.agents > 64 {
+        bail!("--agents must be between 1 and 64");
+    }
+    if opts.parts == 0 {
+        bail!("--parts must be at least 1");
+    }
+    let agent_bin = agent_binary()?;
+    let exe = std::env::current_exe()?;
+    let tmp;
+    let dir: &Path = match &opts.keep {
+        Some(d) => {
+            std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;
+            d
+        }
+        None => {
+            tmp = tempfile::tempdir().context("cannot create a temporary folder")?;
+            tmp.path()
+        }
+    };
+    let chart = dir.join("cell.st");
+    std::fs::write(&chart, cell_chart(opts.agents))?;
+    let trace = dir.join("trace.jsonl");
+    let summary = dir.join("summary.json");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
+
+    // The router: this process.
+    let net = NetConfig {
+        mode: Mode::Router,
+        listen: vec![endpoint.clone()],
+        connect: Vec::new(),
+        lease_ms: None,
+        wait_for_router: false,
+        multicast_scouting: false,
+    };
+    let config = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("{e}"))?;
+    let router = zenoh::open(config).await.map_err(|e| anyhow!("cannot start the router on {endpoint}: {e}"))?;
+    println!("baton demo: router on {endpoint}, {} robot(s), {} part(s)", opts.agents, opts.parts);
+
+    let mut agents: Vec<Child> = Vec::new();
+    for k in 1..=opts.agents {
+        let name = format!("robot{k}");
+        let log = std::fs::File::create(dir.join(format!("{name}.log")))?;
+        let mut cmd = Command::new(&agent_bin);
+        cmd.args(["--connect", &endpoint, "--name", &name, "--lease-ms", "2000"]);
+        // Two robots share the assembler role (one if the cell has one): the coordinator picks the less busy.
+        if k <= 2 {
+            cmd.args(["--role", "assembler"]);
+        }
+        cmd.stdout(Stdio::null()).stderr(log).kill_on_drop(true);
+        agents.push(cmd.spawn().with_context(|| format!("cannot start {}", agent_bin.display()))?);
+    }
+    let coord_log = dir.join("coordinator.log");
+    let mut coordinator = Command::new(&exe)
+        .arg("run")
+        .arg(&chart)
+        .args(["--connect", &endpoint, "--quiet", "--set", &format!("parts={}", opts.parts)])
+        .arg("--trace")
+        .arg(&trace)
+        .arg("--summary")
+        .arg(&summary)
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&coord_log)?)
+        .kill_on_drop(true)
+        .spawn()
+        .context("cannot start the coordinator")?;
+
+    let started = Instant::now();
+    let mut progress = Progress::new(opts.parts as u64, &trace);
+    let mut ticker = tokio::time::interval(Duration::from_millis(100));
+    let status = loop {
+        tokio::select! {
+            st = coordinator.wait() => break st?,
+            _ = ticker.tick() => {
+                progress.poll();
+                if started.elapsed() > DEMO_TIMEOUT {
+                    let _ = coordinator.kill().await;
+                    progress.finish();
+                    bail!("the demo did not finish in {} s; logs are in {}", DEMO_TIMEOUT.as_secs(), dir.display());
+                }
+            }
+            _ = tokio::signal::ctrl_c() => {
+                let _ = coordinator.kill().await;
+                progress.finish();
+                bail!("interrupted");
+            }
+        }
+    };
+    progress.poll();
+    progress.finish();
+    for a in &mut agents {
+        let _ = a.kill().await;
+    }
+    router.close().await.map_err(|e| anyhow!("{e}"))?;
+    if !status.success() {
+        let log = std::fs::read_to_string(&coord_log).unwrap_or_default();
+        eprintln!("{log}");
+        bail!("the coordinator failed ({status}); its log is above");
+    }
+    let text = std::fs::read_to_string(&summary).context("the coordinator wrote no summary")?;
+    let s: serde_json::Value = serde_json::from_str(&text)?;
+    print_summary(&s, &progress, started.elapsed());
+    if opts.keep.is_some() {
+        println!("files (chart, trace, summary, logs): {}", dir.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Follows the trace file as the coordinator writes it.
+struct Progress {
+    bar: ProgressBar,
+    path: PathBuf,
+    offset: u64,
+    partial: String,
+    active: BTreeMap<String, Option<String>>,
+    parts_done: u64,
+    pub dispatched: u64,
+    pub per_agent: BTreeMap<String, u64>,
+    tty: bool,
+}
+
+impl Progress {
+    fn new(parts: u64, path: &Path) -> Progress {
+        let tty = std::io::stderr().is_terminal();
+        let bar = if tty { ProgressBar::new(parts) } else { ProgressBar::hidden() };
+        let style = ProgressStyle::with_template("{elapsed:>4} [{bar:30}] {pos}/{len} parts  {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> ");
+        bar.set_style(style);
+        Progress {
+            bar,
+            path: path.to_path_buf(),
+            offset: 0,
+            partial: String::new(),
+            active: BTreeMap::new(),
+            parts_done: 0,
+            dispatched: 0,
+            per_agent: BTreeMap::new(),
+            tty,
+        }
+    }
+
+    fn poll(&mut self) {
+        let Ok(mut f) = std::fs::File::open(&self.path) else { return };
+        use std::io::{Seek, SeekFrom};
+        if f.seek(SeekFrom::Start(self.offset)).is_err() {
+            return;
+        }
+        let mut reader = BufReader::new(f);
+        loop {
+            let mut line = String::new();
+            match reader.read_line(&mut line) {
+                Ok(0) | Err(_) => break,
+                Ok(n) => {
+                    self.offset += n as u64;
+                    if !line.ends_with('\n') {
+                        self.partial.push_str(&line);
+                        continue;
+                    }
+                    let full = std::mem::take(&mut self.partial) + &line;
+                    if let Ok(rec) = serde_json::from_str::<TraceRecord>(&full) {
+                        self.on_record(rec);
+                    }
+                }
+            }
+        }
+        let now: Vec<String> = self
+            .active
+            .iter()
+            .map(|(s, a)| match a {
+                Some(a) => format!("{s}@{a}"),
+                None => s.clone(),
+            })
+            .collect();
+        self.bar.set_message(now.join(" "));
+    }
+
+    fn on_record(&mut self, rec: TraceRecord) {
+        match rec.event.as_str() {
+            "activate" => {
+                self.active.insert(rec.name.clone(), rec.agent.clone());
+                if rec.name == "Count" {
+                    self.parts_done += 1;
+                    self.bar.set_position(self.parts_done);
+                    if !self.tty {
+                        println!("{:>6} ms  part {} done", rec.t_ms, self.parts_done);
+                    }
+                }
+            }
+            "deactivate" => {
+                self.active.remove(&rec.name);
+            }
+            "dispatch" => {
+                self.dispatched += 1;
+                if let Some(a) = rec.agent {
+                    *self.per_agent.entry(a).or_default() += 1;
+                }
+            }
+            "skill_fault" if !self.tty => {
+                println!("{:>6} ms  {} failed on {}: rework", rec.t_ms, rec.name, rec.agent.unwrap_or_default());
+            }
+            _ => {}
+        }
+    }
+
+    fn finish(&self) {
+        self.bar.finish_and_clear();
+    }
+}
+
+fn print_summary(s: &serde_json::Value, progress: &Progress, elapsed: Duration) {
+    let var = |name: &str| s["vars"][name].as_str().unwrap_or("?").to_string();
+    println!("parts done: {} (reworks: {})", var("done"), var("reworks"));
+    println!("chart time: {} ms (demo, with start-up: {:.1} s)", s["duration_ms"], elapsed.as_secs_f64());
+    let per_agent: Vec<String> = progress.per_agent.iter().map(|(a, n)| format!("{a} {n}")).collect();
+    println!(
+        "tokens dispatched: {} ({}); returned: {}; messages dropped: {}",
+        s["tokens_dispatched"],
+        per_agent.join(", "),
+        s["tokens_returned"],
+        s["messages_dropped"]
+    );
+    println!("{:<12} {:>11} {:>12} {:>10}", "step", "activations", "active ms", "ms each");
+    if let Some(steps) = s["steps"].as_object() {
+        for (name, t) in steps {
+            let n = t["activations"].as_u64().unwrap_or(0);
+            let ms = t["active_ms"].as_u64().unwrap_or(0);
+            let each = ms.checked_div(n).unwrap_or(0);
+            println!("{name:<12} {n:>11} {ms:>12} {each:>10}");
+        }
+    }
+}

@@ -1,0 +1,191 @@
+//! Loopback cluster tests' kit: real `baton` and `baton-agent` processes on 127.0.0.1 with a free port,
+//! multicast scouting off, every wait on an event under a timeout, every process killed when the cluster is
+//! dropped.
+
+use std::path::{Path, PathBuf};
+use std::process::{ExitStatus, Stdio};
+use std::time::Duration;
+
+use baton_proto::sim::TraceRecord;
+use tokio::io::{AsyncBufReadExt, BufReader, Lines};
+use tokio::process::{Child, ChildStderr, Command};
+
+/// Long enough for a debug build on a loaded 2-core CI machine; a healthy test finishes far earlier.
+pub const TIMEOUT: Duration = Duration::from_secs(60);
+
+/// The workspace's binaries, built by `cargo test --workspace` next to the test executable's folder.
+pub fn bin(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable");
+    // target/<profile>/deps/<test> → target/<profile>/<name>
+    let dir = exe.parent().and_then(Path::parent).expect("target dir");
+    let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
+    assert!(
+        path.is_file(),
+        "{} is missing: run `cargo test --workspace` (or `cargo build --workspace`) first",
+        path.display()
+    );
+    path
+}
+
+pub fn free_port() -> u16 {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").expect("bind a loopback port");
+    l.local_addr().expect("local address").port()
+}
+
+pub fn repo(path: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join(path)
+}
+
+pub struct Cluster {
+    pub endpoint: String,
+    pub dir: tempfile::TempDir,
+    agents: Vec<(String, Child)>,
+}
+
+/// A coordinator process, with its stderr readable line by line.
+pub struct Coordinator {
+    pub child: Child,
+    pub stderr: Lines<BufReader<ChildStderr>>,
+    pub trace: PathBuf,
+    pub summary: PathBuf,
+}
+
+impl Default for Cluster {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Cluster {
+    pub fn new() -> Cluster {
+        Cluster {
+            endpoint: format!("tcp/127.0.0.1:{}", free_port()),
+            dir: tempfile::tempdir().expect("temp dir"),
+            agents: Vec::new(),
+        }
+    }
+
+    /// Starts `baton-agent --name NAME --role …` joining the cluster's router.
+    pub fn agent(&mut self, name: &str, roles: &[&str], extra: &[&str]) {
+        let log = std::fs::File::create(self.dir.path().join(format!("{name}.log"))).expect("agent log");
+        let mut cmd = Command::new(bin("baton-agent"));
+        cmd.args(["--connect", &self.endpoint, "--name", name]);
+        for r in roles {
+            cmd.args(["--role", r]);
+        }
+        cmd.args(extra).stdout(Stdio::null()).stderr(log).kill_on_drop(true);
+        self.agents.push((name.to_string(), cmd.spawn().expect("start baton-agent")));
+    }
+
+    pub fn agent_log(&self, name: &str) -> String {
+        std::fs::read_to_string(self.dir.path().join(format!("{name}.log"))).unwrap_or_default()
+    }
+
+    /// Starts `baton run CHART --listen EP --trace … --summary …` (the coordinator embeds the router).
+    pub fn coordinator(&self, chart: &Path, extra: &[&str]) -> Coordinator {
+        let trace = self.dir.path().join("trace.jsonl");
+        let summary = self.dir.path().join("summary.json");
+        let mut child = Command::new(bin("baton"))
+            .arg("run")
+            .arg(chart)
+            .args(["--listen", &self.endpoint])
+            .arg("--trace")
+            .arg(&trace)
+            .arg("--summary")
+            .arg(&summary)
+            .args(extra)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .kill_on_drop(true)
+            .spawn()
+            .expect("start baton run");
+        let stderr = BufReader::new(child.stderr.take().expect("stderr")).lines();
+        Coordinator { child, stderr, trace, summary }
+    }
+
+    /// Runs `baton ARGS…` to completion, under the timeout.
+    pub async fn baton(&self, args: &[&str]) -> std::process::Output {
+        let out = Command::new(bin("baton")).args(args).kill_on_drop(true).output();
+        tokio::time::timeout(TIMEOUT, out).await.expect("baton finished in time").expect("baton runs")
+    }
+}
+
+impl Coordinator {
+    /// Reads the coordinator's log until a line containing `needle`; returns the lines read.
+    pub async fn wait_for_log(&mut self, needle: &str) -> Vec<String> {
+        let mut seen = Vec::new();
+        let found = tokio::time::timeout(TIMEOUT, async {
+            while let Ok(Some(line)) = self.stderr.next_line().await {
+                let hit = line.contains(needle);
+                seen.push(line);
+                if hit {
+                    return true;
+                }
+            }
+            false
+        })
+        .await;
+        assert!(matches!(found, Ok(true)), "the coordinator never logged `{needle}`; it logged:\n{}", seen.join("\n"));
+        seen
+    }
+
+    /// Waits for the coordinator to exit, draining its log; returns its status and the whole log.
+    pub async fn finish(mut self) -> (ExitStatus, String, Vec<TraceRecord>, serde_json::Value) {
+        let mut log = Vec::new();
+        let done = tokio::time::timeout(TIMEOUT, async {
+            while let Ok(Some(line)) = self.stderr.next_line().await {
+                log.push(line);
+            }
+            self.child.wait().await
+        })
+        .await;
+        let log = log.join("\n");
+        let status = match done {
+            Ok(s) => s.expect("wait for baton run"),
+            Err(_) => panic!("the coordinator did not finish within {TIMEOUT:?}; its log:\n{log}"),
+        };
+        let trace = read_trace(&self.trace);
+        let summary = std::fs::read_to_string(&self.summary)
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok())
+            .unwrap_or(serde_json::Value::Null);
+        (status, log, trace, summary)
+    }
+}
+
+pub fn read_trace(path: &Path) -> Vec<TraceRecord> {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    text.lines().map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("bad trace line {l}: {e}"))).collect()
+}
+
+/// The records of one event, as (t_ms, name, agent).
+pub fn events(trace: &[TraceRecord], event: &str) -> Vec<(u64, String, Option<String>)> {
+    trace.iter().filter(|r| r.event == event).map(|r| (r.t_ms, r.name.clone(), r.agent.clone())).collect()
+}
+
+/// Invariants of every distributed trace: no step holds two tokens; every dispatched token came back once;
+/// no token is dispatched twice in one epoch.
+pub fn check_trace_invariants(trace: &[TraceRecord]) {
+    let mut active = std::collections::HashSet::new();
+    for r in trace {
+        match r.event.as_str() {
+            "activate" => assert!(active.insert(r.name.clone()), "`{}` activated twice at {} ms", r.name, r.t_ms),
+            "deactivate" => assert!(active.remove(&r.name), "`{}` deactivated while inactive at {} ms", r.name, r.t_ms),
+            _ => {}
+        }
+    }
+    let ids = |event: &str| {
+        let mut v: Vec<(String, u32)> = trace
+            .iter()
+            .filter(|r| r.event == event)
+            .map(|r| (r.token.clone().unwrap_or_default(), r.epoch.unwrap_or(0)))
+            .collect();
+        v.sort();
+        v
+    };
+    let (dispatched, returned) = (ids("dispatch"), ids("return"));
+    let mut unique = dispatched.clone();
+    unique.dedup();
+    assert_eq!(unique.len(), dispatched.len(), "a token was dispatched twice in one epoch");
+    assert_eq!(dispatched, returned, "every dispatched token came back exactly once");
+}

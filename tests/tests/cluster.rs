@@ -1,0 +1,250 @@
+//! Loopback cluster tests: real `baton run` and `baton-agent` processes over Zenoh on 127.0.0.1.
+
+use std::time::Duration;
+
+use baton_proto::keys;
+use baton_proto::netconfig::{Mode, NetConfig};
+use baton_proto::wire::{self, StatusReport};
+use baton_tests::cluster::{check_trace_invariants, events, repo, Cluster, TIMEOUT};
+use zenoh::sample::Locality;
+
+fn chart(name: &str) -> std::path::PathBuf {
+    repo(&format!("tests/charts/{name}"))
+}
+
+fn var(summary: &serde_json::Value, name: &str) -> String {
+    summary["vars"][name].as_str().unwrap_or("<missing>").to_string()
+}
+
+async fn client(endpoint: &str) -> zenoh::Session {
+    let net = NetConfig {
+        mode: Mode::Client,
+        listen: vec![],
+        connect: vec![endpoint.to_string()],
+        lease_ms: None,
+        wait_for_router: false,
+        multicast_scouting: false,
+    };
+    let config = zenoh::Config::from_json5(&net.json5()).expect("config");
+    zenoh::open(config).await.expect("test session")
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn three_parallel_branches_converge_only_after_the_slowest() {
+    let mut cluster = Cluster::new();
+    for name in ["r1", "r2", "r3"] {
+        cluster.agent(name, &[], &[]);
+    }
+    let coordinator = cluster.coordinator(&chart("three_branches.st"), &[]);
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace);
+    let dispatched: Vec<(String, String)> =
+        events(&trace, "dispatch").into_iter().map(|(_, n, a)| (n, a.unwrap_or_default())).collect();
+    assert_eq!(dispatched.len(), 3);
+    for (step, agent) in [("A", "r1"), ("B", "r2"), ("C", "r3")] {
+        assert!(dispatched.contains(&(step.to_string(), agent.to_string())), "{step} on {agent}: {dispatched:?}");
+    }
+    // The convergence clears after every return, the last of which is B's (300 ms of motion on r2).
+    let fire = trace.iter().position(|r| r.event == "fire" && r.name == "(WaitA,WaitB,WaitC)->Done").expect("fired");
+    let returns: Vec<usize> = trace.iter().enumerate().filter(|(_, r)| r.event == "return").map(|(i, _)| i).collect();
+    assert_eq!(returns.len(), 3);
+    assert!(returns.iter().all(|&i| i < fire), "the convergence cleared before every branch returned");
+    let last = &trace[*returns.last().expect("returns")];
+    assert_eq!((last.name.as_str(), last.agent.as_deref()), ("B", Some("r2")));
+    // Step events of steps that ran on agents say where.
+    let b_fire = trace.iter().find(|r| r.event == "fire" && r.name == "B->WaitB").expect("B cleared");
+    assert_eq!(b_fire.agent.as_deref(), Some("r2"));
+    assert!(trace.iter().any(|r| r.event == "action_on" && r.name == "MoveB" && r.agent.as_deref() == Some("r2")));
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_selection_inside_a_segment_follows_an_input_set_at_run_time() {
+    let mut cluster = Cluster::new();
+    cluster.agent("r1", &[], &[]);
+    let mut coordinator = cluster.coordinator(&chart("selection_segment.st"), &[]);
+    coordinator.wait_for_log("running chart").await;
+    let ep = cluster.endpoint.clone();
+
+    let status = cluster.baton(&["status", "--connect", &ep]).await;
+    let text = String::from_utf8_lossy(&status.stdout);
+    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    assert!(text.contains("chart `selection_segment`") && text.contains("Ready (the coordinator)"), "{text}");
+
+    let refused = cluster.baton(&["set", "--connect", &ep, "a_count=5"]).await;
+    assert_eq!(refused.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("the chart writes it on agent `r1`"));
+    let unknown = cluster.baton(&["set", "--connect", &ep, "nosuch=1"]).await;
+    assert_eq!(unknown.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&unknown.stderr).contains("has no variable `nosuch`"));
+    let wrong_type = cluster.baton(&["set", "--connect", &ep, "mode=true"]).await;
+    assert_eq!(wrong_type.status.code(), Some(1));
+
+    for assignment in ["mode=2", "go=true"] {
+        let set = cluster.baton(&["set", "--connect", &ep, assignment]).await;
+        assert!(set.status.success(), "{assignment}: {}", String::from_utf8_lossy(&set.stderr));
+    }
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace);
+    let activated: Vec<String> = events(&trace, "activate").into_iter().map(|e| e.1).collect();
+    assert!(activated.contains(&"B".to_string()) && !activated.contains(&"A".to_string()), "{activated:?}");
+    let b = trace.iter().find(|r| r.event == "activate" && r.name == "B").expect("B");
+    assert_eq!(b.agent.as_deref(), Some("r1"), "B ran on r1");
+    assert_eq!(events(&trace, "dispatch").len(), 1, "one token for the whole segment");
+    assert_eq!((var(&summary, "b_count"), var(&summary, "a_count")), ("1".into(), "0".into()));
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_role_served_by_two_agents_shares_the_work() {
+    let mut cluster = Cluster::new();
+    cluster.agent("robot1", &["assembler"], &[]);
+    cluster.agent("robot2", &["assembler"], &[]);
+    let coordinator = cluster.coordinator(&repo("examples/cell.st"), &["--set", "parts=4"]);
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace);
+    assert_eq!(var(&summary, "done"), "4");
+    let assemblers: std::collections::BTreeSet<String> =
+        events(&trace, "dispatch").into_iter().filter(|d| d.1 == "Assemble").filter_map(|d| d.2).collect();
+    assert_eq!(assemblers.into_iter().collect::<Vec<_>>(), ["robot1", "robot2"]);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn skill_indicators_drive_transitions() {
+    let mut cluster = Cluster::new();
+    cluster.agent("r1", &[], &["--allow-shell"]);
+    let coordinator = cluster.coordinator(&chart("shell_skill.st"), &[]);
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}\n{}", cluster.agent_log("r1"));
+    let activated: Vec<String> = events(&trace, "activate").into_iter().map(|e| e.1).collect();
+    assert!(activated.contains(&"Handled".to_string()), "{activated:?}");
+    assert!(!activated.contains(&"Wrong".to_string()));
+    let done = trace.iter().find(|r| r.event == "skill_done").expect("RunTrue succeeded");
+    assert_eq!(done.name, "RunTrue");
+    let fault = trace.iter().find(|r| r.event == "skill_fault").expect("RunFalse failed");
+    assert_eq!(fault.name, "RunFalse");
+    assert!(fault.message.as_deref().unwrap_or_default().contains("exit status: 3"), "{fault:?}");
+    assert_eq!((var(&summary, "ok_done"), var(&summary, "bad_fault")), ("TRUE".into(), "TRUE".into()));
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn tokens_wait_for_agents_that_start_later() {
+    let mut cluster = Cluster::new();
+    let mut coordinator = cluster.coordinator(&chart("three_branches.st"), &[]);
+    coordinator.wait_for_log("waits: no live agent named").await;
+    for name in ["r1", "r2", "r3"] {
+        cluster.agent(name, &[], &[]);
+    }
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace);
+    assert_eq!(events(&trace, "wait").len(), 3);
+    assert_eq!(events(&trace, "return").len(), 3);
+}
+
+/// Republishes every message on Baton's keys, duplicated and in swapped pairs, so that each process sees
+/// every message twice and some of them out of order.
+async fn echo_chaos(
+    session: zenoh::Session,
+    sub: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
+) {
+    let mut held: Option<zenoh::sample::Sample> = None;
+    while let Ok(sample) = sub.recv_async().await {
+        let key = sample.key_expr().as_str().to_string();
+        if !(key.ends_with("/report") || key.ends_with("/cmd") || key.contains("/vars/")) {
+            continue;
+        }
+        match held.take() {
+            None => held = Some(sample),
+            Some(first) => {
+                for s in [&sample, &first] {
+                    let put = session
+                        .put(s.key_expr().clone(), s.payload().clone())
+                        .allowed_destination(Locality::Remote)
+                        .congestion_control(zenoh::qos::CongestionControl::Block);
+                    let _ = put.await;
+                }
+            }
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn duplicated_and_reordered_messages_change_nothing() {
+    let mut cluster = Cluster::new();
+    let mut coordinator = cluster.coordinator(&repo("examples/cell.st"), &["--set", "parts=3"]);
+    coordinator.wait_for_log("running chart").await;
+    let session = client(&cluster.endpoint).await;
+    // Declared before any agent exists, so that it sees every message of the run.
+    let sub = session.declare_subscriber(keys::everything()).await.expect("chaos subscriber");
+    let chaos = tokio::spawn(echo_chaos(session.clone(), sub));
+    cluster.agent("robot1", &["assembler"], &[]);
+    cluster.agent("robot2", &["assembler"], &[]);
+    let (status, log, trace, summary) = coordinator.finish().await;
+    chaos.abort();
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace);
+    assert_eq!(var(&summary, "done"), "3");
+    assert_eq!(events(&trace, "dispatch").len(), 9);
+    let dropped = summary["messages_dropped"].as_u64().unwrap_or(0);
+    assert!(dropped > 0, "the duplicates reached the coordinator and were dropped: {summary}");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn garbage_on_batons_keys_changes_nothing() {
+    let mut cluster = Cluster::new();
+    let mut coordinator = cluster.coordinator(&chart("selection_segment.st"), &[]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &[]);
+    let session = client(&cluster.endpoint).await;
+    let replies = session.get(keys::status_any_run()).timeout(TIMEOUT).await.expect("status query");
+    let reply = replies.recv_async().await.expect("a status reply");
+    let status: StatusReport = wire::decode(&reply.result().expect("ok").payload().to_bytes()).expect("status");
+    let run = status.run;
+    let garbage: Vec<Vec<u8>> = vec![
+        b"\x00\xff\x13garbage".to_vec(),
+        b"{}".to_vec(),
+        br#"{"v":1,"type":"dispatch"}"#.to_vec(),
+        br#"{"v":99,"type":"ack"}"#.to_vec(),
+        format!(r#"{{"v":1,"run":"{}","agent":"r1","token":"00000000-0000-0000-0000-000000000001","epoch":1,"seq":0,"events":[],"vars":[],"vars_seq":1,"done":true}}"#, run.0).into_bytes(),
+        format!(r#"{{"v":1,"run":"{}","from":"intruder","seq":1,"vars":[{{"var":0,"int":2}}]}}"#, run.0).into_bytes(),
+        vec![b'x'; 2 * 1024 * 1024],
+    ];
+    let put = |key: String, payload: Vec<u8>| {
+        let s = session.clone();
+        async move { s.put(key, payload).congestion_control(zenoh::qos::CongestionControl::Block).await.expect("put") }
+    };
+    for g in &garbage {
+        put(keys::report(run), g.clone()).await;
+        put(keys::vars(run, "intruder"), g.clone()).await;
+        put(keys::agent_cmd("r1"), g.clone()).await;
+    }
+    // A dispatch for a run nobody coordinates: the agent cannot fetch its chart and drops it.
+    let bogus = format!(
+        r#"{{"v":1,"type":"dispatch","run":"{}","chart":"0000000000000000","token":"00000000-0000-0000-0000-000000000002","epoch":1,"segment":0,"entry":0,"vars":[],"vars_seq":0}}"#,
+        uuid::Uuid::from_u128(77)
+    );
+    put(keys::agent_cmd("r1"), bogus.into_bytes()).await;
+    // An agent that announces itself but never says who it is.
+    let _ghost = session.liveliness().declare_token(keys::alive("ghost")).await.expect("token");
+    // A set request that is not one.
+    let bad_set = session.get(keys::set(run)).payload(b"nonsense".to_vec()).timeout(TIMEOUT).await.expect("set query");
+    let answer = bad_set.recv_async().await.expect("an answer");
+    let text = String::from_utf8_lossy(&answer.result().expect("ok").payload().to_bytes()).into_owned();
+    assert!(text.contains("\"ok\":false") && text.contains("malformed request"), "{text}");
+
+    // The run still goes as it should: mode 1 takes branch A.
+    let go = cluster.baton(&["set", "--connect", &cluster.endpoint, "go=true"]).await;
+    assert!(go.status.success(), "{}", String::from_utf8_lossy(&go.stderr));
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace);
+    assert_eq!(var(&summary, "a_count"), "1");
+    assert!(summary["messages_dropped"].as_u64().unwrap_or(0) >= 2 * garbage.len() as u64, "{summary}");
+    assert!(log.contains("dropped a message"), "the coordinator says what it dropped:\n{log}");
+    let agent_log = cluster.agent_log("r1");
+    assert!(agent_log.contains("dropped a message"), "{agent_log}");
+    assert!(agent_log.contains("cannot take part in run"), "{agent_log}");
+    tokio::time::timeout(Duration::from_secs(5), session.close()).await.ok();
+}
