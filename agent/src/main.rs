@@ -43,7 +43,7 @@ fn main() -> ExitCode {
         verbose: args.verbose,
     };
     let skills = if args.allow_shell { Skills::builtin().with_shell() } else { Skills::builtin() };
-    let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
+    let runtime = match tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build() {
         Ok(rt) => rt,
         Err(e) => {
             eprintln!("error: cannot start the runtime: {e}");

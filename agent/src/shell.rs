@@ -9,7 +9,7 @@ use anyhow::anyhow;
 use baton_proto::check::check_source;
 use baton_proto::keys;
 use baton_proto::layout::{is_valid_name, Layout};
-use baton_proto::limits::CHART_SOURCE_BYTES_MAX;
+use baton_proto::limits::{CHART_SOURCE_BYTES_MAX, RECEIVE_QUEUE_MAX};
 use baton_proto::netconfig::{Mode, NetConfig};
 use baton_proto::program::{ActionId, Program};
 use baton_proto::runtime::agent::{AgentOutput, AgentRun, Dispatch};
@@ -17,6 +17,8 @@ use baton_proto::runtime::Level;
 use baton_proto::wire::{self, AgentInfo, ChartHash, ChartSource, RunId, ToAgent, VarUpdate};
 use tokio::sync::mpsc;
 use tokio::task::AbortHandle;
+use zenoh::handlers::FifoChannel;
+use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::sample::Sample;
 use zenoh::Session;
@@ -76,6 +78,8 @@ struct Shell {
     pending: HashMap<RunId, VecDeque<(ChartHash, Dispatch)>>,
     running: HashMap<(RunId, ActionId), AbortHandle>,
     events: mpsc::UnboundedSender<Event>,
+    /// One publisher per key, declared on first use.
+    publishers: HashMap<String, Publisher<'static>>,
     dropped: u64,
 }
 
@@ -96,8 +100,9 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
     // Everything a coordinator may use is declared before the liveliness token announces the agent: a
     // coordinator asks for the info as soon as it sees the token, and may dispatch right after.
     let info_q = session.declare_queryable(keys::agent_info(&name)).await.map_err(|e| anyhow!("{e}"))?;
-    let cmd_sub = session.declare_subscriber(keys::agent_cmd(&name)).await.map_err(|e| anyhow!("{e}"))?;
-    let vars_sub = session.declare_subscriber(keys::vars_any_run()).await.map_err(|e| anyhow!("{e}"))?;
+    let inbox = || FifoChannel::new(RECEIVE_QUEUE_MAX);
+    let cmd_sub = session.declare_subscriber(keys::agent_cmd(&name)).with(inbox()).await.map_err(|e| anyhow!("{e}"))?;
+    let vars_sub = session.declare_subscriber(keys::vars_any_run()).with(inbox()).await.map_err(|e| anyhow!("{e}"))?;
     let _alive = session
         .liveliness()
         .declare_token(keys::alive(&name))
@@ -113,6 +118,7 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
         pending: HashMap::new(),
         running: HashMap::new(),
         events: tx,
+        publishers: HashMap::new(),
         dropped: 0,
     };
     let roles =
@@ -125,7 +131,9 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
     let info = wire::encode(&AgentInfo { name: name.clone(), roles: config.roles.clone(), lease_ms: config.lease_ms });
     let mut tick = tokio::time::interval(Duration::from_millis(config.cycle_ms));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    // Signal streams made once: polling them each turn of the loop costs nothing.
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
     loop {
         tokio::select! {
             s = cmd_sub.recv_async() => {
@@ -147,12 +155,13 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
             }
             Some(ev) = rx.recv() => shell.on_event(ev),
             _ = tick.tick() => shell.resend(),
-            _ = tokio::signal::ctrl_c() => break,
+            _ = sigint.recv() => break,
             _ = sigterm.recv() => break,
         }
         shell.cycle().await;
     }
     eprintln!("baton-agent `{name}` stopping ({} message(s) dropped)", shell.dropped_total());
+    drop(shell);
     session.close().await.map_err(|e| anyhow!("{e}"))?;
     Ok(())
 }
@@ -178,20 +187,25 @@ impl Shell {
         };
         let now = self.now_ms();
         match msg {
-            ToAgent::Dispatch { run, chart, token, epoch, segment, entry, vars, vars_seq } => {
+            ToAgent::Dispatch { run, chart, token, epoch, segment, entry, vars, vars_seq, acks } => {
                 let d = Dispatch { token, epoch, segment, entry, vars, vars_seq };
                 match self.runs.get_mut(&run) {
                     Some(r) if *r.state.hash() == chart => {
                         r.last_used = Instant::now();
+                        for a in acks {
+                            r.state.handle_ack(a.token, a.epoch, a.seq, a.done);
+                        }
                         r.state.handle_dispatch(now, d);
                     }
                     Some(_) => self.drop_msg(format!("dispatch for run {} with another chart version", run.key())),
                     None => self.queue_for_chart(run, chart, d),
                 }
             }
-            ToAgent::Ack { run, token, epoch, seq, done } => {
+            ToAgent::Ack { run, acks } => {
                 if let Some(r) = self.runs.get_mut(&run) {
-                    r.state.handle_ack(token, epoch, seq, done);
+                    for a in acks {
+                        r.state.handle_ack(a.token, a.epoch, a.seq, a.done);
+                    }
                 }
             }
         }
@@ -273,14 +287,17 @@ impl Shell {
         }
     }
 
-    /// Runs a cycle of every run and carries out what they ask.
+    /// Runs a cycle of every run that holds a token (the others have nothing active to judge) and carries out
+    /// what every run asks.
     async fn cycle(&mut self) {
         let now = self.now_ms();
         let ids: Vec<RunId> = self.runs.keys().copied().collect();
         for id in ids {
             let mut outputs = Vec::new();
             if let Some(r) = self.runs.get_mut(&id) {
-                r.state.handle_cycle(now);
+                if r.state.tokens_held() > 0 {
+                    r.state.handle_cycle(now);
+                }
                 while let Some(out) = r.state.poll_output() {
                     outputs.push(out);
                 }
@@ -334,13 +351,39 @@ impl Shell {
         }
     }
 
-    async fn put(&self, key: String, payload: Vec<u8>) {
-        let put = self.session.put(&key, payload).congestion_control(CongestionControl::Block).express(true);
-        if let Err(e) = put.await {
-            eprintln!("warning: cannot publish on {key}: {e}");
+    /// Publishes in the main loop, without a hop to another task (a hop cost a third of a token's round trip).
+    /// This cannot deadlock with a coordinator doing the same: a put waits only while the link's queue is full,
+    /// and each side's Zenoh reader hands samples to an inbox of `RECEIVE_QUEUE_MAX` without waiting for the
+    /// main loop, so both sides would need that many messages unread at once.
+    async fn put(&mut self, key: String, payload: Vec<u8>) {
+        if self.publishers.len() >= PUBLISHERS_MAX && !self.publishers.contains_key(&key) {
+            // Keys of finished runs accumulate otherwise; the live ones are declared again on next use.
+            self.publishers.clear();
+        }
+        if !self.publishers.contains_key(&key) {
+            let declared = self
+                .session
+                .declare_publisher(key.clone())
+                .congestion_control(CongestionControl::Block)
+                .express(true)
+                .await;
+            match declared {
+                Ok(p) => {
+                    self.publishers.insert(key.clone(), p);
+                }
+                Err(e) => return eprintln!("warning: cannot publish on {key}: {e}"),
+            }
+        }
+        if let Some(p) = self.publishers.get(&key) {
+            if let Err(e) = p.put(payload).await {
+                eprintln!("warning: cannot publish on {key}: {e}");
+            }
         }
     }
 }
+
+/// Publishers kept declared at once.
+const PUBLISHERS_MAX: usize = 256;
 
 /// Asks the coordinator of `run` for its chart and compiles it; the chart must hash to `hash`.
 async fn fetch_chart(

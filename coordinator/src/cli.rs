@@ -95,6 +95,30 @@ enum Command {
         #[arg(long, value_name = "DIR")]
         keep: Option<PathBuf>,
     },
+    /// Measure the distributed runtime on loopback: Zenoh and token round trips, convergence, throughput.
+    Bench {
+        /// Round trips and convergences measured.
+        #[arg(long, default_value_t = 2000)]
+        samples: u32,
+        /// Tokens in the throughput phase.
+        #[arg(long, default_value_t = 40_000)]
+        tokens: u32,
+        /// Agents (processes) in the throughput phase.
+        #[arg(long, default_value_t = 8)]
+        agents: u32,
+        /// Tokens in flight per agent in the throughput phase.
+        #[arg(long, default_value_t = 4)]
+        lanes_per_agent: u32,
+        /// Print the figures as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// The far end of the bench's raw Zenoh round trip.
+    #[command(hide = true)]
+    BenchEcho {
+        #[arg(long, required = true)]
+        connect: Vec<String>,
+    },
     /// Print the active steps, tokens in flight and live agents of the charts running behind a router.
     Status {
         #[arg(long, value_name = "ENDPOINT", required = true)]
@@ -138,6 +162,23 @@ pub fn main() -> ExitCode {
         Command::Demo { agents, parts, keep } => {
             block_on(crate::demo::demo(crate::demo::DemoOptions { agents, parts, keep }))
         }
+        Command::Bench { samples, tokens, agents, lanes_per_agent, json } => block_on(async move {
+            if samples == 0 || tokens == 0 || agents == 0 || lanes_per_agent == 0 {
+                bail!("--samples, --tokens, --agents and --lanes-per-agent must be at least 1");
+            }
+            let report =
+                crate::bench::bench(crate::bench::BenchOptions { samples, tokens, agents, lanes_per_agent }).await?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else {
+                report.print();
+            }
+            Ok(ExitCode::SUCCESS)
+        }),
+        Command::BenchEcho { connect } => block_on(async move {
+            crate::bench::echo(&connect).await?;
+            Ok(ExitCode::SUCCESS)
+        }),
         Command::Status { connect, json } => block_on(async move {
             crate::client::status(&connect, json).await?;
             Ok(ExitCode::SUCCESS)
@@ -154,8 +195,11 @@ pub fn main() -> ExitCode {
 
 /// Zenoh needs the multi-thread runtime (its blocking calls panic inside a current-thread one).
 fn block_on(fut: impl std::future::Future<Output = anyhow::Result<ExitCode>>) -> anyhow::Result<ExitCode> {
-    let runtime =
-        tokio::runtime::Builder::new_multi_thread().enable_all().build().context("cannot start the runtime")?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .context("cannot start the runtime")?;
     runtime.block_on(fut)
 }
 

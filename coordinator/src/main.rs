@@ -1,5 +1,6 @@
 //! `baton`: checks, simulates and coordinates IEC 61131-3 sequential function charts.
 
+mod bench;
 mod cli;
 mod client;
 mod demo;

@@ -13,6 +13,7 @@ use anyhow::{anyhow, bail, Context};
 use baton_proto::check::check_source;
 use baton_proto::keys;
 use baton_proto::layout::Layout;
+use baton_proto::limits::RECEIVE_QUEUE_MAX;
 use baton_proto::netconfig::{Mode, NetConfig};
 use baton_proto::program::Program;
 use baton_proto::runtime::coordinator::{CoordOutput, Coordinator};
@@ -21,6 +22,7 @@ use baton_proto::sim::TraceRecord;
 use baton_proto::wire::{self, AgentInfo, ChartHash, ChartSource, RunId, SetReply, SetRequest, TokenId};
 use serde::Serialize;
 use tokio::sync::mpsc;
+use zenoh::handlers::FifoChannel;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::query::Query;
@@ -104,13 +106,22 @@ struct Shell {
     trace: Option<BufWriter<File>>,
     trace_error: bool,
     quiet: bool,
+    /// One publisher per key, declared on first use.
     publishers: HashMap<String, Publisher<'static>>,
-    vars_pub: Publisher<'static>,
+    vars_key: String,
     steps: BTreeMap<String, (StepTime, Option<u64>)>,
     decode_drops: u64,
+    probe: Option<Probe>,
 }
 
+/// Sees every trace record as it is made, for `baton bench`'s clocks.
+pub type Probe = Box<dyn FnMut(&TraceRecord) + Send>;
+
 pub async fn run(opts: RunOptions) -> anyhow::Result<Summary> {
+    run_with(opts, None).await
+}
+
+pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<Summary> {
     let loaded = load(&opts.chart, opts.pou.as_deref())?;
     if opts.listen.is_empty() == opts.connect.is_empty() {
         bail!("give either --listen ENDPOINT (embed a router) or --connect ENDPOINT (join one)");
@@ -140,18 +151,13 @@ pub async fn run(opts: RunOptions) -> anyhow::Result<Summary> {
         core.handle_set(0, name, value).map_err(|e| anyhow!("--set {name}: {e}"))?;
     }
     let zerr = |e: zenoh::Error| anyhow!("{e}");
-    let report_sub = session.declare_subscriber(keys::report(run)).await.map_err(zerr)?;
-    let vars_sub = session.declare_subscriber(keys::vars(run, "*")).await.map_err(zerr)?;
+    let inbox = || FifoChannel::new(RECEIVE_QUEUE_MAX);
+    let report_sub = session.declare_subscriber(keys::report(run)).with(inbox()).await.map_err(zerr)?;
+    let vars_sub = session.declare_subscriber(keys::vars(run, "*")).with(inbox()).await.map_err(zerr)?;
     let alive_sub = session.liveliness().declare_subscriber(keys::alive_any()).history(true).await.map_err(zerr)?;
     let chart_q = session.declare_queryable(keys::chart(run)).await.map_err(zerr)?;
     let status_q = session.declare_queryable(keys::status(run)).await.map_err(zerr)?;
     let set_q = session.declare_queryable(keys::set(run)).await.map_err(zerr)?;
-    let vars_pub = session
-        .declare_publisher(keys::vars(run, baton_proto::runtime::COORDINATOR))
-        .congestion_control(CongestionControl::Block)
-        .express(true)
-        .await
-        .map_err(zerr)?;
     let trace = match &opts.trace {
         Some(p) => Some(BufWriter::new(File::create(p).with_context(|| format!("cannot create {}", p.display()))?)),
         None => None,
@@ -172,14 +178,17 @@ pub async fn run(opts: RunOptions) -> anyhow::Result<Summary> {
         trace_error: false,
         quiet: opts.quiet,
         publishers: HashMap::new(),
-        vars_pub,
+        vars_key: keys::vars(run, baton_proto::runtime::COORDINATOR),
         steps: BTreeMap::new(),
         decode_drops: 0,
+        probe,
     };
     let (tx, mut rx) = mpsc::unbounded_channel::<Event>();
     let mut tick = tokio::time::interval(Duration::from_millis(opts.cycle_ms.max(1)));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    // Signal streams made once: polling them each turn of the loop costs nothing.
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
     let mut interrupted = false;
     shell.cycle().await?;
     while !shell.core.is_terminal() {
@@ -215,7 +224,7 @@ pub async fn run(opts: RunOptions) -> anyhow::Result<Summary> {
                 reply(&q, wire::encode(&answer)).await;
             }
             _ = tick.tick() => {}
-            _ = tokio::signal::ctrl_c() => { interrupted = true; break }
+            _ = sigint.recv() => { interrupted = true; break }
             _ = sigterm.recv() => { interrupted = true; break }
         }
         shell.cycle().await?;
@@ -326,30 +335,8 @@ impl Shell {
         self.core.handle_cycle(now);
         while let Some(out) = self.core.poll_output() {
             match out {
-                CoordOutput::Send { agent, msg } => {
-                    let payload = wire::encode(&msg);
-                    let publisher = match self.publishers.get(&agent) {
-                        Some(p) => p,
-                        None => {
-                            let p = self
-                                .session
-                                .declare_publisher(keys::agent_cmd(&agent))
-                                .congestion_control(CongestionControl::Block)
-                                .express(true)
-                                .await
-                                .map_err(|e| anyhow!("{e}"))?;
-                            self.publishers.entry(agent.clone()).or_insert(p)
-                        }
-                    };
-                    if let Err(e) = publisher.put(payload).await {
-                        eprintln!("warning: cannot send to `{agent}`: {e}");
-                    }
-                }
-                CoordOutput::Vars(update) => {
-                    if let Err(e) = self.vars_pub.put(wire::encode(&update)).await {
-                        eprintln!("warning: cannot publish variables: {e}");
-                    }
-                }
+                CoordOutput::Send { agent, msg } => self.send(keys::agent_cmd(&agent), wire::encode(&msg)).await?,
+                CoordOutput::Vars(update) => self.send(self.vars_key.clone(), wire::encode(&update)).await?,
                 CoordOutput::Trace(rec) => self.record(rec),
                 CoordOutput::Log { level, message } => {
                     let tag = match level {
@@ -366,7 +353,33 @@ impl Shell {
         Ok(())
     }
 
+    /// Publishes in the main loop, without a hop to another task (a hop cost a third of a token's round trip).
+    /// This cannot deadlock with an agent doing the same: a put waits only while the link's queue is full, and
+    /// each side's Zenoh reader hands samples to an inbox of `RECEIVE_QUEUE_MAX` without waiting for the main
+    /// loop, so both sides would need that many messages unread at once.
+    async fn send(&mut self, key: String, payload: Vec<u8>) -> anyhow::Result<()> {
+        if !self.publishers.contains_key(&key) {
+            let p = self
+                .session
+                .declare_publisher(key.clone())
+                .congestion_control(CongestionControl::Block)
+                .express(true)
+                .await
+                .map_err(|e| anyhow!("cannot publish on {key}: {e}"))?;
+            self.publishers.insert(key.clone(), p);
+        }
+        if let Some(p) = self.publishers.get(&key) {
+            if let Err(e) = p.put(payload).await {
+                eprintln!("warning: cannot publish on {key}: {e}");
+            }
+        }
+        Ok(())
+    }
+
     fn record(&mut self, rec: TraceRecord) {
+        if let Some(probe) = &mut self.probe {
+            probe(&rec);
+        }
         match rec.event.as_str() {
             "activate" => {
                 let e = self.steps.entry(rec.name.clone()).or_default();

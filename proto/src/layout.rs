@@ -104,6 +104,8 @@ pub struct Layout {
     pub skills: Vec<Option<SkillBinding>>,
     /// Per action: where it runs (the placement of the steps that use it).
     pub action_placement: Vec<Placement>,
+    /// Per variable: read by code that runs on agents, so its writer publishes it.
+    pub read_by_agents: Vec<bool>,
 }
 
 impl Layout {
@@ -241,7 +243,8 @@ pub fn layout(chart: &Chart, program: &Program, diags: &mut Vec<Diagnostic>) -> 
     let skills = skill_bindings(program, &action_placement, diags, chart);
     let (writer, settable) = writers(chart, program, &action_placement, diags);
     check_remote_reads(chart, program, &placement, &segment_of, &action_placement, diags);
-    Layout { placement, segment_of, segments, waiting, writer, settable, skills, action_placement }
+    let read_by_agents = read_by_agents(program, &segment_of, &action_placement);
+    Layout { placement, segment_of, segments, waiting, writer, settable, skills, action_placement, read_by_agents }
 }
 
 fn step_placement(pragmas: &[Pragma], diags: &mut Vec<Diagnostic>) -> Placement {
@@ -491,36 +494,80 @@ fn writers(
     (writer, settable)
 }
 
-fn expr_refs(e: &CExpr, steps: &mut Vec<StepId>, actions: &mut Vec<ActionId>) {
-    match e {
-        CExpr::Const(_) | CExpr::Var(_) => {}
-        CExpr::StepX(s) | CExpr::StepT(s) => steps.push(*s),
-        CExpr::ActionQ(a) => actions.push(*a),
-        CExpr::Not(x) | CExpr::Neg(x, _) => expr_refs(x, steps, actions),
-        CExpr::Logic(_, a, b) | CExpr::Cmp(_, a, b) => {
-            expr_refs(a, steps, actions);
-            expr_refs(b, steps, actions);
+/// What a piece of code reads.
+#[derive(Default)]
+struct Refs {
+    steps: Vec<StepId>,
+    actions: Vec<ActionId>,
+    vars: Vec<VarId>,
+}
+
+impl Refs {
+    fn expr(&mut self, e: &CExpr) {
+        match e {
+            CExpr::Const(_) => {}
+            CExpr::Var(v) => self.vars.push(*v),
+            CExpr::StepX(s) | CExpr::StepT(s) => self.steps.push(*s),
+            CExpr::ActionQ(a) => self.actions.push(*a),
+            CExpr::Not(x) | CExpr::Neg(x, _) => self.expr(x),
+            CExpr::Logic(_, a, b) | CExpr::Cmp(_, a, b) => {
+                self.expr(a);
+                self.expr(b);
+            }
+            CExpr::Arith { lhs, rhs, .. } => {
+                self.expr(lhs);
+                self.expr(rhs);
+            }
         }
-        CExpr::Arith { lhs, rhs, .. } => {
-            expr_refs(lhs, steps, actions);
-            expr_refs(rhs, steps, actions);
+    }
+
+    fn body(&mut self, body: &[CStmt]) {
+        for stmt in body {
+            match stmt {
+                CStmt::Assign { value, .. } => self.expr(value),
+                CStmt::If { branches, otherwise } => {
+                    for (c, b) in branches {
+                        self.expr(c);
+                        self.body(b);
+                    }
+                    self.body(otherwise);
+                }
+            }
         }
     }
 }
 
-fn body_refs(body: &[CStmt], steps: &mut Vec<StepId>, actions: &mut Vec<ActionId>) {
-    for stmt in body {
-        match stmt {
-            CStmt::Assign { value, .. } => expr_refs(value, steps, actions),
-            CStmt::If { branches, otherwise } => {
-                for (c, b) in branches {
-                    expr_refs(c, steps, actions);
-                    body_refs(b, steps, actions);
-                }
-                body_refs(otherwise, steps, actions);
+/// The variables that code running on agents reads: conditions of the transitions they judge, bodies of the
+/// actions they run, durations of their associations. Only these need to travel to agents.
+fn read_by_agents(program: &Program, segment_of: &[Option<SegmentId>], action_placement: &[Placement]) -> Vec<bool> {
+    let mut refs = Refs::default();
+    for t in 0..program.transitions.len() {
+        if let [s] = program.sources(TransitionId(t as u32)) {
+            if segment_of[s.index()].is_some() {
+                refs.expr(&program.transitions[t].condition);
             }
         }
     }
+    for (i, action) in program.actions.iter().enumerate() {
+        if action_placement[i] != Placement::Coordinator {
+            refs.body(&action.body);
+        }
+    }
+    for (s, g) in segment_of.iter().enumerate() {
+        if g.is_none() {
+            continue;
+        }
+        for assoc in program.associations(StepId(s as u32)) {
+            if let Some(crate::program::DurationSrc::Var(v)) = assoc.duration {
+                refs.vars.push(v);
+            }
+        }
+    }
+    let mut read = vec![false; program.vars.len()];
+    for v in refs.vars {
+        read[v.index()] = true;
+    }
+    read
 }
 
 /// An agent knows only the steps and actions it runs: code judged or run there may read `S.X`, `S.T` and
@@ -563,18 +610,24 @@ fn check_remote_reads(
         if segment_of[s.index()].is_none() {
             continue;
         }
-        let (mut steps, mut actions) = (Vec::new(), Vec::new());
-        expr_refs(&program.transitions[t].condition, &mut steps, &mut actions);
+        let mut refs = Refs::default();
+        refs.expr(&program.transitions[t].condition);
         let span = chart.transitions.get(t).map_or(chart.name.span, |tr| tr.span);
-        check(format!("transition `{}`", program.transitions[t].name), &placement[s.index()], span, &steps, &actions);
+        check(
+            format!("transition `{}`", program.transitions[t].name),
+            &placement[s.index()],
+            span,
+            &refs.steps,
+            &refs.actions,
+        );
     }
     for (i, action) in program.actions.iter().enumerate() {
         if action_placement[i] == Placement::Coordinator {
             continue;
         }
-        let (mut steps, mut actions) = (Vec::new(), Vec::new());
-        body_refs(&action.body, &mut steps, &mut actions);
+        let mut refs = Refs::default();
+        refs.body(&action.body);
         let span = chart.actions.get(i).map_or(chart.name.span, |a| a.name.span);
-        check(format!("action `{}`", action.name), &action_placement[i], span, &steps, &actions);
+        check(format!("action `{}`", action.name), &action_placement[i], span, &refs.steps, &refs.actions);
     }
 }

@@ -36,6 +36,14 @@ pub const FINISHED_TOKENS_REMEMBERED: usize = 65_536;
 /// Cycles run back to back while each one changes the situation, before waiting for the next tick.
 pub const IMMEDIATE_CYCLES_MAX: usize = 64;
 
+/// Samples a subscriber holds before Zenoh's reader waits for the process to take them. Large, so that two
+/// processes publishing to each other from their main loops never both wait (see the shells' `put`).
+pub const RECEIVE_QUEUE_MAX: usize = 16_384;
+
+/// How long the coordinator may hold acknowledgements to batch them (or send them with the next dispatch to the
+/// same agent). Far below the agents' first resend delay, so acknowledged reports are not sent twice.
+pub const ACK_DELAY_MS: u64 = 5;
+
 /// Agents one coordinator tracks.
 pub const AGENTS_MAX: usize = 4096;
 

@@ -50,11 +50,10 @@ impl ChartHash {
     }
 }
 
-/// A variable's value on the wire: `{"var": 3, "bool": true}`.
+/// A variable's value on the wire: `{"var": 3, "value": {"bool": true}}`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct VarValue {
     pub var: u32,
-    #[serde(flatten)]
     pub value: WireValue,
 }
 
@@ -109,7 +108,7 @@ impl VarValue {
 
 /// Coordinator → agent, on the agent's command key.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case")]
+#[serde(rename_all = "snake_case")]
 pub enum ToAgent {
     /// Run `segment` from step `entry`. `vars` holds the current value of every variable the agent does not
     /// write, as of the coordinator's variable update number `vars_seq`.
@@ -122,21 +121,32 @@ pub enum ToAgent {
         entry: u32,
         vars: Vec<VarValue>,
         vars_seq: u64,
+        /// Acknowledgements owed to this agent, carried along rather than sent apart.
+        acks: Vec<AckEntry>,
     },
-    /// Every report of this token up to `seq` is applied; with `done`, the token is finished and may be forgotten.
-    Ack { run: RunId, token: TokenId, epoch: u32, seq: u32, done: bool },
+    /// Reports applied since the last acknowledgement to this agent (at most `ACK_DELAY_MS` old, unless a
+    /// dispatch carried them sooner).
+    Ack { run: RunId, acks: Vec<AckEntry> },
+}
+
+/// Every report of this token up to `seq` is applied; with `done`, the token is finished and may be forgotten.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AckEntry {
+    pub token: TokenId,
+    pub epoch: u32,
+    pub seq: u32,
+    pub done: bool,
 }
 
 /// What happened on an agent while it held a token, `dt_ms` after the token arrived there.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AgentEvent {
     pub dt_ms: u64,
-    #[serde(flatten)]
     pub kind: AgentEventKind,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "event", rename_all = "snake_case")]
+#[serde(rename_all = "snake_case")]
 pub enum AgentEventKind {
     Fire { transition: u32 },
     ActionOn { action: u32 },
@@ -236,18 +246,18 @@ pub struct StatusAgent {
     pub tokens: usize,
 }
 
+/// `{"v": 1, "m": MESSAGE}`. Enums are externally tagged (`{"dispatch": {…}}`) and nothing is flattened, so
+/// decoding never buffers a message to look for its tag.
 #[derive(Serialize)]
 struct EnvelopeOut<'a, T> {
     v: u32,
-    #[serde(flatten)]
-    msg: &'a T,
+    m: &'a T,
 }
 
 #[derive(Deserialize)]
 struct EnvelopeIn<T> {
     v: u32,
-    #[serde(flatten)]
-    msg: T,
+    m: T,
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -262,7 +272,7 @@ pub enum WireError {
 
 pub fn encode<T: Serialize>(msg: &T) -> Vec<u8> {
     // Serializing these plain structs cannot fail: no maps with non-string keys, no foreign Serialize impls.
-    serde_json::to_vec(&EnvelopeOut { v: PROTOCOL_VERSION, msg }).expect("wire types serialize")
+    serde_json::to_vec(&EnvelopeOut { v: PROTOCOL_VERSION, m: msg }).expect("wire types serialize")
 }
 
 pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, WireError> {
@@ -275,7 +285,7 @@ pub fn decode_with_limit<T: DeserializeOwned>(bytes: &[u8], limit: usize) -> Res
         return Err(WireError::TooLarge(bytes.len(), limit));
     }
     match serde_json::from_slice::<EnvelopeIn<T>>(bytes) {
-        Ok(env) if env.v == PROTOCOL_VERSION => Ok(env.msg),
+        Ok(env) if env.v == PROTOCOL_VERSION => Ok(env.m),
         Ok(env) => Err(WireError::Version(env.v)),
         Err(e) => {
             // A message of another version may not fit this version's types: say which it was.
@@ -297,13 +307,8 @@ mod tests {
 
     #[test]
     fn messages_round_trip_and_carry_the_version() {
-        let msg = ToAgent::Ack {
-            run: RunId(Uuid::from_u128(7)),
-            token: TokenId(Uuid::from_u128(9)),
-            epoch: 2,
-            seq: 3,
-            done: true,
-        };
+        let entry = AckEntry { token: TokenId(Uuid::from_u128(9)), epoch: 2, seq: 3, done: true };
+        let msg = ToAgent::Ack { run: RunId(Uuid::from_u128(7)), acks: vec![entry] };
         let bytes = encode(&msg);
         assert!(std::str::from_utf8(&bytes).unwrap().contains("\"v\":1"));
         assert_eq!(decode::<ToAgent>(&bytes), Ok(msg));
@@ -324,8 +329,8 @@ mod tests {
     #[test]
     fn bad_bytes_are_errors() {
         assert!(matches!(decode::<ToAgent>(b"\xff\x00garbage"), Err(WireError::Malformed(_))));
-        assert!(matches!(decode::<ToAgent>(br#"{"v":1,"type":"launch_missiles"}"#), Err(WireError::Malformed(_))));
-        assert_eq!(decode::<ToAgent>(br#"{"v":99,"type":"ack"}"#), Err(WireError::Version(99)));
+        assert!(matches!(decode::<ToAgent>(br#"{"v":1,"m":{"launch_missiles":{}}}"#), Err(WireError::Malformed(_))));
+        assert_eq!(decode::<ToAgent>(br#"{"v":99,"m":{"ack":{}}}"#), Err(WireError::Version(99)));
         let big = vec![b' '; MESSAGE_BYTES_MAX + 1];
         assert_eq!(decode::<ToAgent>(&big), Err(WireError::TooLarge(MESSAGE_BYTES_MAX + 1, MESSAGE_BYTES_MAX)));
     }

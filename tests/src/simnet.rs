@@ -170,12 +170,17 @@ impl SimCluster {
             match packet {
                 Packet::ToAgent(i, bytes) => {
                     match wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages") {
-                        ToAgent::Dispatch { token, epoch, segment, entry, vars, vars_seq, .. } => {
+                        ToAgent::Dispatch { token, epoch, segment, entry, vars, vars_seq, acks, .. } => {
+                            for a in acks {
+                                self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
+                            }
                             let d = Dispatch { token, epoch, segment, entry, vars, vars_seq };
                             self.agents[i].run.handle_dispatch(self.now_ms, d);
                         }
-                        ToAgent::Ack { token, epoch, seq, done, .. } => {
-                            self.agents[i].run.handle_ack(token, epoch, seq, done)
+                        ToAgent::Ack { acks, .. } => {
+                            for a in acks {
+                                self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
+                            }
                         }
                     }
                 }

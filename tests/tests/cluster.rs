@@ -4,7 +4,7 @@ use std::time::Duration;
 
 use baton_proto::keys;
 use baton_proto::netconfig::{Mode, NetConfig};
-use baton_proto::wire::{self, StatusReport};
+use baton_proto::wire::{self, ChartHash, RunId, StatusReport, ToAgent, TokenId};
 use baton_tests::cluster::{check_trace_invariants, events, repo, Cluster, TIMEOUT};
 use zenoh::sample::Locality;
 
@@ -197,18 +197,37 @@ async fn garbage_on_batons_keys_changes_nothing() {
     let mut coordinator = cluster.coordinator(&chart("selection_segment.st"), &[]);
     coordinator.wait_for_log("running chart").await;
     cluster.agent("r1", &[], &[]);
+    // The agent must be listening before the garbage goes out.
+    coordinator.wait_for_log("agent `r1` is live").await;
     let session = client(&cluster.endpoint).await;
     let replies = session.get(keys::status_any_run()).timeout(TIMEOUT).await.expect("status query");
     let reply = replies.recv_async().await.expect("a status reply");
     let status: StatusReport = wire::decode(&reply.result().expect("ok").payload().to_bytes()).expect("status");
     let run = status.run;
+    let rogue_report = wire::Report {
+        run,
+        agent: "r1".into(),
+        token: TokenId(uuid::Uuid::from_u128(1)),
+        epoch: 1,
+        seq: 0,
+        events: vec![],
+        vars: vec![],
+        vars_seq: 1,
+        done: true,
+    };
+    let rogue_vars = wire::VarUpdate {
+        run,
+        from: "intruder".into(),
+        seq: 1,
+        vars: vec![wire::VarValue { var: 0, value: wire::WireValue::Int(2) }],
+    };
     let garbage: Vec<Vec<u8>> = vec![
         b"\x00\xff\x13garbage".to_vec(),
         b"{}".to_vec(),
-        br#"{"v":1,"type":"dispatch"}"#.to_vec(),
-        br#"{"v":99,"type":"ack"}"#.to_vec(),
-        format!(r#"{{"v":1,"run":"{}","agent":"r1","token":"00000000-0000-0000-0000-000000000001","epoch":1,"seq":0,"events":[],"vars":[],"vars_seq":1,"done":true}}"#, run.0).into_bytes(),
-        format!(r#"{{"v":1,"run":"{}","from":"intruder","seq":1,"vars":[{{"var":0,"int":2}}]}}"#, run.0).into_bytes(),
+        br#"{"v":1,"m":{"dispatch":{}}}"#.to_vec(),
+        br#"{"v":99,"m":{"ack":{}}}"#.to_vec(),
+        wire::encode(&rogue_report),
+        wire::encode(&rogue_vars),
         vec![b'x'; 2 * 1024 * 1024],
     ];
     let put = |key: String, payload: Vec<u8>| {
@@ -221,11 +240,18 @@ async fn garbage_on_batons_keys_changes_nothing() {
         put(keys::agent_cmd("r1"), g.clone()).await;
     }
     // A dispatch for a run nobody coordinates: the agent cannot fetch its chart and drops it.
-    let bogus = format!(
-        r#"{{"v":1,"type":"dispatch","run":"{}","chart":"0000000000000000","token":"00000000-0000-0000-0000-000000000002","epoch":1,"segment":0,"entry":0,"vars":[],"vars_seq":0}}"#,
-        uuid::Uuid::from_u128(77)
-    );
-    put(keys::agent_cmd("r1"), bogus.into_bytes()).await;
+    let bogus = ToAgent::Dispatch {
+        run: RunId(uuid::Uuid::from_u128(77)),
+        chart: ChartHash("0000000000000000".into()),
+        token: TokenId(uuid::Uuid::from_u128(2)),
+        epoch: 1,
+        segment: 0,
+        entry: 0,
+        vars: vec![],
+        vars_seq: 0,
+        acks: vec![],
+    };
+    put(keys::agent_cmd("r1"), wire::encode(&bogus)).await;
     // An agent that announces itself but never says who it is.
     let _ghost = session.liveliness().declare_token(keys::alive("ghost")).await.expect("token");
     // A set request that is not one.

@@ -408,9 +408,13 @@ impl AgentRun {
         }
         if !changed.is_empty() {
             self.vars_seq += 1;
-            let update =
-                VarUpdate { run: self.run, from: self.name.clone(), seq: self.vars_seq, vars: changed.clone() };
-            self.outbox.push_back(AgentOutput::Vars(update));
+            // Other agents get what their code reads; the coordinator gets everything, in the reports.
+            let read: Vec<VarValue> =
+                changed.iter().filter(|vv| self.layout.read_by_agents[vv.var as usize]).copied().collect();
+            if !read.is_empty() {
+                let update = VarUpdate { run: self.run, from: self.name.clone(), seq: self.vars_seq, vars: read };
+                self.outbox.push_back(AgentOutput::Vars(update));
+            }
         }
         let mut ids: Vec<TokenId> = self.tokens.keys().copied().collect();
         ids.sort_unstable();

@@ -13,13 +13,13 @@ use std::sync::Arc;
 
 use crate::engine::{Engine, Event, EventKind, Input, RemoteInput};
 use crate::layout::{Layout, Placement, SegmentId};
-use crate::limits::{AGENTS_MAX, FINISHED_TOKENS_REMEMBERED, IMMEDIATE_CYCLES_MAX, REPORTS_AHEAD_MAX};
+use crate::limits::{ACK_DELAY_MS, AGENTS_MAX, FINISHED_TOKENS_REMEMBERED, IMMEDIATE_CYCLES_MAX, REPORTS_AHEAD_MAX};
 use crate::program::{Program, StepId, TransitionId, VarId};
 use crate::sim::{output_of, parse_value, SimOutput, TraceRecord};
 use crate::types::Value;
 use crate::wire::{
-    AgentEventKind, AgentInfo, ChartHash, Report, RunId, StatusAgent, StatusReport, StatusStep, StatusToken, ToAgent,
-    TokenId, VarUpdate, VarValue,
+    AckEntry, AgentEventKind, AgentInfo, ChartHash, Report, RunId, StatusAgent, StatusReport, StatusStep, StatusToken,
+    ToAgent, TokenId, VarUpdate, VarValue,
 };
 
 use super::{Level, COORDINATOR};
@@ -80,6 +80,10 @@ pub struct Coordinator {
     new_token: Box<dyn FnMut() -> TokenId + Send>,
     round_robin: usize,
     outbox: VecDeque<CoordOutput>,
+    /// Acknowledgements owed, per agent: sent together at the end of the cycle.
+    acks: BTreeMap<String, Vec<AckEntry>>,
+    /// When the oldest owed acknowledgement was made.
+    acks_since_ms: u64,
     stats: CoordStats,
 }
 
@@ -93,7 +97,9 @@ impl Coordinator {
         new_token: Box<dyn FnMut() -> TokenId + Send>,
     ) -> Coordinator {
         let engine = Engine::with_scope(Arc::clone(&program), layout.coordinator_scope(&program));
-        let owned: Vec<VarId> = layout.written_by(&Placement::Coordinator).collect();
+        // Only what agents read travels: the coordinator's own counters and flags stay home.
+        let owned: Vec<VarId> =
+            layout.written_by(&Placement::Coordinator).filter(|v| layout.read_by_agents[v.index()]).collect();
         Coordinator {
             run,
             hash,
@@ -114,6 +120,8 @@ impl Coordinator {
             new_token,
             round_robin: 0,
             outbox: VecDeque::new(),
+            acks: BTreeMap::new(),
+            acks_since_ms: 0,
             stats: CoordStats::default(),
         }
     }
@@ -180,6 +188,34 @@ impl Coordinator {
             }
         }
         self.publish_vars();
+        self.flush_acks();
+    }
+
+    /// Acknowledgements ride on this cycle's dispatches to the same agent; the rest leave together once they
+    /// are `ACK_DELAY_MS` old, or at once when the run is over.
+    fn flush_acks(&mut self) {
+        if self.acks.is_empty() {
+            return;
+        }
+        for out in self.outbox.iter_mut() {
+            if let CoordOutput::Send { agent, msg: ToAgent::Dispatch { acks, .. } } = out {
+                if let Some(owed) = self.acks.remove(agent.as_str()) {
+                    acks.extend(owed);
+                }
+            }
+        }
+        if self.now_ms >= self.acks_since_ms + ACK_DELAY_MS || self.is_terminal() {
+            for (agent, acks) in std::mem::take(&mut self.acks) {
+                self.outbox.push_back(CoordOutput::Send { agent, msg: ToAgent::Ack { run: self.run, acks } });
+            }
+        }
+    }
+
+    fn ack(&mut self, agent: String, entry: AckEntry) {
+        if self.acks.is_empty() {
+            self.acks_since_ms = self.now_ms;
+        }
+        self.acks.entry(agent).or_default().push(entry);
     }
 
     fn publish_vars(&mut self) {
@@ -317,7 +353,7 @@ impl Coordinator {
         };
         let vars = (0..self.program.vars.len())
             // Everything but what the agent alone writes: a role's variables follow the last agent that wrote them.
-            .filter(|&i| self.layout.writer[i] != Placement::Agent(agent.clone()))
+            .filter(|&i| self.layout.read_by_agents[i] && self.layout.writer[i] != Placement::Agent(agent.clone()))
             .map(|i| VarValue::new(VarId(i as u32), self.engine.value(VarId(i as u32))))
             .collect();
         let msg = ToAgent::Dispatch {
@@ -329,6 +365,7 @@ impl Coordinator {
             entry: tok.entry.0,
             vars,
             vars_seq: self.vars_seq,
+            acks: Vec::new(),
         };
         if let Some(tok) = self.tokens.get_mut(&id) {
             tok.dispatched_ms = self.now_ms;
@@ -409,8 +446,7 @@ impl Coordinator {
                 if report.epoch == epoch && report.agent == agent {
                     // A duplicate of a finished token's report: acknowledge again, apply nothing.
                     self.stats.dropped += 1;
-                    let msg = ToAgent::Ack { run: self.run, token: report.token, epoch, seq, done: true };
-                    self.outbox.push_back(CoordOutput::Send { agent, msg });
+                    self.ack(agent, AckEntry { token: report.token, epoch, seq, done: true });
                     return;
                 }
             }
@@ -432,8 +468,7 @@ impl Coordinator {
         if report.seq < tok.next_seq {
             let (agent, epoch, seq) = (report.agent.clone(), tok.epoch, tok.next_seq - 1);
             self.stats.dropped += 1;
-            let msg = ToAgent::Ack { run: self.run, token: report.token, epoch, seq, done: false };
-            self.outbox.push_back(CoordOutput::Send { agent, msg });
+            self.ack(agent, AckEntry { token: report.token, epoch, seq, done: false });
             return;
         }
         if report.seq > tok.next_seq {
@@ -536,10 +571,7 @@ impl Coordinator {
             }
         }
         let agent = r.agent.clone();
-        self.outbox.push_back(CoordOutput::Send {
-            agent: agent.clone(),
-            msg: ToAgent::Ack { run: self.run, token: r.token, epoch, seq: r.seq, done: r.done },
-        });
+        self.ack(agent.clone(), AckEntry { token: r.token, epoch, seq: r.seq, done: r.done });
         if let Some(tok) = self.tokens.get_mut(&r.token) {
             tok.next_seq = r.seq + 1;
         }

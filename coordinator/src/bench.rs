@@ -1,0 +1,342 @@
+//! `baton bench`: the distributed runtime measured on loopback, in one run — the raw Zenoh round trip between
+//! two processes, a token's round trip through Baton, convergence latency, and throughput with 8 agents.
+//!
+//! Every phase runs real processes (`baton-agent`s, and a `baton bench-echo` for the raw round trip) against a
+//! coordinator and router in this process; times are taken with `Instant` where the events happen.
+
+use std::path::Path;
+use std::process::Stdio;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, bail, Context};
+use baton_proto::netconfig::{Mode, NetConfig};
+use serde::Serialize;
+use tokio::process::{Child, Command};
+use zenoh::qos::CongestionControl;
+
+use crate::demo::{agent_binary, free_port};
+use crate::run::{run_with, Probe, RunOptions};
+
+const PING_KEY: &str = "baton/bench/ping";
+const PONG_KEY: &str = "baton/bench/pong";
+const ECHO_ALIVE_KEY: &str = "baton/bench/echo";
+const PHASE_TIMEOUT: Duration = Duration::from_secs(300);
+
+pub struct BenchOptions {
+    /// Round trips measured in phases 1 and 2, and convergences in phase 3.
+    pub samples: u32,
+    /// Tokens in the throughput phase.
+    pub tokens: u32,
+    pub agents: u32,
+    /// Tokens circulating at once per agent in the throughput phase.
+    pub lanes_per_agent: u32,
+}
+
+#[derive(Serialize, Clone, Copy)]
+pub struct Latency {
+    pub samples: usize,
+    pub median_us: f64,
+    pub p99_us: f64,
+}
+
+impl Latency {
+    fn of(mut v: Vec<Duration>) -> anyhow::Result<Latency> {
+        if v.is_empty() {
+            bail!("no samples");
+        }
+        v.sort();
+        let us = |d: Duration| d.as_secs_f64() * 1e6;
+        Ok(Latency {
+            samples: v.len(),
+            median_us: us(v[v.len() / 2]),
+            p99_us: us(v[(v.len() * 99 / 100).min(v.len() - 1)]),
+        })
+    }
+}
+
+#[derive(Serialize)]
+pub struct BenchReport {
+    pub zenoh_round_trip: Latency,
+    pub token_round_trip: Latency,
+    pub token_to_zenoh_ratio: f64,
+    pub convergence: Latency,
+    pub throughput_tokens_per_s: f64,
+    pub throughput_agents: u32,
+    pub throughput_tokens: u64,
+    pub throughput_in_flight: u32,
+}
+
+type Marks = Arc<Mutex<Vec<(Instant, String, String)>>>;
+
+/// A probe that keeps the instants of the events the bench measures.
+fn marks(keep: &'static [&'static str]) -> (Marks, Probe) {
+    let marks: Marks = Arc::new(Mutex::new(Vec::new()));
+    let m = Arc::clone(&marks);
+    let probe: Probe = Box::new(move |rec| {
+        if keep.contains(&rec.event.as_str()) {
+            let now = Instant::now();
+            if let Ok(mut v) = m.lock() {
+                v.push((now, rec.event.clone(), rec.name.clone()));
+            }
+        }
+    });
+    (marks, probe)
+}
+
+pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
+    let dir = tempfile::tempdir()?;
+    eprintln!("1/4 raw Zenoh round trip, {} samples", opts.samples);
+    let zenoh_round_trip = raw_round_trip(opts.samples).await?;
+    eprintln!("2/4 token round trip through Baton, {} samples", opts.samples);
+    let token_round_trip = token_round_trip(dir.path(), opts.samples).await?;
+    eprintln!("3/4 convergence latency, 3 branches, {} samples", opts.samples.min(2000));
+    let convergence = convergence(dir.path(), opts.samples.min(2000)).await?;
+    let lanes = opts.agents * opts.lanes_per_agent;
+    eprintln!("4/4 throughput, {} agents, {lanes} tokens in flight, {} tokens", opts.agents, opts.tokens);
+    let (tokens, secs) = throughput(dir.path(), opts.agents, opts.lanes_per_agent, opts.tokens).await?;
+    Ok(BenchReport {
+        token_to_zenoh_ratio: token_round_trip.median_us / zenoh_round_trip.median_us,
+        zenoh_round_trip,
+        token_round_trip,
+        convergence,
+        throughput_tokens_per_s: tokens as f64 / secs,
+        throughput_agents: opts.agents,
+        throughput_tokens: tokens,
+        throughput_in_flight: lanes,
+    })
+}
+
+impl BenchReport {
+    pub fn print(&self) {
+        let row = |name: &str, l: &Latency| {
+            println!("{name:<42} {:>9.1} µs {:>9.1} µs {:>8}", l.median_us, l.p99_us, l.samples);
+        };
+        println!("{:<42} {:>12} {:>12} {:>8}", "measure", "median", "p99", "samples");
+        row("(1) raw Zenoh round trip, 2 processes", &self.zenoh_round_trip);
+        row("(2) token round trip through Baton", &self.token_round_trip);
+        row("(3) convergence: last return → successor", &self.convergence);
+        println!("ratio (2)/(1), medians: {:.2} (target < 1.5)", self.token_to_zenoh_ratio);
+        println!(
+            "(4) throughput: {:.0} tokens/s ({} tokens, {} agents, {} in flight; target ≥ 5000)",
+            self.throughput_tokens_per_s, self.throughput_tokens, self.throughput_agents, self.throughput_in_flight
+        );
+    }
+}
+
+fn router_config(endpoint: &str) -> anyhow::Result<zenoh::Config> {
+    let net = NetConfig {
+        mode: Mode::Router,
+        listen: vec![endpoint.to_string()],
+        connect: Vec::new(),
+        lease_ms: None,
+        wait_for_router: false,
+        multicast_scouting: false,
+    };
+    zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("{e}"))
+}
+
+/// Phase 1: put → the echo process's subscriber → put back → our subscriber, 64-byte payloads.
+async fn raw_round_trip(samples: u32) -> anyhow::Result<Latency> {
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
+    let session = zenoh::open(router_config(&endpoint)?).await.map_err(|e| anyhow!("{e}"))?;
+    let alive = session.liveliness().declare_subscriber(ECHO_ALIVE_KEY).await.map_err(|e| anyhow!("{e}"))?;
+    let pong = session.declare_subscriber(PONG_KEY).await.map_err(|e| anyhow!("{e}"))?;
+    let ping = session
+        .declare_publisher(PING_KEY)
+        .congestion_control(CongestionControl::Block)
+        .express(true)
+        .await
+        .map_err(|e| anyhow!("{e}"))?;
+    let _echo = spawn_logged(Command::new(std::env::current_exe()?).args(["bench-echo", "--connect", &endpoint]))?;
+    tokio::time::timeout(PHASE_TIMEOUT, alive.recv_async())
+        .await
+        .context("the echo process did not come up")?
+        .map_err(|e| anyhow!("{e}"))?;
+    let mut rtts = Vec::with_capacity(samples as usize);
+    let warmup = 200;
+    for i in 0..samples + warmup {
+        let mut payload = vec![0u8; 64];
+        payload[..4].copy_from_slice(&i.to_le_bytes());
+        let t0 = Instant::now();
+        ping.put(payload).await.map_err(|e| anyhow!("{e}"))?;
+        loop {
+            let s = tokio::time::timeout(PHASE_TIMEOUT, pong.recv_async())
+                .await
+                .context("no pong")?
+                .map_err(|e| anyhow!("{e}"))?;
+            let bytes = s.payload().to_bytes();
+            if bytes.len() >= 4 && bytes[..4] == i.to_le_bytes() {
+                break;
+            }
+        }
+        if i >= warmup {
+            rtts.push(t0.elapsed());
+        }
+    }
+    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    Latency::of(rtts)
+}
+
+/// `baton bench-echo`: puts every ping back as a pong.
+pub async fn echo(connect: &[String]) -> anyhow::Result<()> {
+    let net = NetConfig {
+        mode: Mode::Client,
+        listen: Vec::new(),
+        connect: connect.to_vec(),
+        lease_ms: None,
+        wait_for_router: false,
+        multicast_scouting: false,
+    };
+    let config = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("{e}"))?;
+    let session = zenoh::open(config).await.map_err(|e| anyhow!("{e}"))?;
+    let pings = session.declare_subscriber(PING_KEY).await.map_err(|e| anyhow!("{e}"))?;
+    let pong = session
+        .declare_publisher(PONG_KEY)
+        .congestion_control(CongestionControl::Block)
+        .express(true)
+        .await
+        .map_err(|e| anyhow!("{e}"))?;
+    let _alive = session.liveliness().declare_token(ECHO_ALIVE_KEY).await.map_err(|e| anyhow!("{e}"))?;
+    while let Ok(s) = pings.recv_async().await {
+        pong.put(s.payload().clone()).await.map_err(|e| anyhow!("{e}"))?;
+    }
+    Ok(())
+}
+
+fn spawn_logged(cmd: &mut Command) -> anyhow::Result<Child> {
+    cmd.stdout(Stdio::null()).stderr(Stdio::null()).kill_on_drop(true).spawn().context("cannot start a bench process")
+}
+
+fn spawn_agents(endpoint: &str, names: &[String]) -> anyhow::Result<Vec<Child>> {
+    let bin = agent_binary()?;
+    names.iter().map(|n| spawn_logged(Command::new(&bin).args(["--connect", endpoint, "--name", n]))).collect()
+}
+
+async fn run_chart(dir: &Path, file: &str, chart: String, agents: &[String], probe: Probe) -> anyhow::Result<()> {
+    let path = dir.join(file);
+    std::fs::write(&path, chart)?;
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
+    let _agents = spawn_agents(&endpoint, agents)?;
+    let opts = RunOptions {
+        chart: path,
+        pou: None,
+        listen: vec![endpoint],
+        connect: Vec::new(),
+        trace: None,
+        summary: None,
+        cycle_ms: 10,
+        sets: Vec::new(),
+        multicast_scouting: false,
+        quiet: true,
+    };
+    tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe)))
+        .await
+        .context("the bench chart did not finish")??;
+    Ok(())
+}
+
+fn counted_loop_header(name: &str, n: u32) -> String {
+    format!("PROGRAM {name}\nVAR\n  n : DINT := {n};\n  i : DINT := 0;\nEND_VAR\nINITIAL_STEP Home: END_STEP\nTRANSITION Stop FROM Home TO Finished := i >= n; END_TRANSITION\nSTEP Finished: END_STEP\nACTION Count: IF Count.Q THEN i := i + 1; END_IF; END_ACTION\n")
+}
+
+/// Phase 2: a one-step segment whose exit is TRUE at once, dispatched `samples` times (plus a warm-up), from
+/// its dispatch to the activation of the next step on the coordinator.
+async fn token_round_trip(dir: &Path, samples: u32) -> anyhow::Result<Latency> {
+    let warmup = 200;
+    let mut chart = counted_loop_header("token_rtt", samples + warmup);
+    chart.push_str(concat!(
+        "TRANSITION Go FROM Home TO Remote := i < n; END_TRANSITION\n",
+        "STEP Remote: {agent := 'bench1'} END_STEP\n",
+        "TRANSITION FROM Remote TO Back := TRUE; END_TRANSITION\n",
+        "STEP Back: Count(P); END_STEP\n",
+        "TRANSITION FROM Back TO Home := TRUE; END_TRANSITION\nEND_PROGRAM\n",
+    ));
+    let (marks, probe) = marks(&["dispatch", "activate"]);
+    run_chart(dir, "token_rtt.st", chart, &["bench1".to_string()], probe).await?;
+    let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
+    let mut rtts = Vec::new();
+    let mut sent: Option<Instant> = None;
+    for (t, event, name) in marks.iter() {
+        match (event.as_str(), name.as_str()) {
+            ("dispatch", "Remote") => sent = Some(*t),
+            ("activate", "Back") => {
+                if let Some(t0) = sent.take() {
+                    rtts.push(*t - t0);
+                }
+            }
+            _ => {}
+        }
+    }
+    Latency::of(rtts.split_off((warmup as usize).min(rtts.len())))
+}
+
+/// Phase 3: three branches on three agents; from the coordinator's taking the last branch's return to the
+/// activation of the convergence's successor.
+async fn convergence(dir: &Path, samples: u32) -> anyhow::Result<Latency> {
+    let warmup = 100;
+    let mut chart = counted_loop_header("convergence", samples + warmup);
+    chart.push_str("TRANSITION Go FROM Home TO (R1, R2, R3) := i < n; END_TRANSITION\n");
+    for k in 1..=3 {
+        chart.push_str(&format!(
+            "STEP R{k}: {{agent := 'bench{k}'}} END_STEP\nTRANSITION FROM R{k} TO W{k} := TRUE; END_TRANSITION\nSTEP W{k}: END_STEP\n"
+        ));
+    }
+    chart.push_str(concat!(
+        "TRANSITION FROM (W1, W2, W3) TO Join := TRUE; END_TRANSITION\n",
+        "STEP Join: Count(P); END_STEP\n",
+        "TRANSITION FROM Join TO Home := TRUE; END_TRANSITION\nEND_PROGRAM\n",
+    ));
+    let (marks, probe) = marks(&["return", "activate"]);
+    let agents: Vec<String> = (1..=3).map(|k| format!("bench{k}")).collect();
+    run_chart(dir, "convergence.st", chart, &agents, probe).await?;
+    let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
+    let mut lat = Vec::new();
+    let mut last_return: Option<Instant> = None;
+    for (t, event, name) in marks.iter() {
+        match (event.as_str(), name.as_str()) {
+            ("return", _) => last_return = Some(*t),
+            ("activate", "Join") => {
+                if let Some(t0) = last_return.take() {
+                    lat.push(*t - t0);
+                }
+            }
+            _ => {}
+        }
+    }
+    Latency::of(lat.split_off((warmup as usize).min(lat.len())))
+}
+
+/// Phase 4: `agents × lanes` independent loops, each dispatching a one-step segment to its agent over and over;
+/// tokens returned per second in steady state.
+async fn throughput(dir: &Path, agents: u32, lanes_per_agent: u32, tokens: u32) -> anyhow::Result<(u64, f64)> {
+    let lanes = agents * lanes_per_agent;
+    let per_lane = tokens.div_ceil(lanes).max(1);
+    let mut chart = String::from("PROGRAM throughput\nVAR\n");
+    for j in 1..=lanes {
+        chart.push_str(&format!("  c{j} : DINT := 0;\n"));
+    }
+    chart.push_str(&format!("  n : DINT := {per_lane};\nEND_VAR\nINITIAL_STEP Start: END_STEP\n"));
+    let list = |p: &str| (1..=lanes).map(|j| format!("{p}{j}")).collect::<Vec<_>>().join(", ");
+    chart.push_str(&format!("TRANSITION FROM Start TO ({}) := TRUE; END_TRANSITION\n", list("H")));
+    for j in 1..=lanes {
+        let agent = (j - 1) % agents + 1;
+        chart.push_str(&format!(
+            "STEP H{j}: END_STEP\nTRANSITION FROM H{j} TO R{j} := c{j} < n; END_TRANSITION\nTRANSITION FROM H{j} TO D{j} := c{j} >= n; END_TRANSITION\nSTEP R{j}: {{agent := 'bench{agent}'}} END_STEP\nTRANSITION FROM R{j} TO B{j} := TRUE; END_TRANSITION\nSTEP B{j}: Count{j}(P); END_STEP\nTRANSITION FROM B{j} TO H{j} := TRUE; END_TRANSITION\nSTEP D{j}: END_STEP\nACTION Count{j}: IF Count{j}.Q THEN c{j} := c{j} + 1; END_IF; END_ACTION\n"
+        ));
+    }
+    chart.push_str(&format!(
+        "TRANSITION FROM ({}) TO Finished := TRUE; END_TRANSITION\nSTEP Finished: END_STEP\nEND_PROGRAM\n",
+        list("D")
+    ));
+    let (marks, probe) = marks(&["return"]);
+    let names: Vec<String> = (1..=agents).map(|k| format!("bench{k}")).collect();
+    run_chart(dir, "throughput.st", chart, &names, probe).await?;
+    let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
+    // Steady state: the first tenth of the returns (agents starting, caches warming) is left out.
+    let returns: Vec<Instant> = marks.iter().filter(|m| m.1 == "return").map(|m| m.0).collect();
+    let skip = returns.len() / 10;
+    let (Some(first), Some(last)) = (returns.get(skip), returns.last()) else { bail!("no token came back") };
+    let counted = (returns.len() - skip - 1) as u64;
+    Ok((counted, (*last - *first).as_secs_f64().max(1e-9)))
+}
