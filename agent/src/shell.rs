@@ -10,7 +10,7 @@ use baton_proto::check::check_source;
 use baton_proto::keys;
 use baton_proto::layout::{is_valid_name, Layout};
 use baton_proto::limits::{CHART_SOURCE_BYTES_MAX, RECEIVE_QUEUE_MAX};
-use baton_proto::netconfig::{Mode, NetConfig};
+use baton_proto::netconfig::NetConfig;
 use baton_proto::program::{ActionId, Program};
 use baton_proto::runtime::agent::{AgentOutput, AgentRun, Dispatch};
 use baton_proto::runtime::Level;
@@ -86,14 +86,7 @@ struct Shell {
 /// Runs the agent until interrupted (Ctrl-C or SIGTERM).
 pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
     config.validate()?;
-    let net = NetConfig {
-        mode: Mode::Client,
-        listen: Vec::new(),
-        connect: config.connect.clone(),
-        lease_ms: Some(config.lease_ms),
-        wait_for_router: true,
-        multicast_scouting: false,
-    };
+    let net = NetConfig { lease_ms: Some(config.lease_ms), ..NetConfig::client(&config.connect, true) };
     let zconfig = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"))?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     let name = config.name.clone();

@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::netconfig::{Mode, NetConfig};
+use baton_proto::netconfig::NetConfig;
 use serde::Serialize;
 use tokio::process::{Child, Command};
 use zenoh::qos::CongestionControl;
@@ -125,14 +125,7 @@ impl BenchReport {
 }
 
 fn router_config(endpoint: &str) -> anyhow::Result<zenoh::Config> {
-    let net = NetConfig {
-        mode: Mode::Router,
-        listen: vec![endpoint.to_string()],
-        connect: Vec::new(),
-        lease_ms: None,
-        wait_for_router: false,
-        multicast_scouting: false,
-    };
+    let net = NetConfig::router(&[endpoint.to_string()]);
     zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("{e}"))
 }
 
@@ -180,14 +173,7 @@ async fn raw_round_trip(samples: u32) -> anyhow::Result<Latency> {
 
 /// `baton bench-echo`: puts every ping back as a pong.
 pub async fn echo(connect: &[String]) -> anyhow::Result<()> {
-    let net = NetConfig {
-        mode: Mode::Client,
-        listen: Vec::new(),
-        connect: connect.to_vec(),
-        lease_ms: None,
-        wait_for_router: false,
-        multicast_scouting: false,
-    };
+    let net = NetConfig::client(connect, false);
     let config = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("{e}"))?;
     let session = zenoh::open(config).await.map_err(|e| anyhow!("{e}"))?;
     let pings = session.declare_subscriber(PING_KEY).await.map_err(|e| anyhow!("{e}"))?;

@@ -4,21 +4,14 @@ use std::time::Duration;
 
 use anyhow::{anyhow, bail};
 use baton_proto::keys;
-use baton_proto::netconfig::{Mode, NetConfig};
+use baton_proto::netconfig::NetConfig;
 use baton_proto::wire::{self, SetReply, SetRequest, StatusReport};
 use zenoh::Session;
 
 const QUERY_TIMEOUT: Duration = Duration::from_secs(3);
 
 async fn open(connect: &[String]) -> anyhow::Result<Session> {
-    let net = NetConfig {
-        mode: Mode::Client,
-        listen: Vec::new(),
-        connect: connect.to_vec(),
-        lease_ms: None,
-        wait_for_router: false,
-        multicast_scouting: false,
-    };
+    let net = NetConfig::client(connect, false);
     let config = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"))?;
     zenoh::open(config).await.map_err(|e| anyhow!("cannot reach a router at {}: {e}", connect.join(", ")))
 }

@@ -8,7 +8,7 @@ use std::process::{ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::netconfig::{Mode, NetConfig};
+use baton_proto::netconfig::NetConfig;
 use baton_proto::sim::TraceRecord;
 use indicatif::{ProgressBar, ProgressStyle};
 use tokio::process::{Child, Command};
@@ -76,14 +76,7 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
 
     // The router: this process.
-    let net = NetConfig {
-        mode: Mode::Router,
-        listen: vec![endpoint.clone()],
-        connect: Vec::new(),
-        lease_ms: None,
-        wait_for_router: false,
-        multicast_scouting: false,
-    };
+    let net = NetConfig::router(std::slice::from_ref(&endpoint));
     let config = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("{e}"))?;
     let router = zenoh::open(config).await.map_err(|e| anyhow!("cannot start the router on {endpoint}: {e}"))?;
     println!("baton demo: router on {endpoint}, {} robot(s), {} part(s)", opts.agents, opts.parts);

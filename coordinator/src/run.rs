@@ -14,7 +14,7 @@ use baton_proto::check::check_source;
 use baton_proto::keys;
 use baton_proto::layout::Layout;
 use baton_proto::limits::RECEIVE_QUEUE_MAX;
-use baton_proto::netconfig::{Mode, NetConfig};
+use baton_proto::netconfig::NetConfig;
 use baton_proto::program::Program;
 use baton_proto::runtime::coordinator::{CoordOutput, Coordinator};
 use baton_proto::runtime::Level;
@@ -126,14 +126,9 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     if opts.listen.is_empty() == opts.connect.is_empty() {
         bail!("give either --listen ENDPOINT (embed a router) or --connect ENDPOINT (join one)");
     }
-    let net = NetConfig {
-        mode: if opts.listen.is_empty() { Mode::Client } else { Mode::Router },
-        listen: opts.listen.clone(),
-        connect: opts.connect.clone(),
-        lease_ms: None,
-        wait_for_router: true,
-        multicast_scouting: opts.multicast_scouting,
-    };
+    let net =
+        if opts.listen.is_empty() { NetConfig::client(&opts.connect, true) } else { NetConfig::router(&opts.listen) };
+    let net = NetConfig { multicast_scouting: opts.multicast_scouting, ..net };
     let zconfig = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"))?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     let run = RunId(uuid::Uuid::new_v4());

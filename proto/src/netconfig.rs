@@ -26,6 +26,30 @@ pub struct NetConfig {
 }
 
 impl NetConfig {
+    /// A router listening on `listen`, as `--listen` and `baton demo` embed one.
+    pub fn router(listen: &[String]) -> NetConfig {
+        NetConfig {
+            mode: Mode::Router,
+            listen: listen.to_vec(),
+            connect: Vec::new(),
+            lease_ms: None,
+            wait_for_router: false,
+            multicast_scouting: false,
+        }
+    }
+
+    /// A client of the router at `connect`: long-running processes wait for it, one-shot tools fail at once.
+    pub fn client(connect: &[String], wait_for_router: bool) -> NetConfig {
+        NetConfig {
+            mode: Mode::Client,
+            listen: Vec::new(),
+            connect: connect.to_vec(),
+            lease_ms: None,
+            wait_for_router,
+            multicast_scouting: false,
+        }
+    }
+
     pub fn json5(&self) -> String {
         let mode = match self.mode {
             Mode::Router => "router",

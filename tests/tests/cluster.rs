@@ -3,7 +3,7 @@
 use std::time::Duration;
 
 use baton_proto::keys;
-use baton_proto::netconfig::{Mode, NetConfig};
+use baton_proto::netconfig::NetConfig;
 use baton_proto::wire::{self, ChartHash, RunId, StatusReport, ToAgent, TokenId};
 use baton_tests::cluster::{check_trace_invariants, events, repo, Cluster, TIMEOUT};
 use zenoh::sample::Locality;
@@ -17,14 +17,7 @@ fn var(summary: &serde_json::Value, name: &str) -> String {
 }
 
 async fn client(endpoint: &str) -> zenoh::Session {
-    let net = NetConfig {
-        mode: Mode::Client,
-        listen: vec![],
-        connect: vec![endpoint.to_string()],
-        lease_ms: None,
-        wait_for_router: false,
-        multicast_scouting: false,
-    };
+    let net = NetConfig::client(&[endpoint.to_string()], false);
     let config = zenoh::Config::from_json5(&net.json5()).expect("config");
     zenoh::open(config).await.expect("test session")
 }
