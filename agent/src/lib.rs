@@ -11,6 +11,7 @@
 //!     lease_ms: 10_000,
 //!     cycle_ms: 10,
 //!     verbose: false,
+//!     zenoh_config: None,
 //! };
 //! run(config, Skills::builtin()).await
 //! # }

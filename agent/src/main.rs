@@ -30,6 +30,9 @@ struct Args {
     /// Log every event, not only warnings and errors.
     #[arg(long, short)]
     verbose: bool,
+    /// A Zenoh configuration file (TLS, credentials…); Baton's own settings apply on top of it.
+    #[arg(long, value_name = "FILE")]
+    zenoh_config: Option<std::path::PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -41,6 +44,7 @@ fn main() -> ExitCode {
         lease_ms: args.lease_ms,
         cycle_ms: args.cycle_ms,
         verbose: args.verbose,
+        zenoh_config: args.zenoh_config,
     };
     let skills = if args.allow_shell { Skills::builtin().with_shell() } else { Skills::builtin() };
     let runtime = match tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build() {

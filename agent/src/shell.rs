@@ -40,6 +40,8 @@ pub struct AgentConfig {
     pub cycle_ms: u64,
     /// Print every log line, not only warnings and errors.
     pub verbose: bool,
+    /// The user's own Zenoh configuration file (TLS, credentials), under Baton's settings.
+    pub zenoh_config: Option<std::path::PathBuf>,
 }
 
 impl AgentConfig {
@@ -87,7 +89,7 @@ struct Shell {
 pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
     config.validate()?;
     let net = NetConfig { lease_ms: Some(config.lease_ms), ..NetConfig::client(&config.connect, true) };
-    let zconfig = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"))?;
+    let zconfig = zenoh_config(&net, config.zenoh_config.as_deref())?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     let name = config.name.clone();
     // Everything a coordinator may use is declared before the liveliness token announces the agent: a
@@ -377,6 +379,18 @@ impl Shell {
 
 /// Publishers kept declared at once.
 const PUBLISHERS_MAX: usize = 256;
+
+/// Baton's settings, on top of the user's own Zenoh file when given.
+fn zenoh_config(net: &NetConfig, file: Option<&std::path::Path>) -> anyhow::Result<zenoh::Config> {
+    let Some(file) = file else {
+        return zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"));
+    };
+    let mut config = zenoh::Config::from_file(file).map_err(|e| anyhow!("cannot load {}: {e}", file.display()))?;
+    for (key, value) in net.overrides() {
+        config.insert_json5(key, &value).map_err(|e| anyhow!("zenoh configuration `{key}`: {e}"))?;
+    }
+    Ok(config)
+}
 
 /// Asks the coordinator of `run` for its chart and compiles it; the chart must hash to `hash`.
 async fn fetch_chart(

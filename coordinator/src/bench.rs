@@ -215,6 +215,7 @@ async fn run_chart(dir: &Path, file: &str, chart: String, agents: &[String], pro
         sets: Vec::new(),
         multicast_scouting: false,
         quiet: true,
+        zenoh_config: None,
     };
     tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe)))
         .await

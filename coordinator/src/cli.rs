@@ -75,6 +75,9 @@ enum Command {
         /// Print only warnings, errors and the summary.
         #[arg(long, short)]
         quiet: bool,
+        /// A Zenoh configuration file (TLS, credentials…); Baton's own settings apply on top of it.
+        #[arg(long, value_name = "FILE")]
+        zenoh_config: Option<PathBuf>,
     },
     /// Set an input of the charts running behind a router: baton set --connect EP NAME=VALUE.
     Set {
@@ -82,6 +85,9 @@ enum Command {
         connect: Vec<String>,
         #[arg(value_name = "NAME=VALUE", value_parser = crate::client::parse_assignment)]
         assignment: (String, serde_json::Value),
+        /// A Zenoh configuration file (TLS, credentials…).
+        #[arg(long, value_name = "FILE")]
+        zenoh_config: Option<PathBuf>,
     },
     /// Run the bundled multi-robot cell: a router, a coordinator and simulated robots on loopback.
     Demo {
@@ -126,6 +132,9 @@ enum Command {
         /// One JSON object per running chart.
         #[arg(long)]
         json: bool,
+        /// A Zenoh configuration file (TLS, credentials…).
+        #[arg(long, value_name = "FILE")]
+        zenoh_config: Option<PathBuf>,
     },
 }
 
@@ -136,7 +145,19 @@ pub fn main() -> ExitCode {
         Command::Sim { chart, inputs, cycle_ms, until_ms, pou } => {
             sim(&chart, inputs.as_deref(), cycle_ms, until_ms, pou.as_deref())
         }
-        Command::Run { chart, listen, connect, trace, summary, sets, cycle_ms, pou, multicast_scouting, quiet } => {
+        Command::Run {
+            chart,
+            listen,
+            connect,
+            trace,
+            summary,
+            sets,
+            cycle_ms,
+            pou,
+            multicast_scouting,
+            quiet,
+            zenoh_config,
+        } => {
             let opts = crate::run::RunOptions {
                 chart,
                 pou,
@@ -148,6 +169,7 @@ pub fn main() -> ExitCode {
                 sets,
                 multicast_scouting,
                 quiet,
+                zenoh_config,
             };
             block_on(async move {
                 let summary = crate::run::run(opts).await?;
@@ -155,8 +177,8 @@ pub fn main() -> ExitCode {
                 Ok(ExitCode::SUCCESS)
             })
         }
-        Command::Set { connect, assignment: (name, value) } => block_on(async move {
-            let taken = crate::client::set(&connect, &name, value).await?;
+        Command::Set { connect, assignment: (name, value), zenoh_config } => block_on(async move {
+            let taken = crate::client::set(&connect, zenoh_config.as_deref(), &name, value).await?;
             Ok(if taken { ExitCode::SUCCESS } else { ExitCode::from(EXIT_INVALID) })
         }),
         Command::Demo { agents, parts, keep } => {
@@ -179,8 +201,8 @@ pub fn main() -> ExitCode {
             crate::bench::echo(&connect).await?;
             Ok(ExitCode::SUCCESS)
         }),
-        Command::Status { connect, json } => block_on(async move {
-            crate::client::status(&connect, json).await?;
+        Command::Status { connect, json, zenoh_config } => block_on(async move {
+            crate::client::status(&connect, zenoh_config.as_deref(), json).await?;
             Ok(ExitCode::SUCCESS)
         }),
     };

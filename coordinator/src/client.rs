@@ -1,5 +1,6 @@
 //! `baton set` and `baton status`: one-shot clients of running charts, over Zenoh queries.
 
+use std::path::Path;
 use std::time::Duration;
 
 use anyhow::{anyhow, bail};
@@ -10,9 +11,9 @@ use zenoh::Session;
 
 const QUERY_TIMEOUT: Duration = Duration::from_secs(3);
 
-async fn open(connect: &[String]) -> anyhow::Result<Session> {
+async fn open(connect: &[String], file: Option<&Path>) -> anyhow::Result<Session> {
     let net = NetConfig::client(connect, false);
-    let config = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"))?;
+    let config = crate::zconf::load(&net, file)?;
     zenoh::open(config).await.map_err(|e| anyhow!("cannot reach a router at {}: {e}", connect.join(", ")))
 }
 
@@ -53,13 +54,18 @@ pub fn parse_assignment(text: &str) -> Result<(String, serde_json::Value), Strin
 }
 
 /// Sets an input of every chart running behind the router; true when at least one took it.
-pub async fn set(connect: &[String], name: &str, value: serde_json::Value) -> anyhow::Result<bool> {
-    let session = open(connect).await?;
+pub async fn set(
+    connect: &[String],
+    file: Option<&Path>,
+    name: &str,
+    value: serde_json::Value,
+) -> anyhow::Result<bool> {
+    let session = open(connect, file).await?;
     let request = wire::encode(&SetRequest { name: name.to_string(), value });
     let replies: Vec<SetReply> = ask(&session, keys::set_any_run(), Some(request)).await?;
     session.close().await.map_err(|e| anyhow!("{e}"))?;
     if replies.is_empty() {
-        bail!("no running chart answered behind {}", connect.join(", "));
+        bail!("no running chart answered behind {} (or the router's access control refused you)", connect.join(", "));
     }
     for r in &replies {
         if r.ok {
@@ -71,8 +77,8 @@ pub async fn set(connect: &[String], name: &str, value: serde_json::Value) -> an
     Ok(replies.iter().any(|r| r.ok))
 }
 
-pub async fn status(connect: &[String], json: bool) -> anyhow::Result<()> {
-    let session = open(connect).await?;
+pub async fn status(connect: &[String], file: Option<&Path>, json: bool) -> anyhow::Result<()> {
+    let session = open(connect, file).await?;
     let mut reports: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
     session.close().await.map_err(|e| anyhow!("{e}"))?;
     if reports.is_empty() {

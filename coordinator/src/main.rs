@@ -6,6 +6,7 @@ mod client;
 mod demo;
 mod demo_chart;
 mod run;
+mod zconf;
 
 use std::process::ExitCode;
 

@@ -43,6 +43,8 @@ pub struct RunOptions {
     pub sets: Vec<(String, serde_json::Value)>,
     pub multicast_scouting: bool,
     pub quiet: bool,
+    /// The user's own Zenoh configuration (TLS, credentials), under Baton's settings.
+    pub zenoh_config: Option<PathBuf>,
 }
 
 /// What `baton run` prints at the end, and writes with `--summary FILE`.
@@ -129,7 +131,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let net =
         if opts.listen.is_empty() { NetConfig::client(&opts.connect, true) } else { NetConfig::router(&opts.listen) };
     let net = NetConfig { multicast_scouting: opts.multicast_scouting, ..net };
-    let zconfig = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"))?;
+    let zconfig = crate::zconf::load(&net, opts.zenoh_config.as_deref())?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     let run = RunId(uuid::Uuid::new_v4());
     let hash = ChartHash::of(&loaded.source, &loaded.pou);

@@ -50,6 +50,27 @@ impl NetConfig {
         }
     }
 
+    /// The settings Baton imposes on a user's own Zenoh configuration file (TLS, authentication…), as
+    /// `(key, JSON5 value)` pairs for `zenoh::Config::insert_json5`.
+    pub fn overrides(&self) -> Vec<(&'static str, String)> {
+        let v: serde_json::Value = match serde_json::from_str(&self.json5()) {
+            Ok(v) => v,
+            Err(_) => return Vec::new(),
+        };
+        let mut out = vec![
+            ("mode", v["mode"].to_string()),
+            ("listen/endpoints", v["listen"]["endpoints"].to_string()),
+            ("connect/endpoints", v["connect"]["endpoints"].to_string()),
+            ("connect/timeout_ms", v["connect"]["timeout_ms"].to_string()),
+            ("connect/exit_on_failure", v["connect"]["exit_on_failure"].to_string()),
+            ("scouting/multicast/enabled", v["scouting"]["multicast"]["enabled"].to_string()),
+        ];
+        if let Some(lease) = self.lease_ms {
+            out.push(("transport/link/tx/lease", lease.to_string()));
+        }
+        out
+    }
+
     pub fn json5(&self) -> String {
         let mode = match self.mode {
             Mode::Router => "router",
@@ -94,5 +115,9 @@ mod tests {
         assert_eq!(v["scouting"]["multicast"]["enabled"], false);
         assert_eq!(v["transport"]["link"]["tx"]["lease"], 2000);
         assert_eq!(v["connect"]["timeout_ms"], -1);
+        let overrides = cfg.overrides();
+        assert!(overrides.contains(&("mode", "\"client\"".to_string())));
+        assert!(overrides.contains(&("transport/link/tx/lease", "2000".to_string())));
+        assert!(overrides.contains(&("scouting/multicast/enabled", "false".to_string())));
     }
 }
