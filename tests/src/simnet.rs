@@ -42,6 +42,8 @@ struct SimAgent {
 
 pub struct SimCluster {
     pub coordinator: Coordinator,
+    /// Inputs to set, as (time, name, value), applied when their time comes.
+    inputs: Vec<(u64, String, serde_json::Value)>,
     agents: Vec<SimAgent>,
     net: Vec<(u64, Packet)>,
     rng: u64,
@@ -87,6 +89,7 @@ impl SimCluster {
             .collect();
         SimCluster {
             coordinator,
+            inputs: Vec::new(),
             agents: sim_agents,
             net: Vec::new(),
             rng: seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1,
@@ -125,10 +128,20 @@ impl SimCluster {
         }
     }
 
+    /// Sets an input at `t_ms`, as `baton set` would.
+    pub fn set_at(&mut self, t_ms: u64, name: &str, value: serde_json::Value) {
+        self.inputs.push((t_ms, name.to_string(), value));
+        self.inputs.sort_by_key(|i| i.0);
+    }
+
     /// Runs until the chart reaches a terminal situation or `limit_ms` of virtual time passed; returns whether
     /// it finished.
     pub fn run(&mut self, limit_ms: u64) -> bool {
         while self.now_ms <= limit_ms {
+            while self.inputs.first().is_some_and(|i| i.0 <= self.now_ms) {
+                let (_, name, value) = self.inputs.remove(0);
+                self.coordinator.handle_set(self.now_ms, &name, &value).expect("settable input");
+            }
             self.deliver();
             self.coordinator.handle_cycle(self.now_ms);
             self.flush_coordinator();
