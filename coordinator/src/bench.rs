@@ -22,6 +22,8 @@ const PING_KEY: &str = "baton/bench/ping";
 const PONG_KEY: &str = "baton/bench/pong";
 const ECHO_ALIVE_KEY: &str = "baton/bench/echo";
 const PHASE_TIMEOUT: Duration = Duration::from_secs(300);
+/// Rounds of alternating (1) and (2).
+const ROUNDS: u32 = 3;
 
 pub struct BenchOptions {
     /// Round trips measured in phases 1 and 2, and convergences in phase 3.
@@ -86,10 +88,17 @@ fn marks(keep: &'static [&'static str]) -> (Marks, Probe) {
 
 pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
     let dir = tempfile::tempdir()?;
-    eprintln!("1/4 raw Zenoh round trip, {} samples", opts.samples);
-    let zenoh_round_trip = raw_round_trip(opts.samples).await?;
-    eprintln!("2/4 token round trip through Baton, {} samples", opts.samples);
-    let token_round_trip = token_round_trip(dir.path(), opts.samples).await?;
+    // (1) and (2) alternate in rounds, so that both see the same machine: loopback latency on a shared VM
+    // drifts by more than the difference being measured.
+    let per_round = opts.samples.div_ceil(ROUNDS).max(1);
+    let (mut raw, mut token) = (Vec::new(), Vec::new());
+    for round in 1..=ROUNDS {
+        eprintln!("1/4 raw Zenoh round trip, round {round}/{ROUNDS}, {per_round} samples");
+        raw.extend(raw_round_trip(per_round).await?);
+        eprintln!("2/4 token round trip through Baton, round {round}/{ROUNDS}, {per_round} samples");
+        token.extend(token_round_trip(dir.path(), per_round).await?);
+    }
+    let (zenoh_round_trip, token_round_trip) = (Latency::of(raw)?, Latency::of(token)?);
     eprintln!("3/4 convergence latency, 3 branches, {} samples", opts.samples.min(2000));
     let convergence = convergence(dir.path(), opts.samples.min(2000)).await?;
     let lanes = opts.agents * opts.lanes_per_agent;
@@ -130,7 +139,7 @@ fn router_config(endpoint: &str) -> anyhow::Result<zenoh::Config> {
 }
 
 /// Phase 1: put → the echo process's subscriber → put back → our subscriber, 64-byte payloads.
-async fn raw_round_trip(samples: u32) -> anyhow::Result<Latency> {
+async fn raw_round_trip(samples: u32) -> anyhow::Result<Vec<Duration>> {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
     let session = zenoh::open(router_config(&endpoint)?).await.map_err(|e| anyhow!("{e}"))?;
     let alive = session.liveliness().declare_subscriber(ECHO_ALIVE_KEY).await.map_err(|e| anyhow!("{e}"))?;
@@ -168,7 +177,7 @@ async fn raw_round_trip(samples: u32) -> anyhow::Result<Latency> {
         }
     }
     session.close().await.map_err(|e| anyhow!("{e}"))?;
-    Latency::of(rtts)
+    Ok(rtts)
 }
 
 /// `baton bench-echo`: puts every ping back as a pong.
@@ -229,7 +238,7 @@ fn counted_loop_header(name: &str, n: u32) -> String {
 
 /// Phase 2: a one-step segment whose exit is TRUE at once, dispatched `samples` times (plus a warm-up), from
 /// its dispatch to the activation of the next step on the coordinator.
-async fn token_round_trip(dir: &Path, samples: u32) -> anyhow::Result<Latency> {
+async fn token_round_trip(dir: &Path, samples: u32) -> anyhow::Result<Vec<Duration>> {
     let warmup = 200;
     let mut chart = counted_loop_header("token_rtt", samples + warmup);
     chart.push_str(concat!(
@@ -255,7 +264,7 @@ async fn token_round_trip(dir: &Path, samples: u32) -> anyhow::Result<Latency> {
             _ => {}
         }
     }
-    Latency::of(rtts.split_off((warmup as usize).min(rtts.len())))
+    Ok(rtts.split_off((warmup as usize).min(rtts.len())))
 }
 
 /// Phase 3: three branches on three agents; from the coordinator's taking the last branch's return to the

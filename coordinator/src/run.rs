@@ -330,10 +330,18 @@ impl Shell {
     async fn cycle(&mut self) -> anyhow::Result<()> {
         let now = self.now_ms();
         self.core.handle_cycle(now);
+        // Messages leave before the trace is written: a token's round trip does not wait for the disk.
+        let mut local = Vec::new();
         while let Some(out) = self.core.poll_output() {
             match out {
                 CoordOutput::Send { agent, msg } => self.send(keys::agent_cmd(&agent), wire::encode(&msg)).await?,
                 CoordOutput::Vars(update) => self.send(self.vars_key.clone(), wire::encode(&update)).await?,
+                other => local.push(other),
+            }
+        }
+        for out in local {
+            match out {
+                CoordOutput::Send { .. } | CoordOutput::Vars(_) => {}
                 CoordOutput::Trace(rec) => self.record(rec),
                 CoordOutput::Log { level, message } => {
                     let tag = match level {
