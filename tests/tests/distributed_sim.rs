@@ -125,7 +125,11 @@ fn place(src: &str, placements: &[u8]) -> String {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+    // 64 cases in the test suite; PROPTEST_CASES=N soaks.
+    #![proptest_config(ProptestConfig {
+        cases: std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(64),
+        ..ProptestConfig::default()
+    })]
 
     /// Random structured charts, their steps placed at random on the coordinator and two agents, driven by
     /// random inputs over a network that duplicates, reorders and delays: no step ever holds two tokens, no
