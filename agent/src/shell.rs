@@ -51,6 +51,9 @@ impl AgentConfig {
                 anyhow::bail!("`{n}` is not a valid agent name or role: use letters, digits, `_` and `-` (at most 64)");
             }
         }
+        if self.name == baton_proto::runtime::COORDINATOR {
+            anyhow::bail!("`{}` is the name the coordinator publishes under: choose another agent name", self.name);
+        }
         if self.connect.is_empty() {
             anyhow::bail!("give the router's endpoint with --connect, such as tcp/127.0.0.1:7447");
         }

@@ -13,6 +13,8 @@ fn invalid_names_are_refused_before_connecting() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("`robot/1` is not a valid agent name"));
     let out = agent(&["--connect", "tcp/127.0.0.1:1", "--name", "ok", "--role", "pick*"]);
     assert_eq!(out.status.code(), Some(2));
+    let out = agent(&["--connect", "tcp/127.0.0.1:1", "--name", "coordinator"]);
+    assert_eq!(out.status.code(), Some(2), "the coordinator's publisher name is reserved");
 }
 
 #[test]

@@ -382,7 +382,8 @@ impl Coordinator {
     /// An agent announced itself (or came back). Tokens waiting for it leave now.
     pub fn handle_agent_up(&mut self, now_ms: u64, info: AgentInfo) {
         self.advance(now_ms);
-        if !crate::layout::is_valid_name(&info.name) || !info.roles.iter().all(|r| crate::layout::is_valid_name(r)) {
+        let valid = |n: &str| crate::layout::is_valid_name(n) && n != COORDINATOR;
+        if !valid(&info.name) || !info.roles.iter().all(|r| crate::layout::is_valid_name(r)) {
             self.drop_msg(format!("agent announcement with an invalid name or role ignored: {:?}", info.name));
             return;
         }
