@@ -199,6 +199,11 @@ impl Shell {
                     None => self.queue_for_chart(run, chart, d),
                 }
             }
+            ToAgent::Drop { run, token, epoch } => {
+                if let Some(r) = self.runs.get_mut(&run) {
+                    r.state.handle_drop(now, token, epoch);
+                }
+            }
             ToAgent::Ack { run, acks } => {
                 if let Some(r) = self.runs.get_mut(&run) {
                     for a in acks {
@@ -293,7 +298,7 @@ impl Shell {
         for id in ids {
             let mut outputs = Vec::new();
             if let Some(r) = self.runs.get_mut(&id) {
-                if r.state.tokens_held() > 0 {
+                if r.state.needs_cycle() {
                     r.state.handle_cycle(now);
                 }
                 while let Some(out) = r.state.poll_output() {

@@ -225,6 +225,7 @@ async fn run_chart(dir: &Path, file: &str, chart: String, agents: &[String], pro
         multicast_scouting: false,
         quiet: true,
         zenoh_config: None,
+        loss_policy: baton_proto::runtime::coordinator::LossPolicy::Pause,
     };
     tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe)))
         .await

@@ -23,6 +23,13 @@ struct Cli {
     command: Command,
 }
 
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum OnAgentLoss {
+    Pause,
+    Reassign,
+    Fail,
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Check a chart: syntax, names, types, safety and reachability. Exit 0 when valid, 1 on errors.
@@ -78,6 +85,10 @@ enum Command {
         /// A Zenoh configuration file (TLS, credentials…); Baton's own settings apply on top of it.
         #[arg(long, value_name = "FILE")]
         zenoh_config: Option<PathBuf>,
+        /// What to do with the tokens of a lost agent: hold them until it is back, restart their segments on
+        /// another agent (new epoch), or end the run with an error.
+        #[arg(long, value_enum, default_value_t = OnAgentLoss::Pause)]
+        on_agent_loss: OnAgentLoss,
     },
     /// Set an input of the charts running behind a router: baton set --connect EP NAME=VALUE.
     Set {
@@ -157,7 +168,14 @@ pub fn main() -> ExitCode {
             multicast_scouting,
             quiet,
             zenoh_config,
+            on_agent_loss,
         } => {
+            use baton_proto::runtime::coordinator::LossPolicy;
+            let loss_policy = match on_agent_loss {
+                OnAgentLoss::Pause => LossPolicy::Pause,
+                OnAgentLoss::Reassign => LossPolicy::Reassign,
+                OnAgentLoss::Fail => LossPolicy::Fail,
+            };
             let opts = crate::run::RunOptions {
                 chart,
                 pou,
@@ -170,6 +188,7 @@ pub fn main() -> ExitCode {
                 multicast_scouting,
                 quiet,
                 zenoh_config,
+                loss_policy,
             };
             block_on(async move {
                 let summary = crate::run::run(opts).await?;

@@ -16,7 +16,7 @@ use baton_proto::layout::Layout;
 use baton_proto::limits::RECEIVE_QUEUE_MAX;
 use baton_proto::netconfig::NetConfig;
 use baton_proto::program::Program;
-use baton_proto::runtime::coordinator::{CoordOutput, Coordinator};
+use baton_proto::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
 use baton_proto::runtime::Level;
 use baton_proto::sim::TraceRecord;
 use baton_proto::wire::{self, AgentInfo, ChartHash, ChartSource, RunId, SetReply, SetRequest, TokenId};
@@ -45,6 +45,7 @@ pub struct RunOptions {
     pub quiet: bool,
     /// The user's own Zenoh configuration (TLS, credentials), under Baton's settings.
     pub zenoh_config: Option<PathBuf>,
+    pub loss_policy: LossPolicy,
 }
 
 /// What `baton run` prints at the end, and writes with `--summary FILE`.
@@ -144,6 +145,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         hash,
         Box::new(|| TokenId(uuid::Uuid::new_v4())),
     );
+    core.set_loss_policy(opts.loss_policy);
     for (name, value) in &opts.sets {
         core.handle_set(0, name, value).map_err(|e| anyhow!("--set {name}: {e}"))?;
     }
@@ -188,7 +190,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
     let mut interrupted = false;
     shell.cycle().await?;
-    while !shell.core.is_terminal() {
+    while !shell.core.is_terminal() && shell.core.failure().is_none() {
         tokio::select! {
             s = report_sub.recv_async() => {
                 let Ok(s) = s else { break };
@@ -226,6 +228,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         }
         shell.cycle().await?;
     }
+    let failure = shell.core.failure().map(str::to_string);
     let summary = shell.summary(&loaded);
     if let Some(t) = &mut shell.trace {
         t.flush().context("cannot write the trace")?;
@@ -234,6 +237,9 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     session.close().await.map_err(zerr)?;
     if interrupted {
         bail!("interrupted before the chart reached a terminal situation");
+    }
+    if let Some(why) = &failure {
+        bail!("the run failed: {why}");
     }
     if let Some(p) = &opts.summary {
         let text = serde_json::to_string_pretty(&summary)?;

@@ -53,6 +53,9 @@ pub enum Input {
 pub enum RemoteInput {
     Activate(StepId),
     Fire(TransitionId),
+    /// The token left the step without a transition: its segment was taken back (an agent was lost, or a
+    /// stale token dropped).
+    Deactivate(StepId),
 }
 
 /// Whether an engine judges a transition, and whether it activates the transition's targets when it clears.
@@ -104,6 +107,8 @@ pub enum InputError {
     UnknownTransition(u32),
     #[error("step `{0}` is already active")]
     AlreadyActive(String),
+    #[error("step `{0}` is not active")]
+    NotActive(String),
     #[error("transition `{0}` is judged by this engine, not reported by another")]
     NotRemote(String),
     #[error("transition `{0}` cannot have cleared: not all of its source steps are active")]
@@ -285,6 +290,14 @@ impl Engine {
                 self.advance(now_ms)?;
                 self.activate(s);
                 self.steps[s.index()].remote_cycle = self.cycle;
+            }
+            RemoteInput::Deactivate(s) => {
+                let state = self.steps.get(s.index()).ok_or(InputError::UnknownStep(s.0))?;
+                if !state.active {
+                    return Err(InputError::NotActive(program.steps[s.index()].name.clone()));
+                }
+                self.advance(now_ms)?;
+                self.deactivate(s);
             }
             RemoteInput::Fire(t) => {
                 let scope = *self.scope.transitions.get(t.index()).ok_or(InputError::UnknownTransition(t.0))?;

@@ -124,6 +124,8 @@ pub enum ToAgent {
         /// Acknowledgements owed to this agent, carried along rather than sent apart.
         acks: Vec<AckEntry>,
     },
+    /// This token's epoch is over (its segment was taken back): stop running it and forget it.
+    Drop { run: RunId, token: TokenId, epoch: u32 },
     /// Reports applied since the last acknowledgement to this agent (at most `ACK_DELAY_MS` old, unless a
     /// dispatch carried them sooner).
     Ack { run: RunId, acks: Vec<AckEntry> },

@@ -33,8 +33,24 @@ enum Packet {
     Vars(Vec<u8>),
 }
 
+/// Something that happens to an agent during a simulated run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Fate {
+    /// SIGKILL: its state is gone and the coordinator sees it leave at once.
+    Kill,
+    /// The process starts again with the same name and no state.
+    Restart,
+    /// A cut cable or SIGSTOP: it keeps its state but nothing reaches it or leaves it; its lease runs out.
+    Cut,
+    /// The cable is back (or SIGCONT): its messages flow again.
+    Heal,
+}
+
 struct SimAgent {
     name: String,
+    roles: Vec<String>,
+    alive: bool,
+    reachable: bool,
     run: AgentRun,
     /// Running skills: action → (finish time, result).
     skills: BTreeMap<ActionId, (u64, Result<(), String>)>,
@@ -42,6 +58,10 @@ struct SimAgent {
 
 pub struct SimCluster {
     pub coordinator: Coordinator,
+    fates: Vec<(u64, String, Fate)>,
+    program: Arc<Program>,
+    layout: Arc<Layout>,
+    hash: ChartHash,
     /// Inputs to set, as (time, name, value), applied when their time comes.
     inputs: Vec<(u64, String, serde_json::Value)>,
     agents: Vec<SimAgent>,
@@ -82,6 +102,9 @@ impl SimCluster {
                     .handle_agent_up(0, AgentInfo { name: name.to_string(), roles: roles.clone(), lease_ms: 1000 });
                 SimAgent {
                     name: name.to_string(),
+                    roles: roles.clone(),
+                    alive: true,
+                    reachable: true,
                     run: AgentRun::new(name, &roles, run, hash.clone(), Arc::clone(&program), Arc::clone(&layout)),
                     skills: BTreeMap::new(),
                 }
@@ -89,6 +112,10 @@ impl SimCluster {
             .collect();
         SimCluster {
             coordinator,
+            fates: Vec::new(),
+            program: Arc::clone(&program),
+            layout: Arc::clone(&layout),
+            hash: hash.clone(),
             inputs: Vec::new(),
             agents: sim_agents,
             net: Vec::new(),
@@ -128,6 +155,47 @@ impl SimCluster {
         }
     }
 
+    /// Makes something happen to an agent at `t_ms`.
+    pub fn fate_at(&mut self, t_ms: u64, agent: &str, fate: Fate) {
+        self.fates.push((t_ms, agent.to_string(), fate));
+        self.fates.sort_by_key(|f| f.0);
+    }
+
+    fn apply_fate(&mut self, agent: &str, fate: Fate) {
+        let Some(i) = self.agents.iter().position(|a| a.name == agent) else { return };
+        let now = self.now_ms;
+        let info = AgentInfo { name: agent.to_string(), roles: self.agents[i].roles.clone(), lease_ms: 1000 };
+        match fate {
+            Fate::Kill | Fate::Cut => {
+                self.agents[i].reachable = false;
+                self.agents[i].alive = fate == Fate::Cut;
+                if fate == Fate::Kill {
+                    self.agents[i].skills.clear();
+                }
+                self.coordinator.handle_agent_down(now, agent);
+            }
+            Fate::Restart => {
+                let a = &mut self.agents[i];
+                a.run = AgentRun::new(
+                    agent,
+                    &a.roles,
+                    RunId(Uuid::from_u128(1)),
+                    self.hash.clone(),
+                    Arc::clone(&self.program),
+                    Arc::clone(&self.layout),
+                );
+                a.alive = true;
+                a.reachable = true;
+                self.coordinator.handle_agent_up(now, info);
+            }
+            Fate::Heal => {
+                self.agents[i].reachable = true;
+                self.coordinator.handle_agent_up(now, info);
+            }
+        }
+        self.flush_coordinator();
+    }
+
     /// Sets an input at `t_ms`, as `baton set` would.
     pub fn set_at(&mut self, t_ms: u64, name: &str, value: serde_json::Value) {
         self.inputs.push((t_ms, name.to_string(), value));
@@ -138,6 +206,10 @@ impl SimCluster {
     /// it finished.
     pub fn run(&mut self, limit_ms: u64) -> bool {
         while self.now_ms <= limit_ms {
+            while self.fates.first().is_some_and(|f| f.0 <= self.now_ms) {
+                let (_, agent, fate) = self.fates.remove(0);
+                self.apply_fate(&agent, fate);
+            }
             while self.inputs.first().is_some_and(|i| i.0 <= self.now_ms) {
                 let (_, name, value) = self.inputs.remove(0);
                 self.coordinator.handle_set(self.now_ms, &name, &value).expect("settable input");
@@ -146,6 +218,9 @@ impl SimCluster {
             self.coordinator.handle_cycle(self.now_ms);
             self.flush_coordinator();
             for i in 0..self.agents.len() {
+                if !self.agents[i].alive {
+                    continue;
+                }
                 let now = self.now_ms;
                 let due: Vec<(ActionId, Result<(), String>)> = self.agents[i]
                     .skills
@@ -181,6 +256,7 @@ impl SimCluster {
                 if self.faults.reorder { ready[(self.random() % ready.len() as u64) as usize] } else { ready[0] };
             let (_, packet) = self.net.remove(pick);
             match packet {
+                Packet::ToAgent(i, _) if !self.agents[i].reachable => {}
                 Packet::ToAgent(i, bytes) => {
                     match wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages") {
                         ToAgent::Dispatch { token, epoch, segment, entry, vars, vars_seq, acks, .. } => {
@@ -190,6 +266,7 @@ impl SimCluster {
                             let d = Dispatch { token, epoch, segment, entry, vars, vars_seq };
                             self.agents[i].run.handle_dispatch(self.now_ms, d);
                         }
+                        ToAgent::Drop { token, epoch, .. } => self.agents[i].run.handle_drop(self.now_ms, token, epoch),
                         ToAgent::Ack { acks, .. } => {
                             for a in acks {
                                 self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
@@ -204,7 +281,7 @@ impl SimCluster {
                 Packet::Vars(bytes) => {
                     let update: VarUpdate = wire::decode(&bytes).expect("valid update");
                     self.coordinator.handle_vars(self.now_ms, update.clone());
-                    for a in &mut self.agents {
+                    for a in self.agents.iter_mut().filter(|a| a.reachable) {
                         a.run.handle_vars(&update);
                     }
                 }
@@ -229,6 +306,14 @@ impl SimCluster {
 
     fn flush_agent(&mut self, i: usize) {
         while let Some(out) = self.agents[i].run.poll_output() {
+            if !self.agents[i].reachable {
+                // Cut off: what it says is lost (its unacknowledged reports are resent once it is back), and
+                // its skills go on.
+                if let AgentOutput::StartSkill { action, .. } = out {
+                    self.agents[i].skills.insert(action, (self.now_ms + 100, Ok(())));
+                }
+                continue;
+            }
             match out {
                 AgentOutput::Report(r) => self.send(Packet::Report(wire::encode(&r))),
                 AgentOutput::Vars(u) => self.send(Packet::Vars(wire::encode(&u))),

@@ -1,6 +1,7 @@
 //! The distributed runtime's state machines in deterministic simulation: real coordinator and agents, a
 //! simulated network that duplicates, reorders and delays, virtual time.
 
+use baton_proto::runtime::coordinator::LossPolicy;
 use baton_tests::gen::{ChartBuilder, Shape};
 use baton_tests::simnet::{Faults, SimCluster};
 use proptest::prelude::*;
@@ -167,4 +168,73 @@ proptest! {
         prop_assert!(returned.iter().all(|t| unique.contains(t)), "seed {}: a token came back that never left", seed);
         prop_assert_eq!(dispatched.len() - returned.len(), sim.coordinator.tokens_in_flight(), "seed {}: a token is unaccounted for\n{}", seed, src);
     }
+}
+
+/// One part of the cell, with robot1 lost at 600 ms, while it assembles (Assemble leaves for it at about
+/// 500 ms and takes 300 ms).
+fn cell_losing_robot1(fates: &[(u64, baton_tests::simnet::Fate)], policy: LossPolicy) -> SimCluster {
+    let mut sim = SimCluster::new(&cell(), CELL_AGENTS, Faults::default(), 11);
+    sim.coordinator.set_loss_policy(policy);
+    sim.set_at(0, "parts", serde_json::json!(1));
+    for &(t, fate) in fates {
+        sim.fate_at(t, "robot1", fate);
+    }
+    sim
+}
+
+fn assembled_by(sim: &SimCluster) -> Vec<(String, Option<u32>)> {
+    sim.trace
+        .iter()
+        .filter(|r| r.event == "dispatch" && r.name == "Assemble")
+        .map(|r| (r.agent.clone().unwrap_or_default(), r.epoch))
+        .collect()
+}
+
+#[test]
+fn reassign_restarts_a_lost_agents_segment_elsewhere_in_a_new_epoch() {
+    use baton_tests::simnet::Fate;
+    let mut sim = cell_losing_robot1(&[(600, Fate::Kill)], LossPolicy::Reassign);
+    assert!(sim.run(10_000), "did not finish");
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
+    assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
+    assert_eq!(sim.events("agent_lost").len(), 1);
+    assert!(sim.trace.iter().any(|r| r.event == "alarm" && r.message.as_deref().unwrap_or("").contains("reassigned")));
+    assert!(sim.coordinator.failure().is_none());
+}
+
+#[test]
+fn pause_holds_the_segment_until_the_agent_comes_back() {
+    use baton_tests::simnet::Fate;
+    let mut sim = cell_losing_robot1(&[(600, Fate::Kill), (2_000, Fate::Restart)], LossPolicy::Pause);
+    assert!(sim.run(10_000), "did not finish");
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
+    // Sent again to robot1, same epoch, once it is back; nothing went to robot2.
+    assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot1".to_string(), Some(1))]);
+    let back = sim.trace.iter().filter(|r| r.event == "dispatch" && r.name == "Assemble").nth(1).expect("resent").t_ms;
+    assert!(back >= 2_000, "resumed at {back} ms, before robot1 came back");
+}
+
+#[test]
+fn fail_ends_the_run_and_says_why() {
+    use baton_tests::simnet::Fate;
+    let mut sim = cell_losing_robot1(&[(600, Fate::Kill)], LossPolicy::Fail);
+    assert!(!sim.run(3_000));
+    let why = sim.coordinator.failure().expect("failed");
+    assert!(why.contains("robot1") && why.contains("Assemble"), "{why}");
+}
+
+#[test]
+fn a_cut_off_agents_late_result_is_rejected_after_a_reassign() {
+    use baton_tests::simnet::Fate;
+    let mut sim = cell_losing_robot1(&[(600, Fate::Cut), (1_500, Fate::Heal)], LossPolicy::Reassign);
+    assert!(sim.run(10_000), "did not finish");
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
+    assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
+    let stale: Vec<_> = sim.trace.iter().filter(|r| r.event == "reject_stale").collect();
+    assert!(!stale.is_empty(), "robot1's epoch-1 reports came back and were rejected");
+    assert!(stale.iter().all(|r| r.agent.as_deref() == Some("robot1") && r.epoch == Some(1)));
+    // Only epoch 2's return counts.
+    let returns: Vec<_> = sim.trace.iter().filter(|r| r.event == "return" && r.name == "Assemble").collect();
+    assert_eq!(returns.len(), 1);
+    assert_eq!(returns[0].epoch, Some(2));
 }

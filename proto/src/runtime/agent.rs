@@ -190,6 +190,10 @@ impl AgentRun {
             self.dropped += 1;
             return;
         }
+        if self.tokens.contains_key(&d.token) {
+            // A newer epoch of a token held here: the old one is over.
+            self.forget(d.token);
+        }
         let Some(segment) = self.layout.segments.get(d.segment as usize) else {
             return self.drop_msg(format!("dispatch of token {} names unknown segment {}", d.token, d.segment));
         };
@@ -234,6 +238,45 @@ impl AgentRun {
         self.by_segment.insert(g, d.token);
     }
 
+    /// The coordinator took this token back (its segment went to another epoch): stop running it.
+    pub fn handle_drop(&mut self, now_ms: u64, token: TokenId, epoch: u32) {
+        self.advance(now_ms);
+        if self.tokens.get(&token).is_some_and(|t| t.epoch == epoch) {
+            self.log(Level::Warn, format!("token {token} epoch {epoch} dropped at the coordinator's request"));
+            self.forget(token);
+        }
+    }
+
+    /// Deactivates what a token still holds here and forgets it; its actions stop in the next cycle.
+    fn forget(&mut self, token: TokenId) {
+        let Some(held) = self.tokens.remove(&token) else { return };
+        if self.by_segment.get(&held.segment) == Some(&token) {
+            self.by_segment.remove(&held.segment);
+        }
+        for s in self.layout.segments[held.segment.index()].steps.clone() {
+            if self.engine.is_active(s) {
+                let _ = self.engine.handle_remote(self.now_ms, RemoteInput::Deactivate(s));
+            }
+        }
+        self.remember_finished(token);
+    }
+
+    /// Remembers a finished token, to recognise a late duplicate of its dispatch; the oldest are forgotten.
+    fn remember_finished(&mut self, token: TokenId) {
+        if self.finished_order.len() >= FINISHED_TOKENS_REMEMBERED {
+            if let Some(old) = self.finished_order.pop_front() {
+                self.finished.remove(&old);
+            }
+        }
+        self.finished.insert(token);
+        self.finished_order.push_back(token);
+    }
+
+    /// Whether a cycle could change anything: a token is held, or a token was just taken away.
+    pub fn needs_cycle(&self) -> bool {
+        self.tokens_held() > 0 || self.engine.changed()
+    }
+
     /// The coordinator applied this token's reports up to `seq`.
     pub fn handle_ack(&mut self, token: TokenId, epoch: u32, seq: u32, done: bool) {
         let Some(held) = self.tokens.get_mut(&token) else { return };
@@ -245,13 +288,7 @@ impl AgentRun {
         }
         if done && held.done && held.unacked.is_empty() {
             self.tokens.remove(&token);
-            if self.finished_order.len() >= FINISHED_TOKENS_REMEMBERED {
-                if let Some(old) = self.finished_order.pop_front() {
-                    self.finished.remove(&old);
-                }
-            }
-            self.finished.insert(token);
-            self.finished_order.push_back(token);
+            self.remember_finished(token);
         }
     }
 

@@ -33,6 +33,19 @@ pub enum CoordOutput {
     Log { level: Level, message: String },
 }
 
+/// What the coordinator does with the tokens of an agent that is lost (`baton run --on-agent-loss`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LossPolicy {
+    /// Hold the segment and raise an alarm; the token resumes when the agent comes back. The default,
+    /// because running a motion again can be unsafe.
+    #[default]
+    Pause,
+    /// A new epoch: the segment restarts from its first step on another live agent of its placement.
+    Reassign,
+    /// End the run, saying why.
+    Fail,
+}
+
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct CoordStats {
     pub dispatched: u64,
@@ -55,6 +68,8 @@ struct TokenState {
     next_seq: u32,
     ahead: BTreeMap<u32, Report>,
     dispatched_ms: u64,
+    /// Its agent was lost under `LossPolicy::Pause`.
+    paused: bool,
 }
 
 pub struct Coordinator {
@@ -84,6 +99,9 @@ pub struct Coordinator {
     acks: BTreeMap<String, Vec<AckEntry>>,
     /// When the oldest owed acknowledgement was made.
     acks_since_ms: u64,
+    policy: LossPolicy,
+    /// Why the run must end, under `LossPolicy::Fail`.
+    failure: Option<String>,
     stats: CoordStats,
 }
 
@@ -122,6 +140,8 @@ impl Coordinator {
             outbox: VecDeque::new(),
             acks: BTreeMap::new(),
             acks_since_ms: 0,
+            policy: LossPolicy::default(),
+            failure: None,
             stats: CoordStats::default(),
         }
     }
@@ -136,6 +156,15 @@ impl Coordinator {
 
     pub fn stats(&self) -> CoordStats {
         self.stats
+    }
+
+    pub fn set_loss_policy(&mut self, policy: LossPolicy) {
+        self.policy = policy;
+    }
+
+    /// Set when the run must end with an error (an agent lost under `LossPolicy::Fail`).
+    pub fn failure(&self) -> Option<&str> {
+        self.failure.as_deref()
     }
 
     pub fn poll_output(&mut self) -> Option<CoordOutput> {
@@ -291,6 +320,7 @@ impl Coordinator {
             next_seq: 0,
             ahead: BTreeMap::new(),
             dispatched_ms: self.now_ms,
+            paused: false,
         };
         self.tokens.insert(id, tok);
         self.by_segment[g.index()] = Some(id);
@@ -405,6 +435,21 @@ impl Coordinator {
                 if info.roles.is_empty() { String::new() } else { format!(" (roles: {})", info.roles.join(", ")) };
             self.log(Level::Info, format!("agent `{name}` is live{roles}"));
         }
+        // Paused tokens of this agent go to it again, same epoch: if it kept them (a cut link), it ignores the
+        // duplicate and its unacknowledged reports follow; if it restarted, it runs the segment from its entry.
+        let mut paused: Vec<TokenId> = self
+            .tokens
+            .iter()
+            .filter(|(_, t)| t.paused && t.agent.as_deref() == Some(name.as_str()))
+            .map(|(id, _)| *id)
+            .collect();
+        paused.sort_unstable();
+        for id in paused {
+            if let Some(t) = self.tokens.get_mut(&id) {
+                t.paused = false;
+            }
+            self.emit_dispatch_or_wait(id);
+        }
         let waiting = std::mem::take(&mut self.waiting);
         for id in waiting {
             let Some(tok) = self.tokens.get(&id) else { continue };
@@ -419,8 +464,8 @@ impl Coordinator {
         }
     }
 
-    /// An agent's liveliness token is gone. Its tokens stay where they are until it comes back: re-running a
-    /// motion elsewhere can be unsafe, so nothing is moved behind the user's back.
+    /// An agent's liveliness token is gone (killed: at once; hung or cut off: after its lease). Its tokens are
+    /// paused, reassigned or fail the run, as the loss policy says.
     pub fn handle_agent_down(&mut self, now_ms: u64, name: &str) {
         self.advance(now_ms);
         let Some(agent) = self.agents.get_mut(name) else { return };
@@ -428,12 +473,76 @@ impl Coordinator {
             return;
         }
         agent.alive = false;
-        let held = agent.tokens;
-        let mut rec = TraceRecord::new(self.now_ms, "agent_down", name);
+        let mut rec = TraceRecord::new(self.now_ms, "agent_lost", name);
         rec.agent = Some(name.to_string());
         self.trace(rec);
-        let level = if held > 0 { Level::Error } else { Level::Info };
-        self.log(level, format!("agent `{name}` is gone, holding {held} token(s)"));
+        let mut held: Vec<TokenId> =
+            self.tokens.iter().filter(|(_, t)| t.agent.as_deref() == Some(name)).map(|(id, _)| *id).collect();
+        held.sort_unstable();
+        if held.is_empty() {
+            self.log(Level::Info, format!("agent `{name}` is gone; it held no token"));
+        }
+        for id in held {
+            let entry =
+                self.tokens.get(&id).map(|t| self.program.steps[t.entry.index()].name.clone()).unwrap_or_default();
+            match self.policy {
+                LossPolicy::Pause => {
+                    if let Some(t) = self.tokens.get_mut(&id) {
+                        t.paused = true;
+                    }
+                    self.alarm(format!(
+                        "agent `{name}` lost holding the token of step `{entry}`: paused until it comes back"
+                    ));
+                }
+                LossPolicy::Reassign => {
+                    self.alarm(format!(
+                        "agent `{name}` lost holding the token of step `{entry}`: reassigned, from its first step"
+                    ));
+                    self.reassign(id);
+                }
+                LossPolicy::Fail => {
+                    let why = format!("agent `{name}` was lost holding the token of step `{entry}`");
+                    self.alarm(why.clone());
+                    self.failure.get_or_insert(why);
+                }
+            }
+        }
+    }
+
+    fn alarm(&mut self, message: String) {
+        let mut rec = TraceRecord::new(self.now_ms, "alarm", &self.program.name);
+        rec.message = Some(message.clone());
+        self.trace(rec);
+        self.log(Level::Error, message);
+    }
+
+    /// Takes a token back from its agent: a new epoch, the segment's steps back to its first step in the mirror,
+    /// and a dispatch to a live agent of the placement (or a wait for one).
+    fn reassign(&mut self, id: TokenId) {
+        let Some(tok) = self.tokens.get_mut(&id) else { return };
+        tok.epoch += 1;
+        tok.next_seq = 0;
+        tok.ahead.clear();
+        tok.paused = false;
+        let (segment, entry, old) = (tok.segment, tok.entry, tok.agent.take());
+        if let Some(a) = old.and_then(|a| self.agents.get_mut(&a)) {
+            a.tokens = a.tokens.saturating_sub(1);
+        }
+        let now = self.now_ms;
+        for s in self.layout.segments[segment.index()].steps.clone() {
+            if self.engine.is_active(s) && s != entry {
+                let _ = self.engine.handle_remote(now, RemoteInput::Deactivate(s));
+            }
+        }
+        if !self.engine.is_active(entry) {
+            let _ = self.engine.handle_remote(now, RemoteInput::Activate(entry));
+        }
+        self.drain_engine();
+        let placement = self.layout.segments[segment.index()].placement.clone();
+        if let Some(agent) = self.choose_agent(&placement) {
+            self.assign(id, agent);
+        }
+        self.emit_dispatch_or_wait(id);
     }
 
     /// A report from an agent, decoded. Reports of a token apply once each, in sequence order.
@@ -455,8 +564,18 @@ impl Coordinator {
         };
         if report.epoch != tok.epoch {
             let epoch = tok.epoch;
+            if report.epoch < epoch {
+                let entry = self.program.steps[tok.entry.index()].name.clone();
+                let mut rec = TraceRecord::new(self.now_ms, "reject_stale", &entry);
+                rec.agent = Some(report.agent.clone());
+                rec.token = Some(report.token.to_string());
+                rec.epoch = Some(report.epoch);
+                self.trace(rec);
+                let msg = ToAgent::Drop { run: self.run, token: report.token, epoch: report.epoch };
+                self.outbox.push_back(CoordOutput::Send { agent: report.agent.clone(), msg });
+            }
             return self.drop_msg(format!(
-                "report from `{}` for token {} dropped: epoch {} is stale (current {epoch})",
+                "report from `{}` for token {} rejected: epoch {} is stale (current {epoch}); told to drop it",
                 report.agent, report.token, report.epoch
             ));
         }
