@@ -126,7 +126,12 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
         config.connect.join(", "),
         shell.skills.names().join(", ")
     );
-    let info = wire::encode(&AgentInfo { name: name.clone(), roles: config.roles.clone(), lease_ms: config.lease_ms });
+    let info = wire::encode(&AgentInfo {
+        name: name.clone(),
+        roles: config.roles.clone(),
+        lease_ms: config.lease_ms,
+        incarnation: uuid::Uuid::new_v4(),
+    });
     let mut tick = tokio::time::interval(Duration::from_millis(config.cycle_ms));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     // Signal streams made once: polling them each turn of the loop costs nothing.

@@ -189,6 +189,8 @@ pub struct AgentInfo {
     pub name: String,
     pub roles: Vec<String>,
     pub lease_ms: u64,
+    /// Random per process start: tells a restarted agent (which lost its tokens) from one that was cut off.
+    pub incarnation: Uuid,
 }
 
 /// The coordinator's answer to the chart query: what an agent needs to run segments of this run.

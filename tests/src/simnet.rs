@@ -51,6 +51,7 @@ struct SimAgent {
     roles: Vec<String>,
     alive: bool,
     reachable: bool,
+    restarts: u128,
     run: AgentRun,
     /// Running skills: action → (finish time, result).
     skills: BTreeMap<ActionId, (u64, Result<(), String>)>,
@@ -98,13 +99,21 @@ impl SimCluster {
             .iter()
             .map(|(name, roles)| {
                 let roles: Vec<String> = roles.iter().map(|r| r.to_string()).collect();
-                coordinator
-                    .handle_agent_up(0, AgentInfo { name: name.to_string(), roles: roles.clone(), lease_ms: 1000 });
+                coordinator.handle_agent_up(
+                    0,
+                    AgentInfo {
+                        name: name.to_string(),
+                        roles: roles.clone(),
+                        lease_ms: 1000,
+                        incarnation: Uuid::from_u128(0),
+                    },
+                );
                 SimAgent {
                     name: name.to_string(),
                     roles: roles.clone(),
                     alive: true,
                     reachable: true,
+                    restarts: 0,
                     run: AgentRun::new(name, &roles, run, hash.clone(), Arc::clone(&program), Arc::clone(&layout)),
                     skills: BTreeMap::new(),
                 }
@@ -164,7 +173,10 @@ impl SimCluster {
     fn apply_fate(&mut self, agent: &str, fate: Fate) {
         let Some(i) = self.agents.iter().position(|a| a.name == agent) else { return };
         let now = self.now_ms;
-        let info = AgentInfo { name: agent.to_string(), roles: self.agents[i].roles.clone(), lease_ms: 1000 };
+        // A restart is a new incarnation; a healed cut is the same process.
+        let incarnation = Uuid::from_u128(self.agents[i].restarts);
+        let info =
+            AgentInfo { name: agent.to_string(), roles: self.agents[i].roles.clone(), lease_ms: 1000, incarnation };
         match fate {
             Fate::Kill | Fate::Cut => {
                 self.agents[i].reachable = false;
@@ -175,6 +187,8 @@ impl SimCluster {
                 self.coordinator.handle_agent_down(now, agent);
             }
             Fate::Restart => {
+                self.agents[i].restarts += 1;
+                let info = AgentInfo { incarnation: Uuid::from_u128(self.agents[i].restarts), ..info };
                 let a = &mut self.agents[i];
                 a.run = AgentRun::new(
                     agent,

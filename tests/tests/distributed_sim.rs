@@ -203,15 +203,31 @@ fn reassign_restarts_a_lost_agents_segment_elsewhere_in_a_new_epoch() {
 }
 
 #[test]
-fn pause_holds_the_segment_until_the_agent_comes_back() {
+fn pause_resumes_a_cut_off_agent_where_it_was() {
+    use baton_tests::simnet::Fate;
+    let mut sim = cell_losing_robot1(&[(600, Fate::Cut), (2_000, Fate::Heal)], LossPolicy::Pause);
+    assert!(sim.run(10_000), "did not finish");
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
+    // The same process kept its token: it is sent again in the same epoch (a duplicate it ignores), its held-back
+    // reports follow, and the motion is not run twice.
+    assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1))]);
+    let resume = sim.trace.iter().find(|r| r.event == "resume" && r.name == "Assemble").expect("resumed");
+    assert_eq!((resume.agent.as_deref(), resume.epoch), (Some("robot1"), Some(1)));
+    assert!(resume.t_ms >= 2_000, "resumed at {} ms, before robot1 came back", resume.t_ms);
+    let motions = sim.trace.iter().filter(|r| r.event == "action_on" && r.name == "AssemblePart").count();
+    assert!(motions <= 1, "the assembly motion ran {motions} times");
+}
+
+#[test]
+fn pause_restarts_the_segment_on_an_agent_that_came_back_restarted() {
     use baton_tests::simnet::Fate;
     let mut sim = cell_losing_robot1(&[(600, Fate::Kill), (2_000, Fate::Restart)], LossPolicy::Pause);
     assert!(sim.run(10_000), "did not finish");
     assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
-    // Sent again to robot1, same epoch, once it is back; nothing went to robot2.
-    assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot1".to_string(), Some(1))]);
-    let back = sim.trace.iter().filter(|r| r.event == "dispatch" && r.name == "Assemble").nth(1).expect("resent").t_ms;
-    assert!(back >= 2_000, "resumed at {back} ms, before robot1 came back");
+    assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot1".to_string(), Some(2))]);
+    let again = sim.trace.iter().filter(|r| r.event == "dispatch" && r.name == "Assemble").nth(1).expect("again");
+    assert!(again.t_ms >= 2_000, "sent again at {} ms, before robot1 came back", again.t_ms);
+    assert!(sim.trace.iter().any(|r| r.event == "alarm" && r.message.as_deref().unwrap_or("").contains("restarted")));
 }
 
 #[test]

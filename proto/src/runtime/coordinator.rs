@@ -58,6 +58,7 @@ struct AgentState {
     roles: Vec<String>,
     alive: bool,
     tokens: usize,
+    incarnation: uuid::Uuid,
 }
 
 struct TokenState {
@@ -361,6 +362,12 @@ impl Coordinator {
 
     /// Sends a token to its agent, or says why it waits.
     fn emit_dispatch_or_wait(&mut self, id: TokenId) {
+        self.send_token(id, "dispatch");
+    }
+
+    /// Sends a token to its agent, traced as `event` (`dispatch`, or `resume` when a paused token goes back to
+    /// its agent in the same epoch), or says why it waits.
+    fn send_token(&mut self, id: TokenId, event: &str) {
         let Some(tok) = self.tokens.get(&id) else { return };
         let entry_name = self.program.steps[tok.entry.index()].name.clone();
         let placement = self.layout.segments[tok.segment.index()].placement.clone();
@@ -401,7 +408,7 @@ impl Coordinator {
             tok.dispatched_ms = self.now_ms;
         }
         self.stats.dispatched += 1;
-        let mut rec = TraceRecord::new(self.now_ms, "dispatch", &entry_name);
+        let mut rec = TraceRecord::new(self.now_ms, event, &entry_name);
         rec.agent = Some(agent.clone());
         rec.token = Some(id.to_string());
         rec.epoch = Some(epoch);
@@ -422,11 +429,17 @@ impl Coordinator {
             return;
         }
         let name = info.name.clone();
-        let entry =
-            self.agents.entry(name.clone()).or_insert(AgentState { roles: Vec::new(), alive: false, tokens: 0 });
+        let entry = self.agents.entry(name.clone()).or_insert(AgentState {
+            roles: Vec::new(),
+            alive: false,
+            tokens: 0,
+            incarnation: info.incarnation,
+        });
         let was_alive = entry.alive;
+        let restarted = entry.incarnation != info.incarnation;
         entry.roles = info.roles.clone();
         entry.alive = true;
+        entry.incarnation = info.incarnation;
         if !was_alive {
             let mut rec = TraceRecord::new(self.now_ms, "agent_up", &name);
             rec.agent = Some(name.clone());
@@ -445,10 +458,21 @@ impl Coordinator {
             .collect();
         paused.sort_unstable();
         for id in paused {
-            if let Some(t) = self.tokens.get_mut(&id) {
-                t.paused = false;
+            if restarted {
+                // A new process: the segment's progress died with the old one; it runs again from its first
+                // step, on this agent, in a new epoch.
+                let entry =
+                    self.tokens.get(&id).map(|t| self.program.steps[t.entry.index()].name.clone()).unwrap_or_default();
+                self.alarm(format!(
+                    "agent `{name}` came back restarted: the segment of step `{entry}` runs again from its first step"
+                ));
+                self.restart_on(id, Some(name.clone()));
+            } else {
+                if let Some(t) = self.tokens.get_mut(&id) {
+                    t.paused = false;
+                }
+                self.send_token(id, "resume");
             }
-            self.emit_dispatch_or_wait(id);
         }
         let waiting = std::mem::take(&mut self.waiting);
         for id in waiting {
@@ -519,6 +543,11 @@ impl Coordinator {
     /// Takes a token back from its agent: a new epoch, the segment's steps back to its first step in the mirror,
     /// and a dispatch to a live agent of the placement (or a wait for one).
     fn reassign(&mut self, id: TokenId) {
+        self.restart_on(id, None);
+    }
+
+    /// A new epoch from the segment's first step, on `agent` or on whichever live agent the placement picks.
+    fn restart_on(&mut self, id: TokenId, agent: Option<String>) {
         let Some(tok) = self.tokens.get_mut(&id) else { return };
         tok.epoch += 1;
         tok.next_seq = 0;
@@ -539,7 +568,7 @@ impl Coordinator {
         }
         self.drain_engine();
         let placement = self.layout.segments[segment.index()].placement.clone();
-        if let Some(agent) = self.choose_agent(&placement) {
+        if let Some(agent) = agent.or_else(|| self.choose_agent(&placement)) {
             self.assign(id, agent);
         }
         self.emit_dispatch_or_wait(id);

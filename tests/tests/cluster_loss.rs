@@ -1,0 +1,106 @@
+//! Lost agents with real processes: SIGKILL of the agent holding a token, under each `--on-agent-loss` policy.
+
+use baton_proto::check::check_source;
+use baton_proto::keys;
+use baton_proto::netconfig::NetConfig;
+use baton_proto::wire::{self, ToAgent};
+use baton_tests::cluster::{check_trace_invariants, repo, Cluster, TIMEOUT};
+
+/// The id of step `name` in the cell chart, as dispatches carry it.
+fn cell_step(name: &str) -> u32 {
+    let src = std::fs::read_to_string(repo("examples/cell.st")).expect("cell chart");
+    let report = check_source(&src);
+    let program = report.charts[0].program.as_ref().expect("valid");
+    program.steps.iter().position(|s| s.name == name).expect("step") as u32
+}
+
+/// Starts the one-part cell with two assemblers and waits, on the agents' command keys, for the dispatch of
+/// Assemble; returns the cluster, the coordinator and the agent that holds the token.
+async fn assembling(policy: &str) -> (Cluster, baton_tests::cluster::Coordinator, String, zenoh::Session) {
+    let mut cluster = Cluster::new();
+    let mut coordinator =
+        cluster.coordinator(&repo("examples/cell.st"), &["--set", "parts=1", "--on-agent-loss", policy]);
+    coordinator.wait_for_log("running chart").await;
+    let net = NetConfig::client(&[cluster.endpoint.clone()], false);
+    let session = zenoh::open(zenoh::Config::from_json5(&net.json5()).expect("config")).await.expect("session");
+    let cmds = session.declare_subscriber(keys::agent_cmd("*")).await.expect("subscriber");
+    cluster.agent("robot1", &["assembler"], &[]);
+    cluster.agent("robot2", &["assembler"], &[]);
+    let assemble = cell_step("Assemble");
+    let holder = tokio::time::timeout(TIMEOUT, async {
+        while let Ok(sample) = cmds.recv_async().await {
+            if let Ok(ToAgent::Dispatch { entry, .. }) = wire::decode(&sample.payload().to_bytes()) {
+                if entry == assemble {
+                    let key = sample.key_expr().as_str().to_string();
+                    return key.split('/').nth(2).map(str::to_string);
+                }
+            }
+        }
+        None
+    })
+    .await
+    .expect("Assemble was dispatched in time")
+    .expect("an agent took Assemble");
+    (cluster, coordinator, holder, session)
+}
+
+fn other(agent: &str) -> &'static str {
+    if agent == "robot1" {
+        "robot2"
+    } else {
+        "robot1"
+    }
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn reassign_moves_a_killed_agents_segment_to_another_agent() {
+    let (mut cluster, coordinator, holder, _session) = assembling("reassign").await;
+    cluster.kill_agent(&holder).await;
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace);
+    assert_eq!(summary["vars"]["done"], "1");
+    let assembles: Vec<(Option<&str>, Option<u32>)> = trace
+        .iter()
+        .filter(|r| r.event == "dispatch" && r.name == "Assemble")
+        .map(|r| (r.agent.as_deref(), r.epoch))
+        .collect();
+    assert_eq!(assembles, [(Some(holder.as_str()), Some(1)), (Some(other(&holder)), Some(2))]);
+    assert!(trace.iter().any(|r| r.event == "agent_lost" && r.name == holder));
+    assert!(trace.iter().any(|r| r.event == "alarm"));
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn pause_holds_the_segment_until_the_killed_agent_is_back() {
+    let (mut cluster, coordinator, holder, _session) = assembling("pause").await;
+    cluster.kill_agent(&holder).await;
+    cluster.agent(&holder, &["assembler"], &[]);
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace);
+    assert_eq!(summary["vars"]["done"], "1");
+    // Nothing moved to the other robot; the restarted process runs the segment again in a new epoch.
+    let assembles: Vec<(Option<&str>, Option<u32>)> = trace
+        .iter()
+        .filter(|r| r.event == "dispatch" && r.name == "Assemble")
+        .map(|r| (r.agent.as_deref(), r.epoch))
+        .collect();
+    assert_eq!(assembles, [(Some(holder.as_str()), Some(1)), (Some(holder.as_str()), Some(2))]);
+    let lost = trace.iter().position(|r| r.event == "agent_lost").expect("lost");
+    let back = trace.iter().rposition(|r| r.event == "agent_up" && r.name == holder).expect("back");
+    assert!(lost < back, "the holder came back after it was lost");
+    assert!(log.contains("came back restarted"), "{log}");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn fail_ends_the_run_with_an_error_that_says_why() {
+    let (mut cluster, coordinator, holder, _session) = assembling("fail").await;
+    cluster.kill_agent(&holder).await;
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert_eq!(status.code(), Some(2), "{log}");
+    assert!(
+        log.contains(&format!("the run failed: agent `{holder}` was lost holding the token of step `Assemble`")),
+        "{log}"
+    );
+    assert!(trace.iter().any(|r| r.event == "agent_lost"));
+}
