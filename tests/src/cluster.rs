@@ -84,6 +84,15 @@ impl Cluster {
         tokio::time::timeout(TIMEOUT, child.wait()).await.expect("agent died in time").expect("wait");
     }
 
+    /// Sends a signal (`STOP`, `CONT`…) to the agent's process, as `kill -SIG` does.
+    pub fn signal_agent(&self, name: &str, signal: &str) {
+        let (_, child) = self.agents.iter().rev().find(|(n, _)| n == name).expect("agent started");
+        let pid = child.id().expect("agent running").to_string();
+        let status =
+            std::process::Command::new("kill").args([&format!("-{signal}"), &pid]).status().expect("kill runs");
+        assert!(status.success(), "kill -{signal} {pid}");
+    }
+
     pub fn agent_log(&self, name: &str) -> String {
         std::fs::read_to_string(self.dir.path().join(format!("{name}.log"))).unwrap_or_default()
     }

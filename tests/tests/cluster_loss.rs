@@ -17,15 +17,32 @@ fn cell_step(name: &str) -> u32 {
 /// Starts the one-part cell with two assemblers and waits, on the agents' command keys, for the dispatch of
 /// Assemble; returns the cluster, the coordinator and the agent that holds the token.
 async fn assembling(policy: &str) -> (Cluster, baton_tests::cluster::Coordinator, String, zenoh::Session) {
+    let (cluster, coordinator, holder, session, _) = assembling_with(policy, 1, &[]).await;
+    (cluster, coordinator, holder, session)
+}
+
+/// `assembling` with more parts and extra agent arguments; also returns the command subscriber, still
+/// listening.
+async fn assembling_with(
+    policy: &str,
+    parts: u32,
+    agent_args: &[&str],
+) -> (
+    Cluster,
+    baton_tests::cluster::Coordinator,
+    String,
+    zenoh::Session,
+    zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
+) {
     let mut cluster = Cluster::new();
-    let mut coordinator =
-        cluster.coordinator(&repo("examples/cell.st"), &["--set", "parts=1", "--on-agent-loss", policy]);
+    let parts = format!("parts={parts}");
+    let mut coordinator = cluster.coordinator(&repo("examples/cell.st"), &["--set", &parts, "--on-agent-loss", policy]);
     coordinator.wait_for_log("running chart").await;
     let net = NetConfig::client(&[cluster.endpoint.clone()], false);
     let session = zenoh::open(zenoh::Config::from_json5(&net.json5()).expect("config")).await.expect("session");
     let cmds = session.declare_subscriber(keys::agent_cmd("*")).await.expect("subscriber");
-    cluster.agent("robot1", &["assembler"], &[]);
-    cluster.agent("robot2", &["assembler"], &[]);
+    cluster.agent("robot1", &["assembler"], agent_args);
+    cluster.agent("robot2", &["assembler"], agent_args);
     let assemble = cell_step("Assemble");
     let holder = tokio::time::timeout(TIMEOUT, async {
         while let Ok(sample) = cmds.recv_async().await {
@@ -41,7 +58,7 @@ async fn assembling(policy: &str) -> (Cluster, baton_tests::cluster::Coordinator
     .await
     .expect("Assemble was dispatched in time")
     .expect("an agent took Assemble");
-    (cluster, coordinator, holder, session)
+    (cluster, coordinator, holder, session, cmds)
 }
 
 fn other(agent: &str) -> &'static str {
@@ -103,4 +120,34 @@ async fn fail_ends_the_run_with_an_error_that_says_why() {
         "{log}"
     );
     assert!(trace.iter().any(|r| r.event == "agent_lost"));
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_stopped_agents_late_result_is_rejected_after_a_reassign() {
+    // A lease of 1 s: SIGSTOP makes the agent silent, and the router declares it lost when the lease runs out.
+    let (cluster, coordinator, holder, _session, cmds) = assembling_with("reassign", 2, &["--lease-ms", "1000"]).await;
+    cluster.signal_agent(&holder, "STOP");
+    let assemble = cell_step("Assemble");
+    // Wait for the reassignment (epoch 2) on the command keys, then wake the old holder up.
+    tokio::time::timeout(TIMEOUT, async {
+        while let Ok(sample) = cmds.recv_async().await {
+            if let Ok(ToAgent::Dispatch { entry, epoch, .. }) = wire::decode(&sample.payload().to_bytes()) {
+                if entry == assemble && epoch == 2 {
+                    return;
+                }
+            }
+        }
+    })
+    .await
+    .expect("reassigned in time");
+    cluster.signal_agent(&holder, "CONT");
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace);
+    assert_eq!(summary["vars"]["done"], "2");
+    let stale: Vec<_> = trace.iter().filter(|r| r.event == "reject_stale").collect();
+    assert!(!stale.is_empty(), "the stopped agent's epoch-1 result came back late and was rejected:\n{log}");
+    assert!(stale.iter().all(|r| r.agent.as_deref() == Some(holder.as_str()) && r.epoch == Some(1)));
+    let first_assembly = trace.iter().find(|r| r.event == "return" && r.name == "Assemble").expect("returned");
+    assert_eq!((first_assembly.agent.as_deref(), first_assembly.epoch), (Some(other(&holder)), Some(2)));
 }
