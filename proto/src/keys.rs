@@ -9,7 +9,6 @@
 //! baton/run/<run>/chart               queryable: the chart's source (ChartSource)
 //! baton/run/<run>/status              queryable: active steps, tokens, agents (StatusReport)
 //! baton/run/<run>/set                 queryable: set an input (SetRequest → SetReply)
-//! baton/run/<run>/trace               the run's trace records, live (TraceRecord)
 //! ```
 //! Agent names and roles are restricted to letters, digits, `_` and `-` (`layout::is_valid_name`), so they are
 //! always single chunks; a run is 32 hex digits.
@@ -70,14 +69,6 @@ pub fn set(run: RunId) -> String {
 
 pub fn set_any_run() -> String {
     format!("{ROOT}/run/*/set")
-}
-
-pub fn trace(run: RunId) -> String {
-    format!("{ROOT}/run/{}/trace", run.key())
-}
-
-pub fn trace_any_run() -> String {
-    format!("{ROOT}/run/*/trace")
 }
 
 /// Everything under Baton's root, for tools that watch or test the whole protocol.

@@ -109,10 +109,6 @@ pub struct Layout {
 }
 
 impl Layout {
-    pub fn is_distributed(&self) -> bool {
-        !self.segments.is_empty()
-    }
-
     /// The coordinator judges every transition that does not leave a placed, non-waiting step, and mirrors the
     /// others as agents report them.
     pub fn coordinator_scope(&self, program: &Program) -> Scope {
