@@ -179,6 +179,15 @@ pub fn events(trace: &[TraceRecord], event: &str) -> Vec<(u64, String, Option<St
     trace.iter().filter(|r| r.event == event).map(|r| (r.t_ms, r.name.clone(), r.agent.clone())).collect()
 }
 
+/// Where and in which epoch each token entering `step` was dispatched, in order, as (agent, epoch).
+pub fn dispatches(trace: &[TraceRecord], step: &str) -> Vec<(String, Option<u32>)> {
+    trace
+        .iter()
+        .filter(|r| r.event == "dispatch" && r.name == step)
+        .map(|r| (r.agent.clone().unwrap_or_default(), r.epoch))
+        .collect()
+}
+
 /// Invariants of every distributed trace: no step holds two tokens; no token is dispatched twice in one epoch;
 /// every token that left came back once, in an epoch it was dispatched in.
 pub fn check_trace_invariants(trace: &[TraceRecord]) {

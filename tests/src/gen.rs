@@ -13,6 +13,20 @@ pub enum Shape {
     Loop(Vec<Shape>),
 }
 
+/// Random structured shapes, nested up to `depth`, for property tests.
+pub fn shape_strategy(depth: u32) -> impl proptest::strategy::Strategy<Value = Shape> {
+    use proptest::prelude::*;
+    Just(Shape::Step).prop_recursive(depth, 24, 3, |inner| {
+        let seq = prop::collection::vec(inner, 0..3);
+        prop_oneof![
+            2 => Just(Shape::Step),
+            1 => prop::collection::vec(seq.clone(), 2..4).prop_map(Shape::Selection),
+            1 => prop::collection::vec(seq.clone(), 2..4).prop_map(Shape::Parallel),
+            1 => seq.prop_map(Shape::Loop),
+        ]
+    })
+}
+
 /// Builds chart text from shapes. Transition conditions read BOOL inputs `c0 … c{inputs-1}`, chosen in turn.
 pub struct ChartBuilder {
     steps: Vec<String>,

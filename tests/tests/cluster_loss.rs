@@ -4,7 +4,7 @@ use baton_proto::check::check_source;
 use baton_proto::keys;
 use baton_proto::netconfig::NetConfig;
 use baton_proto::wire::{self, ToAgent};
-use baton_tests::cluster::{check_trace_invariants, repo, Cluster, TIMEOUT};
+use baton_tests::cluster::{check_trace_invariants, dispatches, repo, Cluster, TIMEOUT};
 
 /// The id of step `name` in the cell chart, as dispatches carry it.
 fn cell_step(name: &str) -> u32 {
@@ -27,13 +27,7 @@ async fn assembling_with(
     policy: &str,
     parts: u32,
     agent_args: &[&str],
-) -> (
-    Cluster,
-    baton_tests::cluster::Coordinator,
-    String,
-    zenoh::Session,
-    zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
-) {
+) -> (Cluster, baton_tests::cluster::Coordinator, String, zenoh::Session, Commands) {
     let mut cluster = Cluster::new();
     let parts = format!("parts={parts}");
     let mut coordinator = cluster.coordinator(&repo("examples/cell.st"), &["--set", &parts, "--on-agent-loss", policy]);
@@ -43,22 +37,29 @@ async fn assembling_with(
     let cmds = session.declare_subscriber(keys::agent_cmd("*")).await.expect("subscriber");
     cluster.agent("robot1", &["assembler"], agent_args);
     cluster.agent("robot2", &["assembler"], agent_args);
-    let assemble = cell_step("Assemble");
-    let holder = tokio::time::timeout(TIMEOUT, async {
+    let holder = next_dispatch(&cmds, "Assemble", 1).await;
+    (cluster, coordinator, holder, session, cmds)
+}
+
+type Commands = zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>;
+
+/// Waits, on the agents' command keys, for the dispatch of the cell's `step` in `epoch`; returns the agent it
+/// went to.
+async fn next_dispatch(cmds: &Commands, step: &str, epoch: u32) -> String {
+    let entry = cell_step(step);
+    tokio::time::timeout(TIMEOUT, async {
         while let Ok(sample) = cmds.recv_async().await {
-            if let Ok(ToAgent::Dispatch { entry, .. }) = wire::decode(&sample.payload().to_bytes()) {
-                if entry == assemble {
-                    let key = sample.key_expr().as_str().to_string();
-                    return key.split('/').nth(2).map(str::to_string);
+            if let Ok(ToAgent::Dispatch { entry: e, epoch: n, .. }) = wire::decode(&sample.payload().to_bytes()) {
+                if (e, n) == (entry, epoch) {
+                    return sample.key_expr().as_str().split('/').nth(2).map(str::to_string);
                 }
             }
         }
         None
     })
     .await
-    .expect("Assemble was dispatched in time")
-    .expect("an agent took Assemble");
-    (cluster, coordinator, holder, session, cmds)
+    .unwrap_or_else(|_| panic!("{step} was dispatched in epoch {epoch} in time"))
+    .unwrap_or_else(|| panic!("an agent took {step}"))
 }
 
 fn other(agent: &str) -> &'static str {
@@ -77,12 +78,7 @@ async fn reassign_moves_a_killed_agents_segment_to_another_agent() {
     assert!(status.success(), "{log}");
     check_trace_invariants(&trace);
     assert_eq!(summary["vars"]["done"], "1");
-    let assembles: Vec<(Option<&str>, Option<u32>)> = trace
-        .iter()
-        .filter(|r| r.event == "dispatch" && r.name == "Assemble")
-        .map(|r| (r.agent.as_deref(), r.epoch))
-        .collect();
-    assert_eq!(assembles, [(Some(holder.as_str()), Some(1)), (Some(other(&holder)), Some(2))]);
+    assert_eq!(dispatches(&trace, "Assemble"), [(holder.clone(), Some(1)), (other(&holder).to_string(), Some(2))]);
     assert!(trace.iter().any(|r| r.event == "agent_lost" && r.name == holder));
     assert!(trace.iter().any(|r| r.event == "alarm"));
 }
@@ -97,12 +93,7 @@ async fn pause_holds_the_segment_until_the_killed_agent_is_back() {
     check_trace_invariants(&trace);
     assert_eq!(summary["vars"]["done"], "1");
     // Nothing moved to the other robot; the restarted process runs the segment again in a new epoch.
-    let assembles: Vec<(Option<&str>, Option<u32>)> = trace
-        .iter()
-        .filter(|r| r.event == "dispatch" && r.name == "Assemble")
-        .map(|r| (r.agent.as_deref(), r.epoch))
-        .collect();
-    assert_eq!(assembles, [(Some(holder.as_str()), Some(1)), (Some(holder.as_str()), Some(2))]);
+    assert_eq!(dispatches(&trace, "Assemble"), [(holder.clone(), Some(1)), (holder.clone(), Some(2))]);
     let lost = trace.iter().position(|r| r.event == "agent_lost").expect("lost");
     let back = trace.iter().rposition(|r| r.event == "agent_up" && r.name == holder).expect("back");
     assert!(lost < back, "the holder came back after it was lost");
@@ -127,19 +118,8 @@ async fn a_stopped_agents_late_result_is_rejected_after_a_reassign() {
     // A lease of 1 s: SIGSTOP makes the agent silent, and the router declares it lost when the lease runs out.
     let (cluster, coordinator, holder, _session, cmds) = assembling_with("reassign", 2, &["--lease-ms", "1000"]).await;
     cluster.signal_agent(&holder, "STOP");
-    let assemble = cell_step("Assemble");
     // Wait for the reassignment (epoch 2) on the command keys, then wake the old holder up.
-    tokio::time::timeout(TIMEOUT, async {
-        while let Ok(sample) = cmds.recv_async().await {
-            if let Ok(ToAgent::Dispatch { entry, epoch, .. }) = wire::decode(&sample.payload().to_bytes()) {
-                if entry == assemble && epoch == 2 {
-                    return;
-                }
-            }
-        }
-    })
-    .await
-    .expect("reassigned in time");
+    next_dispatch(&cmds, "Assemble", 2).await;
     cluster.signal_agent(&holder, "CONT");
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}");

@@ -2,7 +2,7 @@
 //! simulated network that duplicates, reorders and delays, virtual time.
 
 use baton_proto::runtime::coordinator::LossPolicy;
-use baton_tests::gen::{ChartBuilder, Shape};
+use baton_tests::gen::{shape_strategy, ChartBuilder};
 use baton_tests::simnet::{Faults, SimCluster};
 use proptest::prelude::*;
 
@@ -93,18 +93,6 @@ fn a_role_served_by_two_agents_shares_the_work() {
     assert_eq!(assemblers.into_iter().collect::<Vec<_>>(), ["robot1", "robot2"]);
 }
 
-fn shape(depth: u32) -> impl Strategy<Value = Shape> {
-    Just(Shape::Step).prop_recursive(depth, 24, 3, |inner| {
-        let seq = prop::collection::vec(inner, 0..3);
-        prop_oneof![
-            2 => Just(Shape::Step),
-            1 => prop::collection::vec(seq.clone(), 2..4).prop_map(Shape::Selection),
-            1 => prop::collection::vec(seq.clone(), 2..4).prop_map(Shape::Parallel),
-            1 => seq.prop_map(Shape::Loop),
-        ]
-    })
-}
-
 /// Places step `S{i}` of a generated chart on the coordinator, agent a1, agent a2 or role r.
 fn place(src: &str, placements: &[u8]) -> String {
     let mut out = String::with_capacity(src.len() * 2);
@@ -137,7 +125,7 @@ proptest! {
     /// token is dispatched twice, and every token dispatched is either back or still out at the end.
     #[test]
     fn random_placements_keep_every_token_accounted_for(
-        shapes in prop::collection::vec(shape(3), 1..5),
+        shapes in prop::collection::vec(shape_strategy(3), 1..5),
         cyclic in any::<bool>(),
         placements in prop::collection::vec(any::<u8>(), 64),
         toggles in prop::collection::vec(any::<bool>(), 1..120),
@@ -183,11 +171,7 @@ fn cell_losing_robot1(fates: &[(u64, baton_tests::simnet::Fate)], policy: LossPo
 }
 
 fn assembled_by(sim: &SimCluster) -> Vec<(String, Option<u32>)> {
-    sim.trace
-        .iter()
-        .filter(|r| r.event == "dispatch" && r.name == "Assemble")
-        .map(|r| (r.agent.clone().unwrap_or_default(), r.epoch))
-        .collect()
+    baton_tests::cluster::dispatches(&sim.trace, "Assemble")
 }
 
 #[test]

@@ -6,21 +6,8 @@ use baton_proto::analysis::{analyse, exhaustive};
 use baton_proto::check::check_source;
 use baton_proto::engine::{Engine, Input};
 use baton_proto::types::Value;
-use baton_tests::gen::{ChartBuilder, Shape};
+use baton_tests::gen::{shape_strategy, ChartBuilder};
 use proptest::prelude::*;
-
-fn shape(depth: u32) -> impl Strategy<Value = Shape> {
-    let leaf = Just(Shape::Step);
-    leaf.prop_recursive(depth, 24, 3, |inner| {
-        let seq = prop::collection::vec(inner, 0..3);
-        prop_oneof![
-            2 => Just(Shape::Step),
-            1 => prop::collection::vec(seq.clone(), 2..4).prop_map(Shape::Selection),
-            1 => prop::collection::vec(seq.clone(), 2..4).prop_map(Shape::Parallel),
-            1 => seq.prop_map(Shape::Loop),
-        ]
-    })
-}
 
 const INPUTS: usize = 4;
 
@@ -46,7 +33,7 @@ proptest! {
     /// put two tokens on one step, whatever the inputs do.
     #[test]
     fn random_safe_charts_never_put_two_tokens_on_a_step(
-        shapes in prop::collection::vec(shape(3), 1..6),
+        shapes in prop::collection::vec(shape_strategy(3), 1..6),
         cyclic in any::<bool>(),
         toggles in prop::collection::vec(any::<u8>(), 1..200),
     ) {
@@ -59,7 +46,7 @@ proptest! {
 
     /// On structured charts the linear structural pass must agree with the exhaustive exploration.
     #[test]
-    fn structural_analysis_agrees_with_exhaustive_exploration(shapes in prop::collection::vec(shape(2), 1..4), cyclic in any::<bool>()) {
+    fn structural_analysis_agrees_with_exhaustive_exploration(shapes in prop::collection::vec(shape_strategy(2), 1..4), cyclic in any::<bool>()) {
         let src = ChartBuilder::chart(&shapes, INPUTS, cyclic);
         let report = check_source(&src);
         let program = report.charts[0].program.as_ref().expect("valid chart");
