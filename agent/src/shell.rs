@@ -14,7 +14,7 @@ use baton_proto::netconfig::NetConfig;
 use baton_proto::program::{ActionId, Program};
 use baton_proto::runtime::agent::{AgentOutput, AgentRun, Dispatch};
 use baton_proto::runtime::Level;
-use baton_proto::wire::{self, AgentInfo, ChartHash, ChartSource, RunId, ToAgent, VarUpdate};
+use baton_proto::wire::{self, AgentInfo, ChartHash, ChartSource, HeldToken, RunId, ToAgent, VarUpdate};
 use tokio::sync::mpsc;
 use tokio::task::AbortHandle;
 use zenoh::handlers::FifoChannel;
@@ -30,6 +30,9 @@ const RUNS_MAX: usize = 64;
 /// Dispatches kept while the chart of their run is fetched.
 const PENDING_DISPATCHES_MAX: usize = 1024;
 const CHART_FETCH_TIMEOUT: Duration = Duration::from_secs(5);
+/// Held tokens listed in the info reply; a coordinator sends the dispatch of any other again, which the agent
+/// recognises as a duplicate.
+const HELD_LISTED_MAX: usize = 4096;
 
 #[derive(Clone, Debug)]
 pub struct AgentConfig {
@@ -126,12 +129,7 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
         config.connect.join(", "),
         shell.skills.names().join(", ")
     );
-    let info = wire::encode(&AgentInfo {
-        name: name.clone(),
-        roles: config.roles.clone(),
-        lease_ms: config.lease_ms,
-        incarnation: uuid::Uuid::new_v4(),
-    });
+    let incarnation = uuid::Uuid::new_v4();
     let mut tick = tokio::time::interval(Duration::from_millis(config.cycle_ms));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     // Signal streams made once: polling them each turn of the loop costs nothing.
@@ -152,7 +150,8 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
             }
             q = info_q.recv_async() => {
                 let Ok(q) = q else { break };
-                if let Err(e) = q.reply(q.key_expr().clone(), info.clone()).await {
+                let info = wire::encode(&shell.info(incarnation));
+                if let Err(e) = q.reply(q.key_expr().clone(), info).await {
                     eprintln!("warning: cannot answer an info query: {e}");
                 }
             }
@@ -172,6 +171,20 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
 impl Shell {
     fn now_ms(&self) -> u64 {
         self.started.elapsed().as_millis() as u64
+    }
+
+    /// Who this agent is, and the tokens it holds (a coordinator that restarted reconciles its own with them).
+    fn info(&self, incarnation: uuid::Uuid) -> AgentInfo {
+        let mut held: Vec<HeldToken> = self.runs.values().flat_map(|r| r.state.held()).collect();
+        held.sort_unstable();
+        held.truncate(HELD_LISTED_MAX);
+        AgentInfo {
+            name: self.config.name.clone(),
+            roles: self.config.roles.clone(),
+            lease_ms: self.config.lease_ms,
+            incarnation,
+            held,
+        }
     }
 
     fn dropped_total(&self) -> u64 {
@@ -214,6 +227,11 @@ impl Shell {
                     for a in acks {
                         r.state.handle_ack(a.token, a.epoch, a.seq, a.done);
                     }
+                }
+            }
+            ToAgent::Sync { run } => {
+                if let Some(r) = self.runs.get_mut(&run) {
+                    r.state.handle_sync(now);
                 }
             }
         }

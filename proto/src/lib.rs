@@ -8,6 +8,7 @@ pub mod compile;
 pub mod diag;
 pub mod engine;
 pub mod eval;
+pub mod journal;
 pub mod keys;
 pub mod layout;
 pub mod lexer;

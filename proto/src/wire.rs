@@ -129,6 +129,9 @@ pub enum ToAgent {
     /// Reports applied since the last acknowledgement to this agent (at most `ACK_DELAY_MS` old, unless a
     /// dispatch carried them sooner).
     Ack { run: RunId, acks: Vec<AckEntry> },
+    /// The coordinator of `run` started again from its journal: send every report it has not acknowledged
+    /// now, rather than at the next resend.
+    Sync { run: RunId },
 }
 
 /// Every report of this token up to `seq` is applied; with `done`, the token is finished and may be forgotten.
@@ -191,6 +194,17 @@ pub struct AgentInfo {
     pub lease_ms: u64,
     /// Random per process start: tells a restarted agent (which lost its tokens) from one that was cut off.
     pub incarnation: Uuid,
+    /// The tokens it holds (running, or finished with reports not yet acknowledged), so that a coordinator
+    /// that started again from its journal can tell a token still out from a dispatch that never arrived.
+    #[serde(default)]
+    pub held: Vec<HeldToken>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct HeldToken {
+    pub run: RunId,
+    pub token: TokenId,
+    pub epoch: u32,
 }
 
 /// The coordinator's answer to the chart query: what an agent needs to run segments of this run.

@@ -188,32 +188,13 @@ pub fn dispatches(trace: &[TraceRecord], step: &str) -> Vec<(String, Option<u32>
         .collect()
 }
 
-/// Invariants of every distributed trace: no step holds two tokens; no token is dispatched twice in one epoch;
-/// every token that left came back once, in an epoch it was dispatched in.
-pub fn check_trace_invariants(trace: &[TraceRecord]) {
-    let mut active = std::collections::HashSet::new();
-    for r in trace {
-        match r.event.as_str() {
-            "activate" => assert!(active.insert(r.name.clone()), "`{}` activated twice at {} ms", r.name, r.t_ms),
-            "deactivate" => assert!(active.remove(&r.name), "`{}` deactivated while inactive at {} ms", r.name, r.t_ms),
-            _ => {}
-        }
+/// The invariants of `crate::invariants::check` on a finished run's trace of `chart` (its first POU), with every
+/// token back.
+pub fn check_trace_invariants(trace: &[TraceRecord], chart: &Path) {
+    let source = std::fs::read_to_string(chart).unwrap_or_else(|e| panic!("{}: {e}", chart.display()));
+    let report = baton_proto::check::check_source(&source);
+    let program = report.charts.first().and_then(|c| c.program.as_ref()).expect("a valid chart");
+    if let Err(why) = crate::invariants::check(trace, program, true) {
+        panic!("trace of {}: {why}", chart.display());
     }
-    let ids = |event: &str| -> Vec<(String, u32)> {
-        trace
-            .iter()
-            .filter(|r| r.event == event)
-            .map(|r| (r.token.clone().unwrap_or_default(), r.epoch.unwrap_or(0)))
-            .collect()
-    };
-    let (dispatched, returned) = (ids("dispatch"), ids("return"));
-    let unique: std::collections::HashSet<&(String, u32)> = dispatched.iter().collect();
-    assert_eq!(unique.len(), dispatched.len(), "a token was dispatched twice in one epoch");
-    for r in &returned {
-        assert!(unique.contains(r), "token {} came back in epoch {} it was never dispatched in", r.0, r.1);
-    }
-    let came_back: std::collections::BTreeSet<&String> = returned.iter().map(|r| &r.0).collect();
-    assert_eq!(came_back.len(), returned.len(), "a token came back twice");
-    let left: std::collections::BTreeSet<&String> = dispatched.iter().map(|r| &r.0).collect();
-    assert_eq!(left, came_back, "every token that left came back");
 }

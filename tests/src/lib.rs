@@ -2,6 +2,7 @@
 
 pub mod cluster;
 pub mod gen;
+pub mod invariants;
 pub mod scenario;
 pub mod simnet;
 

@@ -2,18 +2,20 @@
 //! `baton_proto::runtime`, a simulated network and simulated skills, one thread, one seed, virtual time.
 //!
 //! Every message goes through the real wire encoding. The network can duplicate, reorder and delay messages;
-//! a run that goes wrong prints its seed so that it can be replayed exactly.
+//! a run that goes wrong prints its seed so that it can be replayed exactly. The coordinator journals every
+//! input (`baton_proto::journal`), and can be crashed and started again from its journal.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use baton_proto::check::check_source;
+use baton_proto::journal::{self, Journaled};
 use baton_proto::layout::{Layout, Param};
 use baton_proto::program::{ActionId, Program};
 use baton_proto::runtime::agent::{AgentOutput, AgentRun, Dispatch};
-use baton_proto::runtime::coordinator::{CoordOutput, Coordinator};
+use baton_proto::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
 use baton_proto::sim::TraceRecord;
-use baton_proto::wire::{self, AgentInfo, ChartHash, Report, RunId, ToAgent, TokenId, VarUpdate};
+use baton_proto::wire::{self, AgentInfo, ChartHash, RunId, ToAgent, VarUpdate};
 use uuid::Uuid;
 
 /// What the simulated network does to messages.
@@ -58,7 +60,12 @@ struct SimAgent {
 }
 
 pub struct SimCluster {
-    pub coordinator: Coordinator,
+    pub coordinator: Journaled,
+    /// The coordinator's durable records: everything it took before its outputs left.
+    pub journal: Vec<Vec<u8>>,
+    /// While the coordinator is down: when it starts again.
+    down_until: Option<u64>,
+    crashes: Vec<(u64, u64)>,
     fates: Vec<(u64, String, Fate)>,
     program: Arc<Program>,
     layout: Arc<Layout>,
@@ -89,23 +96,21 @@ impl SimCluster {
         let (program, layout) = compile(source);
         let run = RunId(Uuid::from_u128(1));
         let hash = ChartHash::of(source, &program.name);
-        let mut counter = 0u128;
-        let new_token = Box::new(move || {
-            counter += 1;
-            TokenId(Uuid::from_u128(1000 + counter))
-        });
-        let mut coordinator = Coordinator::new(Arc::clone(&program), Arc::clone(&layout), run, hash.clone(), new_token);
+        let core =
+            Coordinator::new(Arc::clone(&program), Arc::clone(&layout), run, hash.clone(), journal::token_ids(run));
+        let mut coordinator = Journaled::new(core);
         let sim_agents = agents
             .iter()
             .map(|(name, roles)| {
                 let roles: Vec<String> = roles.iter().map(|r| r.to_string()).collect();
-                coordinator.handle_agent_up(
+                coordinator.agent_up(
                     0,
                     AgentInfo {
                         name: name.to_string(),
                         roles: roles.clone(),
                         lease_ms: 1000,
                         incarnation: Uuid::from_u128(0),
+                        held: Vec::new(),
                     },
                 );
                 SimAgent {
@@ -119,8 +124,11 @@ impl SimCluster {
                 }
             })
             .collect();
-        SimCluster {
+        let mut sim = SimCluster {
             coordinator,
+            journal: Vec::new(),
+            down_until: None,
+            crashes: Vec::new(),
             fates: Vec::new(),
             program: Arc::clone(&program),
             layout: Arc::clone(&layout),
@@ -134,7 +142,9 @@ impl SimCluster {
             trace: Vec::new(),
             seed,
             messages: 0,
-        }
+        };
+        sim.flush_coordinator();
+        sim
     }
 
     fn random(&mut self) -> u64 {
@@ -164,6 +174,73 @@ impl SimCluster {
         }
     }
 
+    pub fn set_loss_policy(&mut self, policy: LossPolicy) {
+        self.coordinator.set_loss_policy(self.now_ms, policy);
+        self.flush_coordinator();
+    }
+
+    /// The coordinator process dies at `t_ms` (SIGKILL: what it took but had not yet made durable is lost) and
+    /// starts again from its journal `down_ms` later.
+    pub fn crash_coordinator_at(&mut self, t_ms: u64, down_ms: u64) {
+        self.crashes.push((t_ms, down_ms));
+        self.crashes.sort_unstable();
+    }
+
+    fn crash_coordinator(&mut self, down_ms: u64) {
+        // Records not yet durable die with the process, and so do the outputs they led to.
+        self.coordinator.take_records();
+        while self.coordinator.poll_output().is_some() {}
+        self.down_until = Some(self.now_ms + down_ms);
+    }
+
+    /// A new coordinator process: replays the journal, checks that it rebuilt the same run, and reconciles
+    /// with the agents that answer.
+    fn restart_coordinator(&mut self) {
+        self.down_until = None;
+        let run = self.coordinator.core().run();
+        let core = Coordinator::new(
+            Arc::clone(&self.program),
+            Arc::clone(&self.layout),
+            run,
+            self.hash.clone(),
+            journal::token_ids(run),
+        );
+        let mut fresh = Journaled::new(core);
+        let replayed = fresh.replay(self.journal.iter().map(Vec::as_slice)).expect("the journal replays");
+        assert!(replayed.ended.is_none(), "seed {}: a run that ended was restarted", self.seed);
+        let mut again = Vec::new();
+        while let Some(out) = fresh.poll_output() {
+            if let CoordOutput::Trace(rec) = out {
+                again.push(rec);
+            }
+        }
+        assert_eq!(again, self.trace, "seed {}: the replay did not rebuild the run's trace", self.seed);
+        self.coordinator = fresh;
+        self.coordinator.recover(self.now_ms);
+        self.flush_coordinator();
+        for i in 0..self.agents.len() {
+            if self.agents[i].alive && self.agents[i].reachable {
+                let info = self.info(i);
+                self.coordinator.agent_up(self.now_ms, info);
+            } else if self.coordinator.core().live_agents().contains(&self.agents[i].name) {
+                let name = self.agents[i].name.clone();
+                self.coordinator.agent_down(self.now_ms, &name);
+            }
+            self.flush_coordinator();
+        }
+    }
+
+    fn info(&self, i: usize) -> AgentInfo {
+        let a = &self.agents[i];
+        AgentInfo {
+            name: a.name.clone(),
+            roles: a.roles.clone(),
+            lease_ms: 1000,
+            incarnation: Uuid::from_u128(a.restarts),
+            held: a.run.held(),
+        }
+    }
+
     /// Makes something happen to an agent at `t_ms`.
     pub fn fate_at(&mut self, t_ms: u64, agent: &str, fate: Fate) {
         self.fates.push((t_ms, agent.to_string(), fate));
@@ -173,10 +250,7 @@ impl SimCluster {
     fn apply_fate(&mut self, agent: &str, fate: Fate) {
         let Some(i) = self.agents.iter().position(|a| a.name == agent) else { return };
         let now = self.now_ms;
-        // A restart is a new incarnation; a healed cut is the same process.
-        let incarnation = Uuid::from_u128(self.agents[i].restarts);
-        let info =
-            AgentInfo { name: agent.to_string(), roles: self.agents[i].roles.clone(), lease_ms: 1000, incarnation };
+        let coordinator_up = self.down_until.is_none();
         match fate {
             Fate::Kill | Fate::Cut => {
                 self.agents[i].reachable = false;
@@ -184,11 +258,13 @@ impl SimCluster {
                 if fate == Fate::Kill {
                     self.agents[i].skills.clear();
                 }
-                self.coordinator.handle_agent_down(now, agent);
+                if coordinator_up {
+                    self.coordinator.agent_down(now, agent);
+                }
             }
             Fate::Restart => {
+                // A restart is a new incarnation; a healed cut is the same process.
                 self.agents[i].restarts += 1;
-                let info = AgentInfo { incarnation: Uuid::from_u128(self.agents[i].restarts), ..info };
                 let a = &mut self.agents[i];
                 a.run = AgentRun::new(
                     agent,
@@ -200,11 +276,15 @@ impl SimCluster {
                 );
                 a.alive = true;
                 a.reachable = true;
-                self.coordinator.handle_agent_up(now, info);
+                if coordinator_up {
+                    self.coordinator.agent_up(now, self.info(i));
+                }
             }
             Fate::Heal => {
                 self.agents[i].reachable = true;
-                self.coordinator.handle_agent_up(now, info);
+                if coordinator_up {
+                    self.coordinator.agent_up(now, self.info(i));
+                }
             }
         }
         self.flush_coordinator();
@@ -220,17 +300,27 @@ impl SimCluster {
     /// it finished.
     pub fn run(&mut self, limit_ms: u64) -> bool {
         while self.now_ms <= limit_ms {
+            if self.down_until.is_some_and(|t| t <= self.now_ms) {
+                self.restart_coordinator();
+            }
+            while self.crashes.first().is_some_and(|c| c.0 <= self.now_ms) {
+                let (_, down_ms) = self.crashes.remove(0);
+                self.crash_coordinator(down_ms);
+            }
             while self.fates.first().is_some_and(|f| f.0 <= self.now_ms) {
                 let (_, agent, fate) = self.fates.remove(0);
                 self.apply_fate(&agent, fate);
             }
-            while self.inputs.first().is_some_and(|i| i.0 <= self.now_ms) {
+            let up = self.down_until.is_none();
+            while up && self.inputs.first().is_some_and(|i| i.0 <= self.now_ms) {
                 let (_, name, value) = self.inputs.remove(0);
-                self.coordinator.handle_set(self.now_ms, &name, &value).expect("settable input");
+                self.coordinator.set(self.now_ms, &name, &value).expect("settable input");
             }
             self.deliver();
-            self.coordinator.handle_cycle(self.now_ms);
-            self.flush_coordinator();
+            if up {
+                self.coordinator.cycle(self.now_ms);
+                self.flush_coordinator();
+            }
             for i in 0..self.agents.len() {
                 if !self.agents[i].alive {
                     continue;
@@ -252,7 +342,7 @@ impl SimCluster {
                 }
                 self.flush_agent(i);
             }
-            if self.coordinator.is_terminal() && self.net.is_empty() {
+            if up && self.coordinator.core().is_terminal() && self.net.is_empty() {
                 return true;
             }
             self.now_ms += 1;
@@ -286,15 +376,17 @@ impl SimCluster {
                                 self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
                             }
                         }
+                        ToAgent::Sync { .. } => self.agents[i].run.handle_sync(self.now_ms),
                     }
                 }
+                // A coordinator that is down hears nothing.
+                Packet::Report(_) | Packet::Vars(_) if self.down_until.is_some() => {}
                 Packet::Report(bytes) => {
-                    let report: Report = wire::decode(&bytes).expect("agents send valid reports");
-                    self.coordinator.handle_report(self.now_ms, report);
+                    self.coordinator.report(self.now_ms, &bytes).expect("agents send valid reports");
                 }
                 Packet::Vars(bytes) => {
                     let update: VarUpdate = wire::decode(&bytes).expect("valid update");
-                    self.coordinator.handle_vars(self.now_ms, update.clone());
+                    self.coordinator.vars(self.now_ms, &bytes).expect("valid update");
                     for a in self.agents.iter_mut().filter(|a| a.reachable) {
                         a.run.handle_vars(&update);
                     }
@@ -304,7 +396,10 @@ impl SimCluster {
         }
     }
 
+    /// Makes the coordinator's records durable, then carries out what it asked for.
     fn flush_coordinator(&mut self) {
+        let records = self.coordinator.take_records();
+        self.journal.extend(records);
         while let Some(out) = self.coordinator.poll_output() {
             match out {
                 CoordOutput::Send { agent, msg } => {
@@ -347,8 +442,8 @@ impl SimCluster {
 
     /// A variable's value on the coordinator, by name.
     pub fn value(&self, name: &str) -> Option<baton_proto::types::Value> {
-        let var = self.coordinator.program().var_by_name(name)?;
-        Some(self.coordinator.value(var))
+        let var = self.coordinator.core().program().var_by_name(name)?;
+        Some(self.coordinator.core().value(var))
     }
 
     /// The trace's records of one kind, as (t_ms, name, agent).

@@ -31,7 +31,7 @@ async fn three_parallel_branches_converge_only_after_the_slowest() {
     let coordinator = cluster.coordinator(&chart("three_branches.st"), &[]);
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
-    check_trace_invariants(&trace);
+    check_trace_invariants(&trace, &chart("three_branches.st"));
     let dispatched: Vec<(String, String)> =
         events(&trace, "dispatch").into_iter().map(|(_, n, a)| (n, a.unwrap_or_default())).collect();
     assert_eq!(dispatched.len(), 3);
@@ -79,7 +79,7 @@ async fn a_selection_inside_a_segment_follows_an_input_set_at_run_time() {
     }
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}");
-    check_trace_invariants(&trace);
+    check_trace_invariants(&trace, &chart("selection_segment.st"));
     let activated: Vec<String> = events(&trace, "activate").into_iter().map(|e| e.1).collect();
     assert!(activated.contains(&"B".to_string()) && !activated.contains(&"A".to_string()), "{activated:?}");
     let b = trace.iter().find(|r| r.event == "activate" && r.name == "B").expect("B");
@@ -96,7 +96,7 @@ async fn a_role_served_by_two_agents_shares_the_work() {
     let coordinator = cluster.coordinator(&repo("examples/cell.st"), &["--set", "parts=4"]);
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}");
-    check_trace_invariants(&trace);
+    check_trace_invariants(&trace, &repo("examples/cell.st"));
     assert_eq!(var(&summary, "done"), "4");
     let assemblers: std::collections::BTreeSet<String> =
         events(&trace, "dispatch").into_iter().filter(|d| d.1 == "Assemble").filter_map(|d| d.2).collect();
@@ -131,7 +131,7 @@ async fn tokens_wait_for_agents_that_start_later() {
     }
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
-    check_trace_invariants(&trace);
+    check_trace_invariants(&trace, &chart("three_branches.st"));
     assert_eq!(events(&trace, "wait").len(), 3);
     assert_eq!(events(&trace, "return").len(), 3);
 }
@@ -177,7 +177,7 @@ async fn duplicated_and_reordered_messages_change_nothing() {
     let (status, log, trace, summary) = coordinator.finish().await;
     chaos.abort();
     assert!(status.success(), "{log}");
-    check_trace_invariants(&trace);
+    check_trace_invariants(&trace, &repo("examples/cell.st"));
     assert_eq!(var(&summary, "done"), "3");
     assert_eq!(events(&trace, "dispatch").len(), 9);
     let dropped = summary["messages_dropped"].as_u64().unwrap_or(0);
@@ -258,7 +258,7 @@ async fn garbage_on_batons_keys_changes_nothing() {
     assert!(go.status.success(), "{}", String::from_utf8_lossy(&go.stderr));
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}");
-    check_trace_invariants(&trace);
+    check_trace_invariants(&trace, &chart("selection_segment.st"));
     assert_eq!(var(&summary, "a_count"), "1");
     assert!(summary["messages_dropped"].as_u64().unwrap_or(0) >= 2 * garbage.len() as u64, "{summary}");
     assert!(log.contains("dropped a message"), "the coordinator says what it dropped:\n{log}");

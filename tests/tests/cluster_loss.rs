@@ -76,7 +76,7 @@ async fn reassign_moves_a_killed_agents_segment_to_another_agent() {
     cluster.kill_agent(&holder).await;
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}");
-    check_trace_invariants(&trace);
+    check_trace_invariants(&trace, &repo("examples/cell.st"));
     assert_eq!(summary["vars"]["done"], "1");
     assert_eq!(dispatches(&trace, "Assemble"), [(holder.clone(), Some(1)), (other(&holder).to_string(), Some(2))]);
     assert!(trace.iter().any(|r| r.event == "agent_lost" && r.name == holder));
@@ -90,7 +90,7 @@ async fn pause_holds_the_segment_until_the_killed_agent_is_back() {
     cluster.agent(&holder, &["assembler"], &[]);
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}");
-    check_trace_invariants(&trace);
+    check_trace_invariants(&trace, &repo("examples/cell.st"));
     assert_eq!(summary["vars"]["done"], "1");
     // Nothing moved to the other robot; the restarted process runs the segment again in a new epoch.
     assert_eq!(dispatches(&trace, "Assemble"), [(holder.clone(), Some(1)), (holder.clone(), Some(2))]);
@@ -123,7 +123,7 @@ async fn a_stopped_agents_late_result_is_rejected_after_a_reassign() {
     cluster.signal_agent(&holder, "CONT");
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}");
-    check_trace_invariants(&trace);
+    check_trace_invariants(&trace, &repo("examples/cell.st"));
     assert_eq!(summary["vars"]["done"], "2");
     let stale: Vec<_> = trace.iter().filter(|r| r.event == "reject_stale").collect();
     assert!(!stale.is_empty(), "the stopped agent's epoch-1 result came back late and was rejected:\n{log}");

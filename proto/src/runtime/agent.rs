@@ -15,7 +15,7 @@ use crate::limits::{FINISHED_TOKENS_REMEMBERED, IMMEDIATE_CYCLES_MAX, REPORTS_UN
 use crate::program::{ActionId, Program, StepId, VarId};
 use crate::sim::fault_message;
 use crate::types::Value;
-use crate::wire::{AgentEvent, AgentEventKind, ChartHash, Report, RunId, TokenId, VarUpdate, VarValue};
+use crate::wire::{AgentEvent, AgentEventKind, ChartHash, HeldToken, Report, RunId, TokenId, VarUpdate, VarValue};
 
 use super::{Level, COORDINATOR};
 
@@ -60,7 +60,7 @@ struct Unacked {
     backoff_ms: u64,
 }
 
-struct HeldToken {
+struct Holding {
     epoch: u32,
     segment: SegmentId,
     arrived_ms: u64,
@@ -79,9 +79,10 @@ pub struct AgentRun {
     layout: Arc<Layout>,
     engine: Engine,
     now_ms: u64,
-    tokens: HashMap<TokenId, HeldToken>,
+    tokens: HashMap<TokenId, Holding>,
     by_segment: HashMap<SegmentId, TokenId>,
-    finished: HashSet<TokenId>,
+    /// Finished or dropped tokens and their last epoch here: a dispatch of that epoch or older is a duplicate.
+    finished: HashMap<TokenId, u32>,
     finished_order: VecDeque<TokenId>,
     /// Variables this agent may write; `pinned` marks those only it writes (placed on it by name), the others
     /// belong to a role it shares with other agents and follow whichever of them wrote last.
@@ -135,7 +136,7 @@ impl AgentRun {
             now_ms: 0,
             tokens: HashMap::new(),
             by_segment: HashMap::new(),
-            finished: HashSet::new(),
+            finished: HashMap::new(),
             finished_order: VecDeque::new(),
             owned,
             pinned,
@@ -161,6 +162,14 @@ impl AgentRun {
         self.tokens.values().filter(|t| !t.done).count()
     }
 
+    /// The tokens held here, running or finished with reports not yet acknowledged, in id order.
+    pub fn held(&self) -> Vec<HeldToken> {
+        let mut held: Vec<HeldToken> =
+            self.tokens.iter().map(|(&token, t)| HeldToken { run: self.run, token, epoch: t.epoch }).collect();
+        held.sort_unstable();
+        held
+    }
+
     /// Messages dropped as duplicates, stale or invalid.
     pub fn dropped(&self) -> u64 {
         self.dropped
@@ -183,10 +192,12 @@ impl AgentRun {
         self.now_ms = self.now_ms.max(now_ms);
     }
 
-    /// A token arrives. A duplicate (same token and epoch) or a token already finished changes nothing.
+    /// A token arrives. A duplicate (same token and epoch, or an older epoch) or a token already finished in
+    /// that epoch changes nothing; a newer epoch of a token dropped here runs.
     pub fn handle_dispatch(&mut self, now_ms: u64, d: Dispatch) {
         self.advance(now_ms);
-        if self.finished.contains(&d.token) || self.tokens.get(&d.token).is_some_and(|t| t.epoch >= d.epoch) {
+        let seen = self.tokens.get(&d.token).map(|t| t.epoch).or_else(|| self.finished.get(&d.token).copied());
+        if seen.is_some_and(|epoch| epoch >= d.epoch) {
             self.dropped += 1;
             return;
         }
@@ -225,7 +236,7 @@ impl AgentRun {
         if let Err(e) = self.engine.handle_remote(self.now_ms, RemoteInput::Activate(entry)) {
             return self.drop_msg(format!("token {} dropped: {e}", d.token));
         }
-        let held = HeldToken {
+        let held = Holding {
             epoch: d.epoch,
             segment: g,
             arrived_ms: self.now_ms,
@@ -258,18 +269,19 @@ impl AgentRun {
                 let _ = self.engine.handle_remote(self.now_ms, RemoteInput::Deactivate(s));
             }
         }
-        self.remember_finished(token);
+        self.remember_finished(token, held.epoch);
     }
 
     /// Remembers a finished token, to recognise a late duplicate of its dispatch; the oldest are forgotten.
-    fn remember_finished(&mut self, token: TokenId) {
-        if self.finished_order.len() >= FINISHED_TOKENS_REMEMBERED {
-            if let Some(old) = self.finished_order.pop_front() {
-                self.finished.remove(&old);
+    fn remember_finished(&mut self, token: TokenId, epoch: u32) {
+        if self.finished.insert(token, epoch).is_none() {
+            if self.finished_order.len() >= FINISHED_TOKENS_REMEMBERED {
+                if let Some(old) = self.finished_order.pop_front() {
+                    self.finished.remove(&old);
+                }
             }
+            self.finished_order.push_back(token);
         }
-        self.finished.insert(token);
-        self.finished_order.push_back(token);
     }
 
     /// Whether a cycle could change anything: a token is held, or a token was just taken away.
@@ -288,7 +300,7 @@ impl AgentRun {
         }
         if done && held.done && held.unacked.is_empty() {
             self.tokens.remove(&token);
-            self.remember_finished(token);
+            self.remember_finished(token, epoch);
         }
     }
 
@@ -497,11 +509,26 @@ impl AgentRun {
 
     /// Sends again the reports the coordinator has not acknowledged in time, with doubling delays.
     pub fn handle_resend(&mut self, now_ms: u64) {
+        self.resend(now_ms, false);
+    }
+
+    /// The coordinator started again from its journal: every unacknowledged report goes now, and the delays
+    /// start again from the first.
+    pub fn handle_sync(&mut self, now_ms: u64) {
+        for held in self.tokens.values_mut() {
+            for u in held.unacked.iter_mut() {
+                u.backoff_ms = RESEND_FIRST_MS / 2;
+            }
+        }
+        self.resend(now_ms, true);
+    }
+
+    fn resend(&mut self, now_ms: u64, all: bool) {
         self.advance(now_ms);
         let mut again = Vec::new();
         for held in self.tokens.values_mut() {
             for u in held.unacked.iter_mut() {
-                if u.resend_at_ms <= now_ms {
+                if all || u.resend_at_ms <= now_ms {
                     u.backoff_ms = (u.backoff_ms * 2).min(RESEND_MAX_MS);
                     u.resend_at_ms = now_ms + u.backoff_ms;
                     again.push(u.report.clone());

@@ -24,6 +24,12 @@ use crate::wire::{
 
 use super::{Level, COORDINATOR};
 
+/// First and largest delay before a dispatch that no report answered is sent again (the agent drops the
+/// duplicate if it has the token), and how often the coordinator looks for such dispatches.
+const DISPATCH_RESEND_FIRST_MS: u64 = 500;
+const DISPATCH_RESEND_MAX_MS: u64 = 5_000;
+const DISPATCH_RESEND_CHECK_MS: u64 = 100;
+
 /// What the coordinator asks its shell to do.
 #[derive(Clone, Debug, PartialEq)]
 pub enum CoordOutput {
@@ -50,6 +56,8 @@ pub enum LossPolicy {
 pub struct CoordStats {
     pub dispatched: u64,
     pub returned: u64,
+    /// Dispatches sent again because no report answered them.
+    pub resent: u64,
     /// Reports and updates that were malformed, stale, duplicated or from the wrong agent.
     pub dropped: u64,
 }
@@ -59,6 +67,8 @@ struct AgentState {
     alive: bool,
     tokens: usize,
     incarnation: uuid::Uuid,
+    /// This coordinator started again from its journal and has not heard from the agent since.
+    recovering: bool,
 }
 
 struct TokenState {
@@ -71,6 +81,11 @@ struct TokenState {
     dispatched_ms: u64,
     /// Its agent was lost under `LossPolicy::Pause`.
     paused: bool,
+    /// False from a restart from the journal until the agent says it holds the token (or reports on it).
+    confirmed: bool,
+    /// When the dispatch is sent again if no report came, and the delay after that.
+    resend_at_ms: u64,
+    resend_backoff_ms: u64,
 }
 
 pub struct Coordinator {
@@ -103,6 +118,8 @@ pub struct Coordinator {
     policy: LossPolicy,
     /// Why the run must end, under `LossPolicy::Fail`.
     failure: Option<String>,
+    /// When to look next for dispatches to send again.
+    resend_check_ms: u64,
     stats: CoordStats,
 }
 
@@ -143,6 +160,7 @@ impl Coordinator {
             acks_since_ms: 0,
             policy: LossPolicy::default(),
             failure: None,
+            resend_check_ms: 0,
             stats: CoordStats::default(),
         }
     }
@@ -217,8 +235,38 @@ impl Coordinator {
                 break;
             }
         }
+        self.resend_dispatches();
         self.publish_vars();
         self.flush_acks();
+    }
+
+    /// A dispatch lost on the way (a link that broke and came back within the agent's lease) would leave its
+    /// segment waiting for ever: a dispatch that no report answered goes again, with doubling delays. The agent
+    /// drops the copy if the first one arrived.
+    fn resend_dispatches(&mut self) {
+        if self.now_ms < self.resend_check_ms {
+            return;
+        }
+        self.resend_check_ms = self.now_ms + DISPATCH_RESEND_CHECK_MS;
+        let now = self.now_ms;
+        let mut due: Vec<TokenId> = self
+            .tokens
+            .iter()
+            .filter(|(_, t)| t.next_seq == 0 && !t.paused && t.confirmed && t.resend_at_ms <= now)
+            .filter(|(_, t)| t.agent.as_ref().and_then(|a| self.agents.get(a)).is_some_and(|a| a.alive))
+            .map(|(id, _)| *id)
+            .collect();
+        due.sort_unstable();
+        for id in due {
+            let Some((agent, msg)) = self.dispatch_msg(id) else { continue };
+            if let Some(t) = self.tokens.get_mut(&id) {
+                t.resend_backoff_ms = (t.resend_backoff_ms * 2).min(DISPATCH_RESEND_MAX_MS);
+                t.resend_at_ms = now + t.resend_backoff_ms;
+            }
+            self.stats.resent += 1;
+            self.log(Level::Info, format!("token {id} sent again to `{agent}`: no report on it yet"));
+            self.outbox.push_back(CoordOutput::Send { agent, msg });
+        }
     }
 
     /// Acknowledgements ride on this cycle's dispatches to the same agent; the rest leave together once they
@@ -322,6 +370,9 @@ impl Coordinator {
             ahead: BTreeMap::new(),
             dispatched_ms: self.now_ms,
             paused: false,
+            confirmed: true,
+            resend_at_ms: 0,
+            resend_backoff_ms: 0,
         };
         self.tokens.insert(id, tok);
         self.by_segment[g.index()] = Some(id);
@@ -372,7 +423,7 @@ impl Coordinator {
         let entry_name = self.program.steps[tok.entry.index()].name.clone();
         let placement = self.layout.segments[tok.segment.index()].placement.clone();
         let epoch = tok.epoch;
-        let Some(agent) = tok.agent.clone() else {
+        if tok.agent.is_none() {
             if !self.waiting.contains(&id) {
                 self.waiting.push(id);
                 let mut rec = TraceRecord::new(self.now_ms, "wait", &entry_name);
@@ -387,7 +438,28 @@ impl Coordinator {
                 self.log(Level::Warn, format!("token for step `{entry_name}` waits: {why}"));
             }
             return;
-        };
+        }
+        let Some((agent, msg)) = self.dispatch_msg(id) else { return };
+        if let Some(tok) = self.tokens.get_mut(&id) {
+            tok.dispatched_ms = self.now_ms;
+            tok.resend_at_ms = self.now_ms + DISPATCH_RESEND_FIRST_MS;
+            tok.resend_backoff_ms = DISPATCH_RESEND_FIRST_MS;
+        }
+        if event == "dispatch" {
+            self.stats.dispatched += 1;
+        }
+        let mut rec = TraceRecord::new(self.now_ms, event, &entry_name);
+        rec.agent = Some(agent.clone());
+        rec.token = Some(id.to_string());
+        rec.epoch = Some(epoch);
+        self.trace(rec);
+        self.outbox.push_back(CoordOutput::Send { agent, msg });
+    }
+
+    /// The dispatch of a token to its agent, as it stands now.
+    fn dispatch_msg(&self, id: TokenId) -> Option<(String, ToAgent)> {
+        let tok = self.tokens.get(&id)?;
+        let agent = tok.agent.clone()?;
         let vars = (0..self.program.vars.len())
             // Everything but what the agent alone writes: a role's variables follow the last agent that wrote them.
             .filter(|&i| self.layout.read_by_agents[i] && self.layout.writer[i] != Placement::Agent(agent.clone()))
@@ -397,23 +469,43 @@ impl Coordinator {
             run: self.run,
             chart: self.hash.clone(),
             token: id,
-            epoch,
+            epoch: tok.epoch,
             segment: tok.segment.0,
             entry: tok.entry.0,
             vars,
             vars_seq: self.vars_seq,
             acks: Vec::new(),
         };
-        if let Some(tok) = self.tokens.get_mut(&id) {
-            tok.dispatched_ms = self.now_ms;
+        Some((agent, msg))
+    }
+
+    /// This coordinator started again from its journal (replayed up to here): nothing it knew about the agents
+    /// still holds until each says so. Their tokens stay theirs, unconfirmed: an agent that comes back with the
+    /// token keeps it (and is asked for its unacknowledged reports), one that lacks it gets the dispatch again in
+    /// the same epoch, and a restarted one runs the segment again in a new epoch. Variables are published again.
+    pub fn handle_recover(&mut self, now_ms: u64) {
+        self.advance(now_ms);
+        for a in self.agents.values_mut() {
+            a.recovering = true;
         }
-        self.stats.dispatched += 1;
-        let mut rec = TraceRecord::new(self.now_ms, event, &entry_name);
-        rec.agent = Some(agent.clone());
-        rec.token = Some(id.to_string());
-        rec.epoch = Some(epoch);
+        for t in self.tokens.values_mut() {
+            if t.agent.is_some() {
+                t.confirmed = false;
+            }
+        }
+        self.acks.clear();
+        self.published.iter_mut().for_each(|p| *p = None);
+        let out = self.tokens.len();
+        let message = format!("started again from the journal with {out} token(s) out");
+        let mut rec = TraceRecord::new(self.now_ms, "recover", &self.program.name);
+        rec.message = Some(message.clone());
         self.trace(rec);
-        self.outbox.push_back(CoordOutput::Send { agent, msg });
+        self.log(Level::Info, message);
+    }
+
+    /// The agents this coordinator counts as live.
+    pub fn live_agents(&self) -> Vec<String> {
+        self.agents.iter().filter(|(_, a)| a.alive).map(|(n, _)| n.clone()).collect()
     }
 
     /// An agent announced itself (or came back). Tokens waiting for it leave now.
@@ -434,8 +526,10 @@ impl Coordinator {
             alive: false,
             tokens: 0,
             incarnation: info.incarnation,
+            recovering: false,
         });
         let was_alive = entry.alive;
+        let recovering = std::mem::take(&mut entry.recovering);
         let restarted = entry.incarnation != info.incarnation;
         entry.roles = info.roles.clone();
         entry.alive = true;
@@ -448,31 +542,52 @@ impl Coordinator {
                 if info.roles.is_empty() { String::new() } else { format!(" (roles: {})", info.roles.join(", ")) };
             self.log(Level::Info, format!("agent `{name}` is live{roles}"));
         }
-        // Paused tokens of this agent go to it again, same epoch: if it kept them (a cut link), it ignores the
-        // duplicate and its unacknowledged reports follow; if it restarted, it runs the segment from its entry.
-        let mut paused: Vec<TokenId> = self
+        // This agent's paused tokens (it was lost) and unconfirmed ones (this coordinator restarted): if it is the
+        // same process and holds the token, it keeps it and sends its unacknowledged reports now; if it lacks
+        // it, the dispatch goes again in the same epoch; if it restarted, the segment's progress died with the
+        // old process and it runs again from its first step, in a new epoch.
+        let mut settle: Vec<TokenId> = self
             .tokens
             .iter()
-            .filter(|(_, t)| t.paused && t.agent.as_deref() == Some(name.as_str()))
+            .filter(|(_, t)| (t.paused || !t.confirmed) && t.agent.as_deref() == Some(name.as_str()))
             .map(|(id, _)| *id)
             .collect();
-        paused.sort_unstable();
-        for id in paused {
+        settle.sort_unstable();
+        let run = self.run;
+        let mut sync = recovering && info.held.iter().any(|h| h.run == run);
+        for id in settle {
+            let Some(tok) = self.tokens.get_mut(&id) else { continue };
+            let entry = self.program.steps[tok.entry.index()].name.clone();
             if restarted {
-                // A new process: the segment's progress died with the old one; it runs again from its first
-                // step, on this agent, in a new epoch.
-                let entry =
-                    self.tokens.get(&id).map(|t| self.program.steps[t.entry.index()].name.clone()).unwrap_or_default();
+                if self.policy == LossPolicy::Fail {
+                    let why = format!("agent `{name}` restarted while holding the token of step `{entry}`");
+                    self.alarm(why.clone());
+                    self.failure.get_or_insert(why);
+                    continue;
+                }
                 self.alarm(format!(
                     "agent `{name}` came back restarted: the segment of step `{entry}` runs again from its first step"
                 ));
                 self.restart_on(id, Some(name.clone()));
+                continue;
+            }
+            tok.paused = false;
+            tok.confirmed = true;
+            let epoch = tok.epoch;
+            if info.held.iter().any(|h| h.run == run && h.token == id && h.epoch == epoch) {
+                sync = true;
+                let mut rec = TraceRecord::new(self.now_ms, "resume", &entry);
+                rec.agent = Some(name.clone());
+                rec.token = Some(id.to_string());
+                rec.epoch = Some(epoch);
+                rec.message = Some("still held by the agent".to_string());
+                self.trace(rec);
             } else {
-                if let Some(t) = self.tokens.get_mut(&id) {
-                    t.paused = false;
-                }
                 self.send_token(id, "resume");
             }
+        }
+        if sync {
+            self.outbox.push_back(CoordOutput::Send { agent: name.clone(), msg: ToAgent::Sync { run } });
         }
         let waiting = std::mem::take(&mut self.waiting);
         for id in waiting {
@@ -553,6 +668,7 @@ impl Coordinator {
         tok.next_seq = 0;
         tok.ahead.clear();
         tok.paused = false;
+        tok.confirmed = true;
         let (segment, entry, old) = (tok.segment, tok.entry, tok.agent.take());
         if let Some(a) = old.and_then(|a| self.agents.get_mut(&a)) {
             a.tokens = a.tokens.saturating_sub(1);
@@ -628,6 +744,8 @@ impl Coordinator {
             }
             return;
         }
+        // A report on the token is as good as the agent saying it holds it.
+        tok.confirmed = true;
         let id = report.token;
         let mut next = Some(report);
         while let Some(r) = next {

@@ -1,0 +1,350 @@
+//! The coordinator's journal, as records: every input its state machine takes, with the time it took it, in
+//! order. The coordinator is deterministic — the same inputs at the same times give the same situation, the same
+//! tokens (their ids come from the run id and a counter) and the same trace — so replaying the records rebuilds
+//! the run exactly: activations, dispatches, returns, epochs and the values it owns.
+//!
+//! `Journaled` wraps a `Coordinator` so that nothing reaches it without a record: the shell takes the records
+//! (`take_records`), makes them durable, and only then carries out what the coordinator asked for. Storage is
+//! the shell's business (`baton-coordinator` keeps records in an embedded database); this module only encodes,
+//! decodes and applies them.
+//!
+//! A record is `[tag: u8][t_ms: u64, little endian][body]`. Bodies of reports, variable updates and agent
+//! announcements are the wire messages as they arrived, so journaling them costs a copy, not an encoding.
+
+use serde::{Deserialize, Serialize};
+use uuid::Uuid;
+
+use crate::runtime::coordinator::{Coordinator, LossPolicy};
+use crate::wire::{self, AgentInfo, ChartHash, Report, RunId, SetRequest, TokenId, VarUpdate, WireError};
+
+/// Bumped when records change meaning; a journal of another format is refused.
+pub const JOURNAL_FORMAT: u32 = 1;
+
+/// What a journal is about, written once when the run starts.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JournalHeader {
+    pub format: u32,
+    pub run: RunId,
+    /// The chart version: a journal is only ever resumed with the same chart.
+    pub chart: ChartHash,
+    pub pou: String,
+    /// The chart's source, so that a journal can be replayed without the file.
+    pub source: String,
+    /// Wall-clock time of the run's time 0, in ms since the Unix epoch: a coordinator that starts again counts
+    /// the time it was down.
+    pub started_unix_ms: u64,
+}
+
+/// One input of the coordinator.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Record {
+    Cycle,
+    Report(Report),
+    Vars(VarUpdate),
+    AgentUp(AgentInfo),
+    AgentDown(String),
+    Set(SetRequest),
+    Policy(LossPolicy),
+    /// A coordinator process took over from the journal here.
+    Recover,
+    /// The run is over (`failure` says why it failed, if it did). Nothing follows.
+    End {
+        failure: Option<String>,
+    },
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Entry {
+    pub t_ms: u64,
+    pub record: Record,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum JournalError {
+    #[error("journal record is truncated ({0} bytes)")]
+    Truncated(usize),
+    #[error("journal record has unknown tag {0}")]
+    UnknownTag(u8),
+    #[error("journal record of tag {tag} is malformed: {why}")]
+    Malformed { tag: u8, why: String },
+}
+
+const CYCLE: u8 = 1;
+const REPORT: u8 = 2;
+const VARS: u8 = 3;
+const AGENT_UP: u8 = 4;
+const AGENT_DOWN: u8 = 5;
+const SET: u8 = 6;
+const POLICY: u8 = 7;
+const RECOVER: u8 = 8;
+const END: u8 = 9;
+
+const HEAD: usize = 9;
+
+fn frame(tag: u8, t_ms: u64, body: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(HEAD + body.len());
+    out.push(tag);
+    out.extend_from_slice(&t_ms.to_le_bytes());
+    out.extend_from_slice(body);
+    out
+}
+
+fn policy_byte(p: LossPolicy) -> u8 {
+    match p {
+        LossPolicy::Pause => 0,
+        LossPolicy::Reassign => 1,
+        LossPolicy::Fail => 2,
+    }
+}
+
+/// Encodes an entry (the shell's path for reports and the like is `Journaled`, which reuses the bytes).
+pub fn encode(entry: &Entry) -> Vec<u8> {
+    let t = entry.t_ms;
+    match &entry.record {
+        Record::Cycle => frame(CYCLE, t, &[]),
+        Record::Report(r) => frame(REPORT, t, &wire::encode(r)),
+        Record::Vars(u) => frame(VARS, t, &wire::encode(u)),
+        Record::AgentUp(i) => frame(AGENT_UP, t, &wire::encode(i)),
+        Record::AgentDown(name) => frame(AGENT_DOWN, t, name.as_bytes()),
+        Record::Set(s) => frame(SET, t, &wire::encode(s)),
+        Record::Policy(p) => frame(POLICY, t, &[policy_byte(*p)]),
+        Record::Recover => frame(RECOVER, t, &[]),
+        Record::End { failure } => frame(END, t, failure.as_deref().unwrap_or("").as_bytes()),
+    }
+}
+
+pub fn decode(bytes: &[u8]) -> Result<Entry, JournalError> {
+    if bytes.len() < HEAD {
+        return Err(JournalError::Truncated(bytes.len()));
+    }
+    let tag = bytes[0];
+    let mut t = [0u8; 8];
+    t.copy_from_slice(&bytes[1..HEAD]);
+    let t_ms = u64::from_le_bytes(t);
+    let body = &bytes[HEAD..];
+    let bad = |why: String| JournalError::Malformed { tag, why };
+    let wire_err = |e: WireError| bad(e.to_string());
+    let text = || std::str::from_utf8(body).map(str::to_string).map_err(|e| bad(e.to_string()));
+    let record = match tag {
+        CYCLE => Record::Cycle,
+        REPORT => Record::Report(wire::decode(body).map_err(wire_err)?),
+        VARS => Record::Vars(wire::decode(body).map_err(wire_err)?),
+        AGENT_UP => Record::AgentUp(wire::decode(body).map_err(wire_err)?),
+        AGENT_DOWN => Record::AgentDown(text()?),
+        SET => Record::Set(wire::decode(body).map_err(wire_err)?),
+        POLICY => Record::Policy(match body {
+            [0] => LossPolicy::Pause,
+            [1] => LossPolicy::Reassign,
+            [2] => LossPolicy::Fail,
+            _ => return Err(bad("unknown loss policy".to_string())),
+        }),
+        RECOVER => Record::Recover,
+        END => Record::End { failure: Some(text()?).filter(|s| !s.is_empty()) },
+        other => return Err(JournalError::UnknownTag(other)),
+    };
+    Ok(Entry { t_ms, record })
+}
+
+/// Gives an entry to the coordinator: the one place where records become inputs, for a live run and a replay
+/// alike. A `Set` answers whether it was taken.
+pub fn apply(core: &mut Coordinator, entry: &Entry) -> Option<Result<String, String>> {
+    let now = entry.t_ms;
+    match &entry.record {
+        Record::Cycle => core.handle_cycle(now),
+        Record::Report(r) => core.handle_report(now, r.clone()),
+        Record::Vars(u) => core.handle_vars(now, u.clone()),
+        Record::AgentUp(i) => core.handle_agent_up(now, i.clone()),
+        Record::AgentDown(name) => core.handle_agent_down(now, name),
+        Record::Set(s) => return Some(core.handle_set(now, &s.name, &s.value)),
+        Record::Policy(p) => core.set_loss_policy(*p),
+        Record::Recover => core.handle_recover(now),
+        Record::End { .. } => {}
+    }
+    None
+}
+
+/// The ids of a run's tokens: the run id mixed with a counter, so that a replay makes the same ones.
+pub fn token_ids(run: RunId) -> Box<dyn FnMut() -> TokenId + Send> {
+    let base = run.0.as_u128();
+    let mut n: u64 = 0;
+    Box::new(move || {
+        n += 1;
+        let hi = u128::from(splitmix64(n));
+        let lo = u128::from(splitmix64(n ^ 0x5bd1_e995_5bd1_e995));
+        TokenId(Uuid::from_u128(base ^ (hi << 64 | lo)))
+    })
+}
+
+/// SplitMix64's finalizer: a bijection of u64, so distinct counters give distinct ids.
+fn splitmix64(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// A coordinator whose every input is recorded first.
+pub struct Journaled {
+    core: Coordinator,
+    records: Vec<Vec<u8>>,
+}
+
+impl Journaled {
+    pub fn new(core: Coordinator) -> Journaled {
+        Journaled { core, records: Vec::new() }
+    }
+
+    /// The coordinator, to read from; inputs go through the methods below.
+    pub fn core(&self) -> &Coordinator {
+        &self.core
+    }
+
+    /// What the coordinator asks for, once the records taken so far are durable.
+    pub fn poll_output(&mut self) -> Option<crate::runtime::coordinator::CoordOutput> {
+        self.core.poll_output()
+    }
+
+    /// The records made since the last call, oldest first.
+    pub fn take_records(&mut self) -> Vec<Vec<u8>> {
+        std::mem::take(&mut self.records)
+    }
+
+    pub fn has_records(&self) -> bool {
+        !self.records.is_empty()
+    }
+
+    fn feed(&mut self, bytes: Vec<u8>, entry: Entry) -> Option<Result<String, String>> {
+        self.records.push(bytes);
+        apply(&mut self.core, &entry)
+    }
+
+    fn input(&mut self, t_ms: u64, record: Record) -> Option<Result<String, String>> {
+        let entry = Entry { t_ms, record };
+        self.feed(encode(&entry), entry)
+    }
+
+    pub fn cycle(&mut self, now_ms: u64) {
+        self.input(now_ms, Record::Cycle);
+    }
+
+    /// A report as it arrived. Reports of other runs change nothing and are not recorded.
+    pub fn report(&mut self, now_ms: u64, bytes: &[u8]) -> Result<(), WireError> {
+        let report: Report = wire::decode(bytes)?;
+        if report.run != self.core.run() {
+            self.core.handle_report(now_ms, report);
+            return Ok(());
+        }
+        self.feed(frame(REPORT, now_ms, bytes), Entry { t_ms: now_ms, record: Record::Report(report) });
+        Ok(())
+    }
+
+    /// A variable update as it arrived. Updates of other runs change nothing and are not recorded.
+    pub fn vars(&mut self, now_ms: u64, bytes: &[u8]) -> Result<(), WireError> {
+        let update: VarUpdate = wire::decode(bytes)?;
+        if update.run != self.core.run() {
+            self.core.handle_vars(now_ms, update);
+            return Ok(());
+        }
+        self.feed(frame(VARS, now_ms, bytes), Entry { t_ms: now_ms, record: Record::Vars(update) });
+        Ok(())
+    }
+
+    pub fn agent_up(&mut self, now_ms: u64, info: AgentInfo) {
+        self.input(now_ms, Record::AgentUp(info));
+    }
+
+    pub fn agent_down(&mut self, now_ms: u64, name: &str) {
+        self.input(now_ms, Record::AgentDown(name.to_string()));
+    }
+
+    pub fn set(&mut self, now_ms: u64, name: &str, value: &serde_json::Value) -> Result<String, String> {
+        let request = SetRequest { name: name.to_string(), value: value.clone() };
+        self.input(now_ms, Record::Set(request)).unwrap_or_else(|| Err("not applied".to_string()))
+    }
+
+    pub fn set_loss_policy(&mut self, now_ms: u64, policy: LossPolicy) {
+        self.input(now_ms, Record::Policy(policy));
+    }
+
+    pub fn recover(&mut self, now_ms: u64) {
+        self.input(now_ms, Record::Recover);
+    }
+
+    /// The last record of a run that ended.
+    pub fn end(&mut self, now_ms: u64) {
+        let failure = self.core.failure().map(str::to_string);
+        self.input(now_ms, Record::End { failure });
+    }
+
+    /// Rebuilds a coordinator from its journal's records, oldest first; its outputs are what the run did then
+    /// (the trace of the past), left for the caller to take. Returns the time of the last record and whether
+    /// the run had ended.
+    pub fn replay<'a>(
+        &mut self,
+        records: impl IntoIterator<Item = &'a [u8]>,
+    ) -> Result<Replayed, (usize, JournalError)> {
+        let mut out = Replayed::default();
+        for (i, bytes) in records.into_iter().enumerate() {
+            let entry = decode(bytes).map_err(|e| (i, e))?;
+            out.records += 1;
+            out.last_ms = out.last_ms.max(entry.t_ms);
+            if let Record::End { failure } = &entry.record {
+                out.ended = Some(failure.clone());
+            }
+            apply(&mut self.core, &entry);
+        }
+        Ok(out)
+    }
+}
+
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Replayed {
+    pub records: u64,
+    pub last_ms: u64,
+    /// `Some(failure)` if the journal's run ended (with `failure` if it failed).
+    pub ended: Option<Option<String>>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn records_round_trip_and_garbage_is_an_error() {
+        let run = RunId(Uuid::from_u128(5));
+        let entries = [
+            Entry { t_ms: 0, record: Record::Policy(LossPolicy::Reassign) },
+            Entry { t_ms: 7, record: Record::Cycle },
+            Entry { t_ms: 9, record: Record::AgentDown("r1".into()) },
+            Entry {
+                t_ms: 11,
+                record: Record::Set(SetRequest { name: "go".into(), value: serde_json::Value::Bool(true) }),
+            },
+            Entry { t_ms: 12, record: Record::Vars(VarUpdate { run, from: "r2".into(), seq: 3, vars: Vec::new() }) },
+            Entry { t_ms: 13, record: Record::Recover },
+            Entry { t_ms: u64::MAX, record: Record::End { failure: Some("agent `r1` was lost".into()) } },
+            Entry { t_ms: 20, record: Record::End { failure: None } },
+        ];
+        for e in &entries {
+            assert_eq!(decode(&encode(e)).as_ref(), Ok(e));
+        }
+        assert_eq!(decode(&[1, 2, 3]), Err(JournalError::Truncated(3)));
+        assert_eq!(decode(&[200, 0, 0, 0, 0, 0, 0, 0, 0]), Err(JournalError::UnknownTag(200)));
+        assert!(matches!(decode(&frame(REPORT, 1, b"{not json")), Err(JournalError::Malformed { tag: REPORT, .. })));
+        assert!(matches!(decode(&frame(POLICY, 1, &[9])), Err(JournalError::Malformed { .. })));
+    }
+
+    #[test]
+    fn token_ids_are_distinct_and_repeat_for_the_same_run() {
+        let run = RunId(Uuid::from_u128(0xfeed));
+        let mut a = token_ids(run);
+        let mut b = token_ids(run);
+        let first: Vec<TokenId> = (0..1000).map(|_| a()).collect();
+        let again: Vec<TokenId> = (0..1000).map(|_| b()).collect();
+        assert_eq!(first, again);
+        let distinct: std::collections::HashSet<_> = first.iter().collect();
+        assert_eq!(distinct.len(), first.len());
+        let mut other = token_ids(RunId(Uuid::from_u128(0xbeef)));
+        assert_ne!(other(), first[0]);
+    }
+}
