@@ -22,15 +22,11 @@ pub fn check(trace: &[TraceRecord], program: &Program, all_back: bool) -> Result
     for r in trace {
         let at = r.t_ms;
         match r.event.as_str() {
-            "activate" => {
-                if !active.insert(&r.name) {
-                    return Err(format!("`{}` got a second token at {at} ms", r.name));
-                }
+            "activate" if !active.insert(&r.name) => {
+                return Err(format!("`{}` got a second token at {at} ms", r.name));
             }
-            "deactivate" => {
-                if !active.remove(r.name.as_str()) {
-                    return Err(format!("`{}` was deactivated while inactive at {at} ms", r.name));
-                }
+            "deactivate" if !active.remove(r.name.as_str()) => {
+                return Err(format!("`{}` was deactivated while inactive at {at} ms", r.name));
             }
             "fire" => {
                 let Some(&t) = by_name.get(r.name.as_str()) else { continue };
