@@ -226,6 +226,7 @@ async fn run_chart(dir: &Path, file: &str, chart: String, agents: &[String], pro
         quiet: true,
         zenoh_config: None,
         loss_policy: baton_proto::runtime::coordinator::LossPolicy::Pause,
+        journal: None,
     };
     tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe)))
         .await

@@ -89,6 +89,11 @@ enum Command {
         /// another agent (new epoch), or end the run with an error.
         #[arg(long, value_enum, default_value_t = OnAgentLoss::Pause)]
         on_agent_loss: OnAgentLoss,
+        /// Record every change of the run in a journal in this folder, durably, before acting on it. If the
+        /// folder holds the journal of a run that did not end (the coordinator crashed or was stopped), that
+        /// run resumes where it was, with the tokens still out reconciled with their agents.
+        #[arg(long, value_name = "DIR")]
+        journal: Option<PathBuf>,
     },
     /// Set an input of the charts running behind a router: baton set --connect EP NAME=VALUE.
     Set {
@@ -169,6 +174,7 @@ pub fn main() -> ExitCode {
             quiet,
             zenoh_config,
             on_agent_loss,
+            journal,
         } => {
             use baton_proto::runtime::coordinator::LossPolicy;
             let loss_policy = match on_agent_loss {
@@ -189,6 +195,7 @@ pub fn main() -> ExitCode {
                 quiet,
                 zenoh_config,
                 loss_policy,
+                journal,
             };
             block_on(async move {
                 let summary = crate::run::run(opts).await?;

@@ -5,6 +5,7 @@ mod cli;
 mod client;
 mod demo;
 mod demo_chart;
+mod journal;
 mod run;
 mod zconf;
 

@@ -1,8 +1,12 @@
 //! `baton run`: the coordinator's Zenoh shell. It turns samples into inputs of the pure `Coordinator`, runs its
 //! cycles, publishes what it asks for, writes the trace and answers the chart, status and set queries. It
 //! decides nothing about charts: every rule lives in `baton_proto::runtime::coordinator`.
+//!
+//! With `--journal DIR`, every input is recorded (`baton_proto::journal::Journaled`) and what the coordinator
+//! asks for is held back until the records that led to it are durable (`crate::journal`, group commit). A
+//! journal of a run that did not end is resumed: replayed, then reconciled with the agents.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::PathBuf;
@@ -11,6 +15,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
 use baton_proto::check::check_source;
+use baton_proto::journal::{self, JournalHeader, Journaled, Record, JOURNAL_FORMAT};
 use baton_proto::keys;
 use baton_proto::layout::Layout;
 use baton_proto::limits::RECEIVE_QUEUE_MAX;
@@ -19,7 +24,7 @@ use baton_proto::program::Program;
 use baton_proto::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
 use baton_proto::runtime::Level;
 use baton_proto::sim::TraceRecord;
-use baton_proto::wire::{self, AgentInfo, ChartHash, ChartSource, RunId, SetReply, SetRequest, TokenId};
+use baton_proto::wire::{self, AgentInfo, ChartHash, ChartSource, RunId, SetReply, SetRequest};
 use serde::Serialize;
 use tokio::sync::mpsc;
 use zenoh::handlers::FifoChannel;
@@ -46,6 +51,8 @@ pub struct RunOptions {
     /// The user's own Zenoh configuration (TLS, credentials), under Baton's settings.
     pub zenoh_config: Option<PathBuf>,
     pub loss_policy: LossPolicy,
+    /// Record every input in this folder before acting on it; resume the run found there.
+    pub journal: Option<PathBuf>,
 }
 
 /// What `baton run` prints at the end, and writes with `--summary FILE`.
@@ -104,8 +111,13 @@ enum Event {
 
 struct Shell {
     session: Session,
-    core: Coordinator,
+    core: Journaled,
     started: Instant,
+    /// The run's time when this process started: 0, or where a resumed run stood (downtime included).
+    base_ms: u64,
+    journal: Option<crate::journal::Writer>,
+    /// What the coordinator asked for, per journal batch, until that batch is durable.
+    held: VecDeque<(u64, Vec<CoordOutput>)>,
     trace: Option<BufWriter<File>>,
     trace_error: bool,
     quiet: bool,
@@ -129,26 +141,53 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     if opts.listen.is_empty() == opts.connect.is_empty() {
         bail!("give either --listen ENDPOINT (embed a router) or --connect ENDPOINT (join one)");
     }
+    let hash = ChartHash::of(&loaded.source, &loaded.pou);
+    // The journal first: a refused one costs nothing, not even a Zenoh session.
+    let mut resume: Option<(JournalHeader, Vec<Vec<u8>>)> = None;
+    let mut writer = None;
+    let run = match &opts.journal {
+        None => RunId(uuid::Uuid::new_v4()),
+        Some(dir) => {
+            let mut opened = crate::journal::open(dir)?;
+            let path = opened.store.path().display().to_string();
+            let run = match opened.header.take() {
+                None => {
+                    let header = JournalHeader {
+                        format: JOURNAL_FORMAT,
+                        run: RunId(uuid::Uuid::new_v4()),
+                        chart: hash.clone(),
+                        pou: loaded.pou.clone(),
+                        source: loaded.source.clone(),
+                        started_unix_ms: unix_ms(),
+                    };
+                    opened.store.write_header(&header)?;
+                    header.run
+                }
+                Some(header) => {
+                    check_resumable(&header, &opened.records, &hash, &loaded.pou, &opts.chart, &path)?;
+                    let run = header.run;
+                    resume = Some((header, std::mem::take(&mut opened.records)));
+                    run
+                }
+            };
+            writer = Some(opened.store.start_writer());
+            run
+        }
+    };
     let net =
         if opts.listen.is_empty() { NetConfig::client(&opts.connect, true) } else { NetConfig::router(&opts.listen) };
     let net = NetConfig { multicast_scouting: opts.multicast_scouting, ..net };
     let zconfig = crate::zconf::load(&net, opts.zenoh_config.as_deref())?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
-    let run = RunId(uuid::Uuid::new_v4());
-    let hash = ChartHash::of(&loaded.source, &loaded.pou);
     let chart_reply =
         wire::encode(&ChartSource { hash: hash.clone(), pou: loaded.pou.clone(), source: loaded.source.clone() });
-    let mut core = Coordinator::new(
+    let core = Coordinator::new(
         Arc::clone(&loaded.program),
         Arc::clone(&loaded.layout),
         run,
         hash,
-        Box::new(|| TokenId(uuid::Uuid::new_v4())),
+        journal::token_ids(run),
     );
-    core.set_loss_policy(opts.loss_policy);
-    for (name, value) in &opts.sets {
-        core.handle_set(0, name, value).map_err(|e| anyhow!("--set {name}: {e}"))?;
-    }
     let zerr = |e: zenoh::Error| anyhow!("{e}");
     let inbox = || FifoChannel::new(RECEIVE_QUEUE_MAX);
     let report_sub = session.declare_subscriber(keys::report(run)).with(inbox()).await.map_err(zerr)?;
@@ -166,13 +205,14 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     } else {
         format!("router on {}", opts.listen.join(", "))
     };
-    if !opts.quiet {
-        eprintln!("baton: running chart `{}` as run {} ({where_})", loaded.pou, run.key());
-    }
+    let mut durable_rx = writer.as_ref().map(crate::journal::Writer::watcher);
     let mut shell = Shell {
         session: session.clone(),
-        core,
+        core: Journaled::new(core),
         started: Instant::now(),
+        base_ms: 0,
+        journal: writer,
+        held: VecDeque::new(),
         trace,
         trace_error: false,
         quiet: opts.quiet,
@@ -182,6 +222,47 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         decode_drops: 0,
         probe,
     };
+    match resume {
+        Some((header, records)) => {
+            // The past, replayed: its trace is written again (the file then holds the whole run), nothing is
+            // sent, and the run's clock goes on from wall-clock time, downtime included.
+            let replayed = shell
+                .core
+                .replay(records.iter().map(Vec::as_slice))
+                .map_err(|(i, e)| anyhow!("the journal's record {i} cannot be read: {e}"))?;
+            while let Some(out) = shell.core.poll_output() {
+                if let CoordOutput::Trace(rec) = out {
+                    shell.record(rec);
+                }
+            }
+            let wall = unix_ms().saturating_sub(header.started_unix_ms);
+            shell.base_ms = replayed.last_ms.max(wall);
+            if !opts.sets.is_empty() {
+                eprintln!("warning: --set ignored: the run resumes from its journal with the values it had");
+            }
+            let now = shell.now_ms();
+            shell.core.set_loss_policy(now, opts.loss_policy);
+            shell.core.recover(now);
+            if !opts.quiet {
+                eprintln!(
+                    "baton: resuming run {} of chart `{}` from its journal ({} records, {} token(s) out; {where_})",
+                    run.key(),
+                    loaded.pou,
+                    replayed.records,
+                    shell.core.core().tokens_in_flight()
+                );
+            }
+        }
+        None => {
+            shell.core.set_loss_policy(0, opts.loss_policy);
+            for (name, value) in &opts.sets {
+                shell.core.set(0, name, value).map_err(|e| anyhow!("--set {name}: {e}"))?;
+            }
+            if !opts.quiet {
+                eprintln!("baton: running chart `{}` as run {} ({where_})", loaded.pou, run.key());
+            }
+        }
+    }
     let (tx, mut rx) = mpsc::unbounded_channel::<Event>();
     let mut tick = tokio::time::interval(Duration::from_millis(opts.cycle_ms.max(1)));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -190,7 +271,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
     let mut interrupted = false;
     shell.cycle().await?;
-    while !shell.core.is_terminal() && shell.core.failure().is_none() {
+    while !shell.core.core().is_terminal() && shell.core.core().failure().is_none() {
         tokio::select! {
             s = report_sub.recv_async() => {
                 let Ok(s) = s else { break };
@@ -214,7 +295,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
             }
             q = status_q.recv_async() => {
                 let Ok(q) = q else { break };
-                let status = wire::encode(&shell.core.status());
+                let status = wire::encode(&shell.core.core().status());
                 reply(&q, status).await;
             }
             q = set_q.recv_async() => {
@@ -222,13 +303,31 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
                 let answer = shell.on_set(&q);
                 reply(&q, wire::encode(&answer)).await;
             }
+            // A journal batch became durable: what it led to may go now.
+            _ = async { durable_rx.as_mut().expect("journal").changed().await }, if durable_rx.is_some() => {
+                shell.release().await?;
+                continue;
+            }
             _ = tick.tick() => {}
             _ = sigint.recv() => { interrupted = true; break }
             _ = sigterm.recv() => { interrupted = true; break }
         }
         shell.cycle().await?;
     }
-    let failure = shell.core.failure().map(str::to_string);
+    if !interrupted {
+        let now = shell.now_ms();
+        shell.core.end(now);
+        shell.commit(Vec::new()).await?;
+    }
+    // Whatever was taken in is made durable and carried out before the process leaves.
+    if let Some(w) = &mut shell.journal {
+        w.sync().await?;
+    }
+    shell.release().await?;
+    if let Some(w) = &mut shell.journal {
+        w.close();
+    }
+    let failure = shell.core.core().failure().map(str::to_string);
     let summary = shell.summary(&loaded);
     if let Some(t) = &mut shell.trace {
         t.flush().context("cannot write the trace")?;
@@ -236,6 +335,9 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     drop(shell);
     session.close().await.map_err(zerr)?;
     if interrupted {
+        if let Some(dir) = &opts.journal {
+            eprintln!("baton: the run is kept in its journal; `baton run … --journal {}` resumes it", dir.display());
+        }
         bail!("interrupted before the chart reached a terminal situation");
     }
     if let Some(why) = &failure {
@@ -248,6 +350,53 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     Ok(summary)
 }
 
+fn unix_ms() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64)
+}
+
+/// A journal is resumed only by the same chart version, only in a format this build reads, and only if its
+/// run did not end.
+fn check_resumable(
+    header: &JournalHeader,
+    records: &[Vec<u8>],
+    hash: &ChartHash,
+    pou: &str,
+    chart: &std::path::Path,
+    path: &str,
+) -> anyhow::Result<()> {
+    if header.format != JOURNAL_FORMAT {
+        bail!(
+            "the journal {path} is in format {}, and this baton reads format {JOURNAL_FORMAT}; \
+             give another --journal folder",
+            header.format
+        );
+    }
+    if header.chart != *hash || header.pou != pou {
+        bail!(
+            "the journal {path} belongs to a run of chart `{}` version {}, and {} is chart `{pou}` version {}: \
+             a run only resumes with the chart it started with. Run that version again to resume it, or give \
+             another --journal folder for a new run",
+            header.pou,
+            header.chart.0,
+            chart.display(),
+            hash.0
+        );
+    }
+    if let Some(last) = records.last() {
+        if let Ok(journal::Entry { record: Record::End { failure }, .. }) = journal::decode(last) {
+            let how = match failure {
+                Some(why) => format!("failed: {why}"),
+                None => "finished".to_string(),
+            };
+            bail!(
+                "the run {} in the journal {path} is over (it {how}); give another --journal folder for a new run",
+                header.run.key()
+            );
+        }
+    }
+    Ok(())
+}
+
 async fn reply(q: &Query, payload: Vec<u8>) {
     if let Err(e) = q.reply(q.key_expr().clone(), payload).await {
         eprintln!("warning: cannot answer a query on {}: {e}", q.key_expr());
@@ -256,26 +405,20 @@ async fn reply(q: &Query, payload: Vec<u8>) {
 
 impl Shell {
     fn now_ms(&self) -> u64 {
-        self.started.elapsed().as_millis() as u64
+        self.base_ms + self.started.elapsed().as_millis() as u64
     }
 
     fn on_report(&mut self, s: &Sample) {
-        match wire::decode(&s.payload().to_bytes()) {
-            Ok(report) => {
-                let now = self.now_ms();
-                self.core.handle_report(now, report);
-            }
-            Err(e) => self.decode_drop(s, e),
+        let now = self.now_ms();
+        if let Err(e) = self.core.report(now, &s.payload().to_bytes()) {
+            self.decode_drop(s, e);
         }
     }
 
     fn on_vars(&mut self, s: &Sample) {
-        match wire::decode(&s.payload().to_bytes()) {
-            Ok(update) => {
-                let now = self.now_ms();
-                self.core.handle_vars(now, update);
-            }
-            Err(e) => self.decode_drop(s, e),
+        let now = self.now_ms();
+        if let Err(e) = self.core.vars(now, &s.payload().to_bytes()) {
+            self.decode_drop(s, e);
         }
     }
 
@@ -302,7 +445,7 @@ impl Shell {
             }
             SampleKind::Delete => {
                 let now = self.now_ms();
-                self.core.handle_agent_down(now, &name);
+                self.core.agent_down(now, &name);
             }
         }
     }
@@ -310,7 +453,7 @@ impl Shell {
     fn on_event(&mut self, ev: Event) {
         let now = self.now_ms();
         match ev {
-            Event::AgentUp(info) => self.core.handle_agent_up(now, info),
+            Event::AgentUp(info) => self.core.agent_up(now, info),
             Event::AgentUnreachable(name, why) => {
                 eprintln!("warning: agent `{name}` is live but did not say who it is: {why}")
             }
@@ -318,14 +461,14 @@ impl Shell {
     }
 
     fn on_set(&mut self, q: &Query) -> SetReply {
-        let chart = self.core.program().name.clone();
+        let chart = self.core.core().program().name.clone();
         let request: Result<SetRequest, _> = match q.payload() {
             Some(p) => wire::decode(&p.to_bytes()),
             None => return SetReply { chart, ok: false, message: "the request carries no value".into() },
         };
         let now = self.now_ms();
         match request {
-            Ok(r) => match self.core.handle_set(now, &r.name, &r.value) {
+            Ok(r) => match self.core.set(now, &r.name, &r.value) {
                 Ok(message) => SetReply { chart, ok: true, message },
                 Err(message) => SetReply { chart, ok: false, message },
             },
@@ -333,12 +476,53 @@ impl Shell {
         }
     }
 
+    /// Runs the coordinator's cycle, then has what it asked for carried out — at once, or once its journal batch
+    /// is durable.
     async fn cycle(&mut self) -> anyhow::Result<()> {
         let now = self.now_ms();
-        self.core.handle_cycle(now);
+        self.core.cycle(now);
+        let mut outputs = Vec::new();
+        while let Some(out) = self.core.poll_output() {
+            outputs.push(out);
+        }
+        self.commit(outputs).await
+    }
+
+    async fn commit(&mut self, mut outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
+        while let Some(out) = self.core.poll_output() {
+            outputs.push(out);
+        }
+        let records = self.core.take_records();
+        let Some(journal) = &mut self.journal else {
+            return self.carry_out(outputs).await;
+        };
+        if !records.is_empty() {
+            let batch = journal.write(records)?;
+            self.held.push_back((batch, outputs));
+        } else if !outputs.is_empty() {
+            // Nothing new to record: these follow the last batch.
+            self.held.push_back((journal.sent(), outputs));
+        }
+        self.release().await
+    }
+
+    /// Carries out what waited for journal batches that are now durable, in order.
+    async fn release(&mut self) -> anyhow::Result<()> {
+        let durable = match &self.journal {
+            Some(j) => j.durable()?,
+            None => u64::MAX,
+        };
+        while self.held.front().is_some_and(|(batch, _)| *batch <= durable) {
+            let Some((_, outputs)) = self.held.pop_front() else { break };
+            self.carry_out(outputs).await?;
+        }
+        Ok(())
+    }
+
+    async fn carry_out(&mut self, outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
         // Messages leave before the trace is written: a token's round trip does not wait for the disk.
         let mut local = Vec::new();
-        while let Some(out) = self.core.poll_output() {
+        for out in outputs {
             match out {
                 CoordOutput::Send { agent, msg } => self.send(keys::agent_cmd(&agent), wire::encode(&msg)).await?,
                 CoordOutput::Vars(update) => self.send(self.vars_key.clone(), wire::encode(&update)).await?,
@@ -422,7 +606,7 @@ impl Shell {
 
     fn summary(&self, loaded: &Loaded) -> Summary {
         let now = self.now_ms();
-        let stats = self.core.stats();
+        let stats = self.core.core().stats();
         let steps = self
             .steps
             .iter()
@@ -440,11 +624,11 @@ impl Shell {
             .iter()
             .enumerate()
             .filter(|(_, v)| !v.constant)
-            .map(|(i, v)| (v.name.clone(), self.core.value(baton_proto::program::VarId(i as u32)).to_string()))
+            .map(|(i, v)| (v.name.clone(), self.core.core().value(baton_proto::program::VarId(i as u32)).to_string()))
             .collect();
         Summary {
             chart: loaded.pou.clone(),
-            run: self.core.run().key(),
+            run: self.core.core().run().key(),
             duration_ms: now,
             tokens_dispatched: stats.dispatched,
             tokens_returned: stats.returned,

@@ -69,6 +69,8 @@ struct AgentState {
     incarnation: uuid::Uuid,
     /// This coordinator started again from its journal and has not heard from the agent since.
     recovering: bool,
+    /// How long the agent may stay silent before it counts as lost (its own setting).
+    lease_ms: u64,
 }
 
 struct TokenState {
@@ -120,6 +122,8 @@ pub struct Coordinator {
     failure: Option<String>,
     /// When to look next for dispatches to send again.
     resend_check_ms: u64,
+    /// When this coordinator last started again from its journal.
+    recovered_ms: Option<u64>,
     stats: CoordStats,
 }
 
@@ -161,6 +165,7 @@ impl Coordinator {
             policy: LossPolicy::default(),
             failure: None,
             resend_check_ms: 0,
+            recovered_ms: None,
             stats: CoordStats::default(),
         }
     }
@@ -236,8 +241,29 @@ impl Coordinator {
             }
         }
         self.resend_dispatches();
+        self.give_up_on_silent_agents();
         self.publish_vars();
         self.flush_acks();
+    }
+
+    /// After a restart from the journal, an agent that has not come back within its lease is lost, as if its
+    /// liveliness token had gone: its tokens are paused, reassigned or fail the run.
+    fn give_up_on_silent_agents(&mut self) {
+        let Some(since) = self.recovered_ms else { return };
+        let now = self.now_ms;
+        let silent: Vec<String> = self
+            .agents
+            .iter()
+            .filter(|(_, a)| a.recovering && a.alive && now >= since.saturating_add(a.lease_ms))
+            .map(|(n, _)| n.clone())
+            .collect();
+        for name in silent {
+            self.log(Level::Warn, format!("agent `{name}` did not come back within its lease after the restart"));
+            self.handle_agent_down(now, &name);
+        }
+        if self.agents.values().all(|a| !a.recovering || !a.alive) {
+            self.recovered_ms = None;
+        }
     }
 
     /// A dispatch lost on the way (a link that broke and came back within the agent's lease) would leave its
@@ -488,6 +514,7 @@ impl Coordinator {
         for a in self.agents.values_mut() {
             a.recovering = true;
         }
+        self.recovered_ms = Some(self.now_ms);
         for t in self.tokens.values_mut() {
             if t.agent.is_some() {
                 t.confirmed = false;
@@ -527,11 +554,13 @@ impl Coordinator {
             tokens: 0,
             incarnation: info.incarnation,
             recovering: false,
+            lease_ms: info.lease_ms,
         });
         let was_alive = entry.alive;
         let recovering = std::mem::take(&mut entry.recovering);
         let restarted = entry.incarnation != info.incarnation;
         entry.roles = info.roles.clone();
+        entry.lease_ms = info.lease_ms;
         entry.alive = true;
         entry.incarnation = info.incarnation;
         if !was_alive {
