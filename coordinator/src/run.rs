@@ -181,13 +181,8 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     let chart_reply =
         wire::encode(&ChartSource { hash: hash.clone(), pou: loaded.pou.clone(), source: loaded.source.clone() });
-    let core = Coordinator::new(
-        Arc::clone(&loaded.program),
-        Arc::clone(&loaded.layout),
-        run,
-        hash,
-        journal::token_ids(run),
-    );
+    let core =
+        Coordinator::new(Arc::clone(&loaded.program), Arc::clone(&loaded.layout), run, hash, journal::token_ids(run));
     let zerr = |e: zenoh::Error| anyhow!("{e}");
     let inbox = || FifoChannel::new(RECEIVE_QUEUE_MAX);
     let report_sub = session.declare_subscriber(keys::report(run)).with(inbox()).await.map_err(zerr)?;

@@ -40,6 +40,8 @@ pub struct Cluster {
     pub endpoint: String,
     pub dir: tempfile::TempDir,
     agents: Vec<(String, Child)>,
+    /// A router of the test's own, when the coordinator joins rather than embeds one (`Cluster::with_router`).
+    router: Option<zenoh::Session>,
 }
 
 /// A coordinator process, with its stderr readable line by line.
@@ -62,7 +64,24 @@ impl Cluster {
             endpoint: format!("tcp/127.0.0.1:{}", free_port()),
             dir: tempfile::tempdir().expect("temp dir"),
             agents: Vec::new(),
+            router: None,
         }
+    }
+
+    /// A cluster whose router lives in the test process, so that it outlives a coordinator that is killed.
+    /// Coordinators then join it (`coordinator_joining`).
+    pub async fn with_router() -> Cluster {
+        let mut cluster = Cluster::new();
+        let net = baton_proto::netconfig::NetConfig::router(std::slice::from_ref(&cluster.endpoint));
+        let config = zenoh::Config::from_json5(&net.json5()).expect("router config");
+        cluster.router = Some(zenoh::open(config).await.expect("start the test's router"));
+        cluster
+    }
+
+    /// A Zenoh session of the test's own on the cluster's router, to watch the protocol.
+    pub async fn watch(&self) -> zenoh::Session {
+        let net = baton_proto::netconfig::NetConfig::client(std::slice::from_ref(&self.endpoint), true);
+        zenoh::open(zenoh::Config::from_json5(&net.json5()).expect("config")).await.expect("session")
     }
 
     /// Starts `baton-agent --name NAME --role …` joining the cluster's router.
@@ -99,12 +118,22 @@ impl Cluster {
 
     /// Starts `baton run CHART --listen EP --trace … --summary …` (the coordinator embeds the router).
     pub fn coordinator(&self, chart: &Path, extra: &[&str]) -> Coordinator {
+        self.start_coordinator(chart, "--listen", extra)
+    }
+
+    /// Starts `baton run CHART --connect EP …`: the coordinator joins the test's router (`with_router`).
+    pub fn coordinator_joining(&self, chart: &Path, extra: &[&str]) -> Coordinator {
+        assert!(self.router.is_some(), "make the cluster with Cluster::with_router");
+        self.start_coordinator(chart, "--connect", extra)
+    }
+
+    fn start_coordinator(&self, chart: &Path, how: &str, extra: &[&str]) -> Coordinator {
         let trace = self.dir.path().join("trace.jsonl");
         let summary = self.dir.path().join("summary.json");
         let mut child = Command::new(bin("baton"))
             .arg("run")
             .arg(chart)
-            .args(["--listen", &self.endpoint])
+            .args([how, &self.endpoint])
             .arg("--trace")
             .arg(&trace)
             .arg("--summary")
@@ -127,6 +156,12 @@ impl Cluster {
 }
 
 impl Coordinator {
+    /// SIGKILLs the coordinator and waits for it to be gone.
+    pub async fn kill(mut self) {
+        self.child.start_kill().expect("kill the coordinator");
+        tokio::time::timeout(TIMEOUT, self.child.wait()).await.expect("coordinator died in time").expect("wait");
+    }
+
     /// Reads the coordinator's log until a line containing `needle`; returns the lines read.
     pub async fn wait_for_log(&mut self, needle: &str) -> Vec<String> {
         let mut seen = Vec::new();
@@ -197,4 +232,36 @@ pub fn check_trace_invariants(trace: &[TraceRecord], chart: &Path) {
     if let Err(why) = crate::invariants::check(trace, program, true) {
         panic!("trace of {}: {why}", chart.display());
     }
+}
+
+/// The id of step `name` in the first chart of `chart`, as dispatches carry it.
+pub fn step_id(chart: &Path, name: &str) -> u32 {
+    let src = std::fs::read_to_string(chart).unwrap_or_else(|e| panic!("{}: {e}", chart.display()));
+    let report = baton_proto::check::check_source(&src);
+    let program = report.charts[0].program.as_ref().expect("a valid chart");
+    program.steps.iter().position(|s| s.name == name).expect("step") as u32
+}
+
+pub type Samples = zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>;
+
+/// Waits, on a subscriber of the agents' command keys, for the dispatch entering step `entry` in `epoch`;
+/// returns the agent it went to and the token.
+pub async fn next_dispatch(cmds: &Samples, entry: u32, epoch: u32) -> (String, baton_proto::wire::TokenId) {
+    use baton_proto::wire::{self, ToAgent};
+    let found = tokio::time::timeout(TIMEOUT, async {
+        while let Ok(sample) = cmds.recv_async().await {
+            if let Ok(ToAgent::Dispatch { entry: e, epoch: n, token, .. }) = wire::decode(&sample.payload().to_bytes())
+            {
+                if (e, n) == (entry, epoch) {
+                    let agent = sample.key_expr().as_str().split('/').nth(2).map(str::to_string);
+                    return agent.map(|a| (a, token));
+                }
+            }
+        }
+        None
+    })
+    .await;
+    found
+        .unwrap_or_else(|_| panic!("step {entry} was not dispatched in epoch {epoch} in time"))
+        .unwrap_or_else(|| panic!("the command subscriber closed before step {entry} was dispatched"))
 }

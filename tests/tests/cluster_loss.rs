@@ -1,18 +1,7 @@
 //! Lost agents with real processes: SIGKILL of the agent holding a token, under each `--on-agent-loss` policy.
 
-use baton_proto::check::check_source;
 use baton_proto::keys;
-use baton_proto::netconfig::NetConfig;
-use baton_proto::wire::{self, ToAgent};
-use baton_tests::cluster::{check_trace_invariants, dispatches, repo, Cluster, TIMEOUT};
-
-/// The id of step `name` in the cell chart, as dispatches carry it.
-fn cell_step(name: &str) -> u32 {
-    let src = std::fs::read_to_string(repo("examples/cell.st")).expect("cell chart");
-    let report = check_source(&src);
-    let program = report.charts[0].program.as_ref().expect("valid");
-    program.steps.iter().position(|s| s.name == name).expect("step") as u32
-}
+use baton_tests::cluster::{self, check_trace_invariants, dispatches, repo, step_id, Cluster, Samples};
 
 /// Starts the one-part cell with two assemblers and waits, on the agents' command keys, for the dispatch of
 /// Assemble; returns the cluster, the coordinator and the agent that holds the token.
@@ -32,8 +21,7 @@ async fn assembling_with(
     let parts = format!("parts={parts}");
     let mut coordinator = cluster.coordinator(&repo("examples/cell.st"), &["--set", &parts, "--on-agent-loss", policy]);
     coordinator.wait_for_log("running chart").await;
-    let net = NetConfig::client(&[cluster.endpoint.clone()], false);
-    let session = zenoh::open(zenoh::Config::from_json5(&net.json5()).expect("config")).await.expect("session");
+    let session = cluster.watch().await;
     let cmds = session.declare_subscriber(keys::agent_cmd("*")).await.expect("subscriber");
     cluster.agent("robot1", &["assembler"], agent_args);
     cluster.agent("robot2", &["assembler"], agent_args);
@@ -41,25 +29,11 @@ async fn assembling_with(
     (cluster, coordinator, holder, session, cmds)
 }
 
-type Commands = zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>;
+type Commands = Samples;
 
-/// Waits, on the agents' command keys, for the dispatch of the cell's `step` in `epoch`; returns the agent it
-/// went to.
+/// Waits for the dispatch of the cell's `step` in `epoch`; returns the agent it went to.
 async fn next_dispatch(cmds: &Commands, step: &str, epoch: u32) -> String {
-    let entry = cell_step(step);
-    tokio::time::timeout(TIMEOUT, async {
-        while let Ok(sample) = cmds.recv_async().await {
-            if let Ok(ToAgent::Dispatch { entry: e, epoch: n, .. }) = wire::decode(&sample.payload().to_bytes()) {
-                if (e, n) == (entry, epoch) {
-                    return sample.key_expr().as_str().split('/').nth(2).map(str::to_string);
-                }
-            }
-        }
-        None
-    })
-    .await
-    .unwrap_or_else(|_| panic!("{step} was dispatched in epoch {epoch} in time"))
-    .unwrap_or_else(|| panic!("an agent took {step}"))
+    cluster::next_dispatch(cmds, step_id(&repo("examples/cell.st"), step), epoch).await.0
 }
 
 fn other(agent: &str) -> &'static str {

@@ -1,0 +1,125 @@
+//! A coordinator killed with SIGKILL and started again from its journal, with real processes on loopback.
+
+use baton_proto::keys;
+use baton_proto::wire::{self, Report};
+use baton_tests::cluster::{self, check_trace_invariants, dispatches, repo, step_id, Cluster, TIMEOUT};
+
+fn journal_args(cluster: &Cluster) -> Vec<String> {
+    let journal = cluster.dir.path().join("journal");
+    ["--set", "parts=1", "--journal", journal.to_str().expect("utf-8 path")].map(String::from).to_vec()
+}
+
+/// The coordinator dies while an agent assembles; the agent finishes while nobody coordinates (its done report
+/// is seen on the wire, unanswered), and the coordinator started again from its journal takes that result
+/// without sending the segment again.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_coordinator_killed_mid_segment_resumes_from_its_journal() {
+    let cell = repo("examples/cell.st");
+    let mut cluster = Cluster::with_router().await;
+    let args = journal_args(&cluster);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let watch = cluster.watch().await;
+    let cmds = watch.declare_subscriber(keys::agent_cmd("*")).await.expect("command subscriber");
+    let reports = watch.declare_subscriber("baton/run/*/report").await.expect("report subscriber");
+    let mut coordinator = cluster.coordinator_joining(&cell, &args);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("robot1", &["assembler"], &[]);
+    cluster.agent("robot2", &["assembler"], &[]);
+    let (holder, token) = cluster::next_dispatch(&cmds, step_id(&cell, "Assemble"), 1).await;
+    coordinator.kill().await;
+    // The holder finishes with nobody to acknowledge it, and keeps its result: its done report goes out (and
+    // out again, with backoff) unanswered.
+    let done = tokio::time::timeout(TIMEOUT, async {
+        while let Ok(sample) = reports.recv_async().await {
+            if let Ok(r) = wire::decode::<Report>(&sample.payload().to_bytes()) {
+                if r.token == token && r.done {
+                    return r;
+                }
+            }
+        }
+        panic!("the report subscriber closed");
+    })
+    .await
+    .expect("the holder finished Assemble while the coordinator was down");
+    assert_eq!(done.agent, holder);
+    let coordinator = cluster.coordinator_joining(&cell, &args);
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    assert!(log.contains("resuming run"), "{log}");
+    check_trace_invariants(&trace, &cell);
+    assert_eq!(summary["vars"]["done"], "1", "{log}");
+    assert_eq!(dispatches(&trace, "Assemble"), [(holder.clone(), Some(1))], "Assemble was sent once");
+    let recover = trace.iter().position(|r| r.event == "recover").expect("recover in the trace");
+    let resume = trace.iter().position(|r| r.event == "resume" && r.name == "Assemble").expect("reconciled");
+    assert_eq!(trace[resume].message.as_deref(), Some("still held by the agent"));
+    let back = trace.iter().position(|r| r.event == "return" && r.name == "Assemble").expect("returned");
+    assert!(recover < resume && resume < back, "recover, reconcile, then the held result");
+    let motions = trace.iter().filter(|r| r.event == "action_on" && r.name == "AssemblePart").count();
+    assert_eq!(motions, 1, "the assembly motion ran once");
+}
+
+/// The usual setup, where the coordinator embeds the router: the agents lose the router with it, reconnect to
+/// the new one, and the run goes on to the end.
+#[tokio::test(flavor = "multi_thread")]
+async fn agents_reconnect_to_a_coordinator_restarted_with_its_router() {
+    let cell = repo("examples/cell.st");
+    let mut cluster = Cluster::new();
+    let args = journal_args(&cluster);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let mut coordinator = cluster.coordinator(&cell, &args);
+    coordinator.wait_for_log("running chart").await;
+    let watch = cluster.watch().await;
+    let cmds = watch.declare_subscriber(keys::agent_cmd("*")).await.expect("command subscriber");
+    cluster.agent("robot1", &["assembler"], &[]);
+    cluster.agent("robot2", &["assembler"], &[]);
+    cluster::next_dispatch(&cmds, step_id(&cell, "Pick2"), 1).await;
+    coordinator.kill().await;
+    let coordinator = cluster.coordinator(&cell, &args);
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace, &cell);
+    assert_eq!(summary["vars"]["done"], "1", "{log}");
+    assert_eq!(trace.iter().filter(|r| r.event == "recover").count(), 1);
+    for step in ["Pick1", "Pick2", "Assemble"] {
+        assert_eq!(dispatches(&trace, step).len(), 1, "{step} dispatched once:\n{log}");
+    }
+}
+
+/// A journal is resumed only by the chart version that wrote it, and a finished run is not run again.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_journal_of_another_chart_version_or_a_finished_run_is_refused() {
+    let cell = repo("examples/cell.st");
+    let cluster = Cluster::new();
+    let journal = cluster.dir.path().join("journal");
+    let journal = journal.to_str().expect("utf-8 path");
+    // A run that waits for agents that never come, stopped with SIGTERM: its journal stays resumable.
+    let mut coordinator = cluster.coordinator(&cell, &["--journal", journal]);
+    coordinator.wait_for_log("waits: no live agent").await;
+    let pid = coordinator.child.id().expect("running").to_string();
+    assert!(std::process::Command::new("kill").args(["-TERM", &pid]).status().expect("kill").success());
+    let (status, log, _, _) = coordinator.finish().await;
+    assert_eq!(status.code(), Some(2), "{log}");
+    assert!(log.contains("resumes it"), "{log}");
+    // The same chart with one value changed is another version.
+    let source = std::fs::read_to_string(&cell).expect("cell chart");
+    let changed = cluster.dir.path().join("cell_v2.st");
+    std::fs::write(&changed, source.replacen("ms := 300", "ms := 301", 1)).expect("write");
+    let endpoint = cluster.endpoint.clone();
+    let out = cluster.baton(&["run", changed.to_str().unwrap(), "--listen", &endpoint, "--journal", journal]).await;
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("a run only resumes with the chart it started with"), "{err}");
+    assert!(err.contains("cell_v2.st"), "{err}");
+    // A chart that ends at once leaves a finished journal, which is not run again.
+    let quick = cluster.dir.path().join("quick.st");
+    std::fs::write(&quick, "PROGRAM Quick\nINITIAL_STEP S0: END_STEP\nEND_PROGRAM\n").expect("write");
+    let quick_journal = cluster.dir.path().join("quick_journal");
+    let quick_journal = quick_journal.to_str().unwrap();
+    let run = ["run", quick.to_str().unwrap(), "--listen", &endpoint, "--journal", quick_journal];
+    let first = cluster.baton(&run).await;
+    assert!(first.status.success(), "{}", String::from_utf8_lossy(&first.stderr));
+    let again = cluster.baton(&run).await;
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert_eq!(again.status.code(), Some(2), "{err}");
+    assert!(err.contains("is over (it finished)"), "{err}");
+}
