@@ -86,9 +86,27 @@ impl Cluster {
 
     /// Starts `baton-agent --name NAME --role …` joining the cluster's router.
     pub fn agent(&mut self, name: &str, roles: &[&str], extra: &[&str]) {
+        let endpoint = self.endpoint.clone();
+        self.agent_via(Command::new(bin("baton-agent")), &endpoint, name, roles, extra);
+    }
+
+    /// Starts an agent inside a network namespace, joining the router at `endpoint`.
+    pub fn agent_in(
+        &mut self,
+        netns: &crate::netns::Netns,
+        endpoint: &str,
+        name: &str,
+        roles: &[&str],
+        extra: &[&str],
+    ) {
+        let mut cmd = Command::new("ip");
+        cmd.args(["netns", "exec", netns.name()]).arg(bin("baton-agent"));
+        self.agent_via(cmd, endpoint, name, roles, extra);
+    }
+
+    fn agent_via(&mut self, mut cmd: Command, endpoint: &str, name: &str, roles: &[&str], extra: &[&str]) {
         let log = std::fs::File::create(self.dir.path().join(format!("{name}.log"))).expect("agent log");
-        let mut cmd = Command::new(bin("baton-agent"));
-        cmd.args(["--connect", &self.endpoint, "--name", name]);
+        cmd.args(["--connect", endpoint, "--name", name]);
         for r in roles {
             cmd.args(["--role", r]);
         }

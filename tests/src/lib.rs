@@ -3,6 +3,7 @@
 pub mod cluster;
 pub mod gen;
 pub mod invariants;
+pub mod netns;
 pub mod scenario;
 pub mod simnet;
 
