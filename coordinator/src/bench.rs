@@ -1,5 +1,6 @@
 //! `baton bench`: the distributed runtime measured on loopback, in one run — the raw Zenoh round trip between
-//! two processes, a token's round trip through Baton, convergence latency, and throughput with 8 agents.
+//! two processes, a token's round trip through Baton, convergence latency, and throughput with 8 agents, with
+//! the journal off and on (`--journal`: every input durable before the coordinator acts on it).
 //!
 //! Every phase runs real processes (`baton-agent`s, and a `baton bench-echo` for the raw round trip) against a
 //! coordinator and router in this process; times are taken with `Instant` where the events happen.
@@ -63,7 +64,11 @@ pub struct BenchReport {
     pub token_round_trip: Latency,
     pub token_to_zenoh_ratio: f64,
     pub convergence: Latency,
+    /// Median of the rounds without a journal.
     pub throughput_tokens_per_s: f64,
+    /// Median of the rounds with `--journal` (group commit to redb, fsync per commit).
+    pub throughput_journal_tokens_per_s: f64,
+    pub throughput_journal_ratio: f64,
     pub throughput_agents: u32,
     pub throughput_tokens: u64,
     pub throughput_in_flight: u32,
@@ -102,14 +107,36 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
     eprintln!("3/4 convergence latency, 3 branches, {} samples", opts.samples.min(2000));
     let convergence = convergence(dir.path(), opts.samples.min(2000)).await?;
     let lanes = opts.agents * opts.lanes_per_agent;
-    eprintln!("4/4 throughput, {} agents, {lanes} tokens in flight, {} tokens", opts.agents, opts.tokens);
-    let (tokens, secs) = throughput(dir.path(), opts.agents, opts.lanes_per_agent, opts.tokens).await?;
+    // Off and on alternate too, for the same reason; each figure is the median of its rounds.
+    let (mut off, mut on) = (Vec::new(), Vec::new());
+    let mut tokens = 0;
+    for round in 1..=ROUNDS {
+        for journal in [false, true] {
+            let with = if journal { "journal on" } else { "journal off" };
+            eprintln!(
+                "4/4 throughput, {with}, round {round}/{ROUNDS}: {} agents, {lanes} tokens in flight, {} tokens",
+                opts.agents, opts.tokens
+            );
+            let journal = journal.then(|| dir.path().join(format!("journal-{round}")));
+            let (n, secs) =
+                throughput(dir.path(), opts.agents, opts.lanes_per_agent, opts.tokens, journal.as_deref()).await?;
+            tokens = n;
+            if journal.is_some() { &mut on } else { &mut off }.push(n as f64 / secs);
+        }
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (off, on) = (median(off), median(on));
     Ok(BenchReport {
         token_to_zenoh_ratio: token_round_trip.median_us / zenoh_round_trip.median_us,
         zenoh_round_trip,
         token_round_trip,
         convergence,
-        throughput_tokens_per_s: tokens as f64 / secs,
+        throughput_tokens_per_s: off,
+        throughput_journal_tokens_per_s: on,
+        throughput_journal_ratio: on / off,
         throughput_agents: opts.agents,
         throughput_tokens: tokens,
         throughput_in_flight: lanes,
@@ -129,6 +156,10 @@ impl BenchReport {
         println!(
             "(4) throughput: {:.0} tokens/s ({} tokens, {} agents, {} in flight; target ≥ 5000)",
             self.throughput_tokens_per_s, self.throughput_tokens, self.throughput_agents, self.throughput_in_flight
+        );
+        println!(
+            "(5) throughput with --journal: {:.0} tokens/s, {:.2} of (4) (every input durable before acting)",
+            self.throughput_journal_tokens_per_s, self.throughput_journal_ratio
         );
     }
 }
@@ -208,7 +239,14 @@ fn spawn_agents(endpoint: &str, names: &[String]) -> anyhow::Result<Vec<Child>> 
     names.iter().map(|n| spawn_logged(Command::new(&bin).args(["--connect", endpoint, "--name", n]))).collect()
 }
 
-async fn run_chart(dir: &Path, file: &str, chart: String, agents: &[String], probe: Probe) -> anyhow::Result<()> {
+async fn run_chart(
+    dir: &Path,
+    file: &str,
+    chart: String,
+    agents: &[String],
+    probe: Probe,
+    journal: Option<&Path>,
+) -> anyhow::Result<()> {
     let path = dir.join(file);
     std::fs::write(&path, chart)?;
     let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
@@ -226,7 +264,7 @@ async fn run_chart(dir: &Path, file: &str, chart: String, agents: &[String], pro
         quiet: true,
         zenoh_config: None,
         loss_policy: baton_proto::runtime::coordinator::LossPolicy::Pause,
-        journal: None,
+        journal: journal.map(Path::to_path_buf),
     };
     tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe)))
         .await
@@ -251,7 +289,7 @@ async fn token_round_trip(dir: &Path, samples: u32) -> anyhow::Result<Vec<Durati
         "TRANSITION FROM Back TO Home := TRUE; END_TRANSITION\nEND_PROGRAM\n",
     ));
     let (marks, probe) = marks(&["dispatch", "activate"]);
-    run_chart(dir, "token_rtt.st", chart, &["bench1".to_string()], probe).await?;
+    run_chart(dir, "token_rtt.st", chart, &["bench1".to_string()], probe, None).await?;
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
     let mut rtts = Vec::new();
     let mut sent: Option<Instant> = None;
@@ -287,7 +325,7 @@ async fn convergence(dir: &Path, samples: u32) -> anyhow::Result<Latency> {
     ));
     let (marks, probe) = marks(&["return", "activate"]);
     let agents: Vec<String> = (1..=3).map(|k| format!("bench{k}")).collect();
-    run_chart(dir, "convergence.st", chart, &agents, probe).await?;
+    run_chart(dir, "convergence.st", chart, &agents, probe, None).await?;
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
     let mut lat = Vec::new();
     let mut last_return: Option<Instant> = None;
@@ -307,7 +345,13 @@ async fn convergence(dir: &Path, samples: u32) -> anyhow::Result<Latency> {
 
 /// Phase 4: `agents × lanes` independent loops, each dispatching a one-step segment to its agent over and over;
 /// tokens returned per second in steady state.
-async fn throughput(dir: &Path, agents: u32, lanes_per_agent: u32, tokens: u32) -> anyhow::Result<(u64, f64)> {
+async fn throughput(
+    dir: &Path,
+    agents: u32,
+    lanes_per_agent: u32,
+    tokens: u32,
+    journal: Option<&Path>,
+) -> anyhow::Result<(u64, f64)> {
     let lanes = agents * lanes_per_agent;
     let per_lane = tokens.div_ceil(lanes).max(1);
     let mut chart = String::from("PROGRAM throughput\nVAR\n");
@@ -329,7 +373,7 @@ async fn throughput(dir: &Path, agents: u32, lanes_per_agent: u32, tokens: u32) 
     ));
     let (marks, probe) = marks(&["return"]);
     let names: Vec<String> = (1..=agents).map(|k| format!("bench{k}")).collect();
-    run_chart(dir, "throughput.st", chart, &names, probe).await?;
+    run_chart(dir, "throughput.st", chart, &names, probe, journal).await?;
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
     // Steady state: the first tenth of the returns (agents starting, caches warming) is left out.
     let returns: Vec<Instant> = marks.iter().filter(|m| m.1 == "return").map(|m| m.0).collect();
