@@ -69,6 +69,8 @@ pub struct BenchReport {
     /// Median of the rounds with `--journal` (group commit to redb, fsync per commit).
     pub throughput_journal_tokens_per_s: f64,
     pub throughput_journal_ratio: f64,
+    /// Group commit at work: journal records per durable transaction.
+    pub throughput_journal_records_per_commit: f64,
     pub throughput_agents: u32,
     pub throughput_tokens: u64,
     pub throughput_in_flight: u32,
@@ -108,7 +110,7 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
     let convergence = convergence(dir.path(), opts.samples.min(2000)).await?;
     let lanes = opts.agents * opts.lanes_per_agent;
     // Off and on alternate too, for the same reason; each figure is the median of its rounds.
-    let (mut off, mut on) = (Vec::new(), Vec::new());
+    let (mut off, mut on, mut records_per_commit) = (Vec::new(), Vec::new(), Vec::new());
     let mut tokens = 0;
     for round in 1..=ROUNDS {
         for journal in [false, true] {
@@ -118,9 +120,12 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
                 opts.agents, opts.tokens
             );
             let journal = journal.then(|| dir.path().join(format!("journal-{round}")));
-            let (n, secs) =
+            let (n, secs, stats) =
                 throughput(dir.path(), opts.agents, opts.lanes_per_agent, opts.tokens, journal.as_deref()).await?;
             tokens = n;
+            if let Some(j) = stats {
+                records_per_commit.push(j.records as f64 / j.commits.max(1) as f64);
+            }
             if journal.is_some() { &mut on } else { &mut off }.push(n as f64 / secs);
         }
     }
@@ -128,7 +133,7 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     };
-    let (off, on) = (median(off), median(on));
+    let (off, on, records_per_commit) = (median(off), median(on), median(records_per_commit));
     Ok(BenchReport {
         token_to_zenoh_ratio: token_round_trip.median_us / zenoh_round_trip.median_us,
         zenoh_round_trip,
@@ -137,6 +142,7 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
         throughput_tokens_per_s: off,
         throughput_journal_tokens_per_s: on,
         throughput_journal_ratio: on / off,
+        throughput_journal_records_per_commit: records_per_commit,
         throughput_agents: opts.agents,
         throughput_tokens: tokens,
         throughput_in_flight: lanes,
@@ -158,8 +164,10 @@ impl BenchReport {
             self.throughput_tokens_per_s, self.throughput_tokens, self.throughput_agents, self.throughput_in_flight
         );
         println!(
-            "(5) throughput with --journal: {:.0} tokens/s, {:.2} of (4) (every input durable before acting)",
-            self.throughput_journal_tokens_per_s, self.throughput_journal_ratio
+            "(5) throughput with --journal: {:.0} tokens/s, {:.2} of (4) ({:.1} records per commit)",
+            self.throughput_journal_tokens_per_s,
+            self.throughput_journal_ratio,
+            self.throughput_journal_records_per_commit
         );
     }
 }
@@ -246,7 +254,7 @@ async fn run_chart(
     agents: &[String],
     probe: Probe,
     journal: Option<&Path>,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<crate::run::Summary> {
     let path = dir.join(file);
     std::fs::write(&path, chart)?;
     let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
@@ -266,10 +274,7 @@ async fn run_chart(
         loss_policy: baton_proto::runtime::coordinator::LossPolicy::Pause,
         journal: journal.map(Path::to_path_buf),
     };
-    tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe)))
-        .await
-        .context("the bench chart did not finish")??;
-    Ok(())
+    tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe))).await.context("the bench chart did not finish")?
 }
 
 fn counted_loop_header(name: &str, n: u32) -> String {
@@ -351,7 +356,7 @@ async fn throughput(
     lanes_per_agent: u32,
     tokens: u32,
     journal: Option<&Path>,
-) -> anyhow::Result<(u64, f64)> {
+) -> anyhow::Result<(u64, f64, Option<crate::journal::JournalStats>)> {
     let lanes = agents * lanes_per_agent;
     let per_lane = tokens.div_ceil(lanes).max(1);
     let mut chart = String::from("PROGRAM throughput\nVAR\n");
@@ -373,12 +378,12 @@ async fn throughput(
     ));
     let (marks, probe) = marks(&["return"]);
     let names: Vec<String> = (1..=agents).map(|k| format!("bench{k}")).collect();
-    run_chart(dir, "throughput.st", chart, &names, probe, journal).await?;
+    let summary = run_chart(dir, "throughput.st", chart, &names, probe, journal).await?;
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
     // Steady state: the first tenth of the returns (agents starting, caches warming) is left out.
     let returns: Vec<Instant> = marks.iter().filter(|m| m.1 == "return").map(|m| m.0).collect();
     let skip = returns.len() / 10;
     let (Some(first), Some(last)) = (returns.get(skip), returns.last()) else { bail!("no token came back") };
     let counted = (returns.len() - skip - 1) as u64;
-    Ok((counted, (*last - *first).as_secs_f64().max(1e-9)))
+    Ok((counted, (*last - *first).as_secs_f64().max(1e-9), summary.journal))
 }

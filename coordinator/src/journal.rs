@@ -7,7 +7,9 @@
 //! slower: durability costs latency (one commit), not throughput.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc as std_mpsc;
+use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
 use baton_proto::journal::{JournalHeader, JOURNAL_FORMAT};
@@ -112,11 +114,13 @@ impl Store {
     pub fn start_writer(self) -> Writer {
         let (tx, rx) = std_mpsc::channel::<Vec<Vec<u8>>>();
         let (done_tx, done_rx) = watch::channel(Durable::Upto(0));
+        let stats = Arc::new(Counters::default());
+        let counters = Arc::clone(&stats);
         let thread = std::thread::Builder::new()
             .name("baton-journal".into())
-            .spawn(move || writer_loop(self, rx, done_tx))
+            .spawn(move || writer_loop(self, rx, done_tx, &counters))
             .expect("start the journal writer thread");
-        Writer { tx: Some(tx), durable: done_rx, sent: 0, thread: Some(thread) }
+        Writer { tx: Some(tx), durable: done_rx, sent: 0, thread: Some(thread), stats }
     }
 }
 
@@ -128,7 +132,25 @@ pub enum Durable {
     Failed(String),
 }
 
-fn writer_loop(mut store: Store, rx: std_mpsc::Receiver<Vec<Vec<u8>>>, done: watch::Sender<Durable>) {
+/// What the writer did, for the run's summary.
+#[derive(Default)]
+struct Counters {
+    commits: AtomicU64,
+    records: AtomicU64,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct JournalStats {
+    pub records: u64,
+    pub commits: u64,
+}
+
+fn writer_loop(
+    mut store: Store,
+    rx: std_mpsc::Receiver<Vec<Vec<u8>>>,
+    done: watch::Sender<Durable>,
+    counters: &Counters,
+) {
     let mut committed = 0u64;
     while let Ok(first) = rx.recv() {
         // Group commit: everything that queued up while the last transaction was committing goes in this one.
@@ -141,6 +163,8 @@ fn writer_loop(mut store: Store, rx: std_mpsc::Receiver<Vec<Vec<u8>>>, done: wat
             return;
         }
         committed += batches.len() as u64;
+        counters.commits.fetch_add(1, Ordering::Relaxed);
+        counters.records.fetch_add(batches.iter().map(|b| b.len() as u64).sum(), Ordering::Relaxed);
         let _ = done.send(Durable::Upto(committed));
     }
 }
@@ -151,6 +175,7 @@ pub struct Writer {
     durable: watch::Receiver<Durable>,
     sent: u64,
     thread: Option<std::thread::JoinHandle<()>>,
+    stats: Arc<Counters>,
 }
 
 impl Writer {
@@ -167,6 +192,14 @@ impl Writer {
     /// A receiver that changes when batches become durable, for a `select!` outside the shell.
     pub fn watcher(&self) -> watch::Receiver<Durable> {
         self.durable.clone()
+    }
+
+    /// Records written and transactions committed so far.
+    pub fn stats(&self) -> JournalStats {
+        JournalStats {
+            records: self.stats.records.load(Ordering::Relaxed),
+            commits: self.stats.commits.load(Ordering::Relaxed),
+        }
     }
 
     pub fn sent(&self) -> u64 {

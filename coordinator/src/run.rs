@@ -68,6 +68,9 @@ pub struct Summary {
     pub steps: BTreeMap<String, StepTime>,
     /// Final values of the chart's variables.
     pub vars: BTreeMap<String, String>,
+    /// With `--journal`: records written and transactions committed by this process.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub journal: Option<crate::journal::JournalStats>,
 }
 
 #[derive(Serialize, Default, Clone, Copy)]
@@ -118,6 +121,8 @@ struct Shell {
     journal: Option<crate::journal::Writer>,
     /// What the coordinator asked for, per journal batch, until that batch is durable.
     held: VecDeque<(u64, Vec<CoordOutput>)>,
+    /// Answers to `baton set`, likewise: a client is told a value was taken only once it is durable.
+    held_replies: VecDeque<(u64, Query, Vec<u8>)>,
     trace: Option<BufWriter<File>>,
     trace_error: bool,
     quiet: bool,
@@ -208,6 +213,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         base_ms: 0,
         journal: writer,
         held: VecDeque::new(),
+        held_replies: VecDeque::new(),
         trace,
         trace_error: false,
         quiet: opts.quiet,
@@ -295,8 +301,12 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
             }
             q = set_q.recv_async() => {
                 let Ok(q) = q else { break };
-                let answer = shell.on_set(&q);
-                reply(&q, wire::encode(&answer)).await;
+                let answer = wire::encode(&shell.on_set(&q));
+                match &shell.journal {
+                    // Its record goes in the batch the next cycle writes; the answer waits for it.
+                    Some(j) => shell.held_replies.push_back((j.sent() + 1, q, answer)),
+                    None => reply(&q, answer).await,
+                }
             }
             // A journal batch became durable: what it led to may go now.
             _ = async { durable_rx.as_mut().expect("journal").changed().await }, if durable_rx.is_some() => {
@@ -511,6 +521,10 @@ impl Shell {
             let Some((_, outputs)) = self.held.pop_front() else { break };
             self.carry_out(outputs).await?;
         }
+        while self.held_replies.front().is_some_and(|(batch, _, _)| *batch <= durable) {
+            let Some((_, q, answer)) = self.held_replies.pop_front() else { break };
+            reply(&q, answer).await;
+        }
         Ok(())
     }
 
@@ -630,6 +644,7 @@ impl Shell {
             messages_dropped: stats.dropped + self.decode_drops,
             steps,
             vars,
+            journal: self.journal.as_ref().map(crate::journal::Writer::stats),
         }
     }
 }
@@ -667,5 +682,8 @@ impl Summary {
         }
         let vars: Vec<String> = self.vars.iter().map(|(k, v)| format!("{k} = {v}")).collect();
         println!("variables: {}", vars.join(", "));
+        if let Some(j) = &self.journal {
+            println!("journal: {} records in {} commits", j.records, j.commits);
+        }
     }
 }

@@ -2,8 +2,8 @@
 //!
 //! ```text
 //! baton/alive/<agent>                 liveliness token of a live agent
-//! baton/agent/<agent>/info            queryable: the agent's roles and lease (AgentInfo)
-//! baton/agent/<agent>/cmd             coordinator → agent: Dispatch, Ack (ToAgent)
+//! baton/agent/<agent>/info            queryable: the agent's roles, lease and held tokens (AgentInfo)
+//! baton/agent/<agent>/cmd             coordinator → agent: Dispatch, Ack, Drop, Sync (ToAgent)
 //! baton/run/<run>/report              agents → coordinator: token reports (Report)
 //! baton/run/<run>/vars/<writer>       variable updates from the coordinator or an agent (VarUpdate)
 //! baton/run/<run>/chart               queryable: the chart's source (ChartSource)

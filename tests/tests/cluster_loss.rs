@@ -1,7 +1,9 @@
 //! Lost agents with real processes: SIGKILL of the agent holding a token, under each `--on-agent-loss` policy.
 
 use baton_proto::keys;
-use baton_tests::cluster::{self, check_trace_invariants, dispatches, repo, step_id, Cluster, Samples};
+use baton_tests::cluster::{
+    self, check_trace_invariants, check_trace_invariants_with_tokens_out, dispatches, repo, step_id, Cluster, Samples,
+};
 
 /// Starts the one-part cell with two assemblers and waits, on the agents' command keys, for the dispatch of
 /// Assemble; returns the cluster, the coordinator and the agent that holds the token.
@@ -85,6 +87,8 @@ async fn fail_ends_the_run_with_an_error_that_says_why() {
         "{log}"
     );
     assert!(trace.iter().any(|r| r.event == "agent_lost"));
+    // Every token is back but the one the failure names.
+    check_trace_invariants_with_tokens_out(&trace, &repo("examples/cell.st"), 1);
 }
 
 #[tokio::test(flavor = "multi_thread")]

@@ -28,7 +28,14 @@ async fn a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back() {
     // robot1 alone assembles, so the token of Assemble goes to the agent behind the cable.
     cluster.agent_in(&netns, &far, "robot1", &["assembler"], &["--lease-ms", "1000"]);
     cluster.agent("robot2", &[], &[]);
-    let (holder, _) = cluster::next_dispatch(&cmds, step_id(&cell, "Assemble"), 1).await;
+    let Some((holder, _)) = cluster::next_dispatch_within(&cmds, step_id(&cell, "Assemble"), 1).await else {
+        panic!(
+            "Assemble was not dispatched in time; the coordinator logged:\n{}\nrobot1:\n{}\nrobot2:\n{}",
+            coordinator.unread_log().await,
+            cluster.agent_log("robot1"),
+            cluster.agent_log("robot2")
+        );
+    };
     assert_eq!(holder, "robot1");
     netns.cut();
     coordinator.wait_for_log("agent `robot1` lost holding the token of step `Assemble`").await;
