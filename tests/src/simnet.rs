@@ -218,13 +218,12 @@ impl SimCluster {
         self.coordinator = fresh;
         self.coordinator.recover(self.now_ms);
         self.flush_coordinator();
+        // The agents that are there announce themselves; as with a real router, nothing tells the new process
+        // about those that are gone: it gives up on them when their lease runs out.
         for i in 0..self.agents.len() {
             if self.agents[i].alive && self.agents[i].reachable {
                 let info = self.info(i);
                 self.coordinator.agent_up(self.now_ms, info);
-            } else if self.coordinator.core().live_agents().contains(&self.agents[i].name) {
-                let name = self.agents[i].name.clone();
-                self.coordinator.agent_down(self.now_ms, &name);
             }
             self.flush_coordinator();
         }

@@ -330,3 +330,20 @@ fn an_agent_restarted_while_the_coordinator_was_down_runs_its_segment_again_in_a
     assert_eq!(assemble[1].1, Some(assemble[0].1.unwrap() + 1), "a new epoch: {assemble:?}");
     assert!(sim.trace.iter().any(|r| r.event == "alarm" && r.message.as_deref().unwrap_or("").contains("restarted")));
 }
+
+#[test]
+fn an_agent_that_does_not_come_back_after_a_coordinator_restart_is_lost_after_its_lease() {
+    use baton_tests::simnet::Fate;
+    // robot1 holds Assemble and dies while the coordinator is down; the new coordinator waits for it for its
+    // lease (1 s in the simulation), then reassigns its segment to robot2 in a new epoch.
+    let mut sim = SimCluster::new(&cell(), CELL_AGENTS, Faults::default(), 5);
+    sim.set_loss_policy(LossPolicy::Reassign);
+    sim.set_at(0, "parts", serde_json::json!(1));
+    sim.crash_coordinator_at(600, 500);
+    sim.fate_at(650, "robot1", Fate::Kill);
+    assert!(sim.run(10_000), "did not finish");
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
+    assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
+    let lost = sim.trace.iter().find(|r| r.event == "agent_lost" && r.name == "robot1").expect("lost");
+    assert!((2_100..2_300).contains(&lost.t_ms), "lost one lease after the restart at 1 100 ms: {} ms", lost.t_ms);
+}

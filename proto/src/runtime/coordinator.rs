@@ -530,11 +530,6 @@ impl Coordinator {
         self.log(Level::Info, message);
     }
 
-    /// The agents this coordinator counts as live.
-    pub fn live_agents(&self) -> Vec<String> {
-        self.agents.iter().filter(|(_, a)| a.alive).map(|(n, _)| n.clone()).collect()
-    }
-
     /// An agent announced itself (or came back). Tokens waiting for it leave now.
     pub fn handle_agent_up(&mut self, now_ms: u64, info: AgentInfo) {
         self.advance(now_ms);
