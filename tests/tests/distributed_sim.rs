@@ -136,14 +136,10 @@ proptest! {
         seed in any::<u64>(),
         duplicate in 0.0f64..0.4,
     ) {
-        let src = place(&ChartBuilder::chart(&shapes, 4, cyclic), &placements);
-        let report = baton_proto::check::check_source(&src);
-        prop_assume!(report.error_count() == 0);
         let faults = Faults { duplicate, reorder: true, delay_ms_max: 6 };
-        let mut sim = SimCluster::new(&src, &[("a1", &["r"]), ("a2", &["r"])], faults, seed);
-        for (k, on) in toggles.iter().enumerate() {
-            sim.set_at(1 + 7 * k as u64, &format!("c{}", k % 4), serde_json::Value::Bool(*on));
-        }
+        let Some((mut sim, src)) = random_sim(&shapes, cyclic, &placements, &toggles, seed, faults) else {
+            return Err(TestCaseError::reject("the chart has errors"));
+        };
         sim.run(1_200);
         check_random_run(&sim, &src)?;
     }
@@ -160,20 +156,37 @@ proptest! {
         seed in any::<u64>(),
         crashes in prop::collection::vec((1u64..900, 1u64..400), 1..3),
     ) {
-        let src = place(&ChartBuilder::chart(&shapes, 4, cyclic), &placements);
-        let report = baton_proto::check::check_source(&src);
-        prop_assume!(report.error_count() == 0);
         let faults = Faults { duplicate: 0.1, reorder: true, delay_ms_max: 6 };
-        let mut sim = SimCluster::new(&src, &[("a1", &["r"]), ("a2", &["r"])], faults, seed);
-        for (k, on) in toggles.iter().enumerate() {
-            sim.set_at(1 + 7 * k as u64, &format!("c{}", k % 4), serde_json::Value::Bool(*on));
-        }
+        let Some((mut sim, src)) = random_sim(&shapes, cyclic, &placements, &toggles, seed, faults) else {
+            return Err(TestCaseError::reject("the chart has errors"));
+        };
         for (at, down) in crashes {
             sim.crash_coordinator_at(at, down);
         }
         sim.run(2_000);
         check_random_run(&sim, &src)?;
     }
+}
+
+/// A generated chart placed at random on the coordinator, agents a1 and a2 and role r (both agents), with its
+/// inputs `c0`…`c3` toggled every 7 ms; `None` if the chart has errors.
+fn random_sim(
+    shapes: &[baton_tests::gen::Shape],
+    cyclic: bool,
+    placements: &[u8],
+    toggles: &[bool],
+    seed: u64,
+    faults: Faults,
+) -> Option<(SimCluster, String)> {
+    let src = place(&ChartBuilder::chart(shapes, 4, cyclic), placements);
+    if baton_proto::check::check_source(&src).error_count() != 0 {
+        return None;
+    }
+    let mut sim = SimCluster::new(&src, &[("a1", &["r"]), ("a2", &["r"])], faults, seed);
+    for (k, on) in toggles.iter().enumerate() {
+        sim.set_at(1 + 7 * k as u64, &format!("c{}", k % 4), serde_json::Value::Bool(*on));
+    }
+    Some((sim, src))
 }
 
 fn check_random_run(sim: &SimCluster, src: &str) -> Result<(), TestCaseError> {
