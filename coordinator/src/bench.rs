@@ -273,6 +273,7 @@ async fn run_chart(
         zenoh_config: None,
         loss_policy: baton_proto::runtime::coordinator::LossPolicy::Pause,
         journal: journal.map(Path::to_path_buf),
+        rerun: crate::recording::Sink::Off,
     };
     tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe))).await.context("the bench chart did not finish")?
 }

@@ -94,6 +94,10 @@ enum Command {
         /// run resumes where it was, with the tokens still out reconciled with their agents.
         #[arg(long, value_name = "DIR")]
         journal: Option<PathBuf>,
+        /// Record the run for the Rerun viewer: off, save:PATH.rrd, connect[:URL] (a running viewer), or spawn
+        /// (start one).
+        #[arg(long, value_name = "SINK", default_value = "off")]
+        rerun: crate::recording::Sink,
     },
     /// Set an input of the charts running behind a router: baton set --connect EP NAME=VALUE.
     Set {
@@ -116,6 +120,9 @@ enum Command {
         /// Keep the chart, trace, summary and logs in this folder.
         #[arg(long, value_name = "DIR")]
         keep: Option<PathBuf>,
+        /// Record the run for the Rerun viewer: save:PATH.rrd, connect[:URL], spawn, or off.
+        #[arg(long, value_name = "SINK", default_value = "save:baton-demo.rrd")]
+        rerun: crate::recording::Sink,
     },
     /// Measure the distributed runtime on loopback: Zenoh and token round trips, convergence, throughput.
     Bench {
@@ -175,6 +182,7 @@ pub fn main() -> ExitCode {
             zenoh_config,
             on_agent_loss,
             journal,
+            rerun,
         } => {
             use baton_proto::runtime::coordinator::LossPolicy;
             let loss_policy = match on_agent_loss {
@@ -196,6 +204,7 @@ pub fn main() -> ExitCode {
                 zenoh_config,
                 loss_policy,
                 journal,
+                rerun,
             };
             block_on(async move {
                 let summary = crate::run::run(opts).await?;
@@ -207,8 +216,8 @@ pub fn main() -> ExitCode {
             let taken = crate::client::set(&connect, zenoh_config.as_deref(), &name, value).await?;
             Ok(if taken { ExitCode::SUCCESS } else { ExitCode::from(EXIT_INVALID) })
         }),
-        Command::Demo { agents, parts, keep } => {
-            block_on(crate::demo::demo(crate::demo::DemoOptions { agents, parts, keep }))
+        Command::Demo { agents, parts, keep, rerun } => {
+            block_on(crate::demo::demo(crate::demo::DemoOptions { agents, parts, keep, rerun }))
         }
         Command::Bench { samples, tokens, agents, lanes_per_agent, json } => block_on(async move {
             if samples == 0 || tokens == 0 || agents == 0 || lanes_per_agent == 0 {

@@ -23,6 +23,8 @@ pub struct DemoOptions {
     pub parts: u32,
     /// Keep the run's files (chart, trace, summary, agent logs) here instead of a temporary folder.
     pub keep: Option<PathBuf>,
+    /// Where the recording goes (default: `baton-demo.rrd` in the current folder).
+    pub rerun: crate::recording::Sink,
 }
 
 /// `baton-agent`, next to this executable (as cargo builds them) or on the PATH.
@@ -95,6 +97,18 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
         agents.push(cmd.spawn().with_context(|| format!("cannot start {}", agent_bin.display()))?);
     }
     let coord_log = dir.join("coordinator.log");
+    // The coordinator runs in this folder's child process: a relative recording path is made absolute here.
+    let rerun = match &opts.rerun {
+        crate::recording::Sink::Save(p) => crate::recording::Sink::Save(std::path::absolute(p)?),
+        other => other.clone(),
+    };
+    let rerun_arg = match &rerun {
+        crate::recording::Sink::Off => "off".to_string(),
+        crate::recording::Sink::Save(p) => format!("save:{}", p.display()),
+        crate::recording::Sink::Connect(None) => "connect".to_string(),
+        crate::recording::Sink::Connect(Some(url)) => format!("connect:{url}"),
+        crate::recording::Sink::Spawn => "spawn".to_string(),
+    };
     let mut coordinator = Command::new(&exe)
         .arg("run")
         .arg(&chart)
@@ -103,6 +117,7 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
         .arg(&trace)
         .arg("--summary")
         .arg(&summary)
+        .args(["--rerun", &rerun_arg])
         .stdout(Stdio::null())
         .stderr(std::fs::File::create(&coord_log)?)
         .kill_on_drop(true)
@@ -146,6 +161,10 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
     print_summary(&s, &progress, started.elapsed());
     if opts.keep.is_some() {
         println!("files (chart, trace, summary, logs): {}", dir.display());
+    }
+    if let crate::recording::Sink::Save(p) = &rerun {
+        let shown = opts.rerun_path_as_given().unwrap_or(p);
+        println!("recording: {} — open it with: rerun {}", p.display(), shown.display());
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -271,6 +290,16 @@ fn print_summary(s: &serde_json::Value, progress: &Progress, elapsed: Duration) 
             let ms = t["active_ms"].as_u64().unwrap_or(0);
             let each = ms.checked_div(n).unwrap_or(0);
             println!("{name:<12} {n:>11} {ms:>12} {each:>10}");
+        }
+    }
+}
+
+impl DemoOptions {
+    /// The recording's path as the user gave it (relative paths read better in the printed command).
+    fn rerun_path_as_given(&self) -> Option<&Path> {
+        match &self.rerun {
+            crate::recording::Sink::Save(p) => Some(p.as_path()),
+            _ => None,
         }
     }
 }

@@ -6,6 +6,7 @@ mod client;
 mod demo;
 mod demo_chart;
 mod journal;
+mod recording;
 mod run;
 mod zconf;
 

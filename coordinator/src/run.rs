@@ -53,6 +53,8 @@ pub struct RunOptions {
     pub loss_policy: LossPolicy,
     /// Record every input in this folder before acting on it; resume the run found there.
     pub journal: Option<PathBuf>,
+    /// Where the run's Rerun recording goes.
+    pub rerun: crate::recording::Sink,
 }
 
 /// What `baton run` prints at the end, and writes with `--summary FILE`.
@@ -120,7 +122,7 @@ struct Shell {
     base_ms: u64,
     journal: Option<crate::journal::Writer>,
     /// What the coordinator asked for, per journal batch, until that batch is durable.
-    held: VecDeque<(u64, Vec<CoordOutput>)>,
+    held: VecDeque<(u64, u64, Vec<CoordOutput>)>,
     /// Answers to `baton set`, likewise: a client is told a value was taken only once it is durable.
     held_replies: VecDeque<(u64, Query, Vec<u8>)>,
     trace: Option<BufWriter<File>>,
@@ -132,6 +134,9 @@ struct Shell {
     steps: BTreeMap<String, (StepTime, Option<u64>)>,
     decode_drops: u64,
     probe: Option<Probe>,
+    recorder: Option<crate::recording::Recorder>,
+    /// Cycles run so far (replayed ones included): the recording's `cycle` timeline.
+    cycles: u64,
 }
 
 /// Sees every trace record as it is made, for `baton bench`'s clocks.
@@ -150,8 +155,8 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     // The journal first: a refused one costs nothing, not even a Zenoh session.
     let mut resume: Option<(JournalHeader, Vec<Vec<u8>>)> = None;
     let mut writer = None;
-    let run = match &opts.journal {
-        None => RunId(uuid::Uuid::new_v4()),
+    let (run, started_unix_ms) = match &opts.journal {
+        None => (RunId(uuid::Uuid::new_v4()), unix_ms()),
         Some(dir) => {
             let mut opened = crate::journal::open(dir)?;
             let path = opened.store.path().display().to_string();
@@ -166,13 +171,13 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
                         started_unix_ms: unix_ms(),
                     };
                     opened.store.write_header(&header)?;
-                    header.run
+                    (header.run, header.started_unix_ms)
                 }
                 Some(header) => {
                     check_resumable(&header, &opened.records, &hash, &loaded.pou, &opts.chart, &path)?;
-                    let run = header.run;
+                    let at = (header.run, header.started_unix_ms);
                     resume = Some((header, std::mem::take(&mut opened.records)));
-                    run
+                    at
                 }
             };
             writer = Some(opened.store.start_writer());
@@ -206,6 +211,15 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         format!("router on {}", opts.listen.join(", "))
     };
     let mut durable_rx = writer.as_ref().map(crate::journal::Writer::watcher);
+    let recorder = crate::recording::Recorder::start(
+        &opts.rerun,
+        crate::recording::RecordedRun {
+            program: Arc::clone(&loaded.program),
+            layout: Arc::clone(&loaded.layout),
+            run: run.key(),
+            started_unix_ms,
+        },
+    )?;
     let mut shell = Shell {
         session: session.clone(),
         core: Journaled::new(core),
@@ -222,20 +236,14 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         steps: BTreeMap::new(),
         decode_drops: 0,
         probe,
+        recorder,
+        cycles: 0,
     };
     match resume {
         Some((header, records)) => {
             // The past, replayed: its trace is written again (the file then holds the whole run), nothing is
             // sent, and the run's clock goes on from wall-clock time, downtime included.
-            let replayed = shell
-                .core
-                .replay(records.iter().map(Vec::as_slice))
-                .map_err(|(i, e)| anyhow!("the journal's record {i} cannot be read: {e}"))?;
-            while let Some(out) = shell.core.poll_output() {
-                if let CoordOutput::Trace(rec) = out {
-                    shell.record(rec);
-                }
-            }
+            let replayed = shell.replay(&records)?;
             let wall = unix_ms().saturating_sub(header.started_unix_ms);
             shell.base_ms = replayed.last_ms.max(wall);
             if !opts.sets.is_empty() {
@@ -331,6 +339,12 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     shell.release().await?;
     if let Some(w) = &mut shell.journal {
         w.close();
+    }
+    if let Some(r) = shell.recorder.take() {
+        let dropped = r.finish();
+        if dropped > 0 {
+            eprintln!("warning: the recording lacks {dropped} record(s): the Rerun sink could not keep up");
+        }
     }
     let failure = shell.core.core().failure().map(str::to_string);
     let summary = shell.summary(&loaded);
@@ -486,6 +500,8 @@ impl Shell {
     async fn cycle(&mut self) -> anyhow::Result<()> {
         let now = self.now_ms();
         self.core.cycle(now);
+        self.cycles += 1;
+        self.record_values(now);
         let mut outputs = Vec::new();
         while let Some(out) = self.core.poll_output() {
             outputs.push(out);
@@ -498,17 +514,46 @@ impl Shell {
             outputs.push(out);
         }
         let records = self.core.take_records();
+        let cycle = self.cycles;
         let Some(journal) = &mut self.journal else {
-            return self.carry_out(outputs).await;
+            return self.carry_out(cycle, outputs).await;
         };
         if !records.is_empty() {
             let batch = journal.write(records)?;
-            self.held.push_back((batch, outputs));
+            self.held.push_back((batch, cycle, outputs));
         } else if !outputs.is_empty() {
             // Nothing new to record: these follow the last batch.
-            self.held.push_back((journal.sent(), outputs));
+            self.held.push_back((journal.sent(), cycle, outputs));
         }
         self.release().await
+    }
+
+    /// Rebuilds the run from its journal's records: the trace (and recording) of the past is written again,
+    /// nothing is sent.
+    fn replay(&mut self, records: &[Vec<u8>]) -> anyhow::Result<journal::Replayed> {
+        let mut replayed = journal::Replayed::default();
+        for (i, bytes) in records.iter().enumerate() {
+            let entry = journal::decode(bytes).map_err(|e| anyhow!("the journal's record {i} cannot be read: {e}"))?;
+            self.core.apply_replayed(&entry, &mut replayed);
+            if matches!(entry.record, Record::Cycle) {
+                self.cycles += 1;
+                self.record_values(entry.t_ms);
+            }
+            while let Some(out) = self.core.poll_output() {
+                if let CoordOutput::Trace(rec) = out {
+                    self.record(self.cycles, rec);
+                }
+            }
+        }
+        Ok(replayed)
+    }
+
+    /// The variables' values after a cycle, for the recording.
+    fn record_values(&mut self, t_ms: u64) {
+        let core = self.core.core();
+        if let Some(r) = self.recorder.as_mut() {
+            r.values(self.cycles, t_ms, |v| core.value(v));
+        }
     }
 
     /// Carries out what waited for journal batches that are now durable, in order.
@@ -517,9 +562,9 @@ impl Shell {
             Some(j) => j.durable()?,
             None => u64::MAX,
         };
-        while self.held.front().is_some_and(|(batch, _)| *batch <= durable) {
-            let Some((_, outputs)) = self.held.pop_front() else { break };
-            self.carry_out(outputs).await?;
+        while self.held.front().is_some_and(|(batch, _, _)| *batch <= durable) {
+            let Some((_, cycle, outputs)) = self.held.pop_front() else { break };
+            self.carry_out(cycle, outputs).await?;
         }
         while self.held_replies.front().is_some_and(|(batch, _, _)| *batch <= durable) {
             let Some((_, q, answer)) = self.held_replies.pop_front() else { break };
@@ -528,7 +573,7 @@ impl Shell {
         Ok(())
     }
 
-    async fn carry_out(&mut self, outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
+    async fn carry_out(&mut self, cycle: u64, outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
         // Messages leave before the trace is written: a token's round trip does not wait for the disk.
         let mut local = Vec::new();
         for out in outputs {
@@ -541,7 +586,7 @@ impl Shell {
         for out in local {
             match out {
                 CoordOutput::Send { .. } | CoordOutput::Vars(_) => {}
-                CoordOutput::Trace(rec) => self.record(rec),
+                CoordOutput::Trace(rec) => self.record(cycle, rec),
                 CoordOutput::Log { level, message } => {
                     let tag = match level {
                         Level::Info => "info",
@@ -580,9 +625,12 @@ impl Shell {
         Ok(())
     }
 
-    fn record(&mut self, rec: TraceRecord) {
+    fn record(&mut self, cycle: u64, rec: TraceRecord) {
         if let Some(probe) = &mut self.probe {
             probe(&rec);
+        }
+        if let Some(r) = &mut self.recorder {
+            r.trace(cycle, &rec);
         }
         match rec.event.as_str() {
             "activate" => {

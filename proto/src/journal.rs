@@ -286,14 +286,19 @@ impl Journaled {
         let mut out = Replayed::default();
         for (i, bytes) in records.into_iter().enumerate() {
             let entry = decode(bytes).map_err(|e| (i, e))?;
-            out.records += 1;
-            out.last_ms = out.last_ms.max(entry.t_ms);
-            if let Record::End { failure } = &entry.record {
-                out.ended = Some(failure.clone());
-            }
-            apply(&mut self.core, &entry);
+            self.apply_replayed(&entry, &mut out);
         }
         Ok(out)
+    }
+
+    /// Applies one record read back from the journal (it is not recorded again), and counts it in `out`.
+    pub fn apply_replayed(&mut self, entry: &Entry, out: &mut Replayed) {
+        out.records += 1;
+        out.last_ms = out.last_ms.max(entry.t_ms);
+        if let Record::End { failure } = &entry.record {
+            out.ended = Some(failure.clone());
+        }
+        apply(&mut self.core, entry);
     }
 }
 

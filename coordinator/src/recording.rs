@@ -1,0 +1,494 @@
+//! `--rerun off | save:PATH.rrd | connect[:URL] | spawn`: a run's timeline in Rerun.
+//!
+//! The coordinator's shell hands every trace record and every change of a variable to a `Recorder`, which
+//! passes them through a bounded queue to a thread of its own that logs them: the coordinator's cycle never
+//! waits for Rerun. When the queue is full (a slow sink), records are dropped and counted, and the run says so.
+//!
+//! Entity paths (documented in the README):
+//! - `sfc/graph` — the chart: steps as nodes, transitions as edges, laid out once; node colours follow the
+//!   steps (active here, active on an agent, waiting at a convergence, faulted, inactive).
+//! - `sfc/steps/<step>` — each step's state over time: `active`, `on <agent>`, `waiting`, `faulted`, or
+//!   `inactive`.
+//! - `agents/<name>` — `online`, `busy: <step> (<token>)`, or `lost`.
+//! - `tokens/<id>` — dispatch, progress, return, reassignment and rejection of each token, as text with levels.
+//! - `vars/<name>` — numeric and boolean variables as time series.
+//! - `log` — alarms and warnings: agents lost, stale epochs rejected, skill faults, run-time faults.
+//!
+//! Two timelines: `wall` (Unix time) and `cycle` (the coordinator's cycle number).
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
+use std::sync::Arc;
+
+use anyhow::anyhow;
+use baton_proto::layout::Layout;
+use baton_proto::program::{Program, StepId, TransitionId, VarId};
+use baton_proto::sim::TraceRecord;
+use baton_proto::types::{Type, Value};
+use rerun::blueprint::{Blueprint, GraphView, Horizontal, StateTimelineView, TextLogView, TimeSeriesView, Vertical};
+use rerun::{Color, GraphEdges, GraphNodes, RecordingStream, Scalars, StateChange, StateConfiguration, TextLog};
+
+/// Records the queue holds before the recorder drops; far more than a burst of the busiest chart.
+const QUEUE_MAX: usize = 65_536;
+
+/// Where a recording goes.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Sink {
+    Off,
+    Save(PathBuf),
+    /// A running viewer's gRPC proxy (default `rerun+http://127.0.0.1:9876/proxy`).
+    Connect(Option<String>),
+    /// Start a viewer (the `rerun` command must be on the PATH) and stream to it.
+    Spawn,
+}
+
+impl std::str::FromStr for Sink {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Sink, String> {
+        match s {
+            "off" => Ok(Sink::Off),
+            "spawn" => Ok(Sink::Spawn),
+            "connect" => Ok(Sink::Connect(None)),
+            _ => {
+                if let Some(path) = s.strip_prefix("save:") {
+                    if path.is_empty() {
+                        return Err("give a file: save:PATH.rrd".into());
+                    }
+                    Ok(Sink::Save(PathBuf::from(path)))
+                } else if let Some(url) = s.strip_prefix("connect:") {
+                    Ok(Sink::Connect(Some(url.to_string())))
+                } else {
+                    Err(format!("`{s}` is not a Rerun sink: use off, save:PATH.rrd, connect[:URL] or spawn"))
+                }
+            }
+        }
+    }
+}
+
+/// What a recording is of.
+pub struct RecordedRun {
+    pub program: Arc<Program>,
+    pub layout: Arc<Layout>,
+    /// The run id: the recording id, so that a recording rebuilt from the journal is the same recording.
+    pub run: String,
+    /// Wall-clock time of the run's time 0, in ms since the Unix epoch.
+    pub started_unix_ms: u64,
+}
+
+enum Item {
+    Trace(u64, TraceRecord),
+    Values(u64, u64, Vec<(VarId, Value)>),
+}
+
+pub struct Recorder {
+    tx: Option<SyncSender<Item>>,
+    dropped: Arc<AtomicU64>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    /// The last value sent of each recorded variable.
+    last: Vec<Option<Value>>,
+    program: Arc<Program>,
+}
+
+impl Recorder {
+    /// Opens the sink (an error here is the user's to fix: a file that cannot be created, a bad URL) and starts
+    /// the logging thread. `None` for `Sink::Off`.
+    pub fn start(sink: &Sink, run: RecordedRun) -> anyhow::Result<Option<Recorder>> {
+        let builder = rerun::RecordingStreamBuilder::new("baton")
+            .recording_id(run.run.clone())
+            .with_default_blueprint(blueprint());
+        let stream = match sink {
+            Sink::Off => return Ok(None),
+            Sink::Save(path) => {
+                builder.save(path).map_err(|e| anyhow!("cannot record to {}: {e}", path.display()))?
+            }
+            Sink::Connect(url) => {
+                let url = url.clone().unwrap_or_else(|| "rerun+http://127.0.0.1:9876/proxy".to_string());
+                builder.connect_grpc_opts(url.clone()).map_err(|e| anyhow!("cannot connect to a viewer at {url}: {e}"))?
+            }
+            Sink::Spawn => builder
+                .spawn()
+                .map_err(|e| anyhow!("cannot start the Rerun viewer (is `rerun` on the PATH?): {e}"))?,
+        };
+        let (tx, rx) = sync_channel(QUEUE_MAX);
+        let program = Arc::clone(&run.program);
+        let thread = std::thread::Builder::new()
+            .name("baton-rerun".into())
+            .spawn(move || {
+                let mut logger = Logger::new(stream, run);
+                logger.static_parts();
+                logger.run(&rx);
+            })
+            .map_err(|e| anyhow!("cannot start the recording thread: {e}"))?;
+        let last = vec![None; program.vars.len()];
+        Ok(Some(Recorder { tx: Some(tx), dropped: Arc::new(AtomicU64::new(0)), thread: Some(thread), last, program }))
+    }
+
+    fn send(&mut self, item: Item) {
+        let Some(tx) = &self.tx else { return };
+        match tx.try_send(item) {
+            Ok(()) => {}
+            Err(TrySendError::Full(_)) => {
+                if self.dropped.fetch_add(1, Ordering::Relaxed) == 0 {
+                    eprintln!("warning: the Rerun sink is falling behind: records are dropped from the recording");
+                }
+            }
+            Err(TrySendError::Disconnected(_)) => self.tx = None,
+        }
+    }
+
+    /// A trace record made in cycle `cycle`.
+    pub fn trace(&mut self, cycle: u64, rec: &TraceRecord) {
+        self.send(Item::Trace(cycle, rec.clone()));
+    }
+
+    /// The numeric and boolean variables as they stand after cycle `cycle`; only changes are recorded.
+    pub fn values(&mut self, cycle: u64, t_ms: u64, value_of: impl Fn(VarId) -> Value) {
+        let mut changed = Vec::new();
+        for (i, info) in self.program.vars.iter().enumerate() {
+            if info.constant || matches!(info.ty, Type::Unsupported(_)) {
+                continue;
+            }
+            let v = value_of(VarId(i as u32));
+            if self.last[i] != Some(v) {
+                self.last[i] = Some(v);
+                changed.push((VarId(i as u32), v));
+            }
+        }
+        if !changed.is_empty() {
+            self.send(Item::Values(cycle, t_ms, changed));
+        }
+    }
+
+    /// Ends the recording: everything queued is logged and the sink flushed (a file gets its footer). Returns
+    /// how many records were dropped.
+    pub fn finish(mut self) -> u64 {
+        self.close();
+        self.dropped.load(Ordering::Relaxed)
+    }
+
+    fn close(&mut self) {
+        self.tx = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        self.close();
+    }
+}
+
+/// The layout sent with every recording: the chart beside the timelines, the log and the variables.
+fn blueprint() -> Blueprint {
+    Blueprint::new(Horizontal::new([
+        GraphView::new("chart").with_origin("sfc/graph").into(),
+        Vertical::new([
+            StateTimelineView::new("steps").with_origin("sfc/steps").into(),
+            StateTimelineView::new("agents").with_origin("agents").into(),
+            TextLogView::new("log").with_origin("/").with_contents(["/log", "/tokens/**"]).into(),
+            TimeSeriesView::new("variables").with_origin("vars").into(),
+        ])
+        .with_row_shares([3.0, 2.0, 3.0, 2.0])
+        .into(),
+    ]))
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum StepState {
+    Inactive,
+    Active,
+    OnAgent,
+    Waiting,
+    Faulted,
+}
+
+impl StepState {
+    fn color(self) -> Color {
+        match self {
+            StepState::Inactive => Color::from_rgb(150, 150, 150),
+            StepState::Active => Color::from_rgb(60, 180, 75),
+            StepState::OnAgent => Color::from_rgb(70, 130, 230),
+            StepState::Waiting => Color::from_rgb(245, 165, 35),
+            StepState::Faulted => Color::from_rgb(220, 50, 50),
+        }
+    }
+}
+
+struct Logger {
+    rec: RecordingStream,
+    run: RecordedRun,
+    steps: HashMap<String, StepId>,
+    state: Vec<StepState>,
+    graph_dirty: bool,
+    /// Per agent: the tokens it holds, as token → step.
+    agents: BTreeMap<String, BTreeMap<String, String>>,
+    cycle: u64,
+}
+
+impl Logger {
+    fn new(rec: RecordingStream, run: RecordedRun) -> Logger {
+        let steps = run.program.steps.iter().enumerate().map(|(i, s)| (s.name.clone(), StepId(i as u32))).collect();
+        let state = vec![StepState::Inactive; run.program.steps.len()];
+        Logger { rec, run, steps, state, graph_dirty: false, agents: BTreeMap::new(), cycle: 0 }
+    }
+
+    fn ok(&self, r: rerun::RecordingStreamResult<()>) {
+        if let Err(e) = r {
+            eprintln!("warning: cannot log to Rerun: {e}");
+        }
+    }
+
+    /// The chart's graph (laid out once), and the colours of each state.
+    fn static_parts(&mut self) {
+        let program = Arc::clone(&self.run.program);
+        let names: Vec<String> = program.steps.iter().map(|s| s.name.clone()).collect();
+        let positions = layered_layout(&program);
+        let colors: Vec<Color> = names.iter().map(|_| StepState::Inactive.color()).collect();
+        let nodes = GraphNodes::new(names.clone()).with_labels(names.clone()).with_positions(positions).with_colors(colors);
+        self.ok(self.rec.log_static("sfc/graph", &nodes));
+        let mut edges = Vec::new();
+        for t in 0..program.transitions.len() {
+            let t = TransitionId(t as u32);
+            for &s in program.sources(t) {
+                for &d in program.targets(t) {
+                    edges.push((program.steps[s.index()].name.clone(), program.steps[d.index()].name.clone()));
+                }
+            }
+        }
+        self.ok(self.rec.log_static("sfc/graph", &GraphEdges::new(edges).with_directed_edges()));
+        let steps_config = StateConfiguration::new()
+            .with_values(["active", "waiting", "faulted", "inactive"])
+            .with_colors([
+                StepState::Active.color(),
+                StepState::Waiting.color(),
+                StepState::Faulted.color(),
+                StepState::Inactive.color(),
+            ]);
+        for name in &names {
+            self.ok(self.rec.log_static(format!("sfc/steps/{name}"), &steps_config));
+        }
+    }
+
+    fn run(&mut self, rx: &Receiver<Item>) {
+        while let Ok(item) = rx.recv() {
+            let cycle = match &item {
+                Item::Trace(c, _) | Item::Values(c, _, _) => *c,
+            };
+            if cycle != self.cycle {
+                self.flush_graph();
+                self.cycle = cycle;
+            }
+            match item {
+                Item::Trace(_, rec) => self.trace(&rec),
+                Item::Values(_, t_ms, values) => self.values(t_ms, &values),
+            }
+        }
+        self.flush_graph();
+        if let Err(e) = self.rec.flush_blocking() {
+            eprintln!("warning: the Rerun recording could not be flushed: {e}");
+        }
+    }
+
+    fn at(&self, t_ms: u64) {
+        self.rec.set_time_sequence("cycle", self.cycle as i64);
+        let wall = (self.run.started_unix_ms + t_ms) as f64 / 1000.0;
+        self.rec.set_timestamp_secs_since_epoch("wall", wall);
+    }
+
+    fn flush_graph(&mut self) {
+        if !self.graph_dirty {
+            return;
+        }
+        self.graph_dirty = false;
+        let colors: Vec<Color> = self.state.iter().map(|s| s.color()).collect();
+        self.ok(self.rec.log("sfc/graph", &GraphNodes::update_fields().with_colors(colors)));
+    }
+
+    fn step_state(&mut self, name: &str, state: StepState, label: &str) {
+        let Some(&s) = self.steps.get(name) else { return };
+        self.state[s.index()] = state;
+        self.graph_dirty = true;
+        self.ok(self.rec.log(format!("sfc/steps/{name}"), &StateChange::single(label)));
+    }
+
+    fn token_log(&self, rec: &TraceRecord, level: &str, text: String) {
+        let Some(token) = &rec.token else { return };
+        self.ok(self.rec.log(format!("tokens/{token}"), &TextLog::new(text).with_level(level)));
+    }
+
+    fn log(&self, level: &str, text: String) {
+        self.ok(self.rec.log("log", &TextLog::new(text).with_level(level)));
+    }
+
+    fn agent_state(&self, agent: &str) {
+        let state = match self.agents.get(agent) {
+            None => return,
+            Some(tokens) if tokens.is_empty() => "online".to_string(),
+            Some(tokens) => {
+                let held: Vec<String> = tokens.iter().map(|(t, step)| format!("{step} ({})", short(t))).collect();
+                format!("busy: {}", held.join(", "))
+            }
+        };
+        self.ok(self.rec.log(format!("agents/{agent}"), &StateChange::single(state)));
+    }
+
+    fn trace(&mut self, rec: &TraceRecord) {
+        self.at(rec.t_ms);
+        let agent = rec.agent.as_deref();
+        let epoch = rec.epoch.map(|e| format!(", epoch {e}")).unwrap_or_default();
+        let message = rec.message.as_deref().unwrap_or("");
+        match rec.event.as_str() {
+            "activate" => {
+                // A waiting step is placed, but its token is back: it waits on the coordinator for the others.
+                let waiting = self.steps.get(&rec.name).is_some_and(|s| self.run.layout.waiting[s.index()]);
+                match agent {
+                    _ if waiting => self.step_state(&rec.name, StepState::Waiting, "waiting"),
+                    Some(a) => self.step_state(&rec.name, StepState::OnAgent, &format!("on {a}")),
+                    None => self.step_state(&rec.name, StepState::Active, "active"),
+                }
+            }
+            "deactivate" => self.step_state(&rec.name, StepState::Inactive, "inactive"),
+            "dispatch" | "resume" => {
+                let a = agent.unwrap_or("?");
+                let what = if rec.event == "dispatch" { "dispatched" } else { "resumed" };
+                let extra = if message.is_empty() { String::new() } else { format!(": {message}") };
+                self.token_log(rec, "INFO", format!("{what} to {a}: step {}{epoch}{extra}", rec.name));
+                if let (Some(a), Some(t)) = (agent, &rec.token) {
+                    self.agents.entry(a.to_string()).or_default().insert(t.clone(), rec.name.clone());
+                    self.agent_state(a);
+                }
+            }
+            "return" => {
+                self.token_log(rec, "INFO", format!("returned from {}: step {}{epoch}", agent.unwrap_or("?"), rec.name));
+                if let (Some(a), Some(t)) = (agent, &rec.token) {
+                    if let Some(held) = self.agents.get_mut(a) {
+                        held.remove(t);
+                    }
+                    self.agent_state(a);
+                }
+            }
+            "wait" => self.token_log(rec, "WARN", format!("waits for an agent: step {}{epoch}", rec.name)),
+            "reject_stale" => {
+                let a = agent.unwrap_or("?");
+                let text = format!("stale report from {a} rejected (step {}{epoch}); told to drop it", rec.name);
+                self.token_log(rec, "WARN", text.clone());
+                self.log("WARN", text);
+                if let (Some(held), Some(t)) = (self.agents.get_mut(a), &rec.token) {
+                    held.remove(t);
+                }
+            }
+            "agent_up" => {
+                self.agents.entry(rec.name.clone()).or_default();
+                self.agent_state(&rec.name);
+            }
+            "agent_lost" => {
+                self.agents.entry(rec.name.clone()).or_default();
+                self.ok(self.rec.log(format!("agents/{}", rec.name), &StateChange::single("lost")));
+                self.log("WARN", format!("agent {} lost", rec.name));
+            }
+            "alarm" => self.log("ERROR", format!("alarm: {message}")),
+            "recover" => self.log("WARN", format!("coordinator restarted: {message}")),
+            "skill_fault" | "fault" => {
+                let on = agent.map(|a| format!(" on {a}")).unwrap_or_default();
+                let level = if rec.event == "fault" { "ERROR" } else { "WARN" };
+                self.log(level, format!("{}{on}: {} {message}", rec.event.replace('_', " "), rec.name));
+                self.fault_steps(&rec.name, rec.event == "fault");
+            }
+            "set" => self.log("INFO", format!("set {} := {message}", rec.name)),
+            "skill_done" => {}
+            _ => {}
+        }
+    }
+
+    /// Marks faulted the active steps that use action `name` (for a skill fault), or every active step whose
+    /// action or transition faulted (for a run-time fault, named by the chart).
+    fn fault_steps(&mut self, name: &str, chart_fault: bool) {
+        let program = Arc::clone(&self.run.program);
+        let hit: Vec<String> = (0..program.steps.len())
+            .filter(|&i| self.state[i] != StepState::Inactive)
+            .filter(|&i| {
+                !chart_fault
+                    && program.associations(StepId(i as u32)).iter().any(|a| program.actions[a.action.index()].name == name)
+            })
+            .map(|i| program.steps[i].name.clone())
+            .collect();
+        for step in hit {
+            self.step_state(&step, StepState::Faulted, "faulted");
+        }
+    }
+
+    fn values(&mut self, t_ms: u64, values: &[(VarId, Value)]) {
+        self.at(t_ms);
+        let program = Arc::clone(&self.run.program);
+        for &(v, value) in values {
+            let name = &program.vars[v.index()].name;
+            let x = match value {
+                Value::Bool(b) => f64::from(u8::from(b)),
+                other => other.as_f64(),
+            };
+            self.ok(self.rec.log(format!("vars/{name}"), &Scalars::single(x)));
+        }
+    }
+}
+
+/// The first 8 hex digits of a token id, enough to tell tokens apart on a timeline.
+fn short(token: &str) -> &str {
+    token.get(..8).unwrap_or(token)
+}
+
+/// Steps in layers by their distance from the initial steps (following transitions), spread across each
+/// layer; steps not reached that way go below.
+fn layered_layout(program: &Program) -> Vec<[f32; 2]> {
+    let n = program.steps.len();
+    let mut depth: Vec<Option<usize>> = vec![None; n];
+    let mut queue = std::collections::VecDeque::new();
+    for &s in &program.initial_steps {
+        depth[s.index()] = Some(0);
+        queue.push_back(s);
+    }
+    while let Some(s) = queue.pop_front() {
+        let d = depth[s.index()].unwrap_or(0);
+        for &t in program.outgoing(s) {
+            for &next in program.targets(t) {
+                if depth[next.index()].is_none() {
+                    depth[next.index()] = Some(d + 1);
+                    queue.push_back(next);
+                }
+            }
+        }
+    }
+    let deepest = depth.iter().flatten().max().copied().unwrap_or(0);
+    let mut per_layer: BTreeMap<usize, usize> = BTreeMap::new();
+    let mut out = Vec::with_capacity(n);
+    for d in depth {
+        let layer = d.unwrap_or(deepest + 1);
+        let slot = per_layer.entry(layer).or_default();
+        out.push([*slot as f32 * 160.0, layer as f32 * 90.0]);
+        *slot += 1;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sinks_parse_and_bad_ones_say_what_is_allowed() {
+        assert_eq!("off".parse(), Ok(Sink::Off));
+        assert_eq!("spawn".parse(), Ok(Sink::Spawn));
+        assert_eq!("connect".parse(), Ok(Sink::Connect(None)));
+        assert_eq!(
+            "connect:rerun+http://127.0.0.1:9000/proxy".parse(),
+            Ok(Sink::Connect(Some("rerun+http://127.0.0.1:9000/proxy".into())))
+        );
+        assert_eq!("save:run.rrd".parse(), Ok(Sink::Save(PathBuf::from("run.rrd"))));
+        assert!("save:".parse::<Sink>().is_err());
+        assert!("file.rrd".parse::<Sink>().unwrap_err().contains("save:PATH.rrd"));
+    }
+}
