@@ -99,6 +99,18 @@ enum Command {
         #[arg(long, value_name = "SINK", default_value = "off")]
         rerun: crate::recording::Sink,
     },
+    /// Rebuild a past run from its journal: its Rerun recording and its trace (no network, no agents).
+    Replay {
+        /// The folder given to `baton run --journal`.
+        #[arg(long, value_name = "DIR")]
+        journal: PathBuf,
+        /// Where the recording goes: save:PATH.rrd, connect[:URL], spawn, or off.
+        #[arg(long, value_name = "SINK", default_value = "off")]
+        rerun: crate::recording::Sink,
+        /// Write the run's trace as JSON Lines.
+        #[arg(long, value_name = "FILE")]
+        trace: Option<PathBuf>,
+    },
     /// Set an input of the charts running behind a router: baton set --connect EP NAME=VALUE.
     Set {
         #[arg(long, value_name = "ENDPOINT", required = true)]
@@ -216,6 +228,9 @@ pub fn main() -> ExitCode {
             let taken = crate::client::set(&connect, zenoh_config.as_deref(), &name, value).await?;
             Ok(if taken { ExitCode::SUCCESS } else { ExitCode::from(EXIT_INVALID) })
         }),
+        Command::Replay { journal, rerun, trace } => {
+            crate::replay::replay(&crate::replay::ReplayOptions { journal, rerun, trace }).map(|()| ExitCode::SUCCESS)
+        }
         Command::Demo { agents, parts, keep, rerun } => {
             block_on(crate::demo::demo(crate::demo::DemoOptions { agents, parts, keep, rerun }))
         }

@@ -7,6 +7,7 @@ mod demo;
 mod demo_chart;
 mod journal;
 mod recording;
+mod replay;
 mod run;
 mod zconf;
 

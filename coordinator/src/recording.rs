@@ -7,8 +7,8 @@
 //! Entity paths (documented in the README):
 //! - `sfc/graph` — the chart: steps as nodes, transitions as edges, laid out once; node colours follow the
 //!   steps (active here, active on an agent, waiting at a convergence, faulted, inactive).
-//! - `sfc/steps/<step>` — each step's state over time: `active`, `on <agent>`, `waiting`, `faulted`, or
-//!   `inactive`.
+//! - `sfc/steps/<step>` — each step's state over time: `active` (on the coordinator), `on <agent>`,
+//!   `waiting` (a branch's last step, at a convergence), `no agent yet`, `faulted`, or `inactive`.
 //! - `agents/<name>` — `online`, `busy: <step> (<token>)`, or `lost`.
 //! - `tokens/<id>` — dispatch, progress, return, reassignment and rejection of each token, as text with levels.
 //! - `vars/<name>` — numeric and boolean variables as time series.
@@ -23,7 +23,7 @@ use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::Arc;
 
 use anyhow::anyhow;
-use baton_proto::layout::Layout;
+use baton_proto::layout::{Layout, Placement};
 use baton_proto::program::{Program, StepId, TransitionId, VarId};
 use baton_proto::sim::TraceRecord;
 use baton_proto::types::{Type, Value};
@@ -101,16 +101,16 @@ impl Recorder {
             .with_default_blueprint(blueprint());
         let stream = match sink {
             Sink::Off => return Ok(None),
-            Sink::Save(path) => {
-                builder.save(path).map_err(|e| anyhow!("cannot record to {}: {e}", path.display()))?
-            }
+            Sink::Save(path) => builder.save(path).map_err(|e| anyhow!("cannot record to {}: {e}", path.display()))?,
             Sink::Connect(url) => {
                 let url = url.clone().unwrap_or_else(|| "rerun+http://127.0.0.1:9876/proxy".to_string());
-                builder.connect_grpc_opts(url.clone()).map_err(|e| anyhow!("cannot connect to a viewer at {url}: {e}"))?
+                builder
+                    .connect_grpc_opts(url.clone())
+                    .map_err(|e| anyhow!("cannot connect to a viewer at {url}: {e}"))?
             }
-            Sink::Spawn => builder
-                .spawn()
-                .map_err(|e| anyhow!("cannot start the Rerun viewer (is `rerun` on the PATH?): {e}"))?,
+            Sink::Spawn => {
+                builder.spawn().map_err(|e| anyhow!("cannot start the Rerun viewer (is `rerun` on the PATH?): {e}"))?
+            }
         };
         let (tx, rx) = sync_channel(QUEUE_MAX);
         let program = Arc::clone(&run.program);
@@ -225,6 +225,8 @@ struct Logger {
     steps: HashMap<String, StepId>,
     state: Vec<StepState>,
     graph_dirty: bool,
+    /// Per step: it is a source of a simultaneous convergence.
+    converging: Vec<bool>,
     /// Per agent: the tokens it holds, as token → step.
     agents: BTreeMap<String, BTreeMap<String, String>>,
     cycle: u64,
@@ -234,7 +236,16 @@ impl Logger {
     fn new(rec: RecordingStream, run: RecordedRun) -> Logger {
         let steps = run.program.steps.iter().enumerate().map(|(i, s)| (s.name.clone(), StepId(i as u32))).collect();
         let state = vec![StepState::Inactive; run.program.steps.len()];
-        Logger { rec, run, steps, state, graph_dirty: false, agents: BTreeMap::new(), cycle: 0 }
+        let mut converging = vec![false; run.program.steps.len()];
+        for t in 0..run.program.transitions.len() {
+            let sources = run.program.sources(TransitionId(t as u32));
+            if sources.len() > 1 {
+                for s in sources {
+                    converging[s.index()] = true;
+                }
+            }
+        }
+        Logger { rec, run, steps, state, converging, graph_dirty: false, agents: BTreeMap::new(), cycle: 0 }
     }
 
     fn ok(&self, r: rerun::RecordingStreamResult<()>) {
@@ -249,7 +260,8 @@ impl Logger {
         let names: Vec<String> = program.steps.iter().map(|s| s.name.clone()).collect();
         let positions = layered_layout(&program);
         let colors: Vec<Color> = names.iter().map(|_| StepState::Inactive.color()).collect();
-        let nodes = GraphNodes::new(names.clone()).with_labels(names.clone()).with_positions(positions).with_colors(colors);
+        let nodes =
+            GraphNodes::new(names.clone()).with_labels(names.clone()).with_positions(positions).with_colors(colors);
         self.ok(self.rec.log_static("sfc/graph", &nodes));
         let mut edges = Vec::new();
         for t in 0..program.transitions.len() {
@@ -261,9 +273,8 @@ impl Logger {
             }
         }
         self.ok(self.rec.log_static("sfc/graph", &GraphEdges::new(edges).with_directed_edges()));
-        let steps_config = StateConfiguration::new()
-            .with_values(["active", "waiting", "faulted", "inactive"])
-            .with_colors([
+        let steps_config =
+            StateConfiguration::new().with_values(["active", "waiting", "faulted", "inactive"]).with_colors([
                 StepState::Active.color(),
                 StepState::Waiting.color(),
                 StepState::Faulted.color(),
@@ -344,11 +355,15 @@ impl Logger {
         let message = rec.message.as_deref().unwrap_or("");
         match rec.event.as_str() {
             "activate" => {
-                // A waiting step is placed, but its token is back: it waits on the coordinator for the others.
-                let waiting = self.steps.get(&rec.name).is_some_and(|s| self.run.layout.waiting[s.index()]);
+                // The last step of a simultaneous branch waits at the convergence for the others. A placed step
+                // whose token has no agent yet waits for one (its dispatch says where it went).
+                let s = self.steps.get(&rec.name).copied();
+                let waiting = s.is_some_and(|s| self.converging[s.index()]);
+                let placed = s.is_some_and(|s| self.run.layout.placement[s.index()] != Placement::Coordinator);
                 match agent {
                     _ if waiting => self.step_state(&rec.name, StepState::Waiting, "waiting"),
                     Some(a) => self.step_state(&rec.name, StepState::OnAgent, &format!("on {a}")),
+                    None if placed => self.step_state(&rec.name, StepState::Waiting, "no agent yet"),
                     None => self.step_state(&rec.name, StepState::Active, "active"),
                 }
             }
@@ -361,10 +376,17 @@ impl Logger {
                 if let (Some(a), Some(t)) = (agent, &rec.token) {
                     self.agents.entry(a.to_string()).or_default().insert(t.clone(), rec.name.clone());
                     self.agent_state(a);
+                    if self.steps.get(&rec.name).is_some_and(|&s| self.state[s.index()] != StepState::Inactive) {
+                        self.step_state(&rec.name, StepState::OnAgent, &format!("on {a}"));
+                    }
                 }
             }
             "return" => {
-                self.token_log(rec, "INFO", format!("returned from {}: step {}{epoch}", agent.unwrap_or("?"), rec.name));
+                self.token_log(
+                    rec,
+                    "INFO",
+                    format!("returned from {}: step {}{epoch}", agent.unwrap_or("?"), rec.name),
+                );
                 if let (Some(a), Some(t)) = (agent, &rec.token) {
                     if let Some(held) = self.agents.get_mut(a) {
                         held.remove(t);
@@ -413,7 +435,10 @@ impl Logger {
             .filter(|&i| self.state[i] != StepState::Inactive)
             .filter(|&i| {
                 !chart_fault
-                    && program.associations(StepId(i as u32)).iter().any(|a| program.actions[a.action.index()].name == name)
+                    && program
+                        .associations(StepId(i as u32))
+                        .iter()
+                        .any(|a| program.actions[a.action.index()].name == name)
             })
             .map(|i| program.steps[i].name.clone())
             .collect();

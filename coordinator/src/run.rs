@@ -125,18 +125,115 @@ struct Shell {
     held: VecDeque<(u64, u64, Vec<CoordOutput>)>,
     /// Answers to `baton set`, likewise: a client is told a value was taken only once it is durable.
     held_replies: VecDeque<(u64, Query, Vec<u8>)>,
-    trace: Option<BufWriter<File>>,
-    trace_error: bool,
     quiet: bool,
     /// One publisher per key, declared on first use.
     publishers: HashMap<String, Publisher<'static>>,
     vars_key: String,
-    steps: BTreeMap<String, (StepTime, Option<u64>)>,
     decode_drops: u64,
-    probe: Option<Probe>,
-    recorder: Option<crate::recording::Recorder>,
+    out: Records,
     /// Cycles run so far (replayed ones included): the recording's `cycle` timeline.
     cycles: u64,
+}
+
+/// Where trace records go: the bench's probe, the recording, the summary's step times and the trace file.
+pub struct Records {
+    pub trace: Option<BufWriter<File>>,
+    trace_error: bool,
+    steps: BTreeMap<String, (StepTime, Option<u64>)>,
+    probe: Option<Probe>,
+    pub recorder: Option<crate::recording::Recorder>,
+}
+
+impl Records {
+    pub fn new(
+        trace: Option<BufWriter<File>>,
+        probe: Option<Probe>,
+        recorder: Option<crate::recording::Recorder>,
+    ) -> Records {
+        Records { trace, trace_error: false, steps: BTreeMap::new(), probe, recorder }
+    }
+
+    pub fn record(&mut self, cycle: u64, rec: TraceRecord) {
+        if let Some(probe) = &mut self.probe {
+            probe(&rec);
+        }
+        if let Some(r) = &mut self.recorder {
+            r.trace(cycle, &rec);
+        }
+        match rec.event.as_str() {
+            "activate" => {
+                let e = self.steps.entry(rec.name.clone()).or_default();
+                e.0.activations += 1;
+                e.1 = Some(rec.t_ms);
+            }
+            "deactivate" => {
+                if let Some((time, since)) = self.steps.get_mut(&rec.name) {
+                    if let Some(t0) = since.take() {
+                        time.active_ms += rec.t_ms.saturating_sub(t0);
+                    }
+                }
+            }
+            _ => {}
+        }
+        if let Some(w) = &mut self.trace {
+            let written = serde_json::to_writer(&mut *w, &rec)
+                .map_err(std::io::Error::other)
+                .and_then(|()| w.write_all(b"\n"))
+                .and_then(|()| w.flush());
+            if let Err(e) = written {
+                if !self.trace_error {
+                    eprintln!("error: cannot write the trace: {e}");
+                    self.trace_error = true;
+                }
+            }
+        }
+    }
+
+    /// The variables' values after cycle `cycle`, for the recording.
+    pub fn values(&mut self, cycle: u64, t_ms: u64, core: &Coordinator) {
+        if let Some(r) = self.recorder.as_mut() {
+            r.values(cycle, t_ms, |v| core.value(v));
+        }
+    }
+
+    /// Ends the recording and flushes the trace.
+    pub fn finish(&mut self) -> anyhow::Result<()> {
+        if let Some(r) = self.recorder.take() {
+            let dropped = r.finish();
+            if dropped > 0 {
+                eprintln!("warning: the recording lacks {dropped} record(s): the Rerun sink could not keep up");
+            }
+        }
+        if let Some(t) = &mut self.trace {
+            t.flush().context("cannot write the trace")?;
+        }
+        Ok(())
+    }
+}
+
+/// Rebuilds a run from its journal's records into `core`: the trace (and recording) of the past go to `out`,
+/// nothing is sent. `cycles` counts the cycles replayed.
+pub fn replay_records(
+    core: &mut Journaled,
+    records: &[Vec<u8>],
+    cycles: &mut u64,
+    out: &mut Records,
+) -> anyhow::Result<journal::Replayed> {
+    let mut replayed = journal::Replayed::default();
+    for (i, bytes) in records.iter().enumerate() {
+        let entry = journal::decode(bytes).map_err(|e| anyhow!("the journal's record {i} cannot be read: {e}"))?;
+        core.apply_replayed(&entry, &mut replayed);
+        if matches!(entry.record, Record::Cycle) {
+            *cycles += 1;
+            out.values(*cycles, entry.t_ms, core.core());
+        }
+        while let Some(output) = core.poll_output() {
+            if let CoordOutput::Trace(rec) = output {
+                out.record(*cycles, rec);
+            }
+        }
+    }
+    Ok(replayed)
 }
 
 /// Sees every trace record as it is made, for `baton bench`'s clocks.
@@ -228,22 +325,18 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         journal: writer,
         held: VecDeque::new(),
         held_replies: VecDeque::new(),
-        trace,
-        trace_error: false,
         quiet: opts.quiet,
         publishers: HashMap::new(),
         vars_key: keys::vars(run, baton_proto::runtime::COORDINATOR),
-        steps: BTreeMap::new(),
         decode_drops: 0,
-        probe,
-        recorder,
+        out: Records::new(trace, probe, recorder),
         cycles: 0,
     };
     match resume {
         Some((header, records)) => {
             // The past, replayed: its trace is written again (the file then holds the whole run), nothing is
             // sent, and the run's clock goes on from wall-clock time, downtime included.
-            let replayed = shell.replay(&records)?;
+            let replayed = replay_records(&mut shell.core, &records, &mut shell.cycles, &mut shell.out)?;
             let wall = unix_ms().saturating_sub(header.started_unix_ms);
             shell.base_ms = replayed.last_ms.max(wall);
             if !opts.sets.is_empty() {
@@ -340,17 +433,9 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     if let Some(w) = &mut shell.journal {
         w.close();
     }
-    if let Some(r) = shell.recorder.take() {
-        let dropped = r.finish();
-        if dropped > 0 {
-            eprintln!("warning: the recording lacks {dropped} record(s): the Rerun sink could not keep up");
-        }
-    }
+    shell.out.finish()?;
     let failure = shell.core.core().failure().map(str::to_string);
     let summary = shell.summary(&loaded);
-    if let Some(t) = &mut shell.trace {
-        t.flush().context("cannot write the trace")?;
-    }
     drop(shell);
     session.close().await.map_err(zerr)?;
     if interrupted {
@@ -528,32 +613,9 @@ impl Shell {
         self.release().await
     }
 
-    /// Rebuilds the run from its journal's records: the trace (and recording) of the past is written again,
-    /// nothing is sent.
-    fn replay(&mut self, records: &[Vec<u8>]) -> anyhow::Result<journal::Replayed> {
-        let mut replayed = journal::Replayed::default();
-        for (i, bytes) in records.iter().enumerate() {
-            let entry = journal::decode(bytes).map_err(|e| anyhow!("the journal's record {i} cannot be read: {e}"))?;
-            self.core.apply_replayed(&entry, &mut replayed);
-            if matches!(entry.record, Record::Cycle) {
-                self.cycles += 1;
-                self.record_values(entry.t_ms);
-            }
-            while let Some(out) = self.core.poll_output() {
-                if let CoordOutput::Trace(rec) = out {
-                    self.record(self.cycles, rec);
-                }
-            }
-        }
-        Ok(replayed)
-    }
-
     /// The variables' values after a cycle, for the recording.
     fn record_values(&mut self, t_ms: u64) {
-        let core = self.core.core();
-        if let Some(r) = self.recorder.as_mut() {
-            r.values(self.cycles, t_ms, |v| core.value(v));
-        }
+        self.out.values(self.cycles, t_ms, self.core.core());
     }
 
     /// Carries out what waited for journal batches that are now durable, in order.
@@ -586,7 +648,7 @@ impl Shell {
         for out in local {
             match out {
                 CoordOutput::Send { .. } | CoordOutput::Vars(_) => {}
-                CoordOutput::Trace(rec) => self.record(cycle, rec),
+                CoordOutput::Trace(rec) => self.out.record(cycle, rec),
                 CoordOutput::Log { level, message } => {
                     let tag = match level {
                         Level::Info => "info",
@@ -625,46 +687,11 @@ impl Shell {
         Ok(())
     }
 
-    fn record(&mut self, cycle: u64, rec: TraceRecord) {
-        if let Some(probe) = &mut self.probe {
-            probe(&rec);
-        }
-        if let Some(r) = &mut self.recorder {
-            r.trace(cycle, &rec);
-        }
-        match rec.event.as_str() {
-            "activate" => {
-                let e = self.steps.entry(rec.name.clone()).or_default();
-                e.0.activations += 1;
-                e.1 = Some(rec.t_ms);
-            }
-            "deactivate" => {
-                if let Some((time, since)) = self.steps.get_mut(&rec.name) {
-                    if let Some(t0) = since.take() {
-                        time.active_ms += rec.t_ms.saturating_sub(t0);
-                    }
-                }
-            }
-            _ => {}
-        }
-        if let Some(w) = &mut self.trace {
-            let written = serde_json::to_writer(&mut *w, &rec)
-                .map_err(std::io::Error::other)
-                .and_then(|()| w.write_all(b"\n"))
-                .and_then(|()| w.flush());
-            if let Err(e) = written {
-                if !self.trace_error {
-                    eprintln!("error: cannot write the trace: {e}");
-                    self.trace_error = true;
-                }
-            }
-        }
-    }
-
     fn summary(&self, loaded: &Loaded) -> Summary {
         let now = self.now_ms();
         let stats = self.core.core().stats();
         let steps = self
+            .out
             .steps
             .iter()
             .map(|(name, (t, since))| {

@@ -1,0 +1,35 @@
+"""Reads a Baton recording (.rrd) back with the Rerun SDK of the same version (rerun-sdk==0.36.3) and prints, as
+JSON, its entity paths and, per step, the states logged on `sfc/steps/<step>` with their `wall` time in ms.
+
+    python3 tests/scripts/read_recording.py RUN.rrd
+
+Used by tests/tests/recording.rs to check a recording against the run's trace."""
+
+import json
+import sys
+
+from rerun.experimental import RrdReader
+
+
+def main(path):
+    store = RrdReader(path).stream().collect()
+    paths = sorted(str(p) for p in store.schema().entity_paths())
+    df = store.reader(index="wall").to_pandas()
+    steps = {}
+    prefix = "/sfc/steps/"
+    for column in df.columns:
+        if not (column.startswith(prefix) and column.endswith(":StateChange:state")):
+            continue
+        step = column[len(prefix):-len(":StateChange:state")]
+        rows = df[["wall", column]].dropna()
+        changes = []
+        for _, row in rows.iterrows():
+            wall_ms = int(round(row["wall"].value / 1e6))
+            for state in row[column]:
+                changes.append([wall_ms, str(state)])
+        steps[step] = changes
+    print(json.dumps({"entity_paths": paths, "steps": steps}))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1])
