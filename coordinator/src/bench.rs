@@ -5,7 +5,7 @@
 //! Every phase runs real processes (`baton-agent`s, and a `baton bench-echo` for the raw round trip) against a
 //! coordinator and router in this process; times are taken with `Instant` where the events happen.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -34,6 +34,8 @@ pub struct BenchOptions {
     pub agents: u32,
     /// Tokens circulating at once per agent in the throughput phase.
     pub lanes_per_agent: u32,
+    /// Parts the demo chart makes in the recording phase.
+    pub parts: u32,
 }
 
 #[derive(Serialize, Clone, Copy)]
@@ -74,6 +76,12 @@ pub struct BenchReport {
     pub throughput_agents: u32,
     pub throughput_tokens: u64,
     pub throughput_in_flight: u32,
+    /// (6) the demo chart without a recording, and with `--rerun save:…`.
+    pub demo_tokens_per_s: f64,
+    pub demo_recorded_tokens_per_s: f64,
+    pub demo_recorded_ratio: f64,
+    pub demo_parts: u32,
+    pub demo_recording_bytes: u64,
 }
 
 type Marks = Arc<Mutex<Vec<(Instant, String, String)>>>;
@@ -100,13 +108,13 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
     let per_round = opts.samples.div_ceil(ROUNDS).max(1);
     let (mut raw, mut token) = (Vec::new(), Vec::new());
     for round in 1..=ROUNDS {
-        eprintln!("1/4 raw Zenoh round trip, round {round}/{ROUNDS}, {per_round} samples");
+        eprintln!("1/5 raw Zenoh round trip, round {round}/{ROUNDS}, {per_round} samples");
         raw.extend(raw_round_trip(per_round).await?);
-        eprintln!("2/4 token round trip through Baton, round {round}/{ROUNDS}, {per_round} samples");
+        eprintln!("2/5 token round trip through Baton, round {round}/{ROUNDS}, {per_round} samples");
         token.extend(token_round_trip(dir.path(), per_round).await?);
     }
     let (zenoh_round_trip, token_round_trip) = (Latency::of(raw)?, Latency::of(token)?);
-    eprintln!("3/4 convergence latency, 3 branches, {} samples", opts.samples.min(2000));
+    eprintln!("3/5 convergence latency, 3 branches, {} samples", opts.samples.min(2000));
     let convergence = convergence(dir.path(), opts.samples.min(2000)).await?;
     let lanes = opts.agents * opts.lanes_per_agent;
     // Off and on alternate too, for the same reason; each figure is the median of its rounds.
@@ -116,7 +124,7 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
         for journal in [false, true] {
             let with = if journal { "journal on" } else { "journal off" };
             eprintln!(
-                "4/4 throughput, {with}, round {round}/{ROUNDS}: {} agents, {lanes} tokens in flight, {} tokens",
+                "4/5 throughput, {with}, round {round}/{ROUNDS}: {} agents, {lanes} tokens in flight, {} tokens",
                 opts.agents, opts.tokens
             );
             let journal = journal.then(|| dir.path().join(format!("journal-{round}")));
@@ -134,7 +142,29 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
         v[v.len() / 2]
     };
     let (off, on, records_per_commit) = (median(off), median(on), median(records_per_commit));
+    // (6) The demo chart recorded to a file against not recorded, alternating as well.
+    let (mut plain, mut recorded, mut rrd_bytes) = (Vec::new(), Vec::new(), 0);
+    for round in 1..=ROUNDS {
+        for record in [false, true] {
+            let with = if record { "--rerun save" } else { "--rerun off" };
+            eprintln!("5/5 demo chart, {with}, round {round}/{ROUNDS}: {} parts, motions of 0 ms", opts.parts);
+            let rrd = record.then(|| dir.path().join(format!("demo-{round}.rrd")));
+            let (n, secs) = demo_throughput(dir.path(), opts.parts, rrd.clone()).await?;
+            if let Some(path) = rrd {
+                rrd_bytes = std::fs::metadata(&path).map_or(0, |m| m.len());
+                recorded.push(n as f64 / secs);
+            } else {
+                plain.push(n as f64 / secs);
+            }
+        }
+    }
+    let (plain, recorded) = (median(plain), median(recorded));
     Ok(BenchReport {
+        demo_tokens_per_s: plain,
+        demo_recorded_tokens_per_s: recorded,
+        demo_recorded_ratio: recorded / plain,
+        demo_parts: opts.parts,
+        demo_recording_bytes: rrd_bytes,
         token_to_zenoh_ratio: token_round_trip.median_us / zenoh_round_trip.median_us,
         zenoh_round_trip,
         token_round_trip,
@@ -168,6 +198,14 @@ impl BenchReport {
             self.throughput_journal_tokens_per_s,
             self.throughput_journal_ratio,
             self.throughput_journal_records_per_commit
+        );
+        println!(
+            "(6) demo chart: {:.0} tokens/s; with --rerun save: {:.0} tokens/s, {:.2} of it (target ≥ 0.9; {} parts, {:.1} MB recorded)",
+            self.demo_tokens_per_s,
+            self.demo_recorded_tokens_per_s,
+            self.demo_recorded_ratio,
+            self.demo_parts,
+            self.demo_recording_bytes as f64 / 1e6
         );
     }
 }
@@ -242,9 +280,21 @@ fn spawn_logged(cmd: &mut Command) -> anyhow::Result<Child> {
     cmd.stdout(Stdio::null()).stderr(Stdio::null()).kill_on_drop(true).spawn().context("cannot start a bench process")
 }
 
+/// Agents named `names`, each also in role `assembler` (which only the demo chart uses).
 fn spawn_agents(endpoint: &str, names: &[String]) -> anyhow::Result<Vec<Child>> {
     let bin = agent_binary()?;
-    names.iter().map(|n| spawn_logged(Command::new(&bin).args(["--connect", endpoint, "--name", n]))).collect()
+    names
+        .iter()
+        .map(|n| spawn_logged(Command::new(&bin).args(["--connect", endpoint, "--name", n, "--role", "assembler"])))
+        .collect()
+}
+
+/// How a bench chart runs besides its chart and agents.
+#[derive(Default)]
+struct Extras<'a> {
+    journal: Option<&'a Path>,
+    rerun: Option<PathBuf>,
+    sets: Vec<(String, serde_json::Value)>,
 }
 
 async fn run_chart(
@@ -253,7 +303,7 @@ async fn run_chart(
     chart: String,
     agents: &[String],
     probe: Probe,
-    journal: Option<&Path>,
+    extras: Extras<'_>,
 ) -> anyhow::Result<crate::run::Summary> {
     let path = dir.join(file);
     std::fs::write(&path, chart)?;
@@ -267,13 +317,13 @@ async fn run_chart(
         trace: None,
         summary: None,
         cycle_ms: 10,
-        sets: Vec::new(),
+        sets: extras.sets,
         multicast_scouting: false,
         quiet: true,
         zenoh_config: None,
         loss_policy: baton_proto::runtime::coordinator::LossPolicy::Pause,
-        journal: journal.map(Path::to_path_buf),
-        rerun: crate::recording::Sink::Off,
+        journal: extras.journal.map(Path::to_path_buf),
+        rerun: extras.rerun.map_or(crate::recording::Sink::Off, crate::recording::Sink::Save),
     };
     tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe))).await.context("the bench chart did not finish")?
 }
@@ -295,7 +345,7 @@ async fn token_round_trip(dir: &Path, samples: u32) -> anyhow::Result<Vec<Durati
         "TRANSITION FROM Back TO Home := TRUE; END_TRANSITION\nEND_PROGRAM\n",
     ));
     let (marks, probe) = marks(&["dispatch", "activate"]);
-    run_chart(dir, "token_rtt.st", chart, &["bench1".to_string()], probe, None).await?;
+    run_chart(dir, "token_rtt.st", chart, &["bench1".to_string()], probe, Extras::default()).await?;
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
     let mut rtts = Vec::new();
     let mut sent: Option<Instant> = None;
@@ -331,7 +381,7 @@ async fn convergence(dir: &Path, samples: u32) -> anyhow::Result<Latency> {
     ));
     let (marks, probe) = marks(&["return", "activate"]);
     let agents: Vec<String> = (1..=3).map(|k| format!("bench{k}")).collect();
-    run_chart(dir, "convergence.st", chart, &agents, probe, None).await?;
+    run_chart(dir, "convergence.st", chart, &agents, probe, Extras::default()).await?;
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
     let mut lat = Vec::new();
     let mut last_return: Option<Instant> = None;
@@ -379,7 +429,8 @@ async fn throughput(
     ));
     let (marks, probe) = marks(&["return"]);
     let names: Vec<String> = (1..=agents).map(|k| format!("bench{k}")).collect();
-    let summary = run_chart(dir, "throughput.st", chart, &names, probe, journal).await?;
+    let summary =
+        run_chart(dir, "throughput.st", chart, &names, probe, Extras { journal, ..Extras::default() }).await?;
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
     // Steady state: the first tenth of the returns (agents starting, caches warming) is left out.
     let returns: Vec<Instant> = marks.iter().filter(|m| m.1 == "return").map(|m| m.0).collect();
@@ -387,4 +438,37 @@ async fn throughput(
     let (Some(first), Some(last)) = (returns.get(skip), returns.last()) else { bail!("no token came back") };
     let counted = (returns.len() - skip - 1) as u64;
     Ok((counted, (*last - *first).as_secs_f64().max(1e-9), summary.journal))
+}
+
+/// Phase 6: the demo's cell chart (two robots) with its motions taking no time and no inspection faults, `parts`
+/// parts, recorded to a file or not; tokens returned per second in steady state, and the recording's size.
+async fn demo_throughput(dir: &Path, parts: u32, record: Option<PathBuf>) -> anyhow::Result<(u64, f64)> {
+    let chart = crate::demo_chart::cell_chart(2);
+    let chart = instant_motions(&chart);
+    let (marks, probe) = marks(&["return"]);
+    let names: Vec<String> = (1..=2).map(|k| format!("robot{k}")).collect();
+    let extras =
+        Extras { rerun: record, sets: vec![("parts".to_string(), serde_json::json!(parts))], ..Extras::default() };
+    run_chart(dir, "cell.st", chart, &names, probe, extras).await?;
+    let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
+    let returns: Vec<Instant> = marks.iter().map(|m| m.0).collect();
+    let skip = returns.len() / 10;
+    let (Some(first), Some(last)) = (returns.get(skip), returns.last()) else { bail!("no token came back") };
+    Ok(((returns.len() - skip - 1) as u64, (*last - *first).as_secs_f64().max(1e-9)))
+}
+
+/// The cell chart with every motion instantaneous and inspection never failing, so that the chart's own
+/// traffic, not simulated robot time, sets the pace.
+fn instant_motions(chart: &str) -> String {
+    let mut out = String::with_capacity(chart.len());
+    for line in chart.lines() {
+        if line.starts_with("ACTION") && line.contains("skill := 'motion'") {
+            let name = line.split_whitespace().nth(1).unwrap_or("Motion:");
+            out.push_str(&format!("ACTION {name} {{skill := 'motion', ms := 0}} END_ACTION"));
+        } else {
+            out.push_str(line);
+        }
+        out.push('\n');
+    }
+    out
 }

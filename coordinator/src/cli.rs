@@ -150,6 +150,9 @@ enum Command {
         /// Tokens in flight per agent in the throughput phase.
         #[arg(long, default_value_t = 4)]
         lanes_per_agent: u32,
+        /// Parts of the demo chart in the recording phase.
+        #[arg(long, default_value_t = 400)]
+        parts: u32,
         /// Print the figures as JSON.
         #[arg(long)]
         json: bool,
@@ -234,12 +237,12 @@ pub fn main() -> ExitCode {
         Command::Demo { agents, parts, keep, rerun } => {
             block_on(crate::demo::demo(crate::demo::DemoOptions { agents, parts, keep, rerun }))
         }
-        Command::Bench { samples, tokens, agents, lanes_per_agent, json } => block_on(async move {
-            if samples == 0 || tokens == 0 || agents == 0 || lanes_per_agent == 0 {
-                bail!("--samples, --tokens, --agents and --lanes-per-agent must be at least 1");
+        Command::Bench { samples, tokens, agents, lanes_per_agent, parts, json } => block_on(async move {
+            if samples == 0 || tokens == 0 || agents == 0 || lanes_per_agent == 0 || parts == 0 {
+                bail!("--samples, --tokens, --agents, --lanes-per-agent and --parts must be at least 1");
             }
-            let report =
-                crate::bench::bench(crate::bench::BenchOptions { samples, tokens, agents, lanes_per_agent }).await?;
+            let options = crate::bench::BenchOptions { samples, tokens, agents, lanes_per_agent, parts };
+            let report = crate::bench::bench(options).await?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             } else {
