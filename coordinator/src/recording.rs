@@ -24,11 +24,18 @@ use std::sync::Arc;
 
 use anyhow::anyhow;
 use baton_proto::layout::{Layout, Placement};
-use baton_proto::program::{Program, StepId, TransitionId, VarId};
+use baton_proto::program::{Program, StepId, TransitionId, VarId, VarInfo};
 use baton_proto::sim::TraceRecord;
 use baton_proto::types::{Type, Value};
-use rerun::blueprint::{Blueprint, GraphView, Horizontal, StateTimelineView, TextLogView, TimeSeriesView, Vertical};
-use rerun::{Color, GraphEdges, GraphNodes, RecordingStream, Scalars, StateChange, StateConfiguration, TextLog};
+use rerun::blueprint::components::PanelState;
+use rerun::blueprint::{
+    Blueprint, BlueprintPanel, GraphView, Horizontal, SelectionPanel, StateTimelineView, TextLogView, TimePanel,
+    TimeSeriesView, Vertical,
+};
+use rerun::components::{AggregationPolicy, InterpolationMode};
+use rerun::{
+    Color, GraphEdges, GraphNodes, RecordingStream, Scalars, SeriesLines, StateChange, StateConfiguration, TextLog,
+};
 
 /// Records the queue holds before the recorder drops; far more than a burst of the busiest chart.
 const QUEUE_MAX: usize = 65_536;
@@ -96,9 +103,13 @@ impl Recorder {
     /// Opens the sink (an error here is the user's to fix: a file that cannot be created, a bad URL) and starts
     /// the logging thread. `None` for `Sink::Off`.
     pub fn start(sink: &Sink, run: RecordedRun) -> anyhow::Result<Option<Recorder>> {
-        let builder = rerun::RecordingStreamBuilder::new("baton")
-            .recording_id(run.run.clone())
-            .with_default_blueprint(blueprint());
+        let builder = rerun::RecordingStreamBuilder::new("baton").recording_id(run.run.clone());
+        // A file carries the layout as the default (a layout the user arranged stays theirs); a live viewer is
+        // told to show it at once, since it may already have made up a layout of its own from the first data.
+        let builder = match sink {
+            Sink::Save(_) => builder.with_default_blueprint(blueprint()),
+            _ => builder.with_blueprint(blueprint()),
+        };
         let stream = match sink {
             Sink::Off => return Ok(None),
             Sink::Save(path) => builder.save(path).map_err(|e| anyhow!("cannot record to {}: {e}", path.display()))?,
@@ -148,7 +159,7 @@ impl Recorder {
     pub fn values(&mut self, cycle: u64, t_ms: u64, value_of: impl Fn(VarId) -> Value) {
         let mut changed = Vec::new();
         for (i, info) in self.program.vars.iter().enumerate() {
-            if info.constant || matches!(info.ty, Type::Unsupported(_)) {
+            if !recorded(info) {
                 continue;
             }
             let v = value_of(VarId(i as u32));
@@ -183,19 +194,30 @@ impl Drop for Recorder {
     }
 }
 
-/// The layout sent with every recording: the chart beside the timelines, the log and the variables.
+/// The layout sent with every recording: the chart over the variables, beside the step and agent timelines
+/// and the log; the side panels folded away so that the views have the room, the time panel on `wall`.
 fn blueprint() -> Blueprint {
-    Blueprint::new(Horizontal::new([
-        GraphView::new("chart").with_origin("sfc/graph").into(),
-        Vertical::new([
-            StateTimelineView::new("steps").with_origin("sfc/steps").into(),
-            StateTimelineView::new("agents").with_origin("agents").into(),
-            TextLogView::new("log").with_origin("/").with_contents(["/log", "/tokens/**"]).into(),
-            TimeSeriesView::new("variables").with_origin("vars").into(),
+    Blueprint::new(
+        Horizontal::new([
+            Vertical::new([
+                GraphView::new("chart").with_origin("sfc/graph").into(),
+                TimeSeriesView::new("variables").with_origin("vars").into(),
+            ])
+            .with_row_shares([3.0, 1.0])
+            .into(),
+            Vertical::new([
+                StateTimelineView::new("steps").with_origin("sfc/steps").into(),
+                StateTimelineView::new("agents").with_origin("agents").into(),
+                TextLogView::new("log").with_origin("/").with_contents(["/log", "/tokens/**"]).into(),
+            ])
+            .with_row_shares([5.0, 1.5, 3.0])
+            .into(),
         ])
-        .with_row_shares([3.0, 2.0, 3.0, 2.0])
-        .into(),
-    ]))
+        .with_column_shares([2.0, 3.0]),
+    )
+    .with_blueprint_panel(BlueprintPanel::from_state(PanelState::Collapsed))
+    .with_selection_panel(SelectionPanel::from_state(PanelState::Collapsed))
+    .with_time_panel(TimePanel::new().with_state(PanelState::Collapsed).with_timeline("wall"))
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -210,7 +232,7 @@ enum StepState {
 impl StepState {
     fn color(self) -> Color {
         match self {
-            StepState::Inactive => Color::from_rgb(150, 150, 150),
+            StepState::Inactive => Color::from_rgb(110, 110, 110),
             StepState::Active => Color::from_rgb(60, 180, 75),
             StepState::OnAgent => Color::from_rgb(70, 130, 230),
             StepState::Waiting => Color::from_rgb(245, 165, 35),
@@ -259,10 +281,13 @@ impl Logger {
         let program = Arc::clone(&self.run.program);
         let names: Vec<String> = program.steps.iter().map(|s| s.name.clone()).collect();
         let positions = layered_layout(&program);
-        let colors: Vec<Color> = names.iter().map(|_| StepState::Inactive.color()).collect();
-        let nodes =
-            GraphNodes::new(names.clone()).with_labels(names.clone()).with_positions(positions).with_colors(colors);
+        // Static: the nodes, their labels and places. Not their colours: static data hides every temporal
+        // value of the same component, so the colours are logged on the timelines, from the start.
+        let nodes = GraphNodes::new(names.clone()).with_labels(names.clone()).with_positions(positions);
         self.ok(self.rec.log_static("sfc/graph", &nodes));
+        self.at(0);
+        self.graph_dirty = true;
+        self.flush_graph();
         let mut edges = Vec::new();
         for t in 0..program.transitions.len() {
             let t = TransitionId(t as u32);
@@ -273,15 +298,25 @@ impl Logger {
             }
         }
         self.ok(self.rec.log_static("sfc/graph", &GraphEdges::new(edges).with_directed_edges()));
-        let steps_config =
-            StateConfiguration::new().with_values(["active", "waiting", "faulted", "inactive"]).with_colors([
+        let steps_config = StateConfiguration::new()
+            .with_values(["active", "waiting", "no agent yet", "faulted", "inactive"])
+            .with_colors([
                 StepState::Active.color(),
+                StepState::Waiting.color(),
                 StepState::Waiting.color(),
                 StepState::Faulted.color(),
                 StepState::Inactive.color(),
             ]);
         for name in &names {
             self.ok(self.rec.log_static(format!("sfc/steps/{name}"), &steps_config));
+        }
+        // A variable holds its value until the next change: steps, not slopes. Where many changes fall on one
+        // pixel, the lowest and highest are both drawn, so a pulse of one cycle still shows.
+        let series = SeriesLines::new()
+            .with_interpolation_mode(InterpolationMode::StepAfter)
+            .with_aggregation_policy(AggregationPolicy::MinMax);
+        for info in program.vars.iter().filter(|v| recorded(v)) {
+            self.ok(self.rec.log_static(format!("vars/{}", info.name), &series));
         }
     }
 
@@ -327,8 +362,11 @@ impl Logger {
         self.ok(self.rec.log(format!("sfc/steps/{name}"), &StateChange::single(label)));
     }
 
+    /// An entry on the token's own path; the text names the token too, since the log view's path column is
+    /// narrow.
     fn token_log(&self, rec: &TraceRecord, level: &str, text: String) {
         let Some(token) = &rec.token else { return };
+        let text = format!("[{}] {text}", short(token));
         self.ok(self.rec.log(format!("tokens/{token}"), &TextLog::new(text).with_level(level)));
     }
 
@@ -459,6 +497,11 @@ impl Logger {
             self.ok(self.rec.log(format!("vars/{name}"), &Scalars::single(x)));
         }
     }
+}
+
+/// Variables recorded as series: those that can change and have a number to plot.
+fn recorded(info: &VarInfo) -> bool {
+    !info.constant && !matches!(info.ty, Type::Unsupported(_))
 }
 
 /// The first 8 hex digits of a token id, enough to tell tokens apart on a timeline.
