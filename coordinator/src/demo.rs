@@ -165,6 +165,9 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
     if let crate::recording::Sink::Save(p) = &rerun {
         let shown = opts.rerun_path_as_given().unwrap_or(p);
         println!("recording: {} — open it with: rerun {}", p.display(), shown.display());
+        if !on_path("rerun") {
+            println!("(the Rerun viewer is not on the PATH: pip install rerun-sdk==0.36.3, or cargo install rerun-cli --version 0.36.3 --locked)");
+        }
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -302,4 +305,9 @@ impl DemoOptions {
             _ => None,
         }
     }
+}
+
+/// Whether an executable `name` is in one of the PATH's folders.
+fn on_path(name: &str) -> bool {
+    std::env::var_os("PATH").is_some_and(|paths| std::env::split_paths(&paths).any(|dir| dir.join(name).is_file()))
 }
