@@ -370,6 +370,24 @@ impl Logger {
         self.ok(self.rec.log(format!("tokens/{token}"), &TextLog::new(text).with_level(level)));
     }
 
+    /// An entry on the token behind something an agent did (agents' records name the agent, not the token):
+    /// the agent's token whose segment holds `step`; for a skill (no step), the agent's token if it holds one.
+    fn progress_log(&self, agent: &str, step: Option<&str>, level: &str, text: String) {
+        let Some(held) = self.agents.get(agent) else { return };
+        let layout = &self.run.layout;
+        let segment = |name: &str| self.steps.get(name).and_then(|s| layout.segment_of[s.index()]);
+        let token = match step {
+            Some(step) => {
+                segment(step).and_then(|g| held.iter().find(|(_, entry)| segment(entry) == Some(g)).map(|(t, _)| t))
+            }
+            None if held.len() == 1 => held.keys().next(),
+            None => None,
+        };
+        let Some(token) = token else { return };
+        let text = format!("[{}] {text}", short(token));
+        self.ok(self.rec.log(format!("tokens/{token}"), &TextLog::new(text).with_level(level)));
+    }
+
     fn log(&self, level: &str, text: String) {
         self.ok(self.rec.log("log", &TextLog::new(text).with_level(level)));
     }
@@ -398,6 +416,9 @@ impl Logger {
                 let s = self.steps.get(&rec.name).copied();
                 let waiting = s.is_some_and(|s| self.converging[s.index()]);
                 let placed = s.is_some_and(|s| self.run.layout.placement[s.index()] != Placement::Coordinator);
+                if let Some(a) = agent {
+                    self.progress_log(a, Some(&rec.name), "INFO", format!("at step {} on {a}", rec.name));
+                }
                 match agent {
                     _ if waiting => self.step_state(&rec.name, StepState::Waiting, "waiting"),
                     Some(a) => self.step_state(&rec.name, StepState::OnAgent, &format!("on {a}")),
@@ -408,9 +429,14 @@ impl Logger {
             "deactivate" => self.step_state(&rec.name, StepState::Inactive, "inactive"),
             "dispatch" | "resume" => {
                 let a = agent.unwrap_or("?");
-                let what = if rec.event == "dispatch" { "dispatched" } else { "resumed" };
                 let extra = if message.is_empty() { String::new() } else { format!(": {message}") };
-                self.token_log(rec, "INFO", format!("{what} to {a}: step {}{epoch}{extra}", rec.name));
+                // A dispatch in a later epoch restarts the segment: reassigned, or its agent restarted.
+                let (level, what) = match (rec.event.as_str(), rec.epoch) {
+                    ("dispatch", Some(e)) if e > 1 => ("WARN", "dispatched again, the segment restarting,"),
+                    ("dispatch", _) => ("INFO", "dispatched"),
+                    _ => ("INFO", "resumed"),
+                };
+                self.token_log(rec, level, format!("{what} to {a}: step {}{epoch}{extra}", rec.name));
                 if let (Some(a), Some(t)) = (agent, &rec.token) {
                     self.agents.entry(a.to_string()).or_default().insert(t.clone(), rec.name.clone());
                     self.agent_state(a);
@@ -456,11 +482,23 @@ impl Logger {
             "skill_fault" | "fault" => {
                 let on = agent.map(|a| format!(" on {a}")).unwrap_or_default();
                 let level = if rec.event == "fault" { "ERROR" } else { "WARN" };
+                if let Some(a) = agent {
+                    self.progress_log(
+                        a,
+                        None,
+                        level,
+                        format!("{}{on}: {} {message}", rec.event.replace('_', " "), rec.name),
+                    );
+                }
                 self.log(level, format!("{}{on}: {} {message}", rec.event.replace('_', " "), rec.name));
                 self.fault_steps(&rec.name, rec.event == "fault");
             }
             "set" => self.log("INFO", format!("set {} := {message}", rec.name)),
-            "skill_done" => {}
+            "skill_done" => {
+                if let Some(a) = agent {
+                    self.progress_log(a, None, "INFO", format!("skill {} done on {a}", rec.name));
+                }
+            }
             _ => {}
         }
     }

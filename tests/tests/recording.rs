@@ -109,6 +109,26 @@ fn check_recording(rrd: &Path, trace: &[TraceRecord], parts: u64) {
     let (lo, hi) = (offsets.first().copied().unwrap_or(0), offsets.last().copied().unwrap_or(0));
     assert!(hi - lo <= 1, "the recording's wall times are the trace's plus one start time: offsets {offsets:?}");
 
+    // Each token's log tells its life: dispatched, progress on its agent, returned. (The reader keeps one entry
+    // per token and instant, the last: enough to see each kind.)
+    for token in &tokens {
+        let entries: Vec<String> = recording["tokens"][*token]
+            .as_array()
+            .unwrap_or_else(|| panic!("no log for token {token}"))
+            .iter()
+            .map(|e| e[1].as_str().unwrap_or_default().to_string())
+            .collect();
+        let short = &token[..8];
+        assert!(entries.iter().all(|e| e.starts_with(&format!("[{short}] "))), "{entries:?}");
+        assert!(entries.iter().any(|e| e.contains("dispatched to robot")), "token {token}: {entries:?}");
+        assert!(entries.iter().any(|e| e.contains("returned from robot")), "token {token}: {entries:?}");
+        let assembles =
+            trace.iter().any(|r| r.event == "dispatch" && r.name == "Assemble" && r.token.as_deref() == Some(token));
+        if assembles {
+            assert!(entries.iter().any(|e| e.contains("at step Inspect on robot")), "token {token}: {entries:?}");
+        }
+    }
+
     // The chart's colours follow the steps: more than the initial colouring.
     let colour_updates = recording["graph_colour_updates"].as_u64().unwrap_or(0);
     assert!(colour_updates > 2, "sfc/graph has {colour_updates} colour update(s)");
