@@ -102,6 +102,9 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
         crate::recording::Sink::Save(p) => crate::recording::Sink::Save(std::path::absolute(p)?),
         other => other.clone(),
     };
+    if let crate::recording::Sink::Connect(url) = &rerun {
+        crate::recording::reachable(url.as_deref().unwrap_or(crate::recording::DEFAULT_VIEWER_URL))?;
+    }
     let rerun_arg = match &rerun {
         crate::recording::Sink::Off => "off".to_string(),
         crate::recording::Sink::Save(p) => format!("save:{}", p.display()),
@@ -127,6 +130,9 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
     let started = Instant::now();
     let mut progress = Progress::new(opts.parts as u64, &trace);
     let mut ticker = tokio::time::interval(Duration::from_millis(100));
+    // SIGTERM reaches only this process: the coordinator and the agents are stopped here (they are killed on
+    // drop), not left behind.
+    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     let status = loop {
         tokio::select! {
             st = coordinator.wait() => break st?,
@@ -139,9 +145,17 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
                 }
             }
             _ = tokio::signal::ctrl_c() => {
-                let _ = coordinator.kill().await;
+                // A terminal's Ctrl-C reaches the coordinator too: it stops its run and closes its recording.
+                if tokio::time::timeout(Duration::from_secs(5), coordinator.wait()).await.is_err() {
+                    let _ = coordinator.kill().await;
+                }
                 progress.finish();
                 bail!("interrupted");
+            }
+            _ = sigterm.recv() => {
+                let _ = coordinator.kill().await;
+                progress.finish();
+                bail!("terminated");
             }
         }
     };

@@ -17,10 +17,12 @@
 //! Two timelines: `wall` (Unix time) and `cycle` (the coordinator's cycle number).
 
 use std::collections::{BTreeMap, HashMap};
+use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
+use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::Arc;
+use std::time::Duration;
 
 use anyhow::anyhow;
 use baton_proto::layout::{Layout, Placement};
@@ -39,6 +41,39 @@ use rerun::{
 
 /// Records the queue holds before the recorder drops; far more than a burst of the busiest chart.
 const QUEUE_MAX: usize = 65_536;
+
+/// How long the end of a run waits for a viewer to take the rest of its recording.
+const LIVE_CLOSE_WAIT: Duration = Duration::from_secs(10);
+
+/// How long `connect` tries to reach the viewer before the run starts.
+const CONNECT_CHECK_WAIT: Duration = Duration::from_secs(2);
+
+/// The Rerun viewer's default gRPC proxy.
+pub const DEFAULT_VIEWER_URL: &str = "rerun+http://127.0.0.1:9876/proxy";
+
+/// Whether a viewer listens at `url` (`rerun+http://HOST:PORT/proxy`): the SDK would otherwise buffer the
+/// recording for a viewer that is not there, and a run would record nothing without a word.
+pub fn reachable(url: &str) -> anyhow::Result<()> {
+    let authority = url
+        .split_once("://")
+        .map(|(_, rest)| rest.split('/').next().unwrap_or(rest))
+        .ok_or_else(|| anyhow!("`{url}` is not a Rerun viewer URL (rerun+http://HOST:PORT/proxy)"))?;
+    let addrs: Vec<SocketAddr> = authority
+        .to_socket_addrs()
+        .map_err(|e| anyhow!("`{url}` is not a Rerun viewer URL (rerun+http://HOST:PORT/proxy): {e}"))?
+        .collect();
+    let mut last = None;
+    for addr in &addrs {
+        match TcpStream::connect_timeout(addr, CONNECT_CHECK_WAIT) {
+            Ok(_) => return Ok(()),
+            Err(e) => last = Some(e),
+        }
+    }
+    let why = last.map_or_else(|| "no address".to_string(), |e| e.to_string());
+    Err(anyhow!(
+        "no Rerun viewer at {url} ({why}): start one with `rerun`, or record with --rerun spawn or save:PATH.rrd"
+    ))
+}
 
 /// Where a recording goes.
 #[derive(Clone, Debug, PartialEq)]
@@ -94,6 +129,10 @@ pub struct Recorder {
     tx: Option<SyncSender<Item>>,
     dropped: Arc<AtomicU64>,
     thread: Option<std::thread::JoinHandle<()>>,
+    /// Signalled by the logging thread when the recording is flushed and closed.
+    done: Receiver<()>,
+    /// A viewer (connect, spawn), not a file.
+    live: bool,
     /// The last value sent of each recorded variable.
     last: Vec<Option<Value>>,
     program: Arc<Program>,
@@ -114,7 +153,8 @@ impl Recorder {
             Sink::Off => return Ok(None),
             Sink::Save(path) => builder.save(path).map_err(|e| anyhow!("cannot record to {}: {e}", path.display()))?,
             Sink::Connect(url) => {
-                let url = url.clone().unwrap_or_else(|| "rerun+http://127.0.0.1:9876/proxy".to_string());
+                let url = url.clone().unwrap_or_else(|| DEFAULT_VIEWER_URL.to_string());
+                reachable(&url)?;
                 builder
                     .connect_grpc_opts(url.clone())
                     .map_err(|e| anyhow!("cannot connect to a viewer at {url}: {e}"))?
@@ -124,6 +164,7 @@ impl Recorder {
             }
         };
         let (tx, rx) = sync_channel(QUEUE_MAX);
+        let (done_tx, done) = sync_channel(1);
         let program = Arc::clone(&run.program);
         let thread = std::thread::Builder::new()
             .name("baton-rerun".into())
@@ -131,10 +172,21 @@ impl Recorder {
                 let mut logger = Logger::new(stream, run);
                 logger.static_parts();
                 logger.run(&rx);
+                drop(logger);
+                let _ = done_tx.send(());
             })
             .map_err(|e| anyhow!("cannot start the recording thread: {e}"))?;
         let last = vec![None; program.vars.len()];
-        Ok(Some(Recorder { tx: Some(tx), dropped: Arc::new(AtomicU64::new(0)), thread: Some(thread), last, program }))
+        let live = !matches!(sink, Sink::Save(_));
+        Ok(Some(Recorder {
+            tx: Some(tx),
+            dropped: Arc::new(AtomicU64::new(0)),
+            thread: Some(thread),
+            done,
+            live,
+            last,
+            program,
+        }))
     }
 
     fn send(&mut self, item: Item) {
@@ -180,11 +232,24 @@ impl Recorder {
         self.dropped.load(Ordering::Relaxed)
     }
 
+    /// A file is always finished (the disk takes it). A viewer that went away, or stopped reading, would hold
+    /// the Rerun SDK's flush forever: after `LIVE_CLOSE_WAIT` the run goes on without it, and says so.
     fn close(&mut self) {
         self.tx = None;
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
+        let Some(t) = self.thread.take() else { return };
+        if self.live {
+            match self.done.recv_timeout(LIVE_CLOSE_WAIT) {
+                Ok(()) | Err(RecvTimeoutError::Disconnected) => {}
+                Err(RecvTimeoutError::Timeout) => {
+                    eprintln!(
+                        "warning: the Rerun viewer did not take the end of the recording within {} s; left behind",
+                        LIVE_CLOSE_WAIT.as_secs()
+                    );
+                    return;
+                }
+            }
         }
+        let _ = t.join();
     }
 }
 
@@ -583,6 +648,19 @@ fn layered_layout(program: &Program) -> Vec<[f32; 2]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn connect_needs_a_listening_viewer_and_says_so() {
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+        let port = listener.local_addr().expect("addr").port();
+        let url = format!("rerun+http://127.0.0.1:{port}/proxy");
+        reachable(&url).expect("a listener is reachable");
+        drop(listener);
+        let err = reachable(&url).expect_err("nobody listens").to_string();
+        assert!(err.contains("no Rerun viewer at") && err.contains("start one with `rerun`"), "{err}");
+        let err = reachable("127.0.0.1:9876").expect_err("not a URL").to_string();
+        assert!(err.contains("not a Rerun viewer URL"), "{err}");
+    }
 
     #[test]
     fn sinks_parse_and_bad_ones_say_what_is_allowed() {
