@@ -1,10 +1,18 @@
 """Reads a Baton recording (.rrd) back with the Rerun SDK of the same version (rerun-sdk==0.36.3) and prints, as
-JSON its entity paths; per step, the states logged on `sfc/steps/<step>` with their `wall` time in ms; per
-variable, the values logged on `vars/<name>`; per token, the (level, text) entries of `tokens/<id>`; and how many colour updates `sfc/graph` has.
+JSON, every row it holds, in the order they were logged:
+
+    {"entity_paths": [...],
+     "steps":  {step: [[wall_ms, state], ...]},      sfc/steps/<step>
+     "agents": {name: [[wall_ms, state], ...]},      agents/<name>
+     "tokens": {id: [[level, text], ...]},           tokens/<id>
+     "log":    [[wall_ms, level, text], ...],        log
+     "vars":   {name: [[wall_ms, value], ...]},      vars/<name>
+     "graph_colour_updates": N}                      timed colour rows of sfc/graph
 
     python3 tests/scripts/read_recording.py RUN.rrd
 
-Used by tests/tests/recording.rs to check a recording against the run's trace."""
+Rows are read chunk by chunk (a dataframe query would keep one row per entity and instant). Used by
+tests/tests/recording.rs to check a recording against the run's trace."""
 
 import json
 import sys
@@ -12,43 +20,38 @@ import sys
 from rerun.experimental import RrdReader
 
 
+def wall_ms(row):
+    return int(round(row["wall"].value / 1e6))
+
+
 def main(path):
-    store = RrdReader(path).stream().collect()
-    paths = sorted(str(p) for p in store.schema().entity_paths())
-    df = store.reader(index="wall").to_pandas()
-    steps = {}
-    prefix = "/sfc/steps/"
-    for column in df.columns:
-        if not (column.startswith(prefix) and column.endswith(":StateChange:state")):
+    rows = []  # (row id, entity path, row)
+    paths = set()
+    for chunk in RrdReader(path).stream().to_chunks():
+        entity = str(chunk.entity_path)
+        paths.add(entity)
+        if chunk.is_static:
             continue
-        step = column[len(prefix):-len(":StateChange:state")]
-        rows = df[["wall", column]].dropna()
-        changes = []
-        for _, row in rows.iterrows():
-            wall_ms = int(round(row["wall"].value / 1e6))
-            for state in row[column]:
-                changes.append([wall_ms, str(state)])
-        steps[step] = changes
-    variables = {}
-    prefix = "/vars/"
-    for column in df.columns:
-        if not (column.startswith(prefix) and column.endswith(":Scalars:scalars")):
-            continue
-        name = column[len(prefix):-len(":Scalars:scalars")]
-        rows = df[["wall", column]].dropna()
-        variables[name] = [[int(round(r["wall"].value / 1e6)), float(r[column][0])] for _, r in rows.iterrows()]
-    tokens = {}
-    prefix = "/tokens/"
-    for column in df.columns:
-        if not (column.startswith(prefix) and column.endswith(":TextLog:text")):
-            continue
-        token = column[len(prefix):-len(":TextLog:text")]
-        level = column.replace(":TextLog:text", ":TextLog:level")
-        rows = df[["wall", column, level]].dropna(subset=[column])
-        tokens[token] = [[str(r[level][0]) if r[level] is not None else "", str(r[column][0])] for _, r in rows.iterrows()]
-    colours = "/sfc/graph:GraphNodes:colors"
-    colour_updates = int(df[colours].notna().sum()) if colours in df.columns else 0
-    print(json.dumps({"entity_paths": paths, "steps": steps, "vars": variables, "tokens": tokens, "graph_colour_updates": colour_updates}))
+        for row in chunk.to_record_batch().to_pylist():
+            rows.append((row["rerun.controls.RowId"], entity, row))
+    rows.sort(key=lambda r: r[0])
+    out = {"entity_paths": sorted(paths), "steps": {}, "agents": {}, "tokens": {}, "log": [], "vars": {},
+           "graph_colour_updates": 0}
+    for _, entity, row in rows:
+        if entity.startswith("/sfc/steps/") and row.get("StateChange:state"):
+            out["steps"].setdefault(entity[len("/sfc/steps/"):], []).append([wall_ms(row), row["StateChange:state"][0]])
+        elif entity.startswith("/agents/") and row.get("StateChange:state"):
+            out["agents"].setdefault(entity[len("/agents/"):], []).append([wall_ms(row), row["StateChange:state"][0]])
+        elif entity.startswith("/tokens/") and row.get("TextLog:text"):
+            level = (row.get("TextLog:level") or [""])[0]
+            out["tokens"].setdefault(entity[len("/tokens/"):], []).append([level, row["TextLog:text"][0]])
+        elif entity == "/log" and row.get("TextLog:text"):
+            out["log"].append([wall_ms(row), (row.get("TextLog:level") or [""])[0], row["TextLog:text"][0]])
+        elif entity.startswith("/vars/") and row.get("Scalars:scalars"):
+            out["vars"].setdefault(entity[len("/vars/"):], []).append([wall_ms(row), float(row["Scalars:scalars"][0])])
+        elif entity == "/sfc/graph" and row.get("GraphNodes:colors"):
+            out["graph_colour_updates"] += 1
+    print(json.dumps(out))
 
 
 if __name__ == "__main__":

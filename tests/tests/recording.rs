@@ -5,8 +5,9 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
+use baton_proto::keys;
 use baton_proto::sim::TraceRecord;
-use baton_tests::cluster::{read_trace, repo, Cluster};
+use baton_tests::cluster::{self, read_trace, repo, step_id, Cluster};
 
 /// Whether `python3` has rerun-sdk 0.36.3; in CI (`CI` set) its absence fails the test.
 fn reader_available() -> bool {
@@ -109,8 +110,7 @@ fn check_recording(rrd: &Path, trace: &[TraceRecord], parts: u64) {
     let (lo, hi) = (offsets.first().copied().unwrap_or(0), offsets.last().copied().unwrap_or(0));
     assert!(hi - lo <= 1, "the recording's wall times are the trace's plus one start time: offsets {offsets:?}");
 
-    // Each token's log tells its life: dispatched, progress on its agent, returned. (The reader keeps one entry
-    // per token and instant, the last: enough to see each kind.)
+    // Each token's log tells its life: dispatched, progress on its agent, returned.
     for token in &tokens {
         let entries: Vec<String> = recording["tokens"][*token]
             .as_array()
@@ -125,6 +125,10 @@ fn check_recording(rrd: &Path, trace: &[TraceRecord], parts: u64) {
         let assembles =
             trace.iter().any(|r| r.event == "dispatch" && r.name == "Assemble" && r.token.as_deref() == Some(token));
         if assembles {
+            assert!(
+                entries.iter().any(|e| e.contains("skill AssemblePart done on robot")),
+                "token {token}: {entries:?}"
+            );
             assert!(entries.iter().any(|e| e.contains("at step Inspect on robot")), "token {token}: {entries:?}");
         }
     }
@@ -194,4 +198,71 @@ async fn a_run_without_a_recording_is_recorded_afterwards_from_its_journal() {
     assert!(out.status.success(), "baton replay failed: {}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(read_trace(&replayed_trace), trace, "the replayed trace differs from the live one");
     check_recording(&rrd, &trace, 2);
+}
+
+/// What went wrong is on the timeline: the robot holding Assemble is killed under `--on-agent-loss reassign`;
+/// the recording shows the agent lost, the alarm, the token dispatched again in a new epoch to the other robot,
+/// and the step running there.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_lost_agent_and_the_reassignment_are_on_the_timeline() {
+    if !reader_available() {
+        return;
+    }
+    let cell = repo("examples/cell.st");
+    let mut cluster = Cluster::new();
+    let rrd = cluster.dir.path().join("loss.rrd");
+    let sink = format!("save:{}", rrd.display());
+    let mut coordinator =
+        cluster.coordinator(&cell, &["--set", "parts=1", "--on-agent-loss", "reassign", "--rerun", &sink]);
+    coordinator.wait_for_log("running chart").await;
+    let session = cluster.watch().await;
+    let cmds = session.declare_subscriber(keys::agent_cmd("*")).await.expect("subscriber");
+    cluster.agent("robot1", &["assembler"], &[]);
+    cluster.agent("robot2", &["assembler"], &[]);
+    let (holder, token) = cluster::next_dispatch(&cmds, step_id(&cell, "Assemble"), 1).await;
+    let other = if holder == "robot1" { "robot2" } else { "robot1" };
+    cluster.kill_agent(&holder).await;
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+
+    let recording = read_recording(&rrd);
+    let lines: Vec<(String, String)> = recording["log"]
+        .as_array()
+        .expect("log")
+        .iter()
+        .map(|e| (e[1].as_str().unwrap_or_default().to_string(), e[2].as_str().unwrap_or_default().to_string()))
+        .collect();
+    assert!(lines.contains(&("WARN".to_string(), format!("agent {holder} lost"))), "{lines:?}");
+    assert!(lines.iter().any(|(level, text)| level == "ERROR" && text.starts_with("alarm: ")), "{lines:?}");
+
+    let states = |agent: &str| -> Vec<String> {
+        recording["agents"][agent]
+            .as_array()
+            .unwrap_or_else(|| panic!("no states for {agent}"))
+            .iter()
+            .map(|s| s[1].as_str().unwrap_or_default().to_string())
+            .collect()
+    };
+    let short = token.to_string()[..8].to_string();
+    assert_eq!(states(&holder).last().map(String::as_str), Some("lost"), "{:?}", states(&holder));
+    assert!(states(other).contains(&format!("busy: Assemble ({short})")), "{:?}", states(other));
+
+    let entries: Vec<(String, String)> = recording["tokens"][token.to_string()]
+        .as_array()
+        .expect("the token's log")
+        .iter()
+        .map(|e| (e[0].as_str().unwrap_or_default().to_string(), e[1].as_str().unwrap_or_default().to_string()))
+        .collect();
+    let again = format!("[{short}] dispatched again, the segment restarting, to {other}: step Assemble, epoch 2");
+    assert!(entries.contains(&("WARN".to_string(), again)), "{entries:?}");
+    assert!(entries.iter().any(|(_, t)| t.contains(&format!("returned from {other}: step Assemble, epoch 2"))));
+
+    let assemble: Vec<String> = recording["steps"]["Assemble"]
+        .as_array()
+        .expect("Assemble")
+        .iter()
+        .map(|s| s[1].as_str().unwrap_or_default().to_string())
+        .collect();
+    assert!(assemble.contains(&format!("on {holder}")) && assemble.contains(&format!("on {other}")), "{assemble:?}");
+    assert!(trace.iter().any(|r| r.event == "agent_lost" && r.name == holder));
 }
