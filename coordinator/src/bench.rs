@@ -431,13 +431,18 @@ async fn throughput(
     let names: Vec<String> = (1..=agents).map(|k| format!("bench{k}")).collect();
     let summary =
         run_chart(dir, "throughput.st", chart, &names, probe, Extras { journal, ..Extras::default() }).await?;
+    let (counted, secs) = steady_returns(&marks)?;
+    Ok((counted, secs, summary.journal))
+}
+
+/// Tokens returned in steady state and the seconds they took: the first tenth of the returns (agents
+/// starting, caches warming) is left out.
+fn steady_returns(marks: &Marks) -> anyhow::Result<(u64, f64)> {
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
-    // Steady state: the first tenth of the returns (agents starting, caches warming) is left out.
     let returns: Vec<Instant> = marks.iter().filter(|m| m.1 == "return").map(|m| m.0).collect();
     let skip = returns.len() / 10;
     let (Some(first), Some(last)) = (returns.get(skip), returns.last()) else { bail!("no token came back") };
-    let counted = (returns.len() - skip - 1) as u64;
-    Ok((counted, (*last - *first).as_secs_f64().max(1e-9), summary.journal))
+    Ok(((returns.len() - skip - 1) as u64, (*last - *first).as_secs_f64().max(1e-9)))
 }
 
 /// Phase 6: the demo's cell chart (two robots) with its motions taking no time and no inspection faults, `parts`
@@ -450,11 +455,7 @@ async fn demo_throughput(dir: &Path, parts: u32, record: Option<PathBuf>) -> any
     let extras =
         Extras { rerun: record, sets: vec![("parts".to_string(), serde_json::json!(parts))], ..Extras::default() };
     run_chart(dir, "cell.st", chart, &names, probe, extras).await?;
-    let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
-    let returns: Vec<Instant> = marks.iter().map(|m| m.0).collect();
-    let skip = returns.len() / 10;
-    let (Some(first), Some(last)) = (returns.get(skip), returns.last()) else { bail!("no token came back") };
-    Ok(((returns.len() - skip - 1) as u64, (*last - *first).as_secs_f64().max(1e-9)))
+    steady_returns(&marks)
 }
 
 /// The cell chart with every motion instantaneous and inspection never failing, so that the chart's own

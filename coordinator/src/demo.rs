@@ -34,10 +34,7 @@ pub fn agent_binary() -> anyhow::Result<PathBuf> {
     if beside.is_file() {
         return Ok(beside);
     }
-    let on_path = std::env::var_os("PATH")
-        .map(|p| std::env::split_paths(&p).map(|d| d.join("baton-agent")).find(|c| c.is_file()))
-        .unwrap_or_default();
-    on_path.ok_or_else(|| {
+    on_path("baton-agent").ok_or_else(|| {
         anyhow!(
             "`baton-agent` is neither beside {} nor on the PATH: build both with `cargo build --release`",
             exe.display()
@@ -179,7 +176,7 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
     if let crate::recording::Sink::Save(p) = &rerun {
         let shown = opts.rerun_path_as_given().unwrap_or(p);
         println!("recording: {} — open it with: rerun {}", p.display(), shown.display());
-        if !on_path("rerun") {
+        if on_path("rerun").is_none() {
             println!("(the Rerun viewer is not on the PATH: pip install rerun-sdk==0.36.3, or cargo install rerun-cli --version 0.36.3 --locked)");
         }
     }
@@ -321,7 +318,8 @@ impl DemoOptions {
     }
 }
 
-/// Whether an executable `name` is in one of the PATH's folders.
-fn on_path(name: &str) -> bool {
-    std::env::var_os("PATH").is_some_and(|paths| std::env::split_paths(&paths).any(|dir| dir.join(name).is_file()))
+/// The executable `name` in the first of the PATH's folders that has it.
+fn on_path(name: &str) -> Option<PathBuf> {
+    let paths = std::env::var_os("PATH")?;
+    std::env::split_paths(&paths).map(|dir| dir.join(name)).find(|c| c.is_file())
 }

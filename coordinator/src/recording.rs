@@ -430,7 +430,12 @@ impl Logger {
     /// An entry on the token's own path; the text names the token too, since the log view's path column is
     /// narrow.
     fn token_log(&self, rec: &TraceRecord, level: &str, text: String) {
-        let Some(token) = &rec.token else { return };
+        if let Some(token) = &rec.token {
+            self.log_on_token(token, level, text);
+        }
+    }
+
+    fn log_on_token(&self, token: &str, level: &str, text: String) {
         let text = format!("[{}] {text}", short(token));
         self.ok(self.rec.log(format!("tokens/{token}"), &TextLog::new(text).with_level(level)));
     }
@@ -448,9 +453,9 @@ impl Logger {
             None if held.len() == 1 => held.keys().next(),
             None => None,
         };
-        let Some(token) = token else { return };
-        let text = format!("[{}] {text}", short(token));
-        self.ok(self.rec.log(format!("tokens/{token}"), &TextLog::new(text).with_level(level)));
+        if let Some(token) = token {
+            self.log_on_token(token, level, text);
+        }
     }
 
     fn log(&self, level: &str, text: String) {
@@ -547,15 +552,11 @@ impl Logger {
             "skill_fault" | "fault" => {
                 let on = agent.map(|a| format!(" on {a}")).unwrap_or_default();
                 let level = if rec.event == "fault" { "ERROR" } else { "WARN" };
+                let text = format!("{}{on}: {} {message}", rec.event.replace('_', " "), rec.name);
                 if let Some(a) = agent {
-                    self.progress_log(
-                        a,
-                        None,
-                        level,
-                        format!("{}{on}: {} {message}", rec.event.replace('_', " "), rec.name),
-                    );
+                    self.progress_log(a, None, level, text.clone());
                 }
-                self.log(level, format!("{}{on}: {} {message}", rec.event.replace('_', " "), rec.name));
+                self.log(level, text);
                 self.fault_steps(&rec.name, rec.event == "fault");
             }
             "set" => self.log("INFO", format!("set {} := {message}", rec.name)),

@@ -146,6 +146,19 @@ fn check_recording(rrd: &Path, trace: &[TraceRecord], parts: u64) {
     assert_eq!(done, (0..=parts).map(|k| k as f64).collect::<Vec<_>>(), "vars/done");
 }
 
+/// Runs `examples/cell.st` for two parts on robot1 and robot2 with `extra` arguments; returns its trace.
+async fn run_two_parts(cluster: &mut Cluster, extra: &[&str]) -> Vec<TraceRecord> {
+    let mut args = vec!["--set", "parts=2"];
+    args.extend_from_slice(extra);
+    let mut coordinator = cluster.coordinator(&repo("examples/cell.st"), &args);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("robot1", &["assembler"], &[]);
+    cluster.agent("robot2", &["assembler"], &[]);
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    trace
+}
+
 #[tokio::test(flavor = "multi_thread")]
 async fn a_live_recording_holds_every_entity_and_the_steps_states_of_the_trace() {
     if !reader_available() {
@@ -154,12 +167,7 @@ async fn a_live_recording_holds_every_entity_and_the_steps_states_of_the_trace()
     let mut cluster = Cluster::new();
     let rrd = cluster.dir.path().join("run.rrd");
     let sink = format!("save:{}", rrd.display());
-    let mut coordinator = cluster.coordinator(&repo("examples/cell.st"), &["--set", "parts=2", "--rerun", &sink]);
-    coordinator.wait_for_log("running chart").await;
-    cluster.agent("robot1", &["assembler"], &[]);
-    cluster.agent("robot2", &["assembler"], &[]);
-    let (status, log, trace, _) = coordinator.finish().await;
-    assert!(status.success(), "{log}");
+    let trace = run_two_parts(&mut cluster, &["--rerun", &sink]).await;
     check_recording(&rrd, &trace, 2);
 }
 
@@ -173,13 +181,7 @@ async fn a_run_without_a_recording_is_recorded_afterwards_from_its_journal() {
     let mut cluster = Cluster::new();
     let journal = cluster.dir.path().join("journal");
     let journal_arg = journal.display().to_string();
-    let mut coordinator = cluster
-        .coordinator(&repo("examples/cell.st"), &["--set", "parts=2", "--rerun", "off", "--journal", &journal_arg]);
-    coordinator.wait_for_log("running chart").await;
-    cluster.agent("robot1", &["assembler"], &[]);
-    cluster.agent("robot2", &["assembler"], &[]);
-    let (status, log, trace, _) = coordinator.finish().await;
-    assert!(status.success(), "{log}");
+    let trace = run_two_parts(&mut cluster, &["--rerun", "off", "--journal", &journal_arg]).await;
 
     let rrd = cluster.dir.path().join("replayed.rrd");
     let replayed_trace = cluster.dir.path().join("replayed.jsonl");
