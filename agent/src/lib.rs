@@ -9,7 +9,6 @@
 //!     roles: vec!["picker".into()],
 //!     connect: vec!["tcp/127.0.0.1:7447".into()],
 //!     lease_ms: 10_000,
-//!     cycle_ms: 10,
 //!     verbose: false,
 //!     zenoh_config: None,
 //! };

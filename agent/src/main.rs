@@ -21,9 +21,6 @@ struct Args {
     /// The lease this agent announces: a hung or cut-off agent is declared lost after this long.
     #[arg(long, default_value_t = 10_000, value_name = "MS")]
     lease_ms: u64,
-    /// The scan cycle: transitions are judged at least this often (and at once on every message).
-    #[arg(long, default_value_t = 10, value_name = "MS")]
-    cycle_ms: u64,
     /// Offer the `shell` skill, which runs the command a chart names: only for charts you trust.
     #[arg(long)]
     allow_shell: bool,
@@ -42,7 +39,6 @@ fn main() -> ExitCode {
         roles: args.roles,
         connect: args.connect,
         lease_ms: args.lease_ms,
-        cycle_ms: args.cycle_ms,
         verbose: args.verbose,
         zenoh_config: args.zenoh_config,
     };

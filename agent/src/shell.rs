@@ -40,7 +40,6 @@ pub struct AgentConfig {
     pub roles: Vec<String>,
     pub connect: Vec<String>,
     pub lease_ms: u64,
-    pub cycle_ms: u64,
     /// Print every log line, not only warnings and errors.
     pub verbose: bool,
     /// The user's own Zenoh configuration file (TLS, credentials), under Baton's settings.
@@ -60,15 +59,15 @@ impl AgentConfig {
         if self.connect.is_empty() {
             anyhow::bail!("give the router's endpoint with --connect, such as tcp/127.0.0.1:7447");
         }
-        if self.cycle_ms == 0 {
-            anyhow::bail!("--cycle-ms must be at least 1");
-        }
         Ok(())
     }
 }
 
+/// A chart fetched from its coordinator, compiled: its version, program, layout and cycle period.
+type Fetched = (ChartHash, Arc<Program>, Arc<Layout>, u64);
+
 enum Event {
-    Chart(RunId, Result<(ChartHash, Arc<Program>, Arc<Layout>), String>),
+    Chart(RunId, Result<Fetched, String>),
     Skill(RunId, ActionId, Result<(), String>),
 }
 
@@ -130,12 +129,18 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
         shell.skills.names().join(", ")
     );
     let incarnation = uuid::Uuid::new_v4();
-    let mut tick = tokio::time::interval(Duration::from_millis(config.cycle_ms));
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     // Signal streams made once: polling them each turn of the loop costs nothing.
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
     loop {
+        // Asleep until a message comes or a run's next cycle or resend is due: an idle agent never wakes.
+        let deadline = shell.deadline();
+        let timer = async move {
+            match deadline {
+                Some(at) => tokio::time::sleep_until(at.into()).await,
+                None => std::future::pending().await,
+            }
+        };
         tokio::select! {
             s = cmd_sub.recv_async() => {
                 let Ok(s) = s else { break };
@@ -156,11 +161,11 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
                 }
             }
             Some(ev) = rx.recv() => shell.on_event(ev),
-            _ = tick.tick() => shell.resend(),
+            () = timer => shell.timeout(),
             _ = sigint.recv() => break,
             _ = sigterm.recv() => break,
         }
-        shell.cycle().await;
+        shell.carry_out_all().await;
     }
     eprintln!("baton-agent `{name}` stopping ({} message(s) dropped)", shell.dropped_total());
     drop(shell);
@@ -260,18 +265,20 @@ impl Shell {
             Ok(u) => u,
             Err(e) => return self.drop_msg(format!("on {}: {e}", sample.key_expr())),
         };
+        let now = self.now_ms();
         if let Some(r) = self.runs.get_mut(&update.run) {
-            r.state.handle_vars(&update);
+            r.state.handle_vars(now, &update);
         }
     }
 
     fn on_event(&mut self, ev: Event) {
         let now = self.now_ms();
         match ev {
-            Event::Chart(run, Ok((hash, program, layout))) => {
+            Event::Chart(run, Ok((hash, program, layout, cycle_ms))) => {
                 let queued = self.pending.remove(&run).unwrap_or_default();
                 self.make_room();
-                let state = AgentRun::new(&self.config.name, &self.config.roles, run, hash.clone(), program, layout);
+                let (name, roles) = (&self.config.name, &self.config.roles);
+                let state = AgentRun::new(name, roles, run, hash.clone(), program, layout, cycle_ms);
                 let mut r = Run { state, last_used: Instant::now() };
                 for (h, d) in queued {
                     if h == hash {
@@ -306,24 +313,28 @@ impl Shell {
         }
     }
 
-    fn resend(&mut self) {
+    /// The earliest instant a run needs its `handle_timeout`.
+    fn deadline(&self) -> Option<Instant> {
+        let at = self.runs.values().filter_map(|r| r.state.poll_timeout()).min()?;
+        Some(self.started + Duration::from_millis(at))
+    }
+
+    /// Time passed: every run whose cycle or resend is due gets it.
+    fn timeout(&mut self) {
         let now = self.now_ms();
         for r in self.runs.values_mut() {
-            r.state.handle_resend(now);
+            if r.state.poll_timeout().is_some_and(|t| t <= now) {
+                r.state.handle_timeout(now);
+            }
         }
     }
 
-    /// Runs a cycle of every run that holds a token (the others have nothing active to judge) and carries out
-    /// what every run asks.
-    async fn cycle(&mut self) {
-        let now = self.now_ms();
+    /// Carries out what every run asks.
+    async fn carry_out_all(&mut self) {
         let ids: Vec<RunId> = self.runs.keys().copied().collect();
         for id in ids {
             let mut outputs = Vec::new();
             if let Some(r) = self.runs.get_mut(&id) {
-                if r.state.needs_cycle() {
-                    r.state.handle_cycle(now);
-                }
                 while let Some(out) = r.state.poll_output() {
                     outputs.push(out);
                 }
@@ -424,11 +435,7 @@ fn zenoh_config(net: &NetConfig, file: Option<&std::path::Path>) -> anyhow::Resu
 }
 
 /// Asks the coordinator of `run` for its chart and compiles it; the chart must hash to `hash`.
-async fn fetch_chart(
-    session: &Session,
-    run: RunId,
-    hash: &ChartHash,
-) -> Result<(ChartHash, Arc<Program>, Arc<Layout>), String> {
+async fn fetch_chart(session: &Session, run: RunId, hash: &ChartHash) -> Result<Fetched, String> {
     let replies = session
         .get(keys::chart(run))
         .timeout(CHART_FETCH_TIMEOUT)
@@ -449,7 +456,7 @@ async fn fetch_chart(
         .ok_or_else(|| format!("the chart source has no POU `{}`", src.pou))?;
     let checked = report.charts.swap_remove(i);
     match (checked.program, checked.layout) {
-        (Some(p), Some(l)) => Ok((hash.clone(), Arc::new(p), Arc::new(l))),
+        (Some(p), Some(l)) => Ok((hash.clone(), Arc::new(p), Arc::new(l), src.cycle_ms.max(1))),
         _ => Err(format!("chart `{}` has errors here", src.pou)),
     }
 }

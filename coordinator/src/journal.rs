@@ -265,6 +265,7 @@ mod tests {
             pou: "Cell".into(),
             source: "PROGRAM Cell END_PROGRAM".into(),
             started_unix_ms: 1,
+            cycle_ms: 10,
         }
     }
 

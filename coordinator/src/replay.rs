@@ -52,9 +52,10 @@ pub fn replay(opts: &ReplayOptions) -> anyhow::Result<()> {
         started_unix_ms: header.started_unix_ms,
     };
     let recorder = Recorder::start(&opts.rerun, recorded)?;
-    let core = Coordinator::new(program, layout, header.run, header.chart.clone(), journal::token_ids(header.run));
+    let mut core = Coordinator::new(program, layout, header.run, header.chart.clone(), journal::token_ids(header.run));
+    core.set_cycle_ms(header.cycle_ms);
     let mut core = Journaled::new(core);
-    let mut out = Records::new(trace, None, recorder);
+    let mut out = Records::new(trace, None, recorder, header.cycle_ms);
     let mut cycles = 0;
     let replayed = replay_records(&mut core, &opened.records, &mut cycles, &mut out)?;
     out.finish()?;

@@ -18,7 +18,7 @@ use baton_proto::check::check_source;
 use baton_proto::journal::{self, JournalHeader, Journaled, Record, JOURNAL_FORMAT};
 use baton_proto::keys;
 use baton_proto::layout::Layout;
-use baton_proto::limits::RECEIVE_QUEUE_MAX;
+use baton_proto::limits::{CATCH_UP_CYCLES_MAX, RECEIVE_QUEUE_MAX};
 use baton_proto::netconfig::NetConfig;
 use baton_proto::program::Program;
 use baton_proto::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
@@ -122,7 +122,7 @@ struct Shell {
     base_ms: u64,
     journal: Option<crate::journal::Writer>,
     /// What the coordinator asked for, per journal batch, until that batch is durable.
-    held: VecDeque<(u64, u64, Vec<CoordOutput>)>,
+    held: VecDeque<(u64, Vec<CoordOutput>)>,
     /// Answers to `baton set`, likewise: a client is told a value was taken only once it is durable.
     held_replies: VecDeque<(u64, Query, Vec<u8>)>,
     quiet: bool,
@@ -131,12 +131,32 @@ struct Shell {
     vars_key: String,
     decode_drops: u64,
     out: Records,
-    /// Cycles run so far (replayed ones included): the recording's `cycle` timeline.
+    /// Cycles run so far that changed something (replayed ones included).
     cycles: u64,
+    /// The run's cycle period, and the grid time of the last cycle this process ran.
+    cycle_ms: u64,
+    last_cycle_ms: Option<u64>,
+}
+
+/// What woke the coordinator's main loop.
+enum Wake {
+    Report(Sample),
+    Vars(Sample),
+    Alive(Sample),
+    Event(Event),
+    Chart(Query),
+    Status(Query),
+    Set(Query),
+    Durable,
+    Timer,
+    Stop,
+    Closed,
 }
 
 /// Where trace records go: the bench's probe, the recording, the summary's step times and the trace file.
 pub struct Records {
+    /// The run's cycle period: a record's cycle (the recording's `cycle` timeline) is its grid index.
+    cycle_ms: u64,
     pub trace: Option<BufWriter<File>>,
     trace_error: bool,
     steps: BTreeMap<String, (StepTime, Option<u64>)>,
@@ -149,11 +169,13 @@ impl Records {
         trace: Option<BufWriter<File>>,
         probe: Option<Probe>,
         recorder: Option<crate::recording::Recorder>,
+        cycle_ms: u64,
     ) -> Records {
-        Records { trace, trace_error: false, steps: BTreeMap::new(), probe, recorder }
+        Records { cycle_ms: cycle_ms.max(1), trace, trace_error: false, steps: BTreeMap::new(), probe, recorder }
     }
 
-    pub fn record(&mut self, cycle: u64, rec: TraceRecord) {
+    pub fn record(&mut self, rec: TraceRecord) {
+        let cycle = rec.t_ms / self.cycle_ms;
         if let Some(probe) = &mut self.probe {
             probe(&rec);
         }
@@ -189,8 +211,9 @@ impl Records {
         }
     }
 
-    /// The variables' values after cycle `cycle`, for the recording.
-    pub fn values(&mut self, cycle: u64, t_ms: u64, core: &Coordinator) {
+    /// The variables' values at `t_ms`, after an input, for the recording.
+    pub fn values(&mut self, t_ms: u64, core: &Coordinator) {
+        let cycle = t_ms / self.cycle_ms;
         if let Some(r) = self.recorder.as_mut() {
             r.values(cycle, t_ms, |v| core.value(v));
         }
@@ -212,7 +235,8 @@ impl Records {
 }
 
 /// Rebuilds a run from its journal's records into `core`: the trace (and recording) of the past go to `out`,
-/// nothing is sent. `cycles` counts the cycles replayed.
+/// nothing is sent. `cycles` counts the cycles replayed (those that changed something: the others were not
+/// recorded).
 pub fn replay_records(
     core: &mut Journaled,
     records: &[Vec<u8>],
@@ -225,13 +249,14 @@ pub fn replay_records(
         core.apply_replayed(&entry, &mut replayed);
         if matches!(entry.record, Record::Cycle) {
             *cycles += 1;
-            out.values(*cycles, entry.t_ms, core.core());
         }
         while let Some(output) = core.poll_output() {
             if let CoordOutput::Trace(rec) = output {
-                out.record(*cycles, rec);
+                out.record(rec);
             }
         }
+        // After every input, as the live run does.
+        out.values(entry.t_ms, core.core());
     }
     Ok(replayed)
 }
@@ -266,6 +291,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
                         pou: loaded.pou.clone(),
                         source: loaded.source.clone(),
                         started_unix_ms: unix_ms(),
+                        cycle_ms: opts.cycle_ms,
                     };
                     opened.store.write_header(&header)?;
                     (header.run, header.started_unix_ms)
@@ -286,10 +312,29 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let net = NetConfig { multicast_scouting: opts.multicast_scouting, ..net };
     let zconfig = crate::zconf::load(&net, opts.zenoh_config.as_deref())?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
-    let chart_reply =
-        wire::encode(&ChartSource { hash: hash.clone(), pou: loaded.pou.clone(), source: loaded.source.clone() });
-    let core =
+    // A resumed run keeps the period it started with.
+    let cycle_ms = match &resume {
+        Some((header, _)) => {
+            if header.cycle_ms != opts.cycle_ms {
+                eprintln!(
+                    "warning: --cycle-ms {} ignored: the run resumes with the period it started with, {} ms",
+                    opts.cycle_ms, header.cycle_ms
+                );
+            }
+            header.cycle_ms
+        }
+        None => opts.cycle_ms,
+    }
+    .max(1);
+    let chart_reply = wire::encode(&ChartSource {
+        hash: hash.clone(),
+        pou: loaded.pou.clone(),
+        source: loaded.source.clone(),
+        cycle_ms,
+    });
+    let mut core =
         Coordinator::new(Arc::clone(&loaded.program), Arc::clone(&loaded.layout), run, hash, journal::token_ids(run));
+    core.set_cycle_ms(cycle_ms);
     let zerr = |e: zenoh::Error| anyhow!("{e}");
     let inbox = || FifoChannel::new(RECEIVE_QUEUE_MAX);
     let report_sub = session.declare_subscriber(keys::report(run)).with(inbox()).await.map_err(zerr)?;
@@ -329,8 +374,10 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         publishers: HashMap::new(),
         vars_key: keys::vars(run, baton_proto::runtime::COORDINATOR),
         decode_drops: 0,
-        out: Records::new(trace, probe, recorder),
+        out: Records::new(trace, probe, recorder, cycle_ms),
         cycles: 0,
+        cycle_ms,
+        last_cycle_ms: None,
     };
     match resume {
         Some((header, records)) => {
@@ -366,59 +413,70 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         }
     }
     let (tx, mut rx) = mpsc::unbounded_channel::<Event>();
-    let mut tick = tokio::time::interval(Duration::from_millis(opts.cycle_ms.max(1)));
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     // Signal streams made once: polling them each turn of the loop costs nothing.
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
     let mut interrupted = false;
-    shell.cycle().await?;
+    shell.due_cycles().await?;
     while !shell.core.core().is_terminal() && shell.core.core().failure().is_none() {
-        tokio::select! {
-            s = report_sub.recv_async() => {
-                let Ok(s) = s else { break };
+        // Asleep until a message comes or the next cycle is due: an idle run does not wake.
+        let deadline = shell.next_cycle().map(|t| shell.instant_of(t));
+        let timer = async move {
+            match deadline {
+                Some(at) => tokio::time::sleep_until(at.into()).await,
+                None => std::future::pending().await,
+            }
+        };
+        let wake = tokio::select! {
+            s = report_sub.recv_async() => s.map_or(Wake::Closed, Wake::Report),
+            s = vars_sub.recv_async() => s.map_or(Wake::Closed, Wake::Vars),
+            s = alive_sub.recv_async() => s.map_or(Wake::Closed, Wake::Alive),
+            Some(ev) = rx.recv() => Wake::Event(ev),
+            q = chart_q.recv_async() => q.map_or(Wake::Closed, Wake::Chart),
+            q = status_q.recv_async() => q.map_or(Wake::Closed, Wake::Status),
+            q = set_q.recv_async() => q.map_or(Wake::Closed, Wake::Set),
+            // A journal batch became durable: what it led to may go now.
+            _ = async { durable_rx.as_mut().expect("journal").changed().await }, if durable_rx.is_some() => Wake::Durable,
+            () = timer => Wake::Timer,
+            _ = sigint.recv() => Wake::Stop,
+            _ = sigterm.recv() => Wake::Stop,
+        };
+        // Cycles due run first, at their grid times, so that what arrived now comes after them.
+        shell.due_cycles().await?;
+        match wake {
+            Wake::Report(s) => {
                 shell.on_report(&s);
                 while let Ok(Some(s)) = report_sub.try_recv() {
                     shell.on_report(&s);
                 }
             }
-            s = vars_sub.recv_async() => {
-                let Ok(s) = s else { break };
-                shell.on_vars(&s);
+            Wake::Vars(s) => shell.on_vars(&s),
+            Wake::Alive(s) => shell.on_alive(&s, &tx),
+            Wake::Event(ev) => shell.on_event(ev),
+            Wake::Chart(q) => reply(&q, chart_reply.clone()).await,
+            Wake::Status(q) => {
+                // The run's clock now, not the time of its last input: an idle run's time goes on.
+                let mut status = shell.core.core().status();
+                status.t_ms = shell.now_ms();
+                reply(&q, wire::encode(&status)).await
             }
-            s = alive_sub.recv_async() => {
-                let Ok(s) = s else { break };
-                shell.on_alive(&s, &tx);
-            }
-            Some(ev) = rx.recv() => shell.on_event(ev),
-            q = chart_q.recv_async() => {
-                let Ok(q) = q else { break };
-                reply(&q, chart_reply.clone()).await;
-            }
-            q = status_q.recv_async() => {
-                let Ok(q) = q else { break };
-                let status = wire::encode(&shell.core.core().status());
-                reply(&q, status).await;
-            }
-            q = set_q.recv_async() => {
-                let Ok(q) = q else { break };
+            Wake::Set(q) => {
                 let answer = wire::encode(&shell.on_set(&q));
                 match &shell.journal {
-                    // Its record goes in the batch the next cycle writes; the answer waits for it.
+                    // Its record goes in the batch written just below; the answer waits for it.
                     Some(j) => shell.held_replies.push_back((j.sent() + 1, q, answer)),
                     None => reply(&q, answer).await,
                 }
             }
-            // A journal batch became durable: what it led to may go now.
-            _ = async { durable_rx.as_mut().expect("journal").changed().await }, if durable_rx.is_some() => {
-                shell.release().await?;
-                continue;
+            Wake::Durable => shell.release().await?,
+            Wake::Timer => {}
+            Wake::Stop => {
+                interrupted = true;
+                break;
             }
-            _ = tick.tick() => {}
-            _ = sigint.recv() => { interrupted = true; break }
-            _ = sigterm.recv() => { interrupted = true; break }
+            Wake::Closed => break,
         }
-        shell.cycle().await?;
+        shell.commit(Vec::new()).await?;
     }
     if !interrupted {
         let now = shell.now_ms();
@@ -517,6 +575,7 @@ impl Shell {
         if let Err(e) = self.core.report(now, &s.payload().to_bytes()) {
             self.decode_drop(s, e);
         }
+        self.out.values(now, self.core.core());
     }
 
     fn on_vars(&mut self, s: &Sample) {
@@ -524,6 +583,7 @@ impl Shell {
         if let Err(e) = self.core.vars(now, &s.payload().to_bytes()) {
             self.decode_drop(s, e);
         }
+        self.out.values(now, self.core.core());
     }
 
     fn decode_drop(&mut self, s: &Sample, e: wire::WireError) {
@@ -580,18 +640,29 @@ impl Shell {
         }
     }
 
-    /// Runs the coordinator's cycle, then has what it asked for carried out — at once, or once its journal batch
-    /// is durable.
-    async fn cycle(&mut self) -> anyhow::Result<()> {
+    /// The grid time of the next cycle, if the coordinator needs one: never two in one period, never before
+    /// what it waits for.
+    fn next_cycle(&self) -> Option<u64> {
+        let wanted = self.core.core().poll_timeout()?;
+        let after = self.last_cycle_ms.map_or(0, |t| t + self.cycle_ms);
+        Some(wanted.max(after).div_ceil(self.cycle_ms) * self.cycle_ms)
+    }
+
+    fn instant_of(&self, t_ms: u64) -> Instant {
+        self.started + Duration::from_millis(t_ms.saturating_sub(self.base_ms))
+    }
+
+    /// Runs the cycles that are due, each at its grid time (one that fell far behind skips to the present), and
+    /// has what they asked for carried out — at once, or once its journal batch is durable.
+    async fn due_cycles(&mut self) -> anyhow::Result<()> {
         let now = self.now_ms();
-        self.core.cycle(now);
-        self.cycles += 1;
-        self.record_values(now);
-        let mut outputs = Vec::new();
-        while let Some(out) = self.core.poll_output() {
-            outputs.push(out);
+        while let Some(due) = self.next_cycle().filter(|&t| t <= now) {
+            let at = if now - due > CATCH_UP_CYCLES_MAX * self.cycle_ms { now - now % self.cycle_ms } else { due };
+            self.last_cycle_ms = Some(at);
+            self.cycles += u64::from(self.core.cycle(at));
+            self.commit(Vec::new()).await?;
         }
-        self.commit(outputs).await
+        Ok(())
     }
 
     async fn commit(&mut self, mut outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
@@ -599,23 +670,20 @@ impl Shell {
             outputs.push(out);
         }
         let records = self.core.take_records();
-        let cycle = self.cycles;
+        // The recording's values after every input, as a replay of the journal sees them.
+        let now = self.core.core().now_ms();
+        self.out.values(now, self.core.core());
         let Some(journal) = &mut self.journal else {
-            return self.carry_out(cycle, outputs).await;
+            return self.carry_out(outputs).await;
         };
         if !records.is_empty() {
             let batch = journal.write(records)?;
-            self.held.push_back((batch, cycle, outputs));
+            self.held.push_back((batch, outputs));
         } else if !outputs.is_empty() {
             // Nothing new to record: these follow the last batch.
-            self.held.push_back((journal.sent(), cycle, outputs));
+            self.held.push_back((journal.sent(), outputs));
         }
         self.release().await
-    }
-
-    /// The variables' values after a cycle, for the recording.
-    fn record_values(&mut self, t_ms: u64) {
-        self.out.values(self.cycles, t_ms, self.core.core());
     }
 
     /// Carries out what waited for journal batches that are now durable, in order.
@@ -624,9 +692,9 @@ impl Shell {
             Some(j) => j.durable()?,
             None => u64::MAX,
         };
-        while self.held.front().is_some_and(|(batch, _, _)| *batch <= durable) {
-            let Some((_, cycle, outputs)) = self.held.pop_front() else { break };
-            self.carry_out(cycle, outputs).await?;
+        while self.held.front().is_some_and(|(batch, _)| *batch <= durable) {
+            let Some((_, outputs)) = self.held.pop_front() else { break };
+            self.carry_out(outputs).await?;
         }
         while self.held_replies.front().is_some_and(|(batch, _, _)| *batch <= durable) {
             let Some((_, q, answer)) = self.held_replies.pop_front() else { break };
@@ -635,7 +703,7 @@ impl Shell {
         Ok(())
     }
 
-    async fn carry_out(&mut self, cycle: u64, outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
+    async fn carry_out(&mut self, outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
         // Messages leave before the trace is written: a token's round trip does not wait for the disk.
         let mut local = Vec::new();
         for out in outputs {
@@ -648,7 +716,7 @@ impl Shell {
         for out in local {
             match out {
                 CoordOutput::Send { .. } | CoordOutput::Vars(_) => {}
-                CoordOutput::Trace(rec) => self.out.record(cycle, rec),
+                CoordOutput::Trace(rec) => self.out.record(rec),
                 CoordOutput::Log { level, message } => {
                     let tag = match level {
                         Level::Info => "info",

@@ -7,6 +7,13 @@
 //! action's Q is computed from its associations (IEC ACTION_CONTROL) and the bodies of actions whose Q is TRUE
 //! run, plus one final run with Q = FALSE when Q falls.
 //!
+//! Between cycles, a distributed runtime applies what other engines did (`handle_remote`) and new values
+//! (`handle`), then asks for a reaction (`react`): the steps that became active get their first scan (their
+//! actions start), the steps that were left their last one, and the transitions whose condition reads no step
+//! time and something that changed are judged at once, as the next cycle would judge them. No other action body
+//! runs, so an N body runs once per cycle however many messages arrive, and a step's time counts from the cycle
+//! it became active in. A chart run on one engine with no reactions behaves exactly as `baton sim`.
+//!
 //! The cost of a cycle depends on the active steps, their transitions and associations, and the actions with
 //! stored state, never on the size of the chart: per-element scratch is indexed by id and stamped with the
 //! cycle number instead of being cleared.
@@ -15,6 +22,7 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use crate::eval::{self, Env, EnvMut, Fault};
+use crate::limits::IMMEDIATE_CYCLES_MAX;
 use crate::model::Qualifier;
 use crate::program::{ActionId, DurationSrc, Program, StepId, TransitionId, VarId};
 use crate::types::{Type, Value};
@@ -120,6 +128,10 @@ const NEVER: u64 = u64::MAX;
 #[derive(Clone, Copy)]
 struct StepState {
     active: bool,
+    /// Made active by another engine or by a reaction (not by a cycle of this engine).
+    reactive: bool,
+    /// The `gen` of its activation.
+    activated_gen: u64,
     activated_ms: u64,
     /// `S.T` as it was at the last deactivation.
     t_last_ms: i64,
@@ -131,7 +143,7 @@ struct StepState {
     slot: u32,
 }
 
-#[derive(Clone, Copy, Default)]
+#[derive(Clone, Copy, Default, PartialEq)]
 struct ActionState {
     q: bool,
     stored_s: bool,
@@ -176,6 +188,28 @@ pub struct Engine {
     live: Vec<ActionId>,
     events: VecDeque<Event>,
     collisions: u64,
+    /// The cycle grid `grid_origin_ms + k · grid_period_ms`: a step made active between cycles counts its time
+    /// from the grid point before, as if it had become active in that cycle, so that its time advances in whole
+    /// cycles wherever it became active (and whichever cycles actually ran).
+    grid_origin_ms: u64,
+    grid_period_ms: u64,
+    /// Counts every change of the situation, the variables and the actions' state: a cycle that leaves it
+    /// unchanged changed nothing.
+    mutations: u64,
+    mutations_at_cycle: u64,
+    /// Orders judgements and changes, so that a reaction judges only what changed since it was last judged.
+    gen: u64,
+    judged_gen: Vec<u64>,
+    var_gen: Vec<u64>,
+    /// The last change of a step's activity or an action's Q.
+    xq_gen: u64,
+    /// Per transition: it may be judged in a reaction (its condition and those of the transitions ranked before
+    /// it on its source steps read no step time).
+    reactive_ok: Vec<bool>,
+    /// Per step: while active, the engine needs cycles as time passes (a transition reading step time, or a
+    /// timed qualifier).
+    timed: Vec<bool>,
+    timed_active: usize,
     // Scratch, reused across cycles.
     /// Transitions leaving active steps, with their ranks.
     candidates: Vec<(u32, TransitionId)>,
@@ -184,6 +218,8 @@ pub struct Engine {
     deactivated: Vec<StepId>,
     demand: Vec<Demand>,
     demand_stamp: Vec<u64>,
+    /// Per action: the cycle in which a step using it became active or was left (what a reaction controls).
+    touched: Vec<u64>,
     judged: Vec<ActionId>,
 }
 
@@ -201,11 +237,40 @@ impl Engine {
         assert_eq!(scope.runs_actions.len(), program.steps.len(), "scope built for another program");
         let n_steps = program.steps.len();
         let n_actions = program.actions.len();
+        let judged_here = |t: TransitionId| scope.transitions[t.index()] != TransitionScope::Remote;
+        let reactive_ok = (0..program.transitions.len() as u32)
+            .map(TransitionId)
+            .map(|t| {
+                program.sources(t).iter().all(|&s| {
+                    program
+                        .outgoing(s)
+                        .iter()
+                        .filter(|&&u| judged_here(u) && program.rank(u) <= program.rank(t))
+                        .all(|&u| !program.reads(u).step_time)
+                })
+            })
+            .collect();
+        let timed = (0..n_steps as u32)
+            .map(StepId)
+            .map(|s| {
+                let t_exit = program.outgoing(s).iter().any(|&t| judged_here(t) && program.reads(t).step_time);
+                let timed_assoc = scope.runs_actions[s.index()]
+                    && program.associations(s).iter().any(|a| {
+                        matches!(
+                            a.qualifier,
+                            Qualifier::L | Qualifier::D | Qualifier::SD | Qualifier::DS | Qualifier::SL
+                        )
+                    });
+                t_exit || timed_assoc
+            })
+            .collect();
         let mut engine = Engine {
             vars: program.vars.iter().map(|v| v.init).collect(),
             steps: vec![
                 StepState {
                     active: false,
+                    reactive: false,
+                    activated_gen: 0,
                     activated_ms: 0,
                     t_last_ms: 0,
                     activated_cycle: NEVER,
@@ -219,12 +284,24 @@ impl Engine {
             live: Vec::new(),
             events: VecDeque::new(),
             collisions: 0,
+            grid_origin_ms: 0,
+            grid_period_ms: 1,
+            mutations: 0,
+            mutations_at_cycle: u64::MAX,
+            gen: 0,
+            judged_gen: vec![0; program.transitions.len()],
+            var_gen: vec![0; program.vars.len()],
+            xq_gen: 0,
+            reactive_ok,
+            timed,
+            timed_active: 0,
             candidates: Vec::new(),
             consumed_stamp: vec![NEVER; n_steps],
             fired: Vec::new(),
             deactivated: Vec::new(),
             demand: vec![Demand::default(); n_actions],
             demand_stamp: vec![NEVER; n_actions],
+            touched: vec![NEVER; n_actions],
             judged: Vec::new(),
             now_ms: 0,
             cycle: 0,
@@ -235,7 +312,7 @@ impl Engine {
         };
         let initial = if engine.scope.initial { engine.program.initial_steps.clone() } else { Vec::new() };
         for s in initial {
-            engine.activate(s);
+            engine.activate(s, false);
         }
         engine
     }
@@ -261,20 +338,87 @@ impl Engine {
         if !fits {
             return Err(InputError::Type { name: var.name.clone(), expected: var.ty.clone(), value });
         }
-        self.vars[id.index()] = var.ty.coerce(value);
+        self.gen += 1;
+        self.store(id, value);
         Ok(())
+    }
+
+    /// Writes a variable, noting the change (if it is one) for reactions and for `needs_cycle`.
+    fn store(&mut self, id: VarId, value: Value) {
+        let value = self.program.vars[id.index()].ty.coerce(value);
+        if self.vars[id.index()] != value {
+            self.vars[id.index()] = value;
+            self.mutations += 1;
+            self.var_gen[id.index()] = self.gen;
+        }
     }
 
     /// Runs one scan cycle at `now_ms`.
     pub fn handle_cycle(&mut self, now_ms: u64) -> Result<(), InputError> {
         self.advance(now_ms)?;
+        self.mutations_at_cycle = self.mutations;
         self.changed = false;
-        self.clear_transitions();
-        self.evolve();
-        self.control_actions();
+        // One generation for the whole cycle: what its own actions change is judged by the next cycle, as in
+        // `baton sim`, never by a reaction.
+        self.gen += 1;
+        self.clear_transitions(false);
+        self.evolve(false);
+        self.control_actions(false);
         self.deactivated.clear();
         self.cycle += 1;
         Ok(())
+    }
+
+    /// Sets the cycle grid (see `grid_floor`): the run's cycle period, from `origin_ms`.
+    pub fn set_grid(&mut self, origin_ms: u64, period_ms: u64) {
+        self.grid_origin_ms = origin_ms;
+        self.grid_period_ms = period_ms.max(1);
+    }
+
+    /// The grid point at or before `t_ms`.
+    pub fn grid_floor(&self, t_ms: u64) -> u64 {
+        match t_ms.checked_sub(self.grid_origin_ms) {
+            Some(d) => t_ms - d % self.grid_period_ms,
+            None => t_ms,
+        }
+    }
+
+    /// A reaction to what arrived since the last cycle or reaction, at `now_ms`: the first scans of steps made
+    /// active (by `handle_remote` or by this reaction) and the last scans of steps left, then the transitions
+    /// that read no step time and something that changed since they were last judged, judged and cleared as a
+    /// cycle would, repeated while they clear (at most `IMMEDIATE_CYCLES_MAX` times). No other action body runs.
+    pub fn react(&mut self, now_ms: u64) -> Result<(), InputError> {
+        self.advance(now_ms)?;
+        for round in 0..IMMEDIATE_CYCLES_MAX {
+            self.gen += 1;
+            self.control_actions(true);
+            self.deactivated.clear();
+            self.cycle += 1;
+            if round + 1 == IMMEDIATE_CYCLES_MAX {
+                break;
+            }
+            self.gen += 1;
+            self.clear_transitions(true);
+            if self.fired.is_empty() {
+                break;
+            }
+            self.gen += 1;
+            self.evolve(true);
+        }
+        Ok(())
+    }
+
+    /// Whether a cycle could change anything: the last one (or anything since) changed something, time matters
+    /// to an active step, or an action runs a body or counts time. An engine that needs no cycle stays as it is
+    /// until an input comes (which a reaction handles), so skipping its cycles changes nothing.
+    pub fn needs_cycle(&self) -> bool {
+        let program = &self.program;
+        self.mutations != self.mutations_at_cycle
+            || self.timed_active > 0
+            || self.live.iter().any(|a| {
+                let st = &self.actions[a.index()];
+                !program.actions[a.index()].body.is_empty() || st.stored_sd.is_some() || st.stored_sl.is_some()
+            })
     }
 
     /// Applies what another engine did, at `now_ms`, at once. The actions of the steps it activates or
@@ -288,7 +432,8 @@ impl Engine {
                     return Err(InputError::AlreadyActive(program.steps[s.index()].name.clone()));
                 }
                 self.advance(now_ms)?;
-                self.activate(s);
+                self.gen += 1;
+                self.activate(s, true);
                 self.steps[s.index()].remote_cycle = self.cycle;
             }
             RemoteInput::Deactivate(s) => {
@@ -297,6 +442,7 @@ impl Engine {
                     return Err(InputError::NotActive(program.steps[s.index()].name.clone()));
                 }
                 self.advance(now_ms)?;
+                self.gen += 1;
                 self.deactivate(s);
             }
             RemoteInput::Fire(t) => {
@@ -309,11 +455,12 @@ impl Engine {
                     return Err(InputError::NotEnabled(name()));
                 }
                 self.advance(now_ms)?;
+                self.gen += 1;
                 self.push(EventKind::Fire(t));
                 for &s in program.sources(t) {
                     self.deactivate(s);
                 }
-                self.activate_targets(t);
+                self.activate_targets(t, true);
                 for &s in program.targets(t) {
                     self.steps[s.index()].remote_cycle = self.cycle;
                 }
@@ -371,12 +518,36 @@ impl Engine {
         self.collisions
     }
 
+    /// Changes counted so far (events, variable values, actions' stored state): equal counts before and after
+    /// a cycle mean it changed nothing.
+    pub fn mutations(&self) -> u64 {
+        self.mutations
+    }
+
     fn push(&mut self, kind: EventKind) {
+        self.mutations += 1;
         self.events.push_back(Event { t_ms: self.now_ms, kind });
     }
 
-    /// Step (c): judge every transition leaving an active step against the same snapshot, in rank order.
-    fn clear_transitions(&mut self) {
+    /// Whether a reaction judges transition t now: its condition reads no step time (nor do those ranked before
+    /// it), and a source became active between cycles or something it reads changed since it was last judged.
+    fn reaction_judges(&self, t: TransitionId) -> bool {
+        if !self.reactive_ok[t.index()] {
+            return false;
+        }
+        let judged = self.judged_gen[t.index()];
+        let reads = self.program.reads(t);
+        self.program.sources(t).iter().any(|s| {
+            let st = &self.steps[s.index()];
+            st.reactive && st.activated_gen > judged
+        }) || reads.vars.iter().any(|v| self.var_gen[v.index()] > judged)
+            || (reads.steps_or_actions && self.xq_gen > judged)
+    }
+
+    /// Step (c): judge every transition leaving an active step against the same snapshot, in rank order. In a
+    /// reaction, only the steps with a transition `reaction_judges` are judged, each with every transition of it
+    /// that may be judged in a reaction, so that priorities hold.
+    fn clear_transitions(&mut self, reaction: bool) {
         let program = Arc::clone(&self.program);
         self.candidates.clear();
         let mut deferred = false;
@@ -386,10 +557,22 @@ impl Engine {
                 continue;
             }
             let judged_here = |t: &&TransitionId| self.scope.transitions[t.index()] != TransitionScope::Remote;
+            if reaction {
+                let outgoing = program.outgoing(s);
+                if !outgoing.iter().filter(judged_here).any(|&t| self.reaction_judges(t)) {
+                    continue;
+                }
+                let ok = |t: &&TransitionId| judged_here(t) && self.reactive_ok[t.index()];
+                self.candidates.extend(outgoing.iter().filter(ok).map(|&t| (program.rank(t), t)));
+                continue;
+            }
             self.candidates.extend(program.outgoing(s).iter().filter(judged_here).map(|&t| (program.rank(t), t)));
         }
         // A step activated remotely is judged in the next cycle, which must then run.
         self.changed |= deferred;
+        if deferred && !reaction {
+            self.mutations += 1;
+        }
         self.candidates.sort_unstable();
         self.candidates.dedup();
         self.fired.clear();
@@ -402,6 +585,7 @@ impl Engine {
             if !enabled {
                 continue;
             }
+            self.judged_gen[t.index()] = self.gen;
             match eval::eval(&program.transitions[t.index()].condition, self) {
                 Ok(v) if v.as_bool() => {
                     for s in sources {
@@ -417,7 +601,7 @@ impl Engine {
     }
 
     /// Step (d): deactivate the sources of the cleared transitions, then activate their targets.
-    fn evolve(&mut self) {
+    fn evolve(&mut self, reaction: bool) {
         let program = Arc::clone(&self.program);
         let fired = std::mem::take(&mut self.fired);
         for &t in &fired {
@@ -430,32 +614,41 @@ impl Engine {
         }
         for &t in &fired {
             if self.scope.transitions[t.index()] == TransitionScope::Local {
-                self.activate_targets(t);
+                self.activate_targets(t, reaction);
             }
         }
         self.changed |= !fired.is_empty();
         self.fired = fired;
     }
 
-    fn activate_targets(&mut self, t: TransitionId) {
+    fn activate_targets(&mut self, t: TransitionId, reactive: bool) {
         let program = Arc::clone(&self.program);
         for &s in program.targets(t) {
             if self.steps[s.index()].active {
                 self.collisions += 1;
             } else {
-                self.activate(s);
+                self.activate(s, reactive);
             }
         }
     }
 
-    fn activate(&mut self, s: StepId) {
+    /// A step made active by a cycle counts its time from now; one made active between cycles (by another
+    /// engine or a reaction) counts it from the last cycle, as if it had become active in it.
+    fn activate(&mut self, s: StepId, reactive: bool) {
         let slot = self.active.len() as u32;
+        let since = if reactive { self.grid_floor(self.now_ms) } else { self.now_ms };
         let state = &mut self.steps[s.index()];
         state.active = true;
-        state.activated_ms = self.now_ms;
+        state.reactive = reactive;
+        state.activated_gen = self.gen;
+        state.activated_ms = since;
         state.activated_cycle = self.cycle;
         state.slot = slot;
         self.active.push(s);
+        self.xq_gen = self.gen;
+        if self.timed[s.index()] {
+            self.timed_active += 1;
+        }
         self.push(EventKind::Activate(s));
     }
 
@@ -466,6 +659,10 @@ impl Engine {
         }
         state.active = false;
         state.t_last_ms = (self.now_ms - state.activated_ms) as i64;
+        self.xq_gen = self.gen;
+        if self.timed[s.index()] {
+            self.timed_active -= 1;
+        }
         let slot = state.slot as usize;
         self.active.swap_remove(slot);
         if let Some(&moved) = self.active.get(slot) {
@@ -493,10 +690,19 @@ impl Engine {
         &mut self.demand[i]
     }
 
-    /// Step (e): compute every concerned action's Q, then run the bodies.
-    fn control_actions(&mut self) {
+    /// Step (e): compute every concerned action's Q, then run the bodies. In a reaction (`partial`), only the
+    /// actions of steps just made active or just left are concerned, and a body runs only where Q rises (its
+    /// first scan) or falls (its last): the others run in the next cycle, as they would have anyway.
+    fn control_actions(&mut self, partial: bool) {
         let program = Arc::clone(&self.program);
         self.judged.clear();
+        if partial {
+            let fresh = self.active.iter().any(|&s| self.steps[s.index()].activated_cycle == self.cycle);
+            if !fresh && self.deactivated.is_empty() {
+                return;
+            }
+        }
+        let stamp = self.cycle;
         for i in 0..self.active.len() {
             let s = self.active[i];
             if !self.scope.runs_actions[s.index()] {
@@ -507,6 +713,9 @@ impl Engine {
             let just_activated = state.activated_cycle == self.cycle;
             for assoc in program.associations(s) {
                 let dur = self.duration_ms(assoc.duration);
+                if just_activated {
+                    self.touched[assoc.action.index()] = stamp;
+                }
                 let d = self.demand(assoc.action);
                 match assoc.qualifier {
                     Qualifier::N => d.direct = true,
@@ -528,6 +737,7 @@ impl Engine {
                 continue;
             }
             for assoc in program.associations(s) {
+                self.touched[assoc.action.index()] = stamp;
                 let d = self.demand(assoc.action);
                 if assoc.qualifier == Qualifier::P0 {
                     d.direct = true;
@@ -540,13 +750,20 @@ impl Engine {
         }
         let mut judged = std::mem::take(&mut self.judged);
         judged.sort_unstable();
-        self.live.clear();
-        let now = self.now_ms;
+        if !partial {
+            self.live.clear();
+        }
+        // Stored qualifiers started between cycles count from the last cycle, like the steps' times.
+        let now = if partial { self.grid_floor(self.now_ms) } else { self.now_ms };
         // (action, Q before, Q now), in action order.
         let mut changes: Vec<(ActionId, bool, bool)> = Vec::with_capacity(judged.len());
         for &a in &judged {
+            if partial && self.touched[a.index()] != stamp {
+                continue;
+            }
             let d = self.demand[a.index()];
             let st = &mut self.actions[a.index()];
+            let was = *st;
             if d.reset {
                 // Reset dominates: R clears every stored qualifier, even one set in the same cycle.
                 st.stored_s = false;
@@ -563,7 +780,7 @@ impl Engine {
                     st.stored_sl = d.set_sl.map(|dur| (now, dur));
                 }
             }
-            let since = |start: u64| (now - start) as i64;
+            let since = |start: u64| (self.now_ms - start) as i64;
             let q = d.direct
                 || st.stored_s
                 || st.stored_ds
@@ -571,8 +788,18 @@ impl Engine {
                 || st.stored_sl.is_some_and(|(start, dur)| since(start) < dur);
             let before = st.q;
             st.q = q;
-            if st.live() {
+            let live = st.live();
+            if *st != was {
+                self.mutations += 1;
+            }
+            if !partial {
+                if live {
+                    self.live.push(a);
+                }
+            } else if live && !self.live.contains(&a) {
                 self.live.push(a);
+            } else if !live {
+                self.live.retain(|&x| x != a);
             }
             changes.push((a, before, q));
         }
@@ -582,16 +809,21 @@ impl Engine {
             } else if before && !q {
                 self.push(EventKind::ActionOff(a));
             }
+            if q != before {
+                self.xq_gen = self.gen;
+            }
         }
+        // A body runs while Q is TRUE, and once more with Q = FALSE in the cycle Q falls; in a reaction only
+        // where Q changed.
+        let runs = |before: bool, q: bool| if partial { q != before } else { q || before };
         // Boolean actions' variables follow Q before any body runs, so that every body sees this cycle's Qs.
         for &(a, before, q) in &changes {
-            if let (Some(var), true) = (program.actions[a.index()].bool_var, q || before) {
-                self.vars[var.index()] = Value::Bool(q);
+            if let (Some(var), true) = (program.actions[a.index()].bool_var, runs(before, q)) {
+                self.store(var, Value::Bool(q));
             }
         }
         for &(a, before, q) in &changes {
-            // A body runs while Q is TRUE, and once more with Q = FALSE in the cycle Q falls.
-            if !(q || before) {
+            if !runs(before, q) {
                 continue;
             }
             let action = &program.actions[a.index()];
@@ -628,6 +860,6 @@ impl Env for Engine {
 
 impl EnvMut for Engine {
     fn set_var(&mut self, id: VarId, value: Value) {
-        self.vars[id.index()] = self.program.vars[id.index()].ty.coerce(value);
+        self.store(id, value);
     }
 }

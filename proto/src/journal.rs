@@ -17,8 +17,9 @@ use uuid::Uuid;
 use crate::runtime::coordinator::{Coordinator, LossPolicy};
 use crate::wire::{self, AgentInfo, ChartHash, Report, RunId, SetRequest, TokenId, VarUpdate, WireError};
 
-/// Bumped when records change meaning; a journal of another format is refused.
-pub const JOURNAL_FORMAT: u32 = 1;
+/// Bumped when records change meaning; a journal of another format is refused. 2: cycles that changed nothing
+/// are not recorded, and the header holds the cycle period.
+pub const JOURNAL_FORMAT: u32 = 2;
 
 /// What a journal is about, written once when the run starts.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -33,6 +34,8 @@ pub struct JournalHeader {
     /// Wall-clock time of the run's time 0, in ms since the Unix epoch: a coordinator that starts again counts
     /// the time it was down.
     pub started_unix_ms: u64,
+    /// The run's cycle period, which a resumed run keeps.
+    pub cycle_ms: u64,
 }
 
 /// One input of the coordinator.
@@ -150,7 +153,9 @@ pub fn decode(bytes: &[u8]) -> Result<Entry, JournalError> {
 pub fn apply(core: &mut Coordinator, entry: &Entry) -> Option<Result<String, String>> {
     let now = entry.t_ms;
     match &entry.record {
-        Record::Cycle => core.handle_cycle(now),
+        Record::Cycle => {
+            core.handle_cycle(now);
+        }
         Record::Report(r) => core.handle_report(now, r.clone()),
         Record::Vars(u) => core.handle_vars(now, u.clone()),
         Record::AgentUp(i) => core.handle_agent_up(now, i.clone()),
@@ -187,11 +192,13 @@ fn splitmix64(x: u64) -> u64 {
 pub struct Journaled {
     core: Coordinator,
     records: Vec<Vec<u8>>,
+    /// The time of the last cycle that changed nothing, if no record followed it yet.
+    quiet_ms: Option<u64>,
 }
 
 impl Journaled {
     pub fn new(core: Coordinator) -> Journaled {
-        Journaled { core, records: Vec::new() }
+        Journaled { core, records: Vec::new(), quiet_ms: None }
     }
 
     /// The coordinator, to read from; inputs go through the methods below.
@@ -214,6 +221,12 @@ impl Journaled {
     }
 
     fn feed(&mut self, bytes: Vec<u8>, entry: Entry) -> Option<Result<String, String>> {
+        // The cycles that changed nothing since the last record moved the clock on: the last of them is recorded
+        // before this input, so that a replay reaches it at the same time (on the same situation, it changes
+        // nothing there either).
+        if let Some(t_ms) = self.quiet_ms.take() {
+            self.records.push(encode(&Entry { t_ms, record: Record::Cycle }));
+        }
         self.records.push(bytes);
         apply(&mut self.core, &entry)
     }
@@ -223,8 +236,18 @@ impl Journaled {
         self.feed(encode(&entry), entry)
     }
 
-    pub fn cycle(&mut self, now_ms: u64) {
-        self.input(now_ms, Record::Cycle);
+    /// A cycle is recorded if it changed something. A cycle that changed nothing leaves the coordinator as it
+    /// was but for its clock, so of a series of them only the last is recorded, and only when another record
+    /// follows: an idle run writes nothing. Returns whether the cycle changed anything.
+    pub fn cycle(&mut self, now_ms: u64) -> bool {
+        let changed = self.core.handle_cycle(now_ms);
+        if changed {
+            self.quiet_ms = None;
+            self.records.push(encode(&Entry { t_ms: now_ms, record: Record::Cycle }));
+        } else {
+            self.quiet_ms = Some(now_ms);
+        }
+        changed
     }
 
     /// A report as it arrived. Reports of other runs change nothing and are not recorded.

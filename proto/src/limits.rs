@@ -33,8 +33,12 @@ pub const REPORTS_UNACKED_MAX: usize = 1024;
 /// Finished tokens an agent remembers, to recognise a late duplicate dispatch.
 pub const FINISHED_TOKENS_REMEMBERED: usize = 65_536;
 
-/// Cycles run back to back while each one changes the situation, before waiting for the next tick.
+/// Rounds of one reaction (`Engine::react`): transitions cleared one after another between two cycles.
 pub const IMMEDIATE_CYCLES_MAX: usize = 64;
+
+/// Missed cycles a runtime that fell behind (a stopped process, a loaded machine) runs back to back at their grid
+/// times; past that it skips to the present.
+pub const CATCH_UP_CYCLES_MAX: u64 = 10;
 
 /// Samples a subscriber holds before Zenoh's reader waits for the process to take them. Large, so that two
 /// processes publishing to each other from their main loops never both wait (see the shells' `put`).

@@ -45,6 +45,43 @@ pub struct Program {
     arcs: Vec<StepId>,
     /// Position in the clearing order: explicit priorities first (lower first), then declaration order.
     ranks: Vec<u32>,
+    /// What each transition's condition reads.
+    reads: Vec<Reads>,
+}
+
+/// What a condition reads: the engine judges a transition between cycles (in a reaction to a message) only if
+/// its condition reads no step time, and only when something it reads changed.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Reads {
+    pub vars: Vec<VarId>,
+    /// It reads a step's `X` or an action's `Q`.
+    pub steps_or_actions: bool,
+    /// It reads a step's `T`.
+    pub step_time: bool,
+}
+
+impl Reads {
+    pub fn of(e: &CExpr) -> Reads {
+        let mut reads = Reads::default();
+        reads.walk(e);
+        reads.vars.sort_unstable();
+        reads.vars.dedup();
+        reads
+    }
+
+    fn walk(&mut self, e: &CExpr) {
+        match e {
+            CExpr::Const(_) => {}
+            CExpr::Var(v) => self.vars.push(*v),
+            CExpr::StepX(_) | CExpr::ActionQ(_) => self.steps_or_actions = true,
+            CExpr::StepT(_) => self.step_time = true,
+            CExpr::Not(a) | CExpr::Neg(a, _) => self.walk(a),
+            CExpr::Logic(_, a, b) | CExpr::Cmp(_, a, b) | CExpr::Arith { lhs: a, rhs: b, .. } => {
+                self.walk(a);
+                self.walk(b);
+            }
+        }
+    }
 }
 
 /// A step as `compile` hands it to `Program::assemble`.
@@ -198,6 +235,7 @@ impl Program {
         assoc_at.push(assocs.len() as u32);
         let (mut arcs_at, mut arcs, mut ranks) =
             (Vec::with_capacity(2 * transitions.len() + 1), Vec::new(), Vec::new());
+        let reads = transitions.iter().map(|t| Reads::of(&t.info.condition)).collect();
         let mut tinfos = Vec::with_capacity(transitions.len());
         for t in transitions {
             arcs_at.push(arcs.len() as u32);
@@ -223,7 +261,13 @@ impl Program {
             arcs_at,
             arcs,
             ranks,
+            reads,
         }
+    }
+
+    /// What transition t's condition reads.
+    pub fn reads(&self, t: TransitionId) -> &Reads {
+        &self.reads[t.index()]
     }
 
     /// Transitions leaving a step, in rank order.

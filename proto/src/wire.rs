@@ -12,7 +12,7 @@ use crate::limits::MESSAGE_BYTES_MAX;
 use crate::program::{Program, VarId};
 use crate::types::{Type, Value};
 
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
 
 /// One run of a chart by one coordinator.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -213,6 +213,8 @@ pub struct ChartSource {
     pub hash: ChartHash,
     pub pou: String,
     pub source: String,
+    /// The run's cycle period: agents cycle with it, so that the chart computes what it computes on one machine.
+    pub cycle_ms: u64,
 }
 
 /// `baton set`: a request to set one input of a running chart.
@@ -328,7 +330,7 @@ mod tests {
         let entry = AckEntry { token: TokenId(Uuid::from_u128(9)), epoch: 2, seq: 3, done: true };
         let msg = ToAgent::Ack { run: RunId(Uuid::from_u128(7)), acks: vec![entry] };
         let bytes = encode(&msg);
-        assert!(std::str::from_utf8(&bytes).unwrap().contains("\"v\":1"));
+        assert!(std::str::from_utf8(&bytes).unwrap().contains("\"v\":2"));
         assert_eq!(decode::<ToAgent>(&bytes), Ok(msg));
         let report = Report {
             run: RunId(Uuid::from_u128(1)),
@@ -347,7 +349,7 @@ mod tests {
     #[test]
     fn bad_bytes_are_errors() {
         assert!(matches!(decode::<ToAgent>(b"\xff\x00garbage"), Err(WireError::Malformed(_))));
-        assert!(matches!(decode::<ToAgent>(br#"{"v":1,"m":{"launch_missiles":{}}}"#), Err(WireError::Malformed(_))));
+        assert!(matches!(decode::<ToAgent>(br#"{"v":2,"m":{"launch_missiles":{}}}"#), Err(WireError::Malformed(_))));
         assert_eq!(decode::<ToAgent>(br#"{"v":99,"m":{"ack":{}}}"#), Err(WireError::Version(99)));
         let big = vec![b' '; MESSAGE_BYTES_MAX + 1];
         assert_eq!(decode::<ToAgent>(&big), Err(WireError::TooLarge(MESSAGE_BYTES_MAX + 1, MESSAGE_BYTES_MAX)));

@@ -18,6 +18,9 @@ use baton_proto::sim::TraceRecord;
 use baton_proto::wire::{self, AgentInfo, ChartHash, RunId, ToAgent, VarUpdate};
 use uuid::Uuid;
 
+/// The simulated run's cycle period.
+pub const CYCLE_MS: u64 = 10;
+
 /// What the simulated network does to messages.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Faults {
@@ -77,6 +80,8 @@ pub struct SimCluster {
     rng: u64,
     faults: Faults,
     pub now_ms: u64,
+    /// The grid time of the coordinator's last cycle.
+    last_cycle_ms: Option<u64>,
     pub trace: Vec<TraceRecord>,
     pub seed: u64,
     pub messages: u64,
@@ -96,8 +101,9 @@ impl SimCluster {
         let (program, layout) = compile(source);
         let run = RunId(Uuid::from_u128(1));
         let hash = ChartHash::of(source, &program.name);
-        let core =
+        let mut core =
             Coordinator::new(Arc::clone(&program), Arc::clone(&layout), run, hash.clone(), journal::token_ids(run));
+        core.set_cycle_ms(CYCLE_MS);
         let mut coordinator = Journaled::new(core);
         let sim_agents = agents
             .iter()
@@ -119,7 +125,15 @@ impl SimCluster {
                     alive: true,
                     reachable: true,
                     restarts: 0,
-                    run: AgentRun::new(name, &roles, run, hash.clone(), Arc::clone(&program), Arc::clone(&layout)),
+                    run: AgentRun::new(
+                        name,
+                        &roles,
+                        run,
+                        hash.clone(),
+                        Arc::clone(&program),
+                        Arc::clone(&layout),
+                        CYCLE_MS,
+                    ),
                     skills: BTreeMap::new(),
                 }
             })
@@ -139,6 +153,7 @@ impl SimCluster {
             rng: seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1,
             faults,
             now_ms: 0,
+            last_cycle_ms: None,
             trace: Vec::new(),
             seed,
             messages: 0,
@@ -198,14 +213,16 @@ impl SimCluster {
     fn restart_coordinator(&mut self) {
         self.down_until = None;
         let run = self.coordinator.core().run();
-        let core = Coordinator::new(
+        let mut core = Coordinator::new(
             Arc::clone(&self.program),
             Arc::clone(&self.layout),
             run,
             self.hash.clone(),
             journal::token_ids(run),
         );
+        core.set_cycle_ms(CYCLE_MS);
         let mut fresh = Journaled::new(core);
+        self.last_cycle_ms = None;
         let replayed = fresh.replay(self.journal.iter().map(Vec::as_slice)).expect("the journal replays");
         assert!(replayed.ended.is_none(), "seed {}: a run that ended was restarted", self.seed);
         let mut again = Vec::new();
@@ -214,7 +231,17 @@ impl SimCluster {
                 again.push(rec);
             }
         }
-        assert_eq!(again, self.trace, "seed {}: the replay did not rebuild the run's trace", self.seed);
+        if again != self.trace {
+            let at =
+                again.iter().zip(&self.trace).position(|(a, b)| a != b).unwrap_or(again.len().min(self.trace.len()));
+            let lo = at.saturating_sub(3);
+            panic!(
+                "seed {}: the replay did not rebuild the run's trace; from record {at}:\nreplayed: {:#?}\nlive: {:#?}",
+                self.seed,
+                &again[lo..(at + 3).min(again.len())],
+                &self.trace[lo..(at + 3).min(self.trace.len())]
+            );
+        }
         self.coordinator = fresh;
         self.coordinator.recover(self.now_ms);
         self.flush_coordinator();
@@ -272,6 +299,7 @@ impl SimCluster {
                     self.hash.clone(),
                     Arc::clone(&self.program),
                     Arc::clone(&self.layout),
+                    CYCLE_MS,
                 );
                 a.alive = true;
                 a.reachable = true;
@@ -311,15 +339,23 @@ impl SimCluster {
                 self.apply_fate(&agent, fate);
             }
             let up = self.down_until.is_none();
+            // As the shells do: what is due by now runs first, then what arrived now.
+            if up {
+                self.due_cycles();
+            }
+            for i in 0..self.agents.len() {
+                let now = self.now_ms;
+                if self.agents[i].alive && self.agents[i].run.poll_timeout().is_some_and(|t| t <= now) {
+                    self.agents[i].run.handle_timeout(now);
+                    self.flush_agent(i);
+                }
+            }
             while up && self.inputs.first().is_some_and(|i| i.0 <= self.now_ms) {
                 let (_, name, value) = self.inputs.remove(0);
                 self.coordinator.set(self.now_ms, &name, &value).expect("settable input");
-            }
-            self.deliver();
-            if up {
-                self.coordinator.cycle(self.now_ms);
                 self.flush_coordinator();
             }
+            self.deliver();
             for i in 0..self.agents.len() {
                 if !self.agents[i].alive {
                     continue;
@@ -335,10 +371,6 @@ impl SimCluster {
                     self.agents[i].skills.remove(&a);
                     self.agents[i].run.handle_skill_result(now, a, r);
                 }
-                self.agents[i].run.handle_cycle(now);
-                if now.is_multiple_of(50) {
-                    self.agents[i].run.handle_resend(now);
-                }
                 self.flush_agent(i);
             }
             if up && self.coordinator.core().is_terminal() && self.net.is_empty() {
@@ -347,6 +379,21 @@ impl SimCluster {
             self.now_ms += 1;
         }
         false
+    }
+
+    /// The coordinator's cycles that are due, at their grid times, as `baton run` runs them.
+    fn due_cycles(&mut self) {
+        loop {
+            let Some(wanted) = self.coordinator.core().poll_timeout() else { return };
+            let after = self.last_cycle_ms.map_or(0, |t| t + CYCLE_MS);
+            let at = wanted.max(after).div_ceil(CYCLE_MS) * CYCLE_MS;
+            if at > self.now_ms {
+                return;
+            }
+            self.last_cycle_ms = Some(at);
+            self.coordinator.cycle(at);
+            self.flush_coordinator();
+        }
     }
 
     fn deliver(&mut self) {
@@ -386,8 +433,9 @@ impl SimCluster {
                 Packet::Vars(bytes) => {
                     let update: VarUpdate = wire::decode(&bytes).expect("valid update");
                     self.coordinator.vars(self.now_ms, &bytes).expect("valid update");
+                    let now = self.now_ms;
                     for a in self.agents.iter_mut().filter(|a| a.reachable) {
-                        a.run.handle_vars(&update);
+                        a.run.handle_vars(now, &update);
                     }
                 }
             }

@@ -5,13 +5,19 @@
 //! when no step of the token's segment is active any more, the last report says `done`. Reports are kept until
 //! acknowledged and resent with backoff, so a lost message or a coordinator restart loses nothing. Skills are
 //! started and stopped as their actions' Q rises and falls; their results come back as indicator variables.
+//!
+//! The agent's engine cycles with the run's period, on a grid that starts when a token arrives at an idle agent,
+//! and only while a cycle can change something: an idle agent needs no wake-up at all. What arrives between
+//! cycles (a token, values, a skill's result) is applied at once, followed by a reaction (`Engine::react`), so a
+//! segment whose exit is already TRUE hands its token back without waiting for a cycle — and no action body runs
+//! more than once per cycle, whatever the traffic.
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
 use crate::engine::{Engine, EventKind, Input, RemoteInput};
 use crate::layout::{Layout, Placement, SegmentId, SkillBinding};
-use crate::limits::{FINISHED_TOKENS_REMEMBERED, IMMEDIATE_CYCLES_MAX, REPORTS_UNACKED_MAX};
+use crate::limits::{CATCH_UP_CYCLES_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_UNACKED_MAX};
 use crate::program::{ActionId, Program, StepId, VarId};
 use crate::sim::fault_message;
 use crate::types::Value;
@@ -79,6 +85,9 @@ pub struct AgentRun {
     layout: Arc<Layout>,
     engine: Engine,
     now_ms: u64,
+    /// The run's cycle period, and when the next cycle is due (none while no cycle could change anything).
+    cycle_ms: u64,
+    next_cycle_ms: Option<u64>,
     tokens: HashMap<TokenId, Holding>,
     by_segment: HashMap<SegmentId, TokenId>,
     /// Finished or dropped tokens and their last epoch here: a dispatch of that epoch or older is a duplicate.
@@ -106,6 +115,7 @@ impl AgentRun {
         hash: ChartHash,
         program: Arc<Program>,
         layout: Arc<Layout>,
+        cycle_ms: u64,
     ) -> AgentRun {
         let mut serves = vec![Placement::Agent(name.to_string())];
         serves.extend(roles.iter().map(|r| Placement::Role(r.clone())));
@@ -134,6 +144,8 @@ impl AgentRun {
             layout,
             engine,
             now_ms: 0,
+            cycle_ms: cycle_ms.max(1),
+            next_cycle_ms: None,
             tokens: HashMap::new(),
             by_segment: HashMap::new(),
             finished: HashMap::new(),
@@ -192,10 +204,67 @@ impl AgentRun {
         self.now_ms = self.now_ms.max(now_ms);
     }
 
+    /// Runs the cycles due by `now_ms`, each at its grid time, before anything that arrived at `now_ms` is
+    /// applied. A shell that could not keep up (the process was stopped) skips to the grid point before
+    /// `now_ms` past `CATCH_UP_CYCLES_MAX` missed cycles, rather than running them back to back.
+    fn catch_up(&mut self, now_ms: u64) {
+        while let Some(due) = self.next_cycle_ms.filter(|&t| t <= now_ms) {
+            let at =
+                if now_ms - due > CATCH_UP_CYCLES_MAX * self.cycle_ms { self.engine.grid_floor(now_ms) } else { due };
+            self.advance(at);
+            if let Err(e) = self.engine.handle_cycle(at) {
+                self.log(Level::Error, format!("cycle refused: {e}"));
+            }
+            self.drain_engine();
+            self.next_cycle_ms = self.engine.needs_cycle().then_some(at + self.cycle_ms);
+        }
+        self.advance(now_ms);
+    }
+
+    /// After an input: the engine reacts at once, the next cycle is planned if one is needed, and the news
+    /// is reported.
+    fn settle(&mut self) {
+        if let Err(e) = self.engine.react(self.now_ms) {
+            self.log(Level::Error, format!("reaction refused: {e}"));
+        }
+        self.drain_engine();
+        if self.next_cycle_ms.is_none() && self.engine.needs_cycle() {
+            self.next_cycle_ms = Some(self.engine.grid_floor(self.now_ms) + self.cycle_ms);
+        }
+        self.report();
+    }
+
+    /// An agent with no cycle planned starts its grid when a token arrives: its first cycle runs at once. Nothing
+    /// active here depends on the grid's phase then (otherwise a cycle would be planned).
+    fn anchor_grid(&mut self) {
+        if self.next_cycle_ms.is_some() {
+            return;
+        }
+        self.engine.set_grid(self.now_ms, self.cycle_ms);
+        if let Err(e) = self.engine.handle_cycle(self.now_ms) {
+            self.log(Level::Error, format!("cycle refused: {e}"));
+        }
+        self.drain_engine();
+        self.next_cycle_ms = Some(self.now_ms + self.cycle_ms);
+    }
+
+    /// When this run next needs `handle_timeout`: its next cycle, or the next report to send again.
+    pub fn poll_timeout(&self) -> Option<u64> {
+        let resend = self.tokens.values().flat_map(|t| t.unacked.iter().map(|u| u.resend_at_ms)).min();
+        [self.next_cycle_ms, resend].into_iter().flatten().min()
+    }
+
+    /// Time passed: the cycles due run, reports due are sent again.
+    pub fn handle_timeout(&mut self, now_ms: u64) {
+        self.catch_up(now_ms);
+        self.report();
+        self.resend(now_ms, false);
+    }
+
     /// A token arrives. A duplicate (same token and epoch, or an older epoch) or a token already finished in
     /// that epoch changes nothing; a newer epoch of a token dropped here runs.
     pub fn handle_dispatch(&mut self, now_ms: u64, d: Dispatch) {
-        self.advance(now_ms);
+        self.catch_up(now_ms);
         let seen = self.tokens.get(&d.token).map(|t| t.epoch).or_else(|| self.finished.get(&d.token).copied());
         if seen.is_some_and(|epoch| epoch >= d.epoch) {
             self.dropped += 1;
@@ -233,6 +302,10 @@ impl AgentRun {
         }
         let seen = self.peer_seq.entry(COORDINATOR.to_string()).or_insert(0);
         *seen = (*seen).max(d.vars_seq);
+        if self.engine.is_active(entry) {
+            return self.drop_msg(format!("token {} dropped: its entry step is already active here", d.token));
+        }
+        self.anchor_grid();
         if let Err(e) = self.engine.handle_remote(self.now_ms, RemoteInput::Activate(entry)) {
             return self.drop_msg(format!("token {} dropped: {e}", d.token));
         }
@@ -247,14 +320,16 @@ impl AgentRun {
         };
         self.tokens.insert(d.token, held);
         self.by_segment.insert(g, d.token);
+        self.settle();
     }
 
     /// The coordinator took this token back (its segment went to another epoch): stop running it.
     pub fn handle_drop(&mut self, now_ms: u64, token: TokenId, epoch: u32) {
-        self.advance(now_ms);
+        self.catch_up(now_ms);
         if self.tokens.get(&token).is_some_and(|t| t.epoch == epoch) {
             self.log(Level::Warn, format!("token {token} epoch {epoch} dropped at the coordinator's request"));
             self.forget(token);
+            self.settle();
         }
     }
 
@@ -284,11 +359,6 @@ impl AgentRun {
         }
     }
 
-    /// Whether a cycle could change anything: a token is held, or a token was just taken away.
-    pub fn needs_cycle(&self) -> bool {
-        self.tokens_held() > 0 || self.engine.changed()
-    }
-
     /// The coordinator applied this token's reports up to `seq`.
     pub fn handle_ack(&mut self, token: TokenId, epoch: u32, seq: u32, done: bool) {
         let Some(held) = self.tokens.get_mut(&token) else { return };
@@ -305,7 +375,7 @@ impl AgentRun {
     }
 
     /// Variables published by the coordinator or another agent; the latest update of each writer wins.
-    pub fn handle_vars(&mut self, update: &VarUpdate) {
+    pub fn handle_vars(&mut self, now_ms: u64, update: &VarUpdate) {
         if update.from == self.name {
             return;
         }
@@ -314,11 +384,13 @@ impl AgentRun {
             return;
         }
         *seen = update.seq;
+        self.catch_up(now_ms);
         for vv in &update.vars {
             if !self.accept_external(vv) {
                 self.dropped += 1;
             }
         }
+        self.settle();
     }
 
     /// Takes a value written elsewhere, unless this agent alone writes the variable.
@@ -336,7 +408,7 @@ impl AgentRun {
 
     /// A skill finished: its action's indicator variables say so (first: done, second: fault).
     pub fn handle_skill_result(&mut self, now_ms: u64, action: ActionId, result: Result<(), String>) {
-        self.advance(now_ms);
+        self.catch_up(now_ms);
         if !self.running_skills.remove(&action) {
             return;
         }
@@ -347,6 +419,7 @@ impl AgentRun {
             Err(message) => AgentEventKind::SkillFault { action: action.0, message },
         };
         self.record(action_token(&self.action_segments, &self.by_segment, action), kind);
+        self.settle();
     }
 
     /// Sets the indicators of `action`'s associations on the active steps: the first to `done`, the second
@@ -377,22 +450,6 @@ impl AgentRun {
         let Some(held) = self.tokens.get_mut(&token) else { return };
         let dt_ms = self.now_ms.saturating_sub(held.arrived_ms);
         held.events.push(AgentEvent { dt_ms, kind });
-    }
-
-    /// Runs cycles until the situation settles, then reports.
-    pub fn handle_cycle(&mut self, now_ms: u64) {
-        self.advance(now_ms);
-        for _ in 0..IMMEDIATE_CYCLES_MAX {
-            if let Err(e) = self.engine.handle_cycle(self.now_ms) {
-                self.log(Level::Error, format!("cycle refused: {e}"));
-                break;
-            }
-            self.drain_engine();
-            if !self.engine.changed() {
-                break;
-            }
-        }
-        self.report();
     }
 
     fn drain_engine(&mut self) {
@@ -505,11 +562,6 @@ impl AgentRun {
             }
             self.outbox.push_back(AgentOutput::Report(report));
         }
-    }
-
-    /// Sends again the reports the coordinator has not acknowledged in time, with doubling delays.
-    pub fn handle_resend(&mut self, now_ms: u64) {
-        self.resend(now_ms, false);
     }
 
     /// The coordinator started again from its journal: every unacknowledged report goes now, and the delays

@@ -7,13 +7,18 @@
 //! duplicated or reordered report changes nothing. A simultaneous convergence is an ordinary transition of the
 //! coordinator's engine: it clears when every source step is active here (each input arrived) and its
 //! condition is TRUE.
+//!
+//! Cycles run on the run's grid (`k · cycle_ms`), one at a time, whatever the traffic: the shell asks
+//! `poll_timeout` when the next one is needed and runs it at its grid time. What arrives in between is applied at
+//! once and followed by a reaction (`Engine::react`), so a token's return or an input is acted on without
+//! waiting for the next cycle, and without running any action body an extra time.
 
 use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
 use crate::engine::{Engine, Event, EventKind, Input, RemoteInput};
 use crate::layout::{Layout, Placement, SegmentId};
-use crate::limits::{ACK_DELAY_MS, AGENTS_MAX, FINISHED_TOKENS_REMEMBERED, IMMEDIATE_CYCLES_MAX, REPORTS_AHEAD_MAX};
+use crate::limits::{ACK_DELAY_MS, AGENTS_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_AHEAD_MAX};
 use crate::program::{Program, StepId, TransitionId, VarId};
 use crate::sim::{output_of, parse_value, SimOutput, TraceRecord};
 use crate::types::Value;
@@ -28,7 +33,6 @@ use super::{Level, COORDINATOR};
 /// duplicate if it has the token), and how often the coordinator looks for such dispatches.
 const DISPATCH_RESEND_FIRST_MS: u64 = 500;
 const DISPATCH_RESEND_MAX_MS: u64 = 5_000;
-const DISPATCH_RESEND_CHECK_MS: u64 = 100;
 
 /// What the coordinator asks its shell to do.
 #[derive(Clone, Debug, PartialEq)]
@@ -120,8 +124,6 @@ pub struct Coordinator {
     policy: LossPolicy,
     /// Why the run must end, under `LossPolicy::Fail`.
     failure: Option<String>,
-    /// When to look next for dispatches to send again.
-    resend_check_ms: u64,
     /// When this coordinator last started again from its journal.
     recovered_ms: Option<u64>,
     stats: CoordStats,
@@ -164,7 +166,6 @@ impl Coordinator {
             acks_since_ms: 0,
             policy: LossPolicy::default(),
             failure: None,
-            resend_check_ms: 0,
             recovered_ms: None,
             stats: CoordStats::default(),
         }
@@ -205,6 +206,11 @@ impl Coordinator {
         self.engine.value(v)
     }
 
+    /// The time of the last input or cycle.
+    pub fn now_ms(&self) -> u64 {
+        self.now_ms
+    }
+
     pub fn tokens_in_flight(&self) -> usize {
         self.tokens.len()
     }
@@ -226,24 +232,57 @@ impl Coordinator {
         self.outbox.push_back(CoordOutput::Trace(rec));
     }
 
-    /// Runs cycles at `now_ms` until the situation settles (or `IMMEDIATE_CYCLES_MAX` cycles ran), then
-    /// publishes the variables the coordinator writes that changed.
-    pub fn handle_cycle(&mut self, now_ms: u64) {
+    /// The run's cycle period: the grid the shell runs cycles on, and from which steps made active between
+    /// cycles count their time.
+    pub fn set_cycle_ms(&mut self, cycle_ms: u64) {
+        self.engine.set_grid(0, cycle_ms);
+    }
+
+    /// Runs one cycle at `now_ms` (a grid time), then what is due: dispatches sent again, agents given up,
+    /// acknowledgements, changed variables. Returns whether it changed anything: a cycle that did not need no
+    /// record in a journal (the next input carries the time on).
+    pub fn handle_cycle(&mut self, now_ms: u64) -> bool {
         self.advance(now_ms);
-        for _ in 0..IMMEDIATE_CYCLES_MAX {
-            if let Err(e) = self.engine.handle_cycle(self.now_ms) {
-                self.log(Level::Error, format!("cycle refused: {e}"));
-                break;
-            }
-            self.drain_engine();
-            if !self.engine.changed() {
-                break;
-            }
+        let (mutations, outputs, recovering) = (self.engine.mutations(), self.outbox.len(), self.recovered_ms);
+        if let Err(e) = self.engine.handle_cycle(self.now_ms) {
+            self.log(Level::Error, format!("cycle refused: {e}"));
         }
+        self.drain_engine();
         self.resend_dispatches();
         self.give_up_on_silent_agents();
         self.publish_vars();
-        self.flush_acks();
+        self.flush_acks(true);
+        self.engine.mutations() != mutations || self.outbox.len() != outputs || self.recovered_ms != recovering
+    }
+
+    /// After an input: the engine reacts to it (first scans of steps that became active, transitions that read
+    /// what changed), and what that changed leaves at once.
+    fn settle(&mut self) {
+        if let Err(e) = self.engine.react(self.now_ms) {
+            self.log(Level::Error, format!("reaction refused: {e}"));
+        }
+        self.drain_engine();
+        self.publish_vars();
+        self.flush_acks(false);
+    }
+
+    /// When the next cycle is needed: at once (the next grid time) when the engine needs one, else at the
+    /// earliest deadline (a dispatch to send again, acknowledgements to send, an agent to give up on), or never.
+    pub fn poll_timeout(&self) -> Option<u64> {
+        if self.engine.needs_cycle() {
+            return Some(self.now_ms);
+        }
+        let resend = self
+            .tokens
+            .values()
+            .filter(|t| t.next_seq == 0 && !t.paused && t.confirmed && t.agent.is_some())
+            .map(|t| t.resend_at_ms)
+            .min();
+        let acks = (!self.acks.is_empty()).then_some(self.acks_since_ms + ACK_DELAY_MS);
+        let give_up = self.recovered_ms.and_then(|since| {
+            self.agents.values().filter(|a| a.recovering && a.alive).map(|a| since.saturating_add(a.lease_ms)).min()
+        });
+        [resend, acks, give_up].into_iter().flatten().min()
     }
 
     /// After a restart from the journal, an agent that has not come back within its lease is lost, as if its
@@ -270,10 +309,6 @@ impl Coordinator {
     /// segment waiting for ever: a dispatch that no report answered goes again, with doubling delays. The agent
     /// drops the copy if the first one arrived.
     fn resend_dispatches(&mut self) {
-        if self.now_ms < self.resend_check_ms {
-            return;
-        }
-        self.resend_check_ms = self.now_ms + DISPATCH_RESEND_CHECK_MS;
         let now = self.now_ms;
         let mut due: Vec<TokenId> = self
             .tokens
@@ -295,9 +330,9 @@ impl Coordinator {
         }
     }
 
-    /// Acknowledgements ride on this cycle's dispatches to the same agent; the rest leave together once they
-    /// are `ACK_DELAY_MS` old, or at once when the run is over.
-    fn flush_acks(&mut self) {
+    /// Acknowledgements ride on the dispatches about to leave to the same agent; in a cycle (`due`), the rest
+    /// leave together once they are `ACK_DELAY_MS` old, or at once when the run is over.
+    fn flush_acks(&mut self, due: bool) {
         if self.acks.is_empty() {
             return;
         }
@@ -308,7 +343,10 @@ impl Coordinator {
                 }
             }
         }
-        if self.now_ms >= self.acks_since_ms + ACK_DELAY_MS || self.is_terminal() {
+        if self.acks.is_empty() {
+            return;
+        }
+        if (due && self.now_ms >= self.acks_since_ms + ACK_DELAY_MS) || self.is_terminal() {
             for (agent, acks) in std::mem::take(&mut self.acks) {
                 self.outbox.push_back(CoordOutput::Send { agent, msg: ToAgent::Ack { run: self.run, acks } });
             }
@@ -625,6 +663,7 @@ impl Coordinator {
                 None => self.waiting.push(id),
             }
         }
+        self.settle();
     }
 
     /// An agent's liveliness token is gone (killed: at once; hung or cut off: after its lease). Its tokens are
@@ -670,6 +709,7 @@ impl Coordinator {
                 }
             }
         }
+        self.settle();
     }
 
     fn alarm(&mut self, message: String) {
@@ -783,6 +823,7 @@ impl Coordinator {
                 t.ahead.remove(&seq)
             });
         }
+        self.settle();
     }
 
     fn apply_report(&mut self, r: Report) {
@@ -949,6 +990,7 @@ impl Coordinator {
         }
         self.agent_vars_seq.insert(update.from.clone(), update.seq);
         self.apply_agent_vars(&update.from, &update.vars);
+        self.settle();
     }
 
     /// `baton set NAME=VALUE`: sets an input (a variable no action writes) before the next cycle.
@@ -974,6 +1016,7 @@ impl Coordinator {
         let mut rec = TraceRecord::new(self.now_ms, "set", &info.name);
         rec.message = Some(v.to_string());
         self.trace(rec);
+        self.settle();
         Ok(format!("{} := {v}", info.name))
     }
 
