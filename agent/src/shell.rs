@@ -88,6 +88,8 @@ struct Shell {
     /// One publisher per key, declared on first use.
     publishers: HashMap<String, Publisher<'static>>,
     dropped: u64,
+    /// This process, as the coordinator tells it from a restarted one of the same name.
+    incarnation: uuid::Uuid,
 }
 
 /// Runs the agent until interrupted (Ctrl-C or SIGTERM).
@@ -109,6 +111,7 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
         .await
         .map_err(|e| anyhow!("cannot declare the liveliness token: {e}"))?;
     let (tx, mut rx) = mpsc::unbounded_channel();
+    let incarnation = uuid::Uuid::new_v4();
     let mut shell = Shell {
         config: config.clone(),
         skills,
@@ -120,6 +123,7 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
         events: tx,
         publishers: HashMap::new(),
         dropped: 0,
+        incarnation,
     };
     let roles =
         if config.roles.is_empty() { String::new() } else { format!(" with role(s) {}", config.roles.join(", ")) };
@@ -128,7 +132,6 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
         config.connect.join(", "),
         shell.skills.names().join(", ")
     );
-    let incarnation = uuid::Uuid::new_v4();
     // Signal streams made once: polling them each turn of the loop costs nothing.
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
@@ -245,6 +248,10 @@ impl Shell {
     /// Keeps a dispatch until its run's chart arrives; the first one starts the fetch.
     fn queue_for_chart(&mut self, run: RunId, hash: ChartHash, d: Dispatch) {
         let first = !self.pending.contains_key(&run);
+        if first && self.pending.len() >= RUNS_MAX {
+            return self
+                .drop_msg(format!("dispatch for run {} dropped: {RUNS_MAX} charts are being fetched", run.key()));
+        }
         let queue = self.pending.entry(run).or_default();
         if queue.len() >= PENDING_DISPATCHES_MAX {
             return self.drop_msg(format!("too many dispatches waiting for the chart of run {}", run.key()));
@@ -278,7 +285,8 @@ impl Shell {
                 let queued = self.pending.remove(&run).unwrap_or_default();
                 self.make_room();
                 let (name, roles) = (&self.config.name, &self.config.roles);
-                let state = AgentRun::new(name, roles, run, hash.clone(), program, layout, cycle_ms);
+                let mut state = AgentRun::new(name, roles, run, hash.clone(), program, layout, cycle_ms);
+                state.set_incarnation(self.incarnation);
                 let mut r = Run { state, last_used: Instant::now() };
                 for (h, d) in queued {
                     if h == hash {

@@ -348,7 +348,16 @@ mod tests {
                 t_ms: 11,
                 record: Record::Set(SetRequest { name: "go".into(), value: serde_json::Value::Bool(true) }),
             },
-            Entry { t_ms: 12, record: Record::Vars(VarUpdate { run, from: "r2".into(), seq: 3, vars: Vec::new() }) },
+            Entry {
+                t_ms: 12,
+                record: Record::Vars(VarUpdate {
+                    run,
+                    from: "r2".into(),
+                    incarnation: Uuid::from_u128(9),
+                    seq: 3,
+                    vars: Vec::new(),
+                }),
+            },
             Entry { t_ms: 13, record: Record::Recover },
             Entry { t_ms: u64::MAX, record: Record::End { failure: Some("agent `r1` was lost".into()) } },
             Entry { t_ms: 20, record: Record::End { failure: None } },

@@ -27,8 +27,12 @@ pub const CHART_SOURCE_BYTES_MAX: usize = 16 * 1024 * 1024;
 /// Reports of one token that arrived ahead of a missing one and wait for it; more are dropped (and resent).
 pub const REPORTS_AHEAD_MAX: usize = 256;
 
-/// Unacknowledged reports an agent keeps per token for resending.
+/// Unacknowledged reports an agent keeps per token for resending; past that it numbers no new one until
+/// acknowledgements come, and what happens meanwhile waits, coalesced, for the next report.
 pub const REPORTS_UNACKED_MAX: usize = 1024;
+
+/// Events in one report: what waited during a long silence leaves in several.
+pub const REPORT_EVENTS_MAX: usize = 4096;
 
 /// Finished tokens an agent remembers, to recognise a late duplicate dispatch.
 pub const FINISHED_TOKENS_REMEMBERED: usize = 65_536;
@@ -48,8 +52,11 @@ pub const RECEIVE_QUEUE_MAX: usize = 16_384;
 /// same agent). Far below the agents' first resend delay, so acknowledged reports are not sent twice.
 pub const ACK_DELAY_MS: u64 = 5;
 
-/// Agents one coordinator tracks.
+/// Agents one coordinator tracks (live ones, and lost ones that still hold a token).
 pub const AGENTS_MAX: usize = 4096;
+
+/// Replaced processes (incarnations) whose late variable values are still recognised and refused.
+pub const RETIRED_INCARNATIONS_MAX: usize = 256;
 
 const _: () = assert!(CHART_SOURCE_BYTES_MAX >= MESSAGE_BYTES_MAX);
 const _: () = assert!(SOURCE_BYTES_MAX < u32::MAX as usize);

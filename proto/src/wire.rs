@@ -182,6 +182,9 @@ pub struct Report {
 pub struct VarUpdate {
     pub run: RunId,
     pub from: String,
+    /// The process of `from` that numbered the update (`AgentInfo::incarnation`; nil for the coordinator, whose
+    /// numbers survive its restarts): a restarted writer numbers from 1 again.
+    pub incarnation: Uuid,
     pub seq: u64,
     pub vars: Vec<VarValue>,
 }

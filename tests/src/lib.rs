@@ -4,6 +4,7 @@ pub mod cluster;
 pub mod gen;
 pub mod invariants;
 pub mod netns;
+pub mod reference;
 pub mod scenario;
 pub mod simnet;
 

@@ -95,6 +95,21 @@ pub fn compile(source: &str) -> (Arc<Program>, Arc<Layout>) {
     (Arc::new(checked.program.expect("program")), Arc::new(checked.layout.expect("layout")))
 }
 
+/// A fresh agent process (its `restarts`-th incarnation) in the simulated run.
+fn agent_run(
+    name: &str,
+    roles: &[String],
+    hash: &ChartHash,
+    program: &Arc<Program>,
+    layout: &Arc<Layout>,
+    restarts: u128,
+) -> AgentRun {
+    let run = RunId(Uuid::from_u128(1));
+    let mut a = AgentRun::new(name, roles, run, hash.clone(), Arc::clone(program), Arc::clone(layout), CYCLE_MS);
+    a.set_incarnation(Uuid::from_u128(restarts));
+    a
+}
+
 impl SimCluster {
     /// Agents as (name, roles).
     pub fn new(source: &str, agents: &[(&str, &[&str])], faults: Faults, seed: u64) -> SimCluster {
@@ -125,15 +140,7 @@ impl SimCluster {
                     alive: true,
                     reachable: true,
                     restarts: 0,
-                    run: AgentRun::new(
-                        name,
-                        &roles,
-                        run,
-                        hash.clone(),
-                        Arc::clone(&program),
-                        Arc::clone(&layout),
-                        CYCLE_MS,
-                    ),
+                    run: agent_run(name, &roles, &hash, &program, &layout, 0),
                     skills: BTreeMap::new(),
                 }
             })
@@ -292,15 +299,7 @@ impl SimCluster {
                 // A restart is a new incarnation; a healed cut is the same process.
                 self.agents[i].restarts += 1;
                 let a = &mut self.agents[i];
-                a.run = AgentRun::new(
-                    agent,
-                    &a.roles,
-                    RunId(Uuid::from_u128(1)),
-                    self.hash.clone(),
-                    Arc::clone(&self.program),
-                    Arc::clone(&self.layout),
-                    CYCLE_MS,
-                );
+                a.run = agent_run(agent, &a.roles, &self.hash, &self.program, &self.layout, a.restarts);
                 a.alive = true;
                 a.reachable = true;
                 if coordinator_up {

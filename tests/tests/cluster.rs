@@ -211,6 +211,7 @@ async fn garbage_on_batons_keys_changes_nothing() {
     let rogue_vars = wire::VarUpdate {
         run,
         from: "intruder".into(),
+        incarnation: uuid::Uuid::nil(),
         seq: 1,
         vars: vec![wire::VarValue { var: 0, value: wire::WireValue::Int(2) }],
     };

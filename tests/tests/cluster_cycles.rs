@@ -1,36 +1,17 @@
 //! The scan cycle on real processes: a distributed run computes what `baton sim` computes, whatever the traffic
 //! between the coordinator and its agents, and an idle run with a journal writes (almost) nothing.
 
-use std::sync::Arc;
-
-use baton_proto::engine::Engine;
 use baton_tests::cluster::{check_trace_invariants, repo, Cluster, TIMEOUT};
+use baton_tests::reference::final_values;
 
 fn chart(name: &str) -> std::path::PathBuf {
     repo(&format!("tests/charts/{name}"))
 }
 
-/// The chart's variables after it ran on one engine with a cycle every `cycle_ms`, as `baton sim` runs it,
-/// until it reached a terminal situation.
-fn simulated(path: &std::path::Path, cycle_ms: u64, names: &[&str]) -> Vec<i64> {
-    let source = std::fs::read_to_string(path).expect("chart");
-    let report = baton_proto::check::check_source(&source);
-    let program = Arc::new(report.charts[0].program.clone().expect("a valid chart"));
-    let mut engine = Engine::new(Arc::clone(&program));
-    let mut now = 0;
-    while !engine.is_terminal() {
-        engine.handle_cycle(now).expect("cycle");
-        while engine.poll_event().is_some() {}
-        now += cycle_ms;
-        assert!(now < 60_000, "the chart does not end");
-    }
-    names.iter().map(|n| engine.value(program.var_by_name(n).expect("variable")).as_i64()).collect()
-}
-
 #[tokio::test(flavor = "multi_thread")]
 async fn a_counter_on_an_agent_counts_what_baton_sim_counts() {
     let path = chart("counter.st");
-    let expected = simulated(&path, 10, &["n", "m"]);
+    let expected = final_values(&std::fs::read_to_string(&path).expect("chart"), 10, &["n", "m"]);
     assert!(expected[0] > 100 && expected[1] > 10, "the counters counted: {expected:?}");
     let mut cluster = Cluster::new();
     cluster.agent("r1", &[], &[]);

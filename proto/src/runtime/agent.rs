@@ -12,18 +12,19 @@
 //! segment whose exit is already TRUE hands its token back without waiting for a cycle — and no action body runs
 //! more than once per cycle, whatever the traffic.
 
-use std::collections::{HashMap, HashSet, VecDeque};
+use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
 use crate::engine::{Engine, EventKind, Input, RemoteInput};
 use crate::layout::{Layout, Placement, SegmentId, SkillBinding};
-use crate::limits::{CATCH_UP_CYCLES_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_UNACKED_MAX};
+use crate::limits::{CATCH_UP_CYCLES_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_UNACKED_MAX, REPORT_EVENTS_MAX};
 use crate::program::{ActionId, Program, StepId, VarId};
 use crate::sim::fault_message;
 use crate::types::Value;
 use crate::wire::{AgentEvent, AgentEventKind, ChartHash, HeldToken, Report, RunId, TokenId, VarUpdate, VarValue};
 
-use super::{Level, COORDINATOR};
+use super::{Level, VarWrites, COORDINATOR};
+use uuid::Uuid;
 
 /// First and largest delay before an unacknowledged report is sent again.
 const RESEND_FIRST_MS: u64 = 200;
@@ -98,8 +99,13 @@ pub struct AgentRun {
     owned: Vec<VarId>,
     pinned: Vec<bool>,
     published: Vec<Value>,
+    /// Values changed since the last report, by variable: the next report carries them.
+    unreported: BTreeMap<u32, Value>,
     vars_seq: u64,
-    peer_seq: HashMap<String, u64>,
+    /// This agent's process: its variable updates are numbered within it.
+    incarnation: Uuid,
+    /// The last write applied to each variable written elsewhere.
+    var_writes: VarWrites,
     /// Per action: the segments with a step that uses it.
     action_segments: Vec<Vec<SegmentId>>,
     running_skills: HashSet<ActionId>,
@@ -122,6 +128,7 @@ impl AgentRun {
         let owned: Vec<VarId> =
             (0..program.vars.len()).filter(|&i| serves.contains(&layout.writer[i])).map(|i| VarId(i as u32)).collect();
         let engine = Engine::with_scope(Arc::clone(&program), layout.agent_scope(&program));
+        let program_vars = program.vars.len();
         let published = owned.iter().map(|&v| engine.value(v)).collect();
         let pinned = owned.iter().map(|v| layout.writer[v.index()] == Placement::Agent(name.to_string())).collect();
         let mut action_segments = vec![Vec::new(); program.actions.len()];
@@ -153,13 +160,20 @@ impl AgentRun {
             owned,
             pinned,
             published,
+            unreported: BTreeMap::new(),
             vars_seq: 0,
-            peer_seq: HashMap::new(),
+            incarnation: Uuid::nil(),
+            var_writes: VarWrites::new(program_vars),
             action_segments,
             running_skills: HashSet::new(),
             outbox: VecDeque::new(),
             dropped: 0,
         }
+    }
+
+    /// This agent's process (`AgentInfo::incarnation`), which numbers its variable updates.
+    pub fn set_incarnation(&mut self, incarnation: Uuid) {
+        self.incarnation = incarnation;
     }
 
     pub fn hash(&self) -> &ChartHash {
@@ -295,13 +309,14 @@ impl AgentRun {
                 .drop_msg(format!("token {} dropped: token {other} already runs the same segment here", d.token));
         }
         for vv in &d.vars {
-            // Inputs and variables of other places: the coordinator's view as of the dispatch.
-            if !self.accept_external(vv) {
+            // Inputs and variables of other places: the coordinator's view as of the dispatch (what another agent
+            // wrote is only relayed: that agent's own updates win).
+            let relay =
+                vv.resolve(&self.program).is_some_and(|(v, _)| self.layout.writer[v.index()] != Placement::Coordinator);
+            if !self.accept_external(vv, COORDINATOR, Uuid::nil(), d.vars_seq, relay) {
                 self.dropped += 1;
             }
         }
-        let seen = self.peer_seq.entry(COORDINATOR.to_string()).or_insert(0);
-        *seen = (*seen).max(d.vars_seq);
         if self.engine.is_active(entry) {
             return self.drop_msg(format!("token {} dropped: its entry step is already active here", d.token));
         }
@@ -365,12 +380,16 @@ impl AgentRun {
         if held.epoch != epoch {
             return;
         }
+        let full = held.unacked.len() >= REPORTS_UNACKED_MAX;
         while held.unacked.front().is_some_and(|u| u.report.seq <= seq) {
             held.unacked.pop_front();
         }
         if done && held.done && held.unacked.is_empty() {
             self.tokens.remove(&token);
             self.remember_finished(token, epoch);
+        } else if full {
+            // Room again: what waited leaves now.
+            self.report();
         }
     }
 
@@ -379,27 +398,31 @@ impl AgentRun {
         if update.from == self.name {
             return;
         }
-        let seen = self.peer_seq.entry(update.from.clone()).or_insert(0);
-        if update.seq <= *seen {
+        if update.from != COORDINATOR && !crate::layout::is_valid_name(&update.from) {
+            self.dropped += 1;
             return;
         }
-        *seen = update.seq;
         self.catch_up(now_ms);
         for vv in &update.vars {
-            if !self.accept_external(vv) {
+            if !self.accept_external(vv, &update.from, update.incarnation, update.seq, false) {
                 self.dropped += 1;
             }
         }
         self.settle();
     }
 
-    /// Takes a value written elsewhere, unless this agent alone writes the variable.
-    fn accept_external(&mut self, vv: &VarValue) -> bool {
+    /// Takes a value written elsewhere, unless this agent alone writes the variable or a newer write of it was
+    /// taken already. Returns false for a value refused as invalid or misdirected.
+    fn accept_external(&mut self, vv: &VarValue, from: &str, incarnation: Uuid, seq: u64, relay: bool) -> bool {
         let Some((var, value)) = vv.resolve(&self.program) else { return false };
-        if let Some(i) = self.owned.iter().position(|&v| v == var) {
-            if self.pinned[i] {
-                return false;
-            }
+        let i = self.owned.iter().position(|&v| v == var);
+        if i.is_some_and(|i| self.pinned[i]) {
+            return false;
+        }
+        if !self.var_writes.accept(var.index(), from, incarnation, seq, relay) {
+            return true;
+        }
+        if let Some(i) = i {
             // A role's variable another agent wrote: take it as already published, not as our own change.
             self.published[i] = value;
         }
@@ -503,6 +526,11 @@ impl AgentRun {
     /// Sends what happened since the last report: the changed variables this agent writes (published to every
     /// reader, and carried in the first report so that the coordinator sees them before the clearings they
     /// led to), then one report per token with news.
+    ///
+    /// A token has at most `REPORTS_UNACKED_MAX` reports out unacknowledged. Past that no report is numbered
+    /// until acknowledgements make room: the events wait in order, the values coalesce (only the latest of each
+    /// counts), and all of it leaves, in reports of at most `REPORT_EVENTS_MAX` events, once there is room. So
+    /// whatever the coordinator has not acknowledged can always be sent again, however long it was away.
     fn report(&mut self) {
         let mut changed = Vec::new();
         for (i, &v) in self.owned.iter().enumerate() {
@@ -510,6 +538,7 @@ impl AgentRun {
             if self.published[i] != value {
                 self.published[i] = value;
                 changed.push(VarValue::new(v, value));
+                self.unreported.insert(v.0, value);
             }
         }
         if !changed.is_empty() {
@@ -518,7 +547,13 @@ impl AgentRun {
             let read: Vec<VarValue> =
                 changed.iter().filter(|vv| self.layout.read_by_agents[vv.var as usize]).copied().collect();
             if !read.is_empty() {
-                let update = VarUpdate { run: self.run, from: self.name.clone(), seq: self.vars_seq, vars: read };
+                let update = VarUpdate {
+                    run: self.run,
+                    from: self.name.clone(),
+                    incarnation: self.incarnation,
+                    seq: self.vars_seq,
+                    vars: read,
+                };
                 self.outbox.push_back(AgentOutput::Vars(update));
             }
         }
@@ -530,37 +565,37 @@ impl AgentRun {
                 self.layout.segments[held.segment.index()].steps.iter().any(|&s| self.engine.is_active(s))
             };
             let Some(held) = self.tokens.get_mut(&id) else { continue };
-            if held.done {
-                continue;
-            }
-            let done = !segment_active;
-            if held.events.is_empty() && !done && changed.is_empty() {
-                continue;
-            }
-            let report = Report {
-                run: self.run,
-                agent: self.name.clone(),
-                token: id,
-                epoch: held.epoch,
-                seq: held.next_seq,
-                events: std::mem::take(&mut held.events),
-                vars: std::mem::take(&mut changed),
-                vars_seq: self.vars_seq,
-                done,
-            };
-            held.next_seq += 1;
-            held.done = done;
-            if done {
-                self.by_segment.remove(&held.segment);
-            }
-            if held.unacked.len() < REPORTS_UNACKED_MAX {
+            while !held.done && held.unacked.len() < REPORTS_UNACKED_MAX {
+                if held.events.is_empty() && segment_active && self.unreported.is_empty() {
+                    break;
+                }
+                let events: Vec<AgentEvent> = held.events.drain(..held.events.len().min(REPORT_EVENTS_MAX)).collect();
+                let done = !segment_active && held.events.is_empty();
+                let vars =
+                    std::mem::take(&mut self.unreported).into_iter().map(|(var, v)| VarValue::new(VarId(var), v));
+                let report = Report {
+                    run: self.run,
+                    agent: self.name.clone(),
+                    token: id,
+                    epoch: held.epoch,
+                    seq: held.next_seq,
+                    events,
+                    vars: vars.collect(),
+                    vars_seq: self.vars_seq,
+                    done,
+                };
+                held.next_seq += 1;
+                held.done = done;
+                if done {
+                    self.by_segment.remove(&held.segment);
+                }
                 held.unacked.push_back(Unacked {
                     report: report.clone(),
                     resend_at_ms: self.now_ms + RESEND_FIRST_MS,
                     backoff_ms: RESEND_FIRST_MS,
                 });
+                self.outbox.push_back(AgentOutput::Report(report));
             }
-            self.outbox.push_back(AgentOutput::Report(report));
         }
     }
 

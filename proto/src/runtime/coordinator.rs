@@ -27,7 +27,7 @@ use crate::wire::{
     ToAgent, TokenId, VarUpdate, VarValue,
 };
 
-use super::{Level, COORDINATOR};
+use super::{Level, VarWrites, COORDINATOR};
 
 /// First and largest delay before a dispatch that no report answered is sent again (the agent drops the
 /// duplicate if it has the token), and how often the coordinator looks for such dispatches.
@@ -112,8 +112,8 @@ pub struct Coordinator {
     owned: Vec<VarId>,
     published: Vec<Option<Value>>,
     vars_seq: u64,
-    /// The last variable update applied from each agent.
-    agent_vars_seq: HashMap<String, u64>,
+    /// The last write applied to each variable an agent writes.
+    var_writes: VarWrites,
     new_token: Box<dyn FnMut() -> TokenId + Send>,
     round_robin: usize,
     outbox: VecDeque<CoordOutput>,
@@ -139,6 +139,7 @@ impl Coordinator {
         new_token: Box<dyn FnMut() -> TokenId + Send>,
     ) -> Coordinator {
         let engine = Engine::with_scope(Arc::clone(&program), layout.coordinator_scope(&program));
+        let program_vars = program.vars.len();
         // Only what agents read travels: the coordinator's own counters and flags stay home.
         let owned: Vec<VarId> =
             layout.written_by(&Placement::Coordinator).filter(|v| layout.read_by_agents[v.index()]).collect();
@@ -158,7 +159,7 @@ impl Coordinator {
             finished: HashMap::new(),
             finished_order: VecDeque::new(),
             vars_seq: 0,
-            agent_vars_seq: HashMap::new(),
+            var_writes: VarWrites::new(program_vars),
             new_token,
             round_robin: 0,
             outbox: VecDeque::new(),
@@ -371,7 +372,13 @@ impl Coordinator {
         }
         if !changed.is_empty() {
             self.vars_seq += 1;
-            let update = VarUpdate { run: self.run, from: COORDINATOR.to_string(), seq: self.vars_seq, vars: changed };
+            let update = VarUpdate {
+                run: self.run,
+                from: COORDINATOR.to_string(),
+                incarnation: uuid::Uuid::nil(),
+                seq: self.vars_seq,
+                vars: changed,
+            };
             self.outbox.push_back(CoordOutput::Vars(update));
         }
     }
@@ -592,10 +599,15 @@ impl Coordinator {
         let was_alive = entry.alive;
         let recovering = std::mem::take(&mut entry.recovering);
         let restarted = entry.incarnation != info.incarnation;
+        let old_incarnation = entry.incarnation;
         entry.roles = info.roles.clone();
         entry.lease_ms = info.lease_ms;
         entry.alive = true;
         entry.incarnation = info.incarnation;
+        if restarted {
+            // Its numbers start again: what the old process still sends is late.
+            self.var_writes.retire(name.clone(), old_incarnation);
+        }
         if !was_alive {
             let mut rec = TraceRecord::new(self.now_ms, "agent_up", &name);
             rec.agent = Some(name.clone());
@@ -709,7 +721,18 @@ impl Coordinator {
                 }
             }
         }
+        self.forget_if_gone(name);
         self.settle();
+    }
+
+    /// An agent that is gone and holds no token is forgotten: if it comes back, it is a new one. So the agents
+    /// tracked are the live ones and the lost ones with a token, however many names come and go.
+    fn forget_if_gone(&mut self, name: &str) {
+        let gone = self.agents.get(name).is_some_and(|a| !a.alive);
+        if gone && !self.tokens.values().any(|t| t.agent.as_deref() == Some(name)) {
+            self.agents.remove(name);
+            self.acks.remove(name);
+        }
     }
 
     fn alarm(&mut self, message: String) {
@@ -831,9 +854,9 @@ impl Coordinator {
         let (segment, dispatched_ms, epoch) = (tok.segment, tok.dispatched_ms, tok.epoch);
         let placement = self.layout.segments[segment.index()].placement.clone();
         let program = Arc::clone(&self.program);
-        if r.vars_seq > self.agent_vars_seq.get(&r.agent).copied().unwrap_or(0) {
-            self.agent_vars_seq.insert(r.agent.clone(), r.vars_seq);
-            self.apply_agent_vars(&r.agent, &r.vars);
+        // The token's holder is the agent's current process (a restarted one gets the segment in a new epoch).
+        if let Some(incarnation) = self.agents.get(&r.agent).map(|a| a.incarnation) {
+            self.apply_agent_vars(&r.agent, incarnation, r.vars_seq, &r.vars);
         }
         let mut floor = self.engine.now_ms();
         for ev in &r.events {
@@ -918,6 +941,7 @@ impl Coordinator {
         if let Some(a) = self.agents.get_mut(&agent) {
             a.tokens = a.tokens.saturating_sub(1);
         }
+        self.forget_if_gone(&agent);
         let still =
             self.layout.segments[tok.segment.index()].steps.iter().find(|&&s| self.engine.is_active(s)).copied();
         if let Some(s) = still {
@@ -950,7 +974,9 @@ impl Coordinator {
         }
     }
 
-    fn apply_agent_vars(&mut self, agent: &str, vars: &[VarValue]) {
+    /// Values from `agent`'s process `incarnation`, as of its update `seq`: each applies unless a newer write of
+    /// the variable was applied already.
+    fn apply_agent_vars(&mut self, agent: &str, incarnation: uuid::Uuid, seq: u64, vars: &[VarValue]) {
         let mut refused: HashSet<u32> = HashSet::new();
         for vv in vars {
             let Some((var, value)) = vv.resolve(&self.program) else {
@@ -959,6 +985,9 @@ impl Coordinator {
             };
             if !self.serves(agent, &self.layout.writer[var.index()]) {
                 refused.insert(vv.var);
+                continue;
+            }
+            if !self.var_writes.accept(var.index(), agent, incarnation, seq, false) {
                 continue;
             }
             if let Err(e) = self.engine.handle(Input::Set(var, value)) {
@@ -982,14 +1011,16 @@ impl Coordinator {
         if update.run != self.run {
             return self.drop_msg(format!("variable update from `{}` for another run dropped", update.from));
         }
-        if !self.agents.contains_key(&update.from) {
+        let Some(agent) = self.agents.get(&update.from) else {
             return self.drop_msg(format!("variable update from unknown agent `{}` dropped", update.from));
+        };
+        if agent.incarnation != update.incarnation {
+            return self.drop_msg(format!(
+                "variable update from `{}` dropped: it comes from another process than the agent's current one",
+                update.from
+            ));
         }
-        if update.seq <= self.agent_vars_seq.get(&update.from).copied().unwrap_or(0) {
-            return;
-        }
-        self.agent_vars_seq.insert(update.from.clone(), update.seq);
-        self.apply_agent_vars(&update.from, &update.vars);
+        self.apply_agent_vars(&update.from, update.incarnation, update.seq, &update.vars);
         self.settle();
     }
 
@@ -1059,5 +1090,47 @@ impl Coordinator {
             tokens,
             agents,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::limits::AGENTS_MAX;
+
+    fn coordinator() -> Coordinator {
+        let source = "PROGRAM p\nINITIAL_STEP A: END_STEP\nTRANSITION FROM A TO B := TRUE; END_TRANSITION\n\
+                      STEP B: {role := 'worker'} END_STEP\nEND_PROGRAM\n";
+        let mut report = crate::check::check_source(source);
+        let checked = report.charts.remove(0);
+        let (program, layout) =
+            (Arc::new(checked.program.expect("program")), Arc::new(checked.layout.expect("layout")));
+        let run = RunId(uuid::Uuid::from_u128(7));
+        Coordinator::new(program, layout, run, ChartHash("h".into()), crate::journal::token_ids(run))
+    }
+
+    fn info(name: &str, n: u128) -> AgentInfo {
+        AgentInfo {
+            name: name.into(),
+            roles: Vec::new(),
+            lease_ms: 1000,
+            incarnation: uuid::Uuid::from_u128(n),
+            held: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn agents_that_are_gone_and_hold_nothing_are_forgotten() {
+        let mut c = coordinator();
+        // Far more names than the coordinator tracks come and go, as on a cell whose agents restart under new
+        // names for months.
+        for i in 0..(2 * AGENTS_MAX) {
+            let name = format!("a{i}");
+            c.handle_agent_up(i as u64, info(&name, i as u128));
+            c.handle_agent_down(i as u64, &name);
+        }
+        assert!(c.agents.is_empty(), "{} agents remembered", c.agents.len());
+        c.handle_agent_up(10_000, info("newcomer", 1));
+        assert_eq!(c.status().agents.len(), 1, "a new agent is still taken");
     }
 }

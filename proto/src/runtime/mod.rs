@@ -5,8 +5,73 @@
 pub mod agent;
 pub mod coordinator;
 
+use std::collections::VecDeque;
+
+use uuid::Uuid;
+
+use crate::limits::RETIRED_INCARNATIONS_MAX;
+
 /// The writer name the coordinator publishes its variables under.
 pub const COORDINATOR: &str = "coordinator";
+
+/// Which write of each variable was applied last — by which writer, which process of it (incarnation), and
+/// which of its numbered updates — so that a duplicated or late value never overwrites a newer one, and a
+/// restarted writer, whose numbers start again, is heard at once. One entry per variable: what a peer sends
+/// cannot grow it.
+pub(crate) struct VarWrites {
+    last: Vec<Option<VarWrite>>,
+    /// Processes replaced by a newer one of the same name: whatever they still send is late.
+    retired: VecDeque<(String, Uuid)>,
+}
+
+#[derive(Clone, PartialEq)]
+struct VarWrite {
+    writer: String,
+    incarnation: Uuid,
+    seq: u64,
+}
+
+impl VarWrites {
+    pub(crate) fn new(vars: usize) -> VarWrites {
+        VarWrites { last: vec![None; vars], retired: VecDeque::new() }
+    }
+
+    /// Whether a value of variable `var` in update `seq` of `writer`'s process `incarnation` is newer than the
+    /// one applied; if it is, it becomes the one applied. A write of another process of the same writer
+    /// retires the older process. A `relay` (a value another process wrote, passed on) never replaces a
+    /// value its writer sent directly.
+    pub(crate) fn accept(&mut self, var: usize, writer: &str, incarnation: Uuid, seq: u64, relay: bool) -> bool {
+        if self.retired.iter().any(|(w, i)| w == writer && *i == incarnation) {
+            return false;
+        }
+        let Some(slot) = self.last.get(var) else { return false };
+        if let Some(last) = slot {
+            if last.writer == writer && last.incarnation == incarnation && seq <= last.seq {
+                return false;
+            }
+            if relay && last.writer != writer {
+                return false;
+            }
+            if last.writer == writer && last.incarnation != incarnation {
+                let old = (last.writer.clone(), last.incarnation);
+                self.retire(old.0, old.1);
+            }
+        }
+        self.last[var] = Some(VarWrite { writer: writer.to_string(), incarnation, seq });
+        true
+    }
+
+    /// `writer`'s process `incarnation` was replaced: its late values are refused.
+    pub(crate) fn retire(&mut self, writer: String, incarnation: Uuid) {
+        if self.retired.iter().any(|(w, i)| *w == writer && *i == incarnation) {
+            return;
+        }
+        if self.retired.len() >= RETIRED_INCARNATIONS_MAX {
+            self.retired.pop_front();
+        }
+        self.retired.push_back((writer, incarnation));
+    }
+}
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Level {
