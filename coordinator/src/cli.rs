@@ -71,7 +71,7 @@ enum Command {
         /// Set an input before the first cycle (repeatable): --set parts=5.
         #[arg(long = "set", value_name = "NAME=VALUE", value_parser = crate::client::parse_assignment)]
         sets: Vec<(String, serde_json::Value)>,
-        /// Time between two scan cycles when nothing else happens.
+        /// The run's scan cycle, on the coordinator and every agent (a resumed run keeps its own).
         #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..))]
         cycle_ms: u64,
         #[arg(long)]

@@ -15,7 +15,6 @@ use std::fmt;
 
 use crate::diag::{Diagnostic, Span};
 use crate::engine::{Scope, TransitionScope};
-use crate::lexer::{lex, Kw, Tok};
 use crate::model::{Chart, Pragma};
 use crate::program::{ActionId, CExpr, CStmt, Program, StepId, TransitionId, VarId};
 use crate::types::Value;
@@ -158,53 +157,6 @@ impl Layout {
     }
 }
 
-/// Parses `key := literal {, key := literal}`; `None` when the pragma is not of that form (another tool's).
-pub fn parse_pragma(text: &str) -> Option<Vec<(String, Param)>> {
-    let lexed = lex(text);
-    if !lexed.diagnostics.is_empty() {
-        return None;
-    }
-    let toks = &lexed.tokens;
-    let mut out = Vec::new();
-    let mut i = 0;
-    loop {
-        let key = match toks.get(i)?.tok {
-            Tok::Ident => text[toks[i].span.start as usize..toks[i].span.end as usize].to_ascii_lowercase(),
-            _ => return None,
-        };
-        if toks.get(i + 1)?.tok != Tok::Assign {
-            return None;
-        }
-        let (value, used) = literal(text, &toks[i + 2..])?;
-        out.push((key, value));
-        i += 2 + used;
-        match toks.get(i)?.tok {
-            Tok::Comma => i += 1,
-            Tok::Eof => return Some(out),
-            _ => return None,
-        }
-    }
-}
-
-fn literal(text: &str, toks: &[crate::lexer::Token]) -> Option<(Param, usize)> {
-    let first = toks.first()?;
-    let negative = first.tok == Tok::Minus;
-    let tok = if negative { toks.get(1)? } else { first };
-    let param = match tok.tok {
-        Tok::Str if !negative => {
-            let raw = &text[tok.span.start as usize + 1..tok.span.end as usize - 1];
-            Param::Str(raw.replace("$'", "'").replace("$$", "$"))
-        }
-        Tok::Int(v) => Param::Value(Value::Int(if negative { -v } else { v })),
-        Tok::Real(v) => Param::Value(Value::Real(if negative { -v } else { v })),
-        Tok::Time(v) if !negative => Param::Value(Value::Time(v)),
-        Tok::Kw(Kw::True) if !negative => Param::Value(Value::Bool(true)),
-        Tok::Kw(Kw::False) if !negative => Param::Value(Value::Bool(false)),
-        _ => return None,
-    };
-    Some((param, 1 + usize::from(negative)))
-}
-
 /// Agent names and roles become key-expression chunks: keep them to letters, digits, `_` and `-`.
 pub fn is_valid_name(name: &str) -> bool {
     !name.is_empty() && name.len() <= 64 && name.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
@@ -243,15 +195,64 @@ pub fn layout(chart: &Chart, program: &Program, diags: &mut Vec<Diagnostic>) -> 
     Layout { placement, segment_of, segments, waiting, writer, settable, skills, action_placement, read_by_agents }
 }
 
+/// The keys a step's pragma may hold.
+const STEP_KEYS: [&str; 2] = ["agent", "role"];
+
+/// A pragma Baton may read, as pairs: `None` (after reporting it) when it names Baton's `keys` but cannot be read,
+/// or when it only names near misses of them (a warning: it may be another tool's), or is another tool's.
+fn baton_pairs(
+    pragma: &Pragma,
+    keys: &[&str],
+    what: &str,
+    diags: &mut Vec<Diagnostic>,
+) -> Option<Vec<(String, Param)>> {
+    let named = match crate::pragma::read(&pragma.text) {
+        crate::pragma::Pragma::Foreign => return None,
+        crate::pragma::Pragma::Pairs(pairs) => {
+            if pairs.iter().any(|(k, _)| keys.contains(&k.as_str())) {
+                return Some(pairs);
+            }
+            pairs.into_iter().map(|(k, _)| k).collect::<Vec<_>>()
+        }
+        crate::pragma::Pragma::Malformed { keys: named, why } => {
+            if let Some(k) = named.iter().find(|k| keys.contains(&k.as_str())) {
+                diags.push(Diagnostic::error(
+                    pragma.span,
+                    format!("this {what} pragma with `{k}` cannot be read: {why}"),
+                ));
+                return None;
+            }
+            named
+        }
+    };
+    for key in named {
+        if let Some(meant) = crate::pragma::near_miss(&key, keys) {
+            diags.push(Diagnostic::warning(
+                pragma.span,
+                format!(
+                    "`{key}` is not a key Baton reads on {} {what}: did you mean `{meant}`? (if it is another tool's, ignore this)",
+                    if what.starts_with('a') { "an" } else { "a" }
+                ),
+            ));
+        }
+    }
+    None
+}
+
 fn step_placement(pragmas: &[Pragma], diags: &mut Vec<Diagnostic>) -> Placement {
     let mut found: Option<Placement> = None;
     for pragma in pragmas {
-        let Some(pairs) = parse_pragma(&pragma.text) else { continue };
-        if !pairs.iter().any(|(k, _)| k == "agent" || k == "role") {
-            continue;
-        }
+        let Some(pairs) = baton_pairs(pragma, &STEP_KEYS, "step", diags) else { continue };
         for (key, value) in pairs {
             let err = |m: String| Diagnostic::error(pragma.span, m);
+            if !STEP_KEYS.contains(&key.as_str()) {
+                let hint = crate::pragma::near_miss(&key, &STEP_KEYS)
+                    .map_or(String::new(), |k| format!(" (did you mean `{k}`?)"));
+                diags.push(err(format!(
+                    "unknown key `{key}` in a step's placement{hint}: a step takes `agent := 'name'` or `role := 'name'`"
+                )));
+                continue;
+            }
             let name = match value.as_str() {
                 Some(n) if is_valid_name(n) => n.to_string(),
                 _ => {
@@ -261,16 +262,7 @@ fn step_placement(pragmas: &[Pragma], diags: &mut Vec<Diagnostic>) -> Placement 
                     continue;
                 }
             };
-            let placed = match key.as_str() {
-                "agent" => Placement::Agent(name),
-                "role" => Placement::Role(name),
-                other => {
-                    diags.push(err(format!(
-                        "unknown placement key `{other}`: a step takes `agent := 'name'` or `role := 'name'`"
-                    )));
-                    continue;
-                }
-            };
+            let placed = if key == "agent" { Placement::Agent(name) } else { Placement::Role(name) };
             if let Some(previous) = &found {
                 diags.push(err(format!("the step is already placed on {previous}: a step has one placement")));
                 continue;
@@ -387,7 +379,7 @@ fn skill_bindings(
     for (i, action) in program.actions.iter().enumerate() {
         let mut binding: Option<SkillBinding> = None;
         for pragma in &action.pragmas {
-            let Some(pairs) = parse_pragma(&pragma.text) else { continue };
+            let Some(pairs) = baton_pairs(pragma, &["skill"], "action", diags) else { continue };
             let Some((_, skill)) = pairs.iter().find(|(k, _)| k == "skill") else { continue };
             let Some(skill) = skill.as_str().filter(|s| is_valid_name(s)).map(str::to_string) else {
                 diags.push(Diagnostic::error(pragma.span, "`skill` needs a quoted skill name, such as 'motion'"));

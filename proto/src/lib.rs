@@ -16,6 +16,7 @@ pub mod limits;
 pub mod model;
 pub mod netconfig;
 pub mod parser;
+pub mod pragma;
 pub mod program;
 pub mod runtime;
 pub mod sim;

@@ -1,0 +1,167 @@
+//! Baton's pragmas, `{key := literal, …}`, read from the text between the braces. Keys are names whatever their
+//! spelling (`type`, `action` or `step` are IEC keywords, and fine keys). A pragma that names one of Baton's keys
+//! but cannot be read, and one whose key is a near miss of Baton's, are reported (`baton check`); any other
+//! pragma is another tool's and is left alone.
+
+use crate::layout::Param;
+use crate::lexer::{lex, Kw, Tok, Token};
+use crate::types::Value;
+
+/// What the text of a pragma is.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Pragma {
+    /// `key := literal {, key := literal}`, keys lower-cased.
+    Pairs(Vec<(String, Param)>),
+    /// It assigns to keys (`keys`, lower-cased) but is not a list of `key := literal`: `why` says what is wrong.
+    Malformed { keys: Vec<String>, why: String },
+    /// Not of that form at all: another tool's pragma.
+    Foreign,
+}
+
+pub fn read(text: &str) -> Pragma {
+    let lexed = lex(text);
+    let toks = &lexed.tokens;
+    let word = |t: &Token| matches!(t.tok, Tok::Ident | Tok::Kw(_));
+    let text_of = |t: &Token| text[t.span.start as usize..t.span.end as usize].to_ascii_lowercase();
+    // Every word followed by `:=` or `=`: the keys the pragma means to set, readable or not.
+    let keys: Vec<String> = toks
+        .windows(2)
+        .filter(|w| word(&w[0]) && matches!(w[1].tok, Tok::Assign | Tok::Eq))
+        .map(|w| text_of(&w[0]))
+        .collect();
+    if keys.is_empty() || !toks.first().is_some_and(word) {
+        return Pragma::Foreign;
+    }
+    let malformed = |why: String| Pragma::Malformed { keys: keys.clone(), why };
+    if let Some(d) = lexed.diagnostics.first() {
+        return malformed(d.message.clone());
+    }
+    let mut out = Vec::new();
+    let mut i = 0;
+    loop {
+        let Some(k) = toks.get(i).filter(|t| word(t)) else {
+            return malformed("expected a key after `,`".to_string());
+        };
+        let key = text_of(k);
+        match toks.get(i + 1).map(|t| t.tok) {
+            Some(Tok::Assign) => {}
+            Some(Tok::Eq) => {
+                return malformed(format!("write `{key} := …`: Baton's pragmas assign with `:=`, not `=`"))
+            }
+            _ => return malformed(format!("expected `:=` after `{key}`")),
+        }
+        let Some((value, used)) = literal(text, &toks[i + 2..]) else {
+            return malformed(format!(
+                "`{key}` needs a literal value: a quoted 'text', a number, a TIME such as T#2s, TRUE or FALSE"
+            ));
+        };
+        out.push((key, value));
+        i += 2 + used;
+        match toks.get(i).map(|t| t.tok) {
+            Some(Tok::Comma) => i += 1,
+            Some(Tok::Eof) | None => return Pragma::Pairs(out),
+            _ => return malformed("expected `,` between two `key := value`".to_string()),
+        }
+    }
+}
+
+fn literal(text: &str, toks: &[Token]) -> Option<(Param, usize)> {
+    let first = toks.first()?;
+    let negative = first.tok == Tok::Minus;
+    let tok = if negative { toks.get(1)? } else { first };
+    let param = match tok.tok {
+        Tok::Str if !negative => {
+            let raw = &text[tok.span.start as usize + 1..tok.span.end as usize - 1];
+            Param::Str(raw.replace("$'", "'").replace("$$", "$"))
+        }
+        Tok::Int(v) => Param::Value(Value::Int(if negative { -v } else { v })),
+        Tok::Real(v) => Param::Value(Value::Real(if negative { -v } else { v })),
+        Tok::Time(v) if !negative => Param::Value(Value::Time(v)),
+        Tok::Kw(Kw::True) if !negative => Param::Value(Value::Bool(true)),
+        Tok::Kw(Kw::False) if !negative => Param::Value(Value::Bool(false)),
+        _ => return None,
+    };
+    Some((param, 1 + usize::from(negative)))
+}
+
+/// The Baton key that `key` looks like a misspelling of (one or two edits for keys of five letters or more,
+/// one for shorter ones), if any.
+pub fn near_miss<'a>(key: &str, baton_keys: &[&'a str]) -> Option<&'a str> {
+    baton_keys.iter().copied().find(|k| {
+        let d = edit_distance(key, k);
+        d > 0 && d <= if k.len() >= 5 { 2 } else { 1 }
+    })
+}
+
+/// Optimal string alignment distance: insertions, deletions, substitutions and swaps of two neighbours.
+fn edit_distance(a: &str, b: &str) -> usize {
+    let (a, b): (Vec<char>, Vec<char>) = (a.chars().collect(), b.chars().collect());
+    let mut d = vec![vec![0usize; b.len() + 1]; a.len() + 1];
+    for (i, row) in d.iter_mut().enumerate() {
+        row[0] = i;
+    }
+    for (j, cell) in d[0].iter_mut().enumerate() {
+        *cell = j;
+    }
+    for i in 1..=a.len() {
+        for j in 1..=b.len() {
+            let cost = usize::from(a[i - 1] != b[j - 1]);
+            d[i][j] = (d[i - 1][j] + 1).min(d[i][j - 1] + 1).min(d[i - 1][j - 1] + cost);
+            if i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1] {
+                d[i][j] = d[i][j].min(d[i - 2][j - 2] + 1);
+            }
+        }
+    }
+    d[a.len()][b.len()]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn keys(p: &Pragma) -> Vec<String> {
+        match p {
+            Pragma::Pairs(pairs) => pairs.iter().map(|(k, _)| k.clone()).collect(),
+            Pragma::Malformed { keys, .. } => keys.clone(),
+            Pragma::Foreign => Vec::new(),
+        }
+    }
+
+    #[test]
+    fn keys_are_names_whatever_their_spelling() {
+        let p = read("skill := 'motion', ms := 50, type := 'x', action := '/arm', step := 2, END_IF := TRUE");
+        assert_eq!(keys(&p), ["skill", "ms", "type", "action", "step", "end_if"]);
+        assert!(matches!(p, Pragma::Pairs(_)));
+    }
+
+    #[test]
+    fn what_cannot_be_read_says_why_and_foreign_pragmas_are_left_alone() {
+        for (text, why) in [
+            ("agent := r1", "needs a literal value"),
+            ("agent = 'r1'", "assign with `:=`"),
+            ("agent := 'r1' role := 'x'", "expected `,`"),
+            ("agent := 'r1", "string"),
+        ] {
+            match read(text) {
+                Pragma::Malformed { keys, why: got } => {
+                    assert_eq!(keys[0], "agent", "{text}");
+                    assert!(got.contains(why), "{text}: {got}");
+                }
+                other => panic!("{text}: {other:?}"),
+            }
+        }
+        for text in ["attribute 'qualified_only'", "warning disable C0195", "", "$$ weird"] {
+            assert_eq!(read(text), Pragma::Foreign, "{text}");
+        }
+    }
+
+    #[test]
+    fn near_misses() {
+        assert_eq!(near_miss("agnet", &["agent", "role"]), Some("agent"));
+        assert_eq!(near_miss("rol", &["agent", "role"]), Some("role"));
+        assert_eq!(near_miss("skil", &["skill"]), Some("skill"));
+        assert_eq!(near_miss("agent", &["agent", "role"]), None);
+        assert_eq!(near_miss("speed", &["agent", "role"]), None);
+        assert_eq!(near_miss("rule", &["agent", "role"]), Some("role"));
+    }
+}
