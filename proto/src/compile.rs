@@ -149,7 +149,7 @@ impl<'a> Compiler<'a> {
             actions[id].body = self.statements(&action.body, &vars);
         }
         self.warn_unused_actions();
-        if !chart.steps.iter().any(|s| s.initial) {
+        if !chart.steps.iter().any(|s| s.initial) && !chart.broken.initial_step {
             let message = format!("chart `{}` has no initial step: declare one with `INITIAL_STEP`", chart.name.name);
             self.error(chart.name.span, message);
         }
@@ -256,6 +256,7 @@ impl<'a> Compiler<'a> {
                                 format!("indicator variable `{}` must be BOOL, not {}", ind.name, vars[v.index()].ty);
                             self.error(ind.span, message);
                         }
+                        None if self.chart.broken.var(&ind.key()) => {}
                         None => self.error(ind.span, format!("undeclared indicator variable `{}`", ind.name)),
                     }
                 }
@@ -291,6 +292,7 @@ impl<'a> Compiler<'a> {
                 self.error(a.action.span, message);
                 None
             }
+            None if self.chart.broken.action(&a.action.key()) || self.chart.broken.var(&a.action.key()) => None,
             None => {
                 self.error(
                     a.action.span,
@@ -329,7 +331,9 @@ impl<'a> Compiler<'a> {
                     None
                 }
                 None => {
-                    self.error(name.span, format!("undeclared variable `{}`", name.name));
+                    if !self.chart.broken.var(&name.key()) {
+                        self.error(name.span, format!("undeclared variable `{}`", name.name));
+                    }
                     None
                 }
             },
@@ -347,7 +351,9 @@ impl<'a> Compiler<'a> {
                 }
                 Some(&id) => ids.push(id),
                 None => {
-                    self.error(name.span, format!("unknown step `{}`", name.name));
+                    if !self.chart.broken.step(&name.key()) {
+                        self.error(name.span, format!("unknown step `{}`", name.name));
+                    }
                     ok = false;
                 }
             }
@@ -405,6 +411,9 @@ impl<'a> Compiler<'a> {
                 Stmt::Assign { target, value, .. } => {
                     let (cvalue, vty) = self.expr(value, vars);
                     let Some(&id) = self.vars.get(&target.key()) else {
+                        if self.chart.broken.var(&target.key()) {
+                            continue;
+                        }
                         let message = if self.steps.contains_key(&target.key()) {
                             format!("`{}` is a step: a step's state cannot be assigned", target.name)
                         } else {
@@ -519,6 +528,8 @@ impl<'a> Compiler<'a> {
         }
         let message = if self.steps.contains_key(&name.key()) {
             format!("`{}` is a step: write `{}.X` for its active flag", name.name, name.name)
+        } else if self.chart.broken.var(&name.key()) {
+            return (FALSE, Ty::Err);
         } else {
             format!("undeclared variable `{}`", name.name)
         };
@@ -532,14 +543,18 @@ impl<'a> Compiler<'a> {
                 Some(&id) if field.key() == "X" => (CExpr::StepX(id), Ty::Bool),
                 Some(&id) => (CExpr::StepT(id), Ty::Time),
                 None => {
-                    self.error(base.span, format!("unknown step `{}`", base.name));
+                    if !self.chart.broken.step(&base.key()) {
+                        self.error(base.span, format!("unknown step `{}`", base.name));
+                    }
                     (FALSE, Ty::Err)
                 }
             },
             "Q" => match self.actions.get(&base.key()) {
                 Some(&id) => (CExpr::ActionQ(id), Ty::Bool),
                 None => {
-                    self.error(base.span, format!("unknown action `{}`", base.name));
+                    if !self.chart.broken.action(&base.key()) {
+                        self.error(base.span, format!("unknown action `{}`", base.name));
+                    }
                     (FALSE, Ty::Err)
                 }
             },

@@ -45,6 +45,48 @@ pub struct Chart {
     pub pragmas: Vec<Pragma>,
     /// The whole POU, or the run of bare elements.
     pub span: Span,
+    /// Elements left out because of a syntax error in them.
+    pub broken: Broken,
+}
+
+/// What a syntax error took out of a chart: the names (keys) of the elements it was in, so that what follows from
+/// their absence — an unknown step, action or variable, a chart without an initial step — is not reported as
+/// another error, as rustc does.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Broken {
+    pub steps: Vec<String>,
+    pub actions: Vec<String>,
+    pub vars: Vec<String>,
+    /// A broken element of that kind whose name could not be read: any unknown name of the kind may be it.
+    pub unnamed_step: bool,
+    pub unnamed_action: bool,
+    pub unnamed_var: bool,
+    /// A broken `INITIAL_STEP`.
+    pub initial_step: bool,
+}
+
+impl Broken {
+    pub fn absorb(&mut self, other: Broken) {
+        self.steps.extend(other.steps);
+        self.actions.extend(other.actions);
+        self.vars.extend(other.vars);
+        self.unnamed_step |= other.unnamed_step;
+        self.unnamed_action |= other.unnamed_action;
+        self.unnamed_var |= other.unnamed_var;
+        self.initial_step |= other.initial_step;
+    }
+
+    pub fn step(&self, key: &str) -> bool {
+        self.unnamed_step || self.steps.iter().any(|s| s == key)
+    }
+
+    pub fn action(&self, key: &str) -> bool {
+        self.unnamed_action || self.actions.iter().any(|s| s == key)
+    }
+
+    pub fn var(&self, key: &str) -> bool {
+        self.unnamed_var || self.vars.iter().any(|s| s == key)
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

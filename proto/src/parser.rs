@@ -15,7 +15,8 @@ pub struct Parsed {
 
 pub fn parse(src: &str) -> Parsed {
     let lexed = lex(src);
-    let mut p = Parser { src, toks: lexed.tokens, pos: 0, diags: lexed.diagnostics, depth: 0 };
+    let mut p =
+        Parser { src, toks: lexed.tokens, pos: 0, diags: lexed.diagnostics, depth: 0, broken_vars: Broken::default() };
     let mut charts = p.file();
     attach_pragmas(src, &mut charts, &lexed.pragmas);
     Parsed { charts, diagnostics: p.diags }
@@ -31,6 +32,8 @@ struct Parser<'a> {
     pos: usize,
     diags: Vec<Diagnostic>,
     depth: usize,
+    /// Declarations a syntax error took out, for the chart they belong to.
+    broken_vars: Broken,
 }
 
 fn is_element_start(tok: Tok) -> bool {
@@ -187,6 +190,7 @@ impl Parser<'_> {
                         actions: Vec::new(),
                         pragmas: Vec::new(),
                         span: self.toks[self.pos].span,
+                        broken: Broken::default(),
                     });
                     self.element(chart);
                     chart.span = chart.span.to(self.prev_span());
@@ -199,6 +203,9 @@ impl Parser<'_> {
                     }
                 }
             }
+        }
+        if let Some(chart) = &mut bare {
+            chart.broken.absorb(std::mem::take(&mut self.broken_vars));
         }
         charts.extend(bare);
         charts
@@ -223,7 +230,9 @@ impl Parser<'_> {
             actions: Vec::new(),
             pragmas: Vec::new(),
             span: start,
+            broken: Broken::default(),
         };
+        let outside = std::mem::take(&mut self.broken_vars);
         loop {
             let tok = self.peek();
             if is_var_block(tok) {
@@ -247,7 +256,10 @@ impl Parser<'_> {
         }
         let closing = self.expect(Tok::Kw(end), &format!("`{}`", end.text()));
         chart.span = start.to(self.prev_span());
-        let has_sfc = !chart.steps.is_empty() || !chart.transitions.is_empty();
+        chart.broken.absorb(std::mem::replace(&mut self.broken_vars, outside));
+        let broken = &chart.broken;
+        let has_sfc =
+            !chart.steps.is_empty() || !chart.transitions.is_empty() || !broken.steps.is_empty() || broken.unnamed_step;
         if closing.is_ok() {
             self.eat(Tok::Semi);
         }
@@ -281,7 +293,12 @@ impl Parser<'_> {
                 self.error_here("`END_VAR`");
                 return vars;
             }
+            let name = (self.peek() == Tok::Ident).then(|| self.text(self.span()).to_ascii_uppercase());
             if self.declaration(section, constant, &mut vars).is_err() {
+                match name {
+                    Some(n) => self.broken_vars.vars.push(n),
+                    None => self.broken_vars.unnamed_var = true,
+                }
                 while !matches!(self.peek(), Tok::Semi | Tok::Kw(Kw::EndVar) | Tok::Eof) {
                     self.bump();
                 }
@@ -322,12 +339,34 @@ impl Parser<'_> {
     }
 
     fn element(&mut self, chart: &mut Chart) {
+        let kw = self.peek();
+        // The element's name, read ahead: a syntax error further on takes the element out, not its name.
+        let name = match (kw, self.peek_at(1)) {
+            (Tok::Kw(Kw::Transition), _) => None,
+            (_, Tok::Ident) => Some(self.text(self.toks[self.pos + 1].span).to_ascii_uppercase()),
+            _ => None,
+        };
         let (result, end) = match self.peek() {
             Tok::Kw(Kw::InitialStep | Kw::Step) => (self.step().map(|s| chart.steps.push(s)), Kw::EndStep),
             Tok::Kw(Kw::Transition) => (self.transition().map(|t| chart.transitions.push(t)), Kw::EndTransition),
             _ => (self.action().map(|a| chart.actions.push(a)), Kw::EndAction),
         };
         if result.is_err() {
+            let broken = &mut chart.broken;
+            match kw {
+                Tok::Kw(k @ (Kw::InitialStep | Kw::Step)) => {
+                    broken.initial_step |= k == Kw::InitialStep;
+                    match name {
+                        Some(n) => broken.steps.push(n),
+                        None => broken.unnamed_step = true,
+                    }
+                }
+                Tok::Kw(Kw::Action) => match name {
+                    Some(n) => broken.actions.push(n),
+                    None => broken.unnamed_action = true,
+                },
+                _ => {}
+            }
             self.recover(end, is_element_start);
         }
     }
