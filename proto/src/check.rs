@@ -78,6 +78,16 @@ pub fn check_source(src: &str) -> Report {
     Report { charts, diagnostics }
 }
 
+/// Whether the chart's own pragmas (those before its first element) accept a net whose safety is not proven.
+fn unverified_net_allowed(chart: &Chart) -> bool {
+    chart.pragmas.iter().any(|p| match crate::pragma::read(&p.text) {
+        crate::pragma::Pragma::Pairs(pairs) => pairs
+            .iter()
+            .any(|(k, v)| k == "unverified_net" && *v == crate::layout::Param::Value(crate::types::Value::Bool(true))),
+        _ => false,
+    })
+}
+
 /// The net analysis runs only on charts whose steps and transitions all resolved, so ids follow the chart's
 /// declaration order.
 fn describe(chart: &Chart, program: &Program, finding: Finding) -> Diagnostic {
@@ -106,9 +116,19 @@ fn describe(chart: &Chart, program: &Program, finding: Finding) -> Diagnostic {
             let s = &chart.steps[step.index()];
             Diagnostic::error(s.name.span, format!("step `{}` is unreachable: no evolution from the initial steps activates it", s.name.name))
         }
-        Finding::Incomplete { situations } => Diagnostic::warning(
+        Finding::Incomplete { situations } if unverified_net_allowed(chart) => Diagnostic::warning(
             chart.name.span,
-            format!("chart `{}` has more than {situations} reachable situations: safety was checked only among them, and reachability not at all", chart.name.name),
+            format!(
+                "chart `{}` has more than {situations} reachable situations: its safety is not proven (`unverified_net := TRUE`), so a second token on a step is a run-time fault, and reachability was not checked",
+                chart.name.name
+            ),
+        ),
+        Finding::Incomplete { situations } => Diagnostic::error(
+            chart.name.span,
+            format!(
+                "chart `{}` has more than {situations} reachable situations: Baton cannot prove that no step ever receives a second token. Give it the structured shape (each simultaneous divergence closed by its own convergence), or accept the risk with the chart pragma `{{unverified_net := TRUE}}`, which makes a second token a run-time fault",
+                chart.name.name
+            ),
         ),
     }
 }

@@ -625,7 +625,9 @@ impl Engine {
         let program = Arc::clone(&self.program);
         for &s in program.targets(t) {
             if self.steps[s.index()].active {
+                // A validated chart never gets here; one whose safety could not be proven says so.
                 self.collisions += 1;
+                self.push(EventKind::Fault(FaultSource::Transition(t), Fault::SecondToken(s)));
             } else {
                 self.activate(s, reactive);
             }
@@ -861,5 +863,40 @@ impl Env for Engine {
 impl EnvMut for Engine {
     fn set_var(&mut self, id: VarId, value: Value) {
         self.store(id, value);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_second_token_on_a_step_is_a_reported_fault() {
+        // Not safe: C can be given a token by B while it holds the one from the divergence. `check_source` refuses
+        // such a chart (unless its safety could not be decided and the user accepted that); compiled directly,
+        // it shows what the engine does then.
+        let src = "PROGRAM p
+            INITIAL_STEP A: END_STEP
+            TRANSITION FROM A TO (B, C) := TRUE; END_TRANSITION
+            STEP B: END_STEP
+            STEP C: END_STEP
+            TRANSITION FROM B TO C := TRUE; END_TRANSITION
+            END_PROGRAM";
+        let parsed = crate::parser::parse(src);
+        let mut diags = Vec::new();
+        let compiled = crate::compile::compile(&parsed.charts[0], &mut diags);
+        assert!(diags.is_empty(), "{diags:?}");
+        let mut engine = Engine::new(Arc::new(compiled.program));
+        let mut faults = Vec::new();
+        for now in [0, 10, 20] {
+            engine.handle_cycle(now).expect("cycle");
+            while let Some(ev) = engine.poll_event() {
+                if let EventKind::Fault(FaultSource::Transition(_), Fault::SecondToken(s)) = ev.kind {
+                    faults.push((ev.t_ms, s));
+                }
+            }
+        }
+        assert_eq!(faults, [(10, StepId(2))]);
+        assert_eq!(engine.collisions(), 1);
     }
 }

@@ -21,6 +21,9 @@ pub trait EnvMut: Env {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Fault {
     DivisionByZero,
+    /// A transition gave an active step a second token (the net is not safe); the tokens merged. Only a chart
+    /// whose safety could not be proven (`unverified_net := TRUE`) can get here.
+    SecondToken(crate::program::StepId),
 }
 
 pub fn eval(e: &CExpr, env: &impl Env) -> Result<Value, Fault> {

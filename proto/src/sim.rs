@@ -194,6 +194,14 @@ pub fn output_of(program: &Program, ev: Event) -> SimOutput {
 pub fn fault_message(program: &Program, source: FaultSource, fault: Fault) -> String {
     let what = match fault {
         Fault::DivisionByZero => "division by zero",
+        Fault::SecondToken(s) => {
+            let FaultSource::Transition(t) = source else { return "a second token".to_string() };
+            return format!(
+                "transition `{}` gave step `{}` a second token while it held one (the chart is not safe): the tokens merged",
+                program.transitions[t.index()].name,
+                program.steps[s.index()].name
+            );
+        }
     };
     match source {
         FaultSource::Transition(t) => {
