@@ -30,6 +30,8 @@ const RUNS_MAX: usize = 64;
 /// Dispatches kept while the chart of their run is fetched.
 const PENDING_DISPATCHES_MAX: usize = 1024;
 const CHART_FETCH_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long the agent waits for the router to say whether another process holds its name.
+const LIVELINESS_CHECK_TIMEOUT: Duration = Duration::from_secs(2);
 /// Held tokens listed in the info reply; a coordinator sends the dispatch of any other again, which the agent
 /// recognises as a duplicate.
 const HELD_LISTED_MAX: usize = 4096;
@@ -99,11 +101,33 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
     let zconfig = zenoh_config(&net, config.zenoh_config.as_deref())?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     let name = config.name.clone();
+    // A name is held by one live process: two would both run what is sent to it.
+    let holders = session
+        .liveliness()
+        .get(keys::alive(&name))
+        .timeout(LIVELINESS_CHECK_TIMEOUT)
+        .await
+        .map_err(|e| anyhow!("cannot ask the router which agents are live: {e}"))?;
+    if let Ok(reply) = holders.recv_async().await {
+        if reply.result().is_ok() {
+            session.close().await.map_err(|e| anyhow!("{e}"))?;
+            anyhow::bail!(
+                "an agent named `{name}` is already live on this router: stop it first, or give this one another --name"
+            );
+        }
+    }
+    let incarnation = uuid::Uuid::new_v4();
     // Everything a coordinator may use is declared before the liveliness token announces the agent: a
     // coordinator asks for the info as soon as it sees the token, and may dispatch right after.
     let info_q = session.declare_queryable(keys::agent_info(&name)).await.map_err(|e| anyhow!("{e}"))?;
     let inbox = || FifoChannel::new(RECEIVE_QUEUE_MAX);
-    let cmd_sub = session.declare_subscriber(keys::agent_cmd(&name)).with(inbox()).await.map_err(|e| anyhow!("{e}"))?;
+    // Commands to this process only: a second process of the same name (which the check above refuses, but two
+    // may start at the same moment) hears none of them.
+    let cmd_sub = session
+        .declare_subscriber(keys::agent_cmd(&name, incarnation))
+        .with(inbox())
+        .await
+        .map_err(|e| anyhow!("{e}"))?;
     let vars_sub = session.declare_subscriber(keys::vars_any_run()).with(inbox()).await.map_err(|e| anyhow!("{e}"))?;
     let _alive = session
         .liveliness()
@@ -111,7 +135,6 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
         .await
         .map_err(|e| anyhow!("cannot declare the liveliness token: {e}"))?;
     let (tx, mut rx) = mpsc::unbounded_channel();
-    let incarnation = uuid::Uuid::new_v4();
     let mut shell = Shell {
         config: config.clone(),
         skills,

@@ -36,6 +36,10 @@ use zenoh::Session;
 
 const INFO_QUERY_TIMEOUT: Duration = Duration::from_secs(3);
 const INFO_QUERY_ATTEMPTS: u32 = 5;
+/// Replies to one info query taken into account: two already mean a conflict.
+const INFO_REPLIES_MAX: usize = 16;
+/// How often a name that several processes answer to is asked again.
+const CONFLICT_RECHECK: Duration = Duration::from_secs(2);
 
 pub struct RunOptions {
     pub chart: PathBuf,
@@ -109,9 +113,13 @@ pub fn load(chart: &std::path::Path, pou: Option<&str>) -> anyhow::Result<Loaded
     })
 }
 
-enum Event {
-    AgentUp(AgentInfo),
-    AgentUnreachable(String, String),
+/// Who answered to an agent's name.
+enum Identity {
+    One(AgentInfo),
+    /// Several processes answered to this name (how many).
+    Several(String, u32),
+    /// Nobody that makes sense, and why.
+    Unknown(String, String),
 }
 
 struct Shell {
@@ -143,7 +151,7 @@ enum Wake {
     Report(Sample),
     Vars(Sample),
     Alive(Sample),
-    Event(Event),
+    Identity(Identity),
     Chart(Query),
     Status(Query),
     Set(Query),
@@ -412,7 +420,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
             }
         }
     }
-    let (tx, mut rx) = mpsc::unbounded_channel::<Event>();
+    let (tx, mut rx) = mpsc::unbounded_channel::<Identity>();
     // Signal streams made once: polling them each turn of the loop costs nothing.
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
@@ -431,7 +439,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
             s = report_sub.recv_async() => s.map_or(Wake::Closed, Wake::Report),
             s = vars_sub.recv_async() => s.map_or(Wake::Closed, Wake::Vars),
             s = alive_sub.recv_async() => s.map_or(Wake::Closed, Wake::Alive),
-            Some(ev) = rx.recv() => Wake::Event(ev),
+            Some(ev) = rx.recv() => Wake::Identity(ev),
             q = chart_q.recv_async() => q.map_or(Wake::Closed, Wake::Chart),
             q = status_q.recv_async() => q.map_or(Wake::Closed, Wake::Status),
             q = set_q.recv_async() => q.map_or(Wake::Closed, Wake::Set),
@@ -452,7 +460,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
             }
             Wake::Vars(s) => shell.on_vars(&s),
             Wake::Alive(s) => shell.on_alive(&s, &tx),
-            Wake::Event(ev) => shell.on_event(ev),
+            Wake::Identity(ev) => shell.on_identity(ev, &tx),
             Wake::Chart(q) => reply(&q, chart_reply.clone()).await,
             Wake::Status(q) => {
                 // The run's clock now, not the time of its last input: an idle run's time goes on.
@@ -592,20 +600,11 @@ impl Shell {
     }
 
     /// A live agent is asked for its roles before the coordinator counts on it.
-    fn on_alive(&mut self, s: &Sample, tx: &mpsc::UnboundedSender<Event>) {
+    fn on_alive(&mut self, s: &Sample, tx: &mpsc::UnboundedSender<Identity>) {
         let Some(name) = keys::agent_of_alive(s.key_expr().as_str()).map(str::to_string) else { return };
         match s.kind() {
             SampleKind::Put => {
-                let session = self.session.clone();
-                let tx = tx.clone();
-                tokio::spawn(async move {
-                    let ev = match ask_info(&session, &name).await {
-                        Ok(info) if info.name == name => Event::AgentUp(info),
-                        Ok(info) => Event::AgentUnreachable(name, format!("it calls itself `{}`", info.name)),
-                        Err(why) => Event::AgentUnreachable(name, why),
-                    };
-                    let _ = tx.send(ev);
-                });
+                identify(self.session.clone(), name, tx.clone(), Duration::ZERO);
             }
             SampleKind::Delete => {
                 let now = self.now_ms();
@@ -614,11 +613,16 @@ impl Shell {
         }
     }
 
-    fn on_event(&mut self, ev: Event) {
+    fn on_identity(&mut self, ev: Identity, tx: &mpsc::UnboundedSender<Identity>) {
         let now = self.now_ms();
         match ev {
-            Event::AgentUp(info) => self.core.agent_up(now, info),
-            Event::AgentUnreachable(name, why) => {
+            Identity::One(info) => self.core.agent_up(now, info),
+            Identity::Several(name, n) => {
+                self.core.agent_conflict(now, &name, n);
+                // Asked again until one process answers alone (or none does).
+                identify(self.session.clone(), name, tx.clone(), CONFLICT_RECHECK);
+            }
+            Identity::Unknown(name, why) => {
                 eprintln!("warning: agent `{name}` is live but did not say who it is: {why}")
             }
         }
@@ -708,7 +712,9 @@ impl Shell {
         let mut local = Vec::new();
         for out in outputs {
             match out {
-                CoordOutput::Send { agent, msg } => self.send(keys::agent_cmd(&agent), wire::encode(&msg)).await?,
+                CoordOutput::Send { agent, incarnation, msg } => {
+                    self.send(keys::agent_cmd(&agent, incarnation), wire::encode(&msg)).await?
+                }
                 CoordOutput::Vars(update) => self.send(self.vars_key.clone(), wire::encode(&update)).await?,
                 other => local.push(other),
             }
@@ -792,12 +798,32 @@ impl Shell {
     }
 }
 
-/// Asks a live agent who it is, a few times: its answer may trail its liveliness token through a router.
-async fn ask_info(session: &Session, name: &str) -> Result<AgentInfo, String> {
+/// After `delay`, asks agent `name` who it is and tells the main loop: one process (`AgentUp`), several
+/// (`AgentConflict`), or none that makes sense.
+fn identify(session: Session, name: String, tx: mpsc::UnboundedSender<Identity>, delay: Duration) {
+    tokio::spawn(async move {
+        tokio::time::sleep(delay).await;
+        let ev = match ask_info(&session, &name).await {
+            Ok(mut infos) if infos.len() == 1 => match infos.pop() {
+                Some(info) if info.name == name => Identity::One(info),
+                Some(info) => Identity::Unknown(name, format!("it calls itself `{}`", info.name)),
+                None => Identity::Unknown(name, "no answer".to_string()),
+            },
+            Ok(infos) => Identity::Several(name, infos.len() as u32),
+            Err(why) => Identity::Unknown(name, why),
+        };
+        let _ = tx.send(ev);
+    });
+}
+
+/// Asks a live agent who it is, a few times: its answer may trail its liveliness token through a router. Every
+/// process answering to the name replies; they are told apart by their incarnation.
+async fn ask_info(session: &Session, name: &str) -> Result<Vec<AgentInfo>, String> {
     let mut last = String::new();
     for attempt in 0..INFO_QUERY_ATTEMPTS {
         match ask_info_once(session, name).await {
-            Ok(info) => return Ok(info),
+            Ok(infos) if !infos.is_empty() => return Ok(infos),
+            Ok(_) => last = "no answer to the info query".to_string(),
             Err(why) => last = why,
         }
         tokio::time::sleep(Duration::from_millis(100 << attempt)).await;
@@ -805,11 +831,34 @@ async fn ask_info(session: &Session, name: &str) -> Result<AgentInfo, String> {
     Err(last)
 }
 
-async fn ask_info_once(session: &Session, name: &str) -> Result<AgentInfo, String> {
-    let replies = session.get(keys::agent_info(name)).timeout(INFO_QUERY_TIMEOUT).await.map_err(|e| e.to_string())?;
-    let reply = replies.recv_async().await.map_err(|_| "no answer to the info query".to_string())?;
-    let sample = reply.result().map_err(|e| format!("{e:?}"))?;
-    wire::decode(&sample.payload().to_bytes()).map_err(|e| e.to_string())
+async fn ask_info_once(session: &Session, name: &str) -> Result<Vec<AgentInfo>, String> {
+    let replies = session
+        .get(keys::agent_info(name))
+        // Every reply, not one per key: two processes of one name answer on the same key.
+        .consolidation(zenoh::query::ConsolidationMode::None)
+        .timeout(INFO_QUERY_TIMEOUT)
+        .await
+        .map_err(|e| e.to_string())?;
+    let mut infos: Vec<AgentInfo> = Vec::new();
+    let mut last = String::new();
+    while let Ok(reply) = replies.recv_async().await {
+        let info = match reply.result() {
+            Ok(sample) => wire::decode::<AgentInfo>(&sample.payload().to_bytes()).map_err(|e| e.to_string()),
+            Err(e) => Err(format!("{e:?}")),
+        };
+        match info {
+            Ok(info) if !infos.iter().any(|i| i.incarnation == info.incarnation) => infos.push(info),
+            Ok(_) => {}
+            Err(why) => last = why,
+        }
+        if infos.len() >= INFO_REPLIES_MAX {
+            break;
+        }
+    }
+    if infos.is_empty() && !last.is_empty() {
+        return Err(last);
+    }
+    Ok(infos)
 }
 
 impl Summary {

@@ -46,6 +46,8 @@ pub enum Record {
     Vars(VarUpdate),
     AgentUp(AgentInfo),
     AgentDown(String),
+    /// Several processes answered to this agent name (how many).
+    AgentConflict(String, u32),
     Set(SetRequest),
     Policy(LossPolicy),
     /// A coordinator process took over from the journal here.
@@ -81,6 +83,7 @@ const SET: u8 = 6;
 const POLICY: u8 = 7;
 const RECOVER: u8 = 8;
 const END: u8 = 9;
+const AGENT_CONFLICT: u8 = 10;
 
 const HEAD: usize = 9;
 
@@ -109,6 +112,11 @@ pub fn encode(entry: &Entry) -> Vec<u8> {
         Record::Vars(u) => frame(VARS, t, &wire::encode(u)),
         Record::AgentUp(i) => frame(AGENT_UP, t, &wire::encode(i)),
         Record::AgentDown(name) => frame(AGENT_DOWN, t, name.as_bytes()),
+        Record::AgentConflict(name, n) => {
+            let mut body = n.to_le_bytes().to_vec();
+            body.extend_from_slice(name.as_bytes());
+            frame(AGENT_CONFLICT, t, &body)
+        }
         Record::Set(s) => frame(SET, t, &wire::encode(s)),
         Record::Policy(p) => frame(POLICY, t, &[policy_byte(*p)]),
         Record::Recover => frame(RECOVER, t, &[]),
@@ -134,6 +142,12 @@ pub fn decode(bytes: &[u8]) -> Result<Entry, JournalError> {
         VARS => Record::Vars(wire::decode(body).map_err(wire_err)?),
         AGENT_UP => Record::AgentUp(wire::decode(body).map_err(wire_err)?),
         AGENT_DOWN => Record::AgentDown(text()?),
+        AGENT_CONFLICT => {
+            let (n, name) = body.split_at_checked(4).ok_or_else(|| bad("truncated".to_string()))?;
+            let n = u32::from_le_bytes(n.try_into().map_err(|_| bad("truncated".to_string()))?);
+            let name = std::str::from_utf8(name).map_err(|e| bad(e.to_string()))?.to_string();
+            Record::AgentConflict(name, n)
+        }
         SET => Record::Set(wire::decode(body).map_err(wire_err)?),
         POLICY => Record::Policy(match body {
             [0] => LossPolicy::Pause,
@@ -160,6 +174,7 @@ pub fn apply(core: &mut Coordinator, entry: &Entry) -> Option<Result<String, Str
         Record::Vars(u) => core.handle_vars(now, u.clone()),
         Record::AgentUp(i) => core.handle_agent_up(now, i.clone()),
         Record::AgentDown(name) => core.handle_agent_down(now, name),
+        Record::AgentConflict(name, n) => core.handle_agent_conflict(now, name, *n as usize),
         Record::Set(s) => return Some(core.handle_set(now, &s.name, &s.value)),
         Record::Policy(p) => core.set_loss_policy(*p),
         Record::Recover => core.handle_recover(now),
@@ -280,6 +295,10 @@ impl Journaled {
         self.input(now_ms, Record::AgentDown(name.to_string()));
     }
 
+    pub fn agent_conflict(&mut self, now_ms: u64, name: &str, processes: u32) {
+        self.input(now_ms, Record::AgentConflict(name.to_string(), processes));
+    }
+
     pub fn set(&mut self, now_ms: u64, name: &str, value: &serde_json::Value) -> Result<String, String> {
         let request = SetRequest { name: name.to_string(), value: value.clone() };
         self.input(now_ms, Record::Set(request)).unwrap_or_else(|| Err("not applied".to_string()))
@@ -344,6 +363,7 @@ mod tests {
             Entry { t_ms: 0, record: Record::Policy(LossPolicy::Reassign) },
             Entry { t_ms: 7, record: Record::Cycle },
             Entry { t_ms: 9, record: Record::AgentDown("r1".into()) },
+            Entry { t_ms: 10, record: Record::AgentConflict("r1".into(), 2) },
             Entry {
                 t_ms: 11,
                 record: Record::Set(SetRequest { name: "go".into(), value: serde_json::Value::Bool(true) }),

@@ -3,7 +3,8 @@
 //! ```text
 //! baton/alive/<agent>                 liveliness token of a live agent
 //! baton/agent/<agent>/info            queryable: the agent's roles, lease and held tokens (AgentInfo)
-//! baton/agent/<agent>/cmd             coordinator → agent: Dispatch, Ack, Drop, Sync (ToAgent)
+//! baton/agent/<agent>/<incarnation>/cmd  coordinator → one process of the agent: Dispatch, Ack, Drop, Sync
+//!                                     (ToAgent); a second process of the same name hears none of it
 //! baton/run/<run>/report              agents → coordinator: token reports (Report)
 //! baton/run/<run>/vars/<writer>       variable updates from the coordinator or an agent (VarUpdate)
 //! baton/run/<run>/chart               queryable: the chart's source (ChartSource)
@@ -14,6 +15,7 @@
 //! always single chunks; a run is 32 hex digits.
 
 use crate::wire::RunId;
+use uuid::Uuid;
 
 const ROOT: &str = "baton";
 
@@ -34,8 +36,13 @@ pub fn agent_info(agent: &str) -> String {
     format!("{ROOT}/agent/{agent}/info")
 }
 
-pub fn agent_cmd(agent: &str) -> String {
-    format!("{ROOT}/agent/{agent}/cmd")
+pub fn agent_cmd(agent: &str, incarnation: Uuid) -> String {
+    format!("{ROOT}/agent/{agent}/{}/cmd", incarnation.simple())
+}
+
+/// The commands to every process of `agent` (`*` for every agent), for tools that watch.
+pub fn agent_cmd_any(agent: &str) -> String {
+    format!("{ROOT}/agent/{agent}/*/cmd")
 }
 
 pub fn report(run: RunId) -> String {

@@ -166,6 +166,8 @@ pub enum AgentEventKind {
 pub struct Report {
     pub run: RunId,
     pub agent: String,
+    /// The agent's process (`AgentInfo::incarnation`): an answer goes to it alone.
+    pub incarnation: Uuid,
     pub token: TokenId,
     pub epoch: u32,
     pub seq: u32,
@@ -338,6 +340,7 @@ mod tests {
         let report = Report {
             run: RunId(Uuid::from_u128(1)),
             agent: "r1".into(),
+            incarnation: Uuid::from_u128(3),
             token: TokenId(Uuid::from_u128(2)),
             epoch: 1,
             seq: 0,

@@ -33,7 +33,8 @@ pub struct Faults {
 }
 
 enum Packet {
-    ToAgent(usize, Vec<u8>),
+    /// To agent `.0`'s process `.1`: only that process hears it.
+    ToAgent(usize, Uuid, Vec<u8>),
     Report(Vec<u8>),
     Vars(Vec<u8>),
 }
@@ -185,7 +186,7 @@ impl SimCluster {
         self.messages += 1;
         let delay = if self.faults.delay_ms_max > 0 { self.random() % (self.faults.delay_ms_max + 1) } else { 0 };
         let copy = match &packet {
-            Packet::ToAgent(i, b) => Packet::ToAgent(*i, b.clone()),
+            Packet::ToAgent(i, inc, b) => Packet::ToAgent(*i, *inc, b.clone()),
             Packet::Report(b) => Packet::Report(b.clone()),
             Packet::Vars(b) => Packet::Vars(b.clone()),
         };
@@ -405,8 +406,10 @@ impl SimCluster {
                 if self.faults.reorder { ready[(self.random() % ready.len() as u64) as usize] } else { ready[0] };
             let (_, packet) = self.net.remove(pick);
             match packet {
-                Packet::ToAgent(i, _) if !self.agents[i].reachable => {}
-                Packet::ToAgent(i, bytes) => {
+                Packet::ToAgent(i, _, _) if !self.agents[i].reachable => {}
+                // A command for a process that is gone reaches nobody.
+                Packet::ToAgent(i, incarnation, _) if incarnation != Uuid::from_u128(self.agents[i].restarts) => {}
+                Packet::ToAgent(i, _, bytes) => {
                     match wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages") {
                         ToAgent::Dispatch { token, epoch, segment, entry, vars, vars_seq, acks, .. } => {
                             for a in acks {
@@ -448,9 +451,9 @@ impl SimCluster {
         self.journal.extend(records);
         while let Some(out) = self.coordinator.poll_output() {
             match out {
-                CoordOutput::Send { agent, msg } => {
+                CoordOutput::Send { agent, incarnation, msg } => {
                     let i = self.agents.iter().position(|a| a.name == agent).expect("known agent");
-                    self.send(Packet::ToAgent(i, wire::encode(&msg)));
+                    self.send(Packet::ToAgent(i, incarnation, wire::encode(&msg)));
                 }
                 CoordOutput::Vars(update) => self.send(Packet::Vars(wire::encode(&update))),
                 CoordOutput::Trace(rec) => self.trace.push(rec),

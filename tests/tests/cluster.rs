@@ -200,6 +200,7 @@ async fn garbage_on_batons_keys_changes_nothing() {
     let rogue_report = wire::Report {
         run,
         agent: "r1".into(),
+        incarnation: uuid::Uuid::nil(),
         token: TokenId(uuid::Uuid::from_u128(1)),
         epoch: 1,
         seq: 0,
@@ -228,10 +229,15 @@ async fn garbage_on_batons_keys_changes_nothing() {
         let s = session.clone();
         async move { s.put(key, payload).congestion_control(zenoh::qos::CongestionControl::Block).await.expect("put") }
     };
+    // Commands reach one process of a name: r1's, found as a coordinator finds it.
+    let info = session.get(keys::agent_info("r1")).timeout(TIMEOUT).await.expect("info query");
+    let info = info.recv_async().await.expect("r1 answers");
+    let info: wire::AgentInfo = wire::decode(&info.result().expect("ok").payload().to_bytes()).expect("info");
+    let r1_cmd = keys::agent_cmd("r1", info.incarnation);
     for g in &garbage {
         put(keys::report(run), g.clone()).await;
         put(keys::vars(run, "intruder"), g.clone()).await;
-        put(keys::agent_cmd("r1"), g.clone()).await;
+        put(r1_cmd.clone(), g.clone()).await;
     }
     // A dispatch for a run nobody coordinates: the agent cannot fetch its chart and drops it.
     let bogus = ToAgent::Dispatch {
@@ -245,7 +251,7 @@ async fn garbage_on_batons_keys_changes_nothing() {
         vars_seq: 0,
         acks: vec![],
     };
-    put(keys::agent_cmd("r1"), wire::encode(&bogus)).await;
+    put(r1_cmd, wire::encode(&bogus)).await;
     // An agent that announces itself but never says who it is.
     let _ghost = session.liveliness().declare_token(keys::alive("ghost")).await.expect("token");
     // A set request that is not one.

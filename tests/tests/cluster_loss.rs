@@ -24,7 +24,7 @@ async fn assembling_with(
     let mut coordinator = cluster.coordinator(&repo("examples/cell.st"), &["--set", &parts, "--on-agent-loss", policy]);
     coordinator.wait_for_log("running chart").await;
     let session = cluster.watch().await;
-    let cmds = session.declare_subscriber(keys::agent_cmd("*")).await.expect("subscriber");
+    let cmds = session.declare_subscriber(keys::agent_cmd_any("*")).await.expect("subscriber");
     cluster.agent("robot1", &["assembler"], agent_args);
     cluster.agent("robot2", &["assembler"], agent_args);
     let holder = next_dispatch(&cmds, "Assemble", 1).await;

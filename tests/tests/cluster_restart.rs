@@ -19,7 +19,7 @@ async fn a_coordinator_killed_mid_segment_resumes_from_its_journal() {
     let args = journal_args(&cluster);
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let watch = cluster.watch().await;
-    let cmds = watch.declare_subscriber(keys::agent_cmd("*")).await.expect("command subscriber");
+    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
     let reports = watch.declare_subscriber("baton/run/*/report").await.expect("report subscriber");
     let mut coordinator = cluster.coordinator_joining(&cell, &args);
     coordinator.wait_for_log("running chart").await;
@@ -69,7 +69,7 @@ async fn agents_reconnect_to_a_coordinator_restarted_with_its_router() {
     let mut coordinator = cluster.coordinator(&cell, &args);
     coordinator.wait_for_log("running chart").await;
     let watch = cluster.watch().await;
-    let cmds = watch.declare_subscriber(keys::agent_cmd("*")).await.expect("command subscriber");
+    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
     cluster.agent("robot1", &["assembler"], &[]);
     cluster.agent("robot2", &["assembler"], &[]);
     cluster::next_dispatch(&cmds, step_id(&cell, "Pick2"), 1).await;

@@ -218,7 +218,7 @@ async fn a_lost_agent_and_the_reassignment_are_on_the_timeline() {
         cluster.coordinator(&cell, &["--set", "parts=1", "--on-agent-loss", "reassign", "--rerun", &sink]);
     coordinator.wait_for_log("running chart").await;
     let session = cluster.watch().await;
-    let cmds = session.declare_subscriber(keys::agent_cmd("*")).await.expect("subscriber");
+    let cmds = session.declare_subscriber(keys::agent_cmd_any("*")).await.expect("subscriber");
     cluster.agent("robot1", &["assembler"], &[]);
     cluster.agent("robot2", &["assembler"], &[]);
     let (holder, token) = cluster::next_dispatch(&cmds, step_id(&cell, "Assemble"), 1).await;

@@ -576,6 +576,7 @@ impl AgentRun {
                 let report = Report {
                     run: self.run,
                     agent: self.name.clone(),
+                    incarnation: self.incarnation,
                     token: id,
                     epoch: held.epoch,
                     seq: held.next_seq,

@@ -37,10 +37,18 @@ const DISPATCH_RESEND_MAX_MS: u64 = 5_000;
 /// What the coordinator asks its shell to do.
 #[derive(Clone, Debug, PartialEq)]
 pub enum CoordOutput {
-    Send { agent: String, msg: ToAgent },
+    /// A command for one process (`incarnation`) of `agent`.
+    Send {
+        agent: String,
+        incarnation: uuid::Uuid,
+        msg: ToAgent,
+    },
     Vars(VarUpdate),
     Trace(TraceRecord),
-    Log { level: Level, message: String },
+    Log {
+        level: Level,
+        message: String,
+    },
 }
 
 /// What the coordinator does with the tokens of an agent that is lost (`baton run --on-agent-loss`).
@@ -75,6 +83,8 @@ struct AgentState {
     recovering: bool,
     /// How long the agent may stay silent before it counts as lost (its own setting).
     lease_ms: u64,
+    /// More than one process answers to the name: nothing is dispatched to it until one answers alone.
+    conflict: bool,
 }
 
 struct TokenState {
@@ -327,7 +337,7 @@ impl Coordinator {
             }
             self.stats.resent += 1;
             self.log(Level::Info, format!("token {id} sent again to `{agent}`: no report on it yet"));
-            self.outbox.push_back(CoordOutput::Send { agent, msg });
+            self.send(agent, msg);
         }
     }
 
@@ -338,7 +348,7 @@ impl Coordinator {
             return;
         }
         for out in self.outbox.iter_mut() {
-            if let CoordOutput::Send { agent, msg: ToAgent::Dispatch { acks, .. } } = out {
+            if let CoordOutput::Send { agent, msg: ToAgent::Dispatch { acks, .. }, .. } = out {
                 if let Some(owed) = self.acks.remove(agent.as_str()) {
                     acks.extend(owed);
                 }
@@ -349,8 +359,15 @@ impl Coordinator {
         }
         if (due && self.now_ms >= self.acks_since_ms + ACK_DELAY_MS) || self.is_terminal() {
             for (agent, acks) in std::mem::take(&mut self.acks) {
-                self.outbox.push_back(CoordOutput::Send { agent, msg: ToAgent::Ack { run: self.run, acks } });
+                self.send(agent, ToAgent::Ack { run: self.run, acks });
             }
+        }
+    }
+
+    /// A command for `agent`'s current process; none for an agent this coordinator does not know.
+    fn send(&mut self, agent: String, msg: ToAgent) {
+        if let Some(incarnation) = self.agents.get(&agent).map(|a| a.incarnation) {
+            self.outbox.push_back(CoordOutput::Send { agent, incarnation, msg });
         }
     }
 
@@ -456,12 +473,12 @@ impl Coordinator {
     fn choose_agent(&mut self, placement: &Placement) -> Option<String> {
         match placement {
             Placement::Coordinator => None,
-            Placement::Agent(name) => self.agents.get(name).filter(|a| a.alive).map(|_| name.clone()),
+            Placement::Agent(name) => self.agents.get(name).filter(|a| a.alive && !a.conflict).map(|_| name.clone()),
             Placement::Role(role) => {
                 let able: Vec<(&String, usize)> = self
                     .agents
                     .iter()
-                    .filter(|(_, a)| a.alive && a.roles.iter().any(|r| r == role))
+                    .filter(|(_, a)| a.alive && !a.conflict && a.roles.iter().any(|r| r == role))
                     .map(|(n, a)| (n, a.tokens))
                     .collect();
                 let least = able.iter().map(|(_, n)| *n).min()?;
@@ -524,7 +541,7 @@ impl Coordinator {
         rec.token = Some(id.to_string());
         rec.epoch = Some(epoch);
         self.trace(rec);
-        self.outbox.push_back(CoordOutput::Send { agent, msg });
+        self.send(agent, msg);
     }
 
     /// The dispatch of a token to its agent, as it stands now.
@@ -595,15 +612,20 @@ impl Coordinator {
             incarnation: info.incarnation,
             recovering: false,
             lease_ms: info.lease_ms,
+            conflict: false,
         });
         let was_alive = entry.alive;
         let recovering = std::mem::take(&mut entry.recovering);
         let restarted = entry.incarnation != info.incarnation;
         let old_incarnation = entry.incarnation;
+        let was_conflict = std::mem::take(&mut entry.conflict);
         entry.roles = info.roles.clone();
         entry.lease_ms = info.lease_ms;
         entry.alive = true;
         entry.incarnation = info.incarnation;
+        if was_conflict {
+            self.log(Level::Info, format!("agent `{name}` answers alone again"));
+        }
         if restarted {
             // Its numbers start again: what the old process still sends is late.
             self.var_writes.retire(name.clone(), old_incarnation);
@@ -661,7 +683,7 @@ impl Coordinator {
             }
         }
         if sync {
-            self.outbox.push_back(CoordOutput::Send { agent: name.clone(), msg: ToAgent::Sync { run } });
+            self.send(name.clone(), ToAgent::Sync { run });
         }
         let waiting = std::mem::take(&mut self.waiting);
         for id in waiting {
@@ -675,6 +697,38 @@ impl Coordinator {
                 None => self.waiting.push(id),
             }
         }
+        self.settle();
+    }
+
+    /// More than one process answered to agent `name` (a copied service file, an old process that lingers):
+    /// each would run what is sent to the name, so nothing is dispatched to it, its tokens are held, and an
+    /// alarm says so, until one process answers alone (`handle_agent_up`).
+    pub fn handle_agent_conflict(&mut self, now_ms: u64, name: &str, processes: usize) {
+        self.advance(now_ms);
+        if !crate::layout::is_valid_name(name) {
+            return self.drop_msg(format!("agent conflict with an invalid name ignored: {name:?}"));
+        }
+        if !self.agents.contains_key(name) && self.agents.len() >= AGENTS_MAX {
+            return self.drop_msg(format!("agent `{name}` ignored: already tracking {AGENTS_MAX} agents"));
+        }
+        let agent = self.agents.entry(name.to_string()).or_insert(AgentState {
+            roles: Vec::new(),
+            alive: false,
+            tokens: 0,
+            incarnation: uuid::Uuid::nil(),
+            recovering: false,
+            lease_ms: 0,
+            conflict: false,
+        });
+        if std::mem::replace(&mut agent.conflict, true) {
+            return;
+        }
+        for t in self.tokens.values_mut().filter(|t| t.agent.as_deref() == Some(name)) {
+            t.paused = true;
+        }
+        self.alarm(format!(
+            "{processes} processes answer as agent `{name}`: nothing is sent to `{name}`, and its tokens are held, until one of them stops"
+        ));
         self.settle();
     }
 
@@ -804,7 +858,8 @@ impl Coordinator {
                 rec.epoch = Some(report.epoch);
                 self.trace(rec);
                 let msg = ToAgent::Drop { run: self.run, token: report.token, epoch: report.epoch };
-                self.outbox.push_back(CoordOutput::Send { agent: report.agent.clone(), msg });
+                let (agent, incarnation) = (report.agent.clone(), report.incarnation);
+                self.outbox.push_back(CoordOutput::Send { agent, incarnation, msg });
             }
             return self.drop_msg(format!(
                 "report from `{}` for token {} rejected: epoch {} is stale (current {epoch}); told to drop it",
@@ -814,6 +869,12 @@ impl Coordinator {
         if tok.agent.as_deref() != Some(report.agent.as_str()) {
             return self.drop_msg(format!(
                 "report for token {} dropped: it came from `{}`, which does not hold it",
+                report.token, report.agent
+            ));
+        }
+        if self.agents.get(&report.agent).map(|a| a.incarnation) != Some(report.incarnation) {
+            return self.drop_msg(format!(
+                "report for token {} dropped: it came from another process than `{}`'s current one",
                 report.token, report.agent
             ));
         }
@@ -854,10 +915,7 @@ impl Coordinator {
         let (segment, dispatched_ms, epoch) = (tok.segment, tok.dispatched_ms, tok.epoch);
         let placement = self.layout.segments[segment.index()].placement.clone();
         let program = Arc::clone(&self.program);
-        // The token's holder is the agent's current process (a restarted one gets the segment in a new epoch).
-        if let Some(incarnation) = self.agents.get(&r.agent).map(|a| a.incarnation) {
-            self.apply_agent_vars(&r.agent, incarnation, r.vars_seq, &r.vars);
-        }
+        self.apply_agent_vars(&r.agent, r.incarnation, r.vars_seq, &r.vars);
         let mut floor = self.engine.now_ms();
         for ev in &r.events {
             // Agent times are offsets from the token's arrival; they are mapped onto this clock, never before
