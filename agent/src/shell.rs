@@ -9,7 +9,7 @@ use anyhow::anyhow;
 use baton_proto::check::check_source;
 use baton_proto::keys;
 use baton_proto::layout::{is_valid_name, Layout};
-use baton_proto::limits::{CHART_SOURCE_BYTES_MAX, RECEIVE_QUEUE_MAX};
+use baton_proto::limits::{fence_after_ms, fence_check_ms, CHART_SOURCE_BYTES_MAX, RECEIVE_QUEUE_MAX};
 use baton_proto::netconfig::NetConfig;
 use baton_proto::program::{ActionId, Program};
 use baton_proto::runtime::agent::{AgentOutput, AgentRun, Dispatch};
@@ -58,6 +58,9 @@ impl AgentConfig {
         if self.name == baton_proto::runtime::COORDINATOR {
             anyhow::bail!("`{}` is the name the coordinator publishes under: choose another agent name", self.name);
         }
+        if self.lease_ms < 100 {
+            anyhow::bail!("--lease-ms must be at least 100");
+        }
         if self.connect.is_empty() {
             anyhow::bail!("give the router's endpoint with --connect, such as tcp/127.0.0.1:7447");
         }
@@ -70,6 +73,8 @@ type Fetched = (ChartHash, Arc<Program>, Arc<Layout>, u64);
 
 enum Event {
     Chart(RunId, Result<Fetched, String>),
+    /// The watch on the router: `Some(silent_ms)` when it was lost for most of the lease, `None` when it is back.
+    Contact(Option<u64>),
     Skill(RunId, ActionId, Result<(), String>),
 }
 
@@ -148,6 +153,7 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
         dropped: 0,
         incarnation,
     };
+    tokio::spawn(watch_router(session.clone(), name.clone(), config.lease_ms, shell.events.clone()));
     let roles =
         if config.roles.is_empty() { String::new() } else { format!(" with role(s) {}", config.roles.join(", ")) };
     eprintln!(
@@ -234,8 +240,8 @@ impl Shell {
         };
         let now = self.now_ms();
         match msg {
-            ToAgent::Dispatch { run, chart, token, epoch, segment, entry, vars, vars_seq, acks } => {
-                let d = Dispatch { token, epoch, segment, entry, vars, vars_seq };
+            ToAgent::Dispatch { run, chart, token, epoch, segment, entry, vars, vars_seq, acks, fence } => {
+                let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence };
                 match self.runs.get_mut(&run) {
                     Some(r) if *r.state.hash() == chart => {
                         r.last_used = Instant::now();
@@ -323,6 +329,18 @@ impl Shell {
                 let n = self.pending.remove(&run).map_or(0, |q| q.len());
                 self.dropped += n as u64;
                 eprintln!("error: cannot take part in run {}: {why} ({n} token(s) dropped)", run.key());
+            }
+            Event::Contact(lost) => {
+                match lost {
+                    Some(ms) => eprintln!(
+                        "warning: no contact with the router for {ms} ms: the skills of tokens that may go to another agent are stopped (lease fence, at unix ms {})",
+                        unix_ms()
+                    ),
+                    None => eprintln!("the router is back"),
+                }
+                for r in self.runs.values_mut() {
+                    r.state.handle_contact(now, lost);
+                }
             }
             Event::Skill(run, action, result) => {
                 self.running.remove(&(run, action));
@@ -448,6 +466,43 @@ impl Shell {
             }
         }
     }
+}
+
+/// Watches the link to the router for the lease fence: every `fence_check_ms` the agent asks the router for its
+/// own liveliness token (the router's answer comes besides the session's own). Silent for `fence_after_ms`, the
+/// agent is fenced: it tells the main loop, and again when the router answers.
+async fn watch_router(session: Session, name: String, lease_ms: u64, tx: mpsc::UnboundedSender<Event>) {
+    let check = Duration::from_millis(fence_check_ms(lease_ms));
+    let limit = Duration::from_millis(fence_after_ms(lease_ms));
+    let mut last_heard = Instant::now();
+    let mut fenced = false;
+    let mut tick = tokio::time::interval(check);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tick.tick().await;
+        let mut answers = 0;
+        if let Ok(replies) = session.liveliness().get(keys::alive(&name)).timeout(check).await {
+            while let Ok(reply) = replies.recv_async().await {
+                answers += usize::from(reply.result().is_ok());
+            }
+        }
+        // One answer is this session's own token; the router's is the second.
+        if answers >= 2 {
+            last_heard = Instant::now();
+            if std::mem::take(&mut fenced) && tx.send(Event::Contact(None)).is_err() {
+                return;
+            }
+        } else if !fenced && last_heard.elapsed() >= limit {
+            fenced = true;
+            if tx.send(Event::Contact(Some(last_heard.elapsed().as_millis() as u64))).is_err() {
+                return;
+            }
+        }
+    }
+}
+
+fn unix_ms() -> u128 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis())
 }
 
 /// Publishers kept declared at once.

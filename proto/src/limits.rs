@@ -52,6 +52,35 @@ pub const RECEIVE_QUEUE_MAX: usize = 16_384;
 /// same agent). Far below the agents' first resend delay, so acknowledged reports are not sent twice.
 pub const ACK_DELAY_MS: u64 = 5;
 
+/// The lease fence, for an agent announcing `lease_ms`. An agent whose tokens may be taken away stops their skills
+/// once it has not heard its router for `fence_after_ms` (a quarter of its lease), checking every
+/// `fence_check_ms`: by `fence_after_ms + 2 · fence_check_ms` after its last contact with the router it has
+/// stopped. The router cannot drop the agent before that last contact, and the coordinator gives such a token to
+/// another agent only `fence_margin_ms` (half the lease) after the router dropped the agent — however fast the
+/// router noticed (a closed socket, a dead link: at once; silence: after the lease). So the two never run the
+/// segment at once.
+pub const fn fence_after_ms(lease_ms: u64) -> u64 {
+    lease_ms / 4
+}
+
+pub const fn fence_margin_ms(lease_ms: u64) -> u64 {
+    lease_ms / 2
+}
+
+pub const fn fence_check_ms(lease_ms: u64) -> u64 {
+    let p = lease_ms / 20;
+    if p < 5 {
+        5
+    } else {
+        p
+    }
+}
+
+const fn fence_holds(lease_ms: u64) -> bool {
+    fence_after_ms(lease_ms) + 2 * fence_check_ms(lease_ms) < fence_margin_ms(lease_ms)
+}
+const _: () = assert!(fence_holds(100) && fence_holds(1_000) && fence_holds(10_000) && fence_holds(600_000));
+
 /// Agents one coordinator tracks (live ones, and lost ones that still hold a token).
 pub const AGENTS_MAX: usize = 4096;
 

@@ -123,6 +123,9 @@ pub enum ToAgent {
         vars_seq: u64,
         /// Acknowledgements owed to this agent, carried along rather than sent apart.
         acks: Vec<AckEntry>,
+        /// The token may be taken away if the agent is lost (`--on-agent-loss reassign`): an agent that loses
+        /// its router for a quarter of its lease cancels this token's skills (`limits::fence_after_ms`).
+        fence: bool,
     },
     /// This token's epoch is over (its segment was taken back): stop running it and forget it.
     Drop { run: RunId, token: TokenId, epoch: u32 },

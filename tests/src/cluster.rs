@@ -134,6 +134,21 @@ impl Cluster {
         std::fs::read_to_string(self.dir.path().join(format!("{name}.log"))).unwrap_or_default()
     }
 
+    /// The agent's log once it holds `needle` (the file is read again every 20 ms, under the timeout).
+    pub async fn wait_for_agent_log(&self, name: &str, needle: &str) -> String {
+        let found = tokio::time::timeout(TIMEOUT, async {
+            loop {
+                let log = self.agent_log(name);
+                if log.contains(needle) {
+                    return log;
+                }
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        })
+        .await;
+        found.unwrap_or_else(|_| panic!("agent `{name}` never logged `{needle}`; it logged:\n{}", self.agent_log(name)))
+    }
+
     /// Starts `baton run CHART --listen EP --trace … --summary …` (the coordinator embeds the router).
     pub fn coordinator(&self, chart: &Path, extra: &[&str]) -> Coordinator {
         self.start_coordinator(chart, "--listen", extra)

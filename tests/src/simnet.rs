@@ -411,11 +411,11 @@ impl SimCluster {
                 Packet::ToAgent(i, incarnation, _) if incarnation != Uuid::from_u128(self.agents[i].restarts) => {}
                 Packet::ToAgent(i, _, bytes) => {
                     match wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages") {
-                        ToAgent::Dispatch { token, epoch, segment, entry, vars, vars_seq, acks, .. } => {
+                        ToAgent::Dispatch { token, epoch, segment, entry, vars, vars_seq, acks, fence, .. } => {
                             for a in acks {
                                 self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
                             }
-                            let d = Dispatch { token, epoch, segment, entry, vars, vars_seq };
+                            let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence };
                             self.agents[i].run.handle_dispatch(self.now_ms, d);
                         }
                         ToAgent::Drop { token, epoch, .. } => self.agents[i].run.handle_drop(self.now_ms, token, epoch),

@@ -1,21 +1,93 @@
 //! A partition made by a real network: one agent in a network namespace of its own, joined by a veth pair,
 //! and the cable cut while it holds a token. Needs root (CI runs as root); elsewhere the test says why it skips.
 
+use std::time::{SystemTime, UNIX_EPOCH};
+
 use baton_proto::keys;
 use baton_tests::cluster::{self, check_trace_invariants, dispatches, free_port, repo, step_id, Cluster};
 use baton_tests::netns::Netns;
+
+/// A network namespace, or `None` where none can be made (not root, no iproute2): the test then says SKIPPED
+/// and why — except under CI (`CI` set), where a test that cannot run fails.
+fn netns_or_skip(tag: &str, test: &str) -> Option<Netns> {
+    match Netns::new(tag) {
+        Ok(n) => Some(n),
+        Err(why) if std::env::var_os("CI").is_some() => {
+            panic!("{test} cannot run under CI: cannot make a network namespace and a veth pair (needs root and iproute2): {why}")
+        }
+        Err(why) => {
+            eprintln!(
+                "SKIPPED {test}: cannot make a network namespace and a veth pair here (needs root and iproute2): {why}"
+            );
+            None
+        }
+    }
+}
+
+fn unix_ms() -> u128 {
+    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis())
+}
+
+/// Under `reassign`, the lease is a fence on both sides: the cut-off agent stops its skill before the coordinator
+/// gives the token to another agent, so the two never move at once. When the cable is back, the cut-off agent's
+/// stale result is rejected and it is told to drop the token.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_cut_off_agent_stops_before_its_token_moves_under_reassign() {
+    let Some(netns) = netns_or_skip("f", "a_cut_off_agent_stops_before_its_token_moves_under_reassign") else {
+        return;
+    };
+    let chart = repo("tests/charts/long_motion.st");
+    let mut cluster = Cluster::new();
+    let far = format!("tcp/{}:{}", netns.host_addr, free_port());
+    let mut coordinator = cluster.coordinator(&chart, &["--on-agent-loss", "reassign", "--listen", &far]);
+    coordinator.wait_for_log("running chart").await;
+    let watch = cluster.watch().await;
+    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
+    // robot1 alone first, behind the cable, so that the token goes to it.
+    cluster.agent_in(&netns, &far, "robot1", &["worker"], &["--lease-ms", "1000"]);
+    let work = step_id(&chart, "Work");
+    let Some((holder, _)) = cluster::next_dispatch_within(&cmds, work, 1).await else {
+        panic!("Work was not dispatched; the coordinator logged:\n{}", coordinator.unread_log().await);
+    };
+    assert_eq!(holder, "robot1");
+    cluster.agent("robot2", &["worker"], &[]);
+    coordinator.wait_for_log("agent `robot2` is live").await;
+    netns.cut();
+    let cut_ms = unix_ms();
+    let Some((moved_to, _)) = cluster::next_dispatch_within(&cmds, work, 2).await else {
+        panic!("Work was not reassigned; the coordinator logged:\n{}", coordinator.unread_log().await);
+    };
+    let reassigned_ms = unix_ms();
+    assert_eq!(moved_to, "robot2");
+    // robot1 says when it fenced itself, on its own clock (the same machine's).
+    let log = cluster.wait_for_agent_log("robot1", "lease fence, at unix ms").await;
+    let fenced_ms: u128 = log
+        .lines()
+        .find_map(|l| l.split("lease fence, at unix ms ").nth(1)?.trim_end_matches(')').parse().ok())
+        .unwrap_or_else(|| panic!("robot1 did not fence itself before its token moved:\n{log}"));
+    assert!(log.contains("skill of action `Motion` cancelled"), "{log}");
+    eprintln!("cut → robot1 stopped: {} ms; cut → token moved: {} ms", fenced_ms - cut_ms, reassigned_ms - cut_ms);
+    assert!(
+        cut_ms <= fenced_ms && fenced_ms < reassigned_ms,
+        "cut at {cut_ms}, robot1 stopped at {fenced_ms}, the token moved at {reassigned_ms} (unix ms)"
+    );
+    netns.heal();
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}\nrobot1:\n{}", cluster.agent_log("robot1"));
+    check_trace_invariants(&trace, &chart);
+    assert_eq!(summary["vars"]["moved"], "TRUE");
+    assert_eq!(dispatches(&trace, "Work"), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
+    let done: Vec<_> = trace.iter().filter(|r| r.event == "skill_done").map(|r| r.agent.clone()).collect();
+    assert_eq!(done, [Some("robot2".to_string())], "only robot2's motion finished");
+}
 
 /// Under the default policy (pause), the coordinator sees the cut-off agent lost when its lease runs out and
 /// holds its token; when the cable is back, the same process reconnects, says it still holds the token, and
 /// its result comes in. Nothing runs twice and nothing moves to another agent.
 #[tokio::test(flavor = "multi_thread")]
 async fn a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back() {
-    let netns = match Netns::new("p") {
-        Ok(n) => n,
-        Err(why) => {
-            eprintln!("SKIPPED a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back: cannot make a network namespace and a veth pair here (needs root and iproute2): {why}");
-            return;
-        }
+    let Some(netns) = netns_or_skip("p", "a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back") else {
+        return;
     };
     let cell = repo("examples/cell.st");
     let mut cluster = Cluster::new();

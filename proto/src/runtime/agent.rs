@@ -59,6 +59,8 @@ pub struct Dispatch {
     pub entry: u32,
     pub vars: Vec<VarValue>,
     pub vars_seq: u64,
+    /// The coordinator may give the token to another agent if this one is lost: fence its skills.
+    pub fence: bool,
 }
 
 struct Unacked {
@@ -69,6 +71,7 @@ struct Unacked {
 
 struct Holding {
     epoch: u32,
+    fence: bool,
     segment: SegmentId,
     arrived_ms: u64,
     next_seq: u32,
@@ -109,6 +112,9 @@ pub struct AgentRun {
     /// Per action: the segments with a step that uses it.
     action_segments: Vec<Vec<SegmentId>>,
     running_skills: HashSet<ActionId>,
+    /// Since this agent lost its router (for how long it had been silent then): the skills of tokens that may be
+    /// taken away are stopped and none starts.
+    fenced: Option<u64>,
     outbox: VecDeque<AgentOutput>,
     dropped: u64,
 }
@@ -166,6 +172,7 @@ impl AgentRun {
             var_writes: VarWrites::new(program_vars),
             action_segments,
             running_skills: HashSet::new(),
+            fenced: None,
             outbox: VecDeque::new(),
             dropped: 0,
         }
@@ -326,6 +333,7 @@ impl AgentRun {
         }
         let held = Holding {
             epoch: d.epoch,
+            fence: d.fence,
             segment: g,
             arrived_ms: self.now_ms,
             next_seq: 0,
@@ -429,6 +437,49 @@ impl AgentRun {
         self.engine.handle(Input::Set(var, value)).is_ok()
     }
 
+    /// Why the skills of `token` may not run now: the agent lost its router and the token may be given to
+    /// another agent.
+    fn fence_of(&self, token: Option<TokenId>) -> Option<String> {
+        let silent_ms = self.fenced?;
+        let fenced = token.and_then(|t| self.tokens.get(&t)).is_some_and(|h| h.fence);
+        fenced.then(|| {
+            format!(
+                "the agent had no contact with its router for {silent_ms} ms, and the token may go to another agent (lease fence)"
+            )
+        })
+    }
+
+    /// The shell's watch on the router: `Some(silent_ms)` once the agent has not heard its router for a quarter of
+    /// its lease (`limits::fence_after_ms`), `None` when it hears it again. While fenced, the skills of tokens the
+    /// coordinator may give to another agent are cancelled and none starts: each is reported as a skill fault,
+    /// which reaches the coordinator when the link is back (and is stale there if the token moved).
+    pub fn handle_contact(&mut self, now_ms: u64, lost: Option<u64>) {
+        self.catch_up(now_ms);
+        let was = self.fenced;
+        self.fenced = lost;
+        if lost.is_none() || was.is_some() {
+            if was.is_some() && lost.is_none() {
+                self.log(Level::Info, "the router is back: skills start again".to_string());
+            }
+            return;
+        }
+        let mut stopped: Vec<ActionId> = self.running_skills.iter().copied().collect();
+        stopped.sort_unstable();
+        for a in stopped {
+            let token = action_token(&self.action_segments, &self.by_segment, a);
+            let Some(why) = self.fence_of(token) else { continue };
+            self.running_skills.remove(&a);
+            self.outbox.push_back(AgentOutput::StopSkill { action: a });
+            self.set_indicators(a, Some(false), Some(true));
+            self.log(
+                Level::Warn,
+                format!("skill of action `{}` cancelled: {why}", self.program.actions[a.index()].name),
+            );
+            self.record(token, AgentEventKind::SkillFault { action: a.0, message: format!("cancelled: {why}") });
+        }
+        self.settle();
+    }
+
     /// A skill finished: its action's indicator variables say so (first: done, second: fault).
     pub fn handle_skill_result(&mut self, now_ms: u64, action: ActionId, result: Result<(), String>) {
         self.catch_up(now_ms);
@@ -491,6 +542,13 @@ impl AgentRun {
                     let token = action_token(&self.action_segments, &self.by_segment, a);
                     self.record(token, AgentEventKind::ActionOn { action: a.0 });
                     if let Some(binding) = self.layout.skills[a.index()].clone() {
+                        if let Some(why) = self.fence_of(token) {
+                            // The token may be running elsewhere by now: nothing moves here.
+                            self.set_indicators(a, Some(false), Some(true));
+                            let message = format!("not started: {why}");
+                            self.record(token, AgentEventKind::SkillFault { action: a.0, message });
+                            continue;
+                        }
                         self.set_indicators(a, Some(false), Some(false));
                         self.running_skills.insert(a);
                         let name = program.actions[a.index()].name.clone();

@@ -102,6 +102,9 @@ struct TokenState {
     /// When the dispatch is sent again if no report came, and the delay after that.
     resend_at_ms: u64,
     resend_backoff_ms: u64,
+    /// Its agent was lost under `LossPolicy::Reassign`: when the token goes to another agent, unless the lost one
+    /// comes back first. Not before the agent has stopped its skills (`limits::fence_margin_ms`).
+    reassign_at_ms: Option<u64>,
 }
 
 pub struct Coordinator {
@@ -260,6 +263,7 @@ impl Coordinator {
         }
         self.drain_engine();
         self.resend_dispatches();
+        self.reassign_due();
         self.give_up_on_silent_agents();
         self.publish_vars();
         self.flush_acks(true);
@@ -293,7 +297,8 @@ impl Coordinator {
         let give_up = self.recovered_ms.and_then(|since| {
             self.agents.values().filter(|a| a.recovering && a.alive).map(|a| since.saturating_add(a.lease_ms)).min()
         });
-        [resend, acks, give_up].into_iter().flatten().min()
+        let reassign = self.tokens.values().filter_map(|t| t.reassign_at_ms).min();
+        [resend, acks, give_up, reassign].into_iter().flatten().min()
     }
 
     /// After a restart from the journal, an agent that has not come back within its lease is lost, as if its
@@ -461,6 +466,7 @@ impl Coordinator {
             confirmed: true,
             resend_at_ms: 0,
             resend_backoff_ms: 0,
+            reassign_at_ms: None,
         };
         self.tokens.insert(id, tok);
         self.by_segment[g.index()] = Some(id);
@@ -563,6 +569,7 @@ impl Coordinator {
             vars,
             vars_seq: self.vars_seq,
             acks: Vec::new(),
+            fence: self.policy == LossPolicy::Reassign,
         };
         Some((agent, msg))
     }
@@ -668,6 +675,7 @@ impl Coordinator {
                 continue;
             }
             tok.paused = false;
+            tok.reassign_at_ms = None;
             tok.confirmed = true;
             let epoch = tok.epoch;
             if info.held.iter().any(|h| h.run == run && h.token == id && h.epoch == epoch) {
@@ -741,6 +749,7 @@ impl Coordinator {
             return;
         }
         agent.alive = false;
+        let lease_ms = agent.lease_ms;
         let mut rec = TraceRecord::new(self.now_ms, "agent_lost", name);
         rec.agent = Some(name.to_string());
         self.trace(rec);
@@ -763,10 +772,16 @@ impl Coordinator {
                     ));
                 }
                 LossPolicy::Reassign => {
+                    // The agent stops the segment's skills once it has lost its router for long enough; only then
+                    // may another agent start it.
+                    let margin = crate::limits::fence_margin_ms(lease_ms);
+                    if let Some(t) = self.tokens.get_mut(&id) {
+                        t.paused = true;
+                        t.reassign_at_ms = Some(self.now_ms + margin);
+                    }
                     self.alarm(format!(
-                        "agent `{name}` lost holding the token of step `{entry}`: reassigned, from its first step"
+                        "agent `{name}` lost holding the token of step `{entry}`: reassigned, from its first step, in {margin} ms unless it comes back"
                     ));
-                    self.reassign(id);
                 }
                 LossPolicy::Fail => {
                     let why = format!("agent `{name}` was lost holding the token of step `{entry}`");
@@ -802,6 +817,21 @@ impl Coordinator {
         self.restart_on(id, None);
     }
 
+    /// Tokens of lost agents whose fence margin is over go to other agents.
+    fn reassign_due(&mut self) {
+        let now = self.now_ms;
+        let mut due: Vec<TokenId> = self
+            .tokens
+            .iter()
+            .filter(|(_, t)| t.reassign_at_ms.is_some_and(|at| at <= now))
+            .map(|(id, _)| *id)
+            .collect();
+        due.sort_unstable();
+        for id in due {
+            self.reassign(id);
+        }
+    }
+
     /// A new epoch from the segment's first step, on `agent` or on whichever live agent the placement picks.
     fn restart_on(&mut self, id: TokenId, agent: Option<String>) {
         let Some(tok) = self.tokens.get_mut(&id) else { return };
@@ -809,6 +839,7 @@ impl Coordinator {
         tok.next_seq = 0;
         tok.ahead.clear();
         tok.paused = false;
+        tok.reassign_at_ms = None;
         tok.confirmed = true;
         let (segment, entry, old) = (tok.segment, tok.entry, tok.agent.take());
         if let Some(a) = old.and_then(|a| self.agents.get_mut(&a)) {
