@@ -101,7 +101,8 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool) -> anyh
         println!("  tokens in flight: {}", r.tokens.len());
         for t in &r.tokens {
             let at = t.agent.as_ref().map_or("waiting for an agent".to_string(), |a| format!("on `{a}`"));
-            println!("    {} epoch {} at {} {at}, since {} ms", t.token, t.epoch, t.entry, t.since_ms);
+            let paused = if t.paused { " (paused: its agent is lost)" } else { "" };
+            println!("    {} epoch {} at {} {at}, since {} ms{paused}", t.token, t.epoch, t.entry, t.since_ms);
         }
         println!("  live agents: {}", r.agents.len());
         for a in &r.agents {

@@ -144,6 +144,8 @@ struct Shell {
     /// The run's cycle period, and the grid time of the last cycle this process ran.
     cycle_ms: u64,
     last_cycle_ms: Option<u64>,
+    /// Agents whose liveliness token is there: those are asked again until they say who they are.
+    live: std::collections::HashSet<String>,
 }
 
 /// What woke the coordinator's main loop.
@@ -386,6 +388,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         cycles: 0,
         cycle_ms,
         last_cycle_ms: None,
+        live: std::collections::HashSet::new(),
     };
     match resume {
         Some((header, records)) => {
@@ -604,9 +607,13 @@ impl Shell {
         let Some(name) = keys::agent_of_alive(s.key_expr().as_str()).map(str::to_string) else { return };
         match s.kind() {
             SampleKind::Put => {
+                if self.live.len() < baton_proto::limits::AGENTS_MAX {
+                    self.live.insert(name.clone());
+                }
                 identify(self.session.clone(), name, tx.clone(), Duration::ZERO);
             }
             SampleKind::Delete => {
+                self.live.remove(&name);
                 let now = self.now_ms();
                 self.core.agent_down(now, &name);
             }
@@ -620,10 +627,17 @@ impl Shell {
             Identity::Several(name, n) => {
                 self.core.agent_conflict(now, &name, n);
                 // Asked again until one process answers alone (or none does).
-                identify(self.session.clone(), name, tx.clone(), CONFLICT_RECHECK);
+                if self.live.contains(&name) {
+                    identify(self.session.clone(), name, tx.clone(), CONFLICT_RECHECK);
+                }
             }
             Identity::Unknown(name, why) => {
-                eprintln!("warning: agent `{name}` is live but did not say who it is: {why}")
+                // Its liveliness token is there, so it is asked again (a link that comes back, a process that was
+                // stopped): as long as it is not known, nothing is dispatched to it.
+                if self.live.contains(&name) {
+                    eprintln!("warning: agent `{name}` is live but did not say who it is: {why}; asking again");
+                    identify(self.session.clone(), name, tx.clone(), CONFLICT_RECHECK);
+                }
             }
         }
     }

@@ -235,6 +235,11 @@ impl Journaled {
         !self.records.is_empty()
     }
 
+    /// Whether the coordinator asked for something not yet taken.
+    pub fn has_output(&self) -> bool {
+        self.core.has_output()
+    }
+
     fn feed(&mut self, bytes: Vec<u8>, entry: Entry) -> Option<Result<String, String>> {
         // The cycles that changed nothing since the last record moved the clock on: the last of them is recorded
         // before this input, so that a replay reaches it at the same time (on the same situation, it changes

@@ -265,6 +265,9 @@ pub struct StatusToken {
     pub entry: String,
     pub agent: Option<String>,
     pub since_ms: u64,
+    /// Held while its agent is lost (or several processes answer to its name).
+    #[serde(default)]
+    pub paused: bool,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

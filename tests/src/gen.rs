@@ -162,3 +162,52 @@ pub fn rings(rings: usize, ring_len: usize) -> String {
     out.push_str("END_PROGRAM\n");
     out
 }
+
+/// A small deterministic random source (SplitMix64) for simulations that derive everything from one seed.
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Rng {
+        Rng(seed ^ 0x6a09_e667_f3bc_c908)
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    /// A number in `0..n` (`n` > 0).
+    pub fn below(&mut self, n: u64) -> u64 {
+        self.next_u64() % n.max(1)
+    }
+
+    pub fn chance(&mut self, p: f64) -> bool {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64 <= p
+    }
+
+    /// A number in `[0, max)`.
+    pub fn fraction(&mut self, max: f64) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64 * max
+    }
+}
+
+/// Random structured shapes from `rng`, nested up to `depth`: one to four of them.
+pub fn random_shapes(rng: &mut Rng, depth: u32) -> Vec<Shape> {
+    (0..1 + rng.below(4)).map(|_| random_shape(rng, depth)).collect()
+}
+
+fn random_shape(rng: &mut Rng, depth: u32) -> Shape {
+    let seq = |rng: &mut Rng| (0..rng.below(3)).map(|_| random_shape(rng, depth - 1)).collect::<Vec<_>>();
+    if depth == 0 {
+        return Shape::Step;
+    }
+    match rng.below(5) {
+        0 | 1 => Shape::Step,
+        2 => Shape::Selection((0..2 + rng.below(2)).map(|_| seq(rng)).collect()),
+        3 => Shape::Parallel((0..2 + rng.below(2)).map(|_| seq(rng)).collect()),
+        _ => Shape::Loop(seq(rng)),
+    }
+}

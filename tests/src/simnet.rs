@@ -1,9 +1,13 @@
 //! Deterministic simulation of a distributed run: the real coordinator and agent state machines from
 //! `baton_proto::runtime`, a simulated network and simulated skills, one thread, one seed, virtual time.
 //!
-//! Every message goes through the real wire encoding. The network can duplicate, reorder and delay messages;
-//! a run that goes wrong prints its seed so that it can be replayed exactly. The coordinator journals every
-//! input (`baton_proto::journal`), and can be crashed and started again from its journal.
+//! Every message goes through the real wire encoding. The network can lose, duplicate, reorder and delay
+//! messages; a cut link goes silent, and the coordinator hears of it only when the agent's lease runs out (the
+//! agent fences itself first, as a real one does). The coordinator journals every input
+//! (`baton_proto::journal`), and can be crashed — before its latest records are durable, or after they are but
+//! before what they led to was sent — and started again from its journal. What the agents do is watched too:
+//! no segment starts twice in one epoch on any agent, and no engine ever gives a step a second token
+//! (`violations`).
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -30,7 +34,12 @@ pub struct Faults {
     pub reorder: bool,
     /// Largest extra delay of a message, in ms.
     pub delay_ms_max: u64,
+    /// Probability that a message is lost on a working link.
+    pub loss: f64,
 }
+
+/// The lease every simulated agent announces.
+pub const LEASE_MS: u64 = 1000;
 
 enum Packet {
     /// To agent `.0`'s process `.1`: only that process hears it.
@@ -61,6 +70,14 @@ struct SimAgent {
     run: AgentRun,
     /// Running skills: action → (finish time, result).
     skills: BTreeMap<ActionId, (u64, Result<(), String>)>,
+    /// Since when its link is cut, whether it has fenced itself, and whether the coordinator was told (its lease
+    /// ran out).
+    cut_at: Option<u64>,
+    fenced: bool,
+    lost: bool,
+    /// The coordinator process of now knows it: a coordinator that started while the agent was cut off asks it
+    /// (again and again, as `baton run` does) once its link is back.
+    announced: bool,
 }
 
 pub struct SimCluster {
@@ -70,6 +87,14 @@ pub struct SimCluster {
     /// While the coordinator is down: when it starts again.
     down_until: Option<u64>,
     crashes: Vec<(u64, u64)>,
+    /// Crashes right after records became durable, before what they led to was sent.
+    crashes_after_journal: Vec<(u64, u64)>,
+    /// Every (token, epoch) that started on an agent.
+    started: std::collections::HashSet<(baton_proto::wire::TokenId, u32)>,
+    /// What went wrong on the agents' side, with the time.
+    pub violations: Vec<String>,
+    /// The coordinator died after its journal but before it sent (or wrote) what that led to.
+    outputs_lost: bool,
     fates: Vec<(u64, String, Fate)>,
     program: Arc<Program>,
     layout: Arc<Layout>,
@@ -143,6 +168,10 @@ impl SimCluster {
                     restarts: 0,
                     run: agent_run(name, &roles, &hash, &program, &layout, 0),
                     skills: BTreeMap::new(),
+                    cut_at: None,
+                    fenced: false,
+                    lost: false,
+                    announced: true,
                 }
             })
             .collect();
@@ -151,6 +180,10 @@ impl SimCluster {
             journal: Vec::new(),
             down_until: None,
             crashes: Vec::new(),
+            crashes_after_journal: Vec::new(),
+            started: std::collections::HashSet::new(),
+            violations: Vec::new(),
+            outputs_lost: false,
             fates: Vec::new(),
             program: Arc::clone(&program),
             layout: Arc::clone(&layout),
@@ -184,6 +217,9 @@ impl SimCluster {
 
     fn send(&mut self, packet: Packet) {
         self.messages += 1;
+        if self.chance(self.faults.loss) {
+            return;
+        }
         let delay = if self.faults.delay_ms_max > 0 { self.random() % (self.faults.delay_ms_max + 1) } else { 0 };
         let copy = match &packet {
             Packet::ToAgent(i, inc, b) => Packet::ToAgent(*i, *inc, b.clone()),
@@ -209,7 +245,18 @@ impl SimCluster {
         self.crashes.sort_unstable();
     }
 
+    /// The coordinator process dies at the first moment from `t_ms` on when it has something to send: its records
+    /// are durable, what they led to never leaves. It starts again `down_ms` later.
+    pub fn crash_coordinator_after_journal_at(&mut self, t_ms: u64, down_ms: u64) {
+        self.crashes_after_journal.push((t_ms, down_ms));
+        self.crashes_after_journal.sort_unstable();
+    }
+
     fn crash_coordinator(&mut self, down_ms: u64) {
+        if self.down_until.is_some() {
+            // Already down: nothing more to lose.
+            return;
+        }
         // Records not yet durable die with the process, and so do the outputs they led to.
         self.coordinator.take_records();
         while self.coordinator.poll_output().is_some() {}
@@ -239,7 +286,11 @@ impl SimCluster {
                 again.push(rec);
             }
         }
-        if again != self.trace {
+        // The replay rebuilds what the run wrote, and — when the process died after its journal but before it
+        // sent anything — what it was about to write; the resumed run writes the trace again in full.
+        let rebuilt =
+            if std::mem::take(&mut self.outputs_lost) { again.starts_with(&self.trace) } else { again == self.trace };
+        if !rebuilt {
             let at =
                 again.iter().zip(&self.trace).position(|(a, b)| a != b).unwrap_or(again.len().min(self.trace.len()));
             let lo = at.saturating_sub(3);
@@ -250,14 +301,23 @@ impl SimCluster {
                 &self.trace[lo..(at + 3).min(self.trace.len())]
             );
         }
+        self.trace = again;
         self.coordinator = fresh;
         self.coordinator.recover(self.now_ms);
         self.flush_coordinator();
         // The agents that are there announce themselves; as with a real router, nothing tells the new process
         // about those that are gone: it gives up on them when their lease runs out.
         for i in 0..self.agents.len() {
+            self.agents[i].announced = false;
+        }
+        for i in 0..self.agents.len() {
+            if self.down_until.is_some() {
+                // It died again on the way.
+                return;
+            }
             if self.agents[i].alive && self.agents[i].reachable {
                 let info = self.info(i);
+                self.agents[i].announced = true;
                 self.coordinator.agent_up(self.now_ms, info);
             }
             self.flush_coordinator();
@@ -269,7 +329,7 @@ impl SimCluster {
         AgentInfo {
             name: a.name.clone(),
             roles: a.roles.clone(),
-            lease_ms: 1000,
+            lease_ms: LEASE_MS,
             incarnation: Uuid::from_u128(a.restarts),
             held: a.run.held(),
         }
@@ -286,15 +346,24 @@ impl SimCluster {
         let now = self.now_ms;
         let coordinator_up = self.down_until.is_none();
         match fate {
-            Fate::Kill | Fate::Cut => {
-                self.agents[i].reachable = false;
-                self.agents[i].alive = fate == Fate::Cut;
-                if fate == Fate::Kill {
-                    self.agents[i].skills.clear();
-                }
+            Fate::Kill => {
+                // The socket closes: the router drops the agent at once.
+                let a = &mut self.agents[i];
+                a.reachable = false;
+                a.alive = false;
+                a.skills.clear();
+                a.cut_at = None;
+                a.lost = true;
                 if coordinator_up {
                     self.coordinator.agent_down(now, agent);
                 }
+            }
+            Fate::Cut if !self.agents[i].alive || self.agents[i].cut_at.is_some() => {}
+            Fate::Cut => {
+                // Silence: nothing tells the coordinator until the agent's lease runs out (`run`).
+                let a = &mut self.agents[i];
+                a.reachable = false;
+                a.cut_at = Some(now);
             }
             Fate::Restart => {
                 // A restart is a new incarnation; a healed cut is the same process.
@@ -303,13 +372,31 @@ impl SimCluster {
                 a.run = agent_run(agent, &a.roles, &self.hash, &self.program, &self.layout, a.restarts);
                 a.alive = true;
                 a.reachable = true;
+                a.cut_at = None;
+                a.fenced = false;
+                a.lost = false;
+                a.skills.clear();
                 if coordinator_up {
+                    self.agents[i].announced = true;
                     self.coordinator.agent_up(now, self.info(i));
                 }
             }
             Fate::Heal => {
-                self.agents[i].reachable = true;
-                if coordinator_up {
+                let a = &mut self.agents[i];
+                if !a.alive || a.cut_at.is_none() {
+                    return;
+                }
+                a.reachable = true;
+                a.cut_at = None;
+                if std::mem::take(&mut a.fenced) {
+                    a.run.handle_contact(now, None);
+                    self.flush_agent(i);
+                }
+                // Back within its lease, the agent was never dropped: its messages simply flow again. After it,
+                // its liveliness token comes back, and the coordinator asks who it is.
+                let lost = std::mem::take(&mut self.agents[i].lost);
+                if (lost || !self.agents[i].announced) && coordinator_up {
+                    self.agents[i].announced = true;
                     self.coordinator.agent_up(now, self.info(i));
                 }
             }
@@ -338,6 +425,8 @@ impl SimCluster {
                 let (_, agent, fate) = self.fates.remove(0);
                 self.apply_fate(&agent, fate);
             }
+            self.leases();
+            self.watch_engines();
             let up = self.down_until.is_none();
             // As the shells do: what is due by now runs first, then what arrived now.
             if up {
@@ -376,9 +465,51 @@ impl SimCluster {
             if up && self.coordinator.core().is_terminal() && self.net.is_empty() {
                 return true;
             }
+            if up && self.coordinator.core().failure().is_some() {
+                // `baton run` ends here, with exit status 2.
+                return false;
+            }
             self.now_ms += 1;
         }
         false
+    }
+
+    /// Cut agents: each fences itself once it has not heard its router for `fence_after_ms`, and the coordinator
+    /// hears it is gone when its lease runs out.
+    fn leases(&mut self) {
+        let now = self.now_ms;
+        for i in 0..self.agents.len() {
+            let Some(cut) = self.agents[i].cut_at else { continue };
+            if !self.agents[i].fenced && now >= cut + baton_proto::limits::fence_after_ms(LEASE_MS) {
+                self.agents[i].fenced = true;
+                self.agents[i].run.handle_contact(now, Some(now - cut));
+                self.flush_agent(i);
+            }
+            if !self.agents[i].lost && now >= cut + LEASE_MS {
+                self.agents[i].lost = true;
+                if self.down_until.is_none() {
+                    let name = self.agents[i].name.clone();
+                    self.coordinator.agent_down(now, &name);
+                    self.flush_coordinator();
+                }
+            }
+        }
+    }
+
+    /// No engine, the coordinator's or an agent's, ever gives a step a second token.
+    fn watch_engines(&mut self) {
+        if !self.violations.is_empty() {
+            return;
+        }
+        let now = self.now_ms;
+        if self.coordinator.core().collisions() > 0 {
+            self.violations.push(format!("at {now} ms the coordinator's engine gave a step a second token"));
+        }
+        for a in &self.agents {
+            if a.run.collisions() > 0 {
+                self.violations.push(format!("at {now} ms the engine of `{}` gave a step a second token", a.name));
+            }
+        }
     }
 
     /// The coordinator's cycles that are due, at their grid times, as `baton run` runs them.
@@ -416,7 +547,18 @@ impl SimCluster {
                                 self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
                             }
                             let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence };
+                            let before = self.agents[i].run.held();
                             self.agents[i].run.handle_dispatch(self.now_ms, d);
+                            // A segment started here: never twice in one epoch, on any agent.
+                            for h in self.agents[i].run.held() {
+                                if !before.contains(&h) && !self.started.insert((h.token, h.epoch)) {
+                                    let (now, name) = (self.now_ms, self.agents[i].name.clone());
+                                    self.violations.push(format!(
+                                        "at {now} ms token {} started a second time in epoch {} (on `{name}`)",
+                                        h.token, h.epoch
+                                    ));
+                                }
+                            }
                         }
                         ToAgent::Drop { token, epoch, .. } => self.agents[i].run.handle_drop(self.now_ms, token, epoch),
                         ToAgent::Ack { acks, .. } => {
@@ -445,10 +587,18 @@ impl SimCluster {
         }
     }
 
-    /// Makes the coordinator's records durable, then carries out what it asked for.
+    /// Makes the coordinator's records durable, then carries out what it asked for — unless it dies in between.
     fn flush_coordinator(&mut self) {
         let records = self.coordinator.take_records();
         self.journal.extend(records);
+        let due = self.crashes_after_journal.first().is_some_and(|c| c.0 <= self.now_ms);
+        if due && self.down_until.is_none() && self.coordinator.has_output() {
+            let (_, down_ms) = self.crashes_after_journal.remove(0);
+            while self.coordinator.poll_output().is_some() {}
+            self.outputs_lost = true;
+            self.down_until = Some(self.now_ms + down_ms);
+            return;
+        }
         while let Some(out) = self.coordinator.poll_output() {
             match out {
                 CoordOutput::Send { agent, incarnation, msg } => {
@@ -464,17 +614,13 @@ impl SimCluster {
 
     fn flush_agent(&mut self, i: usize) {
         while let Some(out) = self.agents[i].run.poll_output() {
-            if !self.agents[i].reachable {
-                // Cut off: what it says is lost (its unacknowledged reports are resent once it is back), and
-                // its skills go on.
-                if let AgentOutput::StartSkill { action, .. } = out {
-                    self.agents[i].skills.insert(action, (self.now_ms + 100, Ok(())));
-                }
-                continue;
-            }
+            // Cut off, what it says is lost (its unacknowledged reports are resent once it is back); its skills
+            // are its own business and go on.
+            let reachable = self.agents[i].reachable;
             match out {
-                AgentOutput::Report(r) => self.send(Packet::Report(wire::encode(&r))),
-                AgentOutput::Vars(u) => self.send(Packet::Vars(wire::encode(&u))),
+                AgentOutput::Report(r) if reachable => self.send(Packet::Report(wire::encode(&r))),
+                AgentOutput::Vars(u) if reachable => self.send(Packet::Vars(wire::encode(&u))),
+                AgentOutput::Report(_) | AgentOutput::Vars(_) => {}
                 AgentOutput::StartSkill { action, binding, .. } => {
                     let ms = binding.params.get("ms").and_then(Param::as_f64).unwrap_or(0.0) as u64;
                     let rate = binding.params.get("fault_rate").and_then(Param::as_f64).unwrap_or(0.0);
@@ -487,6 +633,49 @@ impl SimCluster {
                 AgentOutput::Log { .. } => {}
             }
         }
+    }
+
+    /// A run left alone for long enough (every input set, every link healed) has settled: every token the
+    /// coordinator counts as out is held by its agent in the same epoch with every report acknowledged, or is
+    /// explicitly held (paused, with an alarm) or waiting for an agent; and no agent holds a token the
+    /// coordinator does not count as its own. Anything else is a token stuck between them.
+    pub fn settled(&self) -> Result<(), String> {
+        let status = self.coordinator.core().status();
+        let alarms = self.trace.iter().any(|r| r.event == "alarm");
+        for t in &status.tokens {
+            let Some(name) = &t.agent else { continue };
+            if t.paused {
+                if !alarms {
+                    return Err(format!("token {} of `{}` is held with no alarm", t.token, t.entry));
+                }
+                continue;
+            }
+            let a = self.agents.iter().find(|a| &a.name == name).ok_or(format!("token at unknown agent `{name}`"))?;
+            let held = a.run.held().iter().any(|h| h.token == t.token && h.epoch == t.epoch);
+            if !(a.alive && a.reachable && held) {
+                return Err(format!(
+                    "token {} of `{}` epoch {} is out at `{name}`, which does not hold it (alive {}, reachable {})",
+                    t.token, t.entry, t.epoch, a.alive, a.reachable
+                ));
+            }
+        }
+        for a in self.agents.iter().filter(|a| a.alive) {
+            for h in a.run.held() {
+                let known = status.tokens.iter().any(|t| t.token == h.token && t.epoch == h.epoch);
+                if !known {
+                    return Err(format!(
+                        "`{}` holds token {} epoch {}, which the coordinator does not",
+                        a.name, h.token, h.epoch
+                    ));
+                }
+            }
+            // A report is sent again until acknowledged, at most 5 s apart: one still waiting after 11 s is stuck.
+            let oldest = a.run.oldest_unacked_ms().filter(|&t| a.reachable && self.now_ms.saturating_sub(t) > 11_000);
+            if let Some(t) = oldest {
+                return Err(format!("`{}` has a report sent at {t} ms and never acknowledged", a.name));
+            }
+        }
+        Ok(())
     }
 
     /// A variable's value on the coordinator, by name.

@@ -65,6 +65,7 @@ pub struct Dispatch {
 
 struct Unacked {
     report: Report,
+    sent_ms: u64,
     resend_at_ms: u64,
     backoff_ms: u64,
 }
@@ -201,6 +202,16 @@ impl AgentRun {
             self.tokens.iter().map(|(&token, t)| HeldToken { run: self.run, token, epoch: t.epoch }).collect();
         held.sort_unstable();
         held
+    }
+
+    /// How many times this agent's engine gave a step a second token (a validated chart: never).
+    pub fn collisions(&self) -> u64 {
+        self.engine.collisions()
+    }
+
+    /// When the oldest report not yet acknowledged was first sent.
+    pub fn oldest_unacked_ms(&self) -> Option<u64> {
+        self.tokens.values().filter_map(|t| t.unacked.front().map(|u| u.sent_ms)).min()
     }
 
     /// Messages dropped as duplicates, stale or invalid.
@@ -650,6 +661,7 @@ impl AgentRun {
                 }
                 held.unacked.push_back(Unacked {
                     report: report.clone(),
+                    sent_ms: self.now_ms,
                     resend_at_ms: self.now_ms + RESEND_FIRST_MS,
                     backoff_ms: RESEND_FIRST_MS,
                 });

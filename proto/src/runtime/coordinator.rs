@@ -210,6 +210,10 @@ impl Coordinator {
         self.outbox.pop_front()
     }
 
+    pub fn has_output(&self) -> bool {
+        !self.outbox.is_empty()
+    }
+
     /// The run is over: no active step has a transition left and no token is out.
     pub fn is_terminal(&self) -> bool {
         self.tokens.is_empty() && self.engine.is_terminal()
@@ -223,6 +227,11 @@ impl Coordinator {
     /// The time of the last input or cycle.
     pub fn now_ms(&self) -> u64 {
         self.now_ms
+    }
+
+    /// How many times the coordinator's engine gave a step a second token (a validated chart: never).
+    pub fn collisions(&self) -> u64 {
+        self.engine.collisions()
     }
 
     pub fn tokens_in_flight(&self) -> usize {
@@ -652,7 +661,9 @@ impl Coordinator {
         let mut settle: Vec<TokenId> = self
             .tokens
             .iter()
-            .filter(|(_, t)| (t.paused || !t.confirmed) && t.agent.as_deref() == Some(name.as_str()))
+            // A new process of the agent lost whatever the old one held, even if this coordinator never saw the
+            // old one go (a restart faster than the liveliness token's deletion).
+            .filter(|(_, t)| (t.paused || !t.confirmed || restarted) && t.agent.as_deref() == Some(name.as_str()))
             .map(|(id, _)| *id)
             .collect();
         settle.sort_unstable();
@@ -1161,6 +1172,7 @@ impl Coordinator {
                 entry: self.program.steps[t.entry.index()].name.clone(),
                 agent: t.agent.clone(),
                 since_ms: t.dispatched_ms,
+                paused: t.paused,
             })
             .collect();
         tokens.sort_by_key(|t| (t.since_ms, t.token));
