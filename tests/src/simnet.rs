@@ -652,7 +652,9 @@ impl SimCluster {
             }
             let a = self.agents.iter().find(|a| &a.name == name).ok_or(format!("token at unknown agent `{name}`"))?;
             let held = a.run.held().iter().any(|h| h.token == t.token && h.epoch == t.epoch);
-            if !(a.alive && a.reachable && held) {
+            // A dispatch lost on the way is sent again after 0.5, 1.5, 3.5 and 7.5 s: one younger may be on its way.
+            let young = self.now_ms.saturating_sub(t.since_ms) < 8_000;
+            if !(young || a.alive && a.reachable && held) {
                 return Err(format!(
                     "token {} of `{}` epoch {} is out at `{name}`, which does not hold it (alive {}, reachable {})",
                     t.token, t.entry, t.epoch, a.alive, a.reachable

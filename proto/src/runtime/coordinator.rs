@@ -704,6 +704,24 @@ impl Coordinator {
         if sync {
             self.send(name.clone(), ToAgent::Sync { run });
         }
+        // What the agent still holds of an older epoch (its segment moved on while it was away) or of a token
+        // that is over: it must not run it a moment longer.
+        let mut stale: Vec<(TokenId, u32)> = info
+            .held
+            .iter()
+            .filter(|h| h.run == run)
+            .filter(|h| match self.tokens.get(&h.token) {
+                Some(t) => t.epoch != h.epoch || t.agent.as_deref() != Some(name.as_str()),
+                None => {
+                    !self.finished.get(&h.token).is_some_and(|(epoch, _, agent)| *epoch == h.epoch && *agent == name)
+                }
+            })
+            .map(|h| (h.token, h.epoch))
+            .collect();
+        stale.sort_unstable();
+        for (token, epoch) in stale {
+            self.send(name.clone(), ToAgent::Drop { run, token, epoch });
+        }
         let waiting = std::mem::take(&mut self.waiting);
         for id in waiting {
             let Some(tok) = self.tokens.get(&id) else { continue };
