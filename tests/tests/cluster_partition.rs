@@ -24,6 +24,26 @@ fn netns_or_skip(tag: &str, test: &str) -> Option<Netns> {
     }
 }
 
+/// A cluster whose coordinator listens on loopback and on the host's end of the veth, for `chart` run with
+/// `extra`, robot1 started behind the cable with a 1 s lease and `roles`, and the test watching the commands.
+async fn behind_a_cable(
+    netns: &Netns,
+    chart: &std::path::Path,
+    extra: &[&str],
+    roles: &[&str],
+) -> (Cluster, cluster::Coordinator, zenoh::Session, cluster::Samples) {
+    let mut cluster = Cluster::new();
+    let far = format!("tcp/{}:{}", netns.host_addr, free_port());
+    let mut args = extra.to_vec();
+    args.extend(["--listen", &far]);
+    let mut coordinator = cluster.coordinator(chart, &args);
+    coordinator.wait_for_log("running chart").await;
+    let watch = cluster.watch().await;
+    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
+    cluster.agent_in(netns, &far, "robot1", roles, &["--lease-ms", "1000"]);
+    (cluster, coordinator, watch, cmds)
+}
+
 fn unix_ms() -> u128 {
     SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis())
 }
@@ -37,14 +57,9 @@ async fn a_cut_off_agent_stops_before_its_token_moves_under_reassign() {
         return;
     };
     let chart = repo("tests/charts/long_motion.st");
-    let mut cluster = Cluster::new();
-    let far = format!("tcp/{}:{}", netns.host_addr, free_port());
-    let mut coordinator = cluster.coordinator(&chart, &["--on-agent-loss", "reassign", "--listen", &far]);
-    coordinator.wait_for_log("running chart").await;
-    let watch = cluster.watch().await;
-    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
     // robot1 alone first, behind the cable, so that the token goes to it.
-    cluster.agent_in(&netns, &far, "robot1", &["worker"], &["--lease-ms", "1000"]);
+    let (mut cluster, mut coordinator, _watch, cmds) =
+        behind_a_cable(&netns, &chart, &["--on-agent-loss", "reassign"], &["worker"]).await;
     let work = step_id(&chart, "Work");
     let Some((holder, _)) = cluster::next_dispatch_within(&cmds, work, 1).await else {
         panic!("Work was not dispatched; the coordinator logged:\n{}", coordinator.unread_log().await);
@@ -90,15 +105,9 @@ async fn a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back() {
         return;
     };
     let cell = repo("examples/cell.st");
-    let mut cluster = Cluster::new();
-    // The coordinator listens on loopback (robot2 and the test) and on the host's end of the veth (robot1).
-    let far = format!("tcp/{}:{}", netns.host_addr, free_port());
-    let mut coordinator = cluster.coordinator(&cell, &["--set", "parts=1", "--listen", &far]);
-    coordinator.wait_for_log("running chart").await;
-    let watch = cluster.watch().await;
-    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
     // robot1 alone assembles, so the token of Assemble goes to the agent behind the cable.
-    cluster.agent_in(&netns, &far, "robot1", &["assembler"], &["--lease-ms", "1000"]);
+    let (mut cluster, mut coordinator, _watch, cmds) =
+        behind_a_cable(&netns, &cell, &["--set", "parts=1"], &["assembler"]).await;
     cluster.agent("robot2", &[], &[]);
     let Some((holder, _)) = cluster::next_dispatch_within(&cmds, step_id(&cell, "Assemble"), 1).await else {
         panic!(
