@@ -87,6 +87,9 @@ pub struct Scope {
     pub runs_actions: Vec<bool>,
     /// Whether the initial steps start active here.
     pub initial: bool,
+    /// Per action: it starts a skill whose result its indicators report, so they read FALSE from the moment its
+    /// Q rises (before anything judges them), until the skill says otherwise.
+    pub skill_actions: Vec<bool>,
 }
 
 impl Scope {
@@ -95,6 +98,7 @@ impl Scope {
             transitions: vec![TransitionScope::Local; program.transitions.len()],
             runs_actions: vec![true; program.steps.len()],
             initial: true,
+            skill_actions: vec![false; program.actions.len()],
         }
     }
 }
@@ -674,6 +678,22 @@ impl Engine {
         self.push(EventKind::Deactivate(s));
     }
 
+    /// A skill starts: the indicators of the action's associations on active steps go FALSE, so that no
+    /// transition takes an earlier run's result for this one's.
+    fn reset_indicators(&mut self, a: ActionId) {
+        let program = Arc::clone(&self.program);
+        for i in 0..self.active.len() {
+            let s = self.active[i];
+            for (assoc, inds) in program.associations(s).iter().zip(program.indicators(s)) {
+                if assoc.action == a {
+                    for &v in inds.iter().take(2) {
+                        self.store(v, Value::Bool(false));
+                    }
+                }
+            }
+        }
+    }
+
     fn duration_ms(&self, d: Option<DurationSrc>) -> i64 {
         match d {
             Some(DurationSrc::Ms(ms)) => ms,
@@ -822,6 +842,9 @@ impl Engine {
         for &(a, before, q) in &changes {
             if let (Some(var), true) = (program.actions[a.index()].bool_var, runs(before, q)) {
                 self.store(var, Value::Bool(q));
+            }
+            if q && !before && self.scope.skill_actions.get(a.index()).copied().unwrap_or(false) {
+                self.reset_indicators(a);
             }
         }
         for &(a, before, q) in &changes {

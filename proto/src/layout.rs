@@ -118,7 +118,9 @@ impl Layout {
             })
             .collect();
         let runs_actions = self.placement.iter().map(|p| *p == Placement::Coordinator).collect();
-        Scope { transitions, runs_actions, initial: true }
+        // The coordinator runs no skills.
+        let skill_actions = vec![false; program.actions.len()];
+        Scope { transitions, runs_actions, initial: true, skill_actions }
     }
 
     /// An agent judges the transitions leaving its segments' steps; those that stay inside a segment are local,
@@ -135,7 +137,8 @@ impl Layout {
             })
             .collect();
         let runs_actions = self.segment_of.iter().map(Option::is_some).collect();
-        Scope { transitions, runs_actions, initial: false }
+        let skill_actions = self.skills.iter().map(Option::is_some).collect();
+        Scope { transitions, runs_actions, initial: false, skill_actions }
     }
 
     /// The segment whose agent judges `t`: that of its single source, when the source is in a segment.

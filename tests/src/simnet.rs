@@ -663,7 +663,9 @@ impl SimCluster {
         }
         for a in self.agents.iter().filter(|a| a.alive) {
             for h in a.run.held() {
-                let known = status.tokens.iter().any(|t| t.token == h.token && t.epoch == h.epoch);
+                // A token that came back is held until its acknowledgement arrives (which the check below bounds).
+                let known = status.tokens.iter().any(|t| t.token == h.token && t.epoch == h.epoch)
+                    || self.coordinator.core().finished_epoch(h.token) == Some(h.epoch);
                 if !known {
                     return Err(format!(
                         "`{}` holds token {} epoch {}, which the coordinator does not",

@@ -57,6 +57,18 @@ fn check_cell_run(sim: &SimCluster) {
             _ => {}
         }
     }
+    // Every assembly waited for its motion: an indicator left TRUE by an earlier part never clears the step.
+    let mut moving = false;
+    for r in &sim.trace {
+        match (r.event.as_str(), r.name.as_str()) {
+            ("action_on", "AssemblePart") => moving = true,
+            ("skill_done", "AssemblePart") => moving = false,
+            ("fire", "Assemble->Inspect") => {
+                assert!(!moving, "seed {seed}: Assemble left at {} ms before its motion was done", r.t_ms)
+            }
+            _ => {}
+        }
+    }
     // Activations and deactivations of each step alternate: no step ever got a second token.
     let mut active = std::collections::HashSet::new();
     for r in &sim.trace {

@@ -560,7 +560,6 @@ impl AgentRun {
                             self.record(token, AgentEventKind::SkillFault { action: a.0, message });
                             continue;
                         }
-                        self.set_indicators(a, Some(false), Some(false));
                         self.running_skills.insert(a);
                         let name = program.actions[a.index()].name.clone();
                         self.outbox.push_back(AgentOutput::StartSkill { action: a, name, binding });

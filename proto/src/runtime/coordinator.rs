@@ -229,6 +229,11 @@ impl Coordinator {
         self.now_ms
     }
 
+    /// The epoch a finished token ended in, while it is remembered.
+    pub fn finished_epoch(&self, token: TokenId) -> Option<u32> {
+        self.finished.get(&token).map(|(epoch, _, _)| *epoch)
+    }
+
     /// How many times the coordinator's engine gave a step a second token (a validated chart: never).
     pub fn collisions(&self) -> u64 {
         self.engine.collisions()
