@@ -462,6 +462,8 @@ impl SimCluster {
                 }
                 self.flush_agent(i);
             }
+            // Up now: it may have died since the start of this millisecond, with the end in its journal only.
+            let up = self.down_until.is_none();
             if up && self.coordinator.core().is_terminal() && self.net.is_empty() {
                 return true;
             }
