@@ -95,6 +95,7 @@ pub struct SimCluster {
     pub violations: Vec<String>,
     /// The coordinator died after its journal but before it sent (or wrote) what that led to.
     outputs_lost: bool,
+    calm_from_ms: Option<u64>,
     fates: Vec<(u64, String, Fate)>,
     program: Arc<Program>,
     layout: Arc<Layout>,
@@ -184,6 +185,7 @@ impl SimCluster {
             started: std::collections::HashSet::new(),
             violations: Vec::new(),
             outputs_lost: false,
+            calm_from_ms: None,
             fates: Vec::new(),
             program: Arc::clone(&program),
             layout: Arc::clone(&layout),
@@ -215,8 +217,16 @@ impl SimCluster {
         p > 0.0 && (self.random() % 1_000_000) as f64 / 1_000_000.0 < p
     }
 
+    /// From `t_ms` on, the network is perfect: no loss, duplicate, reordering or delay.
+    pub fn calm_from(&mut self, t_ms: u64) {
+        self.calm_from_ms = Some(t_ms);
+    }
+
     fn send(&mut self, packet: Packet) {
         self.messages += 1;
+        if self.calm_from_ms.is_some_and(|t| self.now_ms >= t) {
+            self.faults = Faults::default();
+        }
         if self.chance(self.faults.loss) {
             return;
         }

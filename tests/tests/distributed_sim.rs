@@ -121,7 +121,7 @@ fn seeds() -> Vec<u64> {
 /// a1 and a2 and role r (both), with skills and counters on placed steps; inputs `c0`…`c3` toggled every 7 ms;
 /// a network that loses, duplicates, reorders and delays; agents killed, restarted, cut and healed; the
 /// coordinator crashed before or after its journal, under a random loss policy. After 1 s the chaos stops
-/// (every cut is healed) and the run has 12 s to settle.
+/// (every cut is healed, the network is perfect) and the run has 12 s to settle.
 struct RandomCell {
     source: String,
     sim: SimCluster,
@@ -173,6 +173,7 @@ impl RandomCell {
         for agent in ["a1", "a2"] {
             sim.fate_at(CHAOS_MS, agent, Fate::Heal);
         }
+        sim.calm_from(CHAOS_MS);
         for _ in 0..rng.below(3) {
             let (at, down) = (rng.below(CHAOS_MS - 400), 1 + rng.below(400));
             if rng.chance(0.5) {
