@@ -320,6 +320,10 @@ impl SimCluster {
         for i in 0..self.agents.len() {
             self.agents[i].announced = false;
         }
+        if self.coordinator.core().failure().is_some() {
+            // The run failed before the crash: `baton run` records its end and exits, hearing no one.
+            return;
+        }
         for i in 0..self.agents.len() {
             if self.down_until.is_some() {
                 // It died again on the way.

@@ -102,6 +102,8 @@ struct TokenState {
     /// When the dispatch is sent again if no report came, and the delay after that.
     resend_at_ms: u64,
     resend_backoff_ms: u64,
+    /// The process of its agent it was given to: a token goes back in the same epoch only to that process.
+    incarnation: uuid::Uuid,
     /// Its agent was lost under `LossPolicy::Reassign`: when the token goes to another agent, unless the lost one
     /// comes back first. Not before the agent has stopped its skills (`limits::fence_margin_ms`).
     reassign_at_ms: Option<u64>,
@@ -480,6 +482,7 @@ impl Coordinator {
             confirmed: true,
             resend_at_ms: 0,
             resend_backoff_ms: 0,
+            incarnation: uuid::Uuid::nil(),
             reassign_at_ms: None,
         };
         self.tokens.insert(id, tok);
@@ -511,11 +514,13 @@ impl Coordinator {
     }
 
     fn assign(&mut self, id: TokenId, agent: String) {
-        if let Some(a) = self.agents.get_mut(&agent) {
+        let incarnation = self.agents.get_mut(&agent).map(|a| {
             a.tokens += 1;
-        }
+            a.incarnation
+        });
         if let Some(tok) = self.tokens.get_mut(&id) {
             tok.agent = Some(agent);
+            tok.incarnation = incarnation.unwrap_or_default();
         }
     }
 
@@ -668,7 +673,8 @@ impl Coordinator {
             .iter()
             // A new process of the agent lost whatever the old one held, even if this coordinator never saw the
             // old one go (a restart faster than the liveliness token's deletion).
-            .filter(|(_, t)| (t.paused || !t.confirmed || restarted) && t.agent.as_deref() == Some(name.as_str()))
+            .filter(|(_, t)| t.paused || !t.confirmed || t.incarnation != info.incarnation)
+            .filter(|(_, t)| t.agent.as_deref() == Some(name.as_str()))
             .map(|(id, _)| *id)
             .collect();
         settle.sort_unstable();
@@ -677,7 +683,9 @@ impl Coordinator {
         for id in settle {
             let Some(tok) = self.tokens.get_mut(&id) else { continue };
             let entry = self.program.steps[tok.entry.index()].name.clone();
-            if restarted {
+            // Compared with the process the token went to, not the last one announced: under `fail` the token stays
+            // with the process that lost it, and nothing of it ever goes to the new one.
+            if tok.incarnation != info.incarnation {
                 if self.policy == LossPolicy::Fail {
                     let why = format!("agent `{name}` restarted while holding the token of step `{entry}`");
                     self.alarm(why.clone());
