@@ -14,5 +14,11 @@ mod zconf;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
+    // Like any Unix tool, end quietly when the reader of our output goes away (`baton check … | head`): Rust
+    // ignores SIGPIPE, which turns every later print into a panic.
+    // SAFETY: setting a signal's disposition to its default before any thread starts has no other effect.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     cli::main()
 }

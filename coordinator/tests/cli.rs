@@ -102,3 +102,36 @@ fn sim_needs_pou_when_a_file_holds_several_charts() {
     assert_eq!(out.status.code(), Some(0));
     assert_eq!(String::from_utf8_lossy(&out.stdout), "{\"t_ms\":0,\"event\":\"activate\",\"name\":\"S\"}\n");
 }
+
+#[test]
+fn a_byte_order_mark_and_crlf_line_ends_are_accepted() {
+    let text = std::fs::read_to_string(repo("examples/tank.st")).expect("tank.st").replace('\n', "\r\n");
+    let path = temp_file("bom_crlf.st", &format!("\u{feff}{text}"));
+    let out = baton(&["check", &path]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    // And positions are still those of the file: line 1, column 1 is after the mark.
+    let broken = temp_file("bom_broken.st", "\u{feff}INITIAL_STEP S0 END_STEP\r\n");
+    let out = baton(&["check", &broken]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("bom_broken.st:1:17: error: expected `:`"), "{stderr}");
+}
+
+#[test]
+fn a_reader_that_goes_away_ends_the_output_quietly() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    // `baton sim … | head -1`: the reader closes the pipe after one line.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_baton"))
+        .args(["sim", &repo("examples/tank.st"), "--until-ms", "100000000"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("baton sim runs");
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().expect("stdout")).read_line(&mut first).expect("a line");
+    let out = child.wait_with_output().expect("baton sim ends");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!first.is_empty());
+    assert!(!stderr.contains("panicked") && !stderr.contains("failed printing"), "{stderr}");
+    assert_ne!(out.status.code(), Some(101), "{stderr}");
+}

@@ -56,14 +56,15 @@ pub struct LineIndex<'a> {
 
 impl<'a> LineIndex<'a> {
     pub fn new(text: &'a str) -> LineIndex<'a> {
-        let mut line_starts = vec![0];
+        // A byte-order mark is not a column of the first line.
+        let mut line_starts = vec![if text.starts_with('\u{feff}') { 3 } else { 0 }];
         line_starts.extend(text.match_indices('\n').map(|(i, _)| i + 1));
         LineIndex { text, line_starts }
     }
 
     /// 1-based line and column of a byte offset.
     pub fn line_col(&self, offset: u32) -> (usize, usize) {
-        let offset = (offset as usize).min(self.text.len());
+        let offset = (offset as usize).min(self.text.len()).max(self.line_starts[0]);
         let line = self.line_starts.partition_point(|&s| s <= offset) - 1;
         let start = self.line_starts[line];
         let col = self.text.get(start..offset).map_or(offset - start, |s| s.chars().count());
@@ -92,18 +93,47 @@ impl<'a> LineIndex<'a> {
         let width = last_col.saturating_sub(col).max(1);
         let gutter = line.to_string().len();
         let pad = " ".repeat(gutter);
+        // A long line (generated XML holds lines of megabytes) shows a window around the column, as rustc does.
+        let width = width.min(SHOWN_CHARS_MAX / 2);
+        let first = (col - 1).saturating_sub(SHOWN_CHARS_MAX / 4).min(text_chars.saturating_sub(SHOWN_CHARS_MAX));
+        let shown: String = text.chars().skip(first).take(SHOWN_CHARS_MAX).collect();
+        let (before, after) =
+            (if first > 0 { "…" } else { "" }, if first + SHOWN_CHARS_MAX < text_chars { "…" } else { "" });
         let _ = writeln!(out, "{pad} |");
-        let _ = writeln!(out, "{line} | {text}");
+        let _ = writeln!(out, "{line} | {before}{shown}{after}");
         // Keep tabs in the padding so that the carets line up under the text in a terminal.
-        let lead: String = text.chars().take(col - 1).map(|c| if c == '\t' { '\t' } else { ' ' }).collect();
+        let lead: String = before
+            .chars()
+            .map(|_| ' ')
+            .chain(shown.chars().take(col - 1 - first).map(|c| if c == '\t' { '\t' } else { ' ' }))
+            .collect();
         let _ = writeln!(out, "{pad} | {lead}{}", "^".repeat(width));
         out
     }
 }
 
+/// Characters of a source line a diagnostic shows at most.
+const SHOWN_CHARS_MAX: usize = 120;
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_long_line_shows_a_window_around_the_column() {
+        let src = format!("{}Foo{}\n", "x".repeat(100_000), "y".repeat(100_000));
+        let index = LineIndex::new(&src);
+        let d = Diagnostic::error(Span::new(100_000, 100_003), "unknown action `Foo`");
+        let text = index.render("big.xml", &d);
+        let lines: Vec<&str> = text.lines().collect();
+        assert!(text.len() < 600, "{} bytes", text.len());
+        assert!(lines[0].starts_with("big.xml:1:100001: error"), "{}", lines[0]);
+        let shown = lines[2].strip_prefix("1 | ").expect("source line");
+        let carets = lines[3].strip_prefix("  | ").expect("caret line");
+        assert!(shown.starts_with('…') && shown.ends_with('…'), "{shown}");
+        let at = carets.find('^').expect("carets");
+        assert_eq!(shown.chars().skip(at).take(3).collect::<String>(), "Foo", "{shown}\n{carets}");
+    }
 
     #[test]
     fn renders_header_and_carets() {
@@ -113,6 +143,16 @@ mod tests {
         let d = Diagnostic::error(Span::new(start, start + 3), "unknown action `Foo`");
         let text = index.render("c.st", &d);
         assert_eq!(text, "c.st:2:3: error: unknown action `Foo`\n  |\n2 |   Foo(N);\n  |   ^^^\n");
+    }
+
+    #[test]
+    fn a_byte_order_mark_is_not_a_column() {
+        let src = "\u{feff}STEP";
+        let index = LineIndex::new(src);
+        assert_eq!(index.line_col(0), (1, 1));
+        assert_eq!(index.line_col(3), (1, 1));
+        let d = Diagnostic::error(Span::new(0, 0), "no chart");
+        assert!(index.render("b.st", &d).starts_with("b.st:1:1: error: no chart"));
     }
 
     #[test]

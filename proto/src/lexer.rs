@@ -137,6 +137,10 @@ impl Lexer<'_> {
     }
 
     fn run(&mut self) {
+        // A UTF-8 byte-order mark, as Windows editors write one, is not text.
+        if self.bytes.starts_with("\u{feff}".as_bytes()) {
+            self.pos = 3;
+        }
         while self.pos < self.bytes.len() {
             let start = self.pos;
             let c = self.bytes[self.pos];
