@@ -36,6 +36,9 @@ enum Command {
     Check {
         /// The chart: IEC 61131-3 textual SFC (`.st`).
         chart: PathBuf,
+        /// Print one JSON object (the charts' steps, transitions and actions, and every diagnostic) instead.
+        #[arg(long)]
+        json: bool,
     },
     /// Run a chart on virtual time and print its events as JSON Lines.
     Sim {
@@ -179,7 +182,8 @@ enum Command {
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Check { chart } => check(&chart),
+        Command::Check { chart, json: false } => check(&chart),
+        Command::Check { chart, json: true } => check_json(&chart),
         Command::Sim { chart, inputs, cycle_ms, until_ms, pou } => {
             sim(&chart, inputs.as_deref(), cycle_ms, until_ms, pou.as_deref())
         }
@@ -315,6 +319,45 @@ fn check(path: &Path) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// `baton check --json`: the charts of the file and every diagnostic, as one JSON object; the exit status is
+/// `baton check`'s.
+fn check_json(path: &Path) -> anyhow::Result<ExitCode> {
+    let src = read(path)?;
+    let report = check_source(&src);
+    let index = LineIndex::new(&src);
+    let names = |ids: &[baton_proto::model::Ident]| ids.iter().map(|i| i.name.clone()).collect::<Vec<_>>();
+    let charts: Vec<serde_json::Value> = report
+        .charts
+        .iter()
+        .map(|c| {
+            let chart = &c.chart;
+            serde_json::json!({
+                "pou": chart.name.name,
+                "steps": chart.steps.iter().map(|s| s.name.name.clone()).collect::<Vec<_>>(),
+                "initial_steps": chart.steps.iter().filter(|s| s.initial).map(|s| s.name.name.clone()).collect::<Vec<_>>(),
+                "transitions": chart.transitions.iter().map(|t| serde_json::json!({
+                    "name": t.name.as_ref().map(|n| n.name.clone()),
+                    "from": names(&t.from),
+                    "to": names(&t.to),
+                })).collect::<Vec<_>>(),
+                "actions": chart.actions.iter().map(|a| a.name.name.clone()).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    let file = path.display().to_string();
+    let diagnostics: Vec<serde_json::Value> = report
+        .diagnostics
+        .iter()
+        .map(|d| {
+            let (line, col) = index.line_col(d.span.start);
+            let severity = if d.is_error() { "error" } else { "warning" };
+            serde_json::json!({ "severity": severity, "file": file, "line": line, "col": col, "message": d.message })
+        })
+        .collect();
+    println!("{}", serde_json::json!({ "charts": charts, "diagnostics": diagnostics }));
+    Ok(if report.error_count() > 0 { ExitCode::from(EXIT_INVALID) } else { ExitCode::SUCCESS })
 }
 
 pub fn pick<'r>(report: &'r Report, pou: Option<&str>) -> anyhow::Result<&'r CheckedChart> {

@@ -135,3 +135,30 @@ fn a_reader_that_goes_away_ends_the_output_quietly() {
     assert!(!stderr.contains("panicked") && !stderr.contains("failed printing"), "{stderr}");
     assert_ne!(out.status.code(), Some(101), "{stderr}");
 }
+
+#[test]
+fn check_json_lists_the_charts_and_every_diagnostic() {
+    let out = baton(&["check", "--json", &repo("tests/diagnostics/names.st")]);
+    assert_eq!(out.status.code(), Some(1), "the exit status of baton check");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
+    let d = v["diagnostics"].as_array().expect("diagnostics");
+    let nowhere = d.iter().find(|d| d["message"] == "unknown step `Nowhere`").expect("the unknown step");
+    assert_eq!(
+        (nowhere["severity"].as_str(), nowhere["line"].as_u64(), nowhere["col"].as_u64()),
+        (Some("error"), Some(13), Some(25))
+    );
+    assert!(nowhere["file"].as_str().unwrap_or_default().ends_with("names.st"));
+
+    let out = baton(&["check", "--json", &repo("examples/tank.st")]);
+    assert_eq!(out.status.code(), Some(0));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
+    let chart = &v["charts"][0];
+    assert_eq!(chart["pou"], "Tank");
+    assert!(chart["initial_steps"].as_array().is_some_and(|s| s.len() == 1));
+    let start = &chart["transitions"][0];
+    assert_eq!(
+        (start["name"].as_str(), &start["from"], &start["to"]),
+        (Some("Start"), &serde_json::json!(["Idle"]), &serde_json::json!(["Fill"]))
+    );
+    assert_eq!(v["diagnostics"].as_array().map(Vec::len), Some(0));
+}
