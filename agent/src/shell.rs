@@ -73,7 +73,7 @@ type Fetched = (ChartHash, Arc<Program>, Arc<Layout>, u64);
 
 enum Event {
     Chart(RunId, Result<Fetched, String>),
-    /// The watch on the router: `Some(silent_ms)` when it was lost for most of the lease, `None` when it is back.
+    /// The watch on the router: `Some(silent_ms)` when it was silent for `fence_after_ms`, `None` when it is back.
     Contact(Option<u64>),
     Skill(RunId, ActionId, Result<(), String>),
 }
@@ -165,7 +165,8 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
     loop {
-        // Asleep until a message comes or a run's next cycle or resend is due: an idle agent never wakes.
+        // Asleep until a message comes or a run's next cycle or resend is due: an idle agent runs no cycle (only
+        // `watch_router` wakes it).
         let deadline = shell.deadline();
         let timer = async move {
             match deadline {

@@ -56,8 +56,7 @@ pub fn replay(opts: &ReplayOptions) -> anyhow::Result<()> {
     core.set_cycle_ms(header.cycle_ms);
     let mut core = Journaled::new(core);
     let mut out = Records::new(trace, None, recorder, header.cycle_ms);
-    let mut cycles = 0;
-    let replayed = replay_records(&mut core, &opened.records, &mut cycles, &mut out)?;
+    let replayed = replay_records(&mut core, &opened.records, &mut out)?;
     out.finish()?;
     let how = match &replayed.ended {
         None => "did not end (a coordinator resumes it with `baton run … --journal`)".to_string(),
@@ -65,10 +64,11 @@ pub fn replay(opts: &ReplayOptions) -> anyhow::Result<()> {
         Some(Some(why)) => format!("failed: {why}"),
     };
     println!(
-        "run {} of chart `{}`: {} records, {cycles} cycles, {} ms; it {how}",
+        "run {} of chart `{}`: {} records, {} cycles, {} ms; it {how}",
         header.run.key(),
         header.pou,
         replayed.records,
+        replayed.cycles,
         replayed.last_ms
     );
     if let Sink::Save(p) = &opts.rerun {

@@ -139,8 +139,6 @@ struct Shell {
     vars_key: String,
     decode_drops: u64,
     out: Records,
-    /// Cycles run so far that changed something (replayed ones included).
-    cycles: u64,
     /// The run's cycle period, and the grid time of the last cycle this process ran.
     cycle_ms: u64,
     last_cycle_ms: Option<u64>,
@@ -245,21 +243,16 @@ impl Records {
 }
 
 /// Rebuilds a run from its journal's records into `core`: the trace (and recording) of the past go to `out`,
-/// nothing is sent. `cycles` counts the cycles replayed (those that changed something: the others were not
-/// recorded).
+/// nothing is sent.
 pub fn replay_records(
     core: &mut Journaled,
     records: &[Vec<u8>],
-    cycles: &mut u64,
     out: &mut Records,
 ) -> anyhow::Result<journal::Replayed> {
     let mut replayed = journal::Replayed::default();
     for (i, bytes) in records.iter().enumerate() {
         let entry = journal::decode(bytes).map_err(|e| anyhow!("the journal's record {i} cannot be read: {e}"))?;
         core.apply_replayed(&entry, &mut replayed);
-        if matches!(entry.record, Record::Cycle) {
-            *cycles += 1;
-        }
         while let Some(output) = core.poll_output() {
             if let CoordOutput::Trace(rec) = output {
                 out.record(rec);
@@ -385,7 +378,6 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         vars_key: keys::vars(run, baton_proto::runtime::COORDINATOR),
         decode_drops: 0,
         out: Records::new(trace, probe, recorder, cycle_ms),
-        cycles: 0,
         cycle_ms,
         last_cycle_ms: None,
         live: std::collections::HashSet::new(),
@@ -394,7 +386,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         Some((header, records)) => {
             // The past, replayed: its trace is written again (the file then holds the whole run), nothing is
             // sent, and the run's clock goes on from wall-clock time, downtime included.
-            let replayed = replay_records(&mut shell.core, &records, &mut shell.cycles, &mut shell.out)?;
+            let replayed = replay_records(&mut shell.core, &records, &mut shell.out)?;
             let wall = unix_ms().saturating_sub(header.started_unix_ms);
             shell.base_ms = replayed.last_ms.max(wall);
             if !opts.sets.is_empty() {
@@ -658,12 +650,9 @@ impl Shell {
         }
     }
 
-    /// The grid time of the next cycle, if the coordinator needs one: never two in one period, never before
-    /// what it waits for.
+    /// The grid time of the next cycle, if the coordinator needs one.
     fn next_cycle(&self) -> Option<u64> {
-        let wanted = self.core.core().poll_timeout()?;
-        let after = self.last_cycle_ms.map_or(0, |t| t + self.cycle_ms);
-        Some(wanted.max(after).div_ceil(self.cycle_ms) * self.cycle_ms)
+        self.core.core().next_cycle_ms(self.last_cycle_ms)
     }
 
     fn instant_of(&self, t_ms: u64) -> Instant {
@@ -677,7 +666,7 @@ impl Shell {
         while let Some(due) = self.next_cycle().filter(|&t| t <= now) {
             let at = if now - due > CATCH_UP_CYCLES_MAX * self.cycle_ms { now - now % self.cycle_ms } else { due };
             self.last_cycle_ms = Some(at);
-            self.cycles += u64::from(self.core.cycle(at));
+            self.core.cycle(at);
             self.commit(Vec::new()).await?;
         }
         Ok(())

@@ -22,7 +22,7 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use crate::eval::{self, Env, EnvMut, Fault};
-use crate::limits::IMMEDIATE_CYCLES_MAX;
+use crate::limits::REACTION_ROUNDS_MAX;
 use crate::model::Qualifier;
 use crate::program::{ActionId, DurationSrc, Program, StepId, TransitionId, VarId};
 use crate::types::{Type, Value};
@@ -178,8 +178,6 @@ struct Demand {
 pub struct Engine {
     program: Arc<Program>,
     scope: Scope,
-    /// Whether the last cycle or remote input changed the situation.
-    changed: bool,
     now_ms: u64,
     /// Index of the next cycle.
     cycle: u64,
@@ -239,6 +237,7 @@ impl Engine {
     pub fn with_scope(program: Arc<Program>, scope: Scope) -> Engine {
         assert_eq!(scope.transitions.len(), program.transitions.len(), "scope built for another program");
         assert_eq!(scope.runs_actions.len(), program.steps.len(), "scope built for another program");
+        assert_eq!(scope.skill_actions.len(), program.actions.len(), "scope built for another program");
         let n_steps = program.steps.len();
         let n_actions = program.actions.len();
         let judged_here = |t: TransitionId| scope.transitions[t.index()] != TransitionScope::Remote;
@@ -310,7 +309,6 @@ impl Engine {
             now_ms: 0,
             cycle: 0,
             started: false,
-            changed: false,
             scope,
             program,
         };
@@ -361,7 +359,6 @@ impl Engine {
     pub fn handle_cycle(&mut self, now_ms: u64) -> Result<(), InputError> {
         self.advance(now_ms)?;
         self.mutations_at_cycle = self.mutations;
-        self.changed = false;
         // One generation for the whole cycle: what its own actions change is judged by the next cycle, as in
         // `baton sim`, never by a reaction.
         self.gen += 1;
@@ -390,15 +387,15 @@ impl Engine {
     /// A reaction to what arrived since the last cycle or reaction, at `now_ms`: the first scans of steps made
     /// active (by `handle_remote` or by this reaction) and the last scans of steps left, then the transitions
     /// that read no step time and something that changed since they were last judged, judged and cleared as a
-    /// cycle would, repeated while they clear (at most `IMMEDIATE_CYCLES_MAX` times). No other action body runs.
+    /// cycle would, repeated while they clear (at most `REACTION_ROUNDS_MAX` times). No other action body runs.
     pub fn react(&mut self, now_ms: u64) -> Result<(), InputError> {
         self.advance(now_ms)?;
-        for round in 0..IMMEDIATE_CYCLES_MAX {
+        for round in 0..REACTION_ROUNDS_MAX {
             self.gen += 1;
             self.control_actions(true);
             self.deactivated.clear();
             self.cycle += 1;
-            if round + 1 == IMMEDIATE_CYCLES_MAX {
+            if round + 1 == REACTION_ROUNDS_MAX {
                 break;
             }
             self.gen += 1;
@@ -426,7 +423,8 @@ impl Engine {
     }
 
     /// Applies what another engine did, at `now_ms`, at once. The actions of the steps it activates or
-    /// deactivates are judged in the next cycle, which sees them as activated or deactivated in that cycle.
+    /// deactivates are controlled by the next reaction (`react`) or, failing one, the next cycle, which sees
+    /// them as activated or deactivated then.
     pub fn handle_remote(&mut self, now_ms: u64, input: RemoteInput) -> Result<(), InputError> {
         let program = Arc::clone(&self.program);
         match input {
@@ -470,7 +468,6 @@ impl Engine {
                 }
             }
         }
-        self.changed = true;
         Ok(())
     }
 
@@ -481,12 +478,6 @@ impl Engine {
         self.started = true;
         self.now_ms = now_ms;
         Ok(())
-    }
-
-    /// Whether the last cycle, or a remote input since, activated or deactivated a step: if so, another cycle
-    /// right away may clear more transitions.
-    pub fn changed(&self) -> bool {
-        self.changed
     }
 
     /// The time of the last cycle or remote input.
@@ -572,8 +563,8 @@ impl Engine {
             }
             self.candidates.extend(program.outgoing(s).iter().filter(judged_here).map(|&t| (program.rank(t), t)));
         }
-        // A step activated remotely is judged in the next cycle, which must then run.
-        self.changed |= deferred;
+        // A step activated remotely (and not scanned by a reaction since) is judged in the next cycle, which must
+        // then run: the cycle counts as a change.
         if deferred && !reaction {
             self.mutations += 1;
         }
@@ -621,7 +612,6 @@ impl Engine {
                 self.activate_targets(t, reaction);
             }
         }
-        self.changed |= !fired.is_empty();
         self.fired = fired;
     }
 
@@ -843,7 +833,7 @@ impl Engine {
             if let (Some(var), true) = (program.actions[a.index()].bool_var, runs(before, q)) {
                 self.store(var, Value::Bool(q));
             }
-            if q && !before && self.scope.skill_actions.get(a.index()).copied().unwrap_or(false) {
+            if q && !before && self.scope.skill_actions[a.index()] {
                 self.reset_indicators(a);
             }
         }

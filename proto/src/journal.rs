@@ -258,16 +258,14 @@ impl Journaled {
 
     /// A cycle is recorded if it changed something. A cycle that changed nothing leaves the coordinator as it
     /// was but for its clock, so of a series of them only the last is recorded, and only when another record
-    /// follows: an idle run writes nothing. Returns whether the cycle changed anything.
-    pub fn cycle(&mut self, now_ms: u64) -> bool {
-        let changed = self.core.handle_cycle(now_ms);
-        if changed {
+    /// follows: an idle run writes nothing.
+    pub fn cycle(&mut self, now_ms: u64) {
+        if self.core.handle_cycle(now_ms) {
             self.quiet_ms = None;
             self.records.push(encode(&Entry { t_ms: now_ms, record: Record::Cycle }));
         } else {
             self.quiet_ms = Some(now_ms);
         }
-        changed
     }
 
     /// A report as it arrived. Reports of other runs change nothing and are not recorded.
@@ -342,8 +340,10 @@ impl Journaled {
     pub fn apply_replayed(&mut self, entry: &Entry, out: &mut Replayed) {
         out.records += 1;
         out.last_ms = out.last_ms.max(entry.t_ms);
-        if let Record::End { failure } = &entry.record {
-            out.ended = Some(failure.clone());
+        match &entry.record {
+            Record::End { failure } => out.ended = Some(failure.clone()),
+            Record::Cycle => out.cycles += 1,
+            _ => {}
         }
         apply(&mut self.core, entry);
     }
@@ -352,6 +352,8 @@ impl Journaled {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Replayed {
     pub records: u64,
+    /// Cycle records among them (cycles that changed nothing were not recorded).
+    pub cycles: u64,
     pub last_ms: u64,
     /// `Some(failure)` if the journal's run ended (with `failure` if it failed).
     pub ended: Option<Option<String>>,

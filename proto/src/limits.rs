@@ -38,7 +38,7 @@ pub const REPORT_EVENTS_MAX: usize = 4096;
 pub const FINISHED_TOKENS_REMEMBERED: usize = 65_536;
 
 /// Rounds of one reaction (`Engine::react`): transitions cleared one after another between two cycles.
-pub const IMMEDIATE_CYCLES_MAX: usize = 64;
+pub const REACTION_ROUNDS_MAX: usize = 64;
 
 /// Missed cycles a runtime that fell behind (a stopped process, a loaded machine) runs back to back at their grid
 /// times; past that it skips to the present.

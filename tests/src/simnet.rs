@@ -530,10 +530,7 @@ impl SimCluster {
 
     /// The coordinator's cycles that are due, at their grid times, as `baton run` runs them.
     fn due_cycles(&mut self) {
-        loop {
-            let Some(wanted) = self.coordinator.core().poll_timeout() else { return };
-            let after = self.last_cycle_ms.map_or(0, |t| t + CYCLE_MS);
-            let at = wanted.max(after).div_ceil(CYCLE_MS) * CYCLE_MS;
+        while let Some(at) = self.coordinator.core().next_cycle_ms(self.last_cycle_ms) {
             if at > self.now_ms {
                 return;
             }

@@ -7,7 +7,7 @@
 //! started and stopped as their actions' Q rises and falls; their results come back as indicator variables.
 //!
 //! The agent's engine cycles with the run's period, on a grid that starts when a token arrives at an idle agent,
-//! and only while a cycle can change something: an idle agent needs no wake-up at all. What arrives between
+//! and only while a cycle can change something: an idle agent runs no cycle. What arrives between
 //! cycles (a token, values, a skill's result) is applied at once, followed by a reaction (`Engine::react`), so a
 //! segment whose exit is already TRUE hands its token back without waiting for a cycle — and no action body runs
 //! more than once per cycle, whatever the traffic.
@@ -335,9 +335,6 @@ impl AgentRun {
                 self.dropped += 1;
             }
         }
-        if self.engine.is_active(entry) {
-            return self.drop_msg(format!("token {} dropped: its entry step is already active here", d.token));
-        }
         self.anchor_grid();
         if let Err(e) = self.engine.handle_remote(self.now_ms, RemoteInput::Activate(entry)) {
             return self.drop_msg(format!("token {} dropped: {e}", d.token));
@@ -466,13 +463,10 @@ impl AgentRun {
     /// which reaches the coordinator when the link is back (and is stale there if the token moved).
     pub fn handle_contact(&mut self, now_ms: u64, lost: Option<u64>) {
         self.catch_up(now_ms);
-        let was = self.fenced;
-        self.fenced = lost;
-        if lost.is_none() || was.is_some() {
-            if was.is_some() && lost.is_none() {
-                self.log(Level::Info, "the router is back: skills start again".to_string());
-            }
-            return;
+        match (std::mem::replace(&mut self.fenced, lost), lost) {
+            (None, Some(_)) => {}
+            (Some(_), None) => return self.log(Level::Info, "the router is back: skills start again".to_string()),
+            _ => return,
         }
         let mut stopped: Vec<ActionId> = self.running_skills.iter().copied().collect();
         stopped.sort_unstable();

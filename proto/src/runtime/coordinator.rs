@@ -30,7 +30,7 @@ use crate::wire::{
 use super::{Level, VarWrites, COORDINATOR};
 
 /// First and largest delay before a dispatch that no report answered is sent again (the agent drops the
-/// duplicate if it has the token), and how often the coordinator looks for such dispatches.
+/// duplicate if it has the token).
 const DISPATCH_RESEND_FIRST_MS: u64 = 500;
 const DISPATCH_RESEND_MAX_MS: u64 = 5_000;
 
@@ -141,6 +141,8 @@ pub struct Coordinator {
     failure: Option<String>,
     /// When this coordinator last started again from its journal.
     recovered_ms: Option<u64>,
+    /// The run's cycle period (`set_cycle_ms`).
+    cycle_ms: u64,
     stats: CoordStats,
 }
 
@@ -183,6 +185,7 @@ impl Coordinator {
             policy: LossPolicy::default(),
             failure: None,
             recovered_ms: None,
+            cycle_ms: 1,
             stats: CoordStats::default(),
         }
     }
@@ -265,11 +268,12 @@ impl Coordinator {
     /// The run's cycle period: the grid the shell runs cycles on, and from which steps made active between
     /// cycles count their time.
     pub fn set_cycle_ms(&mut self, cycle_ms: u64) {
-        self.engine.set_grid(0, cycle_ms);
+        self.cycle_ms = cycle_ms.max(1);
+        self.engine.set_grid(0, self.cycle_ms);
     }
 
     /// Runs one cycle at `now_ms` (a grid time), then what is due: dispatches sent again, agents given up,
-    /// acknowledgements, changed variables. Returns whether it changed anything: a cycle that did not need no
+    /// acknowledgements, changed variables. Returns whether it changed anything: a cycle that did not needs no
     /// record in a journal (the next input carries the time on).
     pub fn handle_cycle(&mut self, now_ms: u64) -> bool {
         self.advance(now_ms);
@@ -295,6 +299,14 @@ impl Coordinator {
         self.drain_engine();
         self.publish_vars();
         self.flush_acks(false);
+    }
+
+    /// The grid time of the next cycle, for a shell whose last cycle ran at `last_cycle_ms`: never two in one
+    /// period, never before what the coordinator waits for (`poll_timeout`), none when nothing needs one.
+    pub fn next_cycle_ms(&self, last_cycle_ms: Option<u64>) -> Option<u64> {
+        let wanted = self.poll_timeout()?;
+        let after = last_cycle_ms.map_or(0, |t| t + self.cycle_ms);
+        Some(wanted.max(after).div_ceil(self.cycle_ms) * self.cycle_ms)
     }
 
     /// When the next cycle is needed: at once (the next grid time) when the engine needs one, else at the
