@@ -30,6 +30,8 @@ const RUNS_MAX: usize = 64;
 /// Dispatches kept while the chart of their run is fetched.
 const PENDING_DISPATCHES_MAX: usize = 1024;
 const CHART_FETCH_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long the agent waits for its router before it says that it waits.
+const ROUTER_WAIT_NOTICE: Duration = Duration::from_secs(3);
 /// How long the agent waits for the router to say whether another process holds its name.
 const LIVELINESS_CHECK_TIMEOUT: Duration = Duration::from_secs(2);
 /// Held tokens listed in the info reply; a coordinator sends the dispatch of any other again, which the agent
@@ -104,8 +106,20 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
     config.validate()?;
     let net = NetConfig { lease_ms: Some(config.lease_ms), ..NetConfig::client(&config.connect, true) };
     let zconfig = zenoh_config(&net, config.zenoh_config.as_deref())?;
-    let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     let name = config.name.clone();
+    // The agent waits for its router as long as it takes (a robot may boot before the cell's network), but says
+    // that it waits: a silent agent behind a wrong address or a cut cable is a puzzle.
+    // zenoh::open holds the thread that awaits it while it retries, so the notice is a task of its own.
+    let notice = {
+        let (name, at) = (name.clone(), config.connect.join(", "));
+        tokio::spawn(async move {
+            tokio::time::sleep(ROUTER_WAIT_NOTICE).await;
+            eprintln!("baton-agent `{name}`: no router answers at {at} yet; still trying (Ctrl-C to stop)");
+        })
+    };
+    let opened = zenoh::open(zconfig).await;
+    notice.abort();
+    let session = opened.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     // A name is held by one live process: two would both run what is sent to it.
     let holders = session
         .liveliness()
