@@ -1,20 +1,20 @@
 //! The agent's Zenoh shell: announces the agent, takes tokens, runs `AgentRun` state machines and skills, and
-//! reports back. It decides nothing about charts: every rule lives in `baton_proto::runtime::agent`.
+//! reports back. It decides nothing about charts: every rule lives in `baton_proto::dist::runtime::agent`.
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::anyhow;
-use baton_proto::check::check_source;
-use baton_proto::keys;
-use baton_proto::layout::{is_valid_name, Layout};
+use baton_proto::dist::keys;
+use baton_proto::dist::layout::{is_valid_name, Layout};
+use baton_proto::dist::netconfig::NetConfig;
+use baton_proto::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch};
+use baton_proto::dist::runtime::Level;
+use baton_proto::dist::wire::{self, AgentInfo, ChartHash, ChartSource, HeldToken, RunId, ToAgent, VarUpdate};
+use baton_proto::exec::program::{ActionId, Program};
+use baton_proto::front::check::check_source;
 use baton_proto::limits::{fence_after_ms, fence_check_ms, CHART_SOURCE_BYTES_MAX, RECEIVE_QUEUE_MAX};
-use baton_proto::netconfig::NetConfig;
-use baton_proto::program::{ActionId, Program};
-use baton_proto::runtime::agent::{AgentOutput, AgentRun, Dispatch};
-use baton_proto::runtime::Level;
-use baton_proto::wire::{self, AgentInfo, ChartHash, ChartSource, HeldToken, RunId, ToAgent, VarUpdate};
 use tokio::sync::mpsc;
 use tokio::task::AbortHandle;
 use zenoh::handlers::FifoChannel;
@@ -57,7 +57,7 @@ impl AgentConfig {
                 anyhow::bail!("`{n}` is not a valid agent name or role: use letters, digits, `_` and `-` (at most 64)");
             }
         }
-        if self.name == baton_proto::runtime::COORDINATOR {
+        if self.name == baton_proto::dist::runtime::COORDINATOR {
             anyhow::bail!("`{}` is the name the coordinator publishes under: choose another agent name", self.name);
         }
         if self.lease_ms < 100 {

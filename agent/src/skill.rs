@@ -15,7 +15,7 @@ use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
 
-use baton_proto::layout::Param;
+use baton_proto::dist::layout::Param;
 
 /// One start of a skill.
 #[derive(Clone, Debug)]
@@ -145,7 +145,7 @@ mod tests {
 
     #[tokio::test]
     async fn motion_succeeds_or_faults_as_configured() {
-        use baton_proto::types::Value;
+        use baton_proto::exec::types::Value;
         let ok = SimulatedMotion.start(call(&[("ms", Param::Value(Value::Int(1)))])).await;
         assert_eq!(ok, Ok(()));
         let bad = SimulatedMotion

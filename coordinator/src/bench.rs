@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::netconfig::NetConfig;
+use baton_proto::dist::netconfig::NetConfig;
 use serde::Serialize;
 use tokio::process::{Child, Command};
 use zenoh::qos::CongestionControl;
@@ -321,7 +321,7 @@ async fn run_chart(
         multicast_scouting: false,
         quiet: true,
         zenoh_config: None,
-        loss_policy: baton_proto::runtime::coordinator::LossPolicy::Pause,
+        loss_policy: baton_proto::dist::runtime::coordinator::LossPolicy::Pause,
         journal: extras.journal.map(Path::to_path_buf),
         rerun: extras.rerun.map_or(crate::recording::Sink::Off, crate::recording::Sink::Save),
     };

@@ -6,9 +6,9 @@ use std::process::ExitCode;
 use std::sync::Arc;
 
 use anyhow::{bail, Context};
-use baton_proto::check::{check_source, CheckedChart, Report};
-use baton_proto::diag::LineIndex;
-use baton_proto::sim::{parse_inputs, simulate, SimOutput};
+use baton_proto::exec::sim::{parse_inputs, simulate, SimOutput};
+use baton_proto::front::check::{check_source, CheckedChart, Report};
+use baton_proto::front::diag::LineIndex;
 use clap::{Parser, Subcommand};
 
 /// Exit status of `baton check` and `baton sim` when the chart has errors.
@@ -203,7 +203,7 @@ pub fn main() -> ExitCode {
             journal,
             rerun,
         } => {
-            use baton_proto::runtime::coordinator::LossPolicy;
+            use baton_proto::dist::runtime::coordinator::LossPolicy;
             let loss_policy = match on_agent_loss {
                 OnAgentLoss::Pause => LossPolicy::Pause,
                 OnAgentLoss::Reassign => LossPolicy::Reassign,
@@ -327,7 +327,7 @@ fn check_json(path: &Path) -> anyhow::Result<ExitCode> {
     let src = read(path)?;
     let report = check_source(&src);
     let index = LineIndex::new(&src);
-    let names = |ids: &[baton_proto::model::Ident]| ids.iter().map(|i| i.name.clone()).collect::<Vec<_>>();
+    let names = |ids: &[baton_proto::front::model::Ident]| ids.iter().map(|i| i.name.clone()).collect::<Vec<_>>();
     let charts: Vec<serde_json::Value> = report
         .charts
         .iter()

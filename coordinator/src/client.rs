@@ -4,9 +4,9 @@ use std::path::Path;
 use std::time::Duration;
 
 use anyhow::{anyhow, bail};
-use baton_proto::keys;
-use baton_proto::netconfig::NetConfig;
-use baton_proto::wire::{self, SetReply, SetRequest, StatusReport};
+use baton_proto::dist::keys;
+use baton_proto::dist::netconfig::NetConfig;
+use baton_proto::dist::wire::{self, SetReply, SetRequest, StatusReport};
 use zenoh::Session;
 
 const QUERY_TIMEOUT: Duration = Duration::from_secs(3);

@@ -8,8 +8,8 @@ use std::process::{ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::netconfig::NetConfig;
-use baton_proto::sim::TraceRecord;
+use baton_proto::dist::netconfig::NetConfig;
+use baton_proto::exec::sim::TraceRecord;
 use indicatif::{ProgressBar, ProgressStyle};
 use tokio::process::{Child, Command};
 

@@ -1,4 +1,4 @@
-//! `baton run --journal DIR`: the coordinator's records (`baton_proto::journal`) kept in an embedded database
+//! `baton run --journal DIR`: the coordinator's records (`baton_proto::dist::journal`) kept in an embedded database
 //! (redb, one file `DIR/journal.redb`), written by a thread of their own with group commit.
 //!
 //! The shell hands each batch of records to the writer and holds back what the coordinator asked for until the
@@ -12,7 +12,7 @@ use std::sync::mpsc as std_mpsc;
 use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::journal::{JournalHeader, JOURNAL_FORMAT};
+use baton_proto::dist::journal::{JournalHeader, JOURNAL_FORMAT};
 use redb::{Database, ReadableDatabase, ReadableTable, TableDefinition};
 use tokio::sync::watch;
 
@@ -255,7 +255,7 @@ impl Drop for Writer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use baton_proto::wire::{ChartHash, RunId};
+    use baton_proto::dist::wire::{ChartHash, RunId};
 
     fn header() -> JournalHeader {
         JournalHeader {

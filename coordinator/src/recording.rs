@@ -25,10 +25,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::anyhow;
-use baton_proto::layout::{Layout, Placement};
-use baton_proto::program::{Program, StepId, TransitionId, VarId, VarInfo};
-use baton_proto::sim::TraceRecord;
-use baton_proto::types::{Type, Value};
+use baton_proto::dist::layout::{Layout, Placement};
+use baton_proto::exec::program::{Program, StepId, TransitionId, VarId, VarInfo};
+use baton_proto::exec::sim::TraceRecord;
+use baton_proto::exec::types::{Type, Value};
 use rerun::blueprint::components::PanelState;
 use rerun::blueprint::{
     Blueprint, BlueprintPanel, GraphView, Horizontal, SelectionPanel, StateTimelineView, TextLogView, TimePanel,

@@ -7,9 +7,9 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::check::check_source;
-use baton_proto::journal::{self, Journaled, JOURNAL_FORMAT};
-use baton_proto::runtime::coordinator::Coordinator;
+use baton_proto::dist::journal::{self, Journaled, JOURNAL_FORMAT};
+use baton_proto::dist::runtime::coordinator::Coordinator;
+use baton_proto::front::check::check_source;
 
 use crate::recording::{RecordedRun, Recorder, Sink};
 use crate::run::{replay_records, Records};

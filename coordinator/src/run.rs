@@ -1,8 +1,8 @@
 //! `baton run`: the coordinator's Zenoh shell. It turns samples into inputs of the pure `Coordinator`, runs its
 //! cycles, publishes what it asks for, writes the trace and answers the chart, status and set queries. It
-//! decides nothing about charts: every rule lives in `baton_proto::runtime::coordinator`.
+//! decides nothing about charts: every rule lives in `baton_proto::dist::runtime::coordinator`.
 //!
-//! With `--journal DIR`, every input is recorded (`baton_proto::journal::Journaled`) and what the coordinator
+//! With `--journal DIR`, every input is recorded (`baton_proto::dist::journal::Journaled`) and what the coordinator
 //! asks for is held back until the records that led to it are durable (`crate::journal`, group commit). A
 //! journal of a run that did not end is resumed: replayed, then reconciled with the agents.
 
@@ -14,17 +14,17 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::check::check_source;
-use baton_proto::journal::{self, JournalHeader, Journaled, Record, JOURNAL_FORMAT};
-use baton_proto::keys;
-use baton_proto::layout::Layout;
+use baton_proto::dist::journal::{self, JournalHeader, Journaled, Record, JOURNAL_FORMAT};
+use baton_proto::dist::keys;
+use baton_proto::dist::layout::Layout;
+use baton_proto::dist::netconfig::NetConfig;
+use baton_proto::dist::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
+use baton_proto::dist::runtime::Level;
+use baton_proto::dist::wire::{self, AgentInfo, ChartHash, ChartSource, RunId, SetReply, SetRequest};
+use baton_proto::exec::program::Program;
+use baton_proto::exec::sim::TraceRecord;
+use baton_proto::front::check::check_source;
 use baton_proto::limits::{CATCH_UP_CYCLES_MAX, RECEIVE_QUEUE_MAX};
-use baton_proto::netconfig::NetConfig;
-use baton_proto::program::Program;
-use baton_proto::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
-use baton_proto::runtime::Level;
-use baton_proto::sim::TraceRecord;
-use baton_proto::wire::{self, AgentInfo, ChartHash, ChartSource, RunId, SetReply, SetRequest};
 use serde::Serialize;
 use tokio::sync::mpsc;
 use zenoh::handlers::FifoChannel;
@@ -97,7 +97,7 @@ pub struct Loaded {
 pub fn load(chart: &std::path::Path, pou: Option<&str>) -> anyhow::Result<Loaded> {
     let source = std::fs::read_to_string(chart).with_context(|| format!("cannot read {}", chart.display()))?;
     let report = check_source(&source);
-    let index = baton_proto::diag::LineIndex::new(&source);
+    let index = baton_proto::front::diag::LineIndex::new(&source);
     for d in &report.diagnostics {
         eprint!("{}", index.render(&chart.display().to_string(), d));
     }
@@ -375,7 +375,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         held_replies: VecDeque::new(),
         quiet: opts.quiet,
         publishers: HashMap::new(),
-        vars_key: keys::vars(run, baton_proto::runtime::COORDINATOR),
+        vars_key: keys::vars(run, baton_proto::dist::runtime::COORDINATOR),
         decode_drops: 0,
         out: Records::new(trace, probe, recorder, cycle_ms),
         cycle_ms,
@@ -785,7 +785,9 @@ impl Shell {
             .iter()
             .enumerate()
             .filter(|(_, v)| !v.constant)
-            .map(|(i, v)| (v.name.clone(), self.core.core().value(baton_proto::program::VarId(i as u32)).to_string()))
+            .map(|(i, v)| {
+                (v.name.clone(), self.core.core().value(baton_proto::exec::program::VarId(i as u32)).to_string())
+            })
             .collect();
         Summary {
             chart: loaded.pou.clone(),

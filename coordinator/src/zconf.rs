@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use anyhow::{anyhow, Context};
-use baton_proto::netconfig::NetConfig;
+use baton_proto::dist::netconfig::NetConfig;
 
 pub fn load(net: &NetConfig, file: Option<&Path>) -> anyhow::Result<zenoh::Config> {
     let Some(file) = file else {

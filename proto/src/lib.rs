@@ -1,24 +1,40 @@
-//! Baton's pure core: the SFC chart model, the textual SFC parser, the validator and the engine.
+//! Baton's pure core: the SFC chart model, the textual SFC and PLCopen XML front ends, the validator, the
+//! engine, and the state machines of a distributed run.
 //!
-//! Nothing here does I/O or reads a clock: time comes in as milliseconds, events go out as values.
+//! Nothing here does I/O or reads a clock: time comes in as milliseconds, events go out as values. The crate is
+//! grouped by layer: `front` (source text to checked chart), `exec` (compiled program and engine) and `dist`
+//! (placement, wire protocol, journal and the runtimes' state machines).
 
-pub mod analysis;
-pub mod check;
-pub mod compile;
-pub mod diag;
-pub mod engine;
-pub mod eval;
-pub mod journal;
-pub mod keys;
-pub mod layout;
-pub mod lexer;
 pub mod limits;
-pub mod model;
-pub mod netconfig;
-pub mod parser;
-pub mod pragma;
-pub mod program;
-pub mod runtime;
-pub mod sim;
-pub mod types;
-pub mod wire;
+
+/// From source text to a checked chart: lexer, parsers, the chart model, diagnostics and the check pipeline.
+pub mod front {
+    pub mod check;
+    pub mod diag;
+    pub mod lexer;
+    pub mod model;
+    pub mod parser;
+    pub mod pragma;
+}
+
+/// Execution: the compiled program, values and types, evaluation, the engine, the net analysis and `sim`.
+pub mod exec {
+    pub mod analysis;
+    pub mod compile;
+    pub mod engine;
+    pub mod eval;
+    pub mod program;
+    pub mod sim;
+    pub mod types;
+}
+
+/// The distributed part: where each part of a chart runs, the wire protocol and key space, the journal, the
+/// Zenoh settings and the coordinator's and agent's state machines.
+pub mod dist {
+    pub mod journal;
+    pub mod keys;
+    pub mod layout;
+    pub mod netconfig;
+    pub mod runtime;
+    pub mod wire;
+}

@@ -6,8 +6,8 @@ use std::hint::black_box;
 use std::sync::Arc;
 use std::time::Duration;
 
-use baton_proto::check::check_source;
-use baton_proto::engine::Engine;
+use baton_proto::exec::engine::Engine;
+use baton_proto::front::check::check_source;
 use baton_tests::gen::{large_structured_chart, rings};
 use criterion::{criterion_group, criterion_main, Criterion};
 

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::{ExitStatus, Stdio};
 use std::time::Duration;
 
-use baton_proto::sim::TraceRecord;
+use baton_proto::exec::sim::TraceRecord;
 use tokio::io::{AsyncBufReadExt, BufReader, Lines};
 use tokio::process::{Child, ChildStderr, Command};
 
@@ -72,7 +72,7 @@ impl Cluster {
     /// Coordinators then join it (`coordinator_joining`).
     pub async fn with_router() -> Cluster {
         let mut cluster = Cluster::new();
-        let net = baton_proto::netconfig::NetConfig::router(std::slice::from_ref(&cluster.endpoint));
+        let net = baton_proto::dist::netconfig::NetConfig::router(std::slice::from_ref(&cluster.endpoint));
         let config = zenoh::Config::from_json5(&net.json5()).expect("router config");
         cluster.router = Some(zenoh::open(config).await.expect("start the test's router"));
         cluster
@@ -80,7 +80,7 @@ impl Cluster {
 
     /// A Zenoh session of the test's own on the cluster's router, to watch the protocol.
     pub async fn watch(&self) -> zenoh::Session {
-        let net = baton_proto::netconfig::NetConfig::client(std::slice::from_ref(&self.endpoint), true);
+        let net = baton_proto::dist::netconfig::NetConfig::client(std::slice::from_ref(&self.endpoint), true);
         zenoh::open(zenoh::Config::from_json5(&net.json5()).expect("config")).await.expect("session")
     }
 
@@ -277,7 +277,7 @@ pub fn check_trace_invariants(trace: &[TraceRecord], chart: &Path) {
 /// The same for a run that ended with `out` tokens still out (a run that failed).
 pub fn check_trace_invariants_with_tokens_out(trace: &[TraceRecord], chart: &Path, out: usize) {
     let source = std::fs::read_to_string(chart).unwrap_or_else(|e| panic!("{}: {e}", chart.display()));
-    let report = baton_proto::check::check_source(&source);
+    let report = baton_proto::front::check::check_source(&source);
     let program = report.charts.first().and_then(|c| c.program.as_ref()).expect("a valid chart");
     if let Err(why) = crate::invariants::check(trace, program, out == 0) {
         panic!("trace of {}: {why}", chart.display());
@@ -288,7 +288,7 @@ pub fn check_trace_invariants_with_tokens_out(trace: &[TraceRecord], chart: &Pat
 /// The id of step `name` in the first chart of `chart`, as dispatches carry it.
 pub fn step_id(chart: &Path, name: &str) -> u32 {
     let src = std::fs::read_to_string(chart).unwrap_or_else(|e| panic!("{}: {e}", chart.display()));
-    let report = baton_proto::check::check_source(&src);
+    let report = baton_proto::front::check::check_source(&src);
     let program = report.charts[0].program.as_ref().expect("a valid chart");
     program.steps.iter().position(|s| s.name == name).expect("step") as u32
 }
@@ -297,7 +297,7 @@ pub type Samples = zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler
 
 /// Waits, on a subscriber of the agents' command keys, for the dispatch entering step `entry` in `epoch`;
 /// returns the agent it went to and the token.
-pub async fn next_dispatch(cmds: &Samples, entry: u32, epoch: u32) -> (String, baton_proto::wire::TokenId) {
+pub async fn next_dispatch(cmds: &Samples, entry: u32, epoch: u32) -> (String, baton_proto::dist::wire::TokenId) {
     next_dispatch_within(cmds, entry, epoch)
         .await
         .unwrap_or_else(|| panic!("step {entry} was not dispatched in epoch {epoch} within {TIMEOUT:?}"))
@@ -308,8 +308,8 @@ pub async fn next_dispatch_within(
     cmds: &Samples,
     entry: u32,
     epoch: u32,
-) -> Option<(String, baton_proto::wire::TokenId)> {
-    use baton_proto::wire::{self, ToAgent};
+) -> Option<(String, baton_proto::dist::wire::TokenId)> {
+    use baton_proto::dist::wire::{self, ToAgent};
     let found = tokio::time::timeout(TIMEOUT, async {
         while let Ok(sample) = cmds.recv_async().await {
             if let Ok(ToAgent::Dispatch { entry: e, epoch: n, token, .. }) = wire::decode(&sample.payload().to_bytes())

@@ -3,8 +3,8 @@
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 
-use baton_proto::program::{Program, TransitionId};
-use baton_proto::sim::TraceRecord;
+use baton_proto::exec::program::{Program, TransitionId};
+use baton_proto::exec::sim::TraceRecord;
 
 /// Checks a trace of a run of `program`:
 /// - no step holds two tokens (activations and deactivations of each step alternate);

@@ -3,12 +3,12 @@
 
 use std::sync::Arc;
 
-use baton_proto::engine::Engine;
+use baton_proto::exec::engine::Engine;
 
 /// The values of `names` once the chart (the first POU of `source`) reached a terminal situation; panics if it
 /// does not within a minute of chart time.
 pub fn final_values(source: &str, cycle_ms: u64, names: &[&str]) -> Vec<i64> {
-    let report = baton_proto::check::check_source(source);
+    let report = baton_proto::front::check::check_source(source);
     let program = Arc::new(report.charts[0].program.clone().expect("a valid chart"));
     let mut engine = Engine::new(Arc::clone(&program));
     let mut now = 0;

@@ -7,9 +7,9 @@ use std::fs;
 use std::path::Path;
 use std::sync::Arc;
 
-use baton_proto::check::check_source;
-use baton_proto::diag::LineIndex;
-use baton_proto::sim::{parse_inputs, simulate, SimOutput};
+use baton_proto::exec::sim::{parse_inputs, simulate, SimOutput};
+use baton_proto::front::check::check_source;
+use baton_proto::front::diag::LineIndex;
 
 fn read(path: &Path) -> Result<String, String> {
     fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))

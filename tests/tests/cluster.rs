@@ -2,9 +2,9 @@
 
 use std::time::Duration;
 
-use baton_proto::keys;
-use baton_proto::netconfig::NetConfig;
-use baton_proto::wire::{self, ChartHash, RunId, StatusReport, ToAgent, TokenId};
+use baton_proto::dist::keys;
+use baton_proto::dist::netconfig::NetConfig;
+use baton_proto::dist::wire::{self, ChartHash, RunId, StatusReport, ToAgent, TokenId};
 use baton_tests::cluster::{check_trace_invariants, events, repo, Cluster, TIMEOUT};
 use zenoh::sample::Locality;
 

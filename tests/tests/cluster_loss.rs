@@ -1,6 +1,6 @@
 //! Lost agents with real processes: SIGKILL of the agent holding a token, under each `--on-agent-loss` policy.
 
-use baton_proto::keys;
+use baton_proto::dist::keys;
 use baton_tests::cluster::{
     self, check_trace_invariants, check_trace_invariants_with_tokens_out, dispatches, repo, step_id, Cluster, Samples,
 };
@@ -110,8 +110,8 @@ async fn a_stopped_agents_late_result_is_rejected_after_a_reassign() {
     let mut told_to_drop = false;
     while let Ok(Some(sample)) = cmds.try_recv() {
         let to_holder = sample.key_expr().as_str().split('/').nth(2) == Some(holder.as_str());
-        if let Ok(baton_proto::wire::ToAgent::Drop { epoch: 1, .. }) =
-            baton_proto::wire::decode(&sample.payload().to_bytes())
+        if let Ok(baton_proto::dist::wire::ToAgent::Drop { epoch: 1, .. }) =
+            baton_proto::dist::wire::decode(&sample.payload().to_bytes())
         {
             told_to_drop |= to_holder;
         }

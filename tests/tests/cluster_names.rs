@@ -2,8 +2,8 @@
 //! that hears two processes answer to one name dispatches to neither and raises an alarm, and commands reach
 //! one process only.
 
-use baton_proto::keys;
-use baton_proto::wire::{self, AgentInfo};
+use baton_proto::dist::keys;
+use baton_proto::dist::wire::{self, AgentInfo};
 use baton_tests::cluster::{bin, check_trace_invariants, events, read_trace, repo, Cluster, TIMEOUT};
 use tokio::process::Command;
 

@@ -1,7 +1,7 @@
 //! A coordinator killed with SIGKILL and started again from its journal, with real processes on loopback.
 
-use baton_proto::keys;
-use baton_proto::wire::{self, Report};
+use baton_proto::dist::keys;
+use baton_proto::dist::wire::{self, Report};
 use baton_tests::cluster::{self, check_trace_invariants, dispatches, repo, step_id, Cluster, TIMEOUT};
 
 fn journal_args(cluster: &Cluster) -> Vec<String> {

@@ -1,7 +1,7 @@
 //! The distributed runtime's state machines in deterministic simulation: real coordinator and agents, a
 //! simulated network that duplicates, reorders and delays, virtual time.
 
-use baton_proto::runtime::coordinator::LossPolicy;
+use baton_proto::dist::runtime::coordinator::LossPolicy;
 use baton_tests::simnet::{Faults, SimCluster};
 
 fn chart(name: &str) -> String {
@@ -35,7 +35,7 @@ const CELL_AGENTS: &[(&str, &[&str])] = &[("robot1", &["assembler"]), ("robot2",
 /// Invariants every run of the cell must keep, whatever the network did.
 fn check_cell_run(sim: &SimCluster) {
     let seed = sim.seed;
-    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(3)), "seed {seed}: three parts done");
+    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(3)), "seed {seed}: three parts done");
     let dispatches = sim.events("dispatch");
     let returns = sim.events("return");
     assert_eq!(dispatches.len(), returns.len(), "seed {seed}: every token came back");
@@ -141,7 +141,7 @@ impl RandomCell {
         let (placements, actions): (Vec<u64>, Vec<u64>) = (0..256).map(|_| (rng.below(4), rng.below(4))).unzip();
         let ms: Vec<u64> = (0..256).map(|_| rng.below(60)).collect();
         let decorated = decorate(&plain, &placements, Some((&actions, &ms)));
-        let ok = |src: &str| baton_proto::check::check_source(src).error_count() == 0;
+        let ok = |src: &str| baton_proto::front::check::check_source(src).error_count() == 0;
         let (source, with_actions) = if ok(&decorated) {
             (decorated, true)
         } else {
@@ -309,7 +309,7 @@ fn reassign_restarts_a_lost_agents_segment_elsewhere_in_a_new_epoch() {
     use baton_tests::simnet::Fate;
     let mut sim = cell_losing_robot1(&[(600, Fate::Kill)], LossPolicy::Reassign);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
     assert_eq!(sim.events("agent_lost").len(), 1);
     assert!(sim.trace.iter().any(|r| r.event == "alarm" && r.message.as_deref().unwrap_or("").contains("reassigned")));
@@ -321,7 +321,7 @@ fn pause_resumes_a_cut_off_agent_where_it_was() {
     use baton_tests::simnet::Fate;
     let mut sim = cell_losing_robot1(&[(600, Fate::Cut), (2_000, Fate::Heal)], LossPolicy::Pause);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
     // The same process kept its token: it says so when it comes back, keeps it in the same epoch, its held-back
     // reports follow, and the motion is not run twice.
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1))]);
@@ -337,7 +337,7 @@ fn pause_restarts_the_segment_on_an_agent_that_came_back_restarted() {
     use baton_tests::simnet::Fate;
     let mut sim = cell_losing_robot1(&[(600, Fate::Kill), (2_000, Fate::Restart)], LossPolicy::Pause);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot1".to_string(), Some(2))]);
     let again = sim.trace.iter().filter(|r| r.event == "dispatch" && r.name == "Assemble").nth(1).expect("again");
     assert!(again.t_ms >= 2_000, "sent again at {} ms, before robot1 came back", again.t_ms);
@@ -360,7 +360,7 @@ fn a_cut_off_agents_late_result_is_rejected_after_a_reassign() {
     // and moves the token at 2 100 ms; the cable is back at 2 500 ms.
     let mut sim = cell_losing_robot1(&[(600, Fate::Cut), (2_500, Fate::Heal)], LossPolicy::Reassign);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
     // Back, robot1 says it holds epoch 1: it is told to drop it at once (any late report of it is rejected).
     let stale: Vec<_> = sim.trace.iter().filter(|r| r.event == "reject_stale").collect();
@@ -409,7 +409,7 @@ fn a_segment_that_finishes_while_the_coordinator_is_down_is_not_run_again() {
     sim.set_at(0, "parts", serde_json::json!(1));
     sim.crash_coordinator_at(600, 1_000);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
     let assemble = assembled_by(&sim);
     assert_eq!(assemble.len(), 1, "Assemble was dispatched once: {assemble:?}");
     let resume = sim.trace.iter().find(|r| r.event == "resume" && r.name == "Assemble").expect("reconciled");
@@ -431,7 +431,7 @@ fn an_agent_restarted_while_the_coordinator_was_down_runs_its_segment_again_in_a
     sim.fate_at(650, holder, Fate::Kill);
     sim.fate_at(700, holder, Fate::Restart);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
     let assemble = assembled_by(&sim);
     assert_eq!(assemble.len(), 2, "{assemble:?}");
     assert_eq!(assemble[1].1, Some(assemble[0].1.unwrap() + 1), "a new epoch: {assemble:?}");
@@ -449,7 +449,7 @@ fn an_agent_that_does_not_come_back_after_a_coordinator_restart_is_lost_after_it
     sim.crash_coordinator_at(600, 500);
     sim.fate_at(650, "robot1", Fate::Kill);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
     let lost = sim.trace.iter().find(|r| r.event == "agent_lost" && r.name == "robot1").expect("lost");
     assert!((2_100..2_300).contains(&lost.t_ms), "lost one lease after the restart at 1 100 ms: {} ms", lost.t_ms);

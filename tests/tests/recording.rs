@@ -5,8 +5,8 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-use baton_proto::keys;
-use baton_proto::sim::TraceRecord;
+use baton_proto::dist::keys;
+use baton_proto::exec::sim::TraceRecord;
 use baton_tests::cluster::{self, read_trace, repo, step_id, Cluster};
 
 /// Whether `python3` has rerun-sdk 0.36.3; in CI (`CI` set) its absence fails the test.
@@ -68,7 +68,7 @@ fn check_recording(rrd: &Path, trace: &[TraceRecord], parts: u64) {
         .collect();
     let cell = repo("examples/cell.st");
     let source = std::fs::read_to_string(&cell).expect("chart");
-    let report = baton_proto::check::check_source(&source);
+    let report = baton_proto::front::check::check_source(&source);
     let program = report.charts[0].program.as_ref().expect("valid chart");
     let mut expected: Vec<String> = vec!["/sfc/graph".into(), "/log".into(), "/vars/done".into(), "/vars/parts".into()];
     expected.extend(program.steps.iter().map(|s| format!("/sfc/steps/{}", s.name)));

@@ -15,13 +15,15 @@
 use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
-use crate::engine::{Engine, EventKind, Input, RemoteInput};
-use crate::layout::{Layout, Placement, SegmentId, SkillBinding};
+use crate::dist::layout::{Layout, Placement, SegmentId, SkillBinding};
+use crate::dist::wire::{
+    AgentEvent, AgentEventKind, ChartHash, HeldToken, Report, RunId, TokenId, VarUpdate, VarValue,
+};
+use crate::exec::engine::{Engine, EventKind, Input, RemoteInput};
+use crate::exec::program::{ActionId, Program, StepId, VarId};
+use crate::exec::sim::fault_message;
+use crate::exec::types::Value;
 use crate::limits::{CATCH_UP_CYCLES_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_UNACKED_MAX, REPORT_EVENTS_MAX};
-use crate::program::{ActionId, Program, StepId, VarId};
-use crate::sim::fault_message;
-use crate::types::Value;
-use crate::wire::{AgentEvent, AgentEventKind, ChartHash, HeldToken, Report, RunId, TokenId, VarUpdate, VarValue};
 
 use super::{Level, VarWrites, COORDINATOR};
 use uuid::Uuid;
@@ -414,7 +416,7 @@ impl AgentRun {
         if update.from == self.name {
             return;
         }
-        if update.from != COORDINATOR && !crate::layout::is_valid_name(&update.from) {
+        if update.from != COORDINATOR && !crate::dist::layout::is_valid_name(&update.from) {
             self.dropped += 1;
             return;
         }
@@ -569,12 +571,12 @@ impl AgentRun {
                 EventKind::Fault(source, fault) => {
                     let message = fault_message(&program, source, fault);
                     let token = match source {
-                        crate::engine::FaultSource::Transition(t) => program
+                        crate::exec::engine::FaultSource::Transition(t) => program
                             .sources(t)
                             .first()
                             .and_then(|s| self.layout.segment_of[s.index()])
                             .and_then(|g| self.by_segment.get(&g).copied()),
-                        crate::engine::FaultSource::Action(a) => {
+                        crate::exec::engine::FaultSource::Action(a) => {
                             action_token(&self.action_segments, &self.by_segment, a)
                         }
                     };

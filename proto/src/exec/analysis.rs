@@ -11,8 +11,8 @@
 
 use std::collections::{HashMap, HashSet, VecDeque};
 
+use crate::exec::program::{Program, StepId, TransitionId};
 use crate::limits::ANALYSIS_SITUATIONS_MAX;
-use crate::program::{Program, StepId, TransitionId};
 
 #[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Finding {

@@ -1,7 +1,7 @@
 //! Evaluates typed expressions and runs action bodies against the engine's state (or none, for constants).
 
-use crate::program::{ActionId, ArithOp, CExpr, CStmt, CmpOp, LogicOp, StepId, VarId};
-use crate::types::{IntKind, Value};
+use crate::exec::program::{ActionId, ArithOp, CExpr, CStmt, CmpOp, LogicOp, StepId, VarId};
+use crate::exec::types::{IntKind, Value};
 
 /// What an expression can read.
 pub trait Env {
@@ -23,7 +23,7 @@ pub enum Fault {
     DivisionByZero,
     /// A transition gave an active step a second token (the net is not safe); the tokens merged. Only a chart
     /// whose safety could not be proven (`unverified_net := TRUE`) can get here.
-    SecondToken(crate::program::StepId),
+    SecondToken(crate::exec::program::StepId),
 }
 
 pub fn eval(e: &CExpr, env: &impl Env) -> Result<Value, Fault> {

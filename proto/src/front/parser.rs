@@ -3,10 +3,10 @@
 //! POUs without an SFC body (ST functions, configurations, type declarations) are skipped: a chart file may
 //! hold a whole project.
 
-use crate::diag::{Diagnostic, Span};
-use crate::lexer::{lex, Kw, RawPragma, Tok, Token};
+use crate::front::diag::{Diagnostic, Span};
+use crate::front::lexer::{lex, Kw, RawPragma, Tok, Token};
+use crate::front::model::*;
 use crate::limits::{BRANCHES_MAX, NESTING_DEPTH_MAX};
-use crate::model::*;
 
 pub struct Parsed {
     pub charts: Vec<Chart>,
@@ -319,7 +319,7 @@ impl Parser<'_> {
         }
         self.expect(Tok::Colon, "`:`")?;
         let type_name = self.ident("a type name")?;
-        let elementary = crate::types::Type::from_name(&type_name.key()).is_some();
+        let elementary = crate::exec::types::Type::from_name(&type_name.key()).is_some();
         let mut init = None;
         if elementary {
             if self.eat(Tok::Assign) {

@@ -21,11 +21,11 @@
 use std::collections::VecDeque;
 use std::sync::Arc;
 
-use crate::eval::{self, Env, EnvMut, Fault};
+use crate::exec::eval::{self, Env, EnvMut, Fault};
+use crate::exec::program::{ActionId, DurationSrc, Program, StepId, TransitionId, VarId};
+use crate::exec::types::{Type, Value};
+use crate::front::model::Qualifier;
 use crate::limits::REACTION_ROUNDS_MAX;
-use crate::model::Qualifier;
-use crate::program::{ActionId, DurationSrc, Program, StepId, TransitionId, VarId};
-use crate::types::{Type, Value};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Event {
@@ -895,9 +895,9 @@ mod tests {
             STEP C: END_STEP
             TRANSITION FROM B TO C := TRUE; END_TRANSITION
             END_PROGRAM";
-        let parsed = crate::parser::parse(src);
+        let parsed = crate::front::parser::parse(src);
         let mut diags = Vec::new();
-        let compiled = crate::compile::compile(&parsed.charts[0], &mut diags);
+        let compiled = crate::exec::compile::compile(&parsed.charts[0], &mut diags);
         assert!(diags.is_empty(), "{diags:?}");
         let mut engine = Engine::new(Arc::new(compiled.program));
         let mut faults = Vec::new();

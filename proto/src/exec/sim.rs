@@ -4,11 +4,11 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
-use crate::engine::{Engine, Event, EventKind, FaultSource, Input};
-use crate::eval::Fault;
-use crate::lexer::{lex, Tok};
-use crate::program::{Program, VarId};
-use crate::types::{Type, Value};
+use crate::exec::engine::{Engine, Event, EventKind, FaultSource, Input};
+use crate::exec::eval::Fault;
+use crate::exec::program::{Program, VarId};
+use crate::exec::types::{Type, Value};
+use crate::front::lexer::{lex, Tok};
 
 /// One line of a trace: `{"t_ms": 20, "event": "activate", "name": "Fill"}`.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]

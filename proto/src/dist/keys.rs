@@ -14,7 +14,7 @@
 //! Agent names and roles are restricted to letters, digits, `_` and `-` (`layout::is_valid_name`), so they are
 //! always single chunks; a run is 32 hex digits.
 
-use crate::wire::RunId;
+use crate::dist::wire::RunId;
 use uuid::Uuid;
 
 const ROOT: &str = "baton";

@@ -1,6 +1,6 @@
 //! Turns IEC 61131-3 source text into tokens; comments vanish, pragmas are kept aside with their spans.
 
-use crate::diag::{Diagnostic, Span};
+use crate::front::diag::{Diagnostic, Span};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Tok {
@@ -296,7 +296,7 @@ impl Lexer<'_> {
                 self.duration(start);
                 return;
             }
-            if crate::types::Type::from_name(&upper).is_some() {
+            if crate::exec::types::Type::from_name(&upper).is_some() {
                 // A typed literal such as INT#5 or BOOL#TRUE: the literal's own value is what matters.
                 self.pos += 1;
                 return;

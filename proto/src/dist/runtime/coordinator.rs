@@ -16,16 +16,16 @@
 use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
-use crate::engine::{Engine, Event, EventKind, Input, RemoteInput};
-use crate::layout::{Layout, Placement, SegmentId};
-use crate::limits::{ACK_DELAY_MS, AGENTS_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_AHEAD_MAX};
-use crate::program::{Program, StepId, TransitionId, VarId};
-use crate::sim::{output_of, parse_value, SimOutput, TraceRecord};
-use crate::types::Value;
-use crate::wire::{
+use crate::dist::layout::{Layout, Placement, SegmentId};
+use crate::dist::wire::{
     AckEntry, AgentEventKind, AgentInfo, ChartHash, Report, RunId, StatusAgent, StatusReport, StatusStep, StatusToken,
     ToAgent, TokenId, VarUpdate, VarValue,
 };
+use crate::exec::engine::{Engine, Event, EventKind, Input, RemoteInput};
+use crate::exec::program::{Program, StepId, TransitionId, VarId};
+use crate::exec::sim::{output_of, parse_value, SimOutput, TraceRecord};
+use crate::exec::types::Value;
+use crate::limits::{ACK_DELAY_MS, AGENTS_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_AHEAD_MAX};
 
 use super::{Level, VarWrites, COORDINATOR};
 
@@ -633,8 +633,8 @@ impl Coordinator {
     /// An agent announced itself (or came back). Tokens waiting for it leave now.
     pub fn handle_agent_up(&mut self, now_ms: u64, info: AgentInfo) {
         self.advance(now_ms);
-        let valid = |n: &str| crate::layout::is_valid_name(n) && n != COORDINATOR;
-        if !valid(&info.name) || !info.roles.iter().all(|r| crate::layout::is_valid_name(r)) {
+        let valid = |n: &str| crate::dist::layout::is_valid_name(n) && n != COORDINATOR;
+        if !valid(&info.name) || !info.roles.iter().all(|r| crate::dist::layout::is_valid_name(r)) {
             self.drop_msg(format!("agent announcement with an invalid name or role ignored: {:?}", info.name));
             return;
         }
@@ -767,7 +767,7 @@ impl Coordinator {
     /// alarm says so, until one process answers alone (`handle_agent_up`).
     pub fn handle_agent_conflict(&mut self, now_ms: u64, name: &str, processes: usize) {
         self.advance(now_ms);
-        if !crate::layout::is_valid_name(name) {
+        if !crate::dist::layout::is_valid_name(name) {
             return self.drop_msg(format!("agent conflict with an invalid name ignored: {name:?}"));
         }
         if !self.agents.contains_key(name) && self.agents.len() >= AGENTS_MAX {
@@ -1245,12 +1245,12 @@ mod tests {
     fn coordinator() -> Coordinator {
         let source = "PROGRAM p\nINITIAL_STEP A: END_STEP\nTRANSITION FROM A TO B := TRUE; END_TRANSITION\n\
                       STEP B: {role := 'worker'} END_STEP\nEND_PROGRAM\n";
-        let mut report = crate::check::check_source(source);
+        let mut report = crate::front::check::check_source(source);
         let checked = report.charts.remove(0);
         let (program, layout) =
             (Arc::new(checked.program.expect("program")), Arc::new(checked.layout.expect("layout")));
         let run = RunId(uuid::Uuid::from_u128(7));
-        Coordinator::new(program, layout, run, ChartHash("h".into()), crate::journal::token_ids(run))
+        Coordinator::new(program, layout, run, ChartHash("h".into()), crate::dist::journal::token_ids(run))
     }
 
     fn info(name: &str, n: u128) -> AgentInfo {

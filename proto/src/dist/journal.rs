@@ -14,8 +14,8 @@
 use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
-use crate::runtime::coordinator::{Coordinator, LossPolicy};
-use crate::wire::{self, AgentInfo, ChartHash, Report, RunId, SetRequest, TokenId, VarUpdate, WireError};
+use crate::dist::runtime::coordinator::{Coordinator, LossPolicy};
+use crate::dist::wire::{self, AgentInfo, ChartHash, Report, RunId, SetRequest, TokenId, VarUpdate, WireError};
 
 /// Bumped when records change meaning; a journal of another format is refused. 2: cycles that changed nothing
 /// are not recorded, and the header holds the cycle period.
@@ -222,7 +222,7 @@ impl Journaled {
     }
 
     /// What the coordinator asks for, once the records taken so far are durable.
-    pub fn poll_output(&mut self) -> Option<crate::runtime::coordinator::CoordOutput> {
+    pub fn poll_output(&mut self) -> Option<crate::dist::runtime::coordinator::CoordOutput> {
         self.core.poll_output()
     }
 

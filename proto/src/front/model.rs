@@ -1,6 +1,6 @@
 //! The chart model: what a parser (textual SFC today, PLCopen XML later) produces, before names are resolved.
 
-use crate::diag::Span;
+use crate::front::diag::Span;
 
 /// A name as written, with where it was written. Names compare without regard to case.
 #[derive(Clone, Debug, PartialEq)]

@@ -13,11 +13,11 @@
 use std::collections::BTreeMap;
 use std::fmt;
 
-use crate::diag::{Diagnostic, Span};
-use crate::engine::{Scope, TransitionScope};
-use crate::model::{Chart, Pragma};
-use crate::program::{ActionId, CExpr, CStmt, Program, StepId, TransitionId, VarId};
-use crate::types::Value;
+use crate::exec::engine::{Scope, TransitionScope};
+use crate::exec::program::{ActionId, CExpr, CStmt, Program, StepId, TransitionId, VarId};
+use crate::exec::types::Value;
+use crate::front::diag::{Diagnostic, Span};
+use crate::front::model::{Chart, Pragma};
 
 #[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Placement {
@@ -209,15 +209,15 @@ fn baton_pairs(
     what: &str,
     diags: &mut Vec<Diagnostic>,
 ) -> Option<Vec<(String, Param)>> {
-    let named = match crate::pragma::read(&pragma.text) {
-        crate::pragma::Pragma::Foreign => return None,
-        crate::pragma::Pragma::Pairs(pairs) => {
+    let named = match crate::front::pragma::read(&pragma.text) {
+        crate::front::pragma::Pragma::Foreign => return None,
+        crate::front::pragma::Pragma::Pairs(pairs) => {
             if pairs.iter().any(|(k, _)| keys.contains(&k.as_str())) {
                 return Some(pairs);
             }
             pairs.into_iter().map(|(k, _)| k).collect::<Vec<_>>()
         }
-        crate::pragma::Pragma::Malformed { keys: named, why } => {
+        crate::front::pragma::Pragma::Malformed { keys: named, why } => {
             if let Some(k) = named.iter().find(|k| keys.contains(&k.as_str())) {
                 diags.push(Diagnostic::error(
                     pragma.span,
@@ -229,7 +229,7 @@ fn baton_pairs(
         }
     };
     for key in named {
-        if let Some(meant) = crate::pragma::near_miss(&key, keys) {
+        if let Some(meant) = crate::front::pragma::near_miss(&key, keys) {
             diags.push(Diagnostic::warning(
                 pragma.span,
                 format!(
@@ -249,7 +249,7 @@ fn step_placement(pragmas: &[Pragma], diags: &mut Vec<Diagnostic>) -> Placement 
         for (key, value) in pairs {
             let err = |m: String| Diagnostic::error(pragma.span, m);
             if !STEP_KEYS.contains(&key.as_str()) {
-                let hint = crate::pragma::near_miss(&key, &STEP_KEYS)
+                let hint = crate::front::pragma::near_miss(&key, &STEP_KEYS)
                     .map_or(String::new(), |k| format!(" (did you mean `{k}`?)"));
                 diags.push(err(format!(
                     "unknown key `{key}` in a step's placement{hint}: a step takes `agent := 'name'` or `role := 'name'`"
@@ -549,7 +549,7 @@ fn read_by_agents(program: &Program, segment_of: &[Option<SegmentId>], action_pl
             continue;
         }
         for assoc in program.associations(StepId(s as u32)) {
-            if let Some(crate::program::DurationSrc::Var(v)) = assoc.duration {
+            if let Some(crate::exec::program::DurationSrc::Var(v)) = assoc.duration {
                 refs.vars.push(v);
             }
         }

@@ -1,8 +1,8 @@
 //! The executable form of a chart: names resolved to ids, expressions typed, transitions ranked by priority.
 //! The engine runs a `Program`; only `compile` builds one, and only from a chart without errors.
 
-use crate::model::{Pragma, Qualifier, VarSection};
-use crate::types::{IntKind, Type, Value};
+use crate::exec::types::{IntKind, Type, Value};
+use crate::front::model::{Pragma, Qualifier, VarSection};
 
 macro_rules! id {
     ($name:ident) => {

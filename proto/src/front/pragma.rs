@@ -3,9 +3,9 @@
 //! but cannot be read, and one whose key is a near miss of Baton's, are reported (`baton check`); any other
 //! pragma is another tool's and is left alone.
 
-use crate::layout::Param;
-use crate::lexer::{lex, Kw, Tok, Token};
-use crate::types::Value;
+use crate::dist::layout::Param;
+use crate::exec::types::Value;
+use crate::front::lexer::{lex, Kw, Tok, Token};
 
 /// What the text of a pragma is.
 #[derive(Clone, Debug, PartialEq)]

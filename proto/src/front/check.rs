@@ -1,13 +1,13 @@
 //! `check_source`: parse, compile and analyse every chart of a source text, reporting every problem at once.
 
-use crate::analysis::{analyse, Finding};
-use crate::compile::compile;
-use crate::diag::{Diagnostic, Span};
-use crate::layout::{layout, Layout};
+use crate::dist::layout::{layout, Layout};
+use crate::exec::analysis::{analyse, Finding};
+use crate::exec::compile::compile;
+use crate::exec::program::Program;
+use crate::front::diag::{Diagnostic, Span};
+use crate::front::model::Chart;
+use crate::front::parser::parse;
 use crate::limits::{CHART_ELEMENTS_MAX, DIAGNOSTICS_MAX, SOURCE_BYTES_MAX};
-use crate::model::Chart;
-use crate::parser::parse;
-use crate::program::Program;
 
 pub struct CheckedChart {
     pub chart: Chart,
@@ -80,10 +80,10 @@ pub fn check_source(src: &str) -> Report {
 
 /// Whether the chart's own pragmas (those before its first element) accept a net whose safety is not proven.
 fn unverified_net_allowed(chart: &Chart) -> bool {
-    chart.pragmas.iter().any(|p| match crate::pragma::read(&p.text) {
-        crate::pragma::Pragma::Pairs(pairs) => pairs
-            .iter()
-            .any(|(k, v)| k == "unverified_net" && *v == crate::layout::Param::Value(crate::types::Value::Bool(true))),
+    chart.pragmas.iter().any(|p| match crate::front::pragma::read(&p.text) {
+        crate::front::pragma::Pragma::Pairs(pairs) => pairs.iter().any(|(k, v)| {
+            k == "unverified_net" && *v == crate::dist::layout::Param::Value(crate::exec::types::Value::Bool(true))
+        }),
         _ => false,
     })
 }

@@ -2,11 +2,11 @@
 
 use std::collections::HashMap;
 
-use crate::diag::{Diagnostic, Span};
-use crate::eval::{eval, is_constant, NoEnv};
-use crate::model::*;
-use crate::program::*;
-use crate::types::{IntKind, Type, Value};
+use crate::exec::eval::{eval, is_constant, NoEnv};
+use crate::exec::program::*;
+use crate::exec::types::{IntKind, Type, Value};
+use crate::front::diag::{Diagnostic, Span};
+use crate::front::model::*;
 
 /// The result of compiling one chart: a program (with placeholders wherever an error was reported) and whether
 /// its net of steps and transitions resolved well enough to be analysed.

@@ -8,9 +8,9 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
+use crate::exec::program::{Program, VarId};
+use crate::exec::types::{Type, Value};
 use crate::limits::MESSAGE_BYTES_MAX;
-use crate::program::{Program, VarId};
-use crate::types::{Type, Value};
 
 pub const PROTOCOL_VERSION: u32 = 2;
 
