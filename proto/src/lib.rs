@@ -14,6 +14,7 @@ pub mod front {
     pub mod lexer;
     pub mod model;
     pub mod parser;
+    pub mod plcopen;
     pub mod pragma;
 }
 

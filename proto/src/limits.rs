@@ -6,6 +6,13 @@ pub const SOURCE_BYTES_MAX: usize = 256 * 1024 * 1024;
 /// Nesting of parentheses, unary operators and IF statements; deeper input is rejected, not overflowed.
 pub const NESTING_DEPTH_MAX: usize = 64;
 
+/// Nodes (elements, texts, comments) of one XML file: a bound on the memory its tree takes.
+pub const XML_NODES_MAX: u32 = 20_000_000;
+
+/// Connections the PLCopen reader follows for one transition or one LD/FBD network: wired logic with shared
+/// inputs unfolds into an expression that can grow exponentially with the file.
+pub const XML_CONNECTIONS_WALKED_MAX: usize = 100_000;
+
 /// Steps in one chart (and, separately, transitions and actions).
 pub const CHART_ELEMENTS_MAX: usize = 4_000_000;
 

@@ -1,5 +1,5 @@
-//! Scenarios as data. A simulation scenario is a folder with `chart.st`, an optional `inputs.jsonl`, an optional
-//! `sim.json` (`{"cycle_ms": 10, "until_ms": 1000}`) and `expected.jsonl`; a diagnostics scenario is a `NAME.st`
+//! Scenarios as data. A simulation scenario is a folder with `chart.st` (or `chart.xml`), an optional `inputs.jsonl`, an optional
+//! `sim.json` (`{"cycle_ms": 10, "until_ms": 1000}`) and `expected.jsonl`; a diagnostics scenario is a `NAME.st` (or `NAME.xml`)
 //! beside `NAME.expected`, the exact text `baton check` prints. `check` is the only code that drives them, so a
 //! refactor touches one place. `UPDATE_EXPECT=1` rewrites the expectations instead; review the diff.
 
@@ -92,11 +92,12 @@ fn default_until() -> u64 {
 
 /// The trace `baton sim` prints for a scenario folder, faults included as `{"fault": …}` lines.
 pub fn run_simulation(dir: &Path) -> Result<String, String> {
-    let src = read(&dir.join("chart.st"))?;
+    // A scenario's chart is textual SFC (`chart.st`) or PLCopen XML (`chart.xml`).
+    let file = if dir.join("chart.xml").exists() { "chart.xml" } else { "chart.st" };
+    let src = read(&dir.join(file))?;
     let report = check_source(&src);
     let index = LineIndex::new(&src);
-    let errors: String =
-        report.diagnostics.iter().filter(|d| d.is_error()).map(|d| index.render("chart.st", d)).collect();
+    let errors: String = report.diagnostics.iter().filter(|d| d.is_error()).map(|d| index.render(file, d)).collect();
     let program = match &report.charts[..] {
         [one] => one.program.clone().ok_or_else(|| format!("{}: chart has errors:\n{errors}", dir.display()))?,
         _ => return Err(format!("{}: expected exactly one chart", dir.display())),

@@ -33,5 +33,5 @@ fn simulation_scenarios() {
 
 #[test]
 fn diagnostics_scenarios() {
-    run_all(entries("diagnostics", |p| p.extension().is_some_and(|e| e == "st")));
+    run_all(entries("diagnostics", |p| p.extension().is_some_and(|e| e == "st" || e == "xml")));
 }

@@ -1,5 +1,6 @@
-//! The public textual charts in `../shared/corpus/sfc` (see its SOURCES.md): each parses, or is rejected with
-//! precise errors, exactly as recorded in `tests/corpus_expected`; the valid ones also run.
+//! The public charts in `../shared/corpus/sfc` (see its SOURCES.md), textual and PLCopen XML: each parses, or is
+//! rejected with precise errors, exactly as recorded in `tests/corpus_expected`; the valid ones also run; and
+//! the charts that exist in both forms give the same chart and the same trace.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -21,10 +22,10 @@ fn corpus_files() -> Option<Vec<PathBuf>> {
     };
     let mut files: Vec<PathBuf> = entries
         .map(|e| e.expect("directory entry").path())
-        .filter(|p| p.extension().is_some_and(|e| e == "st" || e == "txt" || e == "test"))
+        .filter(|p| p.extension().is_some_and(|e| e == "st" || e == "txt" || e == "test" || e == "xml"))
         .collect();
     files.sort();
-    assert!(!files.is_empty(), "no textual charts in {}", dir.display());
+    assert!(!files.is_empty(), "no charts in {}", dir.display());
     Some(files)
 }
 
@@ -57,6 +58,104 @@ fn valid_corpus_charts_run() {
             ran += 1;
         }
     }
-    // matiec's sfc.txt and both ironplc charts are valid.
-    assert!(ran >= 3, "only {ran} corpus charts ran");
+    // matiec's sfc.txt and both ironplc charts are valid, and so are matiec's SFC_TEST.xml, Beremiz's
+    // first_steps and the TwinCAT export.
+    assert!(ran >= 6, "only {ran} corpus charts ran");
+}
+
+/// The one chart of a corpus file, checked.
+fn program_of(name: &str) -> Option<baton_proto::exec::program::Program> {
+    let path = baton_tests::shared_dir().join("corpus/sfc").join(name);
+    let Ok(src) = std::fs::read_to_string(&path) else {
+        assert!(std::env::var_os("CI").is_none(), "{} is absent", path.display());
+        eprintln!("SKIPPED: {} is absent", path.display());
+        return None;
+    };
+    let mut charts = check_source(&src).charts;
+    assert_eq!(charts.len(), 1, "{name}");
+    Some(charts.remove(0).program.unwrap_or_else(|| panic!("{name} is not valid")))
+}
+
+/// A name upper-cased, and an inline action's generated name without its step: matiec's textual twin names
+/// them `INLINE1`…, Beremiz `STEP2_INLINE1`…, both numbered in document order.
+fn plain(name: &str) -> String {
+    let upper = name.to_ascii_uppercase();
+    match upper.find("_INLINE") {
+        Some(i) if upper[i + 7..].chars().all(|c| c.is_ascii_digit()) => upper[i + 1..].to_string(),
+        _ => upper,
+    }
+}
+
+/// Steps, transitions (sources, targets, rank) and actions by name, whatever order the file declares them in.
+fn shape(p: &baton_proto::exec::program::Program) -> (Vec<String>, Vec<String>, Vec<String>) {
+    let upper = |s: &str| plain(s);
+    let mut steps: Vec<String> = p
+        .steps
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            format!(
+                "{}{}",
+                upper(&s.name),
+                if p.initial_steps.iter().any(|x| x.index() == i) { " (initial)" } else { "" }
+            )
+        })
+        .collect();
+    steps.sort();
+    let mut transitions: Vec<String> = p.transitions.iter().map(|t| upper(&t.name)).collect();
+    transitions.sort();
+    let mut actions: Vec<String> = p.actions.iter().map(|a| upper(&a.name)).collect();
+    actions.sort();
+    (steps, transitions, actions)
+}
+
+/// The trace of a program under a script that flips each BOOL input and steps each integer one, variable by
+/// variable, one every 30 ms, with names upper-cased (the two forms may spell them differently).
+fn trace(p: baton_proto::exec::program::Program) -> Vec<String> {
+    use baton_proto::exec::sim::{parse_inputs, SimOutput};
+    use baton_proto::exec::types::Type;
+    let mut script = String::new();
+    let mut t = 0;
+    for round in 0..4 {
+        for v in p.vars.iter().filter(|v| !v.constant) {
+            let value = match v.ty {
+                Type::Bool => serde_json::json!(round % 2 == 0),
+                Type::Int(_) => serde_json::json!(round),
+                _ => continue,
+            };
+            t += 30;
+            script.push_str(&format!("{}\n", serde_json::json!({"t_ms": t, "set": {v.name.clone(): value}})));
+        }
+    }
+    let inputs = parse_inputs(&script, &p).expect("script");
+    let mut out = Vec::new();
+    simulate(Arc::new(p), &inputs, 10, t + 200, |o| {
+        out.push(match o {
+            SimOutput::Trace(r) => format!("{} {} {}", r.t_ms, r.event, plain(&r.name)),
+            SimOutput::Fault { t_ms, message } => format!("{t_ms} fault {message}"),
+        })
+    })
+    .expect("simulation runs");
+    out
+}
+
+fn same_chart_and_trace(xml: &str, text: &str) {
+    let (Some(a), Some(b)) = (program_of(xml), program_of(text)) else { return };
+    assert_eq!(shape(&a), shape(&b), "{xml} and {text} are not the same chart");
+    let (ta, tb) = (trace(a), trace(b));
+    assert!(ta.len() > 10, "the script moves the chart: {ta:#?}");
+    assert_eq!(ta, tb, "{xml} and {text} run differently");
+}
+
+#[test]
+fn matiec_sfc_test_in_xml_and_in_text_is_one_chart() {
+    same_chart_and_trace("matiec__tests__SFC_TEST.xml", "matiec__tests__syntax__sfc__sfc.txt");
+}
+
+#[test]
+fn beremiz_first_steps_in_xml_and_ironplc_text_are_one_chart() {
+    same_chart_and_trace(
+        "beremiz__exemples__first_steps__plc.xml",
+        "ironplc__compiler__resources__test__first_steps_function_block_counter_sfc.st",
+    );
 }

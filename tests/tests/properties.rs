@@ -1,4 +1,5 @@
-//! Property tests: generated charts against the validator and the engine; arbitrary text against the parser.
+//! Property tests: generated charts against the validator and the engine; arbitrary text against the parser;
+//! arbitrary and mutated PLCopen XML against the XML reader.
 
 use std::sync::Arc;
 
@@ -10,6 +11,64 @@ use baton_tests::gen::{shape_strategy, ChartBuilder};
 use proptest::prelude::*;
 
 const INPUTS: usize = 4;
+
+/// PLCopen files of the shared corpus to mutate (absent outside a checkout with ../shared beside it).
+fn corpus_xml(i: usize) -> Option<&'static str> {
+    static FILES: std::sync::OnceLock<Vec<String>> = std::sync::OnceLock::new();
+    let files = FILES.get_or_init(|| {
+        let dir = baton_tests::shared_dir().join("corpus/sfc");
+        [
+            "beremiz__exemples__first_steps__plc.xml",
+            "matiec__tests__SFC_TEST.xml",
+            "beremiz__exemples__svghmi_traffic_light__plc.xml",
+        ]
+        .iter()
+        .filter_map(|f| std::fs::read_to_string(dir.join(f)).ok())
+        .collect()
+    });
+    files.get(i).map(String::as_str)
+}
+
+/// One SFC-body element with small ids, so that references often hit, miss, loop or point at the wrong kind.
+fn xml_element() -> impl Strategy<Value = String> {
+    let id = 0u8..8;
+    let name = prop::sample::select(vec!["A", "B", "C", "a", ""]);
+    let refs = prop::collection::vec(0u8..9, 0..3);
+    let kind = prop::sample::select(vec![
+        "step",
+        "transition",
+        "selectionDivergence",
+        "selectionConvergence",
+        "simultaneousDivergence",
+        "simultaneousConvergence",
+        "jumpStep",
+        "actionBlock",
+        "inVariable",
+        "contact",
+        "leftPowerRail",
+        "block",
+        "macroStep",
+        "coil",
+        "connector",
+        "continuation",
+    ]);
+    let cond = prop::sample::select(vec![
+        "<condition><inline><ST>TRUE</ST></inline></condition>",
+        "<condition><inline><ST><![CDATA[x AND (]]></ST></inline></condition>",
+        "<condition><connectionPointIn><connection refLocalId=\"3\"/></connectionPointIn></condition>",
+        "<condition><reference name=\"T\"/></condition>",
+        "<condition negated=\"true\"><connection refLocalId=\"1\"/></condition>",
+        "",
+    ]);
+    (kind, id, name, refs, any::<bool>(), cond).prop_map(|(kind, id, name, refs, initial, cond)| {
+        let connections: String = refs.iter().map(|r| format!("<connection refLocalId=\"{r}\"/>")).collect();
+        format!(
+            "<{kind} localId=\"{id}\" name=\"{name}\" targetName=\"{name}\" initialStep=\"{initial}\" typeName=\"AND\">\
+             <connectionPointIn>{connections}</connectionPointIn><expression>{name}</expression><variable>{name}</variable>\
+             <action qualifier=\"N\"><inline><ST>x := 1;</ST></inline></action>{cond}</{kind}>"
+        )
+    })
+}
 
 /// Runs a valid chart for `cycles` cycles, setting the BOOL inputs c0…c3 from `toggles` before each cycle, and
 /// returns how many times a step received a token while holding one.
@@ -66,6 +125,36 @@ proptest! {
         "1", "2.5", "TRUE", "NOT", "AND", "+", "/", "0", "=", "<", "BOOL", "INT", "TIME", "{p}", "(*", "*)", "'s",
     ]), 0..120)) {
         let _ = check_source(&words.join(" "));
+    }
+
+    #[test]
+    fn xml_reader_never_panics_on_mutated_plcopen_files(
+        file in 0usize..3,
+        cut in any::<prop::sample::Index>(),
+        len in 0usize..60,
+        insert in prop::sample::select(vec![
+            "", "<", ">", "/>", "</step>", "<step localId=\"1\" name=\"S\">", "refLocalId=\"0\"", "&amp;", "&#0;",
+            "<![CDATA[", "]]>", "\"", "<connection refLocalId=\"99\"/>", "<jumpStep localId=\"7\" targetName=\"X\"/>",
+            "initialStep=\"true\"", "x := (", "<!--", "-->", "\u{feff}", "<block localId=\"5\" typeName=\"TON\">",
+        ]),
+    ) {
+        let Some(base) = corpus_xml(file) else { return Ok(()) };
+        let at = cut.index(base.len());
+        let end = (at + len).min(base.len());
+        if base.is_char_boundary(at) && base.is_char_boundary(end) {
+            let mutated = format!("{}{}{}", &base[..at], insert, &base[end..]);
+            let _ = check_source(&mutated);
+        }
+    }
+
+    #[test]
+    fn xml_reader_never_panics_on_element_soup(elements in prop::collection::vec(xml_element(), 0..40)) {
+        let body: String = elements.concat();
+        let src = format!(
+            "<?xml version=\"1.0\"?><project xmlns=\"http://www.plcopen.org/xml/tc6_0201\"><types><pous>\
+             <pou name=\"P\" pouType=\"program\"><body><SFC>{body}</SFC></body></pou></pous></types></project>"
+        );
+        let _ = check_source(&src);
     }
 
     #[test]

@@ -376,7 +376,11 @@ impl<'a> Compiler<'a> {
             let (condition, ty) = self.expr(&t.condition, vars);
             if ty != Ty::Bool && ty != Ty::Err {
                 self.error(t.condition.span, format!("a transition condition must be BOOL, found {}", ty.name()));
-            } else if ty == Ty::Bool && is_constant(&condition) && eval(&condition, &NoEnv) == Ok(Value::Bool(false)) {
+            } else if ty == Ty::Bool
+                && is_constant(&condition)
+                && eval(&condition, &NoEnv) == Ok(Value::Bool(false))
+                && !self.chart.broken.conditions.contains(&t.condition.span)
+            {
                 let name = t.display_name();
                 self.diags.push(Diagnostic::warning(
                     t.condition.span,
@@ -409,7 +413,7 @@ impl<'a> Compiler<'a> {
         for stmt in body {
             match stmt {
                 Stmt::Assign { target, value, .. } => {
-                    let (cvalue, vty) = self.expr(value, vars);
+                    let (mut cvalue, mut vty) = self.expr(value, vars);
                     let Some(&id) = self.vars.get(&target.key()) else {
                         if self.chart.broken.var(&target.key()) {
                             continue;
@@ -429,6 +433,12 @@ impl<'a> Compiler<'a> {
                     }
                     if self.reject_unsupported(target.span, var) {
                         continue;
+                    }
+                    // IEC 61131-3 writes BOOL literals as 0 and 1 too (`ORANGE_LIGHT := 1;` in Beremiz's examples).
+                    if Ty::of(&var.ty) == Ty::Bool {
+                        if let ExprKind::Int(v @ (0 | 1)) = value.kind {
+                            (cvalue, vty) = (CExpr::Const(Value::Bool(v == 1)), Ty::Bool);
+                        }
                     }
                     if !assignable(Ty::of(&var.ty), vty) {
                         let message = format!("cannot assign {} to `{}`, which is {}", vty.name(), var.name, var.ty);

@@ -7,6 +7,7 @@ use crate::exec::program::Program;
 use crate::front::diag::{Diagnostic, Span};
 use crate::front::model::Chart;
 use crate::front::parser::parse;
+use crate::front::plcopen;
 use crate::limits::{CHART_ELEMENTS_MAX, DIAGNOSTICS_MAX, SOURCE_BYTES_MAX};
 
 pub struct CheckedChart {
@@ -34,10 +35,16 @@ pub fn check_source(src: &str) -> Report {
         let message = format!("the file is larger than {} MiB", SOURCE_BYTES_MAX >> 20);
         return Report { charts: Vec::new(), diagnostics: vec![Diagnostic::error(Span::default(), message)] };
     }
-    let parsed = parse(src);
+    let xml = plcopen::looks_like_xml(src);
+    let parsed = if xml { plcopen::parse(src) } else { parse(src) };
     let mut diagnostics = parsed.diagnostics;
     if parsed.charts.is_empty() && !diagnostics.iter().any(Diagnostic::is_error) {
-        diagnostics.push(Diagnostic::error(Span::new(0, 0), "no sequential function chart found: expected `INITIAL_STEP` in a PROGRAM, a FUNCTION_BLOCK or at the top level"));
+        let message = if xml {
+            "no sequential function chart found: no program or function block of this PLCopen file has an SFC body"
+        } else {
+            "no sequential function chart found: expected `INITIAL_STEP` in a PROGRAM, a FUNCTION_BLOCK or at the top level"
+        };
+        diagnostics.push(Diagnostic::error(Span::new(0, 0), message));
     }
     let mut charts = Vec::with_capacity(parsed.charts.len());
     for chart in parsed.charts {
@@ -53,7 +60,8 @@ pub fn check_source(src: &str) -> Report {
         }
         let mut own = Vec::new();
         let compiled = compile(&chart, &mut own);
-        if compiled.net_ok && !compiled.program.initial_steps.is_empty() {
+        // After a syntax error the net is not the one the author drew: what the analysis would say of it is noise.
+        if compiled.net_ok && !parse_errors && !compiled.program.initial_steps.is_empty() {
             for finding in analyse(&compiled.program) {
                 own.push(describe(&chart, &compiled.program, finding));
             }
@@ -69,6 +77,9 @@ pub fn check_source(src: &str) -> Report {
         charts.push(CheckedChart { program: ok.then_some(compiled.program), layout: placed, chart });
     }
     diagnostics.sort_by_key(|d| d.span.start);
+    // One expression can be read twice (a named transition body that two transitions use): one report each.
+    let mut seen = std::collections::HashSet::new();
+    diagnostics.retain(|d| seen.insert((d.span, d.message.clone())));
     if diagnostics.len() > DIAGNOSTICS_MAX {
         let more = diagnostics.len() - DIAGNOSTICS_MAX;
         let last = diagnostics[DIAGNOSTICS_MAX - 1].span;

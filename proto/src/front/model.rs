@@ -63,6 +63,8 @@ pub struct Broken {
     pub unnamed_var: bool,
     /// A broken `INITIAL_STEP`.
     pub initial_step: bool,
+    /// Spans of conditions that could not be read, kept as FALSE so that the net around them is checked.
+    pub conditions: Vec<Span>,
 }
 
 impl Broken {
@@ -74,6 +76,7 @@ impl Broken {
         self.unnamed_action |= other.unnamed_action;
         self.unnamed_var |= other.unnamed_var;
         self.initial_step |= other.initial_step;
+        self.conditions.extend(other.conditions);
     }
 
     pub fn step(&self, key: &str) -> bool {

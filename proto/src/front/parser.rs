@@ -15,11 +15,75 @@ pub struct Parsed {
 
 pub fn parse(src: &str) -> Parsed {
     let lexed = lex(src);
-    let mut p =
-        Parser { src, toks: lexed.tokens, pos: 0, diags: lexed.diagnostics, depth: 0, broken_vars: Broken::default() };
+    let mut p = Parser {
+        src,
+        base: 0,
+        toks: lexed.tokens,
+        pos: 0,
+        diags: lexed.diagnostics,
+        depth: 0,
+        broken_vars: Broken::default(),
+    };
     let mut charts = p.file();
     attach_pragmas(src, &mut charts, &lexed.pragmas);
     Parsed { charts, diagnostics: p.diags }
+}
+
+/// What a piece of Structured Text found in another format (a PLCopen XML body) must be.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FragmentKind {
+    /// A condition or an initial value: one expression, a `;` after it allowed.
+    Expr,
+    /// A transition's named body: an expression, `:= expression;` as in textual SFC, or `NAME := expression;`.
+    TransitionBody,
+    /// An action's body: statements.
+    Statements,
+}
+
+pub enum Fragment {
+    Expr(Expr),
+    Statements(Vec<Stmt>),
+}
+
+pub struct ParsedFragment {
+    /// `None` when the text has a syntax error (reported in `diagnostics`).
+    pub fragment: Option<Fragment>,
+    /// The texts of the `{ … }` pragmas in the fragment, with their spans.
+    pub pragmas: Vec<Pragma>,
+    pub diagnostics: Vec<Diagnostic>,
+}
+
+/// Parses `text`, which stands at byte `base` of a larger file, as `kind`: spans are the file's, so that
+/// diagnostics point into it.
+pub fn parse_fragment(text: &str, base: usize, kind: FragmentKind) -> ParsedFragment {
+    let base = base as u32;
+    let shift = |span: Span| Span { start: span.start + base, end: span.end + base };
+    let mut lexed = lex(text);
+    for t in &mut lexed.tokens {
+        t.span = shift(t.span);
+    }
+    for d in &mut lexed.diagnostics {
+        d.span = shift(d.span);
+    }
+    let pragmas = lexed
+        .pragmas
+        .iter()
+        .map(|raw| Pragma {
+            text: text[raw.inner.start as usize..raw.inner.end as usize].trim().to_string(),
+            span: shift(raw.span),
+        })
+        .collect();
+    let mut p = Parser {
+        src: text,
+        base,
+        toks: lexed.tokens,
+        pos: 0,
+        diags: lexed.diagnostics,
+        depth: 0,
+        broken_vars: Broken::default(),
+    };
+    let fragment = p.fragment(kind).ok();
+    ParsedFragment { fragment, pragmas, diagnostics: p.diags }
 }
 
 /// Parse failed here; the error is already recorded.
@@ -28,6 +92,8 @@ type PResult<T> = Result<T, Failed>;
 
 struct Parser<'a> {
     src: &'a str,
+    /// Where `src` starts in the file that spans refer to (0 but for fragments).
+    base: u32,
     toks: Vec<Token>,
     pos: usize,
     diags: Vec<Diagnostic>,
@@ -98,11 +164,12 @@ impl Parser<'_> {
     }
 
     fn text(&self, span: Span) -> &str {
-        &self.src[span.start as usize..span.end as usize]
+        &self.src[(span.start - self.base) as usize..(span.end - self.base) as usize]
     }
 
     fn found(&self) -> String {
         match self.peek() {
+            Tok::Eof if self.base > 0 => "the end of the body".to_string(),
             Tok::Eof => "end of file".to_string(),
             _ => format!("`{}`", self.text(self.span())),
         }
@@ -503,6 +570,34 @@ impl Parser<'_> {
         Ok(Action { name, body, pragmas: Vec::new(), span: kw.span.to(end.span) })
     }
 
+    fn fragment(&mut self, kind: FragmentKind) -> PResult<Fragment> {
+        let fragment = match kind {
+            FragmentKind::Expr => {
+                let e = self.expr()?;
+                self.eat(Tok::Semi);
+                Fragment::Expr(e)
+            }
+            FragmentKind::TransitionBody => {
+                if self.peek() == Tok::Ident && self.peek_at(1) == Tok::Assign {
+                    self.bump();
+                }
+                self.eat(Tok::Assign);
+                let e = self.expr()?;
+                self.eat(Tok::Semi);
+                Fragment::Expr(e)
+            }
+            FragmentKind::Statements => Fragment::Statements(self.statements()?),
+        };
+        if self.peek() != Tok::Eof {
+            let what = match kind {
+                FragmentKind::Statements => "a statement",
+                _ => "the end of the expression",
+            };
+            return Err(self.error_here(what));
+        }
+        Ok(fragment)
+    }
+
     fn statements(&mut self) -> PResult<Vec<Stmt>> {
         let mut out = Vec::new();
         loop {
@@ -517,6 +612,15 @@ impl Parser<'_> {
                     let value = self.expr()?;
                     let semi = self.expect(Tok::Semi, "`;`")?;
                     out.push(Stmt::Assign { span: target.span.to(semi.span), target, value });
+                }
+                Tok::Ident if self.peek_at(1) == Tok::LParen => {
+                    let span = self.span();
+                    let message = format!(
+                        "calls such as `{}(…)` (function blocks, functions) are not supported yet",
+                        self.text(span)
+                    );
+                    self.diags.push(Diagnostic::error(span, message));
+                    return Err(Failed);
                 }
                 Tok::Kw(Kw::EndAction | Kw::Elsif | Kw::Else | Kw::EndIf) | Tok::Eof => return Ok(out),
                 _ => {

@@ -1,0 +1,1309 @@
+//! Reads PLCopen TC6 XML (v1.0, v2.0, v2.01, as Beremiz/OpenPLC Editor, CODESYS V3.5 and TwinCAT 3 write it)
+//! into the same chart model as the textual parser, with spans into the XML so that every diagnostic points
+//! at the element's line.
+//!
+//! The SFC body is a graph of elements with `localId`s; edges exist only on the consumer side
+//! (`connectionPointIn/connection@refLocalId`). A transition's sources are found walking back through selection
+//! divergences and simultaneous convergences to steps; its targets walking forward through selection
+//! convergences and simultaneous divergences to steps and jumps. Conditions and actions are ST text (parsed by
+//! the textual parser as fragments, at their place in the file) or LD/FBD networks, which become expressions
+//! and assignments. What Baton does not run yet is refused with an error that names it.
+
+use std::collections::HashMap;
+
+use roxmltree::{Document, Node, ParsingOptions, TextPos};
+
+use crate::front::diag::{Diagnostic, Span};
+use crate::front::model::*;
+use crate::front::parser::{parse_fragment, Fragment, FragmentKind, Parsed};
+use crate::limits::{NESTING_DEPTH_MAX, XML_CONNECTIONS_WALKED_MAX, XML_NODES_MAX};
+
+/// The namespaces of the TC6 versions Baton reads.
+const NAMESPACES: [&str; 3] = [
+    "http://www.plcopen.org/xml/tc6.xsd",
+    "http://www.plcopen.org/xml/tc6_0200",
+    "http://www.plcopen.org/xml/tc6_0201",
+];
+
+/// CODESYS V3.5's per-element vendor data, and the attribute in it that names a step's active (N) action.
+const CODESYS_SFC_ELEMENT: &str = "http://www.3s-software.com/plcopenxml/sfc/element";
+const CODESYS_ACTIVE_ACTION: &str = "700a583f-b4d4-43e4-8c14-629c7cd3bec8";
+
+/// Whether a source text is XML (and so PLCopen) rather than textual SFC: decided by content, not file name.
+pub fn looks_like_xml(src: &str) -> bool {
+    src.trim_start_matches('\u{feff}').trim_start().starts_with('<')
+}
+
+pub fn parse(src: &str) -> Parsed {
+    let options = ParsingOptions { allow_dtd: false, nodes_limit: XML_NODES_MAX, ..ParsingOptions::default() };
+    let doc = match Document::parse_with_options(src, options) {
+        Ok(doc) => doc,
+        Err(e) => {
+            let at = offset_of(src, e.pos());
+            let message = format!("malformed XML: {}", strip_position(&e.to_string()));
+            return Parsed { charts: Vec::new(), diagnostics: vec![Diagnostic::error(Span::new(at, at + 1), message)] };
+        }
+    };
+    let mut reader = Reader { src, diags: Vec::new(), visits: 0 };
+    let root = doc.root_element();
+    if root.tag_name().name() != "project" {
+        let message =
+            format!("not a PLCopen TC6 file: the root element is `<{}>`, expected `<project>`", root.tag_name().name());
+        reader.diags.push(Diagnostic::error(reader.tag_span(root), message));
+        return Parsed { charts: Vec::new(), diagnostics: reader.diags };
+    }
+    match root.tag_name().namespace() {
+        Some(ns) if NAMESPACES.contains(&ns) => {}
+        ns => {
+            let message = format!(
+                "unknown PLCopen namespace {}: read as TC6 v2.01 (known: {})",
+                ns.map_or("(none)".to_string(), |n| format!("`{n}`")),
+                NAMESPACES.join(", ")
+            );
+            reader.diags.push(Diagnostic::warning(reader.tag_span(root), message));
+        }
+    }
+    // POUs under types/pous, and those that TwinCAT and CODESYS keep in project-level addData.
+    let charts = root.descendants().filter(|n| is(n, "pou")).filter_map(|pou| reader.pou(pou)).collect();
+    Parsed { charts, diagnostics: reader.diags }
+}
+
+/// roxmltree ends its messages with ` at LINE:COL`, which the diagnostic header already says.
+fn strip_position(message: &str) -> &str {
+    match message.rfind(" at ") {
+        Some(i) if message[i + 4..].chars().all(|c| c.is_ascii_digit() || c == ':') => &message[..i],
+        _ => message,
+    }
+}
+
+/// The byte offset of a 1-based line and character column.
+fn offset_of(src: &str, pos: TextPos) -> usize {
+    let mut line_start = 0;
+    for _ in 1..pos.row {
+        match src[line_start..].find('\n') {
+            Some(i) => line_start += i + 1,
+            None => return src.len(),
+        }
+    }
+    let line = &src[line_start..];
+    line_start + line.char_indices().nth(pos.col.saturating_sub(1) as usize).map_or(line.len(), |(i, _)| i)
+}
+
+fn is(n: &Node, name: &str) -> bool {
+    n.is_element() && n.tag_name().name() == name
+}
+
+fn child<'a, 'i>(n: Node<'a, 'i>, name: &str) -> Option<Node<'a, 'i>> {
+    n.children().find(|c| is(c, name))
+}
+
+fn children<'a, 'i: 'a>(n: Node<'a, 'i>, name: &'a str) -> impl Iterator<Item = Node<'a, 'i>> + 'a {
+    n.children().filter(move |c| is(c, name))
+}
+
+fn flag(n: Node, attr: &str) -> bool {
+    matches!(n.attribute(attr), Some("true" | "1"))
+}
+
+/// A transition, kept with what orders it among its siblings.
+struct ReadTransition {
+    transition: Transition,
+    /// The selection divergence it leaves from (its document index), else its own document index; then its
+    /// drawn x position: Beremiz gives branches no priority, their order is left to right.
+    order: (usize, f64, usize),
+}
+
+/// One body's elements by `localId`.
+struct Elements<'a, 'i> {
+    by_id: HashMap<u64, Node<'a, 'i>>,
+    /// Which elements take each element's output, in document order.
+    consumers: HashMap<u64, Vec<u64>>,
+    /// Document index of each element.
+    index: HashMap<u64, usize>,
+}
+
+struct Reader<'s> {
+    src: &'s str,
+    diags: Vec<Diagnostic>,
+    /// Connections followed since the last transition or network began (`too_deep`).
+    visits: usize,
+}
+
+impl Reader<'_> {
+    fn error(&mut self, span: Span, message: impl Into<String>) {
+        self.diags.push(Diagnostic::error(span, message));
+    }
+
+    /// The span of an element's `<name`, where a diagnostic about the element points.
+    fn tag_span(&self, n: Node) -> Span {
+        let start = n.range().start;
+        let rest = &self.src[start..n.range().end];
+        let len = rest.find(|c: char| c.is_whitespace() || c == '>' || c == '/').unwrap_or(rest.len());
+        Span::new(start, start + len.max(1))
+    }
+
+    fn attr_span(&self, n: Node, attr: &str) -> Span {
+        n.attribute_node(attr)
+            .map_or_else(|| self.tag_span(n), |a| Span::new(a.range_value().start, a.range_value().end))
+    }
+
+    /// An attribute as a name, or an error naming the element and the attribute.
+    fn ident_attr(&mut self, n: Node, attr: &str) -> Option<Ident> {
+        match n.attribute(attr).map(str::trim) {
+            Some(name) if !name.is_empty() => Some(Ident { name: name.to_string(), span: self.attr_span(n, attr) }),
+            _ => {
+                let message = format!("`<{}>` has no `{attr}`", n.tag_name().name());
+                self.error(self.tag_span(n), message);
+                None
+            }
+        }
+    }
+
+    /// The text inside an element, with markup (`<xhtml:p>`, CDATA delimiters, comments) blanked out and
+    /// entities decoded in place, so that each character keeps its offset in the file; and that offset.
+    fn inner_text(&self, n: Node) -> (BodyText, usize) {
+        let range = n.range();
+        let raw = &self.src[range.clone()];
+        if raw.ends_with("/>") && !raw.contains("</") {
+            return (BodyText { text: String::new(), shifts: Vec::new() }, range.end);
+        }
+        let after_attrs = n.attributes().map(|a| a.range().end).max().unwrap_or(range.start);
+        let open_end = self.src[after_attrs..range.end].find('>').map_or(range.end, |i| after_attrs + i + 1);
+        let close = raw.rfind("</").map_or(range.end, |i| range.start + i).max(open_end);
+        (blank_markup(&self.src[open_end..close]), open_end)
+    }
+
+    fn fragment(&mut self, n: Node, kind: FragmentKind) -> (Option<Fragment>, Vec<Pragma>) {
+        let (body, base) = self.inner_text(n);
+        if body.text.trim().is_empty() {
+            let what = match kind {
+                FragmentKind::Statements => return (Some(Fragment::Statements(Vec::new())), Vec::new()),
+                _ => "an expression",
+            };
+            self.error(self.tag_span(n), format!("`<{}>` is empty: expected {what}", n.tag_name().name()));
+            return (None, Vec::new());
+        }
+        self.parse_body(&body, base, kind)
+    }
+
+    /// Parses a body's text as `kind`, with every span put back at its place in the file.
+    fn parse_body(&mut self, body: &BodyText, base: usize, kind: FragmentKind) -> (Option<Fragment>, Vec<Pragma>) {
+        if body.shifts.is_empty() {
+            let parsed = parse_fragment(&body.text, base, kind);
+            self.diags.extend(parsed.diagnostics);
+            return (parsed.fragment, parsed.pragmas);
+        }
+        let mut parsed = parse_fragment(&body.text, 0, kind);
+        let f = |s: Span| Span::new(base + body.raw(s.start as usize), base + body.raw(s.end as usize));
+        match &mut parsed.fragment {
+            Some(Fragment::Expr(e)) => remap_expr(e, &f),
+            Some(Fragment::Statements(stmts)) => remap_stmts(stmts, &f),
+            None => {}
+        }
+        for d in &mut parsed.diagnostics {
+            d.span = f(d.span);
+        }
+        for p in &mut parsed.pragmas {
+            p.span = f(p.span);
+        }
+        self.diags.extend(parsed.diagnostics);
+        (parsed.fragment, parsed.pragmas)
+    }
+
+    fn expr_text(&mut self, n: Node) -> Option<Expr> {
+        match self.fragment(n, FragmentKind::Expr).0 {
+            Some(Fragment::Expr(e)) => Some(e),
+            _ => None,
+        }
+    }
+
+    /// An attribute's value as an expression (a duration, an initial value).
+    fn expr_attr(&mut self, n: Node, attr: &str) -> Option<Expr> {
+        let a = n.attribute_node(attr)?;
+        let range = a.range_value();
+        let body = blank_markup(&self.src[range.clone()]);
+        match self.parse_body(&body, range.start, FragmentKind::Expr).0 {
+            Some(Fragment::Expr(e)) => Some(e),
+            _ => None,
+        }
+    }
+
+    fn pou(&mut self, pou: Node) -> Option<Chart> {
+        let sfc = child(pou, "body").and_then(|b| child(b, "SFC"))?;
+        let kind = match pou.attribute("pouType") {
+            Some("program") => PouKind::Program,
+            Some("functionBlock") => PouKind::FunctionBlock,
+            other => {
+                let message = format!(
+                    "an SFC body in a POU of type `{}`: only programs and function blocks hold charts",
+                    other.unwrap_or("(none)")
+                );
+                self.error(self.tag_span(pou), message);
+                return None;
+            }
+        };
+        let name = self.ident_attr(pou, "name")?;
+        let range = pou.range();
+        let mut chart = Chart {
+            name,
+            kind,
+            vars: self.interface(pou),
+            steps: Vec::new(),
+            transitions: Vec::new(),
+            actions: Vec::new(),
+            pragmas: Vec::new(),
+            span: Span::new(range.start, range.end),
+            broken: Broken::default(),
+        };
+        let named_transitions: HashMap<String, Node> = child(pou, "transitions")
+            .into_iter()
+            .flat_map(|t| children(t, "transition"))
+            .filter_map(|t| Some((t.attribute("name")?.to_ascii_uppercase(), t)))
+            .collect();
+        for action in child(pou, "actions").into_iter().flat_map(|a| children(a, "action")) {
+            self.named_action(action, &mut chart);
+        }
+        self.sfc(sfc, &named_transitions, &mut chart);
+        Some(chart)
+    }
+
+    fn interface(&mut self, pou: Node) -> Vec<VarDecl> {
+        let mut vars = Vec::new();
+        let Some(interface) = child(pou, "interface") else { return vars };
+        for block in interface.children().filter(Node::is_element) {
+            let section = match block.tag_name().name() {
+                "localVars" => VarSection::Local,
+                "inputVars" => VarSection::Input,
+                "outputVars" => VarSection::Output,
+                "inOutVars" => VarSection::InOut,
+                "externalVars" => VarSection::External,
+                "globalVars" => VarSection::Global,
+                "tempVars" => VarSection::Temp,
+                _ => continue,
+            };
+            let constant = flag(block, "constant");
+            for v in children(block, "variable") {
+                let Some(name) = self.ident_attr(v, "name") else { continue };
+                let type_node = child(v, "type").and_then(|t| t.first_element_child());
+                let type_name = match type_node {
+                    Some(t) if t.tag_name().name() == "derived" => {
+                        t.attribute("name").unwrap_or("(unnamed derived type)").to_string()
+                    }
+                    Some(t) => t.tag_name().name().to_ascii_uppercase(),
+                    None => {
+                        self.error(name.span, format!("variable `{}` has no type", name.name));
+                        continue;
+                    }
+                };
+                let type_span = type_node.map_or(name.span, |t| self.tag_span(t));
+                let init = child(v, "initialValue")
+                    .and_then(|i| child(i, "simpleValue"))
+                    .and_then(|s| self.expr_attr(s, "value"));
+                vars.push(VarDecl {
+                    name,
+                    section,
+                    constant,
+                    type_name: Ident { name: type_name, span: type_span },
+                    init,
+                });
+            }
+        }
+        vars
+    }
+
+    /// A named action of the POU: its body in ST, LD or FBD.
+    fn named_action(&mut self, action: Node, chart: &mut Chart) {
+        let Some(name) = self.ident_attr(action, "name") else {
+            chart.broken.unnamed_action = true;
+            return;
+        };
+        let span = self.tag_span(action);
+        let body = child(action, "body").and_then(|b| b.first_element_child());
+        let (statements, pragmas) = match body {
+            Some(b) => self.body_statements(b),
+            None => {
+                self.error(span, format!("action `{}` has no body", name.name));
+                (None, Vec::new())
+            }
+        };
+        if statements.is_none() {
+            chart.broken.actions.push(name.key());
+        }
+        chart.actions.push(Action { name, body: statements.unwrap_or_default(), pragmas, span });
+    }
+
+    /// The statements of an action body (`<ST>`, `<LD>` or `<FBD>`), or `None` after an error.
+    fn body_statements(&mut self, body: Node) -> (Option<Vec<Stmt>>, Vec<Pragma>) {
+        match body.tag_name().name() {
+            "ST" => match self.fragment(body, FragmentKind::Statements) {
+                (Some(Fragment::Statements(s)), pragmas) => (Some(s), pragmas),
+                (_, pragmas) => (None, pragmas),
+            },
+            "LD" | "FBD" => (self.network_statements(body), Vec::new()),
+            other => {
+                let message = match other {
+                    "IL" => "Instruction List bodies are not supported: write the action in ST, LD or FBD".to_string(),
+                    "SFC" => "an action whose body is itself an SFC (a nested chart) is not supported yet".to_string(),
+                    _ => format!("`<{other}>` bodies are not supported"),
+                };
+                self.error(self.tag_span(body), message);
+                (None, Vec::new())
+            }
+        }
+    }
+
+    /// An LD or FBD network as assignments: each coil and output variable, in execution order, gets what is
+    /// wired to it.
+    fn network_statements(&mut self, body: Node) -> Option<Vec<Stmt>> {
+        let elements = self.elements(body, &[]);
+        let mut outputs: Vec<Node> = body.children().filter(|c| is(c, "coil") || is(c, "outVariable")).collect();
+        outputs.sort_by_key(|n| n.attribute("executionOrderId").and_then(|e| e.parse::<u64>().ok()).unwrap_or(0));
+        let mut out = Vec::new();
+        let mut ok = true;
+        for n in outputs {
+            let target_node = if is(&n, "coil") { child(n, "variable") } else { child(n, "expression") };
+            let target = match target_node.and_then(|t| self.expr_text(t)) {
+                Some(Expr { kind: ExprKind::Name(id), .. }) => id,
+                Some(other) => {
+                    self.error(other.span, "a coil or output variable must name a variable");
+                    ok = false;
+                    continue;
+                }
+                None => {
+                    if target_node.is_none() {
+                        self.error(self.tag_span(n), "a coil or output variable without a variable");
+                    }
+                    ok = false;
+                    continue;
+                }
+            };
+            self.visits = 0;
+            let Some(mut value) = self.wired(&elements, n, 0) else {
+                ok = false;
+                continue;
+            };
+            if flag(n, "negated") {
+                value = not(value);
+            }
+            let span = self.tag_span(n);
+            let stmt = match n.attribute("storage") {
+                Some("set") | Some("reset") => {
+                    let to = n.attribute("storage") == Some("set");
+                    let assign = Stmt::Assign { target, value: Expr { kind: ExprKind::Bool(to), span }, span };
+                    Stmt::If { branches: vec![(value, vec![assign])], otherwise: Vec::new(), span }
+                }
+                _ => Stmt::Assign { target, value, span },
+            };
+            out.push(stmt);
+        }
+        ok.then_some(out)
+    }
+
+    /// A body's elements by `localId`; `structural` names the kinds whose inputs are SFC arcs, for `consumers`.
+    fn elements<'a, 'i>(&mut self, body: Node<'a, 'i>, structural: &[&str]) -> Elements<'a, 'i> {
+        let mut by_id = HashMap::new();
+        let mut consumers: HashMap<u64, Vec<u64>> = HashMap::new();
+        let mut index = HashMap::new();
+        for (i, el) in body.children().filter(Node::is_element).enumerate() {
+            let kind = el.tag_name().name();
+            let Some(raw) = el.attribute("localId") else {
+                if !matches!(kind, "comment" | "addData" | "documentation") {
+                    self.error(self.tag_span(el), format!("`<{kind}>` has no `localId`"));
+                }
+                continue;
+            };
+            let Ok(id) = raw.trim().parse::<u64>() else {
+                self.error(self.attr_span(el, "localId"), format!("`localId` `{raw}` is not a number"));
+                continue;
+            };
+            if let Some(first) = by_id.insert(id, el) {
+                by_id.insert(id, first);
+                self.error(self.attr_span(el, "localId"), format!("duplicate `localId` {id}: two elements have it"));
+                continue;
+            }
+            index.insert(id, i);
+        }
+        // Arcs of the chart, checked once all ids are known.
+        for el in body.children().filter(|n| structural.contains(&n.tag_name().name())) {
+            let id = el.attribute("localId").and_then(|r| r.trim().parse::<u64>().ok());
+            for (from, _, at) in self.connections(el) {
+                if by_id.contains_key(&from) {
+                    if let Some(id) = id {
+                        consumers.entry(from).or_default().push(id);
+                    }
+                } else {
+                    self.error(at, format!("`refLocalId` {from} points to no element of this body"));
+                }
+            }
+        }
+        Elements { by_id, consumers, index }
+    }
+
+    /// The connections into an element: `connectionPointIn/connection` (and v1.0's bare `connection`), as
+    /// (source id, formal parameter, span).
+    fn connections(&mut self, n: Node) -> Vec<(u64, Option<String>, Span)> {
+        let points = children(n, "connectionPointIn").flat_map(|p| children(p, "connection"));
+        let bare = children(n, "connection");
+        let mut out = Vec::new();
+        for c in points.chain(bare).collect::<Vec<_>>() {
+            match c.attribute("refLocalId").map(|r| r.trim().parse::<u64>()) {
+                Some(Ok(id)) => out.push((id, c.attribute("formalParameter").map(str::to_string), self.tag_span(c))),
+                Some(Err(_)) => self.error(self.attr_span(c, "refLocalId"), "`refLocalId` is not a number"),
+                None => self.error(self.tag_span(c), "`<connection>` has no `refLocalId`"),
+            }
+        }
+        out
+    }
+
+    fn sfc(&mut self, sfc: Node, named_transitions: &HashMap<String, Node>, chart: &mut Chart) {
+        const STRUCTURAL: [&str; 8] = [
+            "step",
+            "macroStep",
+            "jumpStep",
+            "transition",
+            "selectionDivergence",
+            "selectionConvergence",
+            "simultaneousDivergence",
+            "simultaneousConvergence",
+        ];
+        let elements = self.elements(sfc, &STRUCTURAL);
+        let mut step_of_id: HashMap<u64, usize> = HashMap::new();
+        let mut transitions = Vec::new();
+        let mut inline_count = 0;
+        let mut pending_blocks = Vec::new();
+        for (i, el) in sfc.children().filter(Node::is_element).enumerate() {
+            match el.tag_name().name() {
+                "step" => {
+                    let Some(name) = self.ident_attr(el, "name") else {
+                        chart.broken.unnamed_step = true;
+                        continue;
+                    };
+                    if let Some(id) = el.attribute("localId").and_then(|r| r.trim().parse().ok()) {
+                        step_of_id.insert(id, chart.steps.len());
+                    }
+                    let mut step = Step {
+                        name,
+                        initial: flag(el, "initialStep"),
+                        associations: Vec::new(),
+                        pragmas: Vec::new(),
+                        span: self.tag_span(el),
+                    };
+                    self.codesys_active_action(el, &mut step);
+                    chart.steps.push(step);
+                }
+                "macroStep" => {
+                    let message = "macro steps (`macroStep`) are not supported: draw the macro's steps in the chart";
+                    self.error(self.tag_span(el), message);
+                    match el.attribute("name") {
+                        Some(n) => chart.broken.steps.push(n.to_ascii_uppercase()),
+                        None => chart.broken.unnamed_step = true,
+                    }
+                }
+                "transition" => {
+                    if let Some(t) = self.transition(el, i, &elements, named_transitions, &mut chart.broken) {
+                        transitions.push(t);
+                    }
+                }
+                "actionBlock" => pending_blocks.push(el),
+                _ => {}
+            }
+        }
+        for block in pending_blocks {
+            self.action_block(block, &elements, &step_of_id, &mut inline_count, chart);
+        }
+        transitions.sort_by(|a, b| {
+            a.order.0.cmp(&b.order.0).then(a.order.1.total_cmp(&b.order.1)).then(a.order.2.cmp(&b.order.2))
+        });
+        chart.transitions = transitions.into_iter().map(|t| t.transition).collect();
+        walk_order(chart);
+    }
+
+    /// CODESYS V3.5 may attach a step's action only in its vendor data, as the step's "active" action (N).
+    fn codesys_active_action(&mut self, step_node: Node, step: &mut Step) {
+        let attributes = child(step_node, "addData")
+            .into_iter()
+            .flat_map(|a| children(a, "data"))
+            .filter(|d| d.attribute("name") == Some(CODESYS_SFC_ELEMENT))
+            .flat_map(|d| children(d, "attributes"))
+            .flat_map(|a| children(a, "attribute"));
+        for a in attributes {
+            if a.attribute("guid") != Some(CODESYS_ACTIVE_ACTION) {
+                continue;
+            }
+            let Some(text) = a.text().map(str::trim).filter(|t| !t.is_empty()) else { continue };
+            let (_, base) = self.inner_text(a);
+            let span = Span::new(base, base + text.len());
+            let action = Ident { name: text.to_string(), span };
+            if !step.associations.iter().any(|x| x.action.key() == action.key()) {
+                step.associations.push(Association {
+                    action,
+                    qualifier: Qualifier::N,
+                    qualifier_span: span,
+                    duration: None,
+                    indicators: Vec::new(),
+                    span,
+                });
+            }
+        }
+    }
+
+    fn transition(
+        &mut self,
+        el: Node,
+        doc_index: usize,
+        elements: &Elements,
+        named: &HashMap<String, Node>,
+        broken: &mut Broken,
+    ) -> Option<ReadTransition> {
+        let span = self.tag_span(el);
+        self.visits = 0;
+        let inputs = self.connections(el);
+        if inputs.is_empty() {
+            self.error(span, "transition with no input: connect it to the step it leaves");
+            return None;
+        }
+        let mut from = Vec::new();
+        let mut ok = true;
+        let mut divergence = None;
+        for (id, _, at) in &inputs {
+            if elements.by_id.get(id).is_some_and(|d| is(d, "selectionDivergence")) {
+                divergence = elements.index.get(id).copied();
+            }
+            ok &= self.sources(elements, *id, *at, &mut from, 0);
+        }
+        let mut to = Vec::new();
+        let id = el.attribute("localId").and_then(|r| r.trim().parse::<u64>().ok());
+        if let Some(id) = id {
+            ok &= self.targets(elements, id, span, &mut to, 0);
+        }
+        if ok && to.is_empty() {
+            self.error(span, "transition with no output: connect a step, a jump or a divergence after it");
+            ok = false;
+        }
+        let (condition, pragmas) = self.condition(el, elements, named);
+        let priority = match el.attribute("priority").map(|p| p.trim().parse::<u32>()) {
+            Some(Ok(p)) => Some((p, self.attr_span(el, "priority"))),
+            Some(Err(_)) => {
+                self.error(self.attr_span(el, "priority"), "a transition's priority must be a non-negative integer");
+                None
+            }
+            None => None,
+        };
+        if !ok {
+            return None;
+        }
+        // A broken condition keeps its transition (as never clearing), so that the net around it is checked.
+        let condition = condition.unwrap_or_else(|| {
+            broken.conditions.push(span);
+            Expr { kind: ExprKind::Bool(false), span }
+        });
+        let x = child(el, "position").and_then(|p| p.attribute("x")).and_then(|x| x.trim().parse::<f64>().ok());
+        Some(ReadTransition {
+            transition: Transition { name: None, priority, from, to, condition, pragmas, span, arc_span: span },
+            order: (divergence.unwrap_or(doc_index), x.unwrap_or(0.0), doc_index),
+        })
+    }
+
+    fn too_deep(&mut self, depth: usize, span: Span) -> bool {
+        // Shared inputs make a wired network a DAG whose expression can be exponentially larger than the file:
+        // the walk has a budget.
+        self.visits += 1;
+        if self.visits == XML_CONNECTIONS_WALKED_MAX {
+            let message = format!(
+                "more than {XML_CONNECTIONS_WALKED_MAX} connections followed for one transition or network: too large, or in a loop"
+            );
+            self.error(span, message);
+        }
+        if self.visits >= XML_CONNECTIONS_WALKED_MAX {
+            return true;
+        }
+        if depth > NESTING_DEPTH_MAX {
+            let message = format!("connections nested more than {NESTING_DEPTH_MAX} deep, or in a loop");
+            self.error(span, message);
+            return true;
+        }
+        false
+    }
+
+    /// The steps a transition leaves, walking back from element `id`.
+    fn sources(&mut self, elements: &Elements, id: u64, at: Span, out: &mut Vec<Ident>, depth: usize) -> bool {
+        if self.too_deep(depth, at) {
+            return false;
+        }
+        let Some(&n) = elements.by_id.get(&id) else {
+            self.error(at, format!("`refLocalId` {id} points to no element of this body"));
+            return false;
+        };
+        match n.tag_name().name() {
+            "step" => match n.attribute("name") {
+                Some(name) => {
+                    out.push(Ident { name: name.trim().to_string(), span: self.attr_span(n, "name") });
+                    true
+                }
+                None => false,
+            },
+            "macroStep" => false,
+            "selectionDivergence" | "simultaneousConvergence" => {
+                let inputs = self.connections(n);
+                if inputs.is_empty() {
+                    let message = format!("`<{}>` has no input", n.tag_name().name());
+                    self.error(self.tag_span(n), message);
+                    return false;
+                }
+                let mut ok = true;
+                for (from, _, span) in inputs {
+                    ok &= self.sources(elements, from, span, out, depth + 1);
+                }
+                ok
+            }
+            other => {
+                let message = format!(
+                    "a transition's input must be a step, a selection divergence or a simultaneous convergence, not `<{other}>` (element {id})"
+                );
+                self.error(at, message);
+                false
+            }
+        }
+    }
+
+    /// The steps a transition activates, walking forward from element `id`.
+    fn targets(&mut self, elements: &Elements, id: u64, at: Span, out: &mut Vec<Ident>, depth: usize) -> bool {
+        if self.too_deep(depth, at) {
+            return false;
+        }
+        let mut ok = true;
+        for c in elements.consumers.get(&id).into_iter().flatten() {
+            let n = elements.by_id[c];
+            match n.tag_name().name() {
+                "step" => match n.attribute("name") {
+                    Some(name) => out.push(Ident { name: name.trim().to_string(), span: self.attr_span(n, "name") }),
+                    None => ok = false,
+                },
+                "jumpStep" => match self.ident_attr(n, "targetName") {
+                    Some(target) => out.push(target),
+                    None => ok = false,
+                },
+                "macroStep" => ok = false,
+                "selectionConvergence" | "simultaneousDivergence" => {
+                    let before = out.len();
+                    ok &= self.targets(elements, *c, self.tag_span(n), out, depth + 1);
+                    if ok && out.len() == before {
+                        let message =
+                            format!("`<{}>` leads nowhere: nothing is connected after it", n.tag_name().name());
+                        self.error(self.tag_span(n), message);
+                        ok = false;
+                    }
+                }
+                "transition" => {
+                    let span = self.tag_span(n);
+                    self.error(span, "two transitions in a row: a step must stand between them");
+                    ok = false;
+                }
+                other => {
+                    let message = format!("`<{other}>` cannot follow a transition");
+                    self.error(self.tag_span(n), message);
+                    ok = false;
+                }
+            }
+        }
+        ok
+    }
+
+    /// A transition's condition: inline ST, a named transition's body, or LD/FBD logic wired to it.
+    fn condition(
+        &mut self,
+        el: Node,
+        elements: &Elements,
+        named: &HashMap<String, Node>,
+    ) -> (Option<Expr>, Vec<Pragma>) {
+        let Some(cond) = child(el, "condition") else {
+            self.error(self.tag_span(el), "transition without a `<condition>`");
+            return (None, Vec::new());
+        };
+        let mut pragmas = Vec::new();
+        let expr = if let Some(inline) = child(cond, "inline") {
+            match inline.first_element_child() {
+                Some(st) if is(&st, "ST") => {
+                    let (fragment, found) = self.fragment(st, FragmentKind::Expr);
+                    pragmas = found;
+                    match fragment {
+                        Some(Fragment::Expr(e)) => Some(e),
+                        _ => None,
+                    }
+                }
+                Some(other) => {
+                    self.unsupported_language(other);
+                    None
+                }
+                None => {
+                    self.error(self.tag_span(inline), "an inline condition without a body");
+                    None
+                }
+            }
+        } else if let Some(reference) = child(cond, "reference") {
+            self.named_condition(reference, named)
+        } else if child(cond, "connectionPointIn").is_some() || child(cond, "connection").is_some() {
+            self.wired(elements, cond, 0)
+        } else {
+            self.error(self.tag_span(cond), "an empty `<condition>`: expected inline ST, a reference or a connection");
+            None
+        };
+        let expr = if flag(cond, "negated") { expr.map(not) } else { expr };
+        (expr, pragmas)
+    }
+
+    fn unsupported_language(&mut self, body: Node) {
+        let message = match body.tag_name().name() {
+            "IL" => "Instruction List conditions are not supported: write the condition in ST".to_string(),
+            other => format!("`<{other}>` bodies are not supported here"),
+        };
+        self.error(self.tag_span(body), message);
+    }
+
+    /// The body of a named transition, `pou/transitions/transition@name`.
+    fn named_condition(&mut self, reference: Node, named: &HashMap<String, Node>) -> Option<Expr> {
+        let name = self.ident_attr(reference, "name")?;
+        let Some(&t) = named.get(&name.key()) else {
+            self.error(name.span, format!("no transition named `{}` in this POU's `<transitions>`", name.name));
+            return None;
+        };
+        let Some(body) = child(t, "body").and_then(|b| b.first_element_child()) else {
+            self.error(self.tag_span(t), format!("transition `{}` has no body", name.name));
+            return None;
+        };
+        match body.tag_name().name() {
+            "ST" => match self.fragment(body, FragmentKind::TransitionBody).0 {
+                Some(Fragment::Expr(e)) => Some(e),
+                _ => None,
+            },
+            "LD" | "FBD" => {
+                let elements = self.elements(body, &[]);
+                // The network's result is the coil or output variable named after the transition.
+                let result = body.children().find(|n| {
+                    let target = if is(n, "coil") {
+                        child(*n, "variable")
+                    } else if is(n, "outVariable") {
+                        child(*n, "expression")
+                    } else {
+                        None
+                    };
+                    target.and_then(|t| t.text()).is_some_and(|t| t.trim().eq_ignore_ascii_case(&name.name))
+                });
+                let Some(result) = result else {
+                    let message = format!(
+                        "the LD/FBD body of transition `{}` assigns no coil or output variable named `{}`",
+                        name.name, name.name
+                    );
+                    self.error(self.tag_span(body), message);
+                    return None;
+                };
+                let value = self.wired(&elements, result, 0)?;
+                Some(if flag(result, "negated") { not(value) } else { value })
+            }
+            _ => {
+                self.unsupported_language(body);
+                None
+            }
+        }
+    }
+
+    /// What is wired into element `n`: the OR of its connections (parallel LD branches join by OR).
+    fn wired(&mut self, elements: &Elements, n: Node, depth: usize) -> Option<Expr> {
+        let span = self.tag_span(n);
+        if self.too_deep(depth, span) {
+            return None;
+        }
+        let inputs = self.connections(n);
+        if inputs.is_empty() {
+            self.error(span, format!("nothing is connected to `<{}>`", n.tag_name().name()));
+            return None;
+        }
+        let mut result: Option<Expr> = None;
+        for (id, formal, at) in inputs {
+            let e = self.output_of(elements, id, formal.as_deref(), at, depth + 1)?;
+            result = Some(match result {
+                None => e,
+                Some(acc) => binary(BinOp::Or, acc, e),
+            });
+        }
+        result
+    }
+
+    /// The value of element `id`'s output (`formal` names which, for a block).
+    fn output_of(
+        &mut self,
+        elements: &Elements,
+        id: u64,
+        formal: Option<&str>,
+        at: Span,
+        depth: usize,
+    ) -> Option<Expr> {
+        if self.too_deep(depth, at) {
+            return None;
+        }
+        let Some(&n) = elements.by_id.get(&id) else {
+            self.error(at, format!("`refLocalId` {id} points to no element of this body"));
+            return None;
+        };
+        let span = self.tag_span(n);
+        match n.tag_name().name() {
+            "inVariable" | "inOutVariable" => {
+                let Some(expression) = child(n, "expression") else {
+                    self.error(span, "a variable block without an `<expression>`");
+                    return None;
+                };
+                let e = self.expr_text(expression)?;
+                Some(if flag(n, "negated") { not(e) } else { e })
+            }
+            "leftPowerRail" => Some(Expr { kind: ExprKind::Bool(true), span }),
+            "contact" => {
+                if let Some(edge @ ("rising" | "falling")) = n.attribute("edge") {
+                    self.error(span, format!("{edge}-edge contacts are not supported yet"));
+                    return None;
+                }
+                let Some(variable) = child(n, "variable") else {
+                    self.error(span, "a contact without a `<variable>`");
+                    return None;
+                };
+                let var = self.expr_text(variable)?;
+                let var = if flag(n, "negated") { not(var) } else { var };
+                let input = self.wired(elements, n, depth)?;
+                Some(match input.kind {
+                    ExprKind::Bool(true) => var,
+                    _ => binary(BinOp::And, input, var),
+                })
+            }
+            // A coil passes its input on to what follows it on the rung.
+            "coil" => self.wired(elements, n, depth),
+            "block" => self.block(elements, n, formal, depth),
+            "continuation" => {
+                let name = n.attribute("name").unwrap_or_default();
+                let connector = elements
+                    .by_id
+                    .values()
+                    .find(|c| is(c, "connector") && c.attribute("name").is_some_and(|m| m.eq_ignore_ascii_case(name)));
+                match connector {
+                    Some(&c) => self.wired(elements, c, depth),
+                    None => {
+                        self.error(span, format!("continuation `{name}` has no connector of that name"));
+                        None
+                    }
+                }
+            }
+            other => {
+                self.error(at, format!("`<{other}>` (element {id}) cannot feed a condition or a coil"));
+                None
+            }
+        }
+    }
+
+    /// A standard function drawn as an FBD block, as an expression.
+    fn block(&mut self, elements: &Elements, n: Node, formal: Option<&str>, depth: usize) -> Option<Expr> {
+        let span = self.tag_span(n);
+        let type_name = n.attribute("typeName").unwrap_or_default().to_ascii_uppercase();
+        if let Some(instance) = n.attribute("instanceName") {
+            let message = format!(
+                "function block `{type_name}` (instance `{instance}`) is not supported yet: Baton does not run function block instances"
+            );
+            self.error(span, message);
+            return None;
+        }
+        if formal.is_some_and(|f| !f.is_empty() && !f.eq_ignore_ascii_case("OUT")) {
+            self.error(span, format!("block `{type_name}` has no output `{}`", formal.unwrap_or_default()));
+            return None;
+        }
+        let mut args = Vec::new();
+        for v in child(n, "inputVariables").into_iter().flat_map(|i| children(i, "variable")) {
+            if v.attribute("formalParameter").is_some_and(|f| f.eq_ignore_ascii_case("EN")) {
+                continue;
+            }
+            let e = self.wired(elements, v, depth)?;
+            args.push(if flag(v, "negated") { not(e) } else { e });
+        }
+        let fold = |op: BinOp, args: Vec<Expr>| args.into_iter().reduce(|a, b| binary(op, a, b));
+        let chain = |op: BinOp, args: Vec<Expr>| {
+            let pairs: Vec<Expr> = args.windows(2).map(|w| binary(op, w[0].clone(), w[1].clone())).collect();
+            pairs.into_iter().reduce(|a, b| binary(BinOp::And, a, b))
+        };
+        let (min, result) = match type_name.as_str() {
+            "AND" => (2, fold(BinOp::And, args.clone())),
+            "OR" => (2, fold(BinOp::Or, args.clone())),
+            "XOR" => (2, fold(BinOp::Xor, args.clone())),
+            "ADD" => (2, fold(BinOp::Add, args.clone())),
+            "MUL" => (2, fold(BinOp::Mul, args.clone())),
+            "SUB" if args.len() == 2 => (2, fold(BinOp::Sub, args.clone())),
+            "DIV" if args.len() == 2 => (2, fold(BinOp::Div, args.clone())),
+            "MOD" if args.len() == 2 => (2, fold(BinOp::Mod, args.clone())),
+            "GT" => (2, chain(BinOp::Gt, args.clone())),
+            "GE" => (2, chain(BinOp::Ge, args.clone())),
+            "EQ" => (2, chain(BinOp::Eq, args.clone())),
+            "LE" => (2, chain(BinOp::Le, args.clone())),
+            "LT" => (2, chain(BinOp::Lt, args.clone())),
+            "NE" if args.len() == 2 => (2, chain(BinOp::Ne, args.clone())),
+            "NOT" if args.len() == 1 => (1, args.first().cloned().map(not)),
+            "MOVE" if args.len() == 1 => (1, args.first().cloned()),
+            "SUB" | "DIV" | "MOD" | "NE" | "NOT" | "MOVE" => {
+                self.error(
+                    span,
+                    format!(
+                        "block `{type_name}` takes {} input(s), not {}",
+                        if matches!(type_name.as_str(), "NOT" | "MOVE") { 1 } else { 2 },
+                        args.len()
+                    ),
+                );
+                return None;
+            }
+            _ => {
+                let message = format!("block `{type_name}` in LD/FBD logic is not supported yet");
+                self.error(span, message);
+                return None;
+            }
+        };
+        if args.len() < min {
+            self.error(span, format!("block `{type_name}` needs at least {min} connected input(s)"));
+            return None;
+        }
+        result.map(|e| Expr { span, ..e })
+    }
+
+    fn action_block(
+        &mut self,
+        block: Node,
+        elements: &Elements,
+        step_of_id: &HashMap<u64, usize>,
+        inline_count: &mut usize,
+        chart: &mut Chart,
+    ) {
+        let span = self.tag_span(block);
+        let inputs = self.connections(block);
+        let step = match inputs.as_slice() {
+            [(id, _, at)] => match step_of_id.get(id) {
+                Some(&s) => s,
+                None => {
+                    let message = if elements.by_id.contains_key(id) {
+                        format!("an action block must hang from a step; element {id} is not one")
+                    } else {
+                        format!("`refLocalId` {id} points to no element of this body")
+                    };
+                    self.error(*at, message);
+                    return;
+                }
+            },
+            _ => {
+                self.error(span, "an action block must be connected to exactly one step");
+                return;
+            }
+        };
+        for a in children(block, "action") {
+            let a_span = self.tag_span(a);
+            let qualifier_text = a.attribute("qualifier").map(str::trim).filter(|q| !q.is_empty()).unwrap_or("N");
+            let Some(qualifier) = Qualifier::from_word(qualifier_text) else {
+                self.error(self.attr_span(a, "qualifier"), format!("unknown action qualifier `{qualifier_text}`"));
+                continue;
+            };
+            let qualifier_span = if a.has_attribute("qualifier") { self.attr_span(a, "qualifier") } else { a_span };
+            let duration = match a.attribute("duration").map(str::trim) {
+                Some(d) if !d.is_empty() => match self.expr_attr(a, "duration") {
+                    Some(Expr { kind: ExprKind::Time(ms), span }) => Some(Duration::Literal { ms, span }),
+                    Some(Expr { kind: ExprKind::Name(id), .. }) => Some(Duration::Var(id)),
+                    Some(e) => {
+                        self.error(e.span, "an action's duration must be a TIME literal or a TIME variable");
+                        continue;
+                    }
+                    None => continue,
+                },
+                // CODESYS and TwinCAT write `duration=""` on every qualifier.
+                _ if qualifier.is_timed() => {
+                    let message = format!("qualifier {qualifier_text} without a duration: taken as T#0s");
+                    self.diags.push(Diagnostic::warning(qualifier_span, message));
+                    Some(Duration::Literal { ms: 0, span: qualifier_span })
+                }
+                _ => None,
+            };
+            let indicators = match a.attribute("indicator").map(str::trim) {
+                Some(i) if !i.is_empty() => vec![Ident { name: i.to_string(), span: self.attr_span(a, "indicator") }],
+                _ => Vec::new(),
+            };
+            let action = if let Some(reference) = child(a, "reference") {
+                let Some(name) = self.ident_attr(reference, "name") else { continue };
+                name
+            } else if let Some(inline) = child(a, "inline") {
+                // Named as Beremiz and matiec name inline actions, so that a chart's textual twin matches.
+                *inline_count += 1;
+                let step_name = chart.steps[step].name.name.to_ascii_uppercase();
+                let name = Ident { name: format!("{step_name}_INLINE{inline_count}"), span: self.tag_span(inline) };
+                let (body, pragmas) = match inline.first_element_child() {
+                    Some(b) => self.body_statements(b),
+                    None => (Some(Vec::new()), Vec::new()),
+                };
+                if body.is_none() {
+                    chart.broken.actions.push(name.key());
+                }
+                chart.steps[step].pragmas.extend(pragmas);
+                chart.actions.push(Action {
+                    name: name.clone(),
+                    body: body.unwrap_or_default(),
+                    pragmas: Vec::new(),
+                    span: self.tag_span(inline),
+                });
+                name
+            } else {
+                self.error(a_span, "an action without a `<reference>` or an `<inline>` body");
+                continue;
+            };
+            chart.steps[step].associations.push(Association {
+                action,
+                qualifier,
+                qualifier_span,
+                duration,
+                indicators,
+                span: a_span,
+            });
+        }
+    }
+}
+
+/// Orders steps, transitions and actions as Beremiz's generator writes the chart out for matiec (and so as
+/// OpenPLC runs it): depth first from the initial steps, each step followed by its actions and its outgoing
+/// transitions in priority order, each transition by the steps it leads to. Action order is execution order
+/// within a cycle, so a chart imported from XML runs as it does in the tool that drew it. What the walk does not
+/// reach keeps its document order, after the rest.
+fn walk_order(chart: &mut Chart) {
+    let step_of: HashMap<String, usize> = chart.steps.iter().enumerate().map(|(i, s)| (s.name.key(), i)).collect();
+    let mut outgoing: Vec<Vec<usize>> = vec![Vec::new(); chart.steps.len()];
+    for (t, tr) in chart.transitions.iter().enumerate() {
+        for from in &tr.from {
+            if let Some(&s) = step_of.get(&from.key()) {
+                outgoing[s].push(t);
+            }
+        }
+    }
+    let (mut visited, mut placed) = (vec![false; chart.steps.len()], vec![false; chart.transitions.len()]);
+    let (mut step_order, mut transition_order) = (Vec::new(), Vec::new());
+    // (step, next outgoing transition, the transition whose targets are being visited and the next target)
+    type Frame = (usize, usize, Option<(usize, usize)>);
+    let mut frames: Vec<Frame> = Vec::new();
+    let roots: Vec<usize> =
+        (0..chart.steps.len()).filter(|&i| chart.steps[i].initial).chain(0..chart.steps.len()).collect();
+    for root in roots {
+        if visited[root] {
+            continue;
+        }
+        visited[root] = true;
+        step_order.push(root);
+        frames.push((root, 0, None));
+        while let Some(frame) = frames.last_mut() {
+            if let Some((t, k)) = frame.2 {
+                let targets = &chart.transitions[t].to;
+                if k < targets.len() {
+                    frame.2 = Some((t, k + 1));
+                    if let Some(&s) = step_of.get(&targets[k].key()) {
+                        if !visited[s] {
+                            visited[s] = true;
+                            step_order.push(s);
+                            frames.push((s, 0, None));
+                        }
+                    }
+                } else {
+                    frame.2 = None;
+                }
+                continue;
+            }
+            let step = frame.0;
+            if frame.1 < outgoing[step].len() {
+                let t = outgoing[step][frame.1];
+                frame.1 += 1;
+                if !placed[t] {
+                    placed[t] = true;
+                    transition_order.push(t);
+                    frame.2 = Some((t, 0));
+                }
+                continue;
+            }
+            frames.pop();
+        }
+    }
+    transition_order.extend((0..chart.transitions.len()).filter(|&t| !placed[t]));
+    let action_of: HashMap<String, usize> = chart.actions.iter().enumerate().map(|(i, a)| (a.name.key(), i)).collect();
+    let mut action_placed = vec![false; chart.actions.len()];
+    let mut action_order = Vec::new();
+    for &s in &step_order {
+        for association in &chart.steps[s].associations {
+            if let Some(&a) = action_of.get(&association.action.key()) {
+                if !std::mem::replace(&mut action_placed[a], true) {
+                    action_order.push(a);
+                }
+            }
+        }
+    }
+    action_order.extend((0..chart.actions.len()).filter(|&a| !action_placed[a]));
+    fn reorder<T>(items: &mut Vec<T>, order: &[usize]) {
+        let mut slots: Vec<Option<T>> = std::mem::take(items).into_iter().map(Some).collect();
+        items.extend(order.iter().filter_map(|&i| slots[i].take()));
+    }
+    reorder(&mut chart.steps, &step_order);
+    reorder(&mut chart.transitions, &transition_order);
+    reorder(&mut chart.actions, &action_order);
+}
+
+fn not(e: Expr) -> Expr {
+    let span = e.span;
+    Expr { kind: ExprKind::Unary(UnOp::Not, Box::new(e)), span }
+}
+
+fn binary(op: BinOp, a: Expr, b: Expr) -> Expr {
+    let span = a.span.to(b.span);
+    Expr { kind: ExprKind::Binary(op, Box::new(a), Box::new(b)), span }
+}
+
+/// The text of an element with markup blanked out and entities decoded, and how to find each of its bytes in the
+/// file: a tag, a comment and CDATA delimiters become spaces (newlines kept) so that offsets stay; an entity
+/// becomes its character, which shortens the text (padding it would split `&gt;=`), and each one is noted.
+struct BodyText {
+    text: String,
+    /// (offset in `text` after an entity, bytes the text is shorter than the file from there on).
+    shifts: Vec<(usize, usize)>,
+}
+
+impl BodyText {
+    /// The file offset (relative to where the text starts) of offset `at` of the text.
+    fn raw(&self, at: usize) -> usize {
+        let i = self.shifts.partition_point(|&(pos, _)| pos <= at);
+        at + if i == 0 { 0 } else { self.shifts[i - 1].1 }
+    }
+}
+
+fn blank_markup(raw: &str) -> BodyText {
+    let mut out = String::with_capacity(raw.len());
+    let mut shifts = Vec::new();
+    let mut rest = raw;
+    while let Some(c) = rest.chars().next() {
+        if let Some(inner) = rest.strip_prefix("<![CDATA[") {
+            out.push_str("         ");
+            let end = inner.find("]]>").unwrap_or(inner.len());
+            out.push_str(&inner[..end]);
+            rest = &inner[end..];
+            if let Some(r) = rest.strip_prefix("]]>") {
+                out.push_str("   ");
+                rest = r;
+            }
+        } else if rest.starts_with("<!--") {
+            let end = rest.find("-->").map_or(rest.len(), |i| i + 3);
+            blank_bytes(&mut out, &rest[..end]);
+            rest = &rest[end..];
+        } else if c == '<' {
+            let end = rest.find('>').map_or(rest.len(), |i| i + 1);
+            blank_bytes(&mut out, &rest[..end]);
+            rest = &rest[end..];
+        } else if c == '&' {
+            let end = rest.find(';').filter(|&i| i <= 10);
+            match end.and_then(|i| Some((i, entity(&rest[1..i])?))) {
+                Some((i, ch)) => {
+                    out.push(ch);
+                    let extra = shifts.last().map_or(0, |&(_, e)| e) + (i + 1 - ch.len_utf8());
+                    shifts.push((out.len(), extra));
+                    rest = &rest[i + 1..];
+                }
+                None => {
+                    out.push('&');
+                    rest = &rest[1..];
+                }
+            }
+        } else {
+            out.push(c);
+            rest = &rest[c.len_utf8()..];
+        }
+    }
+    BodyText { text: out, shifts }
+}
+
+/// Spaces for every byte of `s` but newlines, so that offsets and lines stay as they were.
+fn blank_bytes(out: &mut String, s: &str) {
+    out.extend(s.bytes().map(|b| if b == b'\n' { '\n' } else { ' ' }));
+}
+
+/// Moves every span of a parsed fragment with `f`.
+fn remap_expr(e: &mut Expr, f: &impl Fn(Span) -> Span) {
+    e.span = f(e.span);
+    match &mut e.kind {
+        ExprKind::Name(id) => id.span = f(id.span),
+        ExprKind::Field(a, b) => {
+            a.span = f(a.span);
+            b.span = f(b.span);
+        }
+        ExprKind::Unary(_, x) => remap_expr(x, f),
+        ExprKind::Binary(_, a, b) => {
+            remap_expr(a, f);
+            remap_expr(b, f);
+        }
+        ExprKind::Bool(_) | ExprKind::Int(_) | ExprKind::Real(_) | ExprKind::Time(_) => {}
+    }
+}
+
+fn remap_stmts(stmts: &mut [Stmt], f: &impl Fn(Span) -> Span) {
+    for s in stmts {
+        match s {
+            Stmt::Assign { target, value, span } => {
+                target.span = f(target.span);
+                remap_expr(value, f);
+                *span = f(*span);
+            }
+            Stmt::If { branches, otherwise, span } => {
+                for (c, body) in branches {
+                    remap_expr(c, f);
+                    remap_stmts(body, f);
+                }
+                remap_stmts(otherwise, f);
+                *span = f(*span);
+            }
+        }
+    }
+}
+
+fn entity(name: &str) -> Option<char> {
+    Some(match name {
+        "lt" => '<',
+        "gt" => '>',
+        "amp" => '&',
+        "quot" => '"',
+        "apos" => '\'',
+        _ => {
+            let code = match name.strip_prefix("#x").or_else(|| name.strip_prefix("#X")) {
+                Some(hex) => u32::from_str_radix(hex, 16).ok()?,
+                None => name.strip_prefix('#')?.parse().ok()?,
+            };
+            char::from_u32(code)?
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn markup_is_blanked_in_place_and_entities_are_mapped_back() {
+        let raw = "<xhtml:p><![CDATA[a < b]]></xhtml:p>";
+        let body = blank_markup(raw);
+        assert_eq!(body.text.len(), raw.len());
+        assert_eq!(body.text.trim(), "a < b");
+        assert_eq!(body.text.find('a'), raw.find('a'));
+        let raw = "x &lt;= 3 AND y &gt;= 1 AND z &lt;&gt; 2";
+        let body = blank_markup(raw);
+        assert_eq!(body.text, "x <= 3 AND y >= 1 AND z <> 2");
+        for word in ["y", "z", "2"] {
+            let at = body.text.find(word).unwrap();
+            assert_eq!(&raw[body.raw(at)..body.raw(at) + 1], word);
+        }
+    }
+
+    #[test]
+    fn malformed_xml_is_one_error_at_its_place() {
+        let src = "<project>\n  <types>\n</project>\n";
+        let parsed = parse(src);
+        assert_eq!(parsed.diagnostics.len(), 1);
+        let d = &parsed.diagnostics[0];
+        assert!(d.message.starts_with("malformed XML"), "{}", d.message);
+        assert_eq!(crate::front::diag::LineIndex::new(src).line_col(d.span.start).0, 3);
+    }
+}
