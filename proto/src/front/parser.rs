@@ -17,7 +17,7 @@ pub fn parse(src: &str) -> Parsed {
     let lexed = lex(src);
     let mut p = Parser {
         src,
-        base: 0,
+        local: None,
         toks: lexed.tokens,
         pos: 0,
         diags: lexed.diagnostics,
@@ -53,29 +53,30 @@ pub struct ParsedFragment {
     pub diagnostics: Vec<Diagnostic>,
 }
 
-/// Parses `text`, which stands at byte `base` of a larger file, as `kind`: spans are the file's, so that
-/// diagnostics point into it.
-pub fn parse_fragment(text: &str, base: usize, kind: FragmentKind) -> ParsedFragment {
-    let base = base as u32;
-    let shift = |span: Span| Span { start: span.start + base, end: span.end + base };
+/// Parses `text`, a piece of a larger file, as `kind`. `at` gives the file offset of each offset of `text` (the
+/// text may be shorter than its place in the file, when entities were decoded), so that every span — and so
+/// every diagnostic — points into the file.
+pub fn parse_fragment(text: &str, at: impl Fn(usize) -> usize, kind: FragmentKind) -> ParsedFragment {
+    let map = |span: Span| Span::new(at(span.start as usize), at(span.end as usize));
     let mut lexed = lex(text);
+    let local: Vec<Span> = lexed.tokens.iter().map(|t| t.span).collect();
     for t in &mut lexed.tokens {
-        t.span = shift(t.span);
+        t.span = map(t.span);
     }
     for d in &mut lexed.diagnostics {
-        d.span = shift(d.span);
+        d.span = map(d.span);
     }
     let pragmas = lexed
         .pragmas
         .iter()
         .map(|raw| Pragma {
             text: text[raw.inner.start as usize..raw.inner.end as usize].trim().to_string(),
-            span: shift(raw.span),
+            span: map(raw.span),
         })
         .collect();
     let mut p = Parser {
         src: text,
-        base,
+        local: Some(local),
         toks: lexed.tokens,
         pos: 0,
         diags: lexed.diagnostics,
@@ -92,8 +93,9 @@ type PResult<T> = Result<T, Failed>;
 
 struct Parser<'a> {
     src: &'a str,
-    /// Where `src` starts in the file that spans refer to (0 but for fragments).
-    base: u32,
+    /// For a fragment, each token's span in `src`, where the token spans are the file's; `None` when the two
+    /// are one.
+    local: Option<Vec<Span>>,
     toks: Vec<Token>,
     pos: usize,
     diags: Vec<Diagnostic>,
@@ -164,12 +166,17 @@ impl Parser<'_> {
     }
 
     fn text(&self, span: Span) -> &str {
-        &self.src[(span.start - self.base) as usize..(span.end - self.base) as usize]
+        // Every span asked for is a token's.
+        let span = match &self.local {
+            Some(local) => local[self.toks.partition_point(|t| t.span.start < span.start).min(local.len() - 1)],
+            None => span,
+        };
+        &self.src[span.start as usize..span.end as usize]
     }
 
     fn found(&self) -> String {
         match self.peek() {
-            Tok::Eof if self.base > 0 => "the end of the body".to_string(),
+            Tok::Eof if self.local.is_some() => "the end of the body".to_string(),
             Tok::Eof => "end of file".to_string(),
             _ => format!("`{}`", self.text(self.span())),
         }

@@ -186,26 +186,9 @@ impl Reader<'_> {
         self.parse_body(&body, base, kind)
     }
 
-    /// Parses a body's text as `kind`, with every span put back at its place in the file.
+    /// Parses a body's text as `kind`, with every span at its place in the file.
     fn parse_body(&mut self, body: &BodyText, base: usize, kind: FragmentKind) -> (Option<Fragment>, Vec<Pragma>) {
-        if body.shifts.is_empty() {
-            let parsed = parse_fragment(&body.text, base, kind);
-            self.diags.extend(parsed.diagnostics);
-            return (parsed.fragment, parsed.pragmas);
-        }
-        let mut parsed = parse_fragment(&body.text, 0, kind);
-        let f = |s: Span| Span::new(base + body.raw(s.start as usize), base + body.raw(s.end as usize));
-        match &mut parsed.fragment {
-            Some(Fragment::Expr(e)) => remap_expr(e, &f),
-            Some(Fragment::Statements(stmts)) => remap_stmts(stmts, &f),
-            None => {}
-        }
-        for d in &mut parsed.diagnostics {
-            d.span = f(d.span);
-        }
-        for p in &mut parsed.pragmas {
-            p.span = f(p.span);
-        }
+        let parsed = parse_fragment(&body.text, |at| base + body.raw(at), kind);
         self.diags.extend(parsed.diagnostics);
         (parsed.fragment, parsed.pragmas)
     }
@@ -1222,44 +1205,6 @@ fn blank_bytes(out: &mut String, s: &str) {
     out.extend(s.bytes().map(|b| if b == b'\n' { '\n' } else { ' ' }));
 }
 
-/// Moves every span of a parsed fragment with `f`.
-fn remap_expr(e: &mut Expr, f: &impl Fn(Span) -> Span) {
-    e.span = f(e.span);
-    match &mut e.kind {
-        ExprKind::Name(id) => id.span = f(id.span),
-        ExprKind::Field(a, b) => {
-            a.span = f(a.span);
-            b.span = f(b.span);
-        }
-        ExprKind::Unary(_, x) => remap_expr(x, f),
-        ExprKind::Binary(_, a, b) => {
-            remap_expr(a, f);
-            remap_expr(b, f);
-        }
-        ExprKind::Bool(_) | ExprKind::Int(_) | ExprKind::Real(_) | ExprKind::Time(_) => {}
-    }
-}
-
-fn remap_stmts(stmts: &mut [Stmt], f: &impl Fn(Span) -> Span) {
-    for s in stmts {
-        match s {
-            Stmt::Assign { target, value, span } => {
-                target.span = f(target.span);
-                remap_expr(value, f);
-                *span = f(*span);
-            }
-            Stmt::If { branches, otherwise, span } => {
-                for (c, body) in branches {
-                    remap_expr(c, f);
-                    remap_stmts(body, f);
-                }
-                remap_stmts(otherwise, f);
-                *span = f(*span);
-            }
-        }
-    }
-}
-
 fn entity(name: &str) -> Option<char> {
     Some(match name {
         "lt" => '<',
@@ -1295,6 +1240,37 @@ mod tests {
             let at = body.text.find(word).unwrap();
             assert_eq!(&raw[body.raw(at)..body.raw(at) + 1], word);
         }
+    }
+
+    /// A transition whose inline ST condition is `cond`, in an otherwise valid file.
+    fn with_condition(cond: &str) -> String {
+        format!(
+            "<project xmlns=\"http://www.plcopen.org/xml/tc6_0201\"><types><pous><pou name=\"P\" pouType=\"program\">\
+             <interface><localVars><variable name=\"a\"><type><INT/></type></variable>\
+             <variable name=\"bb\"><type><INT/></type></variable></localVars></interface><body><SFC>\
+             <step localId=\"1\" name=\"S\" initialStep=\"true\"/>\
+             <transition localId=\"2\"><connectionPointIn><connection refLocalId=\"1\"/></connectionPointIn>\
+             <condition><inline><ST>{cond}</ST></inline></condition></transition>\
+             <jumpStep localId=\"3\" targetName=\"S\"><connectionPointIn><connection refLocalId=\"2\"/></connectionPointIn></jumpStep>\
+             </SFC></body></pou></pous></types></project>"
+        )
+    }
+
+    #[test]
+    fn names_and_errors_after_entities_keep_their_place_in_the_file() {
+        let src = with_condition("a &lt;&gt; bb");
+        let parsed = parse(&src);
+        assert!(parsed.diagnostics.is_empty(), "{:?}", parsed.diagnostics);
+        let ExprKind::Binary(BinOp::Ne, _, rhs) = &parsed.charts[0].transitions[0].condition.kind else {
+            panic!("{:?}", parsed.charts[0].transitions[0].condition)
+        };
+        let ExprKind::Name(id) = &rhs.kind else { panic!("{rhs:?}") };
+        assert_eq!(id.name, "bb");
+        assert_eq!(&src[id.span.start as usize..id.span.end as usize], "bb");
+        let src = with_condition("a &lt;&gt; )");
+        let parsed = parse(&src);
+        let d = &parsed.diagnostics[0];
+        assert_eq!(&src[d.span.start as usize..d.span.end as usize], ")", "{}", d.message);
     }
 
     #[test]
