@@ -101,6 +101,11 @@ fn children<'a, 'i: 'a>(n: Node<'a, 'i>, name: &'a str) -> impl Iterator<Item = 
     n.children().filter(move |c| is(c, name))
 }
 
+/// An element's `localId`, where it is a number (`Reader::elements` reports it where it is not).
+fn local_id(n: Node) -> Option<u64> {
+    n.attribute("localId")?.trim().parse().ok()
+}
+
 fn flag(n: Node, attr: &str) -> bool {
     matches!(n.attribute(attr), Some("true" | "1"))
 }
@@ -145,6 +150,16 @@ impl Reader<'_> {
     fn attr_span(&self, n: Node, attr: &str) -> Span {
         n.attribute_node(attr)
             .map_or_else(|| self.tag_span(n), |a| Span::new(a.range_value().start, a.range_value().end))
+    }
+
+    fn dangling(&mut self, at: Span, id: u64) {
+        self.error(at, format!("`refLocalId` {id} points to no element of this body"));
+    }
+
+    /// A step's name where it has one (the step itself reports it where it has none).
+    fn step_ident(&self, n: Node) -> Option<Ident> {
+        let name = n.attribute("name").map(str::trim).filter(|name| !name.is_empty())?;
+        Some(Ident { name: name.to_string(), span: self.attr_span(n, "name") })
     }
 
     /// An attribute as a name, or an error naming the element and the attribute.
@@ -399,23 +414,26 @@ impl Reader<'_> {
                 self.error(self.attr_span(el, "localId"), format!("`localId` `{raw}` is not a number"));
                 continue;
             };
-            if let Some(first) = by_id.insert(id, el) {
-                by_id.insert(id, first);
-                self.error(self.attr_span(el, "localId"), format!("duplicate `localId` {id}: two elements have it"));
-                continue;
-            }
+            match by_id.entry(id) {
+                std::collections::hash_map::Entry::Occupied(_) => {
+                    let message = format!("duplicate `localId` {id}: two elements have it");
+                    self.error(self.attr_span(el, "localId"), message);
+                    continue;
+                }
+                std::collections::hash_map::Entry::Vacant(slot) => slot.insert(el),
+            };
             index.insert(id, i);
         }
         // Arcs of the chart, checked once all ids are known.
         for el in body.children().filter(|n| structural.contains(&n.tag_name().name())) {
-            let id = el.attribute("localId").and_then(|r| r.trim().parse::<u64>().ok());
+            let id = local_id(el);
             for (from, _, at) in self.connections(el) {
                 if by_id.contains_key(&from) {
                     if let Some(id) = id {
                         consumers.entry(from).or_default().push(id);
                     }
                 } else {
-                    self.error(at, format!("`refLocalId` {from} points to no element of this body"));
+                    self.dangling(at, from);
                 }
             }
         }
@@ -461,7 +479,7 @@ impl Reader<'_> {
                         chart.broken.unnamed_step = true;
                         continue;
                     };
-                    if let Some(id) = el.attribute("localId").and_then(|r| r.trim().parse().ok()) {
+                    if let Some(id) = local_id(el) {
                         step_of_id.insert(id, chart.steps.len());
                     }
                     let mut step = Step {
@@ -513,10 +531,15 @@ impl Reader<'_> {
             if a.attribute("guid") != Some(CODESYS_ACTIVE_ACTION) {
                 continue;
             }
-            let Some(text) = a.text().map(str::trim).filter(|t| !t.is_empty()) else { continue };
-            let (_, base) = self.inner_text(a);
-            let span = Span::new(base, base + text.len());
-            let action = Ident { name: text.to_string(), span };
+            let Some(text_node) = a.first_child().filter(Node::is_text) else { continue };
+            let raw = &self.src[text_node.range()];
+            let name = raw.trim();
+            if name.is_empty() {
+                continue;
+            }
+            let start = text_node.range().start + (raw.len() - raw.trim_start().len());
+            let span = Span::new(start, start + name.len());
+            let action = Ident { name: text_node.text().unwrap_or(name).trim().to_string(), span };
             if !step.associations.iter().any(|x| x.action.key() == action.key()) {
                 step.associations.push(Association {
                     action,
@@ -555,8 +578,7 @@ impl Reader<'_> {
             ok &= self.sources(elements, *id, *at, &mut from, 0);
         }
         let mut to = Vec::new();
-        let id = el.attribute("localId").and_then(|r| r.trim().parse::<u64>().ok());
-        if let Some(id) = id {
+        if let Some(id) = local_id(el) {
             ok &= self.targets(elements, id, span, &mut to, 0);
         }
         if ok && to.is_empty() {
@@ -614,13 +636,13 @@ impl Reader<'_> {
             return false;
         }
         let Some(&n) = elements.by_id.get(&id) else {
-            self.error(at, format!("`refLocalId` {id} points to no element of this body"));
+            self.dangling(at, id);
             return false;
         };
         match n.tag_name().name() {
-            "step" => match n.attribute("name") {
+            "step" => match self.step_ident(n) {
                 Some(name) => {
-                    out.push(Ident { name: name.trim().to_string(), span: self.attr_span(n, "name") });
+                    out.push(name);
                     true
                 }
                 None => false,
@@ -658,8 +680,8 @@ impl Reader<'_> {
         for c in elements.consumers.get(&id).into_iter().flatten() {
             let n = elements.by_id[c];
             match n.tag_name().name() {
-                "step" => match n.attribute("name") {
-                    Some(name) => out.push(Ident { name: name.trim().to_string(), span: self.attr_span(n, "name") }),
+                "step" => match self.step_ident(n) {
+                    Some(name) => out.push(name),
                     None => ok = false,
                 },
                 "jumpStep" => match self.ident_attr(n, "targetName") {
@@ -825,7 +847,7 @@ impl Reader<'_> {
             return None;
         }
         let Some(&n) = elements.by_id.get(&id) else {
-            self.error(at, format!("`refLocalId` {id} points to no element of this body"));
+            self.dangling(at, id);
             return None;
         };
         let span = self.tag_span(n);
@@ -903,49 +925,66 @@ impl Reader<'_> {
             let e = self.wired(elements, v, depth)?;
             args.push(if flag(v, "negated") { not(e) } else { e });
         }
-        let fold = |op: BinOp, args: Vec<Expr>| args.into_iter().reduce(|a, b| binary(op, a, b));
-        let chain = |op: BinOp, args: Vec<Expr>| {
-            let pairs: Vec<Expr> = args.windows(2).map(|w| binary(op, w[0].clone(), w[1].clone())).collect();
-            pairs.into_iter().reduce(|a, b| binary(BinOp::And, a, b))
-        };
-        let (min, result) = match type_name.as_str() {
-            "AND" => (2, fold(BinOp::And, args.clone())),
-            "OR" => (2, fold(BinOp::Or, args.clone())),
-            "XOR" => (2, fold(BinOp::Xor, args.clone())),
-            "ADD" => (2, fold(BinOp::Add, args.clone())),
-            "MUL" => (2, fold(BinOp::Mul, args.clone())),
-            "SUB" if args.len() == 2 => (2, fold(BinOp::Sub, args.clone())),
-            "DIV" if args.len() == 2 => (2, fold(BinOp::Div, args.clone())),
-            "MOD" if args.len() == 2 => (2, fold(BinOp::Mod, args.clone())),
-            "GT" => (2, chain(BinOp::Gt, args.clone())),
-            "GE" => (2, chain(BinOp::Ge, args.clone())),
-            "EQ" => (2, chain(BinOp::Eq, args.clone())),
-            "LE" => (2, chain(BinOp::Le, args.clone())),
-            "LT" => (2, chain(BinOp::Lt, args.clone())),
-            "NE" if args.len() == 2 => (2, chain(BinOp::Ne, args.clone())),
-            "NOT" if args.len() == 1 => (1, args.first().cloned().map(not)),
-            "MOVE" if args.len() == 1 => (1, args.first().cloned()),
-            "SUB" | "DIV" | "MOD" | "NE" | "NOT" | "MOVE" => {
-                self.error(
-                    span,
-                    format!(
-                        "block `{type_name}` takes {} input(s), not {}",
-                        if matches!(type_name.as_str(), "NOT" | "MOVE") { 1 } else { 2 },
-                        args.len()
-                    ),
-                );
-                return None;
-            }
-            _ => {
-                let message = format!("block `{type_name}` in LD/FBD logic is not supported yet");
-                self.error(span, message);
-                return None;
-            }
-        };
-        if args.len() < min {
-            self.error(span, format!("block `{type_name}` needs at least {min} connected input(s)"));
-            return None;
+        /// How a standard function's inputs combine.
+        enum Shape {
+            /// Extensible: `a op b op c …`.
+            Fold(BinOp),
+            /// Extensible comparison: `a op b AND b op c …`.
+            Chain(BinOp),
+            /// Exactly two inputs.
+            Pair(BinOp),
+            Not,
+            Move,
         }
+        let shape = match type_name.as_str() {
+            "AND" => Shape::Fold(BinOp::And),
+            "OR" => Shape::Fold(BinOp::Or),
+            "XOR" => Shape::Fold(BinOp::Xor),
+            "ADD" => Shape::Fold(BinOp::Add),
+            "MUL" => Shape::Fold(BinOp::Mul),
+            "SUB" => Shape::Pair(BinOp::Sub),
+            "DIV" => Shape::Pair(BinOp::Div),
+            "MOD" => Shape::Pair(BinOp::Mod),
+            "NE" => Shape::Pair(BinOp::Ne),
+            "GT" => Shape::Chain(BinOp::Gt),
+            "GE" => Shape::Chain(BinOp::Ge),
+            "EQ" => Shape::Chain(BinOp::Eq),
+            "LE" => Shape::Chain(BinOp::Le),
+            "LT" => Shape::Chain(BinOp::Lt),
+            "NOT" => Shape::Not,
+            "MOVE" => Shape::Move,
+            _ => {
+                self.error(span, format!("block `{type_name}` in LD/FBD logic is not supported yet"));
+                return None;
+            }
+        };
+        let inputs = match shape {
+            Shape::Pair(_) => Some(2),
+            Shape::Not | Shape::Move => Some(1),
+            Shape::Fold(_) | Shape::Chain(_) => None,
+        };
+        match inputs {
+            Some(k) if args.len() != k => {
+                self.error(span, format!("block `{type_name}` takes {k} input(s), not {}", args.len()));
+                return None;
+            }
+            None if args.len() < 2 => {
+                self.error(span, format!("block `{type_name}` needs at least 2 connected input(s)"));
+                return None;
+            }
+            _ => {}
+        }
+        let mut args = args.into_iter();
+        let result = match shape {
+            Shape::Fold(op) => args.reduce(|a, b| binary(op, a, b)),
+            Shape::Chain(op) => {
+                let args: Vec<Expr> = args.collect();
+                args.windows(2).map(|w| binary(op, w[0].clone(), w[1].clone())).reduce(|a, b| binary(BinOp::And, a, b))
+            }
+            Shape::Pair(op) => args.next().zip(args.next()).map(|(a, b)| binary(op, a, b)),
+            Shape::Not => args.next().map(not),
+            Shape::Move => args.next(),
+        };
         result.map(|e| Expr { span, ..e })
     }
 
@@ -962,13 +1001,12 @@ impl Reader<'_> {
         let step = match inputs.as_slice() {
             [(id, _, at)] => match step_of_id.get(id) {
                 Some(&s) => s,
+                None if elements.by_id.contains_key(id) => {
+                    self.error(*at, format!("an action block must hang from a step; element {id} is not one"));
+                    return;
+                }
                 None => {
-                    let message = if elements.by_id.contains_key(id) {
-                        format!("an action block must hang from a step; element {id} is not one")
-                    } else {
-                        format!("`refLocalId` {id} points to no element of this body")
-                    };
-                    self.error(*at, message);
+                    self.dangling(*at, *id);
                     return;
                 }
             },
