@@ -14,19 +14,31 @@ const INPUTS: usize = 4;
 
 /// PLCopen files of the shared corpus to mutate (absent outside a checkout with ../shared beside it).
 fn corpus_xml(i: usize) -> Option<&'static str> {
-    static FILES: std::sync::OnceLock<Vec<String>> = std::sync::OnceLock::new();
-    let files = FILES.get_or_init(|| {
+    const FILES: [&str; 3] = [
+        "beremiz__exemples__first_steps__plc.xml",
+        "matiec__tests__SFC_TEST.xml",
+        "beremiz__exemples__svghmi_traffic_light__plc.xml",
+    ];
+    static READ: std::sync::OnceLock<Vec<String>> = std::sync::OnceLock::new();
+    let read = READ.get_or_init(|| {
         let dir = baton_tests::shared_dir().join("corpus/sfc");
-        [
-            "beremiz__exemples__first_steps__plc.xml",
-            "matiec__tests__SFC_TEST.xml",
-            "beremiz__exemples__svghmi_traffic_light__plc.xml",
-        ]
-        .iter()
-        .filter_map(|f| std::fs::read_to_string(dir.join(f)).ok())
-        .collect()
+        let read: Vec<String> = FILES.iter().filter_map(|f| std::fs::read_to_string(dir.join(f)).ok()).collect();
+        if read.len() < FILES.len() {
+            baton_tests::missing(&format!("the PLCopen files of the shared corpus ({}) are absent", dir.display()));
+        }
+        read
     });
-    files.get(i).map(String::as_str)
+    read.get(i).map(String::as_str)
+}
+
+/// Checks `base` with `len` bytes at `cut` replaced by `insert` (cuts inside a character are skipped): whatever
+/// the text, the check returns.
+fn check_mutated(base: &str, cut: prop::sample::Index, len: usize, insert: &str) {
+    let at = cut.index(base.len());
+    let end = (at + len).min(base.len());
+    if base.is_char_boundary(at) && base.is_char_boundary(end) {
+        let _ = check_source(&format!("{}{}{}", &base[..at], insert, &base[end..]));
+    }
 }
 
 /// One SFC-body element with small ids, so that references often hit, miss, loop or point at the wrong kind.
@@ -139,12 +151,7 @@ proptest! {
         ]),
     ) {
         let Some(base) = corpus_xml(file) else { return Ok(()) };
-        let at = cut.index(base.len());
-        let end = (at + len).min(base.len());
-        if base.is_char_boundary(at) && base.is_char_boundary(end) {
-            let mutated = format!("{}{}{}", &base[..at], insert, &base[end..]);
-            let _ = check_source(&mutated);
-        }
+        check_mutated(base, cut, len, insert);
     }
 
     #[test]
@@ -163,13 +170,7 @@ proptest! {
         len in 0usize..40,
         insert in "[ -~]{0,8}",
     ) {
-        let base = include_str!("../scenarios/st_arithmetic/chart.st");
-        let at = cut.index(base.len());
-        let end = (at + len).min(base.len());
-        if base.is_char_boundary(at) && base.is_char_boundary(end) {
-            let mutated = format!("{}{}{}", &base[..at], insert, &base[end..]);
-            let _ = check_source(&mutated);
-        }
+        check_mutated(include_str!("../scenarios/st_arithmetic/chart.st"), cut, len, &insert);
     }
 }
 
