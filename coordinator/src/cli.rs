@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use std::sync::Arc;
 
 use anyhow::{bail, Context};
-use baton_proto::exec::sim::{parse_inputs, simulate, SimOutput};
+use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
 use baton_proto::front::check::{check_source, CheckedChart, Report};
 use baton_proto::front::diag::LineIndex;
 use clap::{Parser, Subcommand};
@@ -55,6 +55,10 @@ enum Command {
         /// Which chart to run when the file holds several PROGRAMs or FUNCTION_BLOCKs with SFC bodies.
         #[arg(long)]
         pou: Option<String>,
+        /// Trace this variable's value (`t1.ET` for a block's output): a `value` record after the first cycle
+        /// and after every cycle that changed it. Repeat for more.
+        #[arg(long, value_name = "VARIABLE")]
+        watch: Vec<String>,
     },
     /// Coordinate a chart across agents over Zenoh; exit 0 when it reaches a terminal situation.
     Run {
@@ -184,8 +188,8 @@ pub fn main() -> ExitCode {
     let result = match cli.command {
         Command::Check { chart, json: false } => check(&chart),
         Command::Check { chart, json: true } => check_json(&chart),
-        Command::Sim { chart, inputs, cycle_ms, until_ms, pou } => {
-            sim(&chart, inputs.as_deref(), cycle_ms, until_ms, pou.as_deref())
+        Command::Sim { chart, inputs, cycle_ms, until_ms, pou, watch } => {
+            sim(&chart, inputs.as_deref(), cycle_ms, until_ms, pou.as_deref(), &watch)
         }
         Command::Run {
             chart,
@@ -382,6 +386,7 @@ fn sim(
     cycle_ms: u64,
     until_ms: u64,
     pou: Option<&str>,
+    watch: &[String],
 ) -> anyhow::Result<ExitCode> {
     let src = read(path)?;
     let report = check_source(&src);
@@ -405,9 +410,16 @@ fn sim(
         }
         None => Vec::new(),
     };
+    let mut watched = Vec::with_capacity(watch.len());
+    for name in watch {
+        match program.var_by_name(name) {
+            Some(v) => watched.push(v),
+            None => anyhow::bail!("--watch {name}: chart `{}` has no variable `{name}`", program.name),
+        }
+    }
     let mut out = BufWriter::new(std::io::stdout().lock());
     let mut write_error = None;
-    simulate(program, &records, cycle_ms, until_ms, |output| match output {
+    simulate_watching(program, &records, cycle_ms, until_ms, &watched, |output| match output {
         SimOutput::Trace(record) => {
             if write_error.is_none() {
                 let line = serde_json::to_string(&record).map_err(std::io::Error::other);

@@ -605,7 +605,7 @@ impl Logger {
 
 /// Variables recorded as series: those that can change and have a number to plot.
 fn recorded(info: &VarInfo) -> bool {
-    !info.constant && !matches!(info.ty, Type::Unsupported(_))
+    !info.constant && !info.hidden && !matches!(info.ty, Type::Unsupported(_))
 }
 
 /// The first 8 hex digits of a token id, enough to tell tokens apart on a timeline.

@@ -784,7 +784,7 @@ impl Shell {
             .vars
             .iter()
             .enumerate()
-            .filter(|(_, v)| !v.constant)
+            .filter(|(_, v)| !v.constant && !v.hidden)
             .map(|(i, v)| {
                 (v.name.clone(), self.core.core().value(baton_proto::exec::program::VarId(i as u32)).to_string())
             })

@@ -26,6 +26,7 @@ pub mod exec {
     pub mod eval;
     pub mod program;
     pub mod sim;
+    pub mod stdlib;
     pub mod types;
 }
 

@@ -13,6 +13,10 @@ pub const XML_NODES_MAX: u32 = 20_000_000;
 /// inputs unfolds into an expression that can grow exponentially with the file.
 pub const XML_CONNECTIONS_WALKED_MAX: usize = 100_000;
 
+/// Loop iterations (FOR, WHILE, REPEAT together) in one run of an action body: past that the body stops with a
+/// reported fault and the chart goes on, so that a loop whose end never comes cannot hang a cycle.
+pub const LOOP_ITERATIONS_MAX: usize = 100_000;
+
 /// Steps in one chart (and, separately, transitions and actions).
 pub const CHART_ELEMENTS_MAX: usize = 4_000_000;
 

@@ -7,7 +7,7 @@ use std::fs;
 use std::path::Path;
 use std::sync::Arc;
 
-use baton_proto::exec::sim::{parse_inputs, simulate, SimOutput};
+use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
 use baton_proto::front::check::check_source;
 use baton_proto::front::diag::LineIndex;
 
@@ -80,6 +80,9 @@ struct SimSettings {
     cycle_ms: u64,
     #[serde(default = "default_until")]
     until_ms: u64,
+    /// Variables traced as `value` records, as `baton sim --watch` does.
+    #[serde(default)]
+    watch: Vec<String>,
 }
 
 fn default_cycle() -> u64 {
@@ -104,14 +107,20 @@ pub fn run_simulation(dir: &Path) -> Result<String, String> {
     };
     let settings: SimSettings = match fs::read_to_string(dir.join("sim.json")) {
         Ok(text) => serde_json::from_str(&text).map_err(|e| format!("{}/sim.json: {e}", dir.display()))?,
-        Err(_) => SimSettings { cycle_ms: default_cycle(), until_ms: default_until() },
+        Err(_) => SimSettings { cycle_ms: default_cycle(), until_ms: default_until(), watch: Vec::new() },
     };
     let inputs = match fs::read_to_string(dir.join("inputs.jsonl")) {
         Ok(text) => parse_inputs(&text, &program).map_err(|e| format!("{}/inputs.jsonl: {e}", dir.display()))?,
         Err(_) => Vec::new(),
     };
+    let mut watch = Vec::with_capacity(settings.watch.len());
+    for name in &settings.watch {
+        watch.push(
+            program.var_by_name(name).ok_or_else(|| format!("{}/sim.json: no variable `{name}`", dir.display()))?,
+        );
+    }
     let mut out = String::new();
-    simulate(Arc::new(program), &inputs, settings.cycle_ms, settings.until_ms, |o| match o {
+    simulate_watching(Arc::new(program), &inputs, settings.cycle_ms, settings.until_ms, &watch, |o| match o {
         SimOutput::Trace(record) => {
             out.push_str(&serde_json::to_string(&record).unwrap_or_default());
             out.push('\n');

@@ -512,3 +512,18 @@ fn a_restarted_agents_values_are_heard() {
     let (n, before) = (n.unwrap_or(-1), before.unwrap_or(-1));
     assert!(before > 50 && n > 0 && n < before, "n = {n}, before = {before}");
 }
+
+#[test]
+fn standard_function_blocks_compute_what_baton_sim_computes_on_any_schedule() {
+    let source = chart("timers.st");
+    let names = ["blinks.CV", "ticks", "blink.ET", "pulsed", "pulse.ET"];
+    let expected = baton_tests::reference::final_values(&source, 10, &names);
+    assert!(expected[0] >= 12 && expected[1] > 40 && expected[3] > 5, "the blocks ran: {expected:?}");
+    for seed in 0..8 {
+        let faults = Faults { duplicate: 0.3, reorder: true, delay_ms_max: 8, loss: 0.05 };
+        let mut sim = SimCluster::new(&source, &[("r1", &[])], faults, seed);
+        assert!(sim.run(30_000), "seed {seed}: did not finish");
+        let got: Vec<i64> = names.iter().map(|n| sim.value(n).map_or(-1, |v| v.as_i64())).collect();
+        assert_eq!(got, expected, "seed {seed}: {names:?}");
+    }
+}

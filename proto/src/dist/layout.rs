@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::fmt;
 
 use crate::exec::engine::{Scope, TransitionScope};
-use crate::exec::program::{ActionId, CExpr, CStmt, Program, StepId, TransitionId, VarId};
+use crate::exec::program::{walk_body, ActionId, CExpr, CStmt, Program, StepId, TransitionId, VarId};
 use crate::exec::types::Value;
 use crate::front::diag::{Diagnostic, Span};
 use crate::front::model::{Chart, Pragma};
@@ -411,17 +411,7 @@ fn skill_bindings(
 }
 
 fn assigned(body: &[CStmt], out: &mut Vec<VarId>) {
-    for stmt in body {
-        match stmt {
-            CStmt::Assign { var, .. } => out.push(*var),
-            CStmt::If { branches, otherwise } => {
-                for (_, b) in branches {
-                    assigned(b, out);
-                }
-                assigned(otherwise, out);
-            }
-        }
-    }
+    walk_body(body, &mut |v| out.push(v), &mut |_| {});
 }
 
 /// Each variable has one writer: the place that runs every action writing it (by assignment, as a boolean
@@ -509,22 +499,12 @@ impl Refs {
                 self.expr(lhs);
                 self.expr(rhs);
             }
+            CExpr::Call { args, .. } => args.iter().for_each(|a| self.expr(a)),
         }
     }
 
     fn body(&mut self, body: &[CStmt]) {
-        for stmt in body {
-            match stmt {
-                CStmt::Assign { value, .. } => self.expr(value),
-                CStmt::If { branches, otherwise } => {
-                    for (c, b) in branches {
-                        self.expr(c);
-                        self.body(b);
-                    }
-                    self.body(otherwise);
-                }
-            }
-        }
+        walk_body(body, &mut |_| {}, &mut |e| self.expr(e));
     }
 }
 

@@ -4,6 +4,7 @@ use std::collections::HashMap;
 
 use crate::exec::eval::{eval, is_constant, NoEnv};
 use crate::exec::program::*;
+use crate::exec::stdlib::{Func, MemberKind, StdFb};
 use crate::exec::types::{IntKind, Type, Value};
 use crate::front::diag::{Diagnostic, Span};
 use crate::front::model::*;
@@ -16,7 +17,15 @@ pub struct Compiled {
 }
 
 pub fn compile(chart: &Chart, diags: &mut Vec<Diagnostic>) -> Compiled {
-    let mut c = Compiler { chart, diags, vars: HashMap::new(), steps: HashMap::new(), actions: HashMap::new() };
+    let mut c = Compiler {
+        chart,
+        diags,
+        vars: HashMap::new(),
+        steps: HashMap::new(),
+        actions: HashMap::new(),
+        instances: HashMap::new(),
+        loops: 0,
+    };
     c.run()
 }
 
@@ -68,6 +77,17 @@ impl Ty {
             _ => None,
         }
     }
+
+    /// The run-time type a result of this static type is held as.
+    fn repr(self) -> Type {
+        match self {
+            Ty::Bool | Ty::Err => Type::Bool,
+            Ty::Int(k) => Type::Int(k),
+            Ty::IntLit => Type::Int(IntKind::Lint),
+            Ty::Real { long } => Type::Real { long },
+            Ty::Time => Type::Time,
+        }
+    }
 }
 
 /// The common numeric type of two numeric operands.
@@ -84,7 +104,9 @@ fn join(a: Ty, b: Ty) -> Ty {
 fn binary_type(op: BinOp, a: Ty, b: Ty) -> Option<Ty> {
     use BinOp::*;
     match op {
+        Or | Xor | And if a.is_int() && b.is_int() => Some(join(a, b)),
         Or | Xor | And => (a == Ty::Bool && b == Ty::Bool).then_some(Ty::Bool),
+        Pow => (a.is_num() && b.is_num()).then(|| join(a, b)),
         Eq | Ne | Lt | Le | Gt | Ge => {
             let ok = (a.is_num() && b.is_num()) || (a == Ty::Time && b == Ty::Time) || (a == Ty::Bool && b == Ty::Bool);
             ok.then_some(Ty::Bool)
@@ -112,6 +134,10 @@ struct Compiler<'a> {
     vars: HashMap<String, VarId>,
     steps: HashMap<String, StepId>,
     actions: HashMap<String, ActionId>,
+    /// Standard function block instances: their type and first member.
+    instances: HashMap<String, (StdFb, VarId)>,
+    /// Loops around the statements being compiled (EXIT needs one).
+    loops: usize,
 }
 
 const FALSE: CExpr = CExpr::Const(Value::Bool(false));
@@ -160,8 +186,12 @@ impl<'a> Compiler<'a> {
     fn declare_vars(&mut self) -> Vec<VarInfo> {
         let mut vars = Vec::with_capacity(self.chart.vars.len());
         for decl in &self.chart.vars {
-            if self.vars.contains_key(&decl.name.key()) {
+            if self.vars.contains_key(&decl.name.key()) || self.instances.contains_key(&decl.name.key()) {
                 self.error(decl.name.span, format!("variable `{}` is declared twice", decl.name.name));
+                continue;
+            }
+            if let Some(fb) = StdFb::from_name(&decl.type_name.key()) {
+                self.declare_instance(decl, fb, &mut vars);
                 continue;
             }
             let ty = Type::from_name(&decl.type_name.key())
@@ -177,9 +207,49 @@ impl<'a> Compiler<'a> {
                 init,
                 constant: decl.constant,
                 section: decl.section,
+                hidden: false,
             });
         }
         vars
+    }
+
+    /// An instance of a standard block: one variable per member, named `instance.MEMBER`.
+    fn declare_instance(&mut self, decl: &VarDecl, fb: StdFb, vars: &mut Vec<VarInfo>) {
+        if decl.constant {
+            self.error(decl.name.span, format!("a {} instance cannot be CONSTANT", fb.name()));
+        }
+        let base = VarId(vars.len() as u32);
+        self.instances.insert(decl.name.key(), (fb, base));
+        for m in fb.members() {
+            let hidden = m.kind == MemberKind::State;
+            if !hidden {
+                self.vars.insert(format!("{}.{}", decl.name.key(), m.name), VarId(vars.len() as u32));
+            }
+            vars.push(VarInfo {
+                name: format!("{}.{}", decl.name.name, m.name),
+                init: m.ty.default_value(),
+                ty: m.ty,
+                constant: false,
+                section: decl.section,
+                hidden,
+            });
+        }
+        let members = fb.members();
+        for (name, value) in &decl.members {
+            let found =
+                members.iter().position(|m| m.kind == MemberKind::Input && m.name.eq_ignore_ascii_case(&name.name));
+            let Some(i) = found else {
+                let inputs: Vec<&str> =
+                    members.iter().filter(|m| m.kind == MemberKind::Input).map(|m| m.name).collect();
+                let message =
+                    format!("{} has no input `{}`: its inputs are {}", fb.name(), name.name, inputs.join(", "));
+                self.error(name.span, message);
+                continue;
+            };
+            let id = base.index() + i;
+            let ty = vars[id].ty.clone();
+            vars[id].init = self.initial_value(value, &ty);
+        }
     }
 
     fn initial_value(&mut self, e: &Expr, ty: &Type) -> Value {
@@ -411,57 +481,607 @@ impl<'a> Compiler<'a> {
     fn statements(&mut self, body: &[Stmt], vars: &[VarInfo]) -> Vec<CStmt> {
         let mut out = Vec::with_capacity(body.len());
         for stmt in body {
-            match stmt {
-                Stmt::Assign { target, value, .. } => {
-                    let (mut cvalue, mut vty) = self.expr(value, vars);
-                    let Some(&id) = self.vars.get(&target.key()) else {
-                        if self.chart.broken.var(&target.key()) {
-                            continue;
-                        }
-                        let message = if self.steps.contains_key(&target.key()) {
-                            format!("`{}` is a step: a step's state cannot be assigned", target.name)
-                        } else {
-                            format!("undeclared variable `{}`", target.name)
-                        };
-                        self.error(target.span, message);
-                        continue;
-                    };
-                    let var = &vars[id.index()];
-                    if var.constant {
-                        self.error(target.span, format!("`{}` is a CONSTANT and cannot be assigned", var.name));
-                        continue;
-                    }
-                    if self.reject_unsupported(target.span, var) {
-                        continue;
-                    }
-                    // IEC 61131-3 writes BOOL literals as 0 and 1 too (`ORANGE_LIGHT := 1;` in Beremiz's examples).
-                    if Ty::of(&var.ty) == Ty::Bool {
-                        if let ExprKind::Int(v @ (0 | 1)) = value.kind {
-                            (cvalue, vty) = (CExpr::Const(Value::Bool(v == 1)), Ty::Bool);
-                        }
-                    }
-                    if !assignable(Ty::of(&var.ty), vty) {
-                        let message = format!("cannot assign {} to `{}`, which is {}", vty.name(), var.name, var.ty);
-                        self.error(value.span, message);
-                        continue;
-                    }
-                    out.push(CStmt::Assign { var: id, value: cvalue });
-                }
-                Stmt::If { branches, otherwise, .. } => {
-                    let mut cbranches = Vec::with_capacity(branches.len());
-                    for (cond, stmts) in branches {
-                        let (ccond, ty) = self.expr(cond, vars);
-                        if ty != Ty::Bool && ty != Ty::Err {
-                            self.error(cond.span, format!("an IF condition must be BOOL, found {}", ty.name()));
-                        }
-                        cbranches.push((ccond, self.statements(stmts, vars)));
-                    }
-                    let otherwise = self.statements(otherwise, vars);
-                    out.push(CStmt::If { branches: cbranches, otherwise });
-                }
+            if let Some(c) = self.statement(stmt, vars) {
+                out.push(c);
             }
         }
         out
+    }
+
+    fn statement(&mut self, stmt: &Stmt, vars: &[VarInfo]) -> Option<CStmt> {
+        Some(match stmt {
+            Stmt::Assign { target, value, .. } => {
+                let (mut cvalue, mut vty) = self.expr(value, vars);
+                let id = self.place(target, vars)?;
+                let var = &vars[id.index()];
+                // IEC 61131-3 writes BOOL literals as 0 and 1 too (`ORANGE_LIGHT := 1;` in Beremiz's examples).
+                if Ty::of(&var.ty) == Ty::Bool {
+                    if let ExprKind::Int(v @ (0 | 1)) = value.kind {
+                        (cvalue, vty) = (CExpr::Const(Value::Bool(v == 1)), Ty::Bool);
+                    }
+                }
+                if !assignable(Ty::of(&var.ty), vty) {
+                    let message = format!("cannot assign {} to `{}`, which is {}", vty.name(), var.name, var.ty);
+                    self.error(value.span, message);
+                    return None;
+                }
+                CStmt::Assign { var: id, value: cvalue }
+            }
+            Stmt::If { branches, otherwise, .. } => {
+                let mut cbranches = Vec::with_capacity(branches.len());
+                for (cond, stmts) in branches {
+                    let ccond = self.condition(cond, vars, "an IF condition");
+                    cbranches.push((ccond, self.statements(stmts, vars)));
+                }
+                let otherwise = self.statements(otherwise, vars);
+                CStmt::If { branches: cbranches, otherwise }
+            }
+            Stmt::Call { callee, args, span } => return self.fb_call(callee, args, *span, vars),
+            Stmt::Case { selector, arms, otherwise, .. } => {
+                let (cselector, ty) = self.expr(selector, vars);
+                if !ty.is_int() && ty != Ty::Err {
+                    self.error(selector.span, format!("a CASE selector must be an integer, found {}", ty.name()));
+                }
+                let mut carms = Vec::with_capacity(arms.len());
+                for arm in arms {
+                    let mut labels = Vec::with_capacity(arm.labels.len());
+                    for label in &arm.labels {
+                        let range = match label {
+                            CaseLabel::Value(v) => self.case_label(v).map(|v| (v, v)),
+                            CaseLabel::Range(lo, hi) => match (self.case_label(lo), self.case_label(hi)) {
+                                (Some(lo), Some(hi)) if lo <= hi => Some((lo, hi)),
+                                (Some(_), Some(_)) => {
+                                    let span = lo.span.to(hi.span);
+                                    self.error(span, "an empty CASE range: its lower bound is above its upper bound");
+                                    None
+                                }
+                                _ => None,
+                            },
+                        };
+                        labels.extend(range);
+                    }
+                    carms.push((labels, self.statements(&arm.body, vars)));
+                }
+                let otherwise = self.statements(otherwise, vars);
+                CStmt::Case { selector: cselector, arms: carms, otherwise }
+            }
+            Stmt::For { var, from, to, by, body, .. } => {
+                let target = Expr { kind: ExprKind::Name(var.clone()), span: var.span };
+                let id = self.place(&target, vars);
+                let bound = |c: &mut Self, e: &Expr, what: &str| {
+                    let (ce, ty) = c.expr(e, vars);
+                    if !ty.is_int() && ty != Ty::Err {
+                        c.error(e.span, format!("a FOR loop's {what} must be an integer, found {}", ty.name()));
+                    }
+                    ce
+                };
+                let from = bound(self, from, "start");
+                let to = bound(self, to, "end");
+                let by = match by {
+                    Some(e) => bound(self, e, "step"),
+                    None => CExpr::Const(Value::Int(1)),
+                };
+                if let Some(id) = id {
+                    if !Ty::of(&vars[id.index()].ty).is_int() {
+                        let message = format!(
+                            "a FOR loop's variable must be an integer, and `{}` is {}",
+                            var.name,
+                            vars[id.index()].ty
+                        );
+                        self.error(var.span, message);
+                    }
+                }
+                let body = self.loop_body(body, vars);
+                CStmt::For { var: id?, from, to, by, body }
+            }
+            Stmt::While { condition, body, .. } => {
+                let condition = self.condition(condition, vars, "a WHILE condition");
+                CStmt::While { condition, body: self.loop_body(body, vars) }
+            }
+            Stmt::Repeat { body, until, .. } => {
+                let body = self.loop_body(body, vars);
+                CStmt::Repeat { body, until: self.condition(until, vars, "an UNTIL condition") }
+            }
+            Stmt::Exit { span } => {
+                if self.loops == 0 {
+                    self.error(*span, "EXIT outside a FOR, WHILE or REPEAT loop");
+                    return None;
+                }
+                CStmt::Exit
+            }
+            Stmt::Return { .. } => CStmt::Return,
+        })
+    }
+
+    fn loop_body(&mut self, body: &[Stmt], vars: &[VarInfo]) -> Vec<CStmt> {
+        self.loops += 1;
+        let out = self.statements(body, vars);
+        self.loops -= 1;
+        out
+    }
+
+    fn condition(&mut self, e: &Expr, vars: &[VarInfo], what: &str) -> CExpr {
+        let (c, ty) = self.expr(e, vars);
+        if ty != Ty::Bool && ty != Ty::Err {
+            self.error(e.span, format!("{what} must be BOOL, found {}", ty.name()));
+        }
+        c
+    }
+
+    /// A CASE label: a constant integer.
+    fn case_label(&mut self, e: &Expr) -> Option<i64> {
+        let (c, ty) = self.expr(e, &[]);
+        if ty == Ty::Err {
+            return None;
+        }
+        match (ty.is_int() && is_constant(&c)).then(|| eval(&c, &NoEnv)) {
+            Some(Ok(v)) => Some(v.as_i64()),
+            _ => {
+                self.error(e.span, "a CASE label must be a constant integer");
+                None
+            }
+        }
+    }
+
+    /// The variable an assignment (or an output `=>`) writes: a variable, or an input of an instance.
+    fn place(&mut self, target: &Expr, vars: &[VarInfo]) -> Option<VarId> {
+        let (id, name) = match &target.kind {
+            ExprKind::Name(name) => {
+                let Some(&id) = self.vars.get(&name.key()) else {
+                    if self.chart.broken.var(&name.key()) {
+                        return None;
+                    }
+                    let message = if self.steps.contains_key(&name.key()) {
+                        format!("`{}` is a step: a step's state cannot be assigned", name.name)
+                    } else if let Some((fb, _)) = self.instances.get(&name.key()) {
+                        format!(
+                            "`{}` is a {} instance: assign its inputs (`{}.IN := …`) or call it",
+                            name.name,
+                            fb.name(),
+                            name.name
+                        )
+                    } else {
+                        format!("undeclared variable `{}`", name.name)
+                    };
+                    self.error(name.span, message);
+                    return None;
+                };
+                (id, name)
+            }
+            ExprKind::Field(base, field) => {
+                let Some(&(fb, inst_base)) = self.instances.get(&base.key()) else {
+                    if !self.chart.broken.var(&base.key()) {
+                        let message = format!(
+                            "`{}.{}` cannot be assigned: only the inputs of a function block instance can",
+                            base.name, field.name
+                        );
+                        self.error(target.span, message);
+                    }
+                    return None;
+                };
+                let id = self.member(fb, inst_base, base, field)?;
+                let index = id.0 - inst_base.0;
+                if fb.members()[index as usize].kind != MemberKind::Input {
+                    let message = format!(
+                        "`{}.{}` is an output of {}: only the block writes it",
+                        base.name,
+                        field.name,
+                        fb.name()
+                    );
+                    self.error(target.span, message);
+                    return None;
+                }
+                (id, base)
+            }
+            _ => {
+                self.error(target.span, "only a variable or an instance's input can be assigned");
+                return None;
+            }
+        };
+        let var = &vars[id.index()];
+        if var.constant {
+            self.error(name.span, format!("`{}` is a CONSTANT and cannot be assigned", var.name));
+            return None;
+        }
+        if self.reject_unsupported(name.span, var) {
+            return None;
+        }
+        Some(id)
+    }
+
+    /// A member of an instance, by name (hidden state has none).
+    fn member(&mut self, fb: StdFb, base: VarId, inst: &Ident, field: &Ident) -> Option<VarId> {
+        let members = fb.members();
+        match members.iter().position(|m| m.kind != MemberKind::State && m.name.eq_ignore_ascii_case(&field.name)) {
+            Some(i) => Some(VarId(base.0 + i as u32)),
+            None => {
+                let list = |kind: MemberKind| {
+                    members.iter().filter(|m| m.kind == kind).map(|m| m.name).collect::<Vec<_>>().join(", ")
+                };
+                let message = format!(
+                    "{} has no member `{}` (`{}` is a {}: its inputs are {}; its outputs {})",
+                    fb.name(),
+                    field.name,
+                    inst.name,
+                    fb.name(),
+                    list(MemberKind::Input),
+                    list(MemberKind::Output)
+                );
+                self.error(field.span, message);
+                None
+            }
+        }
+    }
+
+    /// A call of a standard function block instance as a statement.
+    fn fb_call(&mut self, callee: &Ident, args: &[Arg], span: Span, vars: &[VarInfo]) -> Option<CStmt> {
+        let Some(&(fb, base)) = self.instances.get(&callee.key()) else {
+            let message = if StdFb::from_name(&callee.key()).is_some() {
+                format!(
+                    "`{0}` is a function block type: declare an instance (`t1 : {0};`) and call that",
+                    callee.name.to_ascii_uppercase()
+                )
+            } else if Func::from_name(&callee.key()).is_some() {
+                format!("`{}` is a function: use its result (`x := {}(…);`)", callee.name, callee.name)
+            } else if self.vars.contains_key(&callee.key()) {
+                format!("`{}` is a variable, not a function block instance: it cannot be called", callee.name)
+            } else if self.chart.broken.var(&callee.key()) {
+                return None;
+            } else {
+                format!(
+                    "unknown function block instance `{}`: declare it as a variable, such as `{}: TON;`",
+                    callee.name, callee.name
+                )
+            };
+            self.error(callee.span, message);
+            return None;
+        };
+        let members = fb.members();
+        let inputs_order: Vec<usize> = (0..members.len()).filter(|&i| members[i].kind == MemberKind::Input).collect();
+        let (mut en, mut inputs, mut outputs) = (None, Vec::new(), Vec::new());
+        let formal = args.iter().any(|a| a.name.is_some());
+        let mut positional = 0;
+        let mut ok = true;
+        for arg in args {
+            if formal && arg.name.is_none() {
+                self.error(arg.span, "a call mixes formal (`IN := x`) and non-formal arguments: name every argument");
+                ok = false;
+                continue;
+            }
+            let name = arg.name.as_ref();
+            if name.is_some_and(|n| n.key() == "EN") {
+                if arg.output {
+                    self.error(arg.span, "EN is an input: write `EN := condition`");
+                    ok = false;
+                } else {
+                    en = Some(self.condition(&arg.value, vars, "EN"));
+                }
+                continue;
+            }
+            let index = match name {
+                Some(n) => match members
+                    .iter()
+                    .position(|m| m.kind != MemberKind::State && m.name.eq_ignore_ascii_case(&n.name))
+                {
+                    Some(i) => i,
+                    None => {
+                        self.member(fb, base, callee, n);
+                        ok = false;
+                        continue;
+                    }
+                },
+                None => match inputs_order.get(positional) {
+                    Some(&i) => {
+                        positional += 1;
+                        i
+                    }
+                    None => {
+                        let message = format!("too many arguments: {} takes {} inputs", fb.name(), inputs_order.len());
+                        self.error(arg.span, message);
+                        ok = false;
+                        continue;
+                    }
+                },
+            };
+            let member = &members[index];
+            let id = VarId(base.0 + index as u32);
+            if arg.output {
+                if member.kind == MemberKind::Input {
+                    let message =
+                        format!("`{}` is an input of {}: write `{} := value`", member.name, fb.name(), member.name);
+                    self.error(arg.span, message);
+                    ok = false;
+                    continue;
+                }
+                let Some(target) = self.place(&arg.value, vars) else {
+                    ok = false;
+                    continue;
+                };
+                let target_ty = Ty::of(&vars[target.index()].ty);
+                let member_ty = Ty::of(&member.ty);
+                if arg.negated && member_ty != Ty::Bool {
+                    self.error(
+                        arg.span,
+                        format!("NOT applies to BOOL outputs, and `{}` is {}", member.name, member.ty),
+                    );
+                    ok = false;
+                } else if !assignable(target_ty, member_ty) {
+                    let message = format!(
+                        "`{}` is {} and cannot be written to `{}`, which is {}",
+                        member.name,
+                        member.ty,
+                        vars[target.index()].name,
+                        vars[target.index()].ty
+                    );
+                    self.error(arg.value.span, message);
+                    ok = false;
+                } else {
+                    outputs.push(FbOutput { member: id, target, negated: arg.negated });
+                }
+                continue;
+            }
+            if member.kind != MemberKind::Input {
+                let message =
+                    format!("`{}` is an output of {}: write `{} => variable`", member.name, fb.name(), member.name);
+                self.error(arg.span, message);
+                ok = false;
+                continue;
+            }
+            let (mut value, mut ty) = self.expr(&arg.value, vars);
+            if Ty::of(&member.ty) == Ty::Bool {
+                if let ExprKind::Int(v @ (0 | 1)) = arg.value.kind {
+                    (value, ty) = (CExpr::Const(Value::Bool(v == 1)), Ty::Bool);
+                }
+            }
+            if !assignable(Ty::of(&member.ty), ty) {
+                let message = format!("input `{}` of {} is {}, found {}", member.name, fb.name(), member.ty, ty.name());
+                self.error(arg.value.span, message);
+                ok = false;
+                continue;
+            }
+            inputs.push((id, value));
+        }
+        let _ = span;
+        ok.then_some(CStmt::Fb { fb, base, en, inputs, outputs })
+    }
+
+    /// A standard function call in an expression.
+    fn call(&mut self, e: &Expr, callee: &Ident, args: &[Arg], vars: &[VarInfo]) -> (CExpr, Ty) {
+        let key = callee.key();
+        if let Some((fb, _)) = self.instances.get(&key) {
+            let message = format!(
+                "`{}` is a {} instance: call it as a statement in an action (`{}(…);`) and read its outputs here (`{}.Q`)",
+                callee.name,
+                fb.name(),
+                callee.name,
+                callee.name
+            );
+            self.error(callee.span, message);
+            return (FALSE, Ty::Err);
+        }
+        // ADD, SUB, …, GT, EQ, …: the operators, folded over the arguments.
+        let op = match key.as_str() {
+            "ADD" => Some((BinOp::Add, true)),
+            "MUL" => Some((BinOp::Mul, true)),
+            "SUB" => Some((BinOp::Sub, false)),
+            "DIV" => Some((BinOp::Div, false)),
+            "MOD" => Some((BinOp::Mod, false)),
+            "GT" => Some((BinOp::Gt, true)),
+            "GE" => Some((BinOp::Ge, true)),
+            "EQ" => Some((BinOp::Eq, true)),
+            "LE" => Some((BinOp::Le, true)),
+            "LT" => Some((BinOp::Lt, true)),
+            "NE" => Some((BinOp::Ne, false)),
+            _ => None,
+        };
+        if let Some((op, extensible)) = op {
+            let Some(values) = self.positional(callee, args, &["IN1", "IN2"], extensible) else {
+                return (FALSE, Ty::Err);
+            };
+            let comparison = matches!(op, BinOp::Gt | BinOp::Ge | BinOp::Eq | BinOp::Le | BinOp::Lt | BinOp::Ne);
+            let mut folded = if comparison {
+                // GT(a, b, c) is a > b AND b > c.
+                let pairs: Vec<Expr> = values
+                    .windows(2)
+                    .map(|w| Expr {
+                        kind: ExprKind::Binary(op, Box::new(w[0].clone()), Box::new(w[1].clone())),
+                        span: e.span,
+                    })
+                    .collect();
+                let mut it = pairs.into_iter();
+                let first = it.next().expect("two arguments at least");
+                it.fold(first, |acc, p| Expr {
+                    kind: ExprKind::Binary(BinOp::And, Box::new(acc), Box::new(p)),
+                    span: e.span,
+                })
+            } else {
+                let mut it = values.into_iter();
+                let first = it.next().expect("two arguments at least");
+                it.fold(first, |acc, v| Expr { kind: ExprKind::Binary(op, Box::new(acc), Box::new(v)), span: e.span })
+            };
+            folded.span = e.span;
+            return self.expr(&folded, vars);
+        }
+        let Some((func, params)) = Func::from_name(&key) else {
+            let message = if StdFb::from_name(&key).is_some() {
+                format!("`{0}` is a function block type: declare an instance (`t1 : {0};`), call it in an action and read `t1.Q`", key)
+            } else {
+                format!("unknown function `{}`", callee.name)
+            };
+            self.error(callee.span, message);
+            return (FALSE, Ty::Err);
+        };
+        let Some(values) = self.positional(callee, args, params, func.extensible()) else {
+            return (FALSE, Ty::Err);
+        };
+        let mut cargs = Vec::with_capacity(values.len());
+        let mut tys = Vec::with_capacity(values.len());
+        for v in &values {
+            let (c, t) = self.expr(v, vars);
+            if t == Ty::Err {
+                return (FALSE, Ty::Err);
+            }
+            cargs.push(c);
+            tys.push(t);
+        }
+        let bad = |c: &mut Self, i: usize, want: &str| {
+            let message = format!("argument {} of {} must be {want}, found {}", i + 1, key, tys[i].name());
+            c.error(values[i].span, message);
+            (FALSE, Ty::Err)
+        };
+        let real_of = |t: Ty| match t {
+            Ty::Real { long } => Ty::Real { long },
+            _ => Ty::Real { long: false },
+        };
+        // The common type of some arguments, all numbers, all TIME or all BOOL.
+        let common = |c: &mut Self, from: usize| -> Option<Ty> {
+            let mut acc = tys[from];
+            for (i, &t) in tys.iter().enumerate().skip(from + 1) {
+                acc = if acc.is_num() && t.is_num() {
+                    join(acc, t)
+                } else if acc == t && matches!(t, Ty::Time | Ty::Bool) {
+                    t
+                } else {
+                    let message = format!("arguments of {} must have one type: {} and {}", key, acc.name(), t.name());
+                    c.error(values[i].span, message);
+                    return None;
+                };
+            }
+            Some(acc)
+        };
+        let ty = match &func {
+            Func::Abs if tys[0].is_num() => tys[0],
+            Func::Abs => return bad(self, 0, "a number"),
+            Func::Sqrt
+            | Func::Ln
+            | Func::Log
+            | Func::Exp
+            | Func::Sin
+            | Func::Cos
+            | Func::Tan
+            | Func::Asin
+            | Func::Acos
+            | Func::Atan
+                if tys[0].is_num() =>
+            {
+                real_of(tys[0])
+            }
+            Func::Sqrt
+            | Func::Ln
+            | Func::Log
+            | Func::Exp
+            | Func::Sin
+            | Func::Cos
+            | Func::Tan
+            | Func::Asin
+            | Func::Acos
+            | Func::Atan => return bad(self, 0, "a number"),
+            Func::Trunc if tys[0].is_num() => Ty::Int(IntKind::Dint),
+            Func::Trunc => return bad(self, 0, "a REAL"),
+            Func::Expt if !tys[0].is_num() => return bad(self, 0, "a number"),
+            Func::Expt if !tys[1].is_num() => return bad(self, 1, "a number"),
+            Func::Expt => join(tys[0], tys[1]),
+            Func::Move => tys[0],
+            Func::Sel if tys[0] != Ty::Bool => return bad(self, 0, "BOOL"),
+            Func::Sel => match common(self, 1) {
+                Some(t) => t,
+                None => return (FALSE, Ty::Err),
+            },
+            Func::Max | Func::Min | Func::Limit => match common(self, 0) {
+                Some(t) => t,
+                None => return (FALSE, Ty::Err),
+            },
+            Func::Mux if !tys[0].is_int() => return bad(self, 0, "an integer"),
+            Func::Mux => match common(self, 1) {
+                Some(t) => t,
+                None => return (FALSE, Ty::Err),
+            },
+            Func::Shl | Func::Shr | Func::Rol | Func::Ror if !tys[0].is_int() => {
+                return bad(self, 0, "a bit string or an integer")
+            }
+            Func::Shl | Func::Shr | Func::Rol | Func::Ror if !tys[1].is_int() => return bad(self, 1, "an integer"),
+            Func::Shl | Func::Shr | Func::Rol | Func::Ror => match tys[0] {
+                Ty::IntLit => Ty::Int(IntKind::Dword),
+                t => t,
+            },
+            Func::Convert(to) => {
+                if let Some((from, _)) = key.split_once("_TO_") {
+                    let from_ty = Type::from_name(from).map(|t| Ty::of(&t));
+                    let fits = match from_ty {
+                        Some(f) if f.is_int() => tys[0].is_int(),
+                        Some(f @ Ty::Real { .. }) => tys[0].is_num() || tys[0] == f,
+                        Some(f) => tys[0] == f,
+                        None => true,
+                    };
+                    if !fits {
+                        return bad(self, 0, from);
+                    }
+                }
+                Ty::of(to)
+            }
+            Func::BitAnd | Func::BitOr | Func::BitXor | Func::BitNot => tys[0],
+        };
+        (CExpr::Call { func, args: cargs, ty: ty.repr() }, ty)
+    }
+
+    /// A call's arguments in parameter order: non-formal as written, or formal matched to the parameter names
+    /// (`IN1`, `IN2`, … beyond the declared ones for an extensible function).
+    fn positional(&mut self, callee: &Ident, args: &[Arg], params: &[&str], extensible: bool) -> Option<Vec<Expr>> {
+        let formal = args.iter().any(|a| a.name.is_some());
+        let name = callee.name.to_ascii_uppercase();
+        if args.iter().any(|a| a.output) {
+            let arg = args.iter().find(|a| a.output).expect("an output argument");
+            self.error(arg.span, format!("{name} is a function: it has no outputs to write with `=>`"));
+            return None;
+        }
+        let values: Vec<Expr> = if formal {
+            let mut slots: Vec<Option<Expr>> = vec![None; params.len().max(args.len())];
+            for arg in args {
+                let Some(n) = &arg.name else {
+                    self.error(
+                        arg.span,
+                        "a call mixes formal (`IN := x`) and non-formal arguments: name every argument",
+                    );
+                    return None;
+                };
+                let key = n.key();
+                let index = params.iter().position(|p| *p == key).or_else(|| {
+                    // IN3, IN4, … of an extensible function; MUX numbers its inputs from IN0.
+                    let number: usize = key.strip_prefix("IN")?.parse().ok()?;
+                    let first_in = params.iter().position(|p| p.starts_with("IN"))?;
+                    let offset = if params[first_in] == "IN0" { number } else { number.checked_sub(1)? };
+                    extensible.then_some(first_in + offset)
+                });
+                let Some(index) = index.filter(|&i| i < slots.len()) else {
+                    self.error(n.span, format!("{name} has no parameter `{}`", n.name));
+                    return None;
+                };
+                slots[index] = Some(arg.value.clone());
+            }
+            while slots.len() > params.len() && slots.last().is_some_and(|s| s.is_none()) {
+                slots.pop();
+            }
+            if let Some(missing) = slots.iter().position(|s| s.is_none()) {
+                let p = params.get(missing).map_or_else(|| format!("IN{missing}"), |p| p.to_string());
+                self.error(callee.span, format!("{name} needs its parameter `{p}`"));
+                return None;
+            }
+            slots.into_iter().map(|s| s.expect("every slot is filled")).collect()
+        } else {
+            args.iter().map(|a| a.value.clone()).collect()
+        };
+        let ok = if extensible { values.len() >= params.len() } else { values.len() == params.len() };
+        if !ok {
+            let n = params.len();
+            let message = if extensible {
+                format!("{name} takes {n} arguments or more, found {}", values.len())
+            } else {
+                format!("{name} takes {n} argument{}, found {}", if n == 1 { "" } else { "s" }, values.len())
+            };
+            self.error(callee.span, message);
+            return None;
+        }
+        Some(values)
     }
 
     fn expr(&mut self, e: &Expr, vars: &[VarInfo]) -> (CExpr, Ty) {
@@ -472,11 +1092,15 @@ impl<'a> Compiler<'a> {
             ExprKind::Time(v) => (CExpr::Const(Value::Time(*v)), Ty::Time),
             ExprKind::Name(name) => self.name(name, vars),
             ExprKind::Field(base, field) => self.field(base, field),
+            ExprKind::Call(callee, args) => self.call(e, callee, args, vars),
             ExprKind::Unary(op, a) => {
                 let (ca, ta) = self.expr(a, vars);
                 match (op, ta) {
                     (_, Ty::Err) => (FALSE, Ty::Err),
                     (UnOp::Not, Ty::Bool) => (CExpr::Not(Box::new(ca)), Ty::Bool),
+                    (UnOp::Not, t) if t.is_int() => {
+                        (CExpr::Call { func: Func::BitNot, args: vec![ca], ty: t.repr() }, t)
+                    }
                     (UnOp::Neg, t) if t.is_num() || t == Ty::Time => (CExpr::Neg(Box::new(ca), t.wrap()), t),
                     (UnOp::Not, t) => {
                         self.error(e.span, format!("NOT needs a BOOL operand, found {}", t.name()));
@@ -499,6 +1123,14 @@ impl<'a> Compiler<'a> {
                     self.error(e.span, message);
                     return (FALSE, Ty::Err);
                 };
+                if matches!(op, BinOp::And | BinOp::Or | BinOp::Xor) && ty != Ty::Bool {
+                    let func = match op {
+                        BinOp::And => Func::BitAnd,
+                        BinOp::Or => Func::BitOr,
+                        _ => Func::BitXor,
+                    };
+                    return (CExpr::Call { func, args: vec![ca, cb], ty: ty.repr() }, ty);
+                }
                 let (ca, cb) = (Box::new(ca), Box::new(cb));
                 let cexpr = match op {
                     BinOp::Or => CExpr::Logic(LogicOp::Or, ca, cb),
@@ -515,6 +1147,7 @@ impl<'a> Compiler<'a> {
                     BinOp::Mul => CExpr::Arith { op: ArithOp::Mul, wrap: ty.wrap(), lhs: ca, rhs: cb },
                     BinOp::Div => CExpr::Arith { op: ArithOp::Div, wrap: ty.wrap(), lhs: ca, rhs: cb },
                     BinOp::Mod => CExpr::Arith { op: ArithOp::Mod, wrap: ty.wrap(), lhs: ca, rhs: cb },
+                    BinOp::Pow => CExpr::Arith { op: ArithOp::Pow, wrap: ty.wrap(), lhs: ca, rhs: cb },
                 };
                 (cexpr, ty)
             }
@@ -530,7 +1163,11 @@ impl<'a> Compiler<'a> {
 
     fn name(&mut self, name: &Ident, vars: &[VarInfo]) -> (CExpr, Ty) {
         if let Some(&id) = self.vars.get(&name.key()) {
-            let var = &vars[id.index()];
+            // Constant contexts (initial values, CASE labels) see no variables.
+            let Some(var) = vars.get(id.index()) else {
+                self.error(name.span, format!("`{}` is a variable, and a constant is needed here", name.name));
+                return (FALSE, Ty::Err);
+            };
             if self.reject_unsupported(name.span, var) {
                 return (FALSE, Ty::Err);
             }
@@ -538,6 +1175,8 @@ impl<'a> Compiler<'a> {
         }
         let message = if self.steps.contains_key(&name.key()) {
             format!("`{}` is a step: write `{}.X` for its active flag", name.name, name.name)
+        } else if let Some((fb, _)) = self.instances.get(&name.key()) {
+            format!("`{}` is a {} instance: read one of its outputs, such as `{}.Q`", name.name, fb.name(), name.name)
         } else if self.chart.broken.var(&name.key()) {
             return (FALSE, Ty::Err);
         } else {
@@ -548,6 +1187,16 @@ impl<'a> Compiler<'a> {
     }
 
     fn field(&mut self, base: &Ident, field: &Ident) -> (CExpr, Ty) {
+        let step_field = matches!(field.key().as_str(), "X" | "T") && self.steps.contains_key(&base.key());
+        if let Some(&(fb, inst)) = self.instances.get(&base.key()).filter(|_| !step_field) {
+            return match self.member(fb, inst, base, field) {
+                Some(id) => {
+                    let ty = Ty::of(&fb.members()[(id.0 - inst.0) as usize].ty);
+                    (CExpr::Var(id), ty)
+                }
+                None => (FALSE, Ty::Err),
+            };
+        }
         match field.key().as_str() {
             "X" | "T" => match self.steps.get(&base.key()) {
                 Some(&id) if field.key() == "X" => (CExpr::StepX(id), Ty::Bool),
@@ -569,7 +1218,10 @@ impl<'a> Compiler<'a> {
                 }
             },
             _ => {
-                let message = format!("unknown field `.{}`: a step has `.X` and `.T`, an action has `.Q`", field.name);
+                let message = format!(
+                    "unknown field `.{}`: a step has `.X` and `.T`, an action has `.Q`, a function block instance its outputs",
+                    field.name
+                );
                 self.error(field.span, message);
                 (FALSE, Ty::Err)
             }

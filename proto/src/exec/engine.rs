@@ -871,6 +871,11 @@ impl Env for Engine {
     fn action_q(&self, id: ActionId) -> bool {
         self.actions[id.index()].q
     }
+
+    /// A reaction runs on the last cycle's time, as the steps it activates count theirs.
+    fn now_ms(&self) -> i64 {
+        self.grid_floor(self.now_ms) as i64
+    }
 }
 
 impl EnvMut for Engine {

@@ -1,7 +1,9 @@
 //! Evaluates typed expressions and runs action bodies against the engine's state (or none, for constants).
 
 use crate::exec::program::{ActionId, ArithOp, CExpr, CStmt, CmpOp, LogicOp, StepId, VarId};
-use crate::exec::types::{IntKind, Value};
+use crate::exec::stdlib::{self, Func};
+use crate::exec::types::{IntKind, Type, Value};
+use crate::limits::LOOP_ITERATIONS_MAX;
 
 /// What an expression can read.
 pub trait Env {
@@ -10,6 +12,8 @@ pub trait Env {
     /// `S.T` in milliseconds.
     fn step_t(&self, id: StepId) -> i64;
     fn action_q(&self, id: ActionId) -> bool;
+    /// The cycle's time in milliseconds, as function blocks see it.
+    fn now_ms(&self) -> i64;
 }
 
 /// Storage an action body writes to.
@@ -24,6 +28,10 @@ pub enum Fault {
     /// A transition gave an active step a second token (the net is not safe); the tokens merged. Only a chart
     /// whose safety could not be proven (`unverified_net := TRUE`) can get here.
     SecondToken(crate::exec::program::StepId),
+    /// A loop ran more than `LOOP_ITERATIONS_MAX` iterations in one run of a body.
+    LoopLimit,
+    /// MUX's selector named no input.
+    MuxSelector,
 }
 
 pub fn eval(e: &CExpr, env: &impl Env) -> Result<Value, Fault> {
@@ -50,6 +58,79 @@ pub fn eval(e: &CExpr, env: &impl Env) -> Result<Value, Fault> {
         }
         CExpr::Cmp(op, a, b) => Value::Bool(compare(*op, eval(a, env)?, eval(b, env)?)),
         CExpr::Arith { op, wrap, lhs, rhs } => arith(*op, *wrap, eval(lhs, env)?, eval(rhs, env)?)?,
+        CExpr::Call { func, args, ty } => ty.coerce(call(func, args, ty, env)?),
+    })
+}
+
+fn call(func: &Func, args: &[CExpr], ty: &Type, env: &impl Env) -> Result<Value, Fault> {
+    let arg = |i: usize| eval(&args[i], env);
+    let wrap = match ty {
+        Type::Int(k) => Some(*k),
+        _ => None,
+    };
+    Ok(match func {
+        Func::Abs => match arg(0)? {
+            Value::Real(r) => Value::Real(r.abs()),
+            v => int(v.as_i64().wrapping_abs(), wrap),
+        },
+        Func::Sqrt
+        | Func::Ln
+        | Func::Log
+        | Func::Exp
+        | Func::Sin
+        | Func::Cos
+        | Func::Tan
+        | Func::Asin
+        | Func::Acos
+        | Func::Atan => Value::Real(stdlib::real1(func, arg(0)?.as_f64())),
+        Func::Trunc => Value::Int(arg(0)?.as_f64().trunc() as i64),
+        Func::Expt => arith(ArithOp::Pow, wrap, arg(0)?, arg(1)?)?,
+        Func::Move => arg(0)?,
+        Func::Sel => {
+            if arg(0)?.as_bool() {
+                arg(2)?
+            } else {
+                arg(1)?
+            }
+        }
+        Func::Max | Func::Min => {
+            let mut best = arg(0)?;
+            for a in &args[1..] {
+                let v = eval(a, env)?;
+                let better =
+                    if matches!(func, Func::Max) { compare(CmpOp::Gt, v, best) } else { compare(CmpOp::Lt, v, best) };
+                if better {
+                    best = v;
+                }
+            }
+            best
+        }
+        Func::Limit => {
+            let (mn, x, mx) = (arg(0)?, arg(1)?, arg(2)?);
+            if compare(CmpOp::Lt, x, mn) {
+                mn
+            } else if compare(CmpOp::Gt, x, mx) {
+                mx
+            } else {
+                x
+            }
+        }
+        Func::Mux => {
+            let k = arg(0)?.as_i64();
+            if k < 0 || k as usize >= args.len() - 1 {
+                return Err(Fault::MuxSelector);
+            }
+            arg(k as usize + 1)?
+        }
+        Func::Shl | Func::Shr | Func::Rol | Func::Ror => {
+            let kind = wrap.unwrap_or(IntKind::Lword);
+            Value::Int(stdlib::shift(func, arg(0)?.as_i64(), arg(1)?.as_i64(), kind))
+        }
+        Func::Convert(to) => stdlib::convert(arg(0)?, to),
+        Func::BitAnd => int(arg(0)?.as_i64() & arg(1)?.as_i64(), wrap),
+        Func::BitOr => int(arg(0)?.as_i64() | arg(1)?.as_i64(), wrap),
+        Func::BitXor => int(arg(0)?.as_i64() ^ arg(1)?.as_i64(), wrap),
+        Func::BitNot => int(!arg(0)?.as_i64(), wrap),
     })
 }
 
@@ -83,7 +164,7 @@ fn arith(op: ArithOp, wrap: Option<IntKind>, a: Value, b: Value) -> Result<Value
         | (n @ (Value::Int(_) | Value::Real(_)), Value::Time(t)) => {
             let n = n.as_f64();
             match op {
-                ArithOp::Mul => Ok(Value::Time((t as f64 * n).round() as i64)),
+                ArithOp::Mul | ArithOp::Pow => Ok(Value::Time((t as f64 * n).round() as i64)),
                 _ if n == 0.0 => Err(Fault::DivisionByZero),
                 _ => Ok(Value::Time((t as f64 / n).round() as i64)),
             }
@@ -101,6 +182,7 @@ fn arith(op: ArithOp, wrap: Option<IntKind>, a: Value, b: Value) -> Result<Value
                 ArithOp::Div | ArithOp::Mod if y == 0.0 => return Err(Fault::DivisionByZero),
                 ArithOp::Div => x / y,
                 ArithOp::Mod => x % y,
+                ArithOp::Pow => x.powf(y),
             }))
         }
         _ => {
@@ -112,36 +194,146 @@ fn arith(op: ArithOp, wrap: Option<IntKind>, a: Value, b: Value) -> Result<Value
                 ArithOp::Div | ArithOp::Mod if y == 0 => return Err(Fault::DivisionByZero),
                 ArithOp::Div => x.wrapping_div(y),
                 ArithOp::Mod => x.wrapping_rem(y),
+                ArithOp::Pow => stdlib::int_pow(x, y, None),
             };
             Ok(int(v, wrap))
         }
     }
 }
 
-/// Runs statements in order; a fault stops the body where it happened.
+/// Runs a body; a fault stops it where it happened. Its loops together may run `LOOP_ITERATIONS_MAX`
+/// iterations: past that the body stops with `Fault::LoopLimit`, so that no loop hangs a cycle.
 pub fn run(body: &[CStmt], env: &mut impl EnvMut) -> Result<(), Fault> {
+    let mut budget = LOOP_ITERATIONS_MAX;
+    exec(body, env, &mut budget).map(|_| ())
+}
+
+/// How a run of statements ended.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Flow {
+    Next,
+    Exit,
+    Return,
+}
+
+fn tick(budget: &mut usize) -> Result<(), Fault> {
+    *budget = budget.checked_sub(1).ok_or(Fault::LoopLimit)?;
+    Ok(())
+}
+
+fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flow, Fault> {
     for stmt in body {
-        match stmt {
+        let flow = match stmt {
             CStmt::Assign { var, value } => {
                 let v = eval(value, env)?;
                 env.set_var(*var, v);
+                Flow::Next
             }
             CStmt::If { branches, otherwise } => {
-                let mut taken = false;
+                let mut taken = None;
                 for (cond, stmts) in branches {
                     if eval(cond, env)?.as_bool() {
-                        run(stmts, env)?;
-                        taken = true;
+                        taken = Some(stmts);
                         break;
                     }
                 }
-                if !taken {
-                    run(otherwise, env)?;
-                }
+                exec(taken.unwrap_or(otherwise), env, budget)?
             }
+            CStmt::Fb { fb, base, en, inputs, outputs } => {
+                for (member, value) in inputs {
+                    let v = eval(value, env)?;
+                    env.set_var(*member, v);
+                }
+                let enabled = match en {
+                    Some(e) => eval(e, env)?.as_bool(),
+                    None => true,
+                };
+                if enabled {
+                    stdlib::run_fb(*fb, *base, env);
+                }
+                env.set_var(VarId(base.0 + fb.eno()), Value::Bool(enabled));
+                for out in outputs {
+                    let v = env.var(out.member);
+                    env.set_var(out.target, if out.negated { Value::Bool(!v.as_bool()) } else { v });
+                }
+                Flow::Next
+            }
+            CStmt::Case { selector, arms, otherwise } => {
+                let k = eval(selector, env)?.as_i64();
+                let arm = arms.iter().find(|(labels, _)| labels.iter().any(|&(lo, hi)| lo <= k && k <= hi));
+                exec(arm.map_or(otherwise, |(_, b)| b), env, budget)?
+            }
+            CStmt::For { var, from, to, by, body } => {
+                let start = eval(from, env)?;
+                env.set_var(*var, start);
+                let (to, by) = (eval(to, env)?.as_i64(), eval(by, env)?.as_i64());
+                let mut flow = Flow::Next;
+                loop {
+                    let i = env.var(*var).as_i64();
+                    let go_on = if by >= 0 { i <= to } else { i >= to };
+                    if !go_on {
+                        break;
+                    }
+                    tick(budget)?;
+                    match exec(body, env, budget)? {
+                        Flow::Exit => break,
+                        Flow::Return => {
+                            flow = Flow::Return;
+                            break;
+                        }
+                        Flow::Next => {}
+                    }
+                    let i = env.var(*var).as_i64();
+                    // A step that would overflow the variable's type ends the loop, as the bound was reached.
+                    let Some(next) = i.checked_add(by) else { break };
+                    env.set_var(*var, Value::Int(next));
+                    if env.var(*var).as_i64() != next {
+                        break;
+                    }
+                }
+                flow
+            }
+            CStmt::While { condition, body } => {
+                let mut flow = Flow::Next;
+                while eval(condition, env)?.as_bool() {
+                    tick(budget)?;
+                    match exec(body, env, budget)? {
+                        Flow::Exit => break,
+                        Flow::Return => {
+                            flow = Flow::Return;
+                            break;
+                        }
+                        Flow::Next => {}
+                    }
+                }
+                flow
+            }
+            CStmt::Repeat { body, until } => {
+                let mut flow = Flow::Next;
+                loop {
+                    tick(budget)?;
+                    match exec(body, env, budget)? {
+                        Flow::Exit => break,
+                        Flow::Return => {
+                            flow = Flow::Return;
+                            break;
+                        }
+                        Flow::Next => {}
+                    }
+                    if eval(until, env)?.as_bool() {
+                        break;
+                    }
+                }
+                flow
+            }
+            CStmt::Exit => Flow::Exit,
+            CStmt::Return => Flow::Return,
+        };
+        if flow != Flow::Next {
+            return Ok(flow);
         }
     }
-    Ok(())
+    Ok(Flow::Next)
 }
 
 /// Whether an expression reads nothing but literals, so that it can be folded at compile time.
@@ -152,6 +344,7 @@ pub fn is_constant(e: &CExpr) -> bool {
         CExpr::Not(a) | CExpr::Neg(a, _) => is_constant(a),
         CExpr::Logic(_, a, b) | CExpr::Cmp(_, a, b) => is_constant(a) && is_constant(b),
         CExpr::Arith { lhs, rhs, .. } => is_constant(lhs) && is_constant(rhs),
+        CExpr::Call { args, .. } => args.iter().all(is_constant),
     }
 }
 
@@ -170,5 +363,8 @@ impl Env for NoEnv {
     }
     fn action_q(&self, _: ActionId) -> bool {
         false
+    }
+    fn now_ms(&self) -> i64 {
+        0
     }
 }

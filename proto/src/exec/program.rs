@@ -1,6 +1,7 @@
 //! The executable form of a chart: names resolved to ids, expressions typed, transitions ranked by priority.
 //! The engine runs a `Program`; only `compile` builds one, and only from a chart without errors.
 
+use crate::exec::stdlib::{Func, StdFb};
 use crate::exec::types::{IntKind, Type, Value};
 use crate::front::model::{Pragma, Qualifier, VarSection};
 
@@ -80,6 +81,7 @@ impl Reads {
                 self.walk(a);
                 self.walk(b);
             }
+            CExpr::Call { args, .. } => args.iter().for_each(|a| self.walk(a)),
         }
     }
 }
@@ -106,6 +108,8 @@ pub struct VarInfo {
     pub init: Value,
     pub constant: bool,
     pub section: VarSection,
+    /// Internal state of a function block instance (`t1.STATE`): not readable or settable by name.
+    pub hidden: bool,
 }
 
 #[derive(Clone, Debug)]
@@ -152,6 +156,7 @@ pub enum ArithOp {
     Mul,
     Div,
     Mod,
+    Pow,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -184,13 +189,122 @@ pub enum CExpr {
     Neg(Box<CExpr>, Option<IntKind>),
     Logic(LogicOp, Box<CExpr>, Box<CExpr>),
     Cmp(CmpOp, Box<CExpr>, Box<CExpr>),
-    Arith { op: ArithOp, wrap: Option<IntKind>, lhs: Box<CExpr>, rhs: Box<CExpr> },
+    Arith {
+        op: ArithOp,
+        wrap: Option<IntKind>,
+        lhs: Box<CExpr>,
+        rhs: Box<CExpr>,
+    },
+    /// A standard function; the result is converted to `ty` (its integer width, REAL's precision).
+    Call {
+        func: Func,
+        args: Vec<CExpr>,
+        ty: Type,
+    },
 }
 
 #[derive(Clone, Debug)]
 pub enum CStmt {
-    Assign { var: VarId, value: CExpr },
-    If { branches: Vec<(CExpr, Vec<CStmt>)>, otherwise: Vec<CStmt> },
+    Assign {
+        var: VarId,
+        value: CExpr,
+    },
+    If {
+        branches: Vec<(CExpr, Vec<CStmt>)>,
+        otherwise: Vec<CStmt>,
+    },
+    /// A call of the standard block instance whose members start at `base`: inputs assigned in order, then (when
+    /// `en` is absent or TRUE) the block runs and ENO is TRUE, else ENO is FALSE; then outputs are copied out.
+    Fb {
+        fb: StdFb,
+        base: VarId,
+        en: Option<CExpr>,
+        inputs: Vec<(VarId, CExpr)>,
+        outputs: Vec<FbOutput>,
+    },
+    /// Arms in order; an arm's labels are inclusive ranges of selector values.
+    Case {
+        selector: CExpr,
+        arms: Vec<CaseArm>,
+        otherwise: Vec<CStmt>,
+    },
+    /// `FOR var := from TO to BY by`: `to` and `by` are evaluated once, before the first iteration.
+    For {
+        var: VarId,
+        from: CExpr,
+        to: CExpr,
+        by: CExpr,
+        body: Vec<CStmt>,
+    },
+    While {
+        condition: CExpr,
+        body: Vec<CStmt>,
+    },
+    Repeat {
+        body: Vec<CStmt>,
+        until: CExpr,
+    },
+    Exit,
+    Return,
+}
+
+/// Walks statements: `write` gets every variable they may write, `read` every expression they evaluate (a block
+/// call reads its instance's members too).
+pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl FnMut(&CExpr)) {
+    for stmt in body {
+        match stmt {
+            CStmt::Assign { var, value } => {
+                write(*var);
+                read(value);
+            }
+            CStmt::If { branches, otherwise } => {
+                for (c, b) in branches {
+                    read(c);
+                    walk_body(b, write, read);
+                }
+                walk_body(otherwise, write, read);
+            }
+            CStmt::Fb { fb, base, en, inputs, outputs } => {
+                en.iter().for_each(&mut *read);
+                inputs.iter().for_each(|(_, e)| read(e));
+                for i in 0..fb.size() {
+                    let member = VarId(base.0 + i);
+                    write(member);
+                    read(&CExpr::Var(member));
+                }
+                outputs.iter().for_each(|o| write(o.target));
+            }
+            CStmt::Case { selector, arms, otherwise } => {
+                read(selector);
+                arms.iter().for_each(|(_, b)| walk_body(b, write, read));
+                walk_body(otherwise, write, read);
+            }
+            CStmt::For { var, from, to, by, body } => {
+                write(*var);
+                read(&CExpr::Var(*var));
+                read(from);
+                read(to);
+                read(by);
+                walk_body(body, write, read);
+            }
+            CStmt::While { condition: c, body } | CStmt::Repeat { body, until: c } => {
+                read(c);
+                walk_body(body, write, read);
+            }
+            CStmt::Exit | CStmt::Return => {}
+        }
+    }
+}
+
+/// One CASE arm: its labels as inclusive ranges, and its body.
+pub type CaseArm = (Vec<(i64, i64)>, Vec<CStmt>);
+
+/// `Q => done` (or `NOT Q => waiting`) of a call: a member copied to a variable after the call.
+#[derive(Clone, Copy, Debug)]
+pub struct FbOutput {
+    pub member: VarId,
+    pub target: VarId,
+    pub negated: bool,
 }
 
 fn range(at: &[u32], i: usize) -> std::ops::Range<usize> {
@@ -296,7 +410,8 @@ impl Program {
         self.ranks[t.index()]
     }
 
+    /// A variable by name (`t1.Q` for an instance's member); hidden state has none.
     pub fn var_by_name(&self, name: &str) -> Option<VarId> {
-        self.vars.iter().position(|v| v.name.eq_ignore_ascii_case(name)).map(|i| VarId(i as u32))
+        self.vars.iter().position(|v| !v.hidden && v.name.eq_ignore_ascii_case(name)).map(|i| VarId(i as u32))
     }
 }

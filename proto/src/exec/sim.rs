@@ -26,6 +26,9 @@ pub struct TraceRecord {
     /// What went wrong, for `fault` and `skill_fault` records.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub message: Option<String>,
+    /// A watched variable's new value, for `value` records (`T#10ms`, `TRUE`, `42`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub value: Option<String>,
 }
 
 impl TraceRecord {
@@ -38,6 +41,7 @@ impl TraceRecord {
             token: None,
             epoch: None,
             message: None,
+            value: None,
         }
     }
 }
@@ -133,6 +137,19 @@ pub fn simulate(
     inputs: &[InputRecord],
     cycle_ms: u64,
     until_ms: u64,
+    sink: impl FnMut(SimOutput),
+) -> Result<(), SimError> {
+    simulate_watching(program, inputs, cycle_ms, until_ms, &[], sink)
+}
+
+/// `simulate`, with a `value` record after the first cycle for each watched variable, and after every cycle that
+/// changed it.
+pub fn simulate_watching(
+    program: Arc<Program>,
+    inputs: &[InputRecord],
+    cycle_ms: u64,
+    until_ms: u64,
+    watch: &[VarId],
     mut sink: impl FnMut(SimOutput),
 ) -> Result<(), SimError> {
     if cycle_ms == 0 {
@@ -142,8 +159,9 @@ pub fn simulate(
     order.sort_by_key(|&i| (inputs[i].t_ms, i));
     let mut next_input = 0;
     let mut batch = Vec::new();
-    let mut engine = Engine::new(program);
+    let mut engine = Engine::new(Arc::clone(&program));
     drain(&mut engine, &mut sink);
+    let mut watched: Vec<Option<Value>> = vec![None; watch.len()];
     let mut now = 0u64;
     while now <= until_ms {
         batch.clear();
@@ -164,6 +182,15 @@ pub fn simulate(
             sink(SimOutput::Fault { t_ms: now, message: e.to_string() });
         }
         drain(&mut engine, &mut sink);
+        for (last, &var) in watched.iter_mut().zip(watch) {
+            let value = engine.value(var);
+            if *last != Some(value) {
+                *last = Some(value);
+                let mut record = TraceRecord::new(now, "value", &program.vars[var.index()].name);
+                record.value = Some(value.to_string());
+                sink(SimOutput::Trace(record));
+            }
+        }
         let Some(next) = now.checked_add(cycle_ms) else { break };
         now = next;
     }
@@ -194,6 +221,15 @@ pub fn output_of(program: &Program, ev: Event) -> SimOutput {
 pub fn fault_message(program: &Program, source: FaultSource, fault: Fault) -> String {
     let what = match fault {
         Fault::DivisionByZero => "division by zero",
+        Fault::MuxSelector => "a MUX selector past its inputs",
+        Fault::LoopLimit => {
+            let FaultSource::Action(a) = source else { return "a loop past its limit".to_string() };
+            return format!(
+                "a loop in action `{}` ran more than {} iterations in one cycle: the rest of its body was skipped",
+                program.actions[a.index()].name,
+                crate::limits::LOOP_ITERATIONS_MAX
+            );
+        }
         Fault::SecondToken(s) => {
             let FaultSource::Transition(t) = source else { return "a second token".to_string() };
             return format!(

@@ -19,7 +19,7 @@ pub enum IntKind {
 }
 
 impl IntKind {
-    fn bits(self) -> u32 {
+    pub fn bits(self) -> u32 {
         match self {
             IntKind::Sint | IntKind::Usint | IntKind::Byte => 8,
             IntKind::Int | IntKind::Uint | IntKind::Word => 16,
@@ -43,6 +43,25 @@ impl IntKind {
             masked - (1i64 << bits)
         } else {
             masked
+        }
+    }
+
+    pub fn min_value(self) -> i64 {
+        if !self.signed() {
+            0
+        } else if self.bits() == 64 {
+            i64::MIN
+        } else {
+            -(1i64 << (self.bits() - 1))
+        }
+    }
+
+    /// The largest value (ULINT and LWORD stop at i64::MAX: values are held in an i64).
+    pub fn max_value(self) -> i64 {
+        match (self.bits(), self.signed()) {
+            (64, _) => i64::MAX,
+            (b, true) => (1i64 << (b - 1)) - 1,
+            (b, false) => (1i64 << b) - 1,
         }
     }
 

@@ -84,6 +84,10 @@ keywords! {
     Transition = "TRANSITION", EndTransition = "END_TRANSITION", From = "FROM", To = "TO",
     Action = "ACTION", EndAction = "END_ACTION",
     If = "IF", Then = "THEN", Elsif = "ELSIF", Else = "ELSE", EndIf = "END_IF",
+    Case = "CASE", Of = "OF", EndCase = "END_CASE",
+    For = "FOR", By = "BY", Do = "DO", EndFor = "END_FOR",
+    While = "WHILE", EndWhile = "END_WHILE", Repeat = "REPEAT", Until = "UNTIL", EndRepeat = "END_REPEAT",
+    Exit = "EXIT", Return = "RETURN",
     And = "AND", Or = "OR", Xor = "XOR", Not = "NOT", Mod = "MOD",
     True = "TRUE", False = "FALSE",
 }

@@ -111,6 +111,8 @@ pub struct VarDecl {
     /// The type's name as written.
     pub type_name: Ident,
     pub init: Option<Expr>,
+    /// A function block instance's initial inputs: `t1 : TON := (PT := T#2s);`.
+    pub members: Vec<(Ident, Expr)>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -219,8 +221,78 @@ pub struct Action {
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum Stmt {
-    Assign { target: Ident, value: Expr, span: Span },
-    If { branches: Vec<(Expr, Vec<Stmt>)>, otherwise: Vec<Stmt>, span: Span },
+    /// `target := value;` where the target is a variable (`Name`) or a member of an instance (`Field`).
+    Assign {
+        target: Expr,
+        value: Expr,
+        span: Span,
+    },
+    If {
+        branches: Vec<(Expr, Vec<Stmt>)>,
+        otherwise: Vec<Stmt>,
+        span: Span,
+    },
+    /// A function block call: `t1(IN := x, PT := T#2s);`, `t1(x, T#2s);`, `t1(Q => done);`.
+    Call {
+        callee: Ident,
+        args: Vec<Arg>,
+        span: Span,
+    },
+    Case {
+        selector: Expr,
+        arms: Vec<CaseArm>,
+        otherwise: Vec<Stmt>,
+        span: Span,
+    },
+    For {
+        var: Ident,
+        from: Expr,
+        to: Expr,
+        by: Option<Expr>,
+        body: Vec<Stmt>,
+        span: Span,
+    },
+    While {
+        condition: Expr,
+        body: Vec<Stmt>,
+        span: Span,
+    },
+    Repeat {
+        body: Vec<Stmt>,
+        until: Expr,
+        span: Span,
+    },
+    Exit {
+        span: Span,
+    },
+    Return {
+        span: Span,
+    },
+}
+
+/// One argument of a call: formal (`IN := x`, or `Q => y` for an output, `NOT Q => y` negated) or not (`x`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Arg {
+    pub name: Option<Ident>,
+    /// `=>`: the parameter is an output and `value` the variable it is written to.
+    pub output: bool,
+    /// `NOT Q => y`.
+    pub negated: bool,
+    pub value: Expr,
+    pub span: Span,
+}
+
+/// `1, 3..5, 8:` — the labels of one CASE arm.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CaseArm {
+    pub labels: Vec<CaseLabel>,
+    pub body: Vec<Stmt>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum CaseLabel {
+    Value(Expr),
+    Range(Expr, Expr),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -245,6 +317,7 @@ pub enum BinOp {
     Mul,
     Div,
     Mod,
+    Pow,
 }
 
 impl BinOp {
@@ -264,6 +337,7 @@ impl BinOp {
             BinOp::Mul => "*",
             BinOp::Div => "/",
             BinOp::Mod => "MOD",
+            BinOp::Pow => "**",
         }
     }
 }
@@ -275,8 +349,10 @@ pub enum ExprKind {
     Real(f64),
     Time(i64),
     Name(Ident),
-    /// `step.X`, `step.T`, `action.Q`.
+    /// `step.X`, `step.T`, `action.Q`, `instance.Q`.
     Field(Ident, Ident),
+    /// A function call: `ABS(x)`, `LIMIT(0, x, 10)`, `INT_TO_REAL(i)`, `SEL(G := c, IN0 := a, IN1 := b)`.
+    Call(Ident, Vec<Arg>),
     Unary(UnOp, Box<Expr>),
     Binary(BinOp, Box<Expr>, Box<Expr>),
 }

@@ -22,6 +22,7 @@ pub fn parse(src: &str) -> Parsed {
         pos: 0,
         diags: lexed.diagnostics,
         depth: 0,
+        in_case: 0,
         broken_vars: Broken::default(),
     };
     let mut charts = p.file();
@@ -81,6 +82,7 @@ pub fn parse_fragment(text: &str, at: impl Fn(usize) -> usize, kind: FragmentKin
         pos: 0,
         diags: lexed.diagnostics,
         depth: 0,
+        in_case: 0,
         broken_vars: Broken::default(),
     };
     let fragment = p.fragment(kind).ok();
@@ -100,6 +102,8 @@ struct Parser<'a> {
     pos: usize,
     diags: Vec<Diagnostic>,
     depth: usize,
+    /// CASE arms being parsed around the current statements: a number then starts the next arm.
+    in_case: usize,
     /// Declarations a syntax error took out, for the chart they belong to.
     broken_vars: Broken,
 }
@@ -395,10 +399,32 @@ impl Parser<'_> {
         let type_name = self.ident("a type name")?;
         let elementary = crate::exec::types::Type::from_name(&type_name.key()).is_some();
         let mut init = None;
+        let mut members = Vec::new();
         if elementary {
             if self.eat(Tok::Assign) {
                 init = Some(self.expr()?);
             }
+        } else if crate::exec::stdlib::StdFb::from_name(&type_name.key()).is_some() && self.peek() == Tok::Assign {
+            self.bump();
+            if self.peek() != Tok::LParen {
+                let span = self.span();
+                let message = format!(
+                    "a {} instance is initialised with its inputs, such as `:= (PT := T#2s)`",
+                    type_name.name.to_ascii_uppercase()
+                );
+                self.diags.push(Diagnostic::error(span, message));
+                return Err(Failed);
+            }
+            self.bump();
+            loop {
+                let member = self.ident("an input name")?;
+                self.expect(Tok::Assign, "`:=`")?;
+                members.push((member, self.expr()?));
+                if !self.eat(Tok::Comma) {
+                    break;
+                }
+            }
+            self.expect(Tok::RParen, "`,` or `)`")?;
         } else {
             // ARRAY[…] OF …, STRING[n], structured initialisers: declared, never executed.
             while !matches!(self.peek(), Tok::Semi | Tok::Kw(Kw::EndVar) | Tok::Eof) {
@@ -407,7 +433,14 @@ impl Parser<'_> {
         }
         self.expect(Tok::Semi, "`;`")?;
         for name in names {
-            out.push(VarDecl { name, section, constant, type_name: type_name.clone(), init: init.clone() });
+            out.push(VarDecl {
+                name,
+                section,
+                constant,
+                type_name: type_name.clone(),
+                init: init.clone(),
+                members: members.clone(),
+            });
         }
         Ok(())
     }
@@ -612,29 +645,202 @@ impl Parser<'_> {
                 Tok::Semi => {
                     self.bump();
                 }
-                Tok::Kw(Kw::If) => out.push(self.if_stmt()?),
-                Tok::Ident if self.peek_at(1) == Tok::Assign => {
-                    let target = self.ident("a variable")?;
-                    self.bump();
+                Tok::Kw(Kw::If) => out.push(self.nested(Parser::if_stmt_inner)?),
+                Tok::Kw(Kw::Case) => out.push(self.nested(Parser::case_stmt)?),
+                Tok::Kw(Kw::For) => out.push(self.nested(Parser::for_stmt)?),
+                Tok::Kw(Kw::While) => out.push(self.nested(Parser::while_stmt)?),
+                Tok::Kw(Kw::Repeat) => out.push(self.nested(Parser::repeat_stmt)?),
+                Tok::Kw(kw @ (Kw::Exit | Kw::Return)) => {
+                    let span = self.bump().span;
+                    self.expect(Tok::Semi, "`;`")?;
+                    out.push(if kw == Kw::Exit { Stmt::Exit { span } } else { Stmt::Return { span } });
+                }
+                Tok::Ident if self.peek_at(1) == Tok::LParen => {
+                    let callee = self.ident("a function block instance")?;
+                    let (args, close) = self.args()?;
+                    let semi = self.expect(Tok::Semi, "`;`")?;
+                    let _ = close;
+                    out.push(Stmt::Call { span: callee.span.to(semi.span), callee, args });
+                }
+                Tok::Ident => {
+                    let target = self.place()?;
+                    self.expect(Tok::Assign, "`:=`")?;
                     let value = self.expr()?;
                     let semi = self.expect(Tok::Semi, "`;`")?;
                     out.push(Stmt::Assign { span: target.span.to(semi.span), target, value });
                 }
-                Tok::Ident if self.peek_at(1) == Tok::LParen => {
-                    let span = self.span();
-                    let message = format!(
-                        "calls such as `{}(…)` (function blocks, functions) are not supported yet",
-                        self.text(span)
-                    );
-                    self.diags.push(Diagnostic::error(span, message));
-                    return Err(Failed);
-                }
-                Tok::Kw(Kw::EndAction | Kw::Elsif | Kw::Else | Kw::EndIf) | Tok::Eof => return Ok(out),
+                Tok::Kw(
+                    Kw::EndAction
+                    | Kw::Elsif
+                    | Kw::Else
+                    | Kw::EndIf
+                    | Kw::EndCase
+                    | Kw::EndFor
+                    | Kw::EndWhile
+                    | Kw::Until
+                    | Kw::EndRepeat,
+                )
+                | Tok::Eof => return Ok(out),
+                // A CASE arm's labels end the statements of the arm before it.
+                Tok::Int(_) | Tok::Minus if self.in_case > 0 => return Ok(out),
                 _ => {
-                    return Err(self.error_here("a statement (`variable := expression;` or `IF … END_IF;`)"));
+                    return Err(self.error_here("a statement (`variable := expression;`, `IF`, `CASE`, `FOR`, …)"));
                 }
             }
         }
+    }
+
+    /// An assignment's target: a variable, or a member of an instance (`t1.PT`).
+    fn place(&mut self) -> PResult<Expr> {
+        let name = self.ident("a variable")?;
+        self.refuse_index()?;
+        if self.eat(Tok::Dot) {
+            let field = self.ident("a member name after `.`")?;
+            let span = name.span.to(field.span);
+            return Ok(Expr { kind: ExprKind::Field(name, field), span });
+        }
+        Ok(Expr { span: name.span, kind: ExprKind::Name(name) })
+    }
+
+    /// `( … )` of a call: formal (`IN := x`, `Q => y`, `NOT Q => y`) and non-formal arguments.
+    fn args(&mut self) -> PResult<(Vec<Arg>, Token)> {
+        self.expect(Tok::LParen, "`(`")?;
+        let mut args = Vec::new();
+        if let Some(close) = self.peek_eat(Tok::RParen) {
+            return Ok((args, close));
+        }
+        loop {
+            let start = self.span();
+            let negated =
+                self.peek() == Tok::Kw(Kw::Not) && self.peek_at(1) == Tok::Ident && self.peek_at(2) == Tok::Arrow;
+            if negated {
+                self.bump();
+            }
+            let formal = self.peek() == Tok::Ident && matches!(self.peek_at(1), Tok::Assign | Tok::Arrow);
+            let arg = if formal {
+                let name = self.ident("a parameter")?;
+                let output = self.bump().tok == Tok::Arrow;
+                let value = if output { self.place()? } else { self.expr()? };
+                Arg { span: start.to(value.span), name: Some(name), output, negated, value }
+            } else {
+                let value = self.expr()?;
+                Arg { span: value.span, name: None, output: false, negated: false, value }
+            };
+            args.push(arg);
+            if self.eat(Tok::Comma) {
+                continue;
+            }
+            let close = self.expect(Tok::RParen, "`,` or `)`")?;
+            return Ok((args, close));
+        }
+    }
+
+    /// Arrays are declared but not executed yet: an index is refused by name.
+    fn refuse_index(&mut self) -> PResult<()> {
+        if self.peek() == Tok::LBracket {
+            let span = self.span();
+            self.diags.push(Diagnostic::error(span, "array indexing (`name[…]`) is not supported yet"));
+            return Err(Failed);
+        }
+        Ok(())
+    }
+
+    fn peek_eat(&mut self, tok: Tok) -> Option<Token> {
+        (self.peek() == tok).then(|| self.bump())
+    }
+
+    /// Parses a statement that nests others, within the nesting limit.
+    fn nested(&mut self, f: fn(&mut Self) -> PResult<Stmt>) -> PResult<Stmt> {
+        self.nest()?;
+        let result = f(self);
+        self.depth -= 1;
+        result
+    }
+
+    fn case_stmt(&mut self) -> PResult<Stmt> {
+        let start = self.bump().span;
+        let selector = self.expr()?;
+        self.expect(Tok::Kw(Kw::Of), "`OF`")?;
+        let mut arms = Vec::new();
+        let mut otherwise = Vec::new();
+        loop {
+            match self.peek() {
+                Tok::Kw(Kw::Else) => {
+                    self.bump();
+                    otherwise = self.case_body()?;
+                }
+                Tok::Kw(Kw::EndCase) => break,
+                _ => {
+                    let mut labels = Vec::new();
+                    loop {
+                        let low = self.expr()?;
+                        if self.eat(Tok::DotDot) {
+                            labels.push(CaseLabel::Range(low, self.expr()?));
+                        } else {
+                            labels.push(CaseLabel::Value(low));
+                        }
+                        if !self.eat(Tok::Comma) {
+                            break;
+                        }
+                    }
+                    self.expect(Tok::Colon, "`:` after the CASE labels")?;
+                    arms.push(CaseArm { labels, body: self.case_body()? });
+                }
+            }
+        }
+        let end = self.expect(Tok::Kw(Kw::EndCase), "`END_CASE`")?;
+        self.eat(Tok::Semi);
+        Ok(Stmt::Case { selector, arms, otherwise, span: start.to(end.span) })
+    }
+
+    fn case_body(&mut self) -> PResult<Vec<Stmt>> {
+        self.in_case += 1;
+        let body = self.statements();
+        self.in_case -= 1;
+        body
+    }
+
+    fn for_stmt(&mut self) -> PResult<Stmt> {
+        let start = self.bump().span;
+        let var = self.ident("the loop variable")?;
+        self.expect(Tok::Assign, "`:=`")?;
+        let from = self.expr()?;
+        self.expect(Tok::Kw(Kw::To), "`TO`")?;
+        let to = self.expr()?;
+        let by = if self.eat(Tok::Kw(Kw::By)) { Some(self.expr()?) } else { None };
+        self.expect(Tok::Kw(Kw::Do), "`DO`")?;
+        let body = self.loop_body()?;
+        let end = self.expect(Tok::Kw(Kw::EndFor), "`END_FOR`")?;
+        self.eat(Tok::Semi);
+        Ok(Stmt::For { var, from, to, by, body, span: start.to(end.span) })
+    }
+
+    fn while_stmt(&mut self) -> PResult<Stmt> {
+        let start = self.bump().span;
+        let condition = self.expr()?;
+        self.expect(Tok::Kw(Kw::Do), "`DO`")?;
+        let body = self.loop_body()?;
+        let end = self.expect(Tok::Kw(Kw::EndWhile), "`END_WHILE`")?;
+        self.eat(Tok::Semi);
+        Ok(Stmt::While { condition, body, span: start.to(end.span) })
+    }
+
+    fn repeat_stmt(&mut self) -> PResult<Stmt> {
+        let start = self.bump().span;
+        let body = self.loop_body()?;
+        self.expect(Tok::Kw(Kw::Until), "`UNTIL`")?;
+        let until = self.expr()?;
+        let end = self.expect(Tok::Kw(Kw::EndRepeat), "`END_REPEAT`")?;
+        self.eat(Tok::Semi);
+        Ok(Stmt::Repeat { body, until, span: start.to(end.span) })
+    }
+
+    /// A loop's body: a CASE arm around the loop does not end it at a number.
+    fn loop_body(&mut self) -> PResult<Vec<Stmt>> {
+        let outer = std::mem::take(&mut self.in_case);
+        let body = self.statements();
+        self.in_case = outer;
+        body
     }
 
     fn nest(&mut self) -> PResult<()> {
@@ -645,13 +851,6 @@ impl Parser<'_> {
             return Err(Failed);
         }
         Ok(())
-    }
-
-    fn if_stmt(&mut self) -> PResult<Stmt> {
-        self.nest()?;
-        let result = self.if_stmt_inner();
-        self.depth -= 1;
-        result
     }
 
     fn if_stmt_inner(&mut self) -> PResult<Stmt> {
@@ -703,11 +902,7 @@ impl Parser<'_> {
                 Tok::Star => (BinOp::Mul, 7),
                 Tok::Slash => (BinOp::Div, 7),
                 Tok::Kw(Kw::Mod) => (BinOp::Mod, 7),
-                Tok::StarStar => {
-                    let span = self.span();
-                    self.diags.push(Diagnostic::error(span, "the `**` operator is not supported"));
-                    return Err(Failed);
-                }
+                Tok::StarStar => (BinOp::Pow, 8),
                 _ => return Ok(lhs),
             };
             if level <= min_level {
@@ -765,15 +960,13 @@ impl Parser<'_> {
             Tok::Ident => {
                 let name = self.ident("a name")?;
                 if self.peek() == Tok::LParen {
-                    let message = format!(
-                        "function calls such as `{}(…)` are not supported in conditions and actions",
-                        name.name
-                    );
-                    self.diags.push(Diagnostic::error(name.span, message));
-                    return Err(Failed);
+                    let (args, close) = self.args()?;
+                    let span = name.span.to(close.span);
+                    return Ok(Expr { kind: ExprKind::Call(name, args), span });
                 }
+                self.refuse_index()?;
                 if self.eat(Tok::Dot) {
-                    let field = self.ident("`X`, `T` or `Q` after `.`")?;
+                    let field = self.ident("a member such as `X`, `T` or `Q` after `.`")?;
                     let span = name.span.to(field.span);
                     return Ok(Expr { kind: ExprKind::Field(name, field), span });
                 }

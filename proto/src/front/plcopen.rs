@@ -303,6 +303,7 @@ impl Reader<'_> {
                     constant,
                     type_name: Ident { name: type_name, span: type_span },
                     init,
+                    members: Vec::new(),
                 });
             }
         }
@@ -384,6 +385,7 @@ impl Reader<'_> {
                 value = not(value);
             }
             let span = self.tag_span(n);
+            let target = Expr { span: target.span, kind: ExprKind::Name(target) };
             let stmt = match n.attribute("storage") {
                 Some("set") | Some("reset") => {
                     let to = n.attribute("storage") == Some("set");

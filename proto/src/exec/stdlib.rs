@@ -1,0 +1,567 @@
+//! IEC 61131-3's standard library as Baton executes it: the standard function blocks (their members and their
+//! behaviour on each call) and the standard functions (their evaluation; `compile` types them).
+//!
+//! An instance of a standard function block is a run of consecutive variables, one per member (inputs,
+//! outputs, ENO, then hidden state), so that its state lives in the engine's flat variable array like any other
+//! value: a call reads and writes those variables, a transition reads `t1.Q` as a variable, and a distributed run
+//! moves them like any other variable.
+//!
+//! Time inside a block is the cycle's time (`Env::now_ms`), so a timer's resolution is the cycle, and the same
+//! chart gives the same values on one engine and on many. Where the standard is silent, matiec's library is the
+//! reference, with one deliberate difference: a timer compares its elapsed time with PT in the same call in which
+//! it starts, so TON with PT = T#0s sets Q in the call where IN rises (as CODESYS does; matiec sets it one call
+//! later).
+
+use crate::exec::eval::EnvMut;
+use crate::exec::program::VarId;
+use crate::exec::types::{IntKind, Type, Value};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum StdFb {
+    Ton,
+    Tof,
+    Tp,
+    RTrig,
+    FTrig,
+    /// CTU and its typed variants (CTU_DINT, …): the counter's integer type.
+    Ctu(IntKind),
+    Ctd(IntKind),
+    Ctud(IntKind),
+    Sr,
+    Rs,
+}
+
+/// What a member of a block is to its caller.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MemberKind {
+    Input,
+    Output,
+    /// Internal state: not readable by name.
+    State,
+}
+
+pub struct Member {
+    pub name: &'static str,
+    pub ty: Type,
+    pub kind: MemberKind,
+}
+
+fn member(name: &'static str, ty: Type, kind: MemberKind) -> Member {
+    Member { name, ty, kind }
+}
+
+const BOOL: Type = Type::Bool;
+const TIME: Type = Type::Time;
+
+impl StdFb {
+    /// The block type with this (upper-case) name.
+    pub fn from_name(upper: &str) -> Option<StdFb> {
+        let counter = |suffix: &str| -> Option<IntKind> {
+            Some(match suffix {
+                "" | "_INT" => IntKind::Int,
+                "_DINT" => IntKind::Dint,
+                "_LINT" => IntKind::Lint,
+                "_UDINT" => IntKind::Udint,
+                "_ULINT" => IntKind::Ulint,
+                _ => return None,
+            })
+        };
+        Some(match upper {
+            "TON" => StdFb::Ton,
+            "TOF" => StdFb::Tof,
+            "TP" => StdFb::Tp,
+            "R_TRIG" => StdFb::RTrig,
+            "F_TRIG" => StdFb::FTrig,
+            "SR" => StdFb::Sr,
+            "RS" => StdFb::Rs,
+            _ => {
+                if let Some(rest) = upper.strip_prefix("CTUD") {
+                    StdFb::Ctud(counter(rest)?)
+                } else if let Some(rest) = upper.strip_prefix("CTU") {
+                    StdFb::Ctu(counter(rest)?)
+                } else if let Some(rest) = upper.strip_prefix("CTD") {
+                    StdFb::Ctd(counter(rest)?)
+                } else {
+                    return None;
+                }
+            }
+        })
+    }
+
+    pub fn name(self) -> String {
+        let counter = |base: &str, k: IntKind| match k {
+            IntKind::Int => base.to_string(),
+            k => format!("{base}_{}", Type::Int(k)),
+        };
+        match self {
+            StdFb::Ton => "TON".into(),
+            StdFb::Tof => "TOF".into(),
+            StdFb::Tp => "TP".into(),
+            StdFb::RTrig => "R_TRIG".into(),
+            StdFb::FTrig => "F_TRIG".into(),
+            StdFb::Ctu(k) => counter("CTU", k),
+            StdFb::Ctd(k) => counter("CTD", k),
+            StdFb::Ctud(k) => counter("CTUD", k),
+            StdFb::Sr => "SR".into(),
+            StdFb::Rs => "RS".into(),
+        }
+    }
+
+    /// The members in variable order: inputs (in the order of a non-formal call), outputs, ENO, state.
+    pub fn members(self) -> Vec<Member> {
+        use MemberKind::*;
+        let int = |k| Type::Int(k);
+        match self {
+            StdFb::Ton | StdFb::Tof | StdFb::Tp => vec![
+                member("IN", BOOL, Input),
+                member("PT", TIME, Input),
+                member("Q", BOOL, Output),
+                member("ET", TIME, Output),
+                member("ENO", BOOL, Output),
+                member("STATE", int(IntKind::Sint), State),
+                member("PREV_IN", BOOL, State),
+                member("START", TIME, State),
+            ],
+            StdFb::RTrig | StdFb::FTrig => vec![
+                member("CLK", BOOL, Input),
+                member("Q", BOOL, Output),
+                member("ENO", BOOL, Output),
+                member("M", BOOL, State),
+            ],
+            StdFb::Ctu(k) => vec![
+                member("CU", BOOL, Input),
+                member("R", BOOL, Input),
+                member("PV", int(k), Input),
+                member("Q", BOOL, Output),
+                member("CV", int(k), Output),
+                member("ENO", BOOL, Output),
+                member("CU_M", BOOL, State),
+            ],
+            StdFb::Ctd(k) => vec![
+                member("CD", BOOL, Input),
+                member("LD", BOOL, Input),
+                member("PV", int(k), Input),
+                member("Q", BOOL, Output),
+                member("CV", int(k), Output),
+                member("ENO", BOOL, Output),
+                member("CD_M", BOOL, State),
+            ],
+            StdFb::Ctud(k) => vec![
+                member("CU", BOOL, Input),
+                member("CD", BOOL, Input),
+                member("R", BOOL, Input),
+                member("LD", BOOL, Input),
+                member("PV", int(k), Input),
+                member("QU", BOOL, Output),
+                member("QD", BOOL, Output),
+                member("CV", int(k), Output),
+                member("ENO", BOOL, Output),
+                member("CU_M", BOOL, State),
+                member("CD_M", BOOL, State),
+            ],
+            StdFb::Sr => vec![
+                member("S1", BOOL, Input),
+                member("R", BOOL, Input),
+                member("Q1", BOOL, Output),
+                member("ENO", BOOL, Output),
+            ],
+            StdFb::Rs => vec![
+                member("S", BOOL, Input),
+                member("R1", BOOL, Input),
+                member("Q1", BOOL, Output),
+                member("ENO", BOOL, Output),
+            ],
+        }
+    }
+
+    /// The index of ENO among the members.
+    pub fn eno(self) -> u32 {
+        match self {
+            StdFb::Ton | StdFb::Tof | StdFb::Tp => 4,
+            StdFb::RTrig | StdFb::FTrig => 2,
+            StdFb::Ctu(_) | StdFb::Ctd(_) => 5,
+            StdFb::Ctud(_) => 8,
+            StdFb::Sr | StdFb::Rs => 3,
+        }
+    }
+
+    /// How many variables an instance takes.
+    pub fn size(self) -> u32 {
+        match self {
+            StdFb::Ton | StdFb::Tof | StdFb::Tp => 8,
+            StdFb::RTrig | StdFb::FTrig | StdFb::Sr | StdFb::Rs => 4,
+            StdFb::Ctu(_) | StdFb::Ctd(_) => 7,
+            StdFb::Ctud(_) => 11,
+        }
+    }
+}
+
+/// An instance's members, read and written by index.
+struct Instance<'e, E> {
+    base: u32,
+    env: &'e mut E,
+}
+
+impl<E: EnvMut> Instance<'_, E> {
+    fn get(&self, i: u32) -> Value {
+        self.env.var(VarId(self.base + i))
+    }
+    fn bool(&self, i: u32) -> bool {
+        self.get(i).as_bool()
+    }
+    fn int(&self, i: u32) -> i64 {
+        self.get(i).as_i64()
+    }
+    fn set(&mut self, i: u32, v: Value) {
+        self.env.set_var(VarId(self.base + i), v);
+    }
+    fn set_bool(&mut self, i: u32, b: bool) {
+        self.set(i, Value::Bool(b));
+    }
+    fn set_int(&mut self, i: u32, v: i64) {
+        self.set(i, Value::Int(v));
+    }
+    fn set_time(&mut self, i: u32, ms: i64) {
+        self.set(i, Value::Time(ms));
+    }
+}
+
+// Timer states (the STATE member), as in matiec.
+const IDLE: i64 = 0;
+const RUNNING: i64 = 1;
+const DONE: i64 = 2;
+
+/// Runs one call of the block whose members start at `base` (its inputs already assigned).
+pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
+    let now = env.now_ms();
+    let mut m = Instance { base: base.0, env };
+    match fb {
+        StdFb::Ton | StdFb::Tof | StdFb::Tp => {
+            const IN: u32 = 0;
+            const PT: u32 = 1;
+            const Q: u32 = 2;
+            const ET: u32 = 3;
+            const STATE: u32 = 5;
+            const PREV: u32 = 6;
+            const START: u32 = 7;
+            let input = m.bool(IN);
+            let pt = m.int(PT).max(0);
+            let prev = m.bool(PREV);
+            let mut state = m.int(STATE);
+            let elapsed = |m: &Instance<'_, _>| now - m.int(START);
+            match fb {
+                StdFb::Ton => {
+                    if !input {
+                        state = IDLE;
+                        m.set_bool(Q, false);
+                        m.set_time(ET, 0);
+                    } else {
+                        if !prev && state == IDLE {
+                            state = RUNNING;
+                            m.set_time(START, now);
+                        }
+                        if state == RUNNING {
+                            let et = elapsed(&m);
+                            if et >= pt {
+                                state = DONE;
+                                m.set_bool(Q, true);
+                                m.set_time(ET, pt);
+                            } else {
+                                m.set_bool(Q, false);
+                                m.set_time(ET, et);
+                            }
+                        }
+                    }
+                }
+                StdFb::Tof => {
+                    if input {
+                        state = IDLE;
+                        m.set_bool(Q, true);
+                        m.set_time(ET, 0);
+                    } else {
+                        if prev && state == IDLE {
+                            state = RUNNING;
+                            m.set_time(START, now);
+                        }
+                        if state == RUNNING {
+                            let et = elapsed(&m);
+                            if et >= pt {
+                                state = DONE;
+                                m.set_bool(Q, false);
+                                m.set_time(ET, pt);
+                            } else {
+                                m.set_time(ET, et);
+                            }
+                        }
+                    }
+                }
+                _ => {
+                    if state == IDLE && input && !prev {
+                        state = RUNNING;
+                        m.set_bool(Q, true);
+                        m.set_time(START, now);
+                    }
+                    if state == RUNNING {
+                        let et = elapsed(&m);
+                        if et >= pt {
+                            state = DONE;
+                            m.set_bool(Q, false);
+                            m.set_time(ET, pt);
+                        } else {
+                            m.set_time(ET, et);
+                        }
+                    }
+                    if state == DONE && !input {
+                        state = IDLE;
+                        m.set_time(ET, 0);
+                    }
+                }
+            }
+            m.set_int(STATE, state);
+            m.set_bool(PREV, input);
+        }
+        StdFb::RTrig => {
+            let clk = m.bool(0);
+            let q = clk && !m.bool(3);
+            m.set_bool(1, q);
+            m.set_bool(3, clk);
+        }
+        StdFb::FTrig => {
+            // As the standard defines it: Q := NOT CLK AND NOT M; M := NOT CLK.
+            let clk = m.bool(0);
+            let q = !clk && !m.bool(3);
+            m.set_bool(1, q);
+            m.set_bool(3, !clk);
+        }
+        StdFb::Ctu(k) => {
+            let cu = m.bool(0);
+            let rising = cu && !m.bool(6);
+            m.set_bool(6, cu);
+            let mut cv = m.int(4);
+            if m.bool(1) {
+                cv = 0;
+            } else if rising && cv < k.max_value() {
+                cv += 1;
+            }
+            m.set_int(4, cv);
+            let q = cv >= m.int(2);
+            m.set_bool(3, q);
+        }
+        StdFb::Ctd(k) => {
+            let cd = m.bool(0);
+            let rising = cd && !m.bool(6);
+            m.set_bool(6, cd);
+            let mut cv = m.int(4);
+            if m.bool(1) {
+                cv = m.int(2);
+            } else if rising && cv > k.min_value() {
+                cv -= 1;
+            }
+            m.set_int(4, cv);
+            m.set_bool(3, cv <= 0);
+        }
+        StdFb::Ctud(k) => {
+            let (cu, cd) = (m.bool(0), m.bool(1));
+            let cu_rising = cu && !m.bool(9);
+            let cd_rising = cd && !m.bool(10);
+            m.set_bool(9, cu);
+            m.set_bool(10, cd);
+            let mut cv = m.int(7);
+            if m.bool(2) {
+                cv = 0;
+            } else if m.bool(3) {
+                cv = m.int(4);
+            } else if !(cu_rising && cd_rising) {
+                if cu_rising && cv < k.max_value() {
+                    cv += 1;
+                } else if cd_rising && cv > k.min_value() {
+                    cv -= 1;
+                }
+            }
+            m.set_int(7, cv);
+            let qu = cv >= m.int(4);
+            m.set_bool(5, qu);
+            m.set_bool(6, cv <= 0);
+        }
+        StdFb::Sr => {
+            let q = m.bool(0) || (!m.bool(1) && m.bool(2));
+            m.set_bool(2, q);
+        }
+        StdFb::Rs => {
+            let q = !m.bool(1) && (m.bool(0) || m.bool(2));
+            m.set_bool(2, q);
+        }
+    }
+}
+
+/// A standard function `compile` resolved; `ADD`, `GT` and their kin compile to operators instead.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Func {
+    Abs,
+    Sqrt,
+    Ln,
+    Log,
+    Exp,
+    Sin,
+    Cos,
+    Tan,
+    Asin,
+    Acos,
+    Atan,
+    Trunc,
+    Expt,
+    Sel,
+    Max,
+    Min,
+    Limit,
+    Mux,
+    Move,
+    Shl,
+    Shr,
+    Rol,
+    Ror,
+    /// `*_TO_*` and `TO_*`: the argument converted to this type.
+    Convert(Type),
+    /// AND, OR, XOR and NOT on bit strings (the operators, on integer operands).
+    BitAnd,
+    BitOr,
+    BitXor,
+    BitNot,
+}
+
+impl Func {
+    /// The function with this (upper-case) name, and the names of its parameters (`IN1`, `IN2`, … stand for the
+    /// extensible ones).
+    pub fn from_name(upper: &str) -> Option<(Func, &'static [&'static str])> {
+        const IN: &[&str] = &["IN"];
+        Some(match upper {
+            "ABS" => (Func::Abs, IN),
+            "SQRT" => (Func::Sqrt, IN),
+            "LN" => (Func::Ln, IN),
+            "LOG" => (Func::Log, IN),
+            "EXP" => (Func::Exp, IN),
+            "SIN" => (Func::Sin, IN),
+            "COS" => (Func::Cos, IN),
+            "TAN" => (Func::Tan, IN),
+            "ASIN" => (Func::Asin, IN),
+            "ACOS" => (Func::Acos, IN),
+            "ATAN" => (Func::Atan, IN),
+            "TRUNC" => (Func::Trunc, IN),
+            "MOVE" => (Func::Move, IN),
+            "EXPT" => (Func::Expt, &["IN1", "IN2"]),
+            "SEL" => (Func::Sel, &["G", "IN0", "IN1"]),
+            "MAX" => (Func::Max, &["IN1", "IN2"]),
+            "MIN" => (Func::Min, &["IN1", "IN2"]),
+            "LIMIT" => (Func::Limit, &["MN", "IN", "MX"]),
+            "MUX" => (Func::Mux, &["K", "IN0", "IN1"]),
+            "SHL" => (Func::Shl, &["IN", "N"]),
+            "SHR" => (Func::Shr, &["IN", "N"]),
+            "ROL" => (Func::Rol, &["IN", "N"]),
+            "ROR" => (Func::Ror, &["IN", "N"]),
+            _ => {
+                let to = match upper.split_once("_TO_") {
+                    Some((from, to)) if Type::from_name(from).is_some() => to,
+                    _ => upper.strip_prefix("TO_")?,
+                };
+                (Func::Convert(Type::from_name(to)?), IN)
+            }
+        })
+    }
+
+    /// Whether it takes any number of arguments past its declared ones.
+    pub fn extensible(&self) -> bool {
+        matches!(self, Func::Max | Func::Min | Func::Mux)
+    }
+}
+
+/// A value converted to a type, as the `*_TO_*` functions do: REAL to an integer rounds to the nearest (half
+/// away from zero), integers wrap to the target's width, TIME converts to and from milliseconds, a number is
+/// TRUE when it is not zero.
+pub fn convert(v: Value, to: &Type) -> Value {
+    match to {
+        Type::Bool => Value::Bool(match v {
+            Value::Bool(b) => b,
+            Value::Real(r) => r != 0.0,
+            other => other.as_i64() != 0,
+        }),
+        Type::Int(k) => Value::Int(k.wrap(match v {
+            Value::Real(r) => r.round() as i64,
+            other => other.as_i64(),
+        })),
+        Type::Real { .. } => to.coerce(Value::Real(v.as_f64())),
+        Type::Time => Value::Time(match v {
+            Value::Real(r) => r.round() as i64,
+            other => other.as_i64(),
+        }),
+        Type::Unsupported(_) => v,
+    }
+}
+
+/// A real function of one argument; NaN and infinities are values, as on a PLC, never faults.
+pub fn real1(f: &Func, x: f64) -> f64 {
+    match f {
+        Func::Sqrt => x.sqrt(),
+        Func::Ln => x.ln(),
+        Func::Log => x.log10(),
+        Func::Exp => x.exp(),
+        Func::Sin => x.sin(),
+        Func::Cos => x.cos(),
+        Func::Tan => x.tan(),
+        Func::Asin => x.asin(),
+        Func::Acos => x.acos(),
+        Func::Atan => x.atan(),
+        _ => x,
+    }
+}
+
+/// `a ** b` on integers: the power wrapped to the type (`wrap`), 0 for a negative exponent of a base other than
+/// ±1 (the integer part of the real result).
+pub fn int_pow(a: i64, b: i64, wrap: Option<IntKind>) -> i64 {
+    let v = if b < 0 {
+        match a {
+            1 => 1,
+            -1 if b % 2 == 0 => 1,
+            -1 => -1,
+            _ => 0,
+        }
+    } else {
+        let mut result: i64 = 1;
+        let mut base = a;
+        let mut e = b as u64;
+        while e > 0 {
+            if e & 1 == 1 {
+                result = result.wrapping_mul(base);
+            }
+            base = base.wrapping_mul(base);
+            e >>= 1;
+        }
+        result
+    };
+    wrap.map_or(v, |k| k.wrap(v))
+}
+
+/// SHL, SHR, ROL and ROR on a bit string of the kind's width.
+pub fn shift(f: &Func, v: i64, n: i64, kind: IntKind) -> i64 {
+    let bits = kind.bits() as u64;
+    let mask: u64 = if bits == 64 { u64::MAX } else { (1u64 << bits) - 1 };
+    let x = (v as u64) & mask;
+    let n = n.max(0) as u64;
+    let out = match f {
+        Func::Shl if n >= bits => 0,
+        Func::Shl => (x << n) & mask,
+        Func::Shr if n >= bits => 0,
+        Func::Shr => x >> n,
+        Func::Rol | Func::Ror => {
+            let n = n % bits;
+            if n == 0 {
+                x
+            } else if matches!(f, Func::Rol) {
+                ((x << n) | (x >> (bits - n))) & mask
+            } else {
+                ((x >> n) | (x << (bits - n))) & mask
+            }
+        }
+        _ => x,
+    };
+    kind.wrap(out as i64)
+}
