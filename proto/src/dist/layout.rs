@@ -192,7 +192,12 @@ pub fn layout(chart: &Chart, program: &Program, diags: &mut Vec<Diagnostic>) -> 
     check_entries(program, &segment_of, diags, &step_span);
     let action_placement = action_placements(program, &placement, diags, &step_span);
     let skills = skill_bindings(program, &action_placement, diags, chart);
-    let (writer, settable) = writers(chart, program, &action_placement, diags);
+    let judged_at = |t: usize| match program.sources(TransitionId(t as u32)) {
+        [s] if segment_of[s.index()].is_some() => placement[s.index()].clone(),
+        _ => Placement::Coordinator,
+    };
+    let transition_placement: Vec<Placement> = (0..program.transitions.len()).map(judged_at).collect();
+    let (writer, settable) = writers(chart, program, &action_placement, &transition_placement, diags);
     check_remote_reads(chart, program, &placement, &segment_of, &action_placement, diags);
     let read_by_agents = read_by_agents(program, &segment_of, &action_placement);
     Layout { placement, segment_of, segments, waiting, writer, settable, skills, action_placement, read_by_agents }
@@ -420,6 +425,7 @@ fn writers(
     chart: &Chart,
     program: &Program,
     action_placement: &[Placement],
+    transition_placement: &[Placement],
     diags: &mut Vec<Diagnostic>,
 ) -> (Vec<Placement>, Vec<bool>) {
     let n = program.vars.len();
@@ -435,6 +441,19 @@ fn writers(
         vars.extend(action.bool_var);
         for v in vars {
             note(v, &action_placement[i], format!("action `{}`", action.name));
+        }
+    }
+    // Blocks wired into a condition run where the condition is judged: on the agent of the step it leaves when
+    // that step is placed, on the coordinator otherwise.
+    for (i, t) in program.transitions.iter().enumerate() {
+        if t.calls.is_empty() {
+            continue;
+        }
+        let place = &transition_placement[i];
+        let mut vars = Vec::new();
+        assigned(&t.calls, &mut vars);
+        for v in vars {
+            note(v, place, format!("the blocks of transition `{}`", t.name));
         }
     }
     for s in 0..program.steps.len() {
@@ -516,6 +535,7 @@ fn read_by_agents(program: &Program, segment_of: &[Option<SegmentId>], action_pl
         if let [s] = program.sources(TransitionId(t as u32)) {
             if segment_of[s.index()].is_some() {
                 refs.expr(&program.transitions[t].condition);
+                refs.body(&program.transitions[t].calls);
             }
         }
     }

@@ -461,7 +461,8 @@ impl<'a> Compiler<'a> {
                 net_ok = false;
                 continue;
             };
-            let info = TransitionInfo { name: t.display_name(), condition, pragmas: t.pragmas.clone() };
+            let calls = self.statements(&t.calls, vars);
+            let info = TransitionInfo { name: t.display_name(), condition, calls, pragmas: t.pragmas.clone() };
             out.push(TransitionParts { info, sources, targets, rank: 0 });
         }
         // Clearing order: explicit priorities first, lower number first, then declaration order.
@@ -723,8 +724,14 @@ impl<'a> Compiler<'a> {
                 )
             } else if Func::from_name(&callee.key()).is_some() {
                 format!("`{}` is a function: use its result (`x := {}(…);`)", callee.name, callee.name)
-            } else if self.vars.contains_key(&callee.key()) {
-                format!("`{}` is a variable, not a function block instance: it cannot be called", callee.name)
+            } else if let Some(&v) = self.vars.get(&callee.key()) {
+                match vars.get(v.index()).map(|v| &v.ty) {
+                    Some(Type::Unsupported(ty)) => format!(
+                        "`{}` is a {ty} instance: Baton runs the standard function blocks (TON, TOF, TP, R_TRIG, F_TRIG, CTU, CTD, CTUD, SR, RS), not user function blocks yet",
+                        callee.name
+                    ),
+                    _ => format!("`{}` is a variable, not a function block instance: it cannot be called", callee.name),
+                }
             } else if self.chart.broken.var(&callee.key()) {
                 return None;
             } else {

@@ -22,7 +22,7 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use crate::exec::eval::{self, Env, EnvMut, Fault};
-use crate::exec::program::{ActionId, DurationSrc, Program, StepId, TransitionId, VarId};
+use crate::exec::program::{ActionId, CStmt, DurationSrc, Program, StepId, TransitionId, VarId};
 use crate::exec::types::{Type, Value};
 use crate::front::model::Qualifier;
 use crate::limits::REACTION_ROUNDS_MAX;
@@ -208,6 +208,9 @@ pub struct Engine {
     /// Per transition: it may be judged in a reaction (its condition and those of the transitions ranked before
     /// it on its source steps read no step time).
     reactive_ok: Vec<bool>,
+    /// Per variable, for the first member of a block instance wired into a condition: the cycle (plus one) it
+    /// was last called in. Empty when no condition calls a block.
+    fb_called: Vec<u64>,
     /// Per step: while active, the engine needs cycles as time passes (a transition reading step time, or a
     /// timed qualifier).
     timed: Vec<bool>,
@@ -296,6 +299,11 @@ impl Engine {
             var_gen: vec![0; program.vars.len()],
             xq_gen: 0,
             reactive_ok,
+            fb_called: if program.transitions.iter().any(|t| !t.calls.is_empty()) {
+                vec![0; program.vars.len()]
+            } else {
+                Vec::new()
+            },
             timed,
             timed_active: 0,
             candidates: Vec::new(),
@@ -573,6 +581,25 @@ impl Engine {
         self.fired.clear();
         let stamp = self.cycle;
         let candidates = std::mem::take(&mut self.candidates);
+        // The blocks wired into conditions run first, each instance once, so that every condition is judged
+        // against one snapshot.
+        for &(_, t) in &candidates {
+            let calls = &program.transitions[t.index()].calls;
+            if calls.is_empty() || !program.sources(t).iter().all(|s| self.steps[s.index()].active) {
+                continue;
+            }
+            for call in calls {
+                if let CStmt::Fb { base, .. } = call {
+                    if self.fb_called[base.index()] == stamp + 1 {
+                        continue;
+                    }
+                    self.fb_called[base.index()] = stamp + 1;
+                }
+                if let Err(fault) = eval::run(std::slice::from_ref(call), self) {
+                    self.push(EventKind::Fault(FaultSource::Transition(t), fault));
+                }
+            }
+        }
         for &(_, t) in &candidates {
             let sources = program.sources(t);
             let enabled =

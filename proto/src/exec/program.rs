@@ -57,7 +57,7 @@ pub struct Reads {
     pub vars: Vec<VarId>,
     /// It reads a step's `X` or an action's `Q`.
     pub steps_or_actions: bool,
-    /// It reads a step's `T`.
+    /// It reads a step's `T`, or calls a block first (which reads the clock).
     pub step_time: bool,
 }
 
@@ -137,6 +137,8 @@ pub struct TransitionInfo {
     /// Its name, or `FROM->TO`.
     pub name: String,
     pub condition: CExpr,
+    /// Block calls run before the condition is judged, once per cycle for each instance.
+    pub calls: Vec<CStmt>,
     pub pragmas: Vec<Pragma>,
 }
 
@@ -349,7 +351,15 @@ impl Program {
         assoc_at.push(assocs.len() as u32);
         let (mut arcs_at, mut arcs, mut ranks) =
             (Vec::with_capacity(2 * transitions.len() + 1), Vec::new(), Vec::new());
-        let reads = transitions.iter().map(|t| Reads::of(&t.info.condition)).collect();
+        let reads = transitions
+            .iter()
+            .map(|t| {
+                let mut reads = Reads::of(&t.info.condition);
+                // A block reads the clock: judged in cycles only, never in a reaction.
+                reads.step_time |= !t.info.calls.is_empty();
+                reads
+            })
+            .collect();
         let mut tinfos = Vec::with_capacity(transitions.len());
         for t in transitions {
             arcs_at.push(arcs.len() as u32);

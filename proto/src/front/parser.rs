@@ -594,6 +594,7 @@ impl Parser<'_> {
             from,
             to,
             condition,
+            calls: Vec::new(),
             pragmas: Vec::new(),
             span: kw.span.to(end.span),
             arc_span,

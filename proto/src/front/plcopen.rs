@@ -9,7 +9,7 @@
 //! the textual parser as fragments, at their place in the file) or LD/FBD networks, which become expressions
 //! and assignments. What Baton does not run yet is refused with an error that names it.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use roxmltree::{Document, Node, ParsingOptions, TextPos};
 
@@ -44,7 +44,7 @@ pub fn parse(src: &str) -> Parsed {
             return Parsed { charts: Vec::new(), diagnostics: vec![Diagnostic::error(Span::new(at, at + 1), message)] };
         }
     };
-    let mut reader = Reader { src, diags: Vec::new(), visits: 0 };
+    let mut reader = Reader { src, diags: Vec::new(), visits: 0, calls: Vec::new(), called: HashSet::new() };
     let root = doc.root_element();
     if root.tag_name().name() != "project" {
         let message =
@@ -132,6 +132,10 @@ struct Reader<'s> {
     diags: Vec<Diagnostic>,
     /// Connections followed since the last transition or network began (`too_deep`).
     visits: usize,
+    /// Calls of the block instances the logic being read needs, in the order they must run, and the blocks
+    /// (by `localId`) already called.
+    calls: Vec<Stmt>,
+    called: HashSet<u64>,
 }
 
 impl Reader<'_> {
@@ -355,11 +359,22 @@ impl Reader<'_> {
     /// wired to it.
     fn network_statements(&mut self, body: Node) -> Option<Vec<Stmt>> {
         let elements = self.elements(body, &[]);
-        let mut outputs: Vec<Node> = body.children().filter(|c| is(c, "coil") || is(c, "outVariable")).collect();
+        let instance = |c: &Node| is(c, "block") && c.attribute("instanceName").is_some();
+        let mut outputs: Vec<Node> =
+            body.children().filter(|c| is(c, "coil") || is(c, "outVariable") || instance(c)).collect();
         outputs.sort_by_key(|n| n.attribute("executionOrderId").and_then(|e| e.parse::<u64>().ok()).unwrap_or(0));
         let mut out = Vec::new();
         let mut ok = true;
+        self.calls.clear();
+        self.called.clear();
         for n in outputs {
+            if instance(&n) {
+                // A block runs where it stands in the execution order, unless what it feeds needed it first.
+                self.visits = 0;
+                ok &= self.fb_call(&elements, n, 0).is_some();
+                out.append(&mut self.calls);
+                continue;
+            }
             let target_node = if is(&n, "coil") { child(n, "variable") } else { child(n, "expression") };
             let target = match target_node.and_then(|t| self.expr_text(t)) {
                 Some(Expr { kind: ExprKind::Name(id), .. }) => id,
@@ -384,6 +399,7 @@ impl Reader<'_> {
             if flag(n, "negated") {
                 value = not(value);
             }
+            out.append(&mut self.calls);
             let span = self.tag_span(n);
             let target = Expr { span: target.span, kind: ExprKind::Name(target) };
             let stmt = match n.attribute("storage") {
@@ -587,7 +603,10 @@ impl Reader<'_> {
             self.error(span, "transition with no output: connect a step, a jump or a divergence after it");
             ok = false;
         }
+        self.calls.clear();
+        self.called.clear();
         let (condition, pragmas) = self.condition(el, elements, named);
+        let calls = std::mem::take(&mut self.calls);
         let priority = match el.attribute("priority").map(|p| p.trim().parse::<u32>()) {
             Some(Ok(p)) => Some((p, self.attr_span(el, "priority"))),
             Some(Err(_)) => {
@@ -606,7 +625,7 @@ impl Reader<'_> {
         });
         let x = child(el, "position").and_then(|p| p.attribute("x")).and_then(|x| x.trim().parse::<f64>().ok());
         Some(ReadTransition {
-            transition: Transition { name: None, priority, from, to, condition, pragmas, span, arc_span: span },
+            transition: Transition { name: None, priority, from, to, condition, calls, pragmas, span, arc_span: span },
             order: (divergence.unwrap_or(doc_index), x.unwrap_or(0.0), doc_index),
         })
     }
@@ -904,28 +923,66 @@ impl Reader<'_> {
         }
     }
 
+    /// The call of a function block instance drawn as a block, queued in `calls` once (after the calls its inputs
+    /// need): its instance.
+    fn fb_call(&mut self, elements: &Elements, n: Node, depth: usize) -> Option<Ident> {
+        let span = self.tag_span(n);
+        let name = n.attribute("instanceName").unwrap_or_default().trim().to_string();
+        let instance = Ident { name, span: self.attr_span(n, "instanceName") };
+        if local_id(n).is_some_and(|id| !self.called.insert(id)) {
+            return Some(instance);
+        }
+        if child(n, "inOutVariables").is_some_and(|v| v.children().any(|c| is(&c, "variable"))) {
+            self.error(span, format!("in-out parameters of block `{}` are not supported yet", instance.name));
+            return None;
+        }
+        let mut args = Vec::new();
+        for v in child(n, "inputVariables").into_iter().flat_map(|i| children(i, "variable")) {
+            let Some(formal) = v.attribute("formalParameter") else {
+                self.error(self.tag_span(v), "a block input without a `formalParameter`");
+                return None;
+            };
+            // An input left unconnected keeps its value, as in a call that does not name it.
+            if self.connections(v).is_empty() {
+                continue;
+            }
+            let e = self.wired(elements, v, depth)?;
+            let value = if flag(v, "negated") { not(e) } else { e };
+            let name = Ident { name: formal.trim().to_string(), span: self.tag_span(v) };
+            args.push(Arg { name: Some(name), output: false, negated: false, span: value.span, value });
+        }
+        self.calls.push(Stmt::Call { callee: instance.clone(), args, span });
+        Some(instance)
+    }
+
     /// A standard function drawn as an FBD block, as an expression.
     fn block(&mut self, elements: &Elements, n: Node, formal: Option<&str>, depth: usize) -> Option<Expr> {
         let span = self.tag_span(n);
         let type_name = n.attribute("typeName").unwrap_or_default().to_ascii_uppercase();
-        if let Some(instance) = n.attribute("instanceName") {
-            let message = format!(
-                "function block `{type_name}` (instance `{instance}`) is not supported yet: Baton does not run function block instances"
-            );
-            self.error(span, message);
-            return None;
+        if n.attribute("instanceName").is_some() {
+            let instance = self.fb_call(elements, n, depth)?;
+            let Some(output) = formal.filter(|f| !f.trim().is_empty()) else {
+                self.error(span, format!("connect a named output of block `{}` (such as `Q`)", instance.name));
+                return None;
+            };
+            let field = Ident { name: output.trim().to_string(), span };
+            return Some(Expr { kind: ExprKind::Field(instance, field), span });
         }
         if formal.is_some_and(|f| !f.is_empty() && !f.eq_ignore_ascii_case("OUT")) {
             self.error(span, format!("block `{type_name}` has no output `{}`", formal.unwrap_or_default()));
             return None;
         }
         let mut args = Vec::new();
+        let mut formals = Vec::new();
         for v in child(n, "inputVariables").into_iter().flat_map(|i| children(i, "variable")) {
             if v.attribute("formalParameter").is_some_and(|f| f.eq_ignore_ascii_case("EN")) {
                 continue;
             }
             let e = self.wired(elements, v, depth)?;
             args.push(if flag(v, "negated") { not(e) } else { e });
+            formals.push(
+                v.attribute("formalParameter").map(|f| Ident { name: f.trim().to_string(), span: self.tag_span(v) }),
+            );
         }
         /// How a standard function's inputs combine.
         enum Shape {
@@ -956,8 +1013,21 @@ impl Reader<'_> {
             "NOT" => Shape::Not,
             "MOVE" => Shape::Move,
             _ => {
-                self.error(span, format!("block `{type_name}` in LD/FBD logic is not supported yet"));
-                return None;
+                // Any other standard function, as a call with its formal parameters (the compiler types it).
+                let formal = formals.iter().all(|f| f.is_some());
+                let args = args
+                    .into_iter()
+                    .zip(formals)
+                    .map(|(value, name)| Arg {
+                        name: name.filter(|_| formal),
+                        output: false,
+                        negated: false,
+                        span,
+                        value,
+                    })
+                    .collect();
+                let callee = Ident { name: type_name, span: self.attr_span(n, "typeName") };
+                return Some(Expr { kind: ExprKind::Call(callee, args), span });
             }
         };
         let inputs = match shape {
