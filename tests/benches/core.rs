@@ -1,6 +1,6 @@
-//! Benchmarks of the SFC core: parse + check of a 100,000-step chart, and the cost of one engine cycle on a
-//! 1,000-step and a 100,000-step chart with the same 100 active steps. Run with
-//! `cargo bench -p baton-tests --bench core`.
+//! Benchmarks of the SFC core: parse + check of a 100,000-step chart and import + check of a 10,000-step PLCopen
+//! file, and the cost of one engine cycle on a 1,000-step and a 100,000-step chart with the same 100 active
+//! steps, without and with 1,000 TON instances. Run with `cargo bench -p baton-tests --bench core`.
 
 use std::hint::black_box;
 use std::sync::Arc;
@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use baton_proto::exec::engine::Engine;
 use baton_proto::front::check::check_source;
-use baton_tests::gen::{large_structured_chart, rings};
+use baton_tests::gen::{large_plcopen_chart, large_structured_chart, rings, timer_rings};
 use criterion::{criterion_group, criterion_main, Criterion};
 
 fn parse_and_check(c: &mut Criterion) {
@@ -19,13 +19,25 @@ fn parse_and_check(c: &mut Criterion) {
     let mut group = c.benchmark_group("check");
     group.sample_size(10).measurement_time(Duration::from_secs(10));
     group.bench_function("parse_check_100k_steps", |b| b.iter(|| check_source(black_box(&src))));
+    let xml = large_plcopen_chart(10_000);
+    let report = check_source(&xml);
+    assert_eq!(report.error_count(), 0, "the generated PLCopen file is valid: {:?}", report.diagnostics.first());
+    let program = report.charts[0].program.as_ref().expect("the generated PLCopen chart is valid");
+    eprintln!("PLCopen: {} steps, {} transitions, {} bytes", program.steps.len(), program.transitions.len(), xml.len());
+    group.bench_function("import_check_plcopen_10k_steps", |b| b.iter(|| check_source(black_box(&xml))));
     group.finish();
 }
 
 fn engine_cycle(c: &mut Criterion) {
     let mut group = c.benchmark_group("cycle");
-    for (label, ring_len) in [("1k_steps_100_active", 10), ("100k_steps_100_active", 1000)] {
-        let report = check_source(&rings(100, ring_len));
+    let charts = [
+        ("1k_steps_100_active", rings(100, 10)),
+        ("100k_steps_100_active", rings(100, 1000)),
+        ("1k_steps_100_active_1k_ton", timer_rings(100, 10, 10)),
+        ("100k_steps_100_active_1k_ton", timer_rings(100, 1000, 10)),
+    ];
+    for (label, src) in charts {
+        let report = check_source(&src);
         let program = Arc::new(report.charts[0].program.clone().expect("the ring chart is valid"));
         let mut engine = Engine::new(program);
         let mut now = 0u64;

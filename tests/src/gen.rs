@@ -211,3 +211,162 @@ fn random_shape(rng: &mut Rng, depth: u32) -> Shape {
         _ => Shape::Loop(seq(rng)),
     }
 }
+
+/// A deterministic PLCopen TC6 v2.01 file of one SFC program with `steps` steps, as Beremiz writes them: a
+/// chain with inline ST conditions, every fourth one wired from an LD contact instead, an N action with inline
+/// ST on every fifth step, a selection every tenth step (the branch taken first skips a step), and a jump back to
+/// the initial step. Used for the import + check benchmark.
+pub fn large_plcopen_chart(steps: usize) -> String {
+    let steps = steps.max(2);
+    let mut out = String::with_capacity(steps * 900);
+    out.push_str(
+        "<?xml version=\"1.0\" encoding=\"utf-8\"?>\n<project xmlns=\"http://www.plcopen.org/xml/tc6_0201\" \
+         xmlns:xhtml=\"http://www.w3.org/1999/xhtml\">\n<types><pous><pou name=\"Big\" pouType=\"program\">\n\
+         <interface><localVars>\n<variable name=\"go\"><type><BOOL/></type></variable>\n\
+         <variable name=\"n\"><type><DINT/></type></variable>\n</localVars></interface>\n<body><SFC>\n",
+    );
+    // Ids: step i is 10·i + 1, its outgoing transition 10·i + 2, its contact 10·i + 3, its action block
+    // 10·i + 4, its divergence 10·i + 5, the skipping transition 10·i + 6 and the convergence 10·i + 7.
+    let step_id = |i: usize| 10 * i + 1;
+    out.push_str("<leftPowerRail localId=\"9\"><position x=\"0\" y=\"0\"/><connectionPointOut formalParameter=\"\"/></leftPowerRail>\n");
+    for i in 0..steps {
+        let y = 100 * i;
+        let input = if i == 0 {
+            format!("<connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn>", 10 * steps + 8)
+        } else if (i - 1) % 10 == 9 && i >= 2 {
+            format!("<connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn>", 10 * (i - 2) + 7)
+        } else {
+            format!("<connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn>", 10 * (i - 1) + 2)
+        };
+        let initial = if i == 0 { " initialStep=\"true\"" } else { "" };
+        let _ = writeln!(
+            out,
+            "<step localId=\"{}\" name=\"S{i}\"{initial}><position x=\"100\" y=\"{y}\"/>{input}\
+             <connectionPointOut formalParameter=\"sfc\"/><connectionPointOutAction formalParameter=\"\"/></step>",
+            step_id(i)
+        );
+        if i % 5 == 0 {
+            let _ = writeln!(
+                out,
+                "<actionBlock localId=\"{}\"><position x=\"200\" y=\"{y}\"/><connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn>\
+                 <action localId=\"0\" qualifier=\"N\"><inline><ST><xhtml:p><![CDATA[n := n + {i};]]></xhtml:p></ST></inline></action></actionBlock>",
+                10 * i + 4,
+                step_id(i)
+            );
+        }
+        let from = if i % 10 == 8 && i + 2 < steps {
+            // A selection: the skipping branch (to step i + 2) or the plain one (to step i + 1).
+            let _ = writeln!(
+                out,
+                "<selectionDivergence localId=\"{}\"><position x=\"100\" y=\"{}\"/><connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn>\
+                 <connectionPointOut formalParameter=\"\"/><connectionPointOut formalParameter=\"\"/></selectionDivergence>",
+                10 * i + 5,
+                y + 40,
+                step_id(i)
+            );
+            let _ = writeln!(
+                out,
+                "<transition localId=\"{}\"><position x=\"50\" y=\"{}\"/><connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn>\
+                 <connectionPointOut/><condition><inline name=\"\"><ST><xhtml:p><![CDATA[go AND n > {i}]]></xhtml:p></ST></inline></condition></transition>",
+                10 * i + 6,
+                y + 60,
+                10 * i + 5
+            );
+            10 * i + 5
+        } else {
+            step_id(i)
+        };
+        let condition = if i % 4 == 3 {
+            let _ = writeln!(
+                out,
+                "<contact localId=\"{}\"><position x=\"20\" y=\"{}\"/><connectionPointIn><connection refLocalId=\"9\"/></connectionPointIn>\
+                 <connectionPointOut/><variable>go</variable></contact>",
+                10 * i + 3,
+                y + 60
+            );
+            format!(
+                "<condition><connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn></condition>",
+                10 * i + 3
+            )
+        } else {
+            "<condition><inline name=\"\"><ST><xhtml:p><![CDATA[go]]></xhtml:p></ST></inline></condition>".to_string()
+        };
+        let _ = writeln!(
+            out,
+            "<transition localId=\"{}\"><position x=\"150\" y=\"{}\"/><connectionPointIn><connection refLocalId=\"{from}\"/></connectionPointIn>\
+             <connectionPointOut/>{condition}</transition>",
+            10 * i + 2,
+            y + 60
+        );
+        if i % 10 == 9 && i >= 1 && (i - 1) % 10 == 8 && i + 1 < steps {
+            // The convergence after the plain branch's step i and the skipping transition of step i − 1.
+            let _ = writeln!(
+                out,
+                "<selectionConvergence localId=\"{}\"><position x=\"100\" y=\"{}\"/><connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn>\
+                 <connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn><connectionPointOut/></selectionConvergence>",
+                10 * (i - 1) + 7,
+                y + 80,
+                10 * i + 2,
+                10 * (i - 1) + 6
+            );
+        }
+    }
+    let _ = writeln!(
+        out,
+        "<jumpStep localId=\"{}\" targetName=\"S0\"><position x=\"100\" y=\"{}\"/><connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn></jumpStep>",
+        10 * steps + 8,
+        100 * steps,
+        10 * (steps - 1) + 2
+    );
+    out.push_str("</SFC></body></pou></pous></types></project>\n");
+    out
+}
+
+/// `rings` (see `rings`) whose steps each call one of `timers_per_ring` TON instances of their ring in their
+/// action: `rings · timers_per_ring` instances, `rings` of them called per cycle, whatever `ring_len` is.
+pub fn timer_rings(rings: usize, ring_len: usize, timers_per_ring: usize) -> String {
+    let mut out = String::with_capacity(rings * ring_len * 90 + rings * timers_per_ring * 80);
+    out.push_str("PROGRAM TimerRings\nVAR\n  go : BOOL := TRUE;\n");
+    for r in 0..rings {
+        for k in 0..timers_per_ring {
+            let _ = writeln!(out, "  T{r}_{k} : TON;");
+        }
+    }
+    out.push_str("END_VAR\n");
+    for r in 0..rings {
+        for k in 0..timers_per_ring {
+            let _ = writeln!(out, "ACTION Time{r}_{k}: T{r}_{k}(IN := go, PT := T#50ms); END_ACTION");
+        }
+        for i in 0..ring_len {
+            let kw = if i == 0 { "INITIAL_STEP" } else { "STEP" };
+            let _ = writeln!(out, "{kw} R{r}_{i}: Time{r}_{}(N); END_STEP", i % timers_per_ring);
+            let next = (i + 1) % ring_len;
+            let _ = writeln!(out, "TRANSITION FROM R{r}_{i} TO R{r}_{next} := go; END_TRANSITION");
+        }
+    }
+    out.push_str("END_PROGRAM\n");
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_generated_plcopen_file_is_one_valid_chart_of_that_size() {
+        let report = baton_proto::front::check::check_source(&large_plcopen_chart(95));
+        assert_eq!(report.error_count(), 0, "{:?}", report.diagnostics);
+        let program = report.charts[0].program.as_ref().expect("a program");
+        // 95 steps; a skipping transition at steps 8, 18, …, 88.
+        assert_eq!((program.steps.len(), program.transitions.len()), (95, 95 + 9));
+    }
+
+    #[test]
+    fn timer_rings_declare_and_call_their_instances() {
+        let report = baton_proto::front::check::check_source(&timer_rings(3, 4, 2));
+        assert_eq!(report.error_count(), 0, "{:?}", report.diagnostics);
+        let program = report.charts[0].program.as_ref().expect("a program");
+        assert_eq!(program.steps.len(), 12);
+        assert!(program.var_by_name("T2_1.Q").is_some());
+    }
+}

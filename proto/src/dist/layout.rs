@@ -446,12 +446,13 @@ fn writers(
     // Blocks wired into a condition run where the condition is judged: on the agent of the step it leaves when
     // that step is placed, on the coordinator otherwise.
     for (i, t) in program.transitions.iter().enumerate() {
-        if t.calls.is_empty() {
+        let calls = program.calls(TransitionId(i as u32));
+        if calls.is_empty() {
             continue;
         }
         let place = &transition_placement[i];
         let mut vars = Vec::new();
-        assigned(&t.calls, &mut vars);
+        assigned(calls, &mut vars);
         for v in vars {
             note(v, place, format!("the blocks of transition `{}`", t.name));
         }
@@ -518,7 +519,7 @@ impl Refs {
                 self.expr(lhs);
                 self.expr(rhs);
             }
-            CExpr::Call { args, .. } => args.iter().for_each(|a| self.expr(a)),
+            CExpr::Call(c) => c.args.iter().for_each(|a| self.expr(a)),
         }
     }
 
@@ -535,7 +536,7 @@ fn read_by_agents(program: &Program, segment_of: &[Option<SegmentId>], action_pl
         if let [s] = program.sources(TransitionId(t as u32)) {
             if segment_of[s.index()].is_some() {
                 refs.expr(&program.transitions[t].condition);
-                refs.body(&program.transitions[t].calls);
+                refs.body(program.calls(TransitionId(t as u32)));
             }
         }
     }

@@ -462,8 +462,8 @@ impl<'a> Compiler<'a> {
                 continue;
             };
             let calls = self.statements(&t.calls, vars);
-            let info = TransitionInfo { name: t.display_name(), condition, calls, pragmas: t.pragmas.clone() };
-            out.push(TransitionParts { info, sources, targets, rank: 0 });
+            let info = TransitionInfo { name: t.display_name(), condition, pragmas: t.pragmas.clone() };
+            out.push(TransitionParts { info, calls, sources, targets, rank: 0 });
         }
         // Clearing order: explicit priorities first, lower number first, then declaration order.
         if net_ok {
@@ -1028,7 +1028,7 @@ impl<'a> Compiler<'a> {
             }
             Func::BitAnd | Func::BitOr | Func::BitXor | Func::BitNot => tys[0],
         };
-        (CExpr::Call { func, args: cargs, ty: ty.repr() }, ty)
+        (CExpr::call(func, cargs, ty.repr()), ty)
     }
 
     /// A call's arguments in parameter order: non-formal as written, or formal matched to the parameter names
@@ -1105,9 +1105,7 @@ impl<'a> Compiler<'a> {
                 match (op, ta) {
                     (_, Ty::Err) => (FALSE, Ty::Err),
                     (UnOp::Not, Ty::Bool) => (CExpr::Not(Box::new(ca)), Ty::Bool),
-                    (UnOp::Not, t) if t.is_int() => {
-                        (CExpr::Call { func: Func::BitNot, args: vec![ca], ty: t.repr() }, t)
-                    }
+                    (UnOp::Not, t) if t.is_int() => (CExpr::call(Func::BitNot, vec![ca], t.repr()), t),
                     (UnOp::Neg, t) if t.is_num() || t == Ty::Time => (CExpr::Neg(Box::new(ca), t.wrap()), t),
                     (UnOp::Not, t) => {
                         self.error(e.span, format!("NOT needs a BOOL operand, found {}", t.name()));
@@ -1136,7 +1134,7 @@ impl<'a> Compiler<'a> {
                         BinOp::Or => Func::BitOr,
                         _ => Func::BitXor,
                     };
-                    return (CExpr::Call { func, args: vec![ca, cb], ty: ty.repr() }, ty);
+                    return (CExpr::call(func, vec![ca, cb], ty.repr()), ty);
                 }
                 let (ca, cb) = (Box::new(ca), Box::new(cb));
                 let cexpr = match op {

@@ -299,12 +299,8 @@ impl Engine {
             var_gen: vec![0; program.vars.len()],
             xq_gen: 0,
             reactive_ok,
-            fb_called: if program.transitions.iter().any(|t| !t.calls.is_empty()) {
-                vec![0; program.vars.len()]
-            } else {
-                Vec::new()
-            },
             timed,
+            fb_called: if program.has_calls() { vec![0; program.vars.len()] } else { Vec::new() },
             timed_active: 0,
             candidates: Vec::new(),
             consumed_stamp: vec![NEVER; n_steps],
@@ -583,8 +579,9 @@ impl Engine {
         let candidates = std::mem::take(&mut self.candidates);
         // The blocks wired into conditions run first, each instance once, so that every condition is judged
         // against one snapshot.
-        for &(_, t) in &candidates {
-            let calls = &program.transitions[t.index()].calls;
+        let any_calls = !self.fb_called.is_empty();
+        for &(_, t) in candidates.iter().filter(|_| any_calls) {
+            let calls = program.calls(t);
             if calls.is_empty() || !program.sources(t).iter().all(|s| self.steps[s.index()].active) {
                 continue;
             }

@@ -58,7 +58,7 @@ pub fn eval(e: &CExpr, env: &impl Env) -> Result<Value, Fault> {
         }
         CExpr::Cmp(op, a, b) => Value::Bool(compare(*op, eval(a, env)?, eval(b, env)?)),
         CExpr::Arith { op, wrap, lhs, rhs } => arith(*op, *wrap, eval(lhs, env)?, eval(rhs, env)?)?,
-        CExpr::Call { func, args, ty } => ty.coerce(call(func, args, ty, env)?),
+        CExpr::Call(c) => c.ty.coerce(call(&c.func, &c.args, &c.ty, env)?),
     })
 }
 
@@ -344,7 +344,7 @@ pub fn is_constant(e: &CExpr) -> bool {
         CExpr::Not(a) | CExpr::Neg(a, _) => is_constant(a),
         CExpr::Logic(_, a, b) | CExpr::Cmp(_, a, b) => is_constant(a) && is_constant(b),
         CExpr::Arith { lhs, rhs, .. } => is_constant(lhs) && is_constant(rhs),
-        CExpr::Call { args, .. } => args.iter().all(is_constant),
+        CExpr::Call(c) => c.args.iter().all(is_constant),
     }
 }
 

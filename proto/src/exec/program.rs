@@ -48,6 +48,9 @@ pub struct Program {
     ranks: Vec<u32>,
     /// What each transition's condition reads.
     reads: Vec<Reads>,
+    /// The block calls of transitions whose wired conditions need them, by transition (rare: kept apart so
+    /// that the data a cycle reads stays dense).
+    calls: Vec<(TransitionId, Vec<CStmt>)>,
 }
 
 /// What a condition reads: the engine judges a transition between cycles (in a reaction to a message) only if
@@ -81,7 +84,7 @@ impl Reads {
                 self.walk(a);
                 self.walk(b);
             }
-            CExpr::Call { args, .. } => args.iter().for_each(|a| self.walk(a)),
+            CExpr::Call(c) => c.args.iter().for_each(|a| self.walk(a)),
         }
     }
 }
@@ -95,6 +98,8 @@ pub struct StepParts {
 /// A transition as `compile` hands it to `Program::assemble`.
 pub struct TransitionParts {
     pub info: TransitionInfo,
+    /// Block calls run before the condition is judged, once per cycle for each instance.
+    pub calls: Vec<CStmt>,
     pub sources: Vec<StepId>,
     pub targets: Vec<StepId>,
     pub rank: u32,
@@ -137,8 +142,6 @@ pub struct TransitionInfo {
     /// Its name, or `FROM->TO`.
     pub name: String,
     pub condition: CExpr,
-    /// Block calls run before the condition is judged, once per cycle for each instance.
-    pub calls: Vec<CStmt>,
     pub pragmas: Vec<Pragma>,
 }
 
@@ -197,12 +200,22 @@ pub enum CExpr {
         lhs: Box<CExpr>,
         rhs: Box<CExpr>,
     },
-    /// A standard function; the result is converted to `ty` (its integer width, REAL's precision).
-    Call {
-        func: Func,
-        args: Vec<CExpr>,
-        ty: Type,
-    },
+    /// A standard function (boxed: rare, and it would make every expression node larger).
+    Call(Box<FnCall>),
+}
+
+/// A standard function call; the result is converted to `ty` (its integer width, REAL's precision).
+#[derive(Clone, Debug)]
+pub struct FnCall {
+    pub func: Func,
+    pub args: Vec<CExpr>,
+    pub ty: Type,
+}
+
+impl CExpr {
+    pub fn call(func: Func, args: Vec<CExpr>, ty: Type) -> CExpr {
+        CExpr::Call(Box::new(FnCall { func, args, ty }))
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -356,12 +369,16 @@ impl Program {
             .map(|t| {
                 let mut reads = Reads::of(&t.info.condition);
                 // A block reads the clock: judged in cycles only, never in a reaction.
-                reads.step_time |= !t.info.calls.is_empty();
+                reads.step_time |= !t.calls.is_empty();
                 reads
             })
             .collect();
         let mut tinfos = Vec::with_capacity(transitions.len());
-        for t in transitions {
+        let mut calls = Vec::new();
+        for (i, t) in transitions.into_iter().enumerate() {
+            if !t.calls.is_empty() {
+                calls.push((TransitionId(i as u32), t.calls));
+            }
             arcs_at.push(arcs.len() as u32);
             arcs.extend(t.sources);
             arcs_at.push(arcs.len() as u32);
@@ -386,7 +403,21 @@ impl Program {
             arcs,
             ranks,
             reads,
+            calls,
         }
+    }
+
+    /// The block calls transition t's condition needs first.
+    pub fn calls(&self, t: TransitionId) -> &[CStmt] {
+        match self.calls.binary_search_by_key(&t, |(u, _)| *u) {
+            Ok(i) => &self.calls[i].1,
+            Err(_) => &[],
+        }
+    }
+
+    /// Whether any transition's condition calls a block.
+    pub fn has_calls(&self) -> bool {
+        !self.calls.is_empty()
     }
 
     /// What transition t's condition reads.
