@@ -60,6 +60,19 @@ enum Command {
         #[arg(long, value_name = "VARIABLE")]
         watch: Vec<String>,
     },
+    /// Write a valid chart file out in another format: `--plcopen`, PLCopen TC6 v2.01 XML with positions, for
+    /// Beremiz, OpenPLC Editor and other IEC 61131-3 tools. Every chart of the file, or the one `--pou` names.
+    Export {
+        chart: PathBuf,
+        /// PLCopen TC6 v2.01 XML (the only format today).
+        #[arg(long, required = true)]
+        plcopen: bool,
+        #[arg(long)]
+        pou: Option<String>,
+        /// Write here instead of to stdout.
+        #[arg(long, short = 'o', value_name = "FILE")]
+        output: Option<PathBuf>,
+    },
     /// Coordinate a chart across agents over Zenoh; exit 0 when it reaches a terminal situation.
     Run {
         chart: PathBuf,
@@ -187,6 +200,7 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Check { chart, json: false } => check(&chart),
+        Command::Export { chart, plcopen: _, pou, output } => export(&chart, pou.as_deref(), output.as_deref()),
         Command::Check { chart, json: true } => check_json(&chart),
         Command::Sim { chart, inputs, cycle_ms, until_ms, pou, watch } => {
             sim(&chart, inputs.as_deref(), cycle_ms, until_ms, pou.as_deref(), &watch)
@@ -362,6 +376,58 @@ fn check_json(path: &Path) -> anyhow::Result<ExitCode> {
         .collect();
     println!("{}", serde_json::json!({ "charts": charts, "diagnostics": diagnostics }));
     Ok(if report.error_count() > 0 { ExitCode::from(EXIT_INVALID) } else { ExitCode::SUCCESS })
+}
+
+/// `baton export --plcopen`: the file's charts as PLCopen XML; a chart with errors exports nothing.
+fn export(path: &Path, pou: Option<&str>, output: Option<&Path>) -> anyhow::Result<ExitCode> {
+    let src = read(path)?;
+    let report = check_source(&src);
+    print_diagnostics(path, &src, &report, |_| true);
+    if report.error_count() > 0 || report.charts.is_empty() {
+        eprintln!("{}: nothing was exported: the file has errors or no chart", path.display());
+        return Ok(ExitCode::from(EXIT_INVALID));
+    }
+    let chosen: Vec<&CheckedChart> = match pou {
+        Some(_) => vec![pick(&report, pou)?],
+        None => report.charts.iter().collect(),
+    };
+    let charts: Vec<_> = chosen.iter().filter_map(|c| Some((&c.chart, c.program.as_ref()?))).collect();
+    let project = path.file_stem().map_or_else(|| "baton".to_string(), |s| s.to_string_lossy().into_owned());
+    let xml = match baton_proto::back::plcopen::export(&charts, &project, &utc_now()) {
+        Ok(xml) => xml,
+        Err(e) => {
+            eprintln!("{}: {e}", path.display());
+            return Ok(ExitCode::from(EXIT_INVALID));
+        }
+    };
+    match output {
+        Some(file) => std::fs::write(file, xml).with_context(|| format!("cannot write {}", file.display()))?,
+        None => {
+            let mut out = std::io::stdout().lock();
+            match out.write_all(xml.as_bytes()).and_then(|()| out.flush()) {
+                Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {}
+                other => other.context("cannot write the export")?,
+            }
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The current UTC time as an `xsd:dateTime` (`2026-12-01T12:34:56`).
+fn utc_now() -> String {
+    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()) as i64;
+    let (days, rest) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!("{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}", rest / 3600, rest % 3600 / 60, rest % 60)
 }
 
 pub fn pick<'r>(report: &'r Report, pou: Option<&str>) -> anyhow::Result<&'r CheckedChart> {

@@ -162,3 +162,28 @@ fn check_json_lists_the_charts_and_every_diagnostic() {
     );
     assert_eq!(v["diagnostics"].as_array().map(Vec::len), Some(0));
 }
+
+#[test]
+fn export_writes_plcopen_that_baton_reads_back_and_refuses_an_invalid_chart() {
+    let out = baton(&["export", "--plcopen", &repo("examples/cell.st")]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let xml = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(xml.contains("xmlns=\"http://www.plcopen.org/xml/tc6_0201\"") && xml.contains("<step "), "{xml}");
+    // The header's creation time is today's, as xsd:dateTime.
+    let created = xml.split("creationDateTime=\"").nth(1).and_then(|r| r.get(..19)).expect("a creation time");
+    assert!(created.starts_with("20") && created.as_bytes()[10] == b'T', "{created}");
+    let file = temp_file("cell_export.xml", &xml);
+    let back = baton(&["check", &file]);
+    assert_eq!(back.status.code(), Some(0), "{}", String::from_utf8_lossy(&back.stderr));
+    assert!(String::from_utf8_lossy(&back.stdout).contains("chart `cell` is valid: 10 steps, 10 transitions"));
+    // -o writes the file instead.
+    let target = temp_file("cell_o.xml", "");
+    let written = baton(&["export", "--plcopen", &repo("examples/cell.st"), "-o", &target]);
+    assert_eq!(written.status.code(), Some(0));
+    assert!(std::fs::read_to_string(&target).expect("written").contains("<pou name=\"cell\""));
+
+    let invalid = baton(&["export", "--plcopen", &repo("tests/diagnostics/names.st")]);
+    assert_eq!(invalid.status.code(), Some(1));
+    assert!(invalid.stdout.is_empty(), "nothing is exported from a chart with errors");
+    assert!(String::from_utf8_lossy(&invalid.stderr).contains("nothing was exported"));
+}

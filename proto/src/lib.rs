@@ -18,6 +18,12 @@ pub mod front {
     pub mod pragma;
 }
 
+/// Back ends: a checked chart written out in other formats (Structured Text, PLCopen TC6 XML).
+pub mod back {
+    pub mod plcopen;
+    pub mod st;
+}
+
 /// Execution: the compiled program, values and types, evaluation, the engine, the net analysis and `sim`.
 pub mod exec {
     pub mod analysis;

@@ -5,6 +5,7 @@ pub mod gen;
 pub mod invariants;
 pub mod netns;
 pub mod reference;
+pub mod roundtrip;
 pub mod scenario;
 pub mod simnet;
 

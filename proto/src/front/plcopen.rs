@@ -44,7 +44,14 @@ pub fn parse(src: &str) -> Parsed {
             return Parsed { charts: Vec::new(), diagnostics: vec![Diagnostic::error(Span::new(at, at + 1), message)] };
         }
     };
-    let mut reader = Reader { src, diags: Vec::new(), visits: 0, calls: Vec::new(), called: HashSet::new() };
+    let mut reader = Reader {
+        src,
+        diags: Vec::new(),
+        visits: 0,
+        calls: Vec::new(),
+        called: HashSet::new(),
+        references: HashMap::new(),
+    };
     let root = doc.root_element();
     if root.tag_name().name() != "project" {
         let message =
@@ -113,6 +120,7 @@ fn flag(n: Node, attr: &str) -> bool {
 /// A transition, kept with what orders it among its siblings.
 struct ReadTransition {
     transition: Transition,
+    local_id: Option<u64>,
     /// The selection divergence it leaves from (its document index), else its own document index; then its
     /// drawn x position: Beremiz gives branches no priority, their order is left to right.
     order: (usize, f64, usize),
@@ -136,6 +144,8 @@ struct Reader<'s> {
     /// (by `localId`) already called.
     calls: Vec<Stmt>,
     called: HashSet<u64>,
+    /// How many SFC transitions of the body being read refer to each named transition.
+    references: HashMap<String, usize>,
 }
 
 impl Reader<'_> {
@@ -212,6 +222,23 @@ impl Reader<'_> {
         (parsed.fragment, parsed.pragmas)
     }
 
+    /// The pragmas (`{agent := 'r1'}`) in an element's `<documentation>`: where a PLCopen file keeps what a
+    /// textual chart writes as pragmas (placement, for one). The rest of the text is prose.
+    fn documentation_pragmas(&mut self, n: Node) -> Vec<Pragma> {
+        let Some(doc) = child(n, "documentation") else { return Vec::new() };
+        let (body, base) = self.inner_text(doc);
+        let mut out = Vec::new();
+        let mut from = 0;
+        while let Some(open) = body.text[from..].find('{').map(|i| from + i) {
+            // A pragma ends at its first `}`.
+            let Some(close) = body.text[open..].find('}').map(|i| open + i) else { break };
+            let text = body.text[open + 1..close].trim().to_string();
+            out.push(Pragma { text, span: Span::new(base + body.raw(open), base + body.raw(close + 1)) });
+            from = close + 1;
+        }
+        out
+    }
+
     fn expr_text(&mut self, n: Node) -> Option<Expr> {
         match self.fragment(n, FragmentKind::Expr).0 {
             Some(Fragment::Expr(e)) => Some(e),
@@ -253,7 +280,7 @@ impl Reader<'_> {
             steps: Vec::new(),
             transitions: Vec::new(),
             actions: Vec::new(),
-            pragmas: Vec::new(),
+            pragmas: self.documentation_pragmas(pou),
             span: Span::new(range.start, range.end),
             broken: Broken::default(),
         };
@@ -265,7 +292,12 @@ impl Reader<'_> {
         for action in child(pou, "actions").into_iter().flat_map(|a| children(a, "action")) {
             self.named_action(action, &mut chart);
         }
-        self.sfc(sfc, &named_transitions, &mut chart);
+        let transition_ids = self.sfc(sfc, &named_transitions, &mut chart);
+        // A file Baton wrote keeps Baton's element order; any other is ordered as Beremiz would run it.
+        match baton_order(pou) {
+            Some(order) => apply_order(&mut chart, &transition_ids, &order),
+            None => walk_order(&mut chart),
+        }
         Some(chart)
     }
 
@@ -301,13 +333,23 @@ impl Reader<'_> {
                 let init = child(v, "initialValue")
                     .and_then(|i| child(i, "simpleValue"))
                     .and_then(|s| self.expr_attr(s, "value"));
+                // A function block instance's initial inputs: `<structValue><value member="PT">…`.
+                let mut members = Vec::new();
+                let struct_value = child(v, "initialValue").and_then(|i| child(i, "structValue"));
+                for value in struct_value.into_iter().flat_map(|s| children(s, "value")) {
+                    let member = self.ident_attr(value, "member");
+                    let simple = child(value, "simpleValue").and_then(|s| self.expr_attr(s, "value"));
+                    if let (Some(member), Some(simple)) = (member, simple) {
+                        members.push((member, simple));
+                    }
+                }
                 vars.push(VarDecl {
                     name,
                     section,
                     constant,
                     type_name: Ident { name: type_name, span: type_span },
                     init,
-                    members: Vec::new(),
+                    members,
                 });
             }
         }
@@ -474,7 +516,8 @@ impl Reader<'_> {
         out
     }
 
-    fn sfc(&mut self, sfc: Node, named_transitions: &HashMap<String, Node>, chart: &mut Chart) {
+    /// Reads the SFC body into the chart; returns each transition's `localId`, in the chart's order.
+    fn sfc(&mut self, sfc: Node, named_transitions: &HashMap<String, Node>, chart: &mut Chart) -> Vec<Option<u64>> {
         const STRUCTURAL: [&str; 8] = [
             "step",
             "macroStep",
@@ -486,6 +529,14 @@ impl Reader<'_> {
             "simultaneousConvergence",
         ];
         let elements = self.elements(sfc, &STRUCTURAL);
+        self.references.clear();
+        for t in children(sfc, "transition") {
+            if let Some(name) =
+                child(t, "condition").and_then(|c| child(c, "reference")).and_then(|r| r.attribute("name"))
+            {
+                *self.references.entry(name.trim().to_ascii_uppercase()).or_default() += 1;
+            }
+        }
         let mut step_of_id: HashMap<u64, usize> = HashMap::new();
         let mut transitions = Vec::new();
         let mut inline_count = 0;
@@ -504,7 +555,7 @@ impl Reader<'_> {
                         name,
                         initial: flag(el, "initialStep"),
                         associations: Vec::new(),
-                        pragmas: Vec::new(),
+                        pragmas: self.documentation_pragmas(el),
                         span: self.tag_span(el),
                     };
                     self.codesys_active_action(el, &mut step);
@@ -533,8 +584,9 @@ impl Reader<'_> {
         transitions.sort_by(|a, b| {
             a.order.0.cmp(&b.order.0).then(a.order.1.total_cmp(&b.order.1)).then(a.order.2.cmp(&b.order.2))
         });
+        let ids = transitions.iter().map(|t| t.local_id).collect();
         chart.transitions = transitions.into_iter().map(|t| t.transition).collect();
-        walk_order(chart);
+        ids
     }
 
     /// CODESYS V3.5 may attach a step's action only in its vendor data, as the step's "active" action (N).
@@ -624,8 +676,16 @@ impl Reader<'_> {
             Expr { kind: ExprKind::Bool(false), span }
         });
         let x = child(el, "position").and_then(|p| p.attribute("x")).and_then(|x| x.trim().parse::<f64>().ok());
+        // A transition whose condition is a named transition of the POU takes its name, unless another uses it too.
+        let reference = child(el, "condition").and_then(|c| child(c, "reference"));
+        let name = reference.and_then(|r| {
+            let name = r.attribute("name")?.trim();
+            let once = self.references.get(&name.to_ascii_uppercase()).copied() == Some(1);
+            once.then(|| Ident { name: name.to_string(), span: self.attr_span(r, "name") })
+        });
         Some(ReadTransition {
-            transition: Transition { name: None, priority, from, to, condition, calls, pragmas, span, arc_span: span },
+            local_id: local_id(el),
+            transition: Transition { name, priority, from, to, condition, calls, pragmas, span, arc_span: span },
             order: (divergence.unwrap_or(doc_index), x.unwrap_or(0.0), doc_index),
         })
     }
@@ -1114,7 +1174,15 @@ impl Reader<'_> {
                 _ => None,
             };
             let indicators = match a.attribute("indicator").map(str::trim) {
-                Some(i) if !i.is_empty() => vec![Ident { name: i.to_string(), span: self.attr_span(a, "indicator") }],
+                // Baton writes a skill's done and fault indicators as `done, fault`.
+                Some(i) if !i.is_empty() => {
+                    let span = self.attr_span(a, "indicator");
+                    i.split(',')
+                        .map(str::trim)
+                        .filter(|n| !n.is_empty())
+                        .map(|n| Ident { name: n.to_string(), span })
+                        .collect()
+                }
                 _ => Vec::new(),
             };
             let action = if let Some(reference) = child(a, "reference") {
@@ -1154,6 +1222,49 @@ impl Reader<'_> {
             });
         }
     }
+}
+
+/// Baton's element order from a POU's `addData` (see `back::plcopen::ORDER_DATA`): step names, transition
+/// `localId`s and action names.
+struct BatonOrder {
+    steps: Vec<String>,
+    transitions: Vec<u64>,
+    actions: Vec<String>,
+}
+
+fn baton_order(pou: Node) -> Option<BatonOrder> {
+    let data = child(pou, "addData")?
+        .children()
+        .find(|d| is(d, "data") && d.attribute("name") == Some(crate::back::plcopen::ORDER_DATA))?;
+    let order = child(data, "order")?;
+    let words = |attr: &str| -> Vec<String> {
+        order.attribute(attr).unwrap_or_default().split_whitespace().map(str::to_ascii_uppercase).collect()
+    };
+    Some(BatonOrder {
+        steps: words("steps"),
+        transitions: words("transitions").iter().filter_map(|w| w.parse().ok()).collect(),
+        actions: words("actions"),
+    })
+}
+
+/// Orders the chart's elements as the order data says; what it does not name keeps its place after them.
+fn apply_order(chart: &mut Chart, transition_ids: &[Option<u64>], order: &BatonOrder) {
+    fn rank<T>(items: &mut Vec<T>, key: impl Fn(usize, &T) -> Option<usize>) {
+        let mut keyed: Vec<(usize, usize, T)> =
+            items.drain(..).enumerate().map(|(i, t)| (key(i, &t).unwrap_or(usize::MAX), i, t)).collect();
+        keyed.sort_by_key(|(k, i, _)| (*k, *i));
+        items.extend(keyed.into_iter().map(|(_, _, t)| t));
+    }
+    let position =
+        |list: &[String]| -> HashMap<String, usize> { list.iter().enumerate().map(|(i, n)| (n.clone(), i)).collect() };
+    let steps = position(&order.steps);
+    rank(&mut chart.steps, |_, s| steps.get(&s.name.key()).copied());
+    let transitions: HashMap<u64, usize> = order.transitions.iter().enumerate().map(|(i, id)| (*id, i)).collect();
+    rank(&mut chart.transitions, |i, _| {
+        transition_ids.get(i).copied().flatten().and_then(|id| transitions.get(&id).copied())
+    });
+    let actions = position(&order.actions);
+    rank(&mut chart.actions, |_, a| actions.get(&a.name.key()).copied());
 }
 
 /// Orders steps, transitions and actions as Beremiz's generator writes the chart out for matiec (and so as

@@ -1,0 +1,548 @@
+//! PLCopen TC6 v2.01 XML from checked charts, laid out so that an IDE (Beremiz, OpenPLC Editor) shows a
+//! readable chart: steps in rows by their distance from the initial steps, branches side by side, back edges
+//! as jumps.
+//!
+//! The net becomes the standard's elements: a step with several outgoing transitions gets a selection
+//! divergence, a step with several forward incoming ones a selection convergence, a transition with several
+//! sources a simultaneous convergence and one with several targets a simultaneous divergence; a transition to a
+//! step on its own row or above is drawn as a jump. Named transitions and actions go to the POU's
+//! `transitions` and `actions` with ST bodies; a step's pragmas (placement) to its documentation, the chart's to
+//! the POU's. Baton's element order — which is execution order — goes to the POU's `addData` under
+//! `ORDER_DATA`, which Baton's reader follows and other tools ignore, so that importing the export gives the
+//! same program.
+
+use std::collections::HashMap;
+use std::fmt::Write;
+
+use crate::back::st;
+use crate::exec::program::{Program, TransitionId};
+use crate::front::model::*;
+
+/// The `addData/data@name` under which Baton keeps its element order.
+pub const ORDER_DATA: &str = "https://baton.dev/plcopen/element-order";
+
+/// Where a chart's parts are drawn.
+const STEP_W: i64 = 120;
+const STEP_H: i64 = 30;
+const COLUMN: i64 = 260;
+const ROW: i64 = 200;
+
+/// The TC6 element of an elementary type, or `None` for a derived one.
+fn elementary(upper: &str) -> Option<&'static str> {
+    Some(match upper {
+        "BOOL" => "BOOL",
+        "BYTE" => "BYTE",
+        "WORD" => "WORD",
+        "DWORD" => "DWORD",
+        "LWORD" => "LWORD",
+        "SINT" => "SINT",
+        "INT" => "INT",
+        "DINT" => "DINT",
+        "LINT" => "LINT",
+        "USINT" => "USINT",
+        "UINT" => "UINT",
+        "UDINT" => "UDINT",
+        "ULINT" => "ULINT",
+        "REAL" => "REAL",
+        "LREAL" => "LREAL",
+        "TIME" => "TIME",
+        "DATE" => "DATE",
+        "DT" | "DATE_AND_TIME" => "DT",
+        "TOD" | "TIME_OF_DAY" => "TOD",
+        "STRING" => "string",
+        "WSTRING" => "wstring",
+        _ => return None,
+    })
+}
+
+/// Escapes text for an attribute value or element content.
+fn esc(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&apos;"),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// Text as a CDATA section inside `<xhtml:p>` (a `]]>` in the text is split across two sections).
+fn xhtml(text: &str) -> String {
+    format!("<xhtml:p><![CDATA[{}]]></xhtml:p>", text.replace("]]>", "]]]]><![CDATA[>"))
+}
+
+fn pragmas_text(pragmas: &[Pragma]) -> String {
+    pragmas.iter().map(|p| format!("{{{}}}", p.text)).collect::<Vec<_>>().join("\n")
+}
+
+/// Why a chart cannot be written out.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ExportError {
+    #[error("chart `{chart}`: transition `{transition}` calls function blocks from logic wired into its condition; writing such logic back to PLCopen is not supported yet")]
+    WiredBlocks { chart: String, transition: String },
+}
+
+/// A PLCopen project holding each chart with its program (a chart that compiled without errors).
+/// `created` is the file header's `creationDateTime` (`2026-12-01T12:00:00`): the caller's clock.
+pub fn export(charts: &[(&Chart, &Program)], project: &str, created: &str) -> Result<String, ExportError> {
+    for (_, program) in charts {
+        if let Some(t) = (0..program.transitions.len()).find(|&t| !program.calls(TransitionId(t as u32)).is_empty()) {
+            let transition = program.transitions[t].name.clone();
+            return Err(ExportError::WiredBlocks { chart: program.name.clone(), transition });
+        }
+    }
+    let mut out = String::new();
+    out.push_str("<?xml version=\"1.0\" encoding=\"utf-8\"?>\n");
+    out.push_str(
+        "<project xmlns=\"http://www.plcopen.org/xml/tc6_0201\" xmlns:xhtml=\"http://www.w3.org/1999/xhtml\">\n",
+    );
+    let _ = writeln!(
+        out,
+        "  <fileHeader companyName=\"Baton\" productName=\"baton\" productVersion=\"{}\" creationDateTime=\"{}\"/>",
+        env!("CARGO_PKG_VERSION"),
+        esc(created)
+    );
+    let _ = writeln!(out, "  <contentHeader name=\"{}\" modificationDateTime=\"{}\">", esc(project), esc(created));
+    out.push_str(
+        "    <coordinateInfo>\n      <fbd><scaling x=\"0\" y=\"0\"/></fbd>\n      <ld><scaling x=\"0\" y=\"0\"/></ld>\n      <sfc><scaling x=\"0\" y=\"0\"/></sfc>\n    </coordinateInfo>\n  </contentHeader>\n",
+    );
+    out.push_str("  <types>\n    <dataTypes/>\n    <pous>\n");
+    for (chart, program) in charts {
+        pou(&mut out, chart, program);
+    }
+    out.push_str("    </pous>\n  </types>\n  <instances>\n    <configurations/>\n  </instances>\n</project>\n");
+    Ok(out)
+}
+
+fn pou(out: &mut String, chart: &Chart, program: &Program) {
+    let kind = match chart.kind {
+        PouKind::FunctionBlock => "functionBlock",
+        PouKind::Program | PouKind::Bare => "program",
+    };
+    let _ = writeln!(out, "      <pou name=\"{}\" pouType=\"{kind}\">", esc(&chart.name.name));
+    interface(out, chart);
+    let named: HashMap<String, &Action> = chart.actions.iter().map(|a| (a.name.key(), a)).collect();
+    out.push_str("        <actions>\n");
+    for a in &program.actions {
+        let Some(action) = named.get(&a.name.to_ascii_uppercase()) else { continue };
+        let mut text = pragmas_text(&action.pragmas);
+        if !text.is_empty() {
+            text.push('\n');
+        }
+        text.push_str(&st::statements(&action.body, 0));
+        let _ = writeln!(
+            out,
+            "          <action name=\"{}\">\n            <body>\n              <ST>{}</ST>\n            </body>\n          </action>",
+            esc(&action.name.name),
+            xhtml(&text)
+        );
+    }
+    out.push_str("        </actions>\n");
+    // A chart without errors compiles to a program whose steps and transitions are the chart's, in order.
+    out.push_str("        <transitions>\n");
+    for (t, tr) in program.transitions.iter().zip(&chart.transitions) {
+        if tr.name.is_none() {
+            continue;
+        }
+        let mut text = pragmas_text(&tr.pragmas);
+        if !text.is_empty() {
+            text.push('\n');
+        }
+        let _ = write!(text, ":= {};", st::expr(&tr.condition));
+        let _ = writeln!(
+            out,
+            "          <transition name=\"{}\">\n            <body>\n              <ST>{}</ST>\n            </body>\n          </transition>",
+            esc(&t.name),
+            xhtml(&text)
+        );
+    }
+    out.push_str("        </transitions>\n");
+    out.push_str("        <body>\n          <SFC>\n");
+    let order = Sfc::new(chart, program).write(out);
+    out.push_str("          </SFC>\n        </body>\n");
+    let _ = writeln!(
+        out,
+        "        <addData>\n          <data name=\"{ORDER_DATA}\" handleUnknown=\"discard\">\n            <order steps=\"{}\" transitions=\"{}\" actions=\"{}\"/>\n          </data>\n        </addData>",
+        esc(&order.steps),
+        order.transitions,
+        esc(&order.actions)
+    );
+    if !chart.pragmas.is_empty() {
+        let _ = writeln!(out, "        <documentation>{}</documentation>", xhtml(&pragmas_text(&chart.pragmas)));
+    }
+    out.push_str("      </pou>\n");
+}
+
+fn interface(out: &mut String, chart: &Chart) {
+    out.push_str("        <interface>\n");
+    // Consecutive declarations of one section and constancy share one list, in declaration order.
+    let mut i = 0;
+    while i < chart.vars.len() {
+        let (section, constant) = (chart.vars[i].section, chart.vars[i].constant);
+        let tag = match section {
+            VarSection::Local => "localVars",
+            VarSection::Input => "inputVars",
+            VarSection::Output => "outputVars",
+            VarSection::InOut => "inOutVars",
+            VarSection::External => "externalVars",
+            VarSection::Global => "globalVars",
+            VarSection::Temp => "tempVars",
+        };
+        let attr = if constant { " constant=\"true\"" } else { "" };
+        let _ = writeln!(out, "          <{tag}{attr}>");
+        while i < chart.vars.len() && chart.vars[i].section == section && chart.vars[i].constant == constant {
+            variable(out, &chart.vars[i]);
+            i += 1;
+        }
+        let _ = writeln!(out, "          </{tag}>");
+    }
+    out.push_str("        </interface>\n");
+}
+
+fn variable(out: &mut String, v: &VarDecl) {
+    let upper = v.type_name.name.to_ascii_uppercase();
+    let ty = match elementary(&upper) {
+        Some(e) => format!("<{e}/>"),
+        None => format!("<derived name=\"{}\"/>", esc(&v.type_name.name)),
+    };
+    let _ = write!(out, "            <variable name=\"{}\"><type>{ty}</type>", esc(&v.name.name));
+    if let Some(init) = &v.init {
+        let _ = write!(out, "<initialValue><simpleValue value=\"{}\"/></initialValue>", esc(&st::expr(init)));
+    } else if !v.members.is_empty() {
+        out.push_str("<initialValue><structValue>");
+        for (member, value) in &v.members {
+            let _ = write!(
+                out,
+                "<value member=\"{}\"><simpleValue value=\"{}\"/></value>",
+                esc(&member.name),
+                esc(&st::expr(value))
+            );
+        }
+        out.push_str("</structValue></initialValue>");
+    }
+    out.push_str("</variable>\n");
+}
+
+/// Baton's element order, as written to `ORDER_DATA`.
+struct Order {
+    steps: String,
+    /// The `localId`s of the transitions, in program order.
+    transitions: String,
+    actions: String,
+}
+
+/// The SFC body being laid out: element ids, rows and columns.
+struct Sfc<'a> {
+    chart: &'a Chart,
+    program: &'a Program,
+    next_id: u64,
+    /// Per step: its row and column.
+    at: Vec<(i64, i64)>,
+}
+
+impl<'a> Sfc<'a> {
+    fn new(chart: &'a Chart, program: &'a Program) -> Sfc<'a> {
+        Sfc { chart, program, next_id: 1, at: Vec::new() }
+    }
+
+    fn id(&mut self) -> u64 {
+        let id = self.next_id;
+        self.next_id += 1;
+        id
+    }
+
+    /// Rows by breadth-first distance from the initial steps (steps nothing reaches after them), columns in
+    /// order within a row.
+    fn lay_out(&mut self) {
+        let p = self.program;
+        let n = p.steps.len();
+        let mut row = vec![i64::MAX; n];
+        let mut queue = std::collections::VecDeque::new();
+        for &s in &p.initial_steps {
+            row[s.index()] = 0;
+            queue.push_back(s);
+        }
+        let mut next_root = 0;
+        loop {
+            while let Some(s) = queue.pop_front() {
+                for &t in p.outgoing(s) {
+                    for &u in p.targets(t) {
+                        if row[u.index()] == i64::MAX {
+                            row[u.index()] = row[s.index()] + 1;
+                            queue.push_back(u);
+                        }
+                    }
+                }
+            }
+            while next_root < n && row[next_root] != i64::MAX {
+                next_root += 1;
+            }
+            if next_root == n {
+                break;
+            }
+            let deepest = row.iter().filter(|&&r| r != i64::MAX).max().copied().unwrap_or(-1);
+            row[next_root] = deepest + 1;
+            queue.push_back(crate::exec::program::StepId(next_root as u32));
+        }
+        let mut columns: HashMap<i64, i64> = HashMap::new();
+        self.at = row
+            .iter()
+            .map(|&r| {
+                let c = columns.entry(r).or_insert(0);
+                *c += 1;
+                (r, *c - 1)
+            })
+            .collect();
+    }
+
+    fn xy(&self, s: usize) -> (i64, i64) {
+        let (r, c) = self.at[s];
+        (40 + c * COLUMN, 40 + r * ROW)
+    }
+
+    fn write(mut self, out: &mut String) -> Order {
+        self.lay_out();
+        let p = self.program;
+        let n = p.steps.len();
+        let step_id: Vec<u64> = (0..n).map(|_| self.id()).collect();
+        let transition_id: Vec<u64> = (0..p.transitions.len()).map(|_| self.id()).collect();
+        // Where a transition's input comes from for each of its sources, and where its targets' inputs come from.
+        let leaves = |s: usize| p.outgoing(crate::exec::program::StepId(s as u32)).len();
+        let mut selection_div: HashMap<usize, u64> = HashMap::new();
+        for s in 0..n {
+            if leaves(s) > 1 {
+                let id = self.id();
+                selection_div.insert(s, id);
+            }
+        }
+        let from_step = |s: usize| selection_div.get(&s).copied().unwrap_or(step_id[s]);
+        let mut elements = String::new();
+        // Steps (each with its input left as a mark, filled in once the transitions are laid out), their actions
+        // and their selection divergences.
+        let mut steps_text: Vec<String> = Vec::with_capacity(n);
+        for (s, info) in p.steps.iter().enumerate() {
+            let mut elements = String::new();
+            let (x, y) = self.xy(s);
+            let _ = writeln!(
+                elements,
+                "            <step localId=\"{}\" name=\"{}\" initialStep=\"{}\" height=\"{STEP_H}\" width=\"{STEP_W}\">",
+                step_id[s],
+                esc(&info.name),
+                info.initial
+            );
+            let _ = writeln!(elements, "              <position x=\"{x}\" y=\"{y}\"/>");
+            // The step's input: filled in below, once the transitions' ids are known.
+            let _ = writeln!(elements, "              @@IN{s}@@");
+            let _ = writeln!(
+                elements,
+                "              <connectionPointOut formalParameter=\"\"><relPosition x=\"{}\" y=\"{STEP_H}\"/></connectionPointOut>",
+                STEP_W / 2
+            );
+            let associations = self.associations(s);
+            if !associations.is_empty() {
+                let _ = writeln!(
+                    elements,
+                    "              <connectionPointOutAction formalParameter=\"\"><relPosition x=\"{STEP_W}\" y=\"{}\"/></connectionPointOutAction>",
+                    STEP_H / 2
+                );
+            }
+            if !info.pragmas.is_empty() {
+                let _ = writeln!(
+                    elements,
+                    "              <documentation>{}</documentation>",
+                    xhtml(&pragmas_text(&info.pragmas))
+                );
+            }
+            elements.push_str("            </step>\n");
+            if !associations.is_empty() {
+                let block = self.id();
+                let _ = writeln!(
+                    elements,
+                    "            <actionBlock localId=\"{block}\" width=\"200\" height=\"{}\">\n              <position x=\"{}\" y=\"{y}\"/>\n              <connectionPointIn><relPosition x=\"0\" y=\"{}\"/><connection refLocalId=\"{}\"/></connectionPointIn>",
+                    20 * associations.len().max(1),
+                    x + STEP_W + 30,
+                    STEP_H / 2,
+                    step_id[s]
+                );
+                elements.push_str(&associations);
+                elements.push_str("            </actionBlock>\n");
+            }
+            if let Some(&div) = selection_div.get(&s) {
+                let branches = leaves(s);
+                let _ = writeln!(
+                    elements,
+                    "            <selectionDivergence localId=\"{div}\" height=\"1\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>\n              <connectionPointIn><relPosition x=\"{}\" y=\"0\"/><connection refLocalId=\"{}\"/></connectionPointIn>",
+                    (branches as i64 - 1) * 60,
+                    y + STEP_H + 20,
+                    STEP_W / 2,
+                    step_id[s]
+                );
+                for b in 0..branches {
+                    let _ = writeln!(
+                        elements,
+                        "              <connectionPointOut formalParameter=\"\"><relPosition x=\"{}\" y=\"1\"/></connectionPointOut>",
+                        b as i64 * 60
+                    );
+                }
+                elements.push_str("            </selectionDivergence>\n");
+            }
+            steps_text.push(elements);
+        }
+        // Transitions, with the simultaneous convergences before and divergences after them.
+        let mut step_inputs: Vec<Vec<u64>> = vec![Vec::new(); n];
+        let rank_within = |t: usize| -> usize {
+            let sources = p.sources(TransitionId(t as u32));
+            sources.first().map_or(0, |s| p.outgoing(*s).iter().position(|&u| u.index() == t).unwrap_or(0))
+        };
+        for (t, &tid) in transition_id.iter().enumerate() {
+            let tr = TransitionId(t as u32);
+            let sources = p.sources(tr);
+            let targets = p.targets(tr);
+            let row = sources.iter().map(|s| self.at[s.index()].0).max().unwrap_or(0);
+            let (sx, sy) = sources.first().map_or((40, 40), |s| self.xy(s.index()));
+            let x = sx + rank_within(t) as i64 * 60;
+            let y = sy + STEP_H + 70;
+            let input = if sources.len() > 1 {
+                let conv = self.id();
+                let _ = writeln!(
+                    elements,
+                    "            <simultaneousConvergence localId=\"{conv}\" height=\"3\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>",
+                    (sources.len() as i64 - 1) * COLUMN,
+                    y - 30
+                );
+                for s in sources {
+                    let _ = writeln!(
+                        elements,
+                        "              <connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn>",
+                        from_step(s.index())
+                    );
+                }
+                elements.push_str("              <connectionPointOut/>\n            </simultaneousConvergence>\n");
+                conv
+            } else {
+                sources.first().map_or(0, |s| from_step(s.index()))
+            };
+            // The clearing order over the whole chart (which also orders a cycle's events), so that every
+            // transition has one: within a divergence it orders the branches for any tool.
+            let priority = format!(" priority=\"{}\"", p.rank(tr) + 1);
+            let tr = &self.chart.transitions[t];
+            let condition = match &tr.name {
+                Some(name) => format!("<reference name=\"{}\"/>", esc(&name.name)),
+                None => {
+                    let mut text = pragmas_text(&tr.pragmas);
+                    if !text.is_empty() {
+                        text.push(' ');
+                    }
+                    text.push_str(&st::expr(&tr.condition));
+                    format!("<inline name=\"\"><ST>{}</ST></inline>", xhtml(&text))
+                }
+            };
+            let _ = writeln!(
+                elements,
+                "            <transition localId=\"{tid}\" height=\"2\" width=\"20\"{priority}>\n              <position x=\"{}\" y=\"{y}\"/>\n              <connectionPointIn><relPosition x=\"10\" y=\"0\"/><connection refLocalId=\"{input}\"/></connectionPointIn>\n              <connectionPointOut><relPosition x=\"10\" y=\"2\"/></connectionPointOut>\n              <condition>{condition}</condition>\n            </transition>",
+                x + STEP_W / 2 - 10
+            );
+            let out_from = if targets.len() > 1 {
+                let div = self.id();
+                let _ = writeln!(
+                    elements,
+                    "            <simultaneousDivergence localId=\"{div}\" height=\"3\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>\n              <connectionPointIn><connection refLocalId=\"{tid}\"/></connectionPointIn>",
+                    (targets.len() as i64 - 1) * COLUMN,
+                    y + 30
+                );
+                for _ in targets {
+                    elements.push_str("              <connectionPointOut formalParameter=\"\"/>\n");
+                }
+                elements.push_str("            </simultaneousDivergence>\n");
+                div
+            } else {
+                tid
+            };
+            for u in targets {
+                if self.at[u.index()].0 > row {
+                    step_inputs[u.index()].push(out_from);
+                } else {
+                    let jump = self.id();
+                    let _ = writeln!(
+                        elements,
+                        "            <jumpStep localId=\"{jump}\" targetName=\"{}\" height=\"13\" width=\"12\">\n              <position x=\"{}\" y=\"{}\"/>\n              <connectionPointIn><relPosition x=\"6\" y=\"0\"/><connection refLocalId=\"{out_from}\"/></connectionPointIn>\n            </jumpStep>",
+                        esc(&p.steps[u.index()].name),
+                        x + STEP_W / 2 - 6,
+                        y + 60
+                    );
+                }
+            }
+        }
+        // Steps' inputs: one connection, or a selection convergence of several.
+        for (s, inputs) in step_inputs.iter().enumerate() {
+            let text = match inputs.as_slice() {
+                [] => String::new(),
+                [one] => format!(
+                    "<connectionPointIn><relPosition x=\"{}\" y=\"0\"/><connection refLocalId=\"{one}\"/></connectionPointIn>",
+                    STEP_W / 2
+                ),
+                many => {
+                    let conv = self.id();
+                    let (x, y) = self.xy(s);
+                    let _ = writeln!(
+                        elements,
+                        "            <selectionConvergence localId=\"{conv}\" height=\"1\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>",
+                        (many.len() as i64 - 1) * 60,
+                        y - 30
+                    );
+                    for i in many {
+                        let _ = writeln!(
+                            elements,
+                            "              <connectionPointIn><connection refLocalId=\"{i}\"/></connectionPointIn>"
+                        );
+                    }
+                    elements.push_str("              <connectionPointOut/>\n            </selectionConvergence>\n");
+                    format!(
+                        "<connectionPointIn><relPosition x=\"{}\" y=\"0\"/><connection refLocalId=\"{conv}\"/></connectionPointIn>",
+                        STEP_W / 2
+                    )
+                }
+            };
+            let mark = format!("              @@IN{s}@@\n");
+            let filled = if text.is_empty() { String::new() } else { format!("              {text}\n") };
+            out.push_str(&steps_text[s].replacen(&mark, &filled, 1));
+        }
+        out.push_str(&elements);
+        Order {
+            steps: p.steps.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join(" "),
+            transitions: transition_id.iter().map(|id| id.to_string()).collect::<Vec<_>>().join(" "),
+            actions: p.actions.iter().map(|a| a.name.as_str()).collect::<Vec<_>>().join(" "),
+        }
+    }
+
+    /// The `<action>` elements of step s's associations.
+    fn associations(&self, s: usize) -> String {
+        let step = &self.chart.steps[s];
+        let mut out = String::new();
+        for a in &step.associations {
+            let duration = match &a.duration {
+                Some(Duration::Literal { ms, .. }) => format!(" duration=\"T#{ms}ms\""),
+                Some(Duration::Var(v)) => format!(" duration=\"{}\"", esc(&v.name)),
+                None => String::new(),
+            };
+            let indicator = if a.indicators.is_empty() {
+                String::new()
+            } else {
+                let names: Vec<&str> = a.indicators.iter().map(|i| i.name.as_str()).collect();
+                format!(" indicator=\"{}\"", esc(&names.join(", ")))
+            };
+            let _ = writeln!(
+                out,
+                "              <action localId=\"0\" qualifier=\"{:?}\"{duration}{indicator}><relPosition x=\"0\" y=\"0\"/><reference name=\"{}\"/></action>",
+                a.qualifier,
+                esc(&a.action.name)
+            );
+        }
+        out
+    }
+}
