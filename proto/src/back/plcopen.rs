@@ -89,7 +89,14 @@ pub enum ExportError {
 
 /// A PLCopen project holding each chart with its program (a chart that compiled without errors).
 /// `created` is the file header's `creationDateTime` (`2026-12-01T12:00:00`): the caller's clock.
-pub fn export(charts: &[(&Chart, &Program)], project: &str, created: &str) -> Result<String, ExportError> {
+/// `library` holds the file's function blocks with ST bodies: those the charts instantiate (directly or through
+/// other blocks) are written too, before the charts.
+pub fn export(
+    charts: &[(&Chart, &Program)],
+    library: &[FbDef],
+    project: &str,
+    created: &str,
+) -> Result<String, ExportError> {
     for (_, program) in charts {
         if let Some(t) = (0..program.transitions.len()).find(|&t| !program.calls(TransitionId(t as u32)).is_empty()) {
             let transition = program.transitions[t].name.clone();
@@ -112,6 +119,9 @@ pub fn export(charts: &[(&Chart, &Program)], project: &str, created: &str) -> Re
         "    <coordinateInfo>\n      <fbd><scaling x=\"0\" y=\"0\"/></fbd>\n      <ld><scaling x=\"0\" y=\"0\"/></ld>\n      <sfc><scaling x=\"0\" y=\"0\"/></sfc>\n    </coordinateInfo>\n  </contentHeader>\n",
     );
     out.push_str("  <types>\n    <dataTypes/>\n    <pous>\n");
+    for def in used_blocks(charts, library) {
+        function_block(&mut out, def);
+    }
     for (chart, program) in charts {
         pou(&mut out, chart, program);
     }
@@ -125,7 +135,7 @@ fn pou(out: &mut String, chart: &Chart, program: &Program) {
         PouKind::Program | PouKind::Bare => "program",
     };
     let _ = writeln!(out, "      <pou name=\"{}\" pouType=\"{kind}\">", esc(&chart.name.name));
-    interface(out, chart);
+    interface(out, &chart.vars);
     let named: HashMap<String, &Action> = chart.actions.iter().map(|a| (a.name.key(), a)).collect();
     out.push_str("        <actions>\n");
     for a in &program.actions {
@@ -178,12 +188,39 @@ fn pou(out: &mut String, chart: &Chart, program: &Program) {
     out.push_str("      </pou>\n");
 }
 
-fn interface(out: &mut String, chart: &Chart) {
+/// The library's blocks that the charts instantiate, directly or through other blocks, in library order.
+fn used_blocks<'l>(charts: &[(&Chart, &Program)], library: &'l [FbDef]) -> Vec<&'l FbDef> {
+    let by_name: HashMap<String, usize> = library.iter().enumerate().map(|(i, d)| (d.name.key(), i)).collect();
+    let mut used = vec![false; library.len()];
+    let mut todo: Vec<usize> = charts
+        .iter()
+        .flat_map(|(c, _)| c.vars.iter())
+        .filter_map(|v| by_name.get(&v.type_name.key()).copied())
+        .collect();
+    while let Some(i) = todo.pop() {
+        if !std::mem::replace(&mut used[i], true) {
+            todo.extend(library[i].vars.iter().filter_map(|v| by_name.get(&v.type_name.key()).copied()));
+        }
+    }
+    library.iter().zip(used).filter(|(_, u)| *u).map(|(d, _)| d).collect()
+}
+
+fn function_block(out: &mut String, def: &FbDef) {
+    let _ = writeln!(out, "      <pou name=\"{}\" pouType=\"functionBlock\">", esc(&def.name.name));
+    interface(out, &def.vars);
+    let _ = writeln!(
+        out,
+        "        <body>\n          <ST>{}</ST>\n        </body>\n      </pou>",
+        xhtml(&st::statements(&def.body, 0))
+    );
+}
+
+fn interface(out: &mut String, vars: &[VarDecl]) {
     out.push_str("        <interface>\n");
     // Consecutive declarations of one section and constancy share one list, in declaration order.
     let mut i = 0;
-    while i < chart.vars.len() {
-        let (section, constant) = (chart.vars[i].section, chart.vars[i].constant);
+    while i < vars.len() {
+        let (section, constant) = (vars[i].section, vars[i].constant);
         let tag = match section {
             VarSection::Local => "localVars",
             VarSection::Input => "inputVars",
@@ -195,8 +232,8 @@ fn interface(out: &mut String, chart: &Chart) {
         };
         let attr = if constant { " constant=\"true\"" } else { "" };
         let _ = writeln!(out, "          <{tag}{attr}>");
-        while i < chart.vars.len() && chart.vars[i].section == section && chart.vars[i].constant == constant {
-            variable(out, &chart.vars[i]);
+        while i < vars.len() && vars[i].section == section && vars[i].constant == constant {
+            variable(out, &vars[i]);
             i += 1;
         }
         let _ = writeln!(out, "          </{tag}>");

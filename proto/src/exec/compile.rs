@@ -1,6 +1,7 @@
 //! Resolves a chart's names, type-checks its expressions and builds the `Program` the engine runs.
 
 use std::collections::HashMap;
+use std::sync::Arc;
 
 use crate::exec::eval::{eval, is_constant, NoEnv};
 use crate::exec::program::*;
@@ -16,7 +17,8 @@ pub struct Compiled {
     pub net_ok: bool,
 }
 
-pub fn compile(chart: &Chart, diags: &mut Vec<Diagnostic>) -> Compiled {
+/// Compiles a chart; `library` holds the function blocks with ST bodies that its instances may be of.
+pub fn compile(chart: &Chart, library: &[FbDef], diags: &mut Vec<Diagnostic>) -> Compiled {
     let mut c = Compiler {
         chart,
         diags,
@@ -25,8 +27,31 @@ pub fn compile(chart: &Chart, diags: &mut Vec<Diagnostic>) -> Compiled {
         actions: HashMap::new(),
         instances: HashMap::new(),
         loops: 0,
+        library: library.iter().map(|d| (d.name.key(), d)).collect(),
+        users: Vec::new(),
+        user_of: HashMap::new(),
+        declaring: Vec::new(),
+        reported: Vec::new(),
     };
     c.run()
+}
+
+/// An instance of a user function block: its parameters' variables, the names its body sees, its body.
+struct UserInstance<'a> {
+    def: &'a FbDef,
+    /// Inputs, outputs and in-outs in declaration order: (name as declared, section, variable).
+    params: Vec<(String, VarSection, VarId)>,
+    eno: VarId,
+    scope: Scope,
+    body: Arc<Vec<CStmt>>,
+}
+
+/// The names a body resolves: variables (and visible members, `T.Q`), standard and user instances.
+#[derive(Default)]
+struct Scope {
+    vars: HashMap<String, VarId>,
+    instances: HashMap<String, (StdFb, VarId)>,
+    users: HashMap<String, usize>,
 }
 
 /// The static type of an expression. `IntLit` is an integer literal, which fits any numeric type; `Err` follows
@@ -138,6 +163,14 @@ struct Compiler<'a> {
     instances: HashMap<String, (StdFb, VarId)>,
     /// Loops around the statements being compiled (EXIT needs one).
     loops: usize,
+    /// User function blocks by name; their instances (nested ones before those that hold them); the chart's
+    /// user instances by name; the blocks being declared (a block holding itself is an error); blocks whose
+    /// syntax errors were reported.
+    library: HashMap<String, &'a FbDef>,
+    users: Vec<UserInstance<'a>>,
+    user_of: HashMap<String, usize>,
+    declaring: Vec<String>,
+    reported: Vec<String>,
 }
 
 const FALSE: CExpr = CExpr::Const(Value::Bool(false));
@@ -150,6 +183,7 @@ impl<'a> Compiler<'a> {
     fn run(&mut self) -> Compiled {
         let chart = self.chart;
         let vars = self.declare_vars();
+        self.compile_user_bodies(&vars);
         let mut net_ok = true;
         let mut steps = Vec::with_capacity(chart.steps.len());
         // The chart element behind each id: duplicates get no id of their own.
@@ -186,12 +220,25 @@ impl<'a> Compiler<'a> {
     fn declare_vars(&mut self) -> Vec<VarInfo> {
         let mut vars = Vec::with_capacity(self.chart.vars.len());
         for decl in &self.chart.vars {
-            if self.vars.contains_key(&decl.name.key()) || self.instances.contains_key(&decl.name.key()) {
+            let key = decl.name.key();
+            if self.vars.contains_key(&key) || self.instances.contains_key(&key) || self.user_of.contains_key(&key) {
                 self.error(decl.name.span, format!("variable `{}` is declared twice", decl.name.name));
                 continue;
             }
             if let Some(fb) = StdFb::from_name(&decl.type_name.key()) {
                 self.declare_instance(decl, fb, &mut vars);
+                continue;
+            }
+            if let Some(&def) = self.library.get(&decl.type_name.key()) {
+                if let Some(u) = self.declare_user(decl, def, &decl.name.name, &mut vars) {
+                    for &(ref name, _, id) in &self.users[u].params {
+                        self.vars.insert(format!("{}.{}", decl.name.key(), name.to_ascii_uppercase()), id);
+                    }
+                    self.user_inits(u, decl, &mut vars);
+                    let eno = self.users[u].eno;
+                    self.vars.insert(format!("{}.ENO", decl.name.key()), eno);
+                    self.user_of.insert(decl.name.key(), u);
+                }
                 continue;
             }
             let ty = Type::from_name(&decl.type_name.key())
@@ -211,6 +258,163 @@ impl<'a> Compiler<'a> {
             });
         }
         vars
+    }
+
+    /// An instance of user block `def` named `path` (`m`, or `m.inner` inside another): a variable per
+    /// declaration of the block (inputs, outputs and in-outs visible as `m.NAME`, the rest hidden), nested
+    /// instances, and ENO. Its body is compiled once every variable of the chart is declared.
+    fn declare_user(&mut self, decl: &VarDecl, def: &'a FbDef, path: &str, vars: &mut Vec<VarInfo>) -> Option<usize> {
+        let key = def.name.key();
+        if self.declaring.contains(&key) {
+            let message = format!(
+                "function block `{}` contains an instance of itself (through `{path}`): instances cannot nest for ever",
+                def.name.name
+            );
+            self.error(decl.name.span, message);
+            return None;
+        }
+        if !def.problems.is_empty() && !self.reported.contains(&key) {
+            self.reported.push(key.clone());
+            self.diags.extend(def.problems.iter().cloned());
+        }
+        self.declaring.push(key);
+        let mut scope = Scope::default();
+        let mut params = Vec::new();
+        for d in &def.vars {
+            let inner = format!("{path}.{}", d.name.name);
+            if let Some(fb) = StdFb::from_name(&d.type_name.key()) {
+                let base = VarId(vars.len() as u32);
+                for m in fb.members() {
+                    let id = VarId(vars.len() as u32);
+                    if m.kind != MemberKind::State {
+                        scope.vars.insert(format!("{}.{}", d.name.key(), m.name), id);
+                    }
+                    vars.push(VarInfo {
+                        name: format!("{inner}.{}", m.name),
+                        init: m.ty.default_value(),
+                        ty: m.ty,
+                        constant: false,
+                        section: VarSection::Local,
+                        hidden: true,
+                    });
+                }
+                for (name, value) in &d.members {
+                    match fb
+                        .members()
+                        .iter()
+                        .position(|m| m.kind == MemberKind::Input && m.name.eq_ignore_ascii_case(&name.name))
+                    {
+                        Some(i) => {
+                            let ty = vars[base.index() + i].ty.clone();
+                            vars[base.index() + i].init = self.initial_value(value, &ty);
+                        }
+                        None => self.error(name.span, format!("{} has no input `{}`", fb.name(), name.name)),
+                    }
+                }
+                scope.instances.insert(d.name.key(), (fb, base));
+                continue;
+            }
+            if let Some(&inner_def) = self.library.get(&d.type_name.key()) {
+                if let Some(u) = self.declare_user(d, inner_def, &inner, vars) {
+                    self.user_inits(u, d, vars);
+                    for &(ref name, _, id) in &self.users[u].params {
+                        scope.vars.insert(format!("{}.{}", d.name.key(), name.to_ascii_uppercase()), id);
+                    }
+                    scope.vars.insert(format!("{}.ENO", d.name.key()), self.users[u].eno);
+                    scope.users.insert(d.name.key(), u);
+                }
+                continue;
+            }
+            if d.section == VarSection::External {
+                // Resolved to the chart's variable of that name when the body is compiled.
+                continue;
+            }
+            let ty = Type::from_name(&d.type_name.key())
+                .unwrap_or_else(|| Type::Unsupported(d.type_name.name.to_ascii_uppercase()));
+            let init = match &d.init {
+                Some(e) => self.initial_value(e, &ty),
+                None => ty.default_value(),
+            };
+            let id = VarId(vars.len() as u32);
+            let visible = matches!(d.section, VarSection::Input | VarSection::Output | VarSection::InOut);
+            scope.vars.insert(d.name.key(), id);
+            if visible {
+                params.push((d.name.name.clone(), d.section, id));
+            }
+            vars.push(VarInfo { name: inner, ty, init, constant: d.constant, section: d.section, hidden: !visible });
+        }
+        let eno = VarId(vars.len() as u32);
+        vars.push(VarInfo {
+            name: format!("{path}.ENO"),
+            ty: Type::Bool,
+            init: Value::Bool(false),
+            constant: false,
+            section: VarSection::Output,
+            hidden: false,
+        });
+        self.declaring.pop();
+        self.users.push(UserInstance { def, params, eno, scope, body: Arc::new(Vec::new()) });
+        Some(self.users.len() - 1)
+    }
+
+    /// A user instance's initial inputs from its declaration, `m : Motor := (speed := 10)`.
+    fn user_inits(&mut self, u: usize, decl: &VarDecl, vars: &mut [VarInfo]) {
+        for (name, value) in &decl.members {
+            let param = self.users[u].params.iter().find(|p| p.0.eq_ignore_ascii_case(&name.name)).cloned();
+            match param {
+                Some((_, VarSection::Input | VarSection::Output, id)) => {
+                    let ty = vars[id.index()].ty.clone();
+                    vars[id.index()].init = self.initial_value(value, &ty);
+                }
+                _ => {
+                    let message = format!(
+                        "function block `{}` has no input `{}` to initialise",
+                        self.users[u].def.name.name, name.name
+                    );
+                    self.error(name.span, message);
+                }
+            }
+        }
+    }
+
+    /// Compiles every user instance's body in its own scope (nested instances first, so that calls of them
+    /// find their bodies compiled).
+    fn compile_user_bodies(&mut self, vars: &[VarInfo]) {
+        let chart_vars = self.vars.clone();
+        for u in 0..self.users.len() {
+            let def = self.users[u].def;
+            let mut names = std::mem::take(&mut self.users[u].scope.vars);
+            for d in def.vars.iter().filter(|d| d.section == VarSection::External) {
+                match chart_vars.get(&d.name.key()) {
+                    Some(&id) => {
+                        names.insert(d.name.key(), id);
+                    }
+                    None => {
+                        let message = format!(
+                            "`{}` is VAR_EXTERNAL in function block `{}`, and chart `{}` declares no variable of that name",
+                            d.name.name, def.name.name, self.chart.name.name
+                        );
+                        self.error(d.name.span, message);
+                    }
+                }
+            }
+            let saved = (
+                std::mem::replace(&mut self.vars, names),
+                std::mem::take(&mut self.instances),
+                std::mem::take(&mut self.user_of),
+                std::mem::take(&mut self.steps),
+                std::mem::take(&mut self.actions),
+            );
+            self.instances = std::mem::take(&mut self.users[u].scope.instances);
+            self.user_of = std::mem::take(&mut self.users[u].scope.users);
+            let body = self.statements(&def.body, vars);
+            self.users[u].scope.vars = std::mem::replace(&mut self.vars, saved.0);
+            self.users[u].scope.instances = std::mem::replace(&mut self.instances, saved.1);
+            self.users[u].scope.users = std::mem::replace(&mut self.user_of, saved.2);
+            self.steps = saved.3;
+            self.actions = saved.4;
+            self.users[u].body = Arc::new(body);
+        }
     }
 
     /// An instance of a standard block: one variable per member, named `instance.MEMBER`.
@@ -649,6 +853,23 @@ impl<'a> Compiler<'a> {
                 };
                 (id, name)
             }
+            ExprKind::Field(base, field) if self.user_of.contains_key(&base.key()) => {
+                let u = self.user_of[&base.key()];
+                let param = self.users[u].params.iter().find(|p| p.0.eq_ignore_ascii_case(&field.name)).cloned();
+                match param {
+                    Some((_, VarSection::Input | VarSection::InOut, id)) => (id, base),
+                    Some(_) => {
+                        let message = format!("`{}.{}` is an output: only the block writes it", base.name, field.name);
+                        self.error(target.span, message);
+                        return None;
+                    }
+                    None => {
+                        let message = format!("`{}` has no input `{}`", base.name, field.name);
+                        self.error(field.span, message);
+                        return None;
+                    }
+                }
+            }
             ExprKind::Field(base, field) => {
                 let Some(&(fb, inst_base)) = self.instances.get(&base.key()) else {
                     if !self.chart.broken.var(&base.key()) {
@@ -716,6 +937,9 @@ impl<'a> Compiler<'a> {
 
     /// A call of a standard function block instance as a statement.
     fn fb_call(&mut self, callee: &Ident, args: &[Arg], span: Span, vars: &[VarInfo]) -> Option<CStmt> {
+        if let Some(&u) = self.user_of.get(&callee.key()) {
+            return self.user_call(u, callee, args, vars);
+        }
         let Some(&(fb, base)) = self.instances.get(&callee.key()) else {
             let message = if StdFb::from_name(&callee.key()).is_some() {
                 format!(
@@ -852,9 +1076,140 @@ impl<'a> Compiler<'a> {
         ok.then_some(CStmt::Fb { fb, base, en, inputs, outputs })
     }
 
+    /// A call of a user function block instance: formal or non-formal inputs and in-outs (in declaration
+    /// order), outputs with `=>`, EN and ENO.
+    fn user_call(&mut self, u: usize, callee: &Ident, args: &[Arg], vars: &[VarInfo]) -> Option<CStmt> {
+        let def_name = self.users[u].def.name.name.clone();
+        let params = self.users[u].params.clone();
+        let eno = self.users[u].eno;
+        let positional_params: Vec<usize> = (0..params.len()).filter(|&i| params[i].1 != VarSection::Output).collect();
+        let formal = args.iter().any(|a| a.name.is_some());
+        let (mut en, mut inputs, mut inouts, mut outputs) = (None, Vec::new(), Vec::new(), Vec::new());
+        let mut ok = true;
+        let mut positional = 0;
+        let list = || params.iter().map(|p| p.0.clone()).collect::<Vec<_>>().join(", ");
+        for arg in args {
+            if formal && arg.name.is_none() {
+                self.error(arg.span, "a call mixes formal (`IN := x`) and non-formal arguments: name every argument");
+                ok = false;
+                continue;
+            }
+            let index = match &arg.name {
+                Some(n) if n.key() == "EN" => {
+                    en = Some(self.condition(&arg.value, vars, "EN"));
+                    continue;
+                }
+                Some(n) if n.key() == "ENO" && arg.output => {
+                    if let Some(target) = self.place(&arg.value, vars) {
+                        outputs.push(FbOutput { member: eno, target, negated: arg.negated });
+                    }
+                    continue;
+                }
+                Some(n) => match params.iter().position(|p| p.0.eq_ignore_ascii_case(&n.name)) {
+                    Some(i) => i,
+                    None => {
+                        let message =
+                            format!("function block `{def_name}` has no parameter `{}` (it has {})", n.name, list());
+                        self.error(n.span, message);
+                        ok = false;
+                        continue;
+                    }
+                },
+                None => match positional_params.get(positional) {
+                    Some(&i) => {
+                        positional += 1;
+                        i
+                    }
+                    None => {
+                        let message =
+                            format!("too many arguments: `{def_name}` takes {} inputs", positional_params.len());
+                        self.error(arg.span, message);
+                        ok = false;
+                        continue;
+                    }
+                },
+            };
+            let (name, section, id) = params[index].clone();
+            match (section, arg.output) {
+                (VarSection::Output, true) => {
+                    let Some(target) = self.place(&arg.value, vars) else {
+                        ok = false;
+                        continue;
+                    };
+                    if !assignable(Ty::of(&vars[target.index()].ty), Ty::of(&vars[id.index()].ty)) {
+                        let message = format!(
+                            "`{name}` is {} and cannot be written to `{}`, which is {}",
+                            vars[id.index()].ty,
+                            vars[target.index()].name,
+                            vars[target.index()].ty
+                        );
+                        self.error(arg.value.span, message);
+                        ok = false;
+                        continue;
+                    }
+                    outputs.push(FbOutput { member: id, target, negated: arg.negated });
+                }
+                (VarSection::Output, false) => {
+                    self.error(arg.span, format!("`{name}` is an output of `{def_name}`: write `{name} => variable`"));
+                    ok = false;
+                }
+                (VarSection::InOut, false) => {
+                    let Some(caller) = self.place(&arg.value, vars) else {
+                        ok = false;
+                        continue;
+                    };
+                    if vars[caller.index()].ty != vars[id.index()].ty {
+                        let message = format!(
+                            "in-out `{name}` of `{def_name}` is {}, and `{}` is {}",
+                            vars[id.index()].ty,
+                            vars[caller.index()].name,
+                            vars[caller.index()].ty
+                        );
+                        self.error(arg.value.span, message);
+                        ok = false;
+                        continue;
+                    }
+                    inouts.push((id, caller));
+                }
+                (_, true) => {
+                    self.error(arg.span, format!("`{name}` is an input of `{def_name}`: write `{name} := value`"));
+                    ok = false;
+                }
+                (_, false) => {
+                    let (mut value, mut ty) = self.expr(&arg.value, vars);
+                    let target = Ty::of(&vars[id.index()].ty);
+                    if target == Ty::Bool {
+                        if let ExprKind::Int(v @ (0 | 1)) = arg.value.kind {
+                            (value, ty) = (CExpr::Const(Value::Bool(v == 1)), Ty::Bool);
+                        }
+                    }
+                    if !assignable(target, ty) {
+                        let message =
+                            format!("input `{name}` of `{def_name}` is {}, found {}", vars[id.index()].ty, ty.name());
+                        self.error(arg.value.span, message);
+                        ok = false;
+                        continue;
+                    }
+                    inputs.push((id, value));
+                }
+            }
+        }
+        let _ = callee;
+        let body = Arc::clone(&self.users[u].body);
+        ok.then(|| CStmt::UserFb(Box::new(UserCall { body, en, inputs, inouts, outputs, eno })))
+    }
+
     /// A standard function call in an expression.
     fn call(&mut self, e: &Expr, callee: &Ident, args: &[Arg], vars: &[VarInfo]) -> (CExpr, Ty) {
         let key = callee.key();
+        if let Some(&u) = self.user_of.get(&key) {
+            let message = format!(
+                "`{}` is a `{}` instance: call it as a statement in an action (`{}(…);`) and read its outputs here",
+                callee.name, self.users[u].def.name.name, callee.name
+            );
+            self.error(callee.span, message);
+            return (FALSE, Ty::Err);
+        }
         if let Some((fb, _)) = self.instances.get(&key) {
             let message = format!(
                 "`{}` is a {} instance: call it as a statement in an action (`{}(…);`) and read its outputs here (`{}.Q`)",
@@ -1098,7 +1453,7 @@ impl<'a> Compiler<'a> {
             ExprKind::Real(v) => (CExpr::Const(Value::Real(*v)), Ty::Real { long: false }),
             ExprKind::Time(v) => (CExpr::Const(Value::Time(*v)), Ty::Time),
             ExprKind::Name(name) => self.name(name, vars),
-            ExprKind::Field(base, field) => self.field(base, field),
+            ExprKind::Field(base, field) => self.field(base, field, vars),
             ExprKind::Call(callee, args) => self.call(e, callee, args, vars),
             ExprKind::Unary(op, a) => {
                 let (ca, ta) = self.expr(a, vars);
@@ -1182,6 +1537,11 @@ impl<'a> Compiler<'a> {
             format!("`{}` is a step: write `{}.X` for its active flag", name.name, name.name)
         } else if let Some((fb, _)) = self.instances.get(&name.key()) {
             format!("`{}` is a {} instance: read one of its outputs, such as `{}.Q`", name.name, fb.name(), name.name)
+        } else if let Some(&u) = self.user_of.get(&name.key()) {
+            format!(
+                "`{}` is a `{}` instance: read one of its outputs (`{}.NAME`)",
+                name.name, self.users[u].def.name.name, name.name
+            )
         } else if self.chart.broken.var(&name.key()) {
             return (FALSE, Ty::Err);
         } else {
@@ -1191,8 +1551,32 @@ impl<'a> Compiler<'a> {
         (FALSE, Ty::Err)
     }
 
-    fn field(&mut self, base: &Ident, field: &Ident) -> (CExpr, Ty) {
+    fn field(&mut self, base: &Ident, field: &Ident, vars: &[VarInfo]) -> (CExpr, Ty) {
         let step_field = matches!(field.key().as_str(), "X" | "T") && self.steps.contains_key(&base.key());
+        if let Some(&u) = self.user_of.get(&base.key()).filter(|_| !step_field) {
+            return match self.vars.get(&format!("{}.{}", base.key(), field.key())) {
+                Some(&id) => match vars.get(id.index()) {
+                    Some(v) => (CExpr::Var(id), Ty::of(&v.ty)),
+                    None => {
+                        self.error(base.span, format!("`{}` is an instance, and a constant is needed here", base.name));
+                        (FALSE, Ty::Err)
+                    }
+                },
+                None => {
+                    let def = self.users[u].def;
+                    let names: Vec<String> = self.users[u].params.iter().map(|p| p.0.clone()).collect();
+                    let message = format!(
+                        "function block `{}` has no parameter `{}`: `{}` has {} and ENO",
+                        def.name.name,
+                        field.name,
+                        base.name,
+                        names.join(", ")
+                    );
+                    self.error(field.span, message);
+                    (FALSE, Ty::Err)
+                }
+            };
+        }
         if let Some(&(fb, inst)) = self.instances.get(&base.key()).filter(|_| !step_field) {
             return match self.member(fb, inst, base, field) {
                 Some(id) => {

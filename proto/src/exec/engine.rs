@@ -926,7 +926,7 @@ mod tests {
             END_PROGRAM";
         let parsed = crate::front::parser::parse(src);
         let mut diags = Vec::new();
-        let compiled = crate::exec::compile::compile(&parsed.charts[0], &mut diags);
+        let compiled = crate::exec::compile::compile(&parsed.charts[0], &parsed.library, &mut diags);
         assert!(diags.is_empty(), "{diags:?}");
         let mut engine = Engine::new(Arc::new(compiled.program));
         let mut faults = Vec::new();

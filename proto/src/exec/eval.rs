@@ -258,6 +258,34 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
                 }
                 Flow::Next
             }
+            CStmt::UserFb(call) => {
+                for (member, value) in &call.inputs {
+                    let v = eval(value, env)?;
+                    env.set_var(*member, v);
+                }
+                for &(member, caller) in &call.inouts {
+                    let v = env.var(caller);
+                    env.set_var(member, v);
+                }
+                let enabled = match &call.en {
+                    Some(e) => eval(e, env)?.as_bool(),
+                    None => true,
+                };
+                if enabled {
+                    // RETURN ends the block's body, not the caller's.
+                    exec(&call.body, env, budget)?;
+                }
+                env.set_var(call.eno, Value::Bool(enabled));
+                for &(member, caller) in &call.inouts {
+                    let v = env.var(member);
+                    env.set_var(caller, v);
+                }
+                for out in &call.outputs {
+                    let v = env.var(out.member);
+                    env.set_var(out.target, if out.negated { Value::Bool(!v.as_bool()) } else { v });
+                }
+                Flow::Next
+            }
             CStmt::Case { selector, arms, otherwise } => {
                 let k = eval(selector, env)?.as_i64();
                 let arm = arms.iter().find(|(labels, _)| labels.iter().any(|&(lo, hi)| lo <= k && k <= hi));

@@ -237,6 +237,9 @@ pub enum CStmt {
         inputs: Vec<(VarId, CExpr)>,
         outputs: Vec<FbOutput>,
     },
+    /// A call of a user function block instance: inputs assigned, in-outs copied in, the instance's body run
+    /// (when `en` is absent or TRUE), ENO set, in-outs copied back, outputs copied out.
+    UserFb(Box<UserCall>),
     /// Arms in order; an arm's labels are inclusive ranges of selector values.
     Case {
         selector: CExpr,
@@ -289,6 +292,21 @@ pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl 
                 }
                 outputs.iter().for_each(|o| write(o.target));
             }
+            CStmt::UserFb(call) => {
+                call.en.iter().for_each(&mut *read);
+                for (member, e) in &call.inputs {
+                    write(*member);
+                    read(e);
+                }
+                for &(member, caller) in &call.inouts {
+                    write(member);
+                    write(caller);
+                    read(&CExpr::Var(caller));
+                }
+                walk_body(&call.body, write, read);
+                write(call.eno);
+                call.outputs.iter().for_each(|o| write(o.target));
+            }
             CStmt::Case { selector, arms, otherwise } => {
                 read(selector);
                 arms.iter().for_each(|(_, b)| walk_body(b, write, read));
@@ -309,6 +327,18 @@ pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl 
             CStmt::Exit | CStmt::Return => {}
         }
     }
+}
+
+#[derive(Clone, Debug)]
+pub struct UserCall {
+    /// The instance's body, compiled for its variables (shared by every call of the instance).
+    pub body: std::sync::Arc<Vec<CStmt>>,
+    pub en: Option<CExpr>,
+    pub inputs: Vec<(VarId, CExpr)>,
+    /// (the instance's variable, the caller's): copied in before the body, back after it.
+    pub inouts: Vec<(VarId, VarId)>,
+    pub outputs: Vec<FbOutput>,
+    pub eno: VarId,
 }
 
 /// One CASE arm: its labels as inclusive ranges, and its body.

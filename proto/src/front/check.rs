@@ -20,6 +20,8 @@ pub struct CheckedChart {
 
 pub struct Report {
     pub charts: Vec<CheckedChart>,
+    /// The file's function blocks with ST bodies, which its charts may instantiate.
+    pub library: Vec<crate::front::model::FbDef>,
     /// In source order.
     pub diagnostics: Vec<Diagnostic>,
 }
@@ -33,7 +35,11 @@ impl Report {
 pub fn check_source(src: &str) -> Report {
     if src.len() > SOURCE_BYTES_MAX {
         let message = format!("the file is larger than {} MiB", SOURCE_BYTES_MAX >> 20);
-        return Report { charts: Vec::new(), diagnostics: vec![Diagnostic::error(Span::default(), message)] };
+        return Report {
+            charts: Vec::new(),
+            library: Vec::new(),
+            diagnostics: vec![Diagnostic::error(Span::default(), message)],
+        };
     }
     let xml = plcopen::looks_like_xml(src);
     let parsed = if xml { plcopen::parse(src) } else { parse(src) };
@@ -59,7 +65,7 @@ pub fn check_source(src: &str) -> Report {
             continue;
         }
         let mut own = Vec::new();
-        let compiled = compile(&chart, &mut own);
+        let compiled = compile(&chart, &parsed.library, &mut own);
         // After a syntax error the net is not the one the author drew: what the analysis would say of it is noise.
         if compiled.net_ok && !parse_errors && !compiled.program.initial_steps.is_empty() {
             for finding in analyse(&compiled.program) {
@@ -86,7 +92,7 @@ pub fn check_source(src: &str) -> Report {
         diagnostics.truncate(DIAGNOSTICS_MAX);
         diagnostics.push(Diagnostic::error(last, format!("{more} more problems not shown")));
     }
-    Report { charts, diagnostics }
+    Report { charts, library: parsed.library, diagnostics }
 }
 
 /// Whether the chart's own pragmas (those before its first element) accept a net whose safety is not proven.

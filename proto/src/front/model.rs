@@ -49,6 +49,18 @@ pub struct Chart {
     pub broken: Broken,
 }
 
+/// A function block with a Structured Text body, declared in the same file as the charts that use it. Its syntax
+/// errors are kept, not reported, until a chart declares an instance of it: a project file may hold blocks that
+/// no chart uses, in constructs Baton does not read.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FbDef {
+    pub name: Ident,
+    pub vars: Vec<VarDecl>,
+    pub body: Vec<Stmt>,
+    pub problems: Vec<crate::front::diag::Diagnostic>,
+    pub span: Span,
+}
+
 /// What a syntax error took out of a chart: the names (keys) of the elements it was in, so that what follows from
 /// their absence — an unknown step, action or variable, a chart without an initial step — is not reported as
 /// another error, as rustc does.

@@ -10,6 +10,8 @@ use crate::limits::{BRANCHES_MAX, NESTING_DEPTH_MAX};
 
 pub struct Parsed {
     pub charts: Vec<Chart>,
+    /// Function blocks with ST bodies, which charts of the file may instantiate.
+    pub library: Vec<FbDef>,
     pub diagnostics: Vec<Diagnostic>,
 }
 
@@ -24,10 +26,11 @@ pub fn parse(src: &str) -> Parsed {
         depth: 0,
         in_case: 0,
         broken_vars: Broken::default(),
+        library: Vec::new(),
     };
     let mut charts = p.file();
     attach_pragmas(src, &mut charts, &lexed.pragmas);
-    Parsed { charts, diagnostics: p.diags }
+    Parsed { charts, library: p.library, diagnostics: p.diags }
 }
 
 /// What a piece of Structured Text found in another format (a PLCopen XML body) must be.
@@ -84,6 +87,7 @@ pub fn parse_fragment(text: &str, at: impl Fn(usize) -> usize, kind: FragmentKin
         depth: 0,
         in_case: 0,
         broken_vars: Broken::default(),
+        library: Vec::new(),
     };
     let fragment = p.fragment(kind).ok();
     ParsedFragment { fragment, pragmas, diagnostics: p.diags }
@@ -106,6 +110,8 @@ struct Parser<'a> {
     in_case: usize,
     /// Declarations a syntax error took out, for the chart they belong to.
     broken_vars: Broken,
+    /// Function blocks with ST bodies read so far.
+    library: Vec<FbDef>,
 }
 
 fn is_element_start(tok: Tok) -> bool {
@@ -321,7 +327,31 @@ impl Parser<'_> {
             } else if tok == Tok::Kw(end) || tok == Tok::Eof {
                 break;
             } else if chart.steps.is_empty() && chart.transitions.is_empty() && chart.actions.is_empty() {
-                // A body in another language: this POU is not a chart.
+                // A body in another language: this POU is not a chart. A function block's ST body is kept for
+                // the charts that instantiate it, its errors with it.
+                if kind == PouKind::FunctionBlock {
+                    let outer = std::mem::take(&mut self.diags);
+                    let body = self.statements();
+                    if body.is_err() || self.peek() != Tok::Kw(end) {
+                        if !self.diags.iter().any(|d| d.is_error()) {
+                            self.error_here(&format!("a statement or `{}`", end.text()));
+                        }
+                        self.recover(end, |_| false);
+                    } else {
+                        self.bump();
+                        self.eat(Tok::Semi);
+                    }
+                    let problems = std::mem::replace(&mut self.diags, outer);
+                    self.broken_vars = outside;
+                    self.library.push(FbDef {
+                        name: chart.name,
+                        vars: chart.vars,
+                        body: body.unwrap_or_default(),
+                        problems,
+                        span: start.to(self.prev_span()),
+                    });
+                    return None;
+                }
                 self.recover(end, |_| false);
                 return None;
             } else {
@@ -340,6 +370,18 @@ impl Parser<'_> {
             !chart.steps.is_empty() || !chart.transitions.is_empty() || !broken.steps.is_empty() || broken.unnamed_step;
         if closing.is_ok() {
             self.eat(Tok::Semi);
+        }
+        if !has_sfc && kind == PouKind::FunctionBlock {
+            // A block with declarations and no body at all.
+            let span = chart.span;
+            self.library.push(FbDef {
+                name: chart.name,
+                vars: chart.vars,
+                body: Vec::new(),
+                problems: Vec::new(),
+                span,
+            });
+            return None;
         }
         has_sfc.then_some(chart)
     }
@@ -404,7 +446,10 @@ impl Parser<'_> {
             if self.eat(Tok::Assign) {
                 init = Some(self.expr()?);
             }
-        } else if crate::exec::stdlib::StdFb::from_name(&type_name.key()).is_some() && self.peek() == Tok::Assign {
+        } else if self.peek() == Tok::Assign
+            && (self.peek_at(1) == Tok::LParen || crate::exec::stdlib::StdFb::from_name(&type_name.key()).is_some())
+        {
+            // An instance's (or a structure's) initial members: `:= (PT := T#2s)`.
             self.bump();
             if self.peek() != Tok::LParen {
                 let span = self.span();
@@ -672,6 +717,7 @@ impl Parser<'_> {
                 }
                 Tok::Kw(
                     Kw::EndAction
+                    | Kw::EndFunctionBlock
                     | Kw::Elsif
                     | Kw::Else
                     | Kw::EndIf

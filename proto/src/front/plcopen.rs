@@ -41,7 +41,11 @@ pub fn parse(src: &str) -> Parsed {
         Err(e) => {
             let at = offset_of(src, e.pos());
             let message = format!("malformed XML: {}", strip_position(&e.to_string()));
-            return Parsed { charts: Vec::new(), diagnostics: vec![Diagnostic::error(Span::new(at, at + 1), message)] };
+            return Parsed {
+                charts: Vec::new(),
+                library: Vec::new(),
+                diagnostics: vec![Diagnostic::error(Span::new(at, at + 1), message)],
+            };
         }
     };
     let mut reader = Reader {
@@ -51,13 +55,14 @@ pub fn parse(src: &str) -> Parsed {
         calls: Vec::new(),
         called: HashSet::new(),
         references: HashMap::new(),
+        library: Vec::new(),
     };
     let root = doc.root_element();
     if root.tag_name().name() != "project" {
         let message =
             format!("not a PLCopen TC6 file: the root element is `<{}>`, expected `<project>`", root.tag_name().name());
         reader.diags.push(Diagnostic::error(reader.tag_span(root), message));
-        return Parsed { charts: Vec::new(), diagnostics: reader.diags };
+        return Parsed { charts: Vec::new(), library: Vec::new(), diagnostics: reader.diags };
     }
     match root.tag_name().namespace() {
         Some(ns) if NAMESPACES.contains(&ns) => {}
@@ -72,7 +77,7 @@ pub fn parse(src: &str) -> Parsed {
     }
     // POUs under types/pous, and those that TwinCAT and CODESYS keep in project-level addData.
     let charts = root.descendants().filter(|n| is(n, "pou")).filter_map(|pou| reader.pou(pou)).collect();
-    Parsed { charts, diagnostics: reader.diags }
+    Parsed { charts, library: reader.library, diagnostics: reader.diags }
 }
 
 /// roxmltree ends its messages with ` at LINE:COL`, which the diagnostic header already says.
@@ -146,6 +151,8 @@ struct Reader<'s> {
     called: HashSet<u64>,
     /// How many SFC transitions of the body being read refer to each named transition.
     references: HashMap<String, usize>,
+    /// Function blocks with ST bodies.
+    library: Vec<FbDef>,
 }
 
 impl Reader<'_> {
@@ -258,7 +265,10 @@ impl Reader<'_> {
     }
 
     fn pou(&mut self, pou: Node) -> Option<Chart> {
-        let sfc = child(pou, "body").and_then(|b| child(b, "SFC"))?;
+        let Some(sfc) = child(pou, "body").and_then(|b| child(b, "SFC")) else {
+            self.function_block(pou);
+            return None;
+        };
         let kind = match pou.attribute("pouType") {
             Some("program") => PouKind::Program,
             Some("functionBlock") => PouKind::FunctionBlock,
@@ -299,6 +309,38 @@ impl Reader<'_> {
             None => walk_order(&mut chart),
         }
         Some(chart)
+    }
+
+    /// A function block POU with an ST body (or none), kept for the charts that instantiate it; its errors are
+    /// kept with it until one does.
+    fn function_block(&mut self, pou: Node) {
+        if pou.attribute("pouType") != Some("functionBlock") {
+            return;
+        }
+        let Some(name) = pou.attribute("name").map(str::trim).filter(|n| !n.is_empty()) else { return };
+        let name = Ident { name: name.to_string(), span: self.attr_span(pou, "name") };
+        let outer = std::mem::take(&mut self.diags);
+        let vars = self.interface(pou);
+        let body = match child(pou, "body").and_then(|b| b.first_element_child()) {
+            None => Some(Vec::new()),
+            Some(st) if is(&st, "ST") => match self.fragment(st, FragmentKind::Statements).0 {
+                Some(Fragment::Statements(body)) => Some(body),
+                _ => None,
+            },
+            Some(other) => {
+                let message = format!(
+                    "function block `{}` has a `<{}>` body: Baton runs function blocks written in ST",
+                    name.name,
+                    other.tag_name().name()
+                );
+                self.error(self.tag_span(other), message);
+                None
+            }
+        };
+        let problems = std::mem::replace(&mut self.diags, outer);
+        let range = pou.range();
+        let span = Span::new(range.start, range.end);
+        self.library.push(FbDef { name, vars, body: body.unwrap_or_default(), problems, span });
     }
 
     fn interface(&mut self, pou: Node) -> Vec<VarDecl> {
