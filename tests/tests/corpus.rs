@@ -114,7 +114,7 @@ fn trace(p: baton_proto::exec::program::Program) -> Vec<String> {
     let mut script = String::new();
     let mut t = 0;
     for round in 0..4 {
-        for v in p.vars.iter().filter(|v| !v.constant) {
+        for v in p.vars.iter().filter(|v| !v.constant && !v.hidden) {
             let value = match v.ty {
                 Type::Bool => serde_json::json!(round % 2 == 0),
                 Type::Int(_) => serde_json::json!(round),

@@ -55,6 +55,14 @@ fn elementary(upper: &str) -> Option<&'static str> {
     })
 }
 
+/// The TC6 element of a type: elementary, or derived by name.
+fn type_element(name: &str) -> String {
+    match elementary(&name.to_ascii_uppercase()) {
+        Some(e) => format!("<{e}/>"),
+        None => format!("<derived name=\"{}\"/>", esc(name)),
+    }
+}
+
 /// Escapes text for an attribute value or element content.
 fn esc(s: &str) -> String {
     let mut out = String::with_capacity(s.len());
@@ -89,16 +97,18 @@ pub enum ExportError {
 
 /// A PLCopen project holding each chart with its program (a chart that compiled without errors).
 /// `created` is the file header's `creationDateTime` (`2026-12-01T12:00:00`): the caller's clock.
-/// `library` holds the file's function blocks with ST bodies: those the charts instantiate (directly or through
-/// other blocks) are written too, before the charts.
+/// `library` holds the file's function blocks and functions with ST bodies: every one Baton read whole is
+/// written too, before the charts.
 pub fn export(
     charts: &[(&Chart, &Program)],
     library: &[FbDef],
     project: &str,
     created: &str,
 ) -> Result<String, ExportError> {
-    for (_, program) in charts {
-        if let Some(t) = (0..program.transitions.len()).find(|&t| !program.calls(TransitionId(t as u32)).is_empty()) {
+    // Blocks wired into a condition (a PLCopen import): calls of functions written in the condition's ST are
+    // printed with it.
+    for (chart, program) in charts {
+        if let Some(t) = chart.transitions.iter().position(|t| !t.calls.is_empty()) {
             let transition = program.transitions[t].name.clone();
             return Err(ExportError::WiredBlocks { chart: program.name.clone(), transition });
         }
@@ -119,7 +129,7 @@ pub fn export(
         "    <coordinateInfo>\n      <fbd><scaling x=\"0\" y=\"0\"/></fbd>\n      <ld><scaling x=\"0\" y=\"0\"/></ld>\n      <sfc><scaling x=\"0\" y=\"0\"/></sfc>\n    </coordinateInfo>\n  </contentHeader>\n",
     );
     out.push_str("  <types>\n    <dataTypes/>\n    <pous>\n");
-    for def in used_blocks(charts, library) {
+    for def in whole_blocks(library) {
         function_block(&mut out, def);
     }
     for (chart, program) in charts {
@@ -188,26 +198,16 @@ fn pou(out: &mut String, chart: &Chart, program: &Program) {
     out.push_str("      </pou>\n");
 }
 
-/// The library's blocks that the charts instantiate, directly or through other blocks, in library order.
-fn used_blocks<'l>(charts: &[(&Chart, &Program)], library: &'l [FbDef]) -> Vec<&'l FbDef> {
-    let by_name: HashMap<String, usize> = library.iter().enumerate().map(|(i, d)| (d.name.key(), i)).collect();
-    let mut used = vec![false; library.len()];
-    let mut todo: Vec<usize> = charts
-        .iter()
-        .flat_map(|(c, _)| c.vars.iter())
-        .filter_map(|v| by_name.get(&v.type_name.key()).copied())
-        .collect();
-    while let Some(i) = todo.pop() {
-        if !std::mem::replace(&mut used[i], true) {
-            todo.extend(library[i].vars.iter().filter_map(|v| by_name.get(&v.type_name.key()).copied()));
-        }
-    }
-    library.iter().zip(used).filter(|(_, u)| *u).map(|(d, _)| d).collect()
+/// The library's function blocks and functions that Baton read whole (those with syntax errors are left out:
+/// no chart that exports uses one), in library order.
+fn whole_blocks(library: &[FbDef]) -> Vec<&FbDef> {
+    library.iter().filter(|d| d.problems.is_empty()).collect()
 }
 
 fn function_block(out: &mut String, def: &FbDef) {
-    let _ = writeln!(out, "      <pou name=\"{}\" pouType=\"functionBlock\">", esc(&def.name.name));
-    interface(out, &def.vars);
+    let kind = if def.returns.is_some() { "function" } else { "functionBlock" };
+    let _ = writeln!(out, "      <pou name=\"{}\" pouType=\"{kind}\">", esc(&def.name.name));
+    interface_returning(out, &def.vars, def.returns.as_ref());
     let _ = writeln!(
         out,
         "        <body>\n          <ST>{}</ST>\n        </body>\n      </pou>",
@@ -216,7 +216,14 @@ fn function_block(out: &mut String, def: &FbDef) {
 }
 
 fn interface(out: &mut String, vars: &[VarDecl]) {
+    interface_returning(out, vars, None);
+}
+
+fn interface_returning(out: &mut String, vars: &[VarDecl], returns: Option<&Ident>) {
     out.push_str("        <interface>\n");
+    if let Some(ty) = returns {
+        let _ = writeln!(out, "          <returnType>{}</returnType>", type_element(&ty.name));
+    }
     // Consecutive declarations of one section and constancy share one list, in declaration order.
     let mut i = 0;
     while i < vars.len() {
@@ -242,11 +249,7 @@ fn interface(out: &mut String, vars: &[VarDecl]) {
 }
 
 fn variable(out: &mut String, v: &VarDecl) {
-    let upper = v.type_name.name.to_ascii_uppercase();
-    let ty = match elementary(&upper) {
-        Some(e) => format!("<{e}/>"),
-        None => format!("<derived name=\"{}\"/>", esc(&v.type_name.name)),
-    };
+    let ty = type_element(&v.type_name.name);
     let _ = write!(out, "            <variable name=\"{}\"><type>{ty}</type>", esc(&v.name.name));
     if let Some(init) = &v.init {
         let _ = write!(out, "<initialValue><simpleValue value=\"{}\"/></initialValue>", esc(&st::expr(init)));

@@ -473,7 +473,9 @@ fn writers(
     let mut writer = Vec::with_capacity(n);
     let mut settable = Vec::with_capacity(n);
     for (i, w) in writes.iter().enumerate() {
-        if w.len() > 1 {
+        // Scratch (a function's frame, a call's result, VAR_TEMP): written and read within one call.
+        let scratch = program.vars[i].hidden && program.vars[i].section == crate::front::model::VarSection::Temp;
+        if w.len() > 1 && !scratch {
             let span = chart
                 .vars
                 .iter()

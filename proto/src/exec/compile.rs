@@ -32,6 +32,10 @@ pub fn compile(chart: &Chart, library: &[FbDef], diags: &mut Vec<Diagnostic>) ->
         user_of: HashMap::new(),
         declaring: Vec::new(),
         reported: Vec::new(),
+        functions: HashMap::new(),
+        hoisted: Vec::new(),
+        temps: Vec::new(),
+        declared: 0,
     };
     c.run()
 }
@@ -171,6 +175,28 @@ struct Compiler<'a> {
     user_of: HashMap<String, usize>,
     declaring: Vec<String>,
     reported: Vec<String>,
+    /// User functions by name: their frames and (once compiled) bodies.
+    functions: HashMap<String, Function<'a>>,
+    /// Calls of user functions in the expression being compiled, to run before the statement that holds it.
+    hoisted: Vec<CStmt>,
+    /// Variables made while compiling (a function call's result), after the declared ones.
+    temps: Vec<VarInfo>,
+    declared: usize,
+}
+
+/// A user function: its frame (parameters, locals, result; shared by its calls, as IEC functions do not
+/// recurse), and its body once compiled.
+struct Function<'a> {
+    def: &'a FbDef,
+    /// Inputs in order: (name as declared, variable).
+    inputs: Vec<(String, VarId)>,
+    /// Locals and the result, reset at each call: (variable, initial value).
+    resets: Vec<(VarId, Value)>,
+    result: VarId,
+    eno: VarId,
+    scope: HashMap<String, VarId>,
+    body: Option<Arc<Vec<CStmt>>>,
+    compiling: bool,
 }
 
 const FALSE: CExpr = CExpr::Const(Value::Bool(false));
@@ -182,7 +208,9 @@ impl<'a> Compiler<'a> {
 
     fn run(&mut self) -> Compiled {
         let chart = self.chart;
-        let vars = self.declare_vars();
+        let mut vars = self.declare_vars();
+        self.declare_functions(&mut vars);
+        self.declared = vars.len();
         self.compile_user_bodies(&vars);
         let mut net_ok = true;
         let mut steps = Vec::with_capacity(chart.steps.len());
@@ -213,6 +241,7 @@ impl<'a> Compiler<'a> {
             let message = format!("chart `{}` has no initial step: declare one with `INITIAL_STEP`", chart.name.name);
             self.error(chart.name.span, message);
         }
+        vars.append(&mut self.temps);
         let program = Program::assemble(chart.name.name.clone(), vars, steps, transitions, actions);
         Compiled { program, net_ok }
     }
@@ -229,7 +258,7 @@ impl<'a> Compiler<'a> {
                 self.declare_instance(decl, fb, &mut vars);
                 continue;
             }
-            if let Some(&def) = self.library.get(&decl.type_name.key()) {
+            if let Some(&def) = self.library.get(&decl.type_name.key()).filter(|d| d.returns.is_none()) {
                 if let Some(u) = self.declare_user(decl, def, &decl.name.name, &mut vars) {
                     for &(ref name, _, id) in &self.users[u].params {
                         self.vars.insert(format!("{}.{}", decl.name.key(), name.to_ascii_uppercase()), id);
@@ -314,7 +343,7 @@ impl<'a> Compiler<'a> {
                 scope.instances.insert(d.name.key(), (fb, base));
                 continue;
             }
-            if let Some(&inner_def) = self.library.get(&d.type_name.key()) {
+            if let Some(&inner_def) = self.library.get(&d.type_name.key()).filter(|d| d.returns.is_none()) {
                 if let Some(u) = self.declare_user(d, inner_def, &inner, vars) {
                     self.user_inits(u, d, vars);
                     for &(ref name, _, id) in &self.users[u].params {
@@ -355,6 +384,142 @@ impl<'a> Compiler<'a> {
         self.declaring.pop();
         self.users.push(UserInstance { def, params, eno, scope, body: Arc::new(Vec::new()) });
         Some(self.users.len() - 1)
+    }
+
+    /// Every user function's frame: a hidden VAR_TEMP variable per input and local, and its result. Frames are
+    /// scratch (written and read within one call), so several places may write them.
+    fn declare_functions(&mut self, vars: &mut Vec<VarInfo>) {
+        let library: Vec<&'a FbDef> = self.library.values().copied().filter(|d| d.returns.is_some()).collect();
+        let mut library = library;
+        library.sort_by_key(|d| d.span.start);
+        for def in library {
+            let returns = def.returns.as_ref().expect("a function");
+            let mut scope = HashMap::new();
+            let (mut inputs, mut resets) = (Vec::new(), Vec::new());
+            let declare =
+                |c: &mut Self, name: String, type_name: &Ident, init: Option<&Expr>, vars: &mut Vec<VarInfo>| {
+                    let ty = Type::from_name(&type_name.key())
+                        .unwrap_or_else(|| Type::Unsupported(type_name.name.to_ascii_uppercase()));
+                    let init = match init {
+                        Some(e) => c.initial_value(e, &ty),
+                        None => ty.default_value(),
+                    };
+                    let id = VarId(vars.len() as u32);
+                    vars.push(VarInfo { name, ty, init, constant: false, section: VarSection::Temp, hidden: true });
+                    (id, init)
+                };
+            for d in def.vars.iter().filter(|d| d.section != VarSection::External) {
+                let (id, init) =
+                    declare(self, format!("{}.{}", def.name.name, d.name.name), &d.type_name, d.init.as_ref(), vars);
+                scope.insert(d.name.key(), id);
+                match d.section {
+                    VarSection::Input => inputs.push((d.name.name.clone(), id)),
+                    _ => resets.push((id, init)),
+                }
+            }
+            let (result, init) = declare(self, def.name.name.clone(), returns, None, vars);
+            resets.push((result, init));
+            scope.insert(def.name.key(), result);
+            let (eno, _) = declare(
+                self,
+                format!("{}.ENO", def.name.name),
+                &Ident { name: "BOOL".into(), span: def.name.span },
+                None,
+                vars,
+            );
+            let function = Function { def, inputs, resets, result, eno, scope, body: None, compiling: false };
+            self.functions.insert(def.name.key(), function);
+        }
+    }
+
+    /// A user function's body, compiled at its first call in the function's own scope.
+    fn function_body(&mut self, key: &str, callee: &Ident, vars: &[VarInfo]) -> Option<Arc<Vec<CStmt>>> {
+        let f = self.functions.get(key)?;
+        if let Some(body) = &f.body {
+            return Some(Arc::clone(body));
+        }
+        let def = f.def;
+        if f.compiling {
+            let message = format!(
+                "function `{}` calls itself (here, through `{}`): IEC functions do not recurse",
+                def.name.name, callee.name
+            );
+            self.error(callee.span, message);
+            return None;
+        }
+        if !def.problems.is_empty() && !self.reported.contains(&key.to_string()) {
+            self.reported.push(key.to_string());
+            self.diags.extend(def.problems.iter().cloned());
+        }
+        let mut names = self.functions[key].scope.clone();
+        for d in def.vars.iter().filter(|d| d.section == VarSection::External) {
+            if let Some(&id) = self.vars.get(&d.name.key()) {
+                names.insert(d.name.key(), id);
+            }
+        }
+        self.functions.get_mut(key).expect("declared").compiling = true;
+        let saved = (
+            std::mem::replace(&mut self.vars, names),
+            std::mem::take(&mut self.instances),
+            std::mem::take(&mut self.user_of),
+            std::mem::take(&mut self.steps),
+            std::mem::take(&mut self.actions),
+            std::mem::take(&mut self.hoisted),
+            std::mem::take(&mut self.loops),
+        );
+        let body = Arc::new(self.statements(&def.body, vars));
+        (self.vars, self.instances, self.user_of, self.steps, self.actions, self.hoisted, self.loops) = saved;
+        let f = self.functions.get_mut(key).expect("declared");
+        f.compiling = false;
+        f.body = Some(Arc::clone(&body));
+        Some(body)
+    }
+
+    /// A call of a user function in an expression: the call is hoisted before the statement, its result kept in
+    /// a variable of its own, which the expression reads.
+    fn function_call(&mut self, key: &str, callee: &Ident, args: &[Arg], vars: &[VarInfo]) -> (CExpr, Ty) {
+        if vars.len() < self.declared {
+            self.error(
+                callee.span,
+                format!("a call of function `{}` is not a constant, and a constant is needed here", callee.name),
+            );
+            return (FALSE, Ty::Err);
+        }
+        let (inputs, resets, result, eno) = {
+            let f = &self.functions[key];
+            (f.inputs.clone(), f.resets.clone(), f.result, f.eno)
+        };
+        let names: Vec<String> = inputs.iter().map(|(n, _)| n.to_ascii_uppercase()).collect();
+        let params: Vec<&str> = names.iter().map(String::as_str).collect();
+        let Some(values) = self.positional(callee, args, &params, false) else { return (FALSE, Ty::Err) };
+        let mut assigned = Vec::with_capacity(values.len() + resets.len());
+        for ((name, id), value) in inputs.iter().zip(&values) {
+            let (c, ty) = self.expr(value, vars);
+            let target = Ty::of(&vars[id.index()].ty);
+            if !assignable(target, ty) {
+                let message =
+                    format!("input `{name}` of `{}` is {}, found {}", callee.name, vars[id.index()].ty, ty.name());
+                self.error(value.span, message);
+                return (FALSE, Ty::Err);
+            }
+            assigned.push((*id, c));
+        }
+        assigned.extend(resets.iter().map(|&(id, init)| (id, CExpr::Const(init))));
+        let Some(body) = self.function_body(key, callee, vars) else { return (FALSE, Ty::Err) };
+        let ty = vars[result.index()].ty.clone();
+        let temp = VarId((self.declared + self.temps.len()) as u32);
+        self.temps.push(VarInfo {
+            name: format!("{}#{}", callee.name, self.temps.len() + 1),
+            ty: ty.clone(),
+            init: ty.default_value(),
+            constant: false,
+            section: VarSection::Temp,
+            hidden: true,
+        });
+        let outputs = vec![FbOutput { member: result, target: temp, negated: false }];
+        let call = UserCall { body, en: None, inputs: assigned, inouts: Vec::new(), outputs, eno };
+        self.hoisted.push(CStmt::UserFb(Box::new(call)));
+        (CExpr::Var(temp), Ty::of(&ty))
     }
 
     /// A user instance's initial inputs from its declaration, `m : Motor := (speed := 10)`.
@@ -457,7 +622,9 @@ impl<'a> Compiler<'a> {
     }
 
     fn initial_value(&mut self, e: &Expr, ty: &Type) -> Value {
+        let outer = std::mem::take(&mut self.hoisted);
         let (cexpr, vty) = self.expr(e, &[]);
+        self.hoisted = outer;
         if vty == Ty::Err {
             return ty.default_value();
         }
@@ -647,7 +814,9 @@ impl<'a> Compiler<'a> {
             }
             let sources = self.step_list(&t.from);
             let targets = self.step_list(&t.to);
+            let outer = std::mem::take(&mut self.hoisted);
             let (condition, ty) = self.expr(&t.condition, vars);
+            let hoisted = std::mem::replace(&mut self.hoisted, outer);
             if ty != Ty::Bool && ty != Ty::Err {
                 self.error(t.condition.span, format!("a transition condition must be BOOL, found {}", ty.name()));
             } else if ty == Ty::Bool
@@ -665,7 +834,9 @@ impl<'a> Compiler<'a> {
                 net_ok = false;
                 continue;
             };
-            let calls = self.statements(&t.calls, vars);
+            let mut calls = self.statements(&t.calls, vars);
+            // Function calls in the condition run after the blocks it reads.
+            calls.extend(hoisted);
             let info = TransitionInfo { name: t.display_name(), condition, pragmas: t.pragmas.clone() };
             out.push(TransitionParts { info, calls, sources, targets, rank: 0 });
         }
@@ -686,9 +857,12 @@ impl<'a> Compiler<'a> {
     fn statements(&mut self, body: &[Stmt], vars: &[VarInfo]) -> Vec<CStmt> {
         let mut out = Vec::with_capacity(body.len());
         for stmt in body {
-            if let Some(c) = self.statement(stmt, vars) {
-                out.push(c);
-            }
+            let outer = std::mem::take(&mut self.hoisted);
+            let compiled = self.statement(stmt, vars);
+            // The function calls its expressions need run first.
+            out.append(&mut self.hoisted);
+            self.hoisted = outer;
+            out.extend(compiled);
         }
         out
     }
@@ -780,12 +954,17 @@ impl<'a> Compiler<'a> {
                 CStmt::For { var: id?, from, to, by, body }
             }
             Stmt::While { condition, body, .. } => {
+                let outer = std::mem::take(&mut self.hoisted);
                 let condition = self.condition(condition, vars, "a WHILE condition");
-                CStmt::While { condition, body: self.loop_body(body, vars) }
+                let pre = std::mem::replace(&mut self.hoisted, outer);
+                CStmt::While { pre, condition, body: self.loop_body(body, vars) }
             }
             Stmt::Repeat { body, until, .. } => {
                 let body = self.loop_body(body, vars);
-                CStmt::Repeat { body, until: self.condition(until, vars, "an UNTIL condition") }
+                let outer = std::mem::take(&mut self.hoisted);
+                let until = self.condition(until, vars, "an UNTIL condition");
+                let pre = std::mem::replace(&mut self.hoisted, outer);
+                CStmt::Repeat { body, pre, until }
             }
             Stmt::Exit { span } => {
                 if self.loops == 0 {
@@ -815,7 +994,9 @@ impl<'a> Compiler<'a> {
 
     /// A CASE label: a constant integer.
     fn case_label(&mut self, e: &Expr) -> Option<i64> {
+        let outer = std::mem::take(&mut self.hoisted);
         let (c, ty) = self.expr(e, &[]);
+        self.hoisted = outer;
         if ty == Ty::Err {
             return None;
         }
@@ -1202,6 +1383,9 @@ impl<'a> Compiler<'a> {
     /// A standard function call in an expression.
     fn call(&mut self, e: &Expr, callee: &Ident, args: &[Arg], vars: &[VarInfo]) -> (CExpr, Ty) {
         let key = callee.key();
+        if self.functions.contains_key(&key) {
+            return self.function_call(&key, callee, args, vars);
+        }
         if let Some(&u) = self.user_of.get(&key) {
             let message = format!(
                 "`{}` is a `{}` instance: call it as a statement in an action (`{}(…);`) and read its outputs here",

@@ -321,9 +321,13 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
                 }
                 flow
             }
-            CStmt::While { condition, body } => {
+            CStmt::While { pre, condition, body } => {
                 let mut flow = Flow::Next;
-                while eval(condition, env)?.as_bool() {
+                loop {
+                    exec(pre, env, budget)?;
+                    if !eval(condition, env)?.as_bool() {
+                        break;
+                    }
                     tick(budget)?;
                     match exec(body, env, budget)? {
                         Flow::Exit => break,
@@ -336,7 +340,7 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
                 }
                 flow
             }
-            CStmt::Repeat { body, until } => {
+            CStmt::Repeat { body, pre, until } => {
                 let mut flow = Flow::Next;
                 loop {
                     tick(budget)?;
@@ -348,6 +352,7 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
                         }
                         Flow::Next => {}
                     }
+                    exec(pre, env, budget)?;
                     if eval(until, env)?.as_bool() {
                         break;
                     }

@@ -254,12 +254,15 @@ pub enum CStmt {
         by: CExpr,
         body: Vec<CStmt>,
     },
+    /// `pre` (the function calls the condition needs) runs before each evaluation of the condition.
     While {
+        pre: Vec<CStmt>,
         condition: CExpr,
         body: Vec<CStmt>,
     },
     Repeat {
         body: Vec<CStmt>,
+        pre: Vec<CStmt>,
         until: CExpr,
     },
     Exit,
@@ -320,7 +323,8 @@ pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl 
                 read(by);
                 walk_body(body, write, read);
             }
-            CStmt::While { condition: c, body } | CStmt::Repeat { body, until: c } => {
+            CStmt::While { pre, condition: c, body } | CStmt::Repeat { body, pre, until: c } => {
+                walk_body(pre, write, read);
                 read(c);
                 walk_body(body, write, read);
             }

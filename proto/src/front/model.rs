@@ -49,12 +49,15 @@ pub struct Chart {
     pub broken: Broken,
 }
 
-/// A function block with a Structured Text body, declared in the same file as the charts that use it. Its syntax
+/// A function block (or a function, with `returns`) with a Structured Text body, declared in the same file as
+/// the charts that use it. Its syntax
 /// errors are kept, not reported, until a chart declares an instance of it: a project file may hold blocks that
 /// no chart uses, in constructs Baton does not read.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FbDef {
     pub name: Ident,
+    /// A `FUNCTION`'s result type; `None` for a function block.
+    pub returns: Option<Ident>,
     pub vars: Vec<VarDecl>,
     pub body: Vec<Stmt>,
     pub problems: Vec<crate::front::diag::Diagnostic>,

@@ -254,7 +254,7 @@ impl Parser<'_> {
                 Tok::Eof => break,
                 Tok::Kw(Kw::Program) => charts.extend(self.pou(PouKind::Program, Kw::EndProgram)),
                 Tok::Kw(Kw::FunctionBlock) => charts.extend(self.pou(PouKind::FunctionBlock, Kw::EndFunctionBlock)),
-                Tok::Kw(Kw::Function) => self.skip_block(Kw::EndFunction),
+                Tok::Kw(Kw::Function) => self.function(),
                 Tok::Kw(Kw::Configuration) => self.skip_block(Kw::EndConfiguration),
                 Tok::Kw(Kw::Type) => self.skip_block(Kw::EndType),
                 tok if is_var_block(tok) => {
@@ -293,6 +293,41 @@ impl Parser<'_> {
         }
         charts.extend(bare);
         charts
+    }
+
+    /// `FUNCTION name : TYPE … END_FUNCTION` with an ST body, kept in the library with its syntax errors.
+    fn function(&mut self) {
+        let start = self.bump().span;
+        let outer = std::mem::take(&mut self.diags);
+        let head = (|| {
+            let name = self.ident("a function name")?;
+            self.expect(Tok::Colon, "`:` and the function's result type")?;
+            let returns = self.ident("a result type")?;
+            Ok::<_, Failed>((name, returns))
+        })();
+        let Ok((name, returns)) = head else {
+            self.diags = outer;
+            self.recover(Kw::EndFunction, |_| false);
+            return;
+        };
+        let mut vars = Vec::new();
+        while is_var_block(self.peek()) {
+            vars.extend(self.var_block());
+        }
+        let body = self.statements();
+        if body.is_err() || self.peek() != Tok::Kw(Kw::EndFunction) {
+            if !self.diags.iter().any(|d| d.is_error()) {
+                self.error_here("a statement or `END_FUNCTION`");
+            }
+            self.recover(Kw::EndFunction, |_| false);
+        } else {
+            self.bump();
+            self.eat(Tok::Semi);
+        }
+        let problems = std::mem::replace(&mut self.diags, outer);
+        self.broken_vars = Broken::default();
+        let span = start.to(self.prev_span());
+        self.library.push(FbDef { name, returns: Some(returns), vars, body: body.unwrap_or_default(), problems, span });
     }
 
     fn pou(&mut self, kind: PouKind, end: Kw) -> Option<Chart> {
@@ -345,6 +380,7 @@ impl Parser<'_> {
                     self.broken_vars = outside;
                     self.library.push(FbDef {
                         name: chart.name,
+                        returns: None,
                         vars: chart.vars,
                         body: body.unwrap_or_default(),
                         problems,
@@ -376,6 +412,7 @@ impl Parser<'_> {
             let span = chart.span;
             self.library.push(FbDef {
                 name: chart.name,
+                returns: None,
                 vars: chart.vars,
                 body: Vec::new(),
                 problems: Vec::new(),
@@ -718,6 +755,7 @@ impl Parser<'_> {
                 Tok::Kw(
                     Kw::EndAction
                     | Kw::EndFunctionBlock
+                    | Kw::EndFunction
                     | Kw::Elsif
                     | Kw::Else
                     | Kw::EndIf

@@ -314,9 +314,20 @@ impl Reader<'_> {
     /// A function block POU with an ST body (or none), kept for the charts that instantiate it; its errors are
     /// kept with it until one does.
     fn function_block(&mut self, pou: Node) {
-        if pou.attribute("pouType") != Some("functionBlock") {
-            return;
-        }
+        let returns = match pou.attribute("pouType") {
+            Some("functionBlock") => None,
+            Some("function") => {
+                let ty =
+                    child(pou, "interface").and_then(|i| child(i, "returnType")).and_then(|t| t.first_element_child());
+                let name = match ty {
+                    Some(t) if t.tag_name().name() == "derived" => t.attribute("name").unwrap_or_default().to_string(),
+                    Some(t) => t.tag_name().name().to_ascii_uppercase(),
+                    None => return,
+                };
+                Some(Ident { span: ty.map_or(Span::default(), |t| self.tag_span(t)), name })
+            }
+            _ => return,
+        };
         let Some(name) = pou.attribute("name").map(str::trim).filter(|n| !n.is_empty()) else { return };
         let name = Ident { name: name.to_string(), span: self.attr_span(pou, "name") };
         let outer = std::mem::take(&mut self.diags);
@@ -340,7 +351,7 @@ impl Reader<'_> {
         let problems = std::mem::replace(&mut self.diags, outer);
         let range = pou.range();
         let span = Span::new(range.start, range.end);
-        self.library.push(FbDef { name, vars, body: body.unwrap_or_default(), problems, span });
+        self.library.push(FbDef { name, returns, vars, body: body.unwrap_or_default(), problems, span });
     }
 
     fn interface(&mut self, pou: Node) -> Vec<VarDecl> {
