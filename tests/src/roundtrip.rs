@@ -90,7 +90,7 @@ pub fn export(source: &str) -> Result<String, baton_proto::back::plcopen::Export
     let report = check_source(source);
     assert_eq!(report.error_count(), 0, "the source is valid: {:?}", report.diagnostics.first());
     let charts: Vec<_> = report.charts.iter().filter_map(|c| Some((&c.chart, c.program.as_ref()?))).collect();
-    baton_proto::back::plcopen::export(&charts, &report.library, "roundtrip", "2026-12-01T00:00:00")
+    baton_proto::back::plcopen::export(&charts, &report.library, &report.types, "roundtrip", "2026-12-01T00:00:00")
 }
 
 /// Checks that a valid source, exported and read back, gives the same programs and traces; returns the XML,

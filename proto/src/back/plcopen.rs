@@ -102,6 +102,7 @@ pub enum ExportError {
 pub fn export(
     charts: &[(&Chart, &Program)],
     library: &[FbDef],
+    types: &[TypeDef],
     project: &str,
     created: &str,
 ) -> Result<String, ExportError> {
@@ -128,7 +129,11 @@ pub fn export(
     out.push_str(
         "    <coordinateInfo>\n      <fbd><scaling x=\"0\" y=\"0\"/></fbd>\n      <ld><scaling x=\"0\" y=\"0\"/></ld>\n      <sfc><scaling x=\"0\" y=\"0\"/></sfc>\n    </coordinateInfo>\n  </contentHeader>\n",
     );
-    out.push_str("  <types>\n    <dataTypes/>\n    <pous>\n");
+    out.push_str("  <types>\n    <dataTypes>\n");
+    for t in types {
+        data_type(&mut out, t);
+    }
+    out.push_str("    </dataTypes>\n    <pous>\n");
     for def in whole_blocks(library) {
         function_block(&mut out, def);
     }
@@ -196,6 +201,38 @@ fn pou(out: &mut String, chart: &Chart, program: &Program) {
         let _ = writeln!(out, "        <documentation>{}</documentation>", xhtml(&pragmas_text(&chart.pragmas)));
     }
     out.push_str("      </pou>\n");
+}
+
+/// A declared type; kinds Baton does not execute are left out (a chart using one does not export).
+fn data_type(out: &mut String, t: &TypeDef) {
+    let (base, init) = match &t.kind {
+        TypeKind::Enum { values, init } => {
+            let values: String =
+                values.iter().map(|v| format!("<value name=\"{}\"/>", esc(&v.name))).collect::<Vec<_>>().join("");
+            (format!("<enum><values>{values}</values></enum>"), init.as_ref().map(|i| i.name.clone()))
+        }
+        TypeKind::Subrange { base, low, high } => {
+            let signed = !matches!(
+                base.key().as_str(),
+                "USINT" | "UINT" | "UDINT" | "ULINT" | "BYTE" | "WORD" | "DWORD" | "LWORD"
+            );
+            let tag = if signed { "subrangeSigned" } else { "subrangeUnsigned" };
+            (
+                format!(
+                    "<{tag}><range lower=\"{low}\" upper=\"{high}\"/><baseType>{}</baseType></{tag}>",
+                    type_element(&base.name)
+                ),
+                None,
+            )
+        }
+        TypeKind::Alias(base) => (type_element(&base.name), None),
+        TypeKind::Unsupported(_) => return,
+    };
+    let _ = write!(out, "      <dataType name=\"{}\"><baseType>{base}</baseType>", esc(&t.name.name));
+    if let Some(init) = init {
+        let _ = write!(out, "<initialValue><simpleValue value=\"{}\"/></initialValue>", esc(&init));
+    }
+    out.push_str("</dataType>\n");
 }
 
 /// The library's function blocks and functions that Baton read whole (those with syntax errors are left out:

@@ -60,6 +60,9 @@ fn write_expr(out: &mut String, e: &Expr, min: u8) {
         ExprKind::Field(base, field) => {
             let _ = write!(out, "{}.{}", base.name, field.name);
         }
+        ExprKind::EnumValue(ty, value) => {
+            let _ = write!(out, "{}#{}", ty.name, value.name);
+        }
         ExprKind::Call(callee, args) => {
             out.push_str(&callee.name);
             write_args(out, args);

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
 use crate::exec::program::{Program, VarId};
-use crate::exec::types::{Type, Value};
+use crate::exec::types::Value;
 use crate::limits::MESSAGE_BYTES_MAX;
 
 pub const PROTOCOL_VERSION: u32 = 2;
@@ -97,12 +97,7 @@ impl VarValue {
     pub fn resolve(&self, program: &Program) -> Option<(VarId, Value)> {
         let info = program.vars.get(self.var as usize)?;
         let value = Value::from(self.value);
-        let fits = match (&info.ty, value) {
-            (Type::Bool, Value::Bool(_)) | (Type::Time, Value::Time(_)) | (Type::Real { .. }, Value::Real(_)) => true,
-            (Type::Int(k), Value::Int(v)) => k.contains(v),
-            _ => false,
-        };
-        fits.then_some((VarId(self.var), value))
+        info.ty.fits(value).then_some((VarId(self.var), value))
     }
 }
 

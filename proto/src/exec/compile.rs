@@ -18,7 +18,7 @@ pub struct Compiled {
 }
 
 /// Compiles a chart; `library` holds the function blocks with ST bodies that its instances may be of.
-pub fn compile(chart: &Chart, library: &[FbDef], diags: &mut Vec<Diagnostic>) -> Compiled {
+pub fn compile(chart: &Chart, library: &[FbDef], types: &[TypeDef], diags: &mut Vec<Diagnostic>) -> Compiled {
     let mut c = Compiler {
         chart,
         diags,
@@ -36,6 +36,9 @@ pub fn compile(chart: &Chart, library: &[FbDef], diags: &mut Vec<Diagnostic>) ->
         hoisted: Vec::new(),
         temps: Vec::new(),
         declared: 0,
+        types: types.iter().map(|t| (t.name.key(), t)).collect(),
+        resolved: HashMap::new(),
+        enums: Vec::new(),
     };
     c.run()
 }
@@ -65,14 +68,19 @@ enum Ty {
     Bool,
     Int(IntKind),
     IntLit,
-    Real { long: bool },
+    Real {
+        long: bool,
+    },
     Time,
+    /// A value of the enumeration with this id.
+    Enum(u32),
     Err,
 }
 
 impl Ty {
     fn of(ty: &Type) -> Ty {
         match ty {
+            Type::Enum(e) => Ty::Enum(e.id),
             Type::Bool => Ty::Bool,
             Type::Int(k) => Ty::Int(*k),
             Type::Real { long } => Ty::Real { long: *long },
@@ -96,6 +104,7 @@ impl Ty {
             Ty::IntLit => "an integer".into(),
             Ty::Real { long } => Type::Real { long }.to_string(),
             Ty::Time => "TIME".into(),
+            Ty::Enum(_) => "an enumeration value".into(),
             Ty::Err => "an invalid expression".into(),
         }
     }
@@ -115,6 +124,7 @@ impl Ty {
             Ty::IntLit => Type::Int(IntKind::Lint),
             Ty::Real { long } => Type::Real { long },
             Ty::Time => Type::Time,
+            Ty::Enum(_) => Type::Int(IntKind::Dint),
         }
     }
 }
@@ -137,7 +147,10 @@ fn binary_type(op: BinOp, a: Ty, b: Ty) -> Option<Ty> {
         Or | Xor | And => (a == Ty::Bool && b == Ty::Bool).then_some(Ty::Bool),
         Pow => (a.is_num() && b.is_num()).then(|| join(a, b)),
         Eq | Ne | Lt | Le | Gt | Ge => {
-            let ok = (a.is_num() && b.is_num()) || (a == Ty::Time && b == Ty::Time) || (a == Ty::Bool && b == Ty::Bool);
+            let ok = (a.is_num() && b.is_num())
+                || (a == Ty::Time && b == Ty::Time)
+                || (a == Ty::Bool && b == Ty::Bool)
+                || (matches!(a, Ty::Enum(_)) && a == b);
             ok.then_some(Ty::Bool)
         }
         Add | Sub if a == Ty::Time && b == Ty::Time => Some(Ty::Time),
@@ -182,6 +195,10 @@ struct Compiler<'a> {
     /// Variables made while compiling (a function call's result), after the declared ones.
     temps: Vec<VarInfo>,
     declared: usize,
+    /// Types declared in the file, and those resolved so far; enumerations with their initial ordinals.
+    types: HashMap<String, &'a TypeDef>,
+    resolved: HashMap<String, Type>,
+    enums: Vec<(std::sync::Arc<crate::exec::types::EnumType>, i64)>,
 }
 
 /// A user function: its frame (parameters, locals, result; shared by its calls, as IEC functions do not
@@ -208,6 +225,13 @@ impl<'a> Compiler<'a> {
 
     fn run(&mut self) -> Compiled {
         let chart = self.chart;
+        // Every declared type, so that an enumeration's values are known even where no variable has its type.
+        let types: Vec<&TypeDef> = self.types.values().copied().collect();
+        let mut types = types;
+        types.sort_by_key(|t| t.name.span.start);
+        for t in types {
+            self.resolve_type(&t.name);
+        }
         let mut vars = self.declare_vars();
         self.declare_functions(&mut vars);
         self.declared = vars.len();
@@ -270,11 +294,10 @@ impl<'a> Compiler<'a> {
                 }
                 continue;
             }
-            let ty = Type::from_name(&decl.type_name.key())
-                .unwrap_or_else(|| Type::Unsupported(decl.type_name.name.to_ascii_uppercase()));
+            let ty = self.resolve_type(&decl.type_name);
             let init = match &decl.init {
                 Some(e) => self.initial_value(e, &ty),
-                None => ty.default_value(),
+                None => self.default_of(&ty),
             };
             self.vars.insert(decl.name.key(), VarId(vars.len() as u32));
             vars.push(VarInfo {
@@ -358,11 +381,10 @@ impl<'a> Compiler<'a> {
                 // Resolved to the chart's variable of that name when the body is compiled.
                 continue;
             }
-            let ty = Type::from_name(&d.type_name.key())
-                .unwrap_or_else(|| Type::Unsupported(d.type_name.name.to_ascii_uppercase()));
+            let ty = self.resolve_type(&d.type_name);
             let init = match &d.init {
                 Some(e) => self.initial_value(e, &ty),
-                None => ty.default_value(),
+                None => self.default_of(&ty),
             };
             let id = VarId(vars.len() as u32);
             let visible = matches!(d.section, VarSection::Input | VarSection::Output | VarSection::InOut);
@@ -398,11 +420,10 @@ impl<'a> Compiler<'a> {
             let (mut inputs, mut resets) = (Vec::new(), Vec::new());
             let declare =
                 |c: &mut Self, name: String, type_name: &Ident, init: Option<&Expr>, vars: &mut Vec<VarInfo>| {
-                    let ty = Type::from_name(&type_name.key())
-                        .unwrap_or_else(|| Type::Unsupported(type_name.name.to_ascii_uppercase()));
+                    let ty = c.resolve_type(type_name);
                     let init = match init {
                         Some(e) => c.initial_value(e, &ty),
-                        None => ty.default_value(),
+                        None => c.default_of(&ty),
                     };
                     let id = VarId(vars.len() as u32);
                     vars.push(VarInfo { name, ty, init, constant: false, section: VarSection::Temp, hidden: true });
@@ -579,6 +600,88 @@ impl<'a> Compiler<'a> {
             self.steps = saved.3;
             self.actions = saved.4;
             self.users[u].body = Arc::new(body);
+        }
+    }
+
+    /// A type by name: elementary, or declared in the file (an enumeration; a subrange or an alias as its base).
+    fn resolve_type(&mut self, name: &Ident) -> Type {
+        self.resolve_depth(name, 0)
+    }
+
+    fn resolve_depth(&mut self, name: &Ident, depth: usize) -> Type {
+        let key = name.key();
+        if let Some(t) = Type::from_name(&key) {
+            return t;
+        }
+        if let Some(t) = self.resolved.get(&key) {
+            return t.clone();
+        }
+        let unsupported = || Type::Unsupported(name.name.to_ascii_uppercase());
+        let Some(&def) = self.types.get(&key) else { return unsupported() };
+        if depth > 16 {
+            self.error(name.span, format!("type `{}` is defined through itself", name.name));
+            return unsupported();
+        }
+        let ty = match &def.kind {
+            TypeKind::Enum { values, init } => {
+                let id = self.enums.len() as u32;
+                let et = crate::exec::types::EnumType {
+                    id,
+                    name: def.name.name.clone(),
+                    values: values.iter().map(|v| v.name.clone()).collect(),
+                };
+                let start = match init {
+                    Some(i) => match values.iter().position(|v| v.key() == i.key()) {
+                        Some(p) => p as i64,
+                        None => {
+                            self.error(i.span, format!("`{}` is not a value of `{}`", i.name, def.name.name));
+                            0
+                        }
+                    },
+                    None => 0,
+                };
+                let et = std::sync::Arc::new(et);
+                self.enums.push((std::sync::Arc::clone(&et), start));
+                Type::Enum(et)
+            }
+            TypeKind::Subrange { base, .. } | TypeKind::Alias(base) => self.resolve_depth(base, depth + 1),
+            TypeKind::Unsupported(_) => unsupported(),
+        };
+        self.resolved.insert(key, ty.clone());
+        ty
+    }
+
+    /// A variable's initial value when its declaration gives none: an enumeration's declared one, or the type's.
+    fn default_of(&self, ty: &Type) -> Value {
+        match ty {
+            Type::Enum(e) => Value::Int(self.enums.get(e.id as usize).map_or(0, |(_, start)| *start)),
+            other => other.default_value(),
+        }
+    }
+
+    /// An enumeration value by name (alone, or with its type: `VALVE#OPEN`).
+    fn enum_value(&mut self, ty: Option<&Ident>, value: &Ident) -> Option<(CExpr, Ty)> {
+        let mut found = Vec::new();
+        if let Some(t) = ty {
+            if let Type::Enum(e) = self.resolve_type(t) {
+                found.extend(e.values.iter().position(|v| v.eq_ignore_ascii_case(&value.name)).map(|i| (e.id, i)));
+            }
+        } else {
+            for (e, _) in &self.enums {
+                found.extend(e.values.iter().position(|v| v.eq_ignore_ascii_case(&value.name)).map(|i| (e.id, i)));
+            }
+        }
+        match found.as_slice() {
+            [(id, i)] => Some((CExpr::Const(Value::Int(*i as i64)), Ty::Enum(*id))),
+            [] => None,
+            _ => {
+                let message = format!(
+                    "`{}` is a value of several enumerations: write it with its type, `TYPE#{}`",
+                    value.name, value.name
+                );
+                self.error(value.span, message);
+                Some((FALSE, Ty::Err))
+            }
         }
     }
 
@@ -898,8 +1001,10 @@ impl<'a> Compiler<'a> {
             Stmt::Call { callee, args, span } => return self.fb_call(callee, args, *span, vars),
             Stmt::Case { selector, arms, otherwise, .. } => {
                 let (cselector, ty) = self.expr(selector, vars);
-                if !ty.is_int() && ty != Ty::Err {
-                    self.error(selector.span, format!("a CASE selector must be an integer, found {}", ty.name()));
+                if !ty.is_int() && !matches!(ty, Ty::Enum(_)) && ty != Ty::Err {
+                    let message =
+                        format!("a CASE selector must be an integer or an enumeration value, found {}", ty.name());
+                    self.error(selector.span, message);
                 }
                 let mut carms = Vec::with_capacity(arms.len());
                 for arm in arms {
@@ -1000,7 +1105,7 @@ impl<'a> Compiler<'a> {
         if ty == Ty::Err {
             return None;
         }
-        match (ty.is_int() && is_constant(&c)).then(|| eval(&c, &NoEnv)) {
+        match ((ty.is_int() || matches!(ty, Ty::Enum(_))) && is_constant(&c)).then(|| eval(&c, &NoEnv)) {
             Some(Ok(v)) => Some(v.as_i64()),
             _ => {
                 self.error(e.span, "a CASE label must be a constant integer");
@@ -1639,6 +1744,13 @@ impl<'a> Compiler<'a> {
             ExprKind::Name(name) => self.name(name, vars),
             ExprKind::Field(base, field) => self.field(base, field, vars),
             ExprKind::Call(callee, args) => self.call(e, callee, args, vars),
+            ExprKind::EnumValue(ty, value) => match self.enum_value(Some(ty), value) {
+                Some(found) => found,
+                None => {
+                    self.error(value.span, format!("`{}` is not a value of enumeration `{}`", value.name, ty.name));
+                    (FALSE, Ty::Err)
+                }
+            },
             ExprKind::Unary(op, a) => {
                 let (ca, ta) = self.expr(a, vars);
                 match (op, ta) {
@@ -1716,6 +1828,9 @@ impl<'a> Compiler<'a> {
                 return (FALSE, Ty::Err);
             }
             return (CExpr::Var(id), Ty::of(&var.ty));
+        }
+        if let Some(found) = self.enum_value(None, name) {
+            return found;
         }
         let message = if self.steps.contains_key(&name.key()) {
             format!("`{}` is a step: write `{}.X` for its active flag", name.name, name.name)

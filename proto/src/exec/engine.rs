@@ -334,13 +334,8 @@ impl Engine {
         if var.constant {
             return Err(InputError::Constant { name: var.name.clone() });
         }
-        let fits = match (&var.ty, value) {
-            (Type::Bool, Value::Bool(_))
-            | (Type::Time, Value::Time(_))
-            | (Type::Real { .. }, Value::Real(_) | Value::Int(_)) => true,
-            (Type::Int(k), Value::Int(v)) => k.contains(v),
-            _ => false,
-        };
+        // A REAL takes an integer too (a script writes 2 for 2.0).
+        let fits = var.ty.fits(value) || matches!((&var.ty, value), (Type::Real { .. }, Value::Int(_)));
         if !fits {
             return Err(InputError::Type { name: var.name.clone(), expected: var.ty.clone(), value });
         }
@@ -926,7 +921,7 @@ mod tests {
             END_PROGRAM";
         let parsed = crate::front::parser::parse(src);
         let mut diags = Vec::new();
-        let compiled = crate::exec::compile::compile(&parsed.charts[0], &parsed.library, &mut diags);
+        let compiled = crate::exec::compile::compile(&parsed.charts[0], &parsed.library, &parsed.types, &mut diags);
         assert!(diags.is_empty(), "{diags:?}");
         let mut engine = Engine::new(Arc::new(compiled.program));
         let mut faults = Vec::new();

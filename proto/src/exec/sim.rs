@@ -113,6 +113,13 @@ pub fn parse_value(ty: &Type, json: &serde_json::Value) -> Option<Value> {
             },
             other => other.as_i64().map(Value::Time),
         },
+        Type::Enum(e) => match json {
+            serde_json::Value::String(s) => {
+                let name = s.rsplit('#').next().unwrap_or(s);
+                e.values.iter().position(|v| v.eq_ignore_ascii_case(name)).map(|i| Value::Int(i as i64))
+            }
+            other => other.as_i64().filter(|&i| i >= 0 && (i as usize) < e.values.len()).map(Value::Int),
+        },
         Type::Unsupported(_) => None,
     }
 }
@@ -187,7 +194,7 @@ pub fn simulate_watching(
             if *last != Some(value) {
                 *last = Some(value);
                 let mut record = TraceRecord::new(now, "value", &program.vars[var.index()].name);
-                record.value = Some(value.to_string());
+                record.value = Some(program.vars[var.index()].ty.show(value));
                 sink(SimOutput::Trace(record));
             }
         }

@@ -493,7 +493,7 @@ pub fn convert(v: Value, to: &Type) -> Value {
             Value::Real(r) => r.round() as i64,
             other => other.as_i64(),
         }),
-        Type::Unsupported(_) => v,
+        Type::Enum(_) | Type::Unsupported(_) => v,
     }
 }
 

@@ -83,8 +83,18 @@ impl IntKind {
     }
 }
 
+/// An enumeration from a `TYPE` block: its values are held as their ordinal (0 for the first).
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub struct EnumType {
+    /// Tells enumerations apart (their order of declaration in the file).
+    pub id: u32,
+    pub name: String,
+    pub values: Vec<String>,
+}
+
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub enum Type {
+    Enum(std::sync::Arc<EnumType>),
     Bool,
     Int(IntKind),
     /// REAL (single precision) when false, LREAL when true.
@@ -124,9 +134,28 @@ impl Type {
     pub fn default_value(&self) -> Value {
         match self {
             Type::Bool | Type::Unsupported(_) => Value::Bool(false),
+            Type::Enum(_) => Value::Int(0),
             Type::Int(_) => Value::Int(0),
             Type::Real { .. } => Value::Real(0.0),
             Type::Time => Value::Time(0),
+        }
+    }
+
+    /// Whether a value (from an input, a message) is one of this type's values as they are held.
+    pub fn fits(&self, v: Value) -> bool {
+        match (self, v) {
+            (Type::Bool, Value::Bool(_)) | (Type::Time, Value::Time(_)) | (Type::Real { .. }, Value::Real(_)) => true,
+            (Type::Int(k), Value::Int(v)) => k.contains(v),
+            (Type::Enum(e), Value::Int(v)) => v >= 0 && (v as usize) < e.values.len(),
+            _ => false,
+        }
+    }
+
+    /// A value as a user reads it: an enumeration's value by name, others as `Value` shows them.
+    pub fn show(&self, v: Value) -> String {
+        match (self, v) {
+            (Type::Enum(e), Value::Int(i)) => e.values.get(i as usize).cloned().unwrap_or_else(|| i.to_string()),
+            (_, v) => v.to_string(),
         }
     }
 
@@ -172,6 +201,7 @@ impl fmt::Display for Type {
             Type::Real { long: true } => "LREAL",
             Type::Time => "TIME",
             Type::Unsupported(name) => name,
+            Type::Enum(e) => &e.name,
         };
         f.write_str(name)
     }

@@ -22,6 +22,8 @@ pub struct Report {
     pub charts: Vec<CheckedChart>,
     /// The file's function blocks with ST bodies, which its charts may instantiate.
     pub library: Vec<crate::front::model::FbDef>,
+    /// The file's declared types.
+    pub types: Vec<crate::front::model::TypeDef>,
     /// In source order.
     pub diagnostics: Vec<Diagnostic>,
 }
@@ -38,6 +40,7 @@ pub fn check_source(src: &str) -> Report {
         return Report {
             charts: Vec::new(),
             library: Vec::new(),
+            types: Vec::new(),
             diagnostics: vec![Diagnostic::error(Span::default(), message)],
         };
     }
@@ -65,7 +68,7 @@ pub fn check_source(src: &str) -> Report {
             continue;
         }
         let mut own = Vec::new();
-        let compiled = compile(&chart, &parsed.library, &mut own);
+        let compiled = compile(&chart, &parsed.library, &parsed.types, &mut own);
         // After a syntax error the net is not the one the author drew: what the analysis would say of it is noise.
         if compiled.net_ok && !parse_errors && !compiled.program.initial_steps.is_empty() {
             for finding in analyse(&compiled.program) {
@@ -92,7 +95,7 @@ pub fn check_source(src: &str) -> Report {
         diagnostics.truncate(DIAGNOSTICS_MAX);
         diagnostics.push(Diagnostic::error(last, format!("{more} more problems not shown")));
     }
-    Report { charts, library: parsed.library, diagnostics }
+    Report { charts, library: parsed.library, types: parsed.types, diagnostics }
 }
 
 /// Whether the chart's own pragmas (those before its first element) accept a net whose safety is not proven.

@@ -49,6 +49,25 @@ pub struct Chart {
     pub broken: Broken,
 }
 
+/// A type declared in a `TYPE` block (or a PLCopen `dataType`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TypeDef {
+    pub name: Ident,
+    pub kind: TypeKind,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum TypeKind {
+    /// `(OPEN, CLOSED) := CLOSED`.
+    Enum { values: Vec<Ident>, init: Option<Ident> },
+    /// `INT (0..1000)`: held as its base type.
+    Subrange { base: Ident, low: i64, high: i64 },
+    /// `Speed : INT;`, or another declared type.
+    Alias(Ident),
+    /// A structure, an array, a string type…: declared, not executed yet; the construct named.
+    Unsupported(String),
+}
+
 /// A function block (or a function, with `returns`) with a Structured Text body, declared in the same file as
 /// the charts that use it. Its syntax
 /// errors are kept, not reported, until a chart declares an instance of it: a project file may hold blocks that
@@ -369,6 +388,8 @@ pub enum ExprKind {
     Name(Ident),
     /// `step.X`, `step.T`, `action.Q`, `instance.Q`.
     Field(Ident, Ident),
+    /// An enumeration value written with its type: `MYTYPE#OPEN`.
+    EnumValue(Ident, Ident),
     /// A function call: `ABS(x)`, `LIMIT(0, x, 10)`, `INT_TO_REAL(i)`, `SEL(G := c, IN0 := a, IN1 := b)`.
     Call(Ident, Vec<Arg>),
     Unary(UnOp, Box<Expr>),

@@ -10,6 +10,8 @@ use crate::limits::{BRANCHES_MAX, NESTING_DEPTH_MAX};
 
 pub struct Parsed {
     pub charts: Vec<Chart>,
+    /// Types declared in `TYPE` blocks.
+    pub types: Vec<TypeDef>,
     /// Function blocks with ST bodies, which charts of the file may instantiate.
     pub library: Vec<FbDef>,
     pub diagnostics: Vec<Diagnostic>,
@@ -27,10 +29,11 @@ pub fn parse(src: &str) -> Parsed {
         in_case: 0,
         broken_vars: Broken::default(),
         library: Vec::new(),
+        types: Vec::new(),
     };
     let mut charts = p.file();
     attach_pragmas(src, &mut charts, &lexed.pragmas);
-    Parsed { charts, library: p.library, diagnostics: p.diags }
+    Parsed { charts, types: p.types, library: p.library, diagnostics: p.diags }
 }
 
 /// What a piece of Structured Text found in another format (a PLCopen XML body) must be.
@@ -88,6 +91,7 @@ pub fn parse_fragment(text: &str, at: impl Fn(usize) -> usize, kind: FragmentKin
         in_case: 0,
         broken_vars: Broken::default(),
         library: Vec::new(),
+        types: Vec::new(),
     };
     let fragment = p.fragment(kind).ok();
     ParsedFragment { fragment, pragmas, diagnostics: p.diags }
@@ -112,6 +116,7 @@ struct Parser<'a> {
     broken_vars: Broken,
     /// Function blocks with ST bodies read so far.
     library: Vec<FbDef>,
+    types: Vec<TypeDef>,
 }
 
 fn is_element_start(tok: Tok) -> bool {
@@ -256,7 +261,7 @@ impl Parser<'_> {
                 Tok::Kw(Kw::FunctionBlock) => charts.extend(self.pou(PouKind::FunctionBlock, Kw::EndFunctionBlock)),
                 Tok::Kw(Kw::Function) => self.function(),
                 Tok::Kw(Kw::Configuration) => self.skip_block(Kw::EndConfiguration),
-                Tok::Kw(Kw::Type) => self.skip_block(Kw::EndType),
+                Tok::Kw(Kw::Type) => self.type_block(),
                 tok if is_var_block(tok) => {
                     let vars = self.var_block();
                     match &mut bare {
@@ -293,6 +298,99 @@ impl Parser<'_> {
         }
         charts.extend(bare);
         charts
+    }
+
+    /// `TYPE name : (A, B) := B; name : INT (0..100); name : INT; … END_TYPE`. What Baton does not execute (a
+    /// structure, an array) is kept as `Unsupported`, naming the construct.
+    fn type_block(&mut self) {
+        let start = self.bump().span;
+        loop {
+            match self.peek() {
+                Tok::Kw(Kw::EndType) => {
+                    self.bump();
+                    self.eat(Tok::Semi);
+                    return;
+                }
+                Tok::Eof => {
+                    self.diags.push(Diagnostic::error(start, "`TYPE` is never closed: expected `END_TYPE`"));
+                    return;
+                }
+                _ => {
+                    if let Ok(t) = self.type_decl() {
+                        self.types.push(t);
+                    } else {
+                        while !matches!(self.peek(), Tok::Semi | Tok::Kw(Kw::EndType) | Tok::Eof) {
+                            self.bump();
+                        }
+                        self.eat(Tok::Semi);
+                    }
+                }
+            }
+        }
+    }
+
+    fn type_decl(&mut self) -> PResult<TypeDef> {
+        let name = self.ident("a type name")?;
+        self.expect(Tok::Colon, "`:`")?;
+        let kind = if self.eat(Tok::LParen) {
+            let mut values = vec![self.ident("an enumeration value")?];
+            while self.eat(Tok::Comma) {
+                values.push(self.ident("an enumeration value")?);
+            }
+            self.expect(Tok::RParen, "`,` or `)`")?;
+            let init = if self.eat(Tok::Assign) { Some(self.ident("an enumeration value")?) } else { None };
+            TypeKind::Enum { values, init }
+        } else if self.peek() == Tok::Ident {
+            let base = self.ident("a type")?;
+            if self.eat(Tok::LParen) {
+                let low = self.signed_int()?;
+                self.expect(Tok::DotDot, "`..`")?;
+                let high = self.signed_int()?;
+                self.expect(Tok::RParen, "`)`")?;
+                TypeKind::Subrange { base, low, high }
+            } else if matches!(self.peek(), Tok::LBracket) || base.key() == "ARRAY" || base.key().ends_with("STRING") {
+                let what = if base.key() == "ARRAY" { "arrays" } else { "strings" };
+                while !matches!(self.peek(), Tok::Semi | Tok::Kw(Kw::EndType) | Tok::Eof) {
+                    self.bump();
+                }
+                TypeKind::Unsupported(what.to_string())
+            } else if base.key() == "STRUCT" {
+                // STRUCT … END_STRUCT: skipped whole.
+                while !(self.peek() == Tok::Ident && self.text(self.span()).eq_ignore_ascii_case("END_STRUCT"))
+                    && self.peek() != Tok::Eof
+                    && self.peek() != Tok::Kw(Kw::EndType)
+                {
+                    self.bump();
+                }
+                if self.peek() == Tok::Ident {
+                    self.bump();
+                }
+                TypeKind::Unsupported("structures".to_string())
+            } else {
+                TypeKind::Alias(base)
+            }
+        } else {
+            return Err(self.error_here("a type: `(A, B)`, `INT (0..10)`, a type name, `STRUCT` or `ARRAY`"));
+        };
+        // An initial value of the whole type (a subrange's or an alias's default) is not kept yet.
+        if self.eat(Tok::Assign) {
+            while !matches!(self.peek(), Tok::Semi | Tok::Kw(Kw::EndType) | Tok::Eof) {
+                self.bump();
+            }
+        }
+        self.expect(Tok::Semi, "`;`")?;
+        Ok(TypeDef { name, kind })
+    }
+
+    fn signed_int(&mut self) -> PResult<i64> {
+        let negative = self.eat(Tok::Minus);
+        match self.peek() {
+            Tok::Int(v) => {
+                self.bump();
+                Ok(if negative { -v } else { v })
+            }
+            _ => Err(self.error_here("an integer")),
+        }
     }
 
     /// `FUNCTION name : TYPE … END_FUNCTION` with an ST body, kept in the library with its syntax errors.
@@ -507,6 +605,10 @@ impl Parser<'_> {
                 }
             }
             self.expect(Tok::RParen, "`,` or `)`")?;
+        } else if self.peek() == Tok::Assign && !matches!(type_name.key().as_str(), "ARRAY" | "STRING" | "WSTRING") {
+            // A declared type's initial value (an enumeration value).
+            self.bump();
+            init = Some(self.expr()?);
         } else {
             // ARRAY[…] OF …, STRING[n], structured initialisers: declared, never executed.
             while !matches!(self.peek(), Tok::Semi | Tok::Kw(Kw::EndVar) | Tok::Eof) {
@@ -737,6 +839,13 @@ impl Parser<'_> {
                     let span = self.bump().span;
                     self.expect(Tok::Semi, "`;`")?;
                     out.push(if kw == Kw::Exit { Stmt::Exit { span } } else { Stmt::Return { span } });
+                }
+                // An enumeration value ending the statements of the arm before it: `OPEN:`, `VALVE#OPEN:`.
+                Tok::Ident
+                    if self.in_case > 0
+                        && matches!(self.peek_at(1), Tok::Colon | Tok::Comma | Tok::DotDot | Tok::Hash) =>
+                {
+                    return Ok(out)
                 }
                 Tok::Ident if self.peek_at(1) == Tok::LParen => {
                     let callee = self.ident("a function block instance")?;
@@ -1050,6 +1159,11 @@ impl Parser<'_> {
                     return Ok(Expr { kind: ExprKind::Call(name, args), span });
                 }
                 self.refuse_index()?;
+                if self.eat(Tok::Hash) {
+                    let value = self.ident("an enumeration value after `#`")?;
+                    let span = name.span.to(value.span);
+                    return Ok(Expr { kind: ExprKind::EnumValue(name, value), span });
+                }
                 if self.eat(Tok::Dot) {
                     let field = self.ident("a member such as `X`, `T` or `Q` after `.`")?;
                     let span = name.span.to(field.span);

@@ -42,6 +42,7 @@ pub fn parse(src: &str) -> Parsed {
             let at = offset_of(src, e.pos());
             let message = format!("malformed XML: {}", strip_position(&e.to_string()));
             return Parsed {
+                types: Vec::new(),
                 charts: Vec::new(),
                 library: Vec::new(),
                 diagnostics: vec![Diagnostic::error(Span::new(at, at + 1), message)],
@@ -62,7 +63,7 @@ pub fn parse(src: &str) -> Parsed {
         let message =
             format!("not a PLCopen TC6 file: the root element is `<{}>`, expected `<project>`", root.tag_name().name());
         reader.diags.push(Diagnostic::error(reader.tag_span(root), message));
-        return Parsed { charts: Vec::new(), library: Vec::new(), diagnostics: reader.diags };
+        return Parsed { charts: Vec::new(), types: Vec::new(), library: Vec::new(), diagnostics: reader.diags };
     }
     match root.tag_name().namespace() {
         Some(ns) if NAMESPACES.contains(&ns) => {}
@@ -77,7 +78,8 @@ pub fn parse(src: &str) -> Parsed {
     }
     // POUs under types/pous, and those that TwinCAT and CODESYS keep in project-level addData.
     let charts = root.descendants().filter(|n| is(n, "pou")).filter_map(|pou| reader.pou(pou)).collect();
-    Parsed { charts, library: reader.library, diagnostics: reader.diags }
+    let types = reader.data_types(root);
+    Parsed { charts, types, library: reader.library, diagnostics: reader.diags }
 }
 
 /// roxmltree ends its messages with ` at LINE:COL`, which the diagnostic header already says.
@@ -309,6 +311,63 @@ impl Reader<'_> {
             None => walk_order(&mut chart),
         }
         Some(chart)
+    }
+
+    /// The project's `types/dataTypes`: enumerations, subranges and aliases; other kinds named as unsupported.
+    fn data_types(&mut self, root: Node) -> Vec<TypeDef> {
+        let mut out = Vec::new();
+        for dt in root.descendants().filter(|n| is(n, "dataType")) {
+            let Some(name) = dt.attribute("name").map(str::trim).filter(|n| !n.is_empty()) else { continue };
+            let name = Ident { name: name.to_string(), span: self.attr_span(dt, "name") };
+            let Some(base) = child(dt, "baseType").and_then(|b| b.first_element_child()) else { continue };
+            let type_name = |n: Node| -> Option<Ident> {
+                let t = n.first_element_child()?;
+                let name = if t.tag_name().name() == "derived" {
+                    t.attribute("name")?.to_string()
+                } else {
+                    t.tag_name().name().to_ascii_uppercase()
+                };
+                Some(Ident { name, span: Span::default() })
+            };
+            let kind = match base.tag_name().name() {
+                "enum" => {
+                    let values: Vec<Ident> = child(base, "values")
+                        .into_iter()
+                        .flat_map(|v| children(v, "value"))
+                        .filter_map(|v| {
+                            Some(Ident {
+                                name: v.attribute("name")?.trim().to_string(),
+                                span: self.attr_span(v, "name"),
+                            })
+                        })
+                        .collect();
+                    let init = child(dt, "initialValue")
+                        .and_then(|i| child(i, "simpleValue"))
+                        .and_then(|s| s.attribute("value"))
+                        .map(|v| Ident { name: v.rsplit('#').next().unwrap_or(v).trim().to_string(), span: name.span });
+                    TypeKind::Enum { values, init }
+                }
+                "subrangeSigned" | "subrangeUnsigned" => {
+                    let range = child(base, "range");
+                    let bound =
+                        |attr: &str| range.and_then(|r| r.attribute(attr)).and_then(|v| v.trim().parse::<i64>().ok());
+                    match (bound("lower"), bound("upper"), child(base, "baseType").and_then(type_name)) {
+                        (Some(low), Some(high), Some(base)) => TypeKind::Subrange { base, low, high },
+                        _ => TypeKind::Unsupported("malformed subranges".to_string()),
+                    }
+                }
+                "derived" => match base.attribute("name") {
+                    Some(n) => TypeKind::Alias(Ident { name: n.to_string(), span: name.span }),
+                    None => continue,
+                },
+                "array" => TypeKind::Unsupported("arrays".to_string()),
+                "struct" => TypeKind::Unsupported("structures".to_string()),
+                "string" | "wstring" => TypeKind::Unsupported("strings".to_string()),
+                other => TypeKind::Alias(Ident { name: other.to_ascii_uppercase(), span: name.span }),
+            };
+            out.push(TypeDef { name, kind });
+        }
+        out
     }
 
     /// A function block POU with an ST body (or none), kept for the charts that instantiate it; its errors are
