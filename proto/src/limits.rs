@@ -17,6 +17,9 @@ pub const XML_CONNECTIONS_WALKED_MAX: usize = 100_000;
 /// reported fault and the chart goes on, so that a loop whose end never comes cannot hang a cycle.
 pub const LOOP_ITERATIONS_MAX: usize = 100_000;
 
+/// Elements of one array variable (each is a variable of the chart).
+pub const ARRAY_ELEMENTS_MAX: usize = 1_000_000;
+
 /// Steps in one chart (and, separately, transitions and actions).
 pub const CHART_ELEMENTS_MAX: usize = 4_000_000;
 

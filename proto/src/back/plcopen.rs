@@ -55,6 +55,22 @@ fn elementary(upper: &str) -> Option<&'static str> {
     })
 }
 
+/// An array's initial elements as `<initialValue><arrayValue>` (nothing when it has none).
+fn array_value(spec: &ArraySpec) -> String {
+    if spec.init.is_empty() {
+        return String::new();
+    }
+    let values: String =
+        spec.init.iter().map(|e| format!("<value><simpleValue value=\"{}\"/></value>", esc(&st::expr(e)))).collect();
+    format!("<initialValue><arrayValue>{values}</arrayValue></initialValue>")
+}
+
+/// `<array>` with its dimensions and element type.
+fn array_element(spec: &ArraySpec) -> String {
+    let dims: String = spec.dims.iter().map(|(l, h)| format!("<dimension lower=\"{l}\" upper=\"{h}\"/>")).collect();
+    format!("<array>{dims}<baseType>{}</baseType></array>", type_element(&spec.elem.name))
+}
+
 /// The TC6 element of a type: elementary, or derived by name.
 fn type_element(name: &str) -> String {
     match elementary(&name.to_ascii_uppercase()) {
@@ -226,9 +242,13 @@ fn data_type(out: &mut String, t: &TypeDef) {
             )
         }
         TypeKind::Alias(base) => (type_element(&base.name), None),
+        TypeKind::Array(spec) => (array_element(spec), None),
         TypeKind::Unsupported(_) => return,
     };
     let _ = write!(out, "      <dataType name=\"{}\"><baseType>{base}</baseType>", esc(&t.name.name));
+    if let TypeKind::Array(spec) = &t.kind {
+        out.push_str(&array_value(spec));
+    }
     if let Some(init) = init {
         let _ = write!(out, "<initialValue><simpleValue value=\"{}\"/></initialValue>", esc(&init));
     }
@@ -286,9 +306,14 @@ fn interface_returning(out: &mut String, vars: &[VarDecl], returns: Option<&Iden
 }
 
 fn variable(out: &mut String, v: &VarDecl) {
-    let ty = type_element(&v.type_name.name);
+    let ty = match &v.array {
+        Some(spec) => array_element(spec),
+        None => type_element(&v.type_name.name),
+    };
     let _ = write!(out, "            <variable name=\"{}\"><type>{ty}</type>", esc(&v.name.name));
-    if let Some(init) = &v.init {
+    if let Some(spec) = &v.array {
+        out.push_str(&array_value(spec));
+    } else if let Some(init) = &v.init {
         let _ = write!(out, "<initialValue><simpleValue value=\"{}\"/></initialValue>", esc(&st::expr(init)));
     } else if !v.members.is_empty() {
         out.push_str("<initialValue><structValue>");

@@ -522,6 +522,10 @@ impl Refs {
                 self.expr(rhs);
             }
             CExpr::Call(c) => c.args.iter().for_each(|a| self.expr(a)),
+            CExpr::Index(ix) => {
+                self.vars.extend((0..ix.len).map(|i| VarId(ix.base.0 + i)));
+                ix.indices.iter().for_each(|e| self.expr(e));
+            }
         }
     }
 

@@ -39,6 +39,7 @@ pub fn compile(chart: &Chart, library: &[FbDef], types: &[TypeDef], diags: &mut 
         types: types.iter().map(|t| (t.name.key(), t)).collect(),
         resolved: HashMap::new(),
         enums: Vec::new(),
+        arrays: HashMap::new(),
     };
     c.run()
 }
@@ -199,6 +200,15 @@ struct Compiler<'a> {
     types: HashMap<String, &'a TypeDef>,
     resolved: HashMap<String, Type>,
     enums: Vec<(std::sync::Arc<crate::exec::types::EnumType>, i64)>,
+    /// The chart's arrays: first element, bounds, element type.
+    arrays: HashMap<String, ArrayInfo>,
+}
+
+struct ArrayInfo {
+    base: VarId,
+    dims: Vec<(i64, i64)>,
+    len: u32,
+    elem: Type,
 }
 
 /// A user function: its frame (parameters, locals, result; shared by its calls, as IEC functions do not
@@ -280,6 +290,14 @@ impl<'a> Compiler<'a> {
             }
             if let Some(fb) = StdFb::from_name(&decl.type_name.key()) {
                 self.declare_instance(decl, fb, &mut vars);
+                continue;
+            }
+            let array = decl.array.clone().or_else(|| match self.types.get(&decl.type_name.key()).map(|t| &t.kind) {
+                Some(TypeKind::Array(spec)) => Some(spec.clone()),
+                _ => None,
+            });
+            if let Some(spec) = array {
+                self.declare_array(decl, &spec, &mut vars);
                 continue;
             }
             if let Some(&def) = self.library.get(&decl.type_name.key()).filter(|d| d.returns.is_none()) {
@@ -603,6 +621,108 @@ impl<'a> Compiler<'a> {
         }
     }
 
+    /// An array variable: one variable per element, `a[1]`, `a[1,2]`, row-major.
+    fn declare_array(&mut self, decl: &VarDecl, spec: &ArraySpec, vars: &mut Vec<VarInfo>) {
+        let mut len: usize = 1;
+        for &(low, high) in &spec.dims {
+            if high < low {
+                self.error(spec.span, format!("array `{}` has an empty dimension {low}..{high}", decl.name.name));
+                return;
+            }
+            len = len.saturating_mul((high - low + 1) as usize);
+        }
+        if len > crate::limits::ARRAY_ELEMENTS_MAX {
+            let message = format!(
+                "array `{}` has {len} elements, more than the {} Baton holds",
+                decl.name.name,
+                crate::limits::ARRAY_ELEMENTS_MAX
+            );
+            self.error(spec.span, message);
+            return;
+        }
+        if StdFb::from_name(&spec.elem.key()).is_some() || self.library.contains_key(&spec.elem.key()) {
+            self.error(spec.elem.span, "arrays of function block instances are not supported yet");
+            return;
+        }
+        let elem = self.resolve_type(&spec.elem);
+        if spec.init.len() > len {
+            self.error(
+                spec.init[len].span,
+                format!("array `{}` has {len} elements, and more initial values", decl.name.name),
+            );
+        }
+        let base = VarId(vars.len() as u32);
+        let default = self.default_of(&elem);
+        let mut index: Vec<i64> = spec.dims.iter().map(|&(low, _)| low).collect();
+        for k in 0..len {
+            let init = match spec.init.get(k) {
+                Some(e) => self.initial_value(e, &elem),
+                None => default,
+            };
+            let label: Vec<String> = index.iter().map(|i| i.to_string()).collect();
+            vars.push(VarInfo {
+                name: format!("{}[{}]", decl.name.name, label.join(",")),
+                ty: elem.clone(),
+                init,
+                constant: decl.constant,
+                section: decl.section,
+                hidden: false,
+            });
+            // The next index, the last dimension fastest.
+            for d in (0..index.len()).rev() {
+                if index[d] < spec.dims[d].1 {
+                    index[d] += 1;
+                    break;
+                }
+                index[d] = spec.dims[d].0;
+            }
+        }
+        self.arrays.insert(decl.name.key(), ArrayInfo { base, dims: spec.dims.clone(), len: len as u32, elem });
+    }
+
+    /// An array element: a variable when every index is a constant (checked against the bounds), else an
+    /// index computed at run time.
+    fn element(&mut self, name: &Ident, indices: &[Expr], vars: &[VarInfo]) -> Option<(CExpr, Ty)> {
+        let Some(info) = self.arrays.get(&name.key()) else {
+            if !self.chart.broken.var(&name.key()) {
+                self.error(name.span, format!("`{}` is not an array", name.name));
+            }
+            return None;
+        };
+        let (base, dims, len, elem) = (info.base, info.dims.clone(), info.len, info.elem.clone());
+        if indices.len() != dims.len() {
+            let message = format!("`{}` has {} dimension(s), indexed with {}", name.name, dims.len(), indices.len());
+            self.error(name.span, message);
+            return None;
+        }
+        let mut compiled = Vec::with_capacity(indices.len());
+        let mut constant = Some(0i64);
+        for (e, &(low, high)) in indices.iter().zip(&dims) {
+            let (c, ty) = self.expr(e, vars);
+            if !ty.is_int() && ty != Ty::Err {
+                self.error(e.span, format!("an array index must be an integer, found {}", ty.name()));
+                return None;
+            }
+            match (constant, is_constant(&c).then(|| eval(&c, &NoEnv))) {
+                (Some(acc), Some(Ok(v))) => {
+                    let i = v.as_i64();
+                    if i < low || i > high {
+                        self.error(e.span, format!("index {i} is outside `{}`'s bounds {low}..{high}", name.name));
+                        return None;
+                    }
+                    constant = Some(acc * (high - low + 1) + (i - low));
+                }
+                _ => constant = None,
+            }
+            compiled.push(c);
+        }
+        let ty = Ty::of(&elem);
+        Some(match constant {
+            Some(offset) => (CExpr::Var(VarId(base.0 + offset as u32)), ty),
+            None => (CExpr::Index(Box::new(IndexExpr { base, dims, indices: compiled, len })), ty),
+        })
+    }
+
     /// A type by name: elementary, or declared in the file (an enumeration; a subrange or an alias as its base).
     fn resolve_type(&mut self, name: &Ident) -> Type {
         self.resolve_depth(name, 0)
@@ -645,6 +765,8 @@ impl<'a> Compiler<'a> {
                 Type::Enum(et)
             }
             TypeKind::Subrange { base, .. } | TypeKind::Alias(base) => self.resolve_depth(base, depth + 1),
+            // An array type is laid out where a variable is declared with it.
+            TypeKind::Array(_) => Type::Unsupported("ARRAY".to_string()),
             TypeKind::Unsupported(_) => unsupported(),
         };
         self.resolved.insert(key, ty.clone());
@@ -974,6 +1096,31 @@ impl<'a> Compiler<'a> {
         Some(match stmt {
             Stmt::Assign { target, value, .. } => {
                 let (mut cvalue, mut vty) = self.expr(value, vars);
+                if let ExprKind::Index(name, indices) = &target.kind {
+                    let (element, ety) = self.element(name, indices, vars)?;
+                    if !assignable(ety, vty) {
+                        self.error(
+                            value.span,
+                            format!(
+                                "cannot assign {} to an element of `{}`, which holds {}",
+                                vty.name(),
+                                name.name,
+                                ety.name()
+                            ),
+                        );
+                        return None;
+                    }
+                    let base = self.arrays.get(&name.key()).map(|a| a.base.index());
+                    if base.and_then(|b| vars.get(b)).is_some_and(|v| v.constant) {
+                        self.error(target.span, format!("`{}` is a CONSTANT and cannot be assigned", name.name));
+                        return None;
+                    }
+                    return Some(match element {
+                        CExpr::Var(var) => CStmt::Assign { var, value: cvalue },
+                        CExpr::Index(ix) => CStmt::AssignIndex { target: ix, value: cvalue },
+                        _ => return None,
+                    });
+                }
                 let id = self.place(target, vars)?;
                 let var = &vars[id.index()];
                 // IEC 61131-3 writes BOOL literals as 0 and 1 too (`ORANGE_LIGHT := 1;` in Beremiz's examples).
@@ -1744,6 +1891,7 @@ impl<'a> Compiler<'a> {
             ExprKind::Name(name) => self.name(name, vars),
             ExprKind::Field(base, field) => self.field(base, field, vars),
             ExprKind::Call(callee, args) => self.call(e, callee, args, vars),
+            ExprKind::Index(name, indices) => self.element(name, indices, vars).unwrap_or((FALSE, Ty::Err)),
             ExprKind::EnumValue(ty, value) => match self.enum_value(Some(ty), value) {
                 Some(found) => found,
                 None => {
@@ -1828,6 +1976,10 @@ impl<'a> Compiler<'a> {
                 return (FALSE, Ty::Err);
             }
             return (CExpr::Var(id), Ty::of(&var.ty));
+        }
+        if self.arrays.contains_key(&name.key()) {
+            self.error(name.span, format!("`{}` is an array: index it, such as `{}[…]`", name.name, name.name));
+            return (FALSE, Ty::Err);
         }
         if let Some(found) = self.enum_value(None, name) {
             return found;

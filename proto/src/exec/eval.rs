@@ -32,6 +32,21 @@ pub enum Fault {
     LoopLimit,
     /// MUX's selector named no input.
     MuxSelector,
+    /// An array index outside the array's bounds.
+    IndexOutOfRange,
+}
+
+/// The element an index expression names.
+fn element(ix: &crate::exec::program::IndexExpr, env: &impl Env) -> Result<VarId, Fault> {
+    let mut offset: i64 = 0;
+    for (e, &(low, high)) in ix.indices.iter().zip(&ix.dims) {
+        let i = eval(e, env)?.as_i64();
+        if i < low || i > high {
+            return Err(Fault::IndexOutOfRange);
+        }
+        offset = offset * (high - low + 1) + (i - low);
+    }
+    Ok(VarId(ix.base.0 + offset as u32))
 }
 
 pub fn eval(e: &CExpr, env: &impl Env) -> Result<Value, Fault> {
@@ -59,6 +74,7 @@ pub fn eval(e: &CExpr, env: &impl Env) -> Result<Value, Fault> {
         CExpr::Cmp(op, a, b) => Value::Bool(compare(*op, eval(a, env)?, eval(b, env)?)),
         CExpr::Arith { op, wrap, lhs, rhs } => arith(*op, *wrap, eval(lhs, env)?, eval(rhs, env)?)?,
         CExpr::Call(c) => c.ty.coerce(call(&c.func, &c.args, &c.ty, env)?),
+        CExpr::Index(ix) => env.var(element(ix, env)?),
     })
 }
 
@@ -229,6 +245,12 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
                 env.set_var(*var, v);
                 Flow::Next
             }
+            CStmt::AssignIndex { target, value } => {
+                let v = eval(value, env)?;
+                let var = element(target, env)?;
+                env.set_var(var, v);
+                Flow::Next
+            }
             CStmt::If { branches, otherwise } => {
                 let mut taken = None;
                 for (cond, stmts) in branches {
@@ -378,6 +400,7 @@ pub fn is_constant(e: &CExpr) -> bool {
         CExpr::Logic(_, a, b) | CExpr::Cmp(_, a, b) => is_constant(a) && is_constant(b),
         CExpr::Arith { lhs, rhs, .. } => is_constant(lhs) && is_constant(rhs),
         CExpr::Call(c) => c.args.iter().all(is_constant),
+        CExpr::Index(_) => false,
     }
 }
 

@@ -85,6 +85,10 @@ impl Reads {
                 self.walk(b);
             }
             CExpr::Call(c) => c.args.iter().for_each(|a| self.walk(a)),
+            CExpr::Index(ix) => {
+                self.vars.extend((0..ix.len).map(|i| VarId(ix.base.0 + i)));
+                ix.indices.iter().for_each(|e| self.walk(e));
+            }
         }
     }
 }
@@ -202,6 +206,19 @@ pub enum CExpr {
     },
     /// A standard function (boxed: rare, and it would make every expression node larger).
     Call(Box<FnCall>),
+    /// An array element whose index is known only at run time.
+    Index(Box<IndexExpr>),
+}
+
+/// `a[i, j]`: the element `base + offset`, the offset row-major from the indices and the bounds; an index
+/// outside its bounds is a fault.
+#[derive(Clone, Debug)]
+pub struct IndexExpr {
+    pub base: VarId,
+    pub dims: Vec<(i64, i64)>,
+    pub indices: Vec<CExpr>,
+    /// Elements of the array.
+    pub len: u32,
 }
 
 /// A standard function call; the result is converted to `ty` (its integer width, REAL's precision).
@@ -222,6 +239,11 @@ impl CExpr {
 pub enum CStmt {
     Assign {
         var: VarId,
+        value: CExpr,
+    },
+    /// `a[i] := value` with an index known only at run time.
+    AssignIndex {
+        target: Box<IndexExpr>,
         value: CExpr,
     },
     If {
@@ -276,6 +298,11 @@ pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl 
         match stmt {
             CStmt::Assign { var, value } => {
                 write(*var);
+                read(value);
+            }
+            CStmt::AssignIndex { target, value } => {
+                (0..target.len).for_each(|i| write(VarId(target.base.0 + i)));
+                target.indices.iter().for_each(&mut *read);
                 read(value);
             }
             CStmt::If { branches, otherwise } => {

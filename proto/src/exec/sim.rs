@@ -229,6 +229,7 @@ pub fn fault_message(program: &Program, source: FaultSource, fault: Fault) -> St
     let what = match fault {
         Fault::DivisionByZero => "division by zero",
         Fault::MuxSelector => "a MUX selector past its inputs",
+        Fault::IndexOutOfRange => "an array index outside its bounds",
         Fault::LoopLimit => {
             let FaultSource::Action(a) = source else { return "a loop past its limit".to_string() };
             return format!(

@@ -59,11 +59,19 @@ pub struct TypeDef {
 #[derive(Clone, Debug, PartialEq)]
 pub enum TypeKind {
     /// `(OPEN, CLOSED) := CLOSED`.
-    Enum { values: Vec<Ident>, init: Option<Ident> },
+    Enum {
+        values: Vec<Ident>,
+        init: Option<Ident>,
+    },
     /// `INT (0..1000)`: held as its base type.
-    Subrange { base: Ident, low: i64, high: i64 },
+    Subrange {
+        base: Ident,
+        low: i64,
+        high: i64,
+    },
     /// `Speed : INT;`, or another declared type.
     Alias(Ident),
+    Array(ArraySpec),
     /// A structure, an array, a string type…: declared, not executed yet; the construct named.
     Unsupported(String),
 }
@@ -147,6 +155,18 @@ pub struct VarDecl {
     pub init: Option<Expr>,
     /// A function block instance's initial inputs: `t1 : TON := (PT := T#2s);`.
     pub members: Vec<(Ident, Expr)>,
+    /// `ARRAY [1..3, 0..1] OF INT := [1, 2, 4(0)]` (the type name is then `ARRAY`).
+    pub array: Option<ArraySpec>,
+}
+
+/// An array type: its dimensions (inclusive bounds), element type, and initial elements in order (repetitions
+/// expanded; fewer than the array's size leave the rest at the element type's default).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ArraySpec {
+    pub dims: Vec<(i64, i64)>,
+    pub elem: Ident,
+    pub init: Vec<Expr>,
+    pub span: Span,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -388,6 +408,8 @@ pub enum ExprKind {
     Name(Ident),
     /// `step.X`, `step.T`, `action.Q`, `instance.Q`.
     Field(Ident, Ident),
+    /// An array element: `a[i]`, `grid[i, j + 1]`.
+    Index(Ident, Vec<Expr>),
     /// An enumeration value written with its type: `MYTYPE#OPEN`.
     EnumValue(Ident, Ident),
     /// A function call: `ABS(x)`, `LIMIT(0, x, 10)`, `INT_TO_REAL(i)`, `SEL(G := c, IN0 := a, IN1 := b)`.

@@ -348,8 +348,10 @@ impl Parser<'_> {
                 let high = self.signed_int()?;
                 self.expect(Tok::RParen, "`)`")?;
                 TypeKind::Subrange { base, low, high }
-            } else if matches!(self.peek(), Tok::LBracket) || base.key() == "ARRAY" || base.key().ends_with("STRING") {
-                let what = if base.key() == "ARRAY" { "arrays" } else { "strings" };
+            } else if base.key() == "ARRAY" {
+                TypeKind::Array(self.array_spec(base.span)?)
+            } else if matches!(self.peek(), Tok::LBracket) || base.key().ends_with("STRING") {
+                let what = "strings";
                 while !matches!(self.peek(), Tok::Semi | Tok::Kw(Kw::EndType) | Tok::Eof) {
                     self.bump();
                 }
@@ -380,6 +382,52 @@ impl Parser<'_> {
         }
         self.expect(Tok::Semi, "`;`")?;
         Ok(TypeDef { name, kind })
+    }
+
+    /// After `ARRAY`: `[1..3, 0..1] OF INT`, and an initial value `:= [1, 2, 3(0)]` if one follows.
+    fn array_spec(&mut self, start: Span) -> PResult<ArraySpec> {
+        self.expect(Tok::LBracket, "`[` and the array's bounds")?;
+        let mut dims = Vec::new();
+        loop {
+            let low = self.signed_int()?;
+            self.expect(Tok::DotDot, "`..`")?;
+            let high = self.signed_int()?;
+            dims.push((low, high));
+            if !self.eat(Tok::Comma) {
+                break;
+            }
+        }
+        self.expect(Tok::RBracket, "`,` or `]`")?;
+        if !(self.peek() == Tok::Ident && self.text(self.span()).eq_ignore_ascii_case("OF"))
+            && self.peek() != Tok::Kw(Kw::Of)
+        {
+            return Err(self.error_here("`OF` and the element type"));
+        }
+        self.bump();
+        let elem = self.ident("an element type")?;
+        let mut init = Vec::new();
+        if self.peek() == Tok::Assign && self.peek_at(1) == Tok::LBracket {
+            self.bump();
+            self.bump();
+            loop {
+                // `n(value)` repeats a value n times.
+                if let (Tok::Int(n), Tok::LParen) = (self.peek(), self.peek_at(1)) {
+                    self.bump();
+                    self.bump();
+                    let value = self.expr()?;
+                    self.expect(Tok::RParen, "`)`")?;
+                    let n = n.clamp(0, crate::limits::ARRAY_ELEMENTS_MAX as i64) as usize;
+                    init.extend(std::iter::repeat_n(value, n));
+                } else {
+                    init.push(self.expr()?);
+                }
+                if !self.eat(Tok::Comma) {
+                    break;
+                }
+            }
+            self.expect(Tok::RBracket, "`,` or `]`")?;
+        }
+        Ok(ArraySpec { dims, elem, init, span: start.to(self.prev_span()) })
     }
 
     fn signed_int(&mut self) -> PResult<i64> {
@@ -577,7 +625,10 @@ impl Parser<'_> {
         let elementary = crate::exec::types::Type::from_name(&type_name.key()).is_some();
         let mut init = None;
         let mut members = Vec::new();
-        if elementary {
+        let mut array = None;
+        if type_name.key() == "ARRAY" {
+            array = Some(self.array_spec(type_name.span)?);
+        } else if elementary {
             if self.eat(Tok::Assign) {
                 init = Some(self.expr()?);
             }
@@ -624,6 +675,7 @@ impl Parser<'_> {
                 type_name: type_name.clone(),
                 init: init.clone(),
                 members: members.clone(),
+                array: array.clone(),
             });
         }
         Ok(())
@@ -887,7 +939,9 @@ impl Parser<'_> {
     /// An assignment's target: a variable, or a member of an instance (`t1.PT`).
     fn place(&mut self) -> PResult<Expr> {
         let name = self.ident("a variable")?;
-        self.refuse_index()?;
+        if self.peek() == Tok::LBracket {
+            return self.index(name);
+        }
         if self.eat(Tok::Dot) {
             let field = self.ident("a member name after `.`")?;
             let span = name.span.to(field.span);
@@ -929,14 +983,16 @@ impl Parser<'_> {
         }
     }
 
-    /// Arrays are declared but not executed yet: an index is refused by name.
-    fn refuse_index(&mut self) -> PResult<()> {
-        if self.peek() == Tok::LBracket {
-            let span = self.span();
-            self.diags.push(Diagnostic::error(span, "array indexing (`name[…]`) is not supported yet"));
-            return Err(Failed);
+    /// `[i, j]` after an array's name.
+    fn index(&mut self, name: Ident) -> PResult<Expr> {
+        self.bump();
+        let mut indices = vec![self.expr()?];
+        while self.eat(Tok::Comma) {
+            indices.push(self.expr()?);
         }
-        Ok(())
+        let close = self.expect(Tok::RBracket, "`,` or `]`")?;
+        let span = name.span.to(close.span);
+        Ok(Expr { kind: ExprKind::Index(name, indices), span })
     }
 
     fn peek_eat(&mut self, tok: Tok) -> Option<Token> {
@@ -1158,7 +1214,9 @@ impl Parser<'_> {
                     let span = name.span.to(close.span);
                     return Ok(Expr { kind: ExprKind::Call(name, args), span });
                 }
-                self.refuse_index()?;
+                if self.peek() == Tok::LBracket {
+                    return self.index(name);
+                }
                 if self.eat(Tok::Hash) {
                     let value = self.ident("an enumeration value after `#`")?;
                     let span = name.span.to(value.span);

@@ -313,6 +313,35 @@ impl Reader<'_> {
         Some(chart)
     }
 
+    /// An `<array>` type (dimensions, element type) with its `arrayValue` initial elements, repetitions expanded.
+    fn array_spec(&mut self, array: Node, init: Option<Node>) -> Option<ArraySpec> {
+        let mut dims = Vec::new();
+        for d in children(array, "dimension") {
+            let bound = |attr: &str| d.attribute(attr).and_then(|v| v.trim().parse::<i64>().ok());
+            dims.push((bound("lower")?, bound("upper")?));
+        }
+        let elem = child(array, "baseType").and_then(|b| b.first_element_child())?;
+        let name = if elem.tag_name().name() == "derived" {
+            elem.attribute("name")?.to_string()
+        } else {
+            elem.tag_name().name().to_ascii_uppercase()
+        };
+        let mut values = Vec::new();
+        for v in init.and_then(|i| child(i, "arrayValue")).into_iter().flat_map(|a| children(a, "value")) {
+            let repeat = v.attribute("repetitionValue").and_then(|r| r.trim().parse::<usize>().ok()).unwrap_or(1);
+            if let Some(e) = child(v, "simpleValue").and_then(|s| self.expr_attr(s, "value")) {
+                values.extend(std::iter::repeat_n(e, repeat.min(crate::limits::ARRAY_ELEMENTS_MAX)));
+            }
+        }
+        let range = array.range();
+        Some(ArraySpec {
+            dims,
+            elem: Ident { name, span: self.tag_span(elem) },
+            init: values,
+            span: Span::new(range.start, range.end),
+        })
+    }
+
     /// The project's `types/dataTypes`: enumerations, subranges and aliases; other kinds named as unsupported.
     fn data_types(&mut self, root: Node) -> Vec<TypeDef> {
         let mut out = Vec::new();
@@ -360,7 +389,10 @@ impl Reader<'_> {
                     Some(n) => TypeKind::Alias(Ident { name: n.to_string(), span: name.span }),
                     None => continue,
                 },
-                "array" => TypeKind::Unsupported("arrays".to_string()),
+                "array" => match self.array_spec(base, child(dt, "initialValue")) {
+                    Some(spec) => TypeKind::Array(spec),
+                    None => TypeKind::Unsupported("malformed arrays".to_string()),
+                },
                 "struct" => TypeKind::Unsupported("structures".to_string()),
                 "string" | "wstring" => TypeKind::Unsupported("strings".to_string()),
                 other => TypeKind::Alias(Ident { name: other.to_ascii_uppercase(), span: name.span }),
@@ -431,6 +463,9 @@ impl Reader<'_> {
             for v in children(block, "variable") {
                 let Some(name) = self.ident_attr(v, "name") else { continue };
                 let type_node = child(v, "type").and_then(|t| t.first_element_child());
+                let array = type_node
+                    .filter(|t| t.tag_name().name() == "array")
+                    .and_then(|t| self.array_spec(t, child(v, "initialValue")));
                 let type_name = match type_node {
                     Some(t) if t.tag_name().name() == "derived" => {
                         t.attribute("name").unwrap_or("(unnamed derived type)").to_string()
@@ -462,6 +497,7 @@ impl Reader<'_> {
                     type_name: Ident { name: type_name, span: type_span },
                     init,
                     members,
+                    array,
                 });
             }
         }
