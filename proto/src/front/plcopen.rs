@@ -57,6 +57,8 @@ pub fn parse(src: &str) -> Parsed {
         called: HashSet::new(),
         references: HashMap::new(),
         library: Vec::new(),
+        implicit: Vec::new(),
+        inits: HashMap::new(),
     };
     let root = doc.root_element();
     if root.tag_name().name() != "project" {
@@ -155,6 +157,10 @@ struct Reader<'s> {
     references: HashMap<String, usize>,
     /// Function blocks with ST bodies.
     library: Vec<FbDef>,
+    /// Variables the POU being read needs that its interface does not declare (edge contacts' state), and
+    /// the initial values of those it declares.
+    implicit: Vec<VarDecl>,
+    inits: HashMap<String, Expr>,
 }
 
 impl Reader<'_> {
@@ -301,10 +307,13 @@ impl Reader<'_> {
             .flat_map(|t| children(t, "transition"))
             .filter_map(|t| Some((t.attribute("name")?.to_ascii_uppercase(), t)))
             .collect();
+        self.implicit.clear();
+        self.inits = chart.vars.iter().filter_map(|v| Some((v.name.key(), v.init.clone()?))).collect();
         for action in child(pou, "actions").into_iter().flat_map(|a| children(a, "action")) {
             self.named_action(action, &mut chart);
         }
         let transition_ids = self.sfc(sfc, &named_transitions, &mut chart);
+        chart.vars.append(&mut self.implicit);
         // A file Baton wrote keeps Baton's element order; any other is ordered as Beremiz would run it.
         match baton_order(pou) {
             Some(order) => apply_order(&mut chart, &transition_ids, &order),
@@ -1091,16 +1100,53 @@ impl Reader<'_> {
             }
             "leftPowerRail" => Some(Expr { kind: ExprKind::Bool(true), span }),
             "contact" => {
-                if let Some(edge @ ("rising" | "falling")) = n.attribute("edge") {
-                    self.error(span, format!("{edge}-edge contacts are not supported yet"));
-                    return None;
-                }
                 let Some(variable) = child(n, "variable") else {
                     self.error(span, "a contact without a `<variable>`");
                     return None;
                 };
                 let var = self.expr_text(variable)?;
                 let var = if flag(n, "negated") { not(var) } else { var };
+                // A transition-sensing contact is TRUE for one evaluation after its variable changed (rising: from
+                // FALSE to TRUE), against the value it had at the last evaluation — at the first, the variable's
+                // initial value. The edge and the last value are variables of their own, set where the rung is
+                // evaluated.
+                let var = match n.attribute("edge") {
+                    Some(edge @ ("rising" | "falling")) => {
+                        let id = local_id(n).unwrap_or(0);
+                        let ident = |name: String| Ident { name, span };
+                        let (edge_name, last_name) = (format!("_edge{id}"), format!("_edge{id}_last"));
+                        let name_expr = |name: &str| Expr { kind: ExprKind::Name(ident(name.to_string())), span };
+                        if !self.implicit.iter().any(|d| d.name.name == edge_name) {
+                            let start = match &var.kind {
+                                ExprKind::Name(v) => self.inits.get(&v.key()).cloned(),
+                                _ => None,
+                            };
+                            for (name, init) in [(edge_name.clone(), None), (last_name.clone(), start)] {
+                                self.implicit.push(VarDecl {
+                                    name: ident(name),
+                                    section: VarSection::Local,
+                                    constant: false,
+                                    type_name: ident("BOOL".to_string()),
+                                    init,
+                                    members: Vec::new(),
+                                    array: None,
+                                });
+                            }
+                        }
+                        if self.called.insert(id) {
+                            let last = name_expr(&last_name);
+                            let changed = if edge == "rising" {
+                                binary(BinOp::And, var.clone(), not(last))
+                            } else {
+                                binary(BinOp::And, not(var.clone()), last)
+                            };
+                            self.calls.push(Stmt::Assign { target: name_expr(&edge_name), value: changed, span });
+                            self.calls.push(Stmt::Assign { target: name_expr(&last_name), value: var, span });
+                        }
+                        name_expr(&edge_name)
+                    }
+                    _ => var,
+                };
                 let input = self.wired(elements, n, depth)?;
                 Some(match input.kind {
                     ExprKind::Bool(true) => var,
@@ -1650,5 +1696,47 @@ mod tests {
         let d = &parsed.diagnostics[0];
         assert!(d.message.starts_with("malformed XML"), "{}", d.message);
         assert_eq!(crate::front::diag::LineIndex::new(src).line_col(d.span.start).0, 3);
+    }
+
+    #[test]
+    fn edge_contacts_pulse_for_one_evaluation_after_their_edge() {
+        // An LD action: `pulse` is a rising-edge contact on `x`, `low` a falling-edge one; a counter counts
+        // the pulses.
+        let src = r#"<project xmlns="http://www.plcopen.org/xml/tc6_0201"><types><pous>
+<pou name="p" pouType="program"><interface><localVars>
+<variable name="x"><type><BOOL/></type></variable>
+<variable name="pulse"><type><BOOL/></type></variable>
+<variable name="low"><type><BOOL/></type></variable>
+<variable name="n"><type><INT/></type></variable>
+<variable name="m"><type><INT/></type></variable>
+</localVars></interface>
+<actions>
+<action name="Watch"><body><LD>
+<leftPowerRail localId="1"><connectionPointOut formalParameter=""/></leftPowerRail>
+<contact localId="2" edge="rising"><connectionPointIn><connection refLocalId="1"/></connectionPointIn><connectionPointOut/><variable>x</variable></contact>
+<coil localId="3"><connectionPointIn><connection refLocalId="2"/></connectionPointIn><connectionPointOut/><variable>pulse</variable></coil>
+<contact localId="4" edge="falling"><connectionPointIn><connection refLocalId="1"/></connectionPointIn><connectionPointOut/><variable>x</variable></contact>
+<coil localId="5"><connectionPointIn><connection refLocalId="4"/></connectionPointIn><connectionPointOut/><variable>low</variable></coil>
+</LD></body></action>
+<action name="Count"><body><ST><![CDATA[IF pulse THEN n := n + 1; END_IF; IF low THEN m := m + 1; END_IF;]]></ST></body></action>
+</actions>
+<body><SFC>
+<step localId="10" name="S" initialStep="true"/>
+<actionBlock localId="11"><connectionPointIn><connection refLocalId="10"/></connectionPointIn>
+<action localId="0" qualifier="N"><reference name="Watch"/></action>
+<action localId="0" qualifier="N"><reference name="Count"/></action></actionBlock>
+</SFC></body></pou></pous></types></project>"#;
+        let report = crate::front::check::check_source(src);
+        assert_eq!(report.error_count(), 0, "{:?}", report.diagnostics);
+        let program = std::sync::Arc::new(report.charts[0].program.clone().expect("a program"));
+        let x = program.var_by_name("x").expect("x");
+        let mut engine = crate::exec::engine::Engine::new(std::sync::Arc::clone(&program));
+        // x: FALSE, TRUE ×3, FALSE ×2, TRUE, FALSE: two rising edges, two falling ones.
+        for (i, v) in [false, true, true, true, false, false, true, false].into_iter().enumerate() {
+            engine.handle(crate::exec::engine::Input::Set(x, crate::exec::types::Value::Bool(v))).expect("set");
+            engine.handle_cycle(10 * i as u64).expect("cycle");
+        }
+        let value = |name: &str| engine.value(program.var_by_name(name).expect("var")).as_i64();
+        assert_eq!((value("n"), value("m")), (2, 2));
     }
 }
