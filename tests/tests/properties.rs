@@ -203,6 +203,9 @@ proptest! {
         "END_TRANSITION", "FROM", "TO", "ACTION", "END_ACTION", "IF", "THEN", "ELSIF", "ELSE", "END_IF", "PRIORITY",
         "a", "b", "S1", "S2", "x", ":", ":=", ";", ",", "(", ")", ".", "X", "T", "Q", "N", "S", "SD", "L", "T#1s",
         "1", "2.5", "TRUE", "NOT", "AND", "+", "/", "0", "=", "<", "BOOL", "INT", "TIME", "{p}", "(*", "*)", "'s",
+        "CASE", "OF", "END_CASE", "FOR", "BY", "DO", "END_FOR", "WHILE", "END_WHILE", "REPEAT", "UNTIL", "END_REPEAT",
+        "EXIT", "RETURN", "TON", "CTU", "R_TRIG", "=>", "[", "]", "..", "ARRAY", "TYPE", "END_TYPE", "FUNCTION",
+        "END_FUNCTION", "END_FUNCTION_BLOCK", "#", "**", "IN", "PT", "LIMIT", "INT_TO_REAL",
     ]), 0..120)) {
         let _ = check_source(&words.join(" "));
     }

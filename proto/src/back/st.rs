@@ -56,6 +56,9 @@ fn write_expr(out: &mut String, e: &Expr, min: u8) {
         ExprKind::Time(ms) => {
             let _ = write!(out, "T#{ms}ms");
         }
+        ExprKind::Date(ms) => out.push_str(&crate::exec::types::Type::Date.show(crate::exec::types::Value::Time(*ms))),
+        ExprKind::Tod(ms) => out.push_str(&crate::exec::types::Type::Tod.show(crate::exec::types::Value::Time(*ms))),
+        ExprKind::Dt(ms) => out.push_str(&crate::exec::types::Type::Dt.show(crate::exec::types::Value::Time(*ms))),
         ExprKind::Name(id) => out.push_str(&id.name),
         ExprKind::Field(base, field) => {
             let _ = write!(out, "{}.{}", base.name, field.name);

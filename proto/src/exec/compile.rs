@@ -73,6 +73,9 @@ enum Ty {
         long: bool,
     },
     Time,
+    Date,
+    Tod,
+    Dt,
     /// A value of the enumeration with this id.
     Enum(u32),
     Err,
@@ -82,6 +85,9 @@ impl Ty {
     fn of(ty: &Type) -> Ty {
         match ty {
             Type::Enum(e) => Ty::Enum(e.id),
+            Type::Date => Ty::Date,
+            Type::Tod => Ty::Tod,
+            Type::Dt => Ty::Dt,
             Type::Bool => Ty::Bool,
             Type::Int(k) => Ty::Int(*k),
             Type::Real { long } => Ty::Real { long: *long },
@@ -106,6 +112,9 @@ impl Ty {
             Ty::Real { long } => Type::Real { long }.to_string(),
             Ty::Time => "TIME".into(),
             Ty::Enum(_) => "an enumeration value".into(),
+            Ty::Date => "DATE".into(),
+            Ty::Tod => "TIME_OF_DAY".into(),
+            Ty::Dt => "DATE_AND_TIME".into(),
             Ty::Err => "an invalid expression".into(),
         }
     }
@@ -126,6 +135,9 @@ impl Ty {
             Ty::Real { long } => Type::Real { long },
             Ty::Time => Type::Time,
             Ty::Enum(_) => Type::Int(IntKind::Dint),
+            Ty::Date => Type::Date,
+            Ty::Tod => Type::Tod,
+            Ty::Dt => Type::Dt,
         }
     }
 }
@@ -149,12 +161,17 @@ fn binary_type(op: BinOp, a: Ty, b: Ty) -> Option<Ty> {
         Pow => (a.is_num() && b.is_num()).then(|| join(a, b)),
         Eq | Ne | Lt | Le | Gt | Ge => {
             let ok = (a.is_num() && b.is_num())
-                || (a == Ty::Time && b == Ty::Time)
+                || (a == b && matches!(a, Ty::Time | Ty::Date | Ty::Tod | Ty::Dt))
                 || (a == Ty::Bool && b == Ty::Bool)
                 || (matches!(a, Ty::Enum(_)) && a == b);
             ok.then_some(Ty::Bool)
         }
         Add | Sub if a == Ty::Time && b == Ty::Time => Some(Ty::Time),
+        // A time of day or a date and time moved by a duration; the duration between two of them.
+        Add if matches!((a, b), (Ty::Tod | Ty::Dt, Ty::Time)) => Some(a),
+        Add if matches!((a, b), (Ty::Time, Ty::Tod | Ty::Dt)) => Some(b),
+        Sub if matches!((a, b), (Ty::Tod | Ty::Dt, Ty::Time)) => Some(a),
+        Sub if a == b && matches!(a, Ty::Tod | Ty::Dt | Ty::Date) => Some(Ty::Time),
         Mul if (a == Ty::Time && b.is_num()) || (a.is_num() && b == Ty::Time) => Some(Ty::Time),
         Div if a == Ty::Time && b.is_num() => Some(Ty::Time),
         Mod => (a.is_int() && b.is_int()).then(|| join(a, b)),
@@ -1888,6 +1905,9 @@ impl<'a> Compiler<'a> {
             ExprKind::Int(v) => (CExpr::Const(Value::Int(*v)), Ty::IntLit),
             ExprKind::Real(v) => (CExpr::Const(Value::Real(*v)), Ty::Real { long: false }),
             ExprKind::Time(v) => (CExpr::Const(Value::Time(*v)), Ty::Time),
+            ExprKind::Date(v) => (CExpr::Const(Value::Time(*v)), Ty::Date),
+            ExprKind::Tod(v) => (CExpr::Const(Value::Time(*v)), Ty::Tod),
+            ExprKind::Dt(v) => (CExpr::Const(Value::Time(*v)), Ty::Dt),
             ExprKind::Name(name) => self.name(name, vars),
             ExprKind::Field(base, field) => self.field(base, field, vars),
             ExprKind::Call(callee, args) => self.call(e, callee, args, vars),

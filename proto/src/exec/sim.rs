@@ -103,10 +103,13 @@ pub fn parse_value(ty: &Type, json: &serde_json::Value) -> Option<Value> {
         Type::Bool => json.as_bool().map(Value::Bool),
         Type::Int(k) => json.as_i64().filter(|v| k.contains(*v)).map(Value::Int),
         Type::Real { .. } => json.as_f64().map(|r| ty.coerce(Value::Real(r))),
-        Type::Time => match json {
+        Type::Time | Type::Date | Type::Tod | Type::Dt => match json {
             serde_json::Value::String(s) => match lex(s).tokens[..] {
-                [t, e] if e.tok == Tok::Eof => match t.tok {
-                    Tok::Time(ms) => Some(Value::Time(ms)),
+                [t, e] if e.tok == Tok::Eof => match (ty, t.tok) {
+                    (Type::Time, Tok::Time(ms))
+                    | (Type::Date, Tok::Date(ms))
+                    | (Type::Tod, Tok::Tod(ms))
+                    | (Type::Dt, Tok::Dt(ms)) => Some(Value::Time(ms)),
                     _ => None,
                 },
                 _ => None,

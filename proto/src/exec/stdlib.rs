@@ -489,10 +489,13 @@ pub fn convert(v: Value, to: &Type) -> Value {
             other => other.as_i64(),
         })),
         Type::Real { .. } => to.coerce(Value::Real(v.as_f64())),
-        Type::Time => Value::Time(match v {
+        Type::Time | Type::Dt => Value::Time(match v {
             Value::Real(r) => r.round() as i64,
             other => other.as_i64(),
         }),
+        // DT_TO_TOD keeps the time of day, DT_TO_DATE the day.
+        Type::Tod => Value::Time(v.as_i64().rem_euclid(86_400_000)),
+        Type::Date => Value::Time(v.as_i64() - v.as_i64().rem_euclid(86_400_000)),
         Type::Enum(_) | Type::Unsupported(_) => v,
     }
 }

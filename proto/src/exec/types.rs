@@ -92,9 +92,55 @@ pub struct EnumType {
     pub values: Vec<String>,
 }
 
+/// Days since 1970-01-01 of a civil date (proleptic Gregorian), and back: DATE and DATE_AND_TIME values are
+/// milliseconds since 1970-01-01-00:00:00, TIME_OF_DAY values milliseconds since midnight.
+pub fn days_from_civil(y: i64, m: i64, d: i64) -> i64 {
+    let y = if m <= 2 { y - 1 } else { y };
+    let era = y.div_euclid(400);
+    let yoe = y - era * 400;
+    let doy = (153 * (m + if m > 2 { -3 } else { 9 }) + 2) / 5 + d - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    era * 146_097 + doe - 719_468
+}
+
+pub fn civil_from_days(days: i64) -> (i64, i64, i64) {
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    (yoe + era * 400 + i64::from(m <= 2), m, d)
+}
+
+const DAY_MS: i64 = 86_400_000;
+
+/// `12:30:05.250` from milliseconds since midnight.
+pub fn show_tod(ms: i64) -> String {
+    let ms = ms.rem_euclid(DAY_MS);
+    let (h, m, s, f) = (ms / 3_600_000, ms / 60_000 % 60, ms / 1000 % 60, ms % 1000);
+    if f == 0 {
+        format!("{h:02}:{m:02}:{s:02}")
+    } else {
+        format!("{h:02}:{m:02}:{s:02}.{f:03}")
+    }
+}
+
+/// `2026-12-01` from milliseconds since 1970-01-01.
+pub fn show_date(ms: i64) -> String {
+    let (y, m, d) = civil_from_days(ms.div_euclid(DAY_MS));
+    format!("{y:04}-{m:02}-{d:02}")
+}
+
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub enum Type {
     Enum(std::sync::Arc<EnumType>),
+    /// DATE, TIME_OF_DAY, DATE_AND_TIME: held as `Value::Time` milliseconds (see `days_from_civil`).
+    Date,
+    Tod,
+    Dt,
     Bool,
     Int(IntKind),
     /// REAL (single precision) when false, LREAL when true.
@@ -127,6 +173,9 @@ impl Type {
             "REAL" => Type::Real { long: false },
             "LREAL" => Type::Real { long: true },
             "TIME" | "LTIME" => Type::Time,
+            "DATE" | "LDATE" => Type::Date,
+            "TIME_OF_DAY" | "TOD" | "LTOD" => Type::Tod,
+            "DATE_AND_TIME" | "DT" | "LDT" => Type::Dt,
             _ => return None,
         })
     }
@@ -137,14 +186,16 @@ impl Type {
             Type::Enum(_) => Value::Int(0),
             Type::Int(_) => Value::Int(0),
             Type::Real { .. } => Value::Real(0.0),
-            Type::Time => Value::Time(0),
+            Type::Time | Type::Date | Type::Tod | Type::Dt => Value::Time(0),
         }
     }
 
     /// Whether a value (from an input, a message) is one of this type's values as they are held.
     pub fn fits(&self, v: Value) -> bool {
         match (self, v) {
-            (Type::Bool, Value::Bool(_)) | (Type::Time, Value::Time(_)) | (Type::Real { .. }, Value::Real(_)) => true,
+            (Type::Bool, Value::Bool(_))
+            | (Type::Time | Type::Date | Type::Tod | Type::Dt, Value::Time(_))
+            | (Type::Real { .. }, Value::Real(_)) => true,
             (Type::Int(k), Value::Int(v)) => k.contains(v),
             (Type::Enum(e), Value::Int(v)) => v >= 0 && (v as usize) < e.values.len(),
             _ => false,
@@ -155,6 +206,9 @@ impl Type {
     pub fn show(&self, v: Value) -> String {
         match (self, v) {
             (Type::Enum(e), Value::Int(i)) => e.values.get(i as usize).cloned().unwrap_or_else(|| i.to_string()),
+            (Type::Date, Value::Time(ms)) => format!("D#{}", show_date(ms)),
+            (Type::Tod, Value::Time(ms)) => format!("TOD#{}", show_tod(ms)),
+            (Type::Dt, Value::Time(ms)) => format!("DT#{}-{}", show_date(ms), show_tod(ms.rem_euclid(DAY_MS))),
             (_, v) => v.to_string(),
         }
     }
@@ -164,6 +218,8 @@ impl Type {
     pub fn coerce(&self, v: Value) -> Value {
         match (self, v) {
             (Type::Int(k), Value::Int(i)) => Value::Int(k.wrap(i)),
+            // A time of day past midnight wraps to the next day's.
+            (Type::Tod, Value::Time(ms)) => Value::Time(ms.rem_euclid(DAY_MS)),
             (Type::Real { long }, Value::Int(i)) => Value::Real(round_real(i as f64, *long)),
             (Type::Real { long }, Value::Real(r)) => Value::Real(round_real(r, *long)),
             (_, v) => v,
@@ -202,6 +258,9 @@ impl fmt::Display for Type {
             Type::Time => "TIME",
             Type::Unsupported(name) => name,
             Type::Enum(e) => &e.name,
+            Type::Date => "DATE",
+            Type::Tod => "TIME_OF_DAY",
+            Type::Dt => "DATE_AND_TIME",
         };
         f.write_str(name)
     }

@@ -10,6 +10,10 @@ pub enum Tok {
     Real(f64),
     /// A duration literal, in milliseconds.
     Time(i64),
+    /// `D#2026-12-01`, `TOD#12:30:00`, `DT#2026-12-01-12:30:00`: milliseconds since 1970-01-01 (or midnight).
+    Date(i64),
+    Tod(i64),
+    Dt(i64),
     Str,
     /// A directly represented variable such as `%IX1.0`.
     Located,
@@ -300,6 +304,17 @@ impl Lexer<'_> {
                 self.duration(start);
                 return;
             }
+            let calendar = match upper.as_str() {
+                "D" | "DATE" | "LDATE" => Some(0),
+                "TOD" | "TIME_OF_DAY" | "LTOD" => Some(1),
+                "DT" | "DATE_AND_TIME" | "LDT" => Some(2),
+                _ => None,
+            };
+            if let Some(kind) = calendar {
+                self.pos += 1;
+                self.calendar(start, kind);
+                return;
+            }
             if crate::exec::types::Type::from_name(&upper).is_some() {
                 // A typed literal such as INT#5 or BOOL#TRUE: the literal's own value is what matters.
                 self.pos += 1;
@@ -308,6 +323,49 @@ impl Lexer<'_> {
         }
         let tok = Kw::from_word(word).map_or(Tok::Ident, Tok::Kw);
         self.push(tok, start);
+    }
+
+    /// The part of a date (`kind` 0), time of day (1) or date and time (2) literal after its `#`.
+    fn calendar(&mut self, start: usize, kind: u8) {
+        let body_start = self.pos;
+        while self.pos < self.bytes.len() && matches!(self.bytes[self.pos], b'0'..=b'9' | b'-' | b':' | b'.' | b'_') {
+            self.pos += 1;
+        }
+        let body = self.src[body_start..self.pos].replace('_', "");
+        let date = |s: &str| -> Option<i64> {
+            let mut it = s.splitn(3, '-');
+            let (y, m, d) =
+                (it.next()?.parse::<i64>().ok()?, it.next()?.parse::<i64>().ok()?, it.next()?.parse::<i64>().ok()?);
+            ((1..=12).contains(&m) && (1..=31).contains(&d))
+                .then(|| crate::exec::types::days_from_civil(y, m, d) * 86_400_000)
+        };
+        let tod = |s: &str| -> Option<i64> {
+            let mut it = s.splitn(3, ':');
+            let (h, m) = (it.next()?.parse::<i64>().ok()?, it.next()?.parse::<i64>().ok()?);
+            let sec: f64 = it.next().unwrap_or("0").parse().ok()?;
+            ((0..24).contains(&h) && (0..60).contains(&m) && (0.0..60.0).contains(&sec))
+                .then(|| h * 3_600_000 + m * 60_000 + (sec * 1000.0).round() as i64)
+        };
+        let value = match kind {
+            0 => date(&body).map(Tok::Date),
+            1 => tod(&body).map(Tok::Tod),
+            _ => {
+                // YYYY-MM-DD-HH:MM:SS: the date is the first three fields.
+                let split = body.match_indices('-').nth(2).map(|(i, _)| i);
+                split.and_then(|i| Some(Tok::Dt(date(&body[..i])? + tod(&body[i + 1..])?)))
+            }
+        };
+        match value {
+            Some(tok) => self.push(tok, start),
+            None => {
+                let what = [
+                    "a date such as D#2026-12-01",
+                    "a time of day such as TOD#12:30:00",
+                    "a date and time such as DT#2026-12-01-12:30:00",
+                ];
+                self.error(start, self.pos, format!("invalid literal: expected {}", what[kind as usize]));
+            }
+        }
     }
 
     /// The part of a duration literal after `T#`: `1h2m3s4ms`, `1.5s`, `-200ms`, `1d_2h`.

@@ -405,6 +405,9 @@ pub enum ExprKind {
     Int(i64),
     Real(f64),
     Time(i64),
+    Date(i64),
+    Tod(i64),
+    Dt(i64),
     Name(Ident),
     /// `step.X`, `step.T`, `action.Q`, `instance.Q`.
     Field(Ident, Ident),

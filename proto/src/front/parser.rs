@@ -1196,6 +1196,9 @@ impl Parser<'_> {
             Tok::Int(v) => ExprKind::Int(v),
             Tok::Real(v) => ExprKind::Real(v),
             Tok::Time(v) => ExprKind::Time(v),
+            Tok::Date(v) => ExprKind::Date(v),
+            Tok::Tod(v) => ExprKind::Tod(v),
+            Tok::Dt(v) => ExprKind::Dt(v),
             Tok::Kw(Kw::True) => ExprKind::Bool(true),
             Tok::Kw(Kw::False) => ExprKind::Bool(false),
             Tok::LParen => {
