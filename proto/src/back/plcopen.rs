@@ -243,6 +243,14 @@ fn data_type(out: &mut String, t: &TypeDef) {
         }
         TypeKind::Alias(base) => (type_element(&base.name), None),
         TypeKind::Array(spec) => (array_element(spec), None),
+        TypeKind::Struct(fields) => {
+            let mut s = String::from("<struct>\n");
+            for f in fields {
+                variable(&mut s, f);
+            }
+            s.push_str("      </struct>");
+            (s, None)
+        }
         TypeKind::Unsupported(_) => return,
     };
     let _ = write!(out, "      <dataType name=\"{}\"><baseType>{base}</baseType>", esc(&t.name.name));

@@ -40,6 +40,7 @@ pub fn compile(chart: &Chart, library: &[FbDef], types: &[TypeDef], diags: &mut 
         resolved: HashMap::new(),
         enums: Vec::new(),
         arrays: HashMap::new(),
+        structs: HashMap::new(),
     };
     c.run()
 }
@@ -219,6 +220,8 @@ struct Compiler<'a> {
     enums: Vec<(std::sync::Arc<crate::exec::types::EnumType>, i64)>,
     /// The chart's arrays: first element, bounds, element type.
     arrays: HashMap<String, ArrayInfo>,
+    /// The chart's structure variables: their type's name and field names.
+    structs: HashMap<String, (String, Vec<String>)>,
 }
 
 struct ArrayInfo {
@@ -301,7 +304,12 @@ impl<'a> Compiler<'a> {
         let mut vars = Vec::with_capacity(self.chart.vars.len());
         for decl in &self.chart.vars {
             let key = decl.name.key();
-            if self.vars.contains_key(&key) || self.instances.contains_key(&key) || self.user_of.contains_key(&key) {
+            let taken = self.vars.contains_key(&key)
+                || self.instances.contains_key(&key)
+                || self.user_of.contains_key(&key)
+                || self.structs.contains_key(&key)
+                || self.arrays.contains_key(&key);
+            if taken {
                 self.error(decl.name.span, format!("variable `{}` is declared twice", decl.name.name));
                 continue;
             }
@@ -315,6 +323,10 @@ impl<'a> Compiler<'a> {
             });
             if let Some(spec) = array {
                 self.declare_array(decl, &spec, &mut vars);
+                continue;
+            }
+            if let Some(TypeKind::Struct(fields)) = self.types.get(&decl.type_name.key()).map(|t| &t.kind) {
+                self.declare_struct(decl, fields, &mut vars);
                 continue;
             }
             if let Some(&def) = self.library.get(&decl.type_name.key()).filter(|d| d.returns.is_none()) {
@@ -638,6 +650,51 @@ impl<'a> Compiler<'a> {
         }
     }
 
+    /// A structure variable: one variable per field, `s.field`, with the field's initial value or the one the
+    /// declaration gives (`s : Point := (x := 1)`).
+    fn declare_struct(&mut self, decl: &VarDecl, fields: &[VarDecl], vars: &mut Vec<VarInfo>) {
+        let mut names = Vec::new();
+        for f in fields {
+            let nested = StdFb::from_name(&f.type_name.key()).is_some()
+                || self.library.contains_key(&f.type_name.key())
+                || f.array.is_some()
+                || matches!(
+                    self.types.get(&f.type_name.key()).map(|t| &t.kind),
+                    Some(TypeKind::Struct(_) | TypeKind::Array(_))
+                );
+            if nested {
+                let message = format!(
+                    "field `{}` of `{}`: structures holding arrays, structures or instances are not supported yet",
+                    f.name.name, decl.type_name.name
+                );
+                self.error(f.type_name.span, message);
+                continue;
+            }
+            let ty = self.resolve_type(&f.type_name);
+            let given = decl.members.iter().find(|(m, _)| m.key() == f.name.key()).map(|(_, e)| e);
+            let init = match given.or(f.init.as_ref()) {
+                Some(e) => self.initial_value(e, &ty),
+                None => self.default_of(&ty),
+            };
+            self.vars.insert(format!("{}.{}", decl.name.key(), f.name.key()), VarId(vars.len() as u32));
+            vars.push(VarInfo {
+                name: format!("{}.{}", decl.name.name, f.name.name),
+                ty,
+                init,
+                constant: decl.constant,
+                section: decl.section,
+                hidden: false,
+            });
+            names.push(f.name.name.clone());
+        }
+        for (m, _) in &decl.members {
+            if !fields.iter().any(|f| f.name.key() == m.key()) {
+                self.error(m.span, format!("`{}` has no field `{}`", decl.type_name.name, m.name));
+            }
+        }
+        self.structs.insert(decl.name.key(), (decl.type_name.name.clone(), names));
+    }
+
     /// An array variable: one variable per element, `a[1]`, `a[1,2]`, row-major.
     fn declare_array(&mut self, decl: &VarDecl, spec: &ArraySpec, vars: &mut Vec<VarInfo>) {
         let mut len: usize = 1;
@@ -782,8 +839,8 @@ impl<'a> Compiler<'a> {
                 Type::Enum(et)
             }
             TypeKind::Subrange { base, .. } | TypeKind::Alias(base) => self.resolve_depth(base, depth + 1),
-            // An array type is laid out where a variable is declared with it.
-            TypeKind::Array(_) => Type::Unsupported("ARRAY".to_string()),
+            // Arrays and structures are laid out where a variable is declared with them.
+            TypeKind::Array(_) | TypeKind::Struct(_) => unsupported(),
             TypeKind::Unsupported(_) => unsupported(),
         };
         self.resolved.insert(key, ty.clone());
@@ -1302,6 +1359,22 @@ impl<'a> Compiler<'a> {
                     return None;
                 };
                 (id, name)
+            }
+            ExprKind::Field(base, field) if self.structs.contains_key(&base.key()) => {
+                match self.vars.get(&format!("{}.{}", base.key(), field.key())) {
+                    Some(&id) => (id, base),
+                    None => {
+                        let (ty_name, names) = &self.structs[&base.key()];
+                        let message = format!(
+                            "`{}` (a {ty_name}) has no field `{}`: it has {}",
+                            base.name,
+                            field.name,
+                            names.join(", ")
+                        );
+                        self.error(field.span, message);
+                        return None;
+                    }
+                }
             }
             ExprKind::Field(base, field) if self.user_of.contains_key(&base.key()) => {
                 let u = self.user_of[&base.key()];
@@ -1997,6 +2070,15 @@ impl<'a> Compiler<'a> {
             }
             return (CExpr::Var(id), Ty::of(&var.ty));
         }
+        if let Some((ty_name, names)) = self.structs.get(&name.key()) {
+            let first = names.first().cloned().unwrap_or_default();
+            let message = format!(
+                "`{}` is a {ty_name} structure: use one of its fields, such as `{}.{first}`",
+                name.name, name.name
+            );
+            self.error(name.span, message);
+            return (FALSE, Ty::Err);
+        }
         if self.arrays.contains_key(&name.key()) {
             self.error(name.span, format!("`{}` is an array: index it, such as `{}[…]`", name.name, name.name));
             return (FALSE, Ty::Err);
@@ -2024,6 +2106,27 @@ impl<'a> Compiler<'a> {
 
     fn field(&mut self, base: &Ident, field: &Ident, vars: &[VarInfo]) -> (CExpr, Ty) {
         let step_field = matches!(field.key().as_str(), "X" | "T") && self.steps.contains_key(&base.key());
+        if let Some((ty_name, names)) = self.structs.get(&base.key()).filter(|_| !step_field) {
+            return match self.vars.get(&format!("{}.{}", base.key(), field.key())) {
+                Some(&id) => match vars.get(id.index()) {
+                    Some(v) => (CExpr::Var(id), Ty::of(&v.ty)),
+                    None => {
+                        self.error(base.span, format!("`{}` is a variable, and a constant is needed here", base.name));
+                        (FALSE, Ty::Err)
+                    }
+                },
+                None => {
+                    let message = format!(
+                        "`{}` (a {ty_name}) has no field `{}`: it has {}",
+                        base.name,
+                        field.name,
+                        names.join(", ")
+                    );
+                    self.error(field.span, message);
+                    (FALSE, Ty::Err)
+                }
+            };
+        }
         if let Some(&u) = self.user_of.get(&base.key()).filter(|_| !step_field) {
             return match self.vars.get(&format!("{}.{}", base.key(), field.key())) {
                 Some(&id) => match vars.get(id.index()) {

@@ -72,6 +72,8 @@ pub enum TypeKind {
     /// `Speed : INT;`, or another declared type.
     Alias(Ident),
     Array(ArraySpec),
+    /// `STRUCT x : INT := 1; on : BOOL; END_STRUCT`: its fields, in order.
+    Struct(Vec<VarDecl>),
     /// A structure, an array, a string type…: declared, not executed yet; the construct named.
     Unsupported(String),
 }

@@ -357,17 +357,16 @@ impl Parser<'_> {
                 }
                 TypeKind::Unsupported(what.to_string())
             } else if base.key() == "STRUCT" {
-                // STRUCT … END_STRUCT: skipped whole.
-                while !(self.peek() == Tok::Ident && self.text(self.span()).eq_ignore_ascii_case("END_STRUCT"))
-                    && self.peek() != Tok::Eof
-                    && self.peek() != Tok::Kw(Kw::EndType)
-                {
-                    self.bump();
+                let end = |p: &Self| p.peek() == Tok::Ident && p.text(p.span()).eq_ignore_ascii_case("END_STRUCT");
+                let mut fields = Vec::new();
+                while !end(self) && !matches!(self.peek(), Tok::Eof | Tok::Kw(Kw::EndType)) {
+                    self.declaration(VarSection::Local, false, &mut fields)?;
                 }
-                if self.peek() == Tok::Ident {
-                    self.bump();
+                if !end(self) {
+                    return Err(self.error_here("`END_STRUCT`"));
                 }
-                TypeKind::Unsupported("structures".to_string())
+                self.bump();
+                TypeKind::Struct(fields)
             } else {
                 TypeKind::Alias(base)
             }

@@ -402,7 +402,7 @@ impl Reader<'_> {
                     Some(spec) => TypeKind::Array(spec),
                     None => TypeKind::Unsupported("malformed arrays".to_string()),
                 },
-                "struct" => TypeKind::Unsupported("structures".to_string()),
+                "struct" => TypeKind::Struct(self.var_list(base, VarSection::Local, false)),
                 "string" | "wstring" => TypeKind::Unsupported("strings".to_string()),
                 other => TypeKind::Alias(Ident { name: other.to_ascii_uppercase(), span: name.span }),
             };
@@ -469,46 +469,52 @@ impl Reader<'_> {
                 _ => continue,
             };
             let constant = flag(block, "constant");
-            for v in children(block, "variable") {
-                let Some(name) = self.ident_attr(v, "name") else { continue };
-                let type_node = child(v, "type").and_then(|t| t.first_element_child());
-                let array = type_node
-                    .filter(|t| t.tag_name().name() == "array")
-                    .and_then(|t| self.array_spec(t, child(v, "initialValue")));
-                let type_name = match type_node {
-                    Some(t) if t.tag_name().name() == "derived" => {
-                        t.attribute("name").unwrap_or("(unnamed derived type)").to_string()
-                    }
-                    Some(t) => t.tag_name().name().to_ascii_uppercase(),
-                    None => {
-                        self.error(name.span, format!("variable `{}` has no type", name.name));
-                        continue;
-                    }
-                };
-                let type_span = type_node.map_or(name.span, |t| self.tag_span(t));
-                let init = child(v, "initialValue")
-                    .and_then(|i| child(i, "simpleValue"))
-                    .and_then(|s| self.expr_attr(s, "value"));
-                // A function block instance's initial inputs: `<structValue><value member="PT">…`.
-                let mut members = Vec::new();
-                let struct_value = child(v, "initialValue").and_then(|i| child(i, "structValue"));
-                for value in struct_value.into_iter().flat_map(|s| children(s, "value")) {
-                    let member = self.ident_attr(value, "member");
-                    let simple = child(value, "simpleValue").and_then(|s| self.expr_attr(s, "value"));
-                    if let (Some(member), Some(simple)) = (member, simple) {
-                        members.push((member, simple));
-                    }
+            vars.extend(self.var_list(block, section, constant));
+        }
+        vars
+    }
+
+    /// The `<variable>`s of a list (an interface's section, a structure's fields).
+    fn var_list(&mut self, block: Node, section: VarSection, constant: bool) -> Vec<VarDecl> {
+        let mut vars = Vec::new();
+        for v in children(block, "variable") {
+            let Some(name) = self.ident_attr(v, "name") else { continue };
+            let type_node = child(v, "type").and_then(|t| t.first_element_child());
+            let array = type_node
+                .filter(|t| t.tag_name().name() == "array")
+                .and_then(|t| self.array_spec(t, child(v, "initialValue")));
+            let type_name = match type_node {
+                Some(t) if t.tag_name().name() == "derived" => {
+                    t.attribute("name").unwrap_or("(unnamed derived type)").to_string()
                 }
-                vars.push(VarDecl {
-                    name,
-                    section,
-                    constant,
-                    type_name: Ident { name: type_name, span: type_span },
-                    init,
-                    members,
-                    array,
-                });
+                Some(t) => t.tag_name().name().to_ascii_uppercase(),
+                None => {
+                    self.error(name.span, format!("variable `{}` has no type", name.name));
+                    continue;
+                }
+            };
+            let type_span = type_node.map_or(name.span, |t| self.tag_span(t));
+            let init =
+                child(v, "initialValue").and_then(|i| child(i, "simpleValue")).and_then(|s| self.expr_attr(s, "value"));
+            // A function block instance's initial inputs: `<structValue><value member="PT">…`.
+            let mut members = Vec::new();
+            let struct_value = child(v, "initialValue").and_then(|i| child(i, "structValue"));
+            for value in struct_value.into_iter().flat_map(|s| children(s, "value")) {
+                let member = self.ident_attr(value, "member");
+                let simple = child(value, "simpleValue").and_then(|s| self.expr_attr(s, "value"));
+                if let (Some(member), Some(simple)) = (member, simple) {
+                    members.push((member, simple));
+                }
             }
+            vars.push(VarDecl {
+                name,
+                section,
+                constant,
+                type_name: Ident { name: type_name, span: type_span },
+                init,
+                members,
+                array,
+            });
         }
         vars
     }
