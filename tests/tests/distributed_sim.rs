@@ -527,3 +527,39 @@ fn standard_function_blocks_compute_what_baton_sim_computes_on_any_schedule() {
         assert_eq!(got, expected, "seed {seed}: {names:?}");
     }
 }
+
+#[test]
+fn user_blocks_functions_arrays_and_structures_compute_what_baton_sim_computes_across_machines() {
+    let source = chart("library.st");
+    let names = ["pump.pumped", "samples[1]", "samples[8]", "slot", "total", "tank.level", "tank.phase", "verified"];
+    let expected = baton_tests::reference::final_values(&source, 10, &names);
+    assert!(expected[2] > 0 && expected[4] > 0 && expected[7] == 1, "the chart computed: {expected:?}");
+    // Seed 2 found that a dispatch's values were numbered as the last update published before them, so an agent
+    // that had that update kept its older values (the coordinator now publishes first).
+    let agents: &[(&str, &[&str])] = &[("r1", &[]), ("r2", &[])];
+    for seed in 0..8 {
+        let faults = Faults { duplicate: 0.3, reorder: true, delay_ms_max: 8, loss: 0.05 };
+        let mut sim = SimCluster::new(&source, agents, faults, seed);
+        assert!(sim.run(30_000), "seed {seed}: did not finish");
+        let got: Vec<i64> = names.iter().map(|n| sim.value(n).map_or(-1, |v| v.as_i64())).collect();
+        assert_eq!(got, expected, "seed {seed}: {names:?}");
+    }
+}
+
+/// The same with a TON inside the user block: seed 3 ends with the timer primed one cycle later on the agent
+/// than in `baton sim` (pump.pumped 10 instead of 12). Not understood yet; run with `-- --ignored`.
+#[test]
+#[ignore = "open bug: a timer inside a user block on an agent primes one cycle late on some schedules"]
+fn a_timer_inside_a_user_block_on_an_agent_computes_what_baton_sim_computes() {
+    let source = chart("library_timer.st");
+    let names = ["pump.pumped", "samples[8]", "total", "verified"];
+    let expected = baton_tests::reference::final_values(&source, 10, &names);
+    let agents: &[(&str, &[&str])] = &[("r1", &[]), ("r2", &[])];
+    for seed in 0..8 {
+        let faults = Faults { duplicate: 0.3, reorder: true, delay_ms_max: 8, loss: 0.05 };
+        let mut sim = SimCluster::new(&source, agents, faults, seed);
+        assert!(sim.run(30_000), "seed {seed}: did not finish");
+        let got: Vec<i64> = names.iter().map(|n| sim.value(n).map_or(-1, |v| v.as_i64())).collect();
+        assert_eq!(got, expected, "seed {seed}: {names:?}");
+    }
+}

@@ -363,6 +363,7 @@ impl Coordinator {
             .collect();
         due.sort_unstable();
         for id in due {
+            self.publish_vars();
             let Some((agent, msg)) = self.dispatch_msg(id) else { continue };
             if let Some(t) = self.tokens.get_mut(&id) {
                 t.resend_backoff_ms = (t.resend_backoff_ms * 2).min(DISPATCH_RESEND_MAX_MS);
@@ -564,6 +565,10 @@ impl Coordinator {
             }
             return;
         }
+        // What changed since the last update is published first, so that the dispatch's values carry an update
+        // number of their own: an agent takes a value only from an update newer than the last it applied, and
+        // would otherwise keep what it had for a variable that changed since (a P action then reads it stale).
+        self.publish_vars();
         let Some((agent, msg)) = self.dispatch_msg(id) else { return };
         if let Some(tok) = self.tokens.get_mut(&id) {
             tok.dispatched_ms = self.now_ms;
@@ -581,7 +586,8 @@ impl Coordinator {
         self.send(agent, msg);
     }
 
-    /// The dispatch of a token to its agent, as it stands now.
+    /// The dispatch of a token to its agent, as it stands now (callers publish the variables first, so that
+    /// `vars_seq` numbers these values).
     fn dispatch_msg(&self, id: TokenId) -> Option<(String, ToAgent)> {
         let tok = self.tokens.get(&id)?;
         let agent = tok.agent.clone()?;
