@@ -95,6 +95,9 @@ pub struct AgentRun {
     /// The run's cycle period, and when the next cycle is due (none while no cycle could change anything).
     cycle_ms: u64,
     next_cycle_ms: Option<u64>,
+    /// The engine's grid is set: the first cycle planned (or the first token) set it, and every later cycle and
+    /// every time the engine floors (a step's activation, a timer's start) is on it.
+    grid_set: bool,
     tokens: HashMap<TokenId, Holding>,
     by_segment: HashMap<SegmentId, TokenId>,
     /// Finished or dropped tokens and their last epoch here: a dispatch of that epoch or older is a duplicate.
@@ -162,6 +165,7 @@ impl AgentRun {
             now_ms: 0,
             cycle_ms: cycle_ms.max(1),
             next_cycle_ms: None,
+            grid_set: false,
             tokens: HashMap::new(),
             by_segment: HashMap::new(),
             finished: HashMap::new(),
@@ -263,6 +267,13 @@ impl AgentRun {
         }
         self.drain_engine();
         if self.next_cycle_ms.is_none() && self.engine.needs_cycle() {
+            // The first cycle planned starts the grid here: otherwise the engine would floor times to the
+            // millisecond while cycles run every cycle_ms, and a token arriving between two of them would
+            // count its step's time, and start its timers, off the grid its cycles run on.
+            if !self.grid_set {
+                self.engine.set_grid(self.now_ms, self.cycle_ms);
+                self.grid_set = true;
+            }
             self.next_cycle_ms = Some(self.engine.grid_floor(self.now_ms) + self.cycle_ms);
         }
         self.report();
@@ -275,6 +286,7 @@ impl AgentRun {
             return;
         }
         self.engine.set_grid(self.now_ms, self.cycle_ms);
+        self.grid_set = true;
         if let Err(e) = self.engine.handle_cycle(self.now_ms) {
             self.log(Level::Error, format!("cycle refused: {e}"));
         }
