@@ -58,8 +58,14 @@ pub fn canonical(p: &Program) -> String {
 }
 
 /// The trace of a program under a script that sets every BOOL input TRUE then FALSE and every integer input
-/// 0 to 3, one variable every 30 ms, for four rounds.
+/// 0 to 3, one variable every 30 ms, for four rounds, then 500 ms more.
 pub fn trace(p: &Program) -> Vec<String> {
+    trace_with(p, 500, |name| name.to_string())
+}
+
+/// `trace`, running `tail_ms` past the last input, with each event's name as `name` gives it (two forms of one
+/// chart may spell names differently).
+pub fn trace_with(p: &Program, tail_ms: u64, name: impl Fn(&str) -> String) -> Vec<String> {
     let mut script = String::new();
     let mut t = 0;
     for round in 0..4 {
@@ -75,9 +81,9 @@ pub fn trace(p: &Program) -> Vec<String> {
     }
     let inputs = parse_inputs(&script, p).expect("script");
     let mut out = Vec::new();
-    simulate(Arc::new(p.clone()), &inputs, 10, t + 500, |o| {
+    simulate(Arc::new(p.clone()), &inputs, 10, t + tail_ms, |o| {
         out.push(match o {
-            SimOutput::Trace(r) => format!("{} {} {}", r.t_ms, r.event, r.name),
+            SimOutput::Trace(r) => format!("{} {} {}", r.t_ms, r.event, name(&r.name)),
             SimOutput::Fault { t_ms, message } => format!("{t_ms} fault {message}"),
         })
     })

@@ -109,31 +109,7 @@ fn shape(p: &baton_proto::exec::program::Program) -> (Vec<String>, Vec<String>, 
 /// The trace of a program under a script that flips each BOOL input and steps each integer one, variable by
 /// variable, one every 30 ms, with names upper-cased (the two forms may spell them differently).
 fn trace(p: baton_proto::exec::program::Program) -> Vec<String> {
-    use baton_proto::exec::sim::{parse_inputs, SimOutput};
-    use baton_proto::exec::types::Type;
-    let mut script = String::new();
-    let mut t = 0;
-    for round in 0..4 {
-        for v in p.vars.iter().filter(|v| !v.constant && !v.hidden) {
-            let value = match v.ty {
-                Type::Bool => serde_json::json!(round % 2 == 0),
-                Type::Int(_) => serde_json::json!(round),
-                _ => continue,
-            };
-            t += 30;
-            script.push_str(&format!("{}\n", serde_json::json!({"t_ms": t, "set": {v.name.clone(): value}})));
-        }
-    }
-    let inputs = parse_inputs(&script, &p).expect("script");
-    let mut out = Vec::new();
-    simulate(Arc::new(p), &inputs, 10, t + 200, |o| {
-        out.push(match o {
-            SimOutput::Trace(r) => format!("{} {} {}", r.t_ms, r.event, plain(&r.name)),
-            SimOutput::Fault { t_ms, message } => format!("{t_ms} fault {message}"),
-        })
-    })
-    .expect("simulation runs");
-    out
+    baton_tests::roundtrip::trace_with(&p, 200, plain)
 }
 
 fn same_chart_and_trace(xml: &str, text: &str) {

@@ -1840,30 +1840,8 @@ impl<'a> Compiler<'a> {
         let ty = match &func {
             Func::Abs if tys[0].is_num() => tys[0],
             Func::Abs => return bad(self, 0, "a number"),
-            Func::Sqrt
-            | Func::Ln
-            | Func::Log
-            | Func::Exp
-            | Func::Sin
-            | Func::Cos
-            | Func::Tan
-            | Func::Asin
-            | Func::Acos
-            | Func::Atan
-                if tys[0].is_num() =>
-            {
-                real_of(tys[0])
-            }
-            Func::Sqrt
-            | Func::Ln
-            | Func::Log
-            | Func::Exp
-            | Func::Sin
-            | Func::Cos
-            | Func::Tan
-            | Func::Asin
-            | Func::Acos
-            | Func::Atan => return bad(self, 0, "a number"),
+            Func::Real(_) if tys[0].is_num() => real_of(tys[0]),
+            Func::Real(_) => return bad(self, 0, "a number"),
             Func::Trunc if tys[0].is_num() => Ty::Int(IntKind::Dint),
             Func::Trunc => return bad(self, 0, "a REAL"),
             Func::Expt if !tys[0].is_num() => return bad(self, 0, "a number"),

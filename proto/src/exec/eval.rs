@@ -89,16 +89,7 @@ fn call(func: &Func, args: &[CExpr], ty: &Type, env: &impl Env) -> Result<Value,
             Value::Real(r) => Value::Real(r.abs()),
             v => int(v.as_i64().wrapping_abs(), wrap),
         },
-        Func::Sqrt
-        | Func::Ln
-        | Func::Log
-        | Func::Exp
-        | Func::Sin
-        | Func::Cos
-        | Func::Tan
-        | Func::Asin
-        | Func::Acos
-        | Func::Atan => Value::Real(stdlib::real1(func, arg(0)?.as_f64())),
+        Func::Real(f) => Value::Real(f.apply(arg(0)?.as_f64())),
         Func::Trunc => Value::Int(arg(0)?.as_f64().trunc() as i64),
         Func::Expt => arith(ArithOp::Pow, wrap, arg(0)?, arg(1)?)?,
         Func::Move => arg(0)?,
@@ -237,6 +228,24 @@ fn tick(budget: &mut usize) -> Result<(), Fault> {
     Ok(())
 }
 
+/// One pass of a loop's body: `Some` of how the loop statement ends (EXIT ends only the loop, RETURN the body
+/// around it too) when the body left the loop, `None` to go on.
+fn iteration(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Option<Flow>, Fault> {
+    Ok(match exec(body, env, budget)? {
+        Flow::Exit => Some(Flow::Next),
+        Flow::Return => Some(Flow::Return),
+        Flow::Next => None,
+    })
+}
+
+/// `Q => x` and `NOT Q => y` of a call: the block's outputs copied out after it ran.
+fn copy_outputs(outputs: &[crate::exec::program::FbOutput], env: &mut impl EnvMut) {
+    for out in outputs {
+        let v = env.var(out.member);
+        env.set_var(out.target, if out.negated { Value::Bool(!v.as_bool()) } else { v });
+    }
+}
+
 fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flow, Fault> {
     for stmt in body {
         let flow = match stmt {
@@ -274,10 +283,7 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
                     stdlib::run_fb(*fb, *base, env);
                 }
                 env.set_var(VarId(base.0 + fb.eno()), Value::Bool(enabled));
-                for out in outputs {
-                    let v = env.var(out.member);
-                    env.set_var(out.target, if out.negated { Value::Bool(!v.as_bool()) } else { v });
-                }
+                copy_outputs(outputs, env);
                 Flow::Next
             }
             CStmt::UserFb(call) => {
@@ -302,10 +308,7 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
                     let v = env.var(member);
                     env.set_var(caller, v);
                 }
-                for out in &call.outputs {
-                    let v = env.var(out.member);
-                    env.set_var(out.target, if out.negated { Value::Bool(!v.as_bool()) } else { v });
-                }
+                copy_outputs(&call.outputs, env);
                 Flow::Next
             }
             CStmt::Case { selector, arms, otherwise } => {
@@ -317,70 +320,45 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
                 let start = eval(from, env)?;
                 env.set_var(*var, start);
                 let (to, by) = (eval(to, env)?.as_i64(), eval(by, env)?.as_i64());
-                let mut flow = Flow::Next;
                 loop {
                     let i = env.var(*var).as_i64();
                     let go_on = if by >= 0 { i <= to } else { i >= to };
                     if !go_on {
-                        break;
+                        break Flow::Next;
                     }
                     tick(budget)?;
-                    match exec(body, env, budget)? {
-                        Flow::Exit => break,
-                        Flow::Return => {
-                            flow = Flow::Return;
-                            break;
-                        }
-                        Flow::Next => {}
+                    if let Some(end) = iteration(body, env, budget)? {
+                        break end;
                     }
                     let i = env.var(*var).as_i64();
                     // A step that would overflow the variable's type ends the loop, as the bound was reached.
-                    let Some(next) = i.checked_add(by) else { break };
+                    let Some(next) = i.checked_add(by) else { break Flow::Next };
                     env.set_var(*var, Value::Int(next));
                     if env.var(*var).as_i64() != next {
-                        break;
+                        break Flow::Next;
                     }
                 }
-                flow
             }
-            CStmt::While { pre, condition, body } => {
-                let mut flow = Flow::Next;
-                loop {
-                    exec(pre, env, budget)?;
-                    if !eval(condition, env)?.as_bool() {
-                        break;
-                    }
-                    tick(budget)?;
-                    match exec(body, env, budget)? {
-                        Flow::Exit => break,
-                        Flow::Return => {
-                            flow = Flow::Return;
-                            break;
-                        }
-                        Flow::Next => {}
-                    }
+            CStmt::While { pre, condition, body } => loop {
+                exec(pre, env, budget)?;
+                if !eval(condition, env)?.as_bool() {
+                    break Flow::Next;
                 }
-                flow
-            }
-            CStmt::Repeat { body, pre, until } => {
-                let mut flow = Flow::Next;
-                loop {
-                    tick(budget)?;
-                    match exec(body, env, budget)? {
-                        Flow::Exit => break,
-                        Flow::Return => {
-                            flow = Flow::Return;
-                            break;
-                        }
-                        Flow::Next => {}
-                    }
-                    exec(pre, env, budget)?;
-                    if eval(until, env)?.as_bool() {
-                        break;
-                    }
+                tick(budget)?;
+                if let Some(end) = iteration(body, env, budget)? {
+                    break end;
                 }
-                flow
-            }
+            },
+            CStmt::Repeat { body, pre, until } => loop {
+                tick(budget)?;
+                if let Some(end) = iteration(body, env, budget)? {
+                    break end;
+                }
+                exec(pre, env, budget)?;
+                if eval(until, env)?.as_bool() {
+                    break Flow::Next;
+                }
+            },
             CStmt::Exit => Flow::Exit,
             CStmt::Return => Flow::Return,
         };

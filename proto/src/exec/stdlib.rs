@@ -248,7 +248,19 @@ pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
             let pt = m.int(PT).max(0);
             let prev = m.bool(PREV);
             let mut state = m.int(STATE);
-            let elapsed = |m: &Instance<'_, _>| now - m.int(START);
+            // A running timer: ET counts from START; once it reaches PT the timer is DONE, Q takes `q_done` and
+            // ET stays at PT. (A TON's Q is FALSE while it runs, a TOF's and a TP's TRUE.)
+            let run = |m: &mut Instance<'_, _>, q_done: bool| {
+                let et = now - m.int(START);
+                if et >= pt {
+                    m.set_bool(Q, q_done);
+                    m.set_time(ET, pt);
+                    DONE
+                } else {
+                    m.set_time(ET, et);
+                    RUNNING
+                }
+            };
             match fb {
                 StdFb::Ton => {
                     if !input {
@@ -261,15 +273,7 @@ pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
                             m.set_time(START, now);
                         }
                         if state == RUNNING {
-                            let et = elapsed(&m);
-                            if et >= pt {
-                                state = DONE;
-                                m.set_bool(Q, true);
-                                m.set_time(ET, pt);
-                            } else {
-                                m.set_bool(Q, false);
-                                m.set_time(ET, et);
-                            }
+                            state = run(&mut m, true);
                         }
                     }
                 }
@@ -284,14 +288,7 @@ pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
                             m.set_time(START, now);
                         }
                         if state == RUNNING {
-                            let et = elapsed(&m);
-                            if et >= pt {
-                                state = DONE;
-                                m.set_bool(Q, false);
-                                m.set_time(ET, pt);
-                            } else {
-                                m.set_time(ET, et);
-                            }
+                            state = run(&mut m, false);
                         }
                     }
                 }
@@ -302,14 +299,7 @@ pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
                         m.set_time(START, now);
                     }
                     if state == RUNNING {
-                        let et = elapsed(&m);
-                        if et >= pt {
-                            state = DONE;
-                            m.set_bool(Q, false);
-                            m.set_time(ET, pt);
-                        } else {
-                            m.set_time(ET, et);
-                        }
+                        state = run(&mut m, false);
                     }
                     if state == DONE && !input {
                         state = IDLE;
@@ -398,16 +388,8 @@ pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
 #[derive(Clone, Debug, PartialEq)]
 pub enum Func {
     Abs,
-    Sqrt,
-    Ln,
-    Log,
-    Exp,
-    Sin,
-    Cos,
-    Tan,
-    Asin,
-    Acos,
-    Atan,
+    /// SQRT, LN, LOG, EXP and the trigonometric functions: a REAL of a REAL.
+    Real(RealFn),
     Trunc,
     Expt,
     Sel,
@@ -436,16 +418,16 @@ impl Func {
         const IN: &[&str] = &["IN"];
         Some(match upper {
             "ABS" => (Func::Abs, IN),
-            "SQRT" => (Func::Sqrt, IN),
-            "LN" => (Func::Ln, IN),
-            "LOG" => (Func::Log, IN),
-            "EXP" => (Func::Exp, IN),
-            "SIN" => (Func::Sin, IN),
-            "COS" => (Func::Cos, IN),
-            "TAN" => (Func::Tan, IN),
-            "ASIN" => (Func::Asin, IN),
-            "ACOS" => (Func::Acos, IN),
-            "ATAN" => (Func::Atan, IN),
+            "SQRT" => (Func::Real(RealFn::Sqrt), IN),
+            "LN" => (Func::Real(RealFn::Ln), IN),
+            "LOG" => (Func::Real(RealFn::Log), IN),
+            "EXP" => (Func::Real(RealFn::Exp), IN),
+            "SIN" => (Func::Real(RealFn::Sin), IN),
+            "COS" => (Func::Real(RealFn::Cos), IN),
+            "TAN" => (Func::Real(RealFn::Tan), IN),
+            "ASIN" => (Func::Real(RealFn::Asin), IN),
+            "ACOS" => (Func::Real(RealFn::Acos), IN),
+            "ATAN" => (Func::Real(RealFn::Atan), IN),
             "TRUNC" => (Func::Trunc, IN),
             "MOVE" => (Func::Move, IN),
             "EXPT" => (Func::Expt, &["IN1", "IN2"]),
@@ -500,20 +482,35 @@ pub fn convert(v: Value, to: &Type) -> Value {
     }
 }
 
-/// A real function of one argument; NaN and infinities are values, as on a PLC, never faults.
-pub fn real1(f: &Func, x: f64) -> f64 {
-    match f {
-        Func::Sqrt => x.sqrt(),
-        Func::Ln => x.ln(),
-        Func::Log => x.log10(),
-        Func::Exp => x.exp(),
-        Func::Sin => x.sin(),
-        Func::Cos => x.cos(),
-        Func::Tan => x.tan(),
-        Func::Asin => x.asin(),
-        Func::Acos => x.acos(),
-        Func::Atan => x.atan(),
-        _ => x,
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RealFn {
+    Sqrt,
+    Ln,
+    Log,
+    Exp,
+    Sin,
+    Cos,
+    Tan,
+    Asin,
+    Acos,
+    Atan,
+}
+
+impl RealFn {
+    /// The function's value; NaN and infinities are values, as on a PLC, never faults.
+    pub fn apply(self, x: f64) -> f64 {
+        match self {
+            RealFn::Sqrt => x.sqrt(),
+            RealFn::Ln => x.ln(),
+            RealFn::Log => x.log10(),
+            RealFn::Exp => x.exp(),
+            RealFn::Sin => x.sin(),
+            RealFn::Cos => x.cos(),
+            RealFn::Tan => x.tan(),
+            RealFn::Asin => x.asin(),
+            RealFn::Acos => x.acos(),
+            RealFn::Atan => x.atan(),
+        }
     }
 }
 

@@ -19,18 +19,7 @@ pub struct Parsed {
 
 pub fn parse(src: &str) -> Parsed {
     let lexed = lex(src);
-    let mut p = Parser {
-        src,
-        local: None,
-        toks: lexed.tokens,
-        pos: 0,
-        diags: lexed.diagnostics,
-        depth: 0,
-        in_case: 0,
-        broken_vars: Broken::default(),
-        library: Vec::new(),
-        types: Vec::new(),
-    };
+    let mut p = Parser::new(src, None, lexed.tokens, lexed.diagnostics);
     let mut charts = p.file();
     attach_pragmas(src, &mut charts, &lexed.pragmas);
     Parsed { charts, types: p.types, library: p.library, diagnostics: p.diags }
@@ -81,18 +70,7 @@ pub fn parse_fragment(text: &str, at: impl Fn(usize) -> usize, kind: FragmentKin
             span: map(raw.span),
         })
         .collect();
-    let mut p = Parser {
-        src: text,
-        local: Some(local),
-        toks: lexed.tokens,
-        pos: 0,
-        diags: lexed.diagnostics,
-        depth: 0,
-        in_case: 0,
-        broken_vars: Broken::default(),
-        library: Vec::new(),
-        types: Vec::new(),
-    };
+    let mut p = Parser::new(text, Some(local), lexed.tokens, lexed.diagnostics);
     let fragment = p.fragment(kind).ok();
     ParsedFragment { fragment, pragmas, diagnostics: p.diags }
 }
@@ -144,6 +122,23 @@ fn is_top_level(tok: Tok) -> bool {
     matches!(tok, Tok::Kw(Kw::Program | Kw::FunctionBlock | Kw::Function | Kw::Configuration | Kw::Type))
         || is_element_start(tok)
         || is_var_block(tok)
+}
+
+impl<'a> Parser<'a> {
+    fn new(src: &'a str, local: Option<Vec<Span>>, toks: Vec<Token>, diags: Vec<Diagnostic>) -> Parser<'a> {
+        Parser {
+            src,
+            local,
+            toks,
+            pos: 0,
+            diags,
+            depth: 0,
+            in_case: 0,
+            broken_vars: Broken::default(),
+            library: Vec::new(),
+            types: Vec::new(),
+        }
+    }
 }
 
 impl Parser<'_> {
