@@ -28,7 +28,7 @@ use anyhow::anyhow;
 use baton_proto::dist::layout::{Layout, Placement};
 use baton_proto::exec::program::{Program, StepId, TransitionId, VarId, VarInfo};
 use baton_proto::exec::sim::TraceRecord;
-use baton_proto::exec::types::{Type, Value};
+use baton_proto::exec::types::{quote_string, Type, Value};
 use rerun::blueprint::components::PanelState;
 use rerun::blueprint::{
     Blueprint, BlueprintPanel, GraphView, Horizontal, SelectionPanel, StateTimelineView, TextLogView, TimePanel,
@@ -215,8 +215,8 @@ impl Recorder {
                 continue;
             }
             let v = value_of(VarId(i as u32));
-            if self.last[i] != Some(v) {
-                self.last[i] = Some(v);
+            if self.last[i].as_ref() != Some(&v) {
+                self.last[i] = Some(v.clone());
                 changed.push((VarId(i as u32), v));
             }
         }
@@ -273,7 +273,7 @@ fn blueprint() -> Blueprint {
             Vertical::new([
                 StateTimelineView::new("steps").with_origin("sfc/steps").into(),
                 StateTimelineView::new("agents").with_origin("agents").into(),
-                TextLogView::new("log").with_origin("/").with_contents(["/log", "/tokens/**"]).into(),
+                TextLogView::new("log").with_origin("/").with_contents(["/log", "/tokens/**", "/vars/**"]).into(),
             ])
             .with_row_shares([5.0, 1.5, 3.0])
             .into(),
@@ -592,10 +592,17 @@ impl Logger {
     fn values(&mut self, t_ms: u64, values: &[(VarId, Value)]) {
         self.at(t_ms);
         let program = Arc::clone(&self.run.program);
-        for &(v, value) in values {
+        for (v, value) in values {
             let name = &program.vars[v.index()].name;
             let x = match value {
-                Value::Bool(b) => f64::from(u8::from(b)),
+                Value::Bool(b) => f64::from(u8::from(*b)),
+                // A string has no number to plot: its changes are lines of the log view.
+                Value::Str(s) => {
+                    self.ok(self
+                        .rec
+                        .log(format!("vars/{name}"), &TextLog::new(format!("{name} := {}", quote_string(s)))));
+                    continue;
+                }
                 other => other.as_f64(),
             };
             self.ok(self.rec.log(format!("vars/{name}"), &Scalars::single(x)));

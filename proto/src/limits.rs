@@ -20,6 +20,14 @@ pub const LOOP_ITERATIONS_MAX: usize = 100_000;
 /// Elements of one array variable (each is a variable of the chart).
 pub const ARRAY_ELEMENTS_MAX: usize = 1_000_000;
 
+/// Characters of a STRING declared without a length, as CODESYS and TwinCAT have it.
+pub const STRING_LENGTH_DEFAULT: usize = 80;
+
+/// Characters of one STRING variable (`STRING[n]`), and of all a chart's STRING variables together: a dispatch
+/// carries every variable's value, and even escaped in JSON (six bytes a character at worst) they must fit a message.
+pub const STRING_LENGTH_MAX: usize = 4096;
+pub const STRING_CHARS_MAX: usize = 64 * 1024;
+
 /// Steps in one chart (and, separately, transitions and actions).
 pub const CHART_ELEMENTS_MAX: usize = 4_000_000;
 
@@ -106,3 +114,6 @@ const _: () = assert!(SOURCE_BYTES_MAX < u32::MAX as usize);
 const _: () = assert!(CHART_ELEMENTS_MAX < u32::MAX as usize);
 const _: () = assert!(BRANCHES_MAX <= CHART_ELEMENTS_MAX);
 const _: () = assert!(NESTING_DEPTH_MAX >= 16);
+// The strings of a dispatch, escaped at worst, fill at most half a message.
+const _: () = assert!(STRING_LENGTH_DEFAULT <= STRING_LENGTH_MAX && STRING_LENGTH_MAX <= STRING_CHARS_MAX);
+const _: () = assert!(STRING_CHARS_MAX * 6 * 2 <= MESSAGE_BYTES_MAX);

@@ -701,6 +701,13 @@ impl SimCluster {
         Some(self.coordinator.core().value(var))
     }
 
+    /// A variable's value on the coordinator as its type shows it (see `reference::final_shown`).
+    pub fn shown(&self, name: &str) -> Option<String> {
+        let program = self.coordinator.core().program();
+        let var = program.var_by_name(name)?;
+        Some(program.vars[var.index()].ty.show(&self.coordinator.core().value(var)))
+    }
+
     /// The trace's records of one kind, as (t_ms, name, agent).
     pub fn events(&self, event: &str) -> Vec<(u64, String, Option<String>)> {
         self.trace.iter().filter(|r| r.event == event).map(|r| (r.t_ms, r.name.clone(), r.agent.clone())).collect()

@@ -531,9 +531,24 @@ fn standard_function_blocks_compute_what_baton_sim_computes_on_any_schedule() {
 #[test]
 fn user_blocks_functions_arrays_and_structures_compute_what_baton_sim_computes_across_machines() {
     let source = chart("library.st");
-    let names = ["pump.pumped", "samples[1]", "samples[8]", "slot", "total", "tank.level", "tank.phase", "verified"];
-    let expected = baton_tests::reference::final_values(&source, 10, &names);
-    assert!(expected[2] > 0 && expected[4] > 0 && expected[7] == 1, "the chart computed: {expected:?}");
+    let names = [
+        "pump.pumped",
+        "samples[1]",
+        "samples[8]",
+        "slot",
+        "total",
+        "tank.level",
+        "tank.phase",
+        "verified",
+        "label",
+        "report",
+        "receipt",
+    ];
+    let expected = baton_tests::reference::final_shown(&source, 10, &names);
+    assert!(expected[2] != "0" && expected[4] != "0" && expected[7] == "TRUE", "the chart computed: {expected:?}");
+    // The receipt is a STRING[20]: what is past its twentieth character is cut when it is stored.
+    let receipt: String = format!("ok:{}", expected[9].trim_matches('\'')).chars().take(20).collect();
+    assert_eq!(expected[10], format!("'{receipt}'"), "the strings were built");
     // Seed 2 found that a dispatch's values were numbered as the last update published before them, so an agent
     // that had that update kept its older values (the coordinator now publishes first).
     let agents: &[(&str, &[&str])] = &[("r1", &[]), ("r2", &[])];
@@ -541,7 +556,7 @@ fn user_blocks_functions_arrays_and_structures_compute_what_baton_sim_computes_a
         let faults = Faults { duplicate: 0.3, reorder: true, delay_ms_max: 8, loss: 0.05 };
         let mut sim = SimCluster::new(&source, agents, faults, seed);
         assert!(sim.run(30_000), "seed {seed}: did not finish");
-        let got: Vec<i64> = names.iter().map(|n| sim.value(n).map_or(-1, |v| v.as_i64())).collect();
+        let got: Vec<String> = names.iter().map(|n| sim.shown(n).unwrap_or_default()).collect();
         assert_eq!(got, expected, "seed {seed}: {names:?}");
     }
 }

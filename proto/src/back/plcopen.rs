@@ -104,7 +104,11 @@ fn collect_outputs(e: &Expr, key: &str, out: &mut Vec<String>) {
 
 /// The TC6 element of a type: elementary, or derived by name.
 fn type_element(name: &str) -> String {
-    match elementary(&name.to_ascii_uppercase()) {
+    let upper = name.to_ascii_uppercase();
+    if let Some(n) = upper.strip_prefix("STRING[").and_then(|r| r.strip_suffix(']')) {
+        return format!("<string length=\"{}\"/>", esc(n));
+    }
+    match elementary(&upper) {
         Some(e) => format!("<{e}/>"),
         None => format!("<derived name=\"{}\"/>", esc(name)),
     }

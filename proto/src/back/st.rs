@@ -3,6 +3,7 @@
 
 use std::fmt::Write;
 
+use crate::exec::types::{quote_string, Type, Value};
 use crate::front::model::*;
 
 /// The binding strength of a binary operator, as the parser's (higher binds tighter).
@@ -56,9 +57,10 @@ fn write_expr(out: &mut String, e: &Expr, min: u8) {
         ExprKind::Time(ms) => {
             let _ = write!(out, "T#{ms}ms");
         }
-        ExprKind::Date(ms) => out.push_str(&crate::exec::types::Type::Date.show(crate::exec::types::Value::Time(*ms))),
-        ExprKind::Tod(ms) => out.push_str(&crate::exec::types::Type::Tod.show(crate::exec::types::Value::Time(*ms))),
-        ExprKind::Dt(ms) => out.push_str(&crate::exec::types::Type::Dt.show(crate::exec::types::Value::Time(*ms))),
+        ExprKind::Date(ms) => out.push_str(&Type::Date.show(&Value::Time(*ms))),
+        ExprKind::Tod(ms) => out.push_str(&Type::Tod.show(&Value::Time(*ms))),
+        ExprKind::Dt(ms) => out.push_str(&Type::Dt.show(&Value::Time(*ms))),
+        ExprKind::Str(text) => out.push_str(&quote_string(text)),
         ExprKind::Name(id) => out.push_str(&id.name),
         ExprKind::Field(base, field) => {
             let _ = write!(out, "{}.{}", base.name, field.name);

@@ -51,19 +51,20 @@ impl ChartHash {
 }
 
 /// A variable's value on the wire: `{"var": 3, "value": {"bool": true}}`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct VarValue {
     pub var: u32,
     pub value: WireValue,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum WireValue {
     Bool(bool),
     Int(i64),
     Real(f64),
     TimeMs(i64),
+    Str(String),
 }
 
 impl From<Value> for WireValue {
@@ -73,6 +74,7 @@ impl From<Value> for WireValue {
             Value::Int(i) => WireValue::Int(i),
             Value::Real(r) => WireValue::Real(r),
             Value::Time(t) => WireValue::TimeMs(t),
+            Value::Str(s) => WireValue::Str(s.to_string()),
         }
     }
 }
@@ -84,6 +86,7 @@ impl From<WireValue> for Value {
             WireValue::Int(i) => Value::Int(i),
             WireValue::Real(r) => Value::Real(r),
             WireValue::TimeMs(t) => Value::Time(t),
+            WireValue::Str(s) => Value::string(s),
         }
     }
 }
@@ -96,8 +99,8 @@ impl VarValue {
     /// The variable and value, if the variable exists and the value fits its type.
     pub fn resolve(&self, program: &Program) -> Option<(VarId, Value)> {
         let info = program.vars.get(self.var as usize)?;
-        let value = Value::from(self.value);
-        info.ty.fits(value).then_some((VarId(self.var), value))
+        let value = Value::from(self.value.clone());
+        info.ty.fits(&value).then_some((VarId(self.var), value))
     }
 }
 

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use crate::exec::eval::{eval, is_constant, NoEnv};
 use crate::exec::program::*;
-use crate::exec::stdlib::{Func, MemberKind, StdFb};
+use crate::exec::stdlib::{Func, MemberKind, StdFb, TextFn};
 use crate::exec::types::{IntKind, Type, Value};
 use crate::front::diag::{Diagnostic, Span};
 use crate::front::model::*;
@@ -79,6 +79,8 @@ enum Ty {
     Dt,
     /// A value of the enumeration with this id.
     Enum(u32),
+    /// A STRING of any length: a variable's own length cuts what is stored in it.
+    Str,
     Err,
 }
 
@@ -93,6 +95,7 @@ impl Ty {
             Type::Int(k) => Ty::Int(*k),
             Type::Real { long } => Ty::Real { long: *long },
             Type::Time => Ty::Time,
+            Type::Str { .. } => Ty::Str,
             Type::Unsupported(_) => Ty::Err,
         }
     }
@@ -116,6 +119,7 @@ impl Ty {
             Ty::Date => "DATE".into(),
             Ty::Tod => "TIME_OF_DAY".into(),
             Ty::Dt => "DATE_AND_TIME".into(),
+            Ty::Str => "STRING".into(),
             Ty::Err => "an invalid expression".into(),
         }
     }
@@ -139,6 +143,7 @@ impl Ty {
             Ty::Date => Type::Date,
             Ty::Tod => Type::Tod,
             Ty::Dt => Type::Dt,
+            Ty::Str => Type::Str { max: crate::limits::STRING_LENGTH_MAX as u32 },
         }
     }
 }
@@ -162,7 +167,7 @@ fn binary_type(op: BinOp, a: Ty, b: Ty) -> Option<Ty> {
         Pow => (a.is_num() && b.is_num()).then(|| join(a, b)),
         Eq | Ne | Lt | Le | Gt | Ge => {
             let ok = (a.is_num() && b.is_num())
-                || (a == b && matches!(a, Ty::Time | Ty::Date | Ty::Tod | Ty::Dt))
+                || (a == b && matches!(a, Ty::Time | Ty::Date | Ty::Tod | Ty::Dt | Ty::Str))
                 || (a == Ty::Bool && b == Ty::Bool)
                 || (matches!(a, Ty::Enum(_)) && a == b);
             ok.then_some(Ty::Bool)
@@ -296,6 +301,16 @@ impl<'a> Compiler<'a> {
             self.error(chart.name.span, message);
         }
         vars.append(&mut self.temps);
+        let chars: usize = vars.iter().map(|v| if let Type::Str { max } = v.ty { max as usize } else { 0 }).sum();
+        if chars > crate::limits::STRING_CHARS_MAX {
+            let message = format!(
+                "chart `{}`'s STRING variables hold {chars} characters together, more than the {} a distributed run \
+                 can carry in one message: declare shorter ones (`STRING[20]`)",
+                chart.name.name,
+                crate::limits::STRING_CHARS_MAX
+            );
+            self.error(chart.name.span, message);
+        }
         let program = Program::assemble(chart.name.name.clone(), vars, steps, transitions, actions);
         Compiled { program, net_ok }
     }
@@ -473,7 +488,14 @@ impl<'a> Compiler<'a> {
                         None => c.default_of(&ty),
                     };
                     let id = VarId(vars.len() as u32);
-                    vars.push(VarInfo { name, ty, init, constant: false, section: VarSection::Temp, hidden: true });
+                    vars.push(VarInfo {
+                        name,
+                        ty,
+                        init: init.clone(),
+                        constant: false,
+                        section: VarSection::Temp,
+                        hidden: true,
+                    });
                     (id, init)
                 };
             for d in def.vars.iter().filter(|d| d.section != VarSection::External) {
@@ -572,7 +594,7 @@ impl<'a> Compiler<'a> {
             }
             assigned.push((*id, c));
         }
-        assigned.extend(resets.iter().map(|&(id, init)| (id, CExpr::Const(init))));
+        assigned.extend(resets.iter().map(|(id, init)| (*id, CExpr::Const(init.clone()))));
         let Some(body) = self.function_body(key, callee, vars) else { return (FALSE, Ty::Err) };
         let ty = vars[result.index()].ty.clone();
         let temp = VarId((self.declared + self.temps.len()) as u32);
@@ -731,7 +753,7 @@ impl<'a> Compiler<'a> {
         for k in 0..len {
             let init = match spec.init.get(k) {
                 Some(e) => self.initial_value(e, &elem),
-                None => default,
+                None => default.clone(),
             };
             let label: Vec<String> = index.iter().map(|i| i.to_string()).collect();
             vars.push(VarInfo {
@@ -944,7 +966,7 @@ impl<'a> Compiler<'a> {
             self.error(e.span, format!("initial value of type {} does not fit a {ty} variable", vty.name()));
             return ty.default_value();
         }
-        if let (Type::Int(k), Value::Int(v)) = (ty, value) {
+        if let (Type::Int(k), &Value::Int(v)) = (ty, &value) {
             if !k.contains(v) {
                 self.error(e.span, format!("{v} does not fit in {ty}"));
                 return ty.default_value();
@@ -1821,13 +1843,13 @@ impl<'a> Compiler<'a> {
             Ty::Real { long } => Ty::Real { long },
             _ => Ty::Real { long: false },
         };
-        // The common type of some arguments, all numbers, all TIME or all BOOL.
+        // The common type of some arguments: all numbers, or all of one other type.
         let common = |c: &mut Self, from: usize| -> Option<Ty> {
             let mut acc = tys[from];
             for (i, &t) in tys.iter().enumerate().skip(from + 1) {
                 acc = if acc.is_num() && t.is_num() {
                     join(acc, t)
-                } else if acc == t && matches!(t, Ty::Time | Ty::Bool) {
+                } else if acc == t {
                     t
                 } else {
                     let message = format!("arguments of {} must have one type: {} and {}", key, acc.name(), t.name());
@@ -1870,6 +1892,46 @@ impl<'a> Compiler<'a> {
                 Ty::IntLit => Ty::Int(IntKind::Dword),
                 t => t,
             },
+            Func::Text(f) => {
+                // Which arguments are strings; the others are lengths or positions.
+                let strings: &[usize] = match f {
+                    TextFn::Len | TextFn::Left | TextFn::Right | TextFn::Mid | TextFn::Delete => &[0],
+                    TextFn::Insert | TextFn::Replace | TextFn::Find => &[0, 1],
+                    TextFn::Concat => &[],
+                };
+                for (i, t) in tys.iter().enumerate() {
+                    let string = strings.contains(&i) || *f == TextFn::Concat;
+                    if string && *t != Ty::Str {
+                        return bad(self, i, "a STRING");
+                    }
+                    if !string && !t.is_int() {
+                        return bad(self, i, "an integer");
+                    }
+                }
+                match f {
+                    TextFn::Len | TextFn::Find => Ty::Int(IntKind::Int),
+                    _ => Ty::Str,
+                }
+            }
+            Func::Convert(Type::Str { .. }) => {
+                if let Some((from, _)) = key.split_once("_TO_") {
+                    let from_ty = Type::from_name(from).map(|t| Ty::of(&t));
+                    let fits = match from_ty {
+                        Some(f) if f.is_int() => tys[0].is_int(),
+                        Some(f @ Ty::Real { .. }) => tys[0].is_num() || tys[0] == f,
+                        Some(f) => tys[0] == f,
+                        None => true,
+                    };
+                    if !fits {
+                        return bad(self, 0, from);
+                    }
+                }
+                if matches!(tys[0], Ty::Enum(_)) {
+                    return bad(self, 0, "a number, a BOOL, a duration, a date or a time");
+                }
+                return (CExpr::call(Func::ToString(tys[0].repr()), cargs, Ty::Str.repr()), Ty::Str);
+            }
+            Func::ToString(_) => unreachable!("from_name gives Convert"),
             Func::Convert(to) => {
                 if let Some((from, _)) = key.split_once("_TO_") {
                     let from_ty = Type::from_name(from).map(|t| Ty::of(&t));
@@ -1959,6 +2021,7 @@ impl<'a> Compiler<'a> {
             ExprKind::Date(v) => (CExpr::Const(Value::Time(*v)), Ty::Date),
             ExprKind::Tod(v) => (CExpr::Const(Value::Time(*v)), Ty::Tod),
             ExprKind::Dt(v) => (CExpr::Const(Value::Time(*v)), Ty::Dt),
+            ExprKind::Str(text) => (CExpr::Const(Value::string(text.as_str())), Ty::Str),
             ExprKind::Name(name) => self.name(name, vars),
             ExprKind::Field(base, field) => self.field(base, field, vars),
             ExprKind::Call(callee, args) => self.call(e, callee, args, vars),

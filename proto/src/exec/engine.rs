@@ -50,7 +50,7 @@ pub enum FaultSource {
     Action(ActionId),
 }
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum Input {
     Set(VarId, Value),
 }
@@ -271,7 +271,7 @@ impl Engine {
             })
             .collect();
         let mut engine = Engine {
-            vars: program.vars.iter().map(|v| v.init).collect(),
+            vars: program.vars.iter().map(|v| v.init.clone()).collect(),
             steps: vec![
                 StepState {
                     active: false,
@@ -335,7 +335,7 @@ impl Engine {
             return Err(InputError::Constant { name: var.name.clone() });
         }
         // A REAL takes an integer too (a script writes 2 for 2.0).
-        let fits = var.ty.fits(value) || matches!((&var.ty, value), (Type::Real { .. }, Value::Int(_)));
+        let fits = var.ty.fits(&value) || matches!((&var.ty, &value), (Type::Real { .. }, Value::Int(_)));
         if !fits {
             return Err(InputError::Type { name: var.name.clone(), expected: var.ty.clone(), value });
         }
@@ -489,7 +489,7 @@ impl Engine {
     }
 
     pub fn value(&self, v: VarId) -> Value {
-        self.vars[v.index()]
+        self.vars[v.index()].clone()
     }
 
     /// Whether no active step has a transition left: the chart can never evolve again.
@@ -871,7 +871,7 @@ impl Engine {
 
 impl Env for Engine {
     fn var(&self, id: VarId) -> Value {
-        self.vars[id.index()]
+        self.vars[id.index()].clone()
     }
 
     fn step_x(&self, id: StepId) -> bool {

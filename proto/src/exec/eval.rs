@@ -51,7 +51,7 @@ fn element(ix: &crate::exec::program::IndexExpr, env: &impl Env) -> Result<VarId
 
 pub fn eval(e: &CExpr, env: &impl Env) -> Result<Value, Fault> {
     Ok(match e {
-        CExpr::Const(v) => *v,
+        CExpr::Const(v) => v.clone(),
         CExpr::Var(id) => env.var(*id),
         CExpr::StepX(id) => Value::Bool(env.step_x(*id)),
         CExpr::StepT(id) => Value::Time(env.step_t(*id)),
@@ -71,8 +71,8 @@ pub fn eval(e: &CExpr, env: &impl Env) -> Result<Value, Fault> {
                 LogicOp::Xor => Value::Bool(a ^ eval(b, env)?.as_bool()),
             }
         }
-        CExpr::Cmp(op, a, b) => Value::Bool(compare(*op, eval(a, env)?, eval(b, env)?)),
-        CExpr::Arith { op, wrap, lhs, rhs } => arith(*op, *wrap, eval(lhs, env)?, eval(rhs, env)?)?,
+        CExpr::Cmp(op, a, b) => Value::Bool(compare(*op, &eval(a, env)?, &eval(b, env)?)),
+        CExpr::Arith { op, wrap, lhs, rhs } => arith(*op, *wrap, &eval(lhs, env)?, &eval(rhs, env)?)?,
         CExpr::Call(c) => c.ty.coerce(call(&c.func, &c.args, &c.ty, env)?),
         CExpr::Index(ix) => env.var(element(ix, env)?),
     })
@@ -91,7 +91,7 @@ fn call(func: &Func, args: &[CExpr], ty: &Type, env: &impl Env) -> Result<Value,
         },
         Func::Real(f) => Value::Real(f.apply(arg(0)?.as_f64())),
         Func::Trunc => Value::Int(arg(0)?.as_f64().trunc() as i64),
-        Func::Expt => arith(ArithOp::Pow, wrap, arg(0)?, arg(1)?)?,
+        Func::Expt => arith(ArithOp::Pow, wrap, &arg(0)?, &arg(1)?)?,
         Func::Move => arg(0)?,
         Func::Sel => {
             if arg(0)?.as_bool() {
@@ -104,8 +104,7 @@ fn call(func: &Func, args: &[CExpr], ty: &Type, env: &impl Env) -> Result<Value,
             let mut best = arg(0)?;
             for a in &args[1..] {
                 let v = eval(a, env)?;
-                let better =
-                    if matches!(func, Func::Max) { compare(CmpOp::Gt, v, best) } else { compare(CmpOp::Lt, v, best) };
+                let better = compare(if matches!(func, Func::Max) { CmpOp::Gt } else { CmpOp::Lt }, &v, &best);
                 if better {
                     best = v;
                 }
@@ -114,9 +113,9 @@ fn call(func: &Func, args: &[CExpr], ty: &Type, env: &impl Env) -> Result<Value,
         }
         Func::Limit => {
             let (mn, x, mx) = (arg(0)?, arg(1)?, arg(2)?);
-            if compare(CmpOp::Lt, x, mn) {
+            if compare(CmpOp::Lt, &x, &mn) {
                 mn
-            } else if compare(CmpOp::Gt, x, mx) {
+            } else if compare(CmpOp::Gt, &x, &mx) {
                 mx
             } else {
                 x
@@ -134,6 +133,14 @@ fn call(func: &Func, args: &[CExpr], ty: &Type, env: &impl Env) -> Result<Value,
             Value::Int(stdlib::shift(func, arg(0)?.as_i64(), arg(1)?.as_i64(), kind))
         }
         Func::Convert(to) => stdlib::convert(arg(0)?, to),
+        Func::ToString(from) => Value::string(stdlib::to_string(from, &arg(0)?)),
+        Func::Text(f) => {
+            let mut values = Vec::with_capacity(args.len());
+            for a in args {
+                values.push(eval(a, env)?);
+            }
+            stdlib::text(*f, &values)
+        }
         Func::BitAnd => int(arg(0)?.as_i64() & arg(1)?.as_i64(), wrap),
         Func::BitOr => int(arg(0)?.as_i64() | arg(1)?.as_i64(), wrap),
         Func::BitXor => int(arg(0)?.as_i64() ^ arg(1)?.as_i64(), wrap),
@@ -145,8 +152,9 @@ fn int(v: i64, wrap: Option<IntKind>) -> Value {
     Value::Int(wrap.map_or(v, |k| k.wrap(v)))
 }
 
-fn compare(op: CmpOp, a: Value, b: Value) -> bool {
+fn compare(op: CmpOp, a: &Value, b: &Value) -> bool {
     let ord = match (a, b) {
+        (Value::Str(x), Value::Str(y)) => Some(x.as_str().cmp(y.as_str())),
         (Value::Real(_), _) | (_, Value::Real(_)) => a.as_f64().partial_cmp(&b.as_f64()),
         _ => Some(a.as_i64().cmp(&b.as_i64())),
     };
@@ -164,11 +172,11 @@ fn compare(op: CmpOp, a: Value, b: Value) -> bool {
     }
 }
 
-fn arith(op: ArithOp, wrap: Option<IntKind>, a: Value, b: Value) -> Result<Value, Fault> {
+fn arith(op: ArithOp, wrap: Option<IntKind>, a: &Value, b: &Value) -> Result<Value, Fault> {
     match (a, b) {
         // TIME scaled by a number: TIME * n, n * TIME, TIME / n.
-        (Value::Time(t), n @ (Value::Int(_) | Value::Real(_)))
-        | (n @ (Value::Int(_) | Value::Real(_)), Value::Time(t)) => {
+        (&Value::Time(t), n @ (Value::Int(_) | Value::Real(_)))
+        | (n @ (Value::Int(_) | Value::Real(_)), &Value::Time(t)) => {
             let n = n.as_f64();
             match op {
                 ArithOp::Mul | ArithOp::Pow => Ok(Value::Time((t as f64 * n).round() as i64)),
@@ -176,7 +184,7 @@ fn arith(op: ArithOp, wrap: Option<IntKind>, a: Value, b: Value) -> Result<Value
                 _ => Ok(Value::Time((t as f64 / n).round() as i64)),
             }
         }
-        (Value::Time(x), Value::Time(y)) => Ok(Value::Time(match op {
+        (&Value::Time(x), &Value::Time(y)) => Ok(Value::Time(match op {
             ArithOp::Sub => x.wrapping_sub(y),
             _ => x.wrapping_add(y),
         })),

@@ -96,8 +96,8 @@ pub fn parse_inputs(text: &str, program: &Program) -> Result<Vec<InputRecord>, I
     Ok(out)
 }
 
-/// A JSON value as a value of type `ty`: a boolean, an integer in range, a number, or a duration as
-/// milliseconds or a `T#…` literal.
+/// A JSON value as a value of type `ty`: a boolean, an integer in range, a number, a duration as milliseconds or
+/// a `T#…` literal, an enumeration value by name, or a string that fits the variable's length.
 pub fn parse_value(ty: &Type, json: &serde_json::Value) -> Option<Value> {
     match ty {
         Type::Bool => json.as_bool().map(Value::Bool),
@@ -123,6 +123,18 @@ pub fn parse_value(ty: &Type, json: &serde_json::Value) -> Option<Value> {
             }
             other => other.as_i64().filter(|&i| i >= 0 && (i as usize) < e.values.len()).map(Value::Int),
         },
+        // Text as it is, or as an ST literal (`'go'`, as value records show it); a number as its digits.
+        Type::Str { .. } => {
+            let text = match json {
+                serde_json::Value::String(s) if s.len() >= 2 && s.starts_with('\'') && s.ends_with('\'') => {
+                    crate::exec::types::unquote_string(&s[1..s.len() - 1]).unwrap_or_else(|_| s.clone())
+                }
+                serde_json::Value::String(s) => s.clone(),
+                serde_json::Value::Number(n) => n.to_string(),
+                _ => return None,
+            };
+            Some(Value::string(text)).filter(|v| ty.fits(v))
+        }
         Type::Unsupported(_) => None,
     }
 }
@@ -181,9 +193,9 @@ pub fn simulate_watching(
         }
         batch.sort_unstable();
         for &i in &batch {
-            for &(var, value) in &inputs[i].set {
+            for (var, value) in &inputs[i].set {
                 // Values were checked against the program when the script was parsed.
-                if let Err(e) = engine.handle(Input::Set(var, value)) {
+                if let Err(e) = engine.handle(Input::Set(*var, value.clone())) {
                     sink(SimOutput::Fault { t_ms: now, message: e.to_string() });
                 }
             }
@@ -194,10 +206,10 @@ pub fn simulate_watching(
         drain(&mut engine, &mut sink);
         for (last, &var) in watched.iter_mut().zip(watch) {
             let value = engine.value(var);
-            if *last != Some(value) {
-                *last = Some(value);
+            if last.as_ref() != Some(&value) {
                 let mut record = TraceRecord::new(now, "value", &program.vars[var.index()].name);
-                record.value = Some(program.vars[var.index()].ty.show(value));
+                record.value = Some(program.vars[var.index()].ty.show(&value));
+                *last = Some(value);
                 sink(SimOutput::Trace(record));
             }
         }

@@ -404,6 +404,10 @@ pub enum Func {
     Ror,
     /// `*_TO_*` and `TO_*`: the argument converted to this type.
     Convert(Type),
+    /// `*_TO_STRING` and `TO_STRING`: the argument, of this type, as text (`compile` knows the type).
+    ToString(Type),
+    /// LEN, LEFT, RIGHT, MID, CONCAT, INSERT, DELETE, REPLACE, FIND.
+    Text(TextFn),
     /// AND, OR, XOR and NOT on bit strings (the operators, on integer operands).
     BitAnd,
     BitOr,
@@ -440,6 +444,15 @@ impl Func {
             "SHR" => (Func::Shr, &["IN", "N"]),
             "ROL" => (Func::Rol, &["IN", "N"]),
             "ROR" => (Func::Ror, &["IN", "N"]),
+            "LEN" => (Func::Text(TextFn::Len), IN),
+            "LEFT" => (Func::Text(TextFn::Left), &["IN", "L"]),
+            "RIGHT" => (Func::Text(TextFn::Right), &["IN", "L"]),
+            "MID" => (Func::Text(TextFn::Mid), &["IN", "L", "P"]),
+            "CONCAT" => (Func::Text(TextFn::Concat), &["IN1", "IN2"]),
+            "INSERT" => (Func::Text(TextFn::Insert), &["IN1", "IN2", "P"]),
+            "DELETE" => (Func::Text(TextFn::Delete), &["IN", "L", "P"]),
+            "REPLACE" => (Func::Text(TextFn::Replace), &["IN1", "IN2", "L", "P"]),
+            "FIND" => (Func::Text(TextFn::Find), &["IN1", "IN2"]),
             _ => {
                 let to = match upper.split_once("_TO_") {
                     Some((from, to)) if Type::from_name(from).is_some() => to,
@@ -452,14 +465,146 @@ impl Func {
 
     /// Whether it takes any number of arguments past its declared ones.
     pub fn extensible(&self) -> bool {
-        matches!(self, Func::Max | Func::Min | Func::Mux)
+        matches!(self, Func::Max | Func::Min | Func::Mux | Func::Text(TextFn::Concat))
     }
+}
+
+/// The standard's string functions. Positions count characters from 1; a length or a position outside the
+/// string is clamped to it (LEFT('AB', 5) is 'AB', MID('AB', 2, 5) is ''), where the standard calls it an
+/// error and leaves the result to the implementation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TextFn {
+    Len,
+    Left,
+    Right,
+    Mid,
+    Concat,
+    Insert,
+    Delete,
+    Replace,
+    Find,
+}
+
+/// One string function of its arguments, which `compile` typed (strings, and integers for lengths and
+/// positions).
+pub fn text(f: TextFn, args: &[Value]) -> Value {
+    let chars = |i: usize| -> Vec<char> { args[i].as_str().chars().collect() };
+    // A count or a position (from 1) as an index into `len` characters.
+    let clamp = |v: &Value, len: usize| v.as_i64().clamp(0, len as i64) as usize;
+    let string = |c: &[char]| Value::string(c.iter().collect::<String>());
+    match f {
+        TextFn::Len => Value::Int(args[0].as_str().chars().count() as i64),
+        TextFn::Left => {
+            let c = chars(0);
+            string(&c[..clamp(&args[1], c.len())])
+        }
+        TextFn::Right => {
+            let c = chars(0);
+            string(&c[c.len() - clamp(&args[1], c.len())..])
+        }
+        TextFn::Mid => {
+            let c = chars(0);
+            let p = args[2].as_i64();
+            if p < 1 || p as usize > c.len() {
+                return Value::string("");
+            }
+            let start = p as usize - 1;
+            string(&c[start..start + clamp(&args[1], c.len() - start)])
+        }
+        TextFn::Concat => Value::string(args.iter().map(Value::as_str).collect::<String>()),
+        TextFn::Insert => {
+            let c = chars(0);
+            let at = clamp(&args[2], c.len());
+            let mut out: String = c[..at].iter().collect();
+            out.push_str(args[1].as_str());
+            out.extend(&c[at..]);
+            Value::string(out)
+        }
+        TextFn::Delete | TextFn::Replace => {
+            let (l, p, with) = if f == TextFn::Delete { (1, 2, "") } else { (2, 3, args[1].as_str()) };
+            let c = chars(0);
+            let p = args[p].as_i64();
+            if p < 1 || p as usize > c.len() {
+                return args[0].clone();
+            }
+            let start = p as usize - 1;
+            let end = start + clamp(&args[l], c.len() - start);
+            let mut out: String = c[..start].iter().collect();
+            out.push_str(with);
+            out.extend(&c[end..]);
+            Value::string(out)
+        }
+        TextFn::Find => {
+            let (hay, needle) = (args[0].as_str(), args[1].as_str());
+            let at = if needle.is_empty() { None } else { hay.find(needle) };
+            Value::Int(at.map_or(0, |b| hay[..b].chars().count() as i64 + 1))
+        }
+    }
+}
+
+/// A value of type `from` as `*_TO_STRING` writes it: TRUE/FALSE, decimal numbers, durations as `T#1s500ms`,
+/// dates and times as their literals.
+pub fn to_string(from: &Type, v: &Value) -> String {
+    match (from, v) {
+        (Type::Real { long: false }, &Value::Real(r)) => (r as f32).to_string(),
+        (Type::Time, &Value::Time(ms)) => show_duration(ms),
+        (Type::Str { .. }, Value::Str(s)) => s.to_string(),
+        (from, v) => from.show(v),
+    }
+}
+
+/// `T#1d2h3m4s5ms`, the largest units first, zero units left out (`T#0s` for zero).
+pub fn show_duration(ms: i64) -> String {
+    let mut out = String::from(if ms < 0 { "T#-" } else { "T#" });
+    let mut rest = ms.unsigned_abs();
+    if rest == 0 {
+        out.push_str("0s");
+    }
+    for (unit, size) in [("d", 86_400_000u64), ("h", 3_600_000), ("m", 60_000), ("s", 1000), ("ms", 1)] {
+        if rest >= size {
+            out.push_str(&format!("{}{unit}", rest / size));
+            rest %= size;
+        }
+    }
+    out
+}
+
+/// `STRING_TO_*`: the literal a string holds (blanks around it ignored) as a value of `to`; the type's default
+/// when it holds none, as PLCs answer.
+fn parse_text(s: &str, to: &Type) -> Value {
+    use crate::front::lexer::{lex, Kw, Tok};
+    let lexed = lex(s.trim());
+    let toks: Vec<Tok> = lexed.tokens.iter().map(|t| t.tok).collect();
+    let (negative, tok) = match toks[..] {
+        [Tok::Minus, t, Tok::Eof] => (true, t),
+        [t, Tok::Eof] => (false, t),
+        _ => return to.default_value(),
+    };
+    let value = match (to, tok) {
+        (Type::Bool, Tok::Kw(Kw::True)) | (Type::Bool, Tok::Int(1)) => Value::Bool(true),
+        (Type::Bool, Tok::Kw(Kw::False)) | (Type::Bool, Tok::Int(0)) => Value::Bool(false),
+        (Type::Int(k), Tok::Int(i)) => Value::Int(k.wrap(if negative { i.wrapping_neg() } else { i })),
+        (Type::Real { .. }, Tok::Int(i)) => to.coerce(Value::Real(if negative { -i as f64 } else { i as f64 })),
+        (Type::Real { .. }, Tok::Real(r)) => to.coerce(Value::Real(if negative { -r } else { r })),
+        (Type::Time, Tok::Time(ms)) => Value::Time(if negative { -ms } else { ms }),
+        (Type::Date, Tok::Date(ms)) | (Type::Tod, Tok::Tod(ms)) | (Type::Dt, Tok::Dt(ms)) if !negative => {
+            Value::Time(ms)
+        }
+        _ => return to.default_value(),
+    };
+    if negative && matches!(to, Type::Bool) {
+        return to.default_value();
+    }
+    value
 }
 
 /// A value converted to a type, as the `*_TO_*` functions do: REAL to an integer rounds to the nearest (half
 /// away from zero), integers wrap to the target's width, TIME converts to and from milliseconds, a number is
 /// TRUE when it is not zero.
 pub fn convert(v: Value, to: &Type) -> Value {
+    if let Value::Str(s) = &v {
+        return parse_text(s, to);
+    }
     match to {
         Type::Bool => Value::Bool(match v {
             Value::Bool(b) => b,
@@ -478,6 +623,7 @@ pub fn convert(v: Value, to: &Type) -> Value {
         // DT_TO_TOD keeps the time of day, DT_TO_DATE the day.
         Type::Tod => Value::Time(v.as_i64().rem_euclid(86_400_000)),
         Type::Date => Value::Time(v.as_i64() - v.as_i64().rem_euclid(86_400_000)),
+        Type::Str { .. } => Value::string(v.to_string()),
         Type::Enum(_) | Type::Unsupported(_) => v,
     }
 }

@@ -1,6 +1,7 @@
 //! Elementary data types and run-time values of the Structured Text subset Baton executes.
 
 use std::fmt;
+use std::sync::Arc;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum IntKind {
@@ -148,6 +149,10 @@ pub enum Type {
         long: bool,
     },
     Time,
+    /// STRING[max]: at most `max` characters; a longer value is cut to its first `max` when stored.
+    Str {
+        max: u32,
+    },
     /// A declared type Baton does not execute (STRING, arrays, function block instances…): it may be declared,
     /// not used.
     Unsupported(String),
@@ -156,6 +161,10 @@ pub enum Type {
 impl Type {
     /// The elementary type with this (upper-case) name.
     pub fn from_name(upper: &str) -> Option<Type> {
+        if let Some(n) = upper.strip_prefix("STRING[").and_then(|r| r.strip_suffix(']')) {
+            let max = n.parse::<u32>().ok().filter(|&n| n >= 1 && n as usize <= crate::limits::STRING_LENGTH_MAX)?;
+            return Some(Type::Str { max });
+        }
         Some(match upper {
             "BOOL" => Type::Bool,
             "SINT" => Type::Int(IntKind::Sint),
@@ -176,12 +185,14 @@ impl Type {
             "DATE" | "LDATE" => Type::Date,
             "TIME_OF_DAY" | "TOD" | "LTOD" => Type::Tod,
             "DATE_AND_TIME" | "DT" | "LDT" => Type::Dt,
+            "STRING" => Type::Str { max: crate::limits::STRING_LENGTH_DEFAULT as u32 },
             _ => return None,
         })
     }
 
     pub fn default_value(&self) -> Value {
         match self {
+            Type::Str { .. } => Value::string(""),
             Type::Bool | Type::Unsupported(_) => Value::Bool(false),
             Type::Enum(_) => Value::Int(0),
             Type::Int(_) => Value::Int(0),
@@ -191,24 +202,25 @@ impl Type {
     }
 
     /// Whether a value (from an input, a message) is one of this type's values as they are held.
-    pub fn fits(&self, v: Value) -> bool {
+    pub fn fits(&self, v: &Value) -> bool {
         match (self, v) {
+            (Type::Str { max }, Value::Str(s)) => s.chars().count() <= *max as usize,
             (Type::Bool, Value::Bool(_))
             | (Type::Time | Type::Date | Type::Tod | Type::Dt, Value::Time(_))
             | (Type::Real { .. }, Value::Real(_)) => true,
-            (Type::Int(k), Value::Int(v)) => k.contains(v),
-            (Type::Enum(e), Value::Int(v)) => v >= 0 && (v as usize) < e.values.len(),
+            (Type::Int(k), &Value::Int(v)) => k.contains(v),
+            (Type::Enum(e), &Value::Int(v)) => v >= 0 && (v as usize) < e.values.len(),
             _ => false,
         }
     }
 
     /// A value as a user reads it: an enumeration's value by name, others as `Value` shows them.
-    pub fn show(&self, v: Value) -> String {
+    pub fn show(&self, v: &Value) -> String {
         match (self, v) {
-            (Type::Enum(e), Value::Int(i)) => e.values.get(i as usize).cloned().unwrap_or_else(|| i.to_string()),
-            (Type::Date, Value::Time(ms)) => format!("D#{}", show_date(ms)),
-            (Type::Tod, Value::Time(ms)) => format!("TOD#{}", show_tod(ms)),
-            (Type::Dt, Value::Time(ms)) => format!("DT#{}-{}", show_date(ms), show_tod(ms.rem_euclid(DAY_MS))),
+            (Type::Enum(e), &Value::Int(i)) => e.values.get(i as usize).cloned().unwrap_or_else(|| i.to_string()),
+            (Type::Date, &Value::Time(ms)) => format!("D#{}", show_date(ms)),
+            (Type::Tod, &Value::Time(ms)) => format!("TOD#{}", show_tod(ms)),
+            (Type::Dt, &Value::Time(ms)) => format!("DT#{}-{}", show_date(ms), show_tod(ms.rem_euclid(DAY_MS))),
             (_, v) => v.to_string(),
         }
     }
@@ -222,6 +234,12 @@ impl Type {
             (Type::Tod, Value::Time(ms)) => Value::Time(ms.rem_euclid(DAY_MS)),
             (Type::Real { long }, Value::Int(i)) => Value::Real(round_real(i as f64, *long)),
             (Type::Real { long }, Value::Real(r)) => Value::Real(round_real(r, *long)),
+            (Type::Str { max }, Value::Str(s)) if s.len() > *max as usize => {
+                match s.char_indices().nth(*max as usize) {
+                    Some((cut, _)) => Value::string(&s[..cut]),
+                    None => Value::Str(s),
+                }
+            }
             (_, v) => v,
         }
     }
@@ -256,6 +274,8 @@ impl fmt::Display for Type {
             Type::Real { long: false } => "REAL",
             Type::Real { long: true } => "LREAL",
             Type::Time => "TIME",
+            Type::Str { max } if *max as usize == crate::limits::STRING_LENGTH_DEFAULT => "STRING",
+            Type::Str { max } => return write!(f, "STRING[{max}]"),
             Type::Unsupported(name) => name,
             Type::Enum(e) => &e.name,
             Type::Date => "DATE",
@@ -266,34 +286,102 @@ impl fmt::Display for Type {
     }
 }
 
-/// A run-time value. TIME is held in milliseconds.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// A run-time value. TIME is held in milliseconds. A STRING is shared, so that copying a value stays cheap (a
+/// string is never changed in place: every string function makes a new one).
+#[derive(Clone, Debug, PartialEq)]
 pub enum Value {
     Bool(bool),
     Int(i64),
     Real(f64),
     Time(i64),
+    Str(Arc<String>),
 }
 
 impl Value {
-    pub fn as_bool(self) -> bool {
+    pub fn as_bool(&self) -> bool {
         matches!(self, Value::Bool(true))
     }
 
-    pub fn as_i64(self) -> i64 {
-        match self {
+    pub fn as_i64(&self) -> i64 {
+        match *self {
             Value::Bool(b) => b as i64,
             Value::Int(i) | Value::Time(i) => i,
             Value::Real(r) => r as i64,
+            Value::Str(_) => 0,
         }
     }
 
-    pub fn as_f64(self) -> f64 {
-        match self {
+    pub fn as_f64(&self) -> f64 {
+        match *self {
             Value::Real(r) => r,
-            other => other.as_i64() as f64,
+            ref other => other.as_i64() as f64,
         }
     }
+
+    pub fn as_str(&self) -> &str {
+        match self {
+            Value::Str(s) => s,
+            _ => "",
+        }
+    }
+
+    pub fn string(s: impl Into<String>) -> Value {
+        Value::Str(Arc::new(s.into()))
+    }
+}
+
+/// A STRING literal's text in Structured Text: quoted, with `$` escapes for the quote, `$` itself and
+/// characters that are not printable.
+pub fn quote_string(s: &str) -> String {
+    let mut out = String::with_capacity(s.len() + 2);
+    out.push('\'');
+    for c in s.chars() {
+        match c {
+            '\'' => out.push_str("$'"),
+            '$' => out.push_str("$$"),
+            '\n' => out.push_str("$N"),
+            '\r' => out.push_str("$R"),
+            '\t' => out.push_str("$T"),
+            '\x0c' => out.push_str("$P"),
+            c if (c as u32) < 0x20 || c as u32 == 0x7f => out.push_str(&format!("${:02X}", c as u32)),
+            c => out.push(c),
+        }
+    }
+    out.push('\'');
+    out
+}
+
+/// A STRING literal's value from its text between the quotes: `$$`, `$'`, `$"`, `$L`/`$N` (line feed), `$P`
+/// (form feed), `$R`, `$T` and `$hh` (a character by its code). `Err` names the first bad escape.
+pub fn unquote_string(raw: &str) -> Result<String, String> {
+    let mut out = String::with_capacity(raw.len());
+    let mut chars = raw.chars();
+    while let Some(c) = chars.next() {
+        if c != '$' {
+            out.push(c);
+            continue;
+        }
+        let Some(e) = chars.next() else { return Err("a string ends with a lone `$`".into()) };
+        match e.to_ascii_uppercase() {
+            '$' => out.push('$'),
+            '\'' => out.push('\''),
+            '"' => out.push('"'),
+            'L' | 'N' => out.push('\n'),
+            'P' => out.push('\x0c'),
+            'R' => out.push('\r'),
+            'T' => out.push('\t'),
+            h if h.is_ascii_hexdigit() => {
+                let l = chars.next().filter(char::is_ascii_hexdigit);
+                let Some(l) = l else { return Err(format!("`${e}` needs two hexadecimal digits, such as `$0A`")) };
+                let code = u32::from_str_radix(&format!("{h}{l}"), 16).expect("two hexadecimal digits");
+                out.push(char::from_u32(code).expect("a code below 256 is a character"));
+            }
+            _ => {
+                return Err(format!("`${e}` is not a string escape (`$$`, `$'`, `$L`, `$N`, `$P`, `$R`, `$T`, `$hh`)"))
+            }
+        }
+    }
+    Ok(out)
 }
 
 impl fmt::Display for Value {
@@ -303,6 +391,7 @@ impl fmt::Display for Value {
             Value::Int(i) => write!(f, "{i}"),
             Value::Real(r) => write!(f, "{r}"),
             Value::Time(ms) => write!(f, "T#{ms}ms"),
+            Value::Str(s) => f.write_str(&quote_string(s)),
         }
     }
 }
@@ -318,5 +407,29 @@ mod tests {
         assert_eq!(IntKind::Uint.wrap(-1), 65_535);
         assert!(IntKind::Dint.contains(-5));
         assert!(!IntKind::Uint.contains(-1));
+    }
+
+    #[test]
+    fn string_literals_read_back_as_they_were_written() {
+        for text in ["", "plain", "it's $5", "tab\there\nline", "\u{1}\u{7f}ctl", "é, ü and ß"] {
+            let quoted = quote_string(text);
+            assert_eq!(unquote_string(&quoted[1..quoted.len() - 1]).as_deref(), Ok(text), "{quoted}");
+        }
+        assert_eq!(unquote_string("$41$l$$").as_deref(), Ok("A\n$"));
+        assert!(unquote_string("$Q").is_err() && unquote_string("$4").is_err() && unquote_string("end$").is_err());
+    }
+
+    #[test]
+    fn a_string_is_cut_to_its_length_when_stored_and_refused_when_set_too_long() {
+        let ty = Type::Str { max: 3 };
+        assert_eq!(ty.coerce(Value::string("abcdef")), Value::string("abc"));
+        assert_eq!(ty.coerce(Value::string("äöüß")), Value::string("äöü"), "characters, not bytes");
+        assert!(ty.fits(&Value::string("äöü")) && !ty.fits(&Value::string("abcd")));
+        let set = |json| crate::exec::sim::parse_value(&ty, &json);
+        assert_eq!(set(serde_json::json!("go")), Some(Value::string("go")));
+        assert_eq!(set(serde_json::json!("'a$'b'")), Some(Value::string("a'b")), "an ST literal is unquoted");
+        assert_eq!(set(serde_json::json!(42)), Some(Value::string("42")));
+        assert_eq!(set(serde_json::json!("toolong")), None);
+        assert_eq!(set(serde_json::json!(true)), None);
     }
 }

@@ -410,6 +410,8 @@ pub enum ExprKind {
     Date(i64),
     Tod(i64),
     Dt(i64),
+    /// A STRING literal's value (escapes resolved).
+    Str(String),
     Name(Ident),
     /// `step.X`, `step.T`, `action.Q`, `instance.Q`.
     Field(Ident, Ident),

@@ -336,8 +336,10 @@ impl Parser<'_> {
             let init = if self.eat(Tok::Assign) { Some(self.ident("an enumeration value")?) } else { None };
             TypeKind::Enum { values, init }
         } else if self.peek() == Tok::Ident {
-            let base = self.ident("a type")?;
-            if self.eat(Tok::LParen) {
+            let base = self.type_ident("a type")?;
+            if base.key().starts_with("STRING") {
+                TypeKind::Alias(base)
+            } else if self.eat(Tok::LParen) {
                 let low = self.signed_int()?;
                 self.expect(Tok::DotDot, "`..`")?;
                 let high = self.signed_int()?;
@@ -345,8 +347,8 @@ impl Parser<'_> {
                 TypeKind::Subrange { base, low, high }
             } else if base.key() == "ARRAY" {
                 TypeKind::Array(self.array_spec(base.span)?)
-            } else if matches!(self.peek(), Tok::LBracket) || base.key().ends_with("STRING") {
-                let what = "strings";
+            } else if matches!(self.peek(), Tok::LBracket) || base.key() == "WSTRING" {
+                let what = "wide strings (WSTRING)";
                 while !matches!(self.peek(), Tok::Semi | Tok::Kw(Kw::EndType) | Tok::Eof) {
                     self.bump();
                 }
@@ -398,7 +400,7 @@ impl Parser<'_> {
             return Err(self.error_here("`OF` and the element type"));
         }
         self.bump();
-        let elem = self.ident("an element type")?;
+        let elem = self.type_ident("an element type")?;
         let mut init = Vec::new();
         if self.peek() == Tok::Assign && self.peek_at(1) == Tok::LBracket {
             self.bump();
@@ -424,6 +426,28 @@ impl Parser<'_> {
         Ok(ArraySpec { dims, elem, init, span: start.to(self.prev_span()) })
     }
 
+    /// A type's name; `STRING[n]` and `STRING(n)` (CODESYS) are read as one name, `STRING[n]`, whose length
+    /// must be within `STRING_LENGTH_MAX`.
+    fn type_ident(&mut self, what: &str) -> PResult<Ident> {
+        let mut name = self.ident(what)?;
+        if name.key() != "STRING" || !matches!(self.peek(), Tok::LBracket | Tok::LParen) {
+            return Ok(name);
+        }
+        let close = if self.bump().tok == Tok::LBracket { Tok::RBracket } else { Tok::RParen };
+        let length_span = self.span();
+        let Tok::Int(n) = self.peek() else { return Err(self.error_here("the string's length, such as `STRING[20]`")) };
+        self.bump();
+        self.expect(close, if close == Tok::RBracket { "`]`" } else { "`)`" })?;
+        let max = crate::limits::STRING_LENGTH_MAX as i64;
+        if !(1..=max).contains(&n) {
+            let message = format!("a STRING holds 1 to {max} characters, not {n}");
+            self.diags.push(Diagnostic::error(length_span, message));
+        }
+        name.name = format!("STRING[{}]", n.clamp(1, max));
+        name.span = name.span.to(self.prev_span());
+        Ok(name)
+    }
+
     fn signed_int(&mut self) -> PResult<i64> {
         let negative = self.eat(Tok::Minus);
         match self.peek() {
@@ -442,7 +466,7 @@ impl Parser<'_> {
         let head = (|| {
             let name = self.ident("a function name")?;
             self.expect(Tok::Colon, "`:` and the function's result type")?;
-            let returns = self.ident("a result type")?;
+            let returns = self.type_ident("a result type")?;
             Ok::<_, Failed>((name, returns))
         })();
         let Ok((name, returns)) = head else {
@@ -615,7 +639,7 @@ impl Parser<'_> {
             self.expect(Tok::Located, "a location such as `%IX0.1`")?;
         }
         self.expect(Tok::Colon, "`:`")?;
-        let type_name = self.ident("a type name")?;
+        let type_name = self.type_ident("a type name")?;
         let elementary = crate::exec::types::Type::from_name(&type_name.key()).is_some();
         let mut init = None;
         let mut members = Vec::new();
@@ -1193,6 +1217,22 @@ impl Parser<'_> {
             Tok::Date(v) => ExprKind::Date(v),
             Tok::Tod(v) => ExprKind::Tod(v),
             Tok::Dt(v) => ExprKind::Dt(v),
+            Tok::Str => {
+                let raw = self.text(span).to_string();
+                let problem = if raw.starts_with('"') {
+                    Err("a double-quoted literal is a WSTRING, which Baton does not execute: write 'text'".to_string())
+                } else {
+                    crate::exec::types::unquote_string(&raw[1..raw.len() - 1])
+                };
+                // A bad literal is reported and read as its raw text, so that the body around it is checked too.
+                match problem {
+                    Ok(text) => ExprKind::Str(text),
+                    Err(message) => {
+                        self.diags.push(Diagnostic::error(span, message));
+                        ExprKind::Str(raw[1..raw.len() - 1].to_string())
+                    }
+                }
+            }
             Tok::Kw(Kw::True) => ExprKind::Bool(true),
             Tok::Kw(Kw::False) => ExprKind::Bool(false),
             Tok::LParen => {

@@ -330,11 +330,7 @@ impl Reader<'_> {
             dims.push((bound("lower")?, bound("upper")?));
         }
         let elem = child(array, "baseType").and_then(|b| b.first_element_child())?;
-        let name = if elem.tag_name().name() == "derived" {
-            elem.attribute("name")?.to_string()
-        } else {
-            elem.tag_name().name().to_ascii_uppercase()
-        };
+        let name = type_name(elem)?;
         let mut values = Vec::new();
         for v in init.and_then(|i| child(i, "arrayValue")).into_iter().flat_map(|a| children(a, "value")) {
             let repeat = v.attribute("repetitionValue").and_then(|r| r.trim().parse::<usize>().ok()).unwrap_or(1);
@@ -358,14 +354,8 @@ impl Reader<'_> {
             let Some(name) = dt.attribute("name").map(str::trim).filter(|n| !n.is_empty()) else { continue };
             let name = Ident { name: name.to_string(), span: self.attr_span(dt, "name") };
             let Some(base) = child(dt, "baseType").and_then(|b| b.first_element_child()) else { continue };
-            let type_name = |n: Node| -> Option<Ident> {
-                let t = n.first_element_child()?;
-                let name = if t.tag_name().name() == "derived" {
-                    t.attribute("name")?.to_string()
-                } else {
-                    t.tag_name().name().to_ascii_uppercase()
-                };
-                Some(Ident { name, span: Span::default() })
+            let base_name = |n: Node| -> Option<Ident> {
+                Some(Ident { name: type_name(n.first_element_child()?)?, span: Span::default() })
             };
             let kind = match base.tag_name().name() {
                 "enum" => {
@@ -389,7 +379,7 @@ impl Reader<'_> {
                     let range = child(base, "range");
                     let bound =
                         |attr: &str| range.and_then(|r| r.attribute(attr)).and_then(|v| v.trim().parse::<i64>().ok());
-                    match (bound("lower"), bound("upper"), child(base, "baseType").and_then(type_name)) {
+                    match (bound("lower"), bound("upper"), child(base, "baseType").and_then(base_name)) {
                         (Some(low), Some(high), Some(base)) => TypeKind::Subrange { base, low, high },
                         _ => TypeKind::Unsupported("malformed subranges".to_string()),
                     }
@@ -403,7 +393,11 @@ impl Reader<'_> {
                     None => TypeKind::Unsupported("malformed arrays".to_string()),
                 },
                 "struct" => TypeKind::Struct(self.var_list(base, VarSection::Local, false)),
-                "string" | "wstring" => TypeKind::Unsupported("strings".to_string()),
+                "wstring" => TypeKind::Unsupported("wide strings (WSTRING)".to_string()),
+                "string" => match type_name(base) {
+                    Some(n) => TypeKind::Alias(Ident { name: n, span: name.span }),
+                    None => TypeKind::Unsupported("strings of a length past the limit".to_string()),
+                },
                 other => TypeKind::Alias(Ident { name: other.to_ascii_uppercase(), span: name.span }),
             };
             out.push(TypeDef { name, kind });
@@ -419,10 +413,8 @@ impl Reader<'_> {
             Some("function") => {
                 let ty =
                     child(pou, "interface").and_then(|i| child(i, "returnType")).and_then(|t| t.first_element_child());
-                let name = match ty {
-                    Some(t) if t.tag_name().name() == "derived" => t.attribute("name").unwrap_or_default().to_string(),
-                    Some(t) => t.tag_name().name().to_ascii_uppercase(),
-                    None => return,
+                let Some(name) = ty.map(|t| type_name(t).unwrap_or_else(|| "(unreadable type)".to_string())) else {
+                    return;
                 };
                 Some(Ident { span: ty.map_or(Span::default(), |t| self.tag_span(t)), name })
             }
@@ -484,10 +476,20 @@ impl Reader<'_> {
                 .filter(|t| t.tag_name().name() == "array")
                 .and_then(|t| self.array_spec(t, child(v, "initialValue")));
             let type_name = match type_node {
-                Some(t) if t.tag_name().name() == "derived" => {
-                    t.attribute("name").unwrap_or("(unnamed derived type)").to_string()
-                }
-                Some(t) => t.tag_name().name().to_ascii_uppercase(),
+                Some(t) => match type_name(t) {
+                    Some(n) => n,
+                    None => {
+                        let message = match t.attribute("length") {
+                            Some(n) => format!(
+                                "a STRING holds 1 to {} characters, not `{n}`",
+                                crate::limits::STRING_LENGTH_MAX
+                            ),
+                            None => format!("the type of variable `{}` names no type", name.name),
+                        };
+                        self.error(self.tag_span(t), message);
+                        continue;
+                    }
+                },
                 None => {
                     self.error(name.span, format!("variable `{}` has no type", name.name));
                     continue;
@@ -1622,6 +1624,23 @@ fn blank_markup(raw: &str) -> BodyText {
 }
 
 /// Spaces for every byte of `s` but newlines, so that offsets and lines stay as they were.
+/// The name of the type a `<type>`'s element stands for: a derived type's name, `STRING[n]` for a string with a
+/// length, the element's name in capitals for an elementary type; `None` for an unnamed derived type or a length
+/// that is no number.
+fn type_name(t: Node) -> Option<String> {
+    match t.tag_name().name() {
+        "derived" => Some(t.attribute("name")?.to_string()),
+        "string" => match t.attribute("length") {
+            Some(n) => {
+                let n: usize = n.trim().parse().ok()?;
+                (1..=crate::limits::STRING_LENGTH_MAX).contains(&n).then(|| format!("STRING[{n}]"))
+            }
+            None => Some("STRING".to_string()),
+        },
+        other => Some(other.to_ascii_uppercase()),
+    }
+}
+
 fn blank_bytes(out: &mut String, s: &str) {
     out.extend(s.bytes().map(|b| if b == b'\n' { '\n' } else { ' ' }));
 }

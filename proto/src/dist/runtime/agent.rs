@@ -454,7 +454,7 @@ impl AgentRun {
         }
         if let Some(i) = i {
             // A role's variable another agent wrote: take it as already published, not as our own change.
-            self.published[i] = value;
+            self.published[i] = value.clone();
         }
         self.engine.handle(Input::Set(var, value)).is_ok()
     }
@@ -612,8 +612,8 @@ impl AgentRun {
         for (i, &v) in self.owned.iter().enumerate() {
             let value = self.engine.value(v);
             if self.published[i] != value {
-                self.published[i] = value;
-                changed.push(VarValue::new(v, value));
+                self.published[i] = value.clone();
+                changed.push(VarValue::new(v, value.clone()));
                 self.unreported.insert(v.0, value);
             }
         }
@@ -621,7 +621,7 @@ impl AgentRun {
             self.vars_seq += 1;
             // Other agents get what their code reads; the coordinator gets everything, in the reports.
             let read: Vec<VarValue> =
-                changed.iter().filter(|vv| self.layout.read_by_agents[vv.var as usize]).copied().collect();
+                changed.iter().filter(|vv| self.layout.read_by_agents[vv.var as usize]).cloned().collect();
             if !read.is_empty() {
                 let update = VarUpdate {
                     run: self.run,

@@ -416,8 +416,8 @@ impl Coordinator {
         let mut changed = Vec::new();
         for (i, &v) in self.owned.iter().enumerate() {
             let value = self.engine.value(v);
-            if self.published[i] != Some(value) {
-                self.published[i] = Some(value);
+            if self.published[i].as_ref() != Some(&value) {
+                self.published[i] = Some(value.clone());
                 changed.push(VarValue::new(v, value));
             }
         }
@@ -1192,12 +1192,13 @@ impl Coordinator {
         }
         let v = parse_value(&info.ty, value)
             .ok_or_else(|| format!("`{}` is {}, and {value} is not a {} value", info.name, info.ty, info.ty))?;
+        let shown = info.ty.show(&v);
         self.engine.handle(Input::Set(var, v)).map_err(|e| e.to_string())?;
         let mut rec = TraceRecord::new(self.now_ms, "set", &info.name);
-        rec.message = Some(v.to_string());
+        rec.message = Some(shown.clone());
         self.trace(rec);
         self.settle();
-        Ok(format!("{} := {v}", info.name))
+        Ok(format!("{} := {shown}", info.name))
     }
 
     pub fn status(&self) -> StatusReport {
