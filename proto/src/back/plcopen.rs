@@ -196,13 +196,13 @@ pub fn export(
         function_block(&mut out, def);
     }
     for (chart, program) in charts {
-        pou(&mut out, chart, program);
+        pou(&mut out, chart, program, library, types);
     }
     out.push_str("    </pous>\n  </types>\n  <instances>\n    <configurations/>\n  </instances>\n</project>\n");
     Ok(out)
 }
 
-fn pou(out: &mut String, chart: &Chart, program: &Program) {
+fn pou(out: &mut String, chart: &Chart, program: &Program, library: &[FbDef], types: &[TypeDef]) {
     let kind = match chart.kind {
         PouKind::FunctionBlock => "functionBlock",
         PouKind::Program | PouKind::Bare => "program",
@@ -213,6 +213,10 @@ fn pou(out: &mut String, chart: &Chart, program: &Program) {
     out.push_str("        <actions>\n");
     for a in &program.actions {
         let Some(action) = named.get(&a.name.to_ascii_uppercase()) else { continue };
+        if let Some(sfc) = &action.sfc {
+            nested(out, chart, action, sfc, library, types);
+            continue;
+        }
         let mut text = pragmas_text(&action.pragmas);
         if !text.is_empty() {
             text.push('\n');
@@ -259,6 +263,48 @@ fn pou(out: &mut String, chart: &Chart, program: &Program) {
         let _ = writeln!(out, "        <documentation>{}</documentation>", xhtml(&pragmas_text(&chart.pragmas)));
     }
     out.push_str("      </pou>\n");
+}
+
+/// An action written in SFC: its chart drawn as the POU's is, with Baton's order in the action's `addData`. The
+/// net comes from compiling the nested chart as a chart of its own with the POU's variables and actions (what
+/// that reports is the real compile's business).
+fn nested(
+    out: &mut String,
+    chart: &Chart,
+    action: &Action,
+    sfc: &crate::front::model::Sfc,
+    library: &[FbDef],
+    types: &[TypeDef],
+) {
+    let shadow = Chart {
+        name: action.name.clone(),
+        kind: chart.kind,
+        vars: chart.vars.clone(),
+        steps: sfc.steps.clone(),
+        transitions: sfc.transitions.clone(),
+        actions: chart.actions.iter().map(|a| Action { body: Vec::new(), sfc: None, ..a.clone() }).collect(),
+        pragmas: Vec::new(),
+        span: action.span,
+        broken: Broken::default(),
+    };
+    let program = crate::exec::compile::compile(&shadow, library, types, &mut Vec::new()).program;
+    let _ = writeln!(
+        out,
+        "          <action name=\"{}\">\n            <body>\n              <SFC>",
+        esc(&action.name.name)
+    );
+    let order = Sfc::new(&shadow, &program).write(out);
+    out.push_str("              </SFC>\n            </body>\n");
+    let _ = writeln!(
+        out,
+        "            <addData>\n              <data name=\"{ORDER_DATA}\" handleUnknown=\"discard\">\n                <order steps=\"{}\" transitions=\"{}\" actions=\"\"/>\n              </data>\n            </addData>",
+        esc(&order.steps),
+        order.transitions,
+    );
+    if !action.pragmas.is_empty() {
+        let _ = writeln!(out, "            <documentation>{}</documentation>", xhtml(&pragmas_text(&action.pragmas)));
+    }
+    out.push_str("          </action>\n");
 }
 
 /// A declared type; kinds Baton does not execute are left out (a chart using one does not export).

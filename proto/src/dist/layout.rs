@@ -512,6 +512,7 @@ impl Refs {
             CExpr::Var(v) => self.vars.push(*v),
             CExpr::StepX(s) | CExpr::StepT(s) => self.steps.push(*s),
             CExpr::ActionQ(a) => self.actions.push(*a),
+            CExpr::NestedT(v) => self.vars.extend(v.iter()),
             CExpr::Not(x) | CExpr::Neg(x, _) => self.expr(x),
             CExpr::Logic(_, a, b) | CExpr::Cmp(_, a, b) => {
                 self.expr(a);

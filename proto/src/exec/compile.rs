@@ -41,6 +41,9 @@ pub fn compile(chart: &Chart, library: &[FbDef], types: &[TypeDef], diags: &mut 
         enums: Vec::new(),
         arrays: HashMap::new(),
         structs: HashMap::new(),
+        nested_steps: HashMap::new(),
+        controlled: HashMap::new(),
+        started: HashMap::new(),
     };
     c.run()
 }
@@ -227,6 +230,12 @@ struct Compiler<'a> {
     arrays: HashMap<String, ArrayInfo>,
     /// The chart's structure variables: their type's name and field names.
     structs: HashMap<String, (String, Vec<String>)>,
+    /// Steps of the nested charts (actions written in SFC): their variables `[x, since, last]`.
+    nested_steps: HashMap<String, [VarId; 3]>,
+    /// Actions a nested chart controls: the action holding that chart, the action's Q and stored S variables.
+    controlled: HashMap<String, (String, VarId, VarId)>,
+    /// Each nested chart's `started` variable, by the key of the action it is the body of.
+    started: HashMap<String, VarId>,
 }
 
 struct ArrayInfo {
@@ -269,6 +278,7 @@ impl<'a> Compiler<'a> {
         }
         let mut vars = self.declare_vars();
         self.declare_functions(&mut vars);
+        self.declare_nested(&mut vars);
         self.declared = vars.len();
         self.compile_user_bodies(&vars);
         let mut net_ok = true;
@@ -295,6 +305,7 @@ impl<'a> Compiler<'a> {
         for (id, action) in action_sources.iter().enumerate() {
             actions[id].body = self.statements(&action.body, &vars);
         }
+        self.nested_charts(&action_sources, &step_sources, &vars, &mut actions);
         self.warn_unused_actions();
         if !chart.steps.iter().any(|s| s.initial) && !chart.broken.initial_step {
             let message = format!("chart `{}` has no initial step: declare one with `INITIAL_STEP`", chart.name.name);
@@ -2146,7 +2157,8 @@ impl<'a> Compiler<'a> {
     }
 
     fn field(&mut self, base: &Ident, field: &Ident, vars: &[VarInfo]) -> (CExpr, Ty) {
-        let step_field = matches!(field.key().as_str(), "X" | "T") && self.steps.contains_key(&base.key());
+        let step_field = matches!(field.key().as_str(), "X" | "T")
+            && (self.steps.contains_key(&base.key()) || self.nested_steps.contains_key(&base.key()));
         if let Some((ty_name, names)) = self.structs.get(&base.key()).filter(|_| !step_field) {
             return match self.vars.get(&format!("{}.{}", base.key(), field.key())) {
                 Some(&id) => match vars.get(id.index()) {
@@ -2201,6 +2213,16 @@ impl<'a> Compiler<'a> {
                 None => (FALSE, Ty::Err),
             };
         }
+        if let (Some(&v), false) = (self.nested_steps.get(&base.key()), self.steps.contains_key(&base.key())) {
+            match field.key().as_str() {
+                "X" => return (CExpr::Var(v[0]), Ty::Bool),
+                "T" => return (CExpr::NestedT(Box::new(v)), Ty::Time),
+                _ => {}
+            }
+        }
+        if let (Some(&(_, q, _)), "Q") = (self.controlled.get(&base.key()), field.key().as_str()) {
+            return (CExpr::Var(q), Ty::Bool);
+        }
         match field.key().as_str() {
             "X" | "T" => match self.steps.get(&base.key()) {
                 Some(&id) if field.key() == "X" => (CExpr::StepX(id), Ty::Bool),
@@ -2232,9 +2254,228 @@ impl<'a> Compiler<'a> {
         }
     }
 
+    /// The state of every nested chart (an action written in SFC) as variables: `started`, each step's `X`,
+    /// `since` and `last`, and the `Q` and `stored` of each action it controls (`X` and `Q` can be watched, the rest
+    /// is hidden). A nested step's name is one of the POU's, as CODESYS has it: two steps of one name are an error
+    /// wherever they are.
+    fn declare_nested(&mut self, vars: &mut Vec<VarInfo>) {
+        let chart = self.chart;
+        let add = |vars: &mut Vec<VarInfo>, name: String, ty: Type, hidden: bool| {
+            let id = VarId(vars.len() as u32);
+            let init = ty.default_value();
+            vars.push(VarInfo { name, ty, init, constant: false, section: VarSection::Local, hidden });
+            id
+        };
+        for action in &chart.actions {
+            let Some(sfc) = &action.sfc else { continue };
+            let parent = action.name.key();
+            if self.started.contains_key(&parent) {
+                continue; // an action declared twice, reported with the actions
+            }
+            let started = add(vars, format!("{}.started", action.name.name), Type::Bool, true);
+            self.started.insert(parent.clone(), started);
+            for step in &sfc.steps {
+                let key = step.name.key();
+                if self.nested_steps.contains_key(&key) || chart.steps.iter().any(|s| s.name.key() == key) {
+                    self.error(step.name.span, format!("step `{}` is declared twice", step.name.name));
+                    continue;
+                }
+                let base = format!("{}.{}", action.name.name, step.name.name);
+                let x = add(vars, format!("{base}.X"), Type::Bool, false);
+                let since = add(vars, format!("{base}.since"), Type::Time, true);
+                let last = add(vars, format!("{base}.last"), Type::Time, true);
+                self.nested_steps.insert(key, [x, since, last]);
+            }
+            for a in sfc.steps.iter().flat_map(|s| &s.associations) {
+                let key = a.action.key();
+                if key == parent {
+                    continue; // reported when the chart is compiled
+                }
+                match self.controlled.get(&key) {
+                    Some((other, _, _)) if *other != parent => {
+                        let message = format!(
+                            "action `{}` is controlled by the chart of action `{other}` already: an action has one chart",
+                            a.action.name
+                        );
+                        self.error(a.action.span, message);
+                    }
+                    Some(_) => {}
+                    None => {
+                        let base = format!("{}.{}", action.name.name, a.action.name);
+                        let q = add(vars, format!("{base}.Q"), Type::Bool, false);
+                        let stored = add(vars, format!("{base}.stored"), Type::Bool, true);
+                        self.controlled.insert(key, (parent.clone(), q, stored));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Compiles every nested chart into its action's body (`CStmt::Chart`), those it controls first, so that a
+    /// chart's controlled actions carry their own compiled bodies; a chart that controls itself, directly or
+    /// through others, is an error.
+    fn nested_charts(
+        &mut self,
+        sources: &[&'a Action],
+        parent_steps: &[&'a Step],
+        vars: &[VarInfo],
+        actions: &mut Vec<ActionInfo>,
+    ) {
+        for step in parent_steps {
+            for a in &step.associations {
+                if let Some((owner, _, _)) = self.controlled.get(&a.action.key()) {
+                    let message = format!(
+                        "action `{}` is controlled by the chart of action `{owner}`, and so cannot be associated with \
+                         step `{}` too: an action has one chart",
+                        a.action.name, step.name.name
+                    );
+                    self.error(a.action.span, message);
+                }
+            }
+        }
+        let mut pending: Vec<(usize, &'a Action)> =
+            sources.iter().enumerate().filter(|(_, a)| a.sfc.is_some()).map(|(i, a)| (i, *a)).collect();
+        while !pending.is_empty() {
+            // A chart whose controlled actions are all compiled already (none of them still pending).
+            let ready = pending.iter().position(|(_, a)| {
+                let sfc = a.sfc.as_ref().expect("a nested chart");
+                sfc.steps.iter().flat_map(|s| &s.associations).all(|assoc| {
+                    assoc.action.key() == a.name.key()
+                        || !pending.iter().any(|(_, p)| p.name.key() == assoc.action.key())
+                })
+            });
+            let Some(ready) = ready else {
+                // A cycle: each chart in it is still compiled, for its other errors, but runs nothing.
+                for (_, a) in std::mem::take(&mut pending) {
+                    let message = format!(
+                        "the chart of action `{}` controls itself, through the actions it names: nested charts must \
+                         form a tree",
+                        a.name.name
+                    );
+                    self.error(a.name.span, message);
+                    self.nested_chart(a, vars, actions);
+                }
+                return;
+            };
+            let (id, action) = pending.remove(ready);
+            if let Some(chart) = self.nested_chart(action, vars, actions) {
+                actions[id].body = vec![CStmt::Chart(Box::new(chart))];
+            }
+        }
+    }
+
+    fn nested_chart(
+        &mut self,
+        action: &Action,
+        vars: &[VarInfo],
+        actions: &mut Vec<ActionInfo>,
+    ) -> Option<NestedChart> {
+        let sfc = action.sfc.as_ref()?;
+        let parent = action.name.key();
+        let started = *self.started.get(&parent)?;
+        let index: HashMap<String, usize> = sfc.steps.iter().enumerate().map(|(i, s)| (s.name.key(), i)).collect();
+        let mut steps = Vec::with_capacity(sfc.steps.len());
+        for s in &sfc.steps {
+            let [x, since, last] = *self.nested_steps.get(&s.name.key())?;
+            steps.push(NestedStep { initial: s.initial, x, since, last });
+        }
+        if !sfc.steps.iter().any(|s| s.initial) {
+            let message = format!(
+                "the chart of action `{}` has no initial step: declare one with `INITIAL_STEP`",
+                action.name.name
+            );
+            self.error(action.name.span, message);
+        }
+        let list = |c: &mut Self, names: &[Ident]| -> Option<Vec<usize>> {
+            let mut out = Vec::with_capacity(names.len());
+            for n in names {
+                match index.get(&n.key()) {
+                    Some(&i) if !out.contains(&i) => out.push(i),
+                    Some(_) => c.error(n.span, format!("step `{}` appears twice in this list", n.name)),
+                    None => {
+                        let message =
+                            format!("unknown step `{}` in the chart of action `{}`", n.name, action.name.name);
+                        c.error(n.span, message);
+                        return None;
+                    }
+                }
+            }
+            Some(out)
+        };
+        let mut transitions = Vec::with_capacity(sfc.transitions.len());
+        for (i, t) in sfc.transitions.iter().enumerate() {
+            let (sources, targets) = (list(self, &t.from), list(self, &t.to));
+            let outer = std::mem::take(&mut self.hoisted);
+            let (condition, ty) = self.expr(&t.condition, vars);
+            let hoisted = std::mem::replace(&mut self.hoisted, outer);
+            if ty != Ty::Bool && ty != Ty::Err {
+                self.error(t.condition.span, format!("a transition condition must be BOOL, found {}", ty.name()));
+            }
+            let mut calls = self.statements(&t.calls, vars);
+            calls.extend(hoisted);
+            let rank = match t.priority {
+                Some((p, _)) => (0, p, i),
+                None => (1, 0, i),
+            };
+            if let (Some(sources), Some(targets)) = (sources, targets) {
+                transitions.push((rank, NestedTransition { sources, targets, calls, condition }));
+            }
+        }
+        // Clearing order: explicit priorities first, lower number first, then declaration order.
+        transitions.sort_by_key(|(rank, _)| *rank);
+        let mut controlled: Vec<NestedAction> = Vec::new();
+        let mut of_action: HashMap<ActionId, usize> = HashMap::new();
+        for (si, s) in sfc.steps.iter().enumerate() {
+            for a in &s.associations {
+                if matches!(a.qualifier, Qualifier::SD | Qualifier::DS | Qualifier::SL) {
+                    let message = format!(
+                        "qualifier {:?} in the chart of action `{}` is not supported: a nested chart takes N, S, R, P, \
+                         P0, P1, L and D",
+                        a.qualifier, action.name.name
+                    );
+                    self.error(a.qualifier_span, message);
+                    continue;
+                }
+                if let Some(ind) = a.indicators.first() {
+                    let message =
+                        format!("indicator variables in the chart of action `{}` are not supported", action.name.name);
+                    self.error(ind.span, message);
+                }
+                if a.action.key() == parent {
+                    self.error(
+                        a.action.span,
+                        format!("the chart of action `{}` cannot control that action itself", action.name.name),
+                    );
+                    continue;
+                }
+                let Some(id) = self.action_for(a, vars, actions) else { continue };
+                let duration = self.duration(a, vars);
+                let Some(&(_, q, stored)) = self.controlled.get(&a.action.key()) else { continue };
+                let k = *of_action.entry(id).or_insert_with(|| {
+                    let info = &actions[id.index()];
+                    controlled.push(NestedAction {
+                        q,
+                        stored,
+                        bool_var: info.bool_var,
+                        body: Arc::new(info.body.clone()),
+                        associations: Vec::new(),
+                    });
+                    controlled.len() - 1
+                });
+                controlled[k].associations.push((si, a.qualifier, duration));
+            }
+        }
+        Some(NestedChart {
+            started,
+            steps,
+            transitions: transitions.into_iter().map(|(_, t)| t).collect(),
+            actions: controlled,
+        })
+    }
+
     fn warn_unused_actions(&mut self) {
         let chart = self.chart;
-        let mut used: HashMap<String, ()> = HashMap::new();
+        let mut used: HashMap<String, ()> = self.controlled.keys().map(|k| (k.clone(), ())).collect();
         for step in &chart.steps {
             for a in &step.associations {
                 used.insert(a.action.key(), ());

@@ -1,8 +1,11 @@
 //! Evaluates typed expressions and runs action bodies against the engine's state (or none, for constants).
 
-use crate::exec::program::{ActionId, ArithOp, CExpr, CStmt, CmpOp, LogicOp, StepId, VarId};
+use crate::exec::program::{
+    ActionId, ArithOp, CExpr, CStmt, CmpOp, DurationSrc, LogicOp, NestedChart, NestedStep, StepId, VarId,
+};
 use crate::exec::stdlib::{self, Func};
 use crate::exec::types::{IntKind, Type, Value};
+use crate::front::model::Qualifier;
 use crate::limits::LOOP_ITERATIONS_MAX;
 
 /// What an expression can read.
@@ -75,6 +78,14 @@ pub fn eval(e: &CExpr, env: &impl Env) -> Result<Value, Fault> {
         CExpr::Arith { op, wrap, lhs, rhs } => arith(*op, *wrap, &eval(lhs, env)?, &eval(rhs, env)?)?,
         CExpr::Call(c) => c.ty.coerce(call(&c.func, &c.args, &c.ty, env)?),
         CExpr::Index(ix) => env.var(element(ix, env)?),
+        CExpr::NestedT(v) => {
+            let [x, since, last] = **v;
+            if env.var(x).as_bool() {
+                Value::Time(env.now_ms() - env.var(since).as_i64())
+            } else {
+                env.var(last)
+            }
+        }
     })
 }
 
@@ -367,6 +378,10 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
                     break Flow::Next;
                 }
             },
+            CStmt::Chart(chart) => {
+                scan(chart, env, budget)?;
+                Flow::Next
+            }
             CStmt::Exit => Flow::Exit,
             CStmt::Return => Flow::Return,
         };
@@ -375,6 +390,101 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
         }
     }
     Ok(Flow::Next)
+}
+
+/// One scan of a nested chart (see `NestedChart`).
+fn scan(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Result<(), Fault> {
+    let now = env.now_ms();
+    let x = |env: &mut _, s: &NestedStep| Env::var(env, s.x).as_bool();
+    let n = chart.steps.len();
+    // Steps just made active, and just left, in this scan.
+    let mut entered = vec![false; n];
+    let mut left = vec![false; n];
+    if !env.var(chart.started).as_bool() {
+        env.set_var(chart.started, Value::Bool(true));
+        for (i, s) in chart.steps.iter().enumerate().filter(|(_, s)| s.initial) {
+            env.set_var(s.x, Value::Bool(true));
+            env.set_var(s.since, Value::Time(now));
+            entered[i] = true;
+        }
+    } else {
+        let mut taken = vec![false; n];
+        let mut fired = Vec::new();
+        for (i, t) in chart.transitions.iter().enumerate() {
+            if !t.sources.iter().all(|&s| x(env, &chart.steps[s]) && !taken[s]) {
+                continue;
+            }
+            exec(&t.calls, env, budget)?;
+            if eval(&t.condition, env)?.as_bool() {
+                t.sources.iter().for_each(|&s| taken[s] = true);
+                fired.push(i);
+            }
+        }
+        for &i in &fired {
+            for &s in &chart.transitions[i].sources {
+                let step = &chart.steps[s];
+                let since = env.var(step.since).as_i64();
+                env.set_var(step.x, Value::Bool(false));
+                env.set_var(step.last, Value::Time(now - since));
+                left[s] = true;
+            }
+        }
+        for &i in &fired {
+            for &s in &chart.transitions[i].targets {
+                // A second token on an active step merges with the first, as in the engine.
+                let step = &chart.steps[s];
+                if !x(env, step) {
+                    env.set_var(step.x, Value::Bool(true));
+                    env.set_var(step.since, Value::Time(now));
+                    entered[s] = true;
+                }
+            }
+        }
+    }
+    // Every controlled action's Q from its associations, before any body runs, so that each sees this scan's.
+    let mut runs = Vec::with_capacity(chart.actions.len());
+    for a in &chart.actions {
+        let (mut direct, mut set, mut reset) = (false, false, false);
+        for &(s, qualifier, duration) in &a.associations {
+            let step = &chart.steps[s];
+            if !x(env, step) {
+                direct |= qualifier == Qualifier::P0 && left[s];
+                continue;
+            }
+            let elapsed = now - env.var(step.since).as_i64();
+            let dur = match duration {
+                Some(DurationSrc::Ms(ms)) => ms,
+                Some(DurationSrc::Var(v)) => env.var(v).as_i64().max(0),
+                None => 0,
+            };
+            match qualifier {
+                Qualifier::N => direct = true,
+                Qualifier::S => set = true,
+                Qualifier::R => reset = true,
+                Qualifier::L => direct |= elapsed < dur,
+                Qualifier::D => direct |= elapsed >= dur,
+                Qualifier::P | Qualifier::P1 => direct |= entered[s],
+                // P0 counts where its step was left, above; `compile` refuses the stored timed qualifiers here.
+                Qualifier::P0 | Qualifier::SD | Qualifier::DS | Qualifier::SL => {}
+            }
+        }
+        let stored = !reset && (set || env.var(a.stored).as_bool());
+        env.set_var(a.stored, Value::Bool(stored));
+        let q = direct || stored;
+        let before = env.var(a.q).as_bool();
+        env.set_var(a.q, Value::Bool(q));
+        if let Some(v) = a.bool_var.filter(|_| q || before) {
+            env.set_var(v, Value::Bool(q));
+        }
+        runs.push(q || before);
+    }
+    for (a, run) in chart.actions.iter().zip(runs) {
+        if run {
+            // RETURN in a controlled action ends that action's body only.
+            exec(&a.body, env, budget)?;
+        }
+    }
+    Ok(())
 }
 
 /// Whether an expression reads nothing but literals, so that it can be folded at compile time.
@@ -386,7 +496,7 @@ pub fn is_constant(e: &CExpr) -> bool {
         CExpr::Logic(_, a, b) | CExpr::Cmp(_, a, b) => is_constant(a) && is_constant(b),
         CExpr::Arith { lhs, rhs, .. } => is_constant(lhs) && is_constant(rhs),
         CExpr::Call(c) => c.args.iter().all(is_constant),
-        CExpr::Index(_) => false,
+        CExpr::Index(_) | CExpr::NestedT(_) => false,
     }
 }
 

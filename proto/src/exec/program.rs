@@ -79,6 +79,10 @@ impl Reads {
             CExpr::Var(v) => self.vars.push(*v),
             CExpr::StepX(_) | CExpr::ActionQ(_) => self.steps_or_actions = true,
             CExpr::StepT(_) => self.step_time = true,
+            CExpr::NestedT(v) => {
+                self.vars.extend(v.iter());
+                self.step_time = true;
+            }
             CExpr::Not(a) | CExpr::Neg(a, _) => self.walk(a),
             CExpr::Logic(_, a, b) | CExpr::Cmp(_, a, b) | CExpr::Arith { lhs: a, rhs: b, .. } => {
                 self.walk(a);
@@ -208,6 +212,9 @@ pub enum CExpr {
     Call(Box<FnCall>),
     /// An array element whose index is known only at run time.
     Index(Box<IndexExpr>),
+    /// `S.T` of a step of a nested chart, from its variables `[x, since, last]`: the time since it became active
+    /// while it is, else how long it was active last.
+    NestedT(Box<[VarId; 3]>),
 }
 
 /// `a[i, j]`: the element `base + offset`, the offset row-major from the indices and the bounds; an index
@@ -287,8 +294,64 @@ pub enum CStmt {
         pre: Vec<CStmt>,
         until: CExpr,
     },
+    /// One scan of a chart that is an action's body (`NestedChart`).
+    Chart(Box<NestedChart>),
     Exit,
     Return,
+}
+
+/// An action written in SFC, compiled: its state is variables (each step's X, when it became active, how long it
+/// was last active; each controlled action's Q and stored S), so that it lives in the engine's flat array and
+/// travels with the other variables. Each run of the action that holds it is one scan: judge the transitions
+/// (clearing order, a step's token taken once), move the tokens, then compute the controlled actions' Q from
+/// their associations and run the bodies whose Q is TRUE or has just fallen. Between runs it stands still.
+#[derive(Clone, Debug)]
+pub struct NestedChart {
+    /// FALSE until the first scan, which activates the initial steps (their time counts from it).
+    pub started: VarId,
+    pub steps: Vec<NestedStep>,
+    /// In clearing order.
+    pub transitions: Vec<NestedTransition>,
+    pub actions: Vec<NestedAction>,
+}
+
+#[derive(Clone, Debug)]
+pub struct NestedStep {
+    pub initial: bool,
+    pub x: VarId,
+    /// When the step became active (ms, the cycle's time).
+    pub since: VarId,
+    /// How long it was active the last time (`S.T` while it is inactive).
+    pub last: VarId,
+}
+
+#[derive(Clone, Debug)]
+pub struct NestedTransition {
+    pub sources: Vec<usize>,
+    pub targets: Vec<usize>,
+    /// Block calls its wired condition needs, run before it is judged.
+    pub calls: Vec<CStmt>,
+    pub condition: CExpr,
+}
+
+#[derive(Clone, Debug)]
+pub struct NestedAction {
+    pub q: VarId,
+    pub stored: VarId,
+    /// A boolean action's variable, which follows Q.
+    pub bool_var: Option<VarId>,
+    pub body: std::sync::Arc<Vec<CStmt>>,
+    /// (step, qualifier, duration in ms for L and D).
+    pub associations: Vec<(usize, crate::front::model::Qualifier, Option<DurationSrc>)>,
+}
+
+impl NestedChart {
+    /// Every variable a scan may write, its own state first.
+    pub fn state(&self) -> impl Iterator<Item = VarId> + '_ {
+        let steps = self.steps.iter().flat_map(|s| [s.x, s.since, s.last]);
+        let actions = self.actions.iter().flat_map(|a| [a.q, a.stored].into_iter().chain(a.bool_var));
+        std::iter::once(self.started).chain(steps).chain(actions)
+    }
 }
 
 /// Walks statements: `write` gets every variable they may write, `read` every expression they evaluate (a block
@@ -354,6 +417,24 @@ pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl 
                 walk_body(pre, write, read);
                 read(c);
                 walk_body(body, write, read);
+            }
+            CStmt::Chart(chart) => {
+                for v in chart.state() {
+                    write(v);
+                    read(&CExpr::Var(v));
+                }
+                for t in &chart.transitions {
+                    walk_body(&t.calls, write, read);
+                    read(&t.condition);
+                }
+                for a in &chart.actions {
+                    for (_, _, d) in &a.associations {
+                        if let Some(DurationSrc::Var(v)) = d {
+                            read(&CExpr::Var(*v));
+                        }
+                    }
+                    walk_body(&a.body, write, read);
+                }
             }
             CStmt::Exit | CStmt::Return => {}
         }

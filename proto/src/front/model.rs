@@ -274,8 +274,19 @@ impl Transition {
 pub struct Action {
     pub name: Ident,
     pub body: Vec<Stmt>,
+    /// An action written in SFC (a nested chart): its steps and transitions, in place of statements.
+    pub sfc: Option<Box<Sfc>>,
     pub pragmas: Vec<Pragma>,
     pub span: Span,
+}
+
+/// A chart that is an action's body (IEC 61131-3 lets an action be written in SFC). Its associations name
+/// actions of the POU (as in PLCopen XML, where every action is the POU's), which it then controls alone; each
+/// run of the action is one scan of the chart.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sfc {
+    pub steps: Vec<Step>,
+    pub transitions: Vec<Transition>,
 }
 
 #[derive(Clone, Debug, PartialEq)]

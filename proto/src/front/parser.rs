@@ -859,10 +859,36 @@ impl Parser<'_> {
         let kw = self.bump();
         let name = self.ident("an action name")?;
         self.expect(Tok::Colon, "`:`")?;
-        let body = self.statements()?;
+        let (body, sfc) = if matches!(self.peek(), Tok::Kw(Kw::InitialStep | Kw::Step | Kw::Transition)) {
+            (Vec::new(), Some(Box::new(self.nested_sfc()?)))
+        } else {
+            (self.statements()?, None)
+        };
         let end = self.expect(Tok::Kw(Kw::EndAction), "`END_ACTION`")?;
         self.eat(Tok::Semi);
-        Ok(Action { name, body, pragmas: Vec::new(), span: kw.span.to(end.span) })
+        Ok(Action { name, body, sfc, pragmas: Vec::new(), span: kw.span.to(end.span) })
+    }
+
+    /// The steps and transitions of an action written in SFC, up to its `END_ACTION`. A syntax error in one of
+    /// them fails the whole action: a nested chart with an element missing is not the chart drawn.
+    fn nested_sfc(&mut self) -> PResult<Sfc> {
+        let (mut steps, mut transitions) = (Vec::new(), Vec::new());
+        loop {
+            match self.peek() {
+                Tok::Kw(Kw::InitialStep | Kw::Step) => steps.push(self.step()?),
+                Tok::Kw(Kw::Transition) => transitions.push(self.transition()?),
+                Tok::Kw(Kw::Action) => {
+                    let span = self.span();
+                    self.diags.push(Diagnostic::error(
+                        span,
+                        "an action written in SFC names the POU's actions: declare this one after `END_ACTION`",
+                    ));
+                    return Err(Failed);
+                }
+                _ => break,
+            }
+        }
+        Ok(Sfc { steps, transitions })
     }
 
     fn fragment(&mut self, kind: FragmentKind) -> PResult<Fragment> {

@@ -310,7 +310,7 @@ impl Reader<'_> {
         self.implicit.clear();
         self.inits = chart.vars.iter().filter_map(|v| Some((v.name.key(), v.init.clone()?))).collect();
         for action in child(pou, "actions").into_iter().flat_map(|a| children(a, "action")) {
-            self.named_action(action, &mut chart);
+            self.named_action(action, &named_transitions, &mut chart);
         }
         let transition_ids = self.sfc(sfc, &named_transitions, &mut chart);
         chart.vars.append(&mut self.implicit);
@@ -522,13 +522,39 @@ impl Reader<'_> {
     }
 
     /// A named action of the POU: its body in ST, LD or FBD.
-    fn named_action(&mut self, action: Node, chart: &mut Chart) {
+    fn named_action(&mut self, action: Node, named_transitions: &HashMap<String, Node>, chart: &mut Chart) {
         let Some(name) = self.ident_attr(action, "name") else {
             chart.broken.unnamed_action = true;
             return;
         };
         let span = self.tag_span(action);
         let body = child(action, "body").and_then(|b| b.first_element_child());
+        if let Some(sfc) = body.filter(|b| is(b, "SFC")) {
+            // An action written in SFC: its net as a chart of its own, in the order Beremiz would run it; the
+            // actions drawn inline in it become the POU's, which every association names.
+            let mut inner = Chart {
+                name: name.clone(),
+                kind: chart.kind,
+                vars: Vec::new(),
+                steps: Vec::new(),
+                transitions: Vec::new(),
+                actions: Vec::new(),
+                pragmas: Vec::new(),
+                span,
+                broken: Broken::default(),
+            };
+            let ids = self.sfc(sfc, named_transitions, &mut inner);
+            match baton_order(action) {
+                Some(order) => apply_order(&mut inner, &ids, &order),
+                None => walk_order(&mut inner),
+            }
+            chart.actions.append(&mut inner.actions);
+            chart.broken.actions.append(&mut inner.broken.actions);
+            let nested = Sfc { steps: inner.steps, transitions: inner.transitions };
+            let pragmas = self.documentation_pragmas(action);
+            chart.actions.push(Action { name, body: Vec::new(), sfc: Some(Box::new(nested)), pragmas, span });
+            return;
+        }
         let (statements, pragmas) = match body {
             Some(b) => self.body_statements(b),
             None => {
@@ -539,7 +565,7 @@ impl Reader<'_> {
         if statements.is_none() {
             chart.broken.actions.push(name.key());
         }
-        chart.actions.push(Action { name, body: statements.unwrap_or_default(), pragmas, span });
+        chart.actions.push(Action { name, body: statements.unwrap_or_default(), sfc: None, pragmas, span });
     }
 
     /// The statements of an action body (`<ST>`, `<LD>` or `<FBD>`), or `None` after an error.
@@ -553,7 +579,6 @@ impl Reader<'_> {
             other => {
                 let message = match other {
                     "IL" => "Instruction List bodies are not supported: write the action in ST, LD or FBD".to_string(),
-                    "SFC" => "an action whose body is itself an SFC (a nested chart) is not supported yet".to_string(),
                     _ => format!("`<{other}>` bodies are not supported"),
                 };
                 self.error(self.tag_span(body), message);
@@ -1406,6 +1431,7 @@ impl Reader<'_> {
                 chart.actions.push(Action {
                     name: name.clone(),
                     body: body.unwrap_or_default(),
+                    sfc: None,
                     pragmas: Vec::new(),
                     span: self.tag_span(inline),
                 });
