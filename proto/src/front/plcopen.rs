@@ -56,6 +56,8 @@ pub fn parse(src: &str) -> Parsed {
         calls: Vec::new(),
         called: HashSet::new(),
         references: HashMap::new(),
+        macros: HashMap::new(),
+        macro_names: HashMap::new(),
         library: Vec::new(),
         implicit: Vec::new(),
         inits: HashMap::new(),
@@ -155,6 +157,10 @@ struct Reader<'s> {
     called: HashSet<u64>,
     /// How many SFC transitions of the body being read refer to each named transition.
     references: HashMap<String, usize>,
+    /// The macro steps of the body being read, by `localId`: the entry and exit steps of their bodies, which
+    /// they stand for; and the entry steps by the macro step's name, for jumps to it.
+    macros: HashMap<u64, (Ident, Ident)>,
+    macro_names: HashMap<String, Ident>,
     /// Function blocks with ST bodies.
     library: Vec<FbDef>,
     /// Variables the POU being read needs that its interface does not declare (edge contacts' state), and
@@ -727,6 +733,50 @@ impl Reader<'_> {
                 *self.references.entry(name.trim().to_ascii_uppercase()).or_default() += 1;
             }
         }
+        // Macro steps first: the steps and transitions of each one's body join the chart, and the macro step
+        // stands for the body's entry step where a transition leads to it and its exit step where one leaves it.
+        let mut macros = HashMap::new();
+        let mut macro_names = HashMap::new();
+        let mut macro_transitions = Vec::new();
+        for el in children(sfc, "macroStep") {
+            let span = self.tag_span(el);
+            let Some(body) = child(el, "body").and_then(|b| child(b, "SFC")) else {
+                self.error(span, "a macro step without an SFC `<body>`: Baton expands a macro step's body in place");
+                match el.attribute("name") {
+                    Some(n) => chart.broken.steps.push(n.to_ascii_uppercase()),
+                    None => chart.broken.unnamed_step = true,
+                }
+                continue;
+            };
+            let references = std::mem::take(&mut self.references);
+            let mut inner = Chart {
+                name: chart.name.clone(),
+                kind: chart.kind,
+                vars: Vec::new(),
+                steps: Vec::new(),
+                transitions: Vec::new(),
+                actions: Vec::new(),
+                pragmas: Vec::new(),
+                span,
+                broken: Broken::default(),
+            };
+            self.sfc(body, named_transitions, &mut inner);
+            self.references = references;
+            let Some((entry, exit)) = self.macro_ends(&mut inner, span) else { continue };
+            if let Some(id) = local_id(el) {
+                macros.insert(id, (entry.clone(), exit));
+            }
+            if let Some(name) = el.attribute("name").map(str::trim).filter(|n| !n.is_empty()) {
+                macro_names.insert(name.to_ascii_uppercase(), entry);
+            }
+            chart.steps.append(&mut inner.steps);
+            chart.actions.append(&mut inner.actions);
+            chart.broken.steps.append(&mut inner.broken.steps);
+            chart.broken.actions.append(&mut inner.broken.actions);
+            macro_transitions.append(&mut inner.transitions);
+        }
+        self.macros = macros;
+        self.macro_names = macro_names;
         let mut step_of_id: HashMap<u64, usize> = HashMap::new();
         let mut transitions = Vec::new();
         let mut inline_count = 0;
@@ -751,14 +801,6 @@ impl Reader<'_> {
                     self.codesys_active_action(el, &mut step);
                     chart.steps.push(step);
                 }
-                "macroStep" => {
-                    let message = "macro steps (`macroStep`) are not supported: draw the macro's steps in the chart";
-                    self.error(self.tag_span(el), message);
-                    match el.attribute("name") {
-                        Some(n) => chart.broken.steps.push(n.to_ascii_uppercase()),
-                        None => chart.broken.unnamed_step = true,
-                    }
-                }
                 "transition" => {
                     if let Some(t) = self.transition(el, i, &elements, named_transitions, &mut chart.broken) {
                         transitions.push(t);
@@ -774,9 +816,35 @@ impl Reader<'_> {
         transitions.sort_by(|a, b| {
             a.order.0.cmp(&b.order.0).then(a.order.1.total_cmp(&b.order.1)).then(a.order.2.cmp(&b.order.2))
         });
-        let ids = transitions.iter().map(|t| t.local_id).collect();
+        let mut ids: Vec<Option<u64>> = transitions.iter().map(|t| t.local_id).collect();
         chart.transitions = transitions.into_iter().map(|t| t.transition).collect();
+        // A macro body's transitions have ids of their own body: they take no part in Baton's order data.
+        ids.extend(macro_transitions.iter().map(|_| None));
+        chart.transitions.append(&mut macro_transitions);
         ids
+    }
+
+    /// A macro step's entry step (its body's initial step, or else the one no transition of the body leads to)
+    /// and its exit step (the one no transition of the body leaves); the entry step stops being initial.
+    fn macro_ends(&mut self, inner: &mut Chart, span: Span) -> Option<(Ident, Ident)> {
+        let led_to = |s: &Step| inner.transitions.iter().any(|t| t.to.iter().any(|n| n.key() == s.name.key()));
+        let left = |s: &Step| inner.transitions.iter().any(|t| t.from.iter().any(|n| n.key() == s.name.key()));
+        let entries: Vec<usize> = match inner.steps.iter().filter(|s| s.initial).count() {
+            0 => (0..inner.steps.len()).filter(|&i| !led_to(&inner.steps[i])).collect(),
+            _ => (0..inner.steps.len()).filter(|&i| inner.steps[i].initial).collect(),
+        };
+        let exits: Vec<usize> = (0..inner.steps.len()).filter(|&i| !left(&inner.steps[i])).collect();
+        let (&[entry], &[exit]) = (entries.as_slice(), exits.as_slice()) else {
+            let message = format!(
+                "a macro step's body must begin with one step and end with one (found {} entry and {} exit steps)",
+                entries.len(),
+                exits.len()
+            );
+            self.error(span, message);
+            return None;
+        };
+        inner.steps[entry].initial = false;
+        Some((inner.steps[entry].name.clone(), inner.steps[exit].name.clone()))
     }
 
     /// CODESYS V3.5 may attach a step's action only in its vendor data, as the step's "active" action (N).
@@ -918,7 +986,13 @@ impl Reader<'_> {
                 }
                 None => false,
             },
-            "macroStep" => false,
+            "macroStep" => match self.macros.get(&id) {
+                Some((_, exit)) => {
+                    out.push(exit.clone());
+                    true
+                }
+                None => false,
+            },
             "selectionDivergence" | "simultaneousConvergence" => {
                 let inputs = self.connections(n);
                 if inputs.is_empty() {
@@ -956,10 +1030,16 @@ impl Reader<'_> {
                     None => ok = false,
                 },
                 "jumpStep" => match self.ident_attr(n, "targetName") {
-                    Some(target) => out.push(target),
+                    Some(target) => match self.macro_names.get(&target.key()) {
+                        Some(entry) => out.push(Ident { name: entry.name.clone(), span: target.span }),
+                        None => out.push(target),
+                    },
                     None => ok = false,
                 },
-                "macroStep" => ok = false,
+                "macroStep" => match self.macros.get(c) {
+                    Some((entry, _)) => out.push(entry.clone()),
+                    None => ok = false,
+                },
                 "selectionConvergence" | "simultaneousDivergence" => {
                     let before = out.len();
                     ok &= self.targets(elements, *c, self.tag_span(n), out, depth + 1);
