@@ -393,13 +393,7 @@ fn export(path: &Path, pou: Option<&str>, output: Option<&Path>) -> anyhow::Resu
     };
     let charts: Vec<_> = chosen.iter().filter_map(|c| Some((&c.chart, c.program.as_ref()?))).collect();
     let project = path.file_stem().map_or_else(|| "baton".to_string(), |s| s.to_string_lossy().into_owned());
-    let xml = match baton_proto::back::plcopen::export(&charts, &report.library, &report.types, &project, &utc_now()) {
-        Ok(xml) => xml,
-        Err(e) => {
-            eprintln!("{}: {e}", path.display());
-            return Ok(ExitCode::from(EXIT_INVALID));
-        }
-    };
+    let xml = baton_proto::back::plcopen::export(&charts, &report.library, &report.types, &project, &utc_now());
     match output {
         Some(file) => std::fs::write(file, xml).with_context(|| format!("cannot write {}", file.display()))?,
         None => {

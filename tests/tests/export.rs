@@ -46,20 +46,17 @@ fn sources() -> Vec<(String, String)> {
 #[test]
 fn every_valid_chart_reads_back_from_its_export_as_the_same_program_with_the_same_trace() {
     let sources = sources();
-    let (mut exported, mut refused) = (0, Vec::new());
+    let mut exported = 0;
     for (what, src) in &sources {
         if baton_proto::front::check::check_source(src).error_count() > 0 {
             continue; // diagnostics scenarios and refused corpus files
         }
-        match assert_round_trip(what, src) {
-            Ok(_) => exported += 1,
-            Err(e) => refused.push(format!("{what}: {e}")),
-        }
+        // Every valid chart exports: blocks and edge contacts wired into conditions (Beremiz's traffic light,
+        // plcopen_wired_blocks) are read as the action Beremiz compiles them to, which exports as any action.
+        assert_round_trip(what, src);
+        exported += 1;
     }
     assert!(exported >= 30, "only {exported} charts exported");
-    // Every chart here exports, blocks wired into conditions included (Beremiz's traffic light,
-    // plcopen_wired_blocks); the exporter refuses only edge contacts wired into a condition.
-    assert!(refused.is_empty(), "{refused:#?}");
 }
 
 #[test]
@@ -82,7 +79,7 @@ fn exports_validate_against_the_tc6_schema_and_parse_with_the_plcopen_bindings()
             continue;
         }
         let path = dir.path().join(format!("{i}.xml"));
-        let Ok(xml) = baton_tests::roundtrip::export(src) else { continue };
+        let xml = baton_tests::roundtrip::export(src);
         std::fs::write(&path, xml).expect("write");
         files.push((path, what.clone()));
     }

@@ -71,37 +71,6 @@ fn array_element(spec: &ArraySpec) -> String {
     format!("<array>{dims}<baseType>{}</baseType></array>", type_element(&spec.elem.name))
 }
 
-/// ` formalParameter="Q"` when a connection comes from a block's named output.
-fn formal_attr(formal: &Option<String>) -> String {
-    formal.as_ref().map(|f| format!(" formalParameter=\"{}\"", esc(f))).unwrap_or_default()
-}
-
-/// Calls `f` on `e` and every expression inside it.
-fn visit(e: &Expr, f: &mut impl FnMut(&Expr)) {
-    f(e);
-    match &e.kind {
-        ExprKind::Unary(_, a) => visit(a, f),
-        ExprKind::Binary(_, a, b) => {
-            visit(a, f);
-            visit(b, f);
-        }
-        ExprKind::Call(_, args) => args.iter().for_each(|a| visit(&a.value, f)),
-        ExprKind::Index(_, indices) => indices.iter().for_each(|i| visit(i, f)),
-        _ => {}
-    }
-}
-
-/// The outputs of instance `key` that `e` reads, added to `out` once each.
-fn collect_outputs(e: &Expr, key: &str, out: &mut Vec<String>) {
-    visit(e, &mut |e| {
-        if let ExprKind::Field(base, field) = &e.kind {
-            if base.key() == key && !out.iter().any(|o| o.eq_ignore_ascii_case(&field.name)) {
-                out.push(field.name.clone());
-            }
-        }
-    });
-}
-
 /// The TC6 element of a type: elementary, or derived by name.
 fn type_element(name: &str) -> String {
     let upper = name.to_ascii_uppercase();
@@ -139,13 +108,6 @@ fn pragmas_text(pragmas: &[Pragma]) -> String {
     pragmas.iter().map(|p| format!("{{{}}}", p.text)).collect::<Vec<_>>().join("\n")
 }
 
-/// Why a chart cannot be written out.
-#[derive(Debug, thiserror::Error, PartialEq)]
-pub enum ExportError {
-    #[error("chart `{chart}`: transition `{transition}` holds {what} wired into its condition, which Baton does not write back to PLCopen yet")]
-    WiredBlocks { chart: String, transition: String, what: &'static str },
-}
-
 /// A PLCopen project holding each chart with its program (a chart that compiled without errors).
 /// `created` is the file header's `creationDateTime` (`2026-12-01T12:00:00`): the caller's clock.
 /// `library` holds the file's function blocks and functions with ST bodies: every one Baton read whole is
@@ -156,22 +118,7 @@ pub fn export(
     types: &[TypeDef],
     project: &str,
     created: &str,
-) -> Result<String, ExportError> {
-    // Blocks wired into a condition (a PLCopen import) are drawn back as blocks; edge contacts there, and
-    // blocks under a named transition, are not yet.
-    for (chart, program) in charts {
-        for (t, tr) in chart.transitions.iter().enumerate() {
-            let what = if tr.calls.iter().any(|c| !matches!(c, Stmt::Call { .. })) {
-                "edge contacts"
-            } else if !tr.calls.is_empty() && tr.name.is_some() {
-                "function blocks under a named transition"
-            } else {
-                continue;
-            };
-            let transition = program.transitions[t].name.clone();
-            return Err(ExportError::WiredBlocks { chart: program.name.clone(), transition, what });
-        }
-    }
+) -> String {
     let mut out = String::new();
     out.push_str("<?xml version=\"1.0\" encoding=\"utf-8\"?>\n");
     out.push_str(
@@ -199,7 +146,7 @@ pub fn export(
         pou(&mut out, chart, program, library, types);
     }
     out.push_str("    </pous>\n  </types>\n  <instances>\n    <configurations/>\n  </instances>\n</project>\n");
-    Ok(out)
+    out
 }
 
 fn pou(out: &mut String, chart: &Chart, program: &Program, library: &[FbDef], types: &[TypeDef]) {
@@ -630,13 +577,6 @@ impl<'a> Sfc<'a> {
             let priority = format!(" priority=\"{}\"", p.rank(tr) + 1);
             let tr = &self.chart.transitions[t];
             let condition = match &tr.name {
-                None if !tr.calls.is_empty() => {
-                    let (id, formal) = self.wired(&tr.calls, &tr.condition, x - 240, y, &mut elements);
-                    format!(
-                        "<connectionPointIn><connection refLocalId=\"{id}\"{}/></connectionPointIn>",
-                        formal_attr(&formal)
-                    )
-                }
                 Some(name) => format!("<reference name=\"{}\"/>", esc(&name.name)),
                 None => {
                     let mut text = pragmas_text(&tr.pragmas);
@@ -723,169 +663,6 @@ impl<'a> Sfc<'a> {
             transitions: transition_id.iter().map(|id| id.to_string()).collect::<Vec<_>>().join(" "),
             actions: p.actions.iter().map(|a| a.name.as_str()).collect::<Vec<_>>().join(" "),
         }
-    }
-
-    /// A condition that needs block calls, drawn as FBD in the SFC body: a block per call (inputs from what its
-    /// arguments are drawn as), operators and functions as blocks, everything else as an `inVariable`; returns
-    /// the element (and output) the condition connects to. The reader rebuilds the same calls, in the same order.
-    fn wired(&mut self, calls: &[Stmt], condition: &Expr, x: i64, y: i64, out: &mut String) -> (u64, Option<String>) {
-        let mut blocks: HashMap<String, u64> = HashMap::new();
-        let mut row = 0;
-        for call in calls {
-            let Stmt::Call { callee, args, .. } = call else { continue };
-            let type_name = self
-                .chart
-                .vars
-                .iter()
-                .find(|v| v.name.key() == callee.key())
-                .map_or_else(|| callee.name.clone(), |v| v.type_name.name.clone());
-            let inputs: Vec<(String, (u64, Option<String>))> = args
-                .iter()
-                .map(|a| {
-                    let name = a.name.as_ref().map_or_else(|| "IN".to_string(), |n| n.name.clone());
-                    (name, self.draw(&a.value, &blocks, x - 200, y + 40 * row, out))
-                })
-                .collect();
-            let id = self.id();
-            let mut outputs: Vec<String> = Vec::new();
-            let mut note = |e: &Expr| collect_outputs(e, &callee.key(), &mut outputs);
-            note(condition);
-            for c in calls {
-                if let Stmt::Call { args, .. } = c {
-                    args.iter().for_each(|a| note(&a.value));
-                }
-            }
-            let _ = writeln!(
-                out,
-                "            <block localId=\"{id}\" typeName=\"{}\" instanceName=\"{}\" width=\"80\" height=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>\n              <inputVariables>",
-                esc(&type_name),
-                esc(&callee.name),
-                20 + 20 * inputs.len().max(outputs.len()),
-                y + 40 * row
-            );
-            for (name, (from, formal)) in &inputs {
-                let _ = writeln!(
-                    out,
-                    "                <variable formalParameter=\"{}\"><connectionPointIn><connection refLocalId=\"{from}\"{}/></connectionPointIn></variable>",
-                    esc(name),
-                    formal_attr(formal)
-                );
-            }
-            out.push_str(
-                "              </inputVariables>\n              <inOutVariables/>\n              <outputVariables>\n",
-            );
-            for o in &outputs {
-                let _ = writeln!(
-                    out,
-                    "                <variable formalParameter=\"{}\"><connectionPointOut/></variable>",
-                    esc(o)
-                );
-            }
-            out.push_str("              </outputVariables>\n            </block>\n");
-            blocks.insert(callee.key(), id);
-            row += 1;
-        }
-        self.draw(condition, &blocks, x + 100, y, out)
-    }
-
-    /// An expression as FBD: a called instance's output, an operator or function block, or an `inVariable`.
-    fn draw(
-        &mut self,
-        e: &Expr,
-        blocks: &HashMap<String, u64>,
-        x: i64,
-        y: i64,
-        out: &mut String,
-    ) -> (u64, Option<String>) {
-        let reads_block = |e: &Expr| {
-            let mut found = false;
-            visit(e, &mut |e| {
-                if let ExprKind::Field(base, _) = &e.kind {
-                    found |= blocks.contains_key(&base.key());
-                }
-            });
-            found
-        };
-        match &e.kind {
-            ExprKind::Field(base, field) if blocks.contains_key(&base.key()) => {
-                (blocks[&base.key()], Some(field.name.clone()))
-            }
-            ExprKind::Binary(op, a, b) if reads_block(e) => {
-                let name = match op {
-                    BinOp::And => "AND",
-                    BinOp::Or => "OR",
-                    BinOp::Xor => "XOR",
-                    BinOp::Eq => "EQ",
-                    BinOp::Ne => "NE",
-                    BinOp::Lt => "LT",
-                    BinOp::Le => "LE",
-                    BinOp::Gt => "GT",
-                    BinOp::Ge => "GE",
-                    BinOp::Add => "ADD",
-                    BinOp::Sub => "SUB",
-                    BinOp::Mul => "MUL",
-                    BinOp::Div => "DIV",
-                    BinOp::Mod => "MOD",
-                    BinOp::Pow => "EXPT",
-                };
-                let inputs = [self.draw(a, blocks, x - 120, y, out), self.draw(b, blocks, x - 120, y + 40, out)];
-                self.operator(name, &[("IN1", inputs[0].clone()), ("IN2", inputs[1].clone())], x, y, out)
-            }
-            ExprKind::Unary(UnOp::Not, a) if reads_block(e) => {
-                let input = self.draw(a, blocks, x - 120, y, out);
-                self.operator("NOT", &[("IN", input)], x, y, out)
-            }
-            ExprKind::Call(callee, args) if reads_block(e) => {
-                let inputs: Vec<(String, (u64, Option<String>))> = args
-                    .iter()
-                    .enumerate()
-                    .map(|(i, a)| {
-                        let name = a.name.as_ref().map_or_else(|| format!("IN{}", i + 1), |n| n.name.clone());
-                        (name, self.draw(&a.value, blocks, x - 120, y + 40 * i as i64, out))
-                    })
-                    .collect();
-                let named: Vec<(&str, (u64, Option<String>))> =
-                    inputs.iter().map(|(n, c)| (n.as_str(), c.clone())).collect();
-                self.operator(&callee.name, &named, x, y, out)
-            }
-            _ => {
-                let id = self.id();
-                let _ = writeln!(
-                    out,
-                    "            <inVariable localId=\"{id}\" width=\"80\" height=\"20\"><position x=\"{x}\" y=\"{y}\"/><connectionPointOut/><expression>{}</expression></inVariable>",
-                    esc(&st::expr(e))
-                );
-                (id, None)
-            }
-        }
-    }
-
-    /// A function block (an operator or a standard function) with its inputs; its output is `OUT`.
-    fn operator(
-        &mut self,
-        name: &str,
-        inputs: &[(&str, (u64, Option<String>))],
-        x: i64,
-        y: i64,
-        out: &mut String,
-    ) -> (u64, Option<String>) {
-        let id = self.id();
-        let _ = writeln!(
-            out,
-            "            <block localId=\"{id}\" typeName=\"{}\" width=\"60\" height=\"{}\">\n              <position x=\"{x}\" y=\"{y}\"/>\n              <inputVariables>",
-            esc(name),
-            20 + 20 * inputs.len()
-        );
-        for (formal, (from, out_formal)) in inputs {
-            let _ = writeln!(
-                out,
-                "                <variable formalParameter=\"{}\"><connectionPointIn><connection refLocalId=\"{from}\"{}/></connectionPointIn></variable>",
-                esc(formal),
-                formal_attr(out_formal)
-            );
-        }
-        out.push_str("              </inputVariables>\n              <inOutVariables/>\n              <outputVariables><variable formalParameter=\"OUT\"><connectionPointOut/></variable></outputVariables>\n            </block>\n");
-        (id, Some("OUT".to_string()))
     }
 
     /// The `<action>` elements of step s's associations.

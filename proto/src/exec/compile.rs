@@ -1166,9 +1166,8 @@ impl<'a> Compiler<'a> {
                 net_ok = false;
                 continue;
             };
-            let mut calls = self.statements(&t.calls, vars);
-            // Function calls in the condition run after the blocks it reads.
-            calls.extend(hoisted);
+            // The function calls in the condition run when it is judged.
+            let calls = hoisted;
             let info = TransitionInfo { name: t.display_name(), condition, pragmas: t.pragmas.clone() };
             out.push(TransitionParts { info, calls, sources, targets, rank: 0 });
         }
@@ -2411,8 +2410,7 @@ impl<'a> Compiler<'a> {
             if ty != Ty::Bool && ty != Ty::Err {
                 self.error(t.condition.span, format!("a transition condition must be BOOL, found {}", ty.name()));
             }
-            let mut calls = self.statements(&t.calls, vars);
-            calls.extend(hoisted);
+            let calls = hoisted;
             let rank = match t.priority {
                 Some((p, _)) => (0, p, i),
                 None => (1, 0, i),

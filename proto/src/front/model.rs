@@ -244,9 +244,6 @@ pub struct Transition {
     pub from: Vec<Ident>,
     pub to: Vec<Ident>,
     pub condition: Expr,
-    /// Function block calls the condition's wired logic needs first (PLCopen LD/FBD drawn into the SFC body):
-    /// they run each cycle the transition is judged.
-    pub calls: Vec<Stmt>,
     pub pragmas: Vec<Pragma>,
     /// From the keyword to `END_TRANSITION`.
     pub span: Span,

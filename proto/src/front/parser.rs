@@ -848,7 +848,6 @@ impl Parser<'_> {
             from,
             to,
             condition,
-            calls: Vec::new(),
             pragmas: Vec::new(),
             span: kw.span.to(end.span),
             arc_span,

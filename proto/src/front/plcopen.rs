@@ -25,6 +25,8 @@ const NAMESPACES: [&str; 3] = [
     "http://www.plcopen.org/xml/tc6_0201",
 ];
 
+/// The action Beremiz generates for the blocks wired into a POU's conditions (its name, kept for the same reason).
+const COMPUTE_BLOCKS: &str = "COMPUTE_FUNCTION_BLOCKS";
 /// CODESYS V3.5's per-element vendor data, and the attribute in it that names a step's active (N) action.
 const CODESYS_SFC_ELEMENT: &str = "http://www.3s-software.com/plcopenxml/sfc/element";
 const CODESYS_ACTIVE_ACTION: &str = "700a583f-b4d4-43e4-8c14-629c7cd3bec8";
@@ -55,6 +57,7 @@ pub fn parse(src: &str) -> Parsed {
         visits: 0,
         calls: Vec::new(),
         called: HashSet::new(),
+        condition_calls: Vec::new(),
         references: HashMap::new(),
         macros: HashMap::new(),
         macro_names: HashMap::new(),
@@ -155,6 +158,8 @@ struct Reader<'s> {
     /// (by `localId`) already called.
     calls: Vec<Stmt>,
     called: HashSet<u64>,
+    /// The calls the POU's wired conditions need, in the order its transitions were read (see `compute_blocks`).
+    condition_calls: Vec<Stmt>,
     /// How many SFC transitions of the body being read refer to each named transition.
     references: HashMap<String, usize>,
     /// The macro steps of the body being read, by `localId`: the entry and exit steps of their bodies, which
@@ -314,11 +319,13 @@ impl Reader<'_> {
             .filter_map(|t| Some((t.attribute("name")?.to_ascii_uppercase(), t)))
             .collect();
         self.implicit.clear();
+        self.condition_calls.clear();
         self.inits = chart.vars.iter().filter_map(|v| Some((v.name.key(), v.init.clone()?))).collect();
         for action in child(pou, "actions").into_iter().flat_map(|a| children(a, "action")) {
             self.named_action(action, &named_transitions, &mut chart);
         }
         let transition_ids = self.sfc(sfc, &named_transitions, &mut chart);
+        self.compute_blocks(&mut chart);
         chart.vars.append(&mut self.implicit);
         // A file Baton wrote keeps Baton's element order; any other is ordered as Beremiz would run it.
         match baton_order(pou) {
@@ -824,6 +831,37 @@ impl Reader<'_> {
         ids
     }
 
+    /// The blocks (and edge contacts) wired into the POU's conditions, as Beremiz compiles them for matiec and so
+    /// as OpenPLC runs them: every call once (an instance read by several conditions too), in an action
+    /// `COMPUTE_FUNCTION_BLOCKS` held stored (S) by the first initial step, so that they run every cycle, after
+    /// the transitions are judged, whichever step is active; a condition reads what they computed in the cycle
+    /// before.
+    fn compute_blocks(&mut self, chart: &mut Chart) {
+        let calls = std::mem::take(&mut self.condition_calls);
+        let mut seen = HashSet::new();
+        let body: Vec<Stmt> = calls
+            .into_iter()
+            .filter(|c| match c {
+                Stmt::Call { callee, .. } => seen.insert(callee.key()),
+                _ => true,
+            })
+            .collect();
+        if body.is_empty() {
+            return;
+        }
+        let Some(step) = chart.steps.iter_mut().find(|s| s.initial) else { return };
+        let name = Ident { name: COMPUTE_BLOCKS.to_string(), span: step.span };
+        step.associations.push(Association {
+            action: name.clone(),
+            qualifier: Qualifier::S,
+            qualifier_span: step.span,
+            duration: None,
+            indicators: Vec::new(),
+            span: step.span,
+        });
+        chart.actions.push(Action { name, body, sfc: None, pragmas: Vec::new(), span: step.span });
+    }
+
     /// A macro step's entry step (its body's initial step, or else the one no transition of the body leads to)
     /// and its exit step (the one no transition of the body leaves); the entry step stops being initial.
     fn macro_ends(&mut self, inner: &mut Chart, span: Span) -> Option<(Ident, Ident)> {
@@ -917,6 +955,7 @@ impl Reader<'_> {
         self.called.clear();
         let (condition, pragmas) = self.condition(el, elements, named);
         let calls = std::mem::take(&mut self.calls);
+        self.condition_calls.extend(calls);
         let priority = match el.attribute("priority").map(|p| p.trim().parse::<u32>()) {
             Some(Ok(p)) => Some((p, self.attr_span(el, "priority"))),
             Some(Err(_)) => {
@@ -943,7 +982,7 @@ impl Reader<'_> {
         });
         Some(ReadTransition {
             local_id: local_id(el),
-            transition: Transition { name, priority, from, to, condition, calls, pragmas, span, arc_span: span },
+            transition: Transition { name, priority, from, to, condition, pragmas, span, arc_span: span },
             order: (divergence.unwrap_or(doc_index), x.unwrap_or(0.0), doc_index),
         })
     }
