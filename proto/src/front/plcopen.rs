@@ -58,6 +58,8 @@ pub fn parse(src: &str) -> Parsed {
         calls: Vec::new(),
         called: HashSet::new(),
         condition_calls: Vec::new(),
+        edges: HashMap::new(),
+        names: HashSet::new(),
         references: HashMap::new(),
         macros: HashMap::new(),
         macro_names: HashMap::new(),
@@ -160,6 +162,10 @@ struct Reader<'s> {
     called: HashSet<u64>,
     /// The calls the POU's wired conditions need, in the order its transitions were read (see `compute_blocks`).
     condition_calls: Vec<Stmt>,
+    /// The edge contacts of the network or condition being read (by `localId`), and the R_TRIG/F_TRIG instance
+    /// each became; the names the POU declares, which those instances' names avoid.
+    edges: HashMap<u64, String>,
+    names: HashSet<String>,
     /// How many SFC transitions of the body being read refer to each named transition.
     references: HashMap<String, usize>,
     /// The macro steps of the body being read, by `localId`: the entry and exit steps of their bodies, which
@@ -320,6 +326,7 @@ impl Reader<'_> {
             .collect();
         self.implicit.clear();
         self.condition_calls.clear();
+        self.names = chart.vars.iter().map(|v| v.name.key()).collect();
         self.inits = chart.vars.iter().filter_map(|v| Some((v.name.key(), v.init.clone()?))).collect();
         for action in child(pou, "actions").into_iter().flat_map(|a| children(a, "action")) {
             self.named_action(action, &named_transitions, &mut chart);
@@ -612,6 +619,7 @@ impl Reader<'_> {
         let mut ok = true;
         self.calls.clear();
         self.called.clear();
+        self.edges.clear();
         for n in outputs {
             if instance(&n) {
                 // A block runs where it stands in the execution order, unless what it feeds needed it first.
@@ -953,6 +961,7 @@ impl Reader<'_> {
         }
         self.calls.clear();
         self.called.clear();
+        self.edges.clear();
         let (condition, pragmas) = self.condition(el, elements, named);
         let calls = std::mem::take(&mut self.calls);
         self.condition_calls.extend(calls);
@@ -1258,44 +1267,43 @@ impl Reader<'_> {
                 };
                 let var = self.expr_text(variable)?;
                 let var = if flag(n, "negated") { not(var) } else { var };
-                // A transition-sensing contact is TRUE for one evaluation after its variable changed (rising: from
-                // FALSE to TRUE), against the value it had at the last evaluation — at the first, the variable's
-                // initial value. The edge and the last value are variables of their own, set where the rung is
-                // evaluated.
+                // A transition-sensing contact is read as Beremiz compiles it: an implicit R_TRIG (rising) or F_TRIG
+                // (falling) instance of the POU, `R_TRIG1`, `F_TRIG2`…, called with the contact's variable where the
+                // rung is evaluated, and read as its Q (so with the standard blocks' start-up behaviour).
                 let var = match n.attribute("edge") {
                     Some(edge @ ("rising" | "falling")) => {
                         let id = local_id(n).unwrap_or(0);
-                        let ident = |name: String| Ident { name, span };
-                        let (edge_name, last_name) = (format!("_edge{id}"), format!("_edge{id}_last"));
-                        let name_expr = |name: &str| Expr { kind: ExprKind::Name(ident(name.to_string())), span };
-                        if !self.implicit.iter().any(|d| d.name.name == edge_name) {
-                            let start = match &var.kind {
-                                ExprKind::Name(v) => self.inits.get(&v.key()).cloned(),
-                                _ => None,
-                            };
-                            for (name, init) in [(edge_name.clone(), None), (last_name.clone(), start)] {
+                        let ident = |name: &str| Ident { name: name.to_string(), span };
+                        let name = match self.edges.get(&id) {
+                            Some(name) => name.clone(),
+                            None => {
+                                let fb = if edge == "rising" { "R_TRIG" } else { "F_TRIG" };
+                                let taken = |c: &Self, name: &str| {
+                                    let key = name.to_ascii_uppercase();
+                                    c.names.contains(&key) || c.implicit.iter().any(|d| d.name.key() == key)
+                                };
+                                let mut i = 1;
+                                while taken(self, &format!("{fb}{i}")) {
+                                    i += 1;
+                                }
+                                let name = format!("{fb}{i}");
                                 self.implicit.push(VarDecl {
-                                    name: ident(name),
+                                    name: ident(&name),
                                     section: VarSection::Local,
                                     constant: false,
-                                    type_name: ident("BOOL".to_string()),
-                                    init,
+                                    type_name: ident(fb),
+                                    init: None,
                                     members: Vec::new(),
                                     array: None,
                                 });
+                                let clk =
+                                    Arg { name: Some(ident("CLK")), output: false, negated: false, value: var, span };
+                                self.calls.push(Stmt::Call { callee: ident(&name), args: vec![clk], span });
+                                self.edges.insert(id, name.clone());
+                                name
                             }
-                        }
-                        if self.called.insert(id) {
-                            let last = name_expr(&last_name);
-                            let changed = if edge == "rising" {
-                                binary(BinOp::And, var.clone(), not(last))
-                            } else {
-                                binary(BinOp::And, not(var.clone()), last)
-                            };
-                            self.calls.push(Stmt::Assign { target: name_expr(&edge_name), value: changed, span });
-                            self.calls.push(Stmt::Assign { target: name_expr(&last_name), value: var, span });
-                        }
-                        name_expr(&edge_name)
+                        };
+                        Expr { kind: ExprKind::Field(ident(&name), ident("Q")), span }
                     }
                     _ => var,
                 };
@@ -1871,7 +1879,8 @@ mod tests {
     #[test]
     fn edge_contacts_pulse_for_one_evaluation_after_their_edge() {
         // An LD action: `pulse` is a rising-edge contact on `x`, `low` a falling-edge one; a counter counts
-        // the pulses.
+        // the pulses. They are R_TRIG and F_TRIG instances, as Beremiz compiles them, so the falling one also
+        // pulses at its first call, x being FALSE.
         let src = r#"<project xmlns="http://www.plcopen.org/xml/tc6_0201"><types><pous>
 <pou name="p" pouType="program"><interface><localVars>
 <variable name="x"><type><BOOL/></type></variable>
@@ -1901,12 +1910,12 @@ mod tests {
         let program = std::sync::Arc::new(report.charts[0].program.clone().expect("a program"));
         let x = program.var_by_name("x").expect("x");
         let mut engine = crate::exec::engine::Engine::new(std::sync::Arc::clone(&program));
-        // x: FALSE, TRUE ×3, FALSE ×2, TRUE, FALSE: two rising edges, two falling ones.
+        // x: FALSE, TRUE ×3, FALSE ×2, TRUE, FALSE: two rising edges, two falling ones and the start-up one.
         for (i, v) in [false, true, true, true, false, false, true, false].into_iter().enumerate() {
             engine.handle(crate::exec::engine::Input::Set(x, crate::exec::types::Value::Bool(v))).expect("set");
             engine.handle_cycle(10 * i as u64).expect("cycle");
         }
         let value = |name: &str| engine.value(program.var_by_name(name).expect("var")).as_i64();
-        assert_eq!((value("n"), value("m")), (2, 2));
+        assert_eq!((value("n"), value("m")), (2, 3));
     }
 }
