@@ -65,7 +65,6 @@ pub fn parse(src: &str) -> Parsed {
         macro_names: HashMap::new(),
         library: Vec::new(),
         implicit: Vec::new(),
-        inits: HashMap::new(),
     };
     let root = doc.root_element();
     if root.tag_name().name() != "project" {
@@ -174,10 +173,8 @@ struct Reader<'s> {
     macro_names: HashMap<String, Ident>,
     /// Function blocks with ST bodies.
     library: Vec<FbDef>,
-    /// Variables the POU being read needs that its interface does not declare (edge contacts' state), and
-    /// the initial values of those it declares.
+    /// Variables the POU being read needs that its interface does not declare (edge contacts' instances).
     implicit: Vec<VarDecl>,
-    inits: HashMap<String, Expr>,
 }
 
 impl Reader<'_> {
@@ -327,7 +324,6 @@ impl Reader<'_> {
         self.implicit.clear();
         self.condition_calls.clear();
         self.names = chart.vars.iter().map(|v| v.name.key()).collect();
-        self.inits = chart.vars.iter().filter_map(|v| Some((v.name.key(), v.init.clone()?))).collect();
         for action in child(pou, "actions").into_iter().flat_map(|a| children(a, "action")) {
             self.named_action(action, &named_transitions, &mut chart);
         }
