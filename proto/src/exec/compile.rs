@@ -44,6 +44,7 @@ pub fn compile(chart: &Chart, library: &[FbDef], types: &[TypeDef], diags: &mut 
         nested_steps: HashMap::new(),
         controlled: HashMap::new(),
         started: HashMap::new(),
+        ranges: HashMap::new(),
     };
     c.run()
 }
@@ -236,6 +237,8 @@ struct Compiler<'a> {
     controlled: HashMap<String, (String, VarId, VarId)>,
     /// Each nested chart's `started` variable, by the key of the action it is the body of.
     started: HashMap<String, VarId>,
+    /// The chart's variables of a subrange type: the range and the type's name.
+    ranges: HashMap<VarId, (i64, i64, String)>,
 }
 
 struct ArrayInfo {
@@ -368,11 +371,26 @@ impl<'a> Compiler<'a> {
                 continue;
             }
             let ty = self.resolve_type(&decl.type_name);
+            let range = self.subrange(&decl.type_name);
             let init = match &decl.init {
-                Some(e) => self.initial_value(e, &ty),
-                None => self.default_of(&ty),
+                Some(e) => {
+                    let v = self.initial_value(e, &ty);
+                    if let Some(r) = &range {
+                        self.check_range(e.span, &v, r);
+                    }
+                    v
+                }
+                // A subrange's default initial value is its lower limit.
+                None => match &range {
+                    Some((low, _, _)) if matches!(ty, Type::Int(_)) => Value::Int(*low),
+                    _ => self.default_of(&ty),
+                },
             };
-            self.vars.insert(decl.name.key(), VarId(vars.len() as u32));
+            let id = VarId(vars.len() as u32);
+            if let Some(r) = range {
+                self.ranges.insert(id, r);
+            }
+            self.vars.insert(decl.name.key(), id);
             vars.push(VarInfo {
                 name: decl.name.name.clone(),
                 ty,
@@ -881,6 +899,29 @@ impl<'a> Compiler<'a> {
     }
 
     /// A variable's initial value when its declaration gives none: an enumeration's declared one, or the type's.
+    /// The range of a subrange type (through aliases of it), with the type's name.
+    fn subrange(&self, name: &Ident) -> Option<(i64, i64, String)> {
+        let mut key = name.key();
+        for _ in 0..crate::limits::NESTING_DEPTH_MAX {
+            match &self.types.get(&key)?.kind {
+                TypeKind::Subrange { low, high, .. } => return Some((*low, *high, name.name.clone())),
+                TypeKind::Alias(base) => key = base.key(),
+                _ => return None,
+            }
+        }
+        None
+    }
+
+    /// A constant stored in a subrange variable must be in its range (IEC 61131-3 calls anything else an error;
+    /// like matiec and CODESYS without its CheckRange functions, Baton checks constants, not run-time values).
+    fn check_range(&mut self, span: Span, v: &Value, (low, high, ty): &(i64, i64, String)) {
+        if let Value::Int(i) = *v {
+            if i < *low || i > *high {
+                self.error(span, format!("{i} is outside the range of {ty} ({low}..{high})"));
+            }
+        }
+    }
+
     fn default_of(&self, ty: &Type) -> Value {
         match ty {
             Type::Enum(e) => Value::Int(self.enums.get(e.id as usize).map_or(0, |(_, start)| *start)),
@@ -1239,6 +1280,11 @@ impl<'a> Compiler<'a> {
                     let message = format!("cannot assign {} to `{}`, which is {}", vty.name(), var.name, var.ty);
                     self.error(value.span, message);
                     return None;
+                }
+                if let Some(r) = self.ranges.get(&id).cloned() {
+                    if let (true, Ok(v)) = (is_constant(&cvalue), eval(&cvalue, &NoEnv)) {
+                        self.check_range(value.span, &v, &r);
+                    }
                 }
                 CStmt::Assign { var: id, value: cvalue }
             }
