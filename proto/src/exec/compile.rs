@@ -65,6 +65,7 @@ struct Scope {
     vars: HashMap<String, VarId>,
     instances: HashMap<String, (StdFb, VarId)>,
     users: HashMap<String, usize>,
+    arrays: HashMap<String, ArrayInfo>,
 }
 
 /// The static type of an expression. `IntLit` is an integer literal, which fits any numeric type; `Err` follows
@@ -241,6 +242,7 @@ struct Compiler<'a> {
     ranges: HashMap<VarId, (i64, i64, String)>,
 }
 
+#[derive(Clone)]
 struct ArrayInfo {
     base: VarId,
     dims: Vec<(i64, i64)>,
@@ -259,6 +261,7 @@ struct Function<'a> {
     result: VarId,
     eno: VarId,
     scope: HashMap<String, VarId>,
+    arrays: HashMap<String, ArrayInfo>,
     body: Option<Arc<Vec<CStmt>>>,
     compiling: bool,
 }
@@ -346,11 +349,7 @@ impl<'a> Compiler<'a> {
                 self.declare_instance(decl, fb, &mut vars);
                 continue;
             }
-            let array = decl.array.clone().or_else(|| match self.types.get(&decl.type_name.key()).map(|t| &t.kind) {
-                Some(TypeKind::Array(spec)) => Some(spec.clone()),
-                _ => None,
-            });
-            if let Some(spec) = array {
+            if let Some(spec) = self.array_spec_of(decl) {
                 self.declare_array(decl, &spec, &mut vars);
                 continue;
             }
@@ -472,13 +471,26 @@ impl<'a> Compiler<'a> {
                 // Resolved to the chart's variable of that name when the body is compiled.
                 continue;
             }
+            let visible = matches!(d.section, VarSection::Input | VarSection::Output | VarSection::InOut);
+            if let Some(spec) = self.array_spec_of(d) {
+                if visible {
+                    let message = format!(
+                        "`{}` of function block `{}` is an array parameter, which Baton does not support yet: \
+                         declare it in VAR",
+                        d.name.name, def.name.name
+                    );
+                    self.error(d.name.span, message);
+                } else if let Some(info) = self.array_elements(&inner, &spec, d.constant, d.section, true, vars) {
+                    scope.arrays.insert(d.name.key(), info);
+                }
+                continue;
+            }
             let ty = self.resolve_type(&d.type_name);
             let init = match &d.init {
                 Some(e) => self.initial_value(e, &ty),
                 None => self.default_of(&ty),
             };
             let id = VarId(vars.len() as u32);
-            let visible = matches!(d.section, VarSection::Input | VarSection::Output | VarSection::InOut);
             scope.vars.insert(d.name.key(), id);
             if visible {
                 params.push((d.name.name.clone(), d.section, id));
@@ -508,6 +520,7 @@ impl<'a> Compiler<'a> {
         for def in library {
             let returns = def.returns.as_ref().expect("a function");
             let mut scope = HashMap::new();
+            let mut arrays = HashMap::new();
             let (mut inputs, mut resets) = (Vec::new(), Vec::new());
             let declare =
                 |c: &mut Self, name: String, type_name: &Ident, init: Option<&Expr>, vars: &mut Vec<VarInfo>| {
@@ -528,6 +541,24 @@ impl<'a> Compiler<'a> {
                     (id, init)
                 };
             for d in def.vars.iter().filter(|d| d.section != VarSection::External) {
+                if let Some(spec) = self.array_spec_of(d) {
+                    if d.section == VarSection::Input {
+                        let message = format!(
+                            "`{}` of function `{}` is an array input, which Baton does not support yet",
+                            d.name.name, def.name.name
+                        );
+                        self.error(d.name.span, message);
+                    } else {
+                        let label = format!("{}.{}", def.name.name, d.name.name);
+                        let before = vars.len();
+                        if let Some(info) = self.array_elements(&label, &spec, false, VarSection::Temp, true, vars) {
+                            // A function's locals start again at every call.
+                            resets.extend((before..vars.len()).map(|i| (VarId(i as u32), vars[i].init.clone())));
+                            arrays.insert(d.name.key(), info);
+                        }
+                    }
+                    continue;
+                }
                 let (id, init) =
                     declare(self, format!("{}.{}", def.name.name, d.name.name), &d.type_name, d.init.as_ref(), vars);
                 scope.insert(d.name.key(), id);
@@ -546,7 +577,7 @@ impl<'a> Compiler<'a> {
                 None,
                 vars,
             );
-            let function = Function { def, inputs, resets, result, eno, scope, body: None, compiling: false };
+            let function = Function { def, inputs, resets, result, eno, scope, arrays, body: None, compiling: false };
             self.functions.insert(def.name.key(), function);
         }
     }
@@ -571,6 +602,7 @@ impl<'a> Compiler<'a> {
             self.diags.extend(def.problems.iter().cloned());
         }
         let mut names = self.functions[key].scope.clone();
+        let arrays = self.functions[key].arrays.clone();
         for d in def.vars.iter().filter(|d| d.section == VarSection::External) {
             if let Some(&id) = self.vars.get(&d.name.key()) {
                 names.insert(d.name.key(), id);
@@ -585,9 +617,11 @@ impl<'a> Compiler<'a> {
             std::mem::take(&mut self.actions),
             std::mem::take(&mut self.hoisted),
             std::mem::take(&mut self.loops),
+            std::mem::replace(&mut self.arrays, arrays),
         );
         let body = Arc::new(self.statements(&def.body, vars));
-        (self.vars, self.instances, self.user_of, self.steps, self.actions, self.hoisted, self.loops) = saved;
+        (self.vars, self.instances, self.user_of, self.steps, self.actions, self.hoisted, self.loops, self.arrays) =
+            saved;
         let f = self.functions.get_mut(key).expect("declared");
         f.compiling = false;
         f.body = Some(Arc::clone(&body));
@@ -691,7 +725,9 @@ impl<'a> Compiler<'a> {
             );
             self.instances = std::mem::take(&mut self.users[u].scope.instances);
             self.user_of = std::mem::take(&mut self.users[u].scope.users);
+            let chart_arrays = std::mem::replace(&mut self.arrays, std::mem::take(&mut self.users[u].scope.arrays));
             let body = self.statements(&def.body, vars);
+            self.users[u].scope.arrays = std::mem::replace(&mut self.arrays, chart_arrays);
             self.users[u].scope.vars = std::mem::replace(&mut self.vars, saved.0);
             self.users[u].scope.instances = std::mem::replace(&mut self.instances, saved.1);
             self.users[u].scope.users = std::mem::replace(&mut self.user_of, saved.2);
@@ -748,33 +784,54 @@ impl<'a> Compiler<'a> {
 
     /// An array variable: one variable per element, `a[1]`, `a[1,2]`, row-major.
     fn declare_array(&mut self, decl: &VarDecl, spec: &ArraySpec, vars: &mut Vec<VarInfo>) {
+        let label = decl.name.name.clone();
+        if let Some(info) = self.array_elements(&label, spec, decl.constant, decl.section, false, vars) {
+            self.arrays.insert(decl.name.key(), info);
+        }
+    }
+
+    /// The array a declaration declares: `ARRAY […] OF …` in it, or an array type by name.
+    fn array_spec_of(&self, decl: &VarDecl) -> Option<ArraySpec> {
+        decl.array.clone().or_else(|| match self.types.get(&decl.type_name.key()).map(|t| &t.kind) {
+            Some(TypeKind::Array(spec)) => Some(spec.clone()),
+            _ => None,
+        })
+    }
+
+    /// An array's elements, as variables named `label[1,2]` (row-major, the last index fastest) with their
+    /// initial values; `None` after an error.
+    fn array_elements(
+        &mut self,
+        label: &str,
+        spec: &ArraySpec,
+        constant: bool,
+        section: VarSection,
+        hidden: bool,
+        vars: &mut Vec<VarInfo>,
+    ) -> Option<ArrayInfo> {
         let mut len: usize = 1;
         for &(low, high) in &spec.dims {
             if high < low {
-                self.error(spec.span, format!("array `{}` has an empty dimension {low}..{high}", decl.name.name));
-                return;
+                self.error(spec.span, format!("array `{label}` has an empty dimension {low}..{high}"));
+                return None;
             }
             len = len.saturating_mul((high - low + 1) as usize);
         }
         if len > crate::limits::ARRAY_ELEMENTS_MAX {
             let message = format!(
-                "array `{}` has {len} elements, more than the {} Baton holds",
-                decl.name.name,
+                "array `{label}` has {len} elements, more than the {} Baton holds",
                 crate::limits::ARRAY_ELEMENTS_MAX
             );
             self.error(spec.span, message);
-            return;
+            return None;
         }
         if StdFb::from_name(&spec.elem.key()).is_some() || self.library.contains_key(&spec.elem.key()) {
             self.error(spec.elem.span, "arrays of function block instances are not supported yet");
-            return;
+            return None;
         }
         let elem = self.resolve_type(&spec.elem);
         if spec.init.len() > len {
-            self.error(
-                spec.init[len].span,
-                format!("array `{}` has {len} elements, and more initial values", decl.name.name),
-            );
+            self.error(spec.init[len].span, format!("array `{label}` has {len} elements, and more initial values"));
         }
         let base = VarId(vars.len() as u32);
         let default = self.default_of(&elem);
@@ -784,14 +841,14 @@ impl<'a> Compiler<'a> {
                 Some(e) => self.initial_value(e, &elem),
                 None => default.clone(),
             };
-            let label: Vec<String> = index.iter().map(|i| i.to_string()).collect();
+            let index_label: Vec<String> = index.iter().map(|i| i.to_string()).collect();
             vars.push(VarInfo {
-                name: format!("{}[{}]", decl.name.name, label.join(",")),
+                name: format!("{label}[{}]", index_label.join(",")),
                 ty: elem.clone(),
                 init,
-                constant: decl.constant,
-                section: decl.section,
-                hidden: false,
+                constant,
+                section,
+                hidden,
             });
             // The next index, the last dimension fastest.
             for d in (0..index.len()).rev() {
@@ -802,7 +859,7 @@ impl<'a> Compiler<'a> {
                 index[d] = spec.dims[d].0;
             }
         }
-        self.arrays.insert(decl.name.key(), ArrayInfo { base, dims: spec.dims.clone(), len: len as u32, elem });
+        Some(ArrayInfo { base, dims: spec.dims.clone(), len: len as u32, elem })
     }
 
     /// An array element: a variable when every index is a constant (checked against the bounds), else an
