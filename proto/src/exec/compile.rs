@@ -66,6 +66,7 @@ struct Scope {
     instances: HashMap<String, (StdFb, VarId)>,
     users: HashMap<String, usize>,
     arrays: HashMap<String, ArrayInfo>,
+    structs: HashMap<String, (String, Vec<String>)>,
 }
 
 /// The static type of an expression. `IntLit` is an integer literal, which fits any numeric type; `Err` follows
@@ -354,7 +355,7 @@ impl<'a> Compiler<'a> {
                 continue;
             }
             if let Some(TypeKind::Struct(fields)) = self.types.get(&decl.type_name.key()).map(|t| &t.kind) {
-                self.declare_struct(decl, fields, &mut vars);
+                self.declare_struct(decl, fields, &decl.name.name, false, &mut vars);
                 continue;
             }
             if let Some(&def) = self.library.get(&decl.type_name.key()).filter(|d| d.returns.is_none()) {
@@ -472,6 +473,28 @@ impl<'a> Compiler<'a> {
                 continue;
             }
             let visible = matches!(d.section, VarSection::Input | VarSection::Output | VarSection::InOut);
+            let structure = match self.types.get(&d.type_name.key()).copied().map(|t| &t.kind) {
+                Some(TypeKind::Struct(fields)) => Some(fields),
+                _ => None,
+            };
+            if let Some(fields) = structure {
+                if visible {
+                    let message = format!(
+                        "`{}` of function block `{}` is a structure parameter, which Baton does not support yet: \
+                         declare it in VAR",
+                        d.name.name, def.name.name
+                    );
+                    self.error(d.name.span, message);
+                    continue;
+                }
+                // Declared in the instance's scope: its fields are `d.f` there.
+                let chart_vars = std::mem::replace(&mut self.vars, std::mem::take(&mut scope.vars));
+                let chart_structs = std::mem::replace(&mut self.structs, std::mem::take(&mut scope.structs));
+                self.declare_struct(d, fields, &inner, true, vars);
+                scope.vars = std::mem::replace(&mut self.vars, chart_vars);
+                scope.structs = std::mem::replace(&mut self.structs, chart_structs);
+                continue;
+            }
             if let Some(spec) = self.array_spec_of(d) {
                 if visible {
                     let message = format!(
@@ -726,8 +749,10 @@ impl<'a> Compiler<'a> {
             self.instances = std::mem::take(&mut self.users[u].scope.instances);
             self.user_of = std::mem::take(&mut self.users[u].scope.users);
             let chart_arrays = std::mem::replace(&mut self.arrays, std::mem::take(&mut self.users[u].scope.arrays));
+            let chart_structs = std::mem::replace(&mut self.structs, std::mem::take(&mut self.users[u].scope.structs));
             let body = self.statements(&def.body, vars);
             self.users[u].scope.arrays = std::mem::replace(&mut self.arrays, chart_arrays);
+            self.users[u].scope.structs = std::mem::replace(&mut self.structs, chart_structs);
             self.users[u].scope.vars = std::mem::replace(&mut self.vars, saved.0);
             self.users[u].scope.instances = std::mem::replace(&mut self.instances, saved.1);
             self.users[u].scope.users = std::mem::replace(&mut self.user_of, saved.2);
@@ -739,7 +764,14 @@ impl<'a> Compiler<'a> {
 
     /// A structure variable: one variable per field, `s.field`, with the field's initial value or the one the
     /// declaration gives (`s : Point := (x := 1)`).
-    fn declare_struct(&mut self, decl: &VarDecl, fields: &[VarDecl], vars: &mut Vec<VarInfo>) {
+    fn declare_struct(
+        &mut self,
+        decl: &VarDecl,
+        fields: &[VarDecl],
+        label: &str,
+        hidden: bool,
+        vars: &mut Vec<VarInfo>,
+    ) {
         let mut names = Vec::new();
         for f in fields {
             let nested = StdFb::from_name(&f.type_name.key()).is_some()
@@ -765,12 +797,12 @@ impl<'a> Compiler<'a> {
             };
             self.vars.insert(format!("{}.{}", decl.name.key(), f.name.key()), VarId(vars.len() as u32));
             vars.push(VarInfo {
-                name: format!("{}.{}", decl.name.name, f.name.name),
+                name: format!("{label}.{}", f.name.name),
                 ty,
                 init,
                 constant: decl.constant,
                 section: decl.section,
-                hidden: false,
+                hidden,
             });
             names.push(f.name.name.clone());
         }
