@@ -579,3 +579,26 @@ fn a_timer_inside_a_user_block_on_an_agent_computes_what_baton_sim_computes() {
         assert_eq!(got, expected, "seed {seed}: {names:?}");
     }
 }
+
+/// An action written in SFC, run on an agent: its chart's state is variables written where the action runs, so
+/// a distributed run carries it and ends with what `baton sim` computes.
+#[test]
+fn a_nested_chart_on_an_agent_computes_what_baton_sim_computes() {
+    let source =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/nested_action_chart/chart.st"))
+            .expect("scenario")
+            .replace("STEP Work: Batch(N); END_STEP", "STEP Work: {agent := 'r1'} Batch(N); END_STEP");
+    assert!(source.contains("{agent := 'r1'}"), "the scenario still has the step placed here");
+    let names = ["fills", "mixes", "valve", "beep", "Batch.Hold.X", "Batch.Leave.Q"];
+    let expected = baton_tests::reference::final_shown(&source, 10, &names);
+    assert_eq!(expected[4], "TRUE", "the nested chart reached Hold: {expected:?}");
+    for seed in 0..8 {
+        let faults = Faults { duplicate: 0.3, reorder: true, delay_ms_max: 8, loss: 0.05 };
+        let mut sim = SimCluster::new(&source, &[("r1", &[])], faults, seed);
+        assert!(sim.run(30_000), "seed {seed}: did not finish");
+        let got: Vec<String> = names.iter().map(|n| sim.shown(n).unwrap_or_default()).collect();
+        assert_eq!(got, expected, "seed {seed}: {names:?}");
+        let batch: Vec<_> = sim.events("action_on").into_iter().filter(|(_, name, _)| name == "Batch").collect();
+        assert!(!batch.is_empty() && batch.iter().all(|(_, _, agent)| agent.as_deref() == Some("r1")), "{batch:?}");
+    }
+}

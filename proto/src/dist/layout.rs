@@ -384,6 +384,7 @@ fn skill_bindings(
     chart: &Chart,
 ) -> Vec<Option<SkillBinding>> {
     let mut out = Vec::with_capacity(program.actions.len());
+    let runs = associated(program);
     for (i, action) in program.actions.iter().enumerate() {
         let mut binding: Option<SkillBinding> = None;
         for pragma in &action.pragmas {
@@ -400,7 +401,14 @@ fn skill_bindings(
                 ));
                 continue;
             }
-            if action_placement[i] == Placement::Coordinator {
+            if !runs[i] {
+                let message = format!(
+                    "action `{}` is bound to skill `{skill}`, but no step of the chart runs it: an action that a \
+                     nested chart controls cannot drive a skill",
+                    action.name
+                );
+                diags.push(Diagnostic::error(pragma.span, message));
+            } else if action_placement[i] == Placement::Coordinator {
                 let span = chart.actions.get(i).map_or(pragma.span, |a| a.name.span);
                 diags.push(Diagnostic::warning(span, format!(
                     "action `{}` is bound to skill `{skill}` but runs on the coordinator, which runs no skills: place its steps on an agent",
@@ -411,6 +419,18 @@ fn skill_bindings(
             binding = Some(SkillBinding { skill, params });
         }
         out.push(binding);
+    }
+    out
+}
+
+/// Which actions a step of the chart is associated with (the others run only inside a nested chart's body,
+/// where they are that chart's action's writes, or never).
+fn associated(program: &Program) -> Vec<bool> {
+    let mut out = vec![false; program.actions.len()];
+    for s in 0..program.steps.len() {
+        for a in program.associations(StepId(s as u32)) {
+            out[a.action.index()] = true;
+        }
     }
     out
 }
@@ -435,7 +455,8 @@ fn writers(
             writes[v.index()].push((p.clone(), by));
         }
     };
-    for (i, action) in program.actions.iter().enumerate() {
+    let runs = associated(program);
+    for (i, action) in program.actions.iter().enumerate().filter(|(i, _)| runs[*i]) {
         let mut vars = Vec::new();
         assigned(&action.body, &mut vars);
         vars.extend(action.bool_var);
