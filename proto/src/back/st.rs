@@ -65,6 +65,18 @@ fn write_expr(out: &mut String, e: &Expr, min: u8) {
         ExprKind::Field(base, field) => {
             let _ = write!(out, "{}.{}", base.name, field.name);
         }
+        ExprKind::IndexField(name, indices, field) => {
+            out.push_str(&name.name);
+            out.push('[');
+            for (i, e) in indices.iter().enumerate() {
+                if i > 0 {
+                    out.push_str(", ");
+                }
+                write_expr(out, e, 0);
+            }
+            out.push_str("].");
+            out.push_str(&field.name);
+        }
         ExprKind::Index(name, indices) => {
             out.push_str(&name.name);
             out.push('[');

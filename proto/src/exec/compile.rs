@@ -45,6 +45,7 @@ pub fn compile(chart: &Chart, library: &[FbDef], types: &[TypeDef], diags: &mut 
         controlled: HashMap::new(),
         started: HashMap::new(),
         ranges: HashMap::new(),
+        struct_depth: 0,
     };
     c.run()
 }
@@ -241,14 +242,39 @@ struct Compiler<'a> {
     started: HashMap<String, VarId>,
     /// The chart's variables of a subrange type: the range and the type's name.
     ranges: HashMap<VarId, (i64, i64, String)>,
+    /// Structures being declared inside one another (a structure holding itself is an error).
+    struct_depth: usize,
+}
+
+/// How a declaration's variables are held: CONSTANT or not, their section, hidden from names or not.
+#[derive(Clone, Copy)]
+struct Storage {
+    constant: bool,
+    section: VarSection,
+    hidden: bool,
+}
+
+impl Storage {
+    fn of(decl: &VarDecl, hidden: bool) -> Storage {
+        Storage { constant: decl.constant, section: decl.section, hidden }
+    }
+
+    /// A function's frame: scratch that several places may write.
+    fn frame() -> Storage {
+        Storage { constant: false, section: VarSection::Temp, hidden: true }
+    }
 }
 
 #[derive(Clone)]
 struct ArrayInfo {
     base: VarId,
     dims: Vec<(i64, i64)>,
+    /// Variables of the array: elements times `stride`.
     len: u32,
     elem: Type,
+    /// For an array of structures: variables per element, and each direct field's position and type in it.
+    stride: u32,
+    fields: HashMap<String, (u32, Type)>,
 }
 
 /// A user function: its frame (parameters, locals, result; shared by its calls, as IEC functions do not
@@ -488,11 +514,7 @@ impl<'a> Compiler<'a> {
                     continue;
                 }
                 // Declared in the instance's scope: its fields are `d.f` there.
-                let chart_vars = std::mem::replace(&mut self.vars, std::mem::take(&mut scope.vars));
-                let chart_structs = std::mem::replace(&mut self.structs, std::mem::take(&mut scope.structs));
-                self.declare_struct(d, fields, &inner, true, vars);
-                scope.vars = std::mem::replace(&mut self.vars, chart_vars);
-                scope.structs = std::mem::replace(&mut self.structs, chart_structs);
+                self.in_scope(&mut scope, |c| c.declare_struct(d, fields, &inner, true, vars));
                 continue;
             }
             if let Some(spec) = self.array_spec_of(d) {
@@ -503,8 +525,14 @@ impl<'a> Compiler<'a> {
                         d.name.name, def.name.name
                     );
                     self.error(d.name.span, message);
-                } else if let Some(info) = self.array_elements(&inner, &spec, d.constant, d.section, true, vars) {
-                    scope.arrays.insert(d.name.key(), info);
+                } else {
+                    // In the instance's scope, where the fields of structure elements are named too.
+                    self.in_scope(&mut scope, |c| {
+                        if let Some(info) = c.array_elements((&inner, &d.name.name), &spec, Storage::of(d, true), vars)
+                        {
+                            c.arrays.insert(d.name.key(), info);
+                        }
+                    });
                 }
                 continue;
             }
@@ -532,6 +560,18 @@ impl<'a> Compiler<'a> {
         self.declaring.pop();
         self.users.push(UserInstance { def, params, eno, scope, body: Arc::new(Vec::new()) });
         Some(self.users.len() - 1)
+    }
+
+    /// Runs `f` with an instance's names (variables, structures, arrays) in place of the chart's.
+    fn in_scope<R>(&mut self, scope: &mut Scope, f: impl FnOnce(&mut Self) -> R) -> R {
+        let chart_vars = std::mem::replace(&mut self.vars, std::mem::take(&mut scope.vars));
+        let chart_structs = std::mem::replace(&mut self.structs, std::mem::take(&mut scope.structs));
+        let chart_arrays = std::mem::replace(&mut self.arrays, std::mem::take(&mut scope.arrays));
+        let result = f(self);
+        scope.vars = std::mem::replace(&mut self.vars, chart_vars);
+        scope.structs = std::mem::replace(&mut self.structs, chart_structs);
+        scope.arrays = std::mem::replace(&mut self.arrays, chart_arrays);
+        result
     }
 
     /// Every user function's frame: a hidden VAR_TEMP variable per input and local, and its result. Frames are
@@ -565,16 +605,19 @@ impl<'a> Compiler<'a> {
                 };
             for d in def.vars.iter().filter(|d| d.section != VarSection::External) {
                 if let Some(spec) = self.array_spec_of(d) {
-                    if d.section == VarSection::Input {
+                    let of_structs =
+                        matches!(self.types.get(&spec.elem.key()).map(|t| &t.kind), Some(TypeKind::Struct(_)));
+                    if d.section == VarSection::Input || of_structs {
+                        let what = if of_structs { "an array of structures" } else { "an array input" };
                         let message = format!(
-                            "`{}` of function `{}` is an array input, which Baton does not support yet",
+                            "`{}` of function `{}` is {what}, which Baton does not support yet",
                             d.name.name, def.name.name
                         );
                         self.error(d.name.span, message);
                     } else {
                         let label = format!("{}.{}", def.name.name, d.name.name);
                         let before = vars.len();
-                        if let Some(info) = self.array_elements(&label, &spec, false, VarSection::Temp, true, vars) {
+                        if let Some(info) = self.array_elements((&label, &d.name.name), &spec, Storage::frame(), vars) {
                             // A function's locals start again at every call.
                             resets.extend((before..vars.len()).map(|i| (VarId(i as u32), vars[i].init.clone())));
                             arrays.insert(d.name.key(), info);
@@ -772,21 +815,48 @@ impl<'a> Compiler<'a> {
         hidden: bool,
         vars: &mut Vec<VarInfo>,
     ) {
+        if self.struct_depth >= crate::limits::NESTING_DEPTH_MAX {
+            let message = format!("structure `{}` holds itself, or nests too deep", decl.type_name.name);
+            self.error(decl.type_name.span, message);
+            return;
+        }
+        self.struct_depth += 1;
         let mut names = Vec::new();
         for f in fields {
-            let nested = StdFb::from_name(&f.type_name.key()).is_some()
-                || self.library.contains_key(&f.type_name.key())
-                || f.array.is_some()
-                || matches!(
-                    self.types.get(&f.type_name.key()).map(|t| &t.kind),
-                    Some(TypeKind::Struct(_) | TypeKind::Array(_))
-                );
-            if nested {
+            if StdFb::from_name(&f.type_name.key()).is_some() || self.library.contains_key(&f.type_name.key()) {
                 let message = format!(
-                    "field `{}` of `{}`: structures holding arrays, structures or instances are not supported yet",
+                    "field `{}` of `{}`: structures holding function block instances are not supported yet",
                     f.name.name, decl.type_name.name
                 );
                 self.error(f.type_name.span, message);
+                continue;
+            }
+            // A field that is an array or a structure is a run of variables of its own, named by its path.
+            let local = format!("{}.{}", decl.name.name, f.name.name);
+            let path = format!("{label}.{}", f.name.name);
+            if let Some(spec) = self.array_spec_of(f) {
+                if let Some(info) = self.array_elements((&path, &local), &spec, Storage::of(decl, hidden), vars) {
+                    self.arrays.insert(local.to_ascii_uppercase(), info);
+                }
+                names.push(f.name.name.clone());
+                continue;
+            }
+            let structure = match self.types.get(&f.type_name.key()).copied().map(|t| &t.kind) {
+                Some(TypeKind::Struct(inner)) => Some(inner),
+                _ => None,
+            };
+            if let Some(inner) = structure {
+                let sub = VarDecl {
+                    name: Ident { name: local, span: f.name.span },
+                    section: decl.section,
+                    constant: decl.constant,
+                    type_name: f.type_name.clone(),
+                    init: None,
+                    members: Vec::new(),
+                    array: None,
+                };
+                self.declare_struct(&sub, inner, &path, hidden, vars);
+                names.push(f.name.name.clone());
                 continue;
             }
             let ty = self.resolve_type(&f.type_name);
@@ -812,12 +882,13 @@ impl<'a> Compiler<'a> {
             }
         }
         self.structs.insert(decl.name.key(), (decl.type_name.name.clone(), names));
+        self.struct_depth -= 1;
     }
 
     /// An array variable: one variable per element, `a[1]`, `a[1,2]`, row-major.
     fn declare_array(&mut self, decl: &VarDecl, spec: &ArraySpec, vars: &mut Vec<VarInfo>) {
         let label = decl.name.name.clone();
-        if let Some(info) = self.array_elements(&label, spec, decl.constant, decl.section, false, vars) {
+        if let Some(info) = self.array_elements((&label, &label), spec, Storage::of(decl, false), vars) {
             self.arrays.insert(decl.name.key(), info);
         }
     }
@@ -834,13 +905,12 @@ impl<'a> Compiler<'a> {
     /// initial values; `None` after an error.
     fn array_elements(
         &mut self,
-        label: &str,
+        (label, local): (&str, &str),
         spec: &ArraySpec,
-        constant: bool,
-        section: VarSection,
-        hidden: bool,
+        storage: Storage,
         vars: &mut Vec<VarInfo>,
     ) -> Option<ArrayInfo> {
+        let Storage { constant, section, hidden } = storage;
         let mut len: usize = 1;
         for &(low, high) in &spec.dims {
             if high < low {
@@ -860,6 +930,13 @@ impl<'a> Compiler<'a> {
         if StdFb::from_name(&spec.elem.key()).is_some() || self.library.contains_key(&spec.elem.key()) {
             self.error(spec.elem.span, "arrays of function block instances are not supported yet");
             return None;
+        }
+        let structure = match self.types.get(&spec.elem.key()).copied().map(|t| &t.kind) {
+            Some(TypeKind::Struct(fields)) => Some(fields),
+            _ => None,
+        };
+        if let Some(fields) = structure {
+            return self.struct_elements((label, local), spec, fields, len, storage, vars);
         }
         let elem = self.resolve_type(&spec.elem);
         if spec.init.len() > len {
@@ -891,7 +968,74 @@ impl<'a> Compiler<'a> {
                 index[d] = spec.dims[d].0;
             }
         }
-        Some(ArrayInfo { base, dims: spec.dims.clone(), len: len as u32, elem })
+        Some(ArrayInfo { base, dims: spec.dims.clone(), len: len as u32, elem, stride: 1, fields: HashMap::new() })
+    }
+
+    /// An array of structures: each element a run of field variables (`pts[2].x`, the fields of fields too),
+    /// elements one after another, so that a field of an element indexed at run time is `base + field + i ·
+    /// stride`.
+    fn struct_elements(
+        &mut self,
+        (label, local): (&str, &str),
+        spec: &ArraySpec,
+        fields: &[VarDecl],
+        len: usize,
+        Storage { constant, section, hidden }: Storage,
+        vars: &mut Vec<VarInfo>,
+    ) -> Option<ArrayInfo> {
+        if let Some(first) = spec.init.first() {
+            self.error(
+                first.span,
+                format!("initial values of `{label}`, an array of structures, are not supported yet"),
+            );
+        }
+        let base = VarId(vars.len() as u32);
+        let mut index: Vec<i64> = spec.dims.iter().map(|&(low, _)| low).collect();
+        let (mut stride, mut at) = (0, HashMap::new());
+        for k in 0..len {
+            let idx = index.iter().map(|i| i.to_string()).collect::<Vec<_>>().join(",");
+            let start = vars.len();
+            let decl = VarDecl {
+                name: Ident { name: format!("{local}[{idx}]"), span: spec.span },
+                section,
+                constant,
+                type_name: spec.elem.clone(),
+                init: None,
+                members: Vec::new(),
+                array: None,
+            };
+            self.declare_struct(&decl, fields, &format!("{label}[{idx}]"), hidden, vars);
+            if k == 0 {
+                stride = vars.len() - start;
+                for f in fields {
+                    let name = format!("{label}[{idx}].{}", f.name.name);
+                    if let Some(i) = (start..vars.len()).find(|&i| vars[i].name.eq_ignore_ascii_case(&name)) {
+                        at.insert(f.name.key(), ((i - start) as u32, vars[i].ty.clone()));
+                    }
+                }
+            }
+            if stride == 0 || len.saturating_mul(stride) > crate::limits::ARRAY_ELEMENTS_MAX {
+                let message = format!("array `{label}` holds structures with no field, or too many variables");
+                self.error(spec.span, message);
+                return None;
+            }
+            for d in (0..index.len()).rev() {
+                if index[d] < spec.dims[d].1 {
+                    index[d] += 1;
+                    break;
+                }
+                index[d] = spec.dims[d].0;
+            }
+        }
+        let elem = Type::Unsupported(spec.elem.name.clone());
+        Some(ArrayInfo {
+            base,
+            dims: spec.dims.clone(),
+            len: (len * stride) as u32,
+            elem,
+            stride: stride as u32,
+            fields: at,
+        })
     }
 
     /// An array element: a variable when every index is a constant (checked against the bounds), else an
@@ -903,7 +1047,62 @@ impl<'a> Compiler<'a> {
             }
             return None;
         };
-        let (base, dims, len, elem) = (info.base, info.dims.clone(), info.len, info.elem.clone());
+        if !info.fields.is_empty() {
+            let first = info.fields.iter().min_by_key(|(_, (at, _))| *at).map(|(f, _)| f.clone()).unwrap_or_default();
+            let message = format!(
+                "`{}` holds structures: use one of their fields, such as `{}[…].{}`",
+                name.name,
+                name.name,
+                first.to_ascii_lowercase()
+            );
+            self.error(name.span, message);
+            return None;
+        }
+        self.indexed(name, indices, 0, None, vars)
+    }
+
+    /// A field of an array's structure element: `pts[i].x`.
+    fn element_field(
+        &mut self,
+        name: &Ident,
+        indices: &[Expr],
+        field: &Ident,
+        vars: &[VarInfo],
+    ) -> Option<(CExpr, Ty)> {
+        let Some(info) = self.arrays.get(&name.key()) else {
+            if !self.chart.broken.var(&name.key()) {
+                self.error(name.span, format!("`{}` is not an array", name.name));
+            }
+            return None;
+        };
+        let Some((offset, ty)) = info.fields.get(&field.key()).cloned() else {
+            let message = if info.fields.is_empty() {
+                format!("`{}` holds {} values, which have no field `{}`", name.name, info.elem, field.name)
+            } else {
+                format!(
+                    "the structures in `{}` have no field `{}` (fields of fields need constant indices)",
+                    name.name, field.name
+                )
+            };
+            self.error(field.span, message);
+            return None;
+        };
+        self.indexed(name, indices, offset, Some(ty), vars)
+    }
+
+    /// Element `offset` of the element `indices` name: a variable when every index is a constant (checked
+    /// against the bounds), else an index computed at run time.
+    fn indexed(
+        &mut self,
+        name: &Ident,
+        indices: &[Expr],
+        offset: u32,
+        field: Option<Type>,
+        vars: &[VarInfo],
+    ) -> Option<(CExpr, Ty)> {
+        let info = self.arrays.get(&name.key())?;
+        let (base, dims, len, stride) = (info.base, info.dims.clone(), info.len, info.stride);
+        let elem = field.unwrap_or_else(|| info.elem.clone());
         if indices.len() != dims.len() {
             let message = format!("`{}` has {} dimension(s), indexed with {}", name.name, dims.len(), indices.len());
             self.error(name.span, message);
@@ -932,8 +1131,8 @@ impl<'a> Compiler<'a> {
         }
         let ty = Ty::of(&elem);
         Some(match constant {
-            Some(offset) => (CExpr::Var(VarId(base.0 + offset as u32)), ty),
-            None => (CExpr::Index(Box::new(IndexExpr { base, dims, indices: compiled, len })), ty),
+            Some(at) => (CExpr::Var(VarId(base.0 + offset + at as u32 * stride)), ty),
+            None => (CExpr::Index(Box::new(IndexExpr { base, dims, indices: compiled, len, stride, offset })), ty),
         })
     }
 
@@ -1332,8 +1531,15 @@ impl<'a> Compiler<'a> {
         Some(match stmt {
             Stmt::Assign { target, value, .. } => {
                 let (mut cvalue, mut vty) = self.expr(value, vars);
-                if let ExprKind::Index(name, indices) = &target.kind {
-                    let (element, ety) = self.element(name, indices, vars)?;
+                let indexed = match &target.kind {
+                    ExprKind::Index(name, indices) => Some((name, self.element(name, indices, vars))),
+                    ExprKind::IndexField(name, indices, field) => {
+                        Some((name, self.element_field(name, indices, field, vars)))
+                    }
+                    _ => None,
+                };
+                if let Some((name, element)) = indexed {
+                    let (element, ety) = element?;
                     if !assignable(ety, vty) {
                         self.error(
                             value.span,
@@ -1531,13 +1737,7 @@ impl<'a> Compiler<'a> {
                 match self.vars.get(&format!("{}.{}", base.key(), field.key())) {
                     Some(&id) => (id, base),
                     None => {
-                        let (ty_name, names) = &self.structs[&base.key()];
-                        let message = format!(
-                            "`{}` (a {ty_name}) has no field `{}`: it has {}",
-                            base.name,
-                            field.name,
-                            names.join(", ")
-                        );
+                        let message = self.missing_field(base, field);
                         self.error(field.span, message);
                         return None;
                     }
@@ -1562,7 +1762,9 @@ impl<'a> Compiler<'a> {
             }
             ExprKind::Field(base, field) => {
                 let Some(&(fb, inst_base)) = self.instances.get(&base.key()) else {
-                    if !self.chart.broken.var(&base.key()) {
+                    if let Some(message) = self.bad_path(base) {
+                        self.error(base.span, message);
+                    } else if !self.chart.broken.var(&base.key()) {
                         let message = format!(
                             "`{}.{}` cannot be assigned: only the inputs of a function block instance can",
                             base.name, field.name
@@ -2171,6 +2373,9 @@ impl<'a> Compiler<'a> {
             ExprKind::Field(base, field) => self.field(base, field, vars),
             ExprKind::Call(callee, args) => self.call(e, callee, args, vars),
             ExprKind::Index(name, indices) => self.element(name, indices, vars).unwrap_or((FALSE, Ty::Err)),
+            ExprKind::IndexField(name, indices, field) => {
+                self.element_field(name, indices, field, vars).unwrap_or((FALSE, Ty::Err))
+            }
             ExprKind::EnumValue(ty, value) => match self.enum_value(Some(ty), value) {
                 Some(found) => found,
                 None => {
@@ -2290,10 +2495,46 @@ impl<'a> Compiler<'a> {
         (FALSE, Ty::Err)
     }
 
+    /// Why a path naming no structure (`ln.c` in `ln.c.x`, `pts[4]` in `pts[4].x`) is wrong, when it starts
+    /// with one: the field its structure lacks, or the index its array's bounds exclude.
+    fn bad_path(&self, base: &Ident) -> Option<String> {
+        if let Some((array, rest)) = base.name.split_once('[') {
+            let info = self.arrays.get(&array.to_ascii_uppercase())?;
+            let indices = rest.strip_suffix(']')?.split(',').map(|i| i.trim().parse::<i64>().ok());
+            for (i, &(low, high)) in indices.zip(&info.dims) {
+                let i = i?;
+                if i < low || i > high {
+                    return Some(format!("index {i} is outside `{array}`'s bounds {low}..{high}"));
+                }
+            }
+            return None;
+        }
+        let (prefix, last) = base.name.rsplit_once('.')?;
+        self.structs.contains_key(&prefix.to_ascii_uppercase()).then(|| {
+            let prefix = Ident { name: prefix.to_string(), span: base.span };
+            self.missing_field(&prefix, &Ident { name: last.to_string(), span: base.span })
+        })
+    }
+
+    /// Why `base.field` of a structure `base` is no variable: a structure or an array itself, or no field.
+    fn missing_field(&self, base: &Ident, field: &Ident) -> String {
+        let path = format!("{}.{}", base.key(), field.key());
+        let whole = format!("{}.{}", base.name, field.name);
+        if let Some((inner, fields)) = self.structs.get(&path) {
+            let first = fields.first().cloned().unwrap_or_default();
+            return format!("`{whole}` is a {inner} structure: use one of its fields, such as `{whole}.{first}`");
+        }
+        if self.arrays.contains_key(&path) {
+            return format!("`{whole}` is an array: index it, such as `{whole}[…]`");
+        }
+        let (ty_name, names) = self.structs.get(&base.key()).cloned().unwrap_or_default();
+        format!("`{}` (a {ty_name}) has no field `{}`: it has {}", base.name, field.name, names.join(", "))
+    }
+
     fn field(&mut self, base: &Ident, field: &Ident, vars: &[VarInfo]) -> (CExpr, Ty) {
         let step_field = matches!(field.key().as_str(), "X" | "T")
             && (self.steps.contains_key(&base.key()) || self.nested_steps.contains_key(&base.key()));
-        if let Some((ty_name, names)) = self.structs.get(&base.key()).filter(|_| !step_field) {
+        if self.structs.contains_key(&base.key()) && !step_field {
             return match self.vars.get(&format!("{}.{}", base.key(), field.key())) {
                 Some(&id) => match vars.get(id.index()) {
                     Some(v) => (CExpr::Var(id), Ty::of(&v.ty)),
@@ -2303,12 +2544,7 @@ impl<'a> Compiler<'a> {
                     }
                 },
                 None => {
-                    let message = format!(
-                        "`{}` (a {ty_name}) has no field `{}`: it has {}",
-                        base.name,
-                        field.name,
-                        names.join(", ")
-                    );
+                    let message = self.missing_field(base, field);
                     self.error(field.span, message);
                     (FALSE, Ty::Err)
                 }
@@ -2356,6 +2592,10 @@ impl<'a> Compiler<'a> {
         }
         if let (Some(&(_, q, _)), "Q") = (self.controlled.get(&base.key()), field.key().as_str()) {
             return (CExpr::Var(q), Ty::Bool);
+        }
+        if let Some(message) = self.bad_path(base) {
+            self.error(base.span, message);
+            return (FALSE, Ty::Err);
         }
         match field.key().as_str() {
             "X" | "T" => match self.steps.get(&base.key()) {

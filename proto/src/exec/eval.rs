@@ -49,7 +49,7 @@ fn element(ix: &crate::exec::program::IndexExpr, env: &impl Env) -> Result<VarId
         }
         offset = offset * (high - low + 1) + (i - low);
     }
-    Ok(VarId(ix.base.0 + offset as u32))
+    Ok(VarId(ix.base.0 + ix.offset + offset as u32 * ix.stride))
 }
 
 pub fn eval(e: &CExpr, env: &impl Env) -> Result<Value, Fault> {

@@ -224,8 +224,11 @@ pub struct IndexExpr {
     pub base: VarId,
     pub dims: Vec<(i64, i64)>,
     pub indices: Vec<CExpr>,
-    /// Elements of the array.
+    /// Variables of the array (elements times `stride`).
     pub len: u32,
+    /// Variables per element (1, or a structure's fields), and which of them is meant.
+    pub stride: u32,
+    pub offset: u32,
 }
 
 /// A standard function call; the result is converted to `ty` (its integer width, REAL's precision).

@@ -425,6 +425,9 @@ pub enum ExprKind {
     Field(Ident, Ident),
     /// An array element: `a[i]`, `grid[i, j + 1]`.
     Index(Ident, Vec<Expr>),
+    /// A field of an array's structure element indexed at run time: `pts[i].x` (with constant indices the
+    /// parser writes `Field(pts[2], x)`, the element's own name).
+    IndexField(Ident, Vec<Expr>, Ident),
     /// An enumeration value written with its type: `MYTYPE#OPEN`.
     EnumValue(Ident, Ident),
     /// A function call: `ABS(x)`, `LIMIT(0, x, 10)`, `INT_TO_REAL(i)`, `SEL(G := c, IN0 := a, IN1 := b)`.

@@ -982,11 +982,48 @@ impl Parser<'_> {
     /// An assignment's target: a variable, or a member of an instance (`t1.PT`).
     fn place(&mut self) -> PResult<Expr> {
         let name = self.ident("a variable")?;
+        self.designator(name)
+    }
+
+    /// What a name designates: a variable, `step.X`, an instance's or a structure's member (`a.b.c`), an array
+    /// element (`a[i]`), a field of one (`pts[i].x`).
+    fn designator(&mut self, mut name: Ident) -> PResult<Expr> {
+        // `a.b.c`, `a.b[i]`: the path up to the last member is one name (a structure's fields are
+        // variables named by their path).
+        while self.peek() == Tok::Dot
+            && self.peek_at(1) == Tok::Ident
+            && matches!(self.peek_at(2), Tok::Dot | Tok::LBracket)
+        {
+            self.bump();
+            let part = self.ident("a member")?;
+            name = Ident { name: format!("{}.{}", name.name, part.name), span: name.span.to(part.span) };
+        }
         if self.peek() == Tok::LBracket {
-            return self.index(name);
+            let element = self.index(name)?;
+            if !(self.peek() == Tok::Dot && self.peek_at(1) == Tok::Ident) {
+                return Ok(element);
+            }
+            self.bump();
+            let field = self.ident("a field after `.`")?;
+            let span = element.span.to(field.span);
+            let ExprKind::Index(name, indices) = element.kind else { unreachable!("an index expression") };
+            let constant: Option<Vec<String>> = indices
+                .iter()
+                .map(|i| match i.kind {
+                    ExprKind::Int(v) => Some(v.to_string()),
+                    _ => None,
+                })
+                .collect();
+            return Ok(match constant {
+                Some(labels) => {
+                    let base = Ident { name: format!("{}[{}]", name.name, labels.join(",")), span: element.span };
+                    Expr { kind: ExprKind::Field(base, field), span }
+                }
+                None => Expr { kind: ExprKind::IndexField(name, indices, field), span },
+            });
         }
         if self.eat(Tok::Dot) {
-            let field = self.ident("a member name after `.`")?;
+            let field = self.ident("a member such as `X`, `T` or `Q` after `.`")?;
             let span = name.span.to(field.span);
             return Ok(Expr { kind: ExprKind::Field(name, field), span });
         }
@@ -1276,20 +1313,12 @@ impl Parser<'_> {
                     let span = name.span.to(close.span);
                     return Ok(Expr { kind: ExprKind::Call(name, args), span });
                 }
-                if self.peek() == Tok::LBracket {
-                    return self.index(name);
-                }
                 if self.eat(Tok::Hash) {
                     let value = self.ident("an enumeration value after `#`")?;
                     let span = name.span.to(value.span);
                     return Ok(Expr { kind: ExprKind::EnumValue(name, value), span });
                 }
-                if self.eat(Tok::Dot) {
-                    let field = self.ident("a member such as `X`, `T` or `Q` after `.`")?;
-                    let span = name.span.to(field.span);
-                    return Ok(Expr { kind: ExprKind::Field(name, field), span });
-                }
-                return Ok(Expr { span: name.span, kind: ExprKind::Name(name) });
+                return self.designator(name);
             }
             _ => return Err(self.error_here("an expression")),
         };
