@@ -109,15 +109,19 @@ fn decorate(src: &str, picks: &[u8]) -> String {
     let mut transition = 0;
     for line in src.lines() {
         if line == "END_VAR" {
-            out.push_str("  n : INT;\n  m : DINT := 1;\n  lamp : BOOL;\n  done : BOOL;\n  t1 : TON := (PT := T#30ms);\n  hold : TIME := T#20ms;\nEND_VAR\n");
+            out.push_str("  n : INT;\n  m : DINT := 1;\n  lamp : BOOL;\n  done : BOOL;\n  t1 : TON := (PT := T#30ms);\n  hold : TIME := T#20ms;\n  label : STRING[12] := 'it$'s';\n  bumps : INT;\nEND_VAR\n");
             out.push_str("ACTION Count: n := n + 1; END_ACTION\n");
             out.push_str("ACTION Double: {note := 'kept'} IF c0 AND n MOD 2 = 0 THEN m := m * 2 + 1; ELSE m := m - 1; END_IF; END_ACTION\n");
             out.push_str("ACTION Time: t1(IN := c1, Q => done); END_ACTION\n");
+            out.push_str("ACTION Tag: label := CONCAT(LEFT(label, 3), '#', INT_TO_STRING(n MOD 10)); END_ACTION\n");
+            // An action written in SFC, controlling an action of its own.
+            out.push_str("ACTION Sub:\n  INITIAL_STEP Sa: Bump(N); END_STEP\n  TRANSITION FROM Sa TO Sb := Sa.T >= T#20ms; END_TRANSITION\n  STEP Sb: END_STEP\n  TRANSITION FROM Sb TO Sa := c0; END_TRANSITION\nEND_ACTION\n");
+            out.push_str("ACTION Bump: bumps := bumps + 1; END_ACTION\n");
             continue;
         }
         if let Some(rest) = line.strip_suffix(": END_STEP") {
             let k = pick(step);
-            let assoc = match k % 9 {
+            let assoc = match k % 11 {
                 0 => "Count(N);",
                 1 => "Count(P); Double(N);",
                 2 => "lamp(S);",
@@ -126,10 +130,12 @@ fn decorate(src: &str, picks: &[u8]) -> String {
                 5 => "Count(D, hold);",
                 6 => "Time(SD, T#10ms, done);",
                 7 => "Count(P0);",
+                8 => "Tag(N);",
+                9 => "Sub(N);",
                 _ => "",
             };
             // A placed step with no actions: an action runs in one place.
-            let pragma = if k % 9 == 8 && k % 2 == 0 { " {agent := 'r1'}" } else { "" };
+            let pragma = if k % 11 == 10 && k % 2 == 0 { " {agent := 'r1'}" } else { "" };
             out.push_str(&format!("{rest}:{pragma} {assoc} END_STEP\n"));
             step += 1;
             continue;
@@ -141,7 +147,11 @@ fn decorate(src: &str, picks: &[u8]) -> String {
                 1 => format!("TRANSITION (PRIORITY := {}) FROM ", k % 3),
                 _ => "TRANSITION FROM ".to_string(),
             };
-            let cond = if k % 5 == 2 { rest.replace(" := c", " := t1.Q OR NOT c") } else { rest.to_string() };
+            let cond = match k % 5 {
+                2 => rest.replace(" := c", " := t1.Q OR NOT c"),
+                3 => rest.replace(" := c", " := (Sb.X AND LEN(label) > 4) OR c"),
+                _ => rest.to_string(),
+            };
             out.push_str(&format!("{head}{cond}\n"));
             transition += 1;
             continue;
