@@ -132,3 +132,40 @@ fn beremiz_first_steps_in_xml_and_ironplc_text_are_one_chart() {
         "ironplc__compiler__resources__test__first_steps_function_block_counter_sfc.st",
     );
 }
+
+/// Beremiz's traffic light draws an SR, a TON and their wiring in the SFC body, which Baton runs as Beremiz
+/// compiles it (COMPUTE_FUNCTION_BLOCKS, held by the initial step): the light goes round its steps, a lap lasts
+/// its timers' sum, a pedestrian request during GREEN (latched by the SR, released by the TON's 2 s) ends GREEN
+/// 2 s later instead of at its 20 s, and the request is spent — the next GREEN lasts its full time.
+#[test]
+fn beremiz_traffic_light_cycles_and_answers_the_pedestrian_button() {
+    use baton_proto::exec::sim::{parse_inputs, simulate, SimOutput};
+    let Some(program) = program_of("beremiz__exemples__svghmi_traffic_light__plc.xml") else { return };
+    let script = "{\"t_ms\": 100, \"set\": {\"SWITCH_BUTTON\": true}}\n\
+                  {\"t_ms\": 60000, \"set\": {\"PEDESTRIAN_BUTTON\": true}}\n\
+                  {\"t_ms\": 60200, \"set\": {\"PEDESTRIAN_BUTTON\": false}}\n";
+    let inputs = parse_inputs(script, &program).expect("the script names the chart's inputs");
+    let mut fired = Vec::new();
+    simulate(std::sync::Arc::new(program), &inputs, 20, 110_000, |out| {
+        if let SimOutput::Trace(r) = out {
+            if r.event == "fire" {
+                fired.push((r.t_ms, r.name));
+            }
+        }
+    })
+    .expect("simulation");
+    let at = |name: &str, nth: usize| fired.iter().filter(|(_, n)| n == name).nth(nth).map(|(t, _)| *t);
+    let (Some(g0), Some(g1)) = (at("PEDESTRIAN_RED->GREEN", 0), at("PEDESTRIAN_RED->GREEN", 1)) else {
+        panic!("the light does not cycle: {fired:?}")
+    };
+    // A full lap lasts its timers' sum (GREEN alone is 20 s).
+    assert!(g1 - g0 > 30_000, "a lap from GREEN to GREEN: {fired:?}");
+    // The second GREEN began before the press (60 s) and ends about 2 s after it, long before its 20 s are up.
+    assert!(g1 < 60_000 && g1 + 20_000 > 62_200, "the press falls early in the second GREEN: {fired:?}");
+    let left = fired.iter().find(|(t, n)| *t > g1 && n == "GREEN->ORANGE").map(|(t, _)| *t).expect("GREEN is left");
+    assert!((61_900..=62_200).contains(&left), "GREEN ends 2 s after the press, at {left}: {fired:?}");
+    // The request is spent: the next GREEN lasts its full 20 s.
+    let g2 = at("PEDESTRIAN_RED->GREEN", 2).expect("a third GREEN");
+    let next = fired.iter().find(|(t, n)| *t > g2 && n == "GREEN->ORANGE").map(|(t, _)| *t).expect("left again");
+    assert!(next - g2 >= 19_900, "the third GREEN lasts {} ms: {fired:?}", next - g2);
+}
