@@ -199,17 +199,21 @@ fn pou(out: &mut String, chart: &Chart, program: &Program, library: &[FbDef], ty
     out.push_str("        <body>\n          <SFC>\n");
     let order = Sfc::new(chart, program).write(out);
     out.push_str("          </SFC>\n        </body>\n");
-    let _ = writeln!(
-        out,
-        "        <addData>\n          <data name=\"{ORDER_DATA}\" handleUnknown=\"discard\">\n            <order steps=\"{}\" transitions=\"{}\" actions=\"{}\"/>\n          </data>\n        </addData>",
-        esc(&order.steps),
-        order.transitions,
-        esc(&order.actions)
-    );
+    order_data(out, "        ", &order.steps, &order.transitions, &order.actions);
     if !chart.pragmas.is_empty() {
         let _ = writeln!(out, "        <documentation>{}</documentation>", xhtml(&pragmas_text(&chart.pragmas)));
     }
     out.push_str("      </pou>\n");
+}
+
+/// Baton's element order (`ORDER_DATA`) as an `addData` block at `indent`.
+fn order_data(out: &mut String, indent: &str, steps: &str, transitions: &str, actions: &str) {
+    let _ = writeln!(
+        out,
+        "{indent}<addData>\n{indent}  <data name=\"{ORDER_DATA}\" handleUnknown=\"discard\">\n{indent}    <order steps=\"{}\" transitions=\"{transitions}\" actions=\"{}\"/>\n{indent}  </data>\n{indent}</addData>",
+        esc(steps),
+        esc(actions)
+    );
 }
 
 /// An action written in SFC: its chart drawn as the POU's is, with Baton's order in the action's `addData`. The
@@ -242,12 +246,8 @@ fn nested(
     );
     let order = Sfc::new(&shadow, &program).write(out);
     out.push_str("              </SFC>\n            </body>\n");
-    let _ = writeln!(
-        out,
-        "            <addData>\n              <data name=\"{ORDER_DATA}\" handleUnknown=\"discard\">\n                <order steps=\"{}\" transitions=\"{}\" actions=\"\"/>\n              </data>\n            </addData>",
-        esc(&order.steps),
-        order.transitions,
-    );
+    // Its actions are the POU's, ordered there.
+    order_data(out, "            ", &order.steps, &order.transitions, "");
     if !action.pragmas.is_empty() {
         let _ = writeln!(out, "            <documentation>{}</documentation>", xhtml(&pragmas_text(&action.pragmas)));
     }

@@ -38,6 +38,19 @@ pub fn expr(e: &Expr) -> String {
 }
 
 /// Writes `e`, in parentheses if it binds less tightly than `min` requires.
+/// `name[i, j]`.
+fn write_element(out: &mut String, name: &Ident, indices: &[Expr]) {
+    out.push_str(&name.name);
+    out.push('[');
+    for (i, e) in indices.iter().enumerate() {
+        if i > 0 {
+            out.push_str(", ");
+        }
+        write_expr(out, e, 0);
+    }
+    out.push(']');
+}
+
 fn write_expr(out: &mut String, e: &Expr, min: u8) {
     match &e.kind {
         ExprKind::Bool(b) => out.push_str(if *b { "TRUE" } else { "FALSE" }),
@@ -66,28 +79,11 @@ fn write_expr(out: &mut String, e: &Expr, min: u8) {
             let _ = write!(out, "{}.{}", base.name, field.name);
         }
         ExprKind::IndexField(name, indices, field) => {
-            out.push_str(&name.name);
-            out.push('[');
-            for (i, e) in indices.iter().enumerate() {
-                if i > 0 {
-                    out.push_str(", ");
-                }
-                write_expr(out, e, 0);
-            }
-            out.push_str("].");
+            write_element(out, name, indices);
+            out.push('.');
             out.push_str(&field.name);
         }
-        ExprKind::Index(name, indices) => {
-            out.push_str(&name.name);
-            out.push('[');
-            for (i, e) in indices.iter().enumerate() {
-                if i > 0 {
-                    out.push_str(", ");
-                }
-                write_expr(out, e, 0);
-            }
-            out.push(']');
-        }
+        ExprKind::Index(name, indices) => write_element(out, name, indices),
         ExprKind::EnumValue(ty, value) => {
             let _ = write!(out, "{}#{}", ty.name, value.name);
         }

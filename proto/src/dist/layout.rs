@@ -464,8 +464,8 @@ fn writers(
             note(v, &action_placement[i], format!("action `{}`", action.name));
         }
     }
-    // Blocks wired into a condition run where the condition is judged: on the agent of the step it leaves when
-    // that step is placed, on the coordinator otherwise.
+    // A condition's user function calls run where the condition is judged: on the agent of the step it leaves
+    // when that step is placed, on the coordinator otherwise (their frames are scratch, written anywhere).
     for (i, t) in program.transitions.iter().enumerate() {
         let calls = program.calls(TransitionId(i as u32));
         if calls.is_empty() {
@@ -475,7 +475,7 @@ fn writers(
         let mut vars = Vec::new();
         assigned(calls, &mut vars);
         for v in vars {
-            note(v, place, format!("the blocks of transition `{}`", t.name));
+            note(v, place, format!("the function calls of transition `{}`", t.name));
         }
     }
     for s in 0..program.steps.len() {

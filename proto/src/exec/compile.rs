@@ -2260,24 +2260,6 @@ impl<'a> Compiler<'a> {
                     _ => Ty::Str,
                 }
             }
-            Func::Convert(Type::Str { .. }) => {
-                if let Some((from, _)) = key.split_once("_TO_") {
-                    let from_ty = Type::from_name(from).map(|t| Ty::of(&t));
-                    let fits = match from_ty {
-                        Some(f) if f.is_int() => tys[0].is_int(),
-                        Some(f @ Ty::Real { .. }) => tys[0].is_num() || tys[0] == f,
-                        Some(f) => tys[0] == f,
-                        None => true,
-                    };
-                    if !fits {
-                        return bad(self, 0, from);
-                    }
-                }
-                if matches!(tys[0], Ty::Enum(_)) {
-                    return bad(self, 0, "a number, a BOOL, a duration, a date or a time");
-                }
-                return (CExpr::call(Func::ToString(tys[0].repr()), cargs, Ty::Str.repr()), Ty::Str);
-            }
             Func::ToString(_) => unreachable!("from_name gives Convert"),
             Func::Convert(to) => {
                 if let Some((from, _)) = key.split_once("_TO_") {
@@ -2291,6 +2273,13 @@ impl<'a> Compiler<'a> {
                     if !fits {
                         return bad(self, 0, from);
                     }
+                }
+                // To a STRING, the text depends on the argument's type (a DATE and a TIME are both held in ms).
+                if let Type::Str { .. } = to {
+                    if matches!(tys[0], Ty::Enum(_)) {
+                        return bad(self, 0, "a number, a BOOL, a duration, a date or a time");
+                    }
+                    return (CExpr::call(Func::ToString(tys[0].repr()), cargs, Ty::Str.repr()), Ty::Str);
                 }
                 Ty::of(to)
             }

@@ -22,7 +22,7 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use crate::exec::eval::{self, Env, EnvMut, Fault};
-use crate::exec::program::{ActionId, CStmt, DurationSrc, Program, StepId, TransitionId, VarId};
+use crate::exec::program::{ActionId, Program, StepId, TransitionId, VarId};
 use crate::exec::types::{Type, Value};
 use crate::front::model::Qualifier;
 use crate::limits::REACTION_ROUNDS_MAX;
@@ -208,9 +208,6 @@ pub struct Engine {
     /// Per transition: it may be judged in a reaction (its condition and those of the transitions ranked before
     /// it on its source steps read no step time).
     reactive_ok: Vec<bool>,
-    /// Per variable, for the first member of a block instance wired into a condition: the cycle (plus one) it
-    /// was last called in. Empty when no condition calls a block.
-    fb_called: Vec<u64>,
     /// Per step: while active, the engine needs cycles as time passes (a transition reading step time, or a
     /// timed qualifier).
     timed: Vec<bool>,
@@ -300,7 +297,6 @@ impl Engine {
             xq_gen: 0,
             reactive_ok,
             timed,
-            fb_called: if program.has_calls() { vec![0; program.vars.len()] } else { Vec::new() },
             timed_active: 0,
             candidates: Vec::new(),
             consumed_stamp: vec![NEVER; n_steps],
@@ -572,21 +568,14 @@ impl Engine {
         self.fired.clear();
         let stamp = self.cycle;
         let candidates = std::mem::take(&mut self.candidates);
-        // The blocks wired into conditions run first, each instance once, so that every condition is judged
-        // against one snapshot.
-        let any_calls = !self.fb_called.is_empty();
-        for &(_, t) in candidates.iter().filter(|_| any_calls) {
+        // The user function calls conditions need run first, so that every condition is judged against one
+        // snapshot.
+        for &(_, t) in candidates.iter().filter(|_| program.has_calls()) {
             let calls = program.calls(t);
             if calls.is_empty() || !program.sources(t).iter().all(|s| self.steps[s.index()].active) {
                 continue;
             }
             for call in calls {
-                if let CStmt::Fb { base, .. } = call {
-                    if self.fb_called[base.index()] == stamp + 1 {
-                        continue;
-                    }
-                    self.fb_called[base.index()] = stamp + 1;
-                }
                 if let Err(fault) = eval::run(std::slice::from_ref(call), self) {
                     self.push(EventKind::Fault(FaultSource::Transition(t), fault));
                 }
@@ -703,14 +692,6 @@ impl Engine {
         }
     }
 
-    fn duration_ms(&self, d: Option<DurationSrc>) -> i64 {
-        match d {
-            Some(DurationSrc::Ms(ms)) => ms,
-            Some(DurationSrc::Var(v)) => self.vars[v.index()].as_i64().max(0),
-            None => 0,
-        }
-    }
-
     fn demand(&mut self, a: ActionId) -> &mut Demand {
         let i = a.index();
         if self.demand_stamp[i] != self.cycle {
@@ -743,7 +724,7 @@ impl Engine {
             let elapsed = (self.now_ms - state.activated_ms) as i64;
             let just_activated = state.activated_cycle == self.cycle;
             for assoc in program.associations(s) {
-                let dur = self.duration_ms(assoc.duration);
+                let dur = eval::duration_ms(assoc.duration, self);
                 if just_activated {
                     self.touched[assoc.action.index()] = stamp;
                 }

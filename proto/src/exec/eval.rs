@@ -392,6 +392,15 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
     Ok(Flow::Next)
 }
 
+/// A qualifier's duration in milliseconds: a literal, or a TIME variable's value (a negative one as 0).
+pub fn duration_ms(d: Option<DurationSrc>, env: &impl Env) -> i64 {
+    match d {
+        Some(DurationSrc::Ms(ms)) => ms,
+        Some(DurationSrc::Var(v)) => env.var(v).as_i64().max(0),
+        None => 0,
+    }
+}
+
 /// One scan of a nested chart (see `NestedChart`).
 fn scan(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Result<(), Fault> {
     let now = env.now_ms();
@@ -452,11 +461,7 @@ fn scan(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Resul
                 continue;
             }
             let elapsed = now - env.var(step.since).as_i64();
-            let dur = match duration {
-                Some(DurationSrc::Ms(ms)) => ms,
-                Some(DurationSrc::Var(v)) => env.var(v).as_i64().max(0),
-                None => 0,
-            };
+            let dur = duration_ms(duration, env);
             match qualifier {
                 Qualifier::N => direct = true,
                 Qualifier::S => set = true,

@@ -60,7 +60,7 @@ pub struct Reads {
     pub vars: Vec<VarId>,
     /// It reads a step's `X` or an action's `Q`.
     pub steps_or_actions: bool,
-    /// It reads a step's `T`, or calls a block first (which reads the clock).
+    /// It reads a step's `T`, or calls a user function first (whose body may read the clock).
     pub step_time: bool,
 }
 
@@ -106,7 +106,7 @@ pub struct StepParts {
 /// A transition as `compile` hands it to `Program::assemble`.
 pub struct TransitionParts {
     pub info: TransitionInfo,
-    /// Block calls run before the condition is judged, once per cycle for each instance.
+    /// The user function calls the condition needs, run before it is judged.
     pub calls: Vec<CStmt>,
     pub sources: Vec<StepId>,
     pub targets: Vec<StepId>,
@@ -332,7 +332,7 @@ pub struct NestedStep {
 pub struct NestedTransition {
     pub sources: Vec<usize>,
     pub targets: Vec<usize>,
-    /// Block calls its wired condition needs, run before it is judged.
+    /// The user function calls the condition needs, run before it is judged.
     pub calls: Vec<CStmt>,
     pub condition: CExpr,
 }
@@ -513,7 +513,7 @@ impl Program {
             .iter()
             .map(|t| {
                 let mut reads = Reads::of(&t.info.condition);
-                // A block reads the clock: judged in cycles only, never in a reaction.
+                // A call may read the clock: judged in cycles only, never in a reaction.
                 reads.step_time |= !t.calls.is_empty();
                 reads
             })
@@ -560,7 +560,7 @@ impl Program {
         }
     }
 
-    /// Whether any transition's condition calls a block.
+    /// Whether any transition's condition calls a user function.
     pub fn has_calls(&self) -> bool {
         !self.calls.is_empty()
     }
