@@ -1,6 +1,7 @@
 //! `baton-agent`: runs chart segments dispatched by a Baton coordinator, with the built-in skills.
 
 use std::process::ExitCode;
+use std::sync::Arc;
 
 use baton_agent::{run, AgentConfig, Skills};
 use clap::Parser;
@@ -30,6 +31,16 @@ struct Args {
     /// A Zenoh configuration file (TLS, credentials…); Baton's own settings apply on top of it.
     #[arg(long, value_name = "FILE")]
     zenoh_config: Option<std::path::PathBuf>,
+    /// The ROS 2 domain the `ros2_*` skills speak on.
+    #[arg(long, env = "ROS_DOMAIN_ID", default_value_t = 0, value_name = "ID", value_parser = clap::value_parser!(u32).range(0..=232))]
+    ros_domain_id: u32,
+    /// A folder of ROS 2 interface definitions (<package>/msg/*.msg, srv/*.srv, action/*.action) for types the
+    /// agent does not know out of the box (repeatable); they win over the built-in ones of the same name.
+    #[arg(long = "ros-interfaces", value_name = "DIR")]
+    ros_interfaces: Vec<std::path::PathBuf>,
+    /// The ROS 2 distribution of the robots: jazzy, kilted (the same type hashes) or humble (none).
+    #[arg(long, default_value = "jazzy", value_name = "DISTRO")]
+    ros_distro: String,
 }
 
 fn main() -> ExitCode {
@@ -42,7 +53,20 @@ fn main() -> ExitCode {
         verbose: args.verbose,
         zenoh_config: args.zenoh_config,
     };
-    let skills = if args.allow_shell { Skills::builtin().with_shell() } else { Skills::builtin() };
+    let Some(distro) = baton_agent::ros2::Distro::parse(&args.ros_distro) else {
+        eprintln!("error: --ros-distro must be jazzy, kilted or humble, not `{}`", args.ros_distro);
+        return ExitCode::from(2);
+    };
+    let interfaces = match baton_agent::ros2::Interfaces::load(distro, &args.ros_interfaces) {
+        Ok(i) => Arc::new(i),
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let ros2 = Arc::new(baton_agent::ros2::Ros2::new(interfaces, args.ros_domain_id, &config.name));
+    let skills = Skills::builtin().with_ros2(ros2);
+    let skills = if args.allow_shell { skills.with_shell() } else { skills };
     let runtime = match tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build() {
         Ok(rt) => rt,
         Err(e) => {

@@ -15,15 +15,15 @@ use baton_proto::dist::wire::{self, AgentInfo, ChartHash, ChartSource, HeldToken
 use baton_proto::exec::program::{ActionId, Program};
 use baton_proto::front::check::check_source;
 use baton_proto::limits::{fence_after_ms, fence_check_ms, CHART_SOURCE_BYTES_MAX, RECEIVE_QUEUE_MAX};
-use tokio::sync::mpsc;
-use tokio::task::AbortHandle;
+use tokio::sync::{mpsc, watch};
 use zenoh::handlers::FifoChannel;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::sample::Sample;
 use zenoh::Session;
 
-use crate::skill::{SkillCall, Skills};
+use crate::skill::{SkillCall, SkillContext, SkillFuture, Skills, STOP_WAIT_MAX};
+use baton_proto::exec::types::Value;
 
 /// Runs an agent takes part in at once; the oldest idle run is forgotten to make room.
 const RUNS_MAX: usize = 64;
@@ -77,7 +77,17 @@ enum Event {
     Chart(RunId, Result<Fetched, String>),
     /// The watch on the router: `Some(silent_ms)` when it was silent for `fence_after_ms`, `None` when it is back.
     Contact(Option<u64>),
-    Skill(RunId, ActionId, Result<(), String>),
+    /// A skill's future ended (the number tells this start of it from a later one).
+    Skill(RunId, ActionId, u64, Result<(), String>),
+    /// A running skill wrote a part of its answer: mapping index, value.
+    SkillOutput(RunId, ActionId, u64, usize, Value),
+}
+
+/// A skill started and not yet ended.
+struct RunningSkill {
+    serial: u64,
+    stops_itself: bool,
+    stop: watch::Sender<bool>,
 }
 
 struct Run {
@@ -92,13 +102,57 @@ struct Shell {
     started: Instant,
     runs: HashMap<RunId, Run>,
     pending: HashMap<RunId, VecDeque<(ChartHash, Dispatch)>>,
-    running: HashMap<(RunId, ActionId), AbortHandle>,
+    running: HashMap<(RunId, ActionId), RunningSkill>,
+    /// Skills told to stop that end by themselves (a goal being cancelled), by serial.
+    stopping: HashMap<u64, (RunId, ActionId)>,
+    skill_serial: u64,
     events: mpsc::UnboundedSender<Event>,
     /// One publisher per key, declared on first use.
     publishers: HashMap<String, Publisher<'static>>,
     dropped: u64,
     /// This process, as the coordinator tells it from a restarted one of the same name.
     incarnation: uuid::Uuid,
+}
+
+enum SkillEvent {
+    Output(usize, Value),
+    Ended(Result<(), String>),
+}
+
+/// Runs one start of a skill: passes on its writes, in order and before its end, and stops it when its action
+/// ends — by dropping it, or, for a skill that stops itself, by waiting (at most `STOP_WAIT_MAX`) for it to end.
+async fn drive_skill(
+    mut future: SkillFuture,
+    ctx: SkillContext,
+    mut written: mpsc::UnboundedReceiver<(usize, Value)>,
+    stops_itself: bool,
+    send: impl Fn(SkillEvent),
+) {
+    let stop = async {
+        ctx.stopped().await;
+        if stops_itself {
+            tokio::time::sleep(STOP_WAIT_MAX).await;
+        }
+    };
+    tokio::pin!(stop);
+    loop {
+        tokio::select! {
+            biased;
+            Some((i, v)) = written.recv() => send(SkillEvent::Output(i, v)),
+            result = &mut future => {
+                while let Ok((i, v)) = written.try_recv() {
+                    send(SkillEvent::Output(i, v));
+                }
+                return send(SkillEvent::Ended(result));
+            }
+            () = &mut stop => {
+                if stops_itself {
+                    send(SkillEvent::Ended(Err(format!("it did not end within {} s of being told to stop, and was dropped", STOP_WAIT_MAX.as_secs()))));
+                }
+                return;
+            }
+        }
+    }
 }
 
 /// Runs the agent until interrupted (Ctrl-C or SIGTERM).
@@ -162,6 +216,8 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
         runs: HashMap::new(),
         pending: HashMap::new(),
         running: HashMap::new(),
+        stopping: HashMap::new(),
+        skill_serial: 0,
         events: tx,
         publishers: HashMap::new(),
         dropped: 0,
@@ -357,10 +413,23 @@ impl Shell {
                     r.state.handle_contact(now, lost);
                 }
             }
-            Event::Skill(run, action, result) => {
-                self.running.remove(&(run, action));
-                if let Some(r) = self.runs.get_mut(&run) {
-                    r.state.handle_skill_result(now, action, result);
+            Event::Skill(run, action, serial, result) => {
+                if self.running.get(&(run, action)).is_some_and(|r| r.serial == serial) {
+                    self.running.remove(&(run, action));
+                    if let Some(r) = self.runs.get_mut(&run) {
+                        r.state.handle_skill_result(now, action, result);
+                    }
+                } else if let Some((run, action)) = self.stopping.remove(&serial) {
+                    if let Some(r) = self.runs.get_mut(&run) {
+                        r.state.handle_skill_stopped(action, result.map(|()| "it confirmed the stop".to_string()));
+                    }
+                }
+            }
+            Event::SkillOutput(run, action, serial, output, value) => {
+                if self.running.get(&(run, action)).is_some_and(|r| r.serial == serial) {
+                    if let Some(r) = self.runs.get_mut(&run) {
+                        r.state.handle_skill_output(now, action, output, value);
+                    }
                 }
             }
         }
@@ -415,28 +484,44 @@ impl Shell {
             AgentOutput::Vars(update) => self.put(keys::vars(run, &self.config.name), wire::encode(&update)).await,
             AgentOutput::StartSkill { action, name, binding } => {
                 let tx = self.events.clone();
-                let Some(skill) = self.skills.get(&binding.skill) else {
+                self.skill_serial += 1;
+                let serial = self.skill_serial;
+                let (ctx, written, stop) = SkillContext::new();
+                let skill = self.skills.get(&binding.skill);
+                let stops_itself = skill.as_ref().is_some_and(|s| s.stops_itself());
+                if let Some(old) = self.running.insert((run, action), RunningSkill { serial, stops_itself, stop }) {
+                    self.stop_skill(run, action, old);
+                }
+                let Some(skill) = skill else {
                     let why = format!(
                         "agent `{}` has no skill `{}` (it has: {})",
                         self.config.name,
                         binding.skill,
                         self.skills.names().join(", ")
                     );
-                    let _ = tx.send(Event::Skill(run, action, Err(why)));
+                    let _ = tx.send(Event::Skill(run, action, serial, Err(why)));
                     return;
                 };
-                let call = SkillCall { agent: self.config.name.clone(), action: name, params: binding.params };
-                let task = tokio::spawn(async move {
-                    let result = skill.start(call).await;
-                    let _ = tx.send(Event::Skill(run, action, result));
-                });
-                if let Some(old) = self.running.insert((run, action), task.abort_handle()) {
-                    old.abort();
-                }
+                let call = SkillCall {
+                    agent: self.config.name.clone(),
+                    action: name,
+                    params: binding.params,
+                    outputs: binding.outputs.into_iter().map(|o| (o.key, o.path)).collect(),
+                    session: self.session.clone(),
+                    ctx: ctx.clone(),
+                };
+                tokio::spawn(drive_skill(skill.start(call), ctx, written, stops_itself, move |e| match e {
+                    SkillEvent::Output(i, v) => {
+                        let _ = tx.send(Event::SkillOutput(run, action, serial, i, v));
+                    }
+                    SkillEvent::Ended(result) => {
+                        let _ = tx.send(Event::Skill(run, action, serial, result));
+                    }
+                }));
             }
             AgentOutput::StopSkill { action } => {
-                if let Some(task) = self.running.remove(&(run, action)) {
-                    task.abort();
+                if let Some(old) = self.running.remove(&(run, action)) {
+                    self.stop_skill(run, action, old);
                 }
             }
             AgentOutput::Log { level, message } => {
@@ -449,6 +534,14 @@ impl Shell {
                     eprintln!("{tag}: {message}");
                 }
             }
+        }
+    }
+
+    /// Tells a skill its action ended: one that stops itself is remembered until it says how it went.
+    fn stop_skill(&mut self, run: RunId, action: ActionId, skill: RunningSkill) {
+        let _ = skill.stop.send(true);
+        if skill.stops_itself {
+            self.stopping.insert(skill.serial, (run, action));
         }
     }
 

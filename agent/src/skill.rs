@@ -2,12 +2,16 @@
 //!
 //! A chart binds an action to a skill with a pragma, `ACTION Pick: {skill := 'motion', ms := 800} END_ACTION`.
 //! When the action's Q rises on the agent, the agent starts the skill with the pragma's other keys as
-//! parameters; when Q falls before the skill finished, the skill's future is dropped, which cancels it. The
-//! result reaches the chart through the association's indicator variables: `Pick(N, done, fault)` sets `done`
-//! when the skill succeeds and `fault` when it fails (both are reset when the skill starts).
+//! parameters; when Q falls before the skill finished, the skill is stopped: its future is dropped, or, for a
+//! skill that `stops_itself` (a ROS 2 goal must be cancelled on the server), it is told through
+//! `SkillContext::stopped` and ends on its own. The result reaches the chart through the association's
+//! indicator variables: `Pick(N, done, fault)` sets `done` when the skill succeeds and `fault` when it fails
+//! (both are reset when the skill starts); parts of the answer reach chart variables through the binding's
+//! mappings (`result := 'sequence[4] => last'`), written with `SkillContext::write`.
 //!
 //! Users who embed the agent in their own robot program implement `Skill` and register it with
-//! `Skills::with`; `baton-agent` ships `motion` (a simulated motion) and `shell` (a command, opt-in).
+//! `Skills::with`; `baton-agent` ships `motion` (a simulated motion), `ros2_action` and `ros2_service` (see
+//! `crate::ros2`), and `shell` (a command, opt-in).
 
 use std::collections::{BTreeMap, HashMap};
 use std::future::Future;
@@ -16,6 +20,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use baton_proto::dist::layout::Param;
+use baton_proto::exec::types::Value;
+use baton_proto::front::literal::FieldPath;
+use tokio::sync::{mpsc, watch};
 
 /// One start of a skill.
 #[derive(Clone, Debug)]
@@ -26,6 +33,56 @@ pub struct SkillCall {
     pub action: String,
     /// The binding pragma's keys other than `skill`, lowercased.
     pub params: BTreeMap<String, Param>,
+    /// The binding's mappings, by index: which parameter maps it (`result`, `feedback`…) and the part of the
+    /// answer it takes. Write a part with `ctx.write(index, value)`.
+    pub outputs: Vec<(String, FieldPath)>,
+    /// The agent's Zenoh session, through which skills reach devices that speak Zenoh (ROS 2 over rmw_zenoh).
+    pub session: zenoh::Session,
+    pub ctx: SkillContext,
+}
+
+/// A running skill's line to the agent: where it writes parts of its answer, and how it hears that its action
+/// ended.
+#[derive(Clone, Debug)]
+pub struct SkillContext {
+    writes: mpsc::UnboundedSender<(usize, Value)>,
+    stop: watch::Receiver<bool>,
+}
+
+impl SkillContext {
+    /// A context and the agent's ends of it: the writes it receives, and the switch that stops the skill.
+    pub fn new() -> (SkillContext, mpsc::UnboundedReceiver<(usize, Value)>, watch::Sender<bool>) {
+        let (writes, written) = mpsc::unbounded_channel();
+        let (stop_tx, stop) = watch::channel(false);
+        (SkillContext { writes, stop }, written, stop_tx)
+    }
+
+    /// Writes a part of the answer to the variable that mapping `output` names (converted to its type). Writes
+    /// made before the future ends are applied before its result.
+    pub fn write(&self, output: usize, value: Value) {
+        let _ = self.writes.send((output, value));
+    }
+
+    /// Whether the action's Q fell.
+    pub fn is_stopped(&self) -> bool {
+        *self.stop.borrow()
+    }
+
+    /// Completes when the action's Q falls (never, if it does not).
+    pub async fn stopped(&self) {
+        let mut stop = self.stop.clone();
+        if stop.wait_for(|s| *s).await.is_err() {
+            std::future::pending::<()>().await;
+        }
+    }
+}
+
+/// The mappings of one parameter (`result`, `feedback`…): each output's index and path.
+pub fn outputs_of<'a>(
+    outputs: &'a [(String, FieldPath)],
+    key: &'a str,
+) -> impl Iterator<Item = (usize, &'a FieldPath)> + 'a {
+    outputs.iter().enumerate().filter(move |(_, (k, _))| k == key).map(|(i, (_, p))| (i, p))
 }
 
 impl SkillCall {
@@ -42,9 +99,20 @@ impl SkillCall {
 pub type SkillFuture = Pin<Box<dyn Future<Output = Result<(), String>> + Send>>;
 
 pub trait Skill: Send + Sync {
-    /// Starts the skill. Dropping the future cancels it.
+    /// Starts the skill. Unless `stops_itself`, dropping the future cancels it.
     fn start(&self, call: SkillCall) -> SkillFuture;
+
+    /// Whether the skill, told that its action ended (`SkillContext::stopped`), ends by itself — after
+    /// cancelling a goal on its server, say — rather than being dropped. Its future's result then says whether
+    /// the stop went well; the agent logs it (the chart has moved on). The agent drops it anyway after
+    /// `STOP_WAIT_MAX`.
+    fn stops_itself(&self) -> bool {
+        false
+    }
 }
+
+/// How long the agent waits for a skill that stops itself before it drops it.
+pub const STOP_WAIT_MAX: Duration = Duration::from_secs(30);
 
 /// The skills an agent offers, by name.
 #[derive(Clone, Default)]
@@ -60,6 +128,12 @@ impl Skills {
 
     pub fn with_shell(self) -> Skills {
         self.with("shell", ShellCommand)
+    }
+
+    /// `ros2_action` and `ros2_service`, speaking rmw_zenoh over the agent's session.
+    pub fn with_ros2(self, ros2: Arc<crate::ros2::Ros2>) -> Skills {
+        self.with("ros2_action", crate::ros2::skills::Ros2Action { ros2: Arc::clone(&ros2) })
+            .with("ros2_service", crate::ros2::skills::Ros2Service { ros2 })
     }
 
     pub fn with(mut self, name: &str, skill: impl Skill + 'static) -> Skills {
@@ -135,30 +209,42 @@ impl Skill for ShellCommand {
 mod tests {
     use super::*;
 
-    fn call(params: &[(&str, Param)]) -> SkillCall {
+    /// A session on nothing: no scouting, no listener, no router.
+    pub(crate) async fn lone_session() -> zenoh::Session {
+        let mut config = zenoh::Config::default();
+        for (k, v) in [("scouting/multicast/enabled", "false"), ("listen/endpoints", "[]"), ("connect/endpoints", "[]")]
+        {
+            config.insert_json5(k, v).expect("config");
+        }
+        zenoh::open(config).await.expect("a lone session")
+    }
+
+    async fn call(params: &[(&str, Param)]) -> SkillCall {
         SkillCall {
             agent: "a".into(),
             action: "Act".into(),
             params: params.iter().map(|(k, v)| (k.to_string(), v.clone())).collect(),
+            outputs: Vec::new(),
+            session: lone_session().await,
+            ctx: SkillContext::new().0,
         }
     }
 
-    #[tokio::test]
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
     async fn motion_succeeds_or_faults_as_configured() {
-        use baton_proto::exec::types::Value;
-        let ok = SimulatedMotion.start(call(&[("ms", Param::Value(Value::Int(1)))])).await;
+        let ok = SimulatedMotion.start(call(&[("ms", Param::Value(Value::Int(1)))]).await).await;
         assert_eq!(ok, Ok(()));
         let bad = SimulatedMotion
-            .start(call(&[("ms", Param::Value(Value::Int(0))), ("fault_rate", Param::Value(Value::Real(1.0)))]))
+            .start(call(&[("ms", Param::Value(Value::Int(0))), ("fault_rate", Param::Value(Value::Real(1.0)))]).await)
             .await;
         assert!(bad.unwrap_err().contains("simulated fault"));
     }
 
-    #[tokio::test]
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
     async fn shell_reports_the_exit_status() {
-        assert_eq!(ShellCommand.start(call(&[("cmd", Param::Str("true".into()))])).await, Ok(()));
-        let err = ShellCommand.start(call(&[("cmd", Param::Str("exit 3".into()))])).await.unwrap_err();
+        assert_eq!(ShellCommand.start(call(&[("cmd", Param::Str("true".into()))]).await).await, Ok(()));
+        let err = ShellCommand.start(call(&[("cmd", Param::Str("exit 3".into()))]).await).await.unwrap_err();
         assert!(err.contains("exit status: 3"), "{err}");
-        assert!(ShellCommand.start(call(&[])).await.unwrap_err().contains("needs `cmd"));
+        assert!(ShellCommand.start(call(&[]).await).await.unwrap_err().contains("needs `cmd"));
     }
 }

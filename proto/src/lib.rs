@@ -12,6 +12,7 @@ pub mod front {
     pub mod check;
     pub mod diag;
     pub mod lexer;
+    pub mod literal;
     pub mod model;
     pub mod parser;
     pub mod plcopen;

@@ -28,6 +28,10 @@ pub const STRING_LENGTH_DEFAULT: usize = 80;
 pub const STRING_LENGTH_MAX: usize = 4096;
 pub const STRING_CHARS_MAX: usize = 64 * 1024;
 
+/// Elements of one structured literal in a skill parameter (a goal, a request, a method's arguments), and
+/// mappings of one result: a goal is a message, not a data set.
+pub const LITERAL_ELEMENTS_MAX: usize = 65_536;
+
 /// Steps in one chart (and, separately, transitions and actions).
 pub const CHART_ELEMENTS_MAX: usize = 4_000_000;
 

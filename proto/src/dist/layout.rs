@@ -17,6 +17,7 @@ use crate::exec::engine::{Scope, TransitionScope};
 use crate::exec::program::{walk_body, ActionId, CExpr, CStmt, Program, StepId, TransitionId, VarId};
 use crate::exec::types::Value;
 use crate::front::diag::{Diagnostic, Span};
+use crate::front::literal::FieldPath;
 use crate::front::model::{Chart, Pragma};
 
 #[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -83,8 +84,30 @@ impl Param {
 #[derive(Clone, Debug, PartialEq)]
 pub struct SkillBinding {
     pub skill: String,
+    /// The pragma's keys other than `skill`, lowercased (mappings included, as written).
     pub params: BTreeMap<String, Param>,
+    /// Where the parts of the skill's answer go: `result := 'sequence[4] => last'` and the like (see
+    /// `OUTPUT_KEYS`). These variables are written by the agent that runs the action, and by nothing else.
+    pub outputs: Vec<SkillOutput>,
 }
+
+/// One part of a skill's answer written to a chart variable.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SkillOutput {
+    /// The parameter that maps it: `result`, `feedback`, `response` or `outputs`.
+    pub key: String,
+    /// The part of the answer: `sequence[4]`.
+    pub path: FieldPath,
+    pub var: VarId,
+}
+
+/// The skill parameters that map parts of a skill's answer to variables, as `'path => variable, …'`: the
+/// result of a ROS 2 action and its latest feedback, the response of a service, the output arguments of an
+/// OPC UA method.
+pub const OUTPUT_KEYS: [&str; 4] = ["result", "feedback", "response", "outputs"];
+
+/// The skill parameters that hold a structured literal (a goal, a request, arguments): read at check time.
+pub const LITERAL_KEYS: [&str; 3] = ["goal", "request", "args"];
 
 #[derive(Clone, Debug)]
 pub struct Layout {
@@ -197,7 +220,7 @@ pub fn layout(chart: &Chart, program: &Program, diags: &mut Vec<Diagnostic>) -> 
         _ => Placement::Coordinator,
     };
     let transition_placement: Vec<Placement> = (0..program.transitions.len()).map(judged_at).collect();
-    let (writer, settable) = writers(chart, program, &action_placement, &transition_placement, diags);
+    let (writer, settable) = writers(chart, program, &action_placement, &transition_placement, &skills, diags);
     check_remote_reads(chart, program, &placement, &segment_of, &action_placement, diags);
     let read_by_agents = read_by_agents(program, &segment_of, &action_placement);
     Layout { placement, segment_of, segments, waiting, writer, settable, skills, action_placement, read_by_agents }
@@ -415,10 +438,66 @@ fn skill_bindings(
                     action.name
                 )));
             }
-            let params = pairs.into_iter().filter(|(k, _)| k != "skill").collect();
-            binding = Some(SkillBinding { skill, params });
+            let params: BTreeMap<String, Param> = pairs.into_iter().filter(|(k, _)| k != "skill").collect();
+            let outputs = skill_outputs(program, &params, pragma.span, diags);
+            binding = Some(SkillBinding { skill, params, outputs });
         }
         out.push(binding);
+    }
+    out
+}
+
+/// Reads a binding's structured parameters and its output mappings, reporting what cannot be read.
+fn skill_outputs(
+    program: &Program,
+    params: &BTreeMap<String, Param>,
+    span: Span,
+    diags: &mut Vec<Diagnostic>,
+) -> Vec<SkillOutput> {
+    for key in LITERAL_KEYS {
+        match params.get(key) {
+            Some(Param::Str(text)) => {
+                if let Err(why) = crate::front::literal::parse(text) {
+                    diags.push(Diagnostic::error(span, format!("`{key}` cannot be read: {why}")));
+                }
+            }
+            Some(Param::Value(_)) => diags.push(Diagnostic::error(
+                span,
+                format!("`{key}` is written as a quoted literal, such as '(order := 5)' or '[3, 4]'"),
+            )),
+            None => {}
+        }
+    }
+    let mut out = Vec::new();
+    for key in OUTPUT_KEYS {
+        let Some(param) = params.get(key) else { continue };
+        let Some(text) = param.as_str() else {
+            diags.push(Diagnostic::error(
+                span,
+                format!("`{key}` maps parts of the answer to variables: write it as '<part> => <variable>, …'"),
+            ));
+            continue;
+        };
+        let mapping = match crate::front::literal::parse_mapping(text) {
+            Ok(m) => m,
+            Err(why) => {
+                diags.push(Diagnostic::error(span, format!("`{key}` cannot be read: {why}")));
+                continue;
+            }
+        };
+        for (path, name) in mapping {
+            let found = program.vars.iter().position(|v| !v.hidden && v.name.eq_ignore_ascii_case(&name));
+            match found {
+                None => diags.push(Diagnostic::error(
+                    span,
+                    format!("`{key}` writes `{name}`, which is not a variable of the chart"),
+                )),
+                Some(i) if program.vars[i].constant => {
+                    diags.push(Diagnostic::error(span, format!("`{key}` writes `{name}`, which is a constant")))
+                }
+                Some(i) => out.push(SkillOutput { key: key.to_string(), path, var: VarId(i as u32) }),
+            }
+        }
     }
     out
 }
@@ -446,6 +525,7 @@ fn writers(
     program: &Program,
     action_placement: &[Placement],
     transition_placement: &[Placement],
+    skills: &[Option<SkillBinding>],
     diags: &mut Vec<Diagnostic>,
 ) -> (Vec<Placement>, Vec<bool>) {
     let n = program.vars.len();
@@ -476,6 +556,15 @@ fn writers(
         assigned(calls, &mut vars);
         for v in vars {
             note(v, place, format!("the function calls of transition `{}`", t.name));
+        }
+    }
+    for (i, binding) in skills.iter().enumerate() {
+        for out in binding.iter().flat_map(|b| &b.outputs) {
+            note(
+                out.var,
+                &action_placement[i],
+                format!("the `{}` of skill action `{}`", out.key, program.actions[i].name),
+            );
         }
     }
     for s in 0..program.steps.len() {

@@ -515,6 +515,43 @@ impl AgentRun {
         self.settle();
     }
 
+    /// A part of a running skill's answer (a feedback, the result before it is reported done): the value goes to
+    /// the variable its binding's `outputs[output]` names, converted to the variable's type as `*_TO_*` does.
+    /// A skill that no longer runs writes nothing: its action's Q fell, and the chart has moved on.
+    pub fn handle_skill_output(&mut self, now_ms: u64, action: ActionId, output: usize, value: Value) {
+        self.catch_up(now_ms);
+        if !self.running_skills.contains(&action) {
+            return;
+        }
+        let Some(var) = self.layout.skills[action.index()].as_ref().and_then(|b| b.outputs.get(output)).map(|o| o.var)
+        else {
+            return;
+        };
+        let ty = self.program.vars[var.index()].ty.clone();
+        // Text stays text (`convert` would read it as a literal); anything else converts as `*_TO_*` does.
+        let value = match (&value, &ty) {
+            (Value::Str(_), crate::exec::types::Type::Str { .. }) => value,
+            _ => crate::exec::stdlib::convert(value, &ty),
+        };
+        if let Err(e) = self.engine.handle(Input::Set(var, value)) {
+            let message = format!("skill of action `{}`: {e}", self.program.actions[action.index()].name);
+            self.log(Level::Warn, message);
+        }
+        self.settle();
+    }
+
+    /// A skill stopped because its action's Q fell has ended its own way (a ROS 2 goal cancelled, a cancel
+    /// method called): said in the log, since the chart no longer waits for it.
+    /// `result` says how: `Ok` with what the device answered, or `Err` with why the stop failed.
+    pub fn handle_skill_stopped(&mut self, action: ActionId, result: Result<String, String>) {
+        let name = &self.program.actions[action.index()].name;
+        let (level, message) = match result {
+            Ok(how) => (Level::Info, format!("skill of action `{name}` stopped: {how}")),
+            Err(why) => (Level::Warn, format!("skill of action `{name}` did not stop cleanly: {why}")),
+        };
+        self.log(level, message);
+    }
+
     /// Sets the indicators of `action`'s associations on the active steps: the first to `done`, the second
     /// to `fault` (where given).
     fn set_indicators(&mut self, action: ActionId, done: Option<bool>, fault: Option<bool>) {

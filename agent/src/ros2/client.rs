@@ -1,0 +1,187 @@
+//! A ROS 2 node over the agent's Zenoh session, speaking rmw_zenoh: it announces itself in the ROS graph, waits
+//! for a server's liveliness token, calls services (a query with the CDR request and the attachment), and
+//! subscribes to topics. A ROS 2 action is built from these, as rmw_zenoh builds it: three services and a
+//! feedback topic (see `skills`).
+
+use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tokio::sync::Mutex;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::query::{ConsolidationMode, QueryTarget};
+use zenoh::sample::SampleKind;
+use zenoh::Session;
+
+use super::interfaces::{Interfaces, ServiceType, WireType};
+use super::keys::{self, Kind, NodeId};
+
+/// A call whose server takes this long to answer is given up: a service answers at once, and an action's
+/// result is waited for through its own step time in the chart. (rmw_zenoh waits for ever.)
+const CALL_TIMEOUT_MAX: Duration = Duration::from_secs(7 * 24 * 3600);
+
+/// The agent's ROS 2 side: its interface types, its domain, and its node (made on first use).
+pub struct Ros2 {
+    pub lib: Arc<Interfaces>,
+    pub domain: u32,
+    node_name: String,
+    node: Mutex<Option<Arc<Node>>>,
+}
+
+impl Ros2 {
+    pub fn new(lib: Arc<Interfaces>, domain: u32, agent: &str) -> Ros2 {
+        Ros2 { lib, domain, node_name: format!("baton_{}", agent.replace('-', "_")), node: Mutex::new(None) }
+    }
+
+    /// The agent's node on `session`, announced in the ROS graph the first time it is needed.
+    pub async fn node(&self, session: &Session) -> Result<Arc<Node>, String> {
+        let mut slot = self.node.lock().await;
+        if let Some(n) = slot.as_ref().filter(|n| n.session.zid() == session.zid()) {
+            return Ok(Arc::clone(n));
+        }
+        let zid = session.zid().to_string();
+        let id = NodeId {
+            domain: self.domain,
+            zid: zid.clone(),
+            id: 0,
+            namespace: "/".into(),
+            name: self.node_name.clone(),
+        };
+        let token = session
+            .liveliness()
+            .declare_token(id.token())
+            .await
+            .map_err(|e| format!("cannot announce the ROS 2 node: {e}"))?;
+        let node = Arc::new(Node {
+            session: session.clone(),
+            id,
+            next_entity: AtomicU32::new(1),
+            next_sequence: AtomicI64::new(1),
+            _token: token,
+        });
+        *slot = Some(Arc::clone(&node));
+        Ok(node)
+    }
+}
+
+pub struct Node {
+    session: Session,
+    id: NodeId,
+    next_entity: AtomicU32,
+    next_sequence: AtomicI64,
+    _token: LivelinessToken,
+}
+
+/// An endpoint of the node (a client, a subscription), announced while it lives.
+pub struct Endpoint {
+    pub gid: [u8; 16],
+    _token: LivelinessToken,
+}
+
+impl Node {
+    pub fn domain(&self) -> u32 {
+        self.id.domain
+    }
+
+    pub fn session(&self) -> &Session {
+        &self.session
+    }
+
+    /// Declares an endpoint's liveliness token, so that `ros2 node info` and the like see it.
+    pub async fn endpoint(&self, kind: Kind, name: &str, wire: &WireType, qos: &str) -> Result<Endpoint, String> {
+        let entity = self.next_entity.fetch_add(1, Ordering::Relaxed);
+        let key = self.id.endpoint_token(entity, kind, name, wire, qos);
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(key)
+            .await
+            .map_err(|e| format!("cannot announce the ROS 2 endpoint for {name}: {e}"))?;
+        // A GID unique to this endpoint: the session's id with the entity's number.
+        let mut gid = [0u8; 16];
+        let zid = self.session.zid().to_le_bytes();
+        gid[..zid.len().min(12)].copy_from_slice(&zid[..zid.len().min(12)]);
+        gid[12..].copy_from_slice(&entity.to_le_bytes());
+        Ok(Endpoint { gid, _token: token })
+    }
+
+    /// Waits until a server of `kind` for `name` with type `wire` is in the graph, until `deadline`. A server of
+    /// another type is named in the error: it would never answer.
+    pub async fn wait_for(&self, kind: Kind, name: &str, wire: &WireType, deadline: Instant) -> Result<(), String> {
+        let pattern = keys::servers(self.id.domain, kind, name);
+        let sub = self
+            .session
+            .liveliness()
+            .declare_subscriber(pattern)
+            .history(true)
+            .await
+            .map_err(|e| format!("cannot watch the ROS graph: {e}"))?;
+        let mut other: Option<WireType> = None;
+        let what = match kind {
+            Kind::Publisher => "publisher",
+            _ => "server",
+        };
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let sample = match tokio::time::timeout(left, sub.recv_async()).await {
+                Ok(Ok(s)) => s,
+                Ok(Err(_)) => return Err("the Zenoh session closed".to_string()),
+                Err(_) => {
+                    let waited = "within the timeout";
+                    return Err(match other {
+                        Some(t) => format!(
+                            "the {what} of {name} on ROS domain {} has type {} ({}), not {} ({}): the two sides were built from different definitions or ROS 2 distributions",
+                            self.id.domain, t.dds_name, t.hash, wire.dds_name, wire.hash
+                        ),
+                        None => format!("no {what} of {name} appeared on ROS domain {} {waited}", self.id.domain),
+                    });
+                }
+            };
+            if sample.kind() != SampleKind::Put {
+                continue;
+            }
+            match keys::announced_type(sample.key_expr().as_str()) {
+                Some(t) if &t == wire => return Ok(()),
+                Some(t) => other = Some(t),
+                None => {}
+            }
+        }
+    }
+
+    /// Calls a service: the request's CDR bytes in, the response's out. `timeout` bounds the wait for the answer.
+    pub async fn call(
+        &self,
+        name: &str,
+        service: &ServiceType,
+        client: &Endpoint,
+        request: Vec<u8>,
+        timeout: Option<Duration>,
+    ) -> Result<Vec<u8>, String> {
+        let key = keys::data(self.id.domain, name, &service.wire);
+        let sequence = self.next_sequence.fetch_add(1, Ordering::Relaxed);
+        let now_ns =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as i64);
+        let replies = self
+            .session
+            .get(key)
+            .payload(request)
+            .attachment(keys::attachment(sequence, now_ns, &client.gid))
+            .target(QueryTarget::AllComplete)
+            .consolidation(ConsolidationMode::None)
+            .timeout(timeout.unwrap_or(CALL_TIMEOUT_MAX).min(CALL_TIMEOUT_MAX))
+            .await
+            .map_err(|e| format!("cannot call {name}: {e}"))?;
+        match replies.recv_async().await {
+            Ok(reply) => match reply.result() {
+                Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
+                Err(e) => {
+                    Err(format!("{name} answered with an error: {}", String::from_utf8_lossy(&e.payload().to_bytes())))
+                }
+            },
+            Err(_) => Err(match timeout {
+                Some(t) => format!("{name} did not answer within {} ms (or its server went away)", t.as_millis()),
+                None => format!("the server of {name} went away before it answered"),
+            }),
+        }
+    }
+}

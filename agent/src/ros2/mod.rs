@@ -1,0 +1,13 @@
+//! ROS 2 for the agent, over rmw_zenoh on its own Zenoh session: no ROS installation, no generated code. The
+//! interface types come from definition files (`interfaces`), messages are CDR built from them (`cdr`), the
+//! protocol is rmw_zenoh's key expressions, liveliness tokens and queries (`keys`, `client`), and the skills
+//! `ros2_service` and `ros2_action` drive servers with it (`skills`).
+
+pub mod cdr;
+pub mod client;
+pub mod interfaces;
+pub mod keys;
+pub mod skills;
+
+pub use client::Ros2;
+pub use interfaces::{Distro, Interfaces};
