@@ -106,8 +106,17 @@ impl Node {
     }
 
     /// Waits until a server of `kind` for `name` with type `wire` is in the graph, until `deadline`. A server of
-    /// another type is named in the error: it would never answer.
-    pub async fn wait_for(&self, kind: Kind, name: &str, wire: &WireType, deadline: Instant) -> Result<(), String> {
+    /// another type is named in the error: it would never answer. With `any_hash`, a server of the same type
+    /// name whose hash differs is taken, and its type returned: for standard types whose definition cannot
+    /// differ, where implementations disagree on the hash.
+    pub async fn wait_for(
+        &self,
+        kind: Kind,
+        name: &str,
+        wire: &WireType,
+        any_hash: bool,
+        deadline: Instant,
+    ) -> Result<WireType, String> {
         let pattern = keys::servers(self.id.domain, kind, name);
         let sub = self
             .session
@@ -141,7 +150,8 @@ impl Node {
                 continue;
             }
             match keys::announced_type(sample.key_expr().as_str()) {
-                Some(t) if &t == wire => return Ok(()),
+                Some(t) if &t == wire => return Ok(t),
+                Some(t) if any_hash && t.dds_name == wire.dds_name => return Ok(t),
                 Some(t) => other = Some(t),
                 None => {}
             }

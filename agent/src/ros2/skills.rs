@@ -84,7 +84,7 @@ impl Skill for Ros2Service {
             let deadline = Instant::now() + p.timeout;
             let node = ros2.node(&call.session).await?;
             let client = node.endpoint(Kind::Client, &p.name, &service.wire, keys::SERVICE_QOS).await?;
-            node.wait_for(Kind::Service, &p.name, &service.wire, deadline).await?;
+            node.wait_for(Kind::Service, &p.name, &service.wire, false, deadline).await?;
             let left = deadline.saturating_duration_since(Instant::now());
             let bytes = node.call(&p.name, &service, &client, request, Some(left)).await?;
             let response = cdr::decode(&ros2.lib, &service.response, &bytes).map_err(|e| format!("{}: {e}", p.name))?;
@@ -174,7 +174,11 @@ async fn run_action(ros2: &Ros2, call: &SkillCall) -> Result<(), String> {
         .declare_subscriber(keys::data(node.domain(), &feedback, feedback_wire))
         .await
         .map_err(|e| format!("cannot subscribe to {feedback}: {e}"))?;
-    node.wait_for(Kind::Service, &send_goal, &action.send_goal.wire, deadline).await?;
+    node.wait_for(Kind::Service, &send_goal, &action.send_goal.wire, false, deadline).await?;
+    // CancelGoal is action_msgs' own, the same for every action, yet implementations hash it differently
+    // (hiroz 0.2.1 leaves `goals_canceling` out): cancel on the key the server announces.
+    let mut cancel_service = action.cancel_goal.clone();
+    cancel_service.wire = node.wait_for(Kind::Service, &cancel_goal, &action.cancel_goal.wire, true, deadline).await?;
     let left = deadline.saturating_duration_since(Instant::now());
     let bytes = node.call(&send_goal, &action.send_goal, &goal_client, request, Some(left)).await?;
     let accepted = cdr::decode(lib, &action.send_goal.response, &bytes).map_err(|e| format!("{send_goal}: {e}"))?;
@@ -202,7 +206,7 @@ async fn run_action(ros2: &Ros2, call: &SkillCall) -> Result<(), String> {
                 };
             }
             () = &mut stopped => {
-                return cancel(lib, &node, &action, &cancel_goal, &cancel_client, &uuid, p.timeout, &mut result).await;
+                return cancel(lib, &node, &cancel_service, &cancel_goal, &cancel_client, &uuid, p.timeout, &mut result).await;
             }
             sample = feedback_sub.recv_async() => {
                 let Ok(sample) = sample else { continue };
@@ -224,7 +228,7 @@ async fn run_action(ros2: &Ros2, call: &SkillCall) -> Result<(), String> {
 async fn cancel(
     lib: &super::interfaces::Interfaces,
     node: &Node,
-    action: &super::interfaces::ActionType,
+    service: &super::interfaces::ServiceType,
     cancel_goal: &str,
     client: &super::client::Endpoint,
     uuid: &[u8; 16],
@@ -232,9 +236,9 @@ async fn cancel(
     result: &mut (impl std::future::Future<Output = Result<Vec<u8>, String>> + Unpin),
 ) -> Result<(), String> {
     let info = Literal::Struct(vec![("goal_id".into(), goal_id(uuid))]);
-    let request = cdr::encode_with(lib, &action.cancel_goal.request, vec![("goal_info", info)])?;
-    let bytes = node.call(cancel_goal, &action.cancel_goal, client, request, Some(timeout)).await?;
-    let answer = cdr::decode(lib, &action.cancel_goal.response, &bytes).map_err(|e| format!("{cancel_goal}: {e}"))?;
+    let request = cdr::encode_with(lib, &service.request, vec![("goal_info", info)])?;
+    let bytes = node.call(cancel_goal, service, client, request, Some(timeout)).await?;
+    let answer = cdr::decode(lib, &service.response, &bytes).map_err(|e| format!("{cancel_goal}: {e}"))?;
     match int_at(&answer, "return_code") {
         CANCEL_ERROR_NONE => {}
         CANCEL_GOAL_TERMINATED => return Ok(()),

@@ -1,0 +1,197 @@
+//! The ROS 2 skills against implementations Baton did not write, over the coordinator's router on loopback:
+//! an action server written with ZettaScale's hiroz (`tests/ros2-peer`, built by `.ci/run`), and a service
+//! server from ROBOTIS's zenoh-ros2-sdk (PyPI), which computes its own type hash. A wrong key expression, type
+//! hash, attachment or CDR layout on Baton's side and these servers never answer.
+
+use std::path::PathBuf;
+use std::process::Stdio;
+
+use baton_tests::cluster::{events, repo, Cluster, TIMEOUT};
+use tokio::io::{AsyncBufReadExt, BufReader, Lines};
+use tokio::process::{Child, ChildStdout, Command};
+
+fn chart(name: &str) -> PathBuf {
+    repo(&format!("tests/charts/{name}"))
+}
+
+fn var(summary: &serde_json::Value, name: &str) -> String {
+    summary["vars"][name].as_str().unwrap_or("<missing>").to_string()
+}
+
+/// A server process whose stdout says what it saw, one line per event; its stdin held open (it serves until
+/// stdin closes) and it is killed when dropped.
+struct Server {
+    _child: Child,
+    lines: Lines<BufReader<ChildStdout>>,
+    seen: Vec<String>,
+}
+
+impl Server {
+    fn start(mut cmd: Command) -> Server {
+        let mut child = cmd
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .kill_on_drop(true)
+            .spawn()
+            .expect("start the server");
+        let lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+        Server { _child: child, lines, seen: Vec::new() }
+    }
+
+    /// Reads until a line starting with `prefix`, under the timeout.
+    async fn wait_for(&mut self, prefix: &str) -> String {
+        let found = tokio::time::timeout(TIMEOUT, async {
+            while let Ok(Some(line)) = self.lines.next_line().await {
+                self.seen.push(line.clone());
+                if line.starts_with(prefix) {
+                    return Some(line);
+                }
+            }
+            None
+        })
+        .await;
+        match found {
+            Ok(Some(line)) => line,
+            _ => panic!("the server never said `{prefix}`; it said:\n{}", self.seen.join("\n")),
+        }
+    }
+}
+
+/// hiroz's action server, if `.ci/run` built it.
+fn action_server(cluster: &Cluster, mode: &str) -> Option<Server> {
+    let bin = repo("tests/ros2-peer/target/debug/ros2-peer");
+    if !bin.is_file() {
+        baton_tests::missing(&format!("{} is absent: run .ci/run once (it builds tests/ros2-peer)", bin.display()));
+        return None;
+    }
+    let mut cmd = Command::new(bin);
+    cmd.args([&cluster.endpoint, "0", "/arm/move_to", mode]);
+    Some(Server::start(cmd))
+}
+
+fn python_has_sdk() -> bool {
+    let ok = std::process::Command::new("python3")
+        .args(["-c", "import zenoh_ros2_sdk"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !ok {
+        baton_tests::missing("python3 with zenoh-ros2-sdk is absent: run .ci/run once");
+    }
+    ok
+}
+
+/// Runs `chart` with `agent` (and `extra` agent flags) until it ends. The router is the test's own, so that it
+/// outlives the coordinator: an agent still cancelling a goal when the chart ends can hear the answer.
+async fn run(
+    cluster: &mut Cluster,
+    chart_name: &str,
+    agent: &str,
+    extra: &[&str],
+) -> (String, Vec<baton_proto::exec::sim::TraceRecord>, serde_json::Value) {
+    cluster.agent(agent, &[], extra);
+    let coordinator = cluster.coordinator_joining(&chart(chart_name), &[]);
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}\n{}", cluster.agent_log(agent));
+    (log, trace, summary)
+}
+
+fn ends_in(trace: &[baton_proto::exec::sim::TraceRecord], step: &str) -> bool {
+    events(trace, "activate").iter().any(|e| e.1 == step)
+}
+
+fn fault_message(trace: &[baton_proto::exec::sim::TraceRecord]) -> String {
+    let fault = trace.iter().find(|r| r.event == "skill_fault").expect("a skill fault in the trace");
+    fault.message.clone().unwrap_or_default()
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_goal_is_followed_to_its_result_and_its_feedback_and_result_reach_the_chart() {
+    let mut cluster = Cluster::with_router().await;
+    let Some(mut server) = action_server(&cluster, "succeed") else { return };
+    server.wait_for("READY").await;
+    let (_, trace, summary) = run(&mut cluster, "ros2_action.st", "arm1", &[]).await;
+    assert!(ends_in(&trace, "Done"), "{trace:?}\n{}", cluster.agent_log("arm1"));
+    assert_eq!(server.wait_for("GOAL").await, "GOAL order=5");
+    server.wait_for("SUCCEEDED").await;
+    // The result is 0 1 1 2 3 5: its fifth term is 3. The third term of any feedback is 1.
+    assert_eq!((var(&summary, "last"), var(&summary, "partial")), ("3".into(), "1".into()));
+    assert_eq!((var(&summary, "done"), var(&summary, "fault")), ("TRUE".into(), "FALSE".into()));
+    assert_eq!(events(&trace, "skill_done").len(), 1);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_rejected_goal_is_a_fault() {
+    let mut cluster = Cluster::with_router().await;
+    let Some(mut server) = action_server(&cluster, "reject") else { return };
+    server.wait_for("READY").await;
+    let (_, trace, summary) = run(&mut cluster, "ros2_action.st", "arm1", &[]).await;
+    assert!(ends_in(&trace, "Fallback"));
+    server.wait_for("REJECTED").await;
+    assert!(fault_message(&trace).contains("rejected the goal"), "{}", fault_message(&trace));
+    assert_eq!(var(&summary, "last"), "0", "no result is written");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn an_aborted_goal_is_a_fault() {
+    let mut cluster = Cluster::with_router().await;
+    let Some(mut server) = action_server(&cluster, "abort") else { return };
+    server.wait_for("READY").await;
+    let (_, trace, summary) = run(&mut cluster, "ros2_action.st", "arm1", &[]).await;
+    assert!(ends_in(&trace, "Fallback"));
+    server.wait_for("ABORTED").await;
+    assert!(fault_message(&trace).contains("aborted the goal"), "{}", fault_message(&trace));
+    assert_eq!(var(&summary, "last"), "0", "an aborted goal's result is not written");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn leaving_the_step_early_cancels_the_goal_on_the_server() {
+    let mut cluster = Cluster::with_router().await;
+    let Some(mut server) = action_server(&cluster, "slow") else { return };
+    server.wait_for("READY").await;
+    let (_, trace, summary) = run(&mut cluster, "ros2_action_cancel.st", "arm1", &["--verbose"]).await;
+    assert!(ends_in(&trace, "Left"), "{trace:?}");
+    server.wait_for("CANCEL REQUESTED").await;
+    server.wait_for("CANCELED").await;
+    // The agent reports the stop once the server answered, and nothing is done.
+    cluster.wait_for_agent_log("arm1", "skill of action `MoveArm` stopped: it confirmed the stop").await;
+    assert!(events(&trace, "skill_done").is_empty() && events(&trace, "skill_fault").is_empty(), "{trace:?}");
+    assert_eq!(var(&summary, "done"), "FALSE");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn no_action_server_is_a_fault_after_the_timeout() {
+    let mut cluster = Cluster::with_router().await;
+    let (_, trace, _) = run(&mut cluster, "ros2_action.st", "arm1", &[]).await;
+    assert!(ends_in(&trace, "Fallback"));
+    let message = fault_message(&trace);
+    assert!(message.contains("no server of /arm/move_to/_action/send_goal appeared on ROS domain 0"), "{message}");
+    let fault_at = trace.iter().find(|r| r.event == "skill_fault").map(|r| r.t_ms).unwrap_or_default();
+    let on_at = trace.iter().find(|r| r.event == "action_on").map(|r| r.t_ms).unwrap_or_default();
+    assert!(fault_at - on_at >= 2000, "the fault came {} ms after the action started", fault_at - on_at);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_service_answers_true_and_false_and_false_is_a_fault() {
+    if !python_has_sdk() {
+        return;
+    }
+    let mut cluster = Cluster::with_router().await;
+    let port = cluster.endpoint.rsplit(':').next().expect("port").to_string();
+    let mut cmd = Command::new("python3");
+    cmd.arg(repo("tests/scripts/ros2_service_server.py")).args([&port, "7", "/gripper/close"]);
+    cluster.agent("cell1", &[], &["--ros-domain-id", "7"]);
+    let coordinator = cluster.coordinator_joining(&chart("ros2_service.st"), &[]);
+    let mut server = Server::start(cmd);
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}\n{}", cluster.agent_log("cell1"));
+    assert!(ends_in(&trace, "Done"), "{trace:?}");
+    assert_eq!(server.wait_for("REQUEST").await, "REQUEST data=True");
+    assert_eq!(server.wait_for("REQUEST").await, "REQUEST data=False");
+    assert_eq!(var(&summary, "said"), "'gripper closed'");
+    assert_eq!((var(&summary, "closed"), var(&summary, "refused")), ("TRUE".into(), "TRUE".into()));
+    let message = fault_message(&trace);
+    assert!(message.contains("/gripper/close answered success = FALSE: nothing to grip"), "{message}");
+}
