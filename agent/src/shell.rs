@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::anyhow;
 use baton_proto::dist::keys;
-use baton_proto::dist::layout::{is_valid_name, Layout};
+use baton_proto::dist::layout::{is_valid_name, Layout, Placement};
 use baton_proto::dist::netconfig::NetConfig;
 use baton_proto::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch};
 use baton_proto::dist::runtime::Level;
@@ -385,6 +385,7 @@ impl Shell {
                 let queued = self.pending.remove(&run).unwrap_or_default();
                 self.make_room();
                 let (name, roles) = (&self.config.name, &self.config.roles);
+                self.check_skills(&program, &layout);
                 let mut state = AgentRun::new(name, roles, run, hash.clone(), program, layout, cycle_ms);
                 state.set_incarnation(self.incarnation);
                 let mut r = Run { state, last_used: Instant::now() };
@@ -533,6 +534,30 @@ impl Shell {
                     };
                     eprintln!("{tag}: {message}");
                 }
+            }
+        }
+    }
+
+    /// Says at once, when the agent joins a run, what its skills will refuse (an unknown skill, a ROS 2 type the
+    /// agent does not know, a goal that does not fit its type) — rather than when the action starts.
+    fn check_skills(&self, program: &Program, layout: &Layout) {
+        let mut serves = vec![Placement::Agent(self.config.name.clone())];
+        serves.extend(self.config.roles.iter().cloned().map(Placement::Role));
+        for (i, binding) in layout.skills.iter().enumerate() {
+            let Some(binding) = binding.as_ref().filter(|_| serves.contains(&layout.action_placement[i])) else {
+                continue;
+            };
+            let action = &program.actions[i].name;
+            let problem = match self.skills.get(&binding.skill) {
+                None => Some(format!(
+                    "this agent has no skill `{}` (it has: {})",
+                    binding.skill,
+                    self.skills.names().join(", ")
+                )),
+                Some(skill) => skill.check(&binding.params).err(),
+            };
+            if let Some(why) = problem {
+                eprintln!("warning: action `{action}` will fault on this agent: {why}");
             }
         }
     }

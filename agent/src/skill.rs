@@ -109,6 +109,13 @@ pub trait Skill: Send + Sync {
     fn stops_itself(&self) -> bool {
         false
     }
+
+    /// What the skill would refuse in these parameters, said when the agent joins a run rather than when the
+    /// action starts (a type the agent does not know, a goal that does not fit it).
+    fn check(&self, params: &BTreeMap<String, Param>) -> Result<(), String> {
+        let _ = params;
+        Ok(())
+    }
 }
 
 /// How long the agent waits for a skill that stops itself before it drops it.

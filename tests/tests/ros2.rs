@@ -195,3 +195,53 @@ async fn a_service_answers_true_and_false_and_false_is_a_fault() {
     let message = fault_message(&trace);
     assert!(message.contains("/gripper/close answered success = FALSE: nothing to grip"), "{message}");
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_misspelt_type_or_goal_is_said_when_the_agent_joins_and_faults_by_name() {
+    let mut cluster = Cluster::with_router().await;
+    let (_, trace, _) = run(&mut cluster, "ros2_misspelt.st", "arm1", &[]).await;
+    assert!(ends_in(&trace, "Fallback"), "{trace:?}");
+    let log = cluster.agent_log("arm1");
+    assert!(
+        log.contains("warning: action `MoveArm` will fault on this agent: unknown ROS 2 type `example_interfaces/action/Fibonaci` (the agent knows example_interfaces/action/Fibonacci)"),
+        "{log}"
+    );
+    assert!(
+        log.contains("warning: action `Count` will fault on this agent: goal: the message has no field `ordre`"),
+        "{log}"
+    );
+    let faults: Vec<String> =
+        trace.iter().filter(|r| r.event == "skill_fault").filter_map(|r| r.message.clone()).collect();
+    assert!(faults.iter().any(|m| m.contains("--ros-interfaces")), "{faults:?}");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_converges_them() {
+    if !python_has_sdk() {
+        return;
+    }
+    let mut cluster = Cluster::with_router().await;
+    let Some(mut action) = action_server(&cluster, "succeed") else { return };
+    let port = cluster.endpoint.rsplit(':').next().expect("port").to_string();
+    let mut cmd = Command::new("python3");
+    cmd.arg(repo("tests/scripts/ros2_service_server.py")).args([&port, "0", "/gripper/close"]);
+    let mut service = Server::start(cmd);
+    action.wait_for("READY").await;
+    service.wait_for("READY").await;
+    cluster.agent("arm1", &[], &[]);
+    let (_, trace, summary) = run(&mut cluster, "../../examples/ros2_cell.st", "cell1", &[]).await;
+    assert!(ends_in(&trace, "Ready"), "{trace:?}");
+    action.wait_for("SUCCEEDED").await;
+    assert_eq!(service.wait_for("REQUEST").await, "REQUEST data=True");
+    // Each branch ran on its own agent, and the convergence waited for both.
+    let done: Vec<(String, Option<String>)> =
+        trace.iter().filter(|r| r.event == "skill_done").map(|r| (r.name.clone(), r.agent.clone())).collect();
+    assert!(done.contains(&("MoveArm".into(), Some("arm1".into()))), "{done:?}");
+    assert!(done.contains(&("CloseGripper".into(), Some("cell1".into()))), "{done:?}");
+    let at = |event: &str, name: &str| trace.iter().find(|r| r.event == event && r.name == name).map(|r| r.t_ms);
+    let ready = at("activate", "Ready").expect("Ready");
+    assert!(
+        done.len() == 2 && at("activate", "Moved").unwrap() <= ready && at("activate", "Gripped").unwrap() <= ready
+    );
+    assert_eq!((var(&summary, "last"), var(&summary, "said")), ("3".into(), "'gripper closed'".into()));
+}

@@ -11,9 +11,11 @@
 //! Mappings write parts of the answer to chart variables the agent owns: `response := 'message => text'`,
 //! `result := 'sequence[4] => last'`, `feedback := 'sequence[1] => partial'` (the latest feedback).
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use baton_proto::dist::layout::Param;
 use baton_proto::exec::types::Value;
 use baton_proto::front::literal::{self, Literal};
 
@@ -42,15 +44,16 @@ struct Common {
     literal: Option<Literal>,
 }
 
-fn common(call: &SkillCall, skill: &str, name_key: &str, literal_key: &str) -> Result<Common, String> {
+fn common(params: &BTreeMap<String, Param>, skill: &str, name_key: &str, literal_key: &str) -> Result<Common, String> {
+    let text = |k: &str| params.get(k).and_then(Param::as_str);
     let needs = |key: &str, example: &str| format!("the {skill} skill needs `{key} := '{example}'`");
-    let name = call.text(name_key).ok_or_else(|| needs(name_key, "/name"))?.to_string();
-    let type_name = call.text("type").ok_or_else(|| needs("type", "package/kind/Name"))?.to_string();
-    let timeout_ms = call.number("timeout_ms").unwrap_or(TIMEOUT_MS_DEFAULT);
+    let name = text(name_key).ok_or_else(|| needs(name_key, "/name"))?.to_string();
+    let type_name = text("type").ok_or_else(|| needs("type", "package/kind/Name"))?.to_string();
+    let timeout_ms = params.get("timeout_ms").and_then(Param::as_f64).unwrap_or(TIMEOUT_MS_DEFAULT);
     if !(1.0..=86_400_000.0).contains(&timeout_ms) {
         return Err(format!("`timeout_ms` must be between 1 and 86400000, not {timeout_ms}"));
     }
-    let literal = match call.text(literal_key) {
+    let literal = match text(literal_key) {
         Some(text) => Some(literal::parse(text).map_err(|e| format!("`{literal_key}` cannot be read: {e}"))?),
         None => None,
     };
@@ -74,10 +77,18 @@ pub struct Ros2Service {
 }
 
 impl Skill for Ros2Service {
+    fn check(&self, params: &BTreeMap<String, Param>) -> Result<(), String> {
+        let p = common(params, "ros2_service", "service", "request")?;
+        let service = self.ros2.lib.service(&p.type_name)?;
+        cdr::encode(&self.ros2.lib, &service.request, p.literal.as_ref())
+            .map(|_| ())
+            .map_err(|e| format!("request: {e}"))
+    }
+
     fn start(&self, call: SkillCall) -> SkillFuture {
         let ros2 = Arc::clone(&self.ros2);
         Box::pin(async move {
-            let p = common(&call, "ros2_service", "service", "request")?;
+            let p = common(&call.params, "ros2_service", "service", "request")?;
             let service = ros2.lib.service(&p.type_name)?;
             let request =
                 cdr::encode(&ros2.lib, &service.request, p.literal.as_ref()).map_err(|e| format!("request: {e}"))?;
@@ -120,6 +131,13 @@ pub struct Ros2Action {
 }
 
 impl Skill for Ros2Action {
+    fn check(&self, params: &BTreeMap<String, Param>) -> Result<(), String> {
+        let p = common(params, "ros2_action", "action", "goal")?;
+        let action = self.ros2.lib.action(&p.type_name)?;
+        let goal = p.literal.unwrap_or(Literal::Struct(Vec::new()));
+        cdr::encode(&self.ros2.lib, &action.goal, Some(&goal)).map(|_| ()).map_err(|e| format!("goal: {e}"))
+    }
+
     fn start(&self, call: SkillCall) -> SkillFuture {
         let ros2 = Arc::clone(&self.ros2);
         Box::pin(async move { run_action(&ros2, &call).await })
@@ -150,7 +168,7 @@ fn int_at(v: &RosValue, field: &str) -> i64 {
 }
 
 async fn run_action(ros2: &Ros2, call: &SkillCall) -> Result<(), String> {
-    let p = common(call, "ros2_action", "action", "goal")?;
+    let p = common(&call.params, "ros2_action", "action", "goal")?;
     let action = ros2.lib.action(&p.type_name)?;
     let lib = &ros2.lib;
     let uuid = *uuid::Uuid::new_v4().as_bytes();
