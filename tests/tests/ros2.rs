@@ -122,28 +122,26 @@ async fn a_goal_is_followed_to_its_result_and_its_feedback_and_result_reach_the_
     assert_eq!(events(&trace, "skill_done").len(), 1);
 }
 
-#[tokio::test(flavor = "multi_thread")]
-async fn a_rejected_goal_is_a_fault() {
+/// Runs `ros2_action.st` against a server in `mode`, which says `line` and makes the goal a fault saying `why`.
+async fn goal_fault(mode: &str, line: &str, why: &str) {
     let mut cluster = Cluster::with_router().await;
-    let Some(mut server) = action_server(&cluster, "reject") else { return };
+    let Some(mut server) = action_server(&cluster, mode) else { return };
     server.wait_for("READY").await;
     let (_, trace, summary) = run(&mut cluster, "ros2_action.st", "arm1", &[]).await;
     assert!(ends_in(&trace, "Fallback"));
-    server.wait_for("REJECTED").await;
-    assert!(fault_message(&trace).contains("rejected the goal"), "{}", fault_message(&trace));
+    server.wait_for(line).await;
+    assert!(fault_message(&trace).contains(why), "{}", fault_message(&trace));
     assert_eq!(var(&summary, "last"), "0", "no result is written");
 }
 
 #[tokio::test(flavor = "multi_thread")]
+async fn a_rejected_goal_is_a_fault() {
+    goal_fault("reject", "REJECTED", "rejected the goal").await;
+}
+
+#[tokio::test(flavor = "multi_thread")]
 async fn an_aborted_goal_is_a_fault() {
-    let mut cluster = Cluster::with_router().await;
-    let Some(mut server) = action_server(&cluster, "abort") else { return };
-    server.wait_for("READY").await;
-    let (_, trace, summary) = run(&mut cluster, "ros2_action.st", "arm1", &[]).await;
-    assert!(ends_in(&trace, "Fallback"));
-    server.wait_for("ABORTED").await;
-    assert!(fault_message(&trace).contains("aborted the goal"), "{}", fault_message(&trace));
-    assert_eq!(var(&summary, "last"), "0", "an aborted goal's result is not written");
+    goal_fault("abort", "ABORTED", "aborted the goal").await;
 }
 
 #[tokio::test(flavor = "multi_thread")]
