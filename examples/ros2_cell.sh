@@ -29,10 +29,13 @@ trap cleanup EXIT
 "$bin/baton" run examples/ros2_cell.st --listen "$endpoint" "$@" &
 coordinator=$!
 sleep 0.3
-# Each server serves until its stdin closes: hold it open with a pipe that never writes.
-sleep infinity | "$peer" "$endpoint" 0 /arm/move_to succeed > "$logs/action_server.log" &
+# Each server serves until its stdin closes: their stdin is a FIFO this script holds open, so they also go when
+# it does.
+mkfifo "$logs/hold"
+exec 3<> "$logs/hold"
+"$peer" "$endpoint" 0 /arm/move_to succeed < "$logs/hold" > "$logs/action_server.log" &
 pids+=($!)
-sleep infinity | python3 tests/scripts/ros2_service_server.py "$port" 0 /gripper/close > "$logs/service_server.log" &
+python3 tests/scripts/ros2_service_server.py "$port" 0 /gripper/close < "$logs/hold" > "$logs/service_server.log" &
 pids+=($!)
 "$bin/baton-agent" --connect "$endpoint" --name arm1 2> "$logs/arm1.log" &
 pids+=($!)
