@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::anyhow;
 use baton_proto::dist::keys;
-use baton_proto::dist::layout::{is_valid_name, Layout, Placement};
+use baton_proto::dist::layout::{is_valid_name, Layout};
 use baton_proto::dist::netconfig::NetConfig;
 use baton_proto::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch};
 use baton_proto::dist::runtime::Level;
@@ -385,9 +385,9 @@ impl Shell {
                 let queued = self.pending.remove(&run).unwrap_or_default();
                 self.make_room();
                 let (name, roles) = (&self.config.name, &self.config.roles);
-                self.check_skills(&program, &layout);
                 let mut state = AgentRun::new(name, roles, run, hash.clone(), program, layout, cycle_ms);
                 state.set_incarnation(self.incarnation);
+                self.check_skills(&state);
                 let mut r = Run { state, last_used: Instant::now() };
                 for (h, d) in queued {
                     if h == hash {
@@ -494,12 +494,7 @@ impl Shell {
                     self.stop_skill(run, action, old);
                 }
                 let Some(skill) = skill else {
-                    let why = format!(
-                        "agent `{}` has no skill `{}` (it has: {})",
-                        self.config.name,
-                        binding.skill,
-                        self.skills.names().join(", ")
-                    );
+                    let why = format!("agent `{}` {}", self.config.name, self.no_skill(&binding.skill));
                     let _ = tx.send(Event::Skill(run, action, serial, Err(why)));
                     return;
                 };
@@ -540,26 +535,21 @@ impl Shell {
 
     /// Says at once, when the agent joins a run, what its skills will refuse (an unknown skill, a ROS 2 type the
     /// agent does not know, a goal that does not fit its type) — rather than when the action starts.
-    fn check_skills(&self, program: &Program, layout: &Layout) {
-        let mut serves = vec![Placement::Agent(self.config.name.clone())];
-        serves.extend(self.config.roles.iter().cloned().map(Placement::Role));
-        for (i, binding) in layout.skills.iter().enumerate() {
-            let Some(binding) = binding.as_ref().filter(|_| serves.contains(&layout.action_placement[i])) else {
-                continue;
-            };
-            let action = &program.actions[i].name;
+    fn check_skills(&self, run: &AgentRun) {
+        for (a, binding) in run.skills_here() {
+            let action = &run.program().actions[a.index()].name;
             let problem = match self.skills.get(&binding.skill) {
-                None => Some(format!(
-                    "this agent has no skill `{}` (it has: {})",
-                    binding.skill,
-                    self.skills.names().join(", ")
-                )),
+                None => Some(format!("this agent {}", self.no_skill(&binding.skill))),
                 Some(skill) => skill.check(&binding.params).err(),
             };
             if let Some(why) = problem {
                 eprintln!("warning: action `{action}` will fault on this agent: {why}");
             }
         }
+    }
+
+    fn no_skill(&self, skill: &str) -> String {
+        format!("has no skill `{skill}` (it has: {})", self.skills.names().join(", "))
     }
 
     /// Tells a skill its action ended: one that stops itself is remembered until it says how it went.

@@ -21,8 +21,9 @@ use baton_proto::front::literal::{self, Literal};
 
 use super::cdr::{self, RosValue};
 use super::client::{Node, Ros2};
+use super::interfaces::{ActionType, Interfaces, ServiceType};
 use super::keys::{self, Kind};
-use crate::skill::{outputs_of, Skill, SkillCall, SkillContext, SkillFuture};
+use crate::skill::{outputs_of, Skill, SkillCall, SkillFuture};
 
 const TIMEOUT_MS_DEFAULT: f64 = 5000.0;
 
@@ -60,14 +61,34 @@ fn common(params: &BTreeMap<String, Param>, skill: &str, name_key: &str, literal
     Ok(Common { name, type_name, timeout: Duration::from_millis(timeout_ms as u64), literal })
 }
 
-/// Writes the parts of `value` that the `key` mappings name; `under` picks the part of the message they are
-/// relative to (`feedback` in a feedback message).
-fn write_outputs(call: &SkillCall, ctx: &SkillContext, key: &str, value: &RosValue) -> Result<(), String> {
+/// Writes the parts of `value` that the `key` mappings name (their paths are relative to `value`).
+fn write_outputs(call: &SkillCall, key: &str, value: &RosValue) -> Result<(), String> {
     for (i, path) in outputs_of(&call.outputs, key) {
         let v = value.value_at(path).map_err(|e| format!("`{key}`: {e}"))?;
-        ctx.write(i, v);
+        call.ctx.write(i, v);
     }
     Ok(())
+}
+
+/// A service call's parameters, its type and its request encoded: where checking and calling both start.
+fn service_request(
+    ros2: &Ros2,
+    params: &BTreeMap<String, Param>,
+) -> Result<(Common, Arc<ServiceType>, Vec<u8>), String> {
+    let p = common(params, "ros2_service", "service", "request")?;
+    let service = ros2.lib.service(&p.type_name)?;
+    let request = cdr::encode(&ros2.lib, &service.request, p.literal.as_ref()).map_err(|e| format!("request: {e}"))?;
+    Ok((p, service, request))
+}
+
+/// An action's parameters, its type and its goal, checked against the type: where checking and sending both
+/// start. (Sending encodes the goal again, inside the SendGoal request with its id.)
+fn action_goal(ros2: &Ros2, params: &BTreeMap<String, Param>) -> Result<(Common, Arc<ActionType>, Literal), String> {
+    let p = common(params, "ros2_action", "action", "goal")?;
+    let action = ros2.lib.action(&p.type_name)?;
+    let goal = p.literal.clone().unwrap_or(Literal::Struct(Vec::new()));
+    cdr::encode(&ros2.lib, &action.goal, Some(&goal)).map_err(|e| format!("goal: {e}"))?;
+    Ok((p, action, goal))
 }
 
 /// `{skill := 'ros2_service', service := '/gripper/close', type := 'std_srvs/srv/SetBool', request := '(data :=
@@ -78,20 +99,13 @@ pub struct Ros2Service {
 
 impl Skill for Ros2Service {
     fn check(&self, params: &BTreeMap<String, Param>) -> Result<(), String> {
-        let p = common(params, "ros2_service", "service", "request")?;
-        let service = self.ros2.lib.service(&p.type_name)?;
-        cdr::encode(&self.ros2.lib, &service.request, p.literal.as_ref())
-            .map(|_| ())
-            .map_err(|e| format!("request: {e}"))
+        service_request(&self.ros2, params).map(|_| ())
     }
 
     fn start(&self, call: SkillCall) -> SkillFuture {
         let ros2 = Arc::clone(&self.ros2);
         Box::pin(async move {
-            let p = common(&call.params, "ros2_service", "service", "request")?;
-            let service = ros2.lib.service(&p.type_name)?;
-            let request =
-                cdr::encode(&ros2.lib, &service.request, p.literal.as_ref()).map_err(|e| format!("request: {e}"))?;
+            let (p, service, request) = service_request(&ros2, &call.params)?;
             let deadline = Instant::now() + p.timeout;
             let node = ros2.node(&call.session).await?;
             let client = node.endpoint(Kind::Client, &p.name, &service.wire, keys::SERVICE_QOS).await?;
@@ -99,7 +113,7 @@ impl Skill for Ros2Service {
             let left = deadline.saturating_duration_since(Instant::now());
             let bytes = node.call(&p.name, &service, &client, request, Some(left)).await?;
             let response = cdr::decode(&ros2.lib, &service.response, &bytes).map_err(|e| format!("{}: {e}", p.name))?;
-            write_outputs(&call, &call.ctx, "response", &response)?;
+            write_outputs(&call, "response", &response)?;
             if let Some(field) = call.text("fault_if_false") {
                 let path = [literal::PathPart::Field(field.to_string())];
                 match response.value_at(&path) {
@@ -132,10 +146,7 @@ pub struct Ros2Action {
 
 impl Skill for Ros2Action {
     fn check(&self, params: &BTreeMap<String, Param>) -> Result<(), String> {
-        let p = common(params, "ros2_action", "action", "goal")?;
-        let action = self.ros2.lib.action(&p.type_name)?;
-        let goal = p.literal.unwrap_or(Literal::Struct(Vec::new()));
-        cdr::encode(&self.ros2.lib, &action.goal, Some(&goal)).map(|_| ()).map_err(|e| format!("goal: {e}"))
+        action_goal(&self.ros2, params).map(|_| ())
     }
 
     fn start(&self, call: SkillCall) -> SkillFuture {
@@ -168,13 +179,10 @@ fn int_at(v: &RosValue, field: &str) -> i64 {
 }
 
 async fn run_action(ros2: &Ros2, call: &SkillCall) -> Result<(), String> {
-    let p = common(&call.params, "ros2_action", "action", "goal")?;
-    let action = ros2.lib.action(&p.type_name)?;
+    // The goal is checked against its type before anything is sent.
+    let (p, action, goal) = action_goal(ros2, &call.params)?;
     let lib = &ros2.lib;
     let uuid = *uuid::Uuid::new_v4().as_bytes();
-    let goal = p.literal.clone().unwrap_or(Literal::Struct(Vec::new()));
-    // The goal is checked against its type before anything is sent.
-    cdr::encode(lib, &action.goal, Some(&goal)).map_err(|e| format!("goal: {e}"))?;
     let request = cdr::encode_with(lib, &action.send_goal.request, vec![("goal_id", goal_id(&uuid)), ("goal", goal)])?;
     let deadline = Instant::now() + p.timeout;
     let node = ros2.node(&call.session).await?;
@@ -216,7 +224,7 @@ async fn run_action(ros2: &Ros2, call: &SkillCall) -> Result<(), String> {
                 return match int_at(&answer, "status") {
                     STATUS_SUCCEEDED => {
                         let part = answer.at(&[literal::PathPart::Field("result".into())]).cloned().unwrap_or(RosValue::Msg(String::new(), Vec::new()));
-                        write_outputs(call, &call.ctx, "result", &part)
+                        write_outputs(call, "result", &part)
                     }
                     STATUS_ABORTED => Err(format!("the server of {} aborted the goal", p.name)),
                     STATUS_CANCELED => Err(format!("the server of {} cancelled the goal", p.name)),
@@ -233,7 +241,7 @@ async fn run_action(ros2: &Ros2, call: &SkillCall) -> Result<(), String> {
                 let Ok(message) = cdr::decode(lib, feedback_def, &bytes) else { continue };
                 if same_goal(&message, &uuid) {
                     if let Some(part) = message.at(&[literal::PathPart::Field("feedback".into())]) {
-                        write_outputs(call, &call.ctx, "feedback", part)?;
+                        write_outputs(call, "feedback", part)?;
                     }
                 }
             }
@@ -244,9 +252,9 @@ async fn run_action(ros2: &Ros2, call: &SkillCall) -> Result<(), String> {
 /// Cancels the goal and waits for the server to say so: its answer to the cancel request, then the goal's end.
 #[allow(clippy::too_many_arguments)]
 async fn cancel(
-    lib: &super::interfaces::Interfaces,
+    lib: &Interfaces,
     node: &Node,
-    service: &super::interfaces::ServiceType,
+    service: &ServiceType,
     cancel_goal: &str,
     client: &super::client::Endpoint,
     uuid: &[u8; 16],

@@ -228,15 +228,11 @@ fn nested(
     types: &[TypeDef],
 ) {
     let shadow = Chart {
-        name: action.name.clone(),
-        kind: chart.kind,
         vars: chart.vars.clone(),
         steps: sfc.steps.clone(),
         transitions: sfc.transitions.clone(),
         actions: chart.actions.iter().map(|a| Action { body: Vec::new(), sfc: None, ..a.clone() }).collect(),
-        pragmas: Vec::new(),
-        span: action.span,
-        broken: Broken::default(),
+        ..Chart::empty(action.name.clone(), chart.kind, action.span)
     };
     let program = crate::exec::compile::compile(&shadow, library, types, &mut Vec::new()).program;
     let _ = writeln!(

@@ -486,8 +486,7 @@ fn skill_outputs(
             }
         };
         for (path, name) in mapping {
-            let found = program.vars.iter().position(|v| !v.hidden && v.name.eq_ignore_ascii_case(&name));
-            match found {
+            match program.var_by_name(&name).map(|v| v.index()) {
                 None => diags.push(Diagnostic::error(
                     span,
                     format!("`{key}` writes `{name}`, which is not a variable of the chart"),

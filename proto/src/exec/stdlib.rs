@@ -602,8 +602,11 @@ fn parse_text(s: &str, to: &Type) -> Value {
 /// away from zero), integers wrap to the target's width, TIME converts to and from milliseconds, a number is
 /// TRUE when it is not zero.
 pub fn convert(v: Value, to: &Type) -> Value {
-    if let Value::Str(s) = &v {
-        return parse_text(s, to);
+    // Text is read as a literal of the target type; text to text stays as it is (cut to the target's length).
+    match (&v, to) {
+        (Value::Str(_), Type::Str { .. }) => return to.coerce(v),
+        (Value::Str(s), _) => return parse_text(s, to),
+        _ => {}
     }
     match to {
         Type::Bool => Value::Bool(match v {

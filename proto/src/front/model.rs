@@ -49,6 +49,23 @@ pub struct Chart {
     pub broken: Broken,
 }
 
+impl Chart {
+    /// A chart with nothing in it yet, for a parser to fill.
+    pub fn empty(name: Ident, kind: PouKind, span: Span) -> Chart {
+        Chart {
+            name,
+            kind,
+            vars: Vec::new(),
+            steps: Vec::new(),
+            transitions: Vec::new(),
+            actions: Vec::new(),
+            pragmas: Vec::new(),
+            span,
+            broken: Broken::default(),
+        }
+    }
+}
+
 /// A type declared in a `TYPE` block (or a PLCopen `dataType`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct TypeDef {

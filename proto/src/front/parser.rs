@@ -265,16 +265,10 @@ impl Parser<'_> {
                     }
                 }
                 tok if is_element_start(tok) => {
-                    let chart = bare.get_or_insert_with(|| Chart {
-                        name: Ident { name: "main".to_string(), span: self.toks[self.pos].span },
-                        kind: PouKind::Bare,
-                        vars: std::mem::take(&mut bare_vars),
-                        steps: Vec::new(),
-                        transitions: Vec::new(),
-                        actions: Vec::new(),
-                        pragmas: Vec::new(),
-                        span: self.toks[self.pos].span,
-                        broken: Broken::default(),
+                    let chart = bare.get_or_insert_with(|| {
+                        let span = self.toks[self.pos].span;
+                        let name = Ident { name: "main".to_string(), span };
+                        Chart { vars: std::mem::take(&mut bare_vars), ..Chart::empty(name, PouKind::Bare, span) }
                     });
                     self.element(chart);
                     chart.span = chart.span.to(self.prev_span());
@@ -504,17 +498,7 @@ impl Parser<'_> {
         while self.peek() == Tok::Ident || self.peek() == Tok::Comma {
             self.bump();
         }
-        let mut chart = Chart {
-            name,
-            kind,
-            vars: Vec::new(),
-            steps: Vec::new(),
-            transitions: Vec::new(),
-            actions: Vec::new(),
-            pragmas: Vec::new(),
-            span: start,
-            broken: Broken::default(),
-        };
+        let mut chart = Chart::empty(name, kind, start);
         let outside = std::mem::take(&mut self.broken_vars);
         loop {
             let tok = self.peek();

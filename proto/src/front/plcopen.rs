@@ -306,15 +306,9 @@ impl Reader<'_> {
         let name = self.ident_attr(pou, "name")?;
         let range = pou.range();
         let mut chart = Chart {
-            name,
-            kind,
             vars: self.interface(pou),
-            steps: Vec::new(),
-            transitions: Vec::new(),
-            actions: Vec::new(),
             pragmas: self.documentation_pragmas(pou),
-            span: Span::new(range.start, range.end),
-            broken: Broken::default(),
+            ..Chart::empty(name, kind, Span::new(range.start, range.end))
         };
         let named_transitions: HashMap<String, Node> = child(pou, "transitions")
             .into_iter()
@@ -548,7 +542,7 @@ impl Reader<'_> {
         if let Some(sfc) = body.filter(|b| is(b, "SFC")) {
             // An action written in SFC: its net as a chart of its own, in the order Beremiz would run it; the
             // actions drawn inline in it become the POU's, which every association names.
-            let mut inner = net_of(name.clone(), chart.kind, span);
+            let mut inner = Chart::empty(name.clone(), chart.kind, span);
             let ids = self.sfc(sfc, named_transitions, &mut inner);
             match baton_order(action) {
                 Some(order) => apply_order(&mut inner, &ids, &order),
@@ -750,7 +744,7 @@ impl Reader<'_> {
                 continue;
             };
             let references = std::mem::take(&mut self.references);
-            let mut inner = net_of(chart.name.clone(), chart.kind, span);
+            let mut inner = Chart::empty(chart.name.clone(), chart.kind, span);
             self.sfc(body, named_transitions, &mut inner);
             self.references = references;
             let Some((entry, exit)) = self.macro_ends(&mut inner, span) else { continue };
@@ -1752,23 +1746,6 @@ fn blank_markup(raw: &str) -> BodyText {
     BodyText { text: out, shifts }
 }
 
-/// Spaces for every byte of `s` but newlines, so that offsets and lines stay as they were.
-/// An empty chart to read an SFC body into that is not a POU's own (an action's, a macro step's): only its net
-/// and inline actions are kept.
-fn net_of(name: Ident, kind: PouKind, span: Span) -> Chart {
-    Chart {
-        name,
-        kind,
-        vars: Vec::new(),
-        steps: Vec::new(),
-        transitions: Vec::new(),
-        actions: Vec::new(),
-        pragmas: Vec::new(),
-        span,
-        broken: Broken::default(),
-    }
-}
-
 /// The name of the type a `<type>`'s element stands for: a derived type's name, `STRING[n]` for a string with a
 /// length, the element's name in capitals for an elementary type; `None` for an unnamed derived type or a length
 /// that is no number.
@@ -1786,6 +1763,7 @@ fn type_name(t: Node) -> Option<String> {
     }
 }
 
+/// Spaces for every byte of `s` but newlines, so that offsets and lines stay as they were.
 fn blank_bytes(out: &mut String, s: &str) {
     out.extend(s.bytes().map(|b| if b == b'\n' { '\n' } else { ' ' }));
 }

@@ -198,6 +198,14 @@ impl AgentRun {
         &self.program
     }
 
+    /// The skills of the actions that run on this agent (by its name or one of its roles), with their actions.
+    pub fn skills_here(&self) -> impl Iterator<Item = (ActionId, &SkillBinding)> + '_ {
+        self.layout.skills.iter().enumerate().filter_map(|(i, b)| {
+            let b = b.as_ref().filter(|_| self.serves.contains(&self.layout.action_placement[i]))?;
+            Some((ActionId(i as u32), b))
+        })
+    }
+
     pub fn tokens_held(&self) -> usize {
         self.tokens.values().filter(|t| !t.done).count()
     }
@@ -528,11 +536,7 @@ impl AgentRun {
             return;
         };
         let ty = self.program.vars[var.index()].ty.clone();
-        // Text stays text (`convert` would read it as a literal); anything else converts as `*_TO_*` does.
-        let value = match (&value, &ty) {
-            (Value::Str(_), crate::exec::types::Type::Str { .. }) => value,
-            _ => crate::exec::stdlib::convert(value, &ty),
-        };
+        let value = crate::exec::stdlib::convert(value, &ty);
         if let Err(e) = self.engine.handle(Input::Set(var, value)) {
             let message = format!("skill of action `{}`: {e}", self.program.actions[action.index()].name);
             self.log(Level::Warn, message);
