@@ -41,6 +41,20 @@ struct Args {
     /// The ROS 2 distribution of the robots: jazzy, kilted (the same type hashes) or humble (none).
     #[arg(long, default_value = "jazzy", value_name = "DISTRO")]
     ros_distro: String,
+    /// The OPC UA certificate folder: own/cert.der and private/private.pem (made self-signed the first time a
+    /// secure endpoint is used), trusted/ for the servers' certificates, rejected/ for those not trusted yet.
+    /// Default: $XDG_STATE_HOME/baton-agent/pki, else ~/.local/state/baton-agent/pki.
+    #[arg(long, value_name = "DIR")]
+    opcua_pki: Option<std::path::PathBuf>,
+}
+
+/// Where the agent keeps its OPC UA certificates unless told.
+fn default_pki_dir() -> std::path::PathBuf {
+    let state = std::env::var_os("XDG_STATE_HOME")
+        .map(std::path::PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| std::path::PathBuf::from(h).join(".local/state")))
+        .unwrap_or_else(std::env::temp_dir);
+    state.join("baton-agent").join("pki")
 }
 
 fn main() -> ExitCode {
@@ -65,7 +79,11 @@ fn main() -> ExitCode {
         }
     };
     let ros2 = Arc::new(baton_agent::ros2::Ros2::new(interfaces, args.ros_domain_id, &config.name));
-    let skills = Skills::builtin().with_ros2(ros2);
+    let opcua = Arc::new(baton_agent::opcua::OpcUa {
+        pki_dir: args.opcua_pki.unwrap_or_else(default_pki_dir),
+        agent: config.name.clone(),
+    });
+    let skills = Skills::builtin().with_ros2(ros2).with_opcua(opcua);
     let skills = if args.allow_shell { skills.with_shell() } else { skills };
     let runtime = match tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build() {
         Ok(rt) => rt,

@@ -11,7 +11,7 @@
 //!
 //! Users who embed the agent in their own robot program implement `Skill` and register it with
 //! `Skills::with`; `baton-agent` ships `motion` (a simulated motion), `ros2_action` and `ros2_service` (see
-//! `crate::ros2`), and `shell` (a command, opt-in).
+//! `crate::ros2`), `opcua_method` (see `crate::opcua`), and `shell` (a command, opt-in).
 
 use std::collections::{BTreeMap, HashMap};
 use std::future::Future;
@@ -141,6 +141,11 @@ impl Skills {
     pub fn with_ros2(self, ros2: Arc<crate::ros2::Ros2>) -> Skills {
         self.with("ros2_action", crate::ros2::skills::Ros2Action { ros2: Arc::clone(&ros2) })
             .with("ros2_service", crate::ros2::skills::Ros2Service { ros2 })
+    }
+
+    /// `opcua_method`, with async-opcua's client.
+    pub fn with_opcua(self, opcua: Arc<crate::opcua::OpcUa>) -> Skills {
+        self.with("opcua_method", crate::opcua::skills::OpcuaMethod { opcua })
     }
 
     pub fn with(mut self, name: &str, skill: impl Skill + 'static) -> Skills {

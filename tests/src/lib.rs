@@ -4,6 +4,7 @@ pub mod cluster;
 pub mod gen;
 pub mod invariants;
 pub mod netns;
+pub mod peer;
 pub mod reference;
 pub mod roundtrip;
 pub mod scenario;

@@ -6,9 +6,9 @@
 use std::path::PathBuf;
 use std::process::Stdio;
 
-use baton_tests::cluster::{events, repo, Cluster, TIMEOUT};
-use tokio::io::{AsyncBufReadExt, BufReader, Lines};
-use tokio::process::{Child, ChildStdout, Command};
+use baton_tests::cluster::{events, repo, Cluster};
+use baton_tests::peer::Server;
+use tokio::process::Command;
 
 fn chart(name: &str) -> PathBuf {
     repo(&format!("tests/charts/{name}"))
@@ -16,46 +16,6 @@ fn chart(name: &str) -> PathBuf {
 
 fn var(summary: &serde_json::Value, name: &str) -> String {
     summary["vars"][name].as_str().unwrap_or("<missing>").to_string()
-}
-
-/// A server process whose stdout says what it saw, one line per event; its stdin held open (it serves until
-/// stdin closes) and it is killed when dropped.
-struct Server {
-    _child: Child,
-    lines: Lines<BufReader<ChildStdout>>,
-    seen: Vec<String>,
-}
-
-impl Server {
-    fn start(mut cmd: Command) -> Server {
-        let mut child = cmd
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .kill_on_drop(true)
-            .spawn()
-            .expect("start the server");
-        let lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-        Server { _child: child, lines, seen: Vec::new() }
-    }
-
-    /// Reads until a line starting with `prefix`, under the timeout.
-    async fn wait_for(&mut self, prefix: &str) -> String {
-        let found = tokio::time::timeout(TIMEOUT, async {
-            while let Ok(Some(line)) = self.lines.next_line().await {
-                self.seen.push(line.clone());
-                if line.starts_with(prefix) {
-                    return Some(line);
-                }
-            }
-            None
-        })
-        .await;
-        match found {
-            Ok(Some(line)) => line,
-            _ => panic!("the server never said `{prefix}`; it said:\n{}", self.seen.join("\n")),
-        }
-    }
 }
 
 /// hiroz's action server, if `.ci/run` built it.

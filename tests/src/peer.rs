@@ -1,0 +1,67 @@
+//! Device servers of the tests (ROS 2, OPC UA), written by others: a process whose stdout says what it saw.
+
+use std::process::Stdio;
+
+use tokio::io::{AsyncBufReadExt, BufReader, Lines};
+use tokio::process::{Child, ChildStdout, Command};
+
+use crate::cluster::TIMEOUT;
+
+/// A server process whose stdout says what it saw, one line per event; its stdin held open (it serves until
+/// stdin closes) and it is killed when dropped.
+pub struct Server {
+    child: Child,
+    lines: Lines<BufReader<ChildStdout>>,
+    seen: Vec<String>,
+}
+
+impl Server {
+    pub fn start(mut cmd: Command) -> Server {
+        let mut child = cmd
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .kill_on_drop(true)
+            .spawn()
+            .expect("start the server");
+        let lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+        Server { child, lines, seen: Vec::new() }
+    }
+
+    /// Reads until a line starting with `prefix`, under the timeout.
+    pub async fn wait_for(&mut self, prefix: &str) -> String {
+        let found = tokio::time::timeout(TIMEOUT, async {
+            while let Ok(Some(line)) = self.lines.next_line().await {
+                self.seen.push(line.clone());
+                if line.starts_with(prefix) {
+                    return Some(line);
+                }
+            }
+            None
+        })
+        .await;
+        match found {
+            Ok(Some(line)) => line,
+            _ => panic!("the server never said `{prefix}`; it said:\n{}", self.seen.join("\n")),
+        }
+    }
+
+    /// SIGKILLs the server and waits until it is gone.
+    pub async fn kill(&mut self) {
+        self.child.start_kill().expect("kill the server");
+        let _ = tokio::time::timeout(TIMEOUT, self.child.wait()).await.expect("the killed server ends");
+    }
+
+    /// Everything the server said: its stdin is closed (it serves until then) and its output read to the end.
+    pub async fn finish(mut self) -> Vec<String> {
+        drop(self.child.stdin.take());
+        let rest = tokio::time::timeout(TIMEOUT, async {
+            while let Ok(Some(line)) = self.lines.next_line().await {
+                self.seen.push(line);
+            }
+        })
+        .await;
+        assert!(rest.is_ok(), "the server did not end when its stdin closed; it said:\n{}", self.seen.join("\n"));
+        self.seen
+    }
+}

@@ -1,0 +1,147 @@
+//! The `opcua_method` skill against an OPC UA server Baton did not write: FreeOpcUa's asyncua (PyPI), running
+//! `tests/scripts/opcua_server.py` on a loopback port. The chart names its endpoint; the test writes the
+//! server's port into a copy of the chart.
+
+use std::path::PathBuf;
+
+use baton_proto::exec::sim::TraceRecord;
+use baton_tests::cluster::{events, free_port, repo, Cluster};
+use baton_tests::peer::Server;
+use tokio::process::Command;
+
+fn python_has_asyncua() -> bool {
+    let ok = std::process::Command::new("python3")
+        .args(["-c", "import asyncua"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !ok {
+        baton_tests::missing("python3 with asyncua is absent: run .ci/run once");
+    }
+    ok
+}
+
+/// The asyncua server on a free port, once it is up.
+async fn server() -> Option<(Server, u16)> {
+    if !python_has_asyncua() {
+        return None;
+    }
+    let port = free_port();
+    let mut cmd = Command::new("python3");
+    cmd.arg(repo("tests/scripts/opcua_server.py")).arg(port.to_string());
+    let mut server = Server::start(cmd);
+    server.wait_for("READY").await;
+    Some((server, port))
+}
+
+/// `tests/charts/NAME` with the server's port in its endpoints.
+fn chart_for(cluster: &Cluster, name: &str, port: u16) -> PathBuf {
+    let text = std::fs::read_to_string(repo(&format!("tests/charts/{name}"))).expect("read the chart");
+    let path = cluster.dir.path().join(name);
+    std::fs::write(&path, text.replace("127.0.0.1:4840/", &format!("127.0.0.1:{port}/"))).expect("write the chart");
+    path
+}
+
+/// Starts agent `cell1` and a coordinator on `chart`, which run until the chart ends.
+async fn run(cluster: &mut Cluster, chart: &std::path::Path) -> (Vec<TraceRecord>, serde_json::Value) {
+    let pki = cluster.dir.path().join("pki");
+    cluster.agent("cell1", &[], &["--opcua-pki", pki.to_str().expect("utf-8 path"), "--verbose"]);
+    let coordinator = cluster.coordinator_joining(chart, &[]);
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}\n{}", cluster.agent_log("cell1"));
+    (trace, summary)
+}
+
+fn var(summary: &serde_json::Value, name: &str) -> String {
+    summary["vars"][name].as_str().unwrap_or("<missing>").to_string()
+}
+
+fn reached(trace: &[TraceRecord], step: &str) -> bool {
+    events(trace, "activate").iter().any(|e| e.1 == step)
+}
+
+fn faults(trace: &[TraceRecord]) -> Vec<String> {
+    trace.iter().filter(|r| r.event == "skill_fault").map(|r| r.message.clone().unwrap_or_default()).collect()
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn methods_are_called_with_their_declared_types_and_a_job_is_followed_to_its_end() {
+    let Some((server, port)) = server().await else { return };
+    let mut cluster = Cluster::with_router().await;
+    let chart = chart_for(&cluster, "opcua_method.st", port);
+    let (trace, summary) = run(&mut cluster, &chart).await;
+    assert!(reached(&trace, "Done"), "{:?}\n{}", faults(&trace), cluster.agent_log("cell1"));
+    // Add(a: Int32, b: Int16) took 40 and 2 and answered 42; Pick answered job 1, and its job added 3 parts.
+    assert_eq!(var(&summary, "sum"), "42");
+    assert_eq!(var(&summary, "job"), "1");
+    assert_eq!(var(&summary, "count"), "3");
+    assert_eq!(events(&trace, "skill_done").len(), 2);
+    let said = server.finish().await;
+    let calls: Vec<&String> = said.iter().filter(|l| l.starts_with("CALL") || l.starts_with("JOB")).collect();
+    assert_eq!(calls, ["CALL Add 40 2", "CALL Pick 3 0.5", "JOB DONE"], "{said:?}");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_bad_status_an_argument_that_does_not_fit_and_a_fault_node_are_faults() {
+    let Some((server, port)) = server().await else { return };
+    let mut cluster = Cluster::with_router().await;
+    let chart = chart_for(&cluster, "opcua_faults.st", port);
+    let (trace, _) = run(&mut cluster, &chart).await;
+    assert!(reached(&trace, "Done"), "{:?}", faults(&trace));
+    let faults = faults(&trace);
+    assert_eq!(faults.len(), 3, "{faults:?}");
+    assert!(faults[0].contains("BadInvalidState"), "{}", faults[0]);
+    assert!(faults[1].contains("argument `b`") && faults[1].contains("70000 does not fit a Int16"), "{}", faults[1]);
+    assert!(faults[2].contains("ns=2;s=Cell.Fault became TRUE"), "{}", faults[2]);
+    let said = server.finish().await;
+    assert!(!said.iter().any(|l| l.starts_with("CALL Add")), "an argument that does not fit calls nothing: {said:?}");
+    assert!(said.iter().any(|l| l == "JOB FAULT"), "{said:?}");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_job_whose_step_is_left_is_cancelled_on_the_server_and_never_reported_done() {
+    let Some((mut server, port)) = server().await else { return };
+    let mut cluster = Cluster::with_router().await;
+    let chart = chart_for(&cluster, "opcua_cancel.st", port);
+    let (trace, summary) = run(&mut cluster, &chart).await;
+    assert!(reached(&trace, "Left"));
+    server.wait_for("CANCELLED").await;
+    cluster.wait_for_agent_log("cell1", "skill of action `PickSlowly` stopped: it confirmed the stop").await;
+    assert!(events(&trace, "skill_done").is_empty() && faults(&trace).is_empty(), "{trace:?}");
+    assert_eq!((var(&summary, "picked"), var(&summary, "pick_fault")), ("FALSE".into(), "FALSE".into()));
+    let said = server.finish().await;
+    assert!(!said.iter().any(|l| l == "JOB DONE"), "{said:?}");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_server_killed_during_a_call_is_a_fault_at_once() {
+    let Some((mut server, port)) = server().await else { return };
+    let mut cluster = Cluster::with_router().await;
+    let chart = chart_for(&cluster, "opcua_hang.st", port);
+    let pki = cluster.dir.path().join("pki");
+    cluster.agent("cell1", &[], &["--opcua-pki", pki.to_str().expect("utf-8 path")]);
+    let coordinator = cluster.coordinator_joining(&chart, &[]);
+    server.wait_for("CALL Hang").await;
+    server.kill().await;
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    assert!(reached(&trace, "Lost"), "{:?}", faults(&trace));
+    let fault = &faults(&trace)[0];
+    assert!(!fault.contains("timeout_ms"), "the fault came from the lost connection, not the timeout: {fault}");
+    assert!(fault.contains("calling ns=2;s=Cell.Hang") || fault.contains("lost the connection"), "{fault}");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn no_server_is_a_fault_after_the_timeout() {
+    let mut cluster = Cluster::with_router().await;
+    let text = std::fs::read_to_string(repo("tests/charts/opcua_hang.st")).expect("chart");
+    let chart = cluster.dir.path().join("unreachable.st");
+    let port = free_port();
+    let text = text.replace("127.0.0.1:4840/", &format!("127.0.0.1:{port}/")).replace("50000", "800");
+    std::fs::write(&chart, text).expect("write the chart");
+    let (trace, _) = run(&mut cluster, &chart).await;
+    assert!(reached(&trace, "Lost"));
+    let fault = &faults(&trace)[0];
+    assert!(fault.contains(&format!("cannot reach opc.tcp://127.0.0.1:{port}/")), "{fault}");
+}
