@@ -1,11 +1,12 @@
 //! Device servers of the tests (ROS 2, OPC UA), written by others: a process whose stdout says what it saw.
 
+use std::path::{Path, PathBuf};
 use std::process::Stdio;
 
 use tokio::io::{AsyncBufReadExt, BufReader, Lines};
 use tokio::process::{Child, ChildStdout, Command};
 
-use crate::cluster::TIMEOUT;
+use crate::cluster::{free_port, repo, TIMEOUT};
 
 /// A server process whose stdout says what it saw, one line per event; its stdin held open (it serves until
 /// stdin closes) and it is killed when dropped.
@@ -64,4 +65,39 @@ impl Server {
         assert!(rest.is_ok(), "the server did not end when its stdin closed; it said:\n{}", self.seen.join("\n"));
         self.seen
     }
+}
+
+fn python_has(module: &str, package: &str) -> bool {
+    let ok = std::process::Command::new("python3")
+        .args(["-c", &format!("import {module}")])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !ok {
+        crate::missing(&format!("python3 with {package} is absent: run .ci/run once"));
+    }
+    ok
+}
+
+/// FreeOpcUa's asyncua server (`tests/scripts/opcua_server.py`) on a free loopback port, once it is up; `None`
+/// (SKIPPED) without asyncua.
+pub async fn opcua_server() -> Option<(Server, u16)> {
+    if !python_has("asyncua", "asyncua") {
+        return None;
+    }
+    let port = free_port();
+    let mut cmd = Command::new("python3");
+    cmd.arg(repo("tests/scripts/opcua_server.py")).arg(port.to_string());
+    let mut server = Server::start(cmd);
+    server.wait_for("READY").await;
+    Some((server, port))
+}
+
+/// A copy of `chart` in `dir` whose OPC UA endpoints name `port` instead of 4840.
+pub fn with_opcua_port(chart: &Path, dir: &Path, port: u16) -> PathBuf {
+    let text = std::fs::read_to_string(chart).expect("read the chart");
+    let path = dir.join(chart.file_name().expect("a chart file"));
+    std::fs::write(&path, text.replace("127.0.0.1:4840/", &format!("127.0.0.1:{port}/"))).expect("write the chart");
+    path
 }

@@ -6,41 +6,11 @@ use std::path::PathBuf;
 
 use baton_proto::exec::sim::TraceRecord;
 use baton_tests::cluster::{events, free_port, repo, Cluster};
-use baton_tests::peer::Server;
-use tokio::process::Command;
-
-fn python_has_asyncua() -> bool {
-    let ok = std::process::Command::new("python3")
-        .args(["-c", "import asyncua"])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if !ok {
-        baton_tests::missing("python3 with asyncua is absent: run .ci/run once");
-    }
-    ok
-}
-
-/// The asyncua server on a free port, once it is up.
-async fn server() -> Option<(Server, u16)> {
-    if !python_has_asyncua() {
-        return None;
-    }
-    let port = free_port();
-    let mut cmd = Command::new("python3");
-    cmd.arg(repo("tests/scripts/opcua_server.py")).arg(port.to_string());
-    let mut server = Server::start(cmd);
-    server.wait_for("READY").await;
-    Some((server, port))
-}
+use baton_tests::peer::{opcua_server as server, with_opcua_port};
 
 /// `tests/charts/NAME` with the server's port in its endpoints.
 fn chart_for(cluster: &Cluster, name: &str, port: u16) -> PathBuf {
-    let text = std::fs::read_to_string(repo(&format!("tests/charts/{name}"))).expect("read the chart");
-    let path = cluster.dir.path().join(name);
-    std::fs::write(&path, text.replace("127.0.0.1:4840/", &format!("127.0.0.1:{port}/"))).expect("write the chart");
-    path
+    with_opcua_port(&repo(&format!("tests/charts/{name}")), cluster.dir.path(), port)
 }
 
 /// Starts agent `cell1` and a coordinator on `chart`, which run until the chart ends.

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::process::Stdio;
 
 use baton_tests::cluster::{events, repo, Cluster};
-use baton_tests::peer::Server;
+use baton_tests::peer::{opcua_server, with_opcua_port, Server};
 use tokio::process::Command;
 
 fn chart(name: &str) -> PathBuf {
@@ -173,6 +173,8 @@ async fn a_misspelt_type_or_goal_is_said_when_the_agent_joins_and_faults_by_name
     assert!(faults.iter().any(|m| m.contains("--ros-interfaces")), "{faults:?}");
 }
 
+/// The example cell (`examples/robot_cell.st`): two agents drive the two ROS 2 servers in parallel branches, the
+/// coordinator converges them, and one agent then has the OPC UA server run a job.
 #[tokio::test(flavor = "multi_thread")]
 async fn two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_converges_them() {
     if !python_has_sdk() {
@@ -180,15 +182,20 @@ async fn two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_c
     }
     let mut cluster = Cluster::with_router().await;
     let Some(mut action) = action_server(&cluster, "succeed") else { return };
+    let Some((machine, ua_port)) = opcua_server().await else { return };
     let port = cluster.endpoint.rsplit(':').next().expect("port").to_string();
     let mut cmd = Command::new("python3");
     cmd.arg(repo("tests/scripts/ros2_service_server.py")).args([&port, "0", "/gripper/close"]);
     let mut service = Server::start(cmd);
     action.wait_for("READY").await;
     service.wait_for("READY").await;
+    let chart = with_opcua_port(&repo("examples/robot_cell.st"), cluster.dir.path(), ua_port);
     cluster.agent("arm1", &[], &[]);
-    let (_, trace, summary) = run(&mut cluster, "../../examples/ros2_cell.st", "cell1", &[]).await;
-    assert!(ends_in(&trace, "Ready"), "{trace:?}");
+    let pki = cluster.dir.path().join("pki");
+    cluster.agent("cell1", &[], &["--opcua-pki", pki.to_str().expect("utf-8 path")]);
+    let (status, log, trace, summary) = cluster.coordinator_joining(&chart, &[]).finish().await;
+    assert!(status.success(), "{log}");
+    assert!(ends_in(&trace, "Ready"), "{trace:?}\n{}", cluster.agent_log("cell1"));
     action.wait_for("SUCCEEDED").await;
     assert_eq!(service.wait_for("REQUEST").await, "REQUEST data=True");
     // Each branch ran on its own agent, and the convergence waited for both.
@@ -196,10 +203,11 @@ async fn two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_c
         trace.iter().filter(|r| r.event == "skill_done").map(|r| (r.name.clone(), r.agent.clone())).collect();
     assert!(done.contains(&("MoveArm".into(), Some("arm1".into()))), "{done:?}");
     assert!(done.contains(&("CloseGripper".into(), Some("cell1".into()))), "{done:?}");
+    assert!(done.contains(&("LoadParts".into(), Some("cell1".into()))), "{done:?}");
     let at = |event: &str, name: &str| trace.iter().find(|r| r.event == event && r.name == name).map(|r| r.t_ms);
-    let ready = at("activate", "Ready").expect("Ready");
-    assert!(
-        done.len() == 2 && at("activate", "Moved").unwrap() <= ready && at("activate", "Gripped").unwrap() <= ready
-    );
+    let load = at("activate", "Load").expect("Load");
+    assert!(done.len() == 3 && at("activate", "Moved").unwrap() <= load && at("activate", "Gripped").unwrap() <= load);
     assert_eq!((var(&summary, "last"), var(&summary, "said")), ("3".into(), "'gripper closed'".into()));
+    assert_eq!(var(&summary, "parts"), "3", "the machine's count, read when its job was done");
+    assert!(machine.finish().await.iter().any(|l| l == "JOB DONE"));
 }

@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# Runs examples/ros2_cell.st on loopback against two ROS 2 servers Baton did not write: a Fibonacci action
-# server written with hiroz (tests/ros2-peer, built on first use) and a SetBool service server from
-# zenoh-ros2-sdk (installed on first use), with the two agents `arm1` and `cell1`. Run it from a checkout
-# after `cargo build --release`:
+# Runs examples/robot_cell.st on loopback against three servers Baton did not write: a Fibonacci action server
+# written with hiroz (tests/ros2-peer, built on first use), a SetBool service server from zenoh-ros2-sdk and an
+# OPC UA server written with asyncua (both installed on first use), with the two agents `arm1` and `cell1`.
+# Run it from a checkout after `cargo build --release`:
 #
-#     examples/ros2_cell.sh [--rerun SINK]
+#     examples/robot_cell.sh [--rerun SINK]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=target/release
@@ -16,9 +16,14 @@ if [ ! -x "$peer" ]; then
 fi
 python3 -c "import zenoh_ros2_sdk" 2>/dev/null ||
   python3 -m pip install --quiet 'zenoh-ros2-sdk==0.1.8' 'eclipse-zenoh==1.10.2' 'rosbags==0.11.9'
-port=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+python3 -c "import asyncua" 2>/dev/null || python3 -m pip install --quiet 'asyncua==2.1.0'
+free_port() { python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
+port=$(free_port)
+ua_port=$(free_port)
 endpoint="tcp/127.0.0.1:$port"
 logs=$(mktemp -d)
+# The chart names the machine's endpoint; this copy names the test server's port.
+sed "s|127.0.0.1:4840/|127.0.0.1:$ua_port/|" examples/robot_cell.st > "$logs/robot_cell.st"
 pids=()
 cleanup() {
   for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
@@ -26,7 +31,7 @@ cleanup() {
 }
 trap cleanup EXIT
 # The coordinator embeds the router the servers and agents join; it waits for its agents.
-"$bin/baton" run examples/ros2_cell.st --listen "$endpoint" "$@" &
+"$bin/baton" run "$logs/robot_cell.st" --listen "$endpoint" "$@" &
 coordinator=$!
 sleep 0.3
 # Each server serves until its stdin closes: their stdin is a FIFO this script holds open, so they also go when
@@ -36,6 +41,8 @@ exec 3<> "$logs/hold"
 "$peer" "$endpoint" 0 /arm/move_to succeed < "$logs/hold" > "$logs/action_server.log" &
 pids+=($!)
 python3 tests/scripts/ros2_service_server.py "$port" 0 /gripper/close < "$logs/hold" > "$logs/service_server.log" &
+pids+=($!)
+python3 tests/scripts/opcua_server.py "$ua_port" < "$logs/hold" > "$logs/opcua_server.log" 2>&1 &
 pids+=($!)
 "$bin/baton-agent" --connect "$endpoint" --name arm1 2> "$logs/arm1.log" &
 pids+=($!)
