@@ -16,6 +16,7 @@
 //! # }
 //! ```
 
+pub mod io;
 pub mod opcua;
 pub mod ros2;
 pub mod shell;

@@ -81,6 +81,8 @@ enum Event {
     Skill(RunId, ActionId, u64, Result<(), String>),
     /// A running skill wrote a part of its answer: mapping index, value.
     SkillOutput(RunId, ActionId, u64, usize, Value),
+    /// A sample of an input binding's device (`Layout::io` index, its value).
+    Input(RunId, usize, Value),
 }
 
 /// A skill started and not yet ended.
@@ -93,6 +95,8 @@ struct RunningSkill {
 struct Run {
     state: AgentRun,
     last_used: Instant,
+    /// The subscriptions of its input bindings, undeclared when the run is forgotten.
+    _inputs: crate::io::Inputs,
 }
 
 struct Shell {
@@ -337,6 +341,11 @@ impl Shell {
                     }
                 }
             }
+            ToAgent::Join { run, chart } => {
+                if !self.runs.contains_key(&run) && !self.pending.contains_key(&run) {
+                    self.fetch_for(run, chart);
+                }
+            }
             ToAgent::Sync { run } => {
                 if let Some(r) = self.runs.get_mut(&run) {
                     r.state.handle_sync(now);
@@ -358,13 +367,22 @@ impl Shell {
         }
         queue.push_back((hash.clone(), d));
         if first {
-            let session = self.session.clone();
-            let tx = self.events.clone();
-            tokio::spawn(async move {
-                let result = fetch_chart(&session, run, &hash).await;
-                let _ = tx.send(Event::Chart(run, result));
-            });
+            self.fetch_for(run, hash);
         }
+    }
+
+    /// Fetches the chart of `run`; dispatches that come meanwhile wait in `pending`.
+    fn fetch_for(&mut self, run: RunId, hash: ChartHash) {
+        if self.pending.len() >= RUNS_MAX && !self.pending.contains_key(&run) {
+            return self.drop_msg(format!("run {} not joined: {RUNS_MAX} charts are being fetched", run.key()));
+        }
+        self.pending.entry(run).or_default();
+        let session = self.session.clone();
+        let tx = self.events.clone();
+        tokio::spawn(async move {
+            let result = fetch_chart(&session, run, &hash).await;
+            let _ = tx.send(Event::Chart(run, result));
+        });
     }
 
     fn on_vars(&mut self, sample: &Sample) {
@@ -388,7 +406,8 @@ impl Shell {
                 let mut state = AgentRun::new(name, roles, run, hash.clone(), program, layout, cycle_ms);
                 state.set_incarnation(self.incarnation);
                 self.check_skills(&state);
-                let mut r = Run { state, last_used: Instant::now() };
+                let inputs = self.subscribe_inputs(run, &state);
+                let mut r = Run { state, last_used: Instant::now(), _inputs: inputs };
                 for (h, d) in queued {
                     if h == hash {
                         r.state.handle_dispatch(now, d);
@@ -426,6 +445,11 @@ impl Shell {
                     }
                 }
             }
+            Event::Input(run, binding, value) => {
+                if let Some(r) = self.runs.get_mut(&run) {
+                    r.state.handle_input(now, binding, value);
+                }
+            }
             Event::SkillOutput(run, action, serial, output, value) => {
                 if self.running.get(&(run, action)).is_some_and(|r| r.serial == serial) {
                     if let Some(r) = self.runs.get_mut(&run) {
@@ -434,6 +458,19 @@ impl Shell {
                 }
             }
         }
+    }
+
+    /// Subscribes to the devices of the run's input bindings on this agent.
+    fn subscribe_inputs(&self, run: RunId, state: &AgentRun) -> crate::io::Inputs {
+        let mut inputs = crate::io::Inputs::default();
+        for (i, b) in state.io_here().filter(|(_, b)| b.dir == baton_proto::dist::io::IoDir::Input) {
+            let Some(key) = b.key() else { continue };
+            let tx = self.events.clone();
+            inputs.subscribe(&self.session, key.to_string(), move |v| {
+                let _ = tx.send(Event::Input(run, i, v));
+            });
+        }
+        inputs
     }
 
     /// Forgets the least recently used run that holds no token when the table is full.
@@ -518,6 +555,12 @@ impl Shell {
             AgentOutput::StopSkill { action } => {
                 if let Some(old) = self.running.remove(&(run, action)) {
                     self.stop_skill(run, action, old);
+                }
+            }
+            AgentOutput::Output { binding, value } => {
+                let key = self.runs.get(&run).and_then(|r| r.state.io_here().find(|(i, _)| *i == binding));
+                if let Some(key) = key.and_then(|(_, b)| b.key()).map(str::to_string) {
+                    self.put(key, crate::io::payload_of(&value).into_bytes()).await;
                 }
             }
             AgentOutput::Log { level, message } => {

@@ -40,6 +40,7 @@ pub mod exec {
 /// The distributed part: where each part of a chart runs, the wire protocol and key space, the journal, the
 /// Zenoh settings and the coordinator's and agent's state machines.
 pub mod dist {
+    pub mod io;
     pub mod journal;
     pub mod keys;
     pub mod layout;

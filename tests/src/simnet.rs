@@ -580,6 +580,8 @@ impl SimCluster {
                             }
                         }
                         ToAgent::Sync { .. } => self.agents[i].run.handle_sync(self.now_ms),
+                        // Simulated agents take part in the run from its start.
+                        ToAgent::Join { .. } => {}
                     }
                 }
                 // A coordinator that is down hears nothing.
@@ -643,7 +645,8 @@ impl SimCluster {
                 AgentOutput::StopSkill { action } => {
                     self.agents[i].skills.remove(&action);
                 }
-                AgentOutput::Log { .. } => {}
+                // The simulated cells have no devices.
+                AgentOutput::Log { .. } | AgentOutput::Output { .. } => {}
             }
         }
     }

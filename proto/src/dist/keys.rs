@@ -19,6 +19,17 @@ use uuid::Uuid;
 
 const ROOT: &str = "baton";
 
+/// A key a chart binds a variable to (`cell1/door/closed`): chunks of letters, digits and `-_.` between `/`,
+/// and, where `wildcards` (an input's subscription), `*` or `**` as whole chunks. Never under `baton/`, which
+/// is Baton's own.
+pub fn is_key_expr(key: &str, wildcards: bool) -> bool {
+    let chunk_ok = |c: &str| {
+        (wildcards && (c == "*" || c == "**"))
+            || (!c.is_empty() && c.chars().all(|ch| ch.is_ascii_alphanumeric() || "-_.".contains(ch)))
+    };
+    key.len() <= 256 && !key.split('/').next().is_some_and(|c| c == ROOT || c == "**") && key.split('/').all(chunk_ok)
+}
+
 pub fn alive(agent: &str) -> String {
     format!("{ROOT}/alive/{agent}")
 }

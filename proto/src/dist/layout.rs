@@ -126,8 +126,11 @@ pub struct Layout {
     pub skills: Vec<Option<SkillBinding>>,
     /// Per action: where it runs (the placement of the steps that use it).
     pub action_placement: Vec<Placement>,
-    /// Per variable: read by code that runs on agents, so its writer publishes it.
+    /// Per variable: read by code that runs on agents, or bound to a device (an input's agent publishes it, an
+    /// output's agent must hear it), so its writer publishes it.
     pub read_by_agents: Vec<bool>,
+    /// The variables bound to device signals (`dist::io`), and the agent that connects each.
+    pub io: Vec<crate::dist::io::IoBinding>,
 }
 
 impl Layout {
@@ -220,10 +223,14 @@ pub fn layout(chart: &Chart, program: &Program, diags: &mut Vec<Diagnostic>) -> 
         _ => Placement::Coordinator,
     };
     let transition_placement: Vec<Placement> = (0..program.transitions.len()).map(judged_at).collect();
-    let (writer, settable) = writers(chart, program, &action_placement, &transition_placement, &skills, diags);
+    let io = crate::dist::io::io_bindings(chart, program, diags);
+    let (writer, settable) = writers(chart, program, &action_placement, &transition_placement, &skills, &io, diags);
     check_remote_reads(chart, program, &placement, &segment_of, &action_placement, diags);
-    let read_by_agents = read_by_agents(program, &segment_of, &action_placement);
-    Layout { placement, segment_of, segments, waiting, writer, settable, skills, action_placement, read_by_agents }
+    let mut read_by_agents = read_by_agents(program, &segment_of, &action_placement);
+    for b in &io {
+        read_by_agents[b.var.index()] = true;
+    }
+    Layout { placement, segment_of, segments, waiting, writer, settable, skills, action_placement, read_by_agents, io }
 }
 
 /// The keys a step's pragma may hold.
@@ -525,6 +532,7 @@ fn writers(
     action_placement: &[Placement],
     transition_placement: &[Placement],
     skills: &[Option<SkillBinding>],
+    io: &[crate::dist::io::IoBinding],
     diags: &mut Vec<Diagnostic>,
 ) -> (Vec<Placement>, Vec<bool>) {
     let n = program.vars.len();
@@ -578,6 +586,24 @@ fn writers(
                 note(v, &action_placement[assoc.action.index()], by);
             }
         }
+    }
+    // A bound input's one writer is its device, through its agent: nothing in the chart may write it too.
+    for b in io.iter().filter(|b| b.dir == crate::dist::io::IoDir::Input) {
+        let others = &mut writes[b.var.index()];
+        if !others.is_empty() {
+            let by: Vec<String> = others.iter().map(|(p, by)| format!("{by} on {p}")).collect();
+            diags.push(Diagnostic::error(
+                b.span,
+                format!(
+                    "`{}` is bound as an input on `{}`, and {} writes it too: a bound input is written by its device alone",
+                    b.name,
+                    b.agent,
+                    by.join(", ")
+                ),
+            ));
+            others.clear();
+        }
+        others.push((Placement::Agent(b.agent.clone()), format!("the input binding on `{}`", b.agent)));
     }
     let mut writer = Vec::with_capacity(n);
     let mut settable = Vec::with_capacity(n);

@@ -133,6 +133,9 @@ pub enum ToAgent {
     /// The coordinator of `run` started again from its journal: send every report it has not acknowledged
     /// now, rather than at the next resend.
     Sync { run: RunId },
+    /// Take part in `run` before any token comes: the agent connects variables bound to devices on it
+    /// (`dist::io`), whose inputs the chart may wait for from its first cycle.
+    Join { run: RunId, chart: ChartHash },
 }
 
 /// Every report of this token up to `seq` is applied; with `done`, the token is finished and may be forgotten.

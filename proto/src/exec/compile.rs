@@ -854,6 +854,7 @@ impl<'a> Compiler<'a> {
                     init: None,
                     members: Vec::new(),
                     array: None,
+                    pragmas: Vec::new(),
                 };
                 self.declare_struct(&sub, inner, &path, hidden, vars);
                 names.push(f.name.name.clone());
@@ -1003,6 +1004,7 @@ impl<'a> Compiler<'a> {
                 init: None,
                 members: Vec::new(),
                 array: None,
+                pragmas: Vec::new(),
             };
             self.declare_struct(&decl, fields, &format!("{label}[{idx}]"), hidden, vars);
             if k == 0 {

@@ -176,6 +176,8 @@ pub struct VarDecl {
     pub members: Vec<(Ident, Expr)>,
     /// `ARRAY [1..3, 0..1] OF INT := [1, 2, 4(0)]` (the type name is then `ARRAY`).
     pub array: Option<ArraySpec>,
+    /// Pragmas written right after the declaration's `;`, on its line: `door : BOOL; {input := 'zenoh', …}`.
+    pub pragmas: Vec<Pragma>,
 }
 
 /// An array type: its dimensions (inclusive bounds), element type, and initial elements in order (repetitions

@@ -678,6 +678,7 @@ impl Parser<'_> {
                 init: init.clone(),
                 members: members.clone(),
                 array: array.clone(),
+                pragmas: Vec::new(),
             });
         }
         Ok(())
@@ -1313,6 +1314,15 @@ impl Parser<'_> {
 
 /// Gives each pragma to the element it stands in, or else to the element it follows, or else to its chart;
 /// pragmas outside every chart are dropped, as a standard tool would ignore them.
+/// The declaration a pragma at `at` follows on its line, right after its `;` (`door : BOOL; {input := …}`).
+fn declaration_before<'a>(src: &str, vars: &'a mut [VarDecl], at: u32) -> Option<&'a mut VarDecl> {
+    let i = vars.iter().rposition(|d| d.name.span.start < at)?;
+    let between = src.get(vars[i].name.span.start as usize..at as usize)?;
+    let (_, after) = between.split_once(';')?;
+    let follows = !after.contains(';') && after.chars().all(|c| c == ' ' || c == '\t');
+    follows.then(|| &mut vars[i])
+}
+
 fn attach_pragmas(src: &str, charts: &mut [Chart], pragmas: &[RawPragma]) {
     for raw in pragmas {
         let text = src[raw.inner.start as usize..raw.inner.end as usize].trim().to_string();
@@ -1322,6 +1332,10 @@ fn attach_pragmas(src: &str, charts: &mut [Chart], pragmas: &[RawPragma]) {
             continue;
         };
         let at = raw.span.start;
+        if let Some(decl) = declaration_before(src, &mut chart.vars, at) {
+            decl.pragmas.push(pragma);
+            continue;
+        }
         // Elements of each kind are in source order, so the last one starting before the pragma is found by
         // binary search; the closest of the three kinds is the element the pragma follows or stands in.
         let step = chart.steps.partition_point(|s| s.span.start <= at).checked_sub(1);
@@ -1358,6 +1372,21 @@ mod tests {
         assert_eq!(texts(&chart.steps[0].pragmas), ["agent := 'r1'", "after_a"]);
         assert_eq!(texts(&chart.transitions[0].pragmas), ["inside_t"]);
         assert!(chart.steps[1].pragmas.is_empty());
+    }
+
+    #[test]
+    fn a_pragma_after_a_declaration_on_its_line_is_the_declarations() {
+        let src =
+            "PROGRAM P\nVAR\n  door : BOOL; {input := 'zenoh'}\n  lamp : BOOL := TRUE;\n  {below_lamp}\n  n : INT; \
+                   {on_n} {and_n}\nEND_VAR\n{after_vars}\nINITIAL_STEP A: END_STEP\nEND_PROGRAM";
+        let parsed = parse(src);
+        assert!(parsed.diagnostics.is_empty(), "{:?}", parsed.diagnostics);
+        let chart = &parsed.charts[0];
+        let texts = |p: &[Pragma]| p.iter().map(|p| p.text.clone()).collect::<Vec<_>>();
+        assert_eq!(texts(&chart.vars[0].pragmas), ["input := 'zenoh'"]);
+        assert!(chart.vars[1].pragmas.is_empty(), "a pragma on the next line is not the declaration's");
+        assert_eq!(texts(&chart.vars[2].pragmas), ["on_n"], "only the first pragma follows the `;` directly");
+        assert_eq!(texts(&chart.pragmas), ["below_lamp", "and_n", "after_vars"]);
     }
 
     #[test]

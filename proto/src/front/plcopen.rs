@@ -526,6 +526,7 @@ impl Reader<'_> {
                 init,
                 members,
                 array,
+                pragmas: Vec::new(),
             });
         }
         vars
@@ -1265,6 +1266,7 @@ impl Reader<'_> {
                                     init: None,
                                     members: Vec::new(),
                                     array: None,
+                                    pragmas: Vec::new(),
                                 });
                                 let clk =
                                     Arg { name: Some(ident("CLK")), output: false, negated: false, value: var, span };

@@ -15,6 +15,7 @@
 use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
+use crate::dist::io::{IoBinding, IoDir};
 use crate::dist::layout::{Layout, Placement, SegmentId, SkillBinding};
 use crate::dist::wire::{
     AgentEvent, AgentEventKind, ChartHash, HeldToken, Report, RunId, TokenId, VarUpdate, VarValue,
@@ -45,6 +46,12 @@ pub enum AgentOutput {
     /// The action's Q fell: cancel its skill if it still runs.
     StopSkill {
         action: ActionId,
+    },
+    /// Send this value of an output-bound variable to its device (`Layout::io[binding]`): its first value when
+    /// the agent joins the run, then every change.
+    Output {
+        binding: usize,
+        value: Value,
     },
     Log {
         level: Level,
@@ -123,6 +130,8 @@ pub struct AgentRun {
     fenced: Option<u64>,
     outbox: VecDeque<AgentOutput>,
     dropped: u64,
+    /// Per binding of `Layout::io`: the value last sent to an output's device (`None`: not sent, or not ours).
+    io_sent: Vec<Option<Value>>,
 }
 
 impl AgentRun {
@@ -154,7 +163,7 @@ impl AgentRun {
                 }
             }
         }
-        AgentRun {
+        let mut run = AgentRun {
             name: name.to_string(),
             serves,
             run,
@@ -182,6 +191,56 @@ impl AgentRun {
             fenced: None,
             outbox: VecDeque::new(),
             dropped: 0,
+            io_sent: Vec::new(),
+        };
+        run.io_sent = vec![None; run.layout.io.len()];
+        run.send_outputs();
+        run
+    }
+
+    /// The variables bound to devices on this agent, by their index in `Layout::io`.
+    pub fn io_here(&self) -> impl Iterator<Item = (usize, &IoBinding)> + '_ {
+        self.layout.io.iter().enumerate().filter(move |(_, b)| b.agent == self.name)
+    }
+
+    /// A sample from the device of input binding `binding`: its value, as the device gave it, is converted to the
+    /// variable's type. A text where the variable is not a STRING is refused (a corrupt or foreign sample), and
+    /// the variable keeps its value.
+    pub fn handle_input(&mut self, now_ms: u64, binding: usize, value: Value) {
+        self.catch_up(now_ms);
+        let Some(b) = self.layout.io.get(binding).filter(|b| b.agent == self.name && b.dir == IoDir::Input) else {
+            self.dropped += 1;
+            return;
+        };
+        let (var, name) = (b.var, b.name.clone());
+        let ty = self.program.vars[var.index()].ty.clone();
+        if matches!(value, Value::Str(_)) && !matches!(ty, crate::exec::types::Type::Str { .. }) {
+            self.dropped += 1;
+            self.log(
+                Level::Warn,
+                format!("input `{name}`: `{value}` is not a {ty}; the value stays {}", self.engine.value(var)),
+            );
+            return;
+        }
+        let value = crate::exec::stdlib::convert(value, &ty);
+        if let Err(e) = self.engine.handle(Input::Set(var, value)) {
+            self.log(Level::Warn, format!("input `{name}`: {e}"));
+        }
+        self.settle();
+    }
+
+    /// Queues the output-bound variables of this agent whose value changed since they were last sent.
+    fn send_outputs(&mut self) {
+        for i in 0..self.layout.io.len() {
+            let b = &self.layout.io[i];
+            if b.agent != self.name || b.dir != IoDir::Output {
+                continue;
+            }
+            let value = self.engine.value(b.var);
+            if self.io_sent[i].as_ref() != Some(&value) {
+                self.io_sent[i] = Some(value.clone());
+                self.outbox.push_back(AgentOutput::Output { binding: i, value });
+            }
         }
     }
 
@@ -649,6 +708,7 @@ impl AgentRun {
     /// counts), and all of it leaves, in reports of at most `REPORT_EVENTS_MAX` events, once there is room. So
     /// whatever the coordinator has not acknowledged can always be sent again, however long it was away.
     fn report(&mut self) {
+        self.send_outputs();
         let mut changed = Vec::new();
         for (i, &v) in self.owned.iter().enumerate() {
             let value = self.engine.value(v);

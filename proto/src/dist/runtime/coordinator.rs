@@ -735,6 +735,10 @@ impl Coordinator {
         if sync {
             self.send(name.clone(), ToAgent::Sync { run });
         }
+        // An agent that connects bound variables takes part in the run from the start, tokens or not.
+        if (!was_alive || restarted) && self.layout.io.iter().any(|b| b.agent == name) {
+            self.send(name.clone(), ToAgent::Join { run, chart: self.hash.clone() });
+        }
         // What the agent still holds of an older epoch (its segment moved on while it was away) or of a token
         // that is over: it must not run it a moment longer.
         let mut stale: Vec<(TokenId, u32)> = info
