@@ -3,7 +3,7 @@
 //! ```text
 //! baton/alive/<agent>                 liveliness token of a live agent
 //! baton/agent/<agent>/info            queryable: the agent's roles, lease and held tokens (AgentInfo)
-//! baton/agent/<agent>/<incarnation>/cmd  coordinator → one process of the agent: Dispatch, Ack, Drop, Sync
+//! baton/agent/<agent>/<incarnation>/cmd  coordinator → one process of the agent: Dispatch, Ack, Drop, Sync, Join
 //!                                     (ToAgent); a second process of the same name hears none of it
 //! baton/run/<run>/report              agents → coordinator: token reports (Report)
 //! baton/run/<run>/vars/<writer>       variable updates from the coordinator or an agent (VarUpdate)
