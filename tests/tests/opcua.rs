@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use baton_proto::exec::sim::TraceRecord;
-use baton_tests::cluster::{events, free_port, repo, Cluster};
+use baton_tests::cluster::{events, free_port, repo, Cluster, Coordinator};
 use baton_tests::peer::{opcua_server as server, with_opcua_port};
 
 /// `tests/charts/NAME` with the server's port in its endpoints.
@@ -13,11 +13,16 @@ fn chart_for(cluster: &Cluster, name: &str, port: u16) -> PathBuf {
     with_opcua_port(&repo(&format!("tests/charts/{name}")), cluster.dir.path(), port)
 }
 
-/// Starts agent `cell1` and a coordinator on `chart`, which run until the chart ends.
-async fn run(cluster: &mut Cluster, chart: &std::path::Path) -> (Vec<TraceRecord>, serde_json::Value) {
+/// Starts agent `cell1`, its certificates in the cluster's folder, and a coordinator on `chart`.
+fn start(cluster: &mut Cluster, chart: &std::path::Path) -> Coordinator {
     let pki = cluster.dir.path().join("pki");
     cluster.agent("cell1", &[], &["--opcua-pki", pki.to_str().expect("utf-8 path"), "--verbose"]);
-    let coordinator = cluster.coordinator_joining(chart, &[]);
+    cluster.coordinator_joining(chart, &[])
+}
+
+/// Runs `chart` with agent `cell1` until the chart ends.
+async fn run(cluster: &mut Cluster, chart: &std::path::Path) -> (Vec<TraceRecord>, serde_json::Value) {
+    let coordinator = start(cluster, chart);
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}\n{}", cluster.agent_log("cell1"));
     (trace, summary)
@@ -89,9 +94,7 @@ async fn a_server_killed_during_a_call_is_a_fault_at_once() {
     let Some((mut server, port)) = server().await else { return };
     let mut cluster = Cluster::with_router().await;
     let chart = chart_for(&cluster, "opcua_hang.st", port);
-    let pki = cluster.dir.path().join("pki");
-    cluster.agent("cell1", &[], &["--opcua-pki", pki.to_str().expect("utf-8 path")]);
-    let coordinator = cluster.coordinator_joining(&chart, &[]);
+    let coordinator = start(&mut cluster, &chart);
     server.wait_for("CALL Hang").await;
     server.kill().await;
     let (status, log, trace, _) = coordinator.finish().await;
@@ -105,10 +108,9 @@ async fn a_server_killed_during_a_call_is_a_fault_at_once() {
 #[tokio::test(flavor = "multi_thread")]
 async fn no_server_is_a_fault_after_the_timeout() {
     let mut cluster = Cluster::with_router().await;
-    let text = std::fs::read_to_string(repo("tests/charts/opcua_hang.st")).expect("chart");
-    let chart = cluster.dir.path().join("unreachable.st");
     let port = free_port();
-    let text = text.replace("127.0.0.1:4840/", &format!("127.0.0.1:{port}/")).replace("50000", "800");
+    let chart = chart_for(&cluster, "opcua_hang.st", port);
+    let text = std::fs::read_to_string(&chart).expect("chart").replace("timeout_ms := 50000", "timeout_ms := 800");
     std::fs::write(&chart, text).expect("write the chart");
     let (trace, _) = run(&mut cluster, &chart).await;
     assert!(reached(&trace, "Lost"));

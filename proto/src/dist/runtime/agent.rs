@@ -213,18 +213,24 @@ impl AgentRun {
             return;
         };
         let (var, name) = (b.var, b.name.clone());
-        let ty = self.program.vars[var.index()].ty.clone();
+        let ty = &self.program.vars[var.index()].ty;
         if matches!(value, Value::Str(_)) && !matches!(ty, crate::exec::types::Type::Str { .. }) {
             self.dropped += 1;
-            self.log(
-                Level::Warn,
-                format!("input `{name}`: `{value}` is not a {ty}; the value stays {}", self.engine.value(var)),
-            );
+            let message =
+                format!("input `{name}`: `{value}` is not a {ty}; the value stays {}", self.engine.value(var));
+            self.log(Level::Warn, message);
             return;
         }
+        self.write_from_device(var, value, format!("input `{name}`"));
+    }
+
+    /// Writes what a device gave (a skill's answer, a bound input) to `var`, converted to its type as `*_TO_*`
+    /// converts, then reacts.
+    fn write_from_device(&mut self, var: VarId, value: Value, what: String) {
+        let ty = self.program.vars[var.index()].ty.clone();
         let value = crate::exec::stdlib::convert(value, &ty);
         if let Err(e) = self.engine.handle(Input::Set(var, value)) {
-            self.log(Level::Warn, format!("input `{name}`: {e}"));
+            self.log(Level::Warn, format!("{what}: {e}"));
         }
         self.settle();
     }
@@ -594,13 +600,8 @@ impl AgentRun {
         else {
             return;
         };
-        let ty = self.program.vars[var.index()].ty.clone();
-        let value = crate::exec::stdlib::convert(value, &ty);
-        if let Err(e) = self.engine.handle(Input::Set(var, value)) {
-            let message = format!("skill of action `{}`: {e}", self.program.actions[action.index()].name);
-            self.log(Level::Warn, message);
-        }
-        self.settle();
+        let what = format!("skill of action `{}`", self.program.actions[action.index()].name);
+        self.write_from_device(var, value, what);
     }
 
     /// A skill stopped because its action's Q fell has ended its own way (a ROS 2 goal cancelled, a cancel
