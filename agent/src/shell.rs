@@ -81,8 +81,8 @@ enum Event {
     Skill(RunId, ActionId, u64, Result<(), String>),
     /// A running skill wrote a part of its answer: mapping index, value.
     SkillOutput(RunId, ActionId, u64, usize, Value),
-    /// A sample of an input binding's device (`Layout::io` index, its value).
-    Input(RunId, usize, Value),
+    /// The devices of a run's bindings gave values or changed state (`crate::io::Sink` holds what).
+    Devices(RunId),
 }
 
 /// A skill started and not yet ended.
@@ -95,8 +95,8 @@ struct RunningSkill {
 struct Run {
     state: AgentRun,
     last_used: Instant,
-    /// The subscriptions of its input bindings, undeclared when the run is forgotten.
-    _inputs: crate::io::Inputs,
+    /// The connections of its bound variables on this agent, closed when the run is forgotten.
+    devices: crate::io::Devices,
 }
 
 struct Shell {
@@ -341,11 +341,11 @@ impl Shell {
                     }
                 }
             }
-            ToAgent::Join { run, chart } => {
-                if !self.runs.contains_key(&run) && !self.pending.contains_key(&run) {
-                    self.fetch_for(run, chart);
-                }
-            }
+            ToAgent::Join { run, chart } => match self.runs.get_mut(&run) {
+                Some(r) => r.state.handle_join(),
+                None if !self.pending.contains_key(&run) => self.fetch_for(run, chart),
+                None => {}
+            },
             ToAgent::Sync { run } => {
                 if let Some(r) = self.runs.get_mut(&run) {
                     r.state.handle_sync(now);
@@ -406,8 +406,8 @@ impl Shell {
                 let mut state = AgentRun::new(name, roles, run, hash.clone(), program, layout, cycle_ms);
                 state.set_incarnation(self.incarnation);
                 self.check_skills(&state);
-                let inputs = self.subscribe_inputs(run, &state);
-                let mut r = Run { state, last_used: Instant::now(), _inputs: inputs };
+                let devices = self.start_devices(run, &state);
+                let mut r = Run { state, last_used: Instant::now(), devices };
                 for (h, d) in queued {
                     if h == hash {
                         r.state.handle_dispatch(now, d);
@@ -445,9 +445,15 @@ impl Shell {
                     }
                 }
             }
-            Event::Input(run, binding, value) => {
+            Event::Devices(run) => {
                 if let Some(r) = self.runs.get_mut(&run) {
-                    r.state.handle_input(now, binding, value);
+                    let arrived = r.devices.sink.take();
+                    for (binding, state) in arrived.states {
+                        r.state.handle_device(binding, state);
+                    }
+                    for (binding, value) in arrived.values {
+                        r.state.handle_input(now, binding, value);
+                    }
                 }
             }
             Event::SkillOutput(run, action, serial, output, value) => {
@@ -460,17 +466,13 @@ impl Shell {
         }
     }
 
-    /// Subscribes to the devices of the run's input bindings on this agent.
-    fn subscribe_inputs(&self, run: RunId, state: &AgentRun) -> crate::io::Inputs {
-        let mut inputs = crate::io::Inputs::default();
-        for (i, b) in state.io_here().filter(|(_, b)| b.dir == baton_proto::dist::io::IoDir::Input) {
-            let Some(key) = b.key() else { continue };
-            let tx = self.events.clone();
-            inputs.subscribe(&self.session, key.to_string(), move |v| {
-                let _ = tx.send(Event::Input(run, i, v));
-            });
-        }
-        inputs
+    /// Connects the devices of the run's bindings on this agent.
+    fn start_devices(&self, run: RunId, state: &AgentRun) -> crate::io::Devices {
+        let tx = self.events.clone();
+        let sink = crate::io::Sink::new(move || {
+            let _ = tx.send(Event::Devices(run));
+        });
+        crate::io::Devices::start(&self.session, &self.skills, state.io_here(), sink)
     }
 
     /// Forgets the least recently used run that holds no token when the table is full.
@@ -558,10 +560,12 @@ impl Shell {
                 }
             }
             AgentOutput::Output { binding, value } => {
-                let key = self.runs.get(&run).and_then(|r| r.state.io_here().find(|(i, _)| *i == binding));
-                if let Some(key) = key.and_then(|(_, b)| b.key()).map(str::to_string) {
-                    self.put(key, crate::io::payload_of(&value).into_bytes()).await;
+                if let Some(r) = self.runs.get(&run) {
+                    r.devices.write(binding, value);
                 }
+            }
+            AgentOutput::Devices(report) => {
+                self.put(keys::devices(run, &self.config.name), wire::encode(&report)).await;
             }
             AgentOutput::Log { level, message } => {
                 if level >= Level::Warn || self.config.verbose {

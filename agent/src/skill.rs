@@ -121,10 +121,13 @@ pub trait Skill: Send + Sync {
 /// How long the agent waits for a skill that stops itself before it drops it.
 pub const STOP_WAIT_MAX: Duration = Duration::from_secs(30);
 
-/// The skills an agent offers, by name.
+/// The skills an agent offers, by name, and the protocols they speak — which serve the chart's bound variables
+/// too (`crate::io`).
 #[derive(Clone, Default)]
 pub struct Skills {
     by_name: HashMap<String, Arc<dyn Skill>>,
+    ros2: Option<Arc<crate::ros2::Ros2>>,
+    opcua: Option<Arc<crate::opcua::OpcUa>>,
 }
 
 impl Skills {
@@ -137,15 +140,26 @@ impl Skills {
         self.with("shell", ShellCommand)
     }
 
-    /// `ros2_action` and `ros2_service`, speaking rmw_zenoh over the agent's session.
-    pub fn with_ros2(self, ros2: Arc<crate::ros2::Ros2>) -> Skills {
+    /// `ros2_action` and `ros2_service`, speaking rmw_zenoh over the agent's session; and variables bound to
+    /// ROS 2 topics.
+    pub fn with_ros2(mut self, ros2: Arc<crate::ros2::Ros2>) -> Skills {
+        self.ros2 = Some(Arc::clone(&ros2));
         self.with("ros2_action", crate::ros2::skills::Ros2Action { ros2: Arc::clone(&ros2) })
             .with("ros2_service", crate::ros2::skills::Ros2Service { ros2 })
     }
 
-    /// `opcua_method`, with async-opcua's client.
-    pub fn with_opcua(self, opcua: Arc<crate::opcua::OpcUa>) -> Skills {
+    /// `opcua_method`, with async-opcua's client; and variables bound to OPC UA nodes.
+    pub fn with_opcua(mut self, opcua: Arc<crate::opcua::OpcUa>) -> Skills {
+        self.opcua = Some(Arc::clone(&opcua));
         self.with("opcua_method", crate::opcua::skills::OpcuaMethod { opcua })
+    }
+
+    pub fn ros2(&self) -> Option<&Arc<crate::ros2::Ros2>> {
+        self.ros2.as_ref()
+    }
+
+    pub fn opcua(&self) -> Option<&Arc<crate::opcua::OpcUa>> {
+        self.opcua.as_ref()
     }
 
     pub fn with(mut self, name: &str, skill: impl Skill + 'static) -> Skills {

@@ -548,6 +548,17 @@ impl Logger {
                 self.log("WARN", format!("agent {} lost", rec.name));
             }
             "alarm" => self.log("ERROR", format!("alarm: {message}")),
+            "device_down" | "device_up" => {
+                let a = agent.unwrap_or("?");
+                let (level, text) = match rec.event.as_str() {
+                    "device_down" => {
+                        ("WARN", format!("device of `{}` on {a} down: {message}; it keeps its value", rec.name))
+                    }
+                    _ => ("INFO", format!("device of `{}` on {a} back: {message}", rec.name)),
+                };
+                self.progress_log(a, None, level, text.clone());
+                self.log(level, text);
+            }
             "recover" => self.log("WARN", format!("coordinator restarted: {message}")),
             "skill_fault" | "fault" => {
                 let on = agent.map(|a| format!(" on {a}")).unwrap_or_default();

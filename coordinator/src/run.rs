@@ -150,6 +150,7 @@ struct Shell {
 enum Wake {
     Report(Sample),
     Vars(Sample),
+    Devices(Sample),
     Alive(Sample),
     Identity(Identity),
     Chart(Query),
@@ -342,6 +343,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let inbox = || FifoChannel::new(RECEIVE_QUEUE_MAX);
     let report_sub = session.declare_subscriber(keys::report(run)).with(inbox()).await.map_err(zerr)?;
     let vars_sub = session.declare_subscriber(keys::vars(run, "*")).with(inbox()).await.map_err(zerr)?;
+    let devices_sub = session.declare_subscriber(keys::devices(run, "*")).with(inbox()).await.map_err(zerr)?;
     let alive_sub = session.liveliness().declare_subscriber(keys::alive_any()).history(true).await.map_err(zerr)?;
     let chart_q = session.declare_queryable(keys::chart(run)).await.map_err(zerr)?;
     let status_q = session.declare_queryable(keys::status(run)).await.map_err(zerr)?;
@@ -433,6 +435,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         let wake = tokio::select! {
             s = report_sub.recv_async() => s.map_or(Wake::Closed, Wake::Report),
             s = vars_sub.recv_async() => s.map_or(Wake::Closed, Wake::Vars),
+            s = devices_sub.recv_async() => s.map_or(Wake::Closed, Wake::Devices),
             s = alive_sub.recv_async() => s.map_or(Wake::Closed, Wake::Alive),
             Some(ev) = rx.recv() => Wake::Identity(ev),
             q = chart_q.recv_async() => q.map_or(Wake::Closed, Wake::Chart),
@@ -454,6 +457,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
                 }
             }
             Wake::Vars(s) => shell.on_vars(&s),
+            Wake::Devices(s) => shell.on_devices(&s),
             Wake::Alive(s) => shell.on_alive(&s, &tx),
             Wake::Identity(ev) => shell.on_identity(ev, &tx),
             Wake::Chart(q) => reply(&q, chart_reply.clone()).await,
@@ -587,6 +591,13 @@ impl Shell {
             self.decode_drop(s, e);
         }
         self.out.values(now, self.core.core());
+    }
+
+    fn on_devices(&mut self, s: &Sample) {
+        let now = self.now_ms();
+        if let Err(e) = self.core.devices(now, &s.payload().to_bytes()) {
+            self.decode_drop(s, e);
+        }
     }
 
     fn decode_drop(&mut self, s: &Sample, e: wire::WireError) {

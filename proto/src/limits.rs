@@ -121,3 +121,6 @@ const _: () = assert!(NESTING_DEPTH_MAX >= 16);
 // The strings of a dispatch, escaped at worst, fill at most half a message.
 const _: () = assert!(STRING_LENGTH_DEFAULT <= STRING_LENGTH_MAX && STRING_LENGTH_MAX <= STRING_CHARS_MAX);
 const _: () = assert!(STRING_CHARS_MAX * 6 * 2 <= MESSAGE_BYTES_MAX);
+
+/// Characters kept of why a bound device cannot be reached (`DeviceReport`): a peer's text is bounded.
+pub const DEVICE_MESSAGE_CHARS_MAX: usize = 1024;

@@ -646,7 +646,7 @@ impl SimCluster {
                     self.agents[i].skills.remove(&action);
                 }
                 // The simulated cells have no devices.
-                AgentOutput::Log { .. } | AgentOutput::Output { .. } => {}
+                AgentOutput::Log { .. } | AgentOutput::Output { .. } | AgentOutput::Devices(_) => {}
             }
         }
     }

@@ -3,6 +3,8 @@
 //! answer is decoded into a `RosValue` tree, from which the binding's mappings take their parts. The byte
 //! layout (alignment, strings, sequences) is hiroz-cdr's.
 
+use std::sync::Arc;
+
 use baton_proto::exec::types::Value;
 use baton_proto::front::literal::{show_path, Literal, PathPart};
 use hiroz_cdr::{CdrReader, CdrWriter, LittleEndian};
@@ -78,6 +80,88 @@ impl RosValue {
 
 fn is_time(ty: &str) -> bool {
     ty == "builtin_interfaces/msg/Time" || ty == "builtin_interfaces/msg/Duration"
+}
+
+/// Checks that `path` names one value of a `def` message — a number, a boolean, a string, a Time or Duration —
+/// and returns it with the field names spelt as the definition spells them. An empty path names the message's
+/// one field (`std_msgs/msg/Bool` has `data`). With `settable` (an output), no step is an element of a list.
+pub fn resolve_path(
+    lib: &Interfaces,
+    def: &MsgDef,
+    path: &[PathPart],
+    settable: bool,
+) -> Result<Vec<PathPart>, String> {
+    let names = |d: &MsgDef| d.fields.iter().map(|f| f.name.as_str()).collect::<Vec<_>>().join(", ");
+    let path: Vec<PathPart> = match (path.is_empty(), def.fields.as_slice()) {
+        (false, _) => path.to_vec(),
+        (true, [one]) => vec![PathPart::Field(one.name.clone())],
+        (true, _) => {
+            return Err(format!("a {} has fields {}: name one with `field := '…'`", def.name, names(def)));
+        }
+    };
+    let mut out = Vec::with_capacity(path.len());
+    let mut here = Arc::new(def.clone());
+    let mut i = 0;
+    while i < path.len() {
+        let PathPart::Field(name) = &path[i] else {
+            return Err(format!("`{}` is not a list", show_path(&path[..i])));
+        };
+        let field = here
+            .fields
+            .iter()
+            .find(|f| f.name.eq_ignore_ascii_case(name))
+            .cloned()
+            .ok_or_else(|| format!("a {} has no field `{name}`: it has {}", here.name, names(&here)))?;
+        out.push(PathPart::Field(field.name.clone()));
+        i += 1;
+        if field.shape != Shape::One {
+            match path.get(i) {
+                Some(PathPart::Index(n)) if !settable => {
+                    if let Shape::Fixed(len) | Shape::Bounded(len) = field.shape {
+                        if *n >= len {
+                            return Err(format!("`{}` holds at most {len} elements", show_path(&out)));
+                        }
+                    }
+                    out.push(PathPart::Index(*n));
+                    i += 1;
+                }
+                Some(PathPart::Index(_)) => {
+                    return Err(format!("`{}` is a list: an output sets a field, not an element", show_path(&out)))
+                }
+                _ => return Err(format!("`{}` is a list: name one of its elements, such as `[0]`", show_path(&out))),
+            }
+        }
+        match &field.prim {
+            Prim::Msg(name) if is_time(name) && i < path.len() => {
+                return Err(format!("`{}` is a {name}: it is read whole, as a TIME", show_path(&out)));
+            }
+            Prim::Msg(name) if is_time(name) => {}
+            Prim::Msg(name) => {
+                here = lib
+                    .msg(name)
+                    .ok_or_else(|| format!("`{}` is a {name}, which the agent does not know", show_path(&out)))?;
+                if i == path.len() {
+                    return Err(format!(
+                        "`{}` is a {name} message: name one of its fields ({})",
+                        show_path(&out),
+                        names(&here)
+                    ));
+                }
+            }
+            _ if i < path.len() => return Err(format!("`{}` has no fields", show_path(&out))),
+            _ => {}
+        }
+    }
+    Ok(out)
+}
+
+/// The structure literal that sets the value at `path` (fields only) to `value`, every other field at its
+/// default.
+pub fn literal_at(path: &[PathPart], value: Literal) -> Literal {
+    path.iter().rev().fold(value, |inner, part| match part {
+        PathPart::Field(f) => Literal::Struct(vec![(f.clone(), inner)]),
+        PathPart::Index(_) => inner,
+    })
 }
 
 /// Encodes a message of type `def` from `lit` (a structure literal; `None` for all defaults).
@@ -405,6 +489,31 @@ mod tests {
         let v = decode(&lib, &fib.result, &result).unwrap();
         assert_eq!(v.value_at(&path("sequence[5]")).unwrap(), Value::Int(5));
         assert!(v.value_at(&path("sequence")).unwrap_err().contains("list of 6"));
+    }
+
+    #[test]
+    fn a_bound_field_is_checked_against_the_type_and_set_alone() {
+        let lib = Interfaces::load(Distro::Jazzy, &[]).unwrap();
+        let p = |t: &str| baton_proto::front::literal::parse_path(t).unwrap();
+        let twist = lib.msg("geometry_msgs/msg/Twist").unwrap();
+        assert_eq!(show_path(&resolve_path(&lib, &twist, &p("LINEAR.x"), true).unwrap()), "linear.x");
+        assert!(resolve_path(&lib, &twist, &[], false).unwrap_err().contains("has fields linear, angular"));
+        assert!(resolve_path(&lib, &twist, &p("linear"), false).unwrap_err().contains("name one of its fields"));
+        assert!(resolve_path(&lib, &twist, &p("linear.w"), false).unwrap_err().contains("no field `w`"));
+        assert!(resolve_path(&lib, &twist, &p("linear.x.y"), false).unwrap_err().contains("no fields"));
+        let flag = lib.msg("std_msgs/msg/Bool").unwrap();
+        assert_eq!(resolve_path(&lib, &flag, &[], false).unwrap(), vec![PathPart::Field("data".into())]);
+        let header = lib.msg("std_msgs/msg/Header").unwrap();
+        assert_eq!(show_path(&resolve_path(&lib, &header, &p("stamp"), false).unwrap()), "stamp");
+        let array = lib.msg("std_msgs/msg/Float64MultiArray").unwrap();
+        assert_eq!(show_path(&resolve_path(&lib, &array, &p("data[2]"), false).unwrap()), "data[2]");
+        assert!(resolve_path(&lib, &array, &p("data"), false).unwrap_err().contains("name one of its elements"));
+        assert!(resolve_path(&lib, &array, &p("data[2]"), true).unwrap_err().contains("not an element"));
+        // An output sets its field, and every other field keeps its default.
+        let lit = literal_at(&p("linear.x"), Literal::Scalar(Value::Real(0.25)));
+        let v = decode(&lib, &twist, &encode(&lib, &twist, Some(&lit)).unwrap()).unwrap();
+        assert_eq!(v.value_at(&p("linear.x")).unwrap(), Value::Real(0.25));
+        assert_eq!(v.value_at(&p("angular.z")).unwrap(), Value::Real(0.0));
     }
 
     #[test]

@@ -9,11 +9,12 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::Mutex;
 use zenoh::liveliness::LivelinessToken;
+use zenoh::qos::CongestionControl;
 use zenoh::query::{ConsolidationMode, QueryTarget};
 use zenoh::sample::SampleKind;
 use zenoh::Session;
 
-use super::interfaces::{Interfaces, ServiceType, WireType};
+use super::interfaces::{Interfaces, ServiceType, TopicType, WireType};
 use super::keys::{self, Kind, NodeId};
 
 /// A call whose server takes this long to answer is given up: a service answers at once, and an action's
@@ -70,6 +71,29 @@ pub struct Node {
     next_entity: AtomicU32,
     next_sequence: AtomicI64,
     _token: LivelinessToken,
+}
+
+pub type Subscription = zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>;
+
+/// A publisher of the node: its messages numbered from 1, with their source time and the publisher's GID.
+pub struct TopicPublisher {
+    endpoint: Endpoint,
+    publisher: zenoh::pubsub::Publisher<'static>,
+    sequence: i64,
+}
+
+impl TopicPublisher {
+    /// Publishes one message, its CDR bytes.
+    pub async fn put(&mut self, bytes: Vec<u8>) -> Result<(), String> {
+        self.sequence += 1;
+        let now_ns =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as i64);
+        self.publisher
+            .put(bytes)
+            .attachment(keys::attachment(self.sequence, now_ns, &self.endpoint.gid))
+            .await
+            .map_err(|e| format!("cannot publish: {e}"))
+    }
 }
 
 /// An endpoint of the node (a client, a subscription), announced while it lives.
@@ -156,6 +180,29 @@ impl Node {
                 None => {}
             }
         }
+    }
+
+    /// Subscribes to `topic` as rmw_zenoh does: the data key of its type, and the subscription's token.
+    pub async fn subscription(&self, topic: &str, ty: &TopicType) -> Result<(Endpoint, Subscription), String> {
+        let endpoint = self.endpoint(Kind::Subscription, topic, &ty.wire, keys::TOPIC_QOS).await?;
+        let subscriber = self
+            .session
+            .declare_subscriber(keys::data(self.id.domain, topic, &ty.wire))
+            .await
+            .map_err(|e| format!("cannot subscribe to {topic}: {e}"))?;
+        Ok((endpoint, subscriber))
+    }
+
+    /// A publication on `topic`, announced in the graph; its messages carry rmw_zenoh's attachment.
+    pub async fn publisher(&self, topic: &str, ty: &TopicType) -> Result<TopicPublisher, String> {
+        let endpoint = self.endpoint(Kind::Publisher, topic, &ty.wire, keys::TOPIC_QOS).await?;
+        let publisher = self
+            .session
+            .declare_publisher(keys::data(self.id.domain, topic, &ty.wire))
+            .congestion_control(CongestionControl::Block)
+            .await
+            .map_err(|e| format!("cannot publish on {topic}: {e}"))?;
+        Ok(TopicPublisher { endpoint, publisher, sequence: 0 })
     }
 
     /// Calls a service: the request's CDR bytes in, the response's out. `timeout` bounds the wait for the answer.

@@ -15,7 +15,9 @@ use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
 use crate::dist::runtime::coordinator::{Coordinator, LossPolicy};
-use crate::dist::wire::{self, AgentInfo, ChartHash, Report, RunId, SetRequest, TokenId, VarUpdate, WireError};
+use crate::dist::wire::{
+    self, AgentInfo, ChartHash, DeviceReport, Report, RunId, SetRequest, TokenId, VarUpdate, WireError,
+};
 
 /// Bumped when records change meaning; a journal of another format is refused. 2: cycles that changed nothing
 /// are not recorded, and the header holds the cycle period.
@@ -49,6 +51,8 @@ pub enum Record {
     /// Several processes answered to this agent name (how many).
     AgentConflict(String, u32),
     Set(SetRequest),
+    /// An agent said which of its bound devices it cannot reach.
+    Devices(DeviceReport),
     Policy(LossPolicy),
     /// A coordinator process took over from the journal here.
     Recover,
@@ -84,6 +88,7 @@ const POLICY: u8 = 7;
 const RECOVER: u8 = 8;
 const END: u8 = 9;
 const AGENT_CONFLICT: u8 = 10;
+const DEVICES: u8 = 11;
 
 const HEAD: usize = 9;
 
@@ -118,6 +123,7 @@ pub fn encode(entry: &Entry) -> Vec<u8> {
             frame(AGENT_CONFLICT, t, &body)
         }
         Record::Set(s) => frame(SET, t, &wire::encode(s)),
+        Record::Devices(d) => frame(DEVICES, t, &wire::encode(d)),
         Record::Policy(p) => frame(POLICY, t, &[policy_byte(*p)]),
         Record::Recover => frame(RECOVER, t, &[]),
         Record::End { failure } => frame(END, t, failure.as_deref().unwrap_or("").as_bytes()),
@@ -149,6 +155,7 @@ pub fn decode(bytes: &[u8]) -> Result<Entry, JournalError> {
             Record::AgentConflict(name, n)
         }
         SET => Record::Set(wire::decode(body).map_err(wire_err)?),
+        DEVICES => Record::Devices(wire::decode(body).map_err(wire_err)?),
         POLICY => Record::Policy(match body {
             [0] => LossPolicy::Pause,
             [1] => LossPolicy::Reassign,
@@ -176,6 +183,7 @@ pub fn apply(core: &mut Coordinator, entry: &Entry) -> Option<Result<String, Str
         Record::AgentDown(name) => core.handle_agent_down(now, name),
         Record::AgentConflict(name, n) => core.handle_agent_conflict(now, name, *n as usize),
         Record::Set(s) => return Some(core.handle_set(now, &s.name, &s.value)),
+        Record::Devices(d) => core.handle_devices(now, d.clone()),
         Record::Policy(p) => core.set_loss_policy(*p),
         Record::Recover => core.handle_recover(now),
         Record::End { .. } => {}
@@ -290,6 +298,17 @@ impl Journaled {
         Ok(())
     }
 
+    /// A device report as it arrived. Reports of other runs change nothing and are not recorded.
+    pub fn devices(&mut self, now_ms: u64, bytes: &[u8]) -> Result<(), WireError> {
+        let report: DeviceReport = wire::decode(bytes)?;
+        if report.run != self.core.run() {
+            self.core.handle_devices(now_ms, report);
+            return Ok(());
+        }
+        self.feed(frame(DEVICES, now_ms, bytes), Entry { t_ms: now_ms, record: Record::Devices(report) });
+        Ok(())
+    }
+
     pub fn agent_up(&mut self, now_ms: u64, info: AgentInfo) {
         self.input(now_ms, Record::AgentUp(info));
     }
@@ -386,6 +405,16 @@ mod tests {
                 }),
             },
             Entry { t_ms: 13, record: Record::Recover },
+            Entry {
+                t_ms: 14,
+                record: Record::Devices(DeviceReport {
+                    run,
+                    agent: "cell1".into(),
+                    incarnation: Uuid::from_u128(9),
+                    seq: 2,
+                    down: vec![wire::DeviceDown { binding: 1, message: "no answer".into() }],
+                }),
+            },
             Entry { t_ms: u64::MAX, record: Record::End { failure: Some("agent `r1` was lost".into()) } },
             Entry { t_ms: 20, record: Record::End { failure: None } },
         ];

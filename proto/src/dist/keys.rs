@@ -7,6 +7,7 @@
 //!                                     (ToAgent); a second process of the same name hears none of it
 //! baton/run/<run>/report              agents → coordinator: token reports (Report)
 //! baton/run/<run>/vars/<writer>       variable updates from the coordinator or an agent (VarUpdate)
+//! baton/run/<run>/devices/<agent>    agent → coordinator: the bound devices it cannot reach (DeviceReport)
 //! baton/run/<run>/chart               queryable: the chart's source (ChartSource)
 //! baton/run/<run>/status              queryable: active steps, tokens, agents (StatusReport)
 //! baton/run/<run>/set                 queryable: set an input (SetRequest → SetReply)
@@ -67,6 +68,10 @@ pub fn vars(run: RunId, writer: &str) -> String {
 /// Variable updates of every run: an agent listens to all runs it takes part in.
 pub fn vars_any_run() -> String {
     format!("{ROOT}/run/*/vars/*")
+}
+
+pub fn devices(run: RunId, agent: &str) -> String {
+    format!("{ROOT}/run/{}/devices/{agent}", run.key())
 }
 
 pub fn chart(run: RunId) -> String {

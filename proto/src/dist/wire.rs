@@ -183,6 +183,25 @@ pub struct Report {
     pub done: bool,
 }
 
+/// Agent → coordinator, on the run's device key: the agent's bound devices it cannot reach, all of them (a report
+/// replaces the one before), sent when that changes and again when the coordinator asks (`ToAgent::Join`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DeviceReport {
+    pub run: RunId,
+    pub agent: String,
+    pub incarnation: Uuid,
+    /// Numbered per process from 1: a late report never undoes a newer one.
+    pub seq: u64,
+    pub down: Vec<DeviceDown>,
+}
+
+/// A binding (`Layout::io` index) whose device the agent cannot reach, and why.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DeviceDown {
+    pub binding: u32,
+    pub message: String,
+}
+
 /// Published by whoever writes variables (the coordinator or an agent), on the run's variable keys.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct VarUpdate {
@@ -276,6 +295,17 @@ pub struct StatusAgent {
     pub name: String,
     pub roles: Vec<String>,
     pub tokens: usize,
+    /// Its bound devices it cannot reach.
+    #[serde(default)]
+    pub devices_down: Vec<StatusDevice>,
+}
+
+/// A bound variable whose device its agent cannot reach: the variable keeps its last value.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StatusDevice {
+    pub var: String,
+    pub device: String,
+    pub message: String,
 }
 
 /// `{"v": 1, "m": MESSAGE}`. Enums are externally tagged (`{"dispatch": {…}}`) and nothing is flattened, so

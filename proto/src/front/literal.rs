@@ -241,6 +241,15 @@ pub fn parse(text: &str) -> Result<Literal, String> {
     Ok(lit)
 }
 
+/// Reads a path alone: `pose.position.x`, `data`, `sequence[2]`.
+pub fn parse_path(text: &str) -> Result<FieldPath, String> {
+    let toks = lexed(text)?;
+    let mut r = Reader::new(text, &toks);
+    let path = r.path()?;
+    r.end()?;
+    Ok(path)
+}
+
 /// Reads `path => variable {, path => variable}`: where each part of a message goes. Variable names are
 /// returned as written; the caller resolves them.
 pub fn parse_mapping(text: &str) -> Result<Vec<(FieldPath, String)>, String> {
@@ -320,5 +329,9 @@ mod tests {
         assert!(parse_mapping("sequence last").unwrap_err().contains("`=>`"));
         assert!(parse_mapping("a => ").unwrap_err().contains("variable"));
         assert!(parse_mapping("a => b c => d").unwrap_err().contains("`,`"));
+        assert_eq!(parse_path("pose.position.x").unwrap().len(), 3);
+        assert_eq!(parse_path("data[2]").unwrap(), vec![PathPart::Field("data".into()), PathPart::Index(2)]);
+        assert!(parse_path("a b").is_err());
+        assert!(parse_path("").is_err());
     }
 }

@@ -18,7 +18,8 @@ use std::sync::Arc;
 use crate::dist::io::{IoBinding, IoDir};
 use crate::dist::layout::{Layout, Placement, SegmentId, SkillBinding};
 use crate::dist::wire::{
-    AgentEvent, AgentEventKind, ChartHash, HeldToken, Report, RunId, TokenId, VarUpdate, VarValue,
+    AgentEvent, AgentEventKind, ChartHash, DeviceDown, DeviceReport, HeldToken, Report, RunId, TokenId, VarUpdate,
+    VarValue,
 };
 use crate::exec::engine::{Engine, EventKind, Input, RemoteInput};
 use crate::exec::program::{ActionId, Program, StepId, VarId};
@@ -53,6 +54,8 @@ pub enum AgentOutput {
         binding: usize,
         value: Value,
     },
+    /// Tell the coordinator which bound devices this agent cannot reach.
+    Devices(DeviceReport),
     Log {
         level: Level,
         message: String,
@@ -132,6 +135,9 @@ pub struct AgentRun {
     dropped: u64,
     /// Per binding of `Layout::io`: the value last sent to an output's device (`None`: not sent, or not ours).
     io_sent: Vec<Option<Value>>,
+    /// The bindings whose device cannot be reached, and why; the number of the last `DeviceReport`.
+    devices_down: BTreeMap<usize, String>,
+    devices_seq: u64,
 }
 
 impl AgentRun {
@@ -192,6 +198,8 @@ impl AgentRun {
             outbox: VecDeque::new(),
             dropped: 0,
             io_sent: Vec::new(),
+            devices_down: BTreeMap::new(),
+            devices_seq: 0,
         };
         run.io_sent = vec![None; run.layout.io.len()];
         run.send_outputs();
@@ -233,6 +241,61 @@ impl AgentRun {
             self.log(Level::Warn, format!("{what}: {e}"));
         }
         self.settle();
+    }
+
+    /// Whether the device of binding `binding` (`Layout::io`, on this agent) can be reached: `Err` says why not.
+    /// A change is logged and reported to the coordinator; a new reason while it stays down replaces the old one
+    /// quietly (a device retried every second would flood the log). Meanwhile an input keeps its value.
+    pub fn handle_device(&mut self, binding: usize, state: Result<(), String>) {
+        let Some(b) = self.layout.io.get(binding).filter(|b| b.agent == self.name) else {
+            self.dropped += 1;
+            return;
+        };
+        let what = format!("{} `{}` ({})", if b.dir == IoDir::Input { "input" } else { "output" }, b.name, b.device());
+        let (var, dir) = (b.var, b.dir);
+        match state {
+            Ok(()) => {
+                if self.devices_down.remove(&binding).is_some() {
+                    self.log(Level::Info, format!("{what}: reachable again"));
+                    self.report_devices();
+                }
+            }
+            Err(why) => {
+                let why: String = why.chars().take(crate::limits::DEVICE_MESSAGE_CHARS_MAX).collect();
+                if self.devices_down.insert(binding, why.clone()).is_none() {
+                    let keeps = match dir {
+                        IoDir::Input => format!("it keeps its value {}", self.engine.value(var)),
+                        IoDir::Output => "its value goes to the device once it is back".to_string(),
+                    };
+                    self.log(Level::Warn, format!("{what}: {why}; {keeps}"));
+                    self.report_devices();
+                }
+            }
+        }
+    }
+
+    /// The coordinator asks this agent to take part in the run: it restarted, or saw this agent come back. It
+    /// hears again which devices are down (it may have missed the report).
+    pub fn handle_join(&mut self) {
+        if self.io_here().next().is_some() {
+            self.report_devices();
+        }
+    }
+
+    fn report_devices(&mut self) {
+        self.devices_seq += 1;
+        let down = self
+            .devices_down
+            .iter()
+            .map(|(b, message)| DeviceDown { binding: *b as u32, message: message.clone() })
+            .collect();
+        self.outbox.push_back(AgentOutput::Devices(DeviceReport {
+            run: self.run,
+            agent: self.name.clone(),
+            incarnation: self.incarnation,
+            seq: self.devices_seq,
+            down,
+        }));
     }
 
     /// Queues the output-bound variables of this agent whose value changed since they were last sent.

@@ -18,8 +18,8 @@ use std::sync::Arc;
 
 use crate::dist::layout::{Layout, Placement, SegmentId};
 use crate::dist::wire::{
-    AckEntry, AgentEventKind, AgentInfo, ChartHash, Report, RunId, StatusAgent, StatusReport, StatusStep, StatusToken,
-    ToAgent, TokenId, VarUpdate, VarValue,
+    AckEntry, AgentEventKind, AgentInfo, ChartHash, DeviceReport, Report, RunId, StatusAgent, StatusDevice,
+    StatusReport, StatusStep, StatusToken, ToAgent, TokenId, VarUpdate, VarValue,
 };
 use crate::exec::engine::{Engine, Event, EventKind, Input, RemoteInput};
 use crate::exec::program::{Program, StepId, TransitionId, VarId};
@@ -85,6 +85,9 @@ struct AgentState {
     lease_ms: u64,
     /// More than one process answers to the name: nothing is dispatched to it until one answers alone.
     conflict: bool,
+    /// Its bound devices it cannot reach (`Layout::io` index → why), as of its device report `devices_seq`.
+    devices_down: BTreeMap<u32, String>,
+    devices_seq: u64,
 }
 
 struct TokenState {
@@ -657,6 +660,8 @@ impl Coordinator {
             recovering: false,
             lease_ms: info.lease_ms,
             conflict: false,
+            devices_down: BTreeMap::new(),
+            devices_seq: 0,
         });
         let was_alive = entry.alive;
         let recovering = std::mem::take(&mut entry.recovering);
@@ -667,6 +672,10 @@ impl Coordinator {
         entry.lease_ms = info.lease_ms;
         entry.alive = true;
         entry.incarnation = info.incarnation;
+        if restarted {
+            // The new process numbers its device reports from 1; what it cannot reach it says when it joins.
+            entry.devices_seq = 0;
+        }
         if was_conflict {
             self.log(Level::Info, format!("agent `{name}` answers alone again"));
         }
@@ -791,6 +800,8 @@ impl Coordinator {
             recovering: false,
             lease_ms: 0,
             conflict: false,
+            devices_down: BTreeMap::new(),
+            devices_seq: 0,
         });
         if std::mem::replace(&mut agent.conflict, true) {
             return;
@@ -1177,6 +1188,67 @@ impl Coordinator {
         self.settle();
     }
 
+    /// Which of its bound devices an agent cannot reach. Each change is a trace record, `device_down` or
+    /// `device_up`, named after the variable, and a log line; the variable keeps its value meanwhile.
+    pub fn handle_devices(&mut self, now_ms: u64, report: DeviceReport) {
+        self.advance(now_ms);
+        if report.run != self.run {
+            return self.drop_msg(format!("device report from `{}` for another run dropped", report.agent));
+        }
+        let Some(agent) = self.agents.get(&report.agent) else {
+            return self.drop_msg(format!("device report from unknown agent `{}` dropped", report.agent));
+        };
+        if agent.incarnation != report.incarnation || !agent.alive {
+            return self.drop_msg(format!(
+                "device report from `{}` dropped: it comes from another process than the agent's current one",
+                report.agent
+            ));
+        }
+        if report.seq <= agent.devices_seq {
+            return;
+        }
+        let mut down = BTreeMap::new();
+        for d in report.down {
+            let ours = self.layout.io.get(d.binding as usize).is_some_and(|b| b.agent == report.agent);
+            if !ours {
+                return self.drop_msg(format!(
+                    "device report from `{}` dropped: binding {} is not one of its own",
+                    report.agent, d.binding
+                ));
+            }
+            down.insert(d.binding, d.message.chars().take(crate::limits::DEVICE_MESSAGE_CHARS_MAX).collect());
+        }
+        let Some(agent) = self.agents.get_mut(&report.agent) else { return };
+        agent.devices_seq = report.seq;
+        let before = std::mem::replace(&mut agent.devices_down, down.clone());
+        let name = report.agent;
+        for (b, why) in &down {
+            if !before.contains_key(b) {
+                let binding = &self.layout.io[*b as usize];
+                let mut rec = TraceRecord::new(self.now_ms, "device_down", &binding.name);
+                rec.agent = Some(name.clone());
+                rec.message = Some(format!("{}: {why}", binding.device()));
+                let text = format!(
+                    "agent `{name}` cannot reach the {} of `{}`: {why}; the variable keeps its value {}",
+                    binding.device(),
+                    binding.name,
+                    self.engine.value(binding.var)
+                );
+                self.trace(rec);
+                self.log(Level::Warn, text);
+            }
+        }
+        for b in before.keys().filter(|b| !down.contains_key(b)) {
+            let binding = &self.layout.io[*b as usize];
+            let mut rec = TraceRecord::new(self.now_ms, "device_up", &binding.name);
+            rec.agent = Some(name.clone());
+            rec.message = Some(binding.device());
+            let text = format!("agent `{name}` reaches the {} of `{}` again", binding.device(), binding.name);
+            self.trace(rec);
+            self.log(Level::Info, text);
+        }
+    }
+
     /// `baton set NAME=VALUE`: sets an input (a variable no action writes) before the next cycle.
     pub fn handle_set(&mut self, now_ms: u64, name: &str, value: &serde_json::Value) -> Result<String, String> {
         self.advance(now_ms);
@@ -1234,7 +1306,19 @@ impl Coordinator {
             .agents
             .iter()
             .filter(|(_, a)| a.alive)
-            .map(|(name, a)| StatusAgent { name: name.clone(), roles: a.roles.clone(), tokens: a.tokens })
+            .map(|(name, a)| StatusAgent {
+                name: name.clone(),
+                roles: a.roles.clone(),
+                tokens: a.tokens,
+                devices_down: a
+                    .devices_down
+                    .iter()
+                    .map(|(b, why)| {
+                        let binding = &self.layout.io[*b as usize];
+                        StatusDevice { var: binding.name.clone(), device: binding.device(), message: why.clone() }
+                    })
+                    .collect(),
+            })
             .collect();
         StatusReport {
             run: self.run,
@@ -1287,5 +1371,93 @@ mod tests {
         assert!(c.agents.is_empty(), "{} agents remembered", c.agents.len());
         c.handle_agent_up(10_000, info("newcomer", 1));
         assert_eq!(c.status().agents.len(), 1, "a new agent is still taken");
+    }
+
+    #[test]
+    fn a_device_that_cannot_be_reached_is_traced_once_each_way_and_a_rogue_report_changes_nothing() {
+        use crate::dist::runtime::agent::{AgentOutput, AgentRun};
+        let source = "PROGRAM p\nVAR\n  door : BOOL; {input := 'opcua', agent := 'cell1', endpoint := \
+                      'opc.tcp://10.0.0.5:4840', node := 'ns=2;s=Door'}\n  lamp : BOOL; {output := 'zenoh', \
+                      agent := 'cell2', key := 'cell2/lamp'}\nEND_VAR\nINITIAL_STEP A: END_STEP\n\
+                      TRANSITION FROM A TO B := door; END_TRANSITION\nSTEP B: END_STEP\nEND_PROGRAM\n";
+        let mut report = crate::front::check::check_source(source);
+        let checked = report.charts.remove(0);
+        let (program, layout) =
+            (Arc::new(checked.program.expect("program")), Arc::new(checked.layout.expect("layout")));
+        let run = RunId(uuid::Uuid::from_u128(7));
+        let hash = ChartHash("h".into());
+        let mut c = Coordinator::new(
+            Arc::clone(&program),
+            Arc::clone(&layout),
+            run,
+            hash.clone(),
+            crate::dist::journal::token_ids(run),
+        );
+        let mut agent = AgentRun::new("cell1", &[], run, hash, program, layout, 10);
+        agent.set_incarnation(uuid::Uuid::from_u128(1));
+        c.handle_agent_up(0, info("cell1", 1));
+        c.handle_agent_up(0, info("cell2", 2));
+        let reports = |a: &mut AgentRun| {
+            let mut out = Vec::new();
+            while let Some(o) = a.poll_output() {
+                if let AgentOutput::Devices(d) = o {
+                    out.push(d);
+                }
+            }
+            out
+        };
+        let traced = |c: &mut Coordinator| {
+            let mut out = Vec::new();
+            while let Some(o) = c.poll_output() {
+                if let CoordOutput::Trace(t) = o {
+                    if t.event.starts_with("device") {
+                        out.push((t.event, t.name, t.message.unwrap_or_default()));
+                    }
+                }
+            }
+            out
+        };
+        traced(&mut c);
+        agent.handle_device(0, Err("cannot reach opc.tcp://10.0.0.5:4840: BadTimeout".into()));
+        // Tried again and failing for another reason: no second report.
+        agent.handle_device(0, Err("cannot reach opc.tcp://10.0.0.5:4840: BadConnectionRejected".into()));
+        let down = reports(&mut agent);
+        assert_eq!(down.len(), 1);
+        c.handle_devices(10, down[0].clone());
+        let t = traced(&mut c);
+        assert_eq!(t.len(), 1, "{t:?}");
+        assert_eq!((t[0].0.as_str(), t[0].1.as_str()), ("device_down", "door"));
+        assert!(t[0].2.contains("OPC UA node ns=2;s=Door") && t[0].2.contains("BadTimeout"), "{}", t[0].2);
+        assert_eq!(c.status().agents[0].devices_down[0].var, "door");
+        // The same report again (a Join answered), a late one, another process's, and one about a binding of
+        // another agent: nothing is traced.
+        c.handle_devices(11, down[0].clone());
+        agent.handle_join();
+        let again = reports(&mut agent);
+        c.handle_devices(12, again[0].clone());
+        let mut stale = again[0].clone();
+        stale.seq = 1;
+        stale.down.clear();
+        c.handle_devices(13, stale);
+        let mut other = again[0].clone();
+        other.seq = 99;
+        other.incarnation = uuid::Uuid::from_u128(5);
+        other.down.clear();
+        c.handle_devices(14, other);
+        let mut rogue = again[0].clone();
+        rogue.seq = 100;
+        rogue.down[0].binding = 1;
+        c.handle_devices(15, rogue);
+        assert!(traced(&mut c).is_empty());
+        assert_eq!(c.status().agents[0].devices_down.len(), 1);
+        agent.handle_device(0, Ok(()));
+        for r in reports(&mut agent) {
+            c.handle_devices(20, r);
+        }
+        assert_eq!(
+            traced(&mut c),
+            vec![("device_up".into(), "door".into(), "OPC UA node ns=2;s=Door on opc.tcp://10.0.0.5:4840".into())]
+        );
+        assert!(c.status().agents[0].devices_down.is_empty());
     }
 }

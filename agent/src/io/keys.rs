@@ -1,15 +1,20 @@
-//! The agent's end of chart variables bound to devices (`baton_proto::dist::io`): Zenoh subscriptions for
-//! inputs, whose samples become values of the chart, and the text a value is put as for outputs.
+//! Variables bound to Zenoh keys: a subscription for an input, whose samples become values of the chart, and a
+//! publisher for an output, which puts its values as text.
 //!
 //! Payloads are text, as MQTT devices and scripts write them: `true`/`false` (any case, also `TRUE` as ST
 //! writes it, and `on`/`off`), integers, reals, IEC literals (`T#2s`, `'text'`), and for a STRING variable any
 //! text. A payload that is none of these, for a variable that is not a STRING, is refused by the run, and the
 //! variable keeps its value.
 
+use std::sync::Arc;
+
+use baton_proto::dist::io::IoBinding;
 use baton_proto::exec::types::Value;
 use baton_proto::front::literal::{self, Literal};
-use tokio::task::JoinHandle;
+use zenoh::qos::CongestionControl;
 use zenoh::Session;
+
+use super::{Latest, Sink};
 
 /// The value a payload holds, before the run converts it to its variable's type.
 pub fn parse_payload(bytes: &[u8]) -> Value {
@@ -46,33 +51,36 @@ pub fn payload_of(value: &Value) -> String {
     }
 }
 
-/// The subscriptions of one run's input bindings; dropped with the run, which undeclares them.
-#[derive(Default)]
-pub struct Inputs {
-    tasks: Vec<JoinHandle<()>>,
-}
-
-impl Drop for Inputs {
-    fn drop(&mut self) {
-        for t in &self.tasks {
-            t.abort();
-        }
+/// Subscribes to an input's key expression and hands every sample's value to the run.
+pub async fn input(session: Session, binding: usize, b: IoBinding, sink: Sink) {
+    let key = b.key().unwrap_or_default().to_string();
+    let subscriber = match session.declare_subscriber(key.clone()).await {
+        Ok(s) => s,
+        Err(e) => return sink.state(binding, Err(format!("cannot subscribe to {key}: {e}"))),
+    };
+    while let Ok(sample) = subscriber.recv_async().await {
+        sink.value(binding, parse_payload(&sample.payload().to_bytes()));
     }
 }
 
-impl Inputs {
-    /// Subscribes to `key` and hands every sample's value to `deliver`.
-    pub fn subscribe(&mut self, session: &Session, key: String, deliver: impl Fn(Value) + Send + 'static) {
-        let session = session.clone();
-        self.tasks.push(tokio::spawn(async move {
-            let subscriber = match session.declare_subscriber(key.clone()).await {
-                Ok(s) => s,
-                Err(e) => return eprintln!("warning: cannot subscribe to {key}: {e}"),
-            };
-            while let Ok(sample) = subscriber.recv_async().await {
-                deliver(parse_payload(&sample.payload().to_bytes()));
+/// Puts an output's values on its key, the latest when the last put is done.
+pub async fn output(session: Session, binding: usize, b: IoBinding, latest: Arc<Latest>, sink: Sink) {
+    let key = b.key().unwrap_or_default().to_string();
+    let publisher = match session.declare_publisher(key.clone()).congestion_control(CongestionControl::Block).await {
+        Ok(p) => p,
+        Err(e) => return sink.state(binding, Err(format!("cannot publish on {key}: {e}"))),
+    };
+    let mut down = false;
+    loop {
+        let Some(value) = latest.next().await.remove(&binding) else { continue };
+        match publisher.put(payload_of(&value)).await {
+            Ok(()) if std::mem::take(&mut down) => sink.state(binding, Ok(())),
+            Ok(()) => {}
+            Err(e) => {
+                down = true;
+                sink.state(binding, Err(format!("cannot publish on {key}: {e}")));
             }
-        }));
+        }
     }
 }
 
