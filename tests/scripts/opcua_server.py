@@ -3,7 +3,9 @@
     python3 opcua_server.py PORT
 
 Serves opc.tcp://127.0.0.1:PORT/ with security None, and prints one line per event on stdout: READY, then
-CALL <method> <args>, JOB DONE, JOB FAULT, CANCELLED. It serves until stdin closes.
+CALL <method> <args>, JOB DONE, JOB FAULT, CANCELLED, and WRITE <variable> <value> for every value a client
+wrote (status Good). It serves until stdin closes; a line `SET <variable> <value>` on stdin (`true`, `false` or
+an integer) writes a variable as the machine would, and is answered `SET <variable> <value>`.
 
 Namespace 2 (urn:baton:test) holds the object `ns=2;s=Cell`:
 - Add(a: Int32, b: Int16) -> Int32: answers at once (the types check the agent's conversions).
@@ -13,13 +15,14 @@ Namespace 2 (urn:baton:test) holds the object `ns=2;s=Cell`:
 - Refuse(): answers BadInvalidState.
 - Hang(): never answers (the test kills the server while the agent waits).
 - Stop(): cancels the running job: Busy FALSE, prints CANCELLED.
-- Variables Done, Fault, Busy (BOOL), Count (Int32), Lamp (BOOL, writable), Door (BOOL, writable).
+- Variables Done, Fault, Busy (BOOL), Count (Int32), Lamp (BOOL), Door (BOOL), Setpoint (Int16), all writable.
 """
 
 import asyncio
 import sys
 
 from asyncua import Server, ua
+from asyncua.common.callback import CallbackType
 from asyncua.common.methods import uamethod
 
 JOB_S = 0.1
@@ -48,6 +51,19 @@ async def main(port):
     count = await variable("Count", 0, ua.VariantType.Int32)
     await variable("Lamp", False, ua.VariantType.Boolean)
     await variable("Door", False, ua.VariantType.Boolean)
+    await variable("Setpoint", 0, ua.VariantType.Int16)
+    names = {}
+    for child in await cell.get_children():
+        names[child.nodeid] = (await child.read_browse_name()).Name
+
+    def written(event, _dispatcher):
+        if not event.is_external:
+            return
+        for item, result in zip(event.request_params.NodesToWrite, event.response_params):
+            if item.AttributeId == ua.AttributeIds.Value and result.is_good():
+                say(f"WRITE {names.get(item.NodeId, item.NodeId.to_string())} {item.Value.Value.Value}")
+
+    server.subscribe_server_callback(CallbackType.PostWrite, written)
     state = {"job": None, "jobs": 0}
 
     @uamethod
@@ -109,11 +125,23 @@ async def main(port):
     await cell.add_method(ua.NodeId("Cell.Hang", idx), ua.QualifiedName("Hang", idx), hang, [], [])
     await cell.add_method(ua.NodeId("Cell.Stop", idx), ua.QualifiedName("Stop", idx), stop, [], [])
 
+    types = {"Door": ua.VariantType.Boolean, "Lamp": ua.VariantType.Boolean, "Done": ua.VariantType.Boolean,
+             "Fault": ua.VariantType.Boolean, "Busy": ua.VariantType.Boolean, "Count": ua.VariantType.Int32,
+             "Setpoint": ua.VariantType.Int16}
     async with server:
         say("READY")
         loop = asyncio.get_running_loop()
         # Serve until stdin closes, so that the server never outlives the test that started it.
-        await loop.run_in_executor(None, sys.stdin.read)
+        while line := await loop.run_in_executor(None, sys.stdin.readline):
+            words = line.split()
+            if len(words) != 3 or words[0] != "SET" or words[1] not in types:
+                say(f"UNKNOWN COMMAND {line.strip()}")
+                continue
+            name, text = words[1], words[2]
+            value = text.lower() == "true" if types[name] == ua.VariantType.Boolean else int(text)
+            node = server.get_node(ua.NodeId(f"Cell.{name}", idx))
+            await node.write_value(ua.Variant(value, types[name]))
+            say(f"SET {name} {text}")
 
 
 if __name__ == "__main__":

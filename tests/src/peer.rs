@@ -47,6 +47,14 @@ impl Server {
         }
     }
 
+    /// Writes a line to the server's stdin (a command to the device it plays).
+    pub async fn send(&mut self, line: &str) {
+        use tokio::io::AsyncWriteExt;
+        let stdin = self.child.stdin.as_mut().expect("the server's stdin is open");
+        stdin.write_all(format!("{line}\n").as_bytes()).await.expect("write to the server");
+        stdin.flush().await.expect("flush to the server");
+    }
+
     /// SIGKILLs the server and waits until it is gone.
     pub async fn kill(&mut self) {
         self.child.start_kill().expect("kill the server");
@@ -83,15 +91,20 @@ fn python_has(module: &str, package: &str) -> bool {
 /// FreeOpcUa's asyncua server (`tests/scripts/opcua_server.py`) on a free loopback port, once it is up; `None`
 /// (SKIPPED) without asyncua.
 pub async fn opcua_server() -> Option<(Server, u16)> {
+    let port = free_port();
+    Some((opcua_server_on(port).await?, port))
+}
+
+/// The same on `port` (a server that comes back where it was).
+pub async fn opcua_server_on(port: u16) -> Option<Server> {
     if !python_has("asyncua", "asyncua") {
         return None;
     }
-    let port = free_port();
     let mut cmd = Command::new("python3");
     cmd.arg(repo("tests/scripts/opcua_server.py")).arg(port.to_string());
     let mut server = Server::start(cmd);
     server.wait_for("READY").await;
-    Some((server, port))
+    Some(server)
 }
 
 /// A copy of `chart` in `dir` whose OPC UA endpoints name `port` instead of 4840.

@@ -1,4 +1,4 @@
-//! The `opcua_method` skill against an OPC UA server Baton did not write: FreeOpcUa's asyncua (PyPI), running
+//! The `opcua_method` skill and variables bound to OPC UA nodes, against an OPC UA server Baton did not write: FreeOpcUa's asyncua (PyPI), running
 //! `tests/scripts/opcua_server.py` on a loopback port. The chart names its endpoint; the test writes the
 //! server's port into a copy of the chart.
 
@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use baton_proto::exec::sim::TraceRecord;
 use baton_tests::cluster::{events, free_port, repo, Cluster, Coordinator};
-use baton_tests::peer::{opcua_server as server, with_opcua_port};
+use baton_tests::peer::{opcua_server as server, opcua_server_on, with_opcua_port};
 
 /// `tests/charts/NAME` with the server's port in its endpoints.
 fn chart_for(cluster: &Cluster, name: &str, port: u16) -> PathBuf {
@@ -116,4 +116,51 @@ async fn no_server_is_a_fault_after_the_timeout() {
     assert!(reached(&trace, "Lost"));
     let fault = &faults(&trace)[0];
     assert!(fault.contains(&format!("cannot reach opc.tcp://127.0.0.1:{port}/")), "{fault}");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn bound_nodes_drive_a_transition_take_the_outputs_and_a_server_away_is_reported_and_caught_up() {
+    let mut cluster = Cluster::with_router().await;
+    let port = free_port();
+    let chart = chart_for(&cluster, "opcua_io.st", port);
+    let mut coordinator = start(&mut cluster, &chart);
+    // No server yet: the agent says so, through the coordinator, and keeps trying.
+    coordinator.wait_for_log("cannot reach the device of `door`").await;
+    let Some(mut server) = opcua_server_on(port).await else { return };
+    // Once the session is up, the outputs' values are written, and the inputs are watched.
+    server.wait_for("WRITE Lamp False").await;
+    server.wait_for("WRITE Setpoint 0").await;
+    coordinator.wait_for_log("reaches the device of `door` again").await;
+    server.send("SET Count 2").await;
+    server.send("SET Door true").await;
+    // The transition cleared on the machine's values; the action's outputs reach the machine, converted to
+    // the nodes' types (the DINT setpoint to an Int16 node).
+    server.wait_for("WRITE Lamp True").await;
+    server.wait_for("WRITE Setpoint 20").await;
+    // The machine goes away: reported, and the inputs keep their values.
+    server.kill().await;
+    let said = coordinator.wait_for_log("cannot reach the device of `door`").await;
+    assert!(said.last().is_some_and(|l| l.contains("`door` keeps its value TRUE")), "{said:?}");
+    // It comes back (restarted, its nodes at their initial values): the chart's outputs are written again.
+    let Some(mut again) = opcua_server_on(port).await else { return };
+    again.wait_for("WRITE Lamp True").await;
+    again.wait_for("WRITE Setpoint 20").await;
+    coordinator.wait_for_log("reaches the device of `door` again").await;
+    // Its count reads 0 now, and the action, still running, follows it.
+    again.wait_for("WRITE Setpoint 0").await;
+    let ep = cluster.endpoint.clone();
+    let set = cluster.baton(&["set", "--connect", &ep, "stop=true"]).await;
+    assert!(set.status.success(), "{}", String::from_utf8_lossy(&set.stderr));
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    assert!(reached(&trace, "Done"));
+    let door = |event: &str| trace.iter().filter(|r| r.event == event && r.name == "door").count();
+    assert_eq!((door("device_down"), door("device_up")), (2, 2), "{trace:?}");
+    let down = trace.iter().find(|r| r.event == "device_down" && r.name == "door").expect("a device_down");
+    assert_eq!(down.agent.as_deref(), Some("cell1"));
+    assert!(down.message.as_deref().is_some_and(|m| m.contains("OPC UA node ns=2;s=Cell.Door")), "{down:?}");
+    // The restarted machine's door and count are the inputs' values now.
+    assert_eq!((var(&summary, "door"), var(&summary, "count")), ("FALSE".into(), "0".into()));
+    assert_eq!((var(&summary, "lamp"), var(&summary, "setpoint")), ("TRUE".into(), "0".into()));
+    drop(again.finish().await);
 }

@@ -1229,7 +1229,8 @@ impl Coordinator {
                 rec.agent = Some(name.clone());
                 rec.message = Some(format!("{}: {why}", binding.device()));
                 let text = format!(
-                    "agent `{name}` cannot reach the {} of `{}`: {why}; the variable keeps its value {}",
+                    "agent `{name}` cannot reach the device of `{}` ({}): {why}; `{}` keeps its value {}",
+                    binding.name,
                     binding.device(),
                     binding.name,
                     self.engine.value(binding.var)
@@ -1243,7 +1244,7 @@ impl Coordinator {
             let mut rec = TraceRecord::new(self.now_ms, "device_up", &binding.name);
             rec.agent = Some(name.clone());
             rec.message = Some(binding.device());
-            let text = format!("agent `{name}` reaches the {} of `{}` again", binding.device(), binding.name);
+            let text = format!("agent `{name}` reaches the device of `{}` again ({})", binding.name, binding.device());
             self.trace(rec);
             self.log(Level::Info, text);
         }
