@@ -109,7 +109,10 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool) -> anyh
             let roles = if a.roles.is_empty() { String::new() } else { format!(" roles {}", a.roles.join(", ")) };
             println!("    {}{roles}, {} token(s)", a.name, a.tokens);
             for d in &a.devices_down {
-                println!("      cannot reach the device of `{}` ({}): {}; it keeps its value", d.var, d.device, d.message);
+                println!(
+                    "      cannot reach the device of `{}` ({}): {}; it keeps its value",
+                    d.var, d.device, d.message
+                );
             }
         }
     }

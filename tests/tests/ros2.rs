@@ -211,3 +211,52 @@ async fn two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_c
     assert_eq!(var(&summary, "parts"), "3", "the machine's count, read when its job was done");
     assert!(machine.finish().await.iter().any(|l| l == "JOB DONE"));
 }
+
+/// zenoh-ros2-sdk's sensors and indicators (`tests/scripts/ros2_topics.py`) on the cluster's router.
+async fn topics(cluster: &Cluster) -> Server {
+    let port = cluster.endpoint.rsplit(':').next().expect("a port").to_string();
+    let mut cmd = Command::new("python3");
+    cmd.arg(repo("tests/scripts/ros2_topics.py")).args([&port, "0"]);
+    let mut server = Server::start(cmd);
+    server.wait_for("READY").await;
+    server
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn topic_fields_drive_a_transition_outputs_are_published_and_a_sensor_gone_is_reported() {
+    if !python_has_sdk() {
+        return;
+    }
+    let mut cluster = Cluster::with_router().await;
+    cluster.agent("arm1", &[], &["--verbose"]);
+    let mut coordinator = cluster.coordinator_joining(&chart("ros2_topics.st"), &[]);
+    // No publisher of the door sensor in the ROS graph: reported.
+    let said = coordinator.wait_for_log("cannot reach the device of `door`").await;
+    assert!(
+        said.last().is_some_and(|l| l.contains("no publisher of /door (std_msgs/msg/Bool) on ROS domain 0")),
+        "{said:?}"
+    );
+    let mut sensors = topics(&cluster).await;
+    coordinator.wait_for_log("reaches the device of `door` again").await;
+    // The lamp's value, published again every 100 ms, reaches a subscriber that came after it was set; the
+    // beacon is published on change only.
+    sensors.wait_for("LAMP false").await;
+    sensors.send("PUBLISH level 7").await;
+    sensors.send("PUBLISH door true").await;
+    sensors.wait_for("LAMP true").await;
+    // Only the bound field is set; the others keep their defaults.
+    sensors.wait_for("BEACON 0 0.7 0 0").await;
+    // The sensors' process dies: its publishers leave the graph, and the door keeps its value.
+    sensors.kill().await;
+    let said = coordinator.wait_for_log("cannot reach the device of `door`").await;
+    assert!(said.last().is_some_and(|l| l.contains("`door` keeps its value TRUE")), "{said:?}");
+    // Back, publishing a closed door: the chart goes on.
+    let sensors = topics(&cluster).await;
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}\n{}", cluster.agent_log("arm1"));
+    assert!(ends_in(&trace, "Done"), "{trace:?}");
+    let door = |event: &str| trace.iter().filter(|r| r.event == event && r.name == "door").count();
+    assert_eq!((door("device_down"), door("device_up")), (2, 2), "{trace:?}");
+    assert_eq!((var(&summary, "door"), var(&summary, "lamp")), ("FALSE".into(), "TRUE".into()));
+    drop(sensors.finish().await);
+}

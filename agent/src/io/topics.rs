@@ -3,7 +3,9 @@
 //!   of the topic's type is in the ROS graph (or messages come); none, or only publishers of another type, and
 //!   it is reported unreachable — a sensor whose driver died is a device down, not a silent FALSE;
 //! - an output publishes a message whenever the variable changes: the field set, every other field at its
-//!   default (a `geometry_msgs/msg/Twist` with only `linear.x`).
+//!   default (a `geometry_msgs/msg/Twist` with only `linear.x`). With `period_ms`, it also publishes the value
+//!   again at that period: drivers that stop a robot when its commands stop coming get them, and a subscriber
+//!   that joins late hears the value (topics are volatile: a change published before it joined is gone).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
@@ -126,8 +128,19 @@ pub async fn output(ros2: Arc<Ros2>, session: Session, binding: usize, b: IoBind
         Err(why) => return sink.state(binding, Err(why)),
     };
     let mut down = false;
+    let mut last: Option<Value> = None;
+    let mut period = b.period_ms().map(|ms| {
+        let mut t = tokio::time::interval(Duration::from_millis(ms.max(1)));
+        t.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        t
+    });
     loop {
-        let Some(value) = latest.next().await.remove(&binding) else { continue };
+        let value = tokio::select! {
+            values = latest.next() => values.get(&binding).cloned(),
+            _ = async { period.as_mut().expect("a period").tick().await }, if period.is_some() => last.clone(),
+        };
+        let Some(value) = value else { continue };
+        last = Some(value.clone());
         let lit = match value {
             Value::Str(s) => Literal::Text(s.to_string()),
             other => Literal::Scalar(other),

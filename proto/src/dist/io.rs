@@ -62,7 +62,7 @@ impl IoKind {
     fn keys(self) -> (&'static [&'static str], &'static [&'static str]) {
         match self {
             IoKind::Zenoh => (&["key"], &[]),
-            IoKind::Ros2 => (&["topic", "type"], &["field"]),
+            IoKind::Ros2 => (&["topic", "type"], &["field", "period_ms"]),
             IoKind::OpcUa => (&["endpoint", "node"], &["security", "policy", "user", "password", "interval_ms"]),
         }
     }
@@ -97,6 +97,12 @@ impl IoBinding {
     /// The topic and message type of a `ros2` binding.
     pub fn topic(&self) -> Option<(&str, &str)> {
         Some((self.text("topic")?, self.text("type")?))
+    }
+
+    /// How often a `ros2` output publishes its value again, unchanged (`period_ms`): for robots whose drivers
+    /// stop when commands stop coming (a `cmd_vel` watchdog), and for subscribers that join late.
+    pub fn period_ms(&self) -> Option<u64> {
+        self.params.get("period_ms").and_then(Param::as_f64).map(|ms| ms as u64)
     }
 
     /// The field of a `ros2` binding's messages (`linear.x`); empty when not given: the message's one field.
@@ -294,6 +300,16 @@ fn check_params(kind: IoKind, dir: IoDir, params: &BTreeMap<String, Param>) -> V
                 },
                 Some(Param::Value(v)) => {
                     problems.push(format!("`field` is a field path in quotes, such as 'linear.x', not {v}"))
+                }
+            }
+            if let Some(ms) = params.get("period_ms") {
+                if !ms.as_f64().is_some_and(|ms| (1.0..=3_600_000.0).contains(&ms)) {
+                    problems.push("`period_ms` is a number of milliseconds between 1 and 3600000".into());
+                }
+                if dir == IoDir::Input {
+                    problems.push(
+                        "`period_ms` is how often an output is published again: an input takes every message".into(),
+                    );
                 }
             }
         }
