@@ -138,7 +138,8 @@ impl OpcUa {
             .client()
             .map_err(|errors| format!("the OPC UA client cannot be set up: {}", errors.join("; ")))?;
         let mut wait = Duration::from_millis(20);
-        let mut last = String::from("no answer");
+        let started = Instant::now();
+        let mut last: Option<String> = None;
         let (session, event_loop) = loop {
             let attempt = tokio::time::timeout_at(
                 deadline.into(),
@@ -148,12 +149,21 @@ impl OpcUa {
             match attempt {
                 Ok(Ok(pair)) => break pair,
                 Ok(Err(e)) if Instant::now() + wait < deadline => {
-                    last = e.to_string();
+                    last = Some(e.to_string());
                     tokio::time::sleep(wait).await;
                     wait = (wait * 2).min(RETRY_MAX);
                 }
                 Ok(Err(e)) => return Err(format!("cannot reach {}: {}", endpoint.url, status(e.status()))),
-                Err(_) => return Err(format!("cannot reach {} in time (last: {last})", endpoint.url)),
+                Err(_) => {
+                    return Err(match last {
+                        Some(last) => format!("cannot reach {}: {last}", endpoint.url),
+                        None => format!(
+                            "cannot reach {}: no answer in {:.1} s",
+                            endpoint.url,
+                            started.elapsed().as_secs_f64()
+                        ),
+                    })
+                }
             }
         };
         let mut driver = event_loop.spawn();
