@@ -7,6 +7,7 @@ pub mod netns;
 pub mod peer;
 pub mod reference;
 pub mod roundtrip;
+pub mod rrd;
 pub mod scenario;
 pub mod simnet;
 

@@ -8,28 +8,7 @@ use std::path::Path;
 use baton_proto::dist::keys;
 use baton_proto::exec::sim::TraceRecord;
 use baton_tests::cluster::{self, read_trace, repo, step_id, Cluster};
-
-/// Whether `python3` has rerun-sdk 0.36.3; in CI (`CI` set) its absence fails the test.
-fn reader_available() -> bool {
-    let probe = std::process::Command::new("python3")
-        .args(["-c", "import rerun, sys; sys.exit(0 if rerun.__version__ == '0.36.3' else 1)"])
-        .output();
-    let ok = probe.is_ok_and(|o| o.status.success());
-    if !ok {
-        baton_tests::missing(
-            "reading a recording back needs python3 with rerun-sdk 0.36.3: \
-             pip install 'rerun-sdk[datafusion]==0.36.3' (as .ci/run does)",
-        );
-    }
-    ok
-}
-
-fn read_recording(rrd: &Path) -> serde_json::Value {
-    let script = repo("tests/scripts/read_recording.py");
-    let out = std::process::Command::new("python3").arg(&script).arg(rrd).output().expect("python3 runs");
-    assert!(out.status.success(), "reading {} failed: {}", rrd.display(), String::from_utf8_lossy(&out.stderr));
-    serde_json::from_slice(&out.stdout).expect("the reader prints JSON")
-}
+use baton_tests::rrd::{log_lines, read_recording, reader_available};
 
 /// A step's activity over time: (time, active), the last of each instant, without repeats.
 fn activity(changes: impl IntoIterator<Item = (i64, bool)>) -> Vec<(i64, bool)> {
@@ -224,12 +203,7 @@ async fn a_lost_agent_and_the_reassignment_are_on_the_timeline() {
     assert!(status.success(), "{log}");
 
     let recording = read_recording(&rrd);
-    let lines: Vec<(String, String)> = recording["log"]
-        .as_array()
-        .expect("log")
-        .iter()
-        .map(|e| (e[1].as_str().unwrap_or_default().to_string(), e[2].as_str().unwrap_or_default().to_string()))
-        .collect();
+    let lines = log_lines(&recording);
     assert!(lines.contains(&("WARN".to_string(), format!("agent {holder} lost"))), "{lines:?}");
     assert!(lines.iter().any(|(level, text)| level == "ERROR" && text.starts_with("alarm: ")), "{lines:?}");
 

@@ -227,9 +227,12 @@ async fn topic_fields_drive_a_transition_outputs_are_published_and_a_sensor_gone
     if !python_has_sdk() {
         return;
     }
+    let recorded = baton_tests::rrd::reader_available();
     let mut cluster = Cluster::with_router().await;
     cluster.agent("arm1", &[], &["--verbose"]);
-    let mut coordinator = cluster.coordinator_joining(&chart("ros2_topics.st"), &[]);
+    let rrd = cluster.dir.path().join("topics.rrd");
+    let sink = format!("save:{}", rrd.display());
+    let mut coordinator = cluster.coordinator_joining(&chart("ros2_topics.st"), &["--rerun", &sink]);
     // No publisher of the door sensor in the ROS graph: reported.
     let said = coordinator.wait_for_log("cannot reach the device of `door`").await;
     assert!(
@@ -259,4 +262,15 @@ async fn topic_fields_drive_a_transition_outputs_are_published_and_a_sensor_gone
     assert_eq!((door("device_down"), door("device_up")), (2, 2), "{trace:?}");
     assert_eq!((var(&summary, "door"), var(&summary, "lamp")), ("FALSE".into(), "TRUE".into()));
     drop(sensors.finish().await);
+    // The recording's log says it too.
+    if recorded {
+        let lines = baton_tests::rrd::log_lines(&baton_tests::rrd::read_recording(&rrd));
+        let said = |level: &str, start: &str| lines.iter().filter(|(l, t)| l == level && t.starts_with(start)).count();
+        assert_eq!(
+            said("WARN", "device of `door` on arm1 down: ROS 2 topic /door (std_msgs/msg/Bool)"),
+            2,
+            "{lines:?}"
+        );
+        assert_eq!(said("INFO", "device of `door` on arm1 back"), 2, "{lines:?}");
+    }
 }
