@@ -174,7 +174,7 @@ async fn a_misspelt_type_or_goal_is_said_when_the_agent_joins_and_faults_by_name
 }
 
 /// The example cell (`examples/robot_cell.st`): two agents drive the two ROS 2 servers in parallel branches, the
-/// coordinator converges them, and one agent then has the OPC UA server run a job.
+/// coordinator converges them, and one agent then has the OPC UA server run a job, its lamp lit meanwhile.
 #[tokio::test(flavor = "multi_thread")]
 async fn two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_converges_them() {
     if !python_has_sdk() {
@@ -182,7 +182,7 @@ async fn two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_c
     }
     let mut cluster = Cluster::with_router().await;
     let Some(mut action) = action_server(&cluster, "succeed") else { return };
-    let Some((machine, ua_port)) = opcua_server().await else { return };
+    let Some((mut machine, ua_port)) = opcua_server().await else { return };
     let port = cluster.endpoint.rsplit(':').next().expect("port").to_string();
     let mut cmd = Command::new("python3");
     cmd.arg(repo("tests/scripts/ros2_service_server.py")).args([&port, "0", "/gripper/close"]);
@@ -209,6 +209,9 @@ async fn two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_c
     assert!(done.len() == 3 && at("activate", "Moved").unwrap() <= load && at("activate", "Gripped").unwrap() <= load);
     assert_eq!((var(&summary, "last"), var(&summary, "said")), ("3".into(), "'gripper closed'".into()));
     assert_eq!(var(&summary, "parts"), "3", "the machine's count, read when its job was done");
+    // The machine's lamp, bound to the chart's `lamp`, was lit while it loaded, and put out by the final scan.
+    machine.wait_for("WRITE Lamp True").await;
+    machine.wait_for("WRITE Lamp False").await;
     assert!(machine.finish().await.iter().any(|l| l == "JOB DONE"));
 }
 
