@@ -38,7 +38,8 @@ pub mod exec {
 }
 
 /// The distributed part: where each part of a chart runs, the wire protocol and key space, the journal, the
-/// Zenoh settings and the coordinator's and agent's state machines.
+/// Zenoh settings, the coordinator's and agent's state machines, and the simulated cluster that runs them on
+/// virtual time.
 pub mod dist {
     pub mod io;
     pub mod journal;
@@ -46,5 +47,6 @@ pub mod dist {
     pub mod layout;
     pub mod netconfig;
     pub mod runtime;
+    pub mod simnet;
     pub mod wire;
 }

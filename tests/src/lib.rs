@@ -9,7 +9,6 @@ pub mod reference;
 pub mod roundtrip;
 pub mod rrd;
 pub mod scenario;
-pub mod simnet;
 
 use std::path::PathBuf;
 

@@ -2,7 +2,7 @@
 //! simulated network that duplicates, reorders and delays, virtual time.
 
 use baton_proto::dist::runtime::coordinator::LossPolicy;
-use baton_tests::simnet::{Faults, SimCluster};
+use baton_proto::dist::simnet::{Faults, SimCluster};
 
 fn chart(name: &str) -> String {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("charts").join(name);
@@ -133,8 +133,8 @@ const SETTLE_MS: u64 = 12_000;
 
 impl RandomCell {
     fn new(seed: u64) -> Option<RandomCell> {
+        use baton_proto::dist::simnet::Fate;
         use baton_tests::gen::{random_shapes, ChartBuilder, Rng};
-        use baton_tests::simnet::Fate;
         let mut rng = Rng::new(seed);
         let shapes = random_shapes(&mut rng, 3);
         let plain = ChartBuilder::chart(&shapes, 4, rng.chance(0.5));
@@ -290,7 +290,7 @@ fn random_cells_keep_their_promises() {
 
 /// One part of the cell, with robot1 lost at 600 ms, while it assembles (Assemble leaves for it at about
 /// 500 ms and takes 300 ms).
-fn cell_losing_robot1(fates: &[(u64, baton_tests::simnet::Fate)], policy: LossPolicy) -> SimCluster {
+fn cell_losing_robot1(fates: &[(u64, baton_proto::dist::simnet::Fate)], policy: LossPolicy) -> SimCluster {
     let mut sim = SimCluster::new(&cell(), CELL_AGENTS, Faults::default(), 11);
     sim.set_loss_policy(policy);
     sim.set_at(0, "parts", serde_json::json!(1));
@@ -306,7 +306,7 @@ fn assembled_by(sim: &SimCluster) -> Vec<(String, Option<u32>)> {
 
 #[test]
 fn reassign_restarts_a_lost_agents_segment_elsewhere_in_a_new_epoch() {
-    use baton_tests::simnet::Fate;
+    use baton_proto::dist::simnet::Fate;
     let mut sim = cell_losing_robot1(&[(600, Fate::Kill)], LossPolicy::Reassign);
     assert!(sim.run(10_000), "did not finish");
     assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
@@ -318,7 +318,7 @@ fn reassign_restarts_a_lost_agents_segment_elsewhere_in_a_new_epoch() {
 
 #[test]
 fn pause_resumes_a_cut_off_agent_where_it_was() {
-    use baton_tests::simnet::Fate;
+    use baton_proto::dist::simnet::Fate;
     let mut sim = cell_losing_robot1(&[(600, Fate::Cut), (2_000, Fate::Heal)], LossPolicy::Pause);
     assert!(sim.run(10_000), "did not finish");
     assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
@@ -334,7 +334,7 @@ fn pause_resumes_a_cut_off_agent_where_it_was() {
 
 #[test]
 fn pause_restarts_the_segment_on_an_agent_that_came_back_restarted() {
-    use baton_tests::simnet::Fate;
+    use baton_proto::dist::simnet::Fate;
     let mut sim = cell_losing_robot1(&[(600, Fate::Kill), (2_000, Fate::Restart)], LossPolicy::Pause);
     assert!(sim.run(10_000), "did not finish");
     assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
@@ -346,7 +346,7 @@ fn pause_restarts_the_segment_on_an_agent_that_came_back_restarted() {
 
 #[test]
 fn fail_ends_the_run_and_says_why() {
-    use baton_tests::simnet::Fate;
+    use baton_proto::dist::simnet::Fate;
     let mut sim = cell_losing_robot1(&[(600, Fate::Kill)], LossPolicy::Fail);
     assert!(!sim.run(3_000));
     let why = sim.coordinator.core().failure().expect("failed");
@@ -355,7 +355,7 @@ fn fail_ends_the_run_and_says_why() {
 
 #[test]
 fn a_cut_off_agents_late_result_is_rejected_after_a_reassign() {
-    use baton_tests::simnet::Fate;
+    use baton_proto::dist::simnet::Fate;
     // Cut at 600 ms: robot1 fences itself at 850 ms, the coordinator hears it is lost at 1 600 ms (its lease)
     // and moves the token at 2 100 ms; the cable is back at 2 500 ms.
     let mut sim = cell_losing_robot1(&[(600, Fate::Cut), (2_500, Fate::Heal)], LossPolicy::Reassign);
@@ -423,7 +423,7 @@ fn a_segment_that_finishes_while_the_coordinator_is_down_is_not_run_again() {
 
 #[test]
 fn an_agent_restarted_while_the_coordinator_was_down_runs_its_segment_again_in_a_new_epoch() {
-    use baton_tests::simnet::Fate;
+    use baton_proto::dist::simnet::Fate;
     let mut sim = SimCluster::new(&cell(), CELL_AGENTS, Faults::default(), 5);
     sim.set_at(0, "parts", serde_json::json!(1));
     sim.crash_coordinator_at(600, 1_000);
@@ -440,7 +440,7 @@ fn an_agent_restarted_while_the_coordinator_was_down_runs_its_segment_again_in_a
 
 #[test]
 fn an_agent_that_does_not_come_back_after_a_coordinator_restart_is_lost_after_its_lease() {
-    use baton_tests::simnet::Fate;
+    use baton_proto::dist::simnet::Fate;
     // robot1 holds Assemble and dies while the coordinator is down; the new coordinator waits for it for its
     // lease (1 s in the simulation), then reassigns its segment to robot2 in a new epoch.
     let mut sim = SimCluster::new(&cell(), CELL_AGENTS, Faults::default(), 5);
@@ -474,7 +474,7 @@ fn a_long_outage_of_the_coordinator_loses_no_report() {
     let mut sim = SimCluster::new(COUNTING, &[("r1", &[])], Faults::default(), 3);
     sim.crash_coordinator_at(2_000, 15_000);
     assert!(sim.run(60_000), "seed 3: the token never came back");
-    let expected = baton_tests::reference::final_values(COUNTING, baton_tests::simnet::CYCLE_MS, &["n"]);
+    let expected = baton_tests::reference::final_values(COUNTING, baton_proto::dist::simnet::CYCLE_MS, &["n"]);
     assert_eq!(sim.value("n").map(|v| v.as_i64()), Some(expected[0]), "n as one engine counts it");
     assert_eq!(sim.events("return").len(), 1);
 }
@@ -504,7 +504,7 @@ fn a_restarted_agents_values_are_heard() {
     // The new process numbers its variable updates from 1 again: the coordinator must not take them for old
     // ones of the process it replaced, or the count it waits for never changes.
     let mut sim = SimCluster::new(RECOUNTING, &[("r1", &[])], Faults::default(), 4);
-    sim.fate_at(1_500, "r1", baton_tests::simnet::Fate::Restart);
+    sim.fate_at(1_500, "r1", baton_proto::dist::simnet::Fate::Restart);
     let done = sim.run(30_000);
     let (n, before) = (sim.value("n").map(|v| v.as_i64()), sim.value("before").map(|v| v.as_i64()));
     assert!(done, "seed 4: the coordinator never heard r1's new process (n = {n:?}, before = {before:?})");

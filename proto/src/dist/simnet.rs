@@ -1,10 +1,10 @@
 //! Deterministic simulation of a distributed run: the real coordinator and agent state machines from
-//! `baton_proto::dist::runtime`, a simulated network and simulated skills, one thread, one seed, virtual time.
+//! `crate::dist::runtime`, a simulated network and simulated skills, one thread, one seed, virtual time.
 //!
 //! Every message goes through the real wire encoding. The network can lose, duplicate, reorder and delay
 //! messages; a cut link goes silent, and the coordinator hears of it only when the agent's lease runs out (the
 //! agent fences itself first, as a real one does). The coordinator journals every input
-//! (`baton_proto::dist::journal`), and can be crashed — before its latest records are durable, or after they are but
+//! (`crate::dist::journal`), and can be crashed — before its latest records are durable, or after they are but
 //! before what they led to was sent — and started again from its journal. What the agents do is watched too:
 //! no segment starts twice in one epoch on any agent, and no engine ever gives a step a second token
 //! (`violations`).
@@ -12,14 +12,14 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use baton_proto::dist::journal::{self, Journaled};
-use baton_proto::dist::layout::{Layout, Param};
-use baton_proto::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch};
-use baton_proto::dist::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
-use baton_proto::dist::wire::{self, AgentInfo, ChartHash, RunId, ToAgent, VarUpdate};
-use baton_proto::exec::program::{ActionId, Program};
-use baton_proto::exec::sim::TraceRecord;
-use baton_proto::front::check::check_source;
+use crate::dist::journal::{self, Journaled};
+use crate::dist::layout::{Layout, Param};
+use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch};
+use crate::dist::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
+use crate::dist::wire::{self, AgentInfo, ChartHash, RunId, ToAgent, VarUpdate};
+use crate::exec::program::{ActionId, Program};
+use crate::exec::sim::TraceRecord;
+use crate::front::check::check_source;
 use uuid::Uuid;
 
 /// The simulated run's cycle period.
@@ -90,7 +90,7 @@ pub struct SimCluster {
     /// Crashes right after records became durable, before what they led to was sent.
     crashes_after_journal: Vec<(u64, u64)>,
     /// Every (token, epoch) that started on an agent.
-    started: std::collections::HashSet<(baton_proto::dist::wire::TokenId, u32)>,
+    started: std::collections::HashSet<(crate::dist::wire::TokenId, u32)>,
     /// What went wrong on the agents' side, with the time.
     pub violations: Vec<String>,
     /// The coordinator died after its journal but before it sent (or wrote) what that led to.
@@ -496,7 +496,7 @@ impl SimCluster {
         let now = self.now_ms;
         for i in 0..self.agents.len() {
             let Some(cut) = self.agents[i].cut_at else { continue };
-            if !self.agents[i].fenced && now >= cut + baton_proto::limits::fence_after_ms(LEASE_MS) {
+            if !self.agents[i].fenced && now >= cut + crate::limits::fence_after_ms(LEASE_MS) {
                 self.agents[i].fenced = true;
                 self.agents[i].run.handle_contact(now, Some(now - cut));
                 self.flush_agent(i);
@@ -699,7 +699,7 @@ impl SimCluster {
     }
 
     /// A variable's value on the coordinator, by name.
-    pub fn value(&self, name: &str) -> Option<baton_proto::exec::types::Value> {
+    pub fn value(&self, name: &str) -> Option<crate::exec::types::Value> {
         let var = self.coordinator.core().program().var_by_name(name)?;
         Some(self.coordinator.core().value(var))
     }
