@@ -44,6 +44,9 @@ async fn a_zenoh_publisher_drives_a_transition_and_outputs_reach_a_subscriber() 
     door.put("true").await.expect("put");
     assert_eq!(next(&lamp).await, "true");
     assert_eq!(next(&shown).await, "3");
+    // A subscriber that comes now, after the change, still hears `ready`: it is put again every 50 ms.
+    let ready = watch.declare_subscriber("cell1/ready").await.expect("subscribe");
+    assert_eq!((next(&ready).await, next(&ready).await), ("true".to_string(), "true".to_string()));
     door.put("false").await.expect("put");
     let (status, log, trace, summary) =
         tokio::time::timeout(TIMEOUT + Duration::from_secs(5), coordinator.finish()).await.expect("the chart ends");

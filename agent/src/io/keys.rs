@@ -1,5 +1,5 @@
 //! Variables bound to Zenoh keys: a subscription for an input, whose samples become values of the chart, and a
-//! publisher for an output, which puts its values as text.
+//! publisher for an output, which puts its values as text at every change (and again every `period_ms`).
 //!
 //! Payloads are text, as MQTT devices and scripts write them: `true`/`false` (any case, also `TRUE` as ST
 //! writes it, and `on`/`off`), integers, reals, IEC literals (`T#2s`, `'text'`), and for a STRING variable any
@@ -14,7 +14,7 @@ use baton_proto::front::literal::{self, Literal};
 use zenoh::qos::CongestionControl;
 use zenoh::Session;
 
-use super::{Latest, Sink};
+use super::{Latest, Resend, Sink};
 
 /// The value a payload holds, before the run converts it to its variable's type.
 pub fn parse_payload(bytes: &[u8]) -> Value {
@@ -71,8 +71,9 @@ pub async fn output(session: Session, binding: usize, b: IoBinding, latest: Arc<
         Err(e) => return sink.state(binding, Err(format!("cannot publish on {key}: {e}"))),
     };
     let mut down = false;
+    let mut resend = Resend::new(binding, b.period_ms());
     loop {
-        let Some(value) = latest.next().await.remove(&binding) else { continue };
+        let value = resend.next(&latest).await;
         match publisher.put(payload_of(&value)).await {
             Ok(()) if std::mem::take(&mut down) => sink.state(binding, Ok(())),
             Ok(()) => {}

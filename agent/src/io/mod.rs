@@ -198,6 +198,41 @@ impl Devices {
     }
 }
 
+/// An output's next value to send: a new one from the chart, or, every `period_ms` if the binding has one, the
+/// last one again.
+pub(crate) struct Resend {
+    binding: usize,
+    last: Option<Value>,
+    period: Option<tokio::time::Interval>,
+}
+
+impl Resend {
+    pub(crate) fn new(binding: usize, period_ms: Option<u64>) -> Resend {
+        let period = period_ms.map(|ms| {
+            let mut t = tokio::time::interval(std::time::Duration::from_millis(ms.max(1)));
+            t.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            t
+        });
+        Resend { binding, last: None, period }
+    }
+
+    pub(crate) async fn next(&mut self, latest: &Latest) -> Value {
+        loop {
+            let value = match self.period.as_mut() {
+                Some(period) => tokio::select! {
+                    values = latest.next() => values.get(&self.binding).cloned(),
+                    _ = period.tick() => self.last.clone(),
+                },
+                None => latest.next().await.get(&self.binding).cloned(),
+            };
+            if let Some(v) = value {
+                self.last = Some(v.clone());
+                return v;
+            }
+        }
+    }
+}
+
 /// How long a connection that failed waits before it tries again: doubling from the first to the last.
 pub(crate) const RETRY_FIRST: std::time::Duration = std::time::Duration::from_millis(500);
 pub(crate) const RETRY_MAX: std::time::Duration = std::time::Duration::from_secs(5);

@@ -17,7 +17,7 @@ use baton_proto::front::literal::{Literal, PathPart};
 use zenoh::sample::SampleKind;
 use zenoh::Session;
 
-use super::{Latest, Sink};
+use super::{Latest, Resend, Sink};
 use crate::ros2::interfaces::{TopicType, WireType};
 use crate::ros2::keys::{self, Kind};
 use crate::ros2::{cdr, Ros2};
@@ -128,19 +128,9 @@ pub async fn output(ros2: Arc<Ros2>, session: Session, binding: usize, b: IoBind
         Err(why) => return sink.state(binding, Err(why)),
     };
     let mut down = false;
-    let mut last: Option<Value> = None;
-    let mut period = b.period_ms().map(|ms| {
-        let mut t = tokio::time::interval(Duration::from_millis(ms.max(1)));
-        t.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-        t
-    });
+    let mut resend = Resend::new(binding, b.period_ms());
     loop {
-        let value = tokio::select! {
-            values = latest.next() => values.get(&binding).cloned(),
-            _ = async { period.as_mut().expect("a period").tick().await }, if period.is_some() => last.clone(),
-        };
-        let Some(value) = value else { continue };
-        last = Some(value.clone());
+        let value = resend.next(&latest).await;
         let lit = match value {
             Value::Str(s) => Literal::Text(s.to_string()),
             other => Literal::Scalar(other),

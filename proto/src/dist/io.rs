@@ -61,7 +61,7 @@ impl IoKind {
     /// The keys a binding of this kind takes, besides `input`/`output` and `agent`; the first ones are needed.
     fn keys(self) -> (&'static [&'static str], &'static [&'static str]) {
         match self {
-            IoKind::Zenoh => (&["key"], &[]),
+            IoKind::Zenoh => (&["key"], &["period_ms"]),
             IoKind::Ros2 => (&["topic", "type"], &["field", "period_ms"]),
             IoKind::OpcUa => (&["endpoint", "node"], &["security", "policy", "user", "password", "interval_ms"]),
         }
@@ -99,8 +99,9 @@ impl IoBinding {
         Some((self.text("topic")?, self.text("type")?))
     }
 
-    /// How often a `ros2` output publishes its value again, unchanged (`period_ms`): for robots whose drivers
-    /// stop when commands stop coming (a `cmd_vel` watchdog), and for subscribers that join late.
+    /// How often a `zenoh` or `ros2` output sends its value again, unchanged (`period_ms`): for robots whose
+    /// drivers stop when commands stop coming (a `cmd_vel` watchdog), devices that expect a heartbeat, and
+    /// subscribers that join late.
     pub fn period_ms(&self) -> Option<u64> {
         self.params.get("period_ms").and_then(Param::as_f64).map(|ms| ms as u64)
     }
@@ -259,6 +260,14 @@ fn check_params(kind: IoKind, dir: IoDir, params: &BTreeMap<String, Param>) -> V
     if !problems.is_empty() {
         return problems;
     }
+    if let Some(ms) = params.get("period_ms") {
+        if !ms.as_f64().is_some_and(|ms| (1.0..=3_600_000.0).contains(&ms)) {
+            problems.push("`period_ms` is a number of milliseconds between 1 and 3600000".into());
+        }
+        if dir == IoDir::Input {
+            problems.push("`period_ms` is how often an output is sent again: an input takes every sample".into());
+        }
+    }
     match kind {
         IoKind::Zenoh => {
             let k = text("key").unwrap_or_default();
@@ -300,16 +309,6 @@ fn check_params(kind: IoKind, dir: IoDir, params: &BTreeMap<String, Param>) -> V
                 },
                 Some(Param::Value(v)) => {
                     problems.push(format!("`field` is a field path in quotes, such as 'linear.x', not {v}"))
-                }
-            }
-            if let Some(ms) = params.get("period_ms") {
-                if !ms.as_f64().is_some_and(|ms| (1.0..=3_600_000.0).contains(&ms)) {
-                    problems.push("`period_ms` is a number of milliseconds between 1 and 3600000".into());
-                }
-                if dir == IoDir::Input {
-                    problems.push(
-                        "`period_ms` is how often an output is published again: an input takes every message".into(),
-                    );
                 }
             }
         }
