@@ -47,6 +47,24 @@ impl Server {
         }
     }
 
+    /// Reads until a line starting with each of `prefixes` was seen, in any order (what two publishers send
+    /// comes in either order), under the timeout.
+    pub async fn wait_for_all(&mut self, prefixes: &[&str]) {
+        let mut left: Vec<&str> = prefixes.to_vec();
+        let found = tokio::time::timeout(TIMEOUT, async {
+            while let Ok(Some(line)) = self.lines.next_line().await {
+                self.seen.push(line.clone());
+                left.retain(|p| !line.starts_with(p));
+                if left.is_empty() {
+                    return true;
+                }
+            }
+            false
+        })
+        .await;
+        assert!(matches!(found, Ok(true)), "the server never said {left:?}; it said:\n{}", self.seen.join("\n"));
+    }
+
     /// Writes a line to the server's stdin (a command to the device it plays).
     pub async fn send(&mut self, line: &str) {
         use tokio::io::AsyncWriteExt;
