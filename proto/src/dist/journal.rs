@@ -276,36 +276,33 @@ impl Journaled {
         }
     }
 
-    /// A report as it arrived. Reports of other runs change nothing and are not recorded.
+    /// A message as it arrived on the wire (a report, a variable update, a device report): recorded as the
+    /// bytes it came in, then applied. One of another run changes nothing (the coordinator drops it) and is not
+    /// recorded.
+    fn arrived(&mut self, tag: u8, now_ms: u64, bytes: &[u8], run: RunId, record: Record) {
+        let entry = Entry { t_ms: now_ms, record };
+        if run == self.core.run() {
+            self.feed(frame(tag, now_ms, bytes), entry);
+        } else {
+            apply(&mut self.core, &entry);
+        }
+    }
+
     pub fn report(&mut self, now_ms: u64, bytes: &[u8]) -> Result<(), WireError> {
         let report: Report = wire::decode(bytes)?;
-        if report.run != self.core.run() {
-            self.core.handle_report(now_ms, report);
-            return Ok(());
-        }
-        self.feed(frame(REPORT, now_ms, bytes), Entry { t_ms: now_ms, record: Record::Report(report) });
+        self.arrived(REPORT, now_ms, bytes, report.run, Record::Report(report));
         Ok(())
     }
 
-    /// A variable update as it arrived. Updates of other runs change nothing and are not recorded.
     pub fn vars(&mut self, now_ms: u64, bytes: &[u8]) -> Result<(), WireError> {
         let update: VarUpdate = wire::decode(bytes)?;
-        if update.run != self.core.run() {
-            self.core.handle_vars(now_ms, update);
-            return Ok(());
-        }
-        self.feed(frame(VARS, now_ms, bytes), Entry { t_ms: now_ms, record: Record::Vars(update) });
+        self.arrived(VARS, now_ms, bytes, update.run, Record::Vars(update));
         Ok(())
     }
 
-    /// A device report as it arrived. Reports of other runs change nothing and are not recorded.
     pub fn devices(&mut self, now_ms: u64, bytes: &[u8]) -> Result<(), WireError> {
         let report: DeviceReport = wire::decode(bytes)?;
-        if report.run != self.core.run() {
-            self.core.handle_devices(now_ms, report);
-            return Ok(());
-        }
-        self.feed(frame(DEVICES, now_ms, bytes), Entry { t_ms: now_ms, record: Record::Devices(report) });
+        self.arrived(DEVICES, now_ms, bytes, report.run, Record::Devices(report));
         Ok(())
     }
 

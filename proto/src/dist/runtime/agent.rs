@@ -169,6 +169,7 @@ impl AgentRun {
                 }
             }
         }
+        let bindings = layout.io.len();
         let mut run = AgentRun {
             name: name.to_string(),
             serves,
@@ -197,11 +198,10 @@ impl AgentRun {
             fenced: None,
             outbox: VecDeque::new(),
             dropped: 0,
-            io_sent: Vec::new(),
+            io_sent: vec![None; bindings],
             devices_down: BTreeMap::new(),
             devices_seq: 0,
         };
-        run.io_sent = vec![None; run.layout.io.len()];
         run.send_outputs();
         run
     }

@@ -90,6 +90,23 @@ struct AgentState {
     devices_seq: u64,
 }
 
+impl AgentState {
+    /// An agent first heard of: not live until it announces itself.
+    fn new(incarnation: uuid::Uuid, lease_ms: u64) -> AgentState {
+        AgentState {
+            roles: Vec::new(),
+            alive: false,
+            tokens: 0,
+            incarnation,
+            recovering: false,
+            lease_ms,
+            conflict: false,
+            devices_down: BTreeMap::new(),
+            devices_seq: 0,
+        }
+    }
+}
+
 struct TokenState {
     segment: SegmentId,
     entry: StepId,
@@ -652,17 +669,7 @@ impl Coordinator {
             return;
         }
         let name = info.name.clone();
-        let entry = self.agents.entry(name.clone()).or_insert(AgentState {
-            roles: Vec::new(),
-            alive: false,
-            tokens: 0,
-            incarnation: info.incarnation,
-            recovering: false,
-            lease_ms: info.lease_ms,
-            conflict: false,
-            devices_down: BTreeMap::new(),
-            devices_seq: 0,
-        });
+        let entry = self.agents.entry(name.clone()).or_insert_with(|| AgentState::new(info.incarnation, info.lease_ms));
         let was_alive = entry.alive;
         let recovering = std::mem::take(&mut entry.recovering);
         let restarted = entry.incarnation != info.incarnation;
@@ -792,17 +799,7 @@ impl Coordinator {
         if !self.agents.contains_key(name) && self.agents.len() >= AGENTS_MAX {
             return self.drop_msg(format!("agent `{name}` ignored: already tracking {AGENTS_MAX} agents"));
         }
-        let agent = self.agents.entry(name.to_string()).or_insert(AgentState {
-            roles: Vec::new(),
-            alive: false,
-            tokens: 0,
-            incarnation: uuid::Uuid::nil(),
-            recovering: false,
-            lease_ms: 0,
-            conflict: false,
-            devices_down: BTreeMap::new(),
-            devices_seq: 0,
-        });
+        let agent = self.agents.entry(name.to_string()).or_insert_with(|| AgentState::new(uuid::Uuid::nil(), 0));
         if std::mem::replace(&mut agent.conflict, true) {
             return;
         }
@@ -1338,15 +1335,19 @@ mod tests {
     use super::*;
     use crate::limits::AGENTS_MAX;
 
+    const RUN: RunId = RunId(uuid::Uuid::from_u128(7));
+
+    fn coordinator_of(program: &Arc<Program>, layout: &Arc<Layout>) -> Coordinator {
+        let (program, layout) = (Arc::clone(program), Arc::clone(layout));
+        Coordinator::new(program, layout, RUN, ChartHash("h".into()), crate::dist::journal::token_ids(RUN))
+    }
+
     fn coordinator() -> Coordinator {
-        let source = "PROGRAM p\nINITIAL_STEP A: END_STEP\nTRANSITION FROM A TO B := TRUE; END_TRANSITION\n\
-                      STEP B: {role := 'worker'} END_STEP\nEND_PROGRAM\n";
-        let mut report = crate::front::check::check_source(source);
-        let checked = report.charts.remove(0);
-        let (program, layout) =
-            (Arc::new(checked.program.expect("program")), Arc::new(checked.layout.expect("layout")));
-        let run = RunId(uuid::Uuid::from_u128(7));
-        Coordinator::new(program, layout, run, ChartHash("h".into()), crate::dist::journal::token_ids(run))
+        let (program, layout) = crate::dist::simnet::compile(
+            "PROGRAM p\nINITIAL_STEP A: END_STEP\nTRANSITION FROM A TO B := TRUE; END_TRANSITION\n\
+             STEP B: {role := 'worker'} END_STEP\nEND_PROGRAM\n",
+        );
+        coordinator_of(&program, &layout)
     }
 
     fn info(name: &str, n: u128) -> AgentInfo {
@@ -1381,20 +1382,9 @@ mod tests {
                       'opc.tcp://10.0.0.5:4840', node := 'ns=2;s=Door'}\n  lamp : BOOL; {output := 'zenoh', \
                       agent := 'cell2', key := 'cell2/lamp'}\nEND_VAR\nINITIAL_STEP A: END_STEP\n\
                       TRANSITION FROM A TO B := door; END_TRANSITION\nSTEP B: END_STEP\nEND_PROGRAM\n";
-        let mut report = crate::front::check::check_source(source);
-        let checked = report.charts.remove(0);
-        let (program, layout) =
-            (Arc::new(checked.program.expect("program")), Arc::new(checked.layout.expect("layout")));
-        let run = RunId(uuid::Uuid::from_u128(7));
-        let hash = ChartHash("h".into());
-        let mut c = Coordinator::new(
-            Arc::clone(&program),
-            Arc::clone(&layout),
-            run,
-            hash.clone(),
-            crate::dist::journal::token_ids(run),
-        );
-        let mut agent = AgentRun::new("cell1", &[], run, hash, program, layout, 10);
+        let (program, layout) = crate::dist::simnet::compile(source);
+        let mut c = coordinator_of(&program, &layout);
+        let mut agent = AgentRun::new("cell1", &[], RUN, ChartHash("h".into()), program, layout, 10);
         agent.set_incarnation(uuid::Uuid::from_u128(1));
         c.handle_agent_up(0, info("cell1", 1));
         c.handle_agent_up(0, info("cell2", 2));
