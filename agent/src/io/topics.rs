@@ -43,7 +43,7 @@ pub async fn input(ros2: Arc<Ros2>, session: Session, binding: usize, b: IoBindi
 async fn follow(ros2: &Ros2, session: &Session, binding: usize, b: &IoBinding, sink: &Sink) -> Result<(), String> {
     let (topic, ty, path) = resolve(ros2, b, false)?;
     let node = ros2.node(session).await?;
-    let (_endpoint, subscriber) = node.subscription(&topic, &ty).await?;
+    let (_endpoint, subscriber) = node.subscription(&topic, &ty.wire).await?;
     let graph = session
         .liveliness()
         .declare_subscriber(keys::servers(node.domain(), Kind::Publisher, &topic))

@@ -73,6 +73,11 @@ pub struct Node {
     _token: LivelinessToken,
 }
 
+/// The source time of a request or a publication, as rmw_zenoh's attachment carries it.
+fn now_ns() -> i64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as i64)
+}
+
 pub type Subscription = zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>;
 
 /// A publisher of the node: its messages numbered from 1, with their source time and the publisher's GID.
@@ -86,11 +91,9 @@ impl TopicPublisher {
     /// Publishes one message, its CDR bytes.
     pub async fn put(&mut self, bytes: Vec<u8>) -> Result<(), String> {
         self.sequence += 1;
-        let now_ns =
-            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as i64);
         self.publisher
             .put(bytes)
-            .attachment(keys::attachment(self.sequence, now_ns, &self.endpoint.gid))
+            .attachment(keys::attachment(self.sequence, now_ns(), &self.endpoint.gid))
             .await
             .map_err(|e| format!("cannot publish: {e}"))
     }
@@ -183,11 +186,11 @@ impl Node {
     }
 
     /// Subscribes to `topic` as rmw_zenoh does: the data key of its type, and the subscription's token.
-    pub async fn subscription(&self, topic: &str, ty: &TopicType) -> Result<(Endpoint, Subscription), String> {
-        let endpoint = self.endpoint(Kind::Subscription, topic, &ty.wire, keys::TOPIC_QOS).await?;
+    pub async fn subscription(&self, topic: &str, wire: &WireType) -> Result<(Endpoint, Subscription), String> {
+        let endpoint = self.endpoint(Kind::Subscription, topic, wire, keys::TOPIC_QOS).await?;
         let subscriber = self
             .session
-            .declare_subscriber(keys::data(self.id.domain, topic, &ty.wire))
+            .declare_subscriber(keys::data(self.id.domain, topic, wire))
             .await
             .map_err(|e| format!("cannot subscribe to {topic}: {e}"))?;
         Ok((endpoint, subscriber))
@@ -216,13 +219,11 @@ impl Node {
     ) -> Result<Vec<u8>, String> {
         let key = keys::data(self.id.domain, name, &service.wire);
         let sequence = self.next_sequence.fetch_add(1, Ordering::Relaxed);
-        let now_ns =
-            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as i64);
         let replies = self
             .session
             .get(key)
             .payload(request)
-            .attachment(keys::attachment(sequence, now_ns, &client.gid))
+            .attachment(keys::attachment(sequence, now_ns(), &client.gid))
             .target(QueryTarget::AllComplete)
             .consolidation(ConsolidationMode::None)
             .timeout(timeout.unwrap_or(CALL_TIMEOUT_MAX).min(CALL_TIMEOUT_MAX))

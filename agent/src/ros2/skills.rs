@@ -193,13 +193,8 @@ async fn run_action(ros2: &Ros2, call: &SkillCall) -> Result<(), String> {
     let result_client = node.endpoint(Kind::Client, &get_result, &action.get_result.wire, keys::SERVICE_QOS).await?;
     let cancel_client = node.endpoint(Kind::Client, &cancel_goal, &action.cancel_goal.wire, keys::SERVICE_QOS).await?;
     let (feedback_wire, feedback_def) = &action.feedback_message;
-    let _feedback_endpoint = node.endpoint(Kind::Subscription, &feedback, feedback_wire, keys::TOPIC_QOS).await?;
     // Subscribed before the goal is sent, so the first feedback is not missed.
-    let feedback_sub = node
-        .session()
-        .declare_subscriber(keys::data(node.domain(), &feedback, feedback_wire))
-        .await
-        .map_err(|e| format!("cannot subscribe to {feedback}: {e}"))?;
+    let (_feedback_endpoint, feedback_sub) = node.subscription(&feedback, feedback_wire).await?;
     node.wait_for(Kind::Service, &send_goal, &action.send_goal.wire, false, deadline).await?;
     // CancelGoal is action_msgs' own, the same for every action, yet implementations hash it differently
     // (hiroz 0.2.1 leaves `goals_canceling` out): cancel on the key the server announces.
