@@ -38,6 +38,10 @@ struct Args {
     /// agent does not know out of the box (repeatable); they win over the built-in ones of the same name.
     #[arg(long = "ros-interfaces", value_name = "DIR")]
     ros_interfaces: Vec<std::path::PathBuf>,
+    /// The robots run DDS and are reached through a zenoh-bridge-ros2dds: topics, services and actions on the
+    /// bridge's keys (the ROS name alone), not rmw_zenoh's. The ROS domain is then the bridge's own setting.
+    #[arg(long)]
+    ros_bridge: bool,
     /// The ROS 2 distribution of the robots: jazzy, kilted (the same type hashes) or humble (none).
     #[arg(long, default_value = "jazzy", value_name = "DISTRO")]
     ros_distro: String,
@@ -78,7 +82,8 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let ros2 = Arc::new(baton_agent::ros2::Ros2::new(interfaces, args.ros_domain_id, &config.name));
+    let via = if args.ros_bridge { baton_agent::ros2::Via::Bridge } else { baton_agent::ros2::Via::RmwZenoh };
+    let ros2 = Arc::new(baton_agent::ros2::Ros2::new(interfaces, args.ros_domain_id, via, &config.name));
     let opcua = Arc::new(baton_agent::opcua::OpcUa {
         pki_dir: args.opcua_pki.unwrap_or_else(default_pki_dir),
         agent: config.name.clone(),

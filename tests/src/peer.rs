@@ -93,7 +93,8 @@ impl Server {
     }
 }
 
-fn python_has(module: &str, package: &str) -> bool {
+/// Whether python3 imports `module` (from the PyPI `package`); SKIPPED (or failed, in CI) when not.
+pub fn python_has(module: &str, package: &str) -> bool {
     let ok = std::process::Command::new("python3")
         .args(["-c", &format!("import {module}")])
         .stdout(Stdio::null())

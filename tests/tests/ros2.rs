@@ -277,3 +277,62 @@ async fn topic_fields_drive_a_transition_outputs_are_published_and_a_sensor_gone
         assert_eq!(said("INFO", "device of `door` on arm1 back"), 2, "{lines:?}");
     }
 }
+
+/// Cyclone DDS on loopback only: no multicast; discovery by unicast to 127.0.0.1.
+const CYCLONE_ON_LOOPBACK: &str = "<CycloneDDS><Domain id=\"any\"><General><Interfaces><NetworkInterface address=\"127.0.0.1\"/></Interfaces><AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>20</MaxAutoParticipantIndex><Peers><Peer address=\"127.0.0.1\"/></Peers></Discovery></Domain></CycloneDDS>";
+
+/// A robot on DDS only — a ROS 2 node spoken in plain DDS by Eclipse Cyclone DDS's Python binding — and Eclipse
+/// Zenoh's own zenoh-bridge-ros2dds plugin between it and the cluster's router: the agent, started with
+/// `--ros-bridge`, drives its topics, its service and its action on the bridge's keys. A wrong key, token, CDR
+/// layout or reply routing on Baton's side and the robot never hears a thing.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_robot_on_dds_only_is_driven_through_zenoh_bridge_ros2dds() {
+    let bridge = repo("tests/ros2dds-bridge/target/debug/ros2dds-bridge");
+    if !bridge.is_file() {
+        baton_tests::missing(&format!(
+            "{} is absent: run .ci/run once (it builds tests/ros2dds-bridge)",
+            bridge.display()
+        ));
+        return;
+    }
+    if !baton_tests::peer::python_has("cyclonedds", "cyclonedds") {
+        return;
+    }
+    let mut cluster = Cluster::with_router().await;
+    // A DDS domain of the test's own, on loopback.
+    let domain = (baton_tests::cluster::free_port() % 200 + 1).to_string();
+    let mut cmd = Command::new("python3");
+    cmd.arg(repo("tests/scripts/dds_robot.py")).arg(&domain).env("CYCLONEDDS_URI", CYCLONE_ON_LOOPBACK);
+    let mut robot = Server::start(cmd);
+    robot.wait_for("READY").await;
+    let mut cmd = Command::new(bridge);
+    cmd.args([&cluster.endpoint, &domain]).env("CYCLONEDDS_URI", CYCLONE_ON_LOOPBACK).env("ROS_DISTRO", "jazzy");
+    let mut bridge = Server::start(cmd);
+    bridge.wait_for("READY").await;
+    cluster.agent("arm1", &[], &["--ros-bridge"]);
+    let coordinator = cluster.coordinator_joining(&chart("ros2_bridge.st"), &[]);
+    // The lamp, published every 100 ms, reaches the robot's subscription through the bridge.
+    robot.wait_for("LAMP False").await;
+    robot.send("DOOR true").await;
+    assert_eq!(robot.wait_for("CLOSE").await, "CLOSE True");
+    assert_eq!(robot.wait_for("GOAL").await, "GOAL 6");
+    robot.wait_for("SUCCEEDED").await;
+    robot.wait_for("LAMP True").await;
+    // The sweep runs until cancelled: the door closing leaves its step, and the goal is cancelled on the robot.
+    assert_eq!(robot.wait_for("GOAL").await, "GOAL 99");
+    robot.send("DOOR false").await;
+    robot.wait_for("CANCEL").await;
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}\n{}", cluster.agent_log("arm1"));
+    assert!(ends_in(&trace, "Done"), "{trace:?}\n{}", cluster.agent_log("arm1"));
+    let ended: Vec<&str> =
+        trace.iter().filter(|r| r.name == "Sweep" && r.event.starts_with("skill_")).map(|r| r.event.as_str()).collect();
+    assert!(!ended.contains(&"skill_done"), "a cancelled goal is not done: {ended:?}");
+    // The service's answer, the action's result (0 1 1 2 3 5) and its feedback reached the chart.
+    assert_eq!(var(&summary, "said"), "'closed'");
+    assert_eq!((var(&summary, "last"), var(&summary, "partial")), ("5".into(), "1".into()));
+    assert!(!trace.iter().any(|r| r.event == "device_down"), "{trace:?}");
+    drop(bridge.finish().await);
+    let said = robot.finish().await;
+    assert_eq!(said.iter().filter(|l| *l == "SUCCEEDED").count(), 1, "{said:?}");
+}

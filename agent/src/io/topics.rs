@@ -46,7 +46,7 @@ async fn follow(ros2: &Ros2, session: &Session, binding: usize, b: &IoBinding, s
     let (_endpoint, subscriber) = node.subscription(&topic, &ty.wire).await?;
     let graph = session
         .liveliness()
-        .declare_subscriber(keys::servers(node.domain(), Kind::Publisher, &topic))
+        .declare_subscriber(keys::servers(node.via(), node.domain(), Kind::Publisher, &topic))
         .history(true)
         .await
         .map_err(|e| format!("cannot watch the ROS graph: {e}"))?;
@@ -77,8 +77,8 @@ async fn follow(ros2: &Ros2, session: &Session, binding: usize, b: &IoBinding, s
                 let Ok(token) = token else { return Err("the Zenoh session closed".into()) };
                 let key = token.key_expr().as_str().to_string();
                 match token.kind() {
-                    SampleKind::Put => match keys::announced_type(&key) {
-                        Some(t) if t == ty.wire => {
+                    SampleKind::Put => match keys::announced_type(node.via(), &key) {
+                        Some(t) if keys::fits(node.via(), &t, &ty.wire, false) => {
                             ours.insert(key);
                         }
                         Some(t) => {
@@ -104,10 +104,10 @@ async fn follow(ros2: &Ros2, session: &Session, binding: usize, b: &IoBinding, s
             (Some(why), _, _) => Err(why.clone()),
             (None, false, _) => Ok(()),
             (None, true, Some(t)) => Err(format!(
-                "the publisher of {topic} on ROS domain {} has type {} ({}), not {} ({}): the two sides were built from different definitions or ROS 2 distributions",
-                node.domain(), t.dds_name, t.hash, ty.wire.dds_name, ty.wire.hash
+                "the publisher of {topic} on {} has type {}, not {}: the two sides were built from different definitions or ROS 2 distributions",
+                node.graph(), keys::describe(node.via(), t), keys::describe(node.via(), &ty.wire)
             )),
-            (None, true, None) => Err(format!("no publisher of {topic} ({}) on ROS domain {}", ty.msg.name, node.domain())),
+            (None, true, None) => Err(format!("no publisher of {topic} ({}) on {}", ty.msg.name, node.graph())),
         };
         if said.as_ref() != Some(&state) {
             sink.state(binding, state.clone());

@@ -1,7 +1,7 @@
-//! A ROS 2 node over the agent's Zenoh session, speaking rmw_zenoh: it announces itself in the ROS graph, waits
-//! for a server's liveliness token, calls services (a query with the CDR request and the attachment), and
-//! subscribes to topics. A ROS 2 action is built from these, as rmw_zenoh builds it: three services and a
-//! feedback topic (see `skills`).
+//! A ROS 2 node over the agent's Zenoh session, speaking rmw_zenoh — or the keys of zenoh-bridge-ros2dds, for
+//! robots on DDS (`Via`): it announces itself in the ROS graph, waits for a server's liveliness token, calls
+//! services (a query with the CDR request and the attachment), and subscribes to topics. A ROS 2 action is built
+//! from these, as rmw_zenoh and the bridge build it: three services and a feedback topic (see `skills`).
 
 use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
 use std::sync::Arc;
@@ -14,24 +14,26 @@ use zenoh::query::{ConsolidationMode, QueryTarget};
 use zenoh::sample::SampleKind;
 use zenoh::Session;
 
-use super::interfaces::{Interfaces, ServiceType, TopicType, WireType};
-use super::keys::{self, Kind, NodeId};
+use super::interfaces::{ActionType, Interfaces, ServiceType, TopicType, WireType};
+use super::keys::{self, Kind, NodeId, Via};
 
 /// A call whose server takes this long to answer is given up: a service answers at once, and an action's
 /// result is waited for through its own step time in the chart. (rmw_zenoh waits for ever.)
 const CALL_TIMEOUT_MAX: Duration = Duration::from_secs(7 * 24 * 3600);
 
-/// The agent's ROS 2 side: its interface types, its domain, and its node (made on first use).
+/// The agent's ROS 2 side: its interface types, its domain, how it reaches the graph, and its node (made on
+/// first use).
 pub struct Ros2 {
     pub lib: Arc<Interfaces>,
     pub domain: u32,
+    pub via: Via,
     node_name: String,
     node: Mutex<Option<Arc<Node>>>,
 }
 
 impl Ros2 {
-    pub fn new(lib: Arc<Interfaces>, domain: u32, agent: &str) -> Ros2 {
-        Ros2 { lib, domain, node_name: format!("baton_{}", agent.replace('-', "_")), node: Mutex::new(None) }
+    pub fn new(lib: Arc<Interfaces>, domain: u32, via: Via, agent: &str) -> Ros2 {
+        Ros2 { lib, domain, via, node_name: format!("baton_{}", agent.replace('-', "_")), node: Mutex::new(None) }
     }
 
     /// The agent's node on `session`, announced in the ROS graph the first time it is needed.
@@ -48,14 +50,21 @@ impl Ros2 {
             namespace: "/".into(),
             name: self.node_name.clone(),
         };
-        let token = session
-            .liveliness()
-            .declare_token(id.token())
-            .await
-            .map_err(|e| format!("cannot announce the ROS 2 node: {e}"))?;
+        // A bridge announces endpoints, not nodes.
+        let token = match self.via {
+            Via::RmwZenoh => Some(
+                session
+                    .liveliness()
+                    .declare_token(id.token())
+                    .await
+                    .map_err(|e| format!("cannot announce the ROS 2 node: {e}"))?,
+            ),
+            Via::Bridge => None,
+        };
         let node = Arc::new(Node {
             session: session.clone(),
             id,
+            via: self.via,
             next_entity: AtomicU32::new(1),
             next_sequence: AtomicI64::new(1),
             _token: token,
@@ -68,9 +77,10 @@ impl Ros2 {
 pub struct Node {
     session: Session,
     id: NodeId,
+    via: Via,
     next_entity: AtomicU32,
     next_sequence: AtomicI64,
-    _token: LivelinessToken,
+    _token: Option<LivelinessToken>,
 }
 
 /// The source time of a request or a publication, as rmw_zenoh's attachment carries it.
@@ -102,12 +112,30 @@ impl TopicPublisher {
 /// An endpoint of the node (a client, a subscription), announced while it lives.
 pub struct Endpoint {
     pub gid: [u8; 16],
-    _token: LivelinessToken,
+    _token: Option<LivelinessToken>,
+}
+
+/// Whether `name` is one of an action's services or topics (`<action>/_action/send_goal`…), which a bridge
+/// announces with the action as a whole.
+fn is_action_part(name: &str) -> bool {
+    name.contains("/_action/")
 }
 
 impl Node {
     pub fn domain(&self) -> u32 {
         self.id.domain
+    }
+
+    pub fn via(&self) -> Via {
+        self.via
+    }
+
+    /// Where the node's peers are, for messages: `ROS domain 3`, or behind a bridge.
+    pub fn graph(&self) -> String {
+        match self.via {
+            Via::RmwZenoh => format!("ROS domain {}", self.id.domain),
+            Via::Bridge => "the zenoh-bridge-ros2dds graph".to_string(),
+        }
     }
 
     pub fn session(&self) -> &Session {
@@ -117,13 +145,21 @@ impl Node {
     /// Declares an endpoint's liveliness token, so that `ros2 node info` and the like see it.
     pub async fn endpoint(&self, kind: Kind, name: &str, wire: &WireType, qos: &str) -> Result<Endpoint, String> {
         let entity = self.next_entity.fetch_add(1, Ordering::Relaxed);
-        let key = self.id.endpoint_token(entity, kind, name, wire, qos);
-        let token = self
-            .session
-            .liveliness()
-            .declare_token(key)
-            .await
-            .map_err(|e| format!("cannot announce the ROS 2 endpoint for {name}: {e}"))?;
+        let key = match self.via {
+            Via::RmwZenoh => Some(self.id.endpoint_token(entity, kind, name, wire, qos)),
+            Via::Bridge if is_action_part(name) => None,
+            Via::Bridge => Some(keys::bridge_token(&self.id.zid, kind, name, &keys::ros_type(&wire.dds_name))),
+        };
+        let token = match key {
+            Some(key) => Some(
+                self.session
+                    .liveliness()
+                    .declare_token(key)
+                    .await
+                    .map_err(|e| format!("cannot announce the ROS 2 endpoint for {name}: {e}"))?,
+            ),
+            None => None,
+        };
         // A GID unique to this endpoint: the session's id with the entity's number.
         let mut gid = [0u8; 16];
         let zid = self.session.zid().to_le_bytes();
@@ -144,7 +180,7 @@ impl Node {
         any_hash: bool,
         deadline: Instant,
     ) -> Result<WireType, String> {
-        let pattern = keys::servers(self.id.domain, kind, name);
+        let pattern = keys::servers(self.via, self.id.domain, kind, name);
         let sub = self
             .session
             .liveliness()
@@ -166,23 +202,70 @@ impl Node {
                     let waited = "within the timeout";
                     return Err(match other {
                         Some(t) => format!(
-                            "the {what} of {name} on ROS domain {} has type {} ({}), not {} ({}): the two sides were built from different definitions or ROS 2 distributions",
-                            self.id.domain, t.dds_name, t.hash, wire.dds_name, wire.hash
+                            "the {what} of {name} on {} has type {}, not {}: the two sides were built from different definitions or ROS 2 distributions",
+                            self.graph(), keys::describe(self.via, &t), keys::describe(self.via, wire)
                         ),
-                        None => format!("no {what} of {name} appeared on ROS domain {} {waited}", self.id.domain),
+                        None => format!("no {what} of {name} appeared on {} {waited}", self.graph()),
                     });
                 }
             };
             if sample.kind() != SampleKind::Put {
                 continue;
             }
-            match keys::announced_type(sample.key_expr().as_str()) {
-                Some(t) if &t == wire => return Ok(t),
-                Some(t) if any_hash && t.dds_name == wire.dds_name => return Ok(t),
+            match keys::announced_type(self.via, sample.key_expr().as_str()) {
+                // Through a bridge the key holds no type: the client's own is the one to use.
+                Some(t) if keys::fits(self.via, &t, wire, any_hash) && self.via == Via::Bridge => {
+                    return Ok(wire.clone())
+                }
+                Some(t) if keys::fits(self.via, &t, wire, any_hash) => return Ok(t),
                 Some(t) => other = Some(t),
                 None => {}
             }
         }
+    }
+
+    /// Waits until a server of `action` (named `name`) is in the graph, until `deadline`, and tells which
+    /// CancelGoal type to call it with.
+    pub async fn wait_for_action(
+        &self,
+        name: &str,
+        action: &ActionType,
+        deadline: Instant,
+    ) -> Result<ServiceType, String> {
+        let part = |s: &str| format!("{}/_action/{s}", name.trim_end_matches('/'));
+        let mut cancel = action.cancel_goal.clone();
+        match self.via {
+            Via::RmwZenoh => {
+                self.wait_for(Kind::Service, &part("send_goal"), &action.send_goal.wire, false, deadline).await?;
+                // CancelGoal is action_msgs' own, the same for every action, yet implementations hash it
+                // differently (hiroz 0.2.1 leaves `goals_canceling` out): cancel on the key the server announces.
+                cancel.wire = self.wait_for(Kind::Service, &part("cancel_goal"), &cancel.wire, true, deadline).await?;
+            }
+            Via::Bridge => {
+                let wire = WireType { dds_name: keys::dds_type(&action.name), hash: String::new() };
+                self.wait_for(Kind::ActionServer, name, &wire, false, deadline).await?;
+            }
+        }
+        Ok(cancel)
+    }
+
+    /// Announces an action client as a bridge does, as a whole (rmw_zenoh announces its parts instead).
+    pub async fn announce_action_client(
+        &self,
+        name: &str,
+        action: &ActionType,
+    ) -> Result<Option<LivelinessToken>, String> {
+        if self.via != Via::Bridge {
+            return Ok(None);
+        }
+        let key = keys::bridge_token(&self.id.zid, Kind::ActionClient, name, &action.name);
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(key)
+            .await
+            .map_err(|e| format!("cannot announce the ROS 2 action client for {name}: {e}"))?;
+        Ok(Some(token))
     }
 
     /// Subscribes to `topic` as rmw_zenoh does: the data key of its type, and the subscription's token.
@@ -190,7 +273,7 @@ impl Node {
         let endpoint = self.endpoint(Kind::Subscription, topic, wire, keys::TOPIC_QOS).await?;
         let subscriber = self
             .session
-            .declare_subscriber(keys::data(self.id.domain, topic, wire))
+            .declare_subscriber(keys::data(self.via, self.id.domain, topic, wire))
             .await
             .map_err(|e| format!("cannot subscribe to {topic}: {e}"))?;
         Ok((endpoint, subscriber))
@@ -201,7 +284,7 @@ impl Node {
         let endpoint = self.endpoint(Kind::Publisher, topic, &ty.wire, keys::TOPIC_QOS).await?;
         let publisher = self
             .session
-            .declare_publisher(keys::data(self.id.domain, topic, &ty.wire))
+            .declare_publisher(keys::data(self.via, self.id.domain, topic, &ty.wire))
             .congestion_control(CongestionControl::Block)
             .await
             .map_err(|e| format!("cannot publish on {topic}: {e}"))?;
@@ -217,14 +300,18 @@ impl Node {
         request: Vec<u8>,
         timeout: Option<Duration>,
     ) -> Result<Vec<u8>, String> {
-        let key = keys::data(self.id.domain, name, &service.wire);
+        let key = keys::data(self.via, self.id.domain, name, &service.wire);
         let sequence = self.next_sequence.fetch_add(1, Ordering::Relaxed);
         let replies = self
             .session
             .get(key)
             .payload(request)
             .attachment(keys::attachment(sequence, now_ns(), &client.gid))
-            .target(QueryTarget::AllComplete)
+            .target(match self.via {
+                Via::RmwZenoh => QueryTarget::AllComplete,
+                // The bridge's queryables do not say they are complete.
+                Via::Bridge => QueryTarget::BestMatching,
+            })
             .consolidation(ConsolidationMode::None)
             .timeout(timeout.unwrap_or(CALL_TIMEOUT_MAX).min(CALL_TIMEOUT_MAX))
             .await

@@ -98,6 +98,8 @@ pub struct ServiceType {
 
 #[derive(Clone, Debug)]
 pub struct ActionType {
+    /// `pkg/action/Name`.
+    pub name: String,
     pub goal: Arc<MsgDef>,
     pub result: Arc<MsgDef>,
     pub feedback: Arc<MsgDef>,
@@ -308,8 +310,16 @@ impl Interfaces {
             },
             def("FeedbackMessage", vec![uuid(), nested("feedback", &format!("{name}_Feedback"))]),
         );
-        let action =
-            Arc::new(ActionType { goal, result, feedback, send_goal, get_result, cancel_goal, feedback_message });
+        let action = Arc::new(ActionType {
+            name: name.to_string(),
+            goal,
+            result,
+            feedback,
+            send_goal,
+            get_result,
+            cancel_goal,
+            feedback_message,
+        });
         state.actions.insert(name.to_string(), Arc::clone(&action));
         Ok(action)
     }

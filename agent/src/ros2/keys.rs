@@ -1,7 +1,12 @@
-//! rmw_zenoh's key expressions, in one place: the data key of a topic or a service
-//! (`<domain>/<name>/<dds type>/<type hash>`), the liveliness tokens of the ROS graph
-//! (`@ros2_lv/<domain>/<zid>/<node>/<entity>/<kind>/<enclave>/<namespace>/<node name>[/<name>/<type>/<hash>/<qos>]`)
-//! and the attachment of every request and publication (sequence number, source time, source GID).
+//! The key expressions of the two ways a ROS 2 graph is reached over Zenoh, in one place:
+//! - rmw_zenoh (ROS 2 nodes on Zenoh): the data key of a topic or a service (`<domain>/<name>/<dds type>/<type
+//!   hash>`), the liveliness tokens of the ROS graph
+//!   (`@ros2_lv/<domain>/<zid>/<node>/<entity>/<kind>/<enclave>/<namespace>/<node name>[/<name>/<type>/<hash>/<qos>]`)
+//!   and the attachment of every request and publication (sequence number, source time, source GID);
+//! - zenoh-bridge-ros2dds (ROS 2 nodes on DDS, behind the bridge): the data key is the ROS name alone (`<name>`,
+//!   an action's services and topics under `<name>/_action/`), and the bridge's tokens are in its Zenoh admin
+//!   space, `@/<zid>/@ros2_lv/<kind>/<name>/<ROS type>[/<qos>]`, `/` written `§` in the name and the type.
+//!   Neither the domain (the bridge's own setting) nor a type hash appears, and no attachment is needed.
 
 use super::interfaces::WireType;
 
@@ -11,6 +16,22 @@ pub const SERVICE_QOS: &str = "::,10:,:,:,,";
 /// QoS of a default subscription or publication (keep last 10), as `ros2 topic` makes them.
 pub const TOPIC_QOS: &str = "::,10:,:,:,,";
 
+/// QoS of a topic as the bridge encodes it (`<keyed>:<reliability>:<durability>:<history>,<depth>`, Cyclone DDS's
+/// numbers, empty for the default): keyless, reliable, keep last 10 — ROS 2's default, as the bridge announces
+/// a publisher made with it.
+pub const BRIDGE_TOPIC_QOS: &str = ":1::0,10";
+/// The chunk of a bridge's admin space that holds its tokens.
+const BRIDGE_SPACE: &str = "@ros2_lv";
+
+/// How the agent reaches the robots' ROS 2 graph.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Via {
+    /// The robots run rmw_zenoh: the agent is one more node of their graph.
+    RmwZenoh,
+    /// The robots run DDS, and a zenoh-bridge-ros2dds routes their graph to Zenoh.
+    Bridge,
+}
+
 /// A graph entity's kind, as its liveliness token spells it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kind {
@@ -19,6 +40,9 @@ pub enum Kind {
     Subscription,
     Service,
     Client,
+    /// An action server or client as a whole: the bridge announces actions so, rmw_zenoh by their parts.
+    ActionServer,
+    ActionClient,
 }
 
 impl Kind {
@@ -29,6 +53,8 @@ impl Kind {
             Kind::Subscription => "MS",
             Kind::Service => "SS",
             Kind::Client => "SC",
+            Kind::ActionServer => "AS",
+            Kind::ActionClient => "AC",
         }
     }
 }
@@ -44,8 +70,38 @@ fn strip(name: &str) -> &str {
 }
 
 /// The key a service answers on or a topic is published on.
-pub fn data(domain: u32, name: &str, wire: &WireType) -> String {
-    format!("{domain}/{}/{}/{}", strip(name), wire.dds_name, wire.hash)
+pub fn data(via: Via, domain: u32, name: &str, wire: &WireType) -> String {
+    match via {
+        Via::RmwZenoh => format!("{domain}/{}/{}/{}", strip(name), wire.dds_name, wire.hash),
+        Via::Bridge => strip(name).to_string(),
+    }
+}
+
+/// A ROS type's name from its DDS name: `std_msgs::msg::dds_::Bool_` is `std_msgs/msg/Bool`.
+pub fn ros_type(dds_name: &str) -> String {
+    dds_name.strip_suffix('_').unwrap_or(dds_name).replace("::dds_::", "/").replace("::", "/")
+}
+
+/// A DDS type's name from its ROS name: `std_msgs/msg/Bool` is `std_msgs::msg::dds_::Bool_`.
+pub fn dds_type(ros_name: &str) -> String {
+    match ros_name.rsplit_once('/') {
+        Some((pkg_kind, name)) => format!("{}::dds_::{name}_", pkg_kind.replace('/', "::")),
+        None => ros_name.to_string(),
+    }
+}
+
+/// A name or a type in one chunk of a bridge's token.
+fn escape(s: &str) -> String {
+    s.replace('/', "§")
+}
+
+/// The token a bridge would declare for an endpoint of `kind` on `name`, typed `ros_type`.
+pub fn bridge_token(zid: &str, kind: Kind, name: &str, ros_type: &str) -> String {
+    let base = format!("@/{zid}/{BRIDGE_SPACE}/{}/{}/{}", kind.tag(), escape(strip(name)), escape(ros_type));
+    match kind {
+        Kind::Publisher | Kind::Subscription => format!("{base}/{BRIDGE_TOPIC_QOS}"),
+        _ => base,
+    }
 }
 
 /// Who the agent is in the ROS graph.
@@ -86,16 +142,45 @@ impl NodeId {
 
 /// The tokens of every server of `kind` (`Service`, `Publisher`…) for `name` on `domain`, whatever their type:
 /// a server of another type is found too, so the agent can say why it does not answer.
-pub fn servers(domain: u32, kind: Kind, name: &str) -> String {
-    let name = format!("/{}", strip(name));
-    format!("{ADMIN_SPACE}/{domain}/*/*/*/{}/*/*/*/{}/*/*/*", kind.tag(), mangle(&name))
+pub fn servers(via: Via, domain: u32, kind: Kind, name: &str) -> String {
+    match via {
+        Via::RmwZenoh => {
+            let name = format!("/{}", strip(name));
+            format!("{ADMIN_SPACE}/{domain}/*/*/*/{}/*/*/*/{}/*/*/*", kind.tag(), mangle(&name))
+        }
+        Via::Bridge => format!("@/*/{BRIDGE_SPACE}/{}/{}/**", kind.tag(), escape(strip(name))),
+    }
 }
 
-/// The type a server's token announces: its DDS name and hash.
-pub fn announced_type(token: &str) -> Option<WireType> {
+/// The type a server's token announces: its DDS name and hash (a bridge announces no hash: it is empty).
+pub fn announced_type(via: Via, token: &str) -> Option<WireType> {
     let parts: Vec<&str> = token.split('/').collect();
-    // admin, domain, zid, node, entity, kind, enclave, namespace, node name, name, type, hash, qos
-    (parts.len() == 13).then(|| WireType { dds_name: parts[10].to_string(), hash: parts[11].to_string() })
+    match via {
+        // admin, domain, zid, node, entity, kind, enclave, namespace, node name, name, type, hash, qos
+        Via::RmwZenoh => {
+            (parts.len() == 13).then(|| WireType { dds_name: parts[10].to_string(), hash: parts[11].to_string() })
+        }
+        // @, zid, space, kind, name, type[, qos]
+        Via::Bridge => (parts.len() == 6 || parts.len() == 7)
+            .then(|| WireType { dds_name: dds_type(&parts[5].replace('§', "/")), hash: String::new() }),
+    }
+}
+
+/// A type for messages: its DDS name and hash, or through a bridge its ROS name.
+pub fn describe(via: Via, wire: &WireType) -> String {
+    match via {
+        Via::RmwZenoh => format!("{} ({})", wire.dds_name, wire.hash),
+        Via::Bridge => ros_type(&wire.dds_name),
+    }
+}
+
+/// Whether a server announcing `announced` answers a client of `wanted`. Through a bridge only the type's name
+/// can be compared; `any_hash` takes a type of the same name whose hash differs (see `Node::wait_for`).
+pub fn fits(via: Via, announced: &WireType, wanted: &WireType, any_hash: bool) -> bool {
+    match via {
+        Via::RmwZenoh => announced == wanted || (any_hash && announced.dds_name == wanted.dds_name),
+        Via::Bridge => announced.dds_name == wanted.dds_name,
+    }
 }
 
 /// The attachment rmw_zenoh puts on a request or a publication: sequence number and source time (little-endian
@@ -125,7 +210,10 @@ mod tests {
     #[test]
     fn keys_are_spelt_as_rmw_zenoh_spells_them() {
         let wire = WireType { dds_name: "std_srvs::srv::dds_::SetBool_".into(), hash: "RIHS01_ab".into() };
-        assert_eq!(data(0, "/gripper/close", &wire), "0/gripper/close/std_srvs::srv::dds_::SetBool_/RIHS01_ab");
+        assert_eq!(
+            data(Via::RmwZenoh, 0, "/gripper/close", &wire),
+            "0/gripper/close/std_srvs::srv::dds_::SetBool_/RIHS01_ab"
+        );
         let node = NodeId { domain: 3, zid: "1f2e".into(), id: 0, namespace: "/".into(), name: "baton_cell1".into() };
         assert_eq!(node.token(), "@ros2_lv/3/1f2e/0/0/NN/%/%/baton_cell1");
         let client = node.endpoint_token(4, Kind::Client, "/gripper/close", &wire, SERVICE_QOS);
@@ -133,11 +221,34 @@ mod tests {
             client,
             "@ros2_lv/3/1f2e/0/4/SC/%/%/baton_cell1/%gripper%close/std_srvs::srv::dds_::SetBool_/RIHS01_ab/::,10:,:,:,,"
         );
-        assert_eq!(announced_type(&client), Some(wire));
-        assert_eq!(servers(3, Kind::Service, "gripper/close"), "@ros2_lv/3/*/*/*/SS/*/*/*/%gripper%close/*/*/*");
+        assert_eq!(announced_type(Via::RmwZenoh, &client), Some(wire));
+        assert_eq!(
+            servers(Via::RmwZenoh, 3, Kind::Service, "gripper/close"),
+            "@ros2_lv/3/*/*/*/SS/*/*/*/%gripper%close/*/*/*"
+        );
         let att = attachment(7, 99, &[5; 16]);
         assert_eq!(att.len(), 33);
         assert_eq!(read_attachment(&att), Some((7, [5; 16])));
         assert_eq!(read_attachment(&att[..20]), None);
+    }
+
+    #[test]
+    fn keys_are_spelt_as_the_bridge_spells_them() {
+        let wire = WireType { dds_name: "std_srvs::srv::dds_::SetBool_".into(), hash: "RIHS01_ab".into() };
+        assert_eq!(data(Via::Bridge, 7, "/gripper/close", &wire), "gripper/close");
+        assert_eq!(ros_type(&wire.dds_name), "std_srvs/srv/SetBool");
+        assert_eq!(dds_type("std_srvs/srv/SetBool"), wire.dds_name);
+        assert_eq!(dds_type(&ros_type("geometry_msgs::msg::dds_::Twist_")), "geometry_msgs::msg::dds_::Twist_");
+        let server = bridge_token("1f2e", Kind::Service, "/gripper/close", "std_srvs/srv/SetBool");
+        assert_eq!(server, "@/1f2e/@ros2_lv/SS/gripper§close/std_srvs§srv§SetBool");
+        let publisher = bridge_token("1f2e", Kind::Publisher, "/door", "std_msgs/msg/Bool");
+        assert_eq!(publisher, "@/1f2e/@ros2_lv/MP/door/std_msgs§msg§Bool/:1::0,10");
+        assert_eq!(servers(Via::Bridge, 7, Kind::Service, "/gripper/close"), "@/*/@ros2_lv/SS/gripper§close/**");
+        assert_eq!(announced_type(Via::Bridge, "@/1f2e/@ros2_lv"), None, "the bridge's own token");
+        let announced = announced_type(Via::Bridge, &server).unwrap();
+        assert!(fits(Via::Bridge, &announced, &wire, false), "{announced:?}");
+        assert!(!fits(Via::RmwZenoh, &announced, &wire, false), "no hash to compare");
+        let other = announced_type(Via::Bridge, &publisher).unwrap();
+        assert!(!fits(Via::Bridge, &other, &wire, false));
     }
 }

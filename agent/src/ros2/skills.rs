@@ -195,11 +195,8 @@ async fn run_action(ros2: &Ros2, call: &SkillCall) -> Result<(), String> {
     let (feedback_wire, feedback_def) = &action.feedback_message;
     // Subscribed before the goal is sent, so the first feedback is not missed.
     let (_feedback_endpoint, feedback_sub) = node.subscription(&feedback, feedback_wire).await?;
-    node.wait_for(Kind::Service, &send_goal, &action.send_goal.wire, false, deadline).await?;
-    // CancelGoal is action_msgs' own, the same for every action, yet implementations hash it differently
-    // (hiroz 0.2.1 leaves `goals_canceling` out): cancel on the key the server announces.
-    let mut cancel_service = action.cancel_goal.clone();
-    cancel_service.wire = node.wait_for(Kind::Service, &cancel_goal, &action.cancel_goal.wire, true, deadline).await?;
+    let _announced = node.announce_action_client(&p.name, &action).await?;
+    let cancel_service = node.wait_for_action(&p.name, &action, deadline).await?;
     let left = deadline.saturating_duration_since(Instant::now());
     let bytes = node.call(&send_goal, &action.send_goal, &goal_client, request, Some(left)).await?;
     let accepted = cdr::decode(lib, &action.send_goal.response, &bytes).map_err(|e| format!("{send_goal}: {e}"))?;
