@@ -142,6 +142,31 @@ enum Command {
         zenoh_config: Option<PathBuf>,
     },
     /// Run the bundled multi-robot cell: a router, a coordinator and simulated robots on loopback.
+    /// Run scenario files (*.test.toml) of your charts on a simulated cell, on virtual time: exit 0 when every
+    /// expectation holds, 1 when one fails, 2 when a scenario could not run, 3 on a malformed scenario file
+    Test {
+        /// Scenario files, or folders to search for *.test.toml (default: the current folder).
+        paths: Vec<PathBuf>,
+        /// Run N schedules per scenario, seeds from its own `seed` on (durations, message order and delays, fault
+        /// timing); a failure prints the command that replays its seed.
+        #[arg(long, value_name = "N")]
+        seeds: Option<u64>,
+        /// Run exactly this seed: the replay of a failure.
+        #[arg(long, value_name = "SEED", conflicts_with = "seeds")]
+        seed: Option<u64>,
+        /// Write a JUnit XML report here (one testsuite per file, one testcase per expectation).
+        #[arg(long, value_name = "FILE")]
+        junit: Option<PathBuf>,
+        /// Where the traces and Rerun recordings of failing runs go.
+        #[arg(long, value_name = "DIR", default_value = "baton-test-failures")]
+        out: PathBuf,
+        /// Runs at once (default: the machine's cores).
+        #[arg(long, value_name = "N")]
+        jobs: Option<usize>,
+        /// Print only failures and the total.
+        #[arg(long, short)]
+        quiet: bool,
+    },
     Demo {
         /// Picking robots (each a `baton-agent` process); robot1 and robot2 also assemble.
         #[arg(long, default_value_t = 2)]
@@ -255,6 +280,10 @@ pub fn main() -> ExitCode {
         }),
         Command::Replay { journal, rerun, trace } => {
             crate::replay::replay(&crate::replay::ReplayOptions { journal, rerun, trace }).map(|()| ExitCode::SUCCESS)
+        }
+        Command::Test { paths, seeds, seed, junit, out, jobs, quiet } => {
+            let jobs = jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+            crate::testing::test(&crate::testing::TestOptions { paths, seeds, seed, junit, out, jobs, quiet })
         }
         Command::Demo { agents, parts, keep, rerun } => {
             block_on(crate::demo::demo(crate::demo::DemoOptions { agents, parts, keep, rerun }))

@@ -9,6 +9,7 @@ mod journal;
 mod recording;
 mod replay;
 mod run;
+mod testing;
 mod zconf;
 
 use std::process::ExitCode;

@@ -6,6 +6,7 @@
 //! (placement, wire protocol, journal and the runtimes' state machines).
 
 pub mod limits;
+pub mod testing;
 
 /// From source text to a checked chart: lexer, parsers, the chart model, diagnostics and the check pipeline.
 pub mod front {

@@ -8,21 +8,26 @@
 //! before what they led to was sent — and started again from its journal. What the agents do is watched too:
 //! no segment starts twice in one epoch on any agent, and no engine ever gives a step a second token
 //! (`violations`).
+//!
+//! What the skills do is the simulation's own (`SkillModel`): by default the `motion` skill's parameters (`ms`,
+//! `fault_rate`); `baton test` gives each action the behaviour its scenario declares. Faults of the network can
+//! be global (`Faults`) or on one agent's link for a while (`link_faults_at`).
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use crate::dist::journal::{self, Journaled};
-use crate::dist::layout::{Layout, Param};
+use crate::dist::layout::{Layout, Param, SkillBinding};
 use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch};
 use crate::dist::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
 use crate::dist::wire::{self, AgentInfo, ChartHash, RunId, ToAgent, VarUpdate};
 use crate::exec::program::{ActionId, Program};
 use crate::exec::sim::TraceRecord;
+use crate::exec::types::Value;
 use crate::front::check::check_source;
 use uuid::Uuid;
 
-/// The simulated run's cycle period.
+/// The simulated run's cycle period, unless told otherwise (`SimCluster::with_program`).
 pub const CYCLE_MS: u64 = 10;
 
 /// What the simulated network does to messages.
@@ -44,8 +49,50 @@ pub const LEASE_MS: u64 = 1000;
 enum Packet {
     /// To agent `.0`'s process `.1`: only that process hears it.
     ToAgent(usize, Uuid, Vec<u8>),
-    Report(Vec<u8>),
-    Vars(Vec<u8>),
+    /// From agent `.0`.
+    Report(usize, Vec<u8>),
+    /// From agent `.0`, or from the coordinator (`None`).
+    Vars(Option<usize>, Vec<u8>),
+}
+
+/// A skill that starts in the simulated run, for the `SkillModel` to decide what it does.
+pub struct SkillStart<'a> {
+    pub agent: &'a str,
+    pub action: &'a str,
+    pub binding: &'a SkillBinding,
+    /// A random number from the run's seed, for durations within a range and the like.
+    pub random: u64,
+}
+
+/// What a simulated skill does.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SimSkill {
+    /// It ends `after_ms` after it started, with `result`, having first written `writes` (the index of one of
+    /// its binding's `outputs`, and the value).
+    Finish { after_ms: u64, result: Result<(), String>, writes: Vec<(usize, Value)> },
+    /// It never ends on its own: only its action's Q falling stops it.
+    Hang,
+}
+
+/// Decides what each skill that starts does.
+pub type SkillModel = Box<dyn FnMut(SkillStart<'_>) -> SimSkill + Send>;
+
+/// An agent of the simulated run.
+#[derive(Clone, Debug)]
+pub struct SimAgentSpec {
+    pub name: String,
+    pub roles: Vec<String>,
+    /// When its process starts (0: with the run).
+    pub start_ms: u64,
+}
+
+/// Faults on one agent's link (both ways) for a while.
+#[derive(Clone, Copy, Debug)]
+struct LinkFault {
+    agent: usize,
+    from_ms: u64,
+    until_ms: u64,
+    faults: Faults,
 }
 
 /// Something that happens to an agent during a simulated run.
@@ -61,6 +108,9 @@ pub enum Fate {
     Heal,
 }
 
+/// How a running simulated skill ends: when, with what, and the outputs it writes first.
+type Ending = (u64, Result<(), String>, Vec<(usize, Value)>);
+
 struct SimAgent {
     name: String,
     roles: Vec<String>,
@@ -68,8 +118,8 @@ struct SimAgent {
     reachable: bool,
     restarts: u128,
     run: AgentRun,
-    /// Running skills: action → (finish time, result).
-    skills: BTreeMap<ActionId, (u64, Result<(), String>)>,
+    /// Running skills: action → (finish time, result, the outputs it writes first); a hanging one has none.
+    skills: BTreeMap<ActionId, Option<Ending>>,
     /// Since when its link is cut, whether it has fenced itself, and whether the coordinator was told (its lease
     /// ran out).
     cut_at: Option<u64>,
@@ -106,6 +156,11 @@ pub struct SimCluster {
     net: Vec<(u64, Packet)>,
     rng: u64,
     faults: Faults,
+    links: Vec<LinkFault>,
+    skill_model: Option<SkillModel>,
+    cycle_ms: u64,
+    /// What could not be done as asked (an input that cannot be set), with the time.
+    pub errors: Vec<String>,
     pub now_ms: u64,
     /// The grid time of the coordinator's last cycle.
     last_cycle_ms: Option<u64>,
@@ -114,7 +169,8 @@ pub struct SimCluster {
     pub messages: u64,
 }
 
-/// The first chart of `source`, compiled and laid out; panics with the diagnostics if it has errors.
+/// The first chart of `source`, compiled and laid out; panics with the diagnostics if it has errors. (For the
+/// project's own tests: `baton test` checks a user's chart and says what is wrong with it.)
 pub fn compile(source: &str) -> (Arc<Program>, Arc<Layout>) {
     let mut report = check_source(source);
     assert_eq!(report.error_count(), 0, "chart has errors: {:#?}", report.diagnostics);
@@ -130,9 +186,10 @@ fn agent_run(
     program: &Arc<Program>,
     layout: &Arc<Layout>,
     restarts: u128,
+    cycle_ms: u64,
 ) -> AgentRun {
     let run = RunId(Uuid::from_u128(1));
-    let mut a = AgentRun::new(name, roles, run, hash.clone(), Arc::clone(program), Arc::clone(layout), CYCLE_MS);
+    let mut a = AgentRun::new(name, roles, run, hash.clone(), Arc::clone(program), Arc::clone(layout), cycle_ms);
     a.set_incarnation(Uuid::from_u128(restarts));
     a
 }
@@ -141,38 +198,65 @@ impl SimCluster {
     /// Agents as (name, roles).
     pub fn new(source: &str, agents: &[(&str, &[&str])], faults: Faults, seed: u64) -> SimCluster {
         let (program, layout) = compile(source);
-        let run = RunId(Uuid::from_u128(1));
         let hash = ChartHash::of(source, &program.name);
+        let agents: Vec<SimAgentSpec> = agents
+            .iter()
+            .map(|(name, roles)| SimAgentSpec {
+                name: name.to_string(),
+                roles: roles.iter().map(|r| r.to_string()).collect(),
+                start_ms: 0,
+            })
+            .collect();
+        SimCluster::with_program(program, layout, hash, &agents, faults, seed, CYCLE_MS)
+    }
+
+    /// A simulated run of a compiled chart, with agents that may start later than the run, and its cycle period.
+    pub fn with_program(
+        program: Arc<Program>,
+        layout: Arc<Layout>,
+        hash: ChartHash,
+        agents: &[SimAgentSpec],
+        faults: Faults,
+        seed: u64,
+        cycle_ms: u64,
+    ) -> SimCluster {
+        let run = RunId(Uuid::from_u128(1));
         let mut core =
             Coordinator::new(Arc::clone(&program), Arc::clone(&layout), run, hash.clone(), journal::token_ids(run));
-        core.set_cycle_ms(CYCLE_MS);
+        core.set_cycle_ms(cycle_ms);
         let mut coordinator = Journaled::new(core);
+        let mut fates = Vec::new();
         let sim_agents = agents
             .iter()
-            .map(|(name, roles)| {
-                let roles: Vec<String> = roles.iter().map(|r| r.to_string()).collect();
-                coordinator.agent_up(
-                    0,
-                    AgentInfo {
-                        name: name.to_string(),
-                        roles: roles.clone(),
-                        lease_ms: 1000,
-                        incarnation: Uuid::from_u128(0),
-                        held: Vec::new(),
-                    },
-                );
+            .map(|spec| {
+                let now = spec.start_ms == 0;
+                if now {
+                    coordinator.agent_up(
+                        0,
+                        AgentInfo {
+                            name: spec.name.clone(),
+                            roles: spec.roles.clone(),
+                            lease_ms: LEASE_MS,
+                            incarnation: Uuid::from_u128(0),
+                            held: Vec::new(),
+                        },
+                    );
+                } else {
+                    // Its process starts later: a new incarnation then.
+                    fates.push((spec.start_ms, spec.name.clone(), Fate::Restart));
+                }
                 SimAgent {
-                    name: name.to_string(),
-                    roles: roles.clone(),
-                    alive: true,
-                    reachable: true,
+                    name: spec.name.clone(),
+                    roles: spec.roles.clone(),
+                    alive: now,
+                    reachable: now,
                     restarts: 0,
-                    run: agent_run(name, &roles, &hash, &program, &layout, 0),
+                    run: agent_run(&spec.name, &spec.roles, &hash, &program, &layout, 0, cycle_ms),
                     skills: BTreeMap::new(),
                     cut_at: None,
                     fenced: false,
                     lost: false,
-                    announced: true,
+                    announced: now,
                 }
             })
             .collect();
@@ -186,7 +270,7 @@ impl SimCluster {
             violations: Vec::new(),
             outputs_lost: false,
             calm_from_ms: None,
-            fates: Vec::new(),
+            fates,
             program: Arc::clone(&program),
             layout: Arc::clone(&layout),
             hash: hash.clone(),
@@ -195,6 +279,10 @@ impl SimCluster {
             net: Vec::new(),
             rng: seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1,
             faults,
+            links: Vec::new(),
+            skill_model: None,
+            cycle_ms,
+            errors: Vec::new(),
             now_ms: 0,
             last_cycle_ms: None,
             trace: Vec::new(),
@@ -222,22 +310,48 @@ impl SimCluster {
         self.calm_from_ms = Some(t_ms);
     }
 
+    /// Gives what the skills do to `model` instead of the `motion` parameters.
+    pub fn set_skill_model(&mut self, model: SkillModel) {
+        self.skill_model = Some(model);
+    }
+
+    /// From `from_ms` to `until_ms`, the messages between the coordinator and `agent` (both ways) suffer `faults`
+    /// rather than the run's own.
+    pub fn link_faults_at(&mut self, from_ms: u64, until_ms: u64, agent: &str, faults: Faults) {
+        if let Some(i) = self.agents.iter().position(|a| a.name == agent) {
+            self.links.push(LinkFault { agent: i, from_ms, until_ms, faults });
+        }
+    }
+
+    /// The faults a packet meets now: its agent's link's, while they last, else the run's.
+    fn faults_for(&self, packet: &Packet) -> Faults {
+        let agent = match packet {
+            Packet::ToAgent(i, _, _) | Packet::Report(i, _) | Packet::Vars(Some(i), _) => Some(*i),
+            Packet::Vars(None, _) => None,
+        };
+        let now = self.now_ms;
+        agent
+            .and_then(|i| self.links.iter().find(|l| l.agent == i && l.from_ms <= now && now < l.until_ms))
+            .map_or(self.faults, |l| l.faults)
+    }
+
     fn send(&mut self, packet: Packet) {
         self.messages += 1;
         if self.calm_from_ms.is_some_and(|t| self.now_ms >= t) {
             self.faults = Faults::default();
         }
-        if self.chance(self.faults.loss) {
+        let faults = self.faults_for(&packet);
+        if self.chance(faults.loss) {
             return;
         }
-        let delay = if self.faults.delay_ms_max > 0 { self.random() % (self.faults.delay_ms_max + 1) } else { 0 };
+        let delay = if faults.delay_ms_max > 0 { self.random() % (faults.delay_ms_max + 1) } else { 0 };
         let copy = match &packet {
             Packet::ToAgent(i, inc, b) => Packet::ToAgent(*i, *inc, b.clone()),
-            Packet::Report(b) => Packet::Report(b.clone()),
-            Packet::Vars(b) => Packet::Vars(b.clone()),
+            Packet::Report(i, b) => Packet::Report(*i, b.clone()),
+            Packet::Vars(i, b) => Packet::Vars(*i, b.clone()),
         };
         self.net.push((self.now_ms + delay, packet));
-        if self.chance(self.faults.duplicate) {
+        if self.chance(faults.duplicate) {
             let later = self.now_ms + delay + self.random() % 5;
             self.net.push((later, copy));
         }
@@ -285,7 +399,7 @@ impl SimCluster {
             self.hash.clone(),
             journal::token_ids(run),
         );
-        core.set_cycle_ms(CYCLE_MS);
+        core.set_cycle_ms(self.cycle_ms);
         let mut fresh = Journaled::new(core);
         self.last_cycle_ms = None;
         let replayed = fresh.replay(self.journal.iter().map(Vec::as_slice)).expect("the journal replays");
@@ -383,7 +497,7 @@ impl SimCluster {
                 // A restart is a new incarnation; a healed cut is the same process.
                 self.agents[i].restarts += 1;
                 let a = &mut self.agents[i];
-                a.run = agent_run(agent, &a.roles, &self.hash, &self.program, &self.layout, a.restarts);
+                a.run = agent_run(agent, &a.roles, &self.hash, &self.program, &self.layout, a.restarts, self.cycle_ms);
                 a.alive = true;
                 a.reachable = true;
                 a.cut_at = None;
@@ -428,6 +542,19 @@ impl SimCluster {
     /// it finished.
     pub fn run(&mut self, limit_ms: u64) -> bool {
         while self.now_ms <= limit_ms {
+            if let Some(finished) = self.tick() {
+                return finished;
+            }
+            self.skip_idle(limit_ms + 1);
+        }
+        false
+    }
+
+    /// One millisecond of the run: what is due now happens, and the clock moves on. `Some` when the run is over
+    /// now: `true` when the chart reached a terminal situation, `false` when the run failed (as `baton run`
+    /// ends with exit status 2); the clock then stays.
+    pub fn tick(&mut self) -> Option<bool> {
+        {
             if self.down_until.is_some_and(|t| t <= self.now_ms) {
                 self.restart_coordinator();
             }
@@ -455,7 +582,9 @@ impl SimCluster {
             }
             while up && self.inputs.first().is_some_and(|i| i.0 <= self.now_ms) {
                 let (_, name, value) = self.inputs.remove(0);
-                self.coordinator.set(self.now_ms, &name, &value).expect("settable input");
+                if let Err(e) = self.coordinator.set(self.now_ms, &name, &value) {
+                    self.errors.push(format!("at {} ms, {name} cannot be set to {value}: {e}", self.now_ms));
+                }
                 self.flush_coordinator();
             }
             self.deliver();
@@ -464,30 +593,71 @@ impl SimCluster {
                     continue;
                 }
                 let now = self.now_ms;
-                let due: Vec<(ActionId, Result<(), String>)> = self.agents[i]
+                let due: Vec<ActionId> = self.agents[i]
                     .skills
                     .iter()
-                    .filter(|(_, (at, _))| *at <= now)
-                    .map(|(a, (_, r))| (*a, r.clone()))
+                    .filter(|(_, s)| s.as_ref().is_some_and(|(at, _, _)| *at <= now))
+                    .map(|(a, _)| *a)
                     .collect();
-                for (a, r) in due {
-                    self.agents[i].skills.remove(&a);
-                    self.agents[i].run.handle_skill_result(now, a, r);
+                for a in due {
+                    let Some(Some((_, result, writes))) = self.agents[i].skills.remove(&a) else { continue };
+                    for (output, value) in writes {
+                        self.agents[i].run.handle_skill_output(now, a, output, value);
+                    }
+                    self.agents[i].run.handle_skill_result(now, a, result);
                 }
                 self.flush_agent(i);
             }
             // Up now: it may have died since the start of this millisecond, with the end in its journal only.
             let up = self.down_until.is_none();
             if up && self.coordinator.core().is_terminal() && self.net.is_empty() {
-                return true;
+                return Some(true);
             }
             if up && self.coordinator.core().failure().is_some() {
                 // `baton run` ends here, with exit status 2.
-                return false;
+                return Some(false);
             }
             self.now_ms += 1;
         }
-        false
+        None
+    }
+
+    /// The earliest time from now on when anything is due: a message to deliver, a cycle or a timeout of the
+    /// coordinator or an agent, a skill's end, a fault, an input, a lease running out. `None`: nothing ever.
+    /// Between now and then the run is idle, so `skip_idle` may jump there.
+    pub fn next_due_ms(&self) -> Option<u64> {
+        let mut due: Vec<u64> = Vec::new();
+        due.extend(self.down_until);
+        due.extend(self.crashes.first().map(|c| c.0));
+        due.extend(self.crashes_after_journal.first().map(|c| c.0));
+        due.extend(self.fates.first().map(|f| f.0));
+        due.extend(self.inputs.first().map(|i| i.0));
+        due.extend(self.net.iter().map(|(t, _)| *t));
+        if self.down_until.is_none() {
+            due.extend(self.coordinator.core().next_cycle_ms(self.last_cycle_ms));
+        }
+        for a in self.agents.iter().filter(|a| a.alive) {
+            due.extend(a.run.poll_timeout());
+            due.extend(a.skills.values().flatten().map(|(t, _, _)| *t));
+            if let Some(cut) = a.cut_at {
+                if !a.fenced {
+                    due.push(cut + crate::limits::fence_after_ms(LEASE_MS));
+                }
+                if !a.lost {
+                    due.push(cut + LEASE_MS);
+                }
+            }
+        }
+        due.into_iter().min()
+    }
+
+    /// Jumps over idle time: to the next moment anything is due, at most `limit_ms`. Nothing happens in the
+    /// time skipped, exactly as nothing would happen ticking through it.
+    pub fn skip_idle(&mut self, limit_ms: u64) {
+        let next = self.next_due_ms().unwrap_or(limit_ms).min(limit_ms);
+        if next > self.now_ms {
+            self.now_ms = next;
+        }
     }
 
     /// Cut agents: each fences itself once it has not heard its router for `fence_after_ms`, and the coordinator
@@ -585,11 +755,11 @@ impl SimCluster {
                     }
                 }
                 // A coordinator that is down hears nothing.
-                Packet::Report(_) | Packet::Vars(_) if self.down_until.is_some() => {}
-                Packet::Report(bytes) => {
+                Packet::Report(..) | Packet::Vars(..) if self.down_until.is_some() => {}
+                Packet::Report(_, bytes) => {
                     self.coordinator.report(self.now_ms, &bytes).expect("agents send valid reports");
                 }
-                Packet::Vars(bytes) => {
+                Packet::Vars(_, bytes) => {
                     let update: VarUpdate = wire::decode(&bytes).expect("valid update");
                     self.coordinator.vars(self.now_ms, &bytes).expect("valid update");
                     let now = self.now_ms;
@@ -620,7 +790,7 @@ impl SimCluster {
                     let i = self.agents.iter().position(|a| a.name == agent).expect("known agent");
                     self.send(Packet::ToAgent(i, incarnation, wire::encode(&msg)));
                 }
-                CoordOutput::Vars(update) => self.send(Packet::Vars(wire::encode(&update))),
+                CoordOutput::Vars(update) => self.send(Packet::Vars(None, wire::encode(&update))),
                 CoordOutput::Trace(rec) => self.trace.push(rec),
                 CoordOutput::Log { .. } => {}
             }
@@ -633,14 +803,27 @@ impl SimCluster {
             // are its own business and go on.
             let reachable = self.agents[i].reachable;
             match out {
-                AgentOutput::Report(r) if reachable => self.send(Packet::Report(wire::encode(&r))),
-                AgentOutput::Vars(u) if reachable => self.send(Packet::Vars(wire::encode(&u))),
+                AgentOutput::Report(r) if reachable => self.send(Packet::Report(i, wire::encode(&r))),
+                AgentOutput::Vars(u) if reachable => self.send(Packet::Vars(Some(i), wire::encode(&u))),
                 AgentOutput::Report(_) | AgentOutput::Vars(_) => {}
-                AgentOutput::StartSkill { action, binding, .. } => {
-                    let ms = binding.params.get("ms").and_then(Param::as_f64).unwrap_or(0.0) as u64;
-                    let rate = binding.params.get("fault_rate").and_then(Param::as_f64).unwrap_or(0.0);
-                    let result = if self.chance(rate) { Err("simulated fault".to_string()) } else { Ok(()) };
-                    self.agents[i].skills.insert(action, (self.now_ms + ms, result));
+                AgentOutput::StartSkill { action, name, binding } => {
+                    let random = self.random();
+                    let skill = match self.skill_model.as_mut() {
+                        Some(model) => {
+                            model(SkillStart { agent: &self.agents[i].name, action: &name, binding: &binding, random })
+                        }
+                        None => {
+                            let ms = binding.params.get("ms").and_then(Param::as_f64).unwrap_or(0.0) as u64;
+                            let rate = binding.params.get("fault_rate").and_then(Param::as_f64).unwrap_or(0.0);
+                            let result = if self.chance(rate) { Err("simulated fault".to_string()) } else { Ok(()) };
+                            SimSkill::Finish { after_ms: ms, result, writes: Vec::new() }
+                        }
+                    };
+                    let entry = match skill {
+                        SimSkill::Finish { after_ms, result, writes } => Some((self.now_ms + after_ms, result, writes)),
+                        SimSkill::Hang => None,
+                    };
+                    self.agents[i].skills.insert(action, entry);
                 }
                 AgentOutput::StopSkill { action } => {
                     self.agents[i].skills.remove(&action);

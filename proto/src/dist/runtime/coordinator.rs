@@ -1025,9 +1025,12 @@ impl Coordinator {
             // what the coordinator already recorded and never after now.
             let t_ms = dispatched_ms.saturating_add(ev.dt_ms).clamp(floor, self.now_ms.max(floor));
             floor = t_ms;
+            // Which run of its segment it happened in: a test can tell a segment run twice in one epoch.
             let rec = |event: &str, name: &str, message: Option<String>| {
                 let mut rec = TraceRecord::new(t_ms, event, name);
                 rec.agent = Some(r.agent.clone());
+                rec.token = Some(r.token.to_string());
+                rec.epoch = Some(epoch);
                 rec.message = message;
                 rec
             };

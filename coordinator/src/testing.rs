@@ -1,0 +1,380 @@
+//! `baton test`: runs users' scenario files (`*.test.toml`) on the simulated cell, in parallel, and says what
+//! held and what did not — with, for each failure, the events around it, the trace and a Rerun recording of the
+//! failing run, and the one command that replays it.
+//!
+//! Exit status: 0 every expectation held; 1 one failed; 2 a scenario could not run; 3 a scenario file is
+//! malformed (`FILE:LINE:COL`). The highest applies.
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use baton_proto::testing::junit;
+use baton_proto::testing::run::{describe_record, run, Outcome};
+use baton_proto::testing::scenario::{self, show_ms, LoadError, RunState, Scenario};
+
+pub const EXIT_FAILED: u8 = 1;
+pub const EXIT_CANNOT_RUN: u8 = 2;
+pub const EXIT_MALFORMED: u8 = 3;
+
+pub struct TestOptions {
+    pub paths: Vec<PathBuf>,
+    /// Run this many seeds per scenario, from its own `seed` up.
+    pub seeds: Option<u64>,
+    /// Run exactly this seed (the replay of a failure).
+    pub seed: Option<u64>,
+    pub junit: Option<PathBuf>,
+    /// Where failing runs' traces and recordings go.
+    pub out: PathBuf,
+    pub jobs: usize,
+    pub quiet: bool,
+}
+
+/// Every `*.test.toml` under `path` (itself, when it is a file), sorted; hidden folders and `target` skipped.
+fn collect(path: &Path, found: &mut Vec<PathBuf>) -> std::io::Result<()> {
+    if path.is_file() {
+        found.push(path.to_path_buf());
+        return Ok(());
+    }
+    let mut entries: Vec<PathBuf> = std::fs::read_dir(path)?.filter_map(|e| e.ok().map(|e| e.path())).collect();
+    entries.sort();
+    for p in entries {
+        let name = p.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+        if p.is_dir() {
+            if !name.starts_with('.') && name != "target" {
+                collect(&p, found)?;
+            }
+        } else if name.ends_with(".test.toml") {
+            found.push(p);
+        }
+    }
+    Ok(())
+}
+
+/// One scenario's runs, as they came back.
+struct Verdict {
+    path: PathBuf,
+    /// Could not run, or malformed.
+    problem: Option<(u8, String)>,
+    scenario: Option<Arc<Scenario>>,
+    outcomes: Vec<Outcome>,
+    wall: Duration,
+}
+
+fn thousands(n: f64) -> String {
+    let s = format!("{:.0}", n);
+    let mut out = String::new();
+    for (i, c) in s.chars().enumerate() {
+        if i > 0 && (s.len() - i) % 3 == 0 {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+/// The failing run's trace (JSON Lines) and Rerun recording, under `out`.
+fn keep_failure(opts: &TestOptions, sc: &Scenario, o: &Outcome) -> (Option<PathBuf>, Option<PathBuf>) {
+    if std::fs::create_dir_all(&opts.out).is_err() {
+        return (None, None);
+    }
+    let stem = format!("{}-seed{}", sc.name.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_"), o.seed);
+    let trace_path = opts.out.join(format!("{stem}.trace.jsonl"));
+    let trace = std::fs::File::create(&trace_path).ok().and_then(|mut f| {
+        for r in &o.trace {
+            serde_json::to_writer(&mut f, r).ok()?;
+            f.write_all(b"\n").ok()?;
+        }
+        Some(trace_path.clone())
+    });
+    let rrd_path = opts.out.join(format!("{stem}.rrd"));
+    let recorded = crate::recording::RecordedRun {
+        program: Arc::clone(&sc.program),
+        layout: Arc::clone(&sc.layout),
+        run: stem.clone(),
+        started_unix_ms: 0,
+    };
+    let rrd = match crate::recording::Recorder::start(&crate::recording::Sink::Save(rrd_path.clone()), recorded) {
+        Ok(Some(mut rec)) => {
+            for r in &o.trace {
+                rec.trace(r.t_ms / sc.cycle_ms, r);
+            }
+            rec.finish();
+            Some(rrd_path)
+        }
+        _ => None,
+    };
+    (trace, rrd)
+}
+
+/// What a failure prints: expected against actual, then the events around it, where steps ran, the variables
+/// and the faults in effect, and where its trace and recording are.
+fn failure_report(opts: &TestOptions, sc: &Scenario, o: &Outcome) -> String {
+    let mut s = String::new();
+    let file = sc.path.display();
+    for c in o.cases.iter().filter(|c| c.failure.is_some()) {
+        s.push_str(&format!("  {file}:{}: {}\n", c.line, c.title));
+        s.push_str(&format!("    {}\n", c.failure.as_deref().unwrap_or_default()));
+    }
+    for e in &o.errors {
+        s.push_str(&format!("  {file}: could not run as written: {e}\n"));
+    }
+    let at = o.cases.iter().filter(|c| c.failure.is_some()).filter_map(|c| c.at_ms).min().unwrap_or(o.chart_ms);
+    s.push_str(&format!("  events up to {}:\n", show_ms(at)));
+    for line in o.timeline_around(at, 12) {
+        s.push_str(&format!("    {line}\n"));
+    }
+    let (when, active) = match &o.active_at_failure {
+        Some((t, a)) if *t <= at => (format!("at {}", show_ms(*t)), a.clone()),
+        _ => ("at the end".to_string(), o.active.clone()),
+    };
+    let steps: Vec<String> =
+        active.iter().map(|(step, agent)| format!("{step} ({})", agent.as_deref().unwrap_or("coordinator"))).collect();
+    s.push_str(&format!(
+        "  active steps {when}: {}\n",
+        if steps.is_empty() { "none".into() } else { steps.join(", ") }
+    ));
+    let vars: Vec<String> = o.vars.iter().map(|(n, v)| format!("{n} = {v}")).collect();
+    s.push_str(&format!("  variables at the end: {}\n", vars.join(", ")));
+    if o.faults.is_empty() {
+        s.push_str("  faults: none\n");
+    } else {
+        let faults: Vec<String> = o.faults.iter().map(|(t, f)| format!("{} {f}", show_ms(*t))).collect();
+        s.push_str(&format!("  faults: {}\n", faults.join("; ")));
+    }
+    let (trace, rrd) = keep_failure(opts, sc, o);
+    if let Some(t) = trace {
+        s.push_str(&format!("  trace: {}\n", t.display()));
+    }
+    if let Some(r) = rrd {
+        s.push_str(&format!("  recording: rerun {}\n", r.display()));
+    }
+    s.push_str(&format!("  replay: baton test {} --seed {}\n", sc.path.display(), o.seed));
+    s
+}
+
+fn state_word(s: &RunState) -> &'static str {
+    match s {
+        RunState::Finished => "finished",
+        RunState::Failed => "failed",
+        RunState::Running => "still running",
+    }
+}
+
+pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
+    let mut files = Vec::new();
+    let paths = if opts.paths.is_empty() { vec![PathBuf::from(".")] } else { opts.paths.clone() };
+    for p in &paths {
+        if !p.exists() {
+            eprintln!("error: {} does not exist", p.display());
+            return Ok(ExitCode::from(EXIT_CANNOT_RUN));
+        }
+        collect(p, &mut files).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", p.display()))?;
+    }
+    if files.is_empty() {
+        eprintln!(
+            "error: no scenario (*.test.toml) in {}",
+            paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+        );
+        return Ok(ExitCode::from(EXIT_CANNOT_RUN));
+    }
+    // Read every file first: a malformed one is said before anything runs.
+    let mut verdicts: Vec<Verdict> = Vec::new();
+    let mut work: Vec<(usize, u64)> = Vec::new();
+    for path in &files {
+        let v = match scenario::load(path) {
+            Ok(sc) => {
+                let i = verdicts.len();
+                let seeds: Vec<u64> = match (opts.seed, opts.seeds) {
+                    (Some(s), _) => vec![s],
+                    (None, Some(n)) => (0..n.max(1)).map(|k| sc.seed + k).collect(),
+                    (None, None) => vec![sc.seed],
+                };
+                work.extend(seeds.into_iter().map(|s| (i, s)));
+                Verdict {
+                    path: path.clone(),
+                    problem: None,
+                    scenario: Some(Arc::new(sc)),
+                    outcomes: Vec::new(),
+                    wall: Duration::ZERO,
+                }
+            }
+            Err(LoadError::Malformed(errors)) => {
+                let text: Vec<String> = errors
+                    .iter()
+                    .map(|e| format!("{}:{}:{}: error: {}", path.display(), e.line, e.col, e.message))
+                    .collect();
+                Verdict {
+                    path: path.clone(),
+                    problem: Some((EXIT_MALFORMED, text.join("\n"))),
+                    scenario: None,
+                    outcomes: Vec::new(),
+                    wall: Duration::ZERO,
+                }
+            }
+            Err(LoadError::CannotRun(why)) => Verdict {
+                path: path.clone(),
+                problem: Some((EXIT_CANNOT_RUN, why)),
+                scenario: None,
+                outcomes: Vec::new(),
+                wall: Duration::ZERO,
+            },
+        };
+        if let Some((_, text)) = &v.problem {
+            eprintln!("{text}");
+        }
+        verdicts.push(v);
+    }
+    // Run every (scenario, seed) on a pool of threads; a scenario's runs are independent.
+    let results: Mutex<BTreeMap<usize, Vec<(Outcome, Duration)>>> = Mutex::new(BTreeMap::new());
+    let panics: Mutex<BTreeMap<usize, String>> = Mutex::new(BTreeMap::new());
+    let next = AtomicUsize::new(0);
+    let stop = AtomicBool::new(false);
+    let scenarios: Vec<Option<Arc<Scenario>>> = verdicts.iter().map(|v| v.scenario.clone()).collect();
+    let jobs = opts.jobs.max(1).min(work.len().max(1));
+    std::thread::scope(|scope| {
+        for _ in 0..jobs {
+            scope.spawn(|| loop {
+                if stop.load(Ordering::Relaxed) {
+                    return;
+                }
+                let k = next.fetch_add(1, Ordering::Relaxed);
+                let Some(&(i, seed)) = work.get(k) else { return };
+                let sc = scenarios[i].as_ref().expect("loaded");
+                let started = Instant::now();
+                match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(sc, seed))) {
+                    Ok(o) => results.lock().expect("results").entry(i).or_default().push((o, started.elapsed())),
+                    Err(p) => {
+                        let why = p
+                            .downcast_ref::<String>()
+                            .cloned()
+                            .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                            .unwrap_or_else(|| "a panic".into());
+                        panics.lock().expect("panics").insert(i, format!("seed {seed}: internal error: {why}"));
+                    }
+                }
+            });
+        }
+    });
+    let mut results = results.into_inner().expect("results");
+    let panics = panics.into_inner().expect("panics");
+    let mut code = 0u8;
+    let mut suites = Vec::new();
+    let (mut passed_n, mut failed_n) = (0usize, 0usize);
+    for (i, v) in verdicts.iter_mut().enumerate() {
+        let file = v.path.display().to_string();
+        if let Some((c, text)) = &v.problem {
+            code = code.max(*c);
+            suites.push(junit::Suite {
+                name: file.clone(),
+                file,
+                time_s: 0.0,
+                error: Some(text.clone()),
+                cases: Vec::new(),
+                system_out: String::new(),
+            });
+            continue;
+        }
+        let sc = v.scenario.clone().expect("loaded");
+        let mut runs = results.remove(&i).unwrap_or_default();
+        runs.sort_by_key(|(o, _)| o.seed);
+        v.wall = runs.iter().map(|(_, w)| *w).sum();
+        v.outcomes = runs.into_iter().map(|(o, _)| o).collect();
+        if let Some(why) = panics.get(&i) {
+            code = code.max(EXIT_CANNOT_RUN);
+            println!("ERROR {} ({file}): could not run: {why}", sc.name);
+            suites.push(junit::Suite {
+                name: sc.name.clone(),
+                file,
+                time_s: v.wall.as_secs_f64(),
+                error: Some(why.clone()),
+                cases: Vec::new(),
+                system_out: String::new(),
+            });
+            continue;
+        }
+        let failing: Vec<&Outcome> = v.outcomes.iter().filter(|o| !o.passed()).collect();
+        let chart_ms: u64 = v.outcomes.iter().map(|o| o.chart_ms).sum();
+        let wall_ms = v.wall.as_secs_f64() * 1000.0;
+        let speed = if wall_ms > 0.0 { format!("{}×", thousands(chart_ms as f64 / wall_ms)) } else { "∞".into() };
+        let seeds = v.outcomes.len();
+        let seeds_text = if seeds == 1 { format!("seed {}", v.outcomes[0].seed) } else { format!("{seeds} seeds") };
+        let chart_text = if seeds == 1 {
+            format!("chart {} ({})", show_ms(chart_ms), state_word(&v.outcomes[0].state))
+        } else {
+            let lo = v.outcomes.iter().map(|o| o.chart_ms).min().unwrap_or(0);
+            let hi = v.outcomes.iter().map(|o| o.chart_ms).max().unwrap_or(0);
+            format!("chart {}–{} each", show_ms(lo), show_ms(hi))
+        };
+        let cases = sc.expects.len();
+        let mut system_out = String::new();
+        if failing.is_empty() {
+            passed_n += 1;
+            if !opts.quiet {
+                println!("PASS {} ({file}): {cases} expectation(s), {seeds_text}, {chart_text} in {:.0} ms wall ({speed} faster)", sc.name, wall_ms);
+            }
+        } else {
+            failed_n += 1;
+            let errors = failing.iter().any(|o| !o.errors.is_empty());
+            code = code.max(if errors { EXIT_CANNOT_RUN } else { EXIT_FAILED });
+            let seeds_failing: Vec<String> = failing.iter().take(10).map(|o| o.seed.to_string()).collect();
+            println!(
+                "FAIL {} ({file}): {} of {seeds} run(s) failed (seed {}{}), {chart_text} in {:.0} ms wall",
+                sc.name,
+                failing.len(),
+                seeds_failing.join(", "),
+                if failing.len() > 10 { ", …" } else { "" },
+                wall_ms
+            );
+            let first = failing[0];
+            let report = failure_report(opts, &sc, first);
+            print!("{report}");
+            system_out = format!("seed {}\n{report}\ntimeline:\n", first.seed);
+            for r in &first.trace {
+                system_out.push_str(&describe_record(r));
+                system_out.push('\n');
+            }
+        }
+        // One test case per expectation: failed when it failed under any seed (the first such seed's message).
+        let cases: Vec<junit::Case> = sc
+            .expects
+            .iter()
+            .enumerate()
+            .map(|(k, e)| {
+                let failure = v
+                    .outcomes
+                    .iter()
+                    .find_map(|o| o.cases[k].failure.as_ref().map(|f| format!("seed {}: {f}", o.seed)));
+                junit::Case { name: e.title(), line: e.line, failure }
+            })
+            .collect();
+        let error = failing.iter().find(|o| !o.errors.is_empty()).map(|o| o.errors.join("\n"));
+        suites.push(junit::Suite {
+            name: sc.name.clone(),
+            file,
+            time_s: v.wall.as_secs_f64(),
+            error,
+            cases,
+            system_out,
+        });
+    }
+    let count = |c: u8| verdicts.iter().filter(|v| v.problem.as_ref().is_some_and(|p| p.0 == c)).count();
+    let (malformed, cannot) = (count(EXIT_MALFORMED), count(EXIT_CANNOT_RUN) + panics.len());
+    let mut total = format!("{} scenario(s): {passed_n} passed, {failed_n} failed", verdicts.len());
+    if cannot > 0 {
+        total.push_str(&format!(", {cannot} could not run"));
+    }
+    if malformed > 0 {
+        total.push_str(&format!(", {malformed} malformed"));
+    }
+    println!("{total}");
+    if let Some(path) = &opts.junit {
+        std::fs::write(path, junit::write(&suites, None))
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+    }
+    Ok(ExitCode::from(code))
+}

@@ -1,0 +1,551 @@
+//! Runs a scenario on the simulated cell (`crate::dist::simnet`): the real coordinator and agent state
+//! machines and the real engine, on virtual time, from one seed — then judges every expectation.
+//!
+//! The seed decides everything random: durations within their ranges, `fault_rate`, the network's losses,
+//! duplicates, delays and order, and how late each fault with a `jitter` strikes. The same scenario and seed
+//! give the same run, so a failure found among many seeds is replayed by its seed alone.
+
+use std::collections::{BTreeMap, HashMap};
+
+use super::cond::View;
+use super::scenario::{chart_value, show_ms, Behaviour, ExpectKind, FaultKind, NetFaults, RunState, Scenario, Trigger};
+use crate::dist::simnet::{Fate, Faults, SimAgentSpec, SimCluster, SimSkill, SkillStart};
+use crate::exec::program::VarId;
+use crate::exec::sim::TraceRecord;
+use crate::exec::types::Value;
+
+/// The verdict on one expectation.
+#[derive(Clone, Debug)]
+pub struct CaseResult {
+    pub line: usize,
+    pub title: String,
+    /// Why it does not hold; `None` when it does.
+    pub failure: Option<String>,
+    /// When it was seen failing, if at a moment (an invariant broken, a value at a time).
+    pub at_ms: Option<u64>,
+}
+
+/// Steps active at a moment, and where: (step, agent; `None` on the coordinator).
+pub type ActiveSteps = Vec<(String, Option<String>)>;
+
+/// One run of a scenario.
+pub struct Outcome {
+    pub seed: u64,
+    /// The chart time the run reached.
+    pub chart_ms: u64,
+    pub state: RunState,
+    pub cases: Vec<CaseResult>,
+    pub trace: Vec<TraceRecord>,
+    /// What the simulation could not do as the scenario asked (an input refused…): the scenario could not run.
+    pub errors: Vec<String>,
+    /// Faults as they struck: (chart time, what).
+    pub faults: Vec<(u64, String)>,
+    /// The variables at the end, as their types show them.
+    pub vars: Vec<(String, String)>,
+    /// Steps active at the end, and where.
+    pub active: ActiveSteps,
+    /// The first failure's moment: the steps active then, and where.
+    pub active_at_failure: Option<(u64, ActiveSteps)>,
+}
+
+impl Outcome {
+    pub fn passed(&self) -> bool {
+        self.errors.is_empty() && self.cases.iter().all(|c| c.failure.is_none())
+    }
+
+    /// The trace as lines a user reads, around `t_ms` (`before` records up to it, then a few after).
+    pub fn timeline_around(&self, t_ms: u64, before: usize) -> Vec<String> {
+        let upto = self.trace.iter().position(|r| r.t_ms > t_ms).unwrap_or(self.trace.len());
+        let from = upto.saturating_sub(before);
+        let to = (upto + 3).min(self.trace.len());
+        self.trace[from..to].iter().map(describe_record).collect()
+    }
+}
+
+/// `  12.34s  activate Assemble on robot2 (token …, epoch 2): message`.
+pub fn describe_record(r: &TraceRecord) -> String {
+    let mut line = format!("{:>9}  {} {}", format!("{:.3}s", r.t_ms as f64 / 1000.0), r.event, r.name);
+    if let Some(a) = &r.agent {
+        line.push_str(&format!(" on {a}"));
+    }
+    if let Some(e) = r.epoch {
+        line.push_str(&format!(" (epoch {e})"));
+    }
+    if let Some(v) = &r.value {
+        line.push_str(&format!(" = {v}"));
+    }
+    if let Some(m) = &r.message {
+        line.push_str(&format!(": {m}"));
+    }
+    line
+}
+
+/// The run as conditions see it: the steps active anywhere, and the coordinator's variables.
+struct Now<'a> {
+    sim: &'a SimCluster,
+    active: &'a HashMap<usize, Option<String>>,
+}
+
+impl View for Now<'_> {
+    fn step(&self, index: usize) -> Option<Option<&str>> {
+        self.active.get(&index).map(|a| a.as_deref())
+    }
+
+    fn value(&self, var: VarId) -> Value {
+        self.sim.coordinator.core().value(var)
+    }
+}
+
+/// xorshift64*, for what the scenario's own randomness decides (fault jitter), apart from the simulation's.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+}
+
+fn net(n: NetFaults) -> Faults {
+    Faults { duplicate: n.duplicate, reorder: n.reorder, delay_ms_max: n.delay_ms, loss: n.drop }
+}
+
+/// Makes a fault happen at `t`.
+fn strike(sim: &mut SimCluster, kind: &FaultKind, t: u64) {
+    match kind {
+        FaultKind::Kill(a) => sim.fate_at(t, a, Fate::Kill),
+        FaultKind::Restart(a) => sim.fate_at(t, a, Fate::Restart),
+        FaultKind::Cut(a, heal) => {
+            sim.fate_at(t, a, Fate::Cut);
+            if let Some(h) = heal {
+                sim.fate_at(t + h, a, Fate::Heal);
+            }
+        }
+        FaultKind::Heal(a) => sim.fate_at(t, a, Fate::Heal),
+        FaultKind::Link(a, f, lasting) => sim.link_faults_at(t, t + lasting, a, net(*f)),
+        FaultKind::CrashCoordinator(down) => sim.crash_coordinator_at(t, *down),
+    }
+}
+
+/// What the simulated skills do: the scenario's behaviour for their action, else the `motion` parameters.
+fn skill_model(sc: &Scenario) -> crate::dist::simnet::SkillModel {
+    let behaviours: BTreeMap<String, Behaviour> =
+        sc.behaviours.iter().map(|(i, b)| (sc.program.actions[*i].name.clone(), b.clone())).collect();
+    let provides: HashMap<String, Option<std::collections::BTreeSet<String>>> =
+        sc.agents.iter().map(|a| (a.name.clone(), a.skills.clone())).collect();
+    let mut runs: HashMap<String, usize> = HashMap::new();
+    Box::new(move |s: SkillStart<'_>| {
+        if let Some(Some(skills)) = provides.get(s.agent) {
+            if !skills.contains(&s.binding.skill) {
+                let have: Vec<&str> = skills.iter().map(String::as_str).collect();
+                return SimSkill::Finish {
+                    after_ms: 0,
+                    result: Err(format!("unknown skill `{}` (this agent has: {})", s.binding.skill, have.join(", "))),
+                    writes: Vec::new(),
+                };
+            }
+        }
+        let n = runs.entry(s.action.to_string()).or_insert(0);
+        let nth = *n;
+        *n += 1;
+        let param = |k: &str| s.binding.params.get(k).and_then(crate::dist::layout::Param::as_f64);
+        let b = behaviours.get(s.action);
+        if b.is_some_and(|b| b.hang) {
+            return SimSkill::Hang;
+        }
+        let after_ms = match b.and_then(|b| b.duration) {
+            Some((lo, hi)) => lo + s.random % (hi - lo + 1),
+            None => param("ms").unwrap_or(0.0).max(0.0) as u64,
+        };
+        let done = match b.map(|b| &b.outcomes) {
+            Some(o) if !o.is_empty() => o[nth.min(o.len() - 1)],
+            _ => {
+                let rate = param("fault_rate").unwrap_or(0.0);
+                // Another part of the number than the duration took.
+                ((s.random >> 32) % 1_000_000) as f64 / 1_000_000.0 >= rate
+            }
+        };
+        let message = b.and_then(|b| b.message.clone()).unwrap_or_else(|| "simulated fault".to_string());
+        let writes = b.map(|b| b.writes.clone()).unwrap_or_default();
+        SimSkill::Finish { after_ms, result: if done { Ok(()) } else { Err(message) }, writes }
+    })
+}
+
+fn values_equal(actual: &Value, expected: &Value) -> bool {
+    match (actual, expected) {
+        (Value::Real(a), Value::Real(b)) => (a - b).abs() <= 1e-6 * a.abs().max(b.abs()).max(1.0),
+        (a, b) => a == b,
+    }
+}
+
+/// Runs `sc` with `seed` and judges it.
+pub fn run(sc: &Scenario, seed: u64) -> Outcome {
+    let agents: Vec<SimAgentSpec> = sc
+        .agents
+        .iter()
+        .map(|a| SimAgentSpec { name: a.name.clone(), roles: a.roles.clone(), start_ms: a.start_ms })
+        .collect();
+    let mut sim = SimCluster::with_program(
+        sc.program.clone(),
+        sc.layout.clone(),
+        sc.hash.clone(),
+        &agents,
+        net(sc.network),
+        seed,
+        sc.cycle_ms,
+    );
+    sim.set_loss_policy(sc.loss_policy);
+    sim.set_skill_model(skill_model(sc));
+    let mut rng = Rng(seed.wrapping_mul(0xD1B5_4A32_D192_ED03) | 1);
+    let mut struck: Vec<(u64, String)> = Vec::new();
+    // Pending `when` faults and inputs: (index, fired).
+    let mut fault_fired = vec![false; sc.faults.len()];
+    for (i, f) in sc.faults.iter().enumerate() {
+        let jitter = if f.jitter_ms > 0 { rng.next() % (f.jitter_ms + 1) } else { 0 };
+        if let Trigger::At(t) = f.trigger {
+            strike(&mut sim, &f.kind, t + jitter);
+            struck.push((t + jitter, f.describe()));
+            fault_fired[i] = true;
+        }
+    }
+    let mut input_fired = vec![false; sc.inputs.len()];
+    for (i, input) in sc.inputs.iter().enumerate() {
+        if let Trigger::At(t) = input.trigger {
+            for (name, v) in &input.set {
+                sim.set_at(t, name, v.clone());
+            }
+            input_fired[i] = true;
+        }
+    }
+    let steps: HashMap<String, usize> = sc.program.steps.iter().enumerate().map(|(i, s)| (s.name.clone(), i)).collect();
+    let mut active: HashMap<usize, Option<String>> = HashMap::new();
+    let mut seen = 0usize;
+    // Invariants: (expectation index, first failure time).
+    let mut broken: HashMap<usize, u64> = HashMap::new();
+    let mut snapshots: HashMap<usize, Vec<(String, Value)>> = HashMap::new();
+    let mut active_at_failure: Option<(u64, ActiveSteps)> = None;
+    let show_active = |active: &HashMap<usize, Option<String>>| {
+        let mut v: ActiveSteps = active.iter().map(|(i, a)| (sc.program.steps[*i].name.clone(), a.clone())).collect();
+        v.sort();
+        v
+    };
+    let ended = loop {
+        if sim.now_ms > sc.until_ms {
+            break None;
+        }
+        let t = sim.now_ms;
+        let over = sim.tick();
+        // The steps active now, from the records of the run (an agent's steps come with its reports).
+        for r in &sim.trace[seen.min(sim.trace.len())..] {
+            let Some(&i) = steps.get(&r.name) else { continue };
+            match r.event.as_str() {
+                "activate" => {
+                    active.insert(i, r.agent.clone());
+                }
+                "deactivate" => {
+                    active.remove(&i);
+                }
+                // A step waiting for an agent is active already; it now runs there.
+                "dispatch" if active.contains_key(&i) => {
+                    active.insert(i, r.agent.clone());
+                }
+                _ => {}
+            }
+        }
+        seen = sim.trace.len();
+        for (k, e) in sc.expects.iter().enumerate() {
+            if let ExpectKind::Value { vars, at_ms: Some(at) } = &e.kind {
+                if *at <= t && !snapshots.contains_key(&k) {
+                    let vals =
+                        vars.iter().map(|(n, _)| (n.clone(), sim.value(n).unwrap_or(Value::Bool(false)))).collect();
+                    snapshots.insert(k, vals);
+                }
+            }
+        }
+        // Only moments when something happened are ticked (idle time is skipped below): judge each.
+        {
+            let view = Now { sim: &sim, active: &active };
+            for (k, e) in sc.expects.iter().enumerate() {
+                let holds = match &e.kind {
+                    ExpectKind::Always(c, _) => c.holds(&view),
+                    ExpectKind::Never(c, _) => !c.holds(&view),
+                    _ => true,
+                };
+                if !holds && !broken.contains_key(&k) {
+                    broken.insert(k, t);
+                    if active_at_failure.is_none() {
+                        active_at_failure = Some((t, show_active(&active)));
+                    }
+                }
+            }
+            let mut due: Vec<(usize, u64)> = Vec::new();
+            for (i, f) in sc.faults.iter().enumerate() {
+                if let (false, Trigger::When { cond, after_ms, .. }) = (fault_fired[i], &f.trigger) {
+                    if cond.holds(&view) {
+                        due.push((i, *after_ms));
+                    }
+                }
+            }
+            let mut sets: Vec<(u64, String, serde_json::Value)> = Vec::new();
+            for (i, input) in sc.inputs.iter().enumerate() {
+                if let (false, Trigger::When { cond, after_ms, .. }) = (input_fired[i], &input.trigger) {
+                    if cond.holds(&view) {
+                        input_fired[i] = true;
+                        for (name, v) in &input.set {
+                            sets.push((sim.now_ms + after_ms, name.clone(), v.clone()));
+                        }
+                    }
+                }
+            }
+            for (i, after) in due {
+                fault_fired[i] = true;
+                let f = &sc.faults[i];
+                let jitter = if f.jitter_ms > 0 { rng.next() % (f.jitter_ms + 1) } else { 0 };
+                let at = sim.now_ms + after + jitter;
+                strike(&mut sim, &f.kind, at);
+                struck.push((at, f.describe()));
+            }
+            for (at, name, v) in sets {
+                sim.set_at(at, &name, v);
+            }
+        }
+        if let Some(finished) = over {
+            break Some(finished);
+        }
+        // Jump over idle time, but not past a moment a value is expected at, nor the end.
+        let snapshot_due = sc
+            .expects
+            .iter()
+            .enumerate()
+            .filter_map(|(k, e)| match &e.kind {
+                ExpectKind::Value { at_ms: Some(at), .. } if !snapshots.contains_key(&k) => Some(*at),
+                _ => None,
+            })
+            .min();
+        let limit = snapshot_due.unwrap_or(u64::MAX).min(sc.until_ms + 1);
+        sim.skip_idle(limit);
+    };
+    let state = match ended {
+        Some(true) => RunState::Finished,
+        Some(false) => RunState::Failed,
+        None => RunState::Running,
+    };
+    let chart_ms = sim.now_ms.min(sc.until_ms);
+    let mut errors = sim.errors.clone();
+    errors.extend(sim.violations.iter().map(|v| format!("the runtime broke its promise: {v}")));
+    let trace = sim.trace.clone();
+    struck.sort();
+    let struck: Vec<(u64, String)> = struck.into_iter().filter(|(t, _)| *t <= chart_ms).collect();
+
+    let activations: Vec<&TraceRecord> = trace.iter().filter(|r| r.event == "activate").collect();
+    // Where a step ran: where it was activated, or dispatched to once an agent could take it.
+    let arrivals: Vec<&TraceRecord> =
+        trace.iter().filter(|r| r.event == "activate" || (r.event == "dispatch" && r.agent.is_some())).collect();
+    let alarms: Vec<String> =
+        trace.iter().filter(|r| r.event == "alarm").map(|r| r.message.clone().unwrap_or_default()).collect();
+    let var_value = |name: &str| sim.value(name);
+    let mut cases = Vec::new();
+    for (k, e) in sc.expects.iter().enumerate() {
+        let mut at_ms = None;
+        let failure = match &e.kind {
+            ExpectKind::Reached { step, on, by_ms } => {
+                let hits: Vec<&&TraceRecord> = arrivals.iter().filter(|r| &r.name == step).collect();
+                let fits = |r: &&&TraceRecord| {
+                    on.as_ref().is_none_or(|a| r.agent.as_ref() == Some(a)) && by_ms.is_none_or(|t| r.t_ms <= t)
+                };
+                if hits.iter().any(fits) {
+                    None
+                } else if let Some(first) = hits.first() {
+                    let mut wheres: Vec<String> = hits
+                        .iter()
+                        .map(|r| {
+                            format!("at {} on {}", show_ms(r.t_ms), r.agent.as_deref().unwrap_or("the coordinator"))
+                        })
+                        .collect();
+                    wheres.dedup();
+                    wheres.truncate(5);
+                    at_ms = Some(first.t_ms);
+                    Some(format!("expected {}; it was reached {}", e.title(), wheres.join(", ")))
+                } else {
+                    Some(format!("expected {}; it was never active", e.title()))
+                }
+            }
+            ExpectKind::Order(order) => {
+                let mut next = 0;
+                let mut last_t = 0;
+                for r in &activations {
+                    if next < order.len() && r.name == order[next] {
+                        next += 1;
+                        last_t = r.t_ms;
+                    }
+                }
+                if next == order.len() {
+                    None
+                } else {
+                    at_ms = Some(last_t);
+                    let passed = if next == 0 { "none of them".to_string() } else { order[..next].join(", ") };
+                    Some(format!(
+                        "expected the steps in order {}; passed {passed}, then never {} (at {} or later)",
+                        order.join(" → "),
+                        order[next],
+                        show_ms(last_t)
+                    ))
+                }
+            }
+            ExpectKind::Value { vars, at_ms: when } => {
+                let mut wrong = Vec::new();
+                for (name, expected) in vars {
+                    let var = sc.program.var_by_name(name).expect("checked");
+                    let ty = &sc.program.vars[var.index()].ty;
+                    let actual = match when {
+                        Some(_) => {
+                            snapshots.get(&k).and_then(|s| s.iter().find(|(n, _)| n == name)).map(|(_, v)| v.clone())
+                        }
+                        None => var_value(name),
+                    };
+                    let Some(actual) = actual else {
+                        wrong.push(format!("{name}: the run ended before {}", show_ms(when.unwrap_or(0))));
+                        continue;
+                    };
+                    match chart_value(expected, ty) {
+                        Ok(exp) if values_equal(&actual, &exp) => {}
+                        Ok(exp) => wrong.push(format!("{name} = {} (expected {})", ty.show(&actual), ty.show(&exp))),
+                        Err(err) => wrong.push(format!("{name}: {err}")),
+                    }
+                }
+                at_ms = *when;
+                (!wrong.is_empty()).then(|| {
+                    let moment = when.map_or("at the end".to_string(), |t| format!("at {}", show_ms(t)));
+                    format!("{moment}: {}", wrong.join(", "))
+                })
+            }
+            ExpectKind::Always(_, text) | ExpectKind::Never(_, text) => broken.get(&k).map(|t| {
+                at_ms = Some(*t);
+                let was = if matches!(e.kind, ExpectKind::Always(..)) { "FALSE" } else { "TRUE" };
+                format!("`{text}` was {was} at {}", show_ms(*t))
+            }),
+            ExpectKind::EndsBy(by) => match state {
+                RunState::Finished if chart_ms <= *by => None,
+                RunState::Finished => Some(format!("the chart ended at {}, after {}", show_ms(chart_ms), show_ms(*by))),
+                RunState::Failed => Some(format!("the run failed at {}", show_ms(chart_ms))),
+                RunState::Running => Some(format!("the chart had not ended by {}", show_ms(chart_ms))),
+            },
+            ExpectKind::Alarms(expected) => {
+                let missing: Vec<&String> =
+                    expected.iter().filter(|x| !alarms.iter().any(|a| a.contains(x.as_str()))).collect();
+                let extra: Vec<&String> =
+                    alarms.iter().filter(|a| !expected.iter().any(|x| a.contains(x.as_str()))).collect();
+                match (missing.is_empty(), extra.is_empty()) {
+                    (true, true) => None,
+                    _ => {
+                        let mut parts = Vec::new();
+                        if !missing.is_empty() {
+                            parts.push(format!("never raised: {}", quoted(&missing)));
+                        }
+                        if !extra.is_empty() {
+                            parts.push(format!("raised but not expected: {}", quoted(&extra)));
+                        }
+                        Some(parts.join("; "))
+                    }
+                }
+            }
+            ExpectKind::State(expected) => (expected != &state).then(|| {
+                format!(
+                    "expected the run to end {}; it {}",
+                    format!("{expected:?}").to_lowercase(),
+                    match state {
+                        RunState::Finished => format!("finished at {}", show_ms(chart_ms)),
+                        RunState::Failed => format!("failed at {}", show_ms(chart_ms)),
+                        RunState::Running => format!("was still running at {}", show_ms(chart_ms)),
+                    }
+                )
+            }),
+            ExpectKind::OncePerEpoch(action) => runs_twice(&trace, action).map(|(t, why)| {
+                at_ms = Some(t);
+                why
+            }),
+        };
+        cases.push(CaseResult { line: e.line, title: e.title(), failure, at_ms });
+    }
+    let mut vars: Vec<(String, String)> = sc
+        .program
+        .vars
+        .iter()
+        .filter(|v| !v.hidden)
+        .filter_map(|v| sim.shown(&v.name).map(|s| (v.name.clone(), s)))
+        .collect();
+    vars.sort();
+    let active = show_active(&active);
+    Outcome { seed, chart_ms, state, cases, trace, errors, faults: struck, vars, active, active_at_failure }
+}
+
+fn quoted(items: &[&String]) -> String {
+    items.iter().map(|s| format!("`{s}`")).collect::<Vec<_>>().join(", ")
+}
+
+/// The first time the skill of `action` ran twice in one run of its segment (one token's epoch): on two agents,
+/// or twice at once on one. `None` when it never did.
+pub fn runs_twice(trace: &[TraceRecord], action: &str) -> Option<(u64, String)> {
+    let mut on: HashMap<(String, u32), Vec<String>> = HashMap::new();
+    let mut running: HashMap<(String, u32, String), bool> = HashMap::new();
+    for r in trace.iter().filter(|r| r.name == action) {
+        let (Some(tok), Some(ep), Some(agent)) = (&r.token, r.epoch, &r.agent) else { continue };
+        match r.event.as_str() {
+            "action_on" => {
+                let agents = on.entry((tok.clone(), ep)).or_default();
+                if !agents.contains(agent) {
+                    agents.push(agent.clone());
+                }
+                let twice = std::mem::replace(running.entry((tok.clone(), ep, agent.clone())).or_default(), true);
+                if agents.len() > 1 || twice {
+                    let where_ = if twice {
+                        format!("twice at once on {agent}")
+                    } else {
+                        format!("on {}", agents.join(" and "))
+                    };
+                    let why = format!(
+                        "the skill of {action} ran {where_} in epoch {ep} of token {tok}, at {}",
+                        show_ms(r.t_ms)
+                    );
+                    return Some((r.t_ms, why));
+                }
+            }
+            "action_off" => {
+                running.insert((tok.clone(), ep, agent.clone()), false);
+            }
+            _ => {}
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(t: u64, event: &str, agent: &str, epoch: u32) -> TraceRecord {
+        let mut r = TraceRecord::new(t, event, "Weld");
+        r.agent = Some(agent.into());
+        r.token = Some("t1".into());
+        r.epoch = Some(epoch);
+        r
+    }
+
+    #[test]
+    fn a_skill_run_twice_in_an_epoch_is_found() {
+        // A segment run again in a new epoch, on another agent, is what `reassign` does: fine.
+        let fine = [rec(0, "action_on", "a", 1), rec(5, "action_on", "b", 2), rec(9, "action_off", "b", 2)];
+        assert_eq!(runs_twice(&fine, "Weld"), None);
+        // A loop in the segment runs the skill again after it ended: fine too.
+        let again = [rec(0, "action_on", "a", 1), rec(3, "action_off", "a", 1), rec(4, "action_on", "a", 1)];
+        assert_eq!(runs_twice(&again, "Weld"), None);
+        let two_agents = [rec(0, "action_on", "a", 1), rec(7, "action_on", "b", 1)];
+        let (t, why) = runs_twice(&two_agents, "Weld").expect("found");
+        assert_eq!(t, 7);
+        assert!(why.contains("ran on a and b in epoch 1 of token t1"), "{why}");
+        let at_once = [rec(0, "action_on", "a", 1), rec(2, "action_on", "a", 1)];
+        assert!(runs_twice(&at_once, "Weld").expect("found").1.contains("twice at once on a"));
+    }
+}

@@ -1,0 +1,960 @@
+//! A scenario file (`*.test.toml`): the chart under test, the simulated cell (agents, what their skills do),
+//! inputs, faults and expectations. Reading one checks it whole against its chart: every step, action, agent and
+//! variable it names exists, every time is a duration, every condition parses — and each mistake is said at its
+//! `FILE:LINE:COL`. A scenario that reads is one that can run.
+//!
+//! The format, key by key, is in the README ("Testing your chart") and in `docs/baton-test.schema.json`.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use serde::Deserialize;
+use toml::Spanned;
+
+use super::cond::Cond;
+use crate::dist::layout::Layout;
+use crate::dist::runtime::coordinator::LossPolicy;
+use crate::dist::wire::ChartHash;
+use crate::exec::program::Program;
+use crate::front::check::check_source;
+use crate::front::diag::LineIndex;
+
+/// How long a scenario may run in chart time unless it says (`until`).
+pub const UNTIL_DEFAULT_MS: u64 = 600_000;
+/// The longest chart time a scenario may ask for: a week.
+pub const UNTIL_MAX_MS: u64 = 7 * 24 * 3_600_000;
+
+/// A mistake in a scenario file, at a place of it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScenarioError {
+    pub line: usize,
+    pub col: usize,
+    pub message: String,
+}
+
+/// Why a scenario cannot be read (exit status 3) or cannot run (exit status 2).
+#[derive(Clone, Debug, PartialEq)]
+pub enum LoadError {
+    /// The file is not a valid scenario: `FILE:LINE:COL: message` each.
+    Malformed(Vec<ScenarioError>),
+    /// The scenario reads, but what it names cannot be had: its chart is missing or has errors.
+    CannotRun(String),
+}
+
+// ---- the file as written -------------------------------------------------------------------------------
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawScenario {
+    chart: Spanned<String>,
+    pou: Option<Spanned<String>>,
+    name: Option<String>,
+    until: Option<Spanned<String>>,
+    seed: Option<u64>,
+    #[serde(default)]
+    run: RawRun,
+    #[serde(default)]
+    network: RawNetwork,
+    #[serde(default)]
+    agents: Vec<Spanned<RawAgent>>,
+    #[serde(default)]
+    actions: BTreeMap<String, Spanned<RawAction>>,
+    #[serde(default)]
+    inputs: Vec<Spanned<RawInput>>,
+    #[serde(default)]
+    faults: Vec<Spanned<RawFault>>,
+    #[serde(default)]
+    expect: Vec<Spanned<RawExpect>>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawRun {
+    on_agent_loss: Option<Spanned<String>>,
+    journal: Option<bool>,
+    cycle_ms: Option<Spanned<u64>>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawNetwork {
+    delay: Option<Spanned<String>>,
+    drop: Option<Spanned<f64>>,
+    duplicate: Option<Spanned<f64>>,
+    reorder: Option<bool>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawAgent {
+    name: String,
+    #[serde(default)]
+    roles: Vec<String>,
+    start: Option<Spanned<String>>,
+    skills: Option<Vec<String>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawAction {
+    duration: Option<Spanned<toml::Value>>,
+    outcomes: Option<Vec<Spanned<String>>>,
+    #[serde(default)]
+    hang: bool,
+    message: Option<String>,
+    #[serde(default)]
+    writes: BTreeMap<String, toml::Value>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawInput {
+    at: Option<Spanned<String>>,
+    when: Option<Spanned<String>>,
+    after: Option<Spanned<String>>,
+    set: BTreeMap<String, toml::Value>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFault {
+    kill: Option<String>,
+    restart: Option<String>,
+    cut: Option<String>,
+    heal: Option<String>,
+    link: Option<String>,
+    crash_coordinator: Option<bool>,
+    at: Option<Spanned<String>>,
+    when: Option<Spanned<String>>,
+    after: Option<Spanned<String>>,
+    jitter: Option<Spanned<String>>,
+    heal_after: Option<Spanned<String>>,
+    down: Option<Spanned<String>>,
+    /// `for`, how long a link's faults last.
+    #[serde(rename = "for")]
+    lasting: Option<Spanned<String>>,
+    delay: Option<Spanned<String>>,
+    drop: Option<Spanned<f64>>,
+    duplicate: Option<Spanned<f64>>,
+    reorder: Option<bool>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawExpect {
+    reached: Option<String>,
+    on: Option<String>,
+    by: Option<Spanned<String>>,
+    order: Option<Vec<String>>,
+    value: Option<BTreeMap<String, toml::Value>>,
+    at: Option<Spanned<String>>,
+    always: Option<Spanned<String>>,
+    never: Option<Spanned<String>>,
+    ends_by: Option<Spanned<String>>,
+    alarms: Option<Vec<String>>,
+    state: Option<Spanned<String>>,
+    once_per_epoch: Option<String>,
+}
+
+// ---- the scenario, checked ---------------------------------------------------------------------------
+
+/// When something happens: at a chart time, or the first time a condition holds (then `after` later).
+#[derive(Clone, Debug)]
+pub enum Trigger {
+    At(u64),
+    When { cond: Cond, text: String, after_ms: u64 },
+}
+
+#[derive(Clone, Debug)]
+pub struct Input {
+    pub trigger: Trigger,
+    pub set: Vec<(String, serde_json::Value)>,
+}
+
+/// What the simulated network does to messages.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct NetFaults {
+    pub delay_ms: u64,
+    pub drop: f64,
+    pub duplicate: f64,
+    pub reorder: bool,
+}
+
+#[derive(Clone, Debug)]
+pub enum FaultKind {
+    Kill(String),
+    Restart(String),
+    /// Cut off (a partition), healed `heal_after_ms` later if given.
+    Cut(String, Option<u64>),
+    Heal(String),
+    /// The agent's link suffers `faults` for `for_ms`.
+    Link(String, NetFaults, u64),
+    /// The coordinator dies and starts again from its journal `down_ms` later.
+    CrashCoordinator(u64),
+}
+
+#[derive(Clone, Debug)]
+pub struct Fault {
+    pub kind: FaultKind,
+    pub trigger: Trigger,
+    /// Each seed moves the fault by up to this much, later.
+    pub jitter_ms: u64,
+    pub line: usize,
+}
+
+impl Fault {
+    /// `kill robot1`, `crash the coordinator`…
+    pub fn describe(&self) -> String {
+        match &self.kind {
+            FaultKind::Kill(a) => format!("kill {a}"),
+            FaultKind::Restart(a) => format!("restart {a}"),
+            FaultKind::Cut(a, None) => format!("cut {a} off"),
+            FaultKind::Cut(a, Some(ms)) => format!("cut {a} off for {}", show_ms(*ms)),
+            FaultKind::Heal(a) => format!("heal {a}"),
+            FaultKind::Link(a, f, ms) => {
+                let mut parts = Vec::new();
+                if f.drop > 0.0 {
+                    parts.push(format!("drop {}", f.drop));
+                }
+                if f.duplicate > 0.0 {
+                    parts.push(format!("duplicate {}", f.duplicate));
+                }
+                if f.delay_ms > 0 {
+                    parts.push(format!("delay up to {}", show_ms(f.delay_ms)));
+                }
+                if f.reorder {
+                    parts.push("reorder".into());
+                }
+                format!("{} on {a}'s link for {}", parts.join(", "), show_ms(*ms))
+            }
+            FaultKind::CrashCoordinator(down) => format!("crash the coordinator, back after {}", show_ms(*down)),
+        }
+    }
+}
+
+/// What an action's skill does in the simulated cell.
+#[derive(Clone, Debug, Default)]
+pub struct Behaviour {
+    /// Fixed (`lo == hi`) or drawn from the seed within `lo..=hi`; `None`: the `motion` skill's `ms` parameter.
+    pub duration: Option<(u64, u64)>,
+    /// Outcome of its first, second… run (`true` done, `false` fault); the last repeats. Empty: the `motion`
+    /// skill's `fault_rate` decides.
+    pub outcomes: Vec<bool>,
+    pub hang: bool,
+    pub message: Option<String>,
+    /// Values written to the skill's mapped output variables before it ends: (index in its binding, value).
+    pub writes: Vec<(usize, crate::exec::types::Value)>,
+}
+
+#[derive(Clone, Debug)]
+pub struct Agent {
+    pub name: String,
+    pub roles: Vec<String>,
+    pub start_ms: u64,
+    /// The skills it provides; `None`: all.
+    pub skills: Option<BTreeSet<String>>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum RunState {
+    Finished,
+    Failed,
+    Running,
+}
+
+#[derive(Clone, Debug)]
+pub enum ExpectKind {
+    Reached { step: String, on: Option<String>, by_ms: Option<u64> },
+    Order(Vec<String>),
+    Value { vars: Vec<(String, toml::Value)>, at_ms: Option<u64> },
+    Always(Cond, String),
+    Never(Cond, String),
+    EndsBy(u64),
+    Alarms(Vec<String>),
+    State(RunState),
+    OncePerEpoch(String),
+}
+
+#[derive(Clone, Debug)]
+pub struct Expect {
+    pub kind: ExpectKind,
+    pub line: usize,
+}
+
+impl Expect {
+    /// One line naming what is expected: the test case's name.
+    pub fn title(&self) -> String {
+        match &self.kind {
+            ExpectKind::Reached { step, on, by_ms } => {
+                let on = on.as_ref().map_or(String::new(), |a| format!(" on {a}"));
+                let by = by_ms.map_or(String::new(), |t| format!(" by {}", show_ms(t)));
+                format!("step {step} is reached{on}{by}")
+            }
+            ExpectKind::Order(steps) => format!("steps pass in order: {}", steps.join(", ")),
+            ExpectKind::Value { vars, at_ms } => {
+                let vs: Vec<String> = vars.iter().map(|(n, v)| format!("{n} = {}", show_toml(v))).collect();
+                let when = at_ms.map_or("at the end".to_string(), |t| format!("at {}", show_ms(t)));
+                format!("{} {when}", vs.join(", "))
+            }
+            ExpectKind::Always(_, text) => format!("always {text}"),
+            ExpectKind::Never(_, text) => format!("never {text}"),
+            ExpectKind::EndsBy(t) => format!("the chart ends by {}", show_ms(*t)),
+            ExpectKind::Alarms(a) if a.is_empty() => "no alarm is raised".to_string(),
+            ExpectKind::Alarms(a) => format!("alarms raised: {}", a.join("; ")),
+            ExpectKind::State(s) => format!("the run ends {}", format!("{s:?}").to_lowercase()),
+            ExpectKind::OncePerEpoch(a) => format!("the skill of {a} never runs twice in an epoch"),
+        }
+    }
+}
+
+/// A scenario read and checked against its chart, ready to run with any seed.
+pub struct Scenario {
+    pub path: PathBuf,
+    pub name: String,
+    pub chart_path: PathBuf,
+    pub program: Arc<Program>,
+    pub layout: Arc<Layout>,
+    pub hash: ChartHash,
+    pub until_ms: u64,
+    pub seed: u64,
+    pub loss_policy: LossPolicy,
+    pub journal: bool,
+    pub cycle_ms: u64,
+    pub network: NetFaults,
+    pub agents: Vec<Agent>,
+    /// By action index.
+    pub behaviours: BTreeMap<usize, Behaviour>,
+    pub inputs: Vec<Input>,
+    pub faults: Vec<Fault>,
+    pub expects: Vec<Expect>,
+}
+
+pub fn show_ms(ms: u64) -> String {
+    if ms == 0 {
+        "0s".into()
+    } else if ms.is_multiple_of(60_000) {
+        format!("{}min", ms / 60_000)
+    } else if ms.is_multiple_of(1000) {
+        format!("{}s", ms / 1000)
+    } else if ms >= 1000 {
+        format!("{}s", ms as f64 / 1000.0)
+    } else {
+        format!("{ms}ms")
+    }
+}
+
+/// A chart time as a scenario writes it: `250ms`, `2s`, `1.5s`, `10min`, `1h`, or IEC's `T#2s`.
+pub fn parse_duration(text: &str) -> Result<u64, String> {
+    let t = text.trim();
+    let t = t.strip_prefix("T#").or_else(|| t.strip_prefix("t#")).unwrap_or(t);
+    let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
+    let (number, unit) = t.split_at(split);
+    let n: f64 =
+        number.parse().map_err(|_| format!("`{text}` is not a duration (write `250ms`, `2s`, `1.5s`, `10min`)"))?;
+    let scale = match unit.trim() {
+        "ms" => 1.0,
+        "s" => 1000.0,
+        "m" | "min" => 60_000.0,
+        "h" => 3_600_000.0,
+        _ => return Err(format!("`{text}` is not a duration: its unit must be ms, s, min or h")),
+    };
+    let ms = n * scale;
+    if !(0.0..=UNTIL_MAX_MS as f64).contains(&ms) {
+        return Err(format!("`{text}` is longer than a week"));
+    }
+    Ok(ms.round() as u64)
+}
+
+struct Ctx<'a> {
+    lines: LineIndex<'a>,
+    errors: Vec<ScenarioError>,
+}
+
+impl Ctx<'_> {
+    fn at(&self, span: &Range<usize>) -> (usize, usize) {
+        self.lines.line_col(span.start as u32)
+    }
+
+    fn error(&mut self, span: &Range<usize>, message: impl Into<String>) {
+        let (line, col) = self.at(span);
+        self.errors.push(ScenarioError { line, col, message: message.into() });
+    }
+
+    fn duration(&mut self, s: &Spanned<String>) -> u64 {
+        match parse_duration(s.get_ref()) {
+            Ok(ms) => ms,
+            Err(e) => {
+                self.error(&s.span(), e);
+                0
+            }
+        }
+    }
+
+    fn opt_duration(&mut self, s: &Option<Spanned<String>>) -> Option<u64> {
+        s.as_ref().map(|s| self.duration(s))
+    }
+
+    fn cond(&mut self, s: &Spanned<String>, program: &Program, agents: &[String]) -> Option<Cond> {
+        match Cond::parse(s.get_ref(), program, agents) {
+            Ok(c) => Some(c),
+            Err(e) => {
+                self.error(&s.span(), e);
+                None
+            }
+        }
+    }
+
+    fn probability(&mut self, p: &Option<Spanned<f64>>) -> f64 {
+        match p {
+            Some(p) if !(0.0..=1.0).contains(p.get_ref()) => {
+                self.error(&p.span(), format!("a probability is from 0 to 1, not {}", p.get_ref()));
+                0.0
+            }
+            Some(p) => *p.get_ref(),
+            None => 0.0,
+        }
+    }
+}
+
+/// A TOML value as the scenario wrote it.
+pub fn show_toml(v: &toml::Value) -> String {
+    match v {
+        toml::Value::String(s) => format!("{s:?}"),
+        toml::Value::Integer(i) => i.to_string(),
+        toml::Value::Float(f) => f.to_string(),
+        toml::Value::Boolean(b) => b.to_string(),
+        toml::Value::Datetime(d) => format!("{d:?}"),
+        toml::Value::Array(a) => format!("[{}]", a.iter().map(show_toml).collect::<Vec<_>>().join(", ")),
+        toml::Value::Table(_) => "a table".to_string(),
+    }
+}
+
+/// A TOML value as `baton set` takes it.
+fn to_json(v: &toml::Value) -> Option<serde_json::Value> {
+    Some(match v {
+        toml::Value::Boolean(b) => serde_json::Value::Bool(*b),
+        toml::Value::Integer(i) => serde_json::json!(i),
+        toml::Value::Float(f) => serde_json::json!(f),
+        toml::Value::String(s) => serde_json::Value::String(s.clone()),
+        _ => return None,
+    })
+}
+
+/// A TOML value as a value of a chart variable of type `ty`: a TIME is written as a duration (`"2s"`).
+pub fn chart_value(v: &toml::Value, ty: &crate::exec::types::Type) -> Result<crate::exec::types::Value, String> {
+    use crate::exec::types::{Type, Value};
+    let value = match v {
+        toml::Value::Boolean(b) => Value::Bool(*b),
+        toml::Value::Integer(i) => Value::Int(*i),
+        toml::Value::Float(f) => Value::Real(*f),
+        toml::Value::String(s) if matches!(ty, Type::Time) => Value::Time(parse_duration(s)? as i64),
+        toml::Value::String(s) => Value::string(s.as_str()),
+        other => return Err(format!("{} is not a value a chart variable takes", show_toml(other))),
+    };
+    let value = ty.coerce(value);
+    if ty.fits(&value) {
+        Ok(value)
+    } else {
+        Err(format!("{} is not a value of the variable's type", show_toml(v)))
+    }
+}
+
+fn one_of<'a>(what: &str, present: &[(&'a str, bool)]) -> Result<&'a str, String> {
+    let set: Vec<&str> = present.iter().filter(|(_, p)| *p).map(|(k, _)| *k).collect();
+    let keys: Vec<&str> = present.iter().map(|(k, _)| *k).collect();
+    match set[..] {
+        [one] => Ok(one),
+        [] => Err(format!("{what} needs one of: {}", keys.join(", "))),
+        _ => Err(format!("{what} takes one of {}, not several ({})", keys.join(", "), set.join(", "))),
+    }
+}
+
+/// Reads and checks the scenario at `path`.
+pub fn load(path: &Path) -> Result<Scenario, LoadError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| LoadError::CannotRun(format!("cannot read {}: {e}", path.display())))?;
+    parse(path, &text)
+}
+
+/// Reads and checks the scenario `text`, read from `path` (its chart is relative to it).
+pub fn parse(path: &Path, text: &str) -> Result<Scenario, LoadError> {
+    let mut cx = Ctx { lines: LineIndex::new(text), errors: Vec::new() };
+    let raw: RawScenario = match toml::from_str(text) {
+        Ok(r) => r,
+        Err(e) => {
+            let span = e.span().unwrap_or(0..0);
+            cx.error(&span, e.message().trim().to_string());
+            return Err(LoadError::Malformed(cx.errors));
+        }
+    };
+    // The chart: relative to the scenario, so that a folder of both can go anywhere.
+    let base = path.parent().unwrap_or(Path::new("."));
+    let chart_path = base.join(raw.chart.get_ref());
+    let source = match std::fs::read_to_string(&chart_path) {
+        Ok(s) => s,
+        Err(e) => {
+            let (line, col) = cx.at(&raw.chart.span());
+            return Err(LoadError::CannotRun(format!(
+                "{}:{line}:{col}: cannot read the chart {}: {e}",
+                path.display(),
+                chart_path.display()
+            )));
+        }
+    };
+    let mut report = check_source(&source);
+    let index = LineIndex::new(&source);
+    let errors: Vec<String> = report
+        .diagnostics
+        .iter()
+        .filter(|d| d.is_error())
+        .map(|d| index.render(&chart_path.display().to_string(), d))
+        .collect();
+    let names: Vec<String> = report.charts.iter().map(|c| c.chart.name.name.clone()).collect();
+    let pick = match &raw.pou {
+        Some(p) => match names.iter().position(|n| n.eq_ignore_ascii_case(p.get_ref())) {
+            Some(i) => i,
+            None => {
+                cx.error(
+                    &p.span(),
+                    format!(
+                        "no chart named `{}` in {} (it has: {})",
+                        p.get_ref(),
+                        chart_path.display(),
+                        names.join(", ")
+                    ),
+                );
+                return Err(LoadError::Malformed(cx.errors));
+            }
+        },
+        None if names.len() == 1 => 0,
+        None if names.is_empty() => {
+            return Err(LoadError::CannotRun(format!("{} has no chart:\n{}", chart_path.display(), errors.join("\n"))))
+        }
+        None => {
+            cx.error(
+                &raw.chart.span(),
+                format!("{} holds several charts ({}): choose one with `pou`", chart_path.display(), names.join(", ")),
+            );
+            return Err(LoadError::Malformed(cx.errors));
+        }
+    };
+    let checked = report.charts.remove(pick);
+    let (Some(program), Some(layout)) = (checked.program, checked.layout) else {
+        return Err(LoadError::CannotRun(format!(
+            "the chart {} has errors (see `baton check`):\n{}",
+            chart_path.display(),
+            errors.join("\n")
+        )));
+    };
+    let program = Arc::new(program);
+    let layout = Arc::new(layout);
+    let hash = ChartHash::of(&source, &program.name);
+
+    let until_ms = match &raw.until {
+        Some(u) => cx.duration(u).max(1),
+        None => UNTIL_DEFAULT_MS,
+    };
+    let loss_policy = match raw.run.on_agent_loss.as_ref().map(|s| (s.get_ref().as_str(), s.span())) {
+        None | Some(("pause", _)) => LossPolicy::Pause,
+        Some(("reassign", _)) => LossPolicy::Reassign,
+        Some(("fail", _)) => LossPolicy::Fail,
+        Some((other, span)) => {
+            cx.error(&span, format!("`on_agent_loss` is pause, reassign or fail, not `{other}`"));
+            LossPolicy::Pause
+        }
+    };
+    let cycle_ms = match &raw.run.cycle_ms {
+        Some(c) if !(1..=60_000).contains(c.get_ref()) => {
+            cx.error(&c.span(), format!("`cycle_ms` is from 1 to 60000, not {}", c.get_ref()));
+            crate::dist::simnet::CYCLE_MS
+        }
+        Some(c) => *c.get_ref(),
+        None => crate::dist::simnet::CYCLE_MS,
+    };
+    let journal = raw.run.journal.unwrap_or(true);
+    let network = NetFaults {
+        delay_ms: cx.opt_duration(&raw.network.delay).unwrap_or(0),
+        drop: cx.probability(&raw.network.drop),
+        duplicate: cx.probability(&raw.network.duplicate),
+        reorder: raw.network.reorder.unwrap_or(false),
+    };
+
+    // Agents.
+    let mut agents: Vec<Agent> = Vec::new();
+    for a in &raw.agents {
+        let span = a.span();
+        let a = a.get_ref();
+        if agents.iter().any(|b| b.name == a.name) {
+            cx.error(&span, format!("agent `{}` is declared twice", a.name));
+            continue;
+        }
+        if a.name.is_empty() || !a.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
+            cx.error(&span, format!("agent name `{}` must be letters, digits, `_` or `-`", a.name));
+        }
+        let start_ms = cx.opt_duration(&a.start).unwrap_or(0);
+        agents.push(Agent {
+            name: a.name.clone(),
+            roles: a.roles.clone(),
+            start_ms,
+            skills: a.skills.as_ref().map(|s| s.iter().cloned().collect()),
+        });
+    }
+    let agent_names: Vec<String> = agents.iter().map(|a| a.name.clone()).collect();
+    let scenario_span = 0..0;
+    if agents.is_empty() && layout.placement.iter().any(|p| *p != crate::dist::layout::Placement::Coordinator) {
+        // Nothing to run the distributed steps on: said once, at the top.
+        cx.error(&scenario_span, "the chart places steps on agents, and the scenario declares none: add `[[agents]]`");
+    }
+    let agent_known = |cx: &mut Ctx, span: &Range<usize>, name: &str| {
+        if !agent_names.iter().any(|a| a == name) {
+            cx.error(span, format!("no agent named `{name}` in the scenario (it has: {})", agent_names.join(", ")));
+        }
+    };
+
+    // Actions' behaviour.
+    let mut behaviours = BTreeMap::new();
+    for (name, b) in &raw.actions {
+        let span = b.span();
+        let Some(index) = program.actions.iter().position(|a| a.name.eq_ignore_ascii_case(name)) else {
+            let all: Vec<&str> = program.actions.iter().map(|a| a.name.as_str()).collect();
+            cx.error(&span, format!("the chart has no action `{name}` (it has: {})", all.join(", ")));
+            continue;
+        };
+        let Some(binding) = layout.skills[index].as_ref() else {
+            cx.error(
+                &span,
+                format!("action `{name}` binds no skill: only skills are simulated (its body runs as written)"),
+            );
+            continue;
+        };
+        let b = b.get_ref();
+        let duration = match &b.duration {
+            None => None,
+            Some(d) => match d.get_ref() {
+                toml::Value::String(s) => match parse_duration(s) {
+                    Ok(ms) => Some((ms, ms)),
+                    Err(e) => {
+                        cx.error(&d.span(), e);
+                        None
+                    }
+                },
+                toml::Value::Array(range) if range.len() == 2 => {
+                    let ends: Vec<Result<u64, String>> = range
+                        .iter()
+                        .map(|v| {
+                            v.as_str().ok_or("a duration is a string: `\"2s\"`".to_string()).and_then(parse_duration)
+                        })
+                        .collect();
+                    match (&ends[0], &ends[1]) {
+                        (Ok(lo), Ok(hi)) if lo <= hi => Some((*lo, *hi)),
+                        (Ok(_), Ok(_)) => {
+                            cx.error(&d.span(), "a duration range is [shortest, longest]");
+                            None
+                        }
+                        (Err(e), _) | (_, Err(e)) => {
+                            cx.error(&d.span(), e.clone());
+                            None
+                        }
+                    }
+                }
+                _ => {
+                    cx.error(&d.span(), "`duration` is a duration (`\"2s\"`) or a range (`[\"1s\", \"3s\"]`)");
+                    None
+                }
+            },
+        };
+        let mut outcomes = Vec::new();
+        for o in b.outcomes.iter().flatten() {
+            match o.get_ref().as_str() {
+                "done" => outcomes.push(true),
+                "fault" => outcomes.push(false),
+                other => cx.error(&o.span(), format!("an outcome is \"done\" or \"fault\", not \"{other}\"")),
+            }
+        }
+        let mut writes = Vec::new();
+        for (var, value) in &b.writes {
+            let outputs = &binding.outputs;
+            let Some(k) = outputs.iter().position(|o| program.vars[o.var.index()].name.eq_ignore_ascii_case(var))
+            else {
+                let mapped: Vec<&str> = outputs.iter().map(|o| program.vars[o.var.index()].name.as_str()).collect();
+                cx.error(
+                    &span,
+                    format!(
+                        "the skill of `{name}` maps no variable `{var}` (its mappings write: {}): a skill writes only what its action maps",
+                        if mapped.is_empty() { "none".to_string() } else { mapped.join(", ") }
+                    ),
+                );
+                continue;
+            };
+            match chart_value(value, &program.vars[outputs[k].var.index()].ty) {
+                Ok(v) => writes.push((k, v)),
+                Err(e) => cx.error(&span, format!("`{var}`: {e}")),
+            }
+        }
+        behaviours.insert(index, Behaviour { duration, outcomes, hang: b.hang, message: b.message.clone(), writes });
+    }
+
+    // Inputs.
+    let trigger = |cx: &mut Ctx,
+                   what: &str,
+                   span: &Range<usize>,
+                   at: &Option<Spanned<String>>,
+                   when: &Option<Spanned<String>>,
+                   after: &Option<Spanned<String>>|
+     -> Option<Trigger> {
+        match (at, when) {
+            (Some(at), None) => {
+                if after.is_some() {
+                    cx.error(span, format!("{what}: `after` goes with `when`"));
+                }
+                Some(Trigger::At(cx.duration(at)))
+            }
+            (None, Some(w)) => {
+                let cond = cx.cond(w, &program, &agent_names)?;
+                Some(Trigger::When { cond, text: w.get_ref().clone(), after_ms: cx.opt_duration(after).unwrap_or(0) })
+            }
+            (None, None) => {
+                cx.error(span, format!("{what} needs `at = \"2s\"` or `when = \"step Load active\"`"));
+                None
+            }
+            (Some(_), Some(_)) => {
+                cx.error(span, format!("{what} takes `at` or `when`, not both"));
+                None
+            }
+        }
+    };
+    let mut inputs = Vec::new();
+    for i in &raw.inputs {
+        let span = i.span();
+        let raw_input = i.get_ref();
+        let Some(trigger) = trigger(&mut cx, "an input", &span, &raw_input.at, &raw_input.when, &raw_input.after)
+        else {
+            continue;
+        };
+        let mut set = Vec::new();
+        for (name, value) in &raw_input.set {
+            let Some(var) = program.var_by_name(name) else {
+                cx.error(&span, format!("the chart has no variable `{name}`"));
+                continue;
+            };
+            if !layout.settable[var.index()] {
+                cx.error(&span, format!("`{name}` is written by the chart: only inputs are set, as `baton set` does"));
+                continue;
+            }
+            match to_json(value) {
+                Some(v) => set.push((program.vars[var.index()].name.clone(), v)),
+                None => cx.error(&span, format!("`{name}`: {} is not a value an input takes", show_toml(value))),
+            }
+        }
+        if set.is_empty() && raw_input.set.is_empty() {
+            cx.error(&span, "an input sets something: `set = { start = true }`");
+        }
+        inputs.push(Input { trigger, set });
+    }
+
+    // Faults.
+    let mut faults = Vec::new();
+    for f in &raw.faults {
+        let span = f.span();
+        let r = f.get_ref();
+        let kind = match one_of(
+            "a fault",
+            &[
+                ("kill", r.kill.is_some()),
+                ("restart", r.restart.is_some()),
+                ("cut", r.cut.is_some()),
+                ("heal", r.heal.is_some()),
+                ("link", r.link.is_some()),
+                ("crash_coordinator", r.crash_coordinator == Some(true)),
+            ],
+        ) {
+            Ok(k) => k,
+            Err(e) => {
+                cx.error(&span, e);
+                continue;
+            }
+        };
+        let agent = r.kill.as_ref().or(r.restart.as_ref()).or(r.cut.as_ref()).or(r.heal.as_ref()).or(r.link.as_ref());
+        if let Some(a) = agent {
+            agent_known(&mut cx, &span, a);
+        }
+        let agent = agent.cloned().unwrap_or_default();
+        let fault_kind = match kind {
+            "kill" => FaultKind::Kill(agent),
+            "restart" => FaultKind::Restart(agent),
+            "cut" => FaultKind::Cut(agent, cx.opt_duration(&r.heal_after)),
+            "heal" => FaultKind::Heal(agent),
+            "link" => {
+                let nf = NetFaults {
+                    delay_ms: cx.opt_duration(&r.delay).unwrap_or(0),
+                    drop: cx.probability(&r.drop),
+                    duplicate: cx.probability(&r.duplicate),
+                    reorder: r.reorder.unwrap_or(false),
+                };
+                let Some(lasting) = cx.opt_duration(&r.lasting) else {
+                    cx.error(&span, "a link's faults last a while: `for = \"5s\"`");
+                    continue;
+                };
+                FaultKind::Link(agent, nf, lasting)
+            }
+            _ => {
+                if !journal {
+                    cx.error(
+                        &span,
+                        "the coordinator resumes from its journal: crashing it needs `journal = true` in [run]",
+                    );
+                }
+                FaultKind::CrashCoordinator(cx.opt_duration(&r.down).unwrap_or(500))
+            }
+        };
+        let Some(trigger) = trigger(&mut cx, "a fault", &span, &r.at, &r.when, &r.after) else { continue };
+        let jitter_ms = cx.opt_duration(&r.jitter).unwrap_or(0);
+        let (line, _) = cx.at(&span);
+        faults.push(Fault { kind: fault_kind, trigger, jitter_ms, line });
+    }
+
+    // Expectations.
+    let step_known = |cx: &mut Ctx, span: &Range<usize>, name: &str| -> Option<String> {
+        match program.steps.iter().find(|s| s.name.eq_ignore_ascii_case(name)) {
+            Some(s) => Some(s.name.clone()),
+            None => {
+                let all: Vec<&str> = program.steps.iter().map(|s| s.name.as_str()).collect();
+                cx.error(span, format!("the chart has no step `{name}` (it has: {})", all.join(", ")));
+                None
+            }
+        }
+    };
+    let mut expects = Vec::new();
+    for e in &raw.expect {
+        let span = e.span();
+        let (line, _) = cx.at(&span);
+        let r = e.get_ref();
+        let kind = match one_of(
+            "an expectation",
+            &[
+                ("reached", r.reached.is_some()),
+                ("order", r.order.is_some()),
+                ("value", r.value.is_some()),
+                ("always", r.always.is_some()),
+                ("never", r.never.is_some()),
+                ("ends_by", r.ends_by.is_some()),
+                ("alarms", r.alarms.is_some()),
+                ("state", r.state.is_some()),
+                ("once_per_epoch", r.once_per_epoch.is_some()),
+            ],
+        ) {
+            Ok(k) => k,
+            Err(msg) => {
+                cx.error(&span, msg);
+                continue;
+            }
+        };
+        let stray = |cx: &mut Ctx, key: &str, present: bool, goes: &str| {
+            if present {
+                cx.error(&span, format!("`{key}` goes with {goes}, not with `{kind}`"));
+            }
+        };
+        if kind != "reached" {
+            stray(&mut cx, "on", r.on.is_some(), "`reached`");
+            stray(&mut cx, "by", r.by.is_some(), "`reached`");
+        }
+        if kind != "value" {
+            stray(&mut cx, "at", r.at.is_some(), "`value`");
+        }
+        let kind = match kind {
+            "reached" => {
+                let Some(step) = step_known(&mut cx, &span, r.reached.as_deref().unwrap_or_default()) else { continue };
+                if let Some(a) = &r.on {
+                    agent_known(&mut cx, &span, a);
+                }
+                ExpectKind::Reached { step, on: r.on.clone(), by_ms: cx.opt_duration(&r.by) }
+            }
+            "order" => {
+                let steps: Vec<Option<String>> =
+                    r.order.iter().flatten().map(|s| step_known(&mut cx, &span, s)).collect();
+                if steps.len() < 2 {
+                    cx.error(&span, "`order` names two steps or more");
+                }
+                ExpectKind::Order(steps.into_iter().flatten().collect())
+            }
+            "value" => {
+                let mut vars = Vec::new();
+                for (name, v) in r.value.iter().flatten() {
+                    match program.var_by_name(name) {
+                        Some(var) if !program.vars[var.index()].hidden => {
+                            vars.push((program.vars[var.index()].name.clone(), v.clone()))
+                        }
+                        _ => cx.error(&span, format!("the chart has no variable `{name}`")),
+                    }
+                }
+                ExpectKind::Value { vars, at_ms: cx.opt_duration(&r.at) }
+            }
+            "always" | "never" => {
+                let text = r.always.as_ref().or(r.never.as_ref()).expect("one of them");
+                let Some(cond) = cx.cond(text, &program, &agent_names) else { continue };
+                if kind == "always" {
+                    ExpectKind::Always(cond, text.get_ref().clone())
+                } else {
+                    ExpectKind::Never(cond, text.get_ref().clone())
+                }
+            }
+            "ends_by" => ExpectKind::EndsBy(cx.opt_duration(&r.ends_by).unwrap_or(0)),
+            "alarms" => ExpectKind::Alarms(r.alarms.clone().unwrap_or_default()),
+            "state" => {
+                let s = r.state.as_ref().expect("state");
+                match s.get_ref().as_str() {
+                    "finished" => ExpectKind::State(RunState::Finished),
+                    "failed" => ExpectKind::State(RunState::Failed),
+                    "running" => ExpectKind::State(RunState::Running),
+                    other => {
+                        cx.error(&s.span(), format!("`state` is finished, failed or running, not `{other}`"));
+                        continue;
+                    }
+                }
+            }
+            _ => {
+                let name = r.once_per_epoch.as_deref().unwrap_or_default();
+                match program.actions.iter().find(|a| a.name.eq_ignore_ascii_case(name)) {
+                    Some(a) => ExpectKind::OncePerEpoch(a.name.clone()),
+                    None => {
+                        cx.error(&span, format!("the chart has no action `{name}`"));
+                        continue;
+                    }
+                }
+            }
+        };
+        expects.push(Expect { kind, line });
+    }
+    if expects.is_empty() && cx.errors.is_empty() {
+        cx.error(&(0..0), "the scenario expects nothing: add `[[expect]]` tables");
+    }
+    if !cx.errors.is_empty() {
+        cx.errors.sort_by_key(|e| (e.line, e.col));
+        return Err(LoadError::Malformed(cx.errors));
+    }
+    let name = raw.name.unwrap_or_else(|| {
+        let file = path.file_name().map(|f| f.to_string_lossy().to_string()).unwrap_or_default();
+        file.split(".test.").next().unwrap_or(&file).to_string()
+    });
+    Ok(Scenario {
+        path: path.to_path_buf(),
+        name,
+        chart_path,
+        program,
+        layout,
+        hash,
+        until_ms,
+        seed: raw.seed.unwrap_or(1),
+        loss_policy,
+        journal,
+        cycle_ms,
+        network,
+        agents,
+        behaviours,
+        inputs,
+        faults,
+        expects,
+    })
+}

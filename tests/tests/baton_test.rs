@@ -1,0 +1,259 @@
+//! `baton test`, as users run it: the example cell's scenario passes with its faults striking; a fault of each
+//! kind strikes in the project's own scenarios (`tests/baton_test/pass`); each kind of expectation fails with
+//! the message it must (`fail/`); malformed files are said at FILE:LINE:COL with exit status 3; `--seeds` finds
+//! a planted schedule-dependent bug and the command it prints replays exactly it; the JUnit report says it all.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use baton_proto::exec::sim::TraceRecord;
+use baton_proto::testing::run::run;
+use baton_proto::testing::scenario::{self, LoadError};
+use baton_tests::cluster::{bin, repo};
+
+fn scenario(path: &str) -> scenario::Scenario {
+    match scenario::load(&repo(path)) {
+        Ok(s) => s,
+        Err(e) => panic!("{path}: {e:?}"),
+    }
+}
+
+/// `baton test ARGS` from `dir`, failures kept under a temporary folder.
+fn baton_test(dir: &Path, args: &[&str], out: &Path) -> (Output, String, String) {
+    let o = Command::new(bin("baton"))
+        .arg("test")
+        .args(args)
+        .arg("--out")
+        .arg(out)
+        .current_dir(dir)
+        .output()
+        .expect("run baton test");
+    let (stdout, stderr) =
+        (String::from_utf8_lossy(&o.stdout).to_string(), String::from_utf8_lossy(&o.stderr).to_string());
+    (o, stdout, stderr)
+}
+
+fn count(trace: &[TraceRecord], event: &str, name: &str) -> usize {
+    trace.iter().filter(|r| r.event == event && r.name == name).count()
+}
+
+#[test]
+fn the_example_cell_passes_with_a_robot_killed_and_an_inspection_failing_twice() {
+    let sc = scenario("examples/cell.test.toml");
+    let o = run(&sc, sc.seed);
+    assert!(o.passed(), "{:?}\n{:?}", o.cases, o.errors);
+    // What the scenario says happened did: assembler1 died holding Assemble, assembler2 took it in a new epoch,
+    // and the inspection faulted twice before it passed.
+    assert_eq!(count(&o.trace, "agent_lost", "assembler1"), 1, "{:#?}", o.trace);
+    let again = o.trace.iter().find(|r| r.event == "dispatch" && r.name == "Assemble" && r.epoch == Some(2));
+    assert_eq!(again.and_then(|r| r.agent.as_deref()), Some("assembler2"));
+    assert_eq!(count(&o.trace, "skill_fault", "InspectPart"), 2);
+    assert!(o.faults.iter().any(|(_, f)| f == "kill assembler1"), "{:?}", o.faults);
+    let out = tempfile::tempdir().expect("tmp");
+    let (status, stdout, _) = baton_test(&repo("examples"), &["cell.test.toml"], out.path());
+    assert!(status.status.success(), "{stdout}");
+    assert!(stdout.starts_with("PASS cell (cell.test.toml): 8 expectation(s), seed 1"), "{stdout}");
+    assert!(stdout.contains("faster)"), "{stdout}");
+}
+
+#[test]
+fn a_fault_of_each_kind_strikes_and_the_run_survives_it() {
+    let outcome = |name: &str| {
+        let sc = scenario(&format!("tests/baton_test/pass/{name}.test.toml"));
+        let o = run(&sc, sc.seed);
+        assert!(o.passed(), "{name}: {:?}\n{:?}", o.cases, o.errors);
+        o
+    };
+    // Killed, then a new process: the token goes to it in a new epoch.
+    let o = outcome("restart");
+    assert_eq!(count(&o.trace, "agent_lost", "r1"), 1);
+    assert!(o.trace.iter().any(|r| r.event == "dispatch" && r.name == "A" && r.epoch == Some(2)), "{:#?}", o.trace);
+    // Cut off within its lease: never lost, and its work is heard only once the link is back.
+    let o = outcome("partition");
+    assert_eq!(count(&o.trace, "agent_lost", "r2"), 0);
+    let back = o.trace.iter().find(|r| r.event == "return" && r.name == "B").expect("B's token back");
+    assert!(back.t_ms >= 400, "B's token came back at {} ms, while r2 was cut off", back.t_ms);
+    // A lossy link: more messages than a clean run sends, and the same end.
+    let o = outcome("link");
+    assert!(o.faults.iter().any(|(_, f)| f.starts_with("drop 0.3, duplicate 0.3, delay up to 20ms on r1's link")));
+    // The coordinator crashed and came back from its journal.
+    let o = outcome("crash");
+    assert!(o.trace.iter().any(|r| r.event == "recover"), "{:#?}", o.trace);
+    // An input set when a step is active, and an agent that starts late.
+    let o = outcome("when");
+    let set = o.trace.iter().find(|r| r.event == "set").expect("set");
+    assert!((200..=215).contains(&set.t_ms), "set at {}", set.t_ms);
+    let b = o.trace.iter().find(|r| r.event == "dispatch" && r.name == "B").expect("B dispatched");
+    assert!(b.t_ms >= 1000 && b.agent.as_deref() == Some("r2"), "{b:?}");
+}
+
+#[test]
+fn each_kind_of_expectation_fails_with_its_message() {
+    let cases = [
+        ("reached", "expected step Broken is reached; it was never active"),
+        ("reached_on", "expected step A is reached on r2; it was reached at 0s on r1"),
+        ("order", "expected the steps in order Done → A; passed Done, then never A"),
+        ("value", "at the end: first = 1 (expected 2)"),
+        ("value_at", "at 100ms: first = 0 (expected 1)"),
+        ("always", "`NOT B.X` was FALSE at 0s"),
+        ("never", "`A.X AND B.X` was TRUE at 0s"),
+        ("ends_by", "the chart ended at 301ms, after 100ms"),
+        ("alarms", "never raised: `lost`"),
+        ("state", "expected the run to end failed; it finished at 301ms"),
+    ];
+    let dir = repo("tests/baton_test");
+    let out = tempfile::tempdir().expect("tmp");
+    for (name, message) in cases {
+        let file = format!("fail/{name}.test.toml");
+        let (o, stdout, stderr) = baton_test(&dir, &[&file], out.path());
+        assert_eq!(o.status.code(), Some(1), "{name}: {stdout}{stderr}");
+        assert!(stdout.contains(&format!("FAIL {name} ({file})")), "{stdout}");
+        assert!(stdout.contains(&format!("  {file}:14: ")), "the expectation's line: {stdout}");
+        assert!(stdout.contains(message), "{name}: expected `{message}` in:\n{stdout}");
+        // The failing run is kept: its trace, its recording, and how to run it again.
+        let trace = out.path().join(format!("{name}-seed1.trace.jsonl"));
+        assert!(stdout.contains(&format!("trace: {}", trace.display())), "{stdout}");
+        let records = std::fs::read_to_string(&trace).expect("trace kept");
+        assert!(records.lines().all(|l| serde_json::from_str::<TraceRecord>(l).is_ok()));
+        assert!(out.path().join(format!("{name}-seed1.rrd")).is_file());
+        assert!(stdout.contains(&format!("replay: baton test {file} --seed 1")), "{stdout}");
+        assert!(stdout.contains("active steps"), "{stdout}");
+    }
+}
+
+#[test]
+fn malformed_files_are_said_at_file_line_col_with_exit_status_3() {
+    let dir = repo("tests/baton_test");
+    let out = tempfile::tempdir().expect("tmp");
+    let (o, stdout, stderr) = baton_test(&dir, &["malformed"], out.path());
+    assert_eq!(o.status.code(), Some(3), "{stdout}{stderr}");
+    let expected = [
+        "malformed/keys.test.toml:3:1: error: unknown field `untill`",
+        "malformed/names.test.toml:10:1: error: no agent named `r3` in the scenario (it has: r1, r2)",
+        "malformed/names.test.toml:14:1: error: the chart has no step `Finish`",
+        "malformed/names.test.toml:18:11: error: `soon` is not a duration",
+        "malformed/syntax.test.toml:4:9: error: unclosed array table, expected `]]`",
+    ];
+    for e in expected {
+        assert!(stderr.lines().any(|l| l.starts_with(e)), "expected `{e}` in:\n{stderr}");
+    }
+    assert!(stdout.contains("3 scenario(s): 0 passed, 0 failed, 3 malformed"), "{stdout}");
+    // Malformed outranks failed: a folder of both exits 3.
+    let (o, stdout, _) = baton_test(&dir, &["fail/value.test.toml", "malformed/keys.test.toml"], out.path());
+    assert_eq!(o.status.code(), Some(3), "{stdout}");
+}
+
+#[test]
+fn a_scenario_whose_chart_is_missing_or_wrong_cannot_run() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let write = |name: &str, text: &str| std::fs::write(dir.path().join(name), text).expect("write");
+    write("gone.test.toml", "chart = \"nowhere.st\"\n\n[[expect]]\nstate = \"finished\"\n");
+    write(
+        "broken.st",
+        "PROGRAM p\nINITIAL_STEP S: END_STEP\nTRANSITION FROM S TO T := nothing; END_TRANSITION\nEND_PROGRAM\n",
+    );
+    write("broken.test.toml", "chart = \"broken.st\"\n\n[[expect]]\nstate = \"finished\"\n");
+    let out = dir.path().join("out");
+    let (o, stdout, stderr) = baton_test(dir.path(), &["gone.test.toml"], &out);
+    assert_eq!(o.status.code(), Some(2), "{stdout}{stderr}");
+    assert!(stderr.contains("gone.test.toml:1:9: cannot read the chart"), "{stderr}");
+    let (o, stdout, stderr) = baton_test(dir.path(), &["broken.test.toml"], &out);
+    assert_eq!(o.status.code(), Some(2), "{stdout}{stderr}");
+    assert!(stderr.contains("has errors (see `baton check`)"), "{stderr}");
+    assert!(matches!(scenario::load(&dir.path().join("gone.test.toml")), Err(LoadError::CannotRun(_))));
+}
+
+#[test]
+fn seeds_find_a_planted_race_and_the_printed_command_replays_exactly_it() {
+    let dir = repo("tests/baton_test");
+    let out = tempfile::tempdir().expect("tmp");
+    // Its own seed hides the bug.
+    let (o, stdout, _) = baton_test(&dir, &["seeds/race.test.toml"], out.path());
+    assert!(o.status.success(), "{stdout}");
+    let (o, stdout, _) = baton_test(&dir, &["seeds/race.test.toml", "--seeds", "40"], out.path());
+    assert_eq!(o.status.code(), Some(1), "{stdout}");
+    let failed: usize = stdout
+        .split(" of 40 run(s) failed")
+        .next()
+        .and_then(|s| s.rsplit(' ').next())
+        .and_then(|n| n.parse().ok())
+        .expect("a count of failed runs");
+    assert!(failed > 0 && failed < 40, "some schedules hit the race, not all: {stdout}");
+    let replay = stdout.lines().find_map(|l| l.trim().strip_prefix("replay: baton test ")).expect("a replay command");
+    let args: Vec<&str> = replay.split_whitespace().collect();
+    let seed = args.last().expect("seed").to_string();
+    let (o, again, _) = baton_test(&dir, &args, out.path());
+    assert_eq!(o.status.code(), Some(1), "the replay fails too: {again}");
+    assert!(again.contains(&format!("1 of 1 run(s) failed (seed {seed})")), "{again}");
+    assert!(again.contains("first = 2 (expected 1)"), "{again}");
+    // The same seed, the same run: its trace is the same record for record.
+    let sc = scenario("tests/baton_test/seeds/race.test.toml");
+    let seed: u64 = seed.parse().expect("a number");
+    assert_eq!(run(&sc, seed).trace, run(&sc, seed).trace);
+}
+
+#[test]
+fn the_junit_report_has_a_suite_per_file_and_a_case_per_expectation() {
+    let dir = repo("tests/baton_test");
+    let out = tempfile::tempdir().expect("tmp");
+    let report = out.path().join("report.xml");
+    let report_arg = report.to_str().expect("utf-8");
+    let (o, stdout, _) = baton_test(
+        &dir,
+        &["pass/crash.test.toml", "fail", "malformed/syntax.test.toml", "--junit", report_arg],
+        out.path(),
+    );
+    assert_eq!(o.status.code(), Some(3), "{stdout}");
+    let xml = std::fs::read_to_string(&report).expect("report written");
+    let doc = roxmltree::Document::parse(&xml).expect("well-formed XML");
+    let root = doc.root_element();
+    assert_eq!(root.tag_name().name(), "testsuites");
+    let suites: Vec<_> = root.children().filter(|n| n.has_tag_name("testsuite")).collect();
+    assert_eq!(suites.len(), 12, "one per file");
+    assert_eq!(root.attribute("failures"), Some("10"));
+    assert_eq!(root.attribute("errors"), Some("1"));
+    let crash = suites.iter().find(|s| s.attribute("name") == Some("crash")).expect("crash suite");
+    assert_eq!(crash.attribute("file"), Some("pass/crash.test.toml"));
+    let cases: Vec<_> = crash.children().filter(|n| n.has_tag_name("testcase")).collect();
+    assert_eq!(cases.len(), 3);
+    let text = std::fs::read_to_string(dir.join("pass/crash.test.toml")).expect("read");
+    let first = text.lines().position(|l| l == "[[expect]]").expect("an expectation") + 1;
+    assert_eq!(cases[0].attribute("line"), Some(first.to_string().as_str()));
+    assert!(cases.iter().all(|c| !c.children().any(|n| n.has_tag_name("failure"))));
+    let value = suites.iter().find(|s| s.attribute("name") == Some("value")).expect("value suite");
+    let failure = value.descendants().find(|n| n.has_tag_name("failure")).expect("a failure");
+    assert!(failure.attribute("message").is_some_and(|m| m.contains("first = 1 (expected 2)")));
+    let system_out = value.descendants().find(|n| n.has_tag_name("system-out")).and_then(|n| n.text()).unwrap_or("");
+    assert!(system_out.contains("timeline:") && system_out.contains("activate Done"), "{system_out}");
+    // And as CI's tools read it: junitparser, a JUnit reader we did not write.
+    if !baton_tests::peer::python_has("junitparser", "junitparser") {
+        return;
+    }
+    let script = "import sys, junitparser\n\
+        x = junitparser.JUnitXml.fromfile(sys.argv[1])\n\
+        cases = [c for s in x for c in s]\n\
+        bad = [c for c in cases if c.result]\n\
+        print(len(list(x)), len(cases), len(bad))\n";
+    let o = Command::new("python3").args(["-c", script, report_arg]).output().expect("python3");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(String::from_utf8_lossy(&o.stdout).trim(), "12 14 11");
+}
+
+/// The published schema (`docs/baton-test.schema.json`), as an editor would apply it: it accepts every scenario
+/// of the project and refuses a key that does not exist.
+#[test]
+fn the_published_schema_accepts_the_scenarios_and_refuses_unknown_keys() {
+    if !baton_tests::peer::python_has("jsonschema", "jsonschema") {
+        return;
+    }
+    let o = Command::new("python3")
+        .arg(repo("tests/scripts/check_scenario_schema.py"))
+        .arg(repo(""))
+        .output()
+        .expect("python3");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(said.trim().ends_with(" True"), "{said}");
+    let checked: usize = said.split_whitespace().next().and_then(|n| n.parse().ok()).unwrap_or(0);
+    assert!(checked >= 17, "{said}");
+}
