@@ -166,6 +166,13 @@ enum Command {
         /// Print only failures and the total.
         #[arg(long, short)]
         quiet: bool,
+        /// Print which steps, transitions and branches the scenarios exercised, and which steps faults struck.
+        #[arg(long)]
+        coverage: bool,
+        /// Stop after this much wall time (`10min`, `90s`): what ran is reported and the JUnit file written;
+        /// exit status 2. An interrupt (SIGINT, SIGTERM) does the same, with exit status 130.
+        #[arg(long, value_name = "DURATION", value_parser = parse_wall_time)]
+        timeout: Option<std::time::Duration>,
     },
     Demo {
         /// Picking robots (each a `baton-agent` process); robot1 and robot2 also assemble.
@@ -281,9 +288,19 @@ pub fn main() -> ExitCode {
         Command::Replay { journal, rerun, trace } => {
             crate::replay::replay(&crate::replay::ReplayOptions { journal, rerun, trace }).map(|()| ExitCode::SUCCESS)
         }
-        Command::Test { paths, seeds, seed, junit, out, jobs, quiet } => {
+        Command::Test { paths, seeds, seed, junit, out, jobs, quiet, coverage, timeout } => {
             let jobs = jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-            crate::testing::test(&crate::testing::TestOptions { paths, seeds, seed, junit, out, jobs, quiet })
+            crate::testing::test(&crate::testing::TestOptions {
+                paths,
+                seeds,
+                seed,
+                junit,
+                out,
+                jobs,
+                quiet,
+                coverage,
+                timeout,
+            })
         }
         Command::Demo { agents, parts, keep, rerun } => {
             block_on(crate::demo::demo(crate::demo::DemoOptions { agents, parts, keep, rerun }))
@@ -442,6 +459,10 @@ fn utc_now() -> String {
     let (days, rest) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
     let (year, month, day) = baton_proto::exec::types::civil_from_days(days);
     format!("{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}", rest / 3600, rest % 3600 / 60, rest % 60)
+}
+
+fn parse_wall_time(s: &str) -> Result<std::time::Duration, String> {
+    baton_proto::testing::scenario::parse_duration(s).map(std::time::Duration::from_millis)
 }
 
 pub fn pick<'r>(report: &'r Report, pou: Option<&str>) -> anyhow::Result<&'r CheckedChart> {

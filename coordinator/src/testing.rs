@@ -9,12 +9,13 @@ use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use baton_proto::testing::coverage::Coverage;
 use baton_proto::testing::junit;
-use baton_proto::testing::run::{describe_record, run, Outcome};
+use baton_proto::testing::run::{describe_record, run_until, Outcome};
 use baton_proto::testing::scenario::{self, show_ms, LoadError, RunState, Scenario};
 
 pub const EXIT_FAILED: u8 = 1;
@@ -32,7 +33,30 @@ pub struct TestOptions {
     pub out: PathBuf,
     pub jobs: usize,
     pub quiet: bool,
+    /// Print what the scenarios exercised of each chart.
+    pub coverage: bool,
+    /// Stop after this much wall time; the report (and JUnit file) says what ran.
+    pub timeout: Option<Duration>,
 }
+
+/// Set by SIGINT or SIGTERM: the runs stop, and what ran is reported (and written to the JUnit file).
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: libc::c_int) {
+    INTERRUPTED.store(true, Ordering::SeqCst);
+}
+
+fn catch_interrupts() {
+    let handler = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
+    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+    unsafe {
+        libc::signal(libc::SIGINT, handler);
+        libc::signal(libc::SIGTERM, handler);
+    }
+}
+
+/// Exit status of an interrupted `baton test` (128 + SIGINT), as shells expect.
+const EXIT_INTERRUPTED: u8 = 130;
 
 /// Every `*.test.toml` under `path` (itself, when it is a file), sorted; hidden folders and `target` skipped.
 fn collect(path: &Path, found: &mut Vec<PathBuf>) -> std::io::Result<()> {
@@ -184,17 +208,13 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
     }
     // Read every file first: a malformed one is said before anything runs.
     let mut verdicts: Vec<Verdict> = Vec::new();
-    let mut work: Vec<(usize, u64)> = Vec::new();
+    // The scenarios that run, with their first seed.
+    let mut runnable: Vec<(usize, u64)> = Vec::new();
     for path in &files {
         let v = match scenario::load(path) {
             Ok(sc) => {
                 let i = verdicts.len();
-                let seeds: Vec<u64> = match (opts.seed, opts.seeds) {
-                    (Some(s), _) => vec![s],
-                    (None, Some(n)) => (0..n.max(1)).map(|k| sc.seed + k).collect(),
-                    (None, None) => vec![sc.seed],
-                };
-                work.extend(seeds.into_iter().map(|s| (i, s)));
+                runnable.push((i, opts.seed.unwrap_or(sc.seed)));
                 Verdict {
                     path: path.clone(),
                     problem: None,
@@ -229,25 +249,79 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
         }
         verdicts.push(v);
     }
+    // Job k is the (k / scenarios)-th seed of scenario k % scenarios: every scenario's first seed, then every
+    // second one…, so that stopped early each scenario has had its share; nothing is listed in advance.
+    let per = if opts.seed.is_some() { 1 } else { opts.seeds.unwrap_or(1).max(1) };
+    let total = (runnable.len() as u64).saturating_mul(per);
+    let job = |k: u64| -> Option<(usize, u64)> {
+        if k >= total {
+            return None;
+        }
+        let (i, first) = runnable[(k % runnable.len() as u64) as usize];
+        Some((i, first.wrapping_add(k / runnable.len() as u64)))
+    };
     // Run every (scenario, seed) on a pool of threads; a scenario's runs are independent.
     let results: Mutex<BTreeMap<usize, Vec<(Outcome, Duration)>>> = Mutex::new(BTreeMap::new());
     let panics: Mutex<BTreeMap<usize, String>> = Mutex::new(BTreeMap::new());
-    let next = AtomicUsize::new(0);
+    let coverages: Mutex<BTreeMap<usize, Coverage>> = Mutex::new(BTreeMap::new());
+    let next = AtomicU64::new(0);
     let stop = AtomicBool::new(false);
+    let finished = AtomicUsize::new(0);
+    let timed_out = AtomicBool::new(false);
+    catch_interrupts();
+    if !opts.quiet {
+        println!(
+            "running {} run(s) of {} scenario(s) on {} thread(s)",
+            total,
+            verdicts.iter().filter(|v| v.scenario.is_some()).count(),
+            (opts.jobs.max(1) as u64).min(total.max(1))
+        );
+        let _ = std::io::stdout().flush();
+    }
+    let started_all = Instant::now();
     let scenarios: Vec<Option<Arc<Scenario>>> = verdicts.iter().map(|v| v.scenario.clone()).collect();
-    let jobs = opts.jobs.max(1).min(work.len().max(1));
+    let jobs = (opts.jobs.max(1) as u64).min(total.max(1)) as usize;
     std::thread::scope(|scope| {
-        for _ in 0..jobs {
-            scope.spawn(|| loop {
-                if stop.load(Ordering::Relaxed) {
+        // The watchdog: an interrupt or the time limit stops every run where it is.
+        scope.spawn(|| {
+            while finished.load(Ordering::Relaxed) < jobs {
+                if INTERRUPTED.load(Ordering::Relaxed) {
+                    stop.store(true, Ordering::Relaxed);
                     return;
                 }
+                if opts.timeout.is_some_and(|t| started_all.elapsed() >= t) {
+                    timed_out.store(true, Ordering::Relaxed);
+                    stop.store(true, Ordering::Relaxed);
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        });
+        for _ in 0..jobs {
+            scope.spawn(|| loop {
                 let k = next.fetch_add(1, Ordering::Relaxed);
-                let Some(&(i, seed)) = work.get(k) else { return };
+                let Some((i, seed)) = job(k).filter(|_| !stop.load(Ordering::Relaxed)) else {
+                    finished.fetch_add(1, Ordering::Relaxed);
+                    return;
+                };
                 let sc = scenarios[i].as_ref().expect("loaded");
                 let started = Instant::now();
-                match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(sc, seed))) {
-                    Ok(o) => results.lock().expect("results").entry(i).or_default().push((o, started.elapsed())),
+                match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run_until(sc, seed, &stop))) {
+                    // A run cut short by the stop is a run not made.
+                    Ok(_) if stop.load(Ordering::Relaxed) => {}
+                    Ok(mut o) => {
+                        if opts.coverage {
+                            let c = Coverage::of(&sc.program, &o);
+                            coverages.lock().expect("coverage").entry(i).or_default().add(&c);
+                        }
+                        // A passing run is remembered by its verdicts and times only: a million seeds fit.
+                        if o.passed() {
+                            o.trace = Vec::new();
+                            o.vars = Vec::new();
+                            o.active = Vec::new();
+                        }
+                        results.lock().expect("results").entry(i).or_default().push((o, started.elapsed()))
+                    }
                     Err(p) => {
                         let why = p
                             .downcast_ref::<String>()
@@ -260,6 +334,13 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
             });
         }
     });
+    let interrupted: Option<String> = if timed_out.load(Ordering::Relaxed) {
+        Some(format!("the time limit of {}", show_ms(opts.timeout.unwrap_or_default().as_millis() as u64)))
+    } else if stop.load(Ordering::Relaxed) {
+        Some("an interrupt".to_string())
+    } else {
+        None
+    };
     let mut results = results.into_inner().expect("results");
     let panics = panics.into_inner().expect("panics");
     let mut code = 0u8;
@@ -281,6 +362,20 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
         }
         let sc = v.scenario.clone().expect("loaded");
         let mut runs = results.remove(&i).unwrap_or_default();
+        if let (Some(why), true) = (&interrupted, runs.is_empty()) {
+            code = code.max(EXIT_CANNOT_RUN);
+            let text = format!("not run: stopped by {why}");
+            println!("ERROR {} ({file}): {text}", sc.name);
+            suites.push(junit::Suite {
+                name: sc.name.clone(),
+                file,
+                time_s: 0.0,
+                error: Some(text),
+                cases: Vec::new(),
+                system_out: String::new(),
+            });
+            continue;
+        }
         runs.sort_by_key(|(o, _)| o.seed);
         v.wall = runs.iter().map(|(_, w)| *w).sum();
         v.outcomes = runs.into_iter().map(|(o, _)| o).collect();
@@ -362,6 +457,9 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
             system_out,
         });
     }
+    if opts.coverage {
+        print!("{}", coverage_report(&verdicts, &coverages.into_inner().expect("coverage")));
+    }
     let count = |c: u8| verdicts.iter().filter(|v| v.problem.as_ref().is_some_and(|p| p.0 == c)).count();
     let (malformed, cannot) = (count(EXIT_MALFORMED), count(EXIT_CANNOT_RUN) + panics.len());
     let mut total = format!("{} scenario(s): {passed_n} passed, {failed_n} failed", verdicts.len());
@@ -371,10 +469,49 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
     if malformed > 0 {
         total.push_str(&format!(", {malformed} malformed"));
     }
+    if let Some(why) = &interrupted {
+        total.push_str(&format!(" — stopped by {why}: runs not made are not counted"));
+        code = code.max(if timed_out.load(Ordering::Relaxed) { EXIT_CANNOT_RUN } else { EXIT_INTERRUPTED });
+    }
     println!("{total}");
     if let Some(path) = &opts.junit {
-        std::fs::write(path, junit::write(&suites, None))
+        std::fs::write(path, junit::write(&suites, interrupted.as_deref()))
             .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
     }
     Ok(ExitCode::from(code))
+}
+
+/// Per chart: what each scenario of it exercised (over all its seeds), what they all did together, and which
+/// steps each fault struck.
+fn coverage_report(verdicts: &[Verdict], coverages: &BTreeMap<usize, Coverage>) -> String {
+    let mut charts: BTreeMap<PathBuf, Vec<(&Verdict, Coverage)>> = BTreeMap::new();
+    for (i, v) in verdicts.iter().enumerate() {
+        let Some(sc) = &v.scenario else { continue };
+        let c = coverages.get(&i).cloned().unwrap_or_default();
+        let chart = std::fs::canonicalize(&sc.chart_path).unwrap_or_else(|_| sc.chart_path.clone());
+        charts.entry(chart).or_default().push((v, c));
+    }
+    let mut s = String::new();
+    for (chart, scenarios) in &charts {
+        let program = &scenarios[0].0.scenario.as_ref().expect("loaded").program;
+        s.push_str(&format!("coverage of chart `{}` ({}):\n", program.name, chart.display()));
+        let mut total = Coverage::default();
+        for (v, c) in scenarios {
+            let name = &v.scenario.as_ref().expect("loaded").name;
+            s.push_str(&format!("  {name}: {}\n", c.summary(program)));
+            total.add(c);
+        }
+        s.push_str(&format!("  all {} scenario(s): {}\n", scenarios.len(), total.summary(program)));
+        for (v, c) in scenarios {
+            let name = &v.scenario.as_ref().expect("loaded").name;
+            let mut by_fault: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
+            for (fault, step) in &c.fault_hits {
+                by_fault.entry(fault).or_default().push(step);
+            }
+            for (fault, steps) in by_fault {
+                s.push_str(&format!("  fault `{fault}` ({name}) struck: {}\n", steps.join(", ")));
+            }
+        }
+    }
+    s
 }

@@ -52,7 +52,8 @@ fn the_example_cell_passes_with_a_robot_killed_and_an_inspection_failing_twice()
     let out = tempfile::tempdir().expect("tmp");
     let (status, stdout, _) = baton_test(&repo("examples"), &["cell.test.toml"], out.path());
     assert!(status.status.success(), "{stdout}");
-    assert!(stdout.starts_with("PASS cell (cell.test.toml): 8 expectation(s), seed 1"), "{stdout}");
+    assert!(stdout.starts_with("running 1 run(s) of 1 scenario(s)"), "{stdout}");
+    assert!(stdout.contains("\nPASS cell (cell.test.toml): 8 expectation(s), seed 1"), "{stdout}");
     assert!(stdout.contains("faster)"), "{stdout}");
 }
 
@@ -256,4 +257,70 @@ fn the_published_schema_accepts_the_scenarios_and_refuses_unknown_keys() {
     assert!(said.trim().ends_with(" True"), "{said}");
     let checked: usize = said.split_whitespace().next().and_then(|n| n.parse().ok()).unwrap_or(0);
     assert!(checked >= 17, "{said}");
+}
+
+#[test]
+fn coverage_says_what_each_scenario_exercised_and_what_faults_struck() {
+    let dir = repo("tests/baton_test");
+    let out = tempfile::tempdir().expect("tmp");
+    let (o, stdout, _) =
+        baton_test(&dir, &["pass/crash.test.toml", "pass/skill_fault.test.toml", "--coverage", "-q"], out.path());
+    assert!(o.status.success(), "{stdout}");
+    let line = |start: &str| stdout.lines().find(|l| l.trim_start().starts_with(start)).unwrap_or_default().to_string();
+    assert_eq!(
+        line("crash:"),
+        "  crash: steps 6/7, transitions 4/5, branches 1/2; never active: Broken; never fired: A->Broken"
+    );
+    assert_eq!(
+        line("skill_fault:"),
+        "  skill_fault: steps 5/7, transitions 3/5, branches 1/2; never active: AWait, Done; never fired: A->AWait, (AWait,BWait)->Done"
+    );
+    // Together they exercise the whole chart.
+    assert_eq!(line("all 2 scenario(s):"), "  all 2 scenario(s): steps 7/7, transitions 5/5, branches 2/2");
+    assert_eq!(
+        line("fault `crash"),
+        "  fault `crash the coordinator, back after 500ms` (crash) struck: A on r1, B on r2"
+    );
+}
+
+#[test]
+fn a_time_limit_or_an_interrupt_stops_the_runs_and_the_junit_report_is_still_written() {
+    let dir = repo("tests/baton_test");
+    let out = tempfile::tempdir().expect("tmp");
+    let report = out.path().join("limit.xml");
+    let report_arg = report.to_str().expect("utf-8");
+    let many = ["seeds", "pass", "--seeds", "100000000", "--junit", report_arg];
+    let (o, stdout, _) = baton_test(&dir, &[&many[..], &["--timeout", "500ms", "-q"]].concat(), out.path());
+    assert_eq!(o.status.code(), Some(2), "{stdout}");
+    assert!(stdout.contains("stopped by the time limit of 500ms: runs not made are not counted"), "{stdout}");
+    let xml = std::fs::read_to_string(&report).expect("report written");
+    let doc = roxmltree::Document::parse(&xml).expect("well-formed XML");
+    assert_eq!(doc.root_element().attribute("name"), Some("baton test (interrupted: the time limit of 500ms)"));
+    // Every scenario had its first seeds before the limit: each has a suite of its own.
+    assert_eq!(doc.root_element().children().filter(|n| n.has_tag_name("testsuite")).count(), 7);
+    // An interrupt, once the runs are under way.
+    let report = out.path().join("interrupt.xml");
+    let mut child = Command::new(bin("baton"))
+        .arg("test")
+        .args(["seeds", "--seeds", "100000000", "--out"])
+        .arg(out.path())
+        .arg("--junit")
+        .arg(&report)
+        .current_dir(&dir)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("start baton test");
+    let mut stdout = std::io::BufReader::new(child.stdout.take().expect("stdout"));
+    let mut first = String::new();
+    std::io::BufRead::read_line(&mut stdout, &mut first).expect("read");
+    assert!(first.starts_with("running 100000000 run(s) of 1 scenario(s)"), "{first}");
+    let killed = Command::new("kill").args(["-INT", &child.id().to_string()]).status().expect("kill");
+    assert!(killed.success());
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stdout, &mut rest).expect("read");
+    let status = child.wait().expect("wait");
+    assert_eq!(status.code(), Some(130), "{rest}");
+    assert!(rest.contains("stopped by an interrupt"), "{rest}");
+    let xml = std::fs::read_to_string(&report).expect("report written");
+    assert!(xml.contains("<testsuites name=\"baton test (interrupted: an interrupt)\""), "{xml}");
 }

@@ -6,6 +6,7 @@
 //! give the same run, so a failure found among many seeds is replayed by its seed alone.
 
 use std::collections::{BTreeMap, HashMap};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::cond::View;
 use super::scenario::{chart_value, show_ms, Behaviour, ExpectKind, FaultKind, NetFaults, RunState, Scenario, Trigger};
@@ -182,6 +183,12 @@ fn values_equal(actual: &Value, expected: &Value) -> bool {
 
 /// Runs `sc` with `seed` and judges it.
 pub fn run(sc: &Scenario, seed: u64) -> Outcome {
+    run_until(sc, seed, &AtomicBool::new(false))
+}
+
+/// Runs `sc` with `seed` and judges it, unless `stop` is set meanwhile (an interrupt, a time limit): the run
+/// then ends where it is, with an error that says so.
+pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
     let agents: Vec<SimAgentSpec> = sc
         .agents
         .iter()
@@ -231,8 +238,13 @@ pub fn run(sc: &Scenario, seed: u64) -> Outcome {
         v.sort();
         v
     };
+    let mut stopped = false;
     let ended = loop {
         if sim.now_ms > sc.until_ms {
+            break None;
+        }
+        if stop.load(Ordering::Relaxed) {
+            stopped = true;
             break None;
         }
         let t = sim.now_ms;
@@ -334,6 +346,9 @@ pub fn run(sc: &Scenario, seed: u64) -> Outcome {
     };
     let chart_ms = sim.now_ms.min(sc.until_ms);
     let mut errors = sim.errors.clone();
+    if stopped {
+        errors.push(format!("stopped at chart time {}, before the run ended", show_ms(sim.now_ms)));
+    }
     errors.extend(sim.violations.iter().map(|v| format!("the runtime broke its promise: {v}")));
     let trace = sim.trace.clone();
     struck.sort();
