@@ -83,8 +83,9 @@ fn type_element(name: &str) -> String {
     }
 }
 
-/// Escapes text for an attribute value or element content.
-fn esc(s: &str) -> String {
+/// Escapes text for an attribute value or element content. XML 1.0 has no place for control characters other
+/// than tab and line ends: they are written as `\u{..}`, visibly, rather than making the file unreadable.
+pub fn esc(s: &str) -> String {
     let mut out = String::with_capacity(s.len());
     for c in s.chars() {
         match c {
@@ -93,6 +94,8 @@ fn esc(s: &str) -> String {
             '>' => out.push_str("&gt;"),
             '"' => out.push_str("&quot;"),
             '\'' => out.push_str("&apos;"),
+            '\t' | '\n' | '\r' => out.push(c),
+            c if (c as u32) < 0x20 => out.push_str(&format!("\\u{{{:x}}}", c as u32)),
             c => out.push(c),
         }
     }

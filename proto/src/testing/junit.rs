@@ -2,6 +2,8 @@
 //! `line` of the expectation), a failure's message and the run's timeline in `system-out`. Written in the
 //! shape Jenkins, GitLab and GitHub's test reporters read (Ant's JUnit schema, with `file` and `line`).
 
+use crate::back::plcopen::esc as escape;
+
 /// One scenario file's verdicts.
 pub struct Suite {
     pub name: String,
@@ -17,24 +19,6 @@ pub struct Case {
     pub name: String,
     pub line: usize,
     pub failure: Option<String>,
-}
-
-fn escape(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&apos;"),
-            // XML 1.0 has no place for other control characters.
-            '\t' | '\n' | '\r' => out.push(c),
-            c if (c as u32) < 0x20 => out.push_str(&format!("\\u{{{:x}}}", c as u32)),
-            c => out.push(c),
-        }
-    }
-    out
 }
 
 /// The whole report. `interrupted` names what stopped the run early (an interrupt, a time limit): the suites
