@@ -20,6 +20,7 @@ pub mod io;
 pub mod opcua;
 pub mod ros2;
 pub mod shell;
+pub mod simulate;
 pub mod skill;
 
 pub use shell::{run, AgentConfig};

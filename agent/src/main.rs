@@ -42,6 +42,13 @@ struct Args {
     /// bridge's keys (the ROS name alone), not rmw_zenoh's. The ROS domain is then the bridge's own setting.
     #[arg(long)]
     ros_bridge: bool,
+    /// Simulate the skills as this `baton test` scenario says (durations, outcomes, hangs, written values), in
+    /// real time: every skill the scenario's chart binds is simulated, none reaches a device.
+    #[arg(long, value_name = "SCENARIO")]
+    simulate: Option<std::path::PathBuf>,
+    /// With --simulate: the seed that draws durations within their ranges (default: the scenario's).
+    #[arg(long, value_name = "SEED", requires = "simulate")]
+    seed: Option<u64>,
     /// The ROS 2 distribution of the robots: jazzy, kilted (the same type hashes) or humble (none).
     #[arg(long, default_value = "jazzy", value_name = "DISTRO")]
     ros_distro: String,
@@ -88,7 +95,25 @@ fn main() -> ExitCode {
         pki_dir: args.opcua_pki.unwrap_or_else(default_pki_dir),
         agent: config.name.clone(),
     });
-    let skills = Skills::builtin().with_ros2(ros2).with_opcua(opcua);
+    let skills = match &args.simulate {
+        Some(path) => match baton_proto::testing::scenario::load(path) {
+            Ok(sc) => {
+                let seed = args.seed.unwrap_or(sc.seed);
+                baton_agent::simulate::Simulated::new(sc, seed).skills()
+            }
+            Err(baton_proto::testing::scenario::LoadError::Malformed(errors)) => {
+                for e in errors {
+                    eprintln!("{}:{}:{}: error: {}", path.display(), e.line, e.col, e.message);
+                }
+                return ExitCode::from(2);
+            }
+            Err(baton_proto::testing::scenario::LoadError::CannotRun(why)) => {
+                eprintln!("error: {why}");
+                return ExitCode::from(2);
+            }
+        },
+        None => Skills::builtin().with_ros2(ros2).with_opcua(opcua),
+    };
     let skills = if args.allow_shell { skills.with_shell() } else { skills };
     let runtime = match tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build() {
         Ok(rt) => rt,

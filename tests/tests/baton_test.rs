@@ -324,3 +324,29 @@ fn a_time_limit_or_an_interrupt_stops_the_runs_and_the_junit_report_is_still_wri
     let xml = std::fs::read_to_string(&report).expect("report written");
     assert!(xml.contains("<testsuites name=\"baton test (interrupted: an interrupt)\""), "{xml}");
 }
+
+/// `baton-agent --simulate SCENARIO`: real agent processes on the real network run the skills as the scenario
+/// says — the first step towards `baton test --cluster`.
+#[tokio::test(flavor = "multi_thread")]
+async fn agents_started_with_simulate_run_the_scenarios_skills_over_the_real_network() {
+    let mut cluster = baton_tests::cluster::Cluster::with_router().await;
+    let scenario_path = repo("examples/cell.test.toml");
+    let scenario_arg = scenario_path.to_str().expect("utf-8");
+    cluster.agent("robot1", &[], &["--simulate", scenario_arg]);
+    cluster.agent("robot2", &[], &["--simulate", scenario_arg]);
+    cluster.agent("assembler1", &["assembler"], &["--simulate", scenario_arg]);
+    let coordinator = cluster.coordinator_joining(&repo("examples/cell.st"), &[]);
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    // The scenario's inspection faults twice, then passes; its assembly takes a second.
+    assert_eq!(count(&trace, "skill_fault", "InspectPart"), 2, "{trace:#?}");
+    let at = |event: &str, name: &str| {
+        trace.iter().filter(|r| r.event == event && r.name == name).map(|r| r.t_ms).collect::<Vec<u64>>()
+    };
+    let (on, done) = (at("action_on", "AssemblePart"), at("skill_done", "AssemblePart"));
+    assert_eq!((on.len(), done.len()), (3, 3), "{trace:#?}");
+    // (Agent events are placed on the coordinator's clock from their offsets: a cycle either way, at most.)
+    assert!(on.iter().zip(&done).all(|(a, b)| b - a >= 1000 - 2 * 10 && b - a < 1500), "{on:?} {done:?}");
+    let var = |name: &str| summary["vars"][name].as_str().unwrap_or_default().to_string();
+    assert_eq!((var("done"), var("reworks")), ("3".to_string(), "2".to_string()));
+}

@@ -130,8 +130,9 @@ fn strike(sim: &mut SimCluster, kind: &FaultKind, t: u64) {
     }
 }
 
-/// What the simulated skills do: the scenario's behaviour for their action, else the `motion` parameters.
-fn skill_model(sc: &Scenario) -> crate::dist::simnet::SkillModel {
+/// What the simulated skills do: the scenario's behaviour for their action, else the `motion` parameters. The
+/// simulated cell uses it, and so does `baton-agent --simulate`, in real time.
+pub fn skill_model(sc: &Scenario) -> crate::dist::simnet::SkillModel {
     let behaviours: BTreeMap<String, Behaviour> =
         sc.behaviours.iter().map(|(i, b)| (sc.program.actions[*i].name.clone(), b.clone())).collect();
     let provides: HashMap<String, Option<std::collections::BTreeSet<String>>> =
