@@ -52,13 +52,7 @@ impl Ros2 {
         };
         // A bridge announces endpoints, not nodes.
         let token = match self.via {
-            Via::RmwZenoh => Some(
-                session
-                    .liveliness()
-                    .declare_token(id.token())
-                    .await
-                    .map_err(|e| format!("cannot announce the ROS 2 node: {e}"))?,
-            ),
+            Via::RmwZenoh => Some(announce(session, id.token(), "the ROS 2 node").await?),
             Via::Bridge => None,
         };
         let node = Arc::new(Node {
@@ -115,6 +109,11 @@ pub struct Endpoint {
     _token: Option<LivelinessToken>,
 }
 
+/// Declares a liveliness token; `what` says what it announces, for the error.
+async fn announce(session: &Session, key: String, what: &str) -> Result<LivelinessToken, String> {
+    session.liveliness().declare_token(key).await.map_err(|e| format!("cannot announce {what}: {e}"))
+}
+
 /// Whether `name` is one of an action's services or topics (`<action>/_action/send_goal`…), which a bridge
 /// announces with the action as a whole.
 fn is_action_part(name: &str) -> bool {
@@ -151,13 +150,7 @@ impl Node {
             Via::Bridge => Some(keys::bridge_token(&self.id.zid, kind, name, &keys::ros_type(&wire.dds_name))),
         };
         let token = match key {
-            Some(key) => Some(
-                self.session
-                    .liveliness()
-                    .declare_token(key)
-                    .await
-                    .map_err(|e| format!("cannot announce the ROS 2 endpoint for {name}: {e}"))?,
-            ),
+            Some(key) => Some(announce(&self.session, key, &format!("the ROS 2 endpoint for {name}")).await?),
             None => None,
         };
         // A GID unique to this endpoint: the session's id with the entity's number.
@@ -213,11 +206,10 @@ impl Node {
                 continue;
             }
             match keys::announced_type(self.via, sample.key_expr().as_str()) {
-                // Through a bridge the key holds no type: the client's own is the one to use.
-                Some(t) if keys::fits(self.via, &t, wire, any_hash) && self.via == Via::Bridge => {
-                    return Ok(wire.clone())
+                // Through a bridge the token holds no hash: the client's own type is the one to use.
+                Some(t) if keys::fits(self.via, &t, wire, any_hash) => {
+                    return Ok(if self.via == Via::Bridge { wire.clone() } else { t })
                 }
-                Some(t) if keys::fits(self.via, &t, wire, any_hash) => return Ok(t),
                 Some(t) => other = Some(t),
                 None => {}
             }
@@ -259,13 +251,7 @@ impl Node {
             return Ok(None);
         }
         let key = keys::bridge_token(&self.id.zid, Kind::ActionClient, name, &action.name);
-        let token = self
-            .session
-            .liveliness()
-            .declare_token(key)
-            .await
-            .map_err(|e| format!("cannot announce the ROS 2 action client for {name}: {e}"))?;
-        Ok(Some(token))
+        Ok(Some(announce(&self.session, key, &format!("the ROS 2 action client for {name}")).await?))
     }
 
     /// Subscribes to `topic` as rmw_zenoh does: the data key of its type, and the subscription's token.

@@ -77,17 +77,16 @@ pub fn data(via: Via, domain: u32, name: &str, wire: &WireType) -> String {
     }
 }
 
-/// A ROS type's name from its DDS name: `std_msgs::msg::dds_::Bool_` is `std_msgs/msg/Bool`.
+/// A ROS type's name from its DDS name: `std_msgs::msg::dds_::Bool_` is `std_msgs/msg/Bool` (as rmw_zenoh
+/// demangles it).
 pub fn ros_type(dds_name: &str) -> String {
-    dds_name.strip_suffix('_').unwrap_or(dds_name).replace("::dds_::", "/").replace("::", "/")
+    hiroz_schema::type_name::ros_from_dds_strict(dds_name)
 }
 
-/// A DDS type's name from its ROS name: `std_msgs/msg/Bool` is `std_msgs::msg::dds_::Bool_`.
+/// A DDS type's name from its ROS name: `std_msgs/msg/Bool` is `std_msgs::msg::dds_::Bool_`; a name that is
+/// not `pkg/kind/Name` stays as it is.
 pub fn dds_type(ros_name: &str) -> String {
-    match ros_name.rsplit_once('/') {
-        Some((pkg_kind, name)) => format!("{}::dds_::{name}_", pkg_kind.replace('/', "::")),
-        None => ros_name.to_string(),
-    }
+    hiroz_schema::type_name::dds_from_canonical(ros_name).unwrap_or_else(|| ros_name.to_string())
 }
 
 /// A name or a type in one chunk of a bridge's token.
