@@ -5,7 +5,7 @@
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use baton_proto::dist::simnet::{SimSkill, SkillModel, SkillStart};
+use baton_proto::dist::simnet::{Rng, SimSkill, SkillModel, SkillStart, NETWORK_MIX};
 use baton_proto::testing::scenario::Scenario;
 
 use crate::skill::{Skill, SkillCall, SkillFuture, Skills};
@@ -13,16 +13,13 @@ use crate::skill::{Skill, SkillCall, SkillFuture, Skills};
 /// Every skill of the scenario's chart, simulated.
 pub struct Simulated {
     scenario: Arc<Scenario>,
-    model: Mutex<(SkillModel, u64)>,
+    model: Mutex<(SkillModel, Rng)>,
 }
 
 impl Simulated {
     pub fn new(scenario: Scenario, seed: u64) -> Simulated {
         let model = baton_proto::testing::run::skill_model(&scenario);
-        Simulated {
-            scenario: Arc::new(scenario),
-            model: Mutex::new((model, seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)),
-        }
+        Simulated { scenario: Arc::new(scenario), model: Mutex::new((model, Rng::new(seed, NETWORK_MIX))) }
     }
 
     /// The built-in skills, each name the chart's actions bind replaced by this simulation.
@@ -48,11 +45,7 @@ impl Simulated {
         };
         let mut guard = self.model.lock().expect("the simulation's lock");
         let (model, rng) = &mut *guard;
-        // xorshift64*, from the seed: the same draws as a simulated cell would make, in the order skills start.
-        *rng ^= *rng >> 12;
-        *rng ^= *rng << 25;
-        *rng ^= *rng >> 27;
-        let random = rng.wrapping_mul(0x2545_F491_4F6C_DD1D);
+        let random = rng.next_u64();
         model(SkillStart { agent: &call.agent, action: &call.action, binding, random })
     }
 }

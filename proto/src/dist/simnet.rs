@@ -74,6 +74,48 @@ pub enum SimSkill {
     Hang,
 }
 
+/// xorshift64*: the simulation's randomness, deterministic from a seed. `mix` keeps the streams of one seed
+/// apart (the network's, the faults' timing, an agent's skills).
+#[derive(Clone, Debug)]
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64, mix: u64) -> Rng {
+        Rng(seed.wrapping_mul(mix) | 1)
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+}
+
+/// The stream of the simulated network and skills.
+pub const NETWORK_MIX: u64 = 0x9E37_79B9_7F4A_7C15;
+
+/// What the `motion` skill does with `random` drawn for it: it ends after its `ms` parameter, failing with
+/// probability `fault_rate` (the part of `random` that durations do not use decides).
+pub fn motion(binding: &SkillBinding, random: u64) -> SimSkill {
+    SimSkill::Finish { after_ms: motion_ms(binding), result: motion_result(binding, random), writes: Vec::new() }
+}
+
+/// How long `motion` takes: its `ms` parameter.
+pub fn motion_ms(binding: &SkillBinding) -> u64 {
+    binding.params.get("ms").and_then(Param::as_f64).unwrap_or(0.0).max(0.0) as u64
+}
+
+/// The outcome `motion` draws: a fault with probability `fault_rate`.
+pub fn motion_result(binding: &SkillBinding, random: u64) -> Result<(), String> {
+    let rate = binding.params.get("fault_rate").and_then(Param::as_f64).unwrap_or(0.0);
+    if (((random >> 32) % 1_000_000) as f64 / 1_000_000.0) < rate {
+        Err("simulated fault".to_string())
+    } else {
+        Ok(())
+    }
+}
+
 /// Decides what each skill that starts does.
 pub type SkillModel = Box<dyn FnMut(SkillStart<'_>) -> SimSkill + Send>;
 
@@ -154,7 +196,7 @@ pub struct SimCluster {
     inputs: Vec<(u64, String, serde_json::Value)>,
     agents: Vec<SimAgent>,
     net: Vec<(u64, Packet)>,
-    rng: u64,
+    rng: Rng,
     faults: Faults,
     links: Vec<LinkFault>,
     skill_model: Option<SkillModel>,
@@ -277,7 +319,7 @@ impl SimCluster {
             inputs: Vec::new(),
             agents: sim_agents,
             net: Vec::new(),
-            rng: seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1,
+            rng: Rng::new(seed, NETWORK_MIX),
             faults,
             links: Vec::new(),
             skill_model: None,
@@ -294,11 +336,7 @@ impl SimCluster {
     }
 
     fn random(&mut self) -> u64 {
-        // xorshift64*: deterministic from the seed.
-        self.rng ^= self.rng >> 12;
-        self.rng ^= self.rng << 25;
-        self.rng ^= self.rng >> 27;
-        self.rng.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        self.rng.next_u64()
     }
 
     fn chance(&mut self, p: f64) -> bool {
@@ -812,12 +850,7 @@ impl SimCluster {
                         Some(model) => {
                             model(SkillStart { agent: &self.agents[i].name, action: &name, binding: &binding, random })
                         }
-                        None => {
-                            let ms = binding.params.get("ms").and_then(Param::as_f64).unwrap_or(0.0) as u64;
-                            let rate = binding.params.get("fault_rate").and_then(Param::as_f64).unwrap_or(0.0);
-                            let result = if self.chance(rate) { Err("simulated fault".to_string()) } else { Ok(()) };
-                            SimSkill::Finish { after_ms: ms, result, writes: Vec::new() }
-                        }
+                        None => motion(&binding, random),
                     };
                     let entry = match skill {
                         SimSkill::Finish { after_ms, result, writes } => Some((self.now_ms + after_ms, result, writes)),

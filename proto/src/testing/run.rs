@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::cond::View;
 use super::scenario::{chart_value, show_ms, Behaviour, ExpectKind, FaultKind, NetFaults, RunState, Scenario, Trigger};
-use crate::dist::simnet::{Fate, Faults, SimAgentSpec, SimCluster, SimSkill, SkillStart};
+use crate::dist::simnet::{self, Fate, Faults, Rng, SimAgentSpec, SimCluster, SimSkill, SkillStart};
 use crate::exec::program::VarId;
 use crate::exec::sim::TraceRecord;
 use crate::exec::types::Value;
@@ -97,18 +97,6 @@ impl View for Now<'_> {
     }
 }
 
-/// xorshift64*, for what the scenario's own randomness decides (fault jitter), apart from the simulation's.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-}
-
 fn net(n: NetFaults) -> Faults {
     Faults { duplicate: n.duplicate, reorder: n.reorder, delay_ms_max: n.delay_ms, loss: n.drop }
 }
@@ -152,26 +140,22 @@ pub fn skill_model(sc: &Scenario) -> crate::dist::simnet::SkillModel {
         let n = runs.entry(s.action.to_string()).or_insert(0);
         let nth = *n;
         *n += 1;
-        let param = |k: &str| s.binding.params.get(k).and_then(crate::dist::layout::Param::as_f64);
-        let b = behaviours.get(s.action);
-        if b.is_some_and(|b| b.hang) {
+        // What the scenario does not say, the `motion` parameters decide, as in `baton run`'s demo.
+        let Some(b) = behaviours.get(s.action) else { return simnet::motion(s.binding, s.random) };
+        if b.hang {
             return SimSkill::Hang;
         }
-        let after_ms = match b.and_then(|b| b.duration) {
+        let after_ms = match b.duration {
             Some((lo, hi)) => lo + s.random % (hi - lo + 1),
-            None => param("ms").unwrap_or(0.0).max(0.0) as u64,
+            None => simnet::motion_ms(s.binding),
         };
-        let done = match b.map(|b| &b.outcomes) {
-            Some(o) if !o.is_empty() => o[nth.min(o.len() - 1)],
-            _ => {
-                let rate = param("fault_rate").unwrap_or(0.0);
-                // Another part of the number than the duration took.
-                ((s.random >> 32) % 1_000_000) as f64 / 1_000_000.0 >= rate
-            }
+        let message = || b.message.clone().unwrap_or_else(|| "simulated fault".to_string());
+        let result = match b.outcomes.as_slice() {
+            [] => simnet::motion_result(s.binding, s.random).map_err(|_| message()),
+            o if o[nth.min(o.len() - 1)] => Ok(()),
+            _ => Err(message()),
         };
-        let message = b.and_then(|b| b.message.clone()).unwrap_or_else(|| "simulated fault".to_string());
-        let writes = b.map(|b| b.writes.clone()).unwrap_or_default();
-        SimSkill::Finish { after_ms, result: if done { Ok(()) } else { Err(message) }, writes }
+        SimSkill::Finish { after_ms, result, writes: b.writes.clone() }
     })
 }
 
@@ -206,12 +190,13 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
     );
     sim.set_loss_policy(sc.loss_policy);
     sim.set_skill_model(skill_model(sc));
-    let mut rng = Rng(seed.wrapping_mul(0xD1B5_4A32_D192_ED03) | 1);
+    // The faults' timing draws from a stream of its own.
+    let mut rng = Rng::new(seed, 0xD1B5_4A32_D192_ED03);
     let mut struck: Vec<(u64, String)> = Vec::new();
     // Pending `when` faults and inputs: (index, fired).
     let mut fault_fired = vec![false; sc.faults.len()];
     for (i, f) in sc.faults.iter().enumerate() {
-        let jitter = if f.jitter_ms > 0 { rng.next() % (f.jitter_ms + 1) } else { 0 };
+        let jitter = if f.jitter_ms > 0 { rng.next_u64() % (f.jitter_ms + 1) } else { 0 };
         if let Trigger::At(t) = f.trigger {
             strike(&mut sim, &f.kind, t + jitter);
             struck.push((t + jitter, f.describe()));
@@ -315,7 +300,7 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
             for (i, after) in due {
                 fault_fired[i] = true;
                 let f = &sc.faults[i];
-                let jitter = if f.jitter_ms > 0 { rng.next() % (f.jitter_ms + 1) } else { 0 };
+                let jitter = if f.jitter_ms > 0 { rng.next_u64() % (f.jitter_ms + 1) } else { 0 };
                 let at = sim.now_ms + after + jitter;
                 strike(&mut sim, &f.kind, at);
                 struck.push((at, f.describe()));
