@@ -350,14 +350,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
         let file = v.path.display().to_string();
         if let Some((c, text)) = &v.problem {
             code = code.max(*c);
-            suites.push(junit::Suite {
-                name: file.clone(),
-                file,
-                time_s: 0.0,
-                error: Some(text.clone()),
-                cases: Vec::new(),
-                system_out: String::new(),
-            });
+            suites.push(junit::Suite::error(&file, &file, 0.0, text));
             continue;
         }
         let sc = v.scenario.clone().expect("loaded");
@@ -366,14 +359,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
             code = code.max(EXIT_CANNOT_RUN);
             let text = format!("not run: stopped by {why}");
             println!("ERROR {} ({file}): {text}", sc.name);
-            suites.push(junit::Suite {
-                name: sc.name.clone(),
-                file,
-                time_s: 0.0,
-                error: Some(text),
-                cases: Vec::new(),
-                system_out: String::new(),
-            });
+            suites.push(junit::Suite::error(&sc.name, &file, 0.0, &text));
             continue;
         }
         runs.sort_by_key(|(o, _)| o.seed);
@@ -382,14 +368,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
         if let Some(why) = panics.get(&i) {
             code = code.max(EXIT_CANNOT_RUN);
             println!("ERROR {} ({file}): could not run: {why}", sc.name);
-            suites.push(junit::Suite {
-                name: sc.name.clone(),
-                file,
-                time_s: v.wall.as_secs_f64(),
-                error: Some(why.clone()),
-                cases: Vec::new(),
-                system_out: String::new(),
-            });
+            suites.push(junit::Suite::error(&sc.name, &file, v.wall.as_secs_f64(), why));
             continue;
         }
         let failing: Vec<&Outcome> = v.outcomes.iter().filter(|o| !o.passed()).collect();

@@ -182,7 +182,8 @@ impl Cond {
     }
 }
 
-fn no_step(program: &Program, name: &str) -> String {
+/// The error for a step the chart lacks, naming those it has.
+pub(super) fn no_step(program: &Program, name: &str) -> String {
     let all: Vec<&str> = program.steps.iter().map(|s| s.name.as_str()).collect();
     format!("the chart has no step `{name}` (it has: {})", all.join(", "))
 }

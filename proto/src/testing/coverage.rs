@@ -2,9 +2,9 @@
 //! each selection divergence (a step with several ways out), and which steps each fault struck — per scenario
 //! and over all the scenarios of one chart.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeSet, HashMap};
 
-use super::run::Outcome;
+use super::run::{follow_steps, Outcome};
 use crate::exec::program::{Program, StepId};
 
 #[derive(Clone, Debug, Default)]
@@ -29,22 +29,15 @@ impl Coverage {
         }
         for (t, fault) in &o.faults {
             // The steps active just before the fault struck.
-            let mut active: Vec<(String, Option<String>)> = Vec::new();
+            let mut active: HashMap<usize, Option<String>> = HashMap::new();
             for r in o.trace.iter().take_while(|r| r.t_ms < *t) {
-                match r.event.as_str() {
-                    "activate" => active.push((r.name.clone(), r.agent.clone())),
-                    "deactivate" => active.retain(|(n, _)| n != &r.name),
-                    "dispatch" => {
-                        if let Some(a) = active.iter_mut().find(|(n, _)| n == &r.name) {
-                            a.1 = r.agent.clone();
-                        }
-                    }
-                    _ => {}
+                if let Some(i) = step(&r.name) {
+                    follow_steps(&mut active, i, r);
                 }
             }
-            for (name, agent) in active {
+            for (i, agent) in active {
                 let at = agent.map_or(String::new(), |a| format!(" on {a}"));
-                c.fault_hits.insert((fault.clone(), format!("{name}{at}")));
+                c.fault_hits.insert((fault.clone(), format!("{}{at}", program.steps[i].name)));
             }
         }
         c

@@ -15,6 +15,20 @@ pub struct Suite {
     pub system_out: String,
 }
 
+impl Suite {
+    /// A file that could not run (or was malformed): one error for the whole suite.
+    pub fn error(name: &str, file: &str, time_s: f64, why: &str) -> Suite {
+        Suite {
+            name: name.to_string(),
+            file: file.to_string(),
+            time_s,
+            error: Some(why.to_string()),
+            cases: Vec::new(),
+            system_out: String::new(),
+        }
+    }
+}
+
 pub struct Case {
     pub name: String,
     pub line: usize,

@@ -81,6 +81,24 @@ pub fn describe_record(r: &TraceRecord) -> String {
     line
 }
 
+/// Keeps `active` (step → the agent it runs on, `None` on the coordinator) up to date with a trace record of
+/// step `step`.
+pub fn follow_steps(active: &mut HashMap<usize, Option<String>>, step: usize, r: &TraceRecord) {
+    match r.event.as_str() {
+        "activate" => {
+            active.insert(step, r.agent.clone());
+        }
+        "deactivate" => {
+            active.remove(&step);
+        }
+        // A step waiting for an agent is active already; it now runs there.
+        "dispatch" if active.contains_key(&step) => {
+            active.insert(step, r.agent.clone());
+        }
+        _ => {}
+    }
+}
+
 /// The run as conditions see it: the steps active anywhere, and the coordinator's variables.
 struct Now<'a> {
     sim: &'a SimCluster,
@@ -237,19 +255,8 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
         let over = sim.tick();
         // The steps active now, from the records of the run (an agent's steps come with its reports).
         for r in &sim.trace[seen.min(sim.trace.len())..] {
-            let Some(&i) = steps.get(&r.name) else { continue };
-            match r.event.as_str() {
-                "activate" => {
-                    active.insert(i, r.agent.clone());
-                }
-                "deactivate" => {
-                    active.remove(&i);
-                }
-                // A step waiting for an agent is active already; it now runs there.
-                "dispatch" if active.contains_key(&i) => {
-                    active.insert(i, r.agent.clone());
-                }
-                _ => {}
+            if let Some(&i) = steps.get(&r.name) {
+                follow_steps(&mut active, i, r);
             }
         }
         seen = sim.trace.len();

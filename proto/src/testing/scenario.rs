@@ -406,6 +406,22 @@ impl Ctx<'_> {
         }
     }
 
+    /// The faults of `[network]`, or of a `link` fault: the same four keys.
+    fn net_faults(
+        &mut self,
+        delay: &Option<Spanned<String>>,
+        drop: &Option<Spanned<f64>>,
+        duplicate: &Option<Spanned<f64>>,
+        reorder: Option<bool>,
+    ) -> NetFaults {
+        NetFaults {
+            delay_ms: self.opt_duration(delay).unwrap_or(0),
+            drop: self.probability(drop),
+            duplicate: self.probability(duplicate),
+            reorder: reorder.unwrap_or(false),
+        }
+    }
+
     fn probability(&mut self, p: &Option<Spanned<f64>>) -> f64 {
         match p {
             Some(p) if !(0.0..=1.0).contains(p.get_ref()) => {
@@ -574,12 +590,8 @@ pub fn parse(path: &Path, text: &str) -> Result<Scenario, LoadError> {
         None => crate::dist::simnet::CYCLE_MS,
     };
     let journal = raw.run.journal.unwrap_or(true);
-    let network = NetFaults {
-        delay_ms: cx.opt_duration(&raw.network.delay).unwrap_or(0),
-        drop: cx.probability(&raw.network.drop),
-        duplicate: cx.probability(&raw.network.duplicate),
-        reorder: raw.network.reorder.unwrap_or(false),
-    };
+    let n = &raw.network;
+    let network = cx.net_faults(&n.delay, &n.drop, &n.duplicate, n.reorder);
 
     // Agents.
     let mut agents: Vec<Agent> = Vec::new();
@@ -787,12 +799,7 @@ pub fn parse(path: &Path, text: &str) -> Result<Scenario, LoadError> {
             "cut" => FaultKind::Cut(agent, cx.opt_duration(&r.heal_after)),
             "heal" => FaultKind::Heal(agent),
             "link" => {
-                let nf = NetFaults {
-                    delay_ms: cx.opt_duration(&r.delay).unwrap_or(0),
-                    drop: cx.probability(&r.drop),
-                    duplicate: cx.probability(&r.duplicate),
-                    reorder: r.reorder.unwrap_or(false),
-                };
+                let nf = cx.net_faults(&r.delay, &r.drop, &r.duplicate, r.reorder);
                 let Some(lasting) = cx.opt_duration(&r.lasting) else {
                     cx.error(&span, "a link's faults last a while: `for = \"5s\"`");
                     continue;
@@ -820,8 +827,7 @@ pub fn parse(path: &Path, text: &str) -> Result<Scenario, LoadError> {
         match program.steps.iter().find(|s| s.name.eq_ignore_ascii_case(name)) {
             Some(s) => Some(s.name.clone()),
             None => {
-                let all: Vec<&str> = program.steps.iter().map(|s| s.name.as_str()).collect();
-                cx.error(span, format!("the chart has no step `{name}` (it has: {})", all.join(", ")));
+                cx.error(span, super::cond::no_step(&program, name));
                 None
             }
         }
