@@ -101,8 +101,8 @@ pub fn follow_steps(active: &mut HashMap<usize, Option<String>>, step: usize, r:
 
 /// The run as conditions see it: the steps active anywhere, and the coordinator's variables.
 struct Now<'a> {
-    sim: &'a SimCluster,
     active: &'a HashMap<usize, Option<String>>,
+    value: &'a dyn Fn(VarId) -> Value,
 }
 
 impl View for Now<'_> {
@@ -111,8 +111,307 @@ impl View for Now<'_> {
     }
 
     fn value(&self, var: VarId) -> Value {
-        self.sim.coordinator.core().value(var)
+        (self.value)(var)
     }
+}
+
+/// What the observer found due at a moment: `when` faults and inputs whose condition came true, each with its
+/// `after` delay (by index in the scenario).
+#[derive(Default)]
+pub struct Due {
+    pub faults: Vec<(usize, u64)>,
+    pub inputs: Vec<(usize, u64)>,
+}
+
+/// Watches a run as it goes, wherever it runs (the simulated cell, or real processes): the steps active and
+/// where, from the trace; when each `always`/`never` first broke; the values expected at a time; and which
+/// `when` triggers fired. Then judges every expectation.
+pub struct Observer<'a> {
+    sc: &'a Scenario,
+    steps: HashMap<String, usize>,
+    active: HashMap<usize, Option<String>>,
+    /// Invariants: expectation index → when first broken.
+    broken: HashMap<usize, u64>,
+    snapshots: HashMap<usize, Vec<(String, Value)>>,
+    active_at_failure: Option<(u64, ActiveSteps)>,
+    fault_fired: Vec<bool>,
+    input_fired: Vec<bool>,
+}
+
+impl<'a> Observer<'a> {
+    /// Faults and inputs at a fixed time count as fired: the runner schedules them from the start.
+    pub fn new(sc: &'a Scenario) -> Observer<'a> {
+        Observer {
+            sc,
+            steps: sc.program.steps.iter().enumerate().map(|(i, s)| (s.name.clone(), i)).collect(),
+            active: HashMap::new(),
+            broken: HashMap::new(),
+            snapshots: HashMap::new(),
+            active_at_failure: None,
+            fault_fired: sc.faults.iter().map(|f| matches!(f.trigger, Trigger::At(_))).collect(),
+            input_fired: sc.inputs.iter().map(|i| matches!(i.trigger, Trigger::At(_))).collect(),
+        }
+    }
+
+    /// Follows the steps through new trace records (an agent's steps come with its reports).
+    pub fn follow(&mut self, records: &[TraceRecord]) {
+        for r in records {
+            if let Some(&i) = self.steps.get(&r.name) {
+                follow_steps(&mut self.active, i, r);
+            }
+        }
+    }
+
+    /// Takes the values expected at a time `<= t` not taken yet, with `value` as they are now.
+    pub fn snapshot(&mut self, t: u64, value: impl Fn(&str) -> Option<Value>) {
+        for (k, e) in self.sc.expects.iter().enumerate() {
+            if let ExpectKind::Value { vars, at_ms: Some(at) } = &e.kind {
+                if *at <= t && !self.snapshots.contains_key(&k) {
+                    let vals = vars.iter().map(|(n, _)| (n.clone(), value(n).unwrap_or(Value::Bool(false)))).collect();
+                    self.snapshots.insert(k, vals);
+                }
+            }
+        }
+    }
+
+    /// The next time a value is expected at, not taken yet.
+    pub fn next_snapshot(&self) -> Option<u64> {
+        self.sc
+            .expects
+            .iter()
+            .enumerate()
+            .filter_map(|(k, e)| match &e.kind {
+                ExpectKind::Value { at_ms: Some(at), .. } if !self.snapshots.contains_key(&k) => Some(*at),
+                _ => None,
+            })
+            .min()
+    }
+
+    /// Judges the moment `t` (after everything that happened at it): invariants, and `when` triggers, each of
+    /// which fires once.
+    pub fn judge(&mut self, t: u64, value: &dyn Fn(VarId) -> Value) -> Due {
+        let view = Now { active: &self.active, value };
+        let mut due = Due::default();
+        for (k, e) in self.sc.expects.iter().enumerate() {
+            let holds = match &e.kind {
+                ExpectKind::Always(c, _) => c.holds(&view),
+                ExpectKind::Never(c, _) => !c.holds(&view),
+                _ => true,
+            };
+            if !holds && !self.broken.contains_key(&k) {
+                self.broken.insert(k, t);
+                if self.active_at_failure.is_none() {
+                    self.active_at_failure = Some((t, show_active(self.sc, &self.active)));
+                }
+            }
+        }
+        for (i, f) in self.sc.faults.iter().enumerate() {
+            if let (false, Trigger::When { cond, after_ms, .. }) = (self.fault_fired[i], &f.trigger) {
+                if cond.holds(&view) {
+                    self.fault_fired[i] = true;
+                    due.faults.push((i, *after_ms));
+                }
+            }
+        }
+        for (i, input) in self.sc.inputs.iter().enumerate() {
+            if let (false, Trigger::When { cond, after_ms, .. }) = (self.input_fired[i], &input.trigger) {
+                if cond.holds(&view) {
+                    self.input_fired[i] = true;
+                    due.inputs.push((i, *after_ms));
+                }
+            }
+        }
+        due
+    }
+
+    /// The steps active now, and where.
+    pub fn active(&self) -> ActiveSteps {
+        show_active(self.sc, &self.active)
+    }
+
+    /// Judges every expectation of a run that reached `chart_ms` in `state`, with `trace` its records and
+    /// `final_value` its variables at the end. Returns the verdicts and the first failure's moment.
+    pub fn verdicts(
+        &self,
+        trace: &[TraceRecord],
+        state: &RunState,
+        chart_ms: u64,
+        final_value: &dyn Fn(&str) -> Option<Value>,
+    ) -> (Vec<CaseResult>, Option<(u64, ActiveSteps)>) {
+        let cases = self
+            .sc
+            .expects
+            .iter()
+            .enumerate()
+            .map(|(k, e)| self.verdict(k, e, trace, state, chart_ms, final_value))
+            .collect();
+        (cases, self.active_at_failure.clone())
+    }
+
+    fn verdict(
+        &self,
+        k: usize,
+        e: &super::scenario::Expect,
+        trace: &[TraceRecord],
+        state: &RunState,
+        chart_ms: u64,
+        final_value: &dyn Fn(&str) -> Option<Value>,
+    ) -> CaseResult {
+        let sc = self.sc;
+        let mut at_ms = None;
+        let failure = match &e.kind {
+            ExpectKind::Reached { step, on, by_ms } => {
+                // Where a step ran: where it was activated, or dispatched to once an agent could take it.
+                let hits: Vec<&TraceRecord> = trace
+                    .iter()
+                    .filter(|r| {
+                        &r.name == step && (r.event == "activate" || (r.event == "dispatch" && r.agent.is_some()))
+                    })
+                    .collect();
+                let fits = |r: &&TraceRecord| {
+                    on.as_ref().is_none_or(|a| r.agent.as_ref() == Some(a)) && by_ms.is_none_or(|t| r.t_ms <= t)
+                };
+                if hits.iter().any(fits) {
+                    None
+                } else if let Some(first) = hits.first() {
+                    let mut wheres: Vec<String> = hits
+                        .iter()
+                        .map(|r| {
+                            format!("at {} on {}", show_ms(r.t_ms), r.agent.as_deref().unwrap_or("the coordinator"))
+                        })
+                        .collect();
+                    wheres.dedup();
+                    wheres.truncate(5);
+                    at_ms = Some(first.t_ms);
+                    Some(format!("expected {}; it was reached {}", e.title(), wheres.join(", ")))
+                } else {
+                    Some(format!("expected {}; it was never active", e.title()))
+                }
+            }
+            ExpectKind::Order(order) => {
+                let mut next = 0;
+                let mut last_t = 0;
+                for r in trace.iter().filter(|r| r.event == "activate") {
+                    if next < order.len() && r.name == order[next] {
+                        next += 1;
+                        last_t = r.t_ms;
+                    }
+                }
+                if next == order.len() {
+                    None
+                } else {
+                    at_ms = Some(last_t);
+                    let passed = if next == 0 { "none of them".to_string() } else { order[..next].join(", ") };
+                    Some(format!(
+                        "expected the steps in order {}; passed {passed}, then never {} (at {} or later)",
+                        order.join(" → "),
+                        order[next],
+                        show_ms(last_t)
+                    ))
+                }
+            }
+            ExpectKind::Value { vars, at_ms: when } => {
+                let mut wrong = Vec::new();
+                for (name, expected) in vars {
+                    let var = sc.program.var_by_name(name).expect("checked");
+                    let ty = &sc.program.vars[var.index()].ty;
+                    let actual = match when {
+                        Some(_) => self
+                            .snapshots
+                            .get(&k)
+                            .and_then(|s| s.iter().find(|(n, _)| n == name))
+                            .map(|(_, v)| v.clone()),
+                        None => final_value(name),
+                    };
+                    let Some(actual) = actual else {
+                        wrong.push(format!("{name}: the run ended before {}", show_ms(when.unwrap_or(0))));
+                        continue;
+                    };
+                    match chart_value(expected, ty) {
+                        Ok(exp) if values_equal(&actual, &exp) => {}
+                        Ok(exp) => wrong.push(format!("{name} = {} (expected {})", ty.show(&actual), ty.show(&exp))),
+                        Err(err) => wrong.push(format!("{name}: {err}")),
+                    }
+                }
+                at_ms = *when;
+                (!wrong.is_empty()).then(|| {
+                    let moment = when.map_or("at the end".to_string(), |t| format!("at {}", show_ms(t)));
+                    format!("{moment}: {}", wrong.join(", "))
+                })
+            }
+            ExpectKind::Always(_, text) | ExpectKind::Never(_, text) => self.broken.get(&k).map(|t| {
+                at_ms = Some(*t);
+                let was = if matches!(e.kind, ExpectKind::Always(..)) { "FALSE" } else { "TRUE" };
+                format!("`{text}` was {was} at {}", show_ms(*t))
+            }),
+            ExpectKind::EndsBy(by) => match state {
+                RunState::Finished if chart_ms <= *by => None,
+                RunState::Finished => Some(format!("the chart ended at {}, after {}", show_ms(chart_ms), show_ms(*by))),
+                RunState::Failed => Some(format!("the run failed at {}", show_ms(chart_ms))),
+                RunState::Running => Some(format!("the chart had not ended by {}", show_ms(chart_ms))),
+            },
+            ExpectKind::Alarms(expected) => {
+                let alarms: Vec<String> = trace
+                    .iter()
+                    .filter(|r| r.event == "alarm")
+                    .map(|r| r.message.clone().unwrap_or_default())
+                    .collect();
+                let missing: Vec<&String> =
+                    expected.iter().filter(|x| !alarms.iter().any(|a| a.contains(x.as_str()))).collect();
+                let extra: Vec<&String> =
+                    alarms.iter().filter(|a| !expected.iter().any(|x| a.contains(x.as_str()))).collect();
+                match (missing.is_empty(), extra.is_empty()) {
+                    (true, true) => None,
+                    _ => {
+                        let mut parts = Vec::new();
+                        if !missing.is_empty() {
+                            parts.push(format!("never raised: {}", quoted(&missing)));
+                        }
+                        if !extra.is_empty() {
+                            parts.push(format!("raised but not expected: {}", quoted(&extra)));
+                        }
+                        Some(parts.join("; "))
+                    }
+                }
+            }
+            ExpectKind::State(expected) => (expected != state).then(|| {
+                format!(
+                    "expected the run to end {}; it {}",
+                    format!("{expected:?}").to_lowercase(),
+                    match state {
+                        RunState::Finished => format!("finished at {}", show_ms(chart_ms)),
+                        RunState::Failed => format!("failed at {}", show_ms(chart_ms)),
+                        RunState::Running => format!("was still running at {}", show_ms(chart_ms)),
+                    }
+                )
+            }),
+            ExpectKind::OncePerEpoch(action) => runs_twice(trace, action).map(|(t, why)| {
+                at_ms = Some(t);
+                why
+            }),
+        };
+        CaseResult { line: e.line, title: e.title(), failure, at_ms }
+    }
+}
+
+fn show_active(sc: &Scenario, active: &HashMap<usize, Option<String>>) -> ActiveSteps {
+    let mut v: ActiveSteps = active.iter().map(|(i, a)| (sc.program.steps[*i].name.clone(), a.clone())).collect();
+    v.sort();
+    v
+}
+
+/// How late a fault with a `jitter` strikes, drawn from the faults' own stream.
+pub fn jitter(f: &super::scenario::Fault, rng: &mut Rng) -> u64 {
+    if f.jitter_ms > 0 {
+        rng.next_u64() % (f.jitter_ms + 1)
+    } else {
+        0
+    }
+}
+
+/// The stream faults' jitters draw from, for `seed`.
+pub fn fault_rng(seed: u64) -> Rng {
+    Rng::new(seed, 0xD1B5_4A32_D192_ED03)
 }
 
 fn net(n: NetFaults) -> Faults {
@@ -208,40 +507,24 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
     );
     sim.set_loss_policy(sc.loss_policy);
     sim.set_skill_model(skill_model(sc));
-    // The faults' timing draws from a stream of its own.
-    let mut rng = Rng::new(seed, 0xD1B5_4A32_D192_ED03);
+    let mut rng = fault_rng(seed);
     let mut struck: Vec<(u64, String)> = Vec::new();
-    // Pending `when` faults and inputs: (index, fired).
-    let mut fault_fired = vec![false; sc.faults.len()];
-    for (i, f) in sc.faults.iter().enumerate() {
-        let jitter = if f.jitter_ms > 0 { rng.next_u64() % (f.jitter_ms + 1) } else { 0 };
+    for f in &sc.faults {
         if let Trigger::At(t) = f.trigger {
-            strike(&mut sim, &f.kind, t + jitter);
-            struck.push((t + jitter, f.describe()));
-            fault_fired[i] = true;
+            let at = t + jitter(f, &mut rng);
+            strike(&mut sim, &f.kind, at);
+            struck.push((at, f.describe()));
         }
     }
-    let mut input_fired = vec![false; sc.inputs.len()];
-    for (i, input) in sc.inputs.iter().enumerate() {
+    for input in &sc.inputs {
         if let Trigger::At(t) = input.trigger {
             for (name, v) in &input.set {
                 sim.set_at(t, name, v.clone());
             }
-            input_fired[i] = true;
         }
     }
-    let steps: HashMap<String, usize> = sc.program.steps.iter().enumerate().map(|(i, s)| (s.name.clone(), i)).collect();
-    let mut active: HashMap<usize, Option<String>> = HashMap::new();
+    let mut obs = Observer::new(sc);
     let mut seen = 0usize;
-    // Invariants: (expectation index, first failure time).
-    let mut broken: HashMap<usize, u64> = HashMap::new();
-    let mut snapshots: HashMap<usize, Vec<(String, Value)>> = HashMap::new();
-    let mut active_at_failure: Option<(u64, ActiveSteps)> = None;
-    let show_active = |active: &HashMap<usize, Option<String>>| {
-        let mut v: ActiveSteps = active.iter().map(|(i, a)| (sc.program.steps[*i].name.clone(), a.clone())).collect();
-        v.sort();
-        v
-    };
     let mut stopped = false;
     let ended = loop {
         if sim.now_ms > sc.until_ms {
@@ -253,83 +536,27 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
         }
         let t = sim.now_ms;
         let over = sim.tick();
-        // The steps active now, from the records of the run (an agent's steps come with its reports).
-        for r in &sim.trace[seen.min(sim.trace.len())..] {
-            if let Some(&i) = steps.get(&r.name) {
-                follow_steps(&mut active, i, r);
-            }
-        }
+        obs.follow(&sim.trace[seen.min(sim.trace.len())..]);
         seen = sim.trace.len();
-        for (k, e) in sc.expects.iter().enumerate() {
-            if let ExpectKind::Value { vars, at_ms: Some(at) } = &e.kind {
-                if *at <= t && !snapshots.contains_key(&k) {
-                    let vals =
-                        vars.iter().map(|(n, _)| (n.clone(), sim.value(n).unwrap_or(Value::Bool(false)))).collect();
-                    snapshots.insert(k, vals);
-                }
-            }
-        }
+        obs.snapshot(t, |n| sim.value(n));
         // Only moments when something happened are ticked (idle time is skipped below): judge each.
-        {
-            let view = Now { sim: &sim, active: &active };
-            for (k, e) in sc.expects.iter().enumerate() {
-                let holds = match &e.kind {
-                    ExpectKind::Always(c, _) => c.holds(&view),
-                    ExpectKind::Never(c, _) => !c.holds(&view),
-                    _ => true,
-                };
-                if !holds && !broken.contains_key(&k) {
-                    broken.insert(k, t);
-                    if active_at_failure.is_none() {
-                        active_at_failure = Some((t, show_active(&active)));
-                    }
-                }
-            }
-            let mut due: Vec<(usize, u64)> = Vec::new();
-            for (i, f) in sc.faults.iter().enumerate() {
-                if let (false, Trigger::When { cond, after_ms, .. }) = (fault_fired[i], &f.trigger) {
-                    if cond.holds(&view) {
-                        due.push((i, *after_ms));
-                    }
-                }
-            }
-            let mut sets: Vec<(u64, String, serde_json::Value)> = Vec::new();
-            for (i, input) in sc.inputs.iter().enumerate() {
-                if let (false, Trigger::When { cond, after_ms, .. }) = (input_fired[i], &input.trigger) {
-                    if cond.holds(&view) {
-                        input_fired[i] = true;
-                        for (name, v) in &input.set {
-                            sets.push((sim.now_ms + after_ms, name.clone(), v.clone()));
-                        }
-                    }
-                }
-            }
-            for (i, after) in due {
-                fault_fired[i] = true;
-                let f = &sc.faults[i];
-                let jitter = if f.jitter_ms > 0 { rng.next_u64() % (f.jitter_ms + 1) } else { 0 };
-                let at = sim.now_ms + after + jitter;
-                strike(&mut sim, &f.kind, at);
-                struck.push((at, f.describe()));
-            }
-            for (at, name, v) in sets {
-                sim.set_at(at, &name, v);
+        let due = obs.judge(t, &|v| sim.coordinator.core().value(v));
+        for (i, after) in due.faults {
+            let f = &sc.faults[i];
+            let at = sim.now_ms + after + jitter(f, &mut rng);
+            strike(&mut sim, &f.kind, at);
+            struck.push((at, f.describe()));
+        }
+        for (i, after) in due.inputs {
+            for (name, v) in &sc.inputs[i].set {
+                sim.set_at(sim.now_ms + after, name, v.clone());
             }
         }
         if let Some(finished) = over {
             break Some(finished);
         }
         // Jump over idle time, but not past a moment a value is expected at, nor the end.
-        let snapshot_due = sc
-            .expects
-            .iter()
-            .enumerate()
-            .filter_map(|(k, e)| match &e.kind {
-                ExpectKind::Value { at_ms: Some(at), .. } if !snapshots.contains_key(&k) => Some(*at),
-                _ => None,
-            })
-            .min();
-        let limit = snapshot_due.unwrap_or(u64::MAX).min(sc.until_ms + 1);
+        let limit = obs.next_snapshot().unwrap_or(u64::MAX).min(sc.until_ms + 1);
         sim.skip_idle(limit);
     };
     let state = match ended {
@@ -345,138 +572,8 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
     errors.extend(sim.violations.iter().map(|v| format!("the runtime broke its promise: {v}")));
     let trace = sim.trace.clone();
     struck.sort();
-    let struck: Vec<(u64, String)> = struck.into_iter().filter(|(t, _)| *t <= chart_ms).collect();
-
-    let activations: Vec<&TraceRecord> = trace.iter().filter(|r| r.event == "activate").collect();
-    // Where a step ran: where it was activated, or dispatched to once an agent could take it.
-    let arrivals: Vec<&TraceRecord> =
-        trace.iter().filter(|r| r.event == "activate" || (r.event == "dispatch" && r.agent.is_some())).collect();
-    let alarms: Vec<String> =
-        trace.iter().filter(|r| r.event == "alarm").map(|r| r.message.clone().unwrap_or_default()).collect();
-    let var_value = |name: &str| sim.value(name);
-    let mut cases = Vec::new();
-    for (k, e) in sc.expects.iter().enumerate() {
-        let mut at_ms = None;
-        let failure = match &e.kind {
-            ExpectKind::Reached { step, on, by_ms } => {
-                let hits: Vec<&&TraceRecord> = arrivals.iter().filter(|r| &r.name == step).collect();
-                let fits = |r: &&&TraceRecord| {
-                    on.as_ref().is_none_or(|a| r.agent.as_ref() == Some(a)) && by_ms.is_none_or(|t| r.t_ms <= t)
-                };
-                if hits.iter().any(fits) {
-                    None
-                } else if let Some(first) = hits.first() {
-                    let mut wheres: Vec<String> = hits
-                        .iter()
-                        .map(|r| {
-                            format!("at {} on {}", show_ms(r.t_ms), r.agent.as_deref().unwrap_or("the coordinator"))
-                        })
-                        .collect();
-                    wheres.dedup();
-                    wheres.truncate(5);
-                    at_ms = Some(first.t_ms);
-                    Some(format!("expected {}; it was reached {}", e.title(), wheres.join(", ")))
-                } else {
-                    Some(format!("expected {}; it was never active", e.title()))
-                }
-            }
-            ExpectKind::Order(order) => {
-                let mut next = 0;
-                let mut last_t = 0;
-                for r in &activations {
-                    if next < order.len() && r.name == order[next] {
-                        next += 1;
-                        last_t = r.t_ms;
-                    }
-                }
-                if next == order.len() {
-                    None
-                } else {
-                    at_ms = Some(last_t);
-                    let passed = if next == 0 { "none of them".to_string() } else { order[..next].join(", ") };
-                    Some(format!(
-                        "expected the steps in order {}; passed {passed}, then never {} (at {} or later)",
-                        order.join(" → "),
-                        order[next],
-                        show_ms(last_t)
-                    ))
-                }
-            }
-            ExpectKind::Value { vars, at_ms: when } => {
-                let mut wrong = Vec::new();
-                for (name, expected) in vars {
-                    let var = sc.program.var_by_name(name).expect("checked");
-                    let ty = &sc.program.vars[var.index()].ty;
-                    let actual = match when {
-                        Some(_) => {
-                            snapshots.get(&k).and_then(|s| s.iter().find(|(n, _)| n == name)).map(|(_, v)| v.clone())
-                        }
-                        None => var_value(name),
-                    };
-                    let Some(actual) = actual else {
-                        wrong.push(format!("{name}: the run ended before {}", show_ms(when.unwrap_or(0))));
-                        continue;
-                    };
-                    match chart_value(expected, ty) {
-                        Ok(exp) if values_equal(&actual, &exp) => {}
-                        Ok(exp) => wrong.push(format!("{name} = {} (expected {})", ty.show(&actual), ty.show(&exp))),
-                        Err(err) => wrong.push(format!("{name}: {err}")),
-                    }
-                }
-                at_ms = *when;
-                (!wrong.is_empty()).then(|| {
-                    let moment = when.map_or("at the end".to_string(), |t| format!("at {}", show_ms(t)));
-                    format!("{moment}: {}", wrong.join(", "))
-                })
-            }
-            ExpectKind::Always(_, text) | ExpectKind::Never(_, text) => broken.get(&k).map(|t| {
-                at_ms = Some(*t);
-                let was = if matches!(e.kind, ExpectKind::Always(..)) { "FALSE" } else { "TRUE" };
-                format!("`{text}` was {was} at {}", show_ms(*t))
-            }),
-            ExpectKind::EndsBy(by) => match state {
-                RunState::Finished if chart_ms <= *by => None,
-                RunState::Finished => Some(format!("the chart ended at {}, after {}", show_ms(chart_ms), show_ms(*by))),
-                RunState::Failed => Some(format!("the run failed at {}", show_ms(chart_ms))),
-                RunState::Running => Some(format!("the chart had not ended by {}", show_ms(chart_ms))),
-            },
-            ExpectKind::Alarms(expected) => {
-                let missing: Vec<&String> =
-                    expected.iter().filter(|x| !alarms.iter().any(|a| a.contains(x.as_str()))).collect();
-                let extra: Vec<&String> =
-                    alarms.iter().filter(|a| !expected.iter().any(|x| a.contains(x.as_str()))).collect();
-                match (missing.is_empty(), extra.is_empty()) {
-                    (true, true) => None,
-                    _ => {
-                        let mut parts = Vec::new();
-                        if !missing.is_empty() {
-                            parts.push(format!("never raised: {}", quoted(&missing)));
-                        }
-                        if !extra.is_empty() {
-                            parts.push(format!("raised but not expected: {}", quoted(&extra)));
-                        }
-                        Some(parts.join("; "))
-                    }
-                }
-            }
-            ExpectKind::State(expected) => (expected != &state).then(|| {
-                format!(
-                    "expected the run to end {}; it {}",
-                    format!("{expected:?}").to_lowercase(),
-                    match state {
-                        RunState::Finished => format!("finished at {}", show_ms(chart_ms)),
-                        RunState::Failed => format!("failed at {}", show_ms(chart_ms)),
-                        RunState::Running => format!("was still running at {}", show_ms(chart_ms)),
-                    }
-                )
-            }),
-            ExpectKind::OncePerEpoch(action) => runs_twice(&trace, action).map(|(t, why)| {
-                at_ms = Some(t);
-                why
-            }),
-        };
-        cases.push(CaseResult { line: e.line, title: e.title(), failure, at_ms });
-    }
+    struck.retain(|(t, _)| *t <= chart_ms);
+    let (cases, active_at_failure) = obs.verdicts(&trace, &state, chart_ms, &|name| sim.value(name));
     let mut vars: Vec<(String, String)> = sc
         .program
         .vars
@@ -485,7 +582,7 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
         .filter_map(|v| sim.shown(&v.name).map(|s| (v.name.clone(), s)))
         .collect();
     vars.sort();
-    let active = show_active(&active);
+    let active = obs.active();
     Outcome { seed, chart_ms, state, cases, trace, errors, faults: struck, vars, active, active_at_failure }
 }
 
