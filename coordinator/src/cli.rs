@@ -118,6 +118,10 @@ enum Command {
         /// (start one).
         #[arg(long, value_name = "SINK", default_value = "off")]
         rerun: crate::recording::Sink,
+        /// Trace this variable's value, as `baton sim --watch` does: a `value` record after the first cycle and
+        /// after every change. Repeat for more.
+        #[arg(long, value_name = "VARIABLE")]
+        watch: Vec<String>,
     },
     /// Rebuild a past run from its journal: its Rerun recording and its trace (no network, no agents).
     Replay {
@@ -141,7 +145,6 @@ enum Command {
         #[arg(long, value_name = "FILE")]
         zenoh_config: Option<PathBuf>,
     },
-    /// Run the bundled multi-robot cell: a router, a coordinator and simulated robots on loopback.
     /// Run scenario files (*.test.toml) of your charts on a simulated cell, on virtual time: exit 0 when every
     /// expectation holds, 1 when one fails, 2 when a scenario could not run, 3 on a malformed scenario file
     Test {
@@ -157,7 +160,7 @@ enum Command {
         /// Write a JUnit XML report here (one testsuite per file, one testcase per expectation).
         #[arg(long, value_name = "FILE")]
         junit: Option<PathBuf>,
-        /// Where the traces and Rerun recordings of failing runs go.
+        /// Where the traces and Rerun recordings of failing runs go (and, with --cluster, their processes' logs).
         #[arg(long, value_name = "DIR", default_value = "baton-test-failures")]
         out: PathBuf,
         /// Runs at once (default: the machine's cores).
@@ -173,7 +176,16 @@ enum Command {
         /// exit status 2. An interrupt (SIGINT, SIGTERM) does the same, with exit status 130.
         #[arg(long, value_name = "DURATION", value_parser = parse_wall_time)]
         timeout: Option<std::time::Duration>,
+        /// Run on real processes on loopback, in real time: an embedded router, `baton run` and a
+        /// `baton-agent --simulate` per agent; faults by signals, cut cables and a coordinator restarted on its
+        /// journal.
+        #[arg(long)]
+        cluster: bool,
+        /// Keep the trace and Rerun recording of every run under --out, not only of failing runs.
+        #[arg(long)]
+        keep: bool,
     },
+    /// Run the bundled multi-robot cell: a router, a coordinator and simulated robots on loopback.
     Demo {
         /// Picking robots (each a `baton-agent` process); robot1 and robot2 also assemble.
         #[arg(long, default_value_t = 2)]
@@ -252,6 +264,7 @@ pub fn main() -> ExitCode {
             on_agent_loss,
             journal,
             rerun,
+            watch,
         } => {
             use baton_proto::dist::runtime::coordinator::LossPolicy;
             let loss_policy = match on_agent_loss {
@@ -274,6 +287,7 @@ pub fn main() -> ExitCode {
                 loss_policy,
                 journal,
                 rerun,
+                watch,
             };
             block_on(async move {
                 let summary = crate::run::run(opts).await?;
@@ -288,7 +302,7 @@ pub fn main() -> ExitCode {
         Command::Replay { journal, rerun, trace } => {
             crate::replay::replay(&crate::replay::ReplayOptions { journal, rerun, trace }).map(|()| ExitCode::SUCCESS)
         }
-        Command::Test { paths, seeds, seed, junit, out, jobs, quiet, coverage, timeout } => {
+        Command::Test { paths, seeds, seed, junit, out, jobs, quiet, coverage, timeout, cluster, keep } => {
             let jobs = jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
             crate::testing::test(&crate::testing::TestOptions {
                 paths,
@@ -300,6 +314,8 @@ pub fn main() -> ExitCode {
                 quiet,
                 coverage,
                 timeout,
+                cluster,
+                keep,
             })
         }
         Command::Demo { agents, parts, keep, rerun } => {

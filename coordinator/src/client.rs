@@ -61,8 +61,7 @@ pub async fn set(
     value: serde_json::Value,
 ) -> anyhow::Result<bool> {
     let session = open(connect, file).await?;
-    let request = wire::encode(&SetRequest { name: name.to_string(), value });
-    let replies: Vec<SetReply> = ask(&session, keys::set_any_run(), Some(request)).await?;
+    let replies = set_on(&session, name, value).await?;
     session.close().await.map_err(|e| anyhow!("{e}"))?;
     if replies.is_empty() {
         bail!("no running chart answered behind {} (or the router's access control refused you)", connect.join(", "));
@@ -75,6 +74,12 @@ pub async fn set(
         }
     }
     Ok(replies.iter().any(|r| r.ok))
+}
+
+/// Sets an input of every chart running behind `session`'s router: their replies.
+pub async fn set_on(session: &Session, name: &str, value: serde_json::Value) -> anyhow::Result<Vec<SetReply>> {
+    let request = wire::encode(&SetRequest { name: name.to_string(), value });
+    ask(session, keys::set_any_run(), Some(request)).await
 }
 
 pub async fn status(connect: &[String], file: Option<&Path>, json: bool) -> anyhow::Result<()> {

@@ -21,8 +21,9 @@ use baton_proto::dist::netconfig::NetConfig;
 use baton_proto::dist::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
 use baton_proto::dist::runtime::Level;
 use baton_proto::dist::wire::{self, AgentInfo, ChartHash, ChartSource, RunId, SetReply, SetRequest};
-use baton_proto::exec::program::Program;
+use baton_proto::exec::program::{Program, VarId};
 use baton_proto::exec::sim::TraceRecord;
+use baton_proto::exec::types::Value;
 use baton_proto::front::check::check_source;
 use baton_proto::limits::{CATCH_UP_CYCLES_MAX, RECEIVE_QUEUE_MAX};
 use serde::Serialize;
@@ -59,6 +60,8 @@ pub struct RunOptions {
     pub journal: Option<PathBuf>,
     /// Where the run's Rerun recording goes.
     pub rerun: crate::recording::Sink,
+    /// Variables whose value the trace records: once after the first cycle and after every change.
+    pub watch: Vec<String>,
 }
 
 /// What `baton run` prints at the end, and writes with `--summary FILE`.
@@ -171,6 +174,8 @@ pub struct Records {
     steps: BTreeMap<String, (StepTime, Option<u64>)>,
     probe: Option<Probe>,
     pub recorder: Option<crate::recording::Recorder>,
+    /// `--watch`: each variable with the value the trace last recorded.
+    watched: Vec<(VarId, Option<Value>)>,
 }
 
 impl Records {
@@ -180,7 +185,37 @@ impl Records {
         recorder: Option<crate::recording::Recorder>,
         cycle_ms: u64,
     ) -> Records {
-        Records { cycle_ms: cycle_ms.max(1), trace, trace_error: false, steps: BTreeMap::new(), probe, recorder }
+        Records {
+            cycle_ms: cycle_ms.max(1),
+            trace,
+            trace_error: false,
+            steps: BTreeMap::new(),
+            probe,
+            recorder,
+            watched: Vec::new(),
+        }
+    }
+
+    /// Records the values of `vars` too (`--watch`), as `baton sim --watch` does.
+    pub fn watch(&mut self, vars: Vec<VarId>) {
+        self.watched = vars.into_iter().map(|v| (v, None)).collect();
+    }
+
+    /// `value` records of the watched variables that changed since the trace last said: they go with the
+    /// outputs of the input that changed them, so that they are written only once it is durable.
+    pub fn watched_changes(&mut self, t_ms: u64, core: &Coordinator) -> Vec<TraceRecord> {
+        let mut out = Vec::new();
+        for (var, last) in &mut self.watched {
+            let value = core.value(*var);
+            if last.as_ref() != Some(&value) {
+                let decl = &core.program().vars[var.index()];
+                let mut record = TraceRecord::new(t_ms, "value", &decl.name);
+                record.value = Some(decl.ty.show(&value));
+                *last = Some(value);
+                out.push(record);
+            }
+        }
+        out
     }
 
     pub fn record(&mut self, rec: TraceRecord) {
@@ -261,6 +296,9 @@ pub fn replay_records(
         }
         // After every input, as the live run does.
         out.values(entry.t_ms, core.core());
+        for rec in out.watched_changes(entry.t_ms, core.core()) {
+            out.record(rec);
+        }
     }
     Ok(replayed)
 }
@@ -278,6 +316,13 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         bail!("give either --listen ENDPOINT (embed a router) or --connect ENDPOINT (join one)");
     }
     let hash = ChartHash::of(&loaded.source, &loaded.pou);
+    let mut watch = Vec::with_capacity(opts.watch.len());
+    for name in &opts.watch {
+        match loaded.program.var_by_name(name) {
+            Some(v) => watch.push(v),
+            None => bail!("--watch {name}: chart `{}` has no variable `{name}`", loaded.program.name),
+        }
+    }
     // The journal first: a refused one costs nothing, not even a Zenoh session.
     let mut resume: Option<(JournalHeader, Vec<Vec<u8>>)> = None;
     let mut writer = None;
@@ -384,6 +429,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         last_cycle_ms: None,
         live: std::collections::HashSet::new(),
     };
+    shell.out.watch(watch);
     match resume {
         Some((header, records)) => {
             // The past, replayed: its trace is written again (the file then holds the whole run), nothing is
@@ -691,6 +737,7 @@ impl Shell {
         // The recording's values after every input, as a replay of the journal sees them.
         let now = self.core.core().now_ms();
         self.out.values(now, self.core.core());
+        outputs.extend(self.out.watched_changes(now, self.core.core()).into_iter().map(CoordOutput::Trace));
         let Some(journal) = &mut self.journal else {
             return self.carry_out(outputs).await;
         };

@@ -350,3 +350,80 @@ async fn agents_started_with_simulate_run_the_scenarios_skills_over_the_real_net
     let var = |name: &str| summary["vars"][name].as_str().unwrap_or_default().to_string();
     assert_eq!((var("done"), var("reworks")), ("3".to_string(), "2".to_string()));
 }
+
+fn read_trace(path: &Path) -> Vec<TraceRecord> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    text.lines().map(|l| serde_json::from_str(l).expect("a trace record")).collect()
+}
+
+/// `baton test --cluster`: the example cell and a fault of each kind real processes can suffer, with an
+/// embedded router, `baton run` and `baton-agent --simulate` processes, in real time. What each scenario says
+/// happened is seen in the trace that the real coordinator wrote.
+#[test]
+fn cluster_runs_the_example_and_each_fault_with_real_processes() {
+    let out = tempfile::tempdir().expect("tmp");
+    let (o, stdout, stderr) = baton_test(&repo("examples"), &["cell.test.toml", "--cluster", "--keep"], out.path());
+    assert!(o.status.success(), "{stdout}{stderr}");
+    assert!(stdout.contains("each on real processes on loopback, in real time"), "{stdout}");
+    assert!(stdout.contains("\nPASS cell (cell.test.toml): 8 expectation(s), seed 1"), "{stdout}");
+    assert!(stdout.contains("(real time)"), "{stdout}");
+    let trace = read_trace(&out.path().join("cell-seed1.trace.jsonl"));
+    // Four real agents joined; assembler1 was SIGKILLed holding Assemble and assembler2 took it in epoch 2.
+    let ups: std::collections::BTreeSet<&str> =
+        trace.iter().filter(|r| r.event == "agent_up").map(|r| r.name.as_str()).collect();
+    assert_eq!(ups.into_iter().collect::<Vec<_>>(), ["assembler1", "assembler2", "robot1", "robot2"]);
+    assert_eq!(count(&trace, "agent_lost", "assembler1"), 1, "{trace:#?}");
+    let again = trace.iter().find(|r| r.event == "dispatch" && r.name == "Assemble" && r.epoch == Some(2));
+    assert_eq!(again.and_then(|r| r.agent.as_deref()), Some("assembler2"), "{trace:#?}");
+    assert_eq!(count(&trace, "skill_fault", "InspectPart"), 2, "{trace:#?}");
+    // A passing run leaves no processes' folder behind.
+    assert!(!out.path().join("cell-seed1.cluster").exists());
+
+    let dir = repo("tests/baton_test");
+    let files = ["pass/restart.test.toml", "pass/partition.test.toml", "pass/crash.test.toml", "pass/when.test.toml"];
+    let mut args = files.to_vec();
+    args.extend(["--cluster", "--keep", "--jobs", "2"]);
+    let (o, stdout, stderr) = baton_test(&dir, &args, out.path());
+    assert!(o.status.success(), "{stdout}{stderr}");
+    assert!(stdout.contains("4 scenario(s): 4 passed, 0 failed"), "{stdout}");
+    let trace = |name: &str| read_trace(&out.path().join(format!("{name}-seed1.trace.jsonl")));
+    // Killed, then a new process: the token goes to it in a new epoch.
+    let t = trace("restart");
+    assert_eq!(count(&t, "agent_lost", "r1"), 1, "{t:#?}");
+    assert_eq!(count(&t, "agent_up", "r1"), 2, "{t:#?}");
+    assert!(t.iter().any(|r| r.event == "dispatch" && r.name == "A" && r.epoch == Some(2)), "{t:#?}");
+    // Its cable pulled out from 100 to 400 ms, within its lease: never lost, and its work heard only once back.
+    let t = trace("partition");
+    assert_eq!(count(&t, "agent_lost", "r2"), 0, "{t:#?}");
+    let back = t.iter().find(|r| r.event == "return" && r.name == "B").expect("B's token back");
+    assert!(back.t_ms >= 400, "B's token came back at {} ms, while r2 was cut off", back.t_ms);
+    // The coordinator was SIGKILLed and started again on its journal; the trace goes on past its recovery.
+    let t = trace("crash");
+    let recover = t.iter().position(|r| r.event == "recover").expect("recovered");
+    assert!(t[recover..].iter().any(|r| r.event == "activate" && r.name == "Done"), "{t:#?}");
+    assert_eq!(count(&t, "activate", "Idle"), 1, "the replayed past is not taken in twice: {t:#?}");
+    // `baton run --watch`, which the runner asks for every variable: values as the chart changed them, once
+    // each (the replayed past is skipped). Both tokens come back after the recovery, in either order.
+    let firsts: Vec<&str> =
+        t.iter().filter(|r| r.event == "value" && r.name == "first").filter_map(|r| r.value.as_deref()).collect();
+    assert!(firsts == ["0", "1"] || firsts == ["0", "2"], "{firsts:?}");
+    // An input set 200 ms after a step became active, and an agent that starts a second late.
+    let t = trace("when");
+    let set = t.iter().find(|r| r.event == "set").expect("set");
+    assert!(set.t_ms >= 200, "set at {}", set.t_ms);
+    let b = t.iter().find(|r| r.event == "dispatch" && r.name == "B").expect("B dispatched");
+    assert!(b.t_ms >= 1000 && b.agent.as_deref() == Some("r2"), "{b:?}");
+
+    // A failing expectation on real processes: the same message, the processes' logs kept, and the replay
+    // command runs on real processes again.
+    let (o, stdout, _) = baton_test(&dir, &["fail/value.test.toml", "--cluster"], out.path());
+    assert_eq!(o.status.code(), Some(1), "{stdout}");
+    assert!(stdout.contains("at the end: first = 1 (expected 2)"), "{stdout}");
+    assert!(stdout.contains("replay: baton test fail/value.test.toml --seed 1 --cluster"), "{stdout}");
+    let logs = out.path().join("value-seed1.cluster");
+    assert!(logs.join("coordinator.1.log").is_file() && logs.join("agent-r1.1.log").is_file(), "{stdout}");
+    // What TCP cannot do is said, and nothing runs.
+    let (o, stdout, stderr) = baton_test(&dir, &["pass/link.test.toml", "--cluster"], out.path());
+    assert_eq!(o.status.code(), Some(2), "{stdout}{stderr}");
+    assert!(stderr.contains("needs the simulated network"), "{stderr}");
+}

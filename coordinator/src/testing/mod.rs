@@ -1,9 +1,13 @@
-//! `baton test`: runs users' scenario files (`*.test.toml`) on the simulated cell, in parallel, and says what
-//! held and what did not — with, for each failure, the events around it, the trace and a Rerun recording of the
-//! failing run, and the one command that replays it.
+//! `baton test`: runs users' scenario files (`*.test.toml`) on the simulated cell — or, with `--cluster`, on
+//! real processes (`cluster.rs`) — in parallel, and says what held and what did not — with, for each failure,
+//! the events around it, the trace and a Rerun recording of the failing run, and the one command that replays
+//! it.
 //!
 //! Exit status: 0 every expectation held; 1 one failed; 2 a scenario could not run; 3 a scenario file is
 //! malformed (`FILE:LINE:COL`). The highest applies.
+
+pub mod cable;
+pub mod cluster;
 
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -37,6 +41,10 @@ pub struct TestOptions {
     pub coverage: bool,
     /// Stop after this much wall time; the report (and JUnit file) says what ran.
     pub timeout: Option<Duration>,
+    /// Real processes on loopback, in real time, instead of the simulated cell.
+    pub cluster: bool,
+    /// Keep every run's trace and recording under `out`, not only failing runs'.
+    pub keep: bool,
 }
 
 /// Set by SIGINT or SIGTERM: the runs stop, and what ran is reported (and written to the JUnit file).
@@ -101,12 +109,18 @@ fn thousands(n: f64) -> String {
     out
 }
 
-/// The failing run's trace (JSON Lines) and Rerun recording, under `out`.
+/// The scenario's name as a file name.
+fn file_stem(sc: &Scenario) -> String {
+    sc.name.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_")
+}
+
+/// A run's trace (JSON Lines) and Rerun recording, under `out`: every failing run's, and with `--keep` every
+/// run's.
 fn keep_failure(opts: &TestOptions, sc: &Scenario, o: &Outcome) -> (Option<PathBuf>, Option<PathBuf>) {
     if std::fs::create_dir_all(&opts.out).is_err() {
         return (None, None);
     }
-    let stem = format!("{}-seed{}", sc.name.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_"), o.seed);
+    let stem = format!("{}-seed{}", file_stem(sc), o.seed);
     let trace_path = opts.out.join(format!("{stem}.trace.jsonl"));
     let trace = std::fs::File::create(&trace_path).ok().and_then(|mut f| {
         for r in &o.trace {
@@ -177,7 +191,12 @@ fn failure_report(opts: &TestOptions, sc: &Scenario, o: &Outcome) -> String {
     if let Some(r) = rrd {
         s.push_str(&format!("  recording: rerun {}\n", r.display()));
     }
-    s.push_str(&format!("  replay: baton test {} --seed {}\n", sc.path.display(), o.seed));
+    if opts.cluster {
+        let dir = opts.out.join(format!("{}-seed{}.cluster", file_stem(sc), o.seed));
+        s.push_str(&format!("  processes' logs: {}\n", dir.display()));
+    }
+    let cluster = if opts.cluster { " --cluster" } else { "" };
+    s.push_str(&format!("  replay: baton test {} --seed {}{cluster}\n", sc.path.display(), o.seed));
     s
 }
 
@@ -212,6 +231,16 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
     let mut runnable: Vec<(usize, u64)> = Vec::new();
     for path in &files {
         let v = match scenario::load(path) {
+            Ok(sc) if opts.cluster && cluster::unsupported(&sc).is_some() => Verdict {
+                path: path.clone(),
+                problem: Some((
+                    EXIT_CANNOT_RUN,
+                    format!("{}: {}", path.display(), cluster::unsupported(&sc).unwrap_or_default()),
+                )),
+                scenario: None,
+                outcomes: Vec::new(),
+                wall: Duration::ZERO,
+            },
             Ok(sc) => {
                 let i = verdicts.len();
                 runnable.push((i, opts.seed.unwrap_or(sc.seed)));
@@ -268,13 +297,29 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
     let stop = AtomicBool::new(false);
     let finished = AtomicUsize::new(0);
     let timed_out = AtomicBool::new(false);
+    let bins = if opts.cluster {
+        match cluster::Binaries::find() {
+            Ok(b) => Some(b),
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                return Ok(ExitCode::from(EXIT_CANNOT_RUN));
+            }
+        }
+    } else {
+        None
+    };
+    let run_one = |sc: &Scenario, seed: u64, stop: &AtomicBool| match &bins {
+        Some(b) => cluster::run_until(sc, seed, stop, b, &opts.out),
+        None => run_until(sc, seed, stop),
+    };
     catch_interrupts();
     if !opts.quiet {
         println!(
-            "running {} run(s) of {} scenario(s) on {} thread(s)",
+            "running {} run(s) of {} scenario(s) on {} thread(s){}",
             total,
             verdicts.iter().filter(|v| v.scenario.is_some()).count(),
-            (opts.jobs.max(1) as u64).min(total.max(1))
+            (opts.jobs.max(1) as u64).min(total.max(1)),
+            if opts.cluster { ", each on real processes on loopback, in real time" } else { "" }
         );
         let _ = std::io::stdout().flush();
     }
@@ -306,13 +351,16 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
                 };
                 let sc = scenarios[i].as_ref().expect("loaded");
                 let started = Instant::now();
-                match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run_until(sc, seed, &stop))) {
+                match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run_one(sc, seed, &stop))) {
                     // A run cut short by the stop is a run not made.
                     Ok(_) if stop.load(Ordering::Relaxed) => {}
                     Ok(mut o) => {
                         if opts.coverage {
                             let c = Coverage::of(&sc.program, &o);
                             coverages.lock().expect("coverage").entry(i).or_default().add(&c);
+                        }
+                        if opts.keep && o.passed() {
+                            keep_failure(opts, sc, &o);
                         }
                         // A passing run is remembered by its verdicts and times only: a million seeds fit.
                         if o.passed() {
@@ -374,7 +422,13 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
         let failing: Vec<&Outcome> = v.outcomes.iter().filter(|o| !o.passed()).collect();
         let chart_ms: u64 = v.outcomes.iter().map(|o| o.chart_ms).sum();
         let wall_ms = v.wall.as_secs_f64() * 1000.0;
-        let speed = if wall_ms > 0.0 { format!("{}×", thousands(chart_ms as f64 / wall_ms)) } else { "∞".into() };
+        let speed = if opts.cluster {
+            "real time".to_string()
+        } else if wall_ms > 0.0 {
+            format!("{}× faster", thousands(chart_ms as f64 / wall_ms))
+        } else {
+            "∞× faster".into()
+        };
         let seeds = v.outcomes.len();
         let seeds_text = if seeds == 1 { format!("seed {}", v.outcomes[0].seed) } else { format!("{seeds} seeds") };
         let chart_text = if seeds == 1 {
@@ -389,7 +443,10 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
         if failing.is_empty() {
             passed_n += 1;
             if !opts.quiet {
-                println!("PASS {} ({file}): {cases} expectation(s), {seeds_text}, {chart_text} in {:.0} ms wall ({speed} faster)", sc.name, wall_ms);
+                println!(
+                    "PASS {} ({file}): {cases} expectation(s), {seeds_text}, {chart_text} in {:.0} ms wall ({speed})",
+                    sc.name, wall_ms
+                );
             }
         } else {
             failed_n += 1;

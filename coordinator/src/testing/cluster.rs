@@ -1,0 +1,699 @@
+//! `baton test --cluster`: a scenario on real processes on loopback, in real time. The runner embeds a Zenoh
+//! router, starts `baton run` against it and one `baton-agent --simulate SCENARIO` per agent, each behind a
+//! cable it can pull out (`cable.rs`). Inputs go in as `baton set` sends them; faults are signals (kill,
+//! restart), pulled cables (cut, heal), slow cables (link delays) and a coordinator killed and started again on
+//! its journal. What the runner knows of the run is what `baton run --trace` writes (with `--watch` for every
+//! variable); it follows that file as it grows and judges it with the simulation's own observer
+//! (`testing::run::Observer`), so a scenario means the same on both.
+//!
+//! Every run has its own router, ports and folder (`OUT/NAME-seedN.cluster/`: the trace, the summary, the
+//! journal and each process's log, removed when the run passes), so scenarios run side by side.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, Context};
+use baton_proto::dist::keys;
+use baton_proto::dist::netconfig::NetConfig;
+use baton_proto::dist::runtime::coordinator::LossPolicy;
+use baton_proto::dist::simnet::{Rng, LEASE_MS};
+use baton_proto::exec::program::VarId;
+use baton_proto::exec::sim::{parse_value, TraceRecord};
+use baton_proto::exec::types::{Type, Value};
+use baton_proto::testing::run::{fault_rng, jitter, CaseResult, Observer, Outcome};
+use baton_proto::testing::scenario::{show_ms, FaultKind, NetFaults, RunState, Scenario, Trigger};
+use tokio::process::{Child, Command};
+use zenoh::Session;
+
+use super::cable::Cable;
+
+/// How often the runner looks at the trace and the clock.
+const POLL: Duration = Duration::from_millis(5);
+/// How long a killed agent's liveliness token may take to vanish before it is started again.
+const GONE_WAIT: Duration = Duration::from_secs(5);
+/// How long the agents that start at once may take to be live.
+const LIVE_WAIT: Duration = Duration::from_secs(20);
+/// How long an input waits for a chart to answer (a coordinator starting, or restarting from its journal).
+const SET_WAIT: Duration = Duration::from_secs(10);
+
+/// The programs a cluster run starts.
+pub struct Binaries {
+    pub baton: PathBuf,
+    pub agent: PathBuf,
+}
+
+impl Binaries {
+    /// This `baton`, and the `baton-agent` beside it (or on the PATH).
+    pub fn find() -> anyhow::Result<Binaries> {
+        Ok(Binaries {
+            baton: std::env::current_exe().context("cannot locate this executable")?,
+            agent: crate::demo::agent_binary()?,
+        })
+    }
+}
+
+/// Why `sc` cannot run on real processes, if it cannot: TCP carries everything once and in order, so losses,
+/// duplicates and reordering need the simulated network.
+pub fn unsupported(sc: &Scenario) -> Option<String> {
+    let lossy = |n: &NetFaults| {
+        let mut what = Vec::new();
+        if n.drop > 0.0 {
+            what.push("drop");
+        }
+        if n.duplicate > 0.0 {
+            what.push("duplicate");
+        }
+        if n.reorder {
+            what.push("reorder");
+        }
+        what
+    };
+    let mut why = Vec::new();
+    let net = lossy(&sc.network);
+    if !net.is_empty() {
+        why.push(format!("[network] {}", net.join(", ")));
+    }
+    for f in &sc.faults {
+        if let FaultKind::Link(agent, n, _) = &f.kind {
+            let what = lossy(n);
+            if !what.is_empty() {
+                why.push(format!("line {}: {} on {agent}'s link", f.line, what.join(", ")));
+            }
+        }
+    }
+    (!why.is_empty()).then(|| {
+        format!(
+            "needs the simulated network: real links (TCP) cannot {} ({}); run it without --cluster",
+            "drop, duplicate or reorder messages",
+            why.join("; ")
+        )
+    })
+}
+
+/// Runs `sc` with `seed` on real processes and judges it; `out` holds its folder. `stop` ends it early.
+pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool, bins: &Binaries, out: &Path) -> Outcome {
+    if let Some(why) = unsupported(sc) {
+        return not_run(sc, seed, why);
+    }
+    let rt = match tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() {
+        Ok(rt) => rt,
+        Err(e) => return not_run(sc, seed, format!("cannot start the runtime: {e}")),
+    };
+    rt.block_on(async {
+        let dir = out.join(format!("{}-seed{seed}.cluster", super::file_stem(sc)));
+        let mut world = match World::start(sc, seed, bins, dir.clone()).await {
+            Ok(w) => w,
+            Err(e) => return not_run(sc, seed, format!("{e:#}")),
+        };
+        let outcome = world.drive(stop).await;
+        world.tear_down().await;
+        if outcome.passed() {
+            let _ = std::fs::remove_dir_all(&dir);
+            // `out` itself goes too when nothing else is in it.
+            let _ = std::fs::remove_dir(out);
+        }
+        outcome
+    })
+}
+
+/// A run that could not be made: every expectation unjudged, and why.
+fn not_run(sc: &Scenario, seed: u64, why: String) -> Outcome {
+    let cases = sc
+        .expects
+        .iter()
+        .map(|e| CaseResult {
+            line: e.line,
+            title: e.title(),
+            failure: Some("not judged: the scenario could not run".into()),
+            at_ms: None,
+        })
+        .collect();
+    Outcome {
+        seed,
+        chart_ms: 0,
+        state: RunState::Running,
+        cases,
+        trace: Vec::new(),
+        errors: vec![why],
+        faults: Vec::new(),
+        vars: Vec::new(),
+        active: Vec::new(),
+        active_at_failure: None,
+    }
+}
+
+/// What the runner does at a chart time.
+#[derive(Clone, Debug)]
+enum Act {
+    StartAgent(usize),
+    Input(usize),
+    Fault(usize),
+    Heal(String),
+    /// A link fault's time is over: back to the network's own delay.
+    Undelay(String),
+    CoordinatorUp,
+}
+
+/// Reads the records a trace file gained since the last look; a resumed coordinator's file starts again with
+/// the records already seen, which are skipped.
+struct Follower {
+    path: PathBuf,
+    offset: u64,
+    partial: Vec<u8>,
+    skip: usize,
+}
+
+impl Follower {
+    fn new(path: PathBuf, skip: usize) -> Follower {
+        Follower { path, offset: 0, partial: Vec::new(), skip }
+    }
+
+    fn read_new(&mut self) -> anyhow::Result<Vec<TraceRecord>> {
+        use std::io::{Read, Seek, SeekFrom};
+        let Ok(mut f) = std::fs::File::open(&self.path) else { return Ok(Vec::new()) };
+        f.seek(SeekFrom::Start(self.offset))?;
+        let mut bytes = Vec::new();
+        f.read_to_end(&mut bytes)?;
+        self.offset += bytes.len() as u64;
+        self.partial.extend_from_slice(&bytes);
+        let Some(end) = self.partial.iter().rposition(|&b| b == b'\n') else { return Ok(Vec::new()) };
+        let complete: Vec<u8> = self.partial.drain(..=end).collect();
+        let mut out = Vec::new();
+        for line in complete.split(|&b| b == b'\n').filter(|l| !l.is_empty()) {
+            let rec: TraceRecord = serde_json::from_slice(line)
+                .with_context(|| format!("{}: an unreadable trace line", self.path.display()))?;
+            // The replay of the journal ends where the new process says it took over: what comes after is new.
+            if self.skip > 0 && rec.event != "recover" {
+                self.skip -= 1;
+                continue;
+            }
+            self.skip = 0;
+            out.push(rec);
+        }
+        Ok(out)
+    }
+}
+
+/// A value record's text read back as the variable's value.
+fn from_shown(ty: &Type, text: &str) -> Option<Value> {
+    let json = match ty {
+        Type::Bool => serde_json::Value::Bool(text.eq_ignore_ascii_case("TRUE")),
+        Type::Int(_) | Type::Real { .. } => serde_json::from_str(text).ok()?,
+        _ => serde_json::Value::String(text.to_string()),
+    };
+    parse_value(ty, &json)
+}
+
+struct World<'a> {
+    sc: &'a Scenario,
+    seed: u64,
+    bins: &'a Binaries,
+    dir: PathBuf,
+    session: Session,
+    router: String,
+    cables: HashMap<String, Cable>,
+    agents: HashMap<String, Child>,
+    /// Processes started per agent name (for their log files).
+    started: HashMap<String, u32>,
+    coordinator: Option<Child>,
+    coordinator_runs: u32,
+    follower: Follower,
+    /// Records read so far, over every coordinator process.
+    trace: Vec<TraceRecord>,
+    /// Records read but not taken in yet.
+    backlog: Vec<TraceRecord>,
+    values: HashMap<String, Value>,
+    /// When chart time 0 was, by the runner's clock: set by the first record.
+    t0: Option<Instant>,
+    plan: Vec<(u64, Act)>,
+    struck: Vec<(u64, String)>,
+    errors: Vec<String>,
+    rng: Rng,
+    /// Each agent's delay from [network], to go back to after a link fault.
+    base_delay: u64,
+}
+
+impl<'a> World<'a> {
+    async fn start(sc: &'a Scenario, seed: u64, bins: &'a Binaries, dir: PathBuf) -> anyhow::Result<World<'a>> {
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        // A free port, taken by the router at once; another one if somebody took it in between.
+        let mut opened = None;
+        for _ in 0..5 {
+            let port = crate::demo::free_port()?;
+            let endpoint = format!("tcp/127.0.0.1:{port}");
+            let config = crate::zconf::load(&NetConfig::router(std::slice::from_ref(&endpoint)), None)?;
+            if let Ok(session) = zenoh::open(config).await {
+                opened = Some((session, endpoint, port));
+                break;
+            }
+        }
+        let (session, router, port) = opened.ok_or_else(|| anyhow!("cannot open a router on a loopback port"))?;
+        let router_addr: SocketAddr = ([127, 0, 0, 1], port).into();
+        let mut cables = HashMap::new();
+        for (k, a) in sc.agents.iter().enumerate() {
+            let cable = Cable::lay(router_addr, seed.wrapping_mul(31).wrapping_add(k as u64))
+                .await
+                .context("cannot lay an agent's cable")?;
+            cable.delay(sc.network.delay_ms);
+            cables.insert(a.name.clone(), cable);
+        }
+        let mut rng = fault_rng(seed);
+        let mut plan = Vec::new();
+        for (i, a) in sc.agents.iter().enumerate() {
+            plan.push((a.start_ms, Act::StartAgent(i)));
+        }
+        for (i, f) in sc.faults.iter().enumerate() {
+            if let Trigger::At(t) = f.trigger {
+                plan.push((t + jitter(f, &mut rng), Act::Fault(i)));
+            }
+        }
+        // Inputs at 0 are set before the first cycle, as the simulation sets them: `baton run --set`.
+        for (i, input) in sc.inputs.iter().enumerate() {
+            match input.trigger {
+                Trigger::At(0) => {}
+                Trigger::At(t) => plan.push((t, Act::Input(i))),
+                Trigger::When { .. } => {}
+            }
+        }
+        let follower = Follower::new(dir.join("trace.1.jsonl"), 0);
+        let mut world = World {
+            sc,
+            seed,
+            bins,
+            dir,
+            session,
+            router,
+            cables,
+            agents: HashMap::new(),
+            started: HashMap::new(),
+            coordinator: None,
+            coordinator_runs: 0,
+            follower,
+            trace: Vec::new(),
+            backlog: Vec::new(),
+            values: HashMap::new(),
+            t0: None,
+            plan,
+            struck: Vec::new(),
+            errors: Vec::new(),
+            rng,
+            base_delay: sc.network.delay_ms,
+        };
+        // Chart time 0 is when the cell is there, as in the simulation: the agents that start at once are live
+        // on the router before the coordinator starts its run.
+        world.carry_out(None).await;
+        let first: Vec<String> = sc.agents.iter().filter(|a| a.start_ms == 0).map(|a| a.name.clone()).collect();
+        world.wait_live(&first).await?;
+        world.start_coordinator()?;
+        Ok(world)
+    }
+
+    /// Waits until every agent of `names` holds its liveliness token on the router.
+    async fn wait_live(&mut self, names: &[String]) -> anyhow::Result<()> {
+        let deadline = Instant::now() + LIVE_WAIT;
+        loop {
+            let mut live = std::collections::BTreeSet::new();
+            if let Ok(replies) =
+                self.session.liveliness().get(keys::alive_any()).timeout(Duration::from_millis(500)).await
+            {
+                while let Ok(r) = replies.recv_async().await {
+                    if let Ok(sample) = r.result() {
+                        if let Some(name) = keys::agent_of_alive(sample.key_expr().as_str()) {
+                            live.insert(name.to_string());
+                        }
+                    }
+                }
+            }
+            let missing: Vec<&String> = names.iter().filter(|n| !live.contains(*n)).collect();
+            if missing.is_empty() {
+                return Ok(());
+            }
+            // An agent that exited says why in its log.
+            for n in &missing {
+                if let Some(Ok(Some(status))) = self.agents.get_mut(*n).map(|c| c.try_wait()) {
+                    let log = self.dir.join(format!("agent-{n}.1.log"));
+                    let text = std::fs::read_to_string(&log).unwrap_or_default();
+                    anyhow::bail!("`baton-agent --name {n}` exited with {status}: {}", text.trim());
+                }
+            }
+            if Instant::now() >= deadline {
+                let names: Vec<&str> = missing.iter().map(|s| s.as_str()).collect();
+                anyhow::bail!("agent(s) {} not live on the router after {LIVE_WAIT:?}", names.join(", "));
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+
+    fn log(&self, name: &str) -> anyhow::Result<(Stdio, Stdio)> {
+        let path = self.dir.join(name);
+        let f = std::fs::File::create(&path).with_context(|| format!("cannot create {}", path.display()))?;
+        Ok((Stdio::from(f.try_clone()?), Stdio::from(f)))
+    }
+
+    fn start_coordinator(&mut self) -> anyhow::Result<()> {
+        let sc = self.sc;
+        self.coordinator_runs += 1;
+        let n = self.coordinator_runs;
+        let policy = match sc.loss_policy {
+            LossPolicy::Pause => "pause",
+            LossPolicy::Reassign => "reassign",
+            LossPolicy::Fail => "fail",
+        };
+        let mut cmd = Command::new(&self.bins.baton);
+        cmd.arg("run").arg(&sc.chart_path).args(["--pou", &sc.program.name, "--connect", &self.router]);
+        cmd.arg("--trace").arg(self.dir.join(format!("trace.{n}.jsonl")));
+        cmd.arg("--summary").arg(self.dir.join("summary.json"));
+        cmd.args(["--on-agent-loss", policy, "--cycle-ms", &sc.cycle_ms.to_string(), "--quiet"]);
+        if sc.journal {
+            cmd.arg("--journal").arg(self.dir.join("journal"));
+        }
+        for v in sc.program.vars.iter().filter(|v| !v.hidden) {
+            cmd.args(["--watch", &v.name]);
+        }
+        if n == 1 {
+            for input in sc.inputs.iter().filter(|i| matches!(i.trigger, Trigger::At(0))) {
+                for (name, value) in &input.set {
+                    cmd.arg("--set").arg(format!("{name}={value}"));
+                }
+            }
+        }
+        let (out, err) = self.log(&format!("coordinator.{n}.log"))?;
+        let child = cmd
+            .stdin(Stdio::null())
+            .stdout(out)
+            .stderr(err)
+            .kill_on_drop(true)
+            .spawn()
+            .with_context(|| format!("cannot start {}", self.bins.baton.display()))?;
+        self.coordinator = Some(child);
+        Ok(())
+    }
+
+    fn start_agent(&mut self, name: &str) -> anyhow::Result<()> {
+        let Some(agent) = self.sc.agents.iter().find(|a| a.name == name) else { return Ok(()) };
+        let n = self.started.entry(name.to_string()).or_insert(0);
+        *n += 1;
+        let log = format!("agent-{name}.{n}.log");
+        let mut cmd = Command::new(&self.bins.agent);
+        cmd.args(["--connect", &self.cables[name].endpoint(), "--name", name]);
+        for r in &agent.roles {
+            cmd.args(["--role", r]);
+        }
+        cmd.args(["--lease-ms", &LEASE_MS.to_string(), "--seed", &self.seed.to_string()]);
+        cmd.arg("--simulate").arg(&self.sc.path);
+        let (out, err) = self.log(&log)?;
+        let child = cmd
+            .stdin(Stdio::null())
+            .stdout(out)
+            .stderr(err)
+            .kill_on_drop(true)
+            .spawn()
+            .with_context(|| format!("cannot start {}", self.bins.agent.display()))?;
+        self.agents.insert(name.to_string(), child);
+        Ok(())
+    }
+
+    async fn kill_agent(&mut self, name: &str) {
+        if let Some(mut child) = self.agents.remove(name) {
+            let _ = child.kill().await;
+        }
+    }
+
+    /// Waits until the router no longer holds `name`'s liveliness token: a process started before would refuse
+    /// to run under a name still taken.
+    async fn wait_gone(&self, name: &str) -> bool {
+        let deadline = Instant::now() + GONE_WAIT;
+        while Instant::now() < deadline {
+            let Ok(replies) =
+                self.session.liveliness().get(keys::alive(name)).timeout(Duration::from_millis(500)).await
+            else {
+                return false;
+            };
+            let mut any = false;
+            while let Ok(r) = replies.recv_async().await {
+                any |= r.result().is_ok();
+            }
+            if !any {
+                return true;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        false
+    }
+
+    /// Sets an input as `baton set` does. A chart that does not answer yet (its queryable still travelling to
+    /// the router, or the coordinator restarting) is asked again for a while; a refusal is final.
+    async fn set(&self, name: &str, value: &serde_json::Value) -> anyhow::Result<()> {
+        let deadline = Instant::now() + SET_WAIT;
+        loop {
+            let replies = crate::client::set_on(&self.session, name, value.clone()).await?;
+            if replies.iter().any(|r| r.ok) {
+                return Ok(());
+            }
+            if let Some(r) = replies.first() {
+                anyhow::bail!("cannot set {name} = {value}: {}", r.message);
+            }
+            if Instant::now() >= deadline {
+                anyhow::bail!("cannot set {name} = {value}: no chart answered for {SET_WAIT:?}");
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
+    /// The chart time now, once the coordinator has started its run.
+    fn chart_now(&self) -> Option<u64> {
+        self.t0.map(|t0| t0.elapsed().as_millis() as u64)
+    }
+
+    fn value_of(&self, name: &str) -> Option<Value> {
+        self.values.get(name).cloned()
+    }
+
+    fn value_by_id(&self, var: VarId) -> Value {
+        let decl = &self.sc.program.vars[var.index()];
+        self.values.get(&decl.name).cloned().unwrap_or_else(|| decl.ty.default_value())
+    }
+
+    /// Takes in the records read: values, steps, and at each new moment the invariants and `when` triggers.
+    fn take_in(&mut self, obs: &mut Observer<'_>, records: Vec<TraceRecord>) {
+        let mut i = 0;
+        while i < records.len() {
+            let t = records[i].t_ms;
+            let j = records[i..].iter().position(|r| r.t_ms != t).map_or(records.len(), |k| i + k);
+            // Values expected before this moment are those of the moment before.
+            if t > 0 {
+                obs.snapshot(t - 1, |n| self.value_of(n));
+            }
+            for r in &records[i..j] {
+                if r.event == "value" {
+                    let decl = self.sc.program.var_by_name(&r.name).map(|v| &self.sc.program.vars[v.index()]);
+                    if let (Some(decl), Some(text)) = (decl, &r.value) {
+                        if let Some(v) = from_shown(&decl.ty, text) {
+                            self.values.insert(decl.name.clone(), v);
+                        }
+                    }
+                }
+            }
+            obs.follow(&records[i..j]);
+            let due = obs.judge(t, &|v| self.value_by_id(v));
+            for (k, after) in due.faults {
+                let at = t + after + jitter(&self.sc.faults[k], &mut self.rng);
+                self.plan.push((at, Act::Fault(k)));
+            }
+            for (k, after) in due.inputs {
+                self.plan.push((t + after, Act::Input(k)));
+            }
+            i = j;
+        }
+        self.trace.extend(records);
+    }
+
+    /// Carries out what is due by chart time `now` (agents that start at 0 start before the coordinator's
+    /// first record).
+    async fn carry_out(&mut self, now: Option<u64>) {
+        loop {
+            let due = self
+                .plan
+                .iter()
+                .enumerate()
+                .filter(|(_, (t, _))| now.map_or(*t == 0, |n| *t <= n))
+                .min_by_key(|(k, (t, _))| (*t, *k))
+                .map(|(k, _)| k);
+            let Some(k) = due else { return };
+            let (t, act) = self.plan.remove(k);
+            if let Err(e) = self.act(t, act).await {
+                self.errors.push(format!("at {}: {e:#}", show_ms(t)));
+            }
+        }
+    }
+
+    async fn act(&mut self, t: u64, act: Act) -> anyhow::Result<()> {
+        match act {
+            Act::StartAgent(i) => {
+                let name = self.sc.agents[i].name.clone();
+                self.start_agent(&name)
+            }
+            Act::Input(i) => {
+                for (name, value) in &self.sc.inputs[i].set {
+                    self.set(name, value).await?;
+                }
+                Ok(())
+            }
+            Act::Fault(i) => {
+                let f = &self.sc.faults[i];
+                self.struck.push((t, f.describe()));
+                match f.kind.clone() {
+                    FaultKind::Kill(a) => self.kill_agent(&a).await,
+                    FaultKind::Restart(a) => {
+                        self.kill_agent(&a).await;
+                        if !self.wait_gone(&a).await {
+                            anyhow::bail!("{a} was killed, but the router still held its name after {GONE_WAIT:?}");
+                        }
+                        self.start_agent(&a)?;
+                    }
+                    FaultKind::Cut(a, heal) => {
+                        self.cables[&a].cut();
+                        if let Some(h) = heal {
+                            self.plan.push((t + h, Act::Heal(a)));
+                        }
+                    }
+                    FaultKind::Heal(a) => self.cables[&a].heal(),
+                    FaultKind::Link(a, n, lasting) => {
+                        self.cables[&a].delay(n.delay_ms);
+                        self.plan.push((t + lasting, Act::Undelay(a)));
+                    }
+                    FaultKind::CrashCoordinator(down) => {
+                        if let Some(mut c) = self.coordinator.take() {
+                            let _ = c.kill().await;
+                        }
+                        // What it wrote is read to its end now: its successor's file replaces it.
+                        let rest = self.follower.read_new()?;
+                        self.backlog.extend(rest);
+                        self.plan.push((t + down, Act::CoordinatorUp));
+                    }
+                }
+                Ok(())
+            }
+            Act::Heal(a) => {
+                self.cables[&a].heal();
+                Ok(())
+            }
+            Act::Undelay(a) => {
+                self.cables[&a].delay(self.base_delay);
+                Ok(())
+            }
+            Act::CoordinatorUp => {
+                // Its successor writes the run again in full, from its journal, and goes on.
+                let n = self.coordinator_runs + 1;
+                let seen = self.trace.len() + self.backlog.len();
+                self.follower = Follower::new(self.dir.join(format!("trace.{n}.jsonl")), seen);
+                self.start_coordinator()
+            }
+        }
+    }
+
+    /// Runs the scenario to its end: the chart ends, `until` passes, or `stop` is set.
+    async fn drive(&mut self, stop: &AtomicBool) -> Outcome {
+        let sc = self.sc;
+        let mut obs = Observer::new(sc);
+        let mut stopped = false;
+        let state = loop {
+            if stop.load(Ordering::Relaxed) {
+                stopped = true;
+                break RunState::Running;
+            }
+            match self.follower.read_new() {
+                Ok(new) => {
+                    let mut records = std::mem::take(&mut self.backlog);
+                    records.extend(new);
+                    if self.t0.is_none() {
+                        if let Some(first) = records.first() {
+                            self.t0 = Some(Instant::now() - Duration::from_millis(first.t_ms));
+                        }
+                    }
+                    self.take_in(&mut obs, records);
+                }
+                Err(e) => {
+                    self.errors.push(format!("{e:#}"));
+                    break RunState::Running;
+                }
+            }
+            let now = self.chart_now();
+            if now.is_some_and(|n| n > sc.until_ms) {
+                break RunState::Running;
+            }
+            self.carry_out(now).await;
+            if let Some(c) = self.coordinator.as_mut() {
+                if let Ok(Some(status)) = c.try_wait() {
+                    self.coordinator = None;
+                    match self.follower.read_new() {
+                        Ok(rest) => self.take_in(&mut obs, rest),
+                        Err(e) => self.errors.push(format!("{e:#}")),
+                    }
+                    if status.success() {
+                        break RunState::Finished;
+                    }
+                    let log = self.dir.join(format!("coordinator.{}.log", self.coordinator_runs));
+                    let text = std::fs::read_to_string(&log).unwrap_or_default();
+                    if text.contains("the run failed") {
+                        break RunState::Failed;
+                    }
+                    let tail: Vec<&str> = text.lines().rev().take(5).collect::<Vec<_>>().into_iter().rev().collect();
+                    self.errors.push(format!("`baton run` exited with {status}: {}", tail.join(" / ")));
+                    break RunState::Running;
+                }
+            }
+            tokio::time::sleep(POLL).await;
+        };
+        let last_t = self.trace.last().map_or(0, |r| r.t_ms);
+        let chart_ms = match state {
+            RunState::Running if !stopped && self.errors.is_empty() => sc.until_ms,
+            _ => last_t.min(sc.until_ms),
+        };
+        obs.snapshot(chart_ms, |n| self.value_of(n));
+        if stopped {
+            self.errors.push(format!("stopped at chart time {}, before the run ended", show_ms(chart_ms)));
+        }
+        let (cases, active_at_failure) = obs.verdicts(&self.trace, &state, chart_ms, &|n| self.value_of(n));
+        let mut vars: Vec<(String, String)> = sc
+            .program
+            .vars
+            .iter()
+            .filter(|v| !v.hidden)
+            .filter_map(|v| self.values.get(&v.name).map(|x| (v.name.clone(), v.ty.show(x))))
+            .collect();
+        vars.sort();
+        let mut faults = std::mem::take(&mut self.struck);
+        faults.sort();
+        Outcome {
+            seed: self.seed,
+            chart_ms,
+            state,
+            cases,
+            trace: std::mem::take(&mut self.trace),
+            errors: std::mem::take(&mut self.errors),
+            faults,
+            vars,
+            active: obs.active(),
+            active_at_failure,
+        }
+    }
+
+    /// Stops every process it started and closes the router.
+    async fn tear_down(mut self) {
+        let names: Vec<String> = self.agents.keys().cloned().collect();
+        for n in names {
+            self.kill_agent(&n).await;
+        }
+        if let Some(mut c) = self.coordinator.take() {
+            let _ = c.kill().await;
+        }
+        self.cables.clear();
+        let _ = self.session.close().await;
+    }
+}
