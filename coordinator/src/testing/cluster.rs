@@ -349,10 +349,17 @@ impl<'a> World<'a> {
         }
     }
 
-    fn log(&self, name: &str) -> anyhow::Result<(Stdio, Stdio)> {
-        let path = self.dir.join(name);
+    /// Starts `cmd` with its output in the run's folder as `log`; it dies with the runner.
+    fn spawn(&self, mut cmd: Command, log: &str) -> anyhow::Result<Child> {
+        let path = self.dir.join(log);
         let f = std::fs::File::create(&path).with_context(|| format!("cannot create {}", path.display()))?;
-        Ok((Stdio::from(f.try_clone()?), Stdio::from(f)))
+        let program = cmd.as_std().get_program().to_string_lossy().to_string();
+        cmd.stdin(Stdio::null())
+            .stdout(Stdio::from(f.try_clone()?))
+            .stderr(Stdio::from(f))
+            .kill_on_drop(true)
+            .spawn()
+            .with_context(|| format!("cannot start {program}"))
     }
 
     fn start_coordinator(&mut self) -> anyhow::Result<()> {
@@ -382,15 +389,7 @@ impl<'a> World<'a> {
                 }
             }
         }
-        let (out, err) = self.log(&format!("coordinator.{n}.log"))?;
-        let child = cmd
-            .stdin(Stdio::null())
-            .stdout(out)
-            .stderr(err)
-            .kill_on_drop(true)
-            .spawn()
-            .with_context(|| format!("cannot start {}", self.bins.baton.display()))?;
-        self.coordinator = Some(child);
+        self.coordinator = Some(self.spawn(cmd, &format!("coordinator.{n}.log"))?);
         Ok(())
     }
 
@@ -406,14 +405,7 @@ impl<'a> World<'a> {
         }
         cmd.args(["--lease-ms", &LEASE_MS.to_string(), "--seed", &self.seed.to_string()]);
         cmd.arg("--simulate").arg(&self.sc.path);
-        let (out, err) = self.log(&log)?;
-        let child = cmd
-            .stdin(Stdio::null())
-            .stdout(out)
-            .stderr(err)
-            .kill_on_drop(true)
-            .spawn()
-            .with_context(|| format!("cannot start {}", self.bins.agent.display()))?;
+        let child = self.spawn(cmd, &log)?;
         self.agents.insert(name.to_string(), child);
         Ok(())
     }
@@ -514,14 +506,16 @@ impl<'a> World<'a> {
     }
 
     /// Carries out what is due by chart time `now` (agents that start at 0 start before the coordinator's
-    /// first record).
+    /// first record). An input waits while the coordinator is down, as in the simulation.
     async fn carry_out(&mut self, now: Option<u64>) {
         loop {
+            let down = self.coordinator.is_none();
             let due = self
                 .plan
                 .iter()
                 .enumerate()
                 .filter(|(_, (t, _))| now.map_or(*t == 0, |n| *t <= n))
+                .filter(|(_, (_, act))| !(down && matches!(act, Act::Input(_))))
                 .min_by_key(|(k, (t, _))| (*t, *k))
                 .map(|(k, _)| k);
             let Some(k) = due else { return };
