@@ -238,6 +238,24 @@ fn the_junit_report_has_a_suite_per_file_and_a_case_per_expectation() {
     let o = Command::new("python3").args(["-c", script, report_arg]).output().expect("python3");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(String::from_utf8_lossy(&o.stdout).trim(), "12 14 11");
+    // And against the JUnit schema CI's reporters follow (Surefire's junit-10.xsd, from pytest's sources).
+    let xsd = repo("target/junit/junit-10.xsd");
+    if !xsd.is_file() {
+        baton_tests::missing(&format!("{} is absent: run .ci/run once", xsd.display()));
+        return;
+    }
+    if !baton_tests::peer::python_has("xmlschema", "xmlschema") {
+        return;
+    }
+    let o = Command::new("python3")
+        .arg(repo("tests/scripts/validate_junit.py"))
+        .arg(&xsd)
+        .arg(&report)
+        .output()
+        .expect("python3");
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{said}{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(said.trim(), "valid 14");
 }
 
 /// The published schema (`docs/baton-test.schema.json`), as an editor would apply it: it accepts every scenario

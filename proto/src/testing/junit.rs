@@ -1,6 +1,7 @@
 //! JUnit XML for CI: one `testsuite` per scenario file, one `testcase` per expectation (with the `file` and
 //! `line` of the expectation), a failure's message and the run's timeline in `system-out`. Written in the
-//! shape Jenkins, GitLab and GitHub's test reporters read (Ant's JUnit schema, with `file` and `line`).
+//! shape Jenkins, GitLab and GitHub's test reporters read: Surefire's `junit-10.xsd`, plus `file` and `line` on
+//! `testcase` as GitLab and pytest's xunit1 write them.
 
 use crate::back::plcopen::esc as escape;
 
