@@ -354,7 +354,10 @@ impl<'a> World<'a> {
         let path = self.dir.join(log);
         let f = std::fs::File::create(&path).with_context(|| format!("cannot create {}", path.display()))?;
         let program = cmd.as_std().get_program().to_string_lossy().to_string();
-        cmd.stdin(Stdio::null())
+        // A group of its own: a terminal's Ctrl-C reaches the runner, which stops the run and tears it down,
+        // not the processes in the middle of it.
+        cmd.process_group(0)
+            .stdin(Stdio::null())
             .stdout(Stdio::from(f.try_clone()?))
             .stderr(Stdio::from(f))
             .kill_on_drop(true)
