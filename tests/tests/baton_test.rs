@@ -9,7 +9,7 @@ use std::process::{Command, Output};
 use baton_proto::exec::sim::TraceRecord;
 use baton_proto::testing::run::run;
 use baton_proto::testing::scenario::{self, LoadError};
-use baton_tests::cluster::{bin, repo};
+use baton_tests::cluster::{bin, read_trace, repo};
 
 fn scenario(path: &str) -> scenario::Scenario {
     match scenario::load(&repo(path)) {
@@ -367,11 +367,6 @@ async fn agents_started_with_simulate_run_the_scenarios_skills_over_the_real_net
     assert!(on.iter().zip(&done).all(|(a, b)| b - a >= 1000 - 2 * 10 && b - a < 1500), "{on:?} {done:?}");
     let var = |name: &str| summary["vars"][name].as_str().unwrap_or_default().to_string();
     assert_eq!((var("done"), var("reworks")), ("3".to_string(), "2".to_string()));
-}
-
-fn read_trace(path: &Path) -> Vec<TraceRecord> {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    text.lines().map(|l| serde_json::from_str(l).expect("a trace record")).collect()
 }
 
 /// `baton test --cluster`: the example cell and a fault of each kind real processes can suffer, with an

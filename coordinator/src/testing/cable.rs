@@ -109,7 +109,7 @@ async fn pump(
     // Chunks leave in order: none before the one ahead of it.
     let mut last_out = Instant::now();
     loop {
-        let Some(now) = plugged(&mut state).await else { return };
+        let Some(before) = plugged(&mut state).await else { return };
         let n = match from.read(&mut buf).await {
             Ok(0) | Err(_) => {
                 let _ = to.shutdown().await;
@@ -118,8 +118,8 @@ async fn pump(
             Ok(n) => n,
         };
         // Read while plugged in, but the cable may have been pulled since: then it waits.
-        let Some(now2) = plugged(&mut state).await else { return };
-        let delay_ms = now.delay_ms.max(now2.delay_ms);
+        let Some(after) = plugged(&mut state).await else { return };
+        let delay_ms = before.delay_ms.max(after.delay_ms);
         if delay_ms > 0 {
             let at = (Instant::now() + Duration::from_millis(rng.next_u64() % (delay_ms + 1))).max(last_out);
             tokio::time::sleep_until(at).await;

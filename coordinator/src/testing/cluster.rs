@@ -9,7 +9,7 @@
 //! Every run has its own router, ports and folder (`OUT/NAME-seedN.cluster/`: the trace, the summary, the
 //! journal and each process's log, removed when the run passes), so scenarios run side by side.
 
-use std::collections::HashMap;
+use std::collections::{BTreeSet, HashMap};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
@@ -94,17 +94,20 @@ pub fn unsupported(sc: &Scenario) -> Option<String> {
     })
 }
 
-/// Runs `sc` with `seed` on real processes and judges it; `out` holds its folder. `stop` ends it early.
+/// The folder of run `seed` of `sc` under `out`: its trace, summary, journal and processes' logs.
+pub fn run_dir(out: &Path, sc: &Scenario, seed: u64) -> PathBuf {
+    out.join(format!("{}-seed{seed}.cluster", super::file_stem(sc)))
+}
+
+/// Runs `sc` with `seed` on real processes and judges it; `out` holds its folder. `stop` ends it early. A
+/// scenario must be one real processes can run (`unsupported` says nothing of it).
 pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool, bins: &Binaries, out: &Path) -> Outcome {
-    if let Some(why) = unsupported(sc) {
-        return not_run(sc, seed, why);
-    }
     let rt = match tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() {
         Ok(rt) => rt,
         Err(e) => return not_run(sc, seed, format!("cannot start the runtime: {e}")),
     };
     rt.block_on(async {
-        let dir = out.join(format!("{}-seed{seed}.cluster", super::file_stem(sc)));
+        let dir = run_dir(out, sc, seed);
         let mut world = match World::start(sc, seed, bins, dir.clone()).await {
             Ok(w) => w,
             Err(e) => return not_run(sc, seed, format!("{e:#}")),
@@ -233,8 +236,6 @@ struct World<'a> {
     struck: Vec<(u64, String)>,
     errors: Vec<String>,
     rng: Rng,
-    /// Each agent's delay from [network], to go back to after a link fault.
-    base_delay: u64,
 }
 
 impl<'a> World<'a> {
@@ -302,7 +303,6 @@ impl<'a> World<'a> {
             struck: Vec::new(),
             errors: Vec::new(),
             rng,
-            base_delay: sc.network.delay_ms,
         };
         // Chart time 0 is when the cell is there, as in the simulation: the agents that start at once are live
         // on the router before the coordinator starts its run.
@@ -317,18 +317,7 @@ impl<'a> World<'a> {
     async fn wait_live(&mut self, names: &[String]) -> anyhow::Result<()> {
         let deadline = Instant::now() + LIVE_WAIT;
         loop {
-            let mut live = std::collections::BTreeSet::new();
-            if let Ok(replies) =
-                self.session.liveliness().get(keys::alive_any()).timeout(Duration::from_millis(500)).await
-            {
-                while let Ok(r) = replies.recv_async().await {
-                    if let Ok(sample) = r.result() {
-                        if let Some(name) = keys::agent_of_alive(sample.key_expr().as_str()) {
-                            live.insert(name.to_string());
-                        }
-                    }
-                }
-            }
+            let live = self.live_agents().await.unwrap_or_default();
             let missing: Vec<&String> = names.iter().filter(|n| !live.contains(*n)).collect();
             if missing.is_empty() {
                 return Ok(());
@@ -419,21 +408,26 @@ impl<'a> World<'a> {
         }
     }
 
+    /// The agents whose liveliness token the router holds; `None` when it cannot be asked.
+    async fn live_agents(&self) -> Option<BTreeSet<String>> {
+        let replies =
+            self.session.liveliness().get(keys::alive_any()).timeout(Duration::from_millis(500)).await.ok()?;
+        let mut live = BTreeSet::new();
+        while let Ok(r) = replies.recv_async().await {
+            if let Some(name) = r.result().ok().and_then(|s| keys::agent_of_alive(s.key_expr().as_str())) {
+                live.insert(name.to_string());
+            }
+        }
+        Some(live)
+    }
+
     /// Waits until the router no longer holds `name`'s liveliness token: a process started before would refuse
     /// to run under a name still taken.
     async fn wait_gone(&self, name: &str) -> bool {
         let deadline = Instant::now() + GONE_WAIT;
         while Instant::now() < deadline {
-            let Ok(replies) =
-                self.session.liveliness().get(keys::alive(name)).timeout(Duration::from_millis(500)).await
-            else {
-                return false;
-            };
-            let mut any = false;
-            while let Ok(r) = replies.recv_async().await {
-                any |= r.result().is_ok();
-            }
-            if !any {
+            let Some(live) = self.live_agents().await else { return false };
+            if !live.contains(name) {
                 return true;
             }
             tokio::time::sleep(Duration::from_millis(20)).await;
@@ -581,7 +575,8 @@ impl<'a> World<'a> {
                 Ok(())
             }
             Act::Undelay(a) => {
-                self.cables[&a].delay(self.base_delay);
+                // Back to the delay of the whole network.
+                self.cables[&a].delay(self.sc.network.delay_ms);
                 Ok(())
             }
             Act::CoordinatorUp => {

@@ -97,6 +97,19 @@ struct Verdict {
     wall: Duration,
 }
 
+impl Verdict {
+    /// A file that is not run: it is malformed, or cannot run (`code`), for the reason `text`.
+    fn refused(path: &Path, code: u8, text: String) -> Verdict {
+        Verdict {
+            path: path.to_path_buf(),
+            problem: Some((code, text)),
+            scenario: None,
+            outcomes: Vec::new(),
+            wall: Duration::ZERO,
+        }
+    }
+}
+
 fn thousands(n: f64) -> String {
     let s = format!("{:.0}", n);
     let mut out = String::new();
@@ -116,7 +129,7 @@ fn file_stem(sc: &Scenario) -> String {
 
 /// A run's trace (JSON Lines) and Rerun recording, under `out`: every failing run's, and with `--keep` every
 /// run's.
-fn keep_failure(opts: &TestOptions, sc: &Scenario, o: &Outcome) -> (Option<PathBuf>, Option<PathBuf>) {
+fn keep_run(opts: &TestOptions, sc: &Scenario, o: &Outcome) -> (Option<PathBuf>, Option<PathBuf>) {
     if std::fs::create_dir_all(&opts.out).is_err() {
         return (None, None);
     }
@@ -184,7 +197,7 @@ fn failure_report(opts: &TestOptions, sc: &Scenario, o: &Outcome) -> String {
         let faults: Vec<String> = o.faults.iter().map(|(t, f)| format!("{} {f}", show_ms(*t))).collect();
         s.push_str(&format!("  faults: {}\n", faults.join("; ")));
     }
-    let (trace, rrd) = keep_failure(opts, sc, o);
+    let (trace, rrd) = keep_run(opts, sc, o);
     if let Some(t) = trace {
         s.push_str(&format!("  trace: {}\n", t.display()));
     }
@@ -192,7 +205,7 @@ fn failure_report(opts: &TestOptions, sc: &Scenario, o: &Outcome) -> String {
         s.push_str(&format!("  recording: rerun {}\n", r.display()));
     }
     if opts.cluster {
-        let dir = opts.out.join(format!("{}-seed{}.cluster", file_stem(sc), o.seed));
+        let dir = cluster::run_dir(&opts.out, sc, o.seed);
         s.push_str(&format!("  processes' logs: {}\n", dir.display()));
     }
     let cluster = if opts.cluster { " --cluster" } else { "" };
@@ -231,47 +244,28 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
     let mut runnable: Vec<(usize, u64)> = Vec::new();
     for path in &files {
         let v = match scenario::load(path) {
-            Ok(sc) if opts.cluster && cluster::unsupported(&sc).is_some() => Verdict {
-                path: path.clone(),
-                problem: Some((
-                    EXIT_CANNOT_RUN,
-                    format!("{}: {}", path.display(), cluster::unsupported(&sc).unwrap_or_default()),
-                )),
-                scenario: None,
-                outcomes: Vec::new(),
-                wall: Duration::ZERO,
-            },
-            Ok(sc) => {
-                let i = verdicts.len();
-                runnable.push((i, opts.seed.unwrap_or(sc.seed)));
-                Verdict {
-                    path: path.clone(),
-                    problem: None,
-                    scenario: Some(Arc::new(sc)),
-                    outcomes: Vec::new(),
-                    wall: Duration::ZERO,
+            Ok(sc) => match opts.cluster.then(|| cluster::unsupported(&sc)).flatten() {
+                Some(why) => Verdict::refused(path, EXIT_CANNOT_RUN, format!("{}: {why}", path.display())),
+                None => {
+                    let i = verdicts.len();
+                    runnable.push((i, opts.seed.unwrap_or(sc.seed)));
+                    Verdict {
+                        path: path.clone(),
+                        problem: None,
+                        scenario: Some(Arc::new(sc)),
+                        outcomes: Vec::new(),
+                        wall: Duration::ZERO,
+                    }
                 }
-            }
+            },
             Err(LoadError::Malformed(errors)) => {
                 let text: Vec<String> = errors
                     .iter()
                     .map(|e| format!("{}:{}:{}: error: {}", path.display(), e.line, e.col, e.message))
                     .collect();
-                Verdict {
-                    path: path.clone(),
-                    problem: Some((EXIT_MALFORMED, text.join("\n"))),
-                    scenario: None,
-                    outcomes: Vec::new(),
-                    wall: Duration::ZERO,
-                }
+                Verdict::refused(path, EXIT_MALFORMED, text.join("\n"))
             }
-            Err(LoadError::CannotRun(why)) => Verdict {
-                path: path.clone(),
-                problem: Some((EXIT_CANNOT_RUN, why)),
-                scenario: None,
-                outcomes: Vec::new(),
-                wall: Duration::ZERO,
-            },
+            Err(LoadError::CannotRun(why)) => Verdict::refused(path, EXIT_CANNOT_RUN, why),
         };
         if let Some((_, text)) = &v.problem {
             eprintln!("{text}");
@@ -360,7 +354,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
                             coverages.lock().expect("coverage").entry(i).or_default().add(&c);
                         }
                         if opts.keep && o.passed() {
-                            keep_failure(opts, sc, &o);
+                            keep_run(opts, sc, &o);
                         }
                         // A passing run is remembered by its verdicts and times only: a million seeds fit.
                         if o.passed() {
