@@ -315,6 +315,9 @@ impl Engine {
         let initial = if engine.scope.initial { engine.program.initial_steps.clone() } else { Vec::new() };
         for s in initial {
             engine.activate(s, false);
+            // The first cycle gives the initial steps their first scan, whatever reaction comes before it (an
+            // agent announcing itself, a `--set` at time 0), as `baton sim` runs them.
+            engine.steps[s.index()].activated_cycle = NEVER;
         }
         engine
     }
@@ -353,6 +356,14 @@ impl Engine {
     /// Runs one scan cycle at `now_ms`.
     pub fn handle_cycle(&mut self, now_ms: u64) -> Result<(), InputError> {
         self.advance(now_ms)?;
+        if self.mutations_at_cycle == u64::MAX {
+            for i in 0..self.active.len() {
+                let s = self.active[i];
+                if self.steps[s.index()].activated_cycle == NEVER {
+                    self.steps[s.index()].activated_cycle = self.cycle;
+                }
+            }
+        }
         self.mutations_at_cycle = self.mutations;
         // One generation for the whole cycle: what its own actions change is judged by the next cycle, as in
         // `baton sim`, never by a reaction.
