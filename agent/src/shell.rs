@@ -9,7 +9,7 @@ use anyhow::anyhow;
 use baton_proto::dist::keys;
 use baton_proto::dist::layout::{is_valid_name, Layout};
 use baton_proto::dist::netconfig::NetConfig;
-use baton_proto::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch};
+use baton_proto::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch, Join};
 use baton_proto::dist::runtime::Level;
 use baton_proto::dist::wire::{self, AgentInfo, ChartHash, ChartSource, HeldToken, RunId, ToAgent, VarUpdate};
 use baton_proto::exec::program::{ActionId, Program};
@@ -85,6 +85,13 @@ enum Event {
     Devices(RunId),
 }
 
+/// A command kept until its run's chart arrives.
+enum Pending {
+    Dispatch(Dispatch),
+    Join(Join),
+    Peers(baton_proto::dist::wire::Peers),
+}
+
 /// A skill started and not yet ended.
 struct RunningSkill {
     serial: u64,
@@ -105,7 +112,7 @@ struct Shell {
     session: Session,
     started: Instant,
     runs: HashMap<RunId, Run>,
-    pending: HashMap<RunId, VecDeque<(ChartHash, Dispatch)>>,
+    pending: HashMap<RunId, VecDeque<(ChartHash, Pending)>>,
     running: HashMap<(RunId, ActionId), RunningSkill>,
     /// Skills told to stop that end by themselves (a goal being cancelled), by serial.
     stopping: HashMap<u64, (RunId, ActionId)>,
@@ -315,8 +322,8 @@ impl Shell {
         };
         let now = self.now_ms();
         match msg {
-            ToAgent::Dispatch { run, chart, token, epoch, segment, entry, vars, vars_seq, acks, fence } => {
-                let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence };
+            ToAgent::Dispatch { run, chart, token, epoch, segment, entry, vars, vars_seq, acks, fence, peers } => {
+                let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers };
                 match self.runs.get_mut(&run) {
                     Some(r) if *r.state.hash() == chart => {
                         r.last_used = Instant::now();
@@ -326,7 +333,7 @@ impl Shell {
                         r.state.handle_dispatch(now, d);
                     }
                     Some(_) => self.drop_msg(format!("dispatch for run {} with another chart version", run.key())),
-                    None => self.queue_for_chart(run, chart, d),
+                    None => self.queue_for_chart(run, chart, Pending::Dispatch(d)),
                 }
             }
             ToAgent::Drop { run, token, epoch } => {
@@ -341,10 +348,27 @@ impl Shell {
                     }
                 }
             }
-            ToAgent::Join { run, chart } => match self.runs.get_mut(&run) {
-                Some(r) => r.state.handle_join(),
-                None if !self.pending.contains_key(&run) => self.fetch_for(run, chart),
-                None => {}
+            ToAgent::Join { run, chart, vars, vars_seq, peers } => {
+                let join = Join { vars, vars_seq, peers };
+                match self.runs.get_mut(&run) {
+                    Some(r) if *r.state.hash() == chart => r.state.handle_join(now, join),
+                    Some(_) => self.drop_msg(format!("join of run {} with another chart version", run.key())),
+                    None => self.queue_for_chart(run, chart, Pending::Join(join)),
+                }
+            }
+            ToAgent::Peers { run, peers } => match self.runs.get_mut(&run) {
+                Some(r) => r.state.handle_peers(now, peers),
+                // Only a run whose chart is on its way: the dispatch or join that started the fetch names them.
+                None => {
+                    if let Some(queue) = self.pending.get_mut(&run) {
+                        if queue.len() < PENDING_DISPATCHES_MAX {
+                            let hash = queue.front().map(|(h, _)| h.clone());
+                            if let Some(hash) = hash {
+                                queue.push_back((hash, Pending::Peers(peers)));
+                            }
+                        }
+                    }
+                }
             },
             ToAgent::Sync { run } => {
                 if let Some(r) = self.runs.get_mut(&run) {
@@ -354,8 +378,8 @@ impl Shell {
         }
     }
 
-    /// Keeps a dispatch until its run's chart arrives; the first one starts the fetch.
-    fn queue_for_chart(&mut self, run: RunId, hash: ChartHash, d: Dispatch) {
+    /// Keeps a dispatch or a join until its run's chart arrives; the first one starts the fetch.
+    fn queue_for_chart(&mut self, run: RunId, hash: ChartHash, d: Pending) {
         let first = !self.pending.contains_key(&run);
         if first && self.pending.len() >= RUNS_MAX {
             return self
@@ -390,6 +414,10 @@ impl Shell {
             Ok(u) => u,
             Err(e) => return self.drop_msg(format!("on {}: {e}", sample.key_expr())),
         };
+        // The key a writer publishes on names it: an update under another name's key is not that writer's.
+        if keys::writer_of_vars(sample.key_expr().as_str()) != Some(update.from.as_str()) {
+            return self.drop_msg(format!("on {}: an update from `{}`", sample.key_expr(), update.from));
+        }
         let now = self.now_ms();
         if let Some(r) = self.runs.get_mut(&update.run) {
             r.state.handle_vars(now, &update);
@@ -408,9 +436,14 @@ impl Shell {
                 self.check_skills(&state);
                 let devices = self.start_devices(run, &state);
                 let mut r = Run { state, last_used: Instant::now(), devices };
-                for (h, d) in queued {
-                    if h == hash {
-                        r.state.handle_dispatch(now, d);
+                for (h, command) in queued {
+                    if h != hash {
+                        continue;
+                    }
+                    match command {
+                        Pending::Dispatch(d) => r.state.handle_dispatch(now, d),
+                        Pending::Join(j) => r.state.handle_join(now, j),
+                        Pending::Peers(p) => r.state.handle_peers(now, p),
                     }
                 }
                 eprintln!("joined run {} of chart `{}`", run.key(), r.state.program().name);

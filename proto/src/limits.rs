@@ -53,6 +53,13 @@ pub const CHART_SOURCE_BYTES_MAX: usize = 16 * 1024 * 1024;
 /// Reports of one token that arrived ahead of a missing one and wait for it; more are dropped (and resent).
 pub const REPORTS_AHEAD_MAX: usize = 256;
 
+/// Bytes of the reports of one token held ahead of a missing one: together with `REPORTS_AHEAD_MAX`, what a peer
+/// can make the coordinator hold.
+pub const REPORTS_AHEAD_BYTES_MAX: usize = 4 * 1024 * 1024;
+
+/// Bytes of variable updates an agent holds from writers' processes the coordinator has not named yet.
+pub const PARKED_UPDATE_BYTES_MAX: usize = 1024 * 1024;
+
 /// Unacknowledged reports an agent keeps per token for resending; past that it numbers no new one until
 /// acknowledgements come, and what happens meanwhile waits, coalesced, for the next report.
 pub const REPORTS_UNACKED_MAX: usize = 1024;

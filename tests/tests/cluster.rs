@@ -251,6 +251,7 @@ async fn garbage_on_batons_keys_changes_nothing() {
         vars_seq: 0,
         acks: vec![],
         fence: false,
+        peers: wire::Peers::default(),
     };
     put(r1_cmd, wire::encode(&bogus)).await;
     // An agent that announces itself but never says who it is.

@@ -479,38 +479,52 @@ fn a_long_outage_of_the_coordinator_loses_no_report() {
     assert_eq!(sim.events("return").len(), 1);
 }
 
-/// r1 counts in one step, then (restarted meanwhile, so from its initial value) in a later one; the coordinator
-/// waits for the count to change.
+/// r1 counts in one step for 1 s, then, after a pause on the coordinator that takes a snapshot, counts again in a
+/// later step for 300 ms; the coordinator waits for ten more counts than the snapshot. r1 is restarted while it
+/// holds no token.
 const RECOUNTING: &str = "PROGRAM recounting
-VAR n : DINT := 0; before : DINT := 0; END_VAR
+VAR v : DINT := 0; snap : DINT := 0; END_VAR
 INITIAL_STEP Start: END_STEP
 TRANSITION FROM Start TO First := TRUE; END_TRANSITION
-STEP First: {agent := 'r1'} IncN(N); END_STEP
+STEP First: {agent := 'r1'} IncV(N); END_STEP
 TRANSITION FROM First TO Between := First.T >= T#1s; END_TRANSITION
 STEP Between: Remember(P); END_STEP
 TRANSITION FROM Between TO Second := Between.T >= T#1s; END_TRANSITION
-STEP Second: {agent := 'r1'} IncN(N); END_STEP
+STEP Second: {agent := 'r1'} IncV(N); END_STEP
 TRANSITION FROM Second TO Check := Second.T >= T#300ms; END_TRANSITION
 STEP Check: END_STEP
-TRANSITION FROM Check TO Done := n <> before; END_TRANSITION
+TRANSITION FROM Check TO Done := v >= snap + 10; END_TRANSITION
 STEP Done: END_STEP
-ACTION IncN: n := n + 1; END_ACTION
-ACTION Remember: before := n; END_ACTION
+ACTION IncV: v := v + 1; END_ACTION
+ACTION Remember: snap := v; END_ACTION
 END_PROGRAM
 ";
 
 #[test]
-fn a_restarted_agents_values_are_heard() {
-    // The new process numbers its variable updates from 1 again: the coordinator must not take them for old
-    // ones of the process it replaced, or the count it waits for never changes.
-    let mut sim = SimCluster::new(RECOUNTING, &[("r1", &[])], Faults::default(), 4);
-    sim.fate_at(1_500, "r1", baton_proto::dist::simnet::Fate::Restart);
-    let done = sim.run(30_000);
-    let (n, before) = (sim.value("n").map(|v| v.as_i64()), sim.value("before").map(|v| v.as_i64()));
-    assert!(done, "seed 4: the coordinator never heard r1's new process (n = {n:?}, before = {before:?})");
-    // About 100 cycles in First; the new process counted from 0 for about 30.
-    let (n, before) = (n.unwrap_or(-1), before.unwrap_or(-1));
-    assert!(before > 50 && n > 0 && n < before, "n = {n}, before = {before}");
+fn a_restarted_agent_computes_on_the_values_the_chart_has() {
+    // The new process must start from the run's value of `v`, which only it writes, not from the chart's initial
+    // value: then it counts on from about 100 and the chart ends with what one engine computes. (Before, it
+    // counted from 0 to about 30, `v` fell below the snapshot, and Check never cleared.)
+    let names = ["v", "snap"];
+    let expected = baton_tests::reference::final_values(RECOUNTING, baton_proto::dist::simnet::CYCLE_MS, &names);
+    assert!(expected[1] >= 90 && expected[0] >= expected[1] + 25, "the reference counted: {expected:?}");
+    for seed in 0..8 {
+        // No loss: a report lost and not yet resent when r1 dies would restart First in a new epoch, which counts
+        // again by design (the progress of a segment that restarts is lost).
+        let faults = Faults { duplicate: 0.3, reorder: true, delay_ms_max: 8, loss: 0.0 };
+        let mut sim = SimCluster::new(RECOUNTING, &[("r1", &[])], faults, seed);
+        // SIGKILLed while it holds no token, and started again under its name.
+        sim.fate_at(1_500, "r1", baton_proto::dist::simnet::Fate::Kill);
+        sim.fate_at(1_600, "r1", baton_proto::dist::simnet::Fate::Restart);
+        let done = sim.run(30_000);
+        let got: Vec<i64> = names.iter().map(|n| sim.value(n).map_or(-1, |v| v.as_i64())).collect();
+        assert!(done, "seed {seed}: the chart never ended ({names:?} = {got:?})");
+        assert_eq!(got, expected, "seed {seed}: {names:?}");
+        let restarted = sim.trace.iter().any(|r| r.event == "agent_up" && r.t_ms >= 1_600);
+        assert!(restarted, "seed {seed}: r1 came back as a new process");
+        let epochs: Vec<Option<u32>> = sim.trace.iter().filter(|r| r.event == "dispatch").map(|r| r.epoch).collect();
+        assert_eq!(epochs, [Some(1), Some(1)], "seed {seed}: no segment restarted, so none lost its progress");
+    }
 }
 
 #[test]
@@ -600,5 +614,237 @@ fn a_nested_chart_on_an_agent_computes_what_baton_sim_computes() {
         assert_eq!(got, expected, "seed {seed}: {names:?}");
         let batch: Vec<_> = sim.events("action_on").into_iter().filter(|(_, name, _)| name == "Batch").collect();
         assert!(!batch.is_empty() && batch.iter().all(|(_, _, agent)| agent.as_deref() == Some("r1")), "{batch:?}");
+    }
+}
+
+/// r1 waits for an input the coordinator owns.
+const WAITING_FOR_GO: &str = "PROGRAM waiting
+VAR go : BOOL; END_VAR
+INITIAL_STEP Start: END_STEP
+TRANSITION FROM Start TO Wait := TRUE; END_TRANSITION
+STEP Wait: {agent := 'r1'} END_STEP
+TRANSITION FROM Wait TO Done := go; END_TRANSITION
+STEP Done: END_STEP
+END_PROGRAM
+";
+
+#[test]
+fn agents_take_a_value_only_from_its_writer_and_the_coordinators_own_process() {
+    use baton_proto::dist::wire::{VarUpdate, VarValue};
+    use baton_proto::exec::types::Value;
+    let go = |from: &str, incarnation: u128, seq: u64| {
+        let sim = SimCluster::new(WAITING_FOR_GO, &[("r1", &[])], Faults::default(), 0);
+        let program = sim.coordinator.core().program();
+        let var = program.var_by_name("go").expect("go");
+        VarUpdate {
+            run: sim.coordinator.core().run(),
+            from: from.to_string(),
+            incarnation: uuid::Uuid::from_u128(incarnation),
+            seq,
+            vars: vec![VarValue::new(var, Value::Bool(true))],
+        }
+    };
+    for seed in 0..8 {
+        let faults = Faults { duplicate: 0.3, reorder: true, delay_ms_max: 8, loss: 0.05 };
+        let mut sim = SimCluster::new(WAITING_FOR_GO, &[("r1", &[])], faults, seed);
+        // A made-up writer, and a process claiming to be the coordinator with numbers far ahead of the real one:
+        // neither clears the transition, and the second does not silence the real coordinator on r1.
+        sim.forge_vars_at(300, go("evil", 5, 1));
+        sim.forge_vars_at(400, go("coordinator", 6, 1_000_000));
+        // The agent itself is no writer of `go` either.
+        sim.forge_vars_at(450, go("r1", 0, 1_000_000));
+        sim.set_at(1_000, "go", serde_json::json!(true));
+        assert!(sim.run(10_000), "seed {seed}: the real coordinator's `go` never reached r1");
+        let fired = sim.trace.iter().find(|r| r.event == "fire" && r.name == "Wait->Done").expect("Wait left");
+        assert!(fired.t_ms >= 1_000, "seed {seed}: Wait left at {} ms, on a forged value", fired.t_ms);
+    }
+}
+
+/// A random chart whose every condition reads only step times, so that one engine and a distributed run take the
+/// same path: structured shapes without loops, steps placed at random on the coordinator, agent a1, agent a2 or
+/// role r, each placed step counting its cycles (N) and its visits (P) into the counters of its placement
+/// (`k_a1`, `v_a1`, … — one pair per agent, so that a value an agent wrote in one step is counted on in a later
+/// one — and `k_r{i}`, `v_r{i}` per step for the role, whose two agents may run steps side by side).
+fn counting_cell(rng: &mut baton_tests::gen::Rng) -> (String, Vec<String>) {
+    use baton_tests::gen::{random_shapes, ChartBuilder, Shape};
+    fn no_loops(shapes: Vec<Shape>) -> Vec<Shape> {
+        shapes
+            .into_iter()
+            .flat_map(|s| match s {
+                Shape::Loop(body) => no_loops(body),
+                Shape::Selection(b) => vec![Shape::Selection(b.into_iter().map(no_loops).collect())],
+                Shape::Parallel(b) => vec![Shape::Parallel(b.into_iter().map(no_loops).collect())],
+                Shape::Step => vec![Shape::Step],
+            })
+            .collect()
+    }
+    let shapes = no_loops(random_shapes(rng, 3));
+    let plain = ChartBuilder::chart(&shapes, 1, false);
+    let waiting: std::collections::HashSet<usize> = plain
+        .lines()
+        .filter_map(|l| l.strip_prefix("TRANSITION FROM (")?.split(')').next())
+        .flat_map(|list| list.split(", ").filter_map(|s| s.trim_start_matches('S').parse().ok()).collect::<Vec<_>>())
+        .collect();
+    // The last step is terminal: it stays on the coordinator and does nothing, so that the chart ends where one
+    // engine ends it.
+    let sources: std::collections::HashSet<usize> = plain
+        .lines()
+        .filter_map(|l| l.strip_prefix("TRANSITION FROM ")?.split(" TO ").next())
+        .flat_map(|list| {
+            list.trim_matches(|c| c == '(' || c == ')')
+                .split(", ")
+                .filter_map(|s| s.trim_start_matches('S').parse().ok())
+                .collect::<Vec<usize>>()
+        })
+        .collect();
+    let (mut vars, mut actions, mut names) = (String::new(), String::new(), Vec::new());
+    let declare = |vars: &mut String, names: &mut Vec<String>, name: String| {
+        if !names.contains(&name) {
+            vars.push_str(&format!("  {name} : DINT;\n"));
+            names.push(name);
+        }
+    };
+    let mut out = String::new();
+    for line in plain.lines() {
+        if let Some(head) = line.strip_suffix(": END_STEP") {
+            let i: usize = head.rsplit('S').next().and_then(|n| n.parse().ok()).unwrap_or(0);
+            let terminal = !sources.contains(&i);
+            let placement = if i == 0 || terminal { 0 } else { rng.below(4) };
+            let (pragma, counter) = match placement {
+                1 => ("{agent := 'a1'} ", "a1".to_string()),
+                2 => ("{agent := 'a2'} ", "a2".to_string()),
+                3 => ("{role := 'r'} ", format!("r{i}")),
+                _ => ("", "coord".to_string()),
+            };
+            let mut assocs = String::new();
+            if !waiting.contains(&i) && !terminal {
+                declare(&mut vars, &mut names, format!("k_{counter}"));
+                declare(&mut vars, &mut names, format!("v_{counter}"));
+                assocs = format!("Count{i}(N); Visit{i}(P); ");
+                actions.push_str(&format!("ACTION Count{i}: k_{counter} := k_{counter} + 1; END_ACTION\n"));
+                actions.push_str(&format!("ACTION Visit{i}: v_{counter} := v_{counter} + 1; END_ACTION\n"));
+            }
+            out.push_str(&format!("{head}: {pragma}{assocs}END_STEP\n"));
+            continue;
+        }
+        if let Some(rest) = line.strip_prefix("TRANSITION FROM ") {
+            let (from, _) = rest.split_once(" := ").expect("a condition");
+            let condition = match from.strip_prefix('S').and_then(|r| r.split(' ').next()) {
+                Some(source) => format!("S{source}.T >= T#{}ms", 10 * (1 + rng.below(8))),
+                None => "TRUE".to_string(),
+            };
+            out.push_str(&format!("TRANSITION FROM {from} := {condition}; END_TRANSITION\n"));
+            continue;
+        }
+        out.push_str(line);
+        out.push('\n');
+    }
+    let source = out.replacen("END_VAR\n", &format!("{vars}END_VAR\n"), 1).replacen(
+        "END_PROGRAM",
+        &format!("{actions}END_PROGRAM"),
+        1,
+    );
+    (source, names)
+}
+
+/// Random cells whose agents are killed and started again, cut and healed, and whose coordinator crashes, on a
+/// network that loses, duplicates, reorders and delays: once the chart ends, every counter holds what one engine
+/// computes (`baton sim`) — but those of an agent whose segment restarted in a new epoch, which counts that
+/// segment's progress again by design, and the coordinator's if it was down (no cycle runs in a dead process). A new process that computed on the chart's initial values, or a value
+/// lost between processes, shows here.
+#[test]
+fn random_restarts_end_with_the_values_baton_sim_computes() {
+    use baton_proto::dist::simnet::{Fate, CYCLE_MS};
+    use baton_tests::gen::Rng;
+    let (mut compared, mut restarted_agents) = (0usize, 0usize);
+    for &seed in &seeds() {
+        let mut rng = Rng::new(seed ^ 0x7e57);
+        let (source, names) = counting_cell(&mut rng);
+        if baton_proto::front::check::check_source(&source).error_count() != 0 {
+            continue;
+        }
+        let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+        let expected = baton_tests::reference::final_values(&source, CYCLE_MS, &refs);
+        let faults = Faults {
+            duplicate: rng.fraction(0.3),
+            reorder: rng.chance(0.7),
+            delay_ms_max: rng.below(7),
+            loss: rng.fraction(0.05),
+        };
+        let mut plan = format!("{faults:?}");
+        let mut sim = SimCluster::new(&source, &[("a1", &["r"]), ("a2", &["r"])], faults, seed);
+        if rng.chance(0.3) {
+            sim.set_loss_policy(LossPolicy::Reassign);
+            plan.push_str(", reassign");
+        }
+        for _ in 0..1 + rng.below(3) {
+            let (agent, at) = (["a1", "a2"][rng.below(2) as usize], rng.below(1_500));
+            let mut fate = |t: u64, f: Fate| {
+                sim.fate_at(t, agent, f);
+                plan.push_str(&format!(", {f:?} {agent} at {t} ms"));
+            };
+            match rng.below(3) {
+                0 => {
+                    fate(at, Fate::Kill);
+                    fate(at + 1 + rng.below(300), Fate::Restart);
+                }
+                1 => fate(at, Fate::Restart),
+                _ => {
+                    fate(at, Fate::Cut);
+                    fate(at + rng.below(2_000), Fate::Heal);
+                }
+            }
+        }
+        let crashed = rng.chance(0.3);
+        if crashed {
+            let (at, down) = (rng.below(1_500), 1 + rng.below(300));
+            sim.crash_coordinator_at(at, down);
+            plan.push_str(&format!(", coordinator down at {at} ms for {down} ms"));
+        }
+        let finished = sim.run(60_000);
+        let replay = format!(
+            "{plan}\nreplay: BATON_SIM_SEED={seed} cargo test -p baton-tests --test distributed_sim random_restarts_end_with_the_values_baton_sim_computes\n{source}"
+        );
+        let tail: Vec<String> = sim.trace.iter().rev().take(12).rev().map(|r| format!("{r:?}")).collect();
+        assert!(
+            finished,
+            "seed {seed}: the chart did not end ({:?}, {:?}); last records:\n{}\n{replay}",
+            sim.coordinator.core().failure(),
+            sim.errors,
+            tail.join("\n")
+        );
+        if let Some(why) = sim.violations.first() {
+            panic!("seed {seed}: {why}\n{replay}");
+        }
+        // The agents one of whose segments ran again in a new epoch, and whether a role step did.
+        let again: std::collections::BTreeSet<String> = sim
+            .trace
+            .iter()
+            .filter(|r| r.event == "dispatch" && r.epoch.is_some_and(|e| e > 1))
+            .filter_map(|r| r.agent.clone())
+            .collect();
+        let role_again = sim.trace.iter().any(|r| {
+            r.event == "dispatch" && r.epoch.is_some_and(|e| e > 1) && source.contains(&format!("{}: {{role", r.name))
+        });
+        restarted_agents += usize::from(plan.contains("Restart"));
+        for (name, want) in names.iter().zip(&expected) {
+            // The coordinator's own steps run no cycle while it is down: its counters lose that time by design.
+            let exempt = match name.split_once('_').map(|(_, p)| p) {
+                Some("coord") => crashed,
+                Some(p) if p.starts_with('r') => role_again,
+                Some(agent) => again.contains(agent),
+                None => false,
+            };
+            if exempt {
+                continue;
+            }
+            let got = sim.value(name).map_or(-1, |v| v.as_i64());
+            assert_eq!(got, *want, "seed {seed}: `{name}`\n{replay}");
+        }
+        compared += 1;
+    }
+    eprintln!("random restarts: {compared} charts compared, {restarted_agents} with a restarted agent");
+    if seeds().len() > 1 {
+        assert!(compared * 10 >= seeds().len() * 8, "only {compared} random charts were valid");
     }
 }

@@ -65,6 +65,13 @@ pub fn vars(run: RunId, writer: &str) -> String {
     format!("{ROOT}/run/{}/vars/{writer}", run.key())
 }
 
+/// The writer a variable update's key names (`baton/run/<run>/vars/<writer>`).
+pub fn writer_of_vars(key: &str) -> Option<&str> {
+    let rest = key.strip_prefix(ROOT)?.strip_prefix("/run/")?;
+    let (_, writer) = rest.split_once("/vars/")?;
+    (!writer.is_empty() && !writer.contains('/')).then_some(writer)
+}
+
 /// Variable updates of every run: an agent listens to all runs it takes part in.
 pub fn vars_any_run() -> String {
     format!("{ROOT}/run/*/vars/*")
@@ -109,5 +116,13 @@ mod tests {
         assert_eq!(agent_of_alive("baton/alive/"), None);
         assert_eq!(agent_of_alive("baton/alive/a/b"), None);
         assert_eq!(agent_of_alive("other/alive/a"), None);
+    }
+
+    #[test]
+    fn variable_keys_name_their_writer() {
+        let run = RunId(Uuid::from_u128(3));
+        assert_eq!(writer_of_vars(&vars(run, "r1")), Some("r1"));
+        assert_eq!(writer_of_vars("baton/run/x/vars/"), None);
+        assert_eq!(writer_of_vars("baton/run/x/vars/a/b"), None);
     }
 }

@@ -18,7 +18,7 @@ use std::sync::Arc;
 
 use crate::dist::journal::{self, Journaled};
 use crate::dist::layout::{Layout, Param, SkillBinding};
-use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch};
+use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch, Join};
 use crate::dist::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
 use crate::dist::wire::{self, AgentInfo, ChartHash, RunId, ToAgent, VarUpdate};
 use crate::exec::program::{ActionId, Program};
@@ -194,6 +194,8 @@ pub struct SimCluster {
     hash: ChartHash,
     /// Inputs to set, as (time, name, value), applied when their time comes.
     inputs: Vec<(u64, String, serde_json::Value)>,
+    /// Variable updates a rogue peer publishes, and when.
+    forged: Vec<(u64, VarUpdate)>,
     agents: Vec<SimAgent>,
     net: Vec<(u64, Packet)>,
     rng: Rng,
@@ -317,6 +319,7 @@ impl SimCluster {
             layout: Arc::clone(&layout),
             hash: hash.clone(),
             inputs: Vec::new(),
+            forged: Vec::new(),
             agents: sim_agents,
             net: Vec::new(),
             rng: Rng::new(seed, NETWORK_MIX),
@@ -576,6 +579,13 @@ impl SimCluster {
         self.inputs.sort_by_key(|i| i.0);
     }
 
+    /// A rogue peer publishes `update` on the run's variable keys at `t_ms`: the coordinator and every agent it
+    /// reaches hear it, as they would hear a process that is not theirs.
+    pub fn forge_vars_at(&mut self, t_ms: u64, update: VarUpdate) {
+        self.forged.push((t_ms, update));
+        self.forged.sort_by_key(|f| f.0);
+    }
+
     /// Runs until the chart reaches a terminal situation or `limit_ms` of virtual time passed; returns whether
     /// it finished.
     pub fn run(&mut self, limit_ms: u64) -> bool {
@@ -600,17 +610,18 @@ impl SimCluster {
                 let (_, down_ms) = self.crashes.remove(0);
                 self.crash_coordinator(down_ms);
             }
+            // As the shells do: what is due by now runs first, then what arrived now (an agent's process dying or
+            // coming back, a lease running out, a message).
+            let up = self.down_until.is_none();
+            if up {
+                self.due_cycles();
+            }
             while self.fates.first().is_some_and(|f| f.0 <= self.now_ms) {
                 let (_, agent, fate) = self.fates.remove(0);
                 self.apply_fate(&agent, fate);
             }
             self.leases();
             self.watch_engines();
-            let up = self.down_until.is_none();
-            // As the shells do: what is due by now runs first, then what arrived now.
-            if up {
-                self.due_cycles();
-            }
             for i in 0..self.agents.len() {
                 let now = self.now_ms;
                 if self.agents[i].alive && self.agents[i].run.poll_timeout().is_some_and(|t| t <= now) {
@@ -622,6 +633,20 @@ impl SimCluster {
                 let (_, name, value) = self.inputs.remove(0);
                 if let Err(e) = self.coordinator.set(self.now_ms, &name, &value) {
                     self.errors.push(format!("at {} ms, {name} cannot be set to {value}: {e}", self.now_ms));
+                }
+                self.flush_coordinator();
+            }
+            while self.forged.first().is_some_and(|f| f.0 <= self.now_ms) {
+                let (_, update) = self.forged.remove(0);
+                let now = self.now_ms;
+                if up {
+                    self.coordinator.vars(now, &wire::encode(&update)).expect("a forged update encodes");
+                }
+                for a in self.agents.iter_mut().filter(|a| a.alive && a.reachable) {
+                    a.run.handle_vars(now, &update);
+                }
+                for i in 0..self.agents.len() {
+                    self.flush_agent(i);
                 }
                 self.flush_coordinator();
             }
@@ -670,6 +695,7 @@ impl SimCluster {
         due.extend(self.crashes_after_journal.first().map(|c| c.0));
         due.extend(self.fates.first().map(|f| f.0));
         due.extend(self.inputs.first().map(|i| i.0));
+        due.extend(self.forged.first().map(|f| f.0));
         due.extend(self.net.iter().map(|(t, _)| *t));
         if self.down_until.is_none() {
             due.extend(self.coordinator.core().next_cycle_ms(self.last_cycle_ms));
@@ -763,11 +789,13 @@ impl SimCluster {
                 Packet::ToAgent(i, incarnation, _) if incarnation != Uuid::from_u128(self.agents[i].restarts) => {}
                 Packet::ToAgent(i, _, bytes) => {
                     match wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages") {
-                        ToAgent::Dispatch { token, epoch, segment, entry, vars, vars_seq, acks, fence, .. } => {
+                        ToAgent::Dispatch {
+                            token, epoch, segment, entry, vars, vars_seq, acks, fence, peers, ..
+                        } => {
                             for a in acks {
                                 self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
                             }
-                            let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence };
+                            let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers };
                             let before = self.agents[i].run.held();
                             self.agents[i].run.handle_dispatch(self.now_ms, d);
                             // A segment started here: never twice in one epoch, on any agent.
@@ -788,8 +816,10 @@ impl SimCluster {
                             }
                         }
                         ToAgent::Sync { .. } => self.agents[i].run.handle_sync(self.now_ms),
-                        // Simulated agents take part in the run from its start.
-                        ToAgent::Join { .. } => {}
+                        ToAgent::Join { vars, vars_seq, peers, .. } => {
+                            self.agents[i].run.handle_join(self.now_ms, Join { vars, vars_seq, peers })
+                        }
+                        ToAgent::Peers { peers, .. } => self.agents[i].run.handle_peers(self.now_ms, peers),
                     }
                 }
                 // A coordinator that is down hears nothing.

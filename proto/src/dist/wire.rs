@@ -12,7 +12,9 @@ use crate::exec::program::{Program, VarId};
 use crate::exec::types::Value;
 use crate::limits::MESSAGE_BYTES_MAX;
 
-pub const PROTOCOL_VERSION: u32 = 2;
+/// 3: dispatches and joins carry the values of the variables the agent writes (a new process takes them) and the
+/// writers it may hear variables from (`Peer`); `ToAgent::Peers` tells agents when those change.
+pub const PROTOCOL_VERSION: u32 = 3;
 
 /// One run of a chart by one coordinator.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -108,8 +110,10 @@ impl VarValue {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ToAgent {
-    /// Run `segment` from step `entry`. `vars` holds the current value of every variable the agent does not
-    /// write, as of the coordinator's variable update number `vars_seq`.
+    /// Run `segment` from step `entry`. `vars` holds the current value of every variable the agent reads or
+    /// writes, as of the coordinator's variable update number `vars_seq`: a process that has not taken part in
+    /// the run yet (a restarted one) takes even those it writes itself, which it would otherwise start from their
+    /// initial values. `peers` are the processes whose variable updates it may take.
     Dispatch {
         run: RunId,
         chart: ChartHash,
@@ -124,6 +128,7 @@ pub enum ToAgent {
         /// The token may be taken away if the agent is lost (`--on-agent-loss reassign`): an agent that loses
         /// its router for a quarter of its lease cancels this token's skills (`limits::fence_after_ms`).
         fence: bool,
+        peers: Peers,
     },
     /// This token's epoch is over (its segment was taken back): stop running it and forget it.
     Drop { run: RunId, token: TokenId, epoch: u32 },
@@ -134,8 +139,31 @@ pub enum ToAgent {
     /// now, rather than at the next resend.
     Sync { run: RunId },
     /// Take part in `run` before any token comes: the agent connects variables bound to devices on it
-    /// (`dist::io`), whose inputs the chart may wait for from its first cycle.
-    Join { run: RunId, chart: ChartHash },
+    /// (`dist::io`), whose inputs the chart may wait for from its first cycle. `vars`, `vars_seq` and `peers` as
+    /// in a dispatch.
+    Join { run: RunId, chart: ChartHash, vars: Vec<VarValue>, vars_seq: u64, peers: Peers },
+    /// The processes an agent may take variable updates from changed (one restarted, came or went).
+    Peers { run: RunId, peers: Peers },
+}
+
+/// Who may publish the variables an agent reads: the coordinator's process, and each agent that writes some of
+/// them, with its current process and its roles. An agent takes a variable update only from the variable's one
+/// writer (its agent, or an agent of its role), and only from the process named here — so a made-up writer, or a
+/// made-up process of a real one, changes nothing.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Peers {
+    /// Numbered by the coordinator: an older table never replaces a newer one.
+    pub seq: u64,
+    /// The coordinator's process, which numbers its variable updates (`VarUpdate::incarnation`).
+    pub coordinator: Uuid,
+    pub agents: Vec<Peer>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Peer {
+    pub name: String,
+    pub incarnation: Uuid,
+    pub roles: Vec<String>,
 }
 
 /// Every report of this token up to `seq` is applied; with `done`, the token is finished and may be forgotten.
@@ -212,6 +240,17 @@ pub struct VarUpdate {
     pub incarnation: Uuid,
     pub seq: u64,
     pub vars: Vec<VarValue>,
+}
+
+impl VarUpdate {
+    /// About the bytes it takes, to bound what is held of them.
+    pub fn weight(&self) -> usize {
+        let value = |v: &WireValue| match v {
+            WireValue::Str(s) => s.len(),
+            _ => 8,
+        };
+        64 + self.from.len() + self.vars.iter().map(|vv| 16 + value(&vv.value)).sum::<usize>()
+    }
 }
 
 /// An agent's answer to the info query.
@@ -372,7 +411,7 @@ mod tests {
         let entry = AckEntry { token: TokenId(Uuid::from_u128(9)), epoch: 2, seq: 3, done: true };
         let msg = ToAgent::Ack { run: RunId(Uuid::from_u128(7)), acks: vec![entry] };
         let bytes = encode(&msg);
-        assert!(std::str::from_utf8(&bytes).unwrap().contains("\"v\":2"));
+        assert!(std::str::from_utf8(&bytes).unwrap().contains(&format!("\"v\":{PROTOCOL_VERSION}")));
         assert_eq!(decode::<ToAgent>(&bytes), Ok(msg));
         let report = Report {
             run: RunId(Uuid::from_u128(1)),
@@ -392,7 +431,7 @@ mod tests {
     #[test]
     fn bad_bytes_are_errors() {
         assert!(matches!(decode::<ToAgent>(b"\xff\x00garbage"), Err(WireError::Malformed(_))));
-        assert!(matches!(decode::<ToAgent>(br#"{"v":2,"m":{"launch_missiles":{}}}"#), Err(WireError::Malformed(_))));
+        assert!(matches!(decode::<ToAgent>(br#"{"v":3,"m":{"launch_missiles":{}}}"#), Err(WireError::Malformed(_))));
         assert_eq!(decode::<ToAgent>(br#"{"v":99,"m":{"ack":{}}}"#), Err(WireError::Version(99)));
         let big = vec![b' '; MESSAGE_BYTES_MAX + 1];
         assert_eq!(decode::<ToAgent>(&big), Err(WireError::TooLarge(MESSAGE_BYTES_MAX + 1, MESSAGE_BYTES_MAX)));

@@ -18,21 +18,30 @@ use std::sync::Arc;
 use crate::dist::io::{IoBinding, IoDir};
 use crate::dist::layout::{Layout, Placement, SegmentId, SkillBinding};
 use crate::dist::wire::{
-    AgentEvent, AgentEventKind, ChartHash, DeviceDown, DeviceReport, HeldToken, Report, RunId, TokenId, VarUpdate,
-    VarValue,
+    AgentEvent, AgentEventKind, ChartHash, DeviceDown, DeviceReport, HeldToken, Peers, Report, RunId, TokenId,
+    VarUpdate, VarValue,
 };
 use crate::exec::engine::{Engine, EventKind, Input, RemoteInput};
 use crate::exec::program::{ActionId, Program, StepId, VarId};
 use crate::exec::sim::fault_message;
 use crate::exec::types::Value;
-use crate::limits::{CATCH_UP_CYCLES_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_UNACKED_MAX, REPORT_EVENTS_MAX};
+use crate::limits::{
+    CATCH_UP_CYCLES_MAX, FINISHED_TOKENS_REMEMBERED, PARKED_UPDATE_BYTES_MAX, REPORTS_UNACKED_MAX, REPORT_EVENTS_MAX,
+};
 
 use super::{Level, VarWrites, COORDINATOR};
 use uuid::Uuid;
 
+/// Processes whose refused variable updates an agent remembers having logged.
+const REFUSALS_SAID_MAX: usize = 64;
+
 /// First and largest delay before an unacknowledged report is sent again.
 const RESEND_FIRST_MS: u64 = 200;
 const RESEND_MAX_MS: u64 = 5_000;
+/// After its variables changed, an agent publishes those only it writes again, as of the same update, after these
+/// doubling delays: an update lost on the way would leave another agent waiting for ever for a value it reads.
+const VARS_RESEND_FIRST_MS: u64 = 200;
+const VARS_RESEND_MAX_MS: u64 = 3_200;
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum AgentOutput {
@@ -73,6 +82,15 @@ pub struct Dispatch {
     pub vars_seq: u64,
     /// The coordinator may give the token to another agent if this one is lost: fence its skills.
     pub fence: bool,
+    pub peers: Peers,
+}
+
+/// A join, decoded: the run's values and writers, before any token.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Join {
+    pub vars: Vec<VarValue>,
+    pub vars_seq: u64,
+    pub peers: Peers,
 }
 
 struct Unacked {
@@ -121,10 +139,25 @@ pub struct AgentRun {
     /// Values changed since the last report, by variable: the next report carries them.
     unreported: BTreeMap<u32, Value>,
     vars_seq: u64,
+    /// When this process's values are published again (`VARS_RESEND_FIRST_MS`), and the delay after that.
+    vars_resend_at_ms: Option<u64>,
+    vars_resend_backoff_ms: u64,
     /// This agent's process: its variable updates are numbered within it.
     incarnation: Uuid,
     /// The last write applied to each variable written elsewhere.
     var_writes: VarWrites,
+    /// Who may publish the variables this agent reads, as the coordinator said last (`None` before its first
+    /// dispatch or join).
+    peers: Option<Peers>,
+    /// This process took the coordinator's values of the variables it writes itself (its first dispatch or join):
+    /// from then on its own values are the run's.
+    seeded: bool,
+    /// Updates from a process of a known writer that the coordinator has not named yet (it restarted, and its
+    /// first values overtook the news), held until it does, at most `PARKED_UPDATE_BYTES_MAX`.
+    parked: VecDeque<VarUpdate>,
+    parked_bytes: usize,
+    /// The processes whose refused updates were logged already.
+    refusals_said: VecDeque<(String, Uuid)>,
     /// Per action: the segments with a step that uses it.
     action_segments: Vec<Vec<SegmentId>>,
     running_skills: HashSet<ActionId>,
@@ -157,7 +190,8 @@ impl AgentRun {
         let engine = Engine::with_scope(Arc::clone(&program), layout.agent_scope(&program));
         let program_vars = program.vars.len();
         let published = owned.iter().map(|&v| engine.value(v)).collect();
-        let pinned = owned.iter().map(|v| layout.writer[v.index()] == Placement::Agent(name.to_string())).collect();
+        let pinned: Vec<bool> =
+            owned.iter().map(|v| layout.writer[v.index()] == Placement::Agent(name.to_string())).collect();
         let mut action_segments = vec![Vec::new(); program.actions.len()];
         for (g, seg) in layout.segments.iter().enumerate() {
             for &s in &seg.steps {
@@ -191,8 +225,15 @@ impl AgentRun {
             published,
             unreported: BTreeMap::new(),
             vars_seq: 0,
+            vars_resend_at_ms: None,
+            vars_resend_backoff_ms: 0,
             incarnation: Uuid::nil(),
             var_writes: VarWrites::new(program_vars),
+            peers: None,
+            seeded: false,
+            parked: VecDeque::new(),
+            parked_bytes: 0,
+            refusals_said: VecDeque::new(),
             action_segments,
             running_skills: HashSet::new(),
             fenced: None,
@@ -274,11 +315,131 @@ impl AgentRun {
         }
     }
 
-    /// The coordinator asks this agent to take part in the run: it restarted, or saw this agent come back. It
-    /// hears again which devices are down (it may have missed the report).
-    pub fn handle_join(&mut self) {
+    /// The coordinator asks this agent to take part in the run: it restarted, or saw this agent come back. The
+    /// join carries the run's values (a new process takes even its own) and writers; the coordinator hears again
+    /// which devices are down (it may have missed the report) and every value this agent writes.
+    pub fn handle_join(&mut self, now_ms: u64, join: Join) {
+        self.catch_up(now_ms);
+        self.handle_peers_table(join.peers);
+        self.take_coordinator_values(&join.vars, join.vars_seq);
         if self.io_here().next().is_some() {
             self.report_devices();
+        }
+        self.republish();
+        self.settle();
+    }
+
+    /// The coordinator's values in a dispatch or a join: the variables this agent writes only while it has not
+    /// taken part in the run yet, the others as of `vars_seq` (what another agent wrote is only relayed: that
+    /// agent's own updates win).
+    fn take_coordinator_values(&mut self, vars: &[VarValue], vars_seq: u64) {
+        let seed = !std::mem::replace(&mut self.seeded, true);
+        let coordinator = self.peers.as_ref().map_or(Uuid::nil(), |p| p.coordinator);
+        for vv in vars {
+            let relay =
+                vv.resolve(&self.program).is_some_and(|(v, _)| self.layout.writer[v.index()] != Placement::Coordinator);
+            if !self.accept_external(vv, COORDINATOR, coordinator, vars_seq, relay, seed) {
+                self.dropped += 1;
+            }
+        }
+    }
+
+    /// Every value only this agent writes goes out again in a fresh update: a coordinator that started again from
+    /// its journal, or a link that lost messages, may have missed the last ones. A role's variable is not said
+    /// again: the agents of the role write it in turn, and a value said again would overwrite a newer one of
+    /// another agent (the coordinator hears a role's values in reports, which are resent until acknowledged).
+    fn republish(&mut self) {
+        // A process that has not taken part in the run yet holds the chart's initial values, not the run's.
+        if !self.seeded {
+            return;
+        }
+        for v in self.mine() {
+            self.unreported.insert(v.0, self.engine.value(v));
+        }
+        let read = self.mine_read();
+        if read.is_empty() {
+            return;
+        }
+        self.vars_seq += 1;
+        self.publish(read);
+    }
+
+    /// The variables only this agent writes.
+    fn mine(&self) -> Vec<VarId> {
+        self.owned.iter().zip(&self.pinned).filter(|(_, &pinned)| pinned).map(|(&v, _)| v).collect()
+    }
+
+    /// The values of those that other agents read.
+    fn mine_read(&self) -> Vec<VarValue> {
+        self.mine()
+            .into_iter()
+            .filter(|v| self.layout.read_by_agents[v.index()])
+            .map(|v| VarValue::new(v, self.engine.value(v)))
+            .collect()
+    }
+
+    /// Publishes `vars` as update `vars_seq`, and plans to publish the values only this agent writes again.
+    fn publish(&mut self, vars: Vec<VarValue>) {
+        let update = VarUpdate {
+            run: self.run,
+            from: self.name.clone(),
+            incarnation: self.incarnation,
+            seq: self.vars_seq,
+            vars,
+        };
+        self.outbox.push_back(AgentOutput::Vars(update));
+        self.vars_resend_at_ms = Some(self.now_ms + VARS_RESEND_FIRST_MS);
+        self.vars_resend_backoff_ms = VARS_RESEND_FIRST_MS;
+    }
+
+    /// Publishes the values only this agent writes again, as of its last update, when that is due.
+    fn resend_vars(&mut self) {
+        if self.vars_resend_at_ms.is_none_or(|t| t > self.now_ms) {
+            return;
+        }
+        let read = self.mine_read();
+        if !read.is_empty() {
+            let update = VarUpdate {
+                run: self.run,
+                from: self.name.clone(),
+                incarnation: self.incarnation,
+                seq: self.vars_seq,
+                vars: read,
+            };
+            self.outbox.push_back(AgentOutput::Vars(update));
+        }
+        self.vars_resend_backoff_ms *= 2;
+        self.vars_resend_at_ms =
+            (self.vars_resend_backoff_ms <= VARS_RESEND_MAX_MS).then_some(self.now_ms + self.vars_resend_backoff_ms);
+    }
+
+    /// The coordinator says who may publish the variables this agent reads. A writer's new process retires its
+    /// old one, whose late updates are refused; updates parked for a process now named apply.
+    pub fn handle_peers(&mut self, now_ms: u64, peers: Peers) {
+        self.catch_up(now_ms);
+        self.handle_peers_table(peers);
+        self.settle();
+    }
+
+    fn handle_peers_table(&mut self, peers: Peers) {
+        if self.peers.as_ref().is_some_and(|p| p.seq >= peers.seq) {
+            return;
+        }
+        if let Some(old) = self.peers.take() {
+            for gone in old.agents {
+                let same = peers.agents.iter().any(|p| p.name == gone.name && p.incarnation == gone.incarnation);
+                if !same {
+                    self.var_writes.retire(gone.name, gone.incarnation);
+                }
+            }
+        }
+        self.peers = Some(peers);
+        let parked = std::mem::take(&mut self.parked);
+        self.parked_bytes = 0;
+        let mut parked: Vec<VarUpdate> = parked.into_iter().collect();
+        parked.sort_by_key(|u| u.seq);
+        for update in parked {
+            self.take_update(&update);
         }
     }
 
@@ -433,7 +594,7 @@ impl AgentRun {
     /// When this run next needs `handle_timeout`: its next cycle, or the next report to send again.
     pub fn poll_timeout(&self) -> Option<u64> {
         let resend = self.tokens.values().flat_map(|t| t.unacked.iter().map(|u| u.resend_at_ms)).min();
-        [self.next_cycle_ms, resend].into_iter().flatten().min()
+        [self.next_cycle_ms, resend, self.vars_resend_at_ms].into_iter().flatten().min()
     }
 
     /// Time passed: the cycles due run, reports due are sent again.
@@ -441,6 +602,7 @@ impl AgentRun {
         self.catch_up(now_ms);
         self.report();
         self.resend(now_ms, false);
+        self.resend_vars();
     }
 
     /// A token arrives. A duplicate (same token and epoch, or an older epoch) or a token already finished in
@@ -476,15 +638,8 @@ impl AgentRun {
             return self
                 .drop_msg(format!("token {} dropped: token {other} already runs the same segment here", d.token));
         }
-        for vv in &d.vars {
-            // Inputs and variables of other places: the coordinator's view as of the dispatch (what another agent
-            // wrote is only relayed: that agent's own updates win).
-            let relay =
-                vv.resolve(&self.program).is_some_and(|(v, _)| self.layout.writer[v.index()] != Placement::Coordinator);
-            if !self.accept_external(vv, COORDINATOR, Uuid::nil(), d.vars_seq, relay) {
-                self.dropped += 1;
-            }
-        }
+        self.handle_peers_table(d.peers);
+        self.take_coordinator_values(&d.vars, d.vars_seq);
         self.anchor_grid();
         if let Err(e) = self.engine.handle_remote(self.now_ms, RemoteInput::Activate(entry)) {
             return self.drop_msg(format!("token {} dropped: {e}", d.token));
@@ -559,9 +714,13 @@ impl AgentRun {
         }
     }
 
-    /// Variables published by the coordinator or another agent; the latest update of each writer wins.
+    /// Variables published by the coordinator or another agent; the latest update of each writer wins. An agent
+    /// applies the coordinator's rules: a value is taken only from the variable's one writer (the coordinator,
+    /// its agent, or an agent of its role), and only from the process of that writer the coordinator named
+    /// (`Peers`). An update of a known writer's process not named yet waits for the coordinator's word; anything
+    /// else is counted and dropped.
     pub fn handle_vars(&mut self, now_ms: u64, update: &VarUpdate) {
-        if update.from == self.name {
+        if update.from == self.name || update.run != self.run {
             return;
         }
         if update.from != COORDINATOR && !crate::dist::layout::is_valid_name(&update.from) {
@@ -569,21 +728,136 @@ impl AgentRun {
             return;
         }
         self.catch_up(now_ms);
-        for vv in &update.vars {
-            if !self.accept_external(vv, &update.from, update.incarnation, update.seq, false) {
-                self.dropped += 1;
-            }
-        }
+        self.take_update(update);
         self.settle();
     }
 
-    /// Takes a value written elsewhere, unless this agent alone writes the variable or a newer write of it was
-    /// taken already. Returns false for a value refused as invalid or misdirected.
-    fn accept_external(&mut self, vv: &VarValue, from: &str, incarnation: Uuid, seq: u64, relay: bool) -> bool {
+    /// Whether `from`'s process `incarnation` is the one the coordinator named: `None` when it named none of `from`.
+    fn known_process(&self, from: &str, incarnation: Uuid) -> Option<bool> {
+        let peers = self.peers.as_ref()?;
+        if from == COORDINATOR {
+            return Some(peers.coordinator == incarnation);
+        }
+        peers.agents.iter().find(|p| p.name == from).map(|p| p.incarnation == incarnation)
+    }
+
+    fn take_update(&mut self, update: &VarUpdate) {
+        let from = update.from.as_str();
+        match self.known_process(from, update.incarnation) {
+            Some(true) => {}
+            // A new process of a writer the coordinator knows (or of an agent of a writing role it has not told
+            // about yet): its values wait for the coordinator's word, unless the process was replaced already.
+            None | Some(false)
+                if from != COORDINATOR
+                    && self.may_write(from)
+                    && !self.var_writes.is_retired(from, update.incarnation) =>
+            {
+                return self.park(update.clone());
+            }
+            _ => {
+                let why = if from == COORDINATOR {
+                    "it claims to come from the coordinator, but from another process than the run's".to_string()
+                } else if self.var_writes.is_retired(from, update.incarnation) {
+                    format!("it comes from a process of `{from}` that a newer one replaced")
+                } else {
+                    format!("`{from}` writes none of the variables this agent reads")
+                };
+                return self.refuse(update, why);
+            }
+        }
+        let mut foreign = 0;
+        for vv in &update.vars {
+            let ok = vv.resolve(&self.program).is_some_and(|(v, _)| self.writes(from, v));
+            if !ok || !self.accept_external(vv, from, update.incarnation, update.seq, false, false) {
+                foreign += 1;
+            }
+        }
+        if foreign > 0 {
+            self.refuse(
+                update,
+                format!("{foreign} of its values are of variables `{from}` does not write, or of the wrong type"),
+            );
+        }
+    }
+
+    /// Whether `from` may write a variable this agent reads: an agent placed by name on one, or any agent while a
+    /// role writes one (the coordinator names the agents of a role as they come).
+    fn may_write(&self, from: &str) -> bool {
+        self.layout.writer.iter().zip(&self.layout.read_by_agents).any(|(w, &read)| {
+            read && match w {
+                Placement::Agent(a) => a == from,
+                Placement::Role(_) => true,
+                Placement::Coordinator => false,
+            }
+        })
+    }
+
+    /// Counts a refused update, and says so once per sending process (a peer that keeps sending is not a log
+    /// flood).
+    fn refuse(&mut self, update: &VarUpdate, why: String) {
+        self.dropped += 1;
+        let key = (update.from.clone(), update.incarnation);
+        if self.refusals_said.contains(&key) {
+            return;
+        }
+        if self.refusals_said.len() >= REFUSALS_SAID_MAX {
+            self.refusals_said.pop_front();
+        }
+        self.refusals_said.push_back(key);
+        self.log(Level::Warn, format!("variable update from `{}` refused: {why}", update.from));
+    }
+
+    /// Whether `from` is the one writer of `var`: the coordinator for its own, an agent for those placed on it or
+    /// on a role the coordinator says it has.
+    fn writes(&self, from: &str, var: VarId) -> bool {
+        match &self.layout.writer[var.index()] {
+            Placement::Coordinator => from == COORDINATOR,
+            Placement::Agent(a) => a == from,
+            Placement::Role(r) => self
+                .peers
+                .as_ref()
+                .and_then(|p| p.agents.iter().find(|p| p.name == from))
+                .is_some_and(|p| p.roles.iter().any(|x| x == r)),
+        }
+    }
+
+    /// Holds an update until the coordinator names its process; the oldest go first past the byte bound.
+    fn park(&mut self, update: VarUpdate) {
+        let bytes = update.weight();
+        if bytes > PARKED_UPDATE_BYTES_MAX {
+            self.dropped += 1;
+            return;
+        }
+        while self.parked_bytes + bytes > PARKED_UPDATE_BYTES_MAX {
+            let Some(old) = self.parked.pop_front() else { break };
+            self.parked_bytes -= old.weight();
+            self.dropped += 1;
+        }
+        self.parked_bytes += bytes;
+        self.parked.push_back(update);
+    }
+
+    /// Takes a value written elsewhere, unless this agent alone writes the variable (but for the coordinator's
+    /// values given to a process that has not taken part yet: `seed`) or a newer write of it was taken already.
+    /// Returns false for a value refused as invalid or misdirected.
+    fn accept_external(
+        &mut self,
+        vv: &VarValue,
+        from: &str,
+        incarnation: Uuid,
+        seq: u64,
+        relay: bool,
+        seed: bool,
+    ) -> bool {
         let Some((var, value)) = vv.resolve(&self.program) else { return false };
         let i = self.owned.iter().position(|&v| v == var);
-        if i.is_some_and(|i| self.pinned[i]) {
-            return false;
+        if let Some(i) = i.filter(|&i| self.pinned[i]) {
+            if !seed {
+                return false;
+            }
+            // The run's value of a variable only this agent writes: where a new process starts from.
+            self.published[i] = value.clone();
+            return self.engine.handle(Input::Set(var, value)).is_ok();
         }
         if !self.var_writes.accept(var.index(), from, incarnation, seq, relay) {
             return true;
@@ -615,7 +889,12 @@ impl AgentRun {
         self.catch_up(now_ms);
         match (std::mem::replace(&mut self.fenced, lost), lost) {
             (None, Some(_)) => {}
-            (Some(_), None) => return self.log(Level::Info, "the router is back: skills start again".to_string()),
+            (Some(_), None) => {
+                self.log(Level::Info, "the router is back: skills start again".to_string());
+                // Updates published while the link was down may be lost: every reader hears them again.
+                self.republish();
+                return self.settle();
+            }
             _ => return,
         }
         let mut stopped: Vec<ActionId> = self.running_skills.iter().copied().collect();
@@ -788,14 +1067,7 @@ impl AgentRun {
             let read: Vec<VarValue> =
                 changed.iter().filter(|vv| self.layout.read_by_agents[vv.var as usize]).cloned().collect();
             if !read.is_empty() {
-                let update = VarUpdate {
-                    run: self.run,
-                    from: self.name.clone(),
-                    incarnation: self.incarnation,
-                    seq: self.vars_seq,
-                    vars: read,
-                };
-                self.outbox.push_back(AgentOutput::Vars(update));
+                self.publish(read);
             }
         }
         let mut ids: Vec<TokenId> = self.tokens.keys().copied().collect();
@@ -845,6 +1117,8 @@ impl AgentRun {
     /// The coordinator started again from its journal: every unacknowledged report goes now, and the delays
     /// start again from the first.
     pub fn handle_sync(&mut self, now_ms: u64) {
+        // What it took from this agent before it died may not have been durable: it hears every value again.
+        self.republish();
         for held in self.tokens.values_mut() {
             for u in held.unacked.iter_mut() {
                 u.backoff_ms = RESEND_FIRST_MS / 2;

@@ -13,13 +13,13 @@
 //! once and followed by a reaction (`Engine::react`), so a token's return or an input is acted on without
 //! waiting for the next cycle, and without running any action body an extra time.
 
-use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
 use crate::dist::layout::{Layout, Placement, SegmentId};
 use crate::dist::wire::{
-    AckEntry, AgentEventKind, AgentInfo, ChartHash, DeviceReport, Report, RunId, StatusAgent, StatusDevice,
-    StatusReport, StatusStep, StatusToken, ToAgent, TokenId, VarUpdate, VarValue,
+    AckEntry, AgentEventKind, AgentInfo, ChartHash, DeviceReport, Peer, Peers, Report, RunId, StatusAgent,
+    StatusDevice, StatusReport, StatusStep, StatusToken, ToAgent, TokenId, VarUpdate, VarValue,
 };
 use crate::exec::engine::{Engine, Event, EventKind, Input, RemoteInput};
 use crate::exec::program::{Program, StepId, TransitionId, VarId};
@@ -33,6 +33,11 @@ use super::{Level, VarWrites, COORDINATOR};
 /// duplicate if it has the token).
 const DISPATCH_RESEND_FIRST_MS: u64 = 500;
 const DISPATCH_RESEND_MAX_MS: u64 = 5_000;
+/// After its variables changed, the coordinator publishes all of them again, as of the same update, after these
+/// doubling delays: an update lost on the way (a link that broke and came back within an agent's lease) would
+/// leave an agent waiting for ever for a value it reads. Agents take a value they have already as a duplicate.
+const VARS_RESEND_FIRST_MS: u64 = 200;
+const VARS_RESEND_MAX_MS: u64 = 3_200;
 
 /// What the coordinator asks its shell to do.
 #[derive(Clone, Debug, PartialEq)]
@@ -88,6 +93,9 @@ struct AgentState {
     /// Its bound devices it cannot reach (`Layout::io` index → why), as of its device report `devices_seq`.
     devices_down: BTreeMap<u32, String>,
     devices_seq: u64,
+    /// Its current process was sent a dispatch or a join: it takes part in the run, and hears when the writers
+    /// it may take values from change (`ToAgent::Peers`).
+    joined: bool,
 }
 
 impl AgentState {
@@ -103,6 +111,7 @@ impl AgentState {
             conflict: false,
             devices_down: BTreeMap::new(),
             devices_seq: 0,
+            joined: false,
         }
     }
 }
@@ -147,6 +156,9 @@ pub struct Coordinator {
     owned: Vec<VarId>,
     published: Vec<Option<Value>>,
     vars_seq: u64,
+    /// When the owned values are published again (`VARS_RESEND_FIRST_MS`), and the delay after that.
+    vars_resend_at_ms: Option<u64>,
+    vars_resend_backoff_ms: u64,
     /// The last write applied to each variable an agent writes.
     var_writes: VarWrites,
     new_token: Box<dyn FnMut() -> TokenId + Send>,
@@ -164,6 +176,12 @@ pub struct Coordinator {
     /// The run's cycle period (`set_cycle_ms`).
     cycle_ms: u64,
     stats: CoordStats,
+    /// The agents whose variable updates other agents may take: those placed by name on a variable agents read,
+    /// and those with a role that writes one.
+    writer_names: BTreeSet<String>,
+    writer_roles: BTreeSet<String>,
+    /// The writers agents were told of last (`ToAgent::Peers`).
+    peers: Peers,
 }
 
 impl Coordinator {
@@ -180,6 +198,14 @@ impl Coordinator {
         // Only what agents read travels: the coordinator's own counters and flags stay home.
         let owned: Vec<VarId> =
             layout.written_by(&Placement::Coordinator).filter(|v| layout.read_by_agents[v.index()]).collect();
+        let (mut writer_names, mut writer_roles) = (BTreeSet::new(), BTreeSet::new());
+        for (w, _) in layout.writer.iter().zip(&layout.read_by_agents).filter(|(_, read)| **read) {
+            match w {
+                Placement::Agent(a) => writer_names.insert(a.clone()),
+                Placement::Role(r) => writer_roles.insert(r.clone()),
+                Placement::Coordinator => false,
+            };
+        }
         Coordinator {
             run,
             hash,
@@ -196,6 +222,8 @@ impl Coordinator {
             finished: HashMap::new(),
             finished_order: VecDeque::new(),
             vars_seq: 0,
+            vars_resend_at_ms: None,
+            vars_resend_backoff_ms: 0,
             var_writes: VarWrites::new(program_vars),
             new_token,
             round_robin: 0,
@@ -207,6 +235,9 @@ impl Coordinator {
             recovered_ms: None,
             cycle_ms: 1,
             stats: CoordStats::default(),
+            writer_names,
+            writer_roles,
+            peers: Peers { seq: 0, coordinator: uuid::Uuid::nil(), agents: Vec::new() },
         }
     }
 
@@ -306,6 +337,7 @@ impl Coordinator {
         self.reassign_due();
         self.give_up_on_silent_agents();
         self.publish_vars();
+        self.resend_vars();
         self.flush_acks(true);
         self.engine.mutations() != mutations || self.outbox.len() != outputs || self.recovered_ms != recovering
     }
@@ -325,7 +357,13 @@ impl Coordinator {
     /// period, never before what the coordinator waits for (`poll_timeout`), none when nothing needs one.
     pub fn next_cycle_ms(&self, last_cycle_ms: Option<u64>) -> Option<u64> {
         let wanted = self.poll_timeout()?;
-        let after = last_cycle_ms.map_or(0, |t| t + self.cycle_ms);
+        let mut after = last_cycle_ms.map_or(0, |t| t + self.cycle_ms);
+        if last_cycle_ms.is_some_and(|t| self.now_ms > t) {
+            // An input since the last cycle was reacted to at once, standing for the cycle at its grid point (the
+            // steps it made active count their time from there): the next cycle comes after that point, or a
+            // step made active exactly on it would be scanned twice there.
+            after = after.max(self.now_ms - self.now_ms % self.cycle_ms + self.cycle_ms);
+        }
         Some(wanted.max(after).div_ceil(self.cycle_ms) * self.cycle_ms)
     }
 
@@ -346,7 +384,7 @@ impl Coordinator {
             self.agents.values().filter(|a| a.recovering && a.alive).map(|a| since.saturating_add(a.lease_ms)).min()
         });
         let reassign = self.tokens.values().filter_map(|t| t.reassign_at_ms).min();
-        [resend, acks, give_up, reassign].into_iter().flatten().min()
+        [resend, acks, give_up, reassign, self.vars_resend_at_ms].into_iter().flatten().min()
     }
 
     /// After a restart from the journal, an agent that has not come back within its lease is lost, as if its
@@ -418,9 +456,12 @@ impl Coordinator {
         }
     }
 
-    /// A command for `agent`'s current process; none for an agent this coordinator does not know.
+    /// A command for `agent`'s current process; none for an agent this coordinator does not know. A dispatch or
+    /// a join makes the process one that takes part in the run.
     fn send(&mut self, agent: String, msg: ToAgent) {
-        if let Some(incarnation) = self.agents.get(&agent).map(|a| a.incarnation) {
+        if let Some(a) = self.agents.get_mut(&agent) {
+            a.joined |= matches!(msg, ToAgent::Dispatch { .. } | ToAgent::Join { .. });
+            let incarnation = a.incarnation;
             self.outbox.push_back(CoordOutput::Send { agent, incarnation, msg });
         }
     }
@@ -451,7 +492,28 @@ impl Coordinator {
                 vars: changed,
             };
             self.outbox.push_back(CoordOutput::Vars(update));
+            self.vars_resend_at_ms = Some(self.now_ms + VARS_RESEND_FIRST_MS);
+            self.vars_resend_backoff_ms = VARS_RESEND_FIRST_MS;
         }
+    }
+
+    /// Publishes every owned value again, as of the last update, when that is due (`VARS_RESEND_FIRST_MS`).
+    fn resend_vars(&mut self) {
+        if self.vars_resend_at_ms.is_none_or(|t| t > self.now_ms) {
+            return;
+        }
+        let vars = self.owned.iter().map(|&v| VarValue::new(v, self.engine.value(v))).collect();
+        let update = VarUpdate {
+            run: self.run,
+            from: COORDINATOR.to_string(),
+            incarnation: uuid::Uuid::nil(),
+            seq: self.vars_seq,
+            vars,
+        };
+        self.outbox.push_back(CoordOutput::Vars(update));
+        self.vars_resend_backoff_ms *= 2;
+        self.vars_resend_at_ms =
+            (self.vars_resend_backoff_ms <= VARS_RESEND_MAX_MS).then_some(self.now_ms + self.vars_resend_backoff_ms);
     }
 
     /// The agent that holds the token of a placed step's segment, if it is out.
@@ -611,11 +673,7 @@ impl Coordinator {
     fn dispatch_msg(&self, id: TokenId) -> Option<(String, ToAgent)> {
         let tok = self.tokens.get(&id)?;
         let agent = tok.agent.clone()?;
-        let vars = (0..self.program.vars.len())
-            // Everything but what the agent alone writes: a role's variables follow the last agent that wrote them.
-            .filter(|&i| self.layout.read_by_agents[i] && self.layout.writer[i] != Placement::Agent(agent.clone()))
-            .map(|i| VarValue::new(VarId(i as u32), self.engine.value(VarId(i as u32))))
-            .collect();
+        let vars = self.values_for(&agent);
         let msg = ToAgent::Dispatch {
             run: self.run,
             chart: self.hash.clone(),
@@ -627,8 +685,54 @@ impl Coordinator {
             vars_seq: self.vars_seq,
             acks: Vec::new(),
             fence: self.policy == LossPolicy::Reassign,
+            peers: self.peers.clone(),
         };
         Some((agent, msg))
+    }
+
+    /// What a dispatch or a join gives `agent`: the value of every variable code on agents reads, and of every
+    /// variable `agent` writes. A process that has not taken part in the run yet (a restarted one) starts from
+    /// these even for its own, or it would compute on the chart's initial values.
+    fn values_for(&self, agent: &str) -> Vec<VarValue> {
+        (0..self.program.vars.len())
+            .filter(|&i| self.layout.read_by_agents[i] || self.serves(agent, &self.layout.writer[i]))
+            .map(|i| VarValue::new(VarId(i as u32), self.engine.value(VarId(i as u32))))
+            .collect()
+    }
+
+    /// A join for `agent`'s current process: the run's values and writers, before any token.
+    fn join_msg(&self, agent: &str) -> ToAgent {
+        ToAgent::Join {
+            run: self.run,
+            chart: self.hash.clone(),
+            vars: self.values_for(agent),
+            vars_seq: self.vars_seq,
+            peers: self.peers.clone(),
+        }
+    }
+
+    /// The writers agents may take variable updates from, as the agents tracked now say; when that changed, every
+    /// agent taking part in the run hears the new table.
+    fn refresh_peers(&mut self) {
+        let agents: Vec<Peer> = self
+            .agents
+            .iter()
+            .filter(|(name, a)| {
+                self.writer_names.contains(*name) || a.roles.iter().any(|r| self.writer_roles.contains(r))
+            })
+            .map(|(name, a)| Peer { name: name.clone(), incarnation: a.incarnation, roles: a.roles.clone() })
+            .collect();
+        if agents == self.peers.agents {
+            return;
+        }
+        self.peers.seq += 1;
+        self.peers.agents = agents;
+        let joined: Vec<String> =
+            self.agents.iter().filter(|(_, a)| a.joined && a.alive && !a.conflict).map(|(n, _)| n.clone()).collect();
+        for name in joined {
+            let msg = ToAgent::Peers { run: self.run, peers: self.peers.clone() };
+            self.send(name, msg);
+        }
     }
 
     /// This coordinator started again from its journal (replayed up to here): nothing it knew about the agents
@@ -680,8 +784,10 @@ impl Coordinator {
         entry.alive = true;
         entry.incarnation = info.incarnation;
         if restarted {
-            // The new process numbers its device reports from 1; what it cannot reach it says when it joins.
+            // The new process numbers its device reports from 1; what it cannot reach it says when it joins. It
+            // knows nothing of the run yet.
             entry.devices_seq = 0;
+            entry.joined = false;
         }
         if was_conflict {
             self.log(Level::Info, format!("agent `{name}` answers alone again"));
@@ -690,6 +796,7 @@ impl Coordinator {
             // Its numbers start again: what the old process still sends is late.
             self.var_writes.retire(name.clone(), old_incarnation);
         }
+        self.refresh_peers();
         if !was_alive {
             let mut rec = TraceRecord::new(self.now_ms, "agent_up", &name);
             rec.agent = Some(name.clone());
@@ -713,7 +820,9 @@ impl Coordinator {
             .collect();
         settle.sort_unstable();
         let run = self.run;
-        let mut sync = recovering && info.held.iter().any(|h| h.run == run);
+        // A coordinator that started again asks every agent for its unacknowledged reports and its values: what it
+        // took before it died may not have been durable.
+        let mut sync = recovering;
         for id in settle {
             let Some(tok) = self.tokens.get_mut(&id) else { continue };
             let entry = self.program.steps[tok.entry.index()].name.clone();
@@ -753,7 +862,8 @@ impl Coordinator {
         }
         // An agent that connects bound variables takes part in the run from the start, tokens or not.
         if (!was_alive || restarted) && self.layout.io.iter().any(|b| b.agent == name) {
-            self.send(name.clone(), ToAgent::Join { run, chart: self.hash.clone() });
+            let msg = self.join_msg(&name);
+            self.send(name.clone(), msg);
         }
         // What the agent still holds of an older epoch (its segment moved on while it was away) or of a token
         // that is over: it must not run it a moment longer.
@@ -806,6 +916,7 @@ impl Coordinator {
         for t in self.tokens.values_mut().filter(|t| t.agent.as_deref() == Some(name)) {
             t.paused = true;
         }
+        self.refresh_peers();
         self.alarm(format!(
             "{processes} processes answer as agent `{name}`: nothing is sent to `{name}`, and its tokens are held, until one of them stops"
         ));
@@ -873,6 +984,7 @@ impl Coordinator {
         if gone && !self.tokens.values().any(|t| t.agent.as_deref() == Some(name)) {
             self.agents.remove(name);
             self.acks.remove(name);
+            self.refresh_peers();
         }
     }
 
@@ -1019,7 +1131,10 @@ impl Coordinator {
         let placement = self.layout.segments[segment.index()].placement.clone();
         let program = Arc::clone(&self.program);
         self.apply_agent_vars(&r.agent, r.incarnation, r.vars_seq, &r.vars);
-        let mut floor = self.engine.now_ms();
+        // Never before the coordinator's last grid point: a report that comes late (lost and sent again, an agent
+        // cut off for a while) cannot make the coordinator's own steps active in cycles that have passed without
+        // them, or their actions would run fewer cycles than their step times say.
+        let mut floor = self.engine.now_ms().max(self.now_ms - self.now_ms % self.cycle_ms);
         for ev in &r.events {
             // Agent times are offsets from the token's arrival; they are mapped onto this clock, never before
             // what the coordinator already recorded and never after now.
@@ -1426,7 +1541,8 @@ mod tests {
         // The same report again (a Join answered), a late one, another process's, and one about a binding of
         // another agent: nothing is traced.
         c.handle_devices(11, down[0].clone());
-        agent.handle_join();
+        let join = crate::dist::runtime::agent::Join { vars: Vec::new(), vars_seq: 0, peers: Peers::default() };
+        agent.handle_join(0, join);
         let again = reports(&mut agent);
         c.handle_devices(12, again[0].clone());
         let mut stale = again[0].clone();

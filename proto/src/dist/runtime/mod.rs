@@ -41,7 +41,7 @@ impl VarWrites {
     /// retires the older process. A `relay` (a value another process wrote, passed on) never replaces a
     /// value its writer sent directly.
     pub(crate) fn accept(&mut self, var: usize, writer: &str, incarnation: Uuid, seq: u64, relay: bool) -> bool {
-        if self.retired.iter().any(|(w, i)| w == writer && *i == incarnation) {
+        if self.is_retired(writer, incarnation) {
             return false;
         }
         let Some(slot) = self.last.get(var) else { return false };
@@ -61,9 +61,14 @@ impl VarWrites {
         true
     }
 
+    /// Whether `writer`'s process `incarnation` was replaced by a newer one.
+    pub(crate) fn is_retired(&self, writer: &str, incarnation: Uuid) -> bool {
+        self.retired.iter().any(|(w, i)| w == writer && *i == incarnation)
+    }
+
     /// `writer`'s process `incarnation` was replaced: its late values are refused.
     pub(crate) fn retire(&mut self, writer: String, incarnation: Uuid) {
-        if self.retired.iter().any(|(w, i)| *w == writer && *i == incarnation) {
+        if self.is_retired(&writer, incarnation) {
             return;
         }
         if self.retired.len() >= RETIRED_INCARNATIONS_MAX {
