@@ -92,6 +92,18 @@ enum Pending {
     Peers(baton_proto::dist::wire::Peers),
 }
 
+/// A start of a skill, ready to go once the action's previous start has ended.
+struct Deferred {
+    serial: u64,
+    skill: Arc<dyn crate::skill::Skill>,
+    call: SkillCall,
+    written: mpsc::UnboundedReceiver<(usize, Value)>,
+    stops_itself: bool,
+}
+
+/// Starts of one action that may wait for the previous one to stop.
+const DEFERRED_STARTS_MAX: usize = 16;
+
 /// A skill started and not yet ended.
 struct RunningSkill {
     serial: u64,
@@ -116,6 +128,9 @@ struct Shell {
     running: HashMap<(RunId, ActionId), RunningSkill>,
     /// Skills told to stop that end by themselves (a goal being cancelled), by serial.
     stopping: HashMap<u64, (RunId, ActionId)>,
+    /// Starts of an action's skill that wait for its previous start, still stopping, to end: a cancel must never
+    /// reach the job of a step entered again.
+    deferred: HashMap<(RunId, ActionId), VecDeque<Deferred>>,
     skill_serial: u64,
     events: mpsc::UnboundedSender<Event>,
     /// One publisher per key, declared on first use.
@@ -228,6 +243,7 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
         pending: HashMap::new(),
         running: HashMap::new(),
         stopping: HashMap::new(),
+        deferred: HashMap::new(),
         skill_serial: 0,
         events: tx,
         publishers: HashMap::new(),
@@ -476,6 +492,7 @@ impl Shell {
                     if let Some(r) = self.runs.get_mut(&run) {
                         r.state.handle_skill_stopped(action, result.map(|()| "it confirmed the stop".to_string()));
                     }
+                    self.start_deferred(run, action);
                 }
             }
             Event::Devices(run) => {
@@ -516,6 +533,7 @@ impl Shell {
         let idle = self.runs.iter().filter(|(_, r)| r.state.tokens_held() == 0).min_by_key(|(_, r)| r.last_used);
         if let Some((&id, _)) = idle {
             self.runs.remove(&id);
+            self.deferred.retain(|(run, _), _| *run != id);
         }
     }
 
@@ -576,16 +594,18 @@ impl Shell {
                     params: binding.params,
                     outputs: binding.outputs.into_iter().map(|o| (o.key, o.path)).collect(),
                     session: self.session.clone(),
-                    ctx: ctx.clone(),
+                    ctx,
                 };
-                tokio::spawn(drive_skill(skill.start(call), ctx, written, stops_itself, move |e| match e {
-                    SkillEvent::Output(i, v) => {
-                        let _ = tx.send(Event::SkillOutput(run, action, serial, i, v));
+                let start = Deferred { serial, skill, call, written, stops_itself };
+                if self.stopping.values().any(|&k| k == (run, action)) {
+                    // The previous start is still cancelling its job: this one goes once that has ended.
+                    let queue = self.deferred.entry((run, action)).or_default();
+                    if queue.len() < DEFERRED_STARTS_MAX {
+                        queue.push_back(start);
                     }
-                    SkillEvent::Ended(result) => {
-                        let _ = tx.send(Event::Skill(run, action, serial, result));
-                    }
-                }));
+                    return;
+                }
+                self.spawn_skill(run, action, start);
             }
             AgentOutput::StopSkill { action } => {
                 if let Some(old) = self.running.remove(&(run, action)) {
@@ -630,6 +650,38 @@ impl Shell {
 
     fn no_skill(&self, skill: &str) -> String {
         format!("has no skill `{skill}` (it has: {})", self.skills.names().join(", "))
+    }
+
+    /// Starts a skill's future, which `drive_skill` follows. A start whose action ended before it could go asks
+    /// nothing of its device: a skill that stops itself is told it ended at once (its stop is awaited), any other
+    /// is never started.
+    fn spawn_skill(&mut self, run: RunId, action: ActionId, start: Deferred) {
+        let Deferred { serial, skill, call, written, stops_itself } = start;
+        let tx = self.events.clone();
+        let ctx = call.ctx.clone();
+        if ctx.is_stopped() && !stops_itself {
+            return;
+        }
+        tokio::spawn(drive_skill(skill.start(call), ctx, written, stops_itself, move |e| match e {
+            SkillEvent::Output(i, v) => {
+                let _ = tx.send(Event::SkillOutput(run, action, serial, i, v));
+            }
+            SkillEvent::Ended(result) => {
+                let _ = tx.send(Event::Skill(run, action, serial, result));
+            }
+        }));
+    }
+
+    /// The action's previous start ended: the next one waiting goes now.
+    fn start_deferred(&mut self, run: RunId, action: ActionId) {
+        let Some(queue) = self.deferred.get_mut(&(run, action)) else { return };
+        let next = queue.pop_front();
+        if queue.is_empty() {
+            self.deferred.remove(&(run, action));
+        }
+        if let Some(start) = next {
+            self.spawn_skill(run, action, start);
+        }
     }
 
     /// Tells a skill its action ended: one that stops itself is remembered until it says how it went.

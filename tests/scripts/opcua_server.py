@@ -15,6 +15,8 @@ Namespace 2 (urn:baton:test) holds the object `ns=2;s=Cell`:
 - Refuse(): answers BadInvalidState.
 - Hang(): never answers (the test kills the server while the agent waits).
 - Stop(): cancels the running job: Busy FALSE, prints CANCELLED.
+- StopSlowly(): as a slow PLC does, cancels whatever job runs 0.3 s later, and prints CANCELLED JOB <n>, the
+  number of that job.
 - Variables Done, Fault, Busy (BOOL), Count (Int32), Lamp (BOOL), Door (BOOL), Setpoint (Int16), all writable.
 """
 
@@ -112,6 +114,15 @@ async def main(port):
         await busy.write_value(False)
         say("CANCELLED")
 
+    @uamethod
+    async def stop_slowly(parent):
+        await asyncio.sleep(0.3)
+        job = state["job"]
+        if job is not None and not job.done():
+            job.cancel()
+        await busy.write_value(False)
+        say(f"CANCELLED JOB {state['jobs']}")
+
     def arg(name, vtype):
         return ua.Argument(Name=name, DataType=ua.NodeId(vtype.value), ValueRank=-1)
 
@@ -124,6 +135,7 @@ async def main(port):
     await cell.add_method(ua.NodeId("Cell.Refuse", idx), ua.QualifiedName("Refuse", idx), refuse, [], [])
     await cell.add_method(ua.NodeId("Cell.Hang", idx), ua.QualifiedName("Hang", idx), hang, [], [])
     await cell.add_method(ua.NodeId("Cell.Stop", idx), ua.QualifiedName("Stop", idx), stop, [], [])
+    await cell.add_method(ua.NodeId("Cell.StopSlowly", idx), ua.QualifiedName("StopSlowly", idx), stop_slowly, [], [])
 
     types = {"Door": ua.VariantType.Boolean, "Lamp": ua.VariantType.Boolean, "Done": ua.VariantType.Boolean,
              "Fault": ua.VariantType.Boolean, "Busy": ua.VariantType.Boolean, "Count": ua.VariantType.Int32,

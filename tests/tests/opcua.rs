@@ -164,3 +164,17 @@ async fn bound_nodes_drive_a_transition_take_the_outputs_and_a_server_away_is_re
     assert_eq!((var(&summary, "lamp"), var(&summary, "setpoint")), ("TRUE".into(), "0".into()));
     drop(again.finish().await);
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_step_entered_again_starts_its_job_only_once_the_old_job_is_cancelled() {
+    let Some((mut server, port)) = server().await else { return };
+    let mut cluster = Cluster::with_router().await;
+    let chart = chart_for(&cluster, "opcua_reenter.st", port);
+    let (trace, _) = run(&mut cluster, &chart).await;
+    assert!(reached(&trace, "Done"), "{:?}\n{}", faults(&trace), cluster.agent_log("cell1"));
+    server.wait_for("CANCELLED JOB 2").await;
+    let said = server.finish().await;
+    let jobs: Vec<&String> = said.iter().filter(|l| l.starts_with("CALL") || l.starts_with("CANCELLED")).collect();
+    // The slow cancel of the first job answered before the second job was asked for: each cancel stopped its own.
+    assert_eq!(jobs, ["CALL Pick 2 0.001", "CANCELLED JOB 1", "CALL Pick 2 0.001", "CANCELLED JOB 2"], "{said:?}");
+}

@@ -336,3 +336,29 @@ async fn a_robot_on_dds_only_is_driven_through_zenoh_bridge_ros2dds() {
     let said = robot.finish().await;
     assert_eq!(said.iter().filter(|l| *l == "SUCCEEDED").count(), 1, "{said:?}");
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_goal_whose_step_was_left_before_its_server_appeared_is_never_sent() {
+    let mut cluster = Cluster::with_router().await;
+    // Checked before the run: a missing peer is said once, not after a run that proved nothing.
+    if !repo("tests/ros2-peer/target/debug/ros2-peer").is_file() {
+        action_server(&cluster, "succeed");
+        return;
+    }
+    let (_, trace, _) = run(&mut cluster, "ros2_action_late.st", "arm1", &["--verbose"]).await;
+    assert!(ends_in(&trace, "Left"), "{trace:?}");
+    // The skill, still waiting for its server, ends as soon as its step is left: nothing was sent, so nothing is
+    // left to cancel (it used to wait for the server, send the goal, then cancel it).
+    cluster.wait_for_agent_log("arm1", "skill of action `MoveArm` stopped: it confirmed the stop").await;
+    // The server appears; a goal of a run that wants it gets there, the old one never.
+    let Some(mut server) = action_server(&cluster, "succeed") else { return };
+    server.wait_for("READY").await;
+    let coordinator = cluster.coordinator_joining(&chart("ros2_action.st"), &[]);
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    assert!(ends_in(&trace, "Done"), "{trace:?}");
+    server.wait_for("SUCCEEDED").await;
+    let said = server.finish().await;
+    let goals: Vec<&String> = said.iter().filter(|l| l.starts_with("GOAL")).collect();
+    assert_eq!(goals, ["GOAL order=5"], "{said:?}");
+}

@@ -5,8 +5,10 @@
 //! - done: the call answered Good — or, with `done_node`, once that node reads TRUE after the call;
 //! - fault: a Bad (or Uncertain) answer, an argument that does not fit its type, `fault_node` TRUE, the
 //!   connection lost, or no end within `timeout_ms` (connecting, calling and the job together);
-//! - Q falls first: the method named by `cancel_method` (on the same object, no arguments) is called if given,
-//!   and the skill ends once it answered (`Skill::stops_itself`).
+//! - Q falls first: before the method was called, nothing is called; after, the method named by `cancel_method`
+//!   (on the same object, no arguments) is called if given, and the skill ends once it answered
+//!   (`Skill::stops_itself`). The agent starts the action's next job only once that answer came, so a cancel
+//!   never reaches the job of a step entered again.
 //!
 //! `outputs := '[0] => count'` writes the method's output arguments to chart variables; `result_nodes := 'ns=2;
 //! s=Cell.Count, …'` are read when the job is done, and `result := '[0] => count'` writes them.
@@ -107,8 +109,10 @@ impl Skill for OpcuaMethod {
                 () = call.ctx.stopped() => return Ok(()),
             };
             let session = Arc::clone(&link.session);
+            // Whether the method was called: a stop before that has nothing to cancel.
+            let called = std::sync::atomic::AtomicBool::new(false);
             let outcome = tokio::select! {
-                r = job(&session, &m, &call) => Outcome::Ended(r),
+                r = job(&session, &m, &call, &called) => Outcome::Ended(r),
                 why = link.lost() => Outcome::Ended(Err(why)),
                 () = tokio::time::sleep_until(deadline.into()) => Outcome::Ended(Err(format!(
                     "{} did not end within timeout_ms = {} ms", show(&m.method), m.timeout.as_millis()
@@ -117,7 +121,8 @@ impl Skill for OpcuaMethod {
             };
             let result = match outcome {
                 Outcome::Ended(r) => r,
-                Outcome::Stopped => cancel(&session, &m).await,
+                Outcome::Stopped if called.load(std::sync::atomic::Ordering::SeqCst) => cancel(&session, &m).await,
+                Outcome::Stopped => Ok(()),
             };
             link.close().await;
             result
@@ -139,7 +144,12 @@ fn show(node: &NodeId) -> String {
 }
 
 /// The call and, with `done_node`, the job it starts.
-async fn job(session: &Session, m: &Method, call: &SkillCall) -> Result<(), String> {
+async fn job(
+    session: &Session,
+    m: &Method,
+    call: &SkillCall,
+    called: &std::sync::atomic::AtomicBool,
+) -> Result<(), String> {
     let declared = input_arguments(session, &m.method).await?;
     if declared.len() != m.args.len() {
         return Err(format!(
@@ -157,6 +167,11 @@ async fn job(session: &Session, m: &Method, call: &SkillCall) -> Result<(), Stri
     }
     let request =
         CallMethodRequest { object_id: m.object.clone(), method_id: m.method.clone(), input_arguments: Some(args) };
+    // The action may have ended while the arguments were read: then nothing is started.
+    if call.ctx.is_stopped() {
+        return Ok(());
+    }
+    called.store(true, std::sync::atomic::Ordering::SeqCst);
     let answer = session
         .call(vec![request])
         .await

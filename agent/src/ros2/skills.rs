@@ -178,6 +178,18 @@ fn int_at(v: &RosValue, field: &str) -> i64 {
     v.value_at(&[literal::PathPart::Field(field.into())]).map_or(-1, |v| v.as_i64())
 }
 
+/// Runs `stage` unless the action ends first: `None` then, and nothing more may be asked of the server.
+async fn unless_stopped<T>(call: &SkillCall, stage: impl std::future::Future<Output = T>) -> Option<T> {
+    if call.ctx.is_stopped() {
+        return None;
+    }
+    tokio::select! {
+        biased;
+        () = call.ctx.stopped() => None,
+        out = stage => Some(out),
+    }
+}
+
 async fn run_action(ros2: &Ros2, call: &SkillCall) -> Result<(), String> {
     // The goal is checked against its type before anything is sent.
     let (p, action, goal) = action_goal(ros2, &call.params)?;
@@ -185,18 +197,39 @@ async fn run_action(ros2: &Ros2, call: &SkillCall) -> Result<(), String> {
     let uuid = *uuid::Uuid::new_v4().as_bytes();
     let request = cdr::encode_with(lib, &action.send_goal.request, vec![("goal_id", goal_id(&uuid)), ("goal", goal)])?;
     let deadline = Instant::now() + p.timeout;
-    let node = ros2.node(&call.session).await?;
     let sub_name = |s: &str| format!("{}/_action/{s}", p.name.trim_end_matches('/'));
     let (send_goal, get_result, cancel_goal, feedback) =
         (sub_name("send_goal"), sub_name("get_result"), sub_name("cancel_goal"), sub_name("feedback"));
-    let goal_client = node.endpoint(Kind::Client, &send_goal, &action.send_goal.wire, keys::SERVICE_QOS).await?;
-    let result_client = node.endpoint(Kind::Client, &get_result, &action.get_result.wire, keys::SERVICE_QOS).await?;
-    let cancel_client = node.endpoint(Kind::Client, &cancel_goal, &action.cancel_goal.wire, keys::SERVICE_QOS).await?;
-    let (feedback_wire, feedback_def) = &action.feedback_message;
-    // Subscribed before the goal is sent, so the first feedback is not missed.
-    let (_feedback_endpoint, feedback_sub) = node.subscription(&feedback, feedback_wire).await?;
-    let _announced = node.announce_action_client(&p.name, &action).await?;
-    let cancel_service = node.wait_for_action(&p.name, &action, deadline).await?;
+    // Until the goal is sent, an action that ended (its step was left, or the agent fenced) asks nothing of the
+    // server: the stop is checked before every stage, and a stage still waiting (for the server to appear, say)
+    // is given up.
+    let stopped_early = || Ok(());
+    let Some(node) = unless_stopped(call, ros2.node(&call.session)).await else { return stopped_early() };
+    let node = node?;
+    let prepared = unless_stopped(call, async {
+        let goal_client = node.endpoint(Kind::Client, &send_goal, &action.send_goal.wire, keys::SERVICE_QOS).await?;
+        let result_client =
+            node.endpoint(Kind::Client, &get_result, &action.get_result.wire, keys::SERVICE_QOS).await?;
+        let cancel_client =
+            node.endpoint(Kind::Client, &cancel_goal, &action.cancel_goal.wire, keys::SERVICE_QOS).await?;
+        let (feedback_wire, _) = &action.feedback_message;
+        // Subscribed before the goal is sent, so the first feedback is not missed.
+        let feedback = node.subscription(&feedback, feedback_wire).await?;
+        let announced = node.announce_action_client(&p.name, &action).await?;
+        Ok::<_, String>((goal_client, result_client, cancel_client, feedback, announced))
+    })
+    .await;
+    let Some(prepared) = prepared else { return stopped_early() };
+    let (goal_client, result_client, cancel_client, (_feedback_endpoint, feedback_sub), _announced) = prepared?;
+    let (_, feedback_def) = &action.feedback_message;
+    let Some(cancel_service) = unless_stopped(call, node.wait_for_action(&p.name, &action, deadline)).await else {
+        return stopped_early();
+    };
+    let cancel_service = cancel_service?;
+    if call.ctx.is_stopped() {
+        return stopped_early();
+    }
+    // Sent: from here on a stop cancels the goal once the server has answered whether it took it.
     let left = deadline.saturating_duration_since(Instant::now());
     let bytes = node.call(&send_goal, &action.send_goal, &goal_client, request, Some(left)).await?;
     let accepted = cdr::decode(lib, &action.send_goal.response, &bytes).map_err(|e| format!("{send_goal}: {e}"))?;
