@@ -135,10 +135,14 @@ enum Command {
         #[arg(long, value_name = "FILE")]
         trace: Option<PathBuf>,
     },
-    /// Set an input of the charts running behind a router: baton set --connect EP NAME=VALUE.
+    /// Set an input of a chart running behind a router: baton set --connect EP [--run ID] NAME=VALUE. With several
+    /// runs behind the router, --run says which (nothing is set otherwise).
     Set {
         #[arg(long, value_name = "ENDPOINT", required = true)]
         connect: Vec<String>,
+        /// The run, by its id as `baton status` lists it (or the start of it).
+        #[arg(long, value_name = "ID")]
+        run: Option<String>,
         #[arg(value_name = "NAME=VALUE", value_parser = crate::client::parse_assignment)]
         assignment: (String, serde_json::Value),
         /// A Zenoh configuration file (TLS, credentials…).
@@ -295,8 +299,8 @@ pub fn main() -> ExitCode {
                 Ok(ExitCode::SUCCESS)
             })
         }
-        Command::Set { connect, assignment: (name, value), zenoh_config } => block_on(async move {
-            let taken = crate::client::set(&connect, zenoh_config.as_deref(), &name, value).await?;
+        Command::Set { connect, run, assignment: (name, value), zenoh_config } => block_on(async move {
+            let taken = crate::client::set(&connect, zenoh_config.as_deref(), run.as_deref(), &name, value).await?;
             Ok(if taken { ExitCode::SUCCESS } else { ExitCode::from(EXIT_INVALID) })
         }),
         Command::Replay { journal, rerun, trace } => {

@@ -6,7 +6,7 @@ use std::time::Duration;
 use anyhow::{anyhow, bail};
 use baton_proto::dist::keys;
 use baton_proto::dist::netconfig::NetConfig;
-use baton_proto::dist::wire::{self, SetReply, SetRequest, StatusReport};
+use baton_proto::dist::wire::{self, RunId, SetReply, SetRequest, StatusReport};
 use zenoh::Session;
 
 const QUERY_TIMEOUT: Duration = Duration::from_secs(3);
@@ -23,7 +23,8 @@ async fn ask<T: serde::de::DeserializeOwned>(
     key: String,
     payload: Option<Vec<u8>>,
 ) -> anyhow::Result<Vec<T>> {
-    let mut get = session.get(key).timeout(QUERY_TIMEOUT);
+    // Every run's reply, even if two ever came on one key.
+    let mut get = session.get(key).consolidation(zenoh::query::ConsolidationMode::None).timeout(QUERY_TIMEOUT);
     if let Some(p) = payload {
         get = get.payload(p);
     }
@@ -53,18 +54,30 @@ pub fn parse_assignment(text: &str) -> Result<(String, serde_json::Value), Strin
     Ok((name.to_string(), json))
 }
 
-/// Sets an input of every chart running behind the router; true when at least one took it.
+/// Sets an input of one running chart: the run `run` names (its id as `baton status` prints it, or a prefix of
+/// it), or the only run behind the router. Several runs that could be meant are refused and listed: a set must
+/// never reach a run the operator did not mean. True when the run took it.
 pub async fn set(
     connect: &[String],
     file: Option<&Path>,
+    run: Option<&str>,
     name: &str,
     value: serde_json::Value,
 ) -> anyhow::Result<bool> {
     let session = open(connect, file).await?;
-    let replies = set_on(&session, name, value).await?;
+    let result = async {
+        let runs: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
+        let target = pick_run(&runs, run, connect)?;
+        set_on(&session, Some(target), name, value).await
+    }
+    .await;
     session.close().await.map_err(|e| anyhow!("{e}"))?;
+    let replies = result?;
     if replies.is_empty() {
-        bail!("no running chart answered behind {} (or the router's access control refused you)", connect.join(", "));
+        bail!(
+            "the run did not answer behind {} (it ended, or the router's access control refused you)",
+            connect.join(", ")
+        );
     }
     for r in &replies {
         if r.ok {
@@ -76,10 +89,57 @@ pub async fn set(
     Ok(replies.iter().any(|r| r.ok))
 }
 
-/// Sets an input of every chart running behind `session`'s router: their replies.
-pub async fn set_on(session: &Session, name: &str, value: serde_json::Value) -> anyhow::Result<Vec<SetReply>> {
+/// The run `wanted` names — a run id, or a prefix of one, as `baton status` lists them — among `runs`; without
+/// `wanted`, the only one there is. None, or several, is an error that lists them.
+pub fn pick_run(runs: &[StatusReport], wanted: Option<&str>, connect: &[String]) -> anyhow::Result<RunId> {
+    let list = |runs: &[&StatusReport]| {
+        runs.iter()
+            .map(|r| {
+                format!(
+                    "\n  run {}: chart `{}` (version {}), running for {} ms",
+                    r.run.key(),
+                    r.chart,
+                    r.hash.0,
+                    r.t_ms
+                )
+            })
+            .collect::<String>()
+    };
+    let all: Vec<&StatusReport> = runs.iter().collect();
+    if all.is_empty() {
+        bail!("no running chart answered behind {} (or the router's access control refused you)", connect.join(", "));
+    }
+    let matching: Vec<&StatusReport> = match wanted {
+        Some(w) => {
+            let w = w.trim().to_ascii_lowercase().replace('-', "");
+            all.iter().copied().filter(|r| r.run.key().starts_with(&w)).collect()
+        }
+        None => all.clone(),
+    };
+    match (matching.as_slice(), wanted) {
+        ([one], _) => Ok(one.run),
+        ([], Some(w)) => bail!("no run `{w}` behind {}; the runs there:{}", connect.join(", "), list(&all)),
+        (_, Some(w)) => bail!("`{w}` names several runs; give more of the run id:{}", list(&matching)),
+        (_, None) => bail!(
+            "{} runs are behind {}: say which with --run ID (nothing was set):{}",
+            matching.len(),
+            connect.join(", "),
+            list(&matching)
+        ),
+    }
+}
+
+/// Sets an input of run `run` (or, with `None`, of every chart behind `session`'s router, which only a router of
+/// one run may do): their replies.
+pub async fn set_on(
+    session: &Session,
+    run: Option<RunId>,
+    name: &str,
+    value: serde_json::Value,
+) -> anyhow::Result<Vec<SetReply>> {
     let request = wire::encode(&SetRequest { name: name.to_string(), value });
-    ask(session, keys::set_any_run(), Some(request)).await
+    let key = run.map_or_else(keys::set_any_run, keys::set);
+    ask(session, key, Some(request)).await
 }
 
 pub async fn status(connect: &[String], file: Option<&Path>, json: bool) -> anyhow::Result<()> {

@@ -160,9 +160,20 @@ impl Cluster {
         self.start_coordinator(chart, "--connect", extra)
     }
 
+    /// Another coordinator joining the test's router, whose trace and summary files are named after `name`: two
+    /// runs behind one router.
+    pub fn coordinator_joining_as(&self, name: &str, chart: &Path, extra: &[&str]) -> Coordinator {
+        assert!(self.router.is_some(), "make the cluster with Cluster::with_router");
+        self.start_coordinator_as(name, chart, "--connect", extra)
+    }
+
     fn start_coordinator(&self, chart: &Path, how: &str, extra: &[&str]) -> Coordinator {
-        let trace = self.dir.path().join("trace.jsonl");
-        let summary = self.dir.path().join("summary.json");
+        self.start_coordinator_as("", chart, how, extra)
+    }
+
+    fn start_coordinator_as(&self, name: &str, chart: &Path, how: &str, extra: &[&str]) -> Coordinator {
+        let trace = self.dir.path().join(format!("trace{name}.jsonl"));
+        let summary = self.dir.path().join(format!("summary{name}.json"));
         let mut child = Command::new(bin("baton"))
             .arg("run")
             .arg(chart)

@@ -276,3 +276,63 @@ async fn garbage_on_batons_keys_changes_nothing() {
     assert!(agent_log.contains("cannot take part in run"), "{agent_log}");
     tokio::time::timeout(Duration::from_secs(5), session.close()).await.ok();
 }
+
+/// Two runs of one chart behind one router: `baton set` without `--run` sets neither and lists both; with the id
+/// `baton status` prints (or its start) it sets that run only.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_set_reaches_only_the_run_it_names() {
+    let cluster = Cluster::with_router().await;
+    let chart = cluster.dir.path().join("wait.st");
+    std::fs::write(
+        &chart,
+        "PROGRAM wait\nVAR go : BOOL; END_VAR\nINITIAL_STEP Ready: END_STEP\nTRANSITION FROM Ready TO Done := go; \
+         END_TRANSITION\nSTEP Done: END_STEP\nEND_PROGRAM\n",
+    )
+    .expect("write the chart");
+    let run_of = |log: Vec<String>| {
+        let line = log.last().cloned().unwrap_or_default();
+        line.split(" as run ").nth(1).and_then(|r| r.split(' ').next()).expect("a run id").to_string()
+    };
+    let mut first = cluster.coordinator_joining_as("1", &chart, &[]);
+    let one = run_of(first.wait_for_log("running chart").await);
+    let mut second = cluster.coordinator_joining_as("2", &chart, &[]);
+    let two = run_of(second.wait_for_log("running chart").await);
+    let ep = cluster.endpoint.clone();
+    // The second run's queryables reach the router a moment after it says it runs.
+    let listed = tokio::time::timeout(baton_tests::cluster::TIMEOUT, async {
+        loop {
+            let status = cluster.baton(&["status", "--connect", &ep]).await;
+            let listed = String::from_utf8_lossy(&status.stdout).to_string();
+            if listed.contains(&one) && listed.contains(&two) {
+                return listed;
+            }
+        }
+    })
+    .await;
+    assert!(listed.is_ok(), "baton status never listed both runs");
+
+    let ambiguous = cluster.baton(&["set", "--connect", &ep, "go=true"]).await;
+    let err = String::from_utf8_lossy(&ambiguous.stderr).to_string();
+    assert_eq!(ambiguous.status.code(), Some(2), "{err}");
+    assert!(err.contains("--run") && err.contains(&one) && err.contains(&two), "{err}");
+    let unknown = cluster.baton(&["set", "--connect", &ep, "--run", "ffff0000", "go=true"]).await;
+    assert_eq!(unknown.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&unknown.stderr).contains("no run `ffff0000`"));
+
+    // The second run, by the start of its id: it ends, and the first still waits.
+    let set = cluster.baton(&["set", "--connect", &ep, "--run", &two[..12], "go=true"]).await;
+    assert!(set.status.success(), "{}", String::from_utf8_lossy(&set.stderr));
+    let (status, log, trace, _) = second.finish().await;
+    assert!(status.success(), "{log}");
+    assert!(events(&trace, "activate").iter().any(|e| e.1 == "Done"));
+    let status = cluster.baton(&["status", "--connect", &ep, "--json"]).await;
+    let text = String::from_utf8_lossy(&status.stdout).to_string();
+    let report: serde_json::Value = serde_json::from_str(text.trim()).expect("one run's status");
+    assert_eq!(report["run"], serde_json::Value::String(uuid::Uuid::parse_str(&one).expect("id").to_string()));
+    assert_eq!(report["active_steps"][0]["name"], "Ready", "the first run was not set: {text}");
+    // One run is left: it needs no --run.
+    let set = cluster.baton(&["set", "--connect", &ep, "go=true"]).await;
+    assert!(set.status.success(), "{}", String::from_utf8_lossy(&set.stderr));
+    let (status, log, _, _) = first.finish().await;
+    assert!(status.success(), "{log}");
+}

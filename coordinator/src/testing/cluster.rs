@@ -440,7 +440,8 @@ impl<'a> World<'a> {
     async fn set(&self, name: &str, value: &serde_json::Value) -> anyhow::Result<()> {
         let deadline = Instant::now() + SET_WAIT;
         loop {
-            let replies = crate::client::set_on(&self.session, name, value.clone()).await?;
+            // The runner's router is its own, with one run on it.
+            let replies = crate::client::set_on(&self.session, None, name, value.clone()).await?;
             if replies.iter().any(|r| r.ok) {
                 return Ok(());
             }
