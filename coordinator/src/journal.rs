@@ -266,6 +266,7 @@ mod tests {
             source: "PROGRAM Cell END_PROGRAM".into(),
             started_unix_ms: 1,
             cycle_ms: 10,
+            program: "0123456789abcdef".into(),
         }
     }
 

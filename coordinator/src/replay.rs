@@ -40,6 +40,7 @@ pub fn replay(opts: &ReplayOptions) -> anyhow::Result<()> {
     let (Some(program), Some(layout)) = (checked.program, checked.layout) else {
         bail!("the chart in the journal {path} does not check with this baton");
     };
+    crate::run::check_pin(&header, &program, &layout, &path)?;
     let (program, layout) = (Arc::new(program), Arc::new(layout));
     let trace = match &opts.trace {
         Some(p) => Some(BufWriter::new(File::create(p).with_context(|| format!("cannot create {}", p.display()))?)),

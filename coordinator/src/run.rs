@@ -341,12 +341,13 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
                         source: loaded.source.clone(),
                         started_unix_ms: unix_ms(),
                         cycle_ms: opts.cycle_ms,
+                        program: journal::program_pin(&loaded.program, &loaded.layout),
                     };
                     opened.store.write_header(&header)?;
                     (header.run, header.started_unix_ms)
                 }
                 Some(header) => {
-                    check_resumable(&header, &opened.records, &hash, &loaded.pou, &opts.chart, &path)?;
+                    check_resumable(&header, &opened.records, &loaded, &hash, &opts.chart, &path)?;
                     let at = (header.run, header.started_unix_ms);
                     resume = Some((header, std::mem::take(&mut opened.records)));
                     at
@@ -506,19 +507,19 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
             Wake::Devices(s) => shell.on_devices(&s),
             Wake::Alive(s) => shell.on_alive(&s, &tx),
             Wake::Identity(ev) => shell.on_identity(ev, &tx),
-            Wake::Chart(q) => reply(&q, chart_reply.clone()).await,
+            Wake::Chart(q) => reply(&q, keys::chart(run), chart_reply.clone()).await,
             Wake::Status(q) => {
                 // The run's clock now, not the time of its last input: an idle run's time goes on.
                 let mut status = shell.core.core().status();
                 status.t_ms = shell.now_ms();
-                reply(&q, wire::encode(&status)).await
+                reply(&q, keys::status(run), wire::encode(&status)).await
             }
             Wake::Set(q) => {
                 let answer = wire::encode(&shell.on_set(&q));
                 match &shell.journal {
                     // Its record goes in the batch written just below; the answer waits for it.
                     Some(j) => shell.held_replies.push_back((j.sent() + 1, q, answer)),
-                    None => reply(&q, answer).await,
+                    None => reply(&q, keys::set(run), answer).await,
                 }
             }
             Wake::Durable => shell.release().await?,
@@ -574,11 +575,12 @@ fn unix_ms() -> u64 {
 fn check_resumable(
     header: &JournalHeader,
     records: &[Vec<u8>],
+    loaded: &Loaded,
     hash: &ChartHash,
-    pou: &str,
     chart: &std::path::Path,
     path: &str,
 ) -> anyhow::Result<()> {
+    let pou = loaded.pou.as_str();
     if header.format != JOURNAL_FORMAT {
         bail!(
             "the journal {path} is in format {}, and this baton reads format {JOURNAL_FORMAT}; \
@@ -597,6 +599,7 @@ fn check_resumable(
             hash.0
         );
     }
+    check_pin(header, &loaded.program, &loaded.layout, path)?;
     if let Some(last) = records.last() {
         if let Ok(journal::Entry { record: Record::End { failure }, .. }) = journal::decode(last) {
             let how = match failure {
@@ -612,8 +615,26 @@ fn check_resumable(
     Ok(())
 }
 
-async fn reply(q: &Query, payload: Vec<u8>) {
-    if let Err(e) = q.reply(q.key_expr().clone(), payload).await {
+/// A journal's records mean something only for the program it pins: a build of Baton that compiles the same chart
+/// to other numbers would apply them to other variables and transitions.
+pub fn check_pin(header: &JournalHeader, program: &Program, layout: &Layout, path: &str) -> anyhow::Result<()> {
+    let pin = journal::program_pin(program, layout);
+    if header.program != pin {
+        bail!(
+            "the journal {path} was written by a baton that compiled chart `{}` to other numbers (program {}; this \
+             baton compiles it to program {pin}): its records would name other variables and transitions here. \
+             Resume it with the baton that started it, or give another --journal folder for a new run",
+            header.pou,
+            header.program
+        );
+    }
+    Ok(())
+}
+
+/// Answers on the queryable's own key, which names the run: a client that asked all runs (`baton/run/*/status`)
+/// gets one reply per run, where replies on the query's key would be consolidated into one.
+async fn reply(q: &Query, key: String, payload: Vec<u8>) {
+    if let Err(e) = q.reply(key, payload).await {
         eprintln!("warning: cannot answer a query on {}: {e}", q.key_expr());
     }
 }
@@ -763,7 +784,7 @@ impl Shell {
         }
         while self.held_replies.front().is_some_and(|(batch, _, _)| *batch <= durable) {
             let Some((_, q, answer)) = self.held_replies.pop_front() else { break };
-            reply(&q, answer).await;
+            reply(&q, keys::set(self.core.core().run()), answer).await;
         }
         Ok(())
     }
@@ -940,5 +961,66 @@ impl Summary {
         if let Some(j) = &self.journal {
             println!("journal: {} records in {} commits", j.records, j.commits);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn options(chart: PathBuf, journal: PathBuf) -> RunOptions {
+        RunOptions {
+            chart,
+            pou: None,
+            listen: vec!["tcp/127.0.0.1:0".into()],
+            connect: Vec::new(),
+            trace: None,
+            summary: None,
+            cycle_ms: 10,
+            sets: Vec::new(),
+            multicast_scouting: false,
+            quiet: true,
+            zenoh_config: None,
+            loss_policy: LossPolicy::Pause,
+            journal: Some(journal),
+            rerun: crate::recording::Sink::Off,
+            watch: Vec::new(),
+        }
+    }
+
+    /// The same chart text, compiled by a baton that numbers its program otherwise (simulated by a journal whose
+    /// pin is not this build's): resuming it would apply the records to other variables, so it is refused.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
+    async fn a_journal_of_another_compilation_is_not_resumed() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let chart = dir.path().join("wait.st");
+        let source = "PROGRAM wait\nVAR go : BOOL; END_VAR\nINITIAL_STEP A: END_STEP\n\
+                      TRANSITION FROM A TO B := go; END_TRANSITION\nSTEP B: END_STEP\nEND_PROGRAM\n";
+        std::fs::write(&chart, source).expect("write the chart");
+        let loaded = load(&chart, None).expect("a valid chart");
+        let pin = journal::program_pin(&loaded.program, &loaded.layout);
+        let other = format!("{}{}", if pin.starts_with('0') { '1' } else { '0' }, &pin[1..]);
+        let header = JournalHeader {
+            format: JOURNAL_FORMAT,
+            run: RunId(uuid::Uuid::from_u128(3)),
+            chart: ChartHash::of(source, "wait"),
+            pou: "wait".into(),
+            source: source.into(),
+            started_unix_ms: 1,
+            cycle_ms: 10,
+            program: other.clone(),
+        };
+        let journal_dir = dir.path().join("journal");
+        let mut opened = crate::journal::open(&journal_dir).expect("a new journal");
+        opened.store.write_header(&header).expect("header");
+        drop(opened);
+        let err = run(options(chart, journal_dir.clone())).await.err().expect("refused").to_string();
+        assert!(err.contains("compiled chart `wait` to other numbers") && err.contains(&other), "{err}");
+        assert!(err.contains(&pin), "the message names both programs: {err}");
+        // baton replay refuses it as well.
+        let replay =
+            crate::replay::ReplayOptions { journal: journal_dir, rerun: crate::recording::Sink::Off, trace: None };
+        let err = crate::replay::replay(&replay).expect_err("refused").to_string();
+        assert!(err.contains("to other numbers"), "{err}");
     }
 }
