@@ -57,6 +57,9 @@ pub const REPORTS_AHEAD_MAX: usize = 256;
 /// can make the coordinator hold.
 pub const REPORTS_AHEAD_BYTES_MAX: usize = 4 * 1024 * 1024;
 
+/// Older epochs of one token whose stale reports the coordinator traces (once each).
+pub const STALE_EPOCHS_TRACED: usize = 16;
+
 /// Bytes of variable updates an agent holds from writers' processes the coordinator has not named yet.
 pub const PARKED_UPDATE_BYTES_MAX: usize = 1024 * 1024;
 

@@ -123,3 +123,60 @@ async fn a_journal_of_another_chart_version_or_a_finished_run_is_refused() {
     assert_eq!(again.status.code(), Some(2), "{err}");
     assert!(err.contains("is over (it finished)"), "{err}");
 }
+
+/// A peer floods the run with what the coordinator refuses — a megabyte at a time from an agent it does not know,
+/// reports of a token nobody holds —: none of it is journaled (a resume would replay it all), and the run goes on.
+#[tokio::test(flavor = "multi_thread")]
+async fn what_the_coordinator_refuses_never_reaches_its_journal() {
+    use baton_proto::dist::wire::{RunId, TokenId, VarUpdate, VarValue};
+    let chart = repo("tests/charts/selection_segment.st");
+    let mut cluster = Cluster::new();
+    let journal = cluster.dir.path().join("journal");
+    let mut coordinator = cluster.coordinator(&chart, &["--journal", journal.to_str().expect("utf-8 path")]);
+    let said = coordinator.wait_for_log("running chart").await;
+    let key = said.last().and_then(|l| l.split(" as run ").nth(1)).and_then(|r| r.split(' ').next()).expect("run id");
+    let run = RunId(uuid::Uuid::parse_str(key).expect("a run id"));
+    let rogue = cluster.watch().await;
+    const FLOOD: usize = 40;
+    let big = VarValue { var: 0, value: wire::WireValue::Str("x".repeat(1_000_000)) };
+    for seq in 0..FLOOD as u64 {
+        let update = VarUpdate {
+            run,
+            from: "ghost".into(),
+            incarnation: uuid::Uuid::from_u128(9),
+            seq,
+            vars: vec![big.clone()],
+        };
+        rogue.put(keys::vars(run, "ghost"), wire::encode(&update)).await.expect("put");
+        let report = Report {
+            run,
+            agent: "ghost".into(),
+            incarnation: uuid::Uuid::from_u128(9),
+            token: TokenId(uuid::Uuid::from_u128(seq as u128)),
+            epoch: 1,
+            seq: 0,
+            events: Vec::new(),
+            vars: vec![big.clone()],
+            vars_seq: 0,
+            done: true,
+        };
+        rogue.put(keys::report(run), wire::encode(&report)).await.expect("put");
+    }
+    for _ in 0..FLOOD {
+        coordinator.wait_for_log("variable update from unknown agent `ghost` dropped").await;
+    }
+    cluster.agent("r1", &[], &[]);
+    let go = cluster.baton(&["set", "--connect", &cluster.endpoint, "go=true"]).await;
+    assert!(go.status.success(), "{}", String::from_utf8_lossy(&go.stderr));
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace, &chart);
+    assert!(summary["messages_dropped"].as_u64().unwrap_or(0) >= 2 * FLOOD as u64, "{summary}");
+    let size: u64 = std::fs::read_dir(&journal)
+        .expect("the journal")
+        .map(|e| e.expect("entry").metadata().expect("size").len())
+        .sum();
+    // The run itself takes a few kilobytes; the flood was 80 MB.
+    assert!(size < 1024 * 1024, "the journal holds {size} bytes");
+    tokio::time::timeout(TIMEOUT, rogue.close()).await.ok();
+}

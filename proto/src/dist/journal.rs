@@ -14,14 +14,17 @@
 use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
+use crate::dist::layout::Layout;
 use crate::dist::runtime::coordinator::{Coordinator, LossPolicy};
 use crate::dist::wire::{
     self, AgentInfo, ChartHash, DeviceReport, Report, RunId, SetRequest, TokenId, VarUpdate, WireError,
 };
+use crate::exec::program::{Program, TransitionId};
 
 /// Bumped when records change meaning; a journal of another format is refused. 2: cycles that changed nothing
-/// are not recorded, and the header holds the cycle period.
-pub const JOURNAL_FORMAT: u32 = 2;
+/// are not recorded, and the header holds the cycle period. 3: the header pins the compiled program
+/// (`program_pin`), and refused messages are not recorded.
+pub const JOURNAL_FORMAT: u32 = 3;
 
 /// What a journal is about, written once when the run starts.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -38,6 +41,44 @@ pub struct JournalHeader {
     pub started_unix_ms: u64,
     /// The run's cycle period, which a resumed run keeps.
     pub cycle_ms: u64,
+    /// What the records' numbers mean: `program_pin` of the program the run was compiled to. The chart's hash
+    /// pins its text; this pins the compiler's numbering of its variables, steps, transitions, actions, segments
+    /// and bindings, which another build of Baton may do otherwise.
+    pub program: String,
+}
+
+/// A stamp of what a compiled program's ids mean: every variable's name and type, every step, transition (its
+/// sources, targets and clearing order) and action by index, the layout's segments, writers and bindings. Two
+/// compilations that number anything differently get different pins. FNV-1a, 64 bits, over a canonical text.
+pub fn program_pin(program: &Program, layout: &Layout) -> String {
+    use std::fmt::Write;
+    let mut text = String::new();
+    for (i, v) in program.vars.iter().enumerate() {
+        let _ = writeln!(text, "v{i} {} {} {}", v.name, v.ty, layout.writer[i]);
+    }
+    for (i, s) in program.steps.iter().enumerate() {
+        let _ = writeln!(text, "s{i} {} {}", s.name, layout.placement[i]);
+    }
+    for (i, t) in program.transitions.iter().enumerate() {
+        let id = TransitionId(i as u32);
+        let _ =
+            writeln!(text, "t{i} {} {:?} {:?} {}", t.name, program.sources(id), program.targets(id), program.rank(id));
+    }
+    for (i, a) in program.actions.iter().enumerate() {
+        let _ = writeln!(text, "a{i} {} {}", a.name, layout.action_placement[i]);
+    }
+    for (i, g) in layout.segments.iter().enumerate() {
+        let _ = writeln!(text, "g{i} {} {:?}", g.placement, g.steps);
+    }
+    for (i, b) in layout.io.iter().enumerate() {
+        let _ = writeln!(text, "io{i} {} {} {:?}", b.var.0, b.agent, b.dir);
+    }
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in text.bytes() {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    format!("{h:016x}")
 }
 
 /// One input of the coordinator.
@@ -276,33 +317,52 @@ impl Journaled {
         }
     }
 
-    /// A message as it arrived on the wire (a report, a variable update, a device report): recorded as the
-    /// bytes it came in, then applied. One of another run changes nothing (the coordinator drops it) and is not
-    /// recorded.
-    fn arrived(&mut self, tag: u8, now_ms: u64, bytes: &[u8], run: RunId, record: Record) {
-        let entry = Entry { t_ms: now_ms, record };
-        if run == self.core.run() {
-            self.feed(frame(tag, now_ms, bytes), entry);
-        } else {
-            apply(&mut self.core, &entry);
+    /// A message as it arrived on the wire, recorded first if the coordinator takes it (`record`: the bytes to
+    /// record), then applied. One it refuses (of another run or another process, stale, a duplicate, a value it
+    /// does not take) changes nothing a replay needs: it is applied (counted, logged, answered) but not recorded,
+    /// so that what a peer sends costs no disk unless the coordinator acts on it.
+    fn arrived(&mut self, now_ms: u64, record: Option<Vec<u8>>, applied: Record) {
+        let entry = Entry { t_ms: now_ms, record: applied };
+        match record {
+            Some(bytes) => {
+                self.feed(bytes, entry);
+            }
+            None => {
+                apply(&mut self.core, &entry);
+            }
         }
     }
 
     pub fn report(&mut self, now_ms: u64, bytes: &[u8]) -> Result<(), WireError> {
         let report: Report = wire::decode(bytes)?;
-        self.arrived(REPORT, now_ms, bytes, report.run, Record::Report(report));
+        let record = self.core.admit_report(&report).then(|| frame(REPORT, now_ms, bytes));
+        self.arrived(now_ms, record, Record::Report(report));
         Ok(())
     }
 
+    /// A variable update: only its values that apply are recorded (the bytes as they came when all do).
     pub fn vars(&mut self, now_ms: u64, bytes: &[u8]) -> Result<(), WireError> {
         let update: VarUpdate = wire::decode(bytes)?;
-        self.arrived(VARS, now_ms, bytes, update.run, Record::Vars(update));
+        let record = self.core.admit_vars(&update).map(|kept| {
+            if kept.len() == update.vars.len() {
+                frame(VARS, now_ms, bytes)
+            } else {
+                frame(VARS, now_ms, &wire::encode(&VarUpdate { vars: kept, ..update.clone() }))
+            }
+        });
+        self.arrived(now_ms, record, Record::Vars(update));
         Ok(())
     }
 
+    /// A device report: recorded as it applies (messages cut, each binding once).
     pub fn devices(&mut self, now_ms: u64, bytes: &[u8]) -> Result<(), WireError> {
         let report: DeviceReport = wire::decode(bytes)?;
-        self.arrived(DEVICES, now_ms, bytes, report.run, Record::Devices(report));
+        let Some(kept) = self.core.admit_devices(&report) else {
+            self.arrived(now_ms, None, Record::Devices(report));
+            return Ok(());
+        };
+        let record = frame(DEVICES, now_ms, &wire::encode(&kept));
+        self.arrived(now_ms, Some(record), Record::Devices(kept));
         Ok(())
     }
 
@@ -318,7 +378,9 @@ impl Journaled {
         self.input(now_ms, Record::AgentConflict(name.to_string(), processes));
     }
 
+    /// `baton set`: recorded only if it applies.
     pub fn set(&mut self, now_ms: u64, name: &str, value: &serde_json::Value) -> Result<String, String> {
+        self.core.check_set(name, value)?;
         let request = SetRequest { name: name.to_string(), value: value.clone() };
         self.input(now_ms, Record::Set(request)).unwrap_or_else(|| Err("not applied".to_string()))
     }
@@ -436,5 +498,156 @@ mod tests {
         assert_eq!(distinct.len(), first.len());
         let mut other = token_ids(RunId(Uuid::from_u128(0xbeef)));
         assert_ne!(other(), first[0]);
+    }
+
+    /// A coordinator of a chart with a step on r1 that writes `n` and waits for input `go`, with r1 up.
+    fn journaled() -> (Journaled, RunId) {
+        let (program, layout) = crate::dist::simnet::compile(
+            "PROGRAM p\nVAR go : BOOL; n : DINT; note : STRING[8]; END_VAR\nINITIAL_STEP A: END_STEP\n\
+             TRANSITION FROM A TO B := TRUE; END_TRANSITION\nSTEP B: {agent := 'r1'} Count(N); END_STEP\n\
+             TRANSITION FROM B TO C := go; END_TRANSITION\nSTEP C: END_STEP\n\
+             ACTION Count: n := n + 1; note := 'x'; END_ACTION\nEND_PROGRAM\n",
+        );
+        let run = RunId(Uuid::from_u128(7));
+        let core = Coordinator::new(program, layout, run, ChartHash("h".into()), token_ids(run));
+        let mut j = Journaled::new(core);
+        let info = AgentInfo {
+            name: "r1".into(),
+            roles: Vec::new(),
+            lease_ms: 1000,
+            incarnation: Uuid::from_u128(1),
+            held: Vec::new(),
+        };
+        j.agent_up(0, info);
+        j.cycle(0);
+        j.take_records();
+        (j, run)
+    }
+
+    fn value(j: &Journaled, name: &str, v: crate::exec::types::Value) -> wire::VarValue {
+        wire::VarValue::new(j.core().program().var_by_name(name).expect("a variable"), v)
+    }
+
+    #[test]
+    fn what_the_coordinator_refuses_is_not_journaled() {
+        use crate::exec::types::Value;
+        let (mut j, run) = journaled();
+        let update = |from: &str, incarnation: u128, seq: u64, vars: Vec<wire::VarValue>| VarUpdate {
+            run,
+            from: from.into(),
+            incarnation: Uuid::from_u128(incarnation),
+            seq,
+            vars,
+        };
+        // A megabyte from an agent the coordinator does not know, 50 times; one from r1's replaced or made-up
+        // process; one of another run; a value r1 does not write; a string longer than its variable: nothing
+        // to record.
+        let big = value(&j, "note", Value::Str(std::sync::Arc::new("x".repeat(1_000_000))));
+        for seq in 0..50 {
+            j.vars(10, &wire::encode(&update("ghost", 9, seq, vec![big.clone()]))).expect("decodes");
+        }
+        j.vars(11, &wire::encode(&update("r1", 2, 1, vec![value(&j, "n", Value::Int(5))]))).expect("decodes");
+        let mut other = update("r1", 1, 1, vec![value(&j, "n", Value::Int(5))]);
+        other.run = RunId(Uuid::from_u128(8));
+        j.vars(12, &wire::encode(&other)).expect("decodes");
+        j.vars(13, &wire::encode(&update("r1", 1, 1, vec![value(&j, "go", Value::Bool(true))]))).expect("decodes");
+        j.vars(14, &wire::encode(&update("r1", 1, 1, vec![big.clone()]))).expect("decodes");
+        assert!(j.take_records().is_empty(), "refused updates were journaled");
+        assert_eq!(j.core().value(j.core().program().var_by_name("go").expect("go")), Value::Bool(false));
+        // A set the coordinator refuses is not journaled either; one it takes is.
+        assert!(j.set(15, "n", &serde_json::json!(3)).is_err());
+        assert!(j.set(15, "nothing", &serde_json::json!(3)).is_err());
+        assert!(j.take_records().is_empty());
+        assert!(j.set(16, "go", &serde_json::json!(false)).is_ok());
+        assert_eq!(j.take_records().len(), 1);
+        // An update that mixes what r1 writes with what it does not: only r1's own value is recorded, once.
+        let mixed = update(
+            "r1",
+            1,
+            2,
+            vec![value(&j, "n", Value::Int(7)), value(&j, "go", Value::Bool(true)), value(&j, "n", Value::Int(8))],
+        );
+        j.vars(17, &wire::encode(&mixed)).expect("decodes");
+        let records = j.take_records();
+        assert_eq!(records.len(), 1);
+        let Ok(Entry { record: Record::Vars(kept), .. }) = decode(&records[0]) else { panic!("a Vars record") };
+        assert_eq!(kept.vars, vec![value(&j, "n", Value::Int(7))]);
+        // The same update again is old news: not recorded.
+        j.vars(18, &wire::encode(&mixed)).expect("decodes");
+        assert!(j.take_records().is_empty());
+    }
+
+    #[test]
+    fn reports_held_ahead_of_a_gap_are_bounded_by_bytes_and_duplicates_are_not_journaled() {
+        use crate::dist::wire::{AgentEvent, AgentEventKind, ToAgent};
+        use crate::limits::REPORTS_AHEAD_BYTES_MAX;
+        let (mut j, run) = journaled();
+        let mut token = None;
+        while let Some(out) = j.poll_output() {
+            if let crate::dist::runtime::coordinator::CoordOutput::Send {
+                msg: ToAgent::Dispatch { token: t, .. },
+                ..
+            } = out
+            {
+                token = Some(t);
+            }
+        }
+        let token = token.expect("B was dispatched to r1");
+        let report = |seq: u32, message: String| Report {
+            run,
+            agent: "r1".into(),
+            incarnation: Uuid::from_u128(1),
+            token,
+            epoch: 1,
+            seq,
+            events: vec![AgentEvent { dt_ms: 1, kind: AgentEventKind::Fault { message } }],
+            vars: Vec::new(),
+            vars_seq: 0,
+            done: false,
+        };
+        // Reports ahead of the missing seq 0, each 100 KB: those within REPORTS_AHEAD_BYTES_MAX are held (and
+        // recorded, since they will apply), the rest are dropped unrecorded (the agent sends them again).
+        let mut recorded = 0;
+        for seq in 1..100 {
+            j.report(20, &wire::encode(&report(seq, "f".repeat(100_000)))).expect("decodes");
+            recorded += j.take_records().len();
+        }
+        assert!(recorded > 0 && recorded * 100_000 <= REPORTS_AHEAD_BYTES_MAX, "{recorded} held");
+        // The same one ahead again, and one from another process: not recorded.
+        j.report(21, &wire::encode(&report(1, "f".into()))).expect("decodes");
+        let mut forged = report(0, "f".into());
+        forged.incarnation = Uuid::from_u128(2);
+        j.report(21, &wire::encode(&forged)).expect("decodes");
+        assert!(j.take_records().is_empty());
+        // The one it waits for applies, and so do those held.
+        j.report(22, &wire::encode(&report(0, "f".into()))).expect("decodes");
+        assert_eq!(j.take_records().len(), 1);
+        // Now old: acknowledged again, not recorded.
+        j.report(23, &wire::encode(&report(0, "f".into()))).expect("decodes");
+        assert!(j.take_records().is_empty());
+    }
+
+    #[test]
+    fn the_program_pin_changes_with_what_the_numbers_mean() {
+        let pin = |src: &str| {
+            let (program, layout) = crate::dist::simnet::compile(src);
+            program_pin(&program, &layout)
+        };
+        let chart = |vars: &str, placed: &str| {
+            format!(
+                "PROGRAM p\nVAR {vars} END_VAR\nINITIAL_STEP A: END_STEP\nTRANSITION FROM A TO B := go; \
+                 END_TRANSITION\nSTEP B: {placed} END_STEP\nEND_PROGRAM\n"
+            )
+        };
+        let base = chart("go : BOOL; n : INT;", "");
+        assert_eq!(pin(&base), pin(&base), "the same compilation, the same pin");
+        // Variables numbered the other way round, a type changed, a step placed elsewhere: each moves the pin.
+        for other in [
+            chart("n : INT; go : BOOL;", ""),
+            chart("go : BOOL; n : DINT;", ""),
+            chart("go : BOOL; n : INT;", "{agent := 'r1'}"),
+        ] {
+            assert_ne!(pin(&base), pin(&other), "{other}");
+        }
     }
 }

@@ -242,14 +242,32 @@ pub struct VarUpdate {
     pub vars: Vec<VarValue>,
 }
 
+/// About the bytes values take in memory, to bound what a peer can make a process hold.
+fn values_weight(vars: &[VarValue]) -> usize {
+    let value = |v: &WireValue| match v {
+        WireValue::Str(s) => s.len(),
+        _ => 8,
+    };
+    vars.iter().map(|vv| 16 + value(&vv.value)).sum()
+}
+
 impl VarUpdate {
     /// About the bytes it takes, to bound what is held of them.
     pub fn weight(&self) -> usize {
-        let value = |v: &WireValue| match v {
-            WireValue::Str(s) => s.len(),
-            _ => 8,
+        64 + self.from.len() + values_weight(&self.vars)
+    }
+}
+
+impl Report {
+    /// About the bytes it takes, to bound what is held of them.
+    pub fn weight(&self) -> usize {
+        let event = |e: &AgentEvent| {
+            32 + match &e.kind {
+                AgentEventKind::SkillFault { message, .. } | AgentEventKind::Fault { message } => message.len(),
+                _ => 0,
+            }
         };
-        64 + self.from.len() + self.vars.iter().map(|vv| 16 + value(&vv.value)).sum::<usize>()
+        96 + self.agent.len() + self.events.iter().map(event).sum::<usize>() + values_weight(&self.vars)
     }
 }
 

@@ -25,7 +25,10 @@ use crate::exec::engine::{Engine, Event, EventKind, Input, RemoteInput};
 use crate::exec::program::{Program, StepId, TransitionId, VarId};
 use crate::exec::sim::{output_of, parse_value, SimOutput, TraceRecord};
 use crate::exec::types::Value;
-use crate::limits::{ACK_DELAY_MS, AGENTS_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_AHEAD_MAX};
+use crate::limits::{
+    ACK_DELAY_MS, AGENTS_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_AHEAD_BYTES_MAX, REPORTS_AHEAD_MAX,
+    STALE_EPOCHS_TRACED,
+};
 
 use super::{Level, VarWrites, COORDINATOR};
 
@@ -79,6 +82,30 @@ pub struct CoordStats {
     pub dropped: u64,
 }
 
+/// What a report from an agent would do (`Coordinator::classify_report`).
+enum ReportFate {
+    OtherRun,
+    /// A duplicate of a finished token's last report: acknowledged again.
+    FinishedAgain(AckEntry),
+    UnknownToken,
+    /// Of an older epoch; `first` of its epoch to come.
+    Stale {
+        first: bool,
+    },
+    /// Of an epoch never dispatched.
+    FutureEpoch,
+    NotHolder,
+    OtherProcess,
+    /// Applied already: acknowledged again.
+    Old,
+    /// Ahead of a missing one: held if there is `room`.
+    Ahead {
+        room: bool,
+    },
+    /// The one the token waits for.
+    Next,
+}
+
 struct AgentState {
     roles: Vec<String>,
     alive: bool,
@@ -123,6 +150,11 @@ struct TokenState {
     agent: Option<String>,
     next_seq: u32,
     ahead: BTreeMap<u32, Report>,
+    /// What the reports held ahead weigh (`Report::weight`), bounded by `REPORTS_AHEAD_BYTES_MAX`.
+    ahead_bytes: usize,
+    /// The older epochs whose reports were traced as stale (`reject_stale`, once each): later ones are only
+    /// answered with a `Drop`.
+    stale_traced: Vec<u32>,
     dispatched_ms: u64,
     /// Its agent was lost under `LossPolicy::Pause`.
     paused: bool,
@@ -572,6 +604,8 @@ impl Coordinator {
             agent: None,
             next_seq: 0,
             ahead: BTreeMap::new(),
+            ahead_bytes: 0,
+            stale_traced: Vec::new(),
             dispatched_ms: self.now_ms,
             paused: false,
             confirmed: true,
@@ -1022,6 +1056,7 @@ impl Coordinator {
         tok.epoch += 1;
         tok.next_seq = 0;
         tok.ahead.clear();
+        tok.ahead_bytes = 0;
         tok.paused = false;
         tok.reassign_at_ms = None;
         tok.confirmed = true;
@@ -1046,67 +1081,125 @@ impl Coordinator {
         self.emit_dispatch_or_wait(id);
     }
 
+    /// What a report would do here; `handle_report` does it, and the journal records only those that change
+    /// what a replay must rebuild (`admit_report`).
+    fn classify_report(&self, report: &Report) -> ReportFate {
+        if report.run != self.run {
+            return ReportFate::OtherRun;
+        }
+        let Some(tok) = self.tokens.get(&report.token) else {
+            return match self.finished.get(&report.token) {
+                Some((epoch, seq, agent)) if report.epoch == *epoch && report.agent == *agent => {
+                    ReportFate::FinishedAgain(AckEntry { token: report.token, epoch: *epoch, seq: *seq, done: true })
+                }
+                _ => ReportFate::UnknownToken,
+            };
+        };
+        if report.epoch != tok.epoch {
+            return match report.epoch < tok.epoch {
+                true => ReportFate::Stale { first: !tok.stale_traced.contains(&report.epoch) },
+                false => ReportFate::FutureEpoch,
+            };
+        }
+        if tok.agent.as_deref() != Some(report.agent.as_str()) {
+            return ReportFate::NotHolder;
+        }
+        if self.agents.get(&report.agent).map(|a| a.incarnation) != Some(report.incarnation) {
+            return ReportFate::OtherProcess;
+        }
+        if report.seq < tok.next_seq {
+            return ReportFate::Old;
+        }
+        if report.seq > tok.next_seq {
+            let room = tok.ahead.len() < REPORTS_AHEAD_MAX
+                && tok.ahead_bytes + report.weight() <= REPORTS_AHEAD_BYTES_MAX
+                && !tok.ahead.contains_key(&report.seq);
+            return ReportFate::Ahead { room };
+        }
+        ReportFate::Next
+    }
+
+    /// Whether a report changes what the coordinator knows (it applies, waits ahead of a gap, or is the first
+    /// stale one of its epoch, which the trace shows): only those are journaled. The others are answered, counted
+    /// and dropped, and change nothing a replay needs — so a peer's garbage costs no disk.
+    pub fn admit_report(&self, report: &Report) -> bool {
+        matches!(
+            self.classify_report(report),
+            ReportFate::Next | ReportFate::Ahead { room: true } | ReportFate::Stale { first: true }
+        )
+    }
+
     /// A report from an agent, decoded. Reports of a token apply once each, in sequence order.
     pub fn handle_report(&mut self, now_ms: u64, report: Report) {
         self.advance(now_ms);
-        if report.run != self.run {
-            return self.drop_msg(format!("report from `{}` for another run dropped", report.agent));
-        }
-        let Some(tok) = self.tokens.get_mut(&report.token) else {
-            if let Some((epoch, seq, agent)) = self.finished.get(&report.token).cloned() {
-                if report.epoch == epoch && report.agent == agent {
-                    // A duplicate of a finished token's report: acknowledge again, apply nothing.
-                    self.stats.dropped += 1;
-                    self.ack(agent, AckEntry { token: report.token, epoch, seq, done: true });
-                    return;
-                }
+        match self.classify_report(&report) {
+            ReportFate::OtherRun => self.drop_msg(format!("report from `{}` for another run dropped", report.agent)),
+            ReportFate::FinishedAgain(entry) => {
+                // A duplicate of a finished token's report: acknowledge again, apply nothing.
+                self.stats.dropped += 1;
+                self.ack(report.agent, entry);
             }
-            return self.drop_msg(format!("report from `{}` for unknown token {} dropped", report.agent, report.token));
-        };
-        if report.epoch != tok.epoch {
-            let epoch = tok.epoch;
-            if report.epoch < epoch {
-                let entry = self.program.steps[tok.entry.index()].name.clone();
-                let mut rec = TraceRecord::new(self.now_ms, "reject_stale", &entry);
-                rec.agent = Some(report.agent.clone());
-                rec.token = Some(report.token.to_string());
-                rec.epoch = Some(report.epoch);
-                self.trace(rec);
-                let msg = ToAgent::Drop { run: self.run, token: report.token, epoch: report.epoch };
-                let (agent, incarnation) = (report.agent.clone(), report.incarnation);
-                self.outbox.push_back(CoordOutput::Send { agent, incarnation, msg });
+            ReportFate::UnknownToken => {
+                self.drop_msg(format!("report from `{}` for unknown token {} dropped", report.agent, report.token))
             }
-            return self.drop_msg(format!(
-                "report from `{}` for token {} rejected: epoch {} is stale (current {epoch}); told to drop it",
+            ReportFate::Stale { first } => self.stale_report(report, first),
+            ReportFate::FutureEpoch => self.drop_msg(format!(
+                "report from `{}` for token {} dropped: epoch {} was never dispatched",
                 report.agent, report.token, report.epoch
-            ));
-        }
-        if tok.agent.as_deref() != Some(report.agent.as_str()) {
-            return self.drop_msg(format!(
+            )),
+            ReportFate::NotHolder => self.drop_msg(format!(
                 "report for token {} dropped: it came from `{}`, which does not hold it",
                 report.token, report.agent
-            ));
-        }
-        if self.agents.get(&report.agent).map(|a| a.incarnation) != Some(report.incarnation) {
-            return self.drop_msg(format!(
+            )),
+            ReportFate::OtherProcess => self.drop_msg(format!(
                 "report for token {} dropped: it came from another process than `{}`'s current one",
                 report.token, report.agent
-            ));
-        }
-        if report.seq < tok.next_seq {
-            let (agent, epoch, seq) = (report.agent.clone(), tok.epoch, tok.next_seq - 1);
-            self.stats.dropped += 1;
-            self.ack(agent, AckEntry { token: report.token, epoch, seq, done: false });
-            return;
-        }
-        if report.seq > tok.next_seq {
-            if tok.ahead.len() < REPORTS_AHEAD_MAX {
-                tok.ahead.insert(report.seq, report);
-            } else {
+            )),
+            ReportFate::Old => {
+                let Some(tok) = self.tokens.get(&report.token) else { return };
+                let entry = AckEntry { token: report.token, epoch: tok.epoch, seq: tok.next_seq - 1, done: false };
                 self.stats.dropped += 1;
+                self.ack(report.agent, entry);
             }
-            return;
+            ReportFate::Ahead { room: false } => self.stats.dropped += 1,
+            ReportFate::Ahead { room: true } => {
+                let Some(tok) = self.tokens.get_mut(&report.token) else { return };
+                tok.ahead_bytes += report.weight();
+                tok.ahead.insert(report.seq, report);
+            }
+            ReportFate::Next => self.next_report(report),
         }
+    }
+
+    /// A report of an older epoch (its segment was taken back): the agent is told to drop it, and the trace
+    /// says so once per epoch.
+    fn stale_report(&mut self, report: Report, first: bool) {
+        let Some(tok) = self.tokens.get_mut(&report.token) else { return };
+        let epoch = tok.epoch;
+        if first {
+            if tok.stale_traced.len() >= STALE_EPOCHS_TRACED {
+                tok.stale_traced.remove(0);
+            }
+            tok.stale_traced.push(report.epoch);
+            let entry = self.program.steps[tok.entry.index()].name.clone();
+            let mut rec = TraceRecord::new(self.now_ms, "reject_stale", &entry);
+            rec.agent = Some(report.agent.clone());
+            rec.token = Some(report.token.to_string());
+            rec.epoch = Some(report.epoch);
+            self.trace(rec);
+        }
+        let msg = ToAgent::Drop { run: self.run, token: report.token, epoch: report.epoch };
+        let (agent, incarnation) = (report.agent.clone(), report.incarnation);
+        self.outbox.push_back(CoordOutput::Send { agent, incarnation, msg });
+        self.drop_msg(format!(
+            "report from `{}` for token {} rejected: epoch {} is stale (current {epoch}); told to drop it",
+            report.agent, report.token, report.epoch
+        ));
+    }
+
+    /// The report the token waited for: it applies, and so do those held ahead that follow it.
+    fn next_report(&mut self, report: Report) {
+        let Some(tok) = self.tokens.get_mut(&report.token) else { return };
         // A report on the token is as good as the agent saying it holds it.
         tok.confirmed = true;
         let id = report.token;
@@ -1119,7 +1212,9 @@ impl Coordinator {
             }
             next = self.tokens.get_mut(&id).and_then(|t| {
                 let seq = t.next_seq;
-                t.ahead.remove(&seq)
+                let r = t.ahead.remove(&seq)?;
+                t.ahead_bytes = t.ahead_bytes.saturating_sub(r.weight());
+                Some(r)
             });
         }
         self.settle();
@@ -1255,7 +1350,8 @@ impl Coordinator {
 
     /// Values from `agent`'s process `incarnation`, as of its update `seq`: each applies unless a newer write of
     /// the variable was applied already.
-    fn apply_agent_vars(&mut self, agent: &str, incarnation: uuid::Uuid, seq: u64, vars: &[VarValue]) {
+    fn apply_agent_vars(&mut self, agent: &str, incarnation: uuid::Uuid, seq: u64, vars: &[VarValue]) -> bool {
+        let mut applied = false;
         let mut refused: HashSet<u32> = HashSet::new();
         for vv in vars {
             let Some((var, value)) = vv.resolve(&self.program) else {
@@ -1269,6 +1365,7 @@ impl Coordinator {
             if !self.var_writes.accept(var.index(), agent, incarnation, seq, false) {
                 continue;
             }
+            applied = true;
             if let Err(e) = self.engine.handle(Input::Set(var, value)) {
                 self.log(Level::Warn, format!("value from `{agent}` refused: {e}"));
             }
@@ -1279,6 +1376,56 @@ impl Coordinator {
                 refused.len()
             ));
         }
+        applied
+    }
+
+    /// The part of an agent's variable update that would apply: its values of variables it writes, that fit
+    /// their types and are newer than those applied, each variable once (its first value, as `handle_vars` takes
+    /// it). `None` when nothing would: then nothing is journaled, whatever the update weighs.
+    pub fn admit_vars(&self, update: &VarUpdate) -> Option<Vec<VarValue>> {
+        if update.from == COORDINATOR || update.run != self.run {
+            return None;
+        }
+        let agent = self.agents.get(&update.from)?;
+        if agent.incarnation != update.incarnation {
+            return None;
+        }
+        let mut seen = HashSet::new();
+        let kept: Vec<VarValue> = update
+            .vars
+            .iter()
+            .filter(|vv| {
+                vv.resolve(&self.program).is_some_and(|(var, _)| {
+                    self.serves(&update.from, &self.layout.writer[var.index()])
+                        && self.var_writes.would_accept(var.index(), &update.from, update.incarnation, update.seq)
+                        && seen.insert(var)
+                })
+            })
+            .cloned()
+            .collect();
+        (!kept.is_empty()).then_some(kept)
+    }
+
+    /// A device report as it would apply (its messages cut to `DEVICE_MESSAGE_CHARS_MAX`, each binding once, as
+    /// `handle_devices` keeps them); `None` when it would not apply, and then it is not journaled.
+    pub fn admit_devices(&self, report: &DeviceReport) -> Option<DeviceReport> {
+        if report.run != self.run {
+            return None;
+        }
+        let agent = self.agents.get(&report.agent)?;
+        if agent.incarnation != report.incarnation || !agent.alive || report.seq <= agent.devices_seq {
+            return None;
+        }
+        let mut down: BTreeMap<u32, String> = BTreeMap::new();
+        for d in &report.down {
+            let ours = self.layout.io.get(d.binding as usize).is_some_and(|b| b.agent == report.agent);
+            if !ours {
+                return None;
+            }
+            down.insert(d.binding, d.message.chars().take(crate::limits::DEVICE_MESSAGE_CHARS_MAX).collect());
+        }
+        let down = down.into_iter().map(|(binding, message)| crate::dist::wire::DeviceDown { binding, message });
+        Some(DeviceReport { down: down.collect(), ..report.clone() })
     }
 
     /// A variable update published by an agent (also sent to agents that read it).
@@ -1299,8 +1446,11 @@ impl Coordinator {
                 update.from
             ));
         }
-        self.apply_agent_vars(&update.from, update.incarnation, update.seq, &update.vars);
-        self.settle();
+        // An update that changes nothing (every value older than one applied) is not journaled: it must not move
+        // the engine either, or a replay would differ.
+        if self.apply_agent_vars(&update.from, update.incarnation, update.seq, &update.vars) {
+            self.settle();
+        }
     }
 
     /// Which of its bound devices an agent cannot reach. Each change is a trace record, `device_down` or
@@ -1368,12 +1518,25 @@ impl Coordinator {
     /// `baton set NAME=VALUE`: sets an input (a variable no action writes) before the next cycle.
     pub fn handle_set(&mut self, now_ms: u64, name: &str, value: &serde_json::Value) -> Result<String, String> {
         self.advance(now_ms);
+        let (var, v) = self.check_set(name, value)?;
+        let program = Arc::clone(&self.program);
+        let info = &program.vars[var.index()];
+        let shown = info.ty.show(&v);
+        self.engine.handle(Input::Set(var, v)).map_err(|e| e.to_string())?;
+        let mut rec = TraceRecord::new(self.now_ms, "set", &info.name);
+        rec.message = Some(shown.clone());
+        self.trace(rec);
+        self.settle();
+        Ok(format!("{} := {shown}", info.name))
+    }
+
+    /// Whether `baton set NAME=VALUE` would apply; why not, if not (then it is not journaled).
+    pub fn check_set(&self, name: &str, value: &serde_json::Value) -> Result<(VarId, Value), String> {
         let var = self
             .program
             .var_by_name(name)
             .ok_or_else(|| format!("chart `{}` has no variable `{name}`", self.program.name))?;
-        let program = Arc::clone(&self.program);
-        let info = &program.vars[var.index()];
+        let info = &self.program.vars[var.index()];
         if !self.layout.settable[var.index()] {
             let why = if info.constant {
                 "it is a CONSTANT".to_string()
@@ -1384,13 +1547,7 @@ impl Coordinator {
         }
         let v = parse_value(&info.ty, value)
             .ok_or_else(|| format!("`{}` is {}, and {value} is not a {} value", info.name, info.ty, info.ty))?;
-        let shown = info.ty.show(&v);
-        self.engine.handle(Input::Set(var, v)).map_err(|e| e.to_string())?;
-        let mut rec = TraceRecord::new(self.now_ms, "set", &info.name);
-        rec.message = Some(shown.clone());
-        self.trace(rec);
-        self.settle();
-        Ok(format!("{} := {shown}", info.name))
+        Ok((var, v))
     }
 
     pub fn status(&self) -> StatusReport {

@@ -61,6 +61,18 @@ impl VarWrites {
         true
     }
 
+    /// Whether `accept` would take this write, without taking it.
+    pub(crate) fn would_accept(&self, var: usize, writer: &str, incarnation: Uuid, seq: u64) -> bool {
+        if self.is_retired(writer, incarnation) {
+            return false;
+        }
+        match self.last.get(var) {
+            None => false,
+            Some(Some(last)) => !(last.writer == writer && last.incarnation == incarnation && seq <= last.seq),
+            Some(None) => true,
+        }
+    }
+
     /// Whether `writer`'s process `incarnation` was replaced by a newer one.
     pub(crate) fn is_retired(&self, writer: &str, incarnation: Uuid) -> bool {
         self.retired.iter().any(|(w, i)| w == writer && *i == incarnation)
