@@ -134,11 +134,16 @@ fn malformed_files_are_said_at_file_line_col_with_exit_status_3() {
         "malformed/names.test.toml:14:1: error: the chart has no step `Finish`",
         "malformed/names.test.toml:18:11: error: `soon` is not a duration",
         "malformed/syntax.test.toml:4:9: error: unclosed array table, expected `]]`",
+        "malformed/vacuous.test.toml:16:9: error: `Done.X AND first != 1` is not an expression",
+        "malformed/vacuous.test.toml:18:1: error: `value` names no variable, so it could never fail",
+        "malformed/vacuous.test.toml:21:1: error: action `MarkA` starts no skill, so `once_per_epoch` could never fail",
+        "malformed/vacuous.test.toml:25:10: error: `1 = 1` reads no step and no variable and always holds",
+        "malformed/vacuous.test.toml:28:9: error: `FALSE AND TRUE` reads no step and no variable and never holds",
     ];
     for e in expected {
         assert!(stderr.lines().any(|l| l.starts_with(e)), "expected `{e}` in:\n{stderr}");
     }
-    assert!(stdout.contains("3 scenario(s): 0 passed, 0 failed, 3 malformed"), "{stdout}");
+    assert!(stdout.contains("4 scenario(s): 0 passed, 0 failed, 4 malformed"), "{stdout}");
     // Malformed outranks failed: a folder of both exits 3.
     let (o, stdout, _) = baton_test(&dir, &["fail/value.test.toml", "malformed/keys.test.toml"], out.path());
     assert_eq!(o.status.code(), Some(3), "{stdout}");
@@ -439,4 +444,102 @@ fn cluster_runs_the_example_and_each_fault_with_real_processes() {
     let (o, stdout, stderr) = baton_test(&dir, &["pass/link.test.toml", "--cluster"], out.path());
     assert_eq!(o.status.code(), Some(2), "{stdout}{stderr}");
     assert!(stderr.contains("needs the simulated network"), "{stderr}");
+}
+
+/// Two scenario files of one name (in two folders), run side by side with `--cluster` into one `--out`: each
+/// run has a folder of its own, so neither finds the other's journal in use nor has its logs deleted by the
+/// other's pass.
+#[test]
+fn scenarios_of_one_name_run_side_by_side_on_real_processes() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let crash = std::fs::read_to_string(repo("tests/baton_test/pass/crash.test.toml")).expect("crash scenario");
+    let line = repo("tests/baton_test/line.st");
+    for side in ["left", "right"] {
+        std::fs::create_dir_all(dir.path().join(side)).expect("folder");
+        let text = crash.replace("chart = \"../line.st\"", &format!("chart = {:?}", line.display().to_string()));
+        std::fs::write(dir.path().join(side).join("twin.test.toml"), text).expect("write");
+    }
+    let out = dir.path().join("out");
+    let run = |side: &str| {
+        Command::new(bin("baton"))
+            .args(["test", &format!("{side}/twin.test.toml"), "--cluster", "--out"])
+            .arg(&out)
+            .current_dir(dir.path())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("baton test starts")
+    };
+    let (left, right) = (run("left"), run("right"));
+    for child in [left, right] {
+        let o = child.wait_with_output().expect("baton test ends");
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success(), "{stdout}{}", String::from_utf8_lossy(&o.stderr));
+        assert!(stdout.contains("PASS twin"), "{stdout}");
+    }
+}
+
+/// The processes of the runs in `/proc` whose parent is `pid`.
+fn children_of(pid: u32) -> Vec<u32> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
+        let Ok(child) = entry.file_name().to_string_lossy().parse::<u32>() else { continue };
+        let Ok(stat) = std::fs::read_to_string(entry.path().join("stat")) else { continue };
+        // pid (comm) state ppid …: the command may hold spaces and parentheses, the last `)` ends it.
+        let fields: Vec<&str> = stat.rsplit_once(')').map_or(Vec::new(), |(_, rest)| rest.split_whitespace().collect());
+        if fields.get(1).and_then(|p| p.parse::<u32>().ok()) == Some(pid) && fields.first() != Some(&"Z") {
+            out.push(child);
+        }
+    }
+    out
+}
+
+/// `baton test --cluster` killed outright (SIGKILL, where it cannot tear anything down): its coordinator and
+/// agents die with it instead of living on, reparented to PID 1.
+#[test]
+fn the_processes_of_a_cluster_run_die_with_their_runner() {
+    let dir = tempfile::tempdir().expect("tmp");
+    // A run that lasts: r1's motion takes a minute.
+    let line =
+        std::fs::read_to_string(repo("tests/baton_test/line.st")).expect("chart").replace("ms := 200", "ms := 60000");
+    std::fs::write(dir.path().join("slow.st"), line).expect("write");
+    std::fs::write(
+        dir.path().join("slow.test.toml"),
+        "chart = \"slow.st\"\n\n[[agents]]\nname = \"r1\"\n\n[[agents]]\nname = \"r2\"\n\n[[inputs]]\nat = \"0s\"\n\
+         set = { start = true }\n\n[[expect]]\nstate = \"finished\"\n",
+    )
+    .expect("write");
+    let mut runner = Command::new(bin("baton"))
+        .args(["test", "slow.test.toml", "--cluster", "--out"])
+        .arg(dir.path().join("out"))
+        .current_dir(dir.path())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("baton test starts");
+    // Wait for its coordinator and both agents.
+    let deadline = std::time::Instant::now() + baton_tests::cluster::TIMEOUT;
+    let children = loop {
+        let c = children_of(runner.id());
+        if c.len() >= 3 {
+            break c;
+        }
+        assert!(std::time::Instant::now() < deadline, "the runner never started its processes: {c:?}");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    runner.kill().expect("SIGKILL the runner");
+    runner.wait().expect("reaped");
+    let alive = |pid: &u32| {
+        std::fs::read_to_string(format!("/proc/{pid}/stat"))
+            .is_ok_and(|s| s.rsplit_once(')').is_some_and(|(_, rest)| !rest.trim_start().starts_with('Z')))
+    };
+    let deadline = std::time::Instant::now() + baton_tests::cluster::TIMEOUT;
+    while children.iter().any(alive) {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "{:?} outlived their runner",
+            children.iter().filter(|p| alive(p)).collect::<Vec<_>>()
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
 }

@@ -94,30 +94,80 @@ pub fn unsupported(sc: &Scenario) -> Option<String> {
     })
 }
 
-/// The folder of run `seed` of `sc` under `out`: its trace, summary, journal and processes' logs.
-pub fn run_dir(out: &Path, sc: &Scenario, seed: u64) -> PathBuf {
-    out.join(format!("{}-seed{seed}.cluster", super::file_stem(sc)))
+/// Claims the folder of run `seed` of `sc` under `out` (its trace, summary, journal and processes' logs):
+/// `NAME-seedN.cluster`, or `NAME-seedN.K.cluster` while another run holds that one (another `baton test` beside
+/// this one, or another scenario file of the same name). A run holds its folder by a lock on `.lock` in it, for
+/// as long as the returned file is open; a folder whose lock nobody holds is a finished run's, kept for its
+/// logs, and is emptied and taken over.
+pub fn claim_run_dir(out: &Path, sc: &Scenario, seed: u64) -> anyhow::Result<(PathBuf, std::fs::File)> {
+    use std::os::fd::AsRawFd;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    for k in 1..=RUN_DIRS_MAX {
+        let suffix = if k == 1 { String::new() } else { format!(".{k}") };
+        let dir = out.join(format!("{}-seed{seed}{suffix}.cluster", super::file_stem(sc)));
+        match std::fs::create_dir(&dir) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
+            Err(e) => return Err(e).with_context(|| format!("cannot create {}", dir.display())),
+        }
+        let lock = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(dir.join(".lock"))
+            .with_context(|| format!("cannot create {}", dir.join(".lock").display()))?;
+        // SAFETY: flock on a file descriptor this function owns; it only reads the flags.
+        if unsafe { libc::flock(lock.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+            continue;
+        }
+        for entry in std::fs::read_dir(&dir).with_context(|| format!("cannot read {}", dir.display()))? {
+            let entry = entry?;
+            if entry.file_name() != ".lock" {
+                let path = entry.path();
+                let _ = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+            }
+        }
+        return Ok((dir, lock));
+    }
+    anyhow::bail!("{RUN_DIRS_MAX} runs of `{}` seed {seed} are running under {} already", sc.name, out.display())
 }
+
+/// Folders of one (scenario, seed) that runs beside each other may take under one `--out`.
+const RUN_DIRS_MAX: usize = 64;
 
 /// Runs `sc` with `seed` on real processes and judges it; `out` holds its folder. `stop` ends it early. A
 /// scenario must be one real processes can run (`unsupported` says nothing of it).
 pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool, bins: &Binaries, out: &Path) -> Outcome {
-    let rt = match tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() {
+    let rt = match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_stack_size(baton_proto::limits::CHART_STACK_BYTES)
+        .enable_all()
+        .build()
+    {
         Ok(rt) => rt,
         Err(e) => return not_run(sc, seed, format!("cannot start the runtime: {e}")),
     };
     rt.block_on(async {
-        let dir = run_dir(out, sc, seed);
-        let mut world = match World::start(sc, seed, bins, dir.clone()).await {
-            Ok(w) => w,
+        let (dir, _lock) = match claim_run_dir(out, sc, seed) {
+            Ok(claimed) => claimed,
             Err(e) => return not_run(sc, seed, format!("{e:#}")),
         };
-        let outcome = world.drive(stop).await;
+        let mut world = match World::start(sc, seed, bins, dir.clone()).await {
+            Ok(w) => w,
+            Err(e) => {
+                let mut o = not_run(sc, seed, format!("{e:#}"));
+                o.logs = Some(dir.display().to_string());
+                return o;
+            }
+        };
+        let mut outcome = world.drive(stop).await;
         world.tear_down().await;
         if outcome.passed() {
             let _ = std::fs::remove_dir_all(&dir);
             // `out` itself goes too when nothing else is in it.
             let _ = std::fs::remove_dir(out);
+        } else {
+            outcome.logs = Some(dir.display().to_string());
         }
         outcome
     })
@@ -146,6 +196,7 @@ fn not_run(sc: &Scenario, seed: u64, why: String) -> Outcome {
         vars: Vec::new(),
         active: Vec::new(),
         active_at_failure: None,
+        logs: None,
     }
 }
 
@@ -205,7 +256,9 @@ impl Follower {
 fn from_shown(ty: &Type, text: &str) -> Option<Value> {
     let json = match ty {
         Type::Bool => serde_json::Value::Bool(text.eq_ignore_ascii_case("TRUE")),
-        Type::Int(_) | Type::Real { .. } => serde_json::from_str(text).ok()?,
+        // As a REAL shows: `inf`, `-inf` and `NaN` too, which JSON has no words for.
+        Type::Real { .. } => return text.parse::<f64>().ok().map(|r| ty.coerce(Value::Real(r))),
+        Type::Int(_) => serde_json::from_str(text).ok()?,
         _ => serde_json::Value::String(text.to_string()),
     };
     parse_value(ty, &json)
@@ -240,8 +293,6 @@ struct World<'a> {
 
 impl<'a> World<'a> {
     async fn start(sc: &'a Scenario, seed: u64, bins: &'a Binaries, dir: PathBuf) -> anyhow::Result<World<'a>> {
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
         // A free port, taken by the router at once; another one if somebody took it in between.
         let mut opened = None;
         for _ in 0..5 {
@@ -343,6 +394,20 @@ impl<'a> World<'a> {
         let path = self.dir.join(log);
         let f = std::fs::File::create(&path).with_context(|| format!("cannot create {}", path.display()))?;
         let program = cmd.as_std().get_program().to_string_lossy().to_string();
+        // Its life tied to the runner's: a runner killed outright (SIGKILL) takes its processes with it, rather
+        // than leaving a coordinator and agents behind, reparented to PID 1.
+        let runner = std::process::id();
+        // SAFETY: between fork and exec the closure calls only async-signal-safe functions (prctl, getppid, raise).
+        unsafe {
+            cmd.pre_exec(move || {
+                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL);
+                // The runner may have died before the line above: then nobody would tell us.
+                if libc::getppid() as u32 != runner {
+                    libc::raise(libc::SIGKILL);
+                }
+                Ok(())
+            });
+        }
         // A group of its own: a terminal's Ctrl-C reaches the runner, which stops the run and tears it down,
         // not the processes in the middle of it.
         cmd.process_group(0)
@@ -674,6 +739,7 @@ impl<'a> World<'a> {
             vars,
             active: obs.active(),
             active_at_failure,
+            logs: None,
         }
     }
 
@@ -688,5 +754,22 @@ impl<'a> World<'a> {
         }
         self.cables.clear();
         let _ = self.session.close().await;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The observer of real processes reads every value a trace shows, or it keeps a stale one.
+    #[test]
+    fn watched_values_read_back_as_they_show_infinities_and_nan_included() {
+        let real = Type::Real { long: true };
+        for v in [1.5, -0.0, f64::INFINITY, f64::NEG_INFINITY, f64::MAX] {
+            assert_eq!(from_shown(&real, &Value::Real(v).to_string()), Some(Value::Real(v)));
+        }
+        let nan = from_shown(&real, &Value::Real(f64::NAN).to_string());
+        assert!(matches!(nan, Some(Value::Real(r)) if r.is_nan()), "{nan:?}");
+        assert_eq!(from_shown(&Type::Bool, "TRUE"), Some(Value::Bool(true)));
     }
 }

@@ -204,9 +204,8 @@ fn failure_report(opts: &TestOptions, sc: &Scenario, o: &Outcome) -> String {
     if let Some(r) = rrd {
         s.push_str(&format!("  recording: rerun {}\n", r.display()));
     }
-    if opts.cluster {
-        let dir = cluster::run_dir(&opts.out, sc, o.seed);
-        s.push_str(&format!("  processes' logs: {}\n", dir.display()));
+    if let Some(dir) = &o.logs {
+        s.push_str(&format!("  processes' logs: {dir}\n"));
     }
     let cluster = if opts.cluster { " --cluster" } else { "" };
     s.push_str(&format!("  replay: baton test {} --seed {}{cluster}\n", sc.path.display(), o.seed));
@@ -337,7 +336,9 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
             }
         });
         for _ in 0..jobs {
-            scope.spawn(|| loop {
+            // Each on the stack a chart may need: whatever `baton check` accepts runs here.
+            let worker = std::thread::Builder::new().stack_size(baton_proto::limits::CHART_STACK_BYTES);
+            let spawned = worker.spawn_scoped(scope, || loop {
                 let k = next.fetch_add(1, Ordering::Relaxed);
                 let Some((i, seed)) = job(k).filter(|_| !stop.load(Ordering::Relaxed)) else {
                     finished.fetch_add(1, Ordering::Relaxed);
@@ -374,6 +375,11 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
                     }
                 }
             });
+            if let Err(e) = spawned {
+                // One worker fewer: the others take its runs.
+                eprintln!("warning: cannot start a worker thread: {e}");
+                finished.fetch_add(1, Ordering::Relaxed);
+            }
         }
     });
     let interrupted: Option<String> = if timed_out.load(Ordering::Relaxed) {

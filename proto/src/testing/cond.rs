@@ -89,9 +89,13 @@ impl Cond {
             };
         }
         let parsed = parse_fragment(text, |i| i, FragmentKind::Expr);
+        // Any error counts, the lexer's too: `first != 1` is not IEC (`<>` is), and read without its `!` it
+        // would be `first = 1`, the opposite.
+        if let Some(d) = parsed.diagnostics.iter().find(|d| d.is_error()) {
+            return Err(format!("`{text}` is not an expression: {}", d.message));
+        }
         let Some(Fragment::Expr(expr)) = parsed.fragment else {
-            let why = parsed.diagnostics.first().map_or("a syntax error".to_string(), |d| d.message.clone());
-            return Err(format!("`{text}` is not an expression: {why}"));
+            return Err(format!("`{text}` is not an expression: a syntax error"));
         };
         Cond::of(&expr, program)
     }
@@ -127,6 +131,33 @@ impl Cond {
             }
             _ => return Err("a scenario's condition uses steps, variables, literals and operators only".to_string()),
         })
+    }
+
+    /// The truth of a condition that reads no step and no variable (`TRUE`, `1 = 1`): it is the same at every
+    /// moment. `None` for one that reads the run.
+    pub fn constant(&self) -> Option<bool> {
+        let mut stack = vec![self];
+        while let Some(c) = stack.pop() {
+            match c {
+                Cond::Step(..) | Cond::Var(_) => return None,
+                Cond::Not(x) | Cond::Neg(x) => stack.push(x),
+                Cond::Bin(_, a, b) => {
+                    stack.push(a);
+                    stack.push(b);
+                }
+                Cond::Bool(_) | Cond::Num(_) | Cond::Str(_) => {}
+            }
+        }
+        struct Nothing;
+        impl View for Nothing {
+            fn step(&self, _: usize) -> Option<Option<&str>> {
+                None
+            }
+            fn value(&self, _: VarId) -> Value {
+                Value::Bool(false)
+            }
+        }
+        Some(self.holds(&Nothing))
     }
 
     pub fn holds(&self, view: &impl View) -> bool {

@@ -47,6 +47,8 @@ pub struct Outcome {
     pub active: ActiveSteps,
     /// The first failure's moment: the steps active then, and where.
     pub active_at_failure: Option<(u64, ActiveSteps)>,
+    /// Where a run of real processes (`baton test --cluster`) left their logs, when it failed.
+    pub logs: Option<String>,
 }
 
 impl Outcome {
@@ -478,6 +480,8 @@ pub fn skill_model(sc: &Scenario) -> crate::dist::simnet::SkillModel {
 
 fn values_equal(actual: &Value, expected: &Value) -> bool {
     match (actual, expected) {
+        // Infinities equal themselves, and a NaN expected is a NaN found (`value = { r = nan }`).
+        (Value::Real(a), Value::Real(b)) if !a.is_finite() || !b.is_finite() => a == b || (a.is_nan() && b.is_nan()),
         (Value::Real(a), Value::Real(b)) => (a - b).abs() <= 1e-6 * a.abs().max(b.abs()).max(1.0),
         (a, b) => a == b,
     }
@@ -583,7 +587,7 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
         .collect();
     vars.sort();
     let active = obs.active();
-    Outcome { seed, chart_ms, state, cases, trace, errors, faults: struck, vars, active, active_at_failure }
+    Outcome { seed, chart_ms, state, cases, trace, errors, faults: struck, vars, active, active_at_failure, logs: None }
 }
 
 fn quoted(items: &[&String]) -> String {

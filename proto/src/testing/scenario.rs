@@ -886,6 +886,10 @@ pub fn parse(path: &Path, text: &str) -> Result<Scenario, LoadError> {
                 ExpectKind::Order(steps.into_iter().flatten().collect())
             }
             "value" => {
+                if r.value.as_ref().is_some_and(|v| v.is_empty()) {
+                    cx.error(&span, "`value` names no variable, so it could never fail: name one or more");
+                    continue;
+                }
                 let mut vars = Vec::new();
                 for (name, v) in r.value.iter().flatten() {
                     match program.var_by_name(name) {
@@ -900,6 +904,17 @@ pub fn parse(path: &Path, text: &str) -> Result<Scenario, LoadError> {
             "always" | "never" => {
                 let text = r.always.as_ref().or(r.never.as_ref()).expect("one of them");
                 let Some(cond) = cx.cond(text, &program, &agent_names) else { continue };
+                // A condition that reads nothing of the run holds at every moment or at none: `always` of one
+                // that holds, `never` of one that does not, could never fail.
+                if cond.constant() == Some(kind == "always") {
+                    let what = if kind == "always" { "always holds" } else { "never holds" };
+                    let message = format!(
+                        "`{}` reads no step and no variable and {what}: this expectation could never fail",
+                        text.get_ref()
+                    );
+                    cx.error(&text.span(), message);
+                    continue;
+                }
                 if kind == "always" {
                     ExpectKind::Always(cond, text.get_ref().clone())
                 } else {
@@ -922,8 +937,17 @@ pub fn parse(path: &Path, text: &str) -> Result<Scenario, LoadError> {
             }
             _ => {
                 let name = r.once_per_epoch.as_deref().unwrap_or_default();
-                match program.actions.iter().find(|a| a.name.eq_ignore_ascii_case(name)) {
-                    Some(a) => ExpectKind::OncePerEpoch(a.name.clone()),
+                match program.actions.iter().position(|a| a.name.eq_ignore_ascii_case(name)) {
+                    Some(i) if layout.skills[i].is_none() => {
+                        let message = format!(
+                            "action `{}` starts no skill, so `once_per_epoch` could never fail: name an action bound \
+                             to a skill (`{{skill := …}}`)",
+                            program.actions[i].name
+                        );
+                        cx.error(&span, message);
+                        continue;
+                    }
+                    Some(i) => ExpectKind::OncePerEpoch(program.actions[i].name.clone()),
                     None => {
                         cx.error(&span, format!("the chart has no action `{name}`"));
                         continue;
