@@ -1,6 +1,8 @@
 //! `baton-agent`: runs chart segments dispatched by a Baton coordinator, with the built-in skills.
 
 use std::process::ExitCode;
+
+use baton_proto::limits::CHART_STACK_BYTES;
 use std::sync::Arc;
 
 use baton_agent::{run, AgentConfig, Skills};
@@ -69,6 +71,20 @@ fn default_pki_dir() -> std::path::PathBuf {
 }
 
 fn main() -> ExitCode {
+    // The whole agent runs on a thread of the stack a chart may need (`limits::CHART_STACK_BYTES`), as do its
+    // runtime's threads, where fetched charts are compiled: whatever `baton check` accepts runs here.
+    let main = std::thread::Builder::new().name("baton-agent".into()).stack_size(CHART_STACK_BYTES).spawn(agent_main);
+    match main.map(std::thread::JoinHandle::join) {
+        Ok(Ok(code)) => code,
+        Ok(Err(_)) => ExitCode::from(101),
+        Err(e) => {
+            eprintln!("error: cannot start the agent's thread: {e}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn agent_main() -> ExitCode {
     let args = Args::parse();
     let config = AgentConfig {
         name: args.name,
@@ -115,7 +131,12 @@ fn main() -> ExitCode {
         None => Skills::builtin().with_ros2(ros2).with_opcua(opcua),
     };
     let skills = if args.allow_shell { skills.with_shell() } else { skills };
-    let runtime = match tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build() {
+    let runtime = match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .thread_stack_size(CHART_STACK_BYTES)
+        .enable_all()
+        .build()
+    {
         Ok(rt) => rt,
         Err(e) => {
             eprintln!("error: cannot start the runtime: {e}");

@@ -789,6 +789,9 @@ async fn fetch_chart(session: &Session, run: RunId, hash: &ChartHash) -> Result<
     if ChartHash::of(&src.source, &src.pou) != *hash || src.hash != *hash {
         return Err("the chart received does not match the version of the token".to_string());
     }
+    if !(1..=baton_proto::limits::CYCLE_MS_MAX).contains(&src.cycle_ms) {
+        return Err(format!("the run's cycle period, {} ms, is not between 1 ms and an hour", src.cycle_ms));
+    }
     let mut report = check_source(&src.source);
     let i = report
         .charts
@@ -797,7 +800,7 @@ async fn fetch_chart(session: &Session, run: RunId, hash: &ChartHash) -> Result<
         .ok_or_else(|| format!("the chart source has no POU `{}`", src.pou))?;
     let checked = report.charts.swap_remove(i);
     match (checked.program, checked.layout) {
-        (Some(p), Some(l)) => Ok((hash.clone(), Arc::new(p), Arc::new(l), src.cycle_ms.max(1))),
+        (Some(p), Some(l)) => Ok((hash.clone(), Arc::new(p), Arc::new(l), src.cycle_ms)),
         _ => Err(format!("chart `{}` has errors here", src.pou)),
     }
 }

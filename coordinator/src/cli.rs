@@ -9,6 +9,7 @@ use anyhow::{bail, Context};
 use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
 use baton_proto::front::check::{check_source, CheckedChart, Report};
 use baton_proto::front::diag::LineIndex;
+use baton_proto::front::source::{self, Decoded};
 use clap::{Parser, Subcommand};
 
 /// Exit status of `baton check` and `baton sim` when the chart has errors.
@@ -47,7 +48,7 @@ enum Command {
         #[arg(long)]
         inputs: Option<PathBuf>,
         /// Time between two scan cycles.
-        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..))]
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=baton_proto::limits::CYCLE_MS_MAX))]
         cycle_ms: u64,
         /// Time of the last cycle.
         #[arg(long, default_value_t = 1000)]
@@ -92,7 +93,7 @@ enum Command {
         #[arg(long = "set", value_name = "NAME=VALUE", value_parser = crate::client::parse_assignment)]
         sets: Vec<(String, serde_json::Value)>,
         /// The run's scan cycle, on the coordinator and every agent (a resumed run keeps its own).
-        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..))]
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=baton_proto::limits::CYCLE_MS_MAX))]
         cycle_ms: u64,
         #[arg(long)]
         pou: Option<String>,
@@ -360,6 +361,7 @@ pub fn main() -> ExitCode {
 fn block_on(fut: impl std::future::Future<Output = anyhow::Result<ExitCode>>) -> anyhow::Result<ExitCode> {
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
+        .thread_stack_size(baton_proto::limits::CHART_STACK_BYTES)
         .enable_all()
         .build()
         .context("cannot start the runtime")?;
@@ -368,6 +370,19 @@ fn block_on(fut: impl std::future::Future<Output = anyhow::Result<ExitCode>>) ->
 
 fn read(path: &Path) -> anyhow::Result<String> {
     std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+/// A chart file's text, decoded as its tool wrote it (`front::source`): its size is checked before it is read,
+/// and how it was read, when not as UTF-8, is said as a warning at its place.
+pub fn read_chart(path: &Path) -> anyhow::Result<Decoded> {
+    let len = std::fs::metadata(path).with_context(|| format!("cannot read {}", path.display()))?.len();
+    source::check_size(len).with_context(|| format!("cannot read {}", path.display()))?;
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let decoded = source::decode(&bytes).with_context(|| format!("cannot read {}", path.display()))?;
+    if let Some(note) = &decoded.note {
+        eprintln!("{}:{}:{}: warning: {}", path.display(), note.line, note.col, note.message);
+    }
+    Ok(decoded)
 }
 
 fn print_diagnostics(path: &Path, src: &str, report: &Report, keep: impl Fn(u32) -> bool) {
@@ -380,7 +395,7 @@ fn print_diagnostics(path: &Path, src: &str, report: &Report, keep: impl Fn(u32)
 }
 
 fn check(path: &Path) -> anyhow::Result<ExitCode> {
-    let src = read(path)?;
+    let src = read_chart(path)?.text;
     let report = check_source(&src);
     print_diagnostics(path, &src, &report, |_| true);
     let errors = report.error_count();
@@ -408,7 +423,24 @@ fn check(path: &Path) -> anyhow::Result<ExitCode> {
 /// `baton check --json`: the charts of the file and every diagnostic, as one JSON object; the exit status is
 /// `baton check`'s.
 fn check_json(path: &Path) -> anyhow::Result<ExitCode> {
-    let src = read(path)?;
+    let file = path.display().to_string();
+    // Always one JSON object, whatever happened: a file that cannot be read is an error diagnostic of its own.
+    let read = std::fs::metadata(path)
+        .map_err(anyhow::Error::from)
+        .and_then(|m| source::check_size(m.len()).map_err(anyhow::Error::from))
+        .and_then(|()| std::fs::read(path).map_err(anyhow::Error::from))
+        .and_then(|bytes| source::decode(&bytes).map_err(anyhow::Error::from));
+    let decoded = match read {
+        Ok(d) => d,
+        Err(e) => {
+            let message = format!("cannot read {file}: {e}");
+            let diagnostic =
+                serde_json::json!({ "severity": "error", "file": file, "line": 0, "col": 0, "message": message });
+            println!("{}", serde_json::json!({ "charts": [], "diagnostics": [diagnostic] }));
+            return Ok(ExitCode::from(EXIT_USAGE));
+        }
+    };
+    let src = decoded.text;
     let report = check_source(&src);
     let index = LineIndex::new(&src);
     let names = |ids: &[baton_proto::front::model::Ident]| ids.iter().map(|i| i.name.clone()).collect::<Vec<_>>();
@@ -430,15 +462,16 @@ fn check_json(path: &Path) -> anyhow::Result<ExitCode> {
             })
         })
         .collect();
-    let file = path.display().to_string();
-    let diagnostics: Vec<serde_json::Value> = report
-        .diagnostics
-        .iter()
-        .map(|d| {
+    let note = decoded.note.map(|n| {
+        serde_json::json!({ "severity": "warning", "file": file, "line": n.line, "col": n.col, "message": n.message })
+    });
+    let diagnostics: Vec<serde_json::Value> = note
+        .into_iter()
+        .chain(report.diagnostics.iter().map(|d| {
             let (line, col) = index.line_col(d.span.start);
             let severity = if d.is_error() { "error" } else { "warning" };
             serde_json::json!({ "severity": severity, "file": file, "line": line, "col": col, "message": d.message })
-        })
+        }))
         .collect();
     println!("{}", serde_json::json!({ "charts": charts, "diagnostics": diagnostics }));
     Ok(if report.error_count() > 0 { ExitCode::from(EXIT_INVALID) } else { ExitCode::SUCCESS })
@@ -446,7 +479,7 @@ fn check_json(path: &Path) -> anyhow::Result<ExitCode> {
 
 /// `baton export --plcopen`: the file's charts as PLCopen XML; a chart with errors exports nothing.
 fn export(path: &Path, pou: Option<&str>, output: Option<&Path>) -> anyhow::Result<ExitCode> {
-    let src = read(path)?;
+    let src = read_chart(path)?.text;
     let report = check_source(&src);
     print_diagnostics(path, &src, &report, |_| true);
     if report.error_count() > 0 || report.charts.is_empty() {
@@ -509,7 +542,7 @@ fn sim(
     pou: Option<&str>,
     watch: &[String],
 ) -> anyhow::Result<ExitCode> {
-    let src = read(path)?;
+    let src = read_chart(path)?.text;
     let report = check_source(&src);
     if report.charts.is_empty() {
         print_diagnostics(path, &src, &report, |_| true);

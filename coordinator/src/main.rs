@@ -21,5 +21,16 @@ fn main() -> ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    cli::main()
+    // Everything runs on a thread of the stack a chart may need (`limits::CHART_STACK_BYTES`): whatever `baton
+    // check` accepts, `baton run`, `sim` and `test` hold.
+    let stack = baton_proto::limits::CHART_STACK_BYTES;
+    let main = std::thread::Builder::new().name("baton".into()).stack_size(stack).spawn(cli::main);
+    match main.map(std::thread::JoinHandle::join) {
+        Ok(Ok(code)) => code,
+        Ok(Err(_)) => ExitCode::from(101),
+        Err(e) => {
+            eprintln!("error: cannot start baton's thread: {e}");
+            ExitCode::from(1)
+        }
+    }
 }

@@ -98,7 +98,7 @@ pub struct Loaded {
 
 /// Reads and checks the chart; every problem is printed, as `baton check` would.
 pub fn load(chart: &std::path::Path, pou: Option<&str>) -> anyhow::Result<Loaded> {
-    let source = std::fs::read_to_string(chart).with_context(|| format!("cannot read {}", chart.display()))?;
+    let source = crate::cli::read_chart(chart)?.text;
     let report = check_source(&source);
     let index = baton_proto::front::diag::LineIndex::new(&source);
     for d in &report.diagnostics {
@@ -581,6 +581,9 @@ fn check_resumable(
     path: &str,
 ) -> anyhow::Result<()> {
     let pou = loaded.pou.as_str();
+    if !(1..=baton_proto::limits::CYCLE_MS_MAX).contains(&header.cycle_ms) {
+        bail!("the journal {path} holds a cycle period of {} ms, which no run has: it is damaged", header.cycle_ms);
+    }
     if header.format != JOURNAL_FORMAT {
         bail!(
             "the journal {path} is in format {}, and this baton reads format {JOURNAL_FORMAT}; \

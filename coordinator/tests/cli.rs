@@ -187,3 +187,122 @@ fn export_writes_plcopen_that_baton_reads_back_and_refuses_an_invalid_chart() {
     assert!(invalid.stdout.is_empty(), "nothing is exported from a chart with errors");
     assert!(String::from_utf8_lossy(&invalid.stderr).contains("nothing was exported"));
 }
+
+fn temp_bytes(name: &str, bytes: &[u8]) -> String {
+    let dir = std::env::temp_dir().join(format!("baton-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let path = dir.join(name);
+    std::fs::write(&path, bytes).expect("temp file");
+    path.to_string_lossy().into_owned()
+}
+
+/// A vendor export in Latin-1 (`à` in a comment, 0xE0): read as Windows-1252 with a warning at its place, with
+/// and without --json; a file that cannot be read still gets its JSON object.
+#[test]
+fn charts_in_latin1_and_utf16_are_read_and_said_so() {
+    let latin = b"PROGRAM P\n(* r\xE9glage \xE0 la main *)\nINITIAL_STEP S0: END_STEP\nEND_PROGRAM\n";
+    let path = temp_bytes("latin1.st", latin);
+    let out = baton(&["check", &path]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{err}");
+    assert!(
+        err.contains("latin1.st:2:5: warning: the file is not UTF-8 (byte 0xE9 here): read as Windows-1252"),
+        "{err}"
+    );
+    let json = baton(&["check", "--json", &path]);
+    let v: serde_json::Value = serde_json::from_slice(&json.stdout).expect("one JSON object");
+    assert_eq!(v["charts"][0]["pou"], "P");
+    assert_eq!(v["diagnostics"][0]["severity"], "warning");
+    assert_eq!((v["diagnostics"][0]["line"].as_u64(), v["diagnostics"][0]["col"].as_u64()), (Some(2), Some(5)));
+    // UTF-16 with a byte-order mark, as some Windows tools save XML.
+    let text = "PROGRAM P\n(* \u{e0} *)\nINITIAL_STEP S0: END_STEP\nEND_PROGRAM\n";
+    let utf16: Vec<u8> = [0xFF, 0xFE].into_iter().chain(text.encode_utf16().flat_map(u16::to_le_bytes)).collect();
+    let out = baton(&["check", &temp_bytes("utf16.st", &utf16)]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    // Nothing to read: still one JSON object, with the error in it, and baton check's exit status.
+    let missing = baton(&["check", "--json", "/nonexistent/chart.st"]);
+    assert_eq!(missing.status.code(), Some(2));
+    let v: serde_json::Value = serde_json::from_slice(&missing.stdout).expect("one JSON object");
+    assert_eq!(v["diagnostics"][0]["severity"], "error");
+    assert!(v["diagnostics"][0]["message"].as_str().is_some_and(|m| m.contains("cannot read")), "{v}");
+}
+
+/// One size limit for every chart: a chart past it is refused by `baton check` and by `baton run` before
+/// anything starts, where an agent would otherwise have refused it for ever.
+#[test]
+fn a_chart_past_the_size_limit_is_refused_before_anything_starts() {
+    let max = baton_proto::limits::SOURCE_BYTES_MAX;
+    let big = format!("PROGRAM P\n(* {} *)\nINITIAL_STEP S0: END_STEP\nEND_PROGRAM\n", "x".repeat(max));
+    let path = temp_file("huge.st", &big);
+    let out = baton(&["check", &path]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains(&format!("more than the {} MiB", max >> 20)));
+    let run = baton(&["run", &path, "--listen", "tcp/127.0.0.1:0"]);
+    assert_eq!(run.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&run.stderr).contains(&format!("more than the {} MiB", max >> 20)));
+    // A cycle period no run could have.
+    let forever = baton(&["sim", &repo("examples/tank.st"), "--cycle-ms", &u64::MAX.to_string()]);
+    assert_eq!(forever.status.code(), Some(2));
+    let forever = baton(&["run", &repo("examples/tank.st"), "--listen", "tcp/127.0.0.1:0", "--cycle-ms", "3600001"]);
+    assert_eq!(forever.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&forever.stderr).contains("--cycle-ms"));
+}
+
+/// Values that would wrap: an array over the whole of LINT (PLCopen), a date whose year has 19 digits, and
+/// repetition counts that would expand to billions of initial values — each a located error, at once.
+#[test]
+fn sizes_and_dates_that_would_wrap_are_errors_at_their_place() {
+    let date = temp_file(
+        "date.st",
+        "PROGRAM P\nVAR d : DATE := D#9223372036854775807-01-01; END_VAR\nINITIAL_STEP S0: END_STEP\nEND_PROGRAM\n",
+    );
+    let out = baton(&["check", &date]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("date.st:2:17: error: invalid literal: expected a date"), "{err}");
+    let feb = temp_file(
+        "feb.st",
+        "PROGRAM P\nVAR d : DATE := D#2026-02-30; END_VAR\nINITIAL_STEP S0: END_STEP\nEND_PROGRAM\n",
+    );
+    assert_eq!(baton(&["check", &feb]).status.code(), Some(1));
+    let repeated = temp_file(
+        "repeat.st",
+        "PROGRAM P\nVAR a : ARRAY[0..9] OF INT := [1000000000(1), 1000000000(2), 9223372036854775807(3)]; END_VAR\n\
+         INITIAL_STEP S0: END_STEP\nEND_PROGRAM\n",
+    );
+    let out = baton(&["check", &repeated]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("repeat.st:2:43: error: array `a` has 10 elements, and more initial values"), "{err}");
+    let xml = |dims: &str, value: &str| {
+        format!(
+            "<?xml version=\"1.0\"?><project xmlns=\"http://www.plcopen.org/xml/tc6_0201\"><types><pous>\
+             <pou name=\"P\" pouType=\"program\"><interface><localVars><variable name=\"a\"><type><array>{dims}\
+             <baseType><INT/></baseType></array></type><initialValue><arrayValue>{value}</arrayValue></initialValue>\
+             </variable></localVars></interface><body><SFC><step localId=\"1\" name=\"S0\" initialStep=\"true\">\
+             <position x=\"0\" y=\"0\"/></step></SFC></body></pou></pous></types></project>"
+        )
+    };
+    let lint = temp_file(
+        "lint.xml",
+        &xml(
+            "<dimension lower=\"-9223372036854775808\" upper=\"9223372036854775807\"/>",
+            "<value><simpleValue value=\"1\"/></value>",
+        ),
+    );
+    let out = baton(&["check", &lint]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("has more elements than the 1000000 Baton holds"), "{err}");
+    let runs = temp_file(
+        "runs.xml",
+        &xml(
+            "<dimension lower=\"0\" upper=\"9\"/>",
+            "<value repetitionValue=\"18446744073709551615\"><simpleValue value=\"1\"/></value>",
+        ),
+    );
+    let out = baton(&["check", &runs]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("has 10 elements, and more initial values"), "{err}");
+}

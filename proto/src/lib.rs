@@ -18,6 +18,7 @@ pub mod front {
     pub mod parser;
     pub mod plcopen;
     pub mod pragma;
+    pub mod source;
 }
 
 /// Back ends: a checked chart written out in other formats (Structured Text, PLCopen TC6 XML).

@@ -1,10 +1,23 @@
 //! Every limit Baton enforces, in one place, checked against each other at compile time.
 
-/// Spans are u32 byte offsets, so a source text must stay below 4 GiB; we stop far earlier.
-pub const SOURCE_BYTES_MAX: usize = 256 * 1024 * 1024;
+/// A chart's text, as UTF-8: one limit for `baton check`, `baton run` and every agent that fetches the chart
+/// (spans are u32 byte offsets, so a text must stay below 4 GiB; we stop far earlier).
+pub const SOURCE_BYTES_MAX: usize = 16 * 1024 * 1024;
 
-/// Nesting of parentheses, unary operators and IF statements; deeper input is rejected, not overflowed.
+/// A cycle period, in ms (`--cycle-ms`): an hour at most.
+pub const CYCLE_MS_MAX: u64 = 3_600_000;
+
+/// Nesting, counted one way wherever a chart's code nests: parentheses, operators (a chain of one operator as
+/// deep as it is long, but for AND, OR and XOR, which are built balanced), calls and their arguments, indices,
+/// IF/CASE/loop statements, macro steps, and — for what runs — the function blocks, functions and nested charts a
+/// body runs inside one another. Deeper input is a located error, never a stack overflow: what `baton check`
+/// accepts, every thread that compiles or runs a chart (`CHART_STACK_BYTES`) can hold.
 pub const NESTING_DEPTH_MAX: usize = 64;
+
+/// The stack of every thread that compiles or runs a chart (the shells' main loops and runtimes, `baton test`'s
+/// workers). A chart at `NESTING_DEPTH_MAX` needs about 1 MiB in a debug build (measured by the limit test,
+/// tests/tests/limits.rs); this leaves room for what the shells add around it.
+pub const CHART_STACK_BYTES: usize = 8 * 1024 * 1024;
 
 /// Nodes (elements, texts, comments) of one XML file: a bound on the memory its tree takes.
 pub const XML_NODES_MAX: u32 = 20_000_000;
@@ -19,6 +32,11 @@ pub const LOOP_ITERATIONS_MAX: usize = 100_000;
 
 /// Elements of one array variable (each is a variable of the chart).
 pub const ARRAY_ELEMENTS_MAX: usize = 1_000_000;
+
+/// Variables of one chart, counting each element of an array and each member of a block instance: the bound on
+/// what a declaration can make the compiler hold, whatever the file's size (`ARRAY [0..999999] OF INT` is 21
+/// bytes).
+pub const VARIABLES_MAX: usize = 1_000_000;
 
 /// Characters of a STRING declared without a length, as CODESYS and TwinCAT have it.
 pub const STRING_LENGTH_DEFAULT: usize = 80;
@@ -47,8 +65,9 @@ pub const DIAGNOSTICS_MAX: usize = 1_000;
 /// One message on Baton's keys. A chart's source travels in a reply, so it gets its own, larger limit.
 pub const MESSAGE_BYTES_MAX: usize = 1024 * 1024;
 
-/// A chart source served to agents.
-pub const CHART_SOURCE_BYTES_MAX: usize = 16 * 1024 * 1024;
+/// The reply that serves a chart to agents: its text at `SOURCE_BYTES_MAX`, escaped in JSON at worst (six bytes
+/// a byte), with room for the rest. Derived, so that every chart `baton check` accepts reaches every agent.
+pub const CHART_SOURCE_BYTES_MAX: usize = 6 * SOURCE_BYTES_MAX + 64 * 1024;
 
 /// Reports of one token that arrived ahead of a missing one and wait for it; more are dropped (and resent).
 pub const REPORTS_AHEAD_MAX: usize = 256;
@@ -124,6 +143,7 @@ pub const AGENTS_MAX: usize = 4096;
 pub const RETIRED_INCARNATIONS_MAX: usize = 256;
 
 const _: () = assert!(CHART_SOURCE_BYTES_MAX >= MESSAGE_BYTES_MAX);
+const _: () = assert!(ARRAY_ELEMENTS_MAX <= VARIABLES_MAX && VARIABLES_MAX < u32::MAX as usize);
 const _: () = assert!(SOURCE_BYTES_MAX < u32::MAX as usize);
 const _: () = assert!(CHART_ELEMENTS_MAX < u32::MAX as usize);
 const _: () = assert!(BRANCHES_MAX <= CHART_ELEMENTS_MAX);

@@ -1,6 +1,8 @@
 //! Benchmarks of the SFC core: parse + check of a 100,000-step chart and import + check of a 10,000-step PLCopen
-//! file, and the cost of one engine cycle on a 1,000-step and a 100,000-step chart with the same 100 active
-//! steps, without and with 1,000 TON instances. Run with `cargo bench -p baton-tests --bench core`.
+//! file; the import of an LD body whose rungs go through continuations and of a macro step's long body, each at
+//! two sizes four times apart (linear work takes four times as long; the quadratic reader took 19 s and 21 s at
+//! the larger); and the cost of one engine cycle on a 1,000-step and a 100,000-step chart with the same 100
+//! active steps, without and with 1,000 TON instances. Run with `cargo bench -p baton-tests --bench core`.
 
 use std::hint::black_box;
 use std::sync::Arc;
@@ -8,7 +10,9 @@ use std::time::Duration;
 
 use baton_proto::exec::engine::Engine;
 use baton_proto::front::check::check_source;
-use baton_tests::gen::{large_plcopen_chart, large_structured_chart, rings, timer_rings};
+use baton_tests::gen::{
+    large_plcopen_chart, large_structured_chart, plcopen_continuations, plcopen_macro, rings, timer_rings,
+};
 use criterion::{criterion_group, criterion_main, Criterion};
 
 fn parse_and_check(c: &mut Criterion) {
@@ -25,6 +29,15 @@ fn parse_and_check(c: &mut Criterion) {
     let program = report.charts[0].program.as_ref().expect("the generated PLCopen chart is valid");
     eprintln!("PLCopen: {} steps, {} transitions, {} bytes", program.steps.len(), program.transitions.len(), xml.len());
     group.bench_function("import_check_plcopen_10k_steps", |b| b.iter(|| check_source(black_box(&xml))));
+    for n in [5_000, 20_000] {
+        let xml = plcopen_continuations(n);
+        assert_eq!(check_source(&xml).error_count(), 0, "the generated LD body is valid");
+        group
+            .bench_function(format!("import_ld_continuations_{n}_rungs"), |b| b.iter(|| check_source(black_box(&xml))));
+        let xml = plcopen_macro(n, false);
+        assert_eq!(check_source(&xml).error_count(), 0, "the generated macro step is valid");
+        group.bench_function(format!("import_macro_body_{n}_steps"), |b| b.iter(|| check_source(black_box(&xml))));
+    }
     group.finish();
 }
 

@@ -348,6 +348,156 @@ pub fn timer_rings(rings: usize, ring_len: usize, timers_per_ring: usize) -> Str
     out
 }
 
+/// The skeleton of a PLCopen TC6 v2.01 file with one SFC program `P` over variables `x` (BOOL) and `n`, `y`
+/// (INT): `sfc` is its body's elements, `actions` its `<actions>`.
+fn plcopen_program(sfc: &str, actions: &str) -> String {
+    format!(
+        "<?xml version=\"1.0\" encoding=\"utf-8\"?>\n<project xmlns=\"http://www.plcopen.org/xml/tc6_0201\" \
+         xmlns:xhtml=\"http://www.w3.org/1999/xhtml\">\n<types><pous><pou name=\"P\" pouType=\"program\">\n\
+         <interface><localVars><variable name=\"x\"><type><BOOL/></type></variable>\
+         <variable name=\"n\"><type><INT/></type></variable><variable name=\"y\"><type><BOOL/></type></variable>\
+         </localVars></interface>\n<actions>{actions}</actions>\n<body><SFC>\n{sfc}</SFC></body></pou></pous></types></project>\n"
+    )
+}
+
+/// Step `S0` (initial, running action `actions` names with N, if any) and the transition `S0 → S1` whose condition
+/// is `condition`, then `S1`. Ids below 10 are theirs.
+fn two_steps(condition: &str, action: Option<&str>) -> String {
+    let block = action.map_or(String::new(), |a| {
+        format!(
+            "<actionBlock localId=\"4\"><position x=\"0\" y=\"0\"/><connectionPointIn><connection refLocalId=\"1\"/>\
+             </connectionPointIn><action localId=\"0\" qualifier=\"N\"><reference name=\"{a}\"/></action></actionBlock>\n"
+        )
+    });
+    format!(
+        "<step localId=\"1\" name=\"S0\" initialStep=\"true\"><position x=\"0\" y=\"0\"/><connectionPointOut/>\
+         <connectionPointOutAction/></step>\n{block}<transition localId=\"2\"><position x=\"0\" y=\"0\"/>\
+         <connectionPointIn><connection refLocalId=\"1\"/></connectionPointIn><connectionPointOut/>{condition}</transition>\n\
+         <step localId=\"3\" name=\"S1\"><position x=\"0\" y=\"0\"/><connectionPointIn><connection refLocalId=\"2\"/>\
+         </connectionPointIn></step>\n"
+    )
+}
+
+/// A transition wired from `contacts` LD contacts on `x`: in parallel (each from the left rail, OR-ed into the
+/// condition) or in series (each fed by the one before).
+pub fn plcopen_contacts(contacts: usize, parallel: bool) -> String {
+    let mut sfc =
+        String::from("<leftPowerRail localId=\"9\"><position x=\"0\" y=\"0\"/><connectionPointOut/></leftPowerRail>\n");
+    for i in 0..contacts {
+        let from = if parallel || i == 0 { 9 } else { 10 + i - 1 };
+        let _ = writeln!(
+            sfc,
+            "<contact localId=\"{}\"><position x=\"0\" y=\"0\"/><connectionPointIn><connection refLocalId=\"{from}\"/>\
+             </connectionPointIn><connectionPointOut/><variable>x</variable></contact>",
+            10 + i
+        );
+    }
+    let inputs: String = if parallel {
+        (0..contacts).map(|i| format!("<connection refLocalId=\"{}\"/>", 10 + i)).collect()
+    } else {
+        format!("<connection refLocalId=\"{}\"/>", 10 + contacts - 1)
+    };
+    sfc.push_str(&two_steps(&format!("<condition><connectionPointIn>{inputs}</connectionPointIn></condition>"), None));
+    plcopen_program(&sfc, "")
+}
+
+/// An LD action of `rungs` rungs, each a contact on `x` into a connector and, through its continuation, a coil of
+/// `y`: how editors draw rungs that do not fit the page. Each continuation must find its connector by name.
+pub fn plcopen_continuations(rungs: usize) -> String {
+    let mut ld =
+        String::from("<leftPowerRail localId=\"1\"><position x=\"0\" y=\"0\"/><connectionPointOut/></leftPowerRail>\n");
+    for r in 0..rungs {
+        let id = 10 + 4 * r;
+        let _ = writeln!(
+            ld,
+            "<contact localId=\"{id}\"><position x=\"0\" y=\"0\"/><connectionPointIn><connection refLocalId=\"1\"/>\
+             </connectionPointIn><connectionPointOut/><variable>x</variable></contact>\
+             <connector localId=\"{}\" name=\"K{r}\"><position x=\"0\" y=\"0\"/><connectionPointIn>\
+             <connection refLocalId=\"{id}\"/></connectionPointIn></connector>\
+             <continuation localId=\"{}\" name=\"K{r}\"><position x=\"0\" y=\"0\"/><connectionPointOut/></continuation>\
+             <coil localId=\"{}\"><position x=\"0\" y=\"0\"/><connectionPointIn><connection refLocalId=\"{}\"/>\
+             </connectionPointIn><connectionPointOut/><variable>y</variable></coil>",
+            id + 1,
+            id + 2,
+            id + 3,
+            id + 2
+        );
+    }
+    let action = format!("<action name=\"Rungs\"><body><LD>{ld}</LD></body></action>");
+    plcopen_program(
+        &two_steps(
+            "<condition><inline name=\"\"><ST><xhtml:p><![CDATA[x]]></xhtml:p></ST></inline></condition>",
+            Some("Rungs"),
+        ),
+        &action,
+    )
+}
+
+/// A macro step whose body is a chain of `steps` steps; with `nested`, each macro body holds the next macro
+/// step instead, `steps` deep.
+pub fn plcopen_macro(steps: usize, nested: bool) -> String {
+    let cond = "<condition><inline name=\"\"><ST><xhtml:p><![CDATA[x]]></xhtml:p></ST></inline></condition>";
+    let chain = |prefix: &str, steps: usize| {
+        let mut body = String::new();
+        for i in 0..steps {
+            let input = if i == 0 {
+                String::new()
+            } else {
+                format!("<connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn>", 2 * i)
+            };
+            let initial = if i == 0 { " initialStep=\"true\"" } else { "" };
+            let _ = write!(
+                body,
+                "<step localId=\"{}\" name=\"{prefix}{i}\"{initial}><position x=\"0\" y=\"0\"/>{input}<connectionPointOut/></step>",
+                2 * i + 1
+            );
+            if i + 1 < steps {
+                let _ = write!(
+                    body,
+                    "<transition localId=\"{}\"><position x=\"0\" y=\"0\"/><connectionPointIn><connection refLocalId=\"{}\"/>\
+                     </connectionPointIn><connectionPointOut/>{cond}</transition>",
+                    2 * i + 2,
+                    2 * i + 1
+                );
+            }
+        }
+        body
+    };
+    let macro_step = |name: &str, body: &str| {
+        format!(
+            "<macroStep localId=\"5\" name=\"{name}\"><position x=\"0\" y=\"0\"/><connectionPointIn><connection refLocalId=\"2\"/>\
+             </connectionPointIn><connectionPointOut/><body><SFC>{body}</SFC></body></macroStep>"
+        )
+    };
+    let body = if nested {
+        // Innermost first: each macro body is a step, a transition and the next macro step.
+        let mut inner = chain("Deepest", 1);
+        for d in (0..steps).rev() {
+            let around = format!(
+                "<step localId=\"1\" name=\"In{d}\" initialStep=\"true\"><position x=\"0\" y=\"0\"/><connectionPointOut/></step>\
+                 <transition localId=\"2\"><position x=\"0\" y=\"0\"/><connectionPointIn><connection refLocalId=\"1\"/>\
+                 </connectionPointIn><connectionPointOut/>{cond}</transition>{}",
+                macro_step(&format!("M{d}"), &inner)
+            );
+            inner = around;
+        }
+        inner
+    } else {
+        chain("B", steps)
+    };
+    let sfc = format!(
+        "<step localId=\"1\" name=\"S0\" initialStep=\"true\"><position x=\"0\" y=\"0\"/><connectionPointOut/></step>\
+         <transition localId=\"2\"><position x=\"0\" y=\"0\"/><connectionPointIn><connection refLocalId=\"1\"/>\
+         </connectionPointIn><connectionPointOut/>{cond}</transition>{}\
+         <transition localId=\"6\"><position x=\"0\" y=\"0\"/><connectionPointIn><connection refLocalId=\"5\"/>\
+         </connectionPointIn><connectionPointOut/>{cond}</transition>\
+         <step localId=\"7\" name=\"S1\"><position x=\"0\" y=\"0\"/><connectionPointIn><connection refLocalId=\"6\"/>\
+         </connectionPointIn></step>",
+        macro_step("Outer", &body)
+    );
+    plcopen_program(&sfc, "")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

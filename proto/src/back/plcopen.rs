@@ -60,8 +60,11 @@ fn array_value(spec: &ArraySpec) -> String {
     if spec.init.is_empty() {
         return String::new();
     }
-    let values: String =
-        spec.init.iter().map(|e| format!("<value><simpleValue value=\"{}\"/></value>", esc(&st::expr(e)))).collect();
+    let value = |r: &crate::front::model::InitRun| {
+        let repeat = if r.count == 1 { String::new() } else { format!(" repetitionValue=\"{}\"", r.count) };
+        format!("<value{repeat}><simpleValue value=\"{}\"/></value>", esc(&st::expr(&r.value)))
+    };
+    let values: String = spec.init.iter().map(value).collect();
     format!("<initialValue><arrayValue>{values}</arrayValue></initialValue>")
 }
 

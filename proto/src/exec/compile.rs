@@ -9,6 +9,7 @@ use crate::exec::stdlib::{Func, MemberKind, StdFb, TextFn};
 use crate::exec::types::{IntKind, Type, Value};
 use crate::front::diag::{Diagnostic, Span};
 use crate::front::model::*;
+use crate::limits::NESTING_DEPTH_MAX;
 
 /// The result of compiling one chart: a program (with placeholders wherever an error was reported) and whether
 /// its net of steps and transitions resolved well enough to be analysed.
@@ -46,6 +47,8 @@ pub fn compile(chart: &Chart, library: &[FbDef], types: &[TypeDef], diags: &mut 
         started: HashMap::new(),
         ranges: HashMap::new(),
         struct_depth: 0,
+        functions_compiling: 0,
+        depth_memo: HashMap::new(),
     };
     c.run()
 }
@@ -244,6 +247,10 @@ struct Compiler<'a> {
     ranges: HashMap<VarId, (i64, i64, String)>,
     /// Structures being declared inside one another (a structure holding itself is an error).
     struct_depth: usize,
+    /// Bodies of functions being compiled around the call being compiled (a call compiles its function's body).
+    functions_compiling: usize,
+    /// `exec_depth` of every shared body measured so far, by address.
+    depth_memo: HashMap<*const Vec<CStmt>, usize>,
 }
 
 /// How a declaration's variables are held: CONSTANT or not, their section, hidden from names or not.
@@ -300,6 +307,17 @@ impl<'a> Compiler<'a> {
         self.diags.push(Diagnostic::error(span, message));
     }
 
+    /// What runs nests deeper than the engine walks: each body alone is bounded by the parsers, so this comes of
+    /// what it calls, each block's, function's and nested chart's body one level deeper than its call.
+    fn too_deep(&mut self, span: Span, what: &str, depth: usize) {
+        let message = format!(
+            "{what} nests {depth} levels deep, more than {NESTING_DEPTH_MAX}, counting the function blocks, \
+             functions and nested charts it runs inside one another: call fewer of them inside one another, or split \
+             their bodies"
+        );
+        self.error(span, message);
+    }
+
     fn run(&mut self) -> Compiled {
         let chart = self.chart;
         // Every declared type, so that an enumeration's values are known even where no variable has its type.
@@ -339,6 +357,12 @@ impl<'a> Compiler<'a> {
             actions[id].body = self.statements(&action.body, &vars);
         }
         self.nested_charts(&action_sources, &step_sources, &vars, &mut actions);
+        for (id, action) in action_sources.iter().enumerate() {
+            let depth = crate::exec::program::exec_depth(&actions[id].body, &mut self.depth_memo);
+            if depth > NESTING_DEPTH_MAX {
+                self.too_deep(action.name.span, &format!("action `{}`", action.name.name), depth);
+            }
+        }
         self.warn_unused_actions();
         if !chart.steps.iter().any(|s| s.initial) && !chart.broken.initial_step {
             let message = format!("chart `{}` has no initial step: declare one with `INITIAL_STEP`", chart.name.name);
@@ -434,6 +458,12 @@ impl<'a> Compiler<'a> {
     /// instances, and ENO. Its body is compiled once every variable of the chart is declared.
     fn declare_user(&mut self, decl: &VarDecl, def: &'a FbDef, path: &str, vars: &mut Vec<VarInfo>) -> Option<usize> {
         let key = def.name.key();
+        if self.declaring.len() >= NESTING_DEPTH_MAX {
+            let message =
+                format!("function block instances nested more than {NESTING_DEPTH_MAX} levels deep (through `{path}`)");
+            self.error(decl.name.span, message);
+            return None;
+        }
         if self.declaring.contains(&key) {
             let message = format!(
                 "function block `{}` contains an instance of itself (through `{path}`): instances cannot nest for ever",
@@ -655,6 +685,14 @@ impl<'a> Compiler<'a> {
             return Some(Arc::clone(body));
         }
         let def = f.def;
+        if self.functions_compiling >= NESTING_DEPTH_MAX {
+            let message = format!(
+                "calls of functions nested more than {NESTING_DEPTH_MAX} levels deep (here, through `{}`)",
+                callee.name
+            );
+            self.error(callee.span, message);
+            return None;
+        }
         if f.compiling {
             let message = format!(
                 "function `{}` calls itself (here, through `{}`): IEC functions do not recurse",
@@ -675,6 +713,7 @@ impl<'a> Compiler<'a> {
             }
         }
         self.functions.get_mut(key).expect("declared").compiling = true;
+        self.functions_compiling += 1;
         let saved = (
             std::mem::replace(&mut self.vars, names),
             std::mem::take(&mut self.instances),
@@ -688,6 +727,7 @@ impl<'a> Compiler<'a> {
         let body = Arc::new(self.statements(&def.body, vars));
         (self.vars, self.instances, self.user_of, self.steps, self.actions, self.hoisted, self.loops, self.arrays) =
             saved;
+        self.functions_compiling -= 1;
         let f = self.functions.get_mut(key).expect("declared");
         f.compiling = false;
         f.body = Some(Arc::clone(&body));
@@ -912,18 +952,25 @@ impl<'a> Compiler<'a> {
         vars: &mut Vec<VarInfo>,
     ) -> Option<ArrayInfo> {
         let Storage { constant, section, hidden } = storage;
-        let mut len: usize = 1;
-        for &(low, high) in &spec.dims {
-            if high < low {
-                self.error(spec.span, format!("array `{label}` has an empty dimension {low}..{high}"));
-                return None;
-            }
-            len = len.saturating_mul((high - low + 1) as usize);
+        if let Some(&(low, high)) = spec.dims.iter().find(|(low, high)| high < low) {
+            self.error(spec.span, format!("array `{label}` has an empty dimension {low}..{high}"));
+            return None;
         }
-        if len > crate::limits::ARRAY_ELEMENTS_MAX {
+        // In 128 bits: a dimension over the whole of LINT has 2^64 elements, which must not wrap to zero.
+        let len = spec.elements().filter(|&n| n <= crate::limits::ARRAY_ELEMENTS_MAX as u64);
+        let Some(len) = len.map(|n| n as usize) else {
+            let size: String = spec.dims.iter().map(|(l, h)| format!("[{l}..{h}]")).collect();
             let message = format!(
-                "array `{label}` has {len} elements, more than the {} Baton holds",
+                "array `{label}` {size} has more elements than the {} Baton holds",
                 crate::limits::ARRAY_ELEMENTS_MAX
+            );
+            self.error(spec.span, message);
+            return None;
+        };
+        if vars.len().saturating_add(len) > crate::limits::VARIABLES_MAX {
+            let message = format!(
+                "array `{label}` takes the chart past {} variables (elements of arrays, members of blocks)",
+                crate::limits::VARIABLES_MAX
             );
             self.error(spec.span, message);
             return None;
@@ -940,16 +987,33 @@ impl<'a> Compiler<'a> {
             return self.struct_elements((label, local), spec, fields, len, storage, vars);
         }
         let elem = self.resolve_type(&spec.elem);
-        if spec.init.len() > len {
-            self.error(spec.init[len].span, format!("array `{label}` has {len} elements, and more initial values"));
+        if spec.init_len() > len as u64 {
+            // The run that goes past the end: the values before it still count.
+            let mut given = 0u64;
+            let past = spec.init.iter().find(|r| {
+                given = given.saturating_add(r.count);
+                given > len as u64
+            });
+            if let Some(run) = past {
+                self.error(run.value.span, format!("array `{label}` has {len} elements, and more initial values"));
+            }
         }
         let base = VarId(vars.len() as u32);
         let default = self.default_of(&elem);
         let mut index: Vec<i64> = spec.dims.iter().map(|&(low, _)| low).collect();
-        for k in 0..len {
-            let init = match spec.init.get(k) {
-                Some(e) => self.initial_value(e, &elem),
-                None => default.clone(),
+        // Each run's value is computed once, then given to as many elements as it counts.
+        let mut runs = spec.init.iter();
+        let mut current: Option<(Value, u64)> = None;
+        for _ in 0..len {
+            if current.as_ref().is_none_or(|(_, left)| *left == 0) {
+                current = runs.next().map(|r| (self.initial_value(&r.value, &elem), r.count));
+            }
+            let init = match current.as_mut() {
+                Some((v, left)) if *left > 0 => {
+                    *left -= 1;
+                    v.clone()
+                }
+                _ => default.clone(),
             };
             let index_label: Vec<String> = index.iter().map(|i| i.to_string()).collect();
             vars.push(VarInfo {
@@ -986,7 +1050,7 @@ impl<'a> Compiler<'a> {
     ) -> Option<ArrayInfo> {
         if let Some(first) = spec.init.first() {
             self.error(
-                first.span,
+                first.value.span,
                 format!("initial values of `{label}`, an array of structures, are not supported yet"),
             );
         }
@@ -1016,7 +1080,11 @@ impl<'a> Compiler<'a> {
                     }
                 }
             }
-            if stride == 0 || len.saturating_mul(stride) > crate::limits::ARRAY_ELEMENTS_MAX {
+            let total = len.saturating_mul(stride);
+            if stride == 0
+                || total > crate::limits::ARRAY_ELEMENTS_MAX
+                || start.saturating_add(total) > crate::limits::VARIABLES_MAX
+            {
                 let message = format!("array `{label}` holds structures with no field, or too many variables");
                 self.error(spec.span, message);
                 return None;
@@ -1499,6 +1567,10 @@ impl<'a> Compiler<'a> {
             };
             // The function calls in the condition run when it is judged.
             let calls = hoisted;
+            let depth = crate::exec::program::condition_depth(&calls, &condition, &mut self.depth_memo);
+            if depth > NESTING_DEPTH_MAX {
+                self.too_deep(t.condition.span, &format!("the condition of transition `{}`", t.display_name()), depth);
+            }
             let info = TransitionInfo { name: t.display_name(), condition, pragmas: t.pragmas.clone() };
             out.push(TransitionParts { info, calls, sources, targets, rank: 0 });
         }
@@ -2391,46 +2463,88 @@ impl<'a> Compiler<'a> {
                     }
                 }
             }
+            // A chain of one associative operator, however the source grouped it, compiles to one balanced tree of
+            // its operands in their order: `(a AND b) AND (c AND d)` and `a AND b AND c AND d` are the same program
+            // (a round trip through another format may group them otherwise), and no chain is deeper than it must.
+            ExprKind::Binary(op, _, _) if op.associative() => {
+                let mut operands = Vec::new();
+                let mut stack = vec![e];
+                while let Some(x) = stack.pop() {
+                    match &x.kind {
+                        ExprKind::Binary(o, a, b) if o == op => {
+                            stack.push(b);
+                            stack.push(a);
+                        }
+                        _ => operands.push(x),
+                    }
+                }
+                // Every operand is compiled, for its own errors, before any is given up on.
+                let level: Vec<(CExpr, Ty)> = operands.into_iter().map(|x| self.expr(x, vars)).collect();
+                if level.iter().any(|(_, t)| *t == Ty::Err) {
+                    return (FALSE, Ty::Err);
+                }
+                let mut level = level;
+                while level.len() > 1 {
+                    let mut next = Vec::with_capacity(level.len().div_ceil(2));
+                    let mut items = level.into_iter();
+                    while let Some(a) = items.next() {
+                        next.push(match items.next() {
+                            Some(b) => self.binary_node(*op, a, b, e.span),
+                            None => a,
+                        });
+                        if next.last().is_some_and(|(_, t)| *t == Ty::Err) {
+                            return (FALSE, Ty::Err);
+                        }
+                    }
+                    level = next;
+                }
+                level.pop().unwrap_or((FALSE, Ty::Err))
+            }
             ExprKind::Binary(op, a, b) => {
-                let (ca, ta) = self.expr(a, vars);
-                let (cb, tb) = self.expr(b, vars);
-                if ta == Ty::Err || tb == Ty::Err {
-                    return (FALSE, Ty::Err);
-                }
-                let Some(ty) = binary_type(*op, ta, tb) else {
-                    let message = format!("cannot apply `{}` to {} and {}", op.symbol(), ta.name(), tb.name());
-                    self.error(e.span, message);
-                    return (FALSE, Ty::Err);
-                };
-                if matches!(op, BinOp::And | BinOp::Or | BinOp::Xor) && ty != Ty::Bool {
-                    let func = match op {
-                        BinOp::And => Func::BitAnd,
-                        BinOp::Or => Func::BitOr,
-                        _ => Func::BitXor,
-                    };
-                    return (CExpr::call(func, vec![ca, cb], ty.repr()), ty);
-                }
-                let (ca, cb) = (Box::new(ca), Box::new(cb));
-                let cexpr = match op {
-                    BinOp::Or => CExpr::Logic(LogicOp::Or, ca, cb),
-                    BinOp::Xor => CExpr::Logic(LogicOp::Xor, ca, cb),
-                    BinOp::And => CExpr::Logic(LogicOp::And, ca, cb),
-                    BinOp::Eq => CExpr::Cmp(CmpOp::Eq, ca, cb),
-                    BinOp::Ne => CExpr::Cmp(CmpOp::Ne, ca, cb),
-                    BinOp::Lt => CExpr::Cmp(CmpOp::Lt, ca, cb),
-                    BinOp::Le => CExpr::Cmp(CmpOp::Le, ca, cb),
-                    BinOp::Gt => CExpr::Cmp(CmpOp::Gt, ca, cb),
-                    BinOp::Ge => CExpr::Cmp(CmpOp::Ge, ca, cb),
-                    BinOp::Add => CExpr::Arith { op: ArithOp::Add, wrap: ty.wrap(), lhs: ca, rhs: cb },
-                    BinOp::Sub => CExpr::Arith { op: ArithOp::Sub, wrap: ty.wrap(), lhs: ca, rhs: cb },
-                    BinOp::Mul => CExpr::Arith { op: ArithOp::Mul, wrap: ty.wrap(), lhs: ca, rhs: cb },
-                    BinOp::Div => CExpr::Arith { op: ArithOp::Div, wrap: ty.wrap(), lhs: ca, rhs: cb },
-                    BinOp::Mod => CExpr::Arith { op: ArithOp::Mod, wrap: ty.wrap(), lhs: ca, rhs: cb },
-                    BinOp::Pow => CExpr::Arith { op: ArithOp::Pow, wrap: ty.wrap(), lhs: ca, rhs: cb },
-                };
-                (cexpr, ty)
+                let a = self.expr(a, vars);
+                let b = self.expr(b, vars);
+                self.binary_node(*op, a, b, e.span)
             }
         }
+    }
+
+    /// `a op b`, typed; an error (at `span`) when the operator does not apply to their types.
+    fn binary_node(&mut self, op: BinOp, (ca, ta): (CExpr, Ty), (cb, tb): (CExpr, Ty), span: Span) -> (CExpr, Ty) {
+        if ta == Ty::Err || tb == Ty::Err {
+            return (FALSE, Ty::Err);
+        }
+        let Some(ty) = binary_type(op, ta, tb) else {
+            let message = format!("cannot apply `{}` to {} and {}", op.symbol(), ta.name(), tb.name());
+            self.error(span, message);
+            return (FALSE, Ty::Err);
+        };
+        if matches!(op, BinOp::And | BinOp::Or | BinOp::Xor) && ty != Ty::Bool {
+            let func = match op {
+                BinOp::And => Func::BitAnd,
+                BinOp::Or => Func::BitOr,
+                _ => Func::BitXor,
+            };
+            return (CExpr::call(func, vec![ca, cb], ty.repr()), ty);
+        }
+        let (ca, cb) = (Box::new(ca), Box::new(cb));
+        let cexpr = match op {
+            BinOp::Or => CExpr::Logic(LogicOp::Or, ca, cb),
+            BinOp::Xor => CExpr::Logic(LogicOp::Xor, ca, cb),
+            BinOp::And => CExpr::Logic(LogicOp::And, ca, cb),
+            BinOp::Eq => CExpr::Cmp(CmpOp::Eq, ca, cb),
+            BinOp::Ne => CExpr::Cmp(CmpOp::Ne, ca, cb),
+            BinOp::Lt => CExpr::Cmp(CmpOp::Lt, ca, cb),
+            BinOp::Le => CExpr::Cmp(CmpOp::Le, ca, cb),
+            BinOp::Gt => CExpr::Cmp(CmpOp::Gt, ca, cb),
+            BinOp::Ge => CExpr::Cmp(CmpOp::Ge, ca, cb),
+            BinOp::Add => CExpr::Arith { op: ArithOp::Add, wrap: ty.wrap(), lhs: ca, rhs: cb },
+            BinOp::Sub => CExpr::Arith { op: ArithOp::Sub, wrap: ty.wrap(), lhs: ca, rhs: cb },
+            BinOp::Mul => CExpr::Arith { op: ArithOp::Mul, wrap: ty.wrap(), lhs: ca, rhs: cb },
+            BinOp::Div => CExpr::Arith { op: ArithOp::Div, wrap: ty.wrap(), lhs: ca, rhs: cb },
+            BinOp::Mod => CExpr::Arith { op: ArithOp::Mod, wrap: ty.wrap(), lhs: ca, rhs: cb },
+            BinOp::Pow => CExpr::Arith { op: ArithOp::Pow, wrap: ty.wrap(), lhs: ca, rhs: cb },
+        };
+        (cexpr, ty)
     }
 
     /// Reports a use of a variable whose type Baton does not execute; true when it did.
@@ -2698,34 +2812,67 @@ impl<'a> Compiler<'a> {
                 }
             }
         }
-        let mut pending: Vec<(usize, &'a Action)> =
+        // Charts in an order where each comes after those it controls (Kahn's, linear in the charts and their
+        // associations), so that a chart's controlled actions carry their compiled bodies; each chart is as deep
+        // as the deepest it controls plus one, bounded like any nesting.
+        let charts: Vec<(usize, &'a Action)> =
             sources.iter().enumerate().filter(|(_, a)| a.sfc.is_some()).map(|(i, a)| (i, *a)).collect();
-        while !pending.is_empty() {
-            // A chart whose controlled actions are all compiled already (none of them still pending).
-            let ready = pending.iter().position(|(_, a)| {
-                let sfc = a.sfc.as_ref().expect("a nested chart");
-                sfc.steps.iter().flat_map(|s| &s.associations).all(|assoc| {
-                    assoc.action.key() == a.name.key()
-                        || !pending.iter().any(|(_, p)| p.name.key() == assoc.action.key())
-                })
-            });
-            let Some(ready) = ready else {
-                // A cycle: each chart in it is still compiled, for its other errors, but runs nothing.
-                for (_, a) in std::mem::take(&mut pending) {
-                    let message = format!(
-                        "the chart of action `{}` controls itself, through the actions it names: nested charts must \
-                         form a tree",
-                        a.name.name
-                    );
-                    self.error(a.name.span, message);
-                    self.nested_chart(a, vars, actions);
+        let index: HashMap<String, usize> = charts.iter().enumerate().map(|(k, (_, a))| (a.name.key(), k)).collect();
+        let mut children: Vec<Vec<usize>> = vec![Vec::new(); charts.len()];
+        let mut parents: Vec<Vec<usize>> = vec![Vec::new(); charts.len()];
+        for (k, (_, a)) in charts.iter().enumerate() {
+            let sfc = a.sfc.as_ref().expect("a nested chart");
+            for assoc in sfc.steps.iter().flat_map(|s| &s.associations) {
+                if let Some(&c) = index.get(&assoc.action.key()).filter(|&&c| c != k) {
+                    if !children[k].contains(&c) {
+                        children[k].push(c);
+                        parents[c].push(k);
+                    }
                 }
-                return;
-            };
-            let (id, action) = pending.remove(ready);
-            if let Some(chart) = self.nested_chart(action, vars, actions) {
+            }
+        }
+        let mut waiting: Vec<usize> = children.iter().map(Vec::len).collect();
+        let mut ready: std::collections::VecDeque<usize> = (0..charts.len()).filter(|&k| waiting[k] == 0).collect();
+        let mut depth = vec![0usize; charts.len()];
+        let mut done = vec![false; charts.len()];
+        while let Some(k) = ready.pop_front() {
+            done[k] = true;
+            let (id, action) = charts[k];
+            depth[k] = 1 + children[k].iter().map(|&c| depth[c]).max().unwrap_or(0);
+            if depth[k] > NESTING_DEPTH_MAX {
+                // Said once, of the chart where the nesting goes past the limit, not of every chart around it.
+                if depth[k] > NESTING_DEPTH_MAX + 1 {
+                    continue_parents(&parents[k], &mut waiting, &mut ready);
+                    continue;
+                }
+                let message = format!(
+                    "the chart of action `{}` holds charts nested more than {NESTING_DEPTH_MAX} levels deep",
+                    action.name.name
+                );
+                self.error(action.name.span, message);
+            } else if let Some(chart) = self.nested_chart(action, vars, actions) {
                 actions[id].body = vec![CStmt::Chart(Box::new(chart))];
             }
+            continue_parents(&parents[k], &mut waiting, &mut ready);
+        }
+        fn continue_parents(parents: &[usize], waiting: &mut [usize], ready: &mut std::collections::VecDeque<usize>) {
+            for &p in parents {
+                waiting[p] -= 1;
+                if waiting[p] == 0 {
+                    ready.push_back(p);
+                }
+            }
+        }
+        // What is left controls itself, through the actions it names: each is still compiled, for its other
+        // errors, but runs nothing.
+        for (k, &(_, a)) in charts.iter().enumerate().filter(|(k, _)| !done[*k]) {
+            let _ = k;
+            let message = format!(
+                "the chart of action `{}` controls itself, through the actions it names: nested charts must form a tree",
+                a.name.name
+            );
+            self.error(a.name.span, message);
+            self.nested_chart(a, vars, actions);
         }
     }
 

@@ -31,8 +31,10 @@ pub enum Fault {
     /// A transition gave an active step a second token (the net is not safe); the tokens merged. Only a chart
     /// whose safety could not be proven (`unverified_net := TRUE`) can get here.
     SecondToken(crate::exec::program::StepId),
-    /// A loop ran more than `LOOP_ITERATIONS_MAX` iterations in one run of a body.
+    /// A loop ran past the budget of `LOOP_ITERATIONS_MAX` loop passes and block calls of one run of a body.
     LoopLimit,
+    /// A call of a user block or function ran past that budget (a tree of calls).
+    CallLimit,
     /// MUX's selector named no input.
     MuxSelector,
     /// An array index outside the array's bounds.
@@ -227,8 +229,9 @@ fn arith(op: ArithOp, wrap: Option<IntKind>, a: &Value, b: &Value) -> Result<Val
     }
 }
 
-/// Runs a body; a fault stops it where it happened. Its loops together may run `LOOP_ITERATIONS_MAX`
-/// iterations: past that the body stops with `Fault::LoopLimit`, so that no loop hangs a cycle.
+/// Runs a body; a fault stops it where it happened. Its loops' passes and its calls of user blocks and functions
+/// together may number `LOOP_ITERATIONS_MAX`: past that the body stops with `Fault::LoopLimit`, so that no loop,
+/// and no tree of calls, hangs a cycle.
 pub fn run(body: &[CStmt], env: &mut impl EnvMut) -> Result<(), Fault> {
     let mut budget = LOOP_ITERATIONS_MAX;
     exec(body, env, &mut budget).map(|_| ())
@@ -319,6 +322,9 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
                     None => true,
                 };
                 if enabled {
+                    // A call costs from the same budget as a loop's pass: blocks that each call the next twice
+                    // would otherwise run 2^depth bodies in one scan.
+                    *budget = budget.checked_sub(1).ok_or(Fault::CallLimit)?;
                     // RETURN ends the block's body, not the caller's.
                     exec(&call.body, env, budget)?;
                 }

@@ -1,6 +1,8 @@
 //! The executable form of a chart: names resolved to ids, expressions typed, transitions ranked by priority.
 //! The engine runs a `Program`; only `compile` builds one, and only from a chart without errors.
 
+use std::collections::HashMap;
+
 use crate::exec::stdlib::{Func, StdFb};
 use crate::exec::types::{IntKind, Type, Value};
 use crate::front::model::{Pragma, Qualifier, VarSection};
@@ -357,9 +359,127 @@ impl NestedChart {
     }
 }
 
+/// How deep running `body` nests — a compound statement, an operator, a call, an index each one level; a leaf
+/// none — counting the bodies it runs: user blocks and functions (`UserFb`) and nested charts, each at the level
+/// of its call. The walk inside a body uses a stack of its own, and each shared body is measured once (`memo`,
+/// by address), so a body called from many places costs one walk; what recursion remains follows the nesting of
+/// blocks, functions and charts, which the compiler bounds.
+pub fn exec_depth(body: &[CStmt], memo: &mut HashMap<*const Vec<CStmt>, usize>) -> usize {
+    measure(vec![(Item::Stmts(body), 0)], memo)
+}
+
+/// The same for a transition: the calls its condition needs, and the condition.
+pub fn condition_depth(calls: &[CStmt], condition: &CExpr, memo: &mut HashMap<*const Vec<CStmt>, usize>) -> usize {
+    measure(vec![(Item::Stmts(calls), 0), (Item::Expr(condition), 0)], memo)
+}
+
+enum Item<'b> {
+    Stmts(&'b [CStmt]),
+    Expr(&'b CExpr),
+    /// A shared body, run at this level.
+    Body(&'b std::sync::Arc<Vec<CStmt>>),
+}
+
+fn measure(start: Vec<(Item, usize)>, memo: &mut HashMap<*const Vec<CStmt>, usize>) -> usize {
+    let mut max = 0;
+    let mut stack = start;
+    while let Some((item, level)) = stack.pop() {
+        max = max.max(level);
+        match item {
+            Item::Body(b) => {
+                let key = std::sync::Arc::as_ptr(b);
+                let d = match memo.get(&key) {
+                    Some(&d) => d,
+                    None => {
+                        let d = exec_depth(b, memo);
+                        memo.insert(key, d);
+                        d
+                    }
+                };
+                max = max.max(level + d);
+            }
+            Item::Expr(e) => {
+                let inner = level + 1;
+                match e {
+                    CExpr::Not(c) | CExpr::Neg(c, _) => stack.push((Item::Expr(c), inner)),
+                    CExpr::Logic(_, a, b) | CExpr::Cmp(_, a, b) | CExpr::Arith { lhs: a, rhs: b, .. } => {
+                        stack.push((Item::Expr(a), inner));
+                        stack.push((Item::Expr(b), inner));
+                    }
+                    CExpr::Call(call) => stack.extend(call.args.iter().map(|a| (Item::Expr(a), inner))),
+                    CExpr::Index(ix) => stack.extend(ix.indices.iter().map(|a| (Item::Expr(a), inner))),
+                    _ => {}
+                }
+            }
+            Item::Stmts(stmts) => {
+                let inner = level + 1;
+                for stmt in stmts {
+                    match stmt {
+                        CStmt::Assign { value, .. } => stack.push((Item::Expr(value), level)),
+                        CStmt::AssignIndex { target, value } => {
+                            stack.push((Item::Expr(value), level));
+                            stack.extend(target.indices.iter().map(|e| (Item::Expr(e), inner)));
+                        }
+                        CStmt::If { branches, otherwise } => {
+                            for (c, b) in branches {
+                                stack.push((Item::Expr(c), inner));
+                                stack.push((Item::Stmts(b), inner));
+                            }
+                            stack.push((Item::Stmts(otherwise), inner));
+                        }
+                        CStmt::Fb { en, inputs, .. } => {
+                            stack.extend(en.iter().map(|e| (Item::Expr(e), inner)));
+                            stack.extend(inputs.iter().map(|(_, e)| (Item::Expr(e), inner)));
+                        }
+                        CStmt::UserFb(call) => {
+                            stack.extend(call.en.iter().map(|e| (Item::Expr(e), inner)));
+                            stack.extend(call.inputs.iter().map(|(_, e)| (Item::Expr(e), inner)));
+                            stack.push((Item::Body(&call.body), inner));
+                        }
+                        CStmt::Case { selector, arms, otherwise } => {
+                            stack.push((Item::Expr(selector), inner));
+                            stack.extend(arms.iter().map(|(_, b)| (Item::Stmts(b), inner)));
+                            stack.push((Item::Stmts(otherwise), inner));
+                        }
+                        CStmt::For { from, to, by, body, .. } => {
+                            stack.extend([from, to, by].map(|e| (Item::Expr(e), inner)));
+                            stack.push((Item::Stmts(body), inner));
+                        }
+                        CStmt::While { pre, condition: c, body } | CStmt::Repeat { body, pre, until: c } => {
+                            stack.push((Item::Stmts(pre), inner));
+                            stack.push((Item::Expr(c), inner));
+                            stack.push((Item::Stmts(body), inner));
+                        }
+                        CStmt::Chart(chart) => {
+                            for t in &chart.transitions {
+                                stack.push((Item::Stmts(&t.calls), inner));
+                                stack.push((Item::Expr(&t.condition), inner));
+                            }
+                            stack.extend(chart.actions.iter().map(|a| (Item::Body(&a.body), inner)));
+                        }
+                        CStmt::Exit | CStmt::Return => {}
+                    }
+                }
+            }
+        }
+    }
+    max
+}
+
 /// Walks statements: `write` gets every variable they may write, `read` every expression they evaluate (a block
-/// call reads its instance's members too).
+/// call reads its instance's members too). A body shared by several calls (a user block's, a function's) is
+/// walked once: what it may write and read does not depend on how often it runs, and a chain of blocks each
+/// calling the next twice would otherwise cost 2^depth.
 pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl FnMut(&CExpr)) {
+    walk_body_once(body, write, read, &mut std::collections::HashSet::new());
+}
+
+fn walk_body_once(
+    body: &[CStmt],
+    write: &mut impl FnMut(VarId),
+    read: &mut impl FnMut(&CExpr),
+    seen: &mut std::collections::HashSet<*const Vec<CStmt>>,
+) {
     for stmt in body {
         match stmt {
             CStmt::Assign { var, value } => {
@@ -374,9 +494,9 @@ pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl 
             CStmt::If { branches, otherwise } => {
                 for (c, b) in branches {
                     read(c);
-                    walk_body(b, write, read);
+                    walk_body_once(b, write, read, seen);
                 }
-                walk_body(otherwise, write, read);
+                walk_body_once(otherwise, write, read, seen);
             }
             CStmt::Fb { fb, base, en, inputs, outputs } => {
                 en.iter().for_each(&mut *read);
@@ -399,14 +519,16 @@ pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl 
                     write(caller);
                     read(&CExpr::Var(caller));
                 }
-                walk_body(&call.body, write, read);
+                if seen.insert(std::sync::Arc::as_ptr(&call.body)) {
+                    walk_body_once(&call.body, write, read, seen);
+                }
                 write(call.eno);
                 call.outputs.iter().for_each(|o| write(o.target));
             }
             CStmt::Case { selector, arms, otherwise } => {
                 read(selector);
-                arms.iter().for_each(|(_, b)| walk_body(b, write, read));
-                walk_body(otherwise, write, read);
+                arms.iter().for_each(|(_, b)| walk_body_once(b, write, read, seen));
+                walk_body_once(otherwise, write, read, seen);
             }
             CStmt::For { var, from, to, by, body } => {
                 write(*var);
@@ -414,12 +536,12 @@ pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl 
                 read(from);
                 read(to);
                 read(by);
-                walk_body(body, write, read);
+                walk_body_once(body, write, read, seen);
             }
             CStmt::While { pre, condition: c, body } | CStmt::Repeat { body, pre, until: c } => {
-                walk_body(pre, write, read);
+                walk_body_once(pre, write, read, seen);
                 read(c);
-                walk_body(body, write, read);
+                walk_body_once(body, write, read, seen);
             }
             CStmt::Chart(chart) => {
                 for v in chart.state() {
@@ -427,7 +549,7 @@ pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl 
                     read(&CExpr::Var(v));
                 }
                 for t in &chart.transitions {
-                    walk_body(&t.calls, write, read);
+                    walk_body_once(&t.calls, write, read, seen);
                     read(&t.condition);
                 }
                 for a in &chart.actions {
@@ -436,7 +558,9 @@ pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl 
                             read(&CExpr::Var(*v));
                         }
                     }
-                    walk_body(&a.body, write, read);
+                    if seen.insert(std::sync::Arc::as_ptr(&a.body)) {
+                        walk_body_once(&a.body, write, read, seen);
+                    }
                 }
             }
             CStmt::Exit | CStmt::Return => {}

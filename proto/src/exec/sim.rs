@@ -253,6 +253,15 @@ pub fn fault_message(program: &Program, source: FaultSource, fault: Fault) -> St
                 crate::limits::LOOP_ITERATIONS_MAX
             );
         }
+        Fault::CallLimit => {
+            let FaultSource::Action(a) = source else { return "calls past their limit".to_string() };
+            return format!(
+                "action `{}` ran more than {} loop passes and calls of blocks and functions in one cycle: the rest \
+                 of its body was skipped",
+                program.actions[a.index()].name,
+                crate::limits::LOOP_ITERATIONS_MAX
+            );
+        }
         Fault::SecondToken(s) => {
             let FaultSource::Transition(t) = source else { return "a second token".to_string() };
             return format!(

@@ -36,7 +36,7 @@ impl Report {
 
 pub fn check_source(src: &str) -> Report {
     if src.len() > SOURCE_BYTES_MAX {
-        let message = format!("the file is larger than {} MiB", SOURCE_BYTES_MAX >> 20);
+        let message = format!("the chart's text is larger than {} MiB (as UTF-8)", SOURCE_BYTES_MAX >> 20);
         return Report {
             charts: Vec::new(),
             library: Vec::new(),

@@ -336,7 +336,14 @@ impl Lexer<'_> {
             let mut it = s.splitn(3, '-');
             let (y, m, d) =
                 (it.next()?.parse::<i64>().ok()?, it.next()?.parse::<i64>().ok()?, it.next()?.parse::<i64>().ok()?);
-            ((1..=12).contains(&m) && (1..=31).contains(&d))
+            // Years 1 to 9999, as the calendar types of PLC tools hold them: a year of 19 digits would wrap.
+            let days_in_month = match m {
+                2 if y % 4 == 0 && (y % 100 != 0 || y % 400 == 0) => 29,
+                2 => 28,
+                4 | 6 | 9 | 11 => 30,
+                _ => 31,
+            };
+            ((1..=9999).contains(&y) && (1..=12).contains(&m) && (1..=days_in_month).contains(&d))
                 .then(|| crate::exec::types::days_from_civil(y, m, d) * 86_400_000)
         };
         let tod = |s: &str| -> Option<i64> {
@@ -359,9 +366,9 @@ impl Lexer<'_> {
             Some(tok) => self.push(tok, start),
             None => {
                 let what = [
-                    "a date such as D#2026-12-01",
+                    "a date such as D#2026-12-01 (years 1 to 9999, days that the month has)",
                     "a time of day such as TOD#12:30:00",
-                    "a date and time such as DT#2026-12-01-12:30:00",
+                    "a date and time such as DT#2026-12-01-12:30:00 (years 1 to 9999)",
                 ];
                 self.error(start, self.pos, format!("invalid literal: expected {}", what[kind as usize]));
             }

@@ -96,7 +96,7 @@ impl<'a> Reader<'a> {
     }
 
     fn count(&mut self, n: usize) -> Result<(), String> {
-        self.elements += n;
+        self.elements = self.elements.saturating_add(n);
         if self.elements > LITERAL_ELEMENTS_MAX {
             return Err(format!("more than {LITERAL_ELEMENTS_MAX} elements"));
         }

@@ -180,14 +180,38 @@ pub struct VarDecl {
     pub pragmas: Vec<Pragma>,
 }
 
-/// An array type: its dimensions (inclusive bounds), element type, and initial elements in order (repetitions
-/// expanded; fewer than the array's size leave the rest at the element type's default).
+/// An array type: its dimensions (inclusive bounds), element type, and initial elements in order, as runs
+/// (`3(0)` is a run of three; fewer than the array's size leave the rest at the element type's default). Runs
+/// are kept as written, never expanded here: a count of a billion costs nothing until the compiler weighs it
+/// against the array's size.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ArraySpec {
     pub dims: Vec<(i64, i64)>,
     pub elem: Ident,
-    pub init: Vec<Expr>,
+    pub init: Vec<InitRun>,
     pub span: Span,
+}
+
+/// `count` times `value` among an array's initial values.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InitRun {
+    pub count: u64,
+    pub value: Expr,
+}
+
+impl ArraySpec {
+    /// How many initial values the runs give (saturating).
+    pub fn init_len(&self) -> u64 {
+        self.init.iter().fold(0u64, |n, r| n.saturating_add(r.count))
+    }
+
+    /// The elements, `None` when the dimensions are empty (`high < low`) or hold more than `u64::MAX`.
+    pub fn elements(&self) -> Option<u64> {
+        self.dims.iter().try_fold(1u64, |n, &(low, high)| {
+            let size = u64::try_from(i128::from(high) - i128::from(low) + 1).ok().filter(|&s| s > 0)?;
+            n.checked_mul(size)
+        })
+    }
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -459,4 +483,58 @@ pub enum ExprKind {
 pub struct Expr {
     pub kind: ExprKind,
     pub span: Span,
+}
+
+impl BinOp {
+    /// `a op (b op c)` is `(a op b) op c` for every operand type the compiler accepts (BOOL and bit strings), and
+    /// evaluating either reads the operands left to right: a chain of them may be built as a balanced tree.
+    pub fn associative(self) -> bool {
+        matches!(self, BinOp::And | BinOp::Or | BinOp::Xor)
+    }
+}
+
+impl Expr {
+    /// The nodes on the longest path from this expression down to a leaf (a literal or a name counts 1), counted
+    /// without recursion, so that it is safe on any tree.
+    pub fn height(&self) -> usize {
+        let mut max = 0;
+        let mut stack = vec![(self, 1usize)];
+        while let Some((e, h)) = stack.pop() {
+            max = max.max(h);
+            match &e.kind {
+                ExprKind::Index(_, ix) | ExprKind::IndexField(_, ix, _) => stack.extend(ix.iter().map(|c| (c, h + 1))),
+                ExprKind::Call(_, args) => stack.extend(args.iter().map(|a| (&a.value, h + 1))),
+                ExprKind::Unary(_, c) => stack.push((c, h + 1)),
+                ExprKind::Binary(_, l, r) => {
+                    stack.push((l, h + 1));
+                    stack.push((r, h + 1));
+                }
+                _ => {}
+            }
+        }
+        max
+    }
+
+    /// `operands` (at least one) joined by `op`, associative (`BinOp::associative`), as a balanced tree: a chain
+    /// of n operands is ⌈log₂ n⌉ levels deep rather than n, in the same left-to-right order. A wired network of
+    /// 30,000 parallel contacts is 15 levels deep.
+    pub fn balanced(op: BinOp, operands: Vec<Expr>) -> Expr {
+        debug_assert!(op.associative());
+        let mut level = operands;
+        while level.len() > 1 {
+            let mut next = Vec::with_capacity(level.len().div_ceil(2));
+            let mut items = level.into_iter();
+            while let Some(a) = items.next() {
+                next.push(match items.next() {
+                    Some(b) => {
+                        let span = a.span.to(b.span);
+                        Expr { kind: ExprKind::Binary(op, Box::new(a), Box::new(b)), span }
+                    }
+                    None => a,
+                });
+            }
+            level = next;
+        }
+        level.pop().unwrap_or(Expr { kind: ExprKind::Bool(op == BinOp::And), span: Span::new(0, 0) })
+    }
 }

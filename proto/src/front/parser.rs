@@ -402,14 +402,17 @@ impl Parser<'_> {
             loop {
                 // `n(value)` repeats a value n times.
                 if let (Tok::Int(n), Tok::LParen) = (self.peek(), self.peek_at(1)) {
-                    self.bump();
+                    let at = self.bump().span;
                     self.bump();
                     let value = self.expr()?;
                     self.expect(Tok::RParen, "`)`")?;
-                    let n = n.clamp(0, crate::limits::ARRAY_ELEMENTS_MAX as i64) as usize;
-                    init.extend(std::iter::repeat_n(value, n));
+                    let Ok(count) = u64::try_from(n) else {
+                        self.diags.push(Diagnostic::error(at, format!("a repetition count is not negative: {n}")));
+                        return Err(Failed);
+                    };
+                    init.push(InitRun { count, value });
                 } else {
-                    init.push(self.expr()?);
+                    init.push(InitRun { count: 1, value: self.expr()? });
                 }
                 if !self.eat(Tok::Comma) {
                     break;
@@ -1016,12 +1019,20 @@ impl Parser<'_> {
     }
 
     /// `( … )` of a call: formal (`IN := x`, `Q => y`, `NOT Q => y`) and non-formal arguments.
+    /// The arguments are one level deeper than the call.
     fn args(&mut self) -> PResult<(Vec<Arg>, Token)> {
         self.expect(Tok::LParen, "`(`")?;
-        let mut args = Vec::new();
         if let Some(close) = self.peek_eat(Tok::RParen) {
-            return Ok((args, close));
+            return Ok((Vec::new(), close));
         }
+        self.nest()?;
+        let args = self.arg_list();
+        self.depth -= 1;
+        args
+    }
+
+    fn arg_list(&mut self) -> PResult<(Vec<Arg>, Token)> {
+        let mut args = Vec::new();
         loop {
             let start = self.span();
             let negated =
@@ -1048,16 +1059,24 @@ impl Parser<'_> {
         }
     }
 
-    /// `[i, j]` after an array's name.
+    /// `[i, j]` after an array's name: its indices are one level deeper.
     fn index(&mut self, name: Ident) -> PResult<Expr> {
         self.bump();
+        self.nest()?;
+        let indices = self.index_list();
+        self.depth -= 1;
+        let indices = indices?;
+        let close = self.expect(Tok::RBracket, "`,` or `]`")?;
+        let span = name.span.to(close.span);
+        Ok(Expr { kind: ExprKind::Index(name, indices), span })
+    }
+
+    fn index_list(&mut self) -> PResult<Vec<Expr>> {
         let mut indices = vec![self.expr()?];
         while self.eat(Tok::Comma) {
             indices.push(self.expr()?);
         }
-        let close = self.expect(Tok::RBracket, "`,` or `]`")?;
-        let span = name.span.to(close.span);
-        Ok(Expr { kind: ExprKind::Index(name, indices), span })
+        Ok(indices)
     }
 
     fn peek_eat(&mut self, tok: Tok) -> Option<Token> {
@@ -1199,8 +1218,12 @@ impl Parser<'_> {
         self.binary(0)
     }
 
+    /// Operators of a higher level than `min_level`, as a chain: each operand parsed one level deeper, then the
+    /// chain folded (`fold`). A chain's length is bounded like any nesting: its tree is as deep as it is long,
+    /// but for runs of one associative operator (`a OR b OR c …`), which are built balanced.
     fn binary(&mut self, min_level: u8) -> PResult<Expr> {
-        let mut lhs = self.unary()?;
+        let mut operands = vec![self.unary()?];
+        let mut ops: Vec<(BinOp, Span)> = Vec::new();
         loop {
             let (op, level) = match self.peek() {
                 Tok::Kw(Kw::Or) => (BinOp::Or, 1),
@@ -1218,19 +1241,57 @@ impl Parser<'_> {
                 Tok::Slash => (BinOp::Div, 7),
                 Tok::Kw(Kw::Mod) => (BinOp::Mod, 7),
                 Tok::StarStar => (BinOp::Pow, 8),
-                _ => return Ok(lhs),
+                _ => break,
             };
             if level <= min_level {
-                return Ok(lhs);
+                break;
             }
-            self.bump();
+            let at = self.bump().span;
             self.nest()?;
             let rhs = self.binary(level);
             self.depth -= 1;
-            let rhs = rhs?;
-            let span = lhs.span.to(rhs.span);
-            lhs = Expr { kind: ExprKind::Binary(op, Box::new(lhs), Box::new(rhs)), span };
+            operands.push(rhs?);
+            ops.push((op, at));
         }
+        self.fold(operands, ops)
+    }
+
+    /// Folds a chain left, as IEC reads it, except that a run of one associative operator becomes a balanced
+    /// tree; a tree deeper than the nesting limit allows here is an error at the operator that made it so.
+    fn fold(&mut self, operands: Vec<Expr>, ops: Vec<(BinOp, Span)>) -> PResult<Expr> {
+        let mut operands = operands.into_iter();
+        let Some(mut acc) = operands.next() else { return Err(self.error_here("an expression")) };
+        let mut height = acc.height();
+        let mut i = 0;
+        while i < ops.len() {
+            let (op, at) = ops[i];
+            let mut j = i + 1;
+            while op.associative() && j < ops.len() && ops[j].0 == op {
+                j += 1;
+            }
+            let run: Vec<Expr> = operands.by_ref().take(j - i).collect();
+            let tallest = run.iter().map(Expr::height).max().unwrap_or(0).max(height);
+            if op.associative() {
+                let n = run.len() + 1;
+                height = tallest + (usize::BITS - (n - 1).leading_zeros()) as usize;
+                acc = Expr::balanced(op, std::iter::once(acc).chain(run).collect());
+            } else {
+                height = tallest + 1;
+                let rhs = run.into_iter().next().expect("one operand per operator");
+                let span = acc.span.to(rhs.span);
+                acc = Expr { kind: ExprKind::Binary(op, Box::new(acc), Box::new(rhs)), span };
+            }
+            if self.depth + height - 1 > NESTING_DEPTH_MAX {
+                let message = format!(
+                    "nested more than {NESTING_DEPTH_MAX} levels deep (a chain of operators nests as deep as it is \
+                     long: give parts of it names of their own)"
+                );
+                self.diags.push(Diagnostic::error(at, message));
+                return Err(Failed);
+            }
+            i = j;
+        }
+        Ok(acc)
     }
 
     fn unary(&mut self) -> PResult<Expr> {

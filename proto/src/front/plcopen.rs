@@ -63,6 +63,7 @@ pub fn parse(src: &str) -> Parsed {
         references: HashMap::new(),
         macros: HashMap::new(),
         macro_names: HashMap::new(),
+        macro_depth: 0,
         library: Vec::new(),
         implicit: Vec::new(),
     };
@@ -144,6 +145,9 @@ struct ReadTransition {
 /// One body's elements by `localId`.
 struct Elements<'a, 'i> {
     by_id: HashMap<u64, Node<'a, 'i>>,
+    /// The `connector` elements by name (uppercase), which continuations of the same name continue: found once,
+    /// not by a scan of the body per continuation.
+    connectors: HashMap<String, Node<'a, 'i>>,
     /// Which elements take each element's output, in document order.
     consumers: HashMap<u64, Vec<u64>>,
     /// Document index of each element.
@@ -171,6 +175,8 @@ struct Reader<'s> {
     /// they stand for; and the entry steps by the macro step's name, for jumps to it.
     macros: HashMap<u64, (Ident, Ident)>,
     macro_names: HashMap<String, Ident>,
+    /// Macro steps around the body being read.
+    macro_depth: usize,
     /// Function blocks with ST bodies.
     library: Vec<FbDef>,
     /// Variables the POU being read needs that its interface does not declare (edge contacts' instances).
@@ -332,7 +338,7 @@ impl Reader<'_> {
         Some(chart)
     }
 
-    /// An `<array>` type (dimensions, element type) with its `arrayValue` initial elements, repetitions expanded.
+    /// An `<array>` type (dimensions, element type) with its `arrayValue` initial elements, as runs.
     fn array_spec(&mut self, array: Node, init: Option<Node>) -> Option<ArraySpec> {
         let mut dims = Vec::new();
         for d in children(array, "dimension") {
@@ -343,9 +349,13 @@ impl Reader<'_> {
         let name = type_name(elem)?;
         let mut values = Vec::new();
         for v in init.and_then(|i| child(i, "arrayValue")).into_iter().flat_map(|a| children(a, "value")) {
-            let repeat = v.attribute("repetitionValue").and_then(|r| r.trim().parse::<usize>().ok()).unwrap_or(1);
+            // A count past u64 is as many as any array refuses.
+            let count = v.attribute("repetitionValue").map_or(1, |r| {
+                let r = r.trim();
+                r.parse::<u64>().unwrap_or(if r.bytes().all(|b| b.is_ascii_digit()) { u64::MAX } else { 1 })
+            });
             if let Some(e) = child(v, "simpleValue").and_then(|s| self.expr_attr(s, "value")) {
-                values.extend(std::iter::repeat_n(e, repeat.min(crate::limits::ARRAY_ELEMENTS_MAX)));
+                values.push(crate::front::model::InitRun { count, value: e });
             }
         }
         let range = array.range();
@@ -626,7 +636,7 @@ impl Reader<'_> {
                 }
             };
             self.visits = 0;
-            let Some(mut value) = self.wired(&elements, n, 0) else {
+            let Some(mut value) = self.wired(&elements, n, 0).and_then(|e| self.bounded(e, self.tag_span(n))) else {
                 ok = false;
                 continue;
             };
@@ -654,8 +664,14 @@ impl Reader<'_> {
         let mut by_id = HashMap::new();
         let mut consumers: HashMap<u64, Vec<u64>> = HashMap::new();
         let mut index = HashMap::new();
+        let mut connectors = HashMap::new();
         for (i, el) in body.children().filter(Node::is_element).enumerate() {
             let kind = el.tag_name().name();
+            if kind == "connector" {
+                if let Some(name) = el.attribute("name") {
+                    connectors.entry(name.trim().to_ascii_uppercase()).or_insert(el);
+                }
+            }
             let Some(raw) = el.attribute("localId") else {
                 if !matches!(kind, "comment" | "addData" | "documentation") {
                     self.error(self.tag_span(el), format!("`<{kind}>` has no `localId`"));
@@ -689,7 +705,7 @@ impl Reader<'_> {
                 }
             }
         }
-        Elements { by_id, consumers, index }
+        Elements { by_id, connectors, consumers, index }
     }
 
     /// The connections into an element: `connectionPointIn/connection` (and v1.0's bare `connection`), as
@@ -744,9 +760,15 @@ impl Reader<'_> {
                 }
                 continue;
             };
+            if self.macro_depth >= NESTING_DEPTH_MAX {
+                self.error(span, format!("macro steps nested more than {NESTING_DEPTH_MAX} levels deep"));
+                continue;
+            }
             let references = std::mem::take(&mut self.references);
             let mut inner = Chart::empty(chart.name.clone(), chart.kind, span);
+            self.macro_depth += 1;
             self.sfc(body, named_transitions, &mut inner);
+            self.macro_depth -= 1;
             self.references = references;
             let Some((entry, exit)) = self.macro_ends(&mut inner, span) else { continue };
             if let Some(id) = local_id(el) {
@@ -844,8 +866,11 @@ impl Reader<'_> {
     /// A macro step's entry step (its body's initial step, or else the one no transition of the body leads to)
     /// and its exit step (the one no transition of the body leaves); the entry step stops being initial.
     fn macro_ends(&mut self, inner: &mut Chart, span: Span) -> Option<(Ident, Ident)> {
-        let led_to = |s: &Step| inner.transitions.iter().any(|t| t.to.iter().any(|n| n.key() == s.name.key()));
-        let left = |s: &Step| inner.transitions.iter().any(|t| t.from.iter().any(|n| n.key() == s.name.key()));
+        // The names transitions lead to and leave, gathered once: linear in the body, not steps × transitions.
+        let targets: HashSet<String> = inner.transitions.iter().flat_map(|t| t.to.iter().map(Ident::key)).collect();
+        let sources: HashSet<String> = inner.transitions.iter().flat_map(|t| t.from.iter().map(Ident::key)).collect();
+        let led_to = |s: &Step| targets.contains(&s.name.key());
+        let left = |s: &Step| sources.contains(&s.name.key());
         let entries: Vec<usize> = match inner.steps.iter().filter(|s| s.initial).count() {
             0 => (0..inner.steps.len()).filter(|&i| !led_to(&inner.steps[i])).collect(),
             _ => (0..inner.steps.len()).filter(|&i| inner.steps[i].initial).collect(),
@@ -1118,7 +1143,7 @@ impl Reader<'_> {
         } else if let Some(reference) = child(cond, "reference") {
             self.named_condition(reference, named)
         } else if child(cond, "connectionPointIn").is_some() || child(cond, "connection").is_some() {
-            self.wired(elements, cond, 0)
+            self.wired(elements, cond, 0).and_then(|e| self.bounded(e, self.tag_span(cond)))
         } else {
             self.error(self.tag_span(cond), "an empty `<condition>`: expected inline ST, a reference or a connection");
             None
@@ -1173,6 +1198,7 @@ impl Reader<'_> {
                     return None;
                 };
                 let value = self.wired(&elements, result, 0)?;
+                let value = self.bounded(value, self.tag_span(result))?;
                 Some(if flag(result, "negated") { not(value) } else { value })
             }
             _ => {
@@ -1193,15 +1219,26 @@ impl Reader<'_> {
             self.error(span, format!("nothing is connected to `<{}>`", n.tag_name().name()));
             return None;
         }
-        let mut result: Option<Expr> = None;
+        let mut branches = Vec::with_capacity(inputs.len());
         for (id, formal, at) in inputs {
-            let e = self.output_of(elements, id, formal.as_deref(), at, depth + 1)?;
-            result = Some(match result {
-                None => e,
-                Some(acc) => binary(BinOp::Or, acc, e),
-            });
+            branches.push(self.output_of(elements, id, formal.as_deref(), at, depth + 1)?);
         }
-        result
+        // Parallel branches as a balanced OR: a rung of 30,000 parallel contacts is 15 levels deep, not 30,000.
+        Some(Expr::balanced(BinOp::Or, branches))
+    }
+
+    /// Wired logic turned into an expression is bounded like any other: deeper than the nesting limit is an error
+    /// at the element it feeds, never a tree that a walk over it cannot hold.
+    fn bounded(&mut self, e: Expr, at: Span) -> Option<Expr> {
+        if e.height() - 1 > NESTING_DEPTH_MAX {
+            let message = format!(
+                "the logic wired into this element nests more than {NESTING_DEPTH_MAX} levels deep (contacts in \
+                 series, blocks feeding blocks): split it with intermediate variables"
+            );
+            self.error(at, message);
+            return None;
+        }
+        Some(e)
     }
 
     /// The value of element `id`'s output (`formal` names which, for a block).
@@ -1290,11 +1327,7 @@ impl Reader<'_> {
             "block" => self.block(elements, n, formal, depth),
             "continuation" => {
                 let name = n.attribute("name").unwrap_or_default();
-                let connector = elements
-                    .by_id
-                    .values()
-                    .find(|c| is(c, "connector") && c.attribute("name").is_some_and(|m| m.eq_ignore_ascii_case(name)));
-                match connector {
+                match elements.connectors.get(&name.trim().to_ascii_uppercase()) {
                     Some(&c) => self.wired(elements, c, depth),
                     None => {
                         self.error(span, format!("continuation `{name}` has no connector of that name"));
@@ -1333,6 +1366,7 @@ impl Reader<'_> {
                 continue;
             }
             let e = self.wired(elements, v, depth)?;
+            let e = self.bounded(e, self.tag_span(v))?;
             let value = if flag(v, "negated") { not(e) } else { e };
             let name = Ident { name: formal.trim().to_string(), span: self.tag_span(v) };
             args.push(Arg { name: Some(name), output: false, negated: false, span: value.span, value });
@@ -1434,10 +1468,12 @@ impl Reader<'_> {
         }
         let mut args = args.into_iter();
         let result = match shape {
+            Shape::Fold(op) if op.associative() => Some(Expr::balanced(op, args.collect())),
             Shape::Fold(op) => args.reduce(|a, b| binary(op, a, b)),
             Shape::Chain(op) => {
                 let args: Vec<Expr> = args.collect();
-                args.windows(2).map(|w| binary(op, w[0].clone(), w[1].clone())).reduce(|a, b| binary(BinOp::And, a, b))
+                let pairs: Vec<Expr> = args.windows(2).map(|w| binary(op, w[0].clone(), w[1].clone())).collect();
+                Some(Expr::balanced(BinOp::And, pairs))
             }
             Shape::Pair(op) => args.next().zip(args.next()).map(|(a, b)| binary(op, a, b)),
             Shape::Not => args.next().map(not),
