@@ -337,14 +337,16 @@ pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
             let q = cv >= m.int(2);
             m.set_bool(3, q);
         }
-        StdFb::Ctd(k) => {
+        StdFb::Ctd(_) => {
             let cd = m.bool(0);
             let rising = cd && !m.bool(6);
             m.set_bool(6, cd);
             let mut cv = m.int(4);
             if m.bool(1) {
                 cv = m.int(2);
-            } else if rising && cv > k.min_value() {
+            } else if rising && cv > 0 {
+                // Stops at 0, as matiec, CODESYS and TwinCAT do (the standard's text counts down to the type's
+                // minimum): docs/standard-library.md, Counters.
                 cv -= 1;
             }
             m.set_int(4, cv);
@@ -364,7 +366,7 @@ pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
             } else if !(cu_rising && cd_rising) {
                 if cu_rising && cv < k.max_value() {
                     cv += 1;
-                } else if cd_rising && cv > k.min_value() {
+                } else if cd_rising && cv > 0 {
                     cv -= 1;
                 }
             }

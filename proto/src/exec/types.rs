@@ -47,16 +47,6 @@ impl IntKind {
         }
     }
 
-    pub fn min_value(self) -> i64 {
-        if !self.signed() {
-            0
-        } else if self.bits() == 64 {
-            i64::MIN
-        } else {
-            -(1i64 << (self.bits() - 1))
-        }
-    }
-
     /// The largest value (ULINT and LWORD stop at i64::MAX: values are held in an i64).
     pub fn max_value(self) -> i64 {
         match (self.bits(), self.signed()) {
