@@ -34,8 +34,13 @@ pub fn canonical(p: &Program) -> String {
             texts(&s.pragmas),
             p.outgoing(id)
         );
-        for (a, inds) in p.associations(id).iter().zip(p.indicators(id)) {
-            let _ = writeln!(out, "  {:?} {:?}", a, inds);
+        // In action order: a step's associations act together, whatever order a file lists them in (PLCopen
+        // keeps CODESYS's entry and exit actions in vendor data, apart from its action blocks).
+        let mut lines: Vec<String> =
+            p.associations(id).iter().zip(p.indicators(id)).map(|(a, inds)| format!("  {a:?} {inds:?}")).collect();
+        lines.sort();
+        for line in lines {
+            let _ = writeln!(out, "{line}");
         }
     }
     for (i, t) in p.transitions.iter().enumerate() {
@@ -52,7 +57,7 @@ pub fn canonical(p: &Program) -> String {
         );
     }
     for a in &p.actions {
-        let _ = writeln!(out, "action {} {:?} {:?} {:?}", a.name, a.bool_var, a.body, texts(&a.pragmas));
+        let _ = writeln!(out, "action {} {:?} {:?} {:?} {:?}", a.name, a.once, a.bool_var, a.body, texts(&a.pragmas));
     }
     out
 }

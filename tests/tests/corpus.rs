@@ -169,3 +169,22 @@ fn beremiz_traffic_light_cycles_and_answers_the_pedestrian_button() {
     let next = fired.iter().find(|(t, n)| *t > g2 && n == "GREEN->ORANGE").map(|(t, _)| *t).expect("left again");
     assert!(next - g2 >= 19_900, "the third GREEN lasts {} ms: {fired:?}", next - g2);
 }
+
+/// Beremiz's first_steps declares `VAR_EXTERNAL CONSTANT ResetCounterValue : INT;` in `CounterSFC`, without a
+/// value: the configuration's global list gives it 17, and Beremiz (matiec) resets the counter to 17. Baton reads
+/// the project's global lists, so a reset gives 17 here too (it gave 0, the type's default).
+#[test]
+fn beremiz_first_steps_counter_resets_to_the_configurations_global_value() {
+    use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
+    let Some(program) = program_of("beremiz__exemples__first_steps__plc.xml") else { return };
+    let inputs = parse_inputs("{\"t_ms\": 0, \"set\": {\"Reset\": true}}\n", &program).expect("Reset is an input");
+    let watch = [program.var_by_name("OUT").expect("CounterSFC has an output OUT")];
+    let mut values = Vec::new();
+    simulate_watching(Arc::new(program), &inputs, 10, 50, &watch, |o| {
+        if let SimOutput::Trace(r) = o {
+            values.extend(r.value);
+        }
+    })
+    .expect("simulation");
+    assert_eq!(values, ["17"], "OUT after a reset");
+}

@@ -151,8 +151,42 @@ pub fn export(
     for (chart, program) in charts {
         pou(&mut out, chart, program, library, types);
     }
-    out.push_str("    </pous>\n  </types>\n  <instances>\n    <configurations/>\n  </instances>\n</project>\n");
+    out.push_str("    </pous>\n  </types>\n  <instances>\n    <configurations/>\n  </instances>\n");
+    global_lists(&mut out, charts);
+    out.push_str("</project>\n");
     out
+}
+
+/// The charts' named global variable lists, as CODESYS writes its GVLs: in project-level vendor data, so that
+/// `GVL.x` reads back. (Their variables are in each chart's interface too, as VAR_GLOBAL.)
+fn global_lists(out: &mut String, charts: &[(&Chart, &Program)]) {
+    let mut written: Vec<String> = Vec::new();
+    let mut text = String::new();
+    for (chart, _) in charts {
+        for list in &chart.global_lists {
+            if written.contains(&list.name.key()) {
+                continue;
+            }
+            written.push(list.name.key());
+            let vars: Vec<&VarDecl> =
+                list.vars.iter().filter_map(|v| chart.vars.iter().find(|d| d.name.key() == v.key())).collect();
+            let constant = !vars.is_empty() && vars.iter().all(|v| v.constant);
+            let _ = writeln!(
+                text,
+                "    <data name=\"{}\" handleUnknown=\"implementation\">\n      <globalVars name=\"{}\"{}>",
+                crate::front::plcopen::CODESYS_GLOBAL_VARS,
+                esc(&list.name.name),
+                if constant { " constant=\"true\"" } else { "" }
+            );
+            for v in vars {
+                variable(&mut text, v);
+            }
+            text.push_str("      </globalVars>\n    </data>\n");
+        }
+    }
+    if !text.is_empty() {
+        let _ = write!(out, "  <addData>\n{text}  </addData>\n");
+    }
 }
 
 fn pou(out: &mut String, chart: &Chart, program: &Program, library: &[FbDef], types: &[TypeDef]) {
@@ -310,6 +344,18 @@ fn function_block(out: &mut String, def: &FbDef) {
     let kind = if def.returns.is_some() { "function" } else { "functionBlock" };
     let _ = writeln!(out, "      <pou name=\"{}\" pouType=\"{kind}\">", esc(&def.name.name));
     interface_returning(out, &def.vars, def.returns.as_ref());
+    if !def.actions.is_empty() {
+        out.push_str("        <actions>\n");
+        for a in &def.actions {
+            let _ = writeln!(
+                out,
+                "          <action name=\"{}\">\n            <body>\n              <ST>{}</ST>\n            </body>\n          </action>",
+                esc(&a.name.name),
+                xhtml(&st::statements(&a.body, 0))
+            );
+        }
+        out.push_str("        </actions>\n");
+    }
     let _ = writeln!(
         out,
         "        <body>\n          <ST>{}</ST>\n        </body>\n      </pou>",
@@ -498,6 +544,7 @@ impl<'a> Sfc<'a> {
                     STEP_H / 2
                 );
             }
+            elements.push_str(&self.entry_exit(s));
             if !info.pragmas.is_empty() {
                 let _ = writeln!(
                     elements,
@@ -667,11 +714,35 @@ impl<'a> Sfc<'a> {
         }
     }
 
-    /// The `<action>` elements of step s's associations.
+    /// Step s's entry and exit actions, as CODESYS and TwinCAT write them: GUID-keyed attributes of the step's
+    /// vendor data (the reader takes them back).
+    fn entry_exit(&self, s: usize) -> String {
+        let attributes: String = self.chart.steps[s]
+            .associations
+            .iter()
+            .filter_map(|a| {
+                let guid = match a.qualifier {
+                    Qualifier::Entry => crate::front::plcopen::CODESYS_ENTRY_ACTION,
+                    Qualifier::Exit => crate::front::plcopen::CODESYS_EXIT_ACTION,
+                    _ => return None,
+                };
+                Some(format!("<attribute guid=\"{guid}\">{}</attribute>", esc(&a.action.name)))
+            })
+            .collect();
+        if attributes.is_empty() {
+            return String::new();
+        }
+        format!(
+            "              <addData><data name=\"{}\" handleUnknown=\"implementation\"><attributes>{attributes}</attributes></data></addData>\n",
+            crate::front::plcopen::CODESYS_SFC_ELEMENT
+        )
+    }
+
+    /// The `<action>` elements of step s's associations (but its entry and exit actions: `entry_exit`).
     fn associations(&self, s: usize) -> String {
         let step = &self.chart.steps[s];
         let mut out = String::new();
-        for a in &step.associations {
+        for a in step.associations.iter().filter(|a| !matches!(a.qualifier, Qualifier::Entry | Qualifier::Exit)) {
             let duration = match &a.duration {
                 Some(Duration::Literal { ms, .. }) => format!(" duration=\"T#{ms}ms\""),
                 Some(Duration::Var(v)) => format!(" duration=\"{}\"", esc(&v.name)),

@@ -48,6 +48,9 @@ pub fn compile(chart: &Chart, library: &[FbDef], types: &[TypeDef], diags: &mut 
         ranges: HashMap::new(),
         struct_depth: 0,
         functions_compiling: 0,
+        current_user: None,
+        calling_actions: Vec::new(),
+        called_actions: HashMap::new(),
         depth_memo: HashMap::new(),
     };
     c.run()
@@ -61,6 +64,8 @@ struct UserInstance<'a> {
     eno: VarId,
     scope: Scope,
     body: Arc<Vec<CStmt>>,
+    /// Its block's actions, compiled in its scope (by upper-case name), as they are first needed.
+    actions: HashMap<String, Arc<Vec<CStmt>>>,
 }
 
 /// The names a body resolves: variables (and visible members, `T.Q`), standard and user instances.
@@ -249,6 +254,11 @@ struct Compiler<'a> {
     struct_depth: usize,
     /// Bodies of functions being compiled around the call being compiled (a call compiles its function's body).
     functions_compiling: usize,
+    /// The user instance whose body (or action) is being compiled.
+    current_user: Option<usize>,
+    /// Actions called as subroutines being compiled around the call being compiled, and those compiled.
+    calling_actions: Vec<String>,
+    called_actions: HashMap<String, Arc<Vec<CStmt>>>,
     /// `exec_depth` of every shared body measured so far, by address.
     depth_memo: HashMap<*const Vec<CStmt>, usize>,
 }
@@ -383,16 +393,20 @@ impl<'a> Compiler<'a> {
         Compiled { program, net_ok }
     }
 
+    /// Whether a variable, instance, structure or array of this name (key) is declared in the current scope.
+    fn declared_name(&self, key: &str) -> bool {
+        self.vars.contains_key(key)
+            || self.instances.contains_key(key)
+            || self.user_of.contains_key(key)
+            || self.structs.contains_key(key)
+            || self.arrays.contains_key(key)
+    }
+
     fn declare_vars(&mut self) -> Vec<VarInfo> {
         let mut vars = Vec::with_capacity(self.chart.vars.len());
         for decl in &self.chart.vars {
             let key = decl.name.key();
-            let taken = self.vars.contains_key(&key)
-                || self.instances.contains_key(&key)
-                || self.user_of.contains_key(&key)
-                || self.structs.contains_key(&key)
-                || self.arrays.contains_key(&key);
-            if taken {
+            if self.declared_name(&key) {
                 self.error(decl.name.span, format!("variable `{}` is declared twice", decl.name.name));
                 continue;
             }
@@ -588,7 +602,7 @@ impl<'a> Compiler<'a> {
             hidden: false,
         });
         self.declaring.pop();
-        self.users.push(UserInstance { def, params, eno, scope, body: Arc::new(Vec::new()) });
+        self.users.push(UserInstance { def, params, eno, scope, body: Arc::new(Vec::new()), actions: HashMap::new() });
         Some(self.users.len() - 1)
     }
 
@@ -781,6 +795,129 @@ impl<'a> Compiler<'a> {
         (CExpr::Var(temp), Ty::of(&ty))
     }
 
+    /// `instance.Action();`: the action of a user block instance, run in the instance's scope (CODESYS, TwinCAT).
+    fn instance_action_call(&mut self, callee: &Ident, instance: &str, action: &str, args: &[Arg]) -> Option<CStmt> {
+        let key = instance.to_ascii_uppercase();
+        if let Some(&u) = self.user_of.get(&key) {
+            let def = self.users[u].def;
+            let Some(a) = def.actions.iter().find(|a| a.name.name.eq_ignore_ascii_case(action)) else {
+                let has: Vec<&str> = def.actions.iter().map(|a| a.name.name.as_str()).collect();
+                let list = if has.is_empty() { "none".to_string() } else { has.join(", ") };
+                let message = format!(
+                    "`{instance}` is a `{}` instance, and `{}` has no action `{action}` (its actions: {list})",
+                    def.name.name, def.name.name
+                );
+                self.error(callee.span, message);
+                return None;
+            };
+            if let Some(arg) = args.first() {
+                self.error(arg.span, format!("action `{}` of `{}` takes no arguments", a.name.name, def.name.name));
+                return None;
+            }
+            let body = self.users[u].actions.get(&a.name.key()).cloned()?;
+            let eno = self.users[u].eno;
+            let call = UserCall { body, en: None, inputs: Vec::new(), inouts: Vec::new(), outputs: Vec::new(), eno };
+            return Some(CStmt::UserFb(Box::new(call)));
+        }
+        let message = match self.instances.get(&key) {
+            Some((fb, _)) => {
+                format!("`{instance}` is a {} instance: a standard block has no action `{action}`", fb.name())
+            }
+            None => format!(
+                "`{}` calls action `{action}` of `{instance}`, and chart `{}` has no function block instance \
+                 `{instance}` (a call of another program's action is not something one chart can make)",
+                callee.name, self.chart.name.name
+            ),
+        };
+        self.error(callee.span, message);
+        None
+    }
+
+    /// `Action();` of the POU's own action (CODESYS), run where it is called, as a subroutine: its body, once,
+    /// whatever its step associations do; RETURN ends it. `None` when the name is no action of this POU.
+    fn own_action_call(&mut self, callee: &Ident, args: &[Arg], vars: &[VarInfo]) -> Option<Option<CStmt>> {
+        let key = callee.key();
+        let (body, eno) = if let Some(u) = self.current_user {
+            // Inside a function block's body: one of the block's actions.
+            self.users[u].def.actions.iter().find(|a| a.name.key() == key)?;
+            (self.fb_action_body(u, callee, vars), self.users[u].eno)
+        } else {
+            let chart = self.chart;
+            let action = chart.actions.iter().find(|a| a.name.key() == key)?;
+            if action.sfc.is_some() {
+                let message = format!(
+                    "action `{}` is written in SFC: it runs under its step's qualifier, and cannot be called",
+                    action.name.name
+                );
+                self.error(callee.span, message);
+                return Some(None);
+            }
+            (self.chart_action_body(callee, &action.body, vars), self.call_eno(callee))
+        };
+        if let Some(arg) = args.first() {
+            self.error(arg.span, format!("action `{}` takes no arguments", callee.name));
+            return Some(None);
+        }
+        let body = body?;
+        let call = UserCall { body, en: None, inputs: Vec::new(), inouts: Vec::new(), outputs: Vec::new(), eno };
+        Some(Some(CStmt::UserFb(Box::new(call))))
+    }
+
+    /// The body of action `name` of user instance `u`, compiled once in the instance's scope (which must be the
+    /// current one); an action that calls itself, directly or through others, is an error.
+    fn fb_action_body(&mut self, u: usize, name: &Ident, vars: &[VarInfo]) -> Option<Arc<Vec<CStmt>>> {
+        let key = name.key();
+        if let Some(body) = self.users[u].actions.get(&key) {
+            return Some(Arc::clone(body));
+        }
+        let def = self.users[u].def;
+        let action = def.actions.iter().find(|a| a.name.key() == key)?;
+        let stack = format!("{}#{key}", def.name.key());
+        let body = self.action_body(&stack, name, &action.body, vars)?;
+        self.users[u].actions.insert(key, Arc::clone(&body));
+        Some(body)
+    }
+
+    /// The body of the chart's action called as a subroutine, compiled once.
+    fn chart_action_body(&mut self, name: &Ident, body: &'a [Stmt], vars: &[VarInfo]) -> Option<Arc<Vec<CStmt>>> {
+        let key = name.key();
+        if let Some(body) = self.called_actions.get(&key) {
+            return Some(Arc::clone(body));
+        }
+        let compiled = self.action_body(&key, name, body, vars)?;
+        self.called_actions.insert(key, Arc::clone(&compiled));
+        Some(compiled)
+    }
+
+    fn action_body(&mut self, key: &str, name: &Ident, body: &[Stmt], vars: &[VarInfo]) -> Option<Arc<Vec<CStmt>>> {
+        if self.calling_actions.iter().any(|k| k == key) {
+            self.error(name.span, format!("action `{}` calls itself, directly or through others", name.name));
+            return None;
+        }
+        if self.calling_actions.len() >= NESTING_DEPTH_MAX {
+            self.error(name.span, format!("calls of actions nested more than {NESTING_DEPTH_MAX} levels deep"));
+            return None;
+        }
+        self.calling_actions.push(key.to_string());
+        let compiled = self.statements(body, vars);
+        self.calling_actions.pop();
+        Some(Arc::new(compiled))
+    }
+
+    /// A hidden variable for the ENO of a call of `callee` that has none of its own (an action).
+    fn call_eno(&mut self, callee: &Ident) -> VarId {
+        let id = VarId((self.declared + self.temps.len()) as u32);
+        self.temps.push(VarInfo {
+            name: format!("{}.ENO#{}", callee.name, self.temps.len() + 1),
+            ty: Type::Bool,
+            init: Value::Bool(false),
+            constant: false,
+            section: VarSection::Temp,
+            hidden: true,
+        });
+        id
+    }
+
     /// A user instance's initial inputs from its declaration, `m : Motor := (speed := 10)`.
     fn user_inits(&mut self, u: usize, decl: &VarDecl, vars: &mut [VarInfo]) {
         for (name, value) in &decl.members {
@@ -833,7 +970,12 @@ impl<'a> Compiler<'a> {
             self.user_of = std::mem::take(&mut self.users[u].scope.users);
             let chart_arrays = std::mem::replace(&mut self.arrays, std::mem::take(&mut self.users[u].scope.arrays));
             let chart_structs = std::mem::replace(&mut self.structs, std::mem::take(&mut self.users[u].scope.structs));
+            self.current_user = Some(u);
             let body = self.statements(&def.body, vars);
+            for a in &def.actions {
+                self.fb_action_body(u, &a.name, vars);
+            }
+            self.current_user = None;
             self.users[u].scope.arrays = std::mem::replace(&mut self.arrays, chart_arrays);
             self.users[u].scope.structs = std::mem::replace(&mut self.structs, chart_structs);
             self.users[u].scope.vars = std::mem::replace(&mut self.vars, saved.0);
@@ -1400,6 +1542,7 @@ impl<'a> Compiler<'a> {
             actions.push(ActionInfo {
                 name: action.name.name.clone(),
                 body: Vec::new(),
+                once: None,
                 bool_var: None,
                 pragmas: action.pragmas.clone(),
             });
@@ -1436,6 +1579,25 @@ impl<'a> Compiler<'a> {
             }
             parts.associations = assocs;
         }
+        // An action associated only as entry actions (or only as exit actions) runs once each time: no final
+        // scan, and before the others of its cycle.
+        let mut kinds: Vec<Option<Option<Once>>> = vec![None; actions.len()];
+        for (assoc, _) in steps.iter().flat_map(|p| &p.associations) {
+            let kind = match assoc.qualifier {
+                Qualifier::Entry => Some(Once::Entry),
+                Qualifier::Exit => Some(Once::Exit),
+                _ => None,
+            };
+            let slot = &mut kinds[assoc.action.index()];
+            *slot = Some(match *slot {
+                None => kind,
+                Some(k) if k == kind => kind,
+                Some(_) => None,
+            });
+        }
+        for (a, kind) in actions.iter_mut().zip(kinds) {
+            a.once = kind.flatten();
+        }
     }
 
     /// The action an association names: a declared action, or a boolean action named after a BOOL variable.
@@ -1450,6 +1612,7 @@ impl<'a> Compiler<'a> {
                 actions.push(ActionInfo {
                     name: vars[v.index()].name.clone(),
                     body: Vec::new(),
+                    once: None,
                     bool_var: Some(v),
                     pragmas: Vec::new(),
                 });
@@ -1604,6 +1767,8 @@ impl<'a> Compiler<'a> {
     fn statement(&mut self, stmt: &Stmt, vars: &[VarInfo]) -> Option<CStmt> {
         Some(match stmt {
             Stmt::Assign { target, value, .. } => {
+                let plain = self.unqualified(target);
+                let target = plain.as_ref().unwrap_or(target);
                 let (mut cvalue, mut vty) = self.expr(value, vars);
                 let indexed = match &target.kind {
                     ExprKind::Index(name, indices) => Some((name, self.element(name, indices, vars))),
@@ -1784,6 +1949,9 @@ impl<'a> Compiler<'a> {
 
     /// The variable an assignment (or an output `=>`) writes: a variable, or an input of an instance.
     fn place(&mut self, target: &Expr, vars: &[VarInfo]) -> Option<VarId> {
+        if let Some(plain) = self.unqualified(target) {
+            return self.place(&plain, vars);
+        }
         let (id, name) = match &target.kind {
             ExprKind::Name(name) => {
                 let Some(&id) = self.vars.get(&name.key()) else {
@@ -1838,6 +2006,9 @@ impl<'a> Compiler<'a> {
                 let Some(&(fb, inst_base)) = self.instances.get(&base.key()) else {
                     if let Some(message) = self.bad_path(base) {
                         self.error(base.span, message);
+                    } else if !self.known_name(base) {
+                        let message = self.foreign_name(base, field);
+                        self.error(target.span, message);
                     } else if !self.chart.broken.var(&base.key()) {
                         let message = format!(
                             "`{}.{}` cannot be assigned: only the inputs of a function block instance can",
@@ -1903,6 +2074,18 @@ impl<'a> Compiler<'a> {
 
     /// A call of a standard function block instance as a statement.
     fn fb_call(&mut self, callee: &Ident, args: &[Arg], span: Span, vars: &[VarInfo]) -> Option<CStmt> {
+        if let Some(plain) = self.unqualified_name(callee) {
+            return self.fb_call(&plain, args, span, vars);
+        }
+        if let Some((instance, action)) = callee.name.rsplit_once('.') {
+            return self.instance_action_call(callee, instance, action, args);
+        }
+        // A variable of the action's name shadows the action (Beremiz lets an action `Blink` call its TON `blink`).
+        if !self.declared_name(&callee.key()) {
+            if let Some(called) = self.own_action_call(callee, args, vars) {
+                return called;
+            }
+        }
         if let Some(&u) = self.user_of.get(&callee.key()) {
             return self.user_call(u, callee, args, vars);
         }
@@ -2423,6 +2606,9 @@ impl<'a> Compiler<'a> {
     }
 
     fn expr(&mut self, e: &Expr, vars: &[VarInfo]) -> (CExpr, Ty) {
+        if let Some(plain) = self.unqualified(e) {
+            return self.expr(&plain, vars);
+        }
         match &e.kind {
             ExprKind::Bool(b) => (CExpr::Const(Value::Bool(*b)), Ty::Bool),
             ExprKind::Int(v) => (CExpr::Const(Value::Int(*v)), Ty::IntLit),
@@ -2722,6 +2908,11 @@ impl<'a> Compiler<'a> {
                     (FALSE, Ty::Err)
                 }
             },
+            _ if !self.known_name(base) && !self.chart.broken.var(&base.key()) => {
+                let message = self.foreign_name(base, field);
+                self.error(base.span.to(field.span), message);
+                (FALSE, Ty::Err)
+            }
             _ => {
                 let message = format!(
                     "unknown field `.{}`: a step has `.X` and `.T`, an action has `.Q`, a function block instance its outputs",
@@ -2731,6 +2922,79 @@ impl<'a> Compiler<'a> {
                 (FALSE, Ty::Err)
             }
         }
+    }
+
+    /// Whether `base` (before its last `.`) is something of this scope: a variable, an instance, a step, an
+    /// action, a structure or an array.
+    fn known_name(&self, base: &Ident) -> bool {
+        let key = base.key();
+        let root = key.split(['.', '[']).next().unwrap_or(&key).to_string();
+        [&key, &root].iter().any(|k| {
+            self.vars.contains_key(*k)
+                || self.instances.contains_key(*k)
+                || self.user_of.contains_key(*k)
+                || self.steps.contains_key(*k)
+                || self.actions.contains_key(*k)
+                || self.structs.contains_key(*k)
+                || self.arrays.contains_key(*k)
+        }) || self.vars.keys().any(|v| v.starts_with(&format!("{root}.")))
+    }
+
+    /// `GVL.x`, `GVL.s.f`, `GVL.a[i]`: an expression naming a variable by one of the project's global variable
+    /// lists, as the same expression without the list's name (the list's variables are the chart's VAR_GLOBAL).
+    /// `None` for any other expression, and where the scope declares a variable of the list's name.
+    fn unqualified(&self, e: &Expr) -> Option<Expr> {
+        if self.chart.global_lists.is_empty() {
+            return None;
+        }
+        let kind = match &e.kind {
+            ExprKind::Field(base, field) if self.in_global_list(&base.name, &field.name) => {
+                ExprKind::Name(field.clone())
+            }
+            ExprKind::Field(base, field) => ExprKind::Field(self.unqualified_name(base)?, field.clone()),
+            ExprKind::Name(name) => ExprKind::Name(self.unqualified_name(name)?),
+            ExprKind::Index(name, indices) => ExprKind::Index(self.unqualified_name(name)?, indices.clone()),
+            ExprKind::IndexField(name, indices, field) => {
+                ExprKind::IndexField(self.unqualified_name(name)?, indices.clone(), field.clone())
+            }
+            _ => return None,
+        };
+        Some(Expr { kind, span: e.span })
+    }
+
+    /// `GVL.x.y` as `x.y` where `x` is a variable of global list `GVL`.
+    fn unqualified_name(&self, name: &Ident) -> Option<Ident> {
+        let (list, rest) = name.name.split_once('.')?;
+        let root = rest.split(['.', '[']).next()?;
+        self.in_global_list(list, root).then(|| Ident { name: rest.to_string(), span: name.span })
+    }
+
+    fn in_global_list(&self, list: &str, var: &str) -> bool {
+        !self.declared_name(&list.to_ascii_uppercase())
+            && self.declared_name(&var.to_ascii_uppercase())
+            && self.chart.global_lists.iter().any(|l| {
+                l.name.name.eq_ignore_ascii_case(list) && l.vars.iter().any(|v| v.name.eq_ignore_ascii_case(var))
+            })
+    }
+
+    /// `GVL.x`, `Main.x`: a name qualified by something this chart does not have — a global variable list, or
+    /// another program — which Baton does not read: said as such.
+    fn foreign_name(&self, base: &Ident, field: &Ident) -> String {
+        if let Some(list) = self.chart.global_lists.iter().find(|l| l.name.key() == base.key()) {
+            let names: Vec<&str> = list.vars.iter().map(|v| v.name.as_str()).collect();
+            return format!(
+                "global variable list `{}` has no variable `{}` (it has {})",
+                list.name.name,
+                field.name,
+                if names.is_empty() { "none".to_string() } else { names.join(", ") }
+            );
+        }
+        format!(
+            "`{}.{}` qualifies `{}` by `{}`, which chart `{}` does not have: Baton reads a global variable list \
+             (`GVL.x`) from the PLCopen project that declares it, and no other program's variables (`Main.x`); \
+             declare `{}` in chart `{}` (as VAR_GLOBAL, VAR or an input)",
+            base.name, field.name, field.name, base.name, self.chart.name.name, field.name, self.chart.name.name
+        )
     }
 
     /// The state of every nested chart (an action written in SFC) as variables: `started`, each step's `X`,
@@ -2987,6 +3251,8 @@ impl<'a> Compiler<'a> {
     fn warn_unused_actions(&mut self) {
         let chart = self.chart;
         let mut used: HashMap<String, ()> = self.controlled.keys().map(|k| (k.clone(), ())).collect();
+        // Called as a subroutine by another action (`Reset();`): it runs there.
+        used.extend(self.called_actions.keys().map(|k| (k.clone(), ())));
         for step in &chart.steps {
             for a in &step.associations {
                 used.insert(a.action.key(), ());

@@ -746,8 +746,8 @@ impl Engine {
                     Qualifier::S => d.set_s = true,
                     Qualifier::L => d.direct |= elapsed < dur,
                     Qualifier::D => d.direct |= elapsed >= dur,
-                    Qualifier::P | Qualifier::P1 => d.direct |= just_activated,
-                    Qualifier::P0 => {}
+                    Qualifier::P | Qualifier::P1 | Qualifier::Entry => d.direct |= just_activated,
+                    Qualifier::P0 | Qualifier::Exit => {}
                     Qualifier::SD => d.set_sd = Some(d.set_sd.map_or(dur, |x| x.min(dur))),
                     Qualifier::DS => d.set_ds |= elapsed >= dur,
                     Qualifier::SL => d.set_sl = Some(d.set_sl.map_or(dur, |x| x.min(dur))),
@@ -762,7 +762,7 @@ impl Engine {
             for assoc in program.associations(s) {
                 self.touched[assoc.action.index()] = stamp;
                 let d = self.demand(assoc.action);
-                if assoc.qualifier == Qualifier::P0 {
+                if matches!(assoc.qualifier, Qualifier::P0 | Qualifier::Exit) {
                     d.direct = true;
                 }
             }
@@ -837,11 +837,19 @@ impl Engine {
             }
         }
         // A body runs while Q is TRUE, and once more with Q = FALSE in the cycle Q falls; in a reaction only
-        // where Q changed.
-        let runs = |before: bool, q: bool| if partial { q != before } else { q || before };
+        // where Q changed. An entry or exit action runs once, with no final scan; exit actions run first, then
+        // entry actions, then the others (CODESYS's order).
+        let once = |a: ActionId| program.actions[a.index()].once;
+        let runs = |a: ActionId, before: bool, q: bool| {
+            let final_scan = before && !q;
+            (if partial { q != before } else { q || before }) && !(final_scan && once(a).is_some())
+        };
+        if changes.iter().any(|&(a, _, _)| once(a).is_some()) {
+            changes.sort_by_key(|&(a, _, _)| (once(a).map_or(2, |o| o as u8), a));
+        }
         // Boolean actions' variables follow Q before any body runs, so that every body sees this cycle's Qs.
         for &(a, before, q) in &changes {
-            if let (Some(var), true) = (program.actions[a.index()].bool_var, runs(before, q)) {
+            if let (Some(var), true) = (program.actions[a.index()].bool_var, runs(a, before, q)) {
                 self.store(var, Value::Bool(q));
             }
             if q && !before && self.scope.skill_actions[a.index()] {
@@ -849,7 +857,7 @@ impl Engine {
             }
         }
         for &(a, before, q) in &changes {
-            if !runs(before, q) {
+            if !runs(a, before, q) {
                 continue;
             }
             let action = &program.actions[a.index()];

@@ -463,7 +463,7 @@ fn scan(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Resul
         for &(s, qualifier, duration) in &a.associations {
             let step = &chart.steps[s];
             if !x(env, step) {
-                direct |= qualifier == Qualifier::P0 && left[s];
+                direct |= matches!(qualifier, Qualifier::P0 | Qualifier::Exit) && left[s];
                 continue;
             }
             let elapsed = now - env.var(step.since).as_i64();
@@ -474,9 +474,9 @@ fn scan(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Resul
                 Qualifier::R => reset = true,
                 Qualifier::L => direct |= elapsed < dur,
                 Qualifier::D => direct |= elapsed >= dur,
-                Qualifier::P | Qualifier::P1 => direct |= entered[s],
+                Qualifier::P | Qualifier::P1 | Qualifier::Entry => direct |= entered[s],
                 // P0 counts where its step was left, above; `compile` refuses the stored timed qualifiers here.
-                Qualifier::P0 | Qualifier::SD | Qualifier::DS | Qualifier::SL => {}
+                Qualifier::P0 | Qualifier::Exit | Qualifier::SD | Qualifier::DS | Qualifier::SL => {}
             }
         }
         let stored = !reset && (set || env.var(a.stored).as_bool());

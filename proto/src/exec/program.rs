@@ -155,10 +155,20 @@ pub struct TransitionInfo {
     pub pragmas: Vec<Pragma>,
 }
 
+/// An action that runs once when its step is left (`Exit`) or entered (`Entry`), in that order within a cycle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Once {
+    Exit = 0,
+    Entry = 1,
+}
+
 #[derive(Clone, Debug)]
 pub struct ActionInfo {
     pub name: String,
     pub body: Vec<CStmt>,
+    /// An action associated only as a step's entry or exit action (CODESYS vendor data): its body runs once,
+    /// with no final scan, before the other actions of its cycle.
+    pub once: Option<Once>,
     /// For a boolean action (no body, named after a BOOL variable): the variable its Q drives.
     pub bool_var: Option<VarId>,
     pub pragmas: Vec<Pragma>,

@@ -47,6 +47,16 @@ pub struct Chart {
     pub span: Span,
     /// Elements left out because of a syntax error in them.
     pub broken: Broken,
+    /// The project's named global variable lists (CODESYS's and TwinCAT's GVLs) whose variables the chart holds
+    /// as VAR_GLOBAL: `GVL.x` names `x` of list `GVL`.
+    pub global_lists: Vec<GlobalList>,
+}
+
+/// A named global variable list: its name, and the names of its variables.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GlobalList {
+    pub name: Ident,
+    pub vars: Vec<Ident>,
 }
 
 impl Chart {
@@ -62,6 +72,7 @@ impl Chart {
             pragmas: Vec::new(),
             span,
             broken: Broken::default(),
+            global_lists: Vec::new(),
         }
     }
 }
@@ -106,8 +117,17 @@ pub struct FbDef {
     pub returns: Option<Ident>,
     pub vars: Vec<VarDecl>,
     pub body: Vec<Stmt>,
+    /// A function block's actions (CODESYS, TwinCAT): bodies an instance runs when called as
+    /// `instance.Action();`, in the instance's scope, with no parameters.
+    pub actions: Vec<FbAction>,
     pub problems: Vec<crate::front::diag::Diagnostic>,
     pub span: Span,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct FbAction {
+    pub name: Ident,
+    pub body: Vec<Stmt>,
 }
 
 /// What a syntax error took out of a chart: the names (keys) of the elements it was in, so that what follows from
@@ -237,6 +257,12 @@ pub enum Qualifier {
     SD,
     DS,
     SL,
+    /// A step's entry action, as CODESYS and TwinCAT attach it in their exports' vendor data (no IEC qualifier
+    /// and no textual form): its body runs once in the cycle the step becomes active, with no final scan.
+    Entry,
+    /// A step's exit action, likewise: its body runs once in the cycle the step is left. In a cycle, exit actions
+    /// run before entry actions, and those before every other action, as CODESYS documents.
+    Exit,
 }
 
 impl Qualifier {

@@ -488,7 +488,8 @@ impl Parser<'_> {
         let problems = std::mem::replace(&mut self.diags, outer);
         self.broken_vars = Broken::default();
         let span = start.to(self.prev_span());
-        self.library.push(FbDef { name, returns: Some(returns), vars, body: body.unwrap_or_default(), problems, span });
+        let body = body.unwrap_or_default();
+        self.library.push(FbDef { name, returns: Some(returns), vars, body, actions: Vec::new(), problems, span });
     }
 
     fn pou(&mut self, kind: PouKind, end: Kw) -> Option<Chart> {
@@ -518,6 +519,14 @@ impl Parser<'_> {
                 if kind == PouKind::FunctionBlock {
                     let outer = std::mem::take(&mut self.diags);
                     let body = self.statements();
+                    // Its actions (CODESYS, TwinCAT): `ACTION name: statements END_ACTION`, after the body.
+                    let mut actions = Vec::new();
+                    while body.is_ok() && self.peek() == Tok::Kw(Kw::Action) {
+                        match self.fb_action() {
+                            Ok(a) => actions.push(a),
+                            Err(Failed) => break,
+                        }
+                    }
                     if body.is_err() || self.peek() != Tok::Kw(end) {
                         if !self.diags.iter().any(|d| d.is_error()) {
                             self.error_here(&format!("a statement or `{}`", end.text()));
@@ -534,6 +543,7 @@ impl Parser<'_> {
                         returns: None,
                         vars: chart.vars,
                         body: body.unwrap_or_default(),
+                        actions,
                         problems,
                         span: start.to(self.prev_span()),
                     });
@@ -566,12 +576,24 @@ impl Parser<'_> {
                 returns: None,
                 vars: chart.vars,
                 body: Vec::new(),
+                actions: Vec::new(),
                 problems: Vec::new(),
                 span,
             });
             return None;
         }
         has_sfc.then_some(chart)
+    }
+
+    /// `ACTION name: statements END_ACTION` of a function block.
+    fn fb_action(&mut self) -> PResult<FbAction> {
+        self.bump();
+        let name = self.ident("an action name")?;
+        self.expect(Tok::Colon, "`:`")?;
+        let body = self.statements()?;
+        self.expect(Tok::Kw(Kw::EndAction), "`END_ACTION`")?;
+        self.eat(Tok::Semi);
+        Ok(FbAction { name, body })
     }
 
     fn var_block(&mut self) -> Vec<VarDecl> {
@@ -930,8 +952,8 @@ impl Parser<'_> {
                 {
                     return Ok(out)
                 }
-                Tok::Ident if self.peek_at(1) == Tok::LParen => {
-                    let callee = self.ident("a function block instance")?;
+                Tok::Ident if self.peek_at(1) == Tok::LParen || self.dotted_call() => {
+                    let callee = self.dotted_callee()?;
                     let (args, close) = self.args()?;
                     let semi = self.expect(Tok::Semi, "`;`")?;
                     let _ = close;
@@ -946,6 +968,7 @@ impl Parser<'_> {
                 }
                 Tok::Kw(
                     Kw::EndAction
+                    | Kw::Action
                     | Kw::EndFunctionBlock
                     | Kw::EndFunction
                     | Kw::Elsif
@@ -965,6 +988,27 @@ impl Parser<'_> {
                 }
             }
         }
+    }
+
+    /// Whether a statement here is a call of a dotted name: `m.Stop();`, `cell.arm.Home();` (an action of a
+    /// function block instance).
+    fn dotted_call(&self) -> bool {
+        let mut k = 1;
+        while self.peek_at(k) == Tok::Dot && self.peek_at(k + 1) == Tok::Ident {
+            k += 2;
+        }
+        k > 1 && self.peek_at(k) == Tok::LParen
+    }
+
+    /// The name a call statement calls, its parts joined by `.`.
+    fn dotted_callee(&mut self) -> PResult<Ident> {
+        let mut callee = self.ident("a function block instance")?;
+        while self.peek() == Tok::Dot {
+            self.bump();
+            let part = self.ident("an action name")?;
+            callee = Ident { name: format!("{}.{}", callee.name, part.name), span: callee.span.to(part.span) };
+        }
+        Ok(callee)
     }
 
     /// An assignment's target: a variable, or a member of an instance (`t1.PT`).

@@ -28,8 +28,13 @@ const NAMESPACES: [&str; 3] = [
 /// The action Beremiz generates for the blocks wired into a POU's conditions (its name, kept for the same reason).
 const COMPUTE_BLOCKS: &str = "COMPUTE_FUNCTION_BLOCKS";
 /// CODESYS V3.5's per-element vendor data, and the attribute in it that names a step's active (N) action.
-const CODESYS_SFC_ELEMENT: &str = "http://www.3s-software.com/plcopenxml/sfc/element";
+pub(crate) const CODESYS_SFC_ELEMENT: &str = "http://www.3s-software.com/plcopenxml/sfc/element";
 const CODESYS_ACTIVE_ACTION: &str = "700a583f-b4d4-43e4-8c14-629c7cd3bec8";
+/// The project-level vendor data in which CODESYS and TwinCAT keep a global variable list (GVL).
+pub(crate) const CODESYS_GLOBAL_VARS: &str = "http://www.3s-software.com/plcopenxml/globalvars";
+/// A step's entry action (run once on activation) and exit action (once on deactivation) in the same vendor data.
+pub(crate) const CODESYS_ENTRY_ACTION: &str = "a6b08bd8-b696-47e3-9cbf-7408b61c9ff8";
+pub(crate) const CODESYS_EXIT_ACTION: &str = "a2621e18-7de3-4ea6-ae6d-89e9e0b7befd";
 
 /// Whether a source text is XML (and so PLCopen) rather than textual SFC: decided by content, not file name.
 pub fn looks_like_xml(src: &str) -> bool {
@@ -86,9 +91,45 @@ pub fn parse(src: &str) -> Parsed {
         }
     }
     // POUs under types/pous, and those that TwinCAT and CODESYS keep in project-level addData.
-    let charts = root.descendants().filter(|n| is(n, "pou")).filter_map(|pou| reader.pou(pou)).collect();
+    let mut charts: Vec<Chart> =
+        root.descendants().filter(|n| is(n, "pou")).filter_map(|pou| reader.pou(pou)).collect();
+    let globals = reader.global_lists(root);
+    for chart in &mut charts {
+        share_globals(&mut chart.vars, &globals, true);
+        chart.global_lists = globals
+            .iter()
+            .filter_map(|(name, vars)| {
+                let vars = vars.iter().map(|v| v.name.clone()).collect();
+                Some(GlobalList { name: name.clone()?, vars })
+            })
+            .collect();
+    }
+    for def in &mut reader.library {
+        share_globals(&mut def.vars, &globals, false);
+    }
     let types = reader.data_types(root);
     Parsed { charts, types, library: reader.library, diagnostics: reader.diags }
+}
+
+/// A project's global variables in a POU: an external variable declared without an initial value takes the
+/// global's (Beremiz declares `VAR_EXTERNAL ResetCounterValue : INT;` and gives it 17 in the configuration), and,
+/// where `add`, a global the POU does not declare is added as VAR_GLOBAL (CODESYS and TwinCAT POUs use GVL
+/// variables without declaring them).
+fn share_globals(vars: &mut Vec<VarDecl>, globals: &[(Option<Ident>, Vec<VarDecl>)], add: bool) {
+    for global in globals.iter().flat_map(|(_, list)| list) {
+        match vars.iter_mut().find(|v| v.name.key() == global.name.key()) {
+            Some(v) if v.section == VarSection::External && v.init.is_none() && v.members.is_empty() => {
+                v.init.clone_from(&global.init);
+                v.members.clone_from(&global.members);
+                if v.array.is_none() {
+                    v.array.clone_from(&global.array);
+                }
+            }
+            Some(_) => {}
+            None if add => vars.push(global.clone()),
+            None => {}
+        }
+    }
 }
 
 /// roxmltree ends its messages with ` at LINE:COL`, which the diagnostic header already says.
@@ -460,10 +501,50 @@ impl Reader<'_> {
                 None
             }
         };
+        // Its actions (CODESYS, TwinCAT), in ST, which an instance runs when called as `instance.Action();`.
+        let mut actions = Vec::new();
+        for a in child(pou, "actions").into_iter().flat_map(|x| children(x, "action")) {
+            let Some(action) = self.ident_attr(a, "name") else { continue };
+            match child(a, "body").and_then(|b| b.first_element_child()) {
+                Some(st) if is(&st, "ST") => {
+                    if let Some(Fragment::Statements(body)) = self.fragment(st, FragmentKind::Statements).0 {
+                        actions.push(crate::front::model::FbAction { name: action, body });
+                    }
+                }
+                Some(other) => {
+                    let message = format!(
+                        "action `{}` of function block `{}` has a `<{}>` body: Baton runs function blocks' actions \
+                         written in ST",
+                        action.name,
+                        name.name,
+                        other.tag_name().name()
+                    );
+                    self.error(self.tag_span(other), message);
+                }
+                None => actions.push(crate::front::model::FbAction { name: action, body: Vec::new() }),
+            }
+        }
         let problems = std::mem::replace(&mut self.diags, outer);
         let range = pou.range();
         let span = Span::new(range.start, range.end);
-        self.library.push(FbDef { name, returns, vars, body: body.unwrap_or_default(), problems, span });
+        let body = body.unwrap_or_default();
+        self.library.push(FbDef { name, returns, vars, body, actions, problems, span });
+    }
+
+    /// The project's global variable lists, outside any POU: a configuration's or a resource's `globalVars`
+    /// (IEC, Beremiz), and the GVLs CODESYS and TwinCAT keep in project-level vendor data
+    /// (`…/plcopenxml/globalvars`), which are named.
+    fn global_lists(&mut self, root: Node) -> Vec<(Option<Ident>, Vec<VarDecl>)> {
+        let mut lists = Vec::new();
+        for g in root.descendants().filter(|n| is(n, "globalVars")) {
+            if g.parent_element().is_some_and(|p| is(&p, "interface")) {
+                continue;
+            }
+            let name = if g.has_attribute("name") { self.ident_attr(g, "name") } else { None };
+            let vars = self.var_list(g, VarSection::Global, flag(g, "constant"));
+            lists.push((name, vars));
+        }
+        lists
     }
 
     fn interface(&mut self, pou: Node) -> Vec<VarDecl> {
@@ -806,7 +887,7 @@ impl Reader<'_> {
                         pragmas: self.documentation_pragmas(el),
                         span: self.tag_span(el),
                     };
-                    self.codesys_active_action(el, &mut step);
+                    self.codesys_step_actions(el, &mut step);
                     chart.steps.push(step);
                 }
                 "transition" => {
@@ -889,8 +970,9 @@ impl Reader<'_> {
         Some((inner.steps[entry].name.clone(), inner.steps[exit].name.clone()))
     }
 
-    /// CODESYS V3.5 may attach a step's action only in its vendor data, as the step's "active" action (N).
-    fn codesys_active_action(&mut self, step_node: Node, step: &mut Step) {
+    /// A step's actions as CODESYS and TwinCAT attach them in vendor data: the active action (N), the entry action
+    /// and the exit action.
+    fn codesys_step_actions(&mut self, step_node: Node, step: &mut Step) {
         let attributes = child(step_node, "addData")
             .into_iter()
             .flat_map(|a| children(a, "data"))
@@ -898,9 +980,12 @@ impl Reader<'_> {
             .flat_map(|d| children(d, "attributes"))
             .flat_map(|a| children(a, "attribute"));
         for a in attributes {
-            if a.attribute("guid") != Some(CODESYS_ACTIVE_ACTION) {
-                continue;
-            }
+            let qualifier = match a.attribute("guid") {
+                Some(CODESYS_ACTIVE_ACTION) => Qualifier::N,
+                Some(CODESYS_ENTRY_ACTION) => Qualifier::Entry,
+                Some(CODESYS_EXIT_ACTION) => Qualifier::Exit,
+                _ => continue,
+            };
             let Some(text_node) = a.first_child().filter(Node::is_text) else { continue };
             let raw = &self.src[text_node.range()];
             let name = raw.trim();
@@ -910,10 +995,10 @@ impl Reader<'_> {
             let start = text_node.range().start + (raw.len() - raw.trim_start().len());
             let span = Span::new(start, start + name.len());
             let action = Ident { name: text_node.text().unwrap_or(name).trim().to_string(), span };
-            if !step.associations.iter().any(|x| x.action.key() == action.key()) {
+            if !step.associations.iter().any(|x| x.action.key() == action.key() && x.qualifier == qualifier) {
                 step.associations.push(Association {
                     action,
-                    qualifier: Qualifier::N,
+                    qualifier,
                     qualifier_span: span,
                     duration: None,
                     indicators: Vec::new(),
