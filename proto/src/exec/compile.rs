@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use crate::exec::eval::{eval, is_constant, NoEnv};
 use crate::exec::program::*;
-use crate::exec::stdlib::{Func, MemberKind, StdFb, TextFn};
+use crate::exec::stdlib::{DateFn, DatePart, Func, MemberKind, StdFb, TextFn};
 use crate::exec::types::{IntKind, Type, Value};
 use crate::front::diag::{Diagnostic, Span};
 use crate::front::model::*;
@@ -197,6 +197,72 @@ fn binary_type(op: BinOp, a: Ty, b: Ty) -> Option<Ty> {
         Div if a == Ty::Time && b.is_num() => Some(Ty::Time),
         Mod => (a.is_int() && b.is_int()).then(|| join(a, b)),
         Add | Sub | Mul | Div => (a.is_num() && b.is_num()).then(|| join(a, b)),
+    }
+}
+
+/// The standard's functions of durations, times of day and dates that are operators on them (IEC 61131-3
+/// table 30): the operator and the types of its two operands (`None`: any number). The LTIME forms are the same
+/// functions: Baton holds every duration in milliseconds.
+fn time_function(upper: &str) -> Option<(BinOp, [Option<Ty>; 2])> {
+    let plain: Vec<&str> = upper
+        .split('_')
+        .map(|w| match w {
+            "LTIME" => "TIME",
+            "LTOD" => "TOD",
+            "LDT" => "DT",
+            "LDATE" => "DATE",
+            w => w,
+        })
+        .collect();
+    let (t, tod, dt, date) = (Some(Ty::Time), Some(Ty::Tod), Some(Ty::Dt), Some(Ty::Date));
+    Some(match plain.join("_").as_str() {
+        "ADD_TIME" => (BinOp::Add, [t, t]),
+        "ADD_TOD_TIME" => (BinOp::Add, [tod, t]),
+        "ADD_DT_TIME" => (BinOp::Add, [dt, t]),
+        "SUB_TIME" => (BinOp::Sub, [t, t]),
+        "SUB_DATE_DATE" => (BinOp::Sub, [date, date]),
+        "SUB_TOD_TIME" => (BinOp::Sub, [tod, t]),
+        "SUB_TOD_TOD" => (BinOp::Sub, [tod, tod]),
+        "SUB_DT_TIME" => (BinOp::Sub, [dt, t]),
+        "SUB_DT_DT" => (BinOp::Sub, [dt, dt]),
+        "MUL_TIME" => (BinOp::Mul, [t, None]),
+        "DIV_TIME" => (BinOp::Div, [t, None]),
+        _ => return None,
+    })
+}
+
+/// The result type of a BCD conversion: the integer `BCD_TO_<int>` names, the bit string `<int>_TO_BCD_<bits>`
+/// names, or for `<int>_TO_BCD` the bit string as wide as the integer (INT_TO_BCD gives a WORD).
+fn bcd_result(upper: &str) -> Ty {
+    let named = |name: &str| match Type::from_name(name) {
+        Some(t @ Type::Int(_)) => Some(Ty::of(&t)),
+        _ => None,
+    };
+    if let Some((_, to)) = upper.split_once("BCD_TO_") {
+        return named(to).unwrap_or(Ty::Int(IntKind::Dint));
+    }
+    let (from, to) = upper.split_once("_TO_BCD").unwrap_or((upper, ""));
+    if let Some(t) = to.strip_prefix('_').and_then(named) {
+        return t;
+    }
+    let bits = match Type::from_name(from) {
+        Some(Type::Int(k)) => k.bits(),
+        _ => 32,
+    };
+    Ty::Int(match bits {
+        8 => IntKind::Byte,
+        16 => IntKind::Word,
+        32 => IntKind::Dword,
+        _ => IntKind::Lword,
+    })
+}
+
+/// IEC 61131-3 writes BOOL literals as 0 and 1 too (a transition `:= 1;`, `ORANGE_LIGHT := 1;` in Beremiz's
+/// examples): an untyped integer 0 or 1 where a BOOL is wanted is that BOOL; anything else is left as it is.
+fn bool_literal((c, ty): (CExpr, Ty)) -> (CExpr, Ty) {
+    match (&c, ty) {
+        (CExpr::Const(Value::Int(v @ (0 | 1))), Ty::IntLit) => (CExpr::Const(Value::Bool(*v == 1)), Ty::Bool),
+        _ => (c, ty),
     }
 }
 
@@ -767,8 +833,9 @@ impl<'a> Compiler<'a> {
         let Some(values) = self.positional(callee, args, &params, false) else { return (FALSE, Ty::Err) };
         let mut assigned = Vec::with_capacity(values.len() + resets.len());
         for ((name, id), value) in inputs.iter().zip(&values) {
-            let (c, ty) = self.expr(value, vars);
             let target = Ty::of(&vars[id.index()].ty);
+            let (c, ty) = self.expr(value, vars);
+            let (c, ty) = if target == Ty::Bool { bool_literal((c, ty)) } else { (c, ty) };
             if !assignable(target, ty) {
                 let message =
                     format!("input `{name}` of `{}` is {}, found {}", callee.name, vars[id.index()].ty, ty.name());
@@ -793,6 +860,96 @@ impl<'a> Compiler<'a> {
         let call = UserCall { body, en: None, inputs: assigned, inouts: Vec::new(), outputs, eno };
         self.hoisted.push(CStmt::UserFb(Box::new(call)));
         (CExpr::Var(temp), Ty::of(&ty))
+    }
+
+    /// `SPLIT_DATE(IN := d, YEAR => y, MONTH => m, DAY => dd);` (and SPLIT_TOD, SPLIT_DT): a function whose
+    /// results are output parameters, written formally or in order (`SPLIT_DATE(d, y, m, dd)`); outputs left out
+    /// are not written.
+    fn split_call(
+        &mut self,
+        callee: &Ident,
+        args: &[Arg],
+        parts: &[(&str, DatePart)],
+        vars: &[VarInfo],
+    ) -> Option<CStmt> {
+        let name = callee.key();
+        let input = if name.ends_with("TOD") {
+            Ty::Tod
+        } else if name.ends_with("DATE") {
+            Ty::Date
+        } else {
+            Ty::Dt
+        };
+        let formal = args.iter().any(|a| a.name.is_some());
+        let mut value = None;
+        let mut targets: Vec<(DatePart, &Expr)> = Vec::new();
+        for (i, arg) in args.iter().enumerate() {
+            let slot = match &arg.name {
+                Some(n) if n.key() == "IN" && !arg.output => None,
+                Some(n) => match parts.iter().find(|(p, _)| *p == n.key()) {
+                    Some(&(_, part)) if arg.output => Some(part),
+                    Some(_) => {
+                        self.error(
+                            arg.span,
+                            format!("`{}` is an output of {name}: write it `{} => variable`", n.name, n.name),
+                        );
+                        return None;
+                    }
+                    None => {
+                        let outputs: Vec<&str> = parts.iter().map(|(p, _)| *p).collect();
+                        let message =
+                            format!("{name} has no parameter `{}`: it has IN and {}", n.name, outputs.join(", "));
+                        self.error(n.span, message);
+                        return None;
+                    }
+                },
+                None if formal => {
+                    self.error(
+                        arg.span,
+                        "a call mixes formal (`IN := x`) and non-formal arguments: name every argument",
+                    );
+                    return None;
+                }
+                None if i == 0 => None,
+                None => match parts.get(i - 1) {
+                    Some(&(_, part)) => Some(part),
+                    None => {
+                        self.error(arg.span, format!("{name} takes IN and {} outputs", parts.len()));
+                        return None;
+                    }
+                },
+            };
+            match slot {
+                None => value = Some(&arg.value),
+                Some(part) => targets.push((part, &arg.value)),
+            }
+        }
+        let Some(value) = value else {
+            self.error(callee.span, format!("{name} needs its input `IN`"));
+            return None;
+        };
+        let (c, ty) = self.expr(value, vars);
+        if ty != input && ty != Ty::Err {
+            self.error(value.span, format!("IN of {name} must be {}, found {}", input.name(), ty.name()));
+            return None;
+        }
+        let mut assigns = Vec::with_capacity(targets.len());
+        for (part, target) in targets {
+            let id = self.place(target, vars)?;
+            if !Ty::of(&vars[id.index()].ty).is_int() {
+                let message = format!(
+                    "an output of {name} is an integer, and `{}` is {}",
+                    vars[id.index()].name,
+                    vars[id.index()].ty
+                );
+                self.error(target.span, message);
+                return None;
+            }
+            let part = CExpr::call(Func::Date(DateFn::Part(part)), vec![c.clone()], vars[id.index()].ty.clone());
+            assigns.push(CStmt::Assign { var: id, value: part });
+        }
+        // The outputs as one statement.
+        Some(CStmt::If { branches: vec![(CExpr::Const(Value::Bool(true)), assigns)], otherwise: Vec::new() })
     }
 
     /// `instance.Action();`: the action of a user block instance, run in the instance's scope (CODESYS, TwinCAT).
@@ -1709,7 +1866,7 @@ impl<'a> Compiler<'a> {
             let sources = self.step_list(&t.from);
             let targets = self.step_list(&t.to);
             let outer = std::mem::take(&mut self.hoisted);
-            let (condition, ty) = self.expr(&t.condition, vars);
+            let (condition, ty) = bool_literal(self.expr(&t.condition, vars));
             let hoisted = std::mem::replace(&mut self.hoisted, outer);
             if ty != Ty::Bool && ty != Ty::Err {
                 self.error(t.condition.span, format!("a transition condition must be BOOL, found {}", ty.name()));
@@ -1923,7 +2080,7 @@ impl<'a> Compiler<'a> {
     }
 
     fn condition(&mut self, e: &Expr, vars: &[VarInfo], what: &str) -> CExpr {
-        let (c, ty) = self.expr(e, vars);
+        let (c, ty) = bool_literal(self.expr(e, vars));
         if ty != Ty::Bool && ty != Ty::Err {
             self.error(e.span, format!("{what} must be BOOL, found {}", ty.name()));
         }
@@ -2079,6 +2236,9 @@ impl<'a> Compiler<'a> {
         }
         if let Some((instance, action)) = callee.name.rsplit_once('.') {
             return self.instance_action_call(callee, instance, action, args);
+        }
+        if let Some(parts) = DatePart::of_split(&callee.key()) {
+            return self.split_call(callee, args, parts, vars);
         }
         // A variable of the action's name shadows the action (Beremiz lets an action `Blink` call its TON `blink`).
         if !self.declared_name(&callee.key()) {
@@ -2373,8 +2533,11 @@ impl<'a> Compiler<'a> {
             self.error(callee.span, message);
             return (FALSE, Ty::Err);
         }
-        // ADD, SUB, …, GT, EQ, …: the operators, folded over the arguments.
+        // ADD, SUB, …, GT, EQ, …, AND, OR, XOR: the operators, folded over the arguments.
         let op = match key.as_str() {
+            "AND" => Some((BinOp::And, true)),
+            "OR" => Some((BinOp::Or, true)),
+            "XOR" => Some((BinOp::Xor, true)),
             "ADD" => Some((BinOp::Add, true)),
             "MUL" => Some((BinOp::Mul, true)),
             "SUB" => Some((BinOp::Sub, false)),
@@ -2402,12 +2565,20 @@ impl<'a> Compiler<'a> {
                         span: e.span,
                     })
                     .collect();
-                let mut it = pairs.into_iter();
-                let first = it.next().expect("two arguments at least");
-                it.fold(first, |acc, p| Expr {
-                    kind: ExprKind::Binary(BinOp::And, Box::new(acc), Box::new(p)),
-                    span: e.span,
-                })
+                Expr::balanced(BinOp::And, pairs)
+            } else if op.associative() {
+                Expr::balanced(op, values)
+            } else if values.len() > NESTING_DEPTH_MAX {
+                // ADD(a, b, c) is (a + b) + c, in that order (REAL sums and the widths of mixed integers depend
+                // on it): its arguments nest as deep as they are many.
+                let message = format!(
+                    "{key} with {} arguments nests them {} levels deep, more than {NESTING_DEPTH_MAX}: add them in \
+                     parts, each with a name of its own",
+                    values.len(),
+                    values.len() - 1
+                );
+                self.error(callee.span, message);
+                return (FALSE, Ty::Err);
             } else {
                 let mut it = values.into_iter();
                 let first = it.next().expect("two arguments at least");
@@ -2415,6 +2586,27 @@ impl<'a> Compiler<'a> {
             };
             folded.span = e.span;
             return self.expr(&folded, vars);
+        }
+        // ADD_TIME, SUB_DT_DT, MUL_TIME and their kin: the operators on the types their names give.
+        if let Some((op, wanted)) = time_function(&key) {
+            let Some(values) = self.positional(callee, args, &["IN1", "IN2"], false) else {
+                return (FALSE, Ty::Err);
+            };
+            let operands = [self.expr(&values[0], vars), self.expr(&values[1], vars)];
+            for (i, ((_, t), want)) in operands.iter().zip(wanted).enumerate() {
+                let fits = match want {
+                    Some(w) => *t == w,
+                    None => t.is_num(),
+                };
+                if !fits && *t != Ty::Err {
+                    let name = want.map_or_else(|| "a number".to_string(), |w| w.name());
+                    let message = format!("argument {} of {key} must be {name}, found {}", i + 1, t.name());
+                    self.error(values[i].span, message);
+                    return (FALSE, Ty::Err);
+                }
+            }
+            let [a, b] = operands;
+            return self.binary_node(op, a, b, e.span);
         }
         let Some((func, params)) = Func::from_name(&key) else {
             let message = if StdFb::from_name(&key).is_some() {
@@ -2430,8 +2622,10 @@ impl<'a> Compiler<'a> {
         };
         let mut cargs = Vec::with_capacity(values.len());
         let mut tys = Vec::with_capacity(values.len());
-        for v in &values {
+        for (i, v) in values.iter().enumerate() {
             let (c, t) = self.expr(v, vars);
+            // SEL's selector is a BOOL, which may be written 0 or 1.
+            let (c, t) = if i == 0 && func == Func::Sel { bool_literal((c, t)) } else { (c, t) };
             if t == Ty::Err {
                 return (FALSE, Ty::Err);
             }
@@ -2468,8 +2662,39 @@ impl<'a> Compiler<'a> {
             Func::Abs => return bad(self, 0, "a number"),
             Func::Real(_) if tys[0].is_num() => real_of(tys[0]),
             Func::Real(_) => return bad(self, 0, "a number"),
-            Func::Trunc if tys[0].is_num() => Ty::Int(IntKind::Dint),
-            Func::Trunc => return bad(self, 0, "a REAL"),
+            Func::Trunc(k) if tys[0].is_num() => Ty::Int(*k),
+            Func::Trunc(_) => return bad(self, 0, "a REAL"),
+            Func::Atan2 if !tys[0].is_num() => return bad(self, 0, "a number"),
+            Func::Atan2 if !tys[1].is_num() => return bad(self, 1, "a number"),
+            Func::Atan2 => real_of(join(tys[0], tys[1])),
+            Func::BcdToInt | Func::IntToBcd | Func::IsValidBcd | Func::SwapBytes if !tys[0].is_int() => {
+                return bad(self, 0, "an integer or a bit string")
+            }
+            Func::BcdToInt | Func::IntToBcd => bcd_result(&key),
+            Func::IsValidBcd => Ty::Bool,
+            Func::IsValid if !tys[0].is_num() => return bad(self, 0, "a REAL"),
+            Func::IsValid => Ty::Bool,
+            Func::SwapBytes => match tys[0] {
+                Ty::IntLit => Ty::Int(IntKind::Dword),
+                t => t,
+            },
+            Func::Date(f) => {
+                let (wanted, result): (&[Ty], Ty) = match f {
+                    DateFn::ConcatDateTod => (&[Ty::Date, Ty::Tod], Ty::Dt),
+                    DateFn::DayOfWeek => (&[Ty::Date], Ty::Int(IntKind::Usint)),
+                    DateFn::ConcatDate => (&[], Ty::Date),
+                    DateFn::ConcatTod => (&[], Ty::Tod),
+                    DateFn::ConcatDt | DateFn::Part(_) => (&[], Ty::Dt),
+                };
+                for (i, t) in tys.iter().enumerate() {
+                    match wanted.get(i) {
+                        Some(w) if t != w => return bad(self, i, w.name().as_str()),
+                        None if !t.is_int() => return bad(self, i, "an integer"),
+                        _ => {}
+                    }
+                }
+                result
+            }
             Func::Expt if !tys[0].is_num() => return bad(self, 0, "a number"),
             Func::Expt if !tys[1].is_num() => return bad(self, 1, "a number"),
             Func::Expt => join(tys[0], tys[1]),
@@ -2695,7 +2920,14 @@ impl<'a> Compiler<'a> {
     }
 
     /// `a op b`, typed; an error (at `span`) when the operator does not apply to their types.
-    fn binary_node(&mut self, op: BinOp, (ca, ta): (CExpr, Ty), (cb, tb): (CExpr, Ty), span: Span) -> (CExpr, Ty) {
+    fn binary_node(&mut self, op: BinOp, a: (CExpr, Ty), b: (CExpr, Ty), span: Span) -> (CExpr, Ty) {
+        // A BOOL beside a literal 0 or 1 (`x = 1`, `a AND 0`): the literal is a BOOL.
+        let (a, b) = match (a.1, b.1) {
+            (Ty::Bool, Ty::IntLit) => (a, bool_literal(b)),
+            (Ty::IntLit, Ty::Bool) => (bool_literal(a), b),
+            _ => (a, b),
+        };
+        let ((ca, ta), (cb, tb)) = (a, b);
         if ta == Ty::Err || tb == Ty::Err {
             return (FALSE, Ty::Err);
         }
@@ -3182,7 +3414,7 @@ impl<'a> Compiler<'a> {
         for (i, t) in sfc.transitions.iter().enumerate() {
             let (sources, targets) = (list(self, &t.from), list(self, &t.to));
             let outer = std::mem::take(&mut self.hoisted);
-            let (condition, ty) = self.expr(&t.condition, vars);
+            let (condition, ty) = bool_literal(self.expr(&t.condition, vars));
             let hoisted = std::mem::replace(&mut self.hoisted, outer);
             if ty != Ty::Bool && ty != Ty::Err {
                 self.error(t.condition.span, format!("a transition condition must be BOOL, found {}", ty.name()));

@@ -39,6 +39,8 @@ pub enum Fault {
     MuxSelector,
     /// An array index outside the array's bounds.
     IndexOutOfRange,
+    /// CONCAT_DATE, CONCAT_TOD or CONCAT_DT of a date or time that is not on the calendar.
+    NoSuchDate,
 }
 
 /// The element an index expression names.
@@ -103,7 +105,25 @@ fn call(func: &Func, args: &[CExpr], ty: &Type, env: &impl Env) -> Result<Value,
             v => int(v.as_i64().wrapping_abs(), wrap),
         },
         Func::Real(f) => Value::Real(f.apply(arg(0)?.as_f64())),
-        Func::Trunc => Value::Int(arg(0)?.as_f64().trunc() as i64),
+        Func::Atan2 => Value::Real(arg(0)?.as_f64().atan2(arg(1)?.as_f64())),
+        // The REAL's integer part, saturated to i64; `coerce` wraps it to the result's type.
+        Func::Trunc(_) => Value::Int(arg(0)?.as_f64().trunc() as i64),
+        Func::BcdToInt => int(stdlib::bcd_to_int(arg(0)?.as_i64()).unwrap_or(0), wrap),
+        Func::IntToBcd => int(stdlib::int_to_bcd(arg(0)?.as_i64()), wrap),
+        Func::IsValid => Value::Bool(arg(0)?.as_f64().is_finite()),
+        Func::IsValidBcd => Value::Bool(stdlib::bcd_to_int(arg(0)?.as_i64()).is_some()),
+        Func::SwapBytes => {
+            let kind = wrap.unwrap_or(IntKind::Lword);
+            let swapped = (arg(0)?.as_i64() as u64).swap_bytes() >> (64 - kind.bits());
+            int(swapped as i64, wrap)
+        }
+        Func::Date(f) => {
+            let mut values = Vec::with_capacity(args.len());
+            for a in args {
+                values.push(eval(a, env)?);
+            }
+            stdlib::date(*f, &values)?
+        }
         Func::Expt => arith(ArithOp::Pow, wrap, &arg(0)?, &arg(1)?)?,
         Func::Move => arg(0)?,
         Func::Sel => {

@@ -245,6 +245,7 @@ pub fn fault_message(program: &Program, source: FaultSource, fault: Fault) -> St
         Fault::DivisionByZero => "division by zero",
         Fault::MuxSelector => "a MUX selector past its inputs",
         Fault::IndexOutOfRange => "an array index outside its bounds",
+        Fault::NoSuchDate => "a date or time of day that is not on the calendar (CONCAT_DATE, CONCAT_TOD, CONCAT_DT)",
         Fault::LoopLimit => {
             let FaultSource::Action(a) = source else { return "a loop past its limit".to_string() };
             return format!(

@@ -67,9 +67,10 @@ impl StdFb {
             })
         };
         Some(match upper {
-            "TON" => StdFb::Ton,
-            "TOF" => StdFb::Tof,
-            "TP" => StdFb::Tp,
+            // IEC 61131-3 ed. 3 names the timers by their duration type too; LTIME is held in ms like TIME.
+            "TON" | "TON_TIME" | "TON_LTIME" => StdFb::Ton,
+            "TOF" | "TOF_TIME" | "TOF_LTIME" => StdFb::Tof,
+            "TP" | "TP_TIME" | "TP_LTIME" => StdFb::Tp,
             "R_TRIG" => StdFb::RTrig,
             "F_TRIG" => StdFb::FTrig,
             "SR" => StdFb::Sr,
@@ -392,7 +393,23 @@ pub enum Func {
     Abs,
     /// SQRT, LN, LOG, EXP and the trigonometric functions: a REAL of a REAL.
     Real(RealFn),
-    Trunc,
+    /// ATAN2(Y, X): the angle of the point (X, Y), in radians.
+    Atan2,
+    /// TRUNC, `TRUNC_<int>`, `<real>_TRUNC_<int>`: toward zero, to DINT or the named integer type.
+    Trunc(IntKind),
+    /// `BCD_TO_<int>`, `<bits>_BCD_TO_<int>`: the number a bit string writes in decimal, a digit a nibble; 0 where
+    /// a nibble is past 9 (matiec; CODESYS answers -1).
+    BcdToInt,
+    /// `<int>_TO_BCD`, `<int>_TO_BCD_<bits>`: a number's decimal digits, a nibble each, cut to the result's width.
+    IntToBcd,
+    /// IS_VALID (a REAL neither NaN nor infinite) and IS_VALID_BCD (no nibble past 9).
+    IsValid,
+    IsValidBcd,
+    /// TO_BIG_ENDIAN, FROM_BIG_ENDIAN (bytes swapped, as on the little-endian machines Baton runs on) and
+    /// TO_LITTLE_ENDIAN, FROM_LITTLE_ENDIAN (unchanged), on integers and bit strings.
+    SwapBytes,
+    /// The date and time functions that are not operators: CONCAT_*, DAY_OF_WEEK, and the parts SPLIT_* writes.
+    Date(DateFn),
     Expt,
     Sel,
     Max,
@@ -434,7 +451,21 @@ impl Func {
             "ASIN" => (Func::Real(RealFn::Asin), IN),
             "ACOS" => (Func::Real(RealFn::Acos), IN),
             "ATAN" => (Func::Real(RealFn::Atan), IN),
-            "TRUNC" => (Func::Trunc, IN),
+            "ATAN2" => (Func::Atan2, &["Y", "X"]),
+            "TRUNC" => (Func::Trunc(IntKind::Dint), IN),
+            "IS_VALID" => (Func::IsValid, IN),
+            "IS_VALID_BCD" => (Func::IsValidBcd, IN),
+            "TO_BIG_ENDIAN" | "FROM_BIG_ENDIAN" => (Func::SwapBytes, IN),
+            "TO_LITTLE_ENDIAN" | "FROM_LITTLE_ENDIAN" => (Func::Move, IN),
+            "CONCAT_DATE_TOD" | "CONCAT_DATE_LTOD" => (Func::Date(DateFn::ConcatDateTod), &["DATE", "TOD"]),
+            "CONCAT_DATE" => (Func::Date(DateFn::ConcatDate), &["YEAR", "MONTH", "DAY"]),
+            "CONCAT_TOD" | "CONCAT_LTOD" => {
+                (Func::Date(DateFn::ConcatTod), &["HOUR", "MINUTE", "SECOND", "MILLISECOND"])
+            }
+            "CONCAT_DT" | "CONCAT_LDT" => {
+                (Func::Date(DateFn::ConcatDt), &["YEAR", "MONTH", "DAY", "HOUR", "MINUTE", "SECOND", "MILLISECOND"])
+            }
+            "DAY_OF_WEEK" => (Func::Date(DateFn::DayOfWeek), IN),
             "MOVE" => (Func::Move, IN),
             "EXPT" => (Func::Expt, &["IN1", "IN2"]),
             "SEL" => (Func::Sel, &["G", "IN0", "IN1"]),
@@ -455,6 +486,16 @@ impl Func {
             "DELETE" => (Func::Text(TextFn::Delete), &["IN", "L", "P"]),
             "REPLACE" => (Func::Text(TextFn::Replace), &["IN1", "IN2", "L", "P"]),
             "FIND" => (Func::Text(TextFn::Find), &["IN1", "IN2"]),
+            _ if upper.contains("BCD") => return Func::bcd(upper),
+            _ if upper.contains("TRUNC_") => {
+                // TRUNC_INT (CODESYS), REAL_TRUNC_INT (IEC 61131-3 ed. 3).
+                let (from, to) = upper.split_once("TRUNC_")?;
+                let from_real = matches!(from, "" | "REAL_" | "LREAL_");
+                match Type::from_name(to) {
+                    Some(Type::Int(k)) if from_real => (Func::Trunc(k), IN),
+                    _ => return None,
+                }
+            }
             _ => {
                 let to = match upper.split_once("_TO_") {
                     Some((from, to)) if Type::from_name(from).is_some() => to,
@@ -465,10 +506,157 @@ impl Func {
         })
     }
 
+    /// The BCD conversions by name: `BCD_TO_INT`, `WORD_BCD_TO_UINT`, `INT_TO_BCD`, `UINT_TO_BCD_WORD` and their
+    /// kin for every integer and bit string type (the result's type is the name's, or for `<int>_TO_BCD` the bit
+    /// string as wide as the integer: `compile::bcd_result`).
+    fn bcd(upper: &str) -> Option<(Func, &'static [&'static str])> {
+        const IN: &[&str] = &["IN"];
+        let int = |name: &str| matches!(Type::from_name(name), Some(Type::Int(_)));
+        if let Some((from, to)) = upper.split_once("BCD_TO_") {
+            let from_ok = from.is_empty() || from.strip_suffix('_').is_some_and(int);
+            return (from_ok && int(to)).then_some((Func::BcdToInt, IN));
+        }
+        let (from, to) = upper.split_once("_TO_BCD")?;
+        let to_ok = to.is_empty() || to.strip_prefix('_').is_some_and(int);
+        (int(from) && to_ok).then_some((Func::IntToBcd, IN))
+    }
+
     /// Whether it takes any number of arguments past its declared ones.
     pub fn extensible(&self) -> bool {
         matches!(self, Func::Max | Func::Min | Func::Mux | Func::Text(TextFn::Concat))
     }
+}
+
+/// The date and time functions that are not operators (ADD_TOD_TIME and its kin compile to `+` and `-`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DateFn {
+    /// CONCAT_DATE_TOD(DATE, TOD): the DATE_AND_TIME of that day at that time.
+    ConcatDateTod,
+    /// CONCAT_DATE(YEAR, MONTH, DAY), CONCAT_TOD(HOUR, MINUTE, SECOND, MILLISECOND), CONCAT_DT(all seven).
+    ConcatDate,
+    ConcatTod,
+    ConcatDt,
+    /// DAY_OF_WEEK(DATE): 0 for Sunday to 6 for Saturday (IEC 61131-3 ed. 3).
+    DayOfWeek,
+    /// One part of a DATE, TOD or DT, as SPLIT_DATE, SPLIT_TOD and SPLIT_DT write them.
+    Part(DatePart),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DatePart {
+    Year,
+    Month,
+    Day,
+    Hour,
+    Minute,
+    Second,
+    Millisecond,
+}
+
+impl DatePart {
+    /// The outputs of SPLIT_DATE, SPLIT_TOD and SPLIT_DT, in order.
+    pub fn of_split(upper: &str) -> Option<&'static [(&'static str, DatePart)]> {
+        const DATE: &[(&str, DatePart)] =
+            &[("YEAR", DatePart::Year), ("MONTH", DatePart::Month), ("DAY", DatePart::Day)];
+        const TOD: &[(&str, DatePart)] = &[
+            ("HOUR", DatePart::Hour),
+            ("MINUTE", DatePart::Minute),
+            ("SECOND", DatePart::Second),
+            ("MILLISECOND", DatePart::Millisecond),
+        ];
+        const DT: &[(&str, DatePart)] = &[
+            ("YEAR", DatePart::Year),
+            ("MONTH", DatePart::Month),
+            ("DAY", DatePart::Day),
+            ("HOUR", DatePart::Hour),
+            ("MINUTE", DatePart::Minute),
+            ("SECOND", DatePart::Second),
+            ("MILLISECOND", DatePart::Millisecond),
+        ];
+        Some(match upper {
+            "SPLIT_DATE" | "SPLIT_LDATE" => DATE,
+            "SPLIT_TOD" | "SPLIT_LTOD" => TOD,
+            "SPLIT_DT" | "SPLIT_LDT" => DT,
+            _ => return None,
+        })
+    }
+}
+
+const DAY_MS: i64 = 86_400_000;
+
+/// One date function of its arguments (typed by `compile`): a date or time that is not on the calendar
+/// (month 13, 30 February, hour 24, a year outside 1 to 9999) is a fault, not a value made up.
+pub fn date(f: DateFn, args: &[Value]) -> Result<Value, crate::exec::eval::Fault> {
+    use crate::exec::eval::Fault;
+    use crate::exec::types::{civil_from_days, days_from_civil};
+    let n = |i: usize| args[i].as_i64();
+    let day = |y: i64, m: i64, d: i64| -> Result<i64, Fault> {
+        let valid = (1..=9999).contains(&y)
+            && (1..=12).contains(&m)
+            && d >= 1
+            && civil_from_days(days_from_civil(y, m, d)) == (y, m, d);
+        if valid {
+            Ok(days_from_civil(y, m, d) * DAY_MS)
+        } else {
+            Err(Fault::NoSuchDate)
+        }
+    };
+    let time = |h: i64, m: i64, s: i64, ms: i64| -> Result<i64, Fault> {
+        let valid = (0..24).contains(&h) && (0..60).contains(&m) && (0..60).contains(&s) && (0..1000).contains(&ms);
+        if valid {
+            Ok(((h * 60 + m) * 60 + s) * 1000 + ms)
+        } else {
+            Err(Fault::NoSuchDate)
+        }
+    };
+    Ok(Value::Time(match f {
+        DateFn::ConcatDateTod => n(0).wrapping_add(n(1)),
+        DateFn::ConcatDate => day(n(0), n(1), n(2))?,
+        DateFn::ConcatTod => time(n(0), n(1), n(2), n(3))?,
+        DateFn::ConcatDt => day(n(0), n(1), n(2))? + time(n(3), n(4), n(5), n(6))?,
+        // 1970-01-01 was a Thursday (4).
+        DateFn::DayOfWeek => return Ok(Value::Int((n(0).div_euclid(DAY_MS) + 4).rem_euclid(7))),
+        DateFn::Part(part) => {
+            let v = n(0);
+            let (y, m, d) = civil_from_days(v.div_euclid(DAY_MS));
+            let ms = v.rem_euclid(DAY_MS);
+            return Ok(Value::Int(match part {
+                DatePart::Year => y,
+                DatePart::Month => m,
+                DatePart::Day => d,
+                DatePart::Hour => ms / 3_600_000,
+                DatePart::Minute => ms / 60_000 % 60,
+                DatePart::Second => ms / 1000 % 60,
+                DatePart::Millisecond => ms % 1000,
+            }));
+        }
+    }))
+}
+
+/// The number a bit string writes in BCD, `None` where a nibble is past 9.
+pub fn bcd_to_int(v: i64) -> Option<i64> {
+    let (mut bits, mut out, mut factor) = (v as u64, 0i64, 1i64);
+    while bits != 0 {
+        let digit = (bits & 0xf) as i64;
+        if digit > 9 {
+            return None;
+        }
+        out = out.wrapping_add(digit.wrapping_mul(factor));
+        factor = factor.wrapping_mul(10);
+        bits >>= 4;
+    }
+    Some(out)
+}
+
+/// A number's decimal digits, one per nibble (as an unsigned number, as matiec converts it).
+pub fn int_to_bcd(v: i64) -> i64 {
+    let (mut n, mut out, mut shift) = (v as u64, 0u64, 0u32);
+    while n != 0 && shift < 64 {
+        out |= (n % 10) << shift;
+        n /= 10;
+        shift += 4;
+    }
+    out as i64
 }
 
 /// The standard's string functions. Positions count characters from 1; a length or a position outside the

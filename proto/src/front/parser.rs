@@ -1396,6 +1396,14 @@ impl Parser<'_> {
                 let close = self.expect(Tok::RParen, "`)`")?;
                 return Ok(Expr { kind: inner.kind, span: span.to(close.span) });
             }
+            // The standard functions named like operators, called as functions: `OR(a, b, c)`, `AND(…)`,
+            // `XOR(…)`, `MOD(a, b)` (IEC 61131-3 tables 27 and 28; the Annex F example writes `OR(JOG_PB, …)`).
+            Tok::Kw(Kw::And | Kw::Or | Kw::Xor | Kw::Mod) if self.peek_at(1) == Tok::LParen => {
+                self.bump();
+                let name = Ident { name: self.text(span).to_ascii_uppercase(), span };
+                let (args, close) = self.args()?;
+                return Ok(Expr { kind: ExprKind::Call(name, args), span: span.to(close.span) });
+            }
             Tok::Ident => {
                 let name = self.ident("a name")?;
                 if self.peek() == Tok::LParen {
