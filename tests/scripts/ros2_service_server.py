@@ -3,11 +3,16 @@ speaking rmw_zenoh on a router at 127.0.0.1:PORT. It serves std_srvs/srv/SetBool
 so that it works offline, and computes the type hash itself. It answers success = the request's data, and
 prints READY once it serves and one line per request, for the test to read.
 
-    python3 ros2_service_server.py PORT DOMAIN SERVICE
+    python3 ros2_service_server.py PORT DOMAIN SERVICE [late]
+
+With `late`, it serves as zenoh-ros2-sdk's declaration order can make it look to a client: its liveliness token
+is in the graph while its queryable is not (it prints TOKEN ONLY), until the test writes SERVE on stdin.
 """
 
 import sys
 import threading
+
+import zenoh
 
 from zenoh_ros2_sdk import ROS2ServiceServer
 
@@ -36,7 +41,17 @@ def main() -> None:
         router_ip="127.0.0.1",
         router_port=port,
     )
-    print(f"READY {holder['server'].keyexpr}", flush=True)
+    server = holder["server"]
+    if sys.argv[4:] == ["late"]:
+        # The SDK declares the tokens before the queryable; hold the queryable back until told.
+        server.queryable.undeclare()
+        print("TOKEN ONLY", flush=True)
+        while sys.stdin.readline().strip() != "SERVE":
+            pass
+        server.queryable = server.session_mgr.session.declare_queryable(
+            zenoh.KeyExpr(server.keyexpr), server._query_handler, complete=True
+        )
+    print(f"READY {server.keyexpr}", flush=True)
     # Serve until the test closes stdin or kills the process.
     threading.Event().wait() if sys.stdin is None else sys.stdin.read()
     holder["server"].close()

@@ -362,3 +362,28 @@ async fn a_goal_whose_step_was_left_before_its_server_appeared_is_never_sent() {
     let goals: Vec<&String> = said.iter().filter(|l| l.starts_with("GOAL")).collect();
     assert_eq!(goals, ["GOAL order=5"], "{said:?}");
 }
+
+/// zenoh-ros2-sdk declares a service's liveliness token before its queryable, so an agent can find the server in
+/// the graph before a call can reach it (this made the test above fail once in a cold CI run). A call that no
+/// server took is sent again for a while, not turned into a fault: here the server holds its queryable back until
+/// the agent said that nobody took its call.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_call_that_no_server_took_yet_is_sent_again() {
+    if !python_has_sdk() {
+        return;
+    }
+    let mut cluster = Cluster::with_router().await;
+    let port = cluster.endpoint.rsplit(':').next().expect("port").to_string();
+    let mut cmd = Command::new("python3");
+    cmd.arg(repo("tests/scripts/ros2_service_server.py")).args([&port, "7", "/gripper/close", "late"]);
+    let mut server = Server::start(cmd);
+    server.wait_for("TOKEN ONLY").await;
+    cluster.agent("cell1", &[], &["--ros-domain-id", "7"]);
+    let coordinator = cluster.coordinator_joining(&chart("ros2_service.st"), &[]);
+    cluster.wait_for_agent_log("cell1", "no server took the call of /gripper/close yet").await;
+    server.send("SERVE").await;
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}\n{}", cluster.agent_log("cell1"));
+    assert!(ends_in(&trace, "Done"), "{trace:?}");
+    assert_eq!(server.wait_for("REQUEST").await, "REQUEST data=True");
+}

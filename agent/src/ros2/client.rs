@@ -20,6 +20,9 @@ use super::keys::{self, Kind, NodeId, Via};
 /// A call whose server takes this long to answer is given up: a service answers at once, and an action's
 /// result is waited for through its own step time in the chart. (rmw_zenoh waits for ever.)
 const CALL_TIMEOUT_MAX: Duration = Duration::from_secs(7 * 24 * 3600);
+/// How long a call no server took is sent again (`Node::call`), and the first pause before it is.
+const UNMATCHED_RETRY: Duration = Duration::from_secs(2);
+const FIRST_PAUSE: Duration = Duration::from_millis(10);
 
 /// The agent's ROS 2 side: its interface types, its domain, how it reaches the graph, and its node (made on
 /// first use).
@@ -278,6 +281,10 @@ impl Node {
     }
 
     /// Calls a service: the request's CDR bytes in, the response's out. `timeout` bounds the wait for the answer.
+    /// A query that no server took (it ends at once, without a reply: a server whose liveliness token reached us
+    /// before its queryable reached the router, as zenoh-ros2-sdk declares them) reached no server, so it is
+    /// sent again, for up to `UNMATCHED_RETRY`; a server that took it and never answered is waited for until
+    /// the timeout.
     pub async fn call(
         &self,
         name: &str,
@@ -287,22 +294,42 @@ impl Node {
         timeout: Option<Duration>,
     ) -> Result<Vec<u8>, String> {
         let key = keys::data(self.via, self.id.domain, name, &service.wire);
-        let sequence = self.next_sequence.fetch_add(1, Ordering::Relaxed);
-        let replies = self
-            .session
-            .get(key)
-            .payload(request)
-            .attachment(keys::attachment(sequence, now_ns(), &client.gid))
-            .target(match self.via {
-                Via::RmwZenoh => QueryTarget::AllComplete,
-                // The bridge's queryables do not say they are complete.
-                Via::Bridge => QueryTarget::BestMatching,
-            })
-            .consolidation(ConsolidationMode::None)
-            .timeout(timeout.unwrap_or(CALL_TIMEOUT_MAX).min(CALL_TIMEOUT_MAX))
-            .await
-            .map_err(|e| format!("cannot call {name}: {e}"))?;
-        match replies.recv_async().await {
+        let limit = timeout.unwrap_or(CALL_TIMEOUT_MAX).min(CALL_TIMEOUT_MAX);
+        let started = Instant::now();
+        let mut pause = FIRST_PAUSE;
+        let answer = loop {
+            let sequence = self.next_sequence.fetch_add(1, Ordering::Relaxed);
+            let sent = Instant::now();
+            let left = limit.saturating_sub(sent - started);
+            let replies = self
+                .session
+                .get(&key)
+                .payload(request.clone())
+                .attachment(keys::attachment(sequence, now_ns(), &client.gid))
+                .target(match self.via {
+                    Via::RmwZenoh => QueryTarget::AllComplete,
+                    // The bridge's queryables do not say they are complete.
+                    Via::Bridge => QueryTarget::BestMatching,
+                })
+                .consolidation(ConsolidationMode::None)
+                .timeout(left)
+                .await
+                .map_err(|e| format!("cannot call {name}: {e}"))?;
+            let answer = replies.recv_async().await;
+            let unmatched = answer.is_err() && sent.elapsed() < left / 2;
+            if !unmatched || started.elapsed() + pause >= UNMATCHED_RETRY.min(limit) {
+                break answer;
+            }
+            if pause == FIRST_PAUSE {
+                // The agent's log (stderr), as the shell writes it: a server seen in the graph that takes no call.
+                eprintln!(
+                    "warning: no server took the call of {name} yet, though one is in the graph: sending it again"
+                );
+            }
+            tokio::time::sleep(pause).await;
+            pause = (pause * 2).min(Duration::from_millis(200));
+        };
+        match answer {
             Ok(reply) => match reply.result() {
                 Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
                 Err(e) => {
