@@ -30,6 +30,15 @@ fn action_server(cluster: &Cluster, mode: &str) -> Option<Server> {
     Some(Server::start(cmd))
 }
 
+/// zenoh-ros2-sdk's SetBool server on `/gripper/close` in ROS domain `domain` (`tests/scripts/ros2_service_server.py`;
+/// `extra`: `late`), to start when the test wants it.
+fn service_server(cluster: &Cluster, domain: &str, extra: &[&str]) -> Command {
+    let port = cluster.endpoint.rsplit(':').next().expect("port").to_string();
+    let mut cmd = Command::new("python3");
+    cmd.arg(repo("tests/scripts/ros2_service_server.py")).args([port.as_str(), domain, "/gripper/close"]).args(extra);
+    cmd
+}
+
 fn python_has_sdk() -> bool {
     let ok = std::process::Command::new("python3")
         .args(["-c", "import zenoh_ros2_sdk"])
@@ -137,9 +146,7 @@ async fn a_service_answers_true_and_false_and_false_is_a_fault() {
         return;
     }
     let mut cluster = Cluster::with_router().await;
-    let port = cluster.endpoint.rsplit(':').next().expect("port").to_string();
-    let mut cmd = Command::new("python3");
-    cmd.arg(repo("tests/scripts/ros2_service_server.py")).args([&port, "7", "/gripper/close"]);
+    let cmd = service_server(&cluster, "7", &[]);
     cluster.agent("cell1", &[], &["--ros-domain-id", "7"]);
     let coordinator = cluster.coordinator_joining(&chart("ros2_service.st"), &[]);
     let mut server = Server::start(cmd);
@@ -183,9 +190,7 @@ async fn two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_c
     let mut cluster = Cluster::with_router().await;
     let Some(mut action) = action_server(&cluster, "succeed") else { return };
     let Some((mut machine, ua_port)) = opcua_server().await else { return };
-    let port = cluster.endpoint.rsplit(':').next().expect("port").to_string();
-    let mut cmd = Command::new("python3");
-    cmd.arg(repo("tests/scripts/ros2_service_server.py")).args([&port, "0", "/gripper/close"]);
+    let cmd = service_server(&cluster, "0", &[]);
     let mut service = Server::start(cmd);
     action.wait_for("READY").await;
     service.wait_for("READY").await;
@@ -373,9 +378,7 @@ async fn a_call_that_no_server_took_yet_is_sent_again() {
         return;
     }
     let mut cluster = Cluster::with_router().await;
-    let port = cluster.endpoint.rsplit(':').next().expect("port").to_string();
-    let mut cmd = Command::new("python3");
-    cmd.arg(repo("tests/scripts/ros2_service_server.py")).args([&port, "7", "/gripper/close", "late"]);
+    let cmd = service_server(&cluster, "7", &["late"]);
     let mut server = Server::start(cmd);
     server.wait_for("TOKEN ONLY").await;
     cluster.agent("cell1", &[], &["--ros-domain-id", "7"]);

@@ -231,32 +231,6 @@ fn time_function(upper: &str) -> Option<(BinOp, [Option<Ty>; 2])> {
     })
 }
 
-/// The result type of a BCD conversion: the integer `BCD_TO_<int>` names, the bit string `<int>_TO_BCD_<bits>`
-/// names, or for `<int>_TO_BCD` the bit string as wide as the integer (INT_TO_BCD gives a WORD).
-fn bcd_result(upper: &str) -> Ty {
-    let named = |name: &str| match Type::from_name(name) {
-        Some(t @ Type::Int(_)) => Some(Ty::of(&t)),
-        _ => None,
-    };
-    if let Some((_, to)) = upper.split_once("BCD_TO_") {
-        return named(to).unwrap_or(Ty::Int(IntKind::Dint));
-    }
-    let (from, to) = upper.split_once("_TO_BCD").unwrap_or((upper, ""));
-    if let Some(t) = to.strip_prefix('_').and_then(named) {
-        return t;
-    }
-    let bits = match Type::from_name(from) {
-        Some(Type::Int(k)) => k.bits(),
-        _ => 32,
-    };
-    Ty::Int(match bits {
-        8 => IntKind::Byte,
-        16 => IntKind::Word,
-        32 => IntKind::Dword,
-        _ => IntKind::Lword,
-    })
-}
-
 /// IEC 61131-3 writes BOOL literals as 0 and 1 too (a transition `:= 1;`, `ORANGE_LIGHT := 1;` in Beremiz's
 /// examples): an untyped integer 0 or 1 where a BOOL is wanted is that BOOL; anything else is left as it is.
 fn bool_literal((c, ty): (CExpr, Ty)) -> (CExpr, Ty) {
@@ -869,17 +843,11 @@ impl<'a> Compiler<'a> {
         &mut self,
         callee: &Ident,
         args: &[Arg],
+        input: Ty,
         parts: &[(&str, DatePart)],
         vars: &[VarInfo],
     ) -> Option<CStmt> {
         let name = callee.key();
-        let input = if name.ends_with("TOD") {
-            Ty::Tod
-        } else if name.ends_with("DATE") {
-            Ty::Date
-        } else {
-            Ty::Dt
-        };
         let formal = args.iter().any(|a| a.name.is_some());
         let mut value = None;
         let mut targets: Vec<(DatePart, &Expr)> = Vec::new();
@@ -2237,8 +2205,8 @@ impl<'a> Compiler<'a> {
         if let Some((instance, action)) = callee.name.rsplit_once('.') {
             return self.instance_action_call(callee, instance, action, args);
         }
-        if let Some(parts) = DatePart::of_split(&callee.key()) {
-            return self.split_call(callee, args, parts, vars);
+        if let Some((input, parts)) = DatePart::of_split(&callee.key()) {
+            return self.split_call(callee, args, Ty::of(&input), parts, vars);
         }
         // A variable of the action's name shadows the action (Beremiz lets an action `Blink` call its TON `blink`).
         if !self.declared_name(&callee.key()) {
@@ -2667,10 +2635,10 @@ impl<'a> Compiler<'a> {
             Func::Atan2 if !tys[0].is_num() => return bad(self, 0, "a number"),
             Func::Atan2 if !tys[1].is_num() => return bad(self, 1, "a number"),
             Func::Atan2 => real_of(join(tys[0], tys[1])),
-            Func::BcdToInt | Func::IntToBcd | Func::IsValidBcd | Func::SwapBytes if !tys[0].is_int() => {
+            Func::BcdToInt(_) | Func::IntToBcd(_) | Func::IsValidBcd | Func::SwapBytes if !tys[0].is_int() => {
                 return bad(self, 0, "an integer or a bit string")
             }
-            Func::BcdToInt | Func::IntToBcd => bcd_result(&key),
+            Func::BcdToInt(k) | Func::IntToBcd(k) => Ty::Int(*k),
             Func::IsValidBcd => Ty::Bool,
             Func::IsValid if !tys[0].is_num() => return bad(self, 0, "a REAL"),
             Func::IsValid => Ty::Bool,
@@ -2894,22 +2862,11 @@ impl<'a> Compiler<'a> {
                 if level.iter().any(|(_, t)| *t == Ty::Err) {
                     return (FALSE, Ty::Err);
                 }
-                let mut level = level;
-                while level.len() > 1 {
-                    let mut next = Vec::with_capacity(level.len().div_ceil(2));
-                    let mut items = level.into_iter();
-                    while let Some(a) = items.next() {
-                        next.push(match items.next() {
-                            Some(b) => self.binary_node(*op, a, b, e.span),
-                            None => a,
-                        });
-                        if next.last().is_some_and(|(_, t)| *t == Ty::Err) {
-                            return (FALSE, Ty::Err);
-                        }
-                    }
-                    level = next;
-                }
-                level.pop().unwrap_or((FALSE, Ty::Err))
+                let joined = crate::front::model::fold_balanced(level, |a, b| {
+                    let node = self.binary_node(*op, a, b, e.span);
+                    (node.1 != Ty::Err).then_some(node)
+                });
+                joined.unwrap_or((FALSE, Ty::Err))
             }
             ExprKind::Binary(op, a, b) => {
                 let a = self.expr(a, vars);

@@ -108,8 +108,8 @@ fn call(func: &Func, args: &[CExpr], ty: &Type, env: &impl Env) -> Result<Value,
         Func::Atan2 => Value::Real(arg(0)?.as_f64().atan2(arg(1)?.as_f64())),
         // The REAL's integer part, saturated to i64; `coerce` wraps it to the result's type.
         Func::Trunc(_) => Value::Int(arg(0)?.as_f64().trunc() as i64),
-        Func::BcdToInt => int(stdlib::bcd_to_int(arg(0)?.as_i64()).unwrap_or(0), wrap),
-        Func::IntToBcd => int(stdlib::int_to_bcd(arg(0)?.as_i64()), wrap),
+        Func::BcdToInt(_) => int(stdlib::bcd_to_int(arg(0)?.as_i64()).unwrap_or(0), wrap),
+        Func::IntToBcd(_) => int(stdlib::int_to_bcd(arg(0)?.as_i64()), wrap),
         Func::IsValid => Value::Bool(arg(0)?.as_f64().is_finite()),
         Func::IsValidBcd => Value::Bool(stdlib::bcd_to_int(arg(0)?.as_i64()).is_some()),
         Func::SwapBytes => {

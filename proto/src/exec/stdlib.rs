@@ -397,11 +397,12 @@ pub enum Func {
     Atan2,
     /// TRUNC, `TRUNC_<int>`, `<real>_TRUNC_<int>`: toward zero, to DINT or the named integer type.
     Trunc(IntKind),
-    /// `BCD_TO_<int>`, `<bits>_BCD_TO_<int>`: the number a bit string writes in decimal, a digit a nibble; 0 where
-    /// a nibble is past 9 (matiec; CODESYS answers -1).
-    BcdToInt,
-    /// `<int>_TO_BCD`, `<int>_TO_BCD_<bits>`: a number's decimal digits, a nibble each, cut to the result's width.
-    IntToBcd,
+    /// `BCD_TO_<int>`, `<bits>_BCD_TO_<int>`: the number a bit string writes in decimal, a digit a nibble, as the
+    /// named type; 0 where a nibble is past 9 (matiec; CODESYS answers -1).
+    BcdToInt(IntKind),
+    /// `<int>_TO_BCD`, `<int>_TO_BCD_<bits>`: a number's decimal digits, a nibble each, as the named bit string,
+    /// or for `<int>_TO_BCD` the one as wide as the integer (INT_TO_BCD gives a WORD), cut to its width.
+    IntToBcd(IntKind),
     /// IS_VALID (a REAL neither NaN nor infinite) and IS_VALID_BCD (no nibble past 9).
     IsValid,
     IsValidBcd,
@@ -507,18 +508,30 @@ impl Func {
     }
 
     /// The BCD conversions by name: `BCD_TO_INT`, `WORD_BCD_TO_UINT`, `INT_TO_BCD`, `UINT_TO_BCD_WORD` and their
-    /// kin for every integer and bit string type (the result's type is the name's, or for `<int>_TO_BCD` the bit
-    /// string as wide as the integer: `compile::bcd_result`).
+    /// kin for every integer and bit string type.
     fn bcd(upper: &str) -> Option<(Func, &'static [&'static str])> {
         const IN: &[&str] = &["IN"];
-        let int = |name: &str| matches!(Type::from_name(name), Some(Type::Int(_)));
+        let int = |name: &str| match Type::from_name(name) {
+            Some(Type::Int(k)) => Some(k),
+            _ => None,
+        };
         if let Some((from, to)) = upper.split_once("BCD_TO_") {
-            let from_ok = from.is_empty() || from.strip_suffix('_').is_some_and(int);
-            return (from_ok && int(to)).then_some((Func::BcdToInt, IN));
+            let from_ok = from.is_empty() || from.strip_suffix('_').and_then(int).is_some();
+            return from_ok.then_some((Func::BcdToInt(int(to)?), IN));
         }
         let (from, to) = upper.split_once("_TO_BCD")?;
-        let to_ok = to.is_empty() || to.strip_prefix('_').is_some_and(int);
-        (int(from) && to_ok).then_some((Func::IntToBcd, IN))
+        let from = int(from)?;
+        let result = match to.strip_prefix('_') {
+            Some(bits) => int(bits)?,
+            None if to.is_empty() => match from.bits() {
+                8 => IntKind::Byte,
+                16 => IntKind::Word,
+                32 => IntKind::Dword,
+                _ => IntKind::Lword,
+            },
+            None => return None,
+        };
+        Some((Func::IntToBcd(result), IN))
     }
 
     /// Whether it takes any number of arguments past its declared ones.
@@ -554,8 +567,8 @@ pub enum DatePart {
 }
 
 impl DatePart {
-    /// The outputs of SPLIT_DATE, SPLIT_TOD and SPLIT_DT, in order.
-    pub fn of_split(upper: &str) -> Option<&'static [(&'static str, DatePart)]> {
+    /// The input type of SPLIT_DATE, SPLIT_TOD and SPLIT_DT, and their outputs, in order.
+    pub fn of_split(upper: &str) -> Option<(Type, &'static [(&'static str, DatePart)])> {
         const DATE: &[(&str, DatePart)] =
             &[("YEAR", DatePart::Year), ("MONTH", DatePart::Month), ("DAY", DatePart::Day)];
         const TOD: &[(&str, DatePart)] = &[
@@ -574,9 +587,9 @@ impl DatePart {
             ("MILLISECOND", DatePart::Millisecond),
         ];
         Some(match upper {
-            "SPLIT_DATE" | "SPLIT_LDATE" => DATE,
-            "SPLIT_TOD" | "SPLIT_LTOD" => TOD,
-            "SPLIT_DT" | "SPLIT_LDT" => DT,
+            "SPLIT_DATE" | "SPLIT_LDATE" => (Type::Date, DATE),
+            "SPLIT_TOD" | "SPLIT_LTOD" => (Type::Tod, TOD),
+            "SPLIT_DT" | "SPLIT_LDT" => (Type::Dt, DT),
             _ => return None,
         })
     }

@@ -546,21 +546,28 @@ impl Expr {
     /// 30,000 parallel contacts is 15 levels deep.
     pub fn balanced(op: BinOp, operands: Vec<Expr>) -> Expr {
         debug_assert!(op.associative());
-        let mut level = operands;
-        while level.len() > 1 {
-            let mut next = Vec::with_capacity(level.len().div_ceil(2));
-            let mut items = level.into_iter();
-            while let Some(a) = items.next() {
-                next.push(match items.next() {
-                    Some(b) => {
-                        let span = a.span.to(b.span);
-                        Expr { kind: ExprKind::Binary(op, Box::new(a), Box::new(b)), span }
-                    }
-                    None => a,
-                });
-            }
-            level = next;
-        }
-        level.pop().unwrap_or(Expr { kind: ExprKind::Bool(op == BinOp::And), span: Span::new(0, 0) })
+        let joined = fold_balanced(operands, |a, b| {
+            let span = a.span.to(b.span);
+            Some(Expr { kind: ExprKind::Binary(op, Box::new(a), Box::new(b)), span })
+        });
+        joined.unwrap_or(Expr { kind: ExprKind::Bool(op == BinOp::And), span: Span::new(0, 0) })
     }
+}
+
+/// `items` joined pairwise, level by level, into a balanced tree — ⌈log₂ n⌉ levels for n items, in the same
+/// left-to-right order — without recursion. `None` for no items, or as soon as `join` gives up.
+pub fn fold_balanced<T>(items: Vec<T>, mut join: impl FnMut(T, T) -> Option<T>) -> Option<T> {
+    let mut level = items;
+    while level.len() > 1 {
+        let mut next = Vec::with_capacity(level.len().div_ceil(2));
+        let mut items = level.into_iter();
+        while let Some(a) = items.next() {
+            next.push(match items.next() {
+                Some(b) => join(a, b)?,
+                None => a,
+            });
+        }
+        level = next;
+    }
+    level.pop()
 }

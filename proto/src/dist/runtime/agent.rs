@@ -29,7 +29,7 @@ use crate::limits::{
     CATCH_UP_CYCLES_MAX, FINISHED_TOKENS_REMEMBERED, PARKED_UPDATE_BYTES_MAX, REPORTS_UNACKED_MAX, REPORT_EVENTS_MAX,
 };
 
-use super::{Level, VarWrites, COORDINATOR};
+use super::{Level, VarWrites, VarsResend, COORDINATOR};
 use uuid::Uuid;
 
 /// Processes whose refused variable updates an agent remembers having logged.
@@ -38,10 +38,6 @@ const REFUSALS_SAID_MAX: usize = 64;
 /// First and largest delay before an unacknowledged report is sent again.
 const RESEND_FIRST_MS: u64 = 200;
 const RESEND_MAX_MS: u64 = 5_000;
-/// After its variables changed, an agent publishes those only it writes again, as of the same update, after these
-/// doubling delays: an update lost on the way would leave another agent waiting for ever for a value it reads.
-const VARS_RESEND_FIRST_MS: u64 = 200;
-const VARS_RESEND_MAX_MS: u64 = 3_200;
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum AgentOutput {
@@ -140,8 +136,8 @@ pub struct AgentRun {
     unreported: BTreeMap<u32, Value>,
     vars_seq: u64,
     /// When this process's values are published again (`VARS_RESEND_FIRST_MS`), and the delay after that.
-    vars_resend_at_ms: Option<u64>,
-    vars_resend_backoff_ms: u64,
+    /// When the values only this agent writes are published again (`VarsResend`).
+    vars_resend: VarsResend,
     /// This agent's process: its variable updates are numbered within it.
     incarnation: Uuid,
     /// The last write applied to each variable written elsewhere.
@@ -225,8 +221,7 @@ impl AgentRun {
             published,
             unreported: BTreeMap::new(),
             vars_seq: 0,
-            vars_resend_at_ms: None,
-            vars_resend_backoff_ms: 0,
+            vars_resend: VarsResend::default(),
             incarnation: Uuid::nil(),
             var_writes: VarWrites::new(program_vars),
             peers: None,
@@ -388,13 +383,12 @@ impl AgentRun {
             vars,
         };
         self.outbox.push_back(AgentOutput::Vars(update));
-        self.vars_resend_at_ms = Some(self.now_ms + VARS_RESEND_FIRST_MS);
-        self.vars_resend_backoff_ms = VARS_RESEND_FIRST_MS;
+        self.vars_resend.start(self.now_ms);
     }
 
     /// Publishes the values only this agent writes again, as of its last update, when that is due.
     fn resend_vars(&mut self) {
-        if self.vars_resend_at_ms.is_none_or(|t| t > self.now_ms) {
+        if !self.vars_resend.due(self.now_ms) {
             return;
         }
         let read = self.mine_read();
@@ -408,9 +402,6 @@ impl AgentRun {
             };
             self.outbox.push_back(AgentOutput::Vars(update));
         }
-        self.vars_resend_backoff_ms *= 2;
-        self.vars_resend_at_ms =
-            (self.vars_resend_backoff_ms <= VARS_RESEND_MAX_MS).then_some(self.now_ms + self.vars_resend_backoff_ms);
     }
 
     /// The coordinator says who may publish the variables this agent reads. A writer's new process retires its
@@ -594,7 +585,7 @@ impl AgentRun {
     /// When this run next needs `handle_timeout`: its next cycle, or the next report to send again.
     pub fn poll_timeout(&self) -> Option<u64> {
         let resend = self.tokens.values().flat_map(|t| t.unacked.iter().map(|u| u.resend_at_ms)).min();
-        [self.next_cycle_ms, resend, self.vars_resend_at_ms].into_iter().flatten().min()
+        [self.next_cycle_ms, resend, self.vars_resend.at_ms()].into_iter().flatten().min()
     }
 
     /// Time passed: the cycles due run, reports due are sent again.

@@ -30,17 +30,12 @@ use crate::limits::{
     STALE_EPOCHS_TRACED,
 };
 
-use super::{Level, VarWrites, COORDINATOR};
+use super::{Level, VarWrites, VarsResend, COORDINATOR};
 
 /// First and largest delay before a dispatch that no report answered is sent again (the agent drops the
 /// duplicate if it has the token).
 const DISPATCH_RESEND_FIRST_MS: u64 = 500;
 const DISPATCH_RESEND_MAX_MS: u64 = 5_000;
-/// After its variables changed, the coordinator publishes all of them again, as of the same update, after these
-/// doubling delays: an update lost on the way (a link that broke and came back within an agent's lease) would
-/// leave an agent waiting for ever for a value it reads. Agents take a value they have already as a duplicate.
-const VARS_RESEND_FIRST_MS: u64 = 200;
-const VARS_RESEND_MAX_MS: u64 = 3_200;
 
 /// What the coordinator asks its shell to do.
 #[derive(Clone, Debug, PartialEq)]
@@ -188,9 +183,8 @@ pub struct Coordinator {
     owned: Vec<VarId>,
     published: Vec<Option<Value>>,
     vars_seq: u64,
-    /// When the owned values are published again (`VARS_RESEND_FIRST_MS`), and the delay after that.
-    vars_resend_at_ms: Option<u64>,
-    vars_resend_backoff_ms: u64,
+    /// When the owned values are published again (`VarsResend`).
+    vars_resend: VarsResend,
     /// The last write applied to each variable an agent writes.
     var_writes: VarWrites,
     new_token: Box<dyn FnMut() -> TokenId + Send>,
@@ -254,8 +248,7 @@ impl Coordinator {
             finished: HashMap::new(),
             finished_order: VecDeque::new(),
             vars_seq: 0,
-            vars_resend_at_ms: None,
-            vars_resend_backoff_ms: 0,
+            vars_resend: VarsResend::default(),
             var_writes: VarWrites::new(program_vars),
             new_token,
             round_robin: 0,
@@ -416,7 +409,7 @@ impl Coordinator {
             self.agents.values().filter(|a| a.recovering && a.alive).map(|a| since.saturating_add(a.lease_ms)).min()
         });
         let reassign = self.tokens.values().filter_map(|t| t.reassign_at_ms).min();
-        [resend, acks, give_up, reassign, self.vars_resend_at_ms].into_iter().flatten().min()
+        [resend, acks, give_up, reassign, self.vars_resend.at_ms()].into_iter().flatten().min()
     }
 
     /// After a restart from the journal, an agent that has not come back within its lease is lost, as if its
@@ -524,14 +517,13 @@ impl Coordinator {
                 vars: changed,
             };
             self.outbox.push_back(CoordOutput::Vars(update));
-            self.vars_resend_at_ms = Some(self.now_ms + VARS_RESEND_FIRST_MS);
-            self.vars_resend_backoff_ms = VARS_RESEND_FIRST_MS;
+            self.vars_resend.start(self.now_ms);
         }
     }
 
     /// Publishes every owned value again, as of the last update, when that is due (`VARS_RESEND_FIRST_MS`).
     fn resend_vars(&mut self) {
-        if self.vars_resend_at_ms.is_none_or(|t| t > self.now_ms) {
+        if !self.vars_resend.due(self.now_ms) {
             return;
         }
         let vars = self.owned.iter().map(|&v| VarValue::new(v, self.engine.value(v))).collect();
@@ -543,9 +535,6 @@ impl Coordinator {
             vars,
         };
         self.outbox.push_back(CoordOutput::Vars(update));
-        self.vars_resend_backoff_ms *= 2;
-        self.vars_resend_at_ms =
-            (self.vars_resend_backoff_ms <= VARS_RESEND_MAX_MS).then_some(self.now_ms + self.vars_resend_backoff_ms);
     }
 
     /// The agent that holds the token of a placed step's segment, if it is out.

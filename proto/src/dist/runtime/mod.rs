@@ -11,6 +11,43 @@ use uuid::Uuid;
 
 use crate::limits::RETIRED_INCARNATIONS_MAX;
 
+/// After its variables changed, a writer (the coordinator, an agent) publishes them again, as of the same update,
+/// after these doubling delays: an update lost on the way (a link that broke and came back within a lease) would
+/// leave a reader waiting for ever for a value. Readers take a value they have already as a duplicate.
+const VARS_RESEND_FIRST_MS: u64 = 200;
+const VARS_RESEND_MAX_MS: u64 = 3_200;
+
+/// When a writer's last variable update is published again (`VARS_RESEND_FIRST_MS`, doubling up to
+/// `VARS_RESEND_MAX_MS`); a new update starts the series over.
+#[derive(Default)]
+pub(crate) struct VarsResend {
+    at_ms: Option<u64>,
+    backoff_ms: u64,
+}
+
+impl VarsResend {
+    /// A new update went out at `now_ms`.
+    pub(crate) fn start(&mut self, now_ms: u64) {
+        self.backoff_ms = VARS_RESEND_FIRST_MS;
+        self.at_ms = Some(now_ms + VARS_RESEND_FIRST_MS);
+    }
+
+    /// Whether the update is due again at `now_ms`; if it is, the next time is planned (none past the largest
+    /// delay).
+    pub(crate) fn due(&mut self, now_ms: u64) -> bool {
+        if self.at_ms.is_none_or(|t| t > now_ms) {
+            return false;
+        }
+        self.backoff_ms *= 2;
+        self.at_ms = (self.backoff_ms <= VARS_RESEND_MAX_MS).then_some(now_ms + self.backoff_ms);
+        true
+    }
+
+    pub(crate) fn at_ms(&self) -> Option<u64> {
+        self.at_ms
+    }
+}
+
 /// The writer name the coordinator publishes its variables under.
 pub const COORDINATOR: &str = "coordinator";
 
