@@ -112,7 +112,7 @@ fn agent_main() -> ExitCode {
         agent: config.name.clone(),
     });
     let skills = match &args.simulate {
-        Some(path) => match baton_proto::testing::scenario::load(path) {
+        Some(path) => match baton_proto::testing::scenario::load(path, &|p| std::fs::read_to_string(p)) {
             Ok(sc) => {
                 let seed = args.seed.unwrap_or(sc.seed);
                 baton_agent::simulate::Simulated::new(sc, seed).skills()

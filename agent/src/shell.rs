@@ -7,14 +7,15 @@ use std::time::{Duration, Instant};
 
 use anyhow::anyhow;
 use baton_proto::dist::keys;
-use baton_proto::dist::layout::{is_valid_name, Layout};
+use baton_proto::dist::keys::is_valid_name;
+use baton_proto::dist::layout::Layout;
 use baton_proto::dist::netconfig::NetConfig;
 use baton_proto::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch, Join};
 use baton_proto::dist::runtime::Level;
 use baton_proto::dist::wire::{self, AgentInfo, ChartHash, ChartSource, HeldToken, RunId, ToAgent, VarUpdate};
 use baton_proto::exec::program::{ActionId, Program};
-use baton_proto::front::check::check_source;
 use baton_proto::limits::{fence_after_ms, fence_check_ms, CHART_SOURCE_BYTES_MAX, RECEIVE_QUEUE_MAX};
+use baton_proto::pipeline::check_source;
 use tokio::sync::{mpsc, watch};
 use zenoh::handlers::FifoChannel;
 use zenoh::pubsub::Publisher;
@@ -23,7 +24,7 @@ use zenoh::sample::Sample;
 use zenoh::Session;
 
 use crate::skill::{SkillCall, SkillContext, SkillFuture, Skills, STOP_WAIT_MAX};
-use baton_proto::exec::types::Value;
+use baton_proto::types::Value;
 
 /// Runs an agent takes part in at once; the oldest idle run is forgotten to make room.
 const RUNS_MAX: usize = 64;

@@ -5,8 +5,8 @@
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use baton_proto::dist::simnet::{Rng, SimSkill, SkillModel, SkillStart, NETWORK_MIX};
 use baton_proto::testing::scenario::Scenario;
+use baton_proto::testing::simulated_cluster::{Rng, SimSkill, SkillModel, SkillStart, NETWORK_MIX};
 
 use crate::skill::{Skill, SkillCall, SkillFuture, Skills};
 

@@ -19,9 +19,9 @@ use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
 
-use baton_proto::dist::layout::Param;
-use baton_proto::exec::types::Value;
 use baton_proto::front::literal::FieldPath;
+use baton_proto::front::pragma::Param;
+use baton_proto::types::Value;
 use tokio::sync::{mpsc, watch};
 
 /// One start of a skill.

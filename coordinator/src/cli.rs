@@ -7,9 +7,9 @@ use std::sync::Arc;
 
 use anyhow::{bail, Context};
 use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
-use baton_proto::front::check::{check_source, CheckedChart, Report};
 use baton_proto::front::diag::LineIndex;
 use baton_proto::front::source::{self, Decoded};
+use baton_proto::pipeline::{check_source, CheckedChart, Report};
 use clap::{Parser, Subcommand};
 
 /// Exit status of `baton check` and `baton sim` when the chart has errors.
@@ -510,7 +510,7 @@ fn export(path: &Path, pou: Option<&str>, output: Option<&Path>) -> anyhow::Resu
 fn utc_now() -> String {
     let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()) as i64;
     let (days, rest) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
-    let (year, month, day) = baton_proto::exec::types::civil_from_days(days);
+    let (year, month, day) = baton_proto::types::civil_from_days(days);
     format!("{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}", rest / 3600, rest % 3600 / 60, rest % 60)
 }
 

@@ -74,7 +74,7 @@ mod tests {
     #[test]
     fn cells_of_any_size_check_clean() {
         for robots in [1, 2, 3, 8] {
-            let report = baton_proto::front::check::check_source(&cell_chart(robots));
+            let report = baton_proto::pipeline::check_source(&cell_chart(robots));
             assert_eq!(report.error_count(), 0, "{robots} robots: {:?}", report.diagnostics);
             let layout = report.charts[0].layout.as_ref().expect("layout");
             // One segment per picking robot, and one for the assembler (assemble, inspect, rework).

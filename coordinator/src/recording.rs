@@ -28,7 +28,7 @@ use anyhow::anyhow;
 use baton_proto::dist::layout::{Layout, Placement};
 use baton_proto::exec::program::{Program, StepId, TransitionId, VarId, VarInfo};
 use baton_proto::exec::sim::TraceRecord;
-use baton_proto::exec::types::{quote_string, Type, Value};
+use baton_proto::types::{quote_string, Type, Value};
 use rerun::blueprint::components::PanelState;
 use rerun::blueprint::{
     Blueprint, BlueprintPanel, GraphView, Horizontal, SelectionPanel, StateTimelineView, TextLogView, TimePanel,

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use anyhow::{anyhow, bail, Context};
 use baton_proto::dist::journal::{self, Journaled, JOURNAL_FORMAT};
 use baton_proto::dist::runtime::coordinator::Coordinator;
-use baton_proto::front::check::check_source;
+use baton_proto::pipeline::check_source;
 
 use crate::recording::{RecordedRun, Recorder, Sink};
 use crate::run::{replay_records, Records};

@@ -5,12 +5,18 @@
 //! grouped by layer: `front` (source text to checked chart), `exec` (compiled program and engine) and `dist`
 //! (placement, wire protocol, journal and the runtimes' state machines).
 
+/// Above the layers it calls: parse, compile, analyse and lay out every chart of a source text (`check_source`).
+pub mod pipeline;
+
 pub mod limits;
 pub mod testing;
 
-/// From source text to a checked chart: lexer, parsers, the chart model, diagnostics and the check pipeline.
+/// What every layer shares: IEC 61131-3's elementary types and values, and the catalogue of the standard
+/// library (which functions and blocks exist, and under which names).
+pub mod types;
+
+/// From source text to the chart model: lexer, parsers (textual and PLCopen XML), pragmas and diagnostics.
 pub mod front {
-    pub mod check;
     pub mod diag;
     pub mod lexer;
     pub mod literal;
@@ -32,11 +38,11 @@ pub mod exec {
     pub mod analysis;
     pub mod compile;
     pub mod engine;
+    pub mod env;
     pub mod eval;
     pub mod program;
     pub mod sim;
     pub mod stdlib;
-    pub mod types;
 }
 
 /// The distributed part: where each part of a chart runs, the wire protocol and key space, the journal, the
@@ -49,6 +55,5 @@ pub mod dist {
     pub mod layout;
     pub mod netconfig;
     pub mod runtime;
-    pub mod simnet;
     pub mod wire;
 }

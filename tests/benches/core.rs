@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use baton_proto::exec::engine::Engine;
-use baton_proto::front::check::check_source;
+use baton_proto::pipeline::check_source;
 use baton_tests::gen::{
     large_plcopen_chart, large_structured_chart, plcopen_continuations, plcopen_macro, rings, timer_rings,
 };

@@ -288,7 +288,7 @@ pub fn check_trace_invariants(trace: &[TraceRecord], chart: &Path) {
 /// The same for a run that ended with `out` tokens still out (a run that failed).
 pub fn check_trace_invariants_with_tokens_out(trace: &[TraceRecord], chart: &Path, out: usize) {
     let source = std::fs::read_to_string(chart).unwrap_or_else(|e| panic!("{}: {e}", chart.display()));
-    let report = baton_proto::front::check::check_source(&source);
+    let report = baton_proto::pipeline::check_source(&source);
     let program = report.charts.first().and_then(|c| c.program.as_ref()).expect("a valid chart");
     if let Err(why) = crate::invariants::check(trace, program, out == 0) {
         panic!("trace of {}: {why}", chart.display());
@@ -299,7 +299,7 @@ pub fn check_trace_invariants_with_tokens_out(trace: &[TraceRecord], chart: &Pat
 /// The id of step `name` in the first chart of `chart`, as dispatches carry it.
 pub fn step_id(chart: &Path, name: &str) -> u32 {
     let src = std::fs::read_to_string(chart).unwrap_or_else(|e| panic!("{}: {e}", chart.display()));
-    let report = baton_proto::front::check::check_source(&src);
+    let report = baton_proto::pipeline::check_source(&src);
     let program = report.charts[0].program.as_ref().expect("a valid chart");
     program.steps.iter().position(|s| s.name == name).expect("step") as u32
 }

@@ -504,7 +504,7 @@ mod tests {
 
     #[test]
     fn the_generated_plcopen_file_is_one_valid_chart_of_that_size() {
-        let report = baton_proto::front::check::check_source(&large_plcopen_chart(95));
+        let report = baton_proto::pipeline::check_source(&large_plcopen_chart(95));
         assert_eq!(report.error_count(), 0, "{:?}", report.diagnostics);
         let program = report.charts[0].program.as_ref().expect("a program");
         // 95 steps; a skipping transition at steps 8, 18, …, 88.
@@ -513,7 +513,7 @@ mod tests {
 
     #[test]
     fn timer_rings_declare_and_call_their_instances() {
-        let report = baton_proto::front::check::check_source(&timer_rings(3, 4, 2));
+        let report = baton_proto::pipeline::check_source(&timer_rings(3, 4, 2));
         assert_eq!(report.error_count(), 0, "{:?}", report.diagnostics);
         let program = report.charts[0].program.as_ref().expect("a program");
         assert_eq!(program.steps.len(), 12);

@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use baton_proto::exec::engine::Engine;
-use baton_proto::exec::types::{Type, Value};
+use baton_proto::types::{Type, Value};
 
 /// The values of `names` once the chart (the first POU of `source`) reached a terminal situation; panics if it
 /// does not within a minute of chart time.
@@ -18,7 +18,7 @@ pub fn final_shown(source: &str, cycle_ms: u64, names: &[&str]) -> Vec<String> {
 }
 
 fn final_shown_as<T>(source: &str, cycle_ms: u64, names: &[&str], show: impl Fn(&Type, &Value) -> T) -> Vec<T> {
-    let report = baton_proto::front::check::check_source(source);
+    let report = baton_proto::pipeline::check_source(source);
     let program = Arc::new(report.charts[0].program.clone().expect("a valid chart"));
     let mut engine = Engine::new(Arc::clone(&program));
     let mut now = 0;

@@ -8,8 +8,8 @@ use std::sync::Arc;
 
 use baton_proto::exec::program::{Program, StepId, TransitionId};
 use baton_proto::exec::sim::{parse_inputs, simulate, SimOutput};
-use baton_proto::exec::types::Type;
-use baton_proto::front::check::check_source;
+use baton_proto::pipeline::check_source;
+use baton_proto::types::Type;
 
 /// The program as text, without source positions.
 pub fn canonical(p: &Program) -> String {

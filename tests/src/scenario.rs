@@ -8,8 +8,8 @@ use std::path::Path;
 use std::sync::Arc;
 
 use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
-use baton_proto::front::check::check_source;
 use baton_proto::front::diag::LineIndex;
+use baton_proto::pipeline::check_source;
 
 fn read(path: &Path) -> Result<String, String> {
     fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))

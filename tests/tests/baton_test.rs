@@ -12,7 +12,7 @@ use baton_proto::testing::scenario::{self, LoadError};
 use baton_tests::cluster::{bin, read_trace, repo};
 
 fn scenario(path: &str) -> scenario::Scenario {
-    match scenario::load(&repo(path)) {
+    match scenario::load(&repo(path), &|p| std::fs::read_to_string(p)) {
         Ok(s) => s,
         Err(e) => panic!("{path}: {e:?}"),
     }
@@ -166,7 +166,10 @@ fn a_scenario_whose_chart_is_missing_or_wrong_cannot_run() {
     let (o, stdout, stderr) = baton_test(dir.path(), &["broken.test.toml"], &out);
     assert_eq!(o.status.code(), Some(2), "{stdout}{stderr}");
     assert!(stderr.contains("has errors (see `baton check`)"), "{stderr}");
-    assert!(matches!(scenario::load(&dir.path().join("gone.test.toml")), Err(LoadError::CannotRun(_))));
+    assert!(matches!(
+        scenario::load(&dir.path().join("gone.test.toml"), &|p| std::fs::read_to_string(p)),
+        Err(LoadError::CannotRun(_))
+    ));
 }
 
 #[test]

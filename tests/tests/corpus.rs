@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use baton_proto::exec::sim::simulate;
-use baton_proto::front::check::check_source;
+use baton_proto::pipeline::check_source;
 
 fn corpus_files() -> Option<Vec<PathBuf>> {
     let dir = baton_tests::shared_dir().join("corpus/sfc");

@@ -2,7 +2,7 @@
 //! simulated network that duplicates, reorders and delays, virtual time.
 
 use baton_proto::dist::runtime::coordinator::LossPolicy;
-use baton_proto::dist::simnet::{Faults, SimCluster};
+use baton_proto::testing::simulated_cluster::{Faults, SimCluster};
 
 fn chart(name: &str) -> String {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("charts").join(name);
@@ -35,7 +35,7 @@ const CELL_AGENTS: &[(&str, &[&str])] = &[("robot1", &["assembler"]), ("robot2",
 /// Invariants every run of the cell must keep, whatever the network did.
 fn check_cell_run(sim: &SimCluster) {
     let seed = sim.seed;
-    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(3)), "seed {seed}: three parts done");
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(3)), "seed {seed}: three parts done");
     let dispatches = sim.events("dispatch");
     let returns = sim.events("return");
     assert_eq!(dispatches.len(), returns.len(), "seed {seed}: every token came back");
@@ -133,7 +133,7 @@ const SETTLE_MS: u64 = 12_000;
 
 impl RandomCell {
     fn new(seed: u64) -> Option<RandomCell> {
-        use baton_proto::dist::simnet::Fate;
+        use baton_proto::testing::simulated_cluster::Fate;
         use baton_tests::gen::{random_shapes, ChartBuilder, Rng};
         let mut rng = Rng::new(seed);
         let shapes = random_shapes(&mut rng, 3);
@@ -141,7 +141,7 @@ impl RandomCell {
         let (placements, actions): (Vec<u64>, Vec<u64>) = (0..256).map(|_| (rng.below(4), rng.below(4))).unzip();
         let ms: Vec<u64> = (0..256).map(|_| rng.below(60)).collect();
         let decorated = decorate(&plain, &placements, Some((&actions, &ms)));
-        let ok = |src: &str| baton_proto::front::check::check_source(src).error_count() == 0;
+        let ok = |src: &str| baton_proto::pipeline::check_source(src).error_count() == 0;
         let (source, with_actions) = if ok(&decorated) {
             (decorated, true)
         } else {
@@ -290,7 +290,10 @@ fn random_cells_keep_their_promises() {
 
 /// One part of the cell, with robot1 lost at 600 ms, while it assembles (Assemble leaves for it at about
 /// 500 ms and takes 300 ms).
-fn cell_losing_robot1(fates: &[(u64, baton_proto::dist::simnet::Fate)], policy: LossPolicy) -> SimCluster {
+fn cell_losing_robot1(
+    fates: &[(u64, baton_proto::testing::simulated_cluster::Fate)],
+    policy: LossPolicy,
+) -> SimCluster {
     let mut sim = SimCluster::new(&cell(), CELL_AGENTS, Faults::default(), 11);
     sim.set_loss_policy(policy);
     sim.set_at(0, "parts", serde_json::json!(1));
@@ -306,10 +309,10 @@ fn assembled_by(sim: &SimCluster) -> Vec<(String, Option<u32>)> {
 
 #[test]
 fn reassign_restarts_a_lost_agents_segment_elsewhere_in_a_new_epoch() {
-    use baton_proto::dist::simnet::Fate;
+    use baton_proto::testing::simulated_cluster::Fate;
     let mut sim = cell_losing_robot1(&[(600, Fate::Kill)], LossPolicy::Reassign);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
     assert_eq!(sim.events("agent_lost").len(), 1);
     assert!(sim.trace.iter().any(|r| r.event == "alarm" && r.message.as_deref().unwrap_or("").contains("reassigned")));
@@ -318,10 +321,10 @@ fn reassign_restarts_a_lost_agents_segment_elsewhere_in_a_new_epoch() {
 
 #[test]
 fn pause_resumes_a_cut_off_agent_where_it_was() {
-    use baton_proto::dist::simnet::Fate;
+    use baton_proto::testing::simulated_cluster::Fate;
     let mut sim = cell_losing_robot1(&[(600, Fate::Cut), (2_000, Fate::Heal)], LossPolicy::Pause);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
     // The same process kept its token: it says so when it comes back, keeps it in the same epoch, its held-back
     // reports follow, and the motion is not run twice.
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1))]);
@@ -334,10 +337,10 @@ fn pause_resumes_a_cut_off_agent_where_it_was() {
 
 #[test]
 fn pause_restarts_the_segment_on_an_agent_that_came_back_restarted() {
-    use baton_proto::dist::simnet::Fate;
+    use baton_proto::testing::simulated_cluster::Fate;
     let mut sim = cell_losing_robot1(&[(600, Fate::Kill), (2_000, Fate::Restart)], LossPolicy::Pause);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot1".to_string(), Some(2))]);
     let again = sim.trace.iter().filter(|r| r.event == "dispatch" && r.name == "Assemble").nth(1).expect("again");
     assert!(again.t_ms >= 2_000, "sent again at {} ms, before robot1 came back", again.t_ms);
@@ -346,7 +349,7 @@ fn pause_restarts_the_segment_on_an_agent_that_came_back_restarted() {
 
 #[test]
 fn fail_ends_the_run_and_says_why() {
-    use baton_proto::dist::simnet::Fate;
+    use baton_proto::testing::simulated_cluster::Fate;
     let mut sim = cell_losing_robot1(&[(600, Fate::Kill)], LossPolicy::Fail);
     assert!(!sim.run(3_000));
     let why = sim.coordinator.core().failure().expect("failed");
@@ -355,12 +358,12 @@ fn fail_ends_the_run_and_says_why() {
 
 #[test]
 fn a_cut_off_agents_late_result_is_rejected_after_a_reassign() {
-    use baton_proto::dist::simnet::Fate;
+    use baton_proto::testing::simulated_cluster::Fate;
     // Cut at 600 ms: robot1 fences itself at 850 ms, the coordinator hears it is lost at 1 600 ms (its lease)
     // and moves the token at 2 100 ms; the cable is back at 2 500 ms.
     let mut sim = cell_losing_robot1(&[(600, Fate::Cut), (2_500, Fate::Heal)], LossPolicy::Reassign);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
     // Back, robot1 says it holds epoch 1: it is told to drop it at once (any late report of it is rejected).
     let stale: Vec<_> = sim.trace.iter().filter(|r| r.event == "reject_stale").collect();
@@ -409,7 +412,7 @@ fn a_segment_that_finishes_while_the_coordinator_is_down_is_not_run_again() {
     sim.set_at(0, "parts", serde_json::json!(1));
     sim.crash_coordinator_at(600, 1_000);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
     let assemble = assembled_by(&sim);
     assert_eq!(assemble.len(), 1, "Assemble was dispatched once: {assemble:?}");
     let resume = sim.trace.iter().find(|r| r.event == "resume" && r.name == "Assemble").expect("reconciled");
@@ -423,7 +426,7 @@ fn a_segment_that_finishes_while_the_coordinator_is_down_is_not_run_again() {
 
 #[test]
 fn an_agent_restarted_while_the_coordinator_was_down_runs_its_segment_again_in_a_new_epoch() {
-    use baton_proto::dist::simnet::Fate;
+    use baton_proto::testing::simulated_cluster::Fate;
     let mut sim = SimCluster::new(&cell(), CELL_AGENTS, Faults::default(), 5);
     sim.set_at(0, "parts", serde_json::json!(1));
     sim.crash_coordinator_at(600, 1_000);
@@ -431,7 +434,7 @@ fn an_agent_restarted_while_the_coordinator_was_down_runs_its_segment_again_in_a
     sim.fate_at(650, holder, Fate::Kill);
     sim.fate_at(700, holder, Fate::Restart);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
     let assemble = assembled_by(&sim);
     assert_eq!(assemble.len(), 2, "{assemble:?}");
     assert_eq!(assemble[1].1, Some(assemble[0].1.unwrap() + 1), "a new epoch: {assemble:?}");
@@ -440,7 +443,7 @@ fn an_agent_restarted_while_the_coordinator_was_down_runs_its_segment_again_in_a
 
 #[test]
 fn an_agent_that_does_not_come_back_after_a_coordinator_restart_is_lost_after_its_lease() {
-    use baton_proto::dist::simnet::Fate;
+    use baton_proto::testing::simulated_cluster::Fate;
     // robot1 holds Assemble and dies while the coordinator is down; the new coordinator waits for it for its
     // lease (1 s in the simulation), then reassigns its segment to robot2 in a new epoch.
     let mut sim = SimCluster::new(&cell(), CELL_AGENTS, Faults::default(), 5);
@@ -449,7 +452,7 @@ fn an_agent_that_does_not_come_back_after_a_coordinator_restart_is_lost_after_it
     sim.crash_coordinator_at(600, 500);
     sim.fate_at(650, "robot1", Fate::Kill);
     assert!(sim.run(10_000), "did not finish");
-    assert_eq!(sim.value("done"), Some(baton_proto::exec::types::Value::Int(1)));
+    assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
     let lost = sim.trace.iter().find(|r| r.event == "agent_lost" && r.name == "robot1").expect("lost");
     assert!((2_100..2_300).contains(&lost.t_ms), "lost one lease after the restart at 1 100 ms: {} ms", lost.t_ms);
@@ -474,7 +477,8 @@ fn a_long_outage_of_the_coordinator_loses_no_report() {
     let mut sim = SimCluster::new(COUNTING, &[("r1", &[])], Faults::default(), 3);
     sim.crash_coordinator_at(2_000, 15_000);
     assert!(sim.run(60_000), "seed 3: the token never came back");
-    let expected = baton_tests::reference::final_values(COUNTING, baton_proto::dist::simnet::CYCLE_MS, &["n"]);
+    let expected =
+        baton_tests::reference::final_values(COUNTING, baton_proto::testing::simulated_cluster::CYCLE_MS, &["n"]);
     assert_eq!(sim.value("n").map(|v| v.as_i64()), Some(expected[0]), "n as one engine counts it");
     assert_eq!(sim.events("return").len(), 1);
 }
@@ -506,7 +510,8 @@ fn a_restarted_agent_computes_on_the_values_the_chart_has() {
     // value: then it counts on from about 100 and the chart ends with what one engine computes. (Before, it
     // counted from 0 to about 30, `v` fell below the snapshot, and Check never cleared.)
     let names = ["v", "snap"];
-    let expected = baton_tests::reference::final_values(RECOUNTING, baton_proto::dist::simnet::CYCLE_MS, &names);
+    let expected =
+        baton_tests::reference::final_values(RECOUNTING, baton_proto::testing::simulated_cluster::CYCLE_MS, &names);
     assert!(expected[1] >= 90 && expected[0] >= expected[1] + 25, "the reference counted: {expected:?}");
     for seed in 0..8 {
         // No loss: a report lost and not yet resent when r1 dies would restart First in a new epoch, which counts
@@ -514,8 +519,8 @@ fn a_restarted_agent_computes_on_the_values_the_chart_has() {
         let faults = Faults { duplicate: 0.3, reorder: true, delay_ms_max: 8, loss: 0.0 };
         let mut sim = SimCluster::new(RECOUNTING, &[("r1", &[])], faults, seed);
         // SIGKILLed while it holds no token, and started again under its name.
-        sim.fate_at(1_500, "r1", baton_proto::dist::simnet::Fate::Kill);
-        sim.fate_at(1_600, "r1", baton_proto::dist::simnet::Fate::Restart);
+        sim.fate_at(1_500, "r1", baton_proto::testing::simulated_cluster::Fate::Kill);
+        sim.fate_at(1_600, "r1", baton_proto::testing::simulated_cluster::Fate::Restart);
         let done = sim.run(30_000);
         let got: Vec<i64> = names.iter().map(|n| sim.value(n).map_or(-1, |v| v.as_i64())).collect();
         assert!(done, "seed {seed}: the chart never ended ({names:?} = {got:?})");
@@ -631,7 +636,7 @@ END_PROGRAM
 #[test]
 fn agents_take_a_value_only_from_its_writer_and_the_coordinators_own_process() {
     use baton_proto::dist::wire::{VarUpdate, VarValue};
-    use baton_proto::exec::types::Value;
+    use baton_proto::types::Value;
     let go = |from: &str, incarnation: u128, seq: u64| {
         let sim = SimCluster::new(WAITING_FOR_GO, &[("r1", &[])], Faults::default(), 0);
         let program = sim.coordinator.core().program();
@@ -754,13 +759,13 @@ fn counting_cell(rng: &mut baton_tests::gen::Rng) -> (String, Vec<String>) {
 /// lost between processes, shows here.
 #[test]
 fn random_restarts_end_with_the_values_baton_sim_computes() {
-    use baton_proto::dist::simnet::{Fate, CYCLE_MS};
+    use baton_proto::testing::simulated_cluster::{Fate, CYCLE_MS};
     use baton_tests::gen::Rng;
     let (mut compared, mut restarted_agents) = (0usize, 0usize);
     for &seed in &seeds() {
         let mut rng = Rng::new(seed ^ 0x7e57);
         let (source, names) = counting_cell(&mut rng);
-        if baton_proto::front::check::check_source(&source).error_count() != 0 {
+        if baton_proto::pipeline::check_source(&source).error_count() != 0 {
             continue;
         }
         let refs: Vec<&str> = names.iter().map(String::as_str).collect();

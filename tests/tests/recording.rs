@@ -43,7 +43,7 @@ fn check_recording(rrd: &Path, trace: &[TraceRecord], parts: u64) {
         .collect();
     let cell = repo("examples/cell.st");
     let source = std::fs::read_to_string(&cell).expect("chart");
-    let report = baton_proto::front::check::check_source(&source);
+    let report = baton_proto::pipeline::check_source(&source);
     let program = report.charts[0].program.as_ref().expect("valid chart");
     let mut expected: Vec<String> = vec!["/sfc/graph".into(), "/log".into(), "/vars/done".into(), "/vars/parts".into()];
     expected.extend(program.steps.iter().map(|s| format!("/sfc/steps/{}", s.name)));

@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use baton_proto::front::check::check_source;
+use baton_proto::pipeline::check_source;
 
 /// The names of the standard's tables (IEC 61131-3 ed. 3, tables 22 to 39 and 43 to 46), as the doc writes
 /// them (`*_TO_**` stands for every conversion between two elementary types).

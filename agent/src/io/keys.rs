@@ -9,8 +9,8 @@
 use std::sync::Arc;
 
 use baton_proto::dist::io::IoBinding;
-use baton_proto::exec::types::Value;
 use baton_proto::front::literal::{self, Literal};
+use baton_proto::types::Value;
 use zenoh::qos::CongestionControl;
 use zenoh::Session;
 

@@ -16,7 +16,7 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 
 use baton_proto::dist::io::{IoBinding, IoDir, IoKind};
-use baton_proto::exec::types::Value;
+use baton_proto::types::Value;
 use tokio::sync::Notify;
 use tokio::task::JoinHandle;
 use zenoh::Session;

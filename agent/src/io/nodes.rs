@@ -15,9 +15,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use baton_proto::dist::io::{IoBinding, IoDir};
-use baton_proto::dist::layout::Param;
-use baton_proto::exec::types::Value;
 use baton_proto::front::literal::Literal;
+use baton_proto::front::pragma::Param;
+use baton_proto::types::Value;
 use opcua::client::{DataChangeCallback, MonitoredItem, Session};
 use opcua::types::{
     AttributeId, DataValue, MonitoredItemCreateRequest, MonitoringMode, MonitoringParameters, NodeId, NumericRange,

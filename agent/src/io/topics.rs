@@ -12,8 +12,8 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use baton_proto::dist::io::IoBinding;
-use baton_proto::exec::types::Value;
 use baton_proto::front::literal::{Literal, PathPart};
+use baton_proto::types::Value;
 use zenoh::sample::SampleKind;
 use zenoh::Session;
 

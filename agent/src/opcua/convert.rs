@@ -3,8 +3,8 @@
 //! its range is an error, not a wrap); what a server answers becomes a BOOL, an integer, a REAL, a TIME or a
 //! STRING of the chart.
 
-use baton_proto::exec::types::Value;
 use baton_proto::front::literal::{show_path, Literal, PathPart};
+use baton_proto::types::Value;
 use opcua::types::{Array, NodeId, UAString, Variant, VariantScalarTypeId};
 
 /// The built-in data types (namespace 0) that a chart's values convert to.

@@ -14,7 +14,7 @@ use std::str::FromStr;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use baton_proto::dist::layout::Param;
+use baton_proto::front::pragma::Param;
 use opcua::client::{ClientBuilder, IdentityToken, Session};
 use opcua::types::{EndpointDescription, MessageSecurityMode, NodeId, StatusCode, UserTokenPolicy};
 use tokio::task::JoinHandle;

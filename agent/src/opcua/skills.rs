@@ -17,8 +17,8 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use baton_proto::dist::layout::Param;
 use baton_proto::front::literal::{self, Literal};
+use baton_proto::front::pragma::Param;
 use opcua::client::{DataChangeCallback, MonitoredItem, Session};
 use opcua::types::{
     BrowseDescription, BrowseDirection, BrowseResultMask, CallMethodRequest, DataValue, NodeClassMask, NodeId,

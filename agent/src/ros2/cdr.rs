@@ -5,8 +5,8 @@
 
 use std::sync::Arc;
 
-use baton_proto::exec::types::Value;
 use baton_proto::front::literal::{show_path, Literal, PathPart};
+use baton_proto::types::Value;
 use hiroz_cdr::{CdrReader, CdrWriter, LittleEndian};
 use hiroz_codegen::types::DefaultValue;
 

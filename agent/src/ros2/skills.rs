@@ -15,9 +15,9 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use baton_proto::dist::layout::Param;
-use baton_proto::exec::types::Value;
 use baton_proto::front::literal::{self, Literal};
+use baton_proto::front::pragma::Param;
+use baton_proto::types::Value;
 
 use super::cdr::{self, RosValue};
 use super::client::{Node, Ros2};

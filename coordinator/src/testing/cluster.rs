@@ -20,12 +20,12 @@ use anyhow::{anyhow, Context};
 use baton_proto::dist::keys;
 use baton_proto::dist::netconfig::NetConfig;
 use baton_proto::dist::runtime::coordinator::LossPolicy;
-use baton_proto::dist::simnet::{Rng, LEASE_MS};
 use baton_proto::exec::program::VarId;
 use baton_proto::exec::sim::{parse_value, TraceRecord};
-use baton_proto::exec::types::{Type, Value};
 use baton_proto::testing::run::{fault_rng, jitter, CaseResult, Observer, Outcome};
 use baton_proto::testing::scenario::{show_ms, FaultKind, NetFaults, RunState, Scenario, Trigger};
+use baton_proto::testing::simulated_cluster::{Rng, LEASE_MS};
+use baton_proto::types::{Type, Value};
 use tokio::process::{Child, Command};
 use zenoh::Session;
 

@@ -242,7 +242,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
     // The scenarios that run, with their first seed.
     let mut runnable: Vec<(usize, u64)> = Vec::new();
     for path in &files {
-        let v = match scenario::load(path) {
+        let v = match scenario::load(path, &|p| std::fs::read_to_string(p)) {
             Ok(sc) => match opts.cluster.then(|| cluster::unsupported(&sc)).flatten() {
                 Some(why) => Verdict::refused(path, EXIT_CANNOT_RUN, format!("{}: {why}", path.display())),
                 None => {

@@ -10,6 +10,7 @@
 //! the POU's. Baton's element order — which is execution order — goes to the POU's `addData` under
 //! `ORDER_DATA`, which Baton's reader follows and other tools ignore, so that importing the export gives the
 //! same program.
+#![allow(clippy::disallowed_types, reason = "tables looked up only: the XML follows the chart's order")]
 
 use std::collections::HashMap;
 use std::fmt::Write;
@@ -17,9 +18,7 @@ use std::fmt::Write;
 use crate::back::st;
 use crate::exec::program::{Program, TransitionId};
 use crate::front::model::*;
-
-/// The `addData/data@name` under which Baton keeps its element order.
-pub const ORDER_DATA: &str = "https://baton.dev/plcopen/element-order";
+use crate::front::plcopen::ORDER_DATA;
 
 /// Where a chart's parts are drawn.
 const STEP_W: i64 = 120;

@@ -3,8 +3,8 @@
 
 use std::fmt::Write;
 
-use crate::exec::types::{quote_string, Type, Value};
 use crate::front::model::*;
+use crate::types::{quote_string, Type, Value};
 
 /// The binding strength of a binary operator, as the parser's (higher binds tighter).
 fn level(op: BinOp) -> u8 {

@@ -21,12 +21,13 @@
 
 use std::collections::BTreeMap;
 
-use crate::dist::layout::{is_valid_name, Param};
+use crate::dist::keys::is_valid_name;
 use crate::exec::program::{Program, VarId};
-use crate::exec::types::Type;
 use crate::front::diag::{Diagnostic, Span};
 use crate::front::literal::{self, FieldPath, PathPart};
 use crate::front::model::Chart;
+use crate::front::pragma::Param;
+use crate::types::Type;
 
 /// Which way a bound variable's value goes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -378,7 +379,7 @@ pub fn is_node_id(text: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::front::check::check_source;
+    use crate::pipeline::check_source;
 
     fn bindings(src: &str) -> (Vec<IoBinding>, Vec<String>) {
         let report = check_source(src);

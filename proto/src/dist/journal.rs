@@ -494,7 +494,7 @@ mod tests {
         let first: Vec<TokenId> = (0..1000).map(|_| a()).collect();
         let again: Vec<TokenId> = (0..1000).map(|_| b()).collect();
         assert_eq!(first, again);
-        let distinct: std::collections::HashSet<_> = first.iter().collect();
+        let distinct: std::collections::BTreeSet<_> = first.iter().collect();
         assert_eq!(distinct.len(), first.len());
         let mut other = token_ids(RunId(Uuid::from_u128(0xbeef)));
         assert_ne!(other(), first[0]);
@@ -502,7 +502,7 @@ mod tests {
 
     /// A coordinator of a chart with a step on r1 that writes `n` and waits for input `go`, with r1 up.
     fn journaled() -> (Journaled, RunId) {
-        let (program, layout) = crate::dist::simnet::compile(
+        let (program, layout) = crate::testing::simulated_cluster::compile(
             "PROGRAM p\nVAR go : BOOL; n : DINT; note : STRING[8]; END_VAR\nINITIAL_STEP A: END_STEP\n\
              TRANSITION FROM A TO B := TRUE; END_TRANSITION\nSTEP B: {agent := 'r1'} Count(N); END_STEP\n\
              TRANSITION FROM B TO C := go; END_TRANSITION\nSTEP C: END_STEP\n\
@@ -524,13 +524,13 @@ mod tests {
         (j, run)
     }
 
-    fn value(j: &Journaled, name: &str, v: crate::exec::types::Value) -> wire::VarValue {
+    fn value(j: &Journaled, name: &str, v: crate::types::Value) -> wire::VarValue {
         wire::VarValue::new(j.core().program().var_by_name(name).expect("a variable"), v)
     }
 
     #[test]
     fn what_the_coordinator_refuses_is_not_journaled() {
-        use crate::exec::types::Value;
+        use crate::types::Value;
         let (mut j, run) = journaled();
         let update = |from: &str, incarnation: u128, seq: u64, vars: Vec<wire::VarValue>| VarUpdate {
             run,
@@ -630,7 +630,7 @@ mod tests {
     #[test]
     fn the_program_pin_changes_with_what_the_numbers_mean() {
         let pin = |src: &str| {
-            let (program, layout) = crate::dist::simnet::compile(src);
+            let (program, layout) = crate::testing::simulated_cluster::compile(src);
             program_pin(&program, &layout)
         };
         let chart = |vars: &str, placed: &str| {

@@ -12,11 +12,16 @@
 //! baton/run/<run>/status              queryable: active steps, tokens, agents (StatusReport)
 //! baton/run/<run>/set                 queryable: set an input (SetRequest → SetReply)
 //! ```
-//! Agent names and roles are restricted to letters, digits, `_` and `-` (`layout::is_valid_name`), so they are
+//! Agent names and roles are restricted to letters, digits, `_` and `-` (`is_valid_name`), so they are
 //! always single chunks; a run is 32 hex digits.
 
 use crate::dist::wire::RunId;
 use uuid::Uuid;
+
+/// Agent names and roles become key-expression chunks: keep them to letters, digits, `_` and `-`.
+pub fn is_valid_name(name: &str) -> bool {
+    !name.is_empty() && name.len() <= 64 && name.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+}
 
 const ROOT: &str = "baton";
 

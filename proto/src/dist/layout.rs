@@ -13,12 +13,13 @@
 use std::collections::BTreeMap;
 use std::fmt;
 
+use crate::dist::keys::is_valid_name;
 use crate::exec::engine::{Scope, TransitionScope};
 use crate::exec::program::{walk_body, ActionId, CExpr, CStmt, Program, StepId, TransitionId, VarId};
-use crate::exec::types::Value;
 use crate::front::diag::{Diagnostic, Span};
 use crate::front::literal::FieldPath;
 use crate::front::model::{Chart, Pragma};
+use crate::front::pragma::Param;
 
 #[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Placement {
@@ -53,31 +54,6 @@ pub struct Segment {
     pub placement: Placement,
     /// In id order; the first is the name the segment is known by.
     pub steps: Vec<StepId>,
-}
-
-/// A pragma value: `'text'`, a number, a duration or a boolean.
-#[derive(Clone, Debug, PartialEq)]
-pub enum Param {
-    Str(String),
-    Value(Value),
-}
-
-impl Param {
-    pub fn as_str(&self) -> Option<&str> {
-        match self {
-            Param::Str(s) => Some(s),
-            Param::Value(_) => None,
-        }
-    }
-
-    /// A number or a duration, in its own unit (a duration in ms).
-    pub fn as_f64(&self) -> Option<f64> {
-        match self {
-            Param::Value(Value::Int(i) | Value::Time(i)) => Some(*i as f64),
-            Param::Value(Value::Real(r)) => Some(*r),
-            _ => None,
-        }
-    }
 }
 
 /// `ACTION Pick: {skill := 'motion', ms := 800} END_ACTION`: the action starts skill `motion` on its agent.
@@ -184,11 +160,6 @@ impl Layout {
     pub fn written_by<'a>(&'a self, placement: &'a Placement) -> impl Iterator<Item = VarId> + 'a {
         self.writer.iter().enumerate().filter(move |(_, w)| *w == placement).map(|(i, _)| VarId(i as u32))
     }
-}
-
-/// Agent names and roles become key-expression chunks: keep them to letters, digits, `_` and `-`.
-pub fn is_valid_name(name: &str) -> bool {
-    !name.is_empty() && name.len() <= 64 && name.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
 }
 
 /// Lays out a compiled chart. `chart` is the chart `program` was compiled from without errors, so step and

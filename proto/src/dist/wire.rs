@@ -9,8 +9,8 @@ use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
 use crate::exec::program::{Program, VarId};
-use crate::exec::types::Value;
 use crate::limits::MESSAGE_BYTES_MAX;
+use crate::types::Value;
 
 /// 3: dispatches and joins carry the values of the variables the agent writes (a new process takes them) and the
 /// writers it may hear variables from (`Peer`); `ToAgent::Peers` tells agents when those change.

@@ -8,6 +8,10 @@
 //! linear in the size of the chart. Anything that does not fit this shape (a branch left through a selection,
 //! a convergence of mutually exclusive steps, initial steps that meet) is settled by the exhaustive pass,
 //! which explores the reachable situations (sets of active steps) up to `ANALYSIS_SITUATIONS_MAX`.
+#![allow(
+    clippy::disallowed_types,
+    reason = "the explored situations are looked up, never iterated: the exploration order is the queue's"
+)]
 
 use std::collections::{HashMap, HashSet, VecDeque};
 

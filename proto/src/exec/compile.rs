@@ -1,15 +1,19 @@
 //! Resolves a chart's names, type-checks its expressions and builds the `Program` the engine runs.
+#![allow(
+    clippy::disallowed_types,
+    reason = "name tables, looked up only: what compile emits follows the source's order"
+)]
 
 use std::collections::HashMap;
 use std::sync::Arc;
 
 use crate::exec::eval::{eval, is_constant, NoEnv};
 use crate::exec::program::*;
-use crate::exec::stdlib::{DateFn, DatePart, Func, MemberKind, StdFb, TextFn};
-use crate::exec::types::{IntKind, Type, Value};
 use crate::front::diag::{Diagnostic, Span};
 use crate::front::model::*;
 use crate::limits::NESTING_DEPTH_MAX;
+use crate::types::library::{DateFn, DatePart, Func, MemberKind, StdFb, TextFn};
+use crate::types::{IntKind, Type, Value};
 
 /// The result of compiling one chart: a program (with placeholders wherever an error was reported) and whether
 /// its net of steps and transitions resolved well enough to be analysed.
@@ -51,7 +55,7 @@ pub fn compile(chart: &Chart, library: &[FbDef], types: &[TypeDef], diags: &mut 
         current_user: None,
         calling_actions: Vec::new(),
         called_actions: HashMap::new(),
-        depth_memo: HashMap::new(),
+        depth_memo: std::collections::BTreeMap::new(),
     };
     c.run()
 }
@@ -277,7 +281,7 @@ struct Compiler<'a> {
     /// Types declared in the file, and those resolved so far; enumerations with their initial ordinals.
     types: HashMap<String, &'a TypeDef>,
     resolved: HashMap<String, Type>,
-    enums: Vec<(std::sync::Arc<crate::exec::types::EnumType>, i64)>,
+    enums: Vec<(std::sync::Arc<crate::types::EnumType>, i64)>,
     /// The chart's arrays: first element, bounds, element type.
     arrays: HashMap<String, ArrayInfo>,
     /// The chart's structure variables: their type's name and field names.
@@ -300,7 +304,7 @@ struct Compiler<'a> {
     calling_actions: Vec<String>,
     called_actions: HashMap<String, Arc<Vec<CStmt>>>,
     /// `exec_depth` of every shared body measured so far, by address.
-    depth_memo: HashMap<*const Vec<CStmt>, usize>,
+    depth_memo: std::collections::BTreeMap<*const Vec<CStmt>, usize>,
 }
 
 /// How a declaration's variables are held: CONSTANT or not, their section, hidden from names or not.
@@ -1495,7 +1499,7 @@ impl<'a> Compiler<'a> {
         let ty = match &def.kind {
             TypeKind::Enum { values, init } => {
                 let id = self.enums.len() as u32;
-                let et = crate::exec::types::EnumType {
+                let et = crate::types::EnumType {
                     id,
                     name: def.name.name.clone(),
                     values: values.iter().map(|v| v.name.clone()).collect(),

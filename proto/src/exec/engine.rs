@@ -23,9 +23,9 @@ use std::sync::Arc;
 
 use crate::exec::eval::{self, Env, EnvMut, Fault};
 use crate::exec::program::{ActionId, Program, StepId, TransitionId, VarId};
-use crate::exec::types::{Type, Value};
 use crate::front::model::Qualifier;
 use crate::limits::REACTION_ROUNDS_MAX;
+use crate::types::{Type, Value};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Event {

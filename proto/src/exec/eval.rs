@@ -1,47 +1,12 @@
 //! Evaluates typed expressions and runs action bodies against the engine's state (or none, for constants).
 
-use crate::exec::program::{
-    ActionId, ArithOp, CExpr, CStmt, CmpOp, DurationSrc, LogicOp, NestedChart, NestedStep, StepId, VarId,
-};
-use crate::exec::stdlib::{self, Func};
-use crate::exec::types::{IntKind, Type, Value};
+pub use crate::exec::env::{Env, EnvMut, Fault, NoEnv};
+use crate::exec::program::{ArithOp, CExpr, CStmt, CmpOp, DurationSrc, LogicOp, NestedChart, NestedStep, VarId};
+use crate::exec::stdlib;
 use crate::front::model::Qualifier;
 use crate::limits::LOOP_ITERATIONS_MAX;
-
-/// What an expression can read.
-pub trait Env {
-    fn var(&self, id: VarId) -> Value;
-    fn step_x(&self, id: StepId) -> bool;
-    /// `S.T` in milliseconds.
-    fn step_t(&self, id: StepId) -> i64;
-    fn action_q(&self, id: ActionId) -> bool;
-    /// The cycle's time in milliseconds, as function blocks see it.
-    fn now_ms(&self) -> i64;
-}
-
-/// Storage an action body writes to.
-pub trait EnvMut: Env {
-    fn set_var(&mut self, id: VarId, value: Value);
-}
-
-/// A run-time fault; the engine reports it and carries on.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Fault {
-    DivisionByZero,
-    /// A transition gave an active step a second token (the net is not safe); the tokens merged. Only a chart
-    /// whose safety could not be proven (`unverified_net := TRUE`) can get here.
-    SecondToken(crate::exec::program::StepId),
-    /// A loop ran past the budget of `LOOP_ITERATIONS_MAX` loop passes and block calls of one run of a body.
-    LoopLimit,
-    /// A call of a user block or function ran past that budget (a tree of calls).
-    CallLimit,
-    /// MUX's selector named no input.
-    MuxSelector,
-    /// An array index outside the array's bounds.
-    IndexOutOfRange,
-    /// CONCAT_DATE, CONCAT_TOD or CONCAT_DT of a date or time that is not on the calendar.
-    NoSuchDate,
-}
+use crate::types::library::Func;
+use crate::types::{IntKind, Type, Value};
 
 /// The element an index expression names.
 fn element(ix: &crate::exec::program::IndexExpr, env: &impl Env) -> Result<VarId, Fault> {
@@ -528,26 +493,5 @@ pub fn is_constant(e: &CExpr) -> bool {
         CExpr::Arith { lhs, rhs, .. } => is_constant(lhs) && is_constant(rhs),
         CExpr::Call(c) => c.args.iter().all(is_constant),
         CExpr::Index(_) | CExpr::NestedT(_) => false,
-    }
-}
-
-/// The environment of a constant expression: it reads nothing.
-pub struct NoEnv;
-
-impl Env for NoEnv {
-    fn var(&self, _: VarId) -> Value {
-        Value::Bool(false)
-    }
-    fn step_x(&self, _: StepId) -> bool {
-        false
-    }
-    fn step_t(&self, _: StepId) -> i64 {
-        0
-    }
-    fn action_q(&self, _: ActionId) -> bool {
-        false
-    }
-    fn now_ms(&self) -> i64 {
-        0
     }
 }

@@ -1,11 +1,11 @@
 //! The executable form of a chart: names resolved to ids, expressions typed, transitions ranked by priority.
 //! The engine runs a `Program`; only `compile` builds one, and only from a chart without errors.
 
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 
-use crate::exec::stdlib::{Func, StdFb};
-use crate::exec::types::{IntKind, Type, Value};
 use crate::front::model::{Pragma, Qualifier, VarSection};
+use crate::types::library::{Func, StdFb};
+use crate::types::{IntKind, Type, Value};
 
 macro_rules! id {
     ($name:ident) => {
@@ -374,12 +374,12 @@ impl NestedChart {
 /// of its call. The walk inside a body uses a stack of its own, and each shared body is measured once (`memo`,
 /// by address), so a body called from many places costs one walk; what recursion remains follows the nesting of
 /// blocks, functions and charts, which the compiler bounds.
-pub fn exec_depth(body: &[CStmt], memo: &mut HashMap<*const Vec<CStmt>, usize>) -> usize {
+pub fn exec_depth(body: &[CStmt], memo: &mut BTreeMap<*const Vec<CStmt>, usize>) -> usize {
     measure(vec![(Item::Stmts(body), 0)], memo)
 }
 
 /// The same for a transition: the calls its condition needs, and the condition.
-pub fn condition_depth(calls: &[CStmt], condition: &CExpr, memo: &mut HashMap<*const Vec<CStmt>, usize>) -> usize {
+pub fn condition_depth(calls: &[CStmt], condition: &CExpr, memo: &mut BTreeMap<*const Vec<CStmt>, usize>) -> usize {
     measure(vec![(Item::Stmts(calls), 0), (Item::Expr(condition), 0)], memo)
 }
 
@@ -390,7 +390,7 @@ enum Item<'b> {
     Body(&'b std::sync::Arc<Vec<CStmt>>),
 }
 
-fn measure(start: Vec<(Item, usize)>, memo: &mut HashMap<*const Vec<CStmt>, usize>) -> usize {
+fn measure(start: Vec<(Item, usize)>, memo: &mut BTreeMap<*const Vec<CStmt>, usize>) -> usize {
     let mut max = 0;
     let mut stack = start;
     while let Some((item, level)) = stack.pop() {
@@ -481,14 +481,14 @@ fn measure(start: Vec<(Item, usize)>, memo: &mut HashMap<*const Vec<CStmt>, usiz
 /// walked once: what it may write and read does not depend on how often it runs, and a chain of blocks each
 /// calling the next twice would otherwise cost 2^depth.
 pub fn walk_body(body: &[CStmt], write: &mut impl FnMut(VarId), read: &mut impl FnMut(&CExpr)) {
-    walk_body_once(body, write, read, &mut std::collections::HashSet::new());
+    walk_body_once(body, write, read, &mut std::collections::BTreeSet::new());
 }
 
 fn walk_body_once(
     body: &[CStmt],
     write: &mut impl FnMut(VarId),
     read: &mut impl FnMut(&CExpr),
-    seen: &mut std::collections::HashSet<*const Vec<CStmt>>,
+    seen: &mut std::collections::BTreeSet<*const Vec<CStmt>>,
 ) {
     for stmt in body {
         match stmt {

@@ -7,8 +7,8 @@ use serde::{Deserialize, Serialize};
 use crate::exec::engine::{Engine, Event, EventKind, FaultSource, Input};
 use crate::exec::eval::Fault;
 use crate::exec::program::{Program, VarId};
-use crate::exec::types::{Type, Value};
 use crate::front::lexer::{lex, Tok};
+use crate::types::{Type, Value};
 
 /// One line of a trace: `{"t_ms": 20, "event": "activate", "name": "Fill"}`.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -127,7 +127,7 @@ pub fn parse_value(ty: &Type, json: &serde_json::Value) -> Option<Value> {
         Type::Str { .. } => {
             let text = match json {
                 serde_json::Value::String(s) if s.len() >= 2 && s.starts_with('\'') && s.ends_with('\'') => {
-                    crate::exec::types::unquote_string(&s[1..s.len() - 1]).unwrap_or_else(|_| s.clone())
+                    crate::types::unquote_string(&s[1..s.len() - 1]).unwrap_or_else(|_| s.clone())
                 }
                 serde_json::Value::String(s) => s.clone(),
                 serde_json::Value::Number(n) => n.to_string(),

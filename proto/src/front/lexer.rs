@@ -315,7 +315,7 @@ impl Lexer<'_> {
                 self.calendar(start, kind);
                 return;
             }
-            if crate::exec::types::Type::from_name(&upper).is_some() {
+            if crate::types::Type::from_name(&upper).is_some() {
                 // A typed literal such as INT#5 or BOOL#TRUE: the literal's own value is what matters.
                 self.pos += 1;
                 return;
@@ -344,7 +344,7 @@ impl Lexer<'_> {
                 _ => 31,
             };
             ((1..=9999).contains(&y) && (1..=12).contains(&m) && (1..=days_in_month).contains(&d))
-                .then(|| crate::exec::types::days_from_civil(y, m, d) * 86_400_000)
+                .then(|| crate::types::days_from_civil(y, m, d) * 86_400_000)
         };
         let tod = |s: &str| -> Option<i64> {
             let mut it = s.splitn(3, ':');

@@ -4,9 +4,9 @@
 //! because a pragma ends at its first `}` (so never JSON), and they are read here, where `baton check` sees
 //! them, so that a malformed goal is an error in the editor rather than a fault on the robot.
 
-use crate::exec::types::{unquote_string, Value};
 use crate::front::lexer::{lex, Kw, Tok, Token};
 use crate::limits::LITERAL_ELEMENTS_MAX;
+use crate::types::{unquote_string, Value};
 
 /// A value written as an IEC 61131-3 literal.
 #[derive(Clone, Debug, PartialEq)]

@@ -649,7 +649,7 @@ impl Parser<'_> {
         }
         self.expect(Tok::Colon, "`:`")?;
         let type_name = self.type_ident("a type name")?;
-        let elementary = crate::exec::types::Type::from_name(&type_name.key()).is_some();
+        let elementary = crate::types::Type::from_name(&type_name.key()).is_some();
         let mut init = None;
         let mut members = Vec::new();
         let mut array = None;
@@ -660,7 +660,7 @@ impl Parser<'_> {
                 init = Some(self.expr()?);
             }
         } else if self.peek() == Tok::Assign
-            && (self.peek_at(1) == Tok::LParen || crate::exec::stdlib::StdFb::from_name(&type_name.key()).is_some())
+            && (self.peek_at(1) == Tok::LParen || crate::types::library::StdFb::from_name(&type_name.key()).is_some())
         {
             // An instance's (or a structure's) initial members: `:= (PT := T#2s)`.
             self.bump();
@@ -1374,7 +1374,7 @@ impl Parser<'_> {
                 let problem = if raw.starts_with('"') {
                     Err("a double-quoted literal is a WSTRING, which Baton does not execute: write 'text'".to_string())
                 } else {
-                    crate::exec::types::unquote_string(&raw[1..raw.len() - 1])
+                    crate::types::unquote_string(&raw[1..raw.len() - 1])
                 };
                 // A bad literal is reported and read as its raw text, so that the body around it is checked too.
                 match problem {

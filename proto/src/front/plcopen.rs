@@ -8,6 +8,10 @@
 //! convergences and simultaneous divergences to steps and jumps. Conditions and actions are ST text (parsed by
 //! the textual parser as fragments, at their place in the file) or LD/FBD networks, which become expressions
 //! and assignments. What Baton does not run yet is refused with an error that names it.
+#![allow(
+    clippy::disallowed_types,
+    reason = "id and name tables, looked up only: the chart follows the XML's order (or Baton's element order)"
+)]
 
 use std::collections::{HashMap, HashSet};
 
@@ -17,6 +21,9 @@ use crate::front::diag::{Diagnostic, Span};
 use crate::front::model::*;
 use crate::front::parser::{parse_fragment, Fragment, FragmentKind, Parsed};
 use crate::limits::{NESTING_DEPTH_MAX, XML_CONNECTIONS_WALKED_MAX, XML_NODES_MAX};
+
+/// The `addData/data@name` under which Baton keeps its element order.
+pub const ORDER_DATA: &str = "https://baton.dev/plcopen/element-order";
 
 /// The namespaces of the TC6 versions Baton reads.
 const NAMESPACES: [&str; 3] = [
@@ -1672,7 +1679,7 @@ impl Reader<'_> {
     }
 }
 
-/// Baton's element order from a POU's `addData` (see `back::plcopen::ORDER_DATA`): step names, transition
+/// Baton's element order from a POU's `addData` (see `ORDER_DATA`): step names, transition
 /// `localId`s and action names.
 struct BatonOrder {
     steps: Vec<String>,
@@ -1681,9 +1688,7 @@ struct BatonOrder {
 }
 
 fn baton_order(pou: Node) -> Option<BatonOrder> {
-    let data = child(pou, "addData")?
-        .children()
-        .find(|d| is(d, "data") && d.attribute("name") == Some(crate::back::plcopen::ORDER_DATA))?;
+    let data = child(pou, "addData")?.children().find(|d| is(d, "data") && d.attribute("name") == Some(ORDER_DATA))?;
     let order = child(data, "order")?;
     let words = |attr: &str| -> Vec<String> {
         order.attribute(attr).unwrap_or_default().split_whitespace().map(str::to_ascii_uppercase).collect()
@@ -1967,48 +1972,5 @@ mod tests {
         let d = &parsed.diagnostics[0];
         assert!(d.message.starts_with("malformed XML"), "{}", d.message);
         assert_eq!(crate::front::diag::LineIndex::new(src).line_col(d.span.start).0, 3);
-    }
-
-    #[test]
-    fn edge_contacts_pulse_for_one_evaluation_after_their_edge() {
-        // An LD action: `pulse` is a rising-edge contact on `x`, `low` a falling-edge one; a counter counts
-        // the pulses. They are R_TRIG and F_TRIG instances, as Beremiz compiles them, so the falling one also
-        // pulses at its first call, x being FALSE.
-        let src = r#"<project xmlns="http://www.plcopen.org/xml/tc6_0201"><types><pous>
-<pou name="p" pouType="program"><interface><localVars>
-<variable name="x"><type><BOOL/></type></variable>
-<variable name="pulse"><type><BOOL/></type></variable>
-<variable name="low"><type><BOOL/></type></variable>
-<variable name="n"><type><INT/></type></variable>
-<variable name="m"><type><INT/></type></variable>
-</localVars></interface>
-<actions>
-<action name="Watch"><body><LD>
-<leftPowerRail localId="1"><connectionPointOut formalParameter=""/></leftPowerRail>
-<contact localId="2" edge="rising"><connectionPointIn><connection refLocalId="1"/></connectionPointIn><connectionPointOut/><variable>x</variable></contact>
-<coil localId="3"><connectionPointIn><connection refLocalId="2"/></connectionPointIn><connectionPointOut/><variable>pulse</variable></coil>
-<contact localId="4" edge="falling"><connectionPointIn><connection refLocalId="1"/></connectionPointIn><connectionPointOut/><variable>x</variable></contact>
-<coil localId="5"><connectionPointIn><connection refLocalId="4"/></connectionPointIn><connectionPointOut/><variable>low</variable></coil>
-</LD></body></action>
-<action name="Count"><body><ST><![CDATA[IF pulse THEN n := n + 1; END_IF; IF low THEN m := m + 1; END_IF;]]></ST></body></action>
-</actions>
-<body><SFC>
-<step localId="10" name="S" initialStep="true"/>
-<actionBlock localId="11"><connectionPointIn><connection refLocalId="10"/></connectionPointIn>
-<action localId="0" qualifier="N"><reference name="Watch"/></action>
-<action localId="0" qualifier="N"><reference name="Count"/></action></actionBlock>
-</SFC></body></pou></pous></types></project>"#;
-        let report = crate::front::check::check_source(src);
-        assert_eq!(report.error_count(), 0, "{:?}", report.diagnostics);
-        let program = std::sync::Arc::new(report.charts[0].program.clone().expect("a program"));
-        let x = program.var_by_name("x").expect("x");
-        let mut engine = crate::exec::engine::Engine::new(std::sync::Arc::clone(&program));
-        // x: FALSE, TRUE ×3, FALSE ×2, TRUE, FALSE: two rising edges, two falling ones and the start-up one.
-        for (i, v) in [false, true, true, true, false, false, true, false].into_iter().enumerate() {
-            engine.handle(crate::exec::engine::Input::Set(x, crate::exec::types::Value::Bool(v))).expect("set");
-            engine.handle_cycle(10 * i as u64).expect("cycle");
-        }
-        let value = |name: &str| engine.value(program.var_by_name(name).expect("var")).as_i64();
-        assert_eq!((value("n"), value("m")), (2, 3));
     }
 }

@@ -3,9 +3,33 @@
 //! but cannot be read, and one whose key is a near miss of Baton's, are reported (`baton check`); any other
 //! pragma is another tool's and is left alone.
 
-use crate::dist::layout::Param;
-use crate::exec::types::Value;
 use crate::front::lexer::{lex, Kw, Tok, Token};
+use crate::types::Value;
+
+/// A pragma value: `'text'`, a number, a duration or a boolean.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Param {
+    Str(String),
+    Value(Value),
+}
+
+impl Param {
+    pub fn as_str(&self) -> Option<&str> {
+        match self {
+            Param::Str(s) => Some(s),
+            Param::Value(_) => None,
+        }
+    }
+
+    /// A number or a duration, in its own unit (a duration in ms).
+    pub fn as_f64(&self) -> Option<f64> {
+        match self {
+            Param::Value(Value::Int(i) | Value::Time(i)) => Some(*i as f64),
+            Param::Value(Value::Real(r)) => Some(*r),
+            _ => None,
+        }
+    }
+}
 
 /// What the text of a pragma is.
 #[derive(Clone, Debug, PartialEq)]

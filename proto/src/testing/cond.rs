@@ -7,9 +7,9 @@
 //! the variables.
 
 use crate::exec::program::{Program, VarId};
-use crate::exec::types::Value;
 use crate::front::model::{BinOp, ExprKind, UnOp};
 use crate::front::parser::{parse_fragment, Fragment, FragmentKind};
+use crate::types::Value;
 
 #[derive(Clone, Debug)]
 pub enum Cond {

@@ -2,7 +2,7 @@
 //! each selection divergence (a step with several ways out), and which steps each fault struck — per scenario
 //! and over all the scenarios of one chart.
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet};
 
 use super::run::{follow_steps, Outcome};
 use crate::exec::program::{Program, StepId};
@@ -29,7 +29,7 @@ impl Coverage {
         }
         for (t, fault) in &o.faults {
             // The steps active just before the fault struck.
-            let mut active: HashMap<usize, Option<String>> = HashMap::new();
+            let mut active: BTreeMap<usize, Option<String>> = BTreeMap::new();
             for r in o.trace.iter().take_while(|r| r.t_ms < *t) {
                 if let Some(i) = step(&r.name) {
                     follow_steps(&mut active, i, r);

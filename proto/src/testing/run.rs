@@ -1,19 +1,19 @@
-//! Runs a scenario on the simulated cell (`crate::dist::simnet`): the real coordinator and agent state
+//! Runs a scenario on the simulated cell (`crate::testing::simulated_cluster`): the real coordinator and agent state
 //! machines and the real engine, on virtual time, from one seed — then judges every expectation.
 //!
 //! The seed decides everything random: durations within their ranges, `fault_rate`, the network's losses,
 //! duplicates, delays and order, and how late each fault with a `jitter` strikes. The same scenario and seed
 //! give the same run, so a failure found among many seeds is replayed by its seed alone.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::cond::View;
 use super::scenario::{chart_value, show_ms, Behaviour, ExpectKind, FaultKind, NetFaults, RunState, Scenario, Trigger};
-use crate::dist::simnet::{self, Fate, Faults, Rng, SimAgentSpec, SimCluster, SimSkill, SkillStart};
 use crate::exec::program::VarId;
 use crate::exec::sim::TraceRecord;
-use crate::exec::types::Value;
+use crate::testing::simulated_cluster::{self, Fate, Faults, Rng, SimAgentSpec, SimCluster, SimSkill, SkillStart};
+use crate::types::Value;
 
 /// The verdict on one expectation.
 #[derive(Clone, Debug)]
@@ -85,7 +85,7 @@ pub fn describe_record(r: &TraceRecord) -> String {
 
 /// Keeps `active` (step → the agent it runs on, `None` on the coordinator) up to date with a trace record of
 /// step `step`.
-pub fn follow_steps(active: &mut HashMap<usize, Option<String>>, step: usize, r: &TraceRecord) {
+pub fn follow_steps(active: &mut BTreeMap<usize, Option<String>>, step: usize, r: &TraceRecord) {
     match r.event.as_str() {
         "activate" => {
             active.insert(step, r.agent.clone());
@@ -103,7 +103,7 @@ pub fn follow_steps(active: &mut HashMap<usize, Option<String>>, step: usize, r:
 
 /// The run as conditions see it: the steps active anywhere, and the coordinator's variables.
 struct Now<'a> {
-    active: &'a HashMap<usize, Option<String>>,
+    active: &'a BTreeMap<usize, Option<String>>,
     value: &'a dyn Fn(VarId) -> Value,
 }
 
@@ -130,11 +130,11 @@ pub struct Due {
 /// `when` triggers fired. Then judges every expectation.
 pub struct Observer<'a> {
     sc: &'a Scenario,
-    steps: HashMap<String, usize>,
-    active: HashMap<usize, Option<String>>,
+    steps: BTreeMap<String, usize>,
+    active: BTreeMap<usize, Option<String>>,
     /// Invariants: expectation index → when first broken.
-    broken: HashMap<usize, u64>,
-    snapshots: HashMap<usize, Vec<(String, Value)>>,
+    broken: BTreeMap<usize, u64>,
+    snapshots: BTreeMap<usize, Vec<(String, Value)>>,
     active_at_failure: Option<(u64, ActiveSteps)>,
     fault_fired: Vec<bool>,
     input_fired: Vec<bool>,
@@ -146,9 +146,9 @@ impl<'a> Observer<'a> {
         Observer {
             sc,
             steps: sc.program.steps.iter().enumerate().map(|(i, s)| (s.name.clone(), i)).collect(),
-            active: HashMap::new(),
-            broken: HashMap::new(),
-            snapshots: HashMap::new(),
+            active: BTreeMap::new(),
+            broken: BTreeMap::new(),
+            snapshots: BTreeMap::new(),
             active_at_failure: None,
             fault_fired: sc.faults.iter().map(|f| matches!(f.trigger, Trigger::At(_))).collect(),
             input_fired: sc.inputs.iter().map(|i| matches!(i.trigger, Trigger::At(_))).collect(),
@@ -396,7 +396,7 @@ impl<'a> Observer<'a> {
     }
 }
 
-fn show_active(sc: &Scenario, active: &HashMap<usize, Option<String>>) -> ActiveSteps {
+fn show_active(sc: &Scenario, active: &BTreeMap<usize, Option<String>>) -> ActiveSteps {
     let mut v: ActiveSteps = active.iter().map(|(i, a)| (sc.program.steps[*i].name.clone(), a.clone())).collect();
     v.sort();
     v
@@ -439,12 +439,12 @@ fn strike(sim: &mut SimCluster, kind: &FaultKind, t: u64) {
 
 /// What the simulated skills do: the scenario's behaviour for their action, else the `motion` parameters. The
 /// simulated cell uses it, and so does `baton-agent --simulate`, in real time.
-pub fn skill_model(sc: &Scenario) -> crate::dist::simnet::SkillModel {
+pub fn skill_model(sc: &Scenario) -> crate::testing::simulated_cluster::SkillModel {
     let behaviours: BTreeMap<String, Behaviour> =
         sc.behaviours.iter().map(|(i, b)| (sc.program.actions[*i].name.clone(), b.clone())).collect();
-    let provides: HashMap<String, Option<std::collections::BTreeSet<String>>> =
+    let provides: BTreeMap<String, Option<std::collections::BTreeSet<String>>> =
         sc.agents.iter().map(|a| (a.name.clone(), a.skills.clone())).collect();
-    let mut runs: HashMap<String, usize> = HashMap::new();
+    let mut runs: BTreeMap<String, usize> = BTreeMap::new();
     Box::new(move |s: SkillStart<'_>| {
         if let Some(Some(skills)) = provides.get(s.agent) {
             if !skills.contains(&s.binding.skill) {
@@ -460,17 +460,17 @@ pub fn skill_model(sc: &Scenario) -> crate::dist::simnet::SkillModel {
         let nth = *n;
         *n += 1;
         // What the scenario does not say, the `motion` parameters decide, as in `baton run`'s demo.
-        let Some(b) = behaviours.get(s.action) else { return simnet::motion(s.binding, s.random) };
+        let Some(b) = behaviours.get(s.action) else { return simulated_cluster::motion(s.binding, s.random) };
         if b.hang {
             return SimSkill::Hang;
         }
         let after_ms = match b.duration {
             Some((lo, hi)) => lo + s.random % (hi - lo + 1),
-            None => simnet::motion_ms(s.binding),
+            None => simulated_cluster::motion_ms(s.binding),
         };
         let message = || b.message.clone().unwrap_or_else(|| "simulated fault".to_string());
         let result = match b.outcomes.as_slice() {
-            [] => simnet::motion_result(s.binding, s.random).map_err(|_| message()),
+            [] => simulated_cluster::motion_result(s.binding, s.random).map_err(|_| message()),
             o if o[nth.min(o.len() - 1)] => Ok(()),
             _ => Err(message()),
         };
@@ -597,8 +597,8 @@ fn quoted(items: &[&String]) -> String {
 /// The first time the skill of `action` ran twice in one run of its segment (one token's epoch): on two agents,
 /// or twice at once on one. `None` when it never did.
 pub fn runs_twice(trace: &[TraceRecord], action: &str) -> Option<(u64, String)> {
-    let mut on: HashMap<(String, u32), Vec<String>> = HashMap::new();
-    let mut running: HashMap<(String, u32, String), bool> = HashMap::new();
+    let mut on: BTreeMap<(String, u32), Vec<String>> = BTreeMap::new();
+    let mut running: BTreeMap<(String, u32, String), bool> = BTreeMap::new();
     for r in trace.iter().filter(|r| r.name == action) {
         let (Some(tok), Some(ep), Some(agent)) = (&r.token, r.epoch, &r.agent) else { continue };
         match r.event.as_str() {

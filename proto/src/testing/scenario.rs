@@ -18,8 +18,8 @@ use crate::dist::layout::Layout;
 use crate::dist::runtime::coordinator::LossPolicy;
 use crate::dist::wire::ChartHash;
 use crate::exec::program::Program;
-use crate::front::check::check_source;
 use crate::front::diag::LineIndex;
+use crate::pipeline::check_source;
 
 /// How long a scenario may run in chart time unless it says (`until`).
 pub const UNTIL_DEFAULT_MS: u64 = 600_000;
@@ -245,7 +245,7 @@ pub struct Behaviour {
     pub hang: bool,
     pub message: Option<String>,
     /// Values written to the skill's mapped output variables before it ends: (index in its binding, value).
-    pub writes: Vec<(usize, crate::exec::types::Value)>,
+    pub writes: Vec<(usize, crate::types::Value)>,
 }
 
 #[derive(Clone, Debug)]
@@ -459,8 +459,8 @@ fn to_json(v: &toml::Value) -> Option<serde_json::Value> {
 }
 
 /// A TOML value as a value of a chart variable of type `ty`: a TIME is written as a duration (`"2s"`).
-pub fn chart_value(v: &toml::Value, ty: &crate::exec::types::Type) -> Result<crate::exec::types::Value, String> {
-    use crate::exec::types::{Type, Value};
+pub fn chart_value(v: &toml::Value, ty: &crate::types::Type) -> Result<crate::types::Value, String> {
+    use crate::types::{Type, Value};
     let value = match v {
         toml::Value::Boolean(b) => Value::Bool(*b),
         toml::Value::Integer(i) => Value::Int(*i),
@@ -487,15 +487,17 @@ fn one_of<'a>(what: &str, present: &[(&'a str, bool)]) -> Result<&'a str, String
     }
 }
 
-/// Reads and checks the scenario at `path`.
-pub fn load(path: &Path) -> Result<Scenario, LoadError> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| LoadError::CannotRun(format!("cannot read {}: {e}", path.display())))?;
-    parse(path, &text)
+/// How a shell reads a file for the loader: proto never touches one itself.
+pub type ReadFile<'r> = &'r dyn Fn(&Path) -> std::io::Result<String>;
+
+/// Reads (with `read`) and checks the scenario at `path`.
+pub fn load(path: &Path, read: ReadFile) -> Result<Scenario, LoadError> {
+    let text = read(path).map_err(|e| LoadError::CannotRun(format!("cannot read {}: {e}", path.display())))?;
+    parse(path, &text, read)
 }
 
-/// Reads and checks the scenario `text`, read from `path` (its chart is relative to it).
-pub fn parse(path: &Path, text: &str) -> Result<Scenario, LoadError> {
+/// Checks the scenario `text`, read from `path`; its chart, relative to it, is read with `read`.
+pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadError> {
     let mut cx = Ctx { lines: LineIndex::new(text), errors: Vec::new() };
     let raw: RawScenario = match toml::from_str(text) {
         Ok(r) => r,
@@ -508,7 +510,7 @@ pub fn parse(path: &Path, text: &str) -> Result<Scenario, LoadError> {
     // The chart: relative to the scenario, so that a folder of both can go anywhere.
     let base = path.parent().unwrap_or(Path::new("."));
     let chart_path = base.join(raw.chart.get_ref());
-    let source = match std::fs::read_to_string(&chart_path) {
+    let source = match read(&chart_path) {
         Ok(s) => s,
         Err(e) => {
             let (line, col) = cx.at(&raw.chart.span());
@@ -584,10 +586,10 @@ pub fn parse(path: &Path, text: &str) -> Result<Scenario, LoadError> {
     let cycle_ms = match &raw.run.cycle_ms {
         Some(c) if !(1..=60_000).contains(c.get_ref()) => {
             cx.error(&c.span(), format!("`cycle_ms` is from 1 to 60000, not {}", c.get_ref()));
-            crate::dist::simnet::CYCLE_MS
+            crate::testing::simulated_cluster::CYCLE_MS
         }
         Some(c) => *c.get_ref(),
-        None => crate::dist::simnet::CYCLE_MS,
+        None => crate::testing::simulated_cluster::CYCLE_MS,
     };
     let journal = raw.run.journal.unwrap_or(true);
     let n = &raw.network;

@@ -12,7 +12,7 @@
 //! segment whose exit is already TRUE hands its token back without waiting for a cycle — and no action body runs
 //! more than once per cycle, whatever the traffic.
 
-use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 
 use crate::dist::io::{IoBinding, IoDir};
@@ -24,10 +24,10 @@ use crate::dist::wire::{
 use crate::exec::engine::{Engine, EventKind, Input, RemoteInput};
 use crate::exec::program::{ActionId, Program, StepId, VarId};
 use crate::exec::sim::fault_message;
-use crate::exec::types::Value;
 use crate::limits::{
     CATCH_UP_CYCLES_MAX, FINISHED_TOKENS_REMEMBERED, PARKED_UPDATE_BYTES_MAX, REPORTS_UNACKED_MAX, REPORT_EVENTS_MAX,
 };
+use crate::types::Value;
 
 use super::{Level, VarWrites, VarsResend, COORDINATOR};
 use uuid::Uuid;
@@ -122,10 +122,10 @@ pub struct AgentRun {
     /// The engine's grid is set: the first cycle planned (or the first token) set it, and every later cycle and
     /// every time the engine floors (a step's activation, a timer's start) is on it.
     grid_set: bool,
-    tokens: HashMap<TokenId, Holding>,
-    by_segment: HashMap<SegmentId, TokenId>,
+    tokens: BTreeMap<TokenId, Holding>,
+    by_segment: BTreeMap<SegmentId, TokenId>,
     /// Finished or dropped tokens and their last epoch here: a dispatch of that epoch or older is a duplicate.
-    finished: HashMap<TokenId, u32>,
+    finished: BTreeMap<TokenId, u32>,
     finished_order: VecDeque<TokenId>,
     /// Variables this agent may write; `pinned` marks those only it writes (placed on it by name), the others
     /// belong to a role it shares with other agents and follow whichever of them wrote last.
@@ -156,7 +156,7 @@ pub struct AgentRun {
     refusals_said: VecDeque<(String, Uuid)>,
     /// Per action: the segments with a step that uses it.
     action_segments: Vec<Vec<SegmentId>>,
-    running_skills: HashSet<ActionId>,
+    running_skills: BTreeSet<ActionId>,
     /// Since this agent lost its router (for how long it had been silent then): the skills of tokens that may be
     /// taken away are stopped and none starts.
     fenced: Option<u64>,
@@ -212,9 +212,9 @@ impl AgentRun {
             cycle_ms: cycle_ms.max(1),
             next_cycle_ms: None,
             grid_set: false,
-            tokens: HashMap::new(),
-            by_segment: HashMap::new(),
-            finished: HashMap::new(),
+            tokens: BTreeMap::new(),
+            by_segment: BTreeMap::new(),
+            finished: BTreeMap::new(),
             finished_order: VecDeque::new(),
             owned,
             pinned,
@@ -230,7 +230,7 @@ impl AgentRun {
             parked_bytes: 0,
             refusals_said: VecDeque::new(),
             action_segments,
-            running_skills: HashSet::new(),
+            running_skills: BTreeSet::new(),
             fenced: None,
             outbox: VecDeque::new(),
             dropped: 0,
@@ -258,7 +258,7 @@ impl AgentRun {
         };
         let (var, name) = (b.var, b.name.clone());
         let ty = &self.program.vars[var.index()].ty;
-        if matches!(value, Value::Str(_)) && !matches!(ty, crate::exec::types::Type::Str { .. }) {
+        if matches!(value, Value::Str(_)) && !matches!(ty, crate::types::Type::Str { .. }) {
             self.dropped += 1;
             let message =
                 format!("input `{name}`: `{value}` is not a {ty}; the value stays {}", self.engine.value(var));
@@ -714,7 +714,7 @@ impl AgentRun {
         if update.from == self.name || update.run != self.run {
             return;
         }
-        if update.from != COORDINATOR && !crate::dist::layout::is_valid_name(&update.from) {
+        if update.from != COORDINATOR && !crate::dist::keys::is_valid_name(&update.from) {
             self.dropped += 1;
             return;
         }
@@ -1138,7 +1138,7 @@ impl AgentRun {
 /// The token an action's event belongs to: that of the first segment using the action that has a token here.
 fn action_token(
     action_segments: &[Vec<SegmentId>],
-    by_segment: &HashMap<SegmentId, TokenId>,
+    by_segment: &BTreeMap<SegmentId, TokenId>,
     a: ActionId,
 ) -> Option<TokenId> {
     action_segments.get(a.index())?.iter().find_map(|g| by_segment.get(g).copied())

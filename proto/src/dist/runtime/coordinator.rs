@@ -13,7 +13,7 @@
 //! once and followed by a reaction (`Engine::react`), so a token's return or an input is acted on without
 //! waiting for the next cycle, and without running any action body an extra time.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 
 use crate::dist::layout::{Layout, Placement, SegmentId};
@@ -24,11 +24,11 @@ use crate::dist::wire::{
 use crate::exec::engine::{Engine, Event, EventKind, Input, RemoteInput};
 use crate::exec::program::{Program, StepId, TransitionId, VarId};
 use crate::exec::sim::{output_of, parse_value, SimOutput, TraceRecord};
-use crate::exec::types::Value;
 use crate::limits::{
     ACK_DELAY_MS, AGENTS_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_AHEAD_BYTES_MAX, REPORTS_AHEAD_MAX,
     STALE_EPOCHS_TRACED,
 };
+use crate::types::Value;
 
 use super::{Level, VarWrites, VarsResend, COORDINATOR};
 
@@ -173,12 +173,12 @@ pub struct Coordinator {
     engine: Engine,
     now_ms: u64,
     agents: BTreeMap<String, AgentState>,
-    tokens: HashMap<TokenId, TokenState>,
+    tokens: BTreeMap<TokenId, TokenState>,
     by_segment: Vec<Option<TokenId>>,
     /// Tokens no live agent can take yet, oldest first.
     waiting: Vec<TokenId>,
     /// Finished tokens and their last report, to answer a late duplicate with the same acknowledgement.
-    finished: HashMap<TokenId, (u32, u32, String)>,
+    finished: BTreeMap<TokenId, (u32, u32, String)>,
     finished_order: VecDeque<TokenId>,
     owned: Vec<VarId>,
     published: Vec<Option<Value>>,
@@ -243,9 +243,9 @@ impl Coordinator {
             engine,
             now_ms: 0,
             agents: BTreeMap::new(),
-            tokens: HashMap::new(),
+            tokens: BTreeMap::new(),
             waiting: Vec::new(),
-            finished: HashMap::new(),
+            finished: BTreeMap::new(),
             finished_order: VecDeque::new(),
             vars_seq: 0,
             vars_resend: VarsResend::default(),
@@ -786,8 +786,8 @@ impl Coordinator {
     /// An agent announced itself (or came back). Tokens waiting for it leave now.
     pub fn handle_agent_up(&mut self, now_ms: u64, info: AgentInfo) {
         self.advance(now_ms);
-        let valid = |n: &str| crate::dist::layout::is_valid_name(n) && n != COORDINATOR;
-        if !valid(&info.name) || !info.roles.iter().all(|r| crate::dist::layout::is_valid_name(r)) {
+        let valid = |n: &str| crate::dist::keys::is_valid_name(n) && n != COORDINATOR;
+        if !valid(&info.name) || !info.roles.iter().all(|r| crate::dist::keys::is_valid_name(r)) {
             self.drop_msg(format!("agent announcement with an invalid name or role ignored: {:?}", info.name));
             return;
         }
@@ -926,7 +926,7 @@ impl Coordinator {
     /// alarm says so, until one process answers alone (`handle_agent_up`).
     pub fn handle_agent_conflict(&mut self, now_ms: u64, name: &str, processes: usize) {
         self.advance(now_ms);
-        if !crate::dist::layout::is_valid_name(name) {
+        if !crate::dist::keys::is_valid_name(name) {
             return self.drop_msg(format!("agent conflict with an invalid name ignored: {name:?}"));
         }
         if !self.agents.contains_key(name) && self.agents.len() >= AGENTS_MAX {
@@ -1341,7 +1341,7 @@ impl Coordinator {
     /// the variable was applied already.
     fn apply_agent_vars(&mut self, agent: &str, incarnation: uuid::Uuid, seq: u64, vars: &[VarValue]) -> bool {
         let mut applied = false;
-        let mut refused: HashSet<u32> = HashSet::new();
+        let mut refused: BTreeSet<u32> = BTreeSet::new();
         for vv in vars {
             let Some((var, value)) = vv.resolve(&self.program) else {
                 refused.insert(vv.var);
@@ -1379,7 +1379,7 @@ impl Coordinator {
         if agent.incarnation != update.incarnation {
             return None;
         }
-        let mut seen = HashSet::new();
+        let mut seen = BTreeSet::new();
         let kept: Vec<VarValue> = update
             .vars
             .iter()
@@ -1607,7 +1607,7 @@ mod tests {
     }
 
     fn coordinator() -> Coordinator {
-        let (program, layout) = crate::dist::simnet::compile(
+        let (program, layout) = crate::testing::simulated_cluster::compile(
             "PROGRAM p\nINITIAL_STEP A: END_STEP\nTRANSITION FROM A TO B := TRUE; END_TRANSITION\n\
              STEP B: {role := 'worker'} END_STEP\nEND_PROGRAM\n",
         );
@@ -1646,7 +1646,7 @@ mod tests {
                       'opc.tcp://10.0.0.5:4840', node := 'ns=2;s=Door'}\n  lamp : BOOL; {output := 'zenoh', \
                       agent := 'cell2', key := 'cell2/lamp'}\nEND_VAR\nINITIAL_STEP A: END_STEP\n\
                       TRANSITION FROM A TO B := door; END_TRANSITION\nSTEP B: END_STEP\nEND_PROGRAM\n";
-        let (program, layout) = crate::dist::simnet::compile(source);
+        let (program, layout) = crate::testing::simulated_cluster::compile(source);
         let mut c = coordinator_of(&program, &layout);
         let mut agent = AgentRun::new("cell1", &[], RUN, ChartHash("h".into()), program, layout, 10);
         agent.set_incarnation(uuid::Uuid::from_u128(1));

@@ -87,7 +87,7 @@ pub fn check_source(src: &str) -> Report {
     }
     diagnostics.sort_by_key(|d| d.span.start);
     // One expression can be read twice (a named transition body that two transitions use): one report each.
-    let mut seen = std::collections::HashSet::new();
+    let mut seen = std::collections::BTreeSet::new();
     diagnostics.retain(|d| seen.insert((d.span, d.message.clone())));
     if diagnostics.len() > DIAGNOSTICS_MAX {
         let more = diagnostics.len() - DIAGNOSTICS_MAX;
@@ -102,7 +102,7 @@ pub fn check_source(src: &str) -> Report {
 fn unverified_net_allowed(chart: &Chart) -> bool {
     chart.pragmas.iter().any(|p| match crate::front::pragma::read(&p.text) {
         crate::front::pragma::Pragma::Pairs(pairs) => pairs.iter().any(|(k, v)| {
-            k == "unverified_net" && *v == crate::dist::layout::Param::Value(crate::exec::types::Value::Bool(true))
+            k == "unverified_net" && *v == crate::front::pragma::Param::Value(crate::types::Value::Bool(true))
         }),
         _ => false,
     })
@@ -150,5 +150,51 @@ fn describe(chart: &Chart, program: &Program, finding: Finding) -> Diagnostic {
                 chart.name.name
             ),
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn edge_contacts_pulse_for_one_evaluation_after_their_edge() {
+        // An LD action: `pulse` is a rising-edge contact on `x`, `low` a falling-edge one; a counter counts
+        // the pulses. They are R_TRIG and F_TRIG instances, as Beremiz compiles them, so the falling one also
+        // pulses at its first call, x being FALSE.
+        let src = r#"<project xmlns="http://www.plcopen.org/xml/tc6_0201"><types><pous>
+<pou name="p" pouType="program"><interface><localVars>
+<variable name="x"><type><BOOL/></type></variable>
+<variable name="pulse"><type><BOOL/></type></variable>
+<variable name="low"><type><BOOL/></type></variable>
+<variable name="n"><type><INT/></type></variable>
+<variable name="m"><type><INT/></type></variable>
+</localVars></interface>
+<actions>
+<action name="Watch"><body><LD>
+<leftPowerRail localId="1"><connectionPointOut formalParameter=""/></leftPowerRail>
+<contact localId="2" edge="rising"><connectionPointIn><connection refLocalId="1"/></connectionPointIn><connectionPointOut/><variable>x</variable></contact>
+<coil localId="3"><connectionPointIn><connection refLocalId="2"/></connectionPointIn><connectionPointOut/><variable>pulse</variable></coil>
+<contact localId="4" edge="falling"><connectionPointIn><connection refLocalId="1"/></connectionPointIn><connectionPointOut/><variable>x</variable></contact>
+<coil localId="5"><connectionPointIn><connection refLocalId="4"/></connectionPointIn><connectionPointOut/><variable>low</variable></coil>
+</LD></body></action>
+<action name="Count"><body><ST><![CDATA[IF pulse THEN n := n + 1; END_IF; IF low THEN m := m + 1; END_IF;]]></ST></body></action>
+</actions>
+<body><SFC>
+<step localId="10" name="S" initialStep="true"/>
+<actionBlock localId="11"><connectionPointIn><connection refLocalId="10"/></connectionPointIn>
+<action localId="0" qualifier="N"><reference name="Watch"/></action>
+<action localId="0" qualifier="N"><reference name="Count"/></action></actionBlock>
+</SFC></body></pou></pous></types></project>"#;
+        let report = super::check_source(src);
+        assert_eq!(report.error_count(), 0, "{:?}", report.diagnostics);
+        let program = std::sync::Arc::new(report.charts[0].program.clone().expect("a program"));
+        let x = program.var_by_name("x").expect("x");
+        let mut engine = crate::exec::engine::Engine::new(std::sync::Arc::clone(&program));
+        // x: FALSE, TRUE ×3, FALSE ×2, TRUE, FALSE: two rising edges, two falling ones and the start-up one.
+        for (i, v) in [false, true, true, true, false, false, true, false].into_iter().enumerate() {
+            engine.handle(crate::exec::engine::Input::Set(x, crate::types::Value::Bool(v))).expect("set");
+            engine.handle_cycle(10 * i as u64).expect("cycle");
+        }
+        let value = |name: &str| engine.value(program.var_by_name(name).expect("var")).as_i64();
+        assert_eq!((value("n"), value("m")), (2, 3));
     }
 }

@@ -17,14 +17,15 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use crate::dist::journal::{self, Journaled};
-use crate::dist::layout::{Layout, Param, SkillBinding};
+use crate::dist::layout::{Layout, SkillBinding};
 use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch, Join};
 use crate::dist::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
 use crate::dist::wire::{self, AgentInfo, ChartHash, RunId, ToAgent, VarUpdate};
 use crate::exec::program::{ActionId, Program};
 use crate::exec::sim::TraceRecord;
-use crate::exec::types::Value;
-use crate::front::check::check_source;
+use crate::front::pragma::Param;
+use crate::pipeline::check_source;
+use crate::types::Value;
 use uuid::Uuid;
 
 /// The simulated run's cycle period, unless told otherwise (`SimCluster::with_program`).
@@ -182,7 +183,7 @@ pub struct SimCluster {
     /// Crashes right after records became durable, before what they led to was sent.
     crashes_after_journal: Vec<(u64, u64)>,
     /// Every (token, epoch) that started on an agent.
-    started: std::collections::HashSet<(crate::dist::wire::TokenId, u32)>,
+    started: std::collections::BTreeSet<(crate::dist::wire::TokenId, u32)>,
     /// What went wrong on the agents' side, with the time.
     pub violations: Vec<String>,
     /// The coordinator died after its journal but before it sent (or wrote) what that led to.
@@ -310,7 +311,7 @@ impl SimCluster {
             down_until: None,
             crashes: Vec::new(),
             crashes_after_journal: Vec::new(),
-            started: std::collections::HashSet::new(),
+            started: std::collections::BTreeSet::new(),
             violations: Vec::new(),
             outputs_lost: false,
             calm_from_ms: None,
@@ -945,7 +946,7 @@ impl SimCluster {
     }
 
     /// A variable's value on the coordinator, by name.
-    pub fn value(&self, name: &str) -> Option<crate::exec::types::Value> {
+    pub fn value(&self, name: &str) -> Option<crate::types::Value> {
         let var = self.coordinator.core().program().var_by_name(name)?;
         Some(self.coordinator.core().value(var))
     }

@@ -1,5 +1,7 @@
 //! Elementary data types and run-time values of the Structured Text subset Baton executes.
 
+pub mod library;
+
 use std::fmt;
 use std::sync::Arc;
 

@@ -1,0 +1,478 @@
+//! The house rules that the compiler does not check, checked by reading the source tree (as rust-analyzer's
+//! `tidy` does): `proto`'s layers import only downwards, no two files of a crate import each other (directly
+//! or round a circle), `proto` does no I/O, and no source file outgrows one job.
+//!
+//! Each failure names the file and the rule; ARCHITECTURE.md's invariants point here.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+/// A source file over this many lines holds more than one job: split it along its seams.
+const FILE_LINES_MAX: usize = 1_000;
+
+/// `proto`'s layers, each with the layers it may import. A layer is a top-level module (`front`, `exec`, …);
+/// its files may import one another and the layers listed, nothing else.
+const PROTO_LAYERS: &[(&str, &[&str])] = &[
+    ("limits", &[]),
+    ("types", &["limits"]),
+    ("front", &["limits", "types"]),
+    ("exec", &["limits", "types", "front"]),
+    ("back", &["limits", "types", "front", "exec"]),
+    ("dist", &["limits", "types", "front", "exec"]),
+    ("pipeline", &["limits", "types", "front", "exec", "dist"]),
+    ("testing", &["limits", "types", "front", "exec", "dist", "back", "pipeline"]),
+];
+
+/// Paths that `proto` never names: clocks, files, the network, processes, the environment. (`proto/clippy.toml`
+/// refuses the same calls at compile time; this also catches a `use` of the module.)
+const PROTO_FORBIDDEN: &[&str] = &[
+    "std::fs",
+    "std::net",
+    "std::process",
+    "std::env",
+    "std::time::Instant",
+    "std::time::SystemTime",
+    "thread::sleep",
+];
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("the workspace").to_path_buf()
+}
+
+/// Every `.rs` file under `dir`, sorted.
+fn sources(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).unwrap_or_else(|e| panic!("{}: {e}", d.display())) {
+            let path = entry.expect("a directory entry").path();
+            if path.is_dir() {
+                if path.file_name().is_some_and(|n| n != "target") {
+                    stack.push(path);
+                }
+            } else if path.extension().is_some_and(|e| e == "rs") {
+                out.push(path);
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// The text with comments, string and char literals blanked (lengths kept), so that a path in a doc comment or a
+/// message is not read as an import.
+fn code_only(text: &str) -> String {
+    let b = text.as_bytes();
+    let mut out = String::with_capacity(text.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'/' && b.get(i + 1) == Some(&b'/') {
+            while i < b.len() && b[i] != b'\n' {
+                i += 1;
+            }
+        } else if b[i] == b'/' && b.get(i + 1) == Some(&b'*') {
+            while i + 1 < b.len() && !(b[i] == b'*' && b[i + 1] == b'/') {
+                i += 1;
+            }
+            i += 2;
+        } else if b[i] == b'r' && (b.get(i + 1) == Some(&b'"') || b.get(i + 1) == Some(&b'#')) && is_raw_start(b, i) {
+            let mut j = i + 1;
+            let mut hashes = 0;
+            while b[j] == b'#' {
+                hashes += 1;
+                j += 1;
+            }
+            j += 1;
+            loop {
+                if j >= b.len() {
+                    break;
+                }
+                if b[j] == b'"' && b[j + 1..].iter().take(hashes).filter(|&&c| c == b'#').count() == hashes {
+                    j += 1 + hashes;
+                    break;
+                }
+                j += 1;
+            }
+            out.push_str("\"\"");
+            i = j;
+        } else if b[i] == b'"' {
+            i += 1;
+            while i < b.len() && b[i] != b'"' {
+                i += if b[i] == b'\\' { 2 } else { 1 };
+            }
+            i += 1;
+            out.push_str("\"\"");
+        } else if b[i] == b'\'' && b.get(i + 2) == Some(&b'\'') {
+            out.push_str("' '");
+            i += 3;
+        } else if b[i] == b'\'' && b.get(i + 1) == Some(&b'\\') {
+            // An escaped char ('\n', '\'', '\u{..}'): its closing quote comes after the escaped character.
+            let close = b.get(i + 3..).and_then(|r| r.iter().position(|&c| c == b'\'')).map_or(b.len(), |p| i + 4 + p);
+            out.push_str("' '");
+            i = close;
+        } else {
+            let ch = text[i..].chars().next().expect("a char");
+            out.push(ch);
+            i += ch.len_utf8();
+        }
+    }
+    out
+}
+
+/// The code without its `#[cfg(test)]` items: a test may build its fixtures with a layer above the code under
+/// test, as a dev-dependency may.
+fn without_tests(code: &str) -> String {
+    let mut out = code.to_string();
+    while let Some(at) = out.find("#[cfg(test)]") {
+        let b = out.as_bytes();
+        let mut i = at;
+        let mut depth = 0usize;
+        let end = loop {
+            match b.get(i) {
+                None => break b.len(),
+                Some(b'{') => depth += 1,
+                Some(b'}') => {
+                    depth -= 1;
+                    if depth == 0 {
+                        break i + 1;
+                    }
+                }
+                Some(b';') if depth == 0 => break i + 1,
+                _ => {}
+            }
+            i += 1;
+        };
+        out.replace_range(at..end, &" ".repeat(end - at));
+    }
+    out
+}
+
+/// Whether `r` at `i` opens a raw string rather than ending an identifier (`for"` cannot happen, `r"` can).
+fn is_raw_start(b: &[u8], i: usize) -> bool {
+    let before = i.checked_sub(1).map(|j| b[j]);
+    let ident = |c: u8| c.is_ascii_alphanumeric() || c == b'_';
+    if before.is_some_and(ident) {
+        return false;
+    }
+    let mut j = i + 1;
+    while b.get(j) == Some(&b'#') {
+        j += 1;
+    }
+    b.get(j) == Some(&b'"')
+}
+
+/// Every path the code names that starts with `crate::` or `super::`, with `use` trees expanded
+/// (`use crate::a::{b, c::d}` gives `crate::a::b` and `crate::a::c::d`).
+fn paths(code: &str) -> Vec<Vec<String>> {
+    let mut out = Vec::new();
+    let b = code.as_bytes();
+    let ident = |c: u8| c.is_ascii_alphanumeric() || c == b'_';
+    let mut i = 0;
+    while i < b.len() {
+        let at_word = i == 0 || !ident(b[i - 1]) && b[i - 1] != b':';
+        let rest = &code[i..];
+        if at_word && (rest.starts_with("crate::") || rest.starts_with("super::")) {
+            let (found, used) = tree(rest);
+            out.extend(found);
+            i += used.max(1);
+        } else {
+            i += rest.chars().next().map_or(1, char::len_utf8);
+        }
+    }
+    out
+}
+
+/// The paths of one `a::b::{c, d::e}` tree at the start of `s`, and how many bytes it took.
+fn tree(s: &str) -> (Vec<Vec<String>>, usize) {
+    let b = s.as_bytes();
+    let mut prefix = Vec::new();
+    let mut i = 0;
+    loop {
+        while i < b.len() && b[i].is_ascii_whitespace() {
+            i += 1;
+        }
+        if b.get(i) == Some(&b'{') {
+            let mut out = Vec::new();
+            i += 1;
+            loop {
+                while i < b.len() && (b[i].is_ascii_whitespace() || b[i] == b',') {
+                    i += 1;
+                }
+                if i >= b.len() || b[i] == b'}' {
+                    return (out, i + 1);
+                }
+                let (inner, used) = tree(&s[i..]);
+                for p in inner {
+                    out.push(prefix.iter().cloned().chain(p).collect());
+                }
+                if used == 0 {
+                    return (out, i + 1);
+                }
+                i += used;
+            }
+        }
+        let start = i;
+        while i < b.len() && (b[i].is_ascii_alphanumeric() || b[i] == b'_') {
+            i += 1;
+        }
+        if start == i {
+            return (vec![prefix], i);
+        }
+        prefix.push(s[start..i].to_string());
+        if s[i..].starts_with("::") {
+            i += 2;
+        } else {
+            return (vec![prefix], i);
+        }
+    }
+}
+
+/// One crate's source files by module path (`["exec", "eval"]` for `exec/eval.rs`).
+struct Crate {
+    name: &'static str,
+    files: BTreeMap<Vec<String>, PathBuf>,
+}
+
+impl Crate {
+    /// The files under `src`, rooted at `root_file` (`lib.rs` or `main.rs`); `skip` are other crate roots there.
+    fn read(name: &'static str, src: &Path, skip: &[&str]) -> Crate {
+        let mut files = BTreeMap::new();
+        for path in sources(src) {
+            let rel = path.strip_prefix(src).expect("under src");
+            if skip.iter().any(|s| rel == Path::new(s)) {
+                continue;
+            }
+            let mut module: Vec<String> = rel.iter().map(|c| c.to_string_lossy().into_owned()).collect();
+            let last = module.pop().expect("a file name");
+            match last.as_str() {
+                "lib.rs" | "main.rs" | "mod.rs" => {}
+                other => module.push(other.trim_end_matches(".rs").to_string()),
+            }
+            files.insert(module, path);
+        }
+        Crate { name, files }
+    }
+
+    /// The file that a path names: its longest prefix that is a file's module.
+    fn resolve(&self, from: &[String], path: &[String]) -> Option<Vec<String>> {
+        let mut full: Vec<String> = match path.first().map(String::as_str) {
+            Some("crate") => Vec::new(),
+            Some("super") => {
+                // A file's own module is `from`; `super` is its parent (for `mod.rs`, `from` is the folder).
+                let mut m = from.to_vec();
+                let mut rest = path;
+                while rest.first().map(String::as_str) == Some("super") {
+                    m.pop();
+                    rest = &rest[1..];
+                }
+                m.extend(rest.iter().cloned());
+                return (0..=m.len()).rev().map(|n| m[..n].to_vec()).find(|p| self.files.contains_key(p));
+            }
+            _ => return None,
+        };
+        full.extend(path[1..].iter().cloned());
+        (0..=full.len()).rev().map(|n| full[..n].to_vec()).find(|p| self.files.contains_key(p))
+    }
+
+    /// Each file's imports of other files of the crate, leaving out a file's own ancestors (a child may name
+    /// what its parent declares; the parent declaring the child is not an import).
+    fn edges(&self) -> BTreeMap<Vec<String>, BTreeSet<Vec<String>>> {
+        let mut out: BTreeMap<Vec<String>, BTreeSet<Vec<String>>> = BTreeMap::new();
+        for (module, path) in &self.files {
+            let text = std::fs::read_to_string(path).expect("a source file");
+            let code = without_tests(&code_only(&text));
+            let entry = out.entry(module.clone()).or_default();
+            // `super` inside a file is relative to the file's module; in `mod.rs` and in a nested `mod tests`
+            // alike it reaches the file's parent at most, which is an ancestor and so left out below.
+            for p in paths(&code) {
+                let Some(target) = self.resolve(module, &p) else { continue };
+                if target.len() <= module.len() && module[..target.len()] == target[..] {
+                    continue;
+                }
+                entry.insert(target);
+            }
+        }
+        out
+    }
+}
+
+fn show(m: &[String]) -> String {
+    if m.is_empty() {
+        "<root>".to_string()
+    } else {
+        m.join("::")
+    }
+}
+
+/// The strongly connected components with more than one file (Tarjan's algorithm, iteratively).
+fn circles(edges: &BTreeMap<Vec<String>, BTreeSet<Vec<String>>>) -> Vec<Vec<Vec<String>>> {
+    let nodes: Vec<&Vec<String>> = edges.keys().collect();
+    let index_of: BTreeMap<&Vec<String>, usize> = nodes.iter().enumerate().map(|(i, n)| (*n, i)).collect();
+    let succ: Vec<Vec<usize>> =
+        nodes.iter().map(|n| edges[*n].iter().filter_map(|t| index_of.get(t).copied()).collect()).collect();
+    let n = nodes.len();
+    let (mut index, mut low, mut on) = (vec![usize::MAX; n], vec![0; n], vec![false; n]);
+    let (mut stack, mut next, mut out) = (Vec::new(), 0, Vec::new());
+    for start in 0..n {
+        if index[start] != usize::MAX {
+            continue;
+        }
+        let mut work = vec![(start, 0usize)];
+        index[start] = next;
+        low[start] = next;
+        next += 1;
+        stack.push(start);
+        on[start] = true;
+        while let Some(&mut (v, ref mut k)) = work.last_mut() {
+            if *k < succ[v].len() {
+                let w = succ[v][*k];
+                *k += 1;
+                if index[w] == usize::MAX {
+                    index[w] = next;
+                    low[w] = next;
+                    next += 1;
+                    stack.push(w);
+                    on[w] = true;
+                    work.push((w, 0));
+                } else if on[w] {
+                    low[v] = low[v].min(index[w]);
+                }
+            } else {
+                work.pop();
+                if let Some(&(u, _)) = work.last() {
+                    low[u] = low[u].min(low[v]);
+                }
+                if low[v] == index[v] {
+                    let mut scc = Vec::new();
+                    loop {
+                        let w = stack.pop().expect("on the stack");
+                        on[w] = false;
+                        scc.push(nodes[w].clone());
+                        if w == v {
+                            break;
+                        }
+                    }
+                    if scc.len() > 1 {
+                        scc.sort();
+                        out.push(scc);
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+fn crates() -> Vec<Crate> {
+    let root = root();
+    vec![
+        Crate::read("proto", &root.join("proto/src"), &[]),
+        Crate::read("coordinator", &root.join("coordinator/src"), &[]),
+        Crate::read("agent", &root.join("agent/src"), &["main.rs"]),
+        Crate::read("tests", &root.join("tests/src"), &[]),
+    ]
+}
+
+#[test]
+fn proto_layers_import_only_the_layers_below_them() {
+    let proto = Crate::read("proto", &root().join("proto/src"), &[]);
+    let allowed: BTreeMap<&str, &[&str]> = PROTO_LAYERS.iter().copied().collect();
+    let mut wrong = Vec::new();
+    for (from, targets) in proto.edges() {
+        let Some(layer) = from.first() else { continue };
+        let may = allowed.get(layer.as_str()).unwrap_or_else(|| {
+            panic!("proto/src/{layer} is in no layer: add it to PROTO_LAYERS (and to ARCHITECTURE.md's code map)")
+        });
+        for to in targets {
+            let Some(other) = to.first() else { continue };
+            if other != layer && !may.contains(&other.as_str()) {
+                wrong.push(format!("{} imports {} ({layer} may import: {})", show(&from), show(&to), may.join(", ")));
+            }
+        }
+    }
+    assert!(wrong.is_empty(), "imports that run up or across a layer:\n  {}", wrong.join("\n  "));
+}
+
+#[test]
+fn no_two_files_of_a_crate_import_each_other() {
+    let mut found = Vec::new();
+    for krate in crates() {
+        for scc in circles(&krate.edges()) {
+            let names: Vec<String> = scc.iter().map(|m| show(m)).collect();
+            found.push(format!("{}: {}", krate.name, names.join(" ↔ ")));
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "import circles (cut each along the seam that makes one side a leaf):\n  {}",
+        found.join("\n  ")
+    );
+}
+
+#[test]
+fn proto_touches_no_clock_file_network_or_process() {
+    let mut found = Vec::new();
+    for path in sources(&root().join("proto/src")) {
+        let code = code_only(&std::fs::read_to_string(&path).expect("a source file"));
+        for (n, line) in code.lines().enumerate() {
+            for bad in PROTO_FORBIDDEN {
+                if line.contains(bad) {
+                    found.push(format!("{}:{}: {bad}", path.display(), n + 1));
+                }
+            }
+        }
+    }
+    let manifest = std::fs::read_to_string(root().join("proto/Cargo.toml")).expect("proto/Cargo.toml");
+    let deps = manifest.split("[dependencies]").nth(1).unwrap_or("").split("\n[").next().unwrap_or("");
+    for shell_only in ["tokio", "zenoh", "rerun", "rand", "redb"] {
+        if deps.lines().any(|l| l.trim_start().starts_with(shell_only)) {
+            found.push(format!("proto/Cargo.toml depends on {shell_only}"));
+        }
+    }
+    assert!(found.is_empty(), "proto is the pure core (ARCHITECTURE.md, `pure-core`):\n  {}", found.join("\n  "));
+}
+
+#[test]
+fn no_source_file_holds_more_than_one_job() {
+    let root = root();
+    let mut long = Vec::new();
+    for dir in ["proto", "coordinator", "agent", "tests"] {
+        for path in sources(&root.join(dir)) {
+            let rel = path.strip_prefix(&root).expect("in the workspace");
+            // The external peers are other projects' code, built apart.
+            if rel.starts_with("tests/ros2-peer") || rel.starts_with("tests/ros2dds-bridge") {
+                continue;
+            }
+            let lines = std::fs::read_to_string(&path).expect("a source file").lines().count();
+            if lines > FILE_LINES_MAX {
+                long.push(format!("{} has {lines} lines", rel.display()));
+            }
+        }
+    }
+    assert!(
+        long.is_empty(),
+        "files over {FILE_LINES_MAX} lines (split each along its seams):\n  {}",
+        long.join("\n  ")
+    );
+}
+
+#[test]
+fn the_path_reader_expands_use_trees_and_skips_comments_and_strings() {
+    let code = code_only(
+        "use crate::a::{b, c::{d, e}};\n// crate::x::y\nlet s = \"crate::z\";\nlet t = r#\"crate::q\"#;\nsuper::f::g();",
+    );
+    let found: Vec<String> = paths(&code).iter().map(|p| p.join("::")).collect();
+    assert_eq!(found, ["crate::a::b", "crate::a::c::d", "crate::a::c::e", "super::f::g"]);
+    let mut edges = BTreeMap::new();
+    let m = |s: &str| vec![s.to_string()];
+    edges.insert(m("a"), BTreeSet::from([m("b")]));
+    edges.insert(m("b"), BTreeSet::from([m("c")]));
+    edges.insert(m("c"), BTreeSet::from([m("a")]));
+    edges.insert(m("d"), BTreeSet::from([m("a")]));
+    assert_eq!(circles(&edges), vec![vec![m("a"), m("b"), m("c")]]);
+    let kept = without_tests(
+        "use crate::a;\n#[cfg(test)]\nuse crate::b;\n#[cfg(test)]\nmod tests { fn f() { crate::c::d(); } }\n",
+    );
+    let found: Vec<String> = paths(&kept).iter().map(|p| p.join("::")).collect();
+    assert_eq!(found, ["crate::a"]);
+}
