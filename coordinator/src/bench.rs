@@ -18,6 +18,7 @@ use zenoh::qos::CongestionControl;
 
 use crate::demo::{agent_binary, free_port};
 use crate::run::{run_with, Probe, RunOptions};
+use baton_proto::exec::trace::TraceEvent;
 
 const PING_KEY: &str = "baton/bench/ping";
 const PONG_KEY: &str = "baton/bench/pong";
@@ -84,17 +85,17 @@ pub struct BenchReport {
     pub demo_recording_bytes: u64,
 }
 
-type Marks = Arc<Mutex<Vec<(Instant, String, String)>>>;
+type Marks = Arc<Mutex<Vec<(Instant, TraceEvent, String)>>>;
 
 /// A probe that keeps the instants of the events the bench measures.
-fn marks(keep: &'static [&'static str]) -> (Marks, Probe) {
+fn marks(keep: &'static [TraceEvent]) -> (Marks, Probe) {
     let marks: Marks = Arc::new(Mutex::new(Vec::new()));
     let m = Arc::clone(&marks);
     let probe: Probe = Box::new(move |rec| {
-        if keep.contains(&rec.event.as_str()) {
+        if keep.contains(&rec.event) {
             let now = Instant::now();
             if let Ok(mut v) = m.lock() {
-                v.push((now, rec.event.clone(), rec.name.clone()));
+                v.push((now, rec.event, rec.name.clone()));
             }
         }
     });
@@ -345,15 +346,15 @@ async fn token_round_trip(dir: &Path, samples: u32) -> anyhow::Result<Vec<Durati
         "STEP Back: Count(P); END_STEP\n",
         "TRANSITION FROM Back TO Home := TRUE; END_TRANSITION\nEND_PROGRAM\n",
     ));
-    let (marks, probe) = marks(&["dispatch", "activate"]);
+    let (marks, probe) = marks(&[TraceEvent::Dispatch, TraceEvent::Activate]);
     run_chart(dir, "token_rtt.st", chart, &["bench1".to_string()], probe, Extras::default()).await?;
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
     let mut rtts = Vec::new();
     let mut sent: Option<Instant> = None;
     for (t, event, name) in marks.iter() {
-        match (event.as_str(), name.as_str()) {
-            ("dispatch", "Remote") => sent = Some(*t),
-            ("activate", "Back") => {
+        match (event, name.as_str()) {
+            (TraceEvent::Dispatch, "Remote") => sent = Some(*t),
+            (TraceEvent::Activate, "Back") => {
                 if let Some(t0) = sent.take() {
                     rtts.push(*t - t0);
                 }
@@ -380,16 +381,16 @@ async fn convergence(dir: &Path, samples: u32) -> anyhow::Result<Latency> {
         "STEP Join: Count(P); END_STEP\n",
         "TRANSITION FROM Join TO Home := TRUE; END_TRANSITION\nEND_PROGRAM\n",
     ));
-    let (marks, probe) = marks(&["return", "activate"]);
+    let (marks, probe) = marks(&[TraceEvent::Return, TraceEvent::Activate]);
     let agents: Vec<String> = (1..=3).map(|k| format!("bench{k}")).collect();
     run_chart(dir, "convergence.st", chart, &agents, probe, Extras::default()).await?;
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
     let mut lat = Vec::new();
     let mut last_return: Option<Instant> = None;
     for (t, event, name) in marks.iter() {
-        match (event.as_str(), name.as_str()) {
-            ("return", _) => last_return = Some(*t),
-            ("activate", "Join") => {
+        match (event, name.as_str()) {
+            (TraceEvent::Return, _) => last_return = Some(*t),
+            (TraceEvent::Activate, "Join") => {
                 if let Some(t0) = last_return.take() {
                     lat.push(*t - t0);
                 }
@@ -428,7 +429,7 @@ async fn throughput(
         "TRANSITION FROM ({}) TO Finished := TRUE; END_TRANSITION\nSTEP Finished: END_STEP\nEND_PROGRAM\n",
         list("D")
     ));
-    let (marks, probe) = marks(&["return"]);
+    let (marks, probe) = marks(&[TraceEvent::Return]);
     let names: Vec<String> = (1..=agents).map(|k| format!("bench{k}")).collect();
     let summary =
         run_chart(dir, "throughput.st", chart, &names, probe, Extras { journal, ..Extras::default() }).await?;
@@ -440,7 +441,7 @@ async fn throughput(
 /// starting, caches warming) is left out.
 fn steady_returns(marks: &Marks) -> anyhow::Result<(u64, f64)> {
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
-    let returns: Vec<Instant> = marks.iter().filter(|m| m.1 == "return").map(|m| m.0).collect();
+    let returns: Vec<Instant> = marks.iter().filter(|m| m.1 == TraceEvent::Return).map(|m| m.0).collect();
     let skip = returns.len() / 10;
     let (Some(first), Some(last)) = (returns.get(skip), returns.last()) else { bail!("no token came back") };
     Ok(((returns.len() - skip - 1) as u64, (*last - *first).as_secs_f64().max(1e-9)))
@@ -451,7 +452,7 @@ fn steady_returns(marks: &Marks) -> anyhow::Result<(u64, f64)> {
 async fn demo_throughput(dir: &Path, parts: u32, record: Option<PathBuf>) -> anyhow::Result<(u64, f64)> {
     let chart = crate::demo_chart::cell_chart(2);
     let chart = instant_motions(&chart);
-    let (marks, probe) = marks(&["return"]);
+    let (marks, probe) = marks(&[TraceEvent::Return]);
     let names: Vec<String> = (1..=2).map(|k| format!("robot{k}")).collect();
     let extras =
         Extras { rerun: record, sets: vec![("parts".to_string(), serde_json::json!(parts))], ..Extras::default() };

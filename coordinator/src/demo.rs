@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
 use baton_proto::dist::netconfig::NetConfig;
-use baton_proto::exec::sim::TraceRecord;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use indicatif::{ProgressBar, ProgressStyle};
 use tokio::process::{Child, Command};
 
@@ -253,8 +253,8 @@ impl Progress {
     }
 
     fn on_record(&mut self, rec: TraceRecord) {
-        match rec.event.as_str() {
-            "activate" => {
+        match rec.event {
+            TraceEvent::Activate => {
                 self.active.insert(rec.name.clone(), rec.agent.clone());
                 if rec.name == "Count" {
                     self.parts_done += 1;
@@ -264,16 +264,16 @@ impl Progress {
                     }
                 }
             }
-            "deactivate" => {
+            TraceEvent::Deactivate => {
                 self.active.remove(&rec.name);
             }
-            "dispatch" => {
+            TraceEvent::Dispatch => {
                 self.dispatched += 1;
                 if let Some(a) = rec.agent {
                     *self.per_agent.entry(a).or_default() += 1;
                 }
             }
-            "skill_fault" if !self.tty => {
+            TraceEvent::SkillFault if !self.tty => {
                 println!("{:>6} ms  {} failed on {}: rework", rec.t_ms, rec.name, rec.agent.unwrap_or_default());
             }
             _ => {}

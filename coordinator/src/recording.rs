@@ -27,7 +27,7 @@ use std::time::Duration;
 use anyhow::anyhow;
 use baton_proto::dist::layout::{Layout, Placement};
 use baton_proto::exec::program::{Program, StepId, TransitionId, VarId, VarInfo};
-use baton_proto::exec::sim::TraceRecord;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_proto::types::{quote_string, Type, Value};
 use rerun::blueprint::components::PanelState;
 use rerun::blueprint::{
@@ -479,8 +479,8 @@ impl Logger {
         let agent = rec.agent.as_deref();
         let epoch = rec.epoch.map(|e| format!(", epoch {e}")).unwrap_or_default();
         let message = rec.message.as_deref().unwrap_or("");
-        match rec.event.as_str() {
-            "activate" => {
+        match rec.event {
+            TraceEvent::Activate => {
                 // The last step of a simultaneous branch waits at the convergence for the others. A placed step
                 // whose token has no agent yet waits for one (its dispatch says where it went).
                 let s = self.steps.get(&rec.name).copied();
@@ -496,14 +496,14 @@ impl Logger {
                     None => self.step_state(&rec.name, StepState::Active, "active"),
                 }
             }
-            "deactivate" => self.step_state(&rec.name, StepState::Inactive, "inactive"),
-            "dispatch" | "resume" => {
+            TraceEvent::Deactivate => self.step_state(&rec.name, StepState::Inactive, "inactive"),
+            TraceEvent::Dispatch | TraceEvent::Resume => {
                 let a = agent.unwrap_or("?");
                 let extra = if message.is_empty() { String::new() } else { format!(": {message}") };
                 // A dispatch in a later epoch restarts the segment: reassigned, or its agent restarted.
-                let (level, what) = match (rec.event.as_str(), rec.epoch) {
-                    ("dispatch", Some(e)) if e > 1 => ("WARN", "dispatched again, the segment restarting,"),
-                    ("dispatch", _) => ("INFO", "dispatched"),
+                let (level, what) = match (rec.event, rec.epoch) {
+                    (TraceEvent::Dispatch, Some(e)) if e > 1 => ("WARN", "dispatched again, the segment restarting,"),
+                    (TraceEvent::Dispatch, _) => ("INFO", "dispatched"),
                     _ => ("INFO", "resumed"),
                 };
                 self.token_log(rec, level, format!("{what} to {a}: step {}{epoch}{extra}", rec.name));
@@ -515,7 +515,7 @@ impl Logger {
                     }
                 }
             }
-            "return" => {
+            TraceEvent::Return => {
                 self.token_log(
                     rec,
                     "INFO",
@@ -528,8 +528,8 @@ impl Logger {
                     self.agent_state(a);
                 }
             }
-            "wait" => self.token_log(rec, "WARN", format!("waits for an agent: step {}{epoch}", rec.name)),
-            "reject_stale" => {
+            TraceEvent::Wait => self.token_log(rec, "WARN", format!("waits for an agent: step {}{epoch}", rec.name)),
+            TraceEvent::RejectStale => {
                 let a = agent.unwrap_or("?");
                 let text = format!("stale report from {a} rejected (step {}{epoch}); told to drop it", rec.name);
                 self.token_log(rec, "WARN", text.clone());
@@ -538,20 +538,20 @@ impl Logger {
                     held.remove(t);
                 }
             }
-            "agent_up" => {
+            TraceEvent::AgentUp => {
                 self.agents.entry(rec.name.clone()).or_default();
                 self.agent_state(&rec.name);
             }
-            "agent_lost" => {
+            TraceEvent::AgentLost => {
                 self.agents.entry(rec.name.clone()).or_default();
                 self.ok(self.rec.log(format!("agents/{}", rec.name), &StateChange::single("lost")));
                 self.log("WARN", format!("agent {} lost", rec.name));
             }
-            "alarm" => self.log("ERROR", format!("alarm: {message}")),
-            "device_down" | "device_up" => {
+            TraceEvent::Alarm => self.log("ERROR", format!("alarm: {message}")),
+            TraceEvent::DeviceDown | TraceEvent::DeviceUp => {
                 let a = agent.unwrap_or("?");
-                let (level, text) = match rec.event.as_str() {
-                    "device_down" => {
+                let (level, text) = match rec.event {
+                    TraceEvent::DeviceDown => {
                         ("WARN", format!("device of `{}` on {a} down: {message}; it keeps its value", rec.name))
                     }
                     _ => ("INFO", format!("device of `{}` on {a} back: {message}", rec.name)),
@@ -559,19 +559,19 @@ impl Logger {
                 self.progress_log(a, None, level, text.clone());
                 self.log(level, text);
             }
-            "recover" => self.log("WARN", format!("coordinator restarted: {message}")),
-            "skill_fault" | "fault" => {
+            TraceEvent::Recover => self.log("WARN", format!("coordinator restarted: {message}")),
+            TraceEvent::SkillFault | TraceEvent::Fault => {
                 let on = agent.map(|a| format!(" on {a}")).unwrap_or_default();
-                let level = if rec.event == "fault" { "ERROR" } else { "WARN" };
-                let text = format!("{}{on}: {} {message}", rec.event.replace('_', " "), rec.name);
+                let level = if rec.event == TraceEvent::Fault { "ERROR" } else { "WARN" };
+                let text = format!("{}{on}: {} {message}", rec.event.to_string().replace('_', " "), rec.name);
                 if let Some(a) = agent {
                     self.progress_log(a, None, level, text.clone());
                 }
                 self.log(level, text);
-                self.fault_steps(&rec.name, rec.event == "fault");
+                self.fault_steps(&rec.name, rec.event == TraceEvent::Fault);
             }
-            "set" => self.log("INFO", format!("set {} := {message}", rec.name)),
-            "skill_done" => {
+            TraceEvent::Set => self.log("INFO", format!("set {} := {message}", rec.name)),
+            TraceEvent::SkillDone => {
                 if let Some(a) = agent {
                     self.progress_log(a, None, "INFO", format!("skill {} done on {a}", rec.name));
                 }

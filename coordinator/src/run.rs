@@ -22,7 +22,7 @@ use baton_proto::dist::runtime::coordinator::{CoordOutput, Coordinator, LossPoli
 use baton_proto::dist::runtime::Level;
 use baton_proto::dist::wire::{self, AgentInfo, ChartHash, ChartSource, RunId, SetReply, SetRequest};
 use baton_proto::exec::program::{Program, VarId};
-use baton_proto::exec::sim::TraceRecord;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_proto::limits::{CATCH_UP_CYCLES_MAX, RECEIVE_QUEUE_MAX};
 use baton_proto::pipeline::check_source;
 use baton_proto::types::Value;
@@ -209,7 +209,7 @@ impl Records {
             let value = core.value(*var);
             if last.as_ref() != Some(&value) {
                 let decl = &core.program().vars[var.index()];
-                let mut record = TraceRecord::new(t_ms, "value", &decl.name);
+                let mut record = TraceRecord::new(t_ms, TraceEvent::Value, &decl.name);
                 record.value = Some(decl.ty.show(&value));
                 *last = Some(value);
                 out.push(record);
@@ -226,13 +226,13 @@ impl Records {
         if let Some(r) = &mut self.recorder {
             r.trace(cycle, &rec);
         }
-        match rec.event.as_str() {
-            "activate" => {
+        match rec.event {
+            TraceEvent::Activate => {
                 let e = self.steps.entry(rec.name.clone()).or_default();
                 e.0.activations += 1;
                 e.1 = Some(rec.t_ms);
             }
-            "deactivate" => {
+            TraceEvent::Deactivate => {
                 if let Some((time, since)) = self.steps.get_mut(&rec.name) {
                     if let Some(t0) = since.take() {
                         time.active_ms += rec.t_ms.saturating_sub(t0);

@@ -43,6 +43,7 @@ pub mod exec {
     pub mod program;
     pub mod sim;
     pub mod stdlib;
+    pub mod trace;
 }
 
 /// The distributed part: where each part of a chart runs, the wire protocol and key space, the journal, the

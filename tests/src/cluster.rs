@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::{ExitStatus, Stdio};
 use std::time::Duration;
 
-use baton_proto::exec::sim::TraceRecord;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use tokio::io::{AsyncBufReadExt, BufReader, Lines};
 use tokio::process::{Child, ChildStderr, Command};
 
@@ -266,7 +266,7 @@ pub fn read_trace(path: &Path) -> Vec<TraceRecord> {
 }
 
 /// The records of one event, as (t_ms, name, agent).
-pub fn events(trace: &[TraceRecord], event: &str) -> Vec<(u64, String, Option<String>)> {
+pub fn events(trace: &[TraceRecord], event: TraceEvent) -> Vec<(u64, String, Option<String>)> {
     trace.iter().filter(|r| r.event == event).map(|r| (r.t_ms, r.name.clone(), r.agent.clone())).collect()
 }
 
@@ -274,7 +274,7 @@ pub fn events(trace: &[TraceRecord], event: &str) -> Vec<(u64, String, Option<St
 pub fn dispatches(trace: &[TraceRecord], step: &str) -> Vec<(String, Option<u32>)> {
     trace
         .iter()
-        .filter(|r| r.event == "dispatch" && r.name == step)
+        .filter(|r| r.event == TraceEvent::Dispatch && r.name == step)
         .map(|r| (r.agent.clone().unwrap_or_default(), r.epoch))
         .collect()
 }

@@ -4,7 +4,7 @@
 use std::collections::{BTreeMap, HashMap, HashSet};
 
 use baton_proto::exec::program::{Program, TransitionId};
-use baton_proto::exec::sim::TraceRecord;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 
 /// Checks a trace of a run of `program`:
 /// - no step holds two tokens (activations and deactivations of each step alternate);
@@ -21,14 +21,14 @@ pub fn check(trace: &[TraceRecord], program: &Program, all_back: bool) -> Result
     let mut returned: HashSet<&str> = HashSet::new();
     for r in trace {
         let at = r.t_ms;
-        match r.event.as_str() {
-            "activate" if !active.insert(&r.name) => {
+        match r.event {
+            TraceEvent::Activate if !active.insert(&r.name) => {
                 return Err(format!("`{}` got a second token at {at} ms", r.name));
             }
-            "deactivate" if !active.remove(r.name.as_str()) => {
+            TraceEvent::Deactivate if !active.remove(r.name.as_str()) => {
                 return Err(format!("`{}` was deactivated while inactive at {at} ms", r.name));
             }
-            "fire" => {
+            TraceEvent::Fire => {
                 let Some(&t) = by_name.get(r.name.as_str()) else { continue };
                 let sources = program.sources(t);
                 if sources.len() > 1 {
@@ -46,7 +46,7 @@ pub fn check(trace: &[TraceRecord], program: &Program, all_back: bool) -> Result
                     }
                 }
             }
-            "dispatch" => {
+            TraceEvent::Dispatch => {
                 let token = r.token.as_deref().ok_or(format!("dispatch without a token at {at} ms"))?;
                 let epoch = r.epoch.unwrap_or(0);
                 if !dispatched.insert((token, epoch)) {
@@ -54,7 +54,7 @@ pub fn check(trace: &[TraceRecord], program: &Program, all_back: bool) -> Result
                 }
                 last_epoch.insert(token, epoch);
             }
-            "return" => {
+            TraceEvent::Return => {
                 let token = r.token.as_deref().ok_or(format!("return without a token at {at} ms"))?;
                 let epoch = r.epoch.unwrap_or(0);
                 if last_epoch.get(token) != Some(&epoch) {
@@ -82,7 +82,8 @@ pub fn check(trace: &[TraceRecord], program: &Program, all_back: bool) -> Result
 /// The tokens out at the end of a trace: dispatched and not back.
 pub fn tokens_out(trace: &[TraceRecord]) -> usize {
     let left: HashSet<&str> =
-        trace.iter().filter(|r| r.event == "dispatch").filter_map(|r| r.token.as_deref()).collect();
-    let back: HashSet<&str> = trace.iter().filter(|r| r.event == "return").filter_map(|r| r.token.as_deref()).collect();
+        trace.iter().filter(|r| r.event == TraceEvent::Dispatch).filter_map(|r| r.token.as_deref()).collect();
+    let back: HashSet<&str> =
+        trace.iter().filter(|r| r.event == TraceEvent::Return).filter_map(|r| r.token.as_deref()).collect();
     left.difference(&back).count()
 }

@@ -6,7 +6,7 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
-use baton_proto::exec::sim::TraceRecord;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_proto::testing::run::run;
 use baton_proto::testing::scenario::{self, LoadError};
 use baton_tests::cluster::{bin, read_trace, repo};
@@ -33,7 +33,7 @@ fn baton_test(dir: &Path, args: &[&str], out: &Path) -> (Output, String, String)
     (o, stdout, stderr)
 }
 
-fn count(trace: &[TraceRecord], event: &str, name: &str) -> usize {
+fn count(trace: &[TraceRecord], event: TraceEvent, name: &str) -> usize {
     trace.iter().filter(|r| r.event == event && r.name == name).count()
 }
 
@@ -44,10 +44,10 @@ fn the_example_cell_passes_with_a_robot_killed_and_an_inspection_failing_twice()
     assert!(o.passed(), "{:?}\n{:?}", o.cases, o.errors);
     // What the scenario says happened did: assembler1 died holding Assemble, assembler2 took it in a new epoch,
     // and the inspection faulted twice before it passed.
-    assert_eq!(count(&o.trace, "agent_lost", "assembler1"), 1, "{:#?}", o.trace);
-    let again = o.trace.iter().find(|r| r.event == "dispatch" && r.name == "Assemble" && r.epoch == Some(2));
+    assert_eq!(count(&o.trace, TraceEvent::AgentLost, "assembler1"), 1, "{:#?}", o.trace);
+    let again = o.trace.iter().find(|r| r.event == TraceEvent::Dispatch && r.name == "Assemble" && r.epoch == Some(2));
     assert_eq!(again.and_then(|r| r.agent.as_deref()), Some("assembler2"));
-    assert_eq!(count(&o.trace, "skill_fault", "InspectPart"), 2);
+    assert_eq!(count(&o.trace, TraceEvent::SkillFault, "InspectPart"), 2);
     assert!(o.faults.iter().any(|(_, f)| f == "kill assembler1"), "{:?}", o.faults);
     let out = tempfile::tempdir().expect("tmp");
     let (status, stdout, _) = baton_test(&repo("examples"), &["cell.test.toml"], out.path());
@@ -67,24 +67,28 @@ fn a_fault_of_each_kind_strikes_and_the_run_survives_it() {
     };
     // Killed, then a new process: the token goes to it in a new epoch.
     let o = outcome("restart");
-    assert_eq!(count(&o.trace, "agent_lost", "r1"), 1);
-    assert!(o.trace.iter().any(|r| r.event == "dispatch" && r.name == "A" && r.epoch == Some(2)), "{:#?}", o.trace);
+    assert_eq!(count(&o.trace, TraceEvent::AgentLost, "r1"), 1);
+    assert!(
+        o.trace.iter().any(|r| r.event == TraceEvent::Dispatch && r.name == "A" && r.epoch == Some(2)),
+        "{:#?}",
+        o.trace
+    );
     // Cut off within its lease: never lost, and its work is heard only once the link is back.
     let o = outcome("partition");
-    assert_eq!(count(&o.trace, "agent_lost", "r2"), 0);
-    let back = o.trace.iter().find(|r| r.event == "return" && r.name == "B").expect("B's token back");
+    assert_eq!(count(&o.trace, TraceEvent::AgentLost, "r2"), 0);
+    let back = o.trace.iter().find(|r| r.event == TraceEvent::Return && r.name == "B").expect("B's token back");
     assert!(back.t_ms >= 400, "B's token came back at {} ms, while r2 was cut off", back.t_ms);
     // A lossy link: more messages than a clean run sends, and the same end.
     let o = outcome("link");
     assert!(o.faults.iter().any(|(_, f)| f.starts_with("drop 0.3, duplicate 0.3, delay up to 20ms on r1's link")));
     // The coordinator crashed and came back from its journal.
     let o = outcome("crash");
-    assert!(o.trace.iter().any(|r| r.event == "recover"), "{:#?}", o.trace);
+    assert!(o.trace.iter().any(|r| r.event == TraceEvent::Recover), "{:#?}", o.trace);
     // An input set when a step is active, and an agent that starts late.
     let o = outcome("when");
-    let set = o.trace.iter().find(|r| r.event == "set").expect("set");
+    let set = o.trace.iter().find(|r| r.event == TraceEvent::Set).expect("set");
     assert!((200..=215).contains(&set.t_ms), "set at {}", set.t_ms);
-    let b = o.trace.iter().find(|r| r.event == "dispatch" && r.name == "B").expect("B dispatched");
+    let b = o.trace.iter().find(|r| r.event == TraceEvent::Dispatch && r.name == "B").expect("B dispatched");
     assert!(b.t_ms >= 1000 && b.agent.as_deref() == Some("r2"), "{b:?}");
 }
 
@@ -365,11 +369,11 @@ async fn agents_started_with_simulate_run_the_scenarios_skills_over_the_real_net
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}");
     // The scenario's inspection faults twice, then passes; its assembly takes a second.
-    assert_eq!(count(&trace, "skill_fault", "InspectPart"), 2, "{trace:#?}");
-    let at = |event: &str, name: &str| {
+    assert_eq!(count(&trace, TraceEvent::SkillFault, "InspectPart"), 2, "{trace:#?}");
+    let at = |event: TraceEvent, name: &str| {
         trace.iter().filter(|r| r.event == event && r.name == name).map(|r| r.t_ms).collect::<Vec<u64>>()
     };
-    let (on, done) = (at("action_on", "AssemblePart"), at("skill_done", "AssemblePart"));
+    let (on, done) = (at(TraceEvent::ActionOn, "AssemblePart"), at(TraceEvent::SkillDone, "AssemblePart"));
     assert_eq!((on.len(), done.len()), (3, 3), "{trace:#?}");
     // (Agent events are placed on the coordinator's clock from their offsets: a cycle either way, at most.)
     assert!(on.iter().zip(&done).all(|(a, b)| b - a >= 1000 - 2 * 10 && b - a < 1500), "{on:?} {done:?}");
@@ -391,12 +395,12 @@ fn cluster_runs_the_example_and_each_fault_with_real_processes() {
     let trace = read_trace(&out.path().join("cell-seed1.trace.jsonl"));
     // Four real agents joined; assembler1 was SIGKILLed holding Assemble and assembler2 took it in epoch 2.
     let ups: std::collections::BTreeSet<&str> =
-        trace.iter().filter(|r| r.event == "agent_up").map(|r| r.name.as_str()).collect();
+        trace.iter().filter(|r| r.event == TraceEvent::AgentUp).map(|r| r.name.as_str()).collect();
     assert_eq!(ups.into_iter().collect::<Vec<_>>(), ["assembler1", "assembler2", "robot1", "robot2"]);
-    assert_eq!(count(&trace, "agent_lost", "assembler1"), 1, "{trace:#?}");
-    let again = trace.iter().find(|r| r.event == "dispatch" && r.name == "Assemble" && r.epoch == Some(2));
+    assert_eq!(count(&trace, TraceEvent::AgentLost, "assembler1"), 1, "{trace:#?}");
+    let again = trace.iter().find(|r| r.event == TraceEvent::Dispatch && r.name == "Assemble" && r.epoch == Some(2));
     assert_eq!(again.and_then(|r| r.agent.as_deref()), Some("assembler2"), "{trace:#?}");
-    assert_eq!(count(&trace, "skill_fault", "InspectPart"), 2, "{trace:#?}");
+    assert_eq!(count(&trace, TraceEvent::SkillFault, "InspectPart"), 2, "{trace:#?}");
     // A passing run leaves no processes' folder behind.
     assert!(!out.path().join("cell-seed1.cluster").exists());
 
@@ -410,29 +414,32 @@ fn cluster_runs_the_example_and_each_fault_with_real_processes() {
     let trace = |name: &str| read_trace(&out.path().join(format!("{name}-seed1.trace.jsonl")));
     // Killed, then a new process: the token goes to it in a new epoch.
     let t = trace("restart");
-    assert_eq!(count(&t, "agent_lost", "r1"), 1, "{t:#?}");
-    assert_eq!(count(&t, "agent_up", "r1"), 2, "{t:#?}");
-    assert!(t.iter().any(|r| r.event == "dispatch" && r.name == "A" && r.epoch == Some(2)), "{t:#?}");
+    assert_eq!(count(&t, TraceEvent::AgentLost, "r1"), 1, "{t:#?}");
+    assert_eq!(count(&t, TraceEvent::AgentUp, "r1"), 2, "{t:#?}");
+    assert!(t.iter().any(|r| r.event == TraceEvent::Dispatch && r.name == "A" && r.epoch == Some(2)), "{t:#?}");
     // Its cable pulled out from 100 to 400 ms, within its lease: never lost, and its work heard only once back.
     let t = trace("partition");
-    assert_eq!(count(&t, "agent_lost", "r2"), 0, "{t:#?}");
-    let back = t.iter().find(|r| r.event == "return" && r.name == "B").expect("B's token back");
+    assert_eq!(count(&t, TraceEvent::AgentLost, "r2"), 0, "{t:#?}");
+    let back = t.iter().find(|r| r.event == TraceEvent::Return && r.name == "B").expect("B's token back");
     assert!(back.t_ms >= 400, "B's token came back at {} ms, while r2 was cut off", back.t_ms);
     // The coordinator was SIGKILLed and started again on its journal; the trace goes on past its recovery.
     let t = trace("crash");
-    let recover = t.iter().position(|r| r.event == "recover").expect("recovered");
-    assert!(t[recover..].iter().any(|r| r.event == "activate" && r.name == "Done"), "{t:#?}");
-    assert_eq!(count(&t, "activate", "Idle"), 1, "the replayed past is not taken in twice: {t:#?}");
+    let recover = t.iter().position(|r| r.event == TraceEvent::Recover).expect("recovered");
+    assert!(t[recover..].iter().any(|r| r.event == TraceEvent::Activate && r.name == "Done"), "{t:#?}");
+    assert_eq!(count(&t, TraceEvent::Activate, "Idle"), 1, "the replayed past is not taken in twice: {t:#?}");
     // `baton run --watch`, which the runner asks for every variable: values as the chart changed them, once
     // each (the replayed past is skipped). Both tokens come back after the recovery, in either order.
-    let firsts: Vec<&str> =
-        t.iter().filter(|r| r.event == "value" && r.name == "first").filter_map(|r| r.value.as_deref()).collect();
+    let firsts: Vec<&str> = t
+        .iter()
+        .filter(|r| r.event == TraceEvent::Value && r.name == "first")
+        .filter_map(|r| r.value.as_deref())
+        .collect();
     assert!(firsts == ["0", "1"] || firsts == ["0", "2"], "{firsts:?}");
     // An input set 200 ms after a step became active, and an agent that starts a second late.
     let t = trace("when");
-    let set = t.iter().find(|r| r.event == "set").expect("set");
+    let set = t.iter().find(|r| r.event == TraceEvent::Set).expect("set");
     assert!(set.t_ms >= 200, "set at {}", set.t_ms);
-    let b = t.iter().find(|r| r.event == "dispatch" && r.name == "B").expect("B dispatched");
+    let b = t.iter().find(|r| r.event == TraceEvent::Dispatch && r.name == "B").expect("B dispatched");
     assert!(b.t_ms >= 1000 && b.agent.as_deref() == Some("r2"), "{b:?}");
 
     // A failing expectation on real processes: the same message, the processes' logs kept, and the replay

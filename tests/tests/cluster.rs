@@ -5,6 +5,7 @@ use std::time::Duration;
 use baton_proto::dist::keys;
 use baton_proto::dist::netconfig::NetConfig;
 use baton_proto::dist::wire::{self, ChartHash, RunId, StatusReport, ToAgent, TokenId};
+use baton_proto::exec::trace::TraceEvent;
 use baton_tests::cluster::{check_trace_invariants, events, repo, Cluster, TIMEOUT};
 use zenoh::sample::Locality;
 
@@ -33,22 +34,26 @@ async fn three_parallel_branches_converge_only_after_the_slowest() {
     assert!(status.success(), "{log}");
     check_trace_invariants(&trace, &chart("three_branches.st"));
     let dispatched: Vec<(String, String)> =
-        events(&trace, "dispatch").into_iter().map(|(_, n, a)| (n, a.unwrap_or_default())).collect();
+        events(&trace, TraceEvent::Dispatch).into_iter().map(|(_, n, a)| (n, a.unwrap_or_default())).collect();
     assert_eq!(dispatched.len(), 3);
     for (step, agent) in [("A", "r1"), ("B", "r2"), ("C", "r3")] {
         assert!(dispatched.contains(&(step.to_string(), agent.to_string())), "{step} on {agent}: {dispatched:?}");
     }
     // The convergence clears after every return, the last of which is B's (300 ms of motion on r2).
-    let fire = trace.iter().position(|r| r.event == "fire" && r.name == "(WaitA,WaitB,WaitC)->Done").expect("fired");
-    let returns: Vec<usize> = trace.iter().enumerate().filter(|(_, r)| r.event == "return").map(|(i, _)| i).collect();
+    let fire =
+        trace.iter().position(|r| r.event == TraceEvent::Fire && r.name == "(WaitA,WaitB,WaitC)->Done").expect("fired");
+    let returns: Vec<usize> =
+        trace.iter().enumerate().filter(|(_, r)| r.event == TraceEvent::Return).map(|(i, _)| i).collect();
     assert_eq!(returns.len(), 3);
     assert!(returns.iter().all(|&i| i < fire), "the convergence cleared before every branch returned");
     let last = &trace[*returns.last().expect("returns")];
     assert_eq!((last.name.as_str(), last.agent.as_deref()), ("B", Some("r2")));
     // Step events of steps that ran on agents say where.
-    let b_fire = trace.iter().find(|r| r.event == "fire" && r.name == "B->WaitB").expect("B cleared");
+    let b_fire = trace.iter().find(|r| r.event == TraceEvent::Fire && r.name == "B->WaitB").expect("B cleared");
     assert_eq!(b_fire.agent.as_deref(), Some("r2"));
-    assert!(trace.iter().any(|r| r.event == "action_on" && r.name == "MoveB" && r.agent.as_deref() == Some("r2")));
+    assert!(trace
+        .iter()
+        .any(|r| r.event == TraceEvent::ActionOn && r.name == "MoveB" && r.agent.as_deref() == Some("r2")));
 }
 
 #[tokio::test(flavor = "multi_thread")]
@@ -80,11 +85,11 @@ async fn a_selection_inside_a_segment_follows_an_input_set_at_run_time() {
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}");
     check_trace_invariants(&trace, &chart("selection_segment.st"));
-    let activated: Vec<String> = events(&trace, "activate").into_iter().map(|e| e.1).collect();
+    let activated: Vec<String> = events(&trace, TraceEvent::Activate).into_iter().map(|e| e.1).collect();
     assert!(activated.contains(&"B".to_string()) && !activated.contains(&"A".to_string()), "{activated:?}");
-    let b = trace.iter().find(|r| r.event == "activate" && r.name == "B").expect("B");
+    let b = trace.iter().find(|r| r.event == TraceEvent::Activate && r.name == "B").expect("B");
     assert_eq!(b.agent.as_deref(), Some("r1"), "B ran on r1");
-    assert_eq!(events(&trace, "dispatch").len(), 1, "one token for the whole segment");
+    assert_eq!(events(&trace, TraceEvent::Dispatch).len(), 1, "one token for the whole segment");
     assert_eq!((var(&summary, "b_count"), var(&summary, "a_count")), ("1".into(), "0".into()));
 }
 
@@ -99,7 +104,7 @@ async fn a_role_served_by_two_agents_shares_the_work() {
     check_trace_invariants(&trace, &repo("examples/cell.st"));
     assert_eq!(var(&summary, "done"), "4");
     let assemblers: std::collections::BTreeSet<String> =
-        events(&trace, "dispatch").into_iter().filter(|d| d.1 == "Assemble").filter_map(|d| d.2).collect();
+        events(&trace, TraceEvent::Dispatch).into_iter().filter(|d| d.1 == "Assemble").filter_map(|d| d.2).collect();
     assert_eq!(assemblers.into_iter().collect::<Vec<_>>(), ["robot1", "robot2"]);
 }
 
@@ -110,12 +115,12 @@ async fn skill_indicators_drive_transitions() {
     let coordinator = cluster.coordinator(&chart("shell_skill.st"), &[]);
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}\n{}", cluster.agent_log("r1"));
-    let activated: Vec<String> = events(&trace, "activate").into_iter().map(|e| e.1).collect();
+    let activated: Vec<String> = events(&trace, TraceEvent::Activate).into_iter().map(|e| e.1).collect();
     assert!(activated.contains(&"Handled".to_string()), "{activated:?}");
     assert!(!activated.contains(&"Wrong".to_string()));
-    let done = trace.iter().find(|r| r.event == "skill_done").expect("RunTrue succeeded");
+    let done = trace.iter().find(|r| r.event == TraceEvent::SkillDone).expect("RunTrue succeeded");
     assert_eq!(done.name, "RunTrue");
-    let fault = trace.iter().find(|r| r.event == "skill_fault").expect("RunFalse failed");
+    let fault = trace.iter().find(|r| r.event == TraceEvent::SkillFault).expect("RunFalse failed");
     assert_eq!(fault.name, "RunFalse");
     assert!(fault.message.as_deref().unwrap_or_default().contains("exit status: 3"), "{fault:?}");
     assert_eq!((var(&summary, "ok_done"), var(&summary, "bad_fault")), ("TRUE".into(), "TRUE".into()));
@@ -132,8 +137,8 @@ async fn tokens_wait_for_agents_that_start_later() {
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
     check_trace_invariants(&trace, &chart("three_branches.st"));
-    assert_eq!(events(&trace, "wait").len(), 3);
-    assert_eq!(events(&trace, "return").len(), 3);
+    assert_eq!(events(&trace, TraceEvent::Wait).len(), 3);
+    assert_eq!(events(&trace, TraceEvent::Return).len(), 3);
 }
 
 /// Republishes every message on Baton's keys, duplicated and in swapped pairs, so that each process sees
@@ -179,7 +184,7 @@ async fn duplicated_and_reordered_messages_change_nothing() {
     assert!(status.success(), "{log}");
     check_trace_invariants(&trace, &repo("examples/cell.st"));
     assert_eq!(var(&summary, "done"), "3");
-    assert_eq!(events(&trace, "dispatch").len(), 9);
+    assert_eq!(events(&trace, TraceEvent::Dispatch).len(), 9);
     let dropped = summary["messages_dropped"].as_u64().unwrap_or(0);
     assert!(dropped > 0, "the duplicates reached the coordinator and were dropped: {summary}");
 }
@@ -324,7 +329,7 @@ async fn a_set_reaches_only_the_run_it_names() {
     assert!(set.status.success(), "{}", String::from_utf8_lossy(&set.stderr));
     let (status, log, trace, _) = second.finish().await;
     assert!(status.success(), "{log}");
-    assert!(events(&trace, "activate").iter().any(|e| e.1 == "Done"));
+    assert!(events(&trace, TraceEvent::Activate).iter().any(|e| e.1 == "Done"));
     let status = cluster.baton(&["status", "--connect", &ep, "--json"]).await;
     let text = String::from_utf8_lossy(&status.stdout).to_string();
     let report: serde_json::Value = serde_json::from_str(text.trim()).expect("one run's status");

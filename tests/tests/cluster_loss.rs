@@ -1,6 +1,7 @@
 //! Lost agents with real processes: SIGKILL of the agent holding a token, under each `--on-agent-loss` policy.
 
 use baton_proto::dist::keys;
+use baton_proto::exec::trace::TraceEvent;
 use baton_tests::cluster::{
     self, check_trace_invariants, check_trace_invariants_with_tokens_out, dispatches, repo, step_id, Cluster, Samples,
 };
@@ -55,8 +56,8 @@ async fn reassign_moves_a_killed_agents_segment_to_another_agent() {
     check_trace_invariants(&trace, &repo("examples/cell.st"));
     assert_eq!(summary["vars"]["done"], "1");
     assert_eq!(dispatches(&trace, "Assemble"), [(holder.clone(), Some(1)), (other(&holder).to_string(), Some(2))]);
-    assert!(trace.iter().any(|r| r.event == "agent_lost" && r.name == holder));
-    assert!(trace.iter().any(|r| r.event == "alarm"));
+    assert!(trace.iter().any(|r| r.event == TraceEvent::AgentLost && r.name == holder));
+    assert!(trace.iter().any(|r| r.event == TraceEvent::Alarm));
 }
 
 #[tokio::test(flavor = "multi_thread")]
@@ -70,8 +71,8 @@ async fn pause_holds_the_segment_until_the_killed_agent_is_back() {
     assert_eq!(summary["vars"]["done"], "1");
     // Nothing moved to the other robot; the restarted process runs the segment again in a new epoch.
     assert_eq!(dispatches(&trace, "Assemble"), [(holder.clone(), Some(1)), (holder.clone(), Some(2))]);
-    let lost = trace.iter().position(|r| r.event == "agent_lost").expect("lost");
-    let back = trace.iter().rposition(|r| r.event == "agent_up" && r.name == holder).expect("back");
+    let lost = trace.iter().position(|r| r.event == TraceEvent::AgentLost).expect("lost");
+    let back = trace.iter().rposition(|r| r.event == TraceEvent::AgentUp && r.name == holder).expect("back");
     assert!(lost < back, "the holder came back after it was lost");
     assert!(log.contains("came back restarted"), "{log}");
 }
@@ -86,7 +87,7 @@ async fn fail_ends_the_run_with_an_error_that_says_why() {
         log.contains(&format!("the run failed: agent `{holder}` was lost holding the token of step `Assemble`")),
         "{log}"
     );
-    assert!(trace.iter().any(|r| r.event == "agent_lost"));
+    assert!(trace.iter().any(|r| r.event == TraceEvent::AgentLost));
     // Every token is back but the one the failure names.
     check_trace_invariants_with_tokens_out(&trace, &repo("examples/cell.st"), 1);
 }
@@ -105,7 +106,7 @@ async fn a_stopped_agents_late_result_is_rejected_after_a_reassign() {
     assert_eq!(summary["vars"]["done"], "2");
     // Woken up, the old holder still has epoch 1: it is told to drop it — when its late result comes in
     // (`reject_stale`), or as soon as it announces itself holding it, whichever reaches the coordinator first.
-    let stale: Vec<_> = trace.iter().filter(|r| r.event == "reject_stale").collect();
+    let stale: Vec<_> = trace.iter().filter(|r| r.event == TraceEvent::RejectStale).collect();
     assert!(stale.iter().all(|r| r.agent.as_deref() == Some(holder.as_str()) && r.epoch == Some(1)));
     let mut told_to_drop = false;
     while let Ok(Some(sample)) = cmds.try_recv() {
@@ -117,6 +118,7 @@ async fn a_stopped_agents_late_result_is_rejected_after_a_reassign() {
         }
     }
     assert!(told_to_drop, "the stopped agent was told to drop its epoch-1 token:\n{log}");
-    let first_assembly = trace.iter().find(|r| r.event == "return" && r.name == "Assemble").expect("returned");
+    let first_assembly =
+        trace.iter().find(|r| r.event == TraceEvent::Return && r.name == "Assemble").expect("returned");
     assert_eq!((first_assembly.agent.as_deref(), first_assembly.epoch), (Some(other(&holder)), Some(2)));
 }

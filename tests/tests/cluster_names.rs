@@ -4,6 +4,7 @@
 
 use baton_proto::dist::keys;
 use baton_proto::dist::wire::{self, AgentInfo};
+use baton_proto::exec::trace::TraceEvent;
 use baton_tests::cluster::{bin, check_trace_invariants, events, read_trace, repo, Cluster, TIMEOUT};
 use tokio::process::Command;
 
@@ -29,7 +30,7 @@ async fn a_second_agent_under_a_taken_name_is_refused_at_start() {
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
     check_trace_invariants(&trace, &chart());
-    assert_eq!(events(&trace, "dispatch").len(), 1);
+    assert_eq!(events(&trace, TraceEvent::Dispatch).len(), 1);
 }
 
 #[tokio::test(flavor = "multi_thread")]
@@ -55,8 +56,11 @@ async fn two_processes_answering_to_one_name_get_nothing_until_one_is_left() {
     cluster.agent("r1", &[], &[]);
     coordinator.wait_for_log("2 processes answer as agent `r1`").await;
     let so_far = read_trace(&coordinator.trace);
-    assert!(events(&so_far, "dispatch").is_empty(), "dispatched to a name two processes answer to: {so_far:?}");
-    assert!(so_far.iter().any(|r| r.event == "alarm"), "{so_far:?}");
+    assert!(
+        events(&so_far, TraceEvent::Dispatch).is_empty(),
+        "dispatched to a name two processes answer to: {so_far:?}"
+    );
+    assert!(so_far.iter().any(|r| r.event == TraceEvent::Alarm), "{so_far:?}");
     // The impostor goes: the real r1 answers alone, and gets the token.
     answering.abort();
     let _ = answering.await;
@@ -64,5 +68,5 @@ async fn two_processes_answering_to_one_name_get_nothing_until_one_is_left() {
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
     check_trace_invariants(&trace, &chart());
-    assert_eq!(events(&trace, "dispatch").len(), 1);
+    assert_eq!(events(&trace, TraceEvent::Dispatch).len(), 1);
 }

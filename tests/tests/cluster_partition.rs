@@ -4,6 +4,7 @@
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use baton_proto::dist::keys;
+use baton_proto::exec::trace::TraceEvent;
 use baton_tests::cluster::{self, check_trace_invariants, dispatches, free_port, repo, step_id, Cluster};
 use baton_tests::netns::Netns;
 
@@ -89,7 +90,7 @@ async fn a_cut_off_agent_stops_before_its_token_moves_under_reassign() {
     check_trace_invariants(&trace, &chart);
     assert_eq!(summary["vars"]["moved"], "TRUE");
     assert_eq!(dispatches(&trace, "Work"), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
-    let done: Vec<_> = trace.iter().filter(|r| r.event == "skill_done").map(|r| r.agent.clone()).collect();
+    let done: Vec<_> = trace.iter().filter(|r| r.event == TraceEvent::SkillDone).map(|r| r.agent.clone()).collect();
     assert_eq!(done, [Some("robot2".to_string())], "only robot2's motion finished");
 }
 
@@ -123,11 +124,11 @@ async fn a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back() {
     check_trace_invariants(&trace, &cell);
     assert_eq!(summary["vars"]["done"], "1");
     assert_eq!(dispatches(&trace, "Assemble"), [("robot1".to_string(), Some(1))], "sent once, never moved");
-    let lost = trace.iter().position(|r| r.event == "agent_lost" && r.name == "robot1").expect("lost");
-    let resume = trace.iter().position(|r| r.event == "resume" && r.name == "Assemble").expect("resumed");
-    let back = trace.iter().position(|r| r.event == "return" && r.name == "Assemble").expect("returned");
+    let lost = trace.iter().position(|r| r.event == TraceEvent::AgentLost && r.name == "robot1").expect("lost");
+    let resume = trace.iter().position(|r| r.event == TraceEvent::Resume && r.name == "Assemble").expect("resumed");
+    let back = trace.iter().position(|r| r.event == TraceEvent::Return && r.name == "Assemble").expect("returned");
     assert!(lost < resume && resume < back, "lost, resumed, then the result");
     assert_eq!(trace[resume].message.as_deref(), Some("still held by the agent"));
-    let motions = trace.iter().filter(|r| r.event == "action_on" && r.name == "AssemblePart").count();
+    let motions = trace.iter().filter(|r| r.event == TraceEvent::ActionOn && r.name == "AssemblePart").count();
     assert_eq!(motions, 1, "the assembly motion ran once");
 }

@@ -2,6 +2,7 @@
 
 use baton_proto::dist::keys;
 use baton_proto::dist::wire::{self, Report};
+use baton_proto::exec::trace::TraceEvent;
 use baton_tests::cluster::{self, check_trace_invariants, dispatches, repo, step_id, Cluster, TIMEOUT};
 
 fn journal_args(cluster: &Cluster) -> Vec<String> {
@@ -49,12 +50,12 @@ async fn a_coordinator_killed_mid_segment_resumes_from_its_journal() {
     check_trace_invariants(&trace, &cell);
     assert_eq!(summary["vars"]["done"], "1", "{log}");
     assert_eq!(dispatches(&trace, "Assemble"), [(holder.clone(), Some(1))], "Assemble was sent once");
-    let recover = trace.iter().position(|r| r.event == "recover").expect("recover in the trace");
-    let resume = trace.iter().position(|r| r.event == "resume" && r.name == "Assemble").expect("reconciled");
+    let recover = trace.iter().position(|r| r.event == TraceEvent::Recover).expect("recover in the trace");
+    let resume = trace.iter().position(|r| r.event == TraceEvent::Resume && r.name == "Assemble").expect("reconciled");
     assert_eq!(trace[resume].message.as_deref(), Some("still held by the agent"));
-    let back = trace.iter().position(|r| r.event == "return" && r.name == "Assemble").expect("returned");
+    let back = trace.iter().position(|r| r.event == TraceEvent::Return && r.name == "Assemble").expect("returned");
     assert!(recover < resume && resume < back, "recover, reconcile, then the held result");
-    let motions = trace.iter().filter(|r| r.event == "action_on" && r.name == "AssemblePart").count();
+    let motions = trace.iter().filter(|r| r.event == TraceEvent::ActionOn && r.name == "AssemblePart").count();
     assert_eq!(motions, 1, "the assembly motion ran once");
 }
 
@@ -79,7 +80,7 @@ async fn agents_reconnect_to_a_coordinator_restarted_with_its_router() {
     assert!(status.success(), "{log}");
     check_trace_invariants(&trace, &cell);
     assert_eq!(summary["vars"]["done"], "1", "{log}");
-    assert_eq!(trace.iter().filter(|r| r.event == "recover").count(), 1);
+    assert_eq!(trace.iter().filter(|r| r.event == TraceEvent::Recover).count(), 1);
     for step in ["Pick1", "Pick2", "Assemble"] {
         assert_eq!(dispatches(&trace, step).len(), 1, "{step} dispatched once:\n{log}");
     }

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use baton_proto::exec::sim::simulate;
+use baton_proto::exec::trace::TraceEvent;
 use baton_proto::pipeline::check_source;
 
 fn corpus_files() -> Option<Vec<PathBuf>> {
@@ -148,7 +149,7 @@ fn beremiz_traffic_light_cycles_and_answers_the_pedestrian_button() {
     let mut fired = Vec::new();
     simulate(std::sync::Arc::new(program), &inputs, 20, 110_000, |out| {
         if let SimOutput::Trace(r) = out {
-            if r.event == "fire" {
+            if r.event == TraceEvent::Fire {
                 fired.push((r.t_ms, r.name));
             }
         }

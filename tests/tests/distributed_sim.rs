@@ -2,6 +2,7 @@
 //! simulated network that duplicates, reorders and delays, virtual time.
 
 use baton_proto::dist::runtime::coordinator::LossPolicy;
+use baton_proto::exec::trace::TraceEvent;
 use baton_proto::testing::simulated_cluster::{Faults, SimCluster};
 
 fn chart(name: &str) -> String {
@@ -15,11 +16,11 @@ const THREE: &[(&str, &[&str])] = &[("r1", &[]), ("r2", &[]), ("r3", &[])];
 fn three_branches_converge_after_the_slowest() {
     let mut sim = SimCluster::new(&chart("three_branches.st"), THREE, Faults::default(), 1);
     assert!(sim.run(5_000), "did not finish; trace: {:#?}", sim.trace);
-    let dispatched: Vec<_> = sim.events("dispatch").into_iter().map(|(_, n, a)| (n, a.unwrap())).collect();
+    let dispatched: Vec<_> = sim.events(TraceEvent::Dispatch).into_iter().map(|(_, n, a)| (n, a.unwrap())).collect();
     assert_eq!(dispatched.len(), 3, "{dispatched:?}");
-    let returns = sim.events("return");
+    let returns = sim.events(TraceEvent::Return);
     let last_return = returns.iter().map(|r| r.0).max().unwrap();
-    let done = sim.events("activate").into_iter().find(|e| e.1 == "Done").expect("Done activated");
+    let done = sim.events(TraceEvent::Activate).into_iter().find(|e| e.1 == "Done").expect("Done activated");
     assert!(done.0 >= last_return, "Done at {} before the last return at {last_return}", done.0);
     assert_eq!(returns.iter().max_by_key(|r| r.0).unwrap().2.as_deref(), Some("r2"), "r2 is the slowest");
     assert!(done.0 >= 300, "B's motion takes 300 ms; Done at {}", done.0);
@@ -36,8 +37,8 @@ const CELL_AGENTS: &[(&str, &[&str])] = &[("robot1", &["assembler"]), ("robot2",
 fn check_cell_run(sim: &SimCluster) {
     let seed = sim.seed;
     assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(3)), "seed {seed}: three parts done");
-    let dispatches = sim.events("dispatch");
-    let returns = sim.events("return");
+    let dispatches = sim.events(TraceEvent::Dispatch);
+    let returns = sim.events(TraceEvent::Return);
     assert_eq!(dispatches.len(), returns.len(), "seed {seed}: every token came back");
     // 3 parts × (2 picks + 1 assembly segment).
     assert_eq!(dispatches.len(), 9, "seed {seed}: {dispatches:?}");
@@ -48,9 +49,9 @@ fn check_cell_run(sim: &SimCluster) {
     // Every convergence clears only after both pick tokens of that part returned.
     let mut picks_back = 0;
     for r in &sim.trace {
-        match (r.event.as_str(), r.name.as_str()) {
-            ("return", "Pick1" | "Pick2") => picks_back += 1,
-            ("fire", "(Picked1,Picked2)->Assemble") => {
+        match (r.event, r.name.as_str()) {
+            (TraceEvent::Return, "Pick1" | "Pick2") => picks_back += 1,
+            (TraceEvent::Fire, "(Picked1,Picked2)->Assemble") => {
                 assert_eq!(picks_back, 2, "seed {seed}: convergence at {} ms with {picks_back} pick(s) back", r.t_ms);
                 picks_back = 0;
             }
@@ -60,10 +61,10 @@ fn check_cell_run(sim: &SimCluster) {
     // Every assembly waited for its motion: an indicator left TRUE by an earlier part never clears the step.
     let mut moving = false;
     for r in &sim.trace {
-        match (r.event.as_str(), r.name.as_str()) {
-            ("action_on", "AssemblePart") => moving = true,
-            ("skill_done", "AssemblePart") => moving = false,
-            ("fire", "Assemble->Inspect") => {
+        match (r.event, r.name.as_str()) {
+            (TraceEvent::ActionOn, "AssemblePart") => moving = true,
+            (TraceEvent::SkillDone, "AssemblePart") => moving = false,
+            (TraceEvent::Fire, "Assemble->Inspect") => {
                 assert!(!moving, "seed {seed}: Assemble left at {} ms before its motion was done", r.t_ms)
             }
             _ => {}
@@ -72,9 +73,11 @@ fn check_cell_run(sim: &SimCluster) {
     // Activations and deactivations of each step alternate: no step ever got a second token.
     let mut active = std::collections::HashSet::new();
     for r in &sim.trace {
-        match r.event.as_str() {
-            "activate" => assert!(active.insert(r.name.clone()), "seed {seed}: `{}` activated twice", r.name),
-            "deactivate" => assert!(active.remove(&r.name), "seed {seed}: `{}` deactivated while inactive", r.name),
+        match r.event {
+            TraceEvent::Activate => assert!(active.insert(r.name.clone()), "seed {seed}: `{}` activated twice", r.name),
+            TraceEvent::Deactivate => {
+                assert!(active.remove(&r.name), "seed {seed}: `{}` deactivated while inactive", r.name)
+            }
             _ => {}
         }
     }
@@ -103,7 +106,7 @@ fn a_role_served_by_two_agents_shares_the_work() {
     let mut sim = SimCluster::new(&cell(), CELL_AGENTS, Faults::default(), 3);
     assert!(sim.run(60_000));
     let assemblers: std::collections::BTreeSet<String> =
-        sim.events("dispatch").into_iter().filter(|d| d.1 == "Assemble").filter_map(|d| d.2).collect();
+        sim.events(TraceEvent::Dispatch).into_iter().filter(|d| d.1 == "Assemble").filter_map(|d| d.2).collect();
     assert_eq!(assemblers.into_iter().collect::<Vec<_>>(), ["robot1", "robot2"]);
 }
 
@@ -197,7 +200,7 @@ impl RandomCell {
         // Tokens that left at least once (a token that never found an agent has not).
         let out = baton_tests::invariants::tokens_out(&sim.trace);
         let dispatched: std::collections::HashSet<&str> =
-            sim.trace.iter().filter(|r| r.event == "dispatch").filter_map(|r| r.token.as_deref()).collect();
+            sim.trace.iter().filter(|r| r.event == TraceEvent::Dispatch).filter_map(|r| r.token.as_deref()).collect();
         let status = sim.coordinator.core().status();
         let left = status.tokens.iter().filter(|t| dispatched.contains(t.token.to_string().as_str())).count();
         if out != left {
@@ -314,8 +317,11 @@ fn reassign_restarts_a_lost_agents_segment_elsewhere_in_a_new_epoch() {
     assert!(sim.run(10_000), "did not finish");
     assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
-    assert_eq!(sim.events("agent_lost").len(), 1);
-    assert!(sim.trace.iter().any(|r| r.event == "alarm" && r.message.as_deref().unwrap_or("").contains("reassigned")));
+    assert_eq!(sim.events(TraceEvent::AgentLost).len(), 1);
+    assert!(sim
+        .trace
+        .iter()
+        .any(|r| r.event == TraceEvent::Alarm && r.message.as_deref().unwrap_or("").contains("reassigned")));
     assert!(sim.coordinator.core().failure().is_none());
 }
 
@@ -328,10 +334,10 @@ fn pause_resumes_a_cut_off_agent_where_it_was() {
     // The same process kept its token: it says so when it comes back, keeps it in the same epoch, its held-back
     // reports follow, and the motion is not run twice.
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1))]);
-    let resume = sim.trace.iter().find(|r| r.event == "resume" && r.name == "Assemble").expect("resumed");
+    let resume = sim.trace.iter().find(|r| r.event == TraceEvent::Resume && r.name == "Assemble").expect("resumed");
     assert_eq!((resume.agent.as_deref(), resume.epoch), (Some("robot1"), Some(1)));
     assert!(resume.t_ms >= 2_000, "resumed at {} ms, before robot1 came back", resume.t_ms);
-    let motions = sim.trace.iter().filter(|r| r.event == "action_on" && r.name == "AssemblePart").count();
+    let motions = sim.trace.iter().filter(|r| r.event == TraceEvent::ActionOn && r.name == "AssemblePart").count();
     assert!(motions <= 1, "the assembly motion ran {motions} times");
 }
 
@@ -342,9 +348,13 @@ fn pause_restarts_the_segment_on_an_agent_that_came_back_restarted() {
     assert!(sim.run(10_000), "did not finish");
     assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot1".to_string(), Some(2))]);
-    let again = sim.trace.iter().filter(|r| r.event == "dispatch" && r.name == "Assemble").nth(1).expect("again");
+    let again =
+        sim.trace.iter().filter(|r| r.event == TraceEvent::Dispatch && r.name == "Assemble").nth(1).expect("again");
     assert!(again.t_ms >= 2_000, "sent again at {} ms, before robot1 came back", again.t_ms);
-    assert!(sim.trace.iter().any(|r| r.event == "alarm" && r.message.as_deref().unwrap_or("").contains("restarted")));
+    assert!(sim
+        .trace
+        .iter()
+        .any(|r| r.event == TraceEvent::Alarm && r.message.as_deref().unwrap_or("").contains("restarted")));
 }
 
 #[test]
@@ -366,11 +376,11 @@ fn a_cut_off_agents_late_result_is_rejected_after_a_reassign() {
     assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
     // Back, robot1 says it holds epoch 1: it is told to drop it at once (any late report of it is rejected).
-    let stale: Vec<_> = sim.trace.iter().filter(|r| r.event == "reject_stale").collect();
+    let stale: Vec<_> = sim.trace.iter().filter(|r| r.event == TraceEvent::RejectStale).collect();
     assert!(stale.iter().all(|r| r.agent.as_deref() == Some("robot1") && r.epoch == Some(1)));
     assert_eq!(sim.settled(), Ok(()), "robot1 holds nothing any more");
     // Only epoch 2's return counts.
-    let returns: Vec<_> = sim.trace.iter().filter(|r| r.event == "return" && r.name == "Assemble").collect();
+    let returns: Vec<_> = sim.trace.iter().filter(|r| r.event == TraceEvent::Return && r.name == "Assemble").collect();
     assert_eq!(returns.len(), 1);
     assert_eq!(returns[0].epoch, Some(2));
 }
@@ -400,7 +410,7 @@ fn the_cell_survives_a_coordinator_crash_at_any_moment() {
         let mut sim = cell_with_coordinator_crash(k, at, 50 + 37 * k % 700);
         assert!(sim.run(120_000), "crash at {at} ms: did not finish");
         check_cell_run(&sim);
-        assert_eq!(sim.events("recover").len(), 1, "crash at {at} ms");
+        assert_eq!(sim.events(TraceEvent::Recover).len(), 1, "crash at {at} ms");
     }
 }
 
@@ -415,12 +425,12 @@ fn a_segment_that_finishes_while_the_coordinator_is_down_is_not_run_again() {
     assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
     let assemble = assembled_by(&sim);
     assert_eq!(assemble.len(), 1, "Assemble was dispatched once: {assemble:?}");
-    let resume = sim.trace.iter().find(|r| r.event == "resume" && r.name == "Assemble").expect("reconciled");
+    let resume = sim.trace.iter().find(|r| r.event == TraceEvent::Resume && r.name == "Assemble").expect("reconciled");
     assert_eq!(resume.message.as_deref(), Some("still held by the agent"));
     assert!(resume.t_ms >= 1_600);
-    let back = sim.trace.iter().find(|r| r.event == "return" && r.name == "Assemble").expect("returned");
+    let back = sim.trace.iter().find(|r| r.event == TraceEvent::Return && r.name == "Assemble").expect("returned");
     assert!(back.t_ms >= 1_600 && back.t_ms < 1_700, "the held result came back at once: {} ms", back.t_ms);
-    let motions = sim.trace.iter().filter(|r| r.event == "action_on" && r.name == "AssemblePart").count();
+    let motions = sim.trace.iter().filter(|r| r.event == TraceEvent::ActionOn && r.name == "AssemblePart").count();
     assert_eq!(motions, 1, "the assembly motion ran once");
 }
 
@@ -438,7 +448,10 @@ fn an_agent_restarted_while_the_coordinator_was_down_runs_its_segment_again_in_a
     let assemble = assembled_by(&sim);
     assert_eq!(assemble.len(), 2, "{assemble:?}");
     assert_eq!(assemble[1].1, Some(assemble[0].1.unwrap() + 1), "a new epoch: {assemble:?}");
-    assert!(sim.trace.iter().any(|r| r.event == "alarm" && r.message.as_deref().unwrap_or("").contains("restarted")));
+    assert!(sim
+        .trace
+        .iter()
+        .any(|r| r.event == TraceEvent::Alarm && r.message.as_deref().unwrap_or("").contains("restarted")));
 }
 
 #[test]
@@ -454,7 +467,7 @@ fn an_agent_that_does_not_come_back_after_a_coordinator_restart_is_lost_after_it
     assert!(sim.run(10_000), "did not finish");
     assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(1)));
     assert_eq!(assembled_by(&sim), [("robot1".to_string(), Some(1)), ("robot2".to_string(), Some(2))]);
-    let lost = sim.trace.iter().find(|r| r.event == "agent_lost" && r.name == "robot1").expect("lost");
+    let lost = sim.trace.iter().find(|r| r.event == TraceEvent::AgentLost && r.name == "robot1").expect("lost");
     assert!((2_100..2_300).contains(&lost.t_ms), "lost one lease after the restart at 1 100 ms: {} ms", lost.t_ms);
 }
 
@@ -480,7 +493,7 @@ fn a_long_outage_of_the_coordinator_loses_no_report() {
     let expected =
         baton_tests::reference::final_values(COUNTING, baton_proto::testing::simulated_cluster::CYCLE_MS, &["n"]);
     assert_eq!(sim.value("n").map(|v| v.as_i64()), Some(expected[0]), "n as one engine counts it");
-    assert_eq!(sim.events("return").len(), 1);
+    assert_eq!(sim.events(TraceEvent::Return).len(), 1);
 }
 
 /// r1 counts in one step for 1 s, then, after a pause on the coordinator that takes a snapshot, counts again in a
@@ -525,9 +538,10 @@ fn a_restarted_agent_computes_on_the_values_the_chart_has() {
         let got: Vec<i64> = names.iter().map(|n| sim.value(n).map_or(-1, |v| v.as_i64())).collect();
         assert!(done, "seed {seed}: the chart never ended ({names:?} = {got:?})");
         assert_eq!(got, expected, "seed {seed}: {names:?}");
-        let restarted = sim.trace.iter().any(|r| r.event == "agent_up" && r.t_ms >= 1_600);
+        let restarted = sim.trace.iter().any(|r| r.event == TraceEvent::AgentUp && r.t_ms >= 1_600);
         assert!(restarted, "seed {seed}: r1 came back as a new process");
-        let epochs: Vec<Option<u32>> = sim.trace.iter().filter(|r| r.event == "dispatch").map(|r| r.epoch).collect();
+        let epochs: Vec<Option<u32>> =
+            sim.trace.iter().filter(|r| r.event == TraceEvent::Dispatch).map(|r| r.epoch).collect();
         assert_eq!(epochs, [Some(1), Some(1)], "seed {seed}: no segment restarted, so none lost its progress");
     }
 }
@@ -617,7 +631,8 @@ fn a_nested_chart_on_an_agent_computes_what_baton_sim_computes() {
         assert!(sim.run(30_000), "seed {seed}: did not finish");
         let got: Vec<String> = names.iter().map(|n| sim.shown(n).unwrap_or_default()).collect();
         assert_eq!(got, expected, "seed {seed}: {names:?}");
-        let batch: Vec<_> = sim.events("action_on").into_iter().filter(|(_, name, _)| name == "Batch").collect();
+        let batch: Vec<_> =
+            sim.events(TraceEvent::ActionOn).into_iter().filter(|(_, name, _)| name == "Batch").collect();
         assert!(!batch.is_empty() && batch.iter().all(|(_, _, agent)| agent.as_deref() == Some("r1")), "{batch:?}");
     }
 }
@@ -660,7 +675,8 @@ fn agents_take_a_value_only_from_its_writer_and_the_coordinators_own_process() {
         sim.forge_vars_at(450, go("r1", 0, 1_000_000));
         sim.set_at(1_000, "go", serde_json::json!(true));
         assert!(sim.run(10_000), "seed {seed}: the real coordinator's `go` never reached r1");
-        let fired = sim.trace.iter().find(|r| r.event == "fire" && r.name == "Wait->Done").expect("Wait left");
+        let fired =
+            sim.trace.iter().find(|r| r.event == TraceEvent::Fire && r.name == "Wait->Done").expect("Wait left");
         assert!(fired.t_ms >= 1_000, "seed {seed}: Wait left at {} ms, on a forged value", fired.t_ms);
     }
 }
@@ -825,11 +841,13 @@ fn random_restarts_end_with_the_values_baton_sim_computes() {
         let again: std::collections::BTreeSet<String> = sim
             .trace
             .iter()
-            .filter(|r| r.event == "dispatch" && r.epoch.is_some_and(|e| e > 1))
+            .filter(|r| r.event == TraceEvent::Dispatch && r.epoch.is_some_and(|e| e > 1))
             .filter_map(|r| r.agent.clone())
             .collect();
         let role_again = sim.trace.iter().any(|r| {
-            r.event == "dispatch" && r.epoch.is_some_and(|e| e > 1) && source.contains(&format!("{}: {{role", r.name))
+            r.event == TraceEvent::Dispatch
+                && r.epoch.is_some_and(|e| e > 1)
+                && source.contains(&format!("{}: {{role", r.name))
         });
         restarted_agents += usize::from(plan.contains("Restart"));
         for (name, want) in names.iter().zip(&expected) {

@@ -3,6 +3,7 @@
 
 use std::time::Duration;
 
+use baton_proto::exec::trace::TraceEvent;
 use baton_tests::cluster::{repo, Cluster, TIMEOUT};
 use zenoh::pubsub::Publisher;
 use zenoh::Session;
@@ -51,7 +52,8 @@ async fn a_zenoh_publisher_drives_a_transition_and_outputs_reach_a_subscriber() 
     let (status, log, trace, summary) =
         tokio::time::timeout(TIMEOUT + Duration::from_secs(5), coordinator.finish()).await.expect("the chart ends");
     assert!(status.success(), "{log}");
-    let activated: Vec<String> = trace.iter().filter(|r| r.event == "activate").map(|r| r.name.clone()).collect();
+    let activated: Vec<String> =
+        trace.iter().filter(|r| r.event == TraceEvent::Activate).map(|r| r.name.clone()).collect();
     assert_eq!(activated, ["Wait", "Lit", "Done"]);
     assert_eq!(summary["vars"]["door"].as_str(), Some("FALSE"));
     assert_eq!(summary["vars"]["speed"].as_str(), Some("1.5"));

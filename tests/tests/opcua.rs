@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use baton_proto::exec::sim::TraceRecord;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::cluster::{events, free_port, repo, Cluster, Coordinator};
 use baton_tests::peer::{opcua_server as server, opcua_server_on, with_opcua_port};
 
@@ -33,11 +33,11 @@ fn var(summary: &serde_json::Value, name: &str) -> String {
 }
 
 fn reached(trace: &[TraceRecord], step: &str) -> bool {
-    events(trace, "activate").iter().any(|e| e.1 == step)
+    events(trace, TraceEvent::Activate).iter().any(|e| e.1 == step)
 }
 
 fn faults(trace: &[TraceRecord]) -> Vec<String> {
-    trace.iter().filter(|r| r.event == "skill_fault").map(|r| r.message.clone().unwrap_or_default()).collect()
+    trace.iter().filter(|r| r.event == TraceEvent::SkillFault).map(|r| r.message.clone().unwrap_or_default()).collect()
 }
 
 #[tokio::test(flavor = "multi_thread")]
@@ -51,7 +51,7 @@ async fn methods_are_called_with_their_declared_types_and_a_job_is_followed_to_i
     assert_eq!(var(&summary, "sum"), "42");
     assert_eq!(var(&summary, "job"), "1");
     assert_eq!(var(&summary, "count"), "3");
-    assert_eq!(events(&trace, "skill_done").len(), 2);
+    assert_eq!(events(&trace, TraceEvent::SkillDone).len(), 2);
     let said = server.finish().await;
     let calls: Vec<&String> = said.iter().filter(|l| l.starts_with("CALL") || l.starts_with("JOB")).collect();
     assert_eq!(calls, ["CALL Add 40 2", "CALL Pick 3 0.5", "JOB DONE"], "{said:?}");
@@ -83,7 +83,7 @@ async fn a_job_whose_step_is_left_is_cancelled_on_the_server_and_never_reported_
     assert!(reached(&trace, "Left"));
     server.wait_for("CANCELLED").await;
     cluster.wait_for_agent_log("cell1", "skill of action `PickSlowly` stopped: it confirmed the stop").await;
-    assert!(events(&trace, "skill_done").is_empty() && faults(&trace).is_empty(), "{trace:?}");
+    assert!(events(&trace, TraceEvent::SkillDone).is_empty() && faults(&trace).is_empty(), "{trace:?}");
     assert_eq!((var(&summary, "picked"), var(&summary, "pick_fault")), ("FALSE".into(), "FALSE".into()));
     let said = server.finish().await;
     assert!(!said.iter().any(|l| l == "JOB DONE"), "{said:?}");
@@ -154,9 +154,9 @@ async fn bound_nodes_drive_a_transition_take_the_outputs_and_a_server_away_is_re
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}");
     assert!(reached(&trace, "Done"));
-    let door = |event: &str| trace.iter().filter(|r| r.event == event && r.name == "door").count();
-    assert_eq!((door("device_down"), door("device_up")), (2, 2), "{trace:?}");
-    let down = trace.iter().find(|r| r.event == "device_down" && r.name == "door").expect("a device_down");
+    let door = |event: TraceEvent| trace.iter().filter(|r| r.event == event && r.name == "door").count();
+    assert_eq!((door(TraceEvent::DeviceDown), door(TraceEvent::DeviceUp)), (2, 2), "{trace:?}");
+    let down = trace.iter().find(|r| r.event == TraceEvent::DeviceDown && r.name == "door").expect("a device_down");
     assert_eq!(down.agent.as_deref(), Some("cell1"));
     assert!(down.message.as_deref().is_some_and(|m| m.contains("OPC UA node ns=2;s=Cell.Door")), "{down:?}");
     // The restarted machine's door and count are the inputs' values now.

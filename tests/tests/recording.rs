@@ -6,7 +6,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 use baton_proto::dist::keys;
-use baton_proto::exec::sim::TraceRecord;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::cluster::{self, read_trace, repo, step_id, Cluster};
 use baton_tests::rrd::{log_lines, read_recording, reader_available};
 
@@ -49,7 +49,7 @@ fn check_recording(rrd: &Path, trace: &[TraceRecord], parts: u64) {
     expected.extend(program.steps.iter().map(|s| format!("/sfc/steps/{}", s.name)));
     expected.extend(["/agents/robot1".to_string(), "/agents/robot2".to_string()]);
     let tokens: BTreeSet<&str> =
-        trace.iter().filter(|r| r.event == "dispatch").filter_map(|r| r.token.as_deref()).collect();
+        trace.iter().filter(|r| r.event == TraceEvent::Dispatch).filter_map(|r| r.token.as_deref()).collect();
     assert!(!tokens.is_empty());
     expected.extend(tokens.iter().map(|t| format!("/tokens/{t}")));
     for path in &expected {
@@ -60,13 +60,11 @@ fn check_recording(rrd: &Path, trace: &[TraceRecord], parts: u64) {
     let mut offsets = BTreeSet::new();
     for step in &program.steps {
         let from_trace =
-            activity(trace.iter().filter(|r: &&TraceRecord| r.name == step.name).filter_map(
-                |r| match r.event.as_str() {
-                    "activate" => Some((r.t_ms as i64, true)),
-                    "deactivate" => Some((r.t_ms as i64, false)),
-                    _ => None,
-                },
-            ));
+            activity(trace.iter().filter(|r: &&TraceRecord| r.name == step.name).filter_map(|r| match r.event {
+                TraceEvent::Activate => Some((r.t_ms as i64, true)),
+                TraceEvent::Deactivate => Some((r.t_ms as i64, false)),
+                _ => None,
+            }));
         let logged = recording["steps"][&step.name].as_array().cloned().unwrap_or_default();
         let from_recording = activity(logged.iter().map(|c| {
             let wall = c[0].as_i64().expect("wall ms");
@@ -97,8 +95,9 @@ fn check_recording(rrd: &Path, trace: &[TraceRecord], parts: u64) {
         assert!(entries.iter().all(|e| e.starts_with(&format!("[{short}] "))), "{entries:?}");
         assert!(entries.iter().any(|e| e.contains("dispatched to robot")), "token {token}: {entries:?}");
         assert!(entries.iter().any(|e| e.contains("returned from robot")), "token {token}: {entries:?}");
-        let assembles =
-            trace.iter().any(|r| r.event == "dispatch" && r.name == "Assemble" && r.token.as_deref() == Some(token));
+        let assembles = trace
+            .iter()
+            .any(|r| r.event == TraceEvent::Dispatch && r.name == "Assemble" && r.token.as_deref() == Some(token));
         if assembles {
             assert!(
                 entries.iter().any(|e| e.contains("skill AssemblePart done on robot")),
@@ -236,5 +235,5 @@ async fn a_lost_agent_and_the_reassignment_are_on_the_timeline() {
         .map(|s| s[1].as_str().unwrap_or_default().to_string())
         .collect();
     assert!(assemble.contains(&format!("on {holder}")) && assemble.contains(&format!("on {other}")), "{assemble:?}");
-    assert!(trace.iter().any(|r| r.event == "agent_lost" && r.name == holder));
+    assert!(trace.iter().any(|r| r.event == TraceEvent::AgentLost && r.name == holder));
 }

@@ -6,6 +6,7 @@
 use std::path::PathBuf;
 use std::process::Stdio;
 
+use baton_proto::exec::trace::TraceEvent;
 use baton_tests::cluster::{events, repo, Cluster};
 use baton_tests::peer::{opcua_server, with_opcua_port, Server};
 use tokio::process::Command;
@@ -59,7 +60,7 @@ async fn run(
     chart_name: &str,
     agent: &str,
     extra: &[&str],
-) -> (String, Vec<baton_proto::exec::sim::TraceRecord>, serde_json::Value) {
+) -> (String, Vec<baton_proto::exec::trace::TraceRecord>, serde_json::Value) {
     cluster.agent(agent, &[], extra);
     let coordinator = cluster.coordinator_joining(&chart(chart_name), &[]);
     let (status, log, trace, summary) = coordinator.finish().await;
@@ -67,12 +68,12 @@ async fn run(
     (log, trace, summary)
 }
 
-fn ends_in(trace: &[baton_proto::exec::sim::TraceRecord], step: &str) -> bool {
-    events(trace, "activate").iter().any(|e| e.1 == step)
+fn ends_in(trace: &[baton_proto::exec::trace::TraceRecord], step: &str) -> bool {
+    events(trace, TraceEvent::Activate).iter().any(|e| e.1 == step)
 }
 
-fn fault_message(trace: &[baton_proto::exec::sim::TraceRecord]) -> String {
-    let fault = trace.iter().find(|r| r.event == "skill_fault").expect("a skill fault in the trace");
+fn fault_message(trace: &[baton_proto::exec::trace::TraceRecord]) -> String {
+    let fault = trace.iter().find(|r| r.event == TraceEvent::SkillFault).expect("a skill fault in the trace");
     fault.message.clone().unwrap_or_default()
 }
 
@@ -88,7 +89,7 @@ async fn a_goal_is_followed_to_its_result_and_its_feedback_and_result_reach_the_
     // The result is 0 1 1 2 3 5: its fifth term is 3. The third term of any feedback is 1.
     assert_eq!((var(&summary, "last"), var(&summary, "partial")), ("3".into(), "1".into()));
     assert_eq!((var(&summary, "done"), var(&summary, "fault")), ("TRUE".into(), "FALSE".into()));
-    assert_eq!(events(&trace, "skill_done").len(), 1);
+    assert_eq!(events(&trace, TraceEvent::SkillDone).len(), 1);
 }
 
 /// Runs `ros2_action.st` against a server in `mode`, which says `line` and makes the goal a fault saying `why`.
@@ -124,7 +125,10 @@ async fn leaving_the_step_early_cancels_the_goal_on_the_server() {
     server.wait_for("CANCELED").await;
     // The agent reports the stop once the server answered, and nothing is done.
     cluster.wait_for_agent_log("arm1", "skill of action `MoveArm` stopped: it confirmed the stop").await;
-    assert!(events(&trace, "skill_done").is_empty() && events(&trace, "skill_fault").is_empty(), "{trace:?}");
+    assert!(
+        events(&trace, TraceEvent::SkillDone).is_empty() && events(&trace, TraceEvent::SkillFault).is_empty(),
+        "{trace:?}"
+    );
     assert_eq!(var(&summary, "done"), "FALSE");
 }
 
@@ -135,8 +139,8 @@ async fn no_action_server_is_a_fault_after_the_timeout() {
     assert!(ends_in(&trace, "Fallback"));
     let message = fault_message(&trace);
     assert!(message.contains("no server of /arm/move_to/_action/send_goal appeared on ROS domain 0"), "{message}");
-    let fault_at = trace.iter().find(|r| r.event == "skill_fault").map(|r| r.t_ms).unwrap_or_default();
-    let on_at = trace.iter().find(|r| r.event == "action_on").map(|r| r.t_ms).unwrap_or_default();
+    let fault_at = trace.iter().find(|r| r.event == TraceEvent::SkillFault).map(|r| r.t_ms).unwrap_or_default();
+    let on_at = trace.iter().find(|r| r.event == TraceEvent::ActionOn).map(|r| r.t_ms).unwrap_or_default();
     assert!(fault_at - on_at >= 2000, "the fault came {} ms after the action started", fault_at - on_at);
 }
 
@@ -176,7 +180,7 @@ async fn a_misspelt_type_or_goal_is_said_when_the_agent_joins_and_faults_by_name
         "{log}"
     );
     let faults: Vec<String> =
-        trace.iter().filter(|r| r.event == "skill_fault").filter_map(|r| r.message.clone()).collect();
+        trace.iter().filter(|r| r.event == TraceEvent::SkillFault).filter_map(|r| r.message.clone()).collect();
     assert!(faults.iter().any(|m| m.contains("--ros-interfaces")), "{faults:?}");
 }
 
@@ -205,13 +209,17 @@ async fn two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_c
     assert_eq!(service.wait_for("REQUEST").await, "REQUEST data=True");
     // Each branch ran on its own agent, and the convergence waited for both.
     let done: Vec<(String, Option<String>)> =
-        trace.iter().filter(|r| r.event == "skill_done").map(|r| (r.name.clone(), r.agent.clone())).collect();
+        trace.iter().filter(|r| r.event == TraceEvent::SkillDone).map(|r| (r.name.clone(), r.agent.clone())).collect();
     assert!(done.contains(&("MoveArm".into(), Some("arm1".into()))), "{done:?}");
     assert!(done.contains(&("CloseGripper".into(), Some("cell1".into()))), "{done:?}");
     assert!(done.contains(&("LoadParts".into(), Some("cell1".into()))), "{done:?}");
-    let at = |event: &str, name: &str| trace.iter().find(|r| r.event == event && r.name == name).map(|r| r.t_ms);
-    let load = at("activate", "Load").expect("Load");
-    assert!(done.len() == 3 && at("activate", "Moved").unwrap() <= load && at("activate", "Gripped").unwrap() <= load);
+    let at = |event: TraceEvent, name: &str| trace.iter().find(|r| r.event == event && r.name == name).map(|r| r.t_ms);
+    let load = at(TraceEvent::Activate, "Load").expect("Load");
+    assert!(
+        done.len() == 3
+            && at(TraceEvent::Activate, "Moved").unwrap() <= load
+            && at(TraceEvent::Activate, "Gripped").unwrap() <= load
+    );
     assert_eq!((var(&summary, "last"), var(&summary, "said")), ("3".into(), "'gripper closed'".into()));
     assert_eq!(var(&summary, "parts"), "3", "the machine's count, read when its job was done");
     // The machine's lamp, bound to the chart's `lamp`, was lit while it loaded, and put out by the final scan.
@@ -266,8 +274,8 @@ async fn topic_fields_drive_a_transition_outputs_are_published_and_a_sensor_gone
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}\n{}", cluster.agent_log("arm1"));
     assert!(ends_in(&trace, "Done"), "{trace:?}");
-    let door = |event: &str| trace.iter().filter(|r| r.event == event && r.name == "door").count();
-    assert_eq!((door("device_down"), door("device_up")), (2, 2), "{trace:?}");
+    let door = |event: TraceEvent| trace.iter().filter(|r| r.event == event && r.name == "door").count();
+    assert_eq!((door(TraceEvent::DeviceDown), door(TraceEvent::DeviceUp)), (2, 2), "{trace:?}");
     assert_eq!((var(&summary, "door"), var(&summary, "lamp")), ("FALSE".into(), "TRUE".into()));
     drop(sensors.finish().await);
     // The recording's log says it too.
@@ -330,13 +338,16 @@ async fn a_robot_on_dds_only_is_driven_through_zenoh_bridge_ros2dds() {
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}\n{}", cluster.agent_log("arm1"));
     assert!(ends_in(&trace, "Done"), "{trace:?}\n{}", cluster.agent_log("arm1"));
-    let ended: Vec<&str> =
-        trace.iter().filter(|r| r.name == "Sweep" && r.event.starts_with("skill_")).map(|r| r.event.as_str()).collect();
-    assert!(!ended.contains(&"skill_done"), "a cancelled goal is not done: {ended:?}");
+    let ended: Vec<TraceEvent> = trace
+        .iter()
+        .filter(|r| r.name == "Sweep" && matches!(r.event, TraceEvent::SkillDone | TraceEvent::SkillFault))
+        .map(|r| r.event)
+        .collect();
+    assert!(!ended.contains(&TraceEvent::SkillDone), "a cancelled goal is not done: {ended:?}");
     // The service's answer, the action's result (0 1 1 2 3 5) and its feedback reached the chart.
     assert_eq!(var(&summary, "said"), "'closed'");
     assert_eq!((var(&summary, "last"), var(&summary, "partial")), ("5".into(), "1".into()));
-    assert!(!trace.iter().any(|r| r.event == "device_down"), "{trace:?}");
+    assert!(!trace.iter().any(|r| r.event == TraceEvent::DeviceDown), "{trace:?}");
     drop(bridge.finish().await);
     let said = robot.finish().await;
     assert_eq!(said.iter().filter(|l| *l == "SUCCEEDED").count(), 1, "{said:?}");

@@ -21,7 +21,8 @@ use baton_proto::dist::keys;
 use baton_proto::dist::netconfig::NetConfig;
 use baton_proto::dist::runtime::coordinator::LossPolicy;
 use baton_proto::exec::program::VarId;
-use baton_proto::exec::sim::{parse_value, TraceRecord};
+use baton_proto::exec::sim::parse_value;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_proto::testing::run::{fault_rng, jitter, CaseResult, Observer, Outcome};
 use baton_proto::testing::scenario::{show_ms, FaultKind, NetFaults, RunState, Scenario, Trigger};
 use baton_proto::testing::simulated_cluster::{Rng, LEASE_MS};
@@ -241,7 +242,7 @@ impl Follower {
             let rec: TraceRecord = serde_json::from_slice(line)
                 .with_context(|| format!("{}: an unreadable trace line", self.path.display()))?;
             // The replay of the journal ends where the new process says it took over: what comes after is new.
-            if self.skip > 0 && rec.event != "recover" {
+            if self.skip > 0 && rec.event != TraceEvent::Recover {
                 self.skip -= 1;
                 continue;
             }
@@ -545,7 +546,7 @@ impl<'a> World<'a> {
                 obs.snapshot(t - 1, |n| self.value_of(n));
             }
             for r in &records[i..j] {
-                if r.event == "value" {
+                if r.event == TraceEvent::Value {
                     let decl = self.sc.program.var_by_name(&r.name).map(|v| &self.sc.program.vars[v.index()]);
                     if let (Some(decl), Some(text)) = (decl, &r.value) {
                         if let Some(v) = from_shown(&decl.ty, text) {

@@ -2,49 +2,14 @@
 
 use std::sync::Arc;
 
-use serde::{Deserialize, Serialize};
+use serde::Deserialize;
 
 use crate::exec::engine::{Engine, Event, EventKind, FaultSource, Input};
 use crate::exec::eval::Fault;
 use crate::exec::program::{Program, VarId};
+use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::front::lexer::{lex, Tok};
 use crate::types::{Type, Value};
-
-/// One line of a trace: `{"t_ms": 20, "event": "activate", "name": "Fill"}`.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct TraceRecord {
-    pub t_ms: u64,
-    pub event: String,
-    pub name: String,
-    /// In a distributed run: the agent the event happened on (or a token was sent to).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub agent: Option<String>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub token: Option<String>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub epoch: Option<u32>,
-    /// What went wrong, for `fault` and `skill_fault` records.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub message: Option<String>,
-    /// A watched variable's new value, for `value` records (`T#10ms`, `TRUE`, `42`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub value: Option<String>,
-}
-
-impl TraceRecord {
-    pub fn new(t_ms: u64, event: &str, name: &str) -> TraceRecord {
-        TraceRecord {
-            t_ms,
-            event: event.to_string(),
-            name: name.to_string(),
-            agent: None,
-            token: None,
-            epoch: None,
-            message: None,
-            value: None,
-        }
-    }
-}
 
 /// One line of an input script: `{"t_ms": 100, "set": {"start": true, "level": 42}}`.
 #[derive(Debug, Deserialize)]
@@ -207,7 +172,7 @@ pub fn simulate_watching(
         for (last, &var) in watched.iter_mut().zip(watch) {
             let value = engine.value(var);
             if last.as_ref() != Some(&value) {
-                let mut record = TraceRecord::new(now, "value", &program.vars[var.index()].name);
+                let mut record = TraceRecord::new(now, TraceEvent::Value, &program.vars[var.index()].name);
                 record.value = Some(program.vars[var.index()].ty.show(&value));
                 *last = Some(value);
                 sink(SimOutput::Trace(record));
@@ -228,11 +193,11 @@ fn drain(engine: &mut Engine, sink: &mut impl FnMut(SimOutput)) {
 /// An engine event as a trace record (or, for a fault, a message), with the program's names.
 pub fn output_of(program: &Program, ev: Event) -> SimOutput {
     let (event, name) = match ev.kind {
-        EventKind::Activate(s) => ("activate", &program.steps[s.index()].name),
-        EventKind::Deactivate(s) => ("deactivate", &program.steps[s.index()].name),
-        EventKind::Fire(t) => ("fire", &program.transitions[t.index()].name),
-        EventKind::ActionOn(a) => ("action_on", &program.actions[a.index()].name),
-        EventKind::ActionOff(a) => ("action_off", &program.actions[a.index()].name),
+        EventKind::Activate(s) => (TraceEvent::Activate, &program.steps[s.index()].name),
+        EventKind::Deactivate(s) => (TraceEvent::Deactivate, &program.steps[s.index()].name),
+        EventKind::Fire(t) => (TraceEvent::Fire, &program.transitions[t.index()].name),
+        EventKind::ActionOn(a) => (TraceEvent::ActionOn, &program.actions[a.index()].name),
+        EventKind::ActionOff(a) => (TraceEvent::ActionOff, &program.actions[a.index()].name),
         EventKind::Fault(source, fault) => {
             return SimOutput::Fault { t_ms: ev.t_ms, message: fault_message(program, source, fault) }
         }

@@ -6,6 +6,7 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use super::run::{follow_steps, Outcome};
 use crate::exec::program::{Program, StepId};
+use crate::exec::trace::TraceEvent;
 
 #[derive(Clone, Debug, Default)]
 pub struct Coverage {
@@ -21,9 +22,9 @@ impl Coverage {
         let step = |name: &str| program.steps.iter().position(|s| s.name == name);
         let mut c = Coverage::default();
         for r in &o.trace {
-            match r.event.as_str() {
-                "activate" => c.steps.extend(step(&r.name)),
-                "fire" => c.transitions.extend(program.transitions.iter().position(|t| t.name == r.name)),
+            match r.event {
+                TraceEvent::Activate => c.steps.extend(step(&r.name)),
+                TraceEvent::Fire => c.transitions.extend(program.transitions.iter().position(|t| t.name == r.name)),
                 _ => {}
             }
         }

@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use super::cond::View;
 use super::scenario::{chart_value, show_ms, Behaviour, ExpectKind, FaultKind, NetFaults, RunState, Scenario, Trigger};
 use crate::exec::program::VarId;
-use crate::exec::sim::TraceRecord;
+use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::testing::simulated_cluster::{self, Fate, Faults, Rng, SimAgentSpec, SimCluster, SimSkill, SkillStart};
 use crate::types::Value;
 
@@ -86,15 +86,15 @@ pub fn describe_record(r: &TraceRecord) -> String {
 /// Keeps `active` (step → the agent it runs on, `None` on the coordinator) up to date with a trace record of
 /// step `step`.
 pub fn follow_steps(active: &mut BTreeMap<usize, Option<String>>, step: usize, r: &TraceRecord) {
-    match r.event.as_str() {
-        "activate" => {
+    match r.event {
+        TraceEvent::Activate => {
             active.insert(step, r.agent.clone());
         }
-        "deactivate" => {
+        TraceEvent::Deactivate => {
             active.remove(&step);
         }
         // A step waiting for an agent is active already; it now runs there.
-        "dispatch" if active.contains_key(&step) => {
+        TraceEvent::Dispatch if active.contains_key(&step) => {
             active.insert(step, r.agent.clone());
         }
         _ => {}
@@ -267,7 +267,9 @@ impl<'a> Observer<'a> {
                 let hits: Vec<&TraceRecord> = trace
                     .iter()
                     .filter(|r| {
-                        &r.name == step && (r.event == "activate" || (r.event == "dispatch" && r.agent.is_some()))
+                        &r.name == step
+                            && (r.event == TraceEvent::Activate
+                                || (r.event == TraceEvent::Dispatch && r.agent.is_some()))
                     })
                     .collect();
                 let fits = |r: &&TraceRecord| {
@@ -293,7 +295,7 @@ impl<'a> Observer<'a> {
             ExpectKind::Order(order) => {
                 let mut next = 0;
                 let mut last_t = 0;
-                for r in trace.iter().filter(|r| r.event == "activate") {
+                for r in trace.iter().filter(|r| r.event == TraceEvent::Activate) {
                     if next < order.len() && r.name == order[next] {
                         next += 1;
                         last_t = r.t_ms;
@@ -355,7 +357,7 @@ impl<'a> Observer<'a> {
             ExpectKind::Alarms(expected) => {
                 let alarms: Vec<String> = trace
                     .iter()
-                    .filter(|r| r.event == "alarm")
+                    .filter(|r| r.event == TraceEvent::Alarm)
                     .map(|r| r.message.clone().unwrap_or_default())
                     .collect();
                 let missing: Vec<&String> =
@@ -601,8 +603,8 @@ pub fn runs_twice(trace: &[TraceRecord], action: &str) -> Option<(u64, String)> 
     let mut running: BTreeMap<(String, u32, String), bool> = BTreeMap::new();
     for r in trace.iter().filter(|r| r.name == action) {
         let (Some(tok), Some(ep), Some(agent)) = (&r.token, r.epoch, &r.agent) else { continue };
-        match r.event.as_str() {
-            "action_on" => {
+        match r.event {
+            TraceEvent::ActionOn => {
                 let agents = on.entry((tok.clone(), ep)).or_default();
                 if !agents.contains(agent) {
                     agents.push(agent.clone());
@@ -621,7 +623,7 @@ pub fn runs_twice(trace: &[TraceRecord], action: &str) -> Option<(u64, String)> 
                     return Some((r.t_ms, why));
                 }
             }
-            "action_off" => {
+            TraceEvent::ActionOff => {
                 running.insert((tok.clone(), ep, agent.clone()), false);
             }
             _ => {}
@@ -634,7 +636,7 @@ pub fn runs_twice(trace: &[TraceRecord], action: &str) -> Option<(u64, String)> 
 mod tests {
     use super::*;
 
-    fn rec(t: u64, event: &str, agent: &str, epoch: u32) -> TraceRecord {
+    fn rec(t: u64, event: TraceEvent, agent: &str, epoch: u32) -> TraceRecord {
         let mut r = TraceRecord::new(t, event, "Weld");
         r.agent = Some(agent.into());
         r.token = Some("t1".into());
@@ -645,16 +647,24 @@ mod tests {
     #[test]
     fn a_skill_run_twice_in_an_epoch_is_found() {
         // A segment run again in a new epoch, on another agent, is what `reassign` does: fine.
-        let fine = [rec(0, "action_on", "a", 1), rec(5, "action_on", "b", 2), rec(9, "action_off", "b", 2)];
+        let fine = [
+            rec(0, TraceEvent::ActionOn, "a", 1),
+            rec(5, TraceEvent::ActionOn, "b", 2),
+            rec(9, TraceEvent::ActionOff, "b", 2),
+        ];
         assert_eq!(runs_twice(&fine, "Weld"), None);
         // A loop in the segment runs the skill again after it ended: fine too.
-        let again = [rec(0, "action_on", "a", 1), rec(3, "action_off", "a", 1), rec(4, "action_on", "a", 1)];
+        let again = [
+            rec(0, TraceEvent::ActionOn, "a", 1),
+            rec(3, TraceEvent::ActionOff, "a", 1),
+            rec(4, TraceEvent::ActionOn, "a", 1),
+        ];
         assert_eq!(runs_twice(&again, "Weld"), None);
-        let two_agents = [rec(0, "action_on", "a", 1), rec(7, "action_on", "b", 1)];
+        let two_agents = [rec(0, TraceEvent::ActionOn, "a", 1), rec(7, TraceEvent::ActionOn, "b", 1)];
         let (t, why) = runs_twice(&two_agents, "Weld").expect("found");
         assert_eq!(t, 7);
         assert!(why.contains("ran on a and b in epoch 1 of token t1"), "{why}");
-        let at_once = [rec(0, "action_on", "a", 1), rec(2, "action_on", "a", 1)];
+        let at_once = [rec(0, TraceEvent::ActionOn, "a", 1), rec(2, TraceEvent::ActionOn, "a", 1)];
         assert!(runs_twice(&at_once, "Weld").expect("found").1.contains("twice at once on a"));
     }
 }

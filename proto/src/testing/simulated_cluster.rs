@@ -22,7 +22,7 @@ use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch, Join};
 use crate::dist::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
 use crate::dist::wire::{self, AgentInfo, ChartHash, RunId, ToAgent, VarUpdate};
 use crate::exec::program::{ActionId, Program};
-use crate::exec::sim::TraceRecord;
+use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::front::pragma::Param;
 use crate::pipeline::check_source;
 use crate::types::Value;
@@ -904,7 +904,7 @@ impl SimCluster {
     /// coordinator does not count as its own. Anything else is a token stuck between them.
     pub fn settled(&self) -> Result<(), String> {
         let status = self.coordinator.core().status();
-        let alarms = self.trace.iter().any(|r| r.event == "alarm");
+        let alarms = self.trace.iter().any(|r| r.event == TraceEvent::Alarm);
         for t in &status.tokens {
             let Some(name) = &t.agent else { continue };
             if t.paused {
@@ -959,7 +959,7 @@ impl SimCluster {
     }
 
     /// The trace's records of one kind, as (t_ms, name, agent).
-    pub fn events(&self, event: &str) -> Vec<(u64, String, Option<String>)> {
+    pub fn events(&self, event: TraceEvent) -> Vec<(u64, String, Option<String>)> {
         self.trace.iter().filter(|r| r.event == event).map(|r| (r.t_ms, r.name.clone(), r.agent.clone())).collect()
     }
 }

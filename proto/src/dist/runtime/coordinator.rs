@@ -23,7 +23,8 @@ use crate::dist::wire::{
 };
 use crate::exec::engine::{Engine, Event, EventKind, Input, RemoteInput};
 use crate::exec::program::{Program, StepId, TransitionId, VarId};
-use crate::exec::sim::{output_of, parse_value, SimOutput, TraceRecord};
+use crate::exec::sim::{output_of, parse_value, SimOutput};
+use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::limits::{
     ACK_DELAY_MS, AGENTS_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_AHEAD_BYTES_MAX, REPORTS_AHEAD_MAX,
     STALE_EPOCHS_TRACED,
@@ -572,7 +573,7 @@ impl Coordinator {
             SimOutput::Trace(rec) => rec,
             SimOutput::Fault { t_ms, message } => {
                 self.log(Level::Error, message.clone());
-                let mut rec = TraceRecord::new(t_ms, "fault", &program.name);
+                let mut rec = TraceRecord::new(t_ms, TraceEvent::Fault, &program.name);
                 rec.message = Some(message);
                 rec
             }
@@ -644,12 +645,12 @@ impl Coordinator {
 
     /// Sends a token to its agent, or says why it waits.
     fn emit_dispatch_or_wait(&mut self, id: TokenId) {
-        self.send_token(id, "dispatch");
+        self.send_token(id, TraceEvent::Dispatch);
     }
 
     /// Sends a token to its agent, traced as `event` (`dispatch`, or `resume` when a paused token goes back to
     /// its agent in the same epoch), or says why it waits.
-    fn send_token(&mut self, id: TokenId, event: &str) {
+    fn send_token(&mut self, id: TokenId, event: TraceEvent) {
         let Some(tok) = self.tokens.get(&id) else { return };
         let entry_name = self.program.steps[tok.entry.index()].name.clone();
         let placement = self.layout.segments[tok.segment.index()].placement.clone();
@@ -657,7 +658,7 @@ impl Coordinator {
         if tok.agent.is_none() {
             if !self.waiting.contains(&id) {
                 self.waiting.push(id);
-                let mut rec = TraceRecord::new(self.now_ms, "wait", &entry_name);
+                let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Wait, &entry_name);
                 rec.token = Some(id.to_string());
                 rec.epoch = Some(epoch);
                 self.trace(rec);
@@ -680,7 +681,7 @@ impl Coordinator {
             tok.resend_at_ms = self.now_ms + DISPATCH_RESEND_FIRST_MS;
             tok.resend_backoff_ms = DISPATCH_RESEND_FIRST_MS;
         }
-        if event == "dispatch" {
+        if event == TraceEvent::Dispatch {
             self.stats.dispatched += 1;
         }
         let mut rec = TraceRecord::new(self.now_ms, event, &entry_name);
@@ -777,7 +778,7 @@ impl Coordinator {
         self.published.iter_mut().for_each(|p| *p = None);
         let out = self.tokens.len();
         let message = format!("started again from the journal with {out} token(s) out");
-        let mut rec = TraceRecord::new(self.now_ms, "recover", &self.program.name);
+        let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Recover, &self.program.name);
         rec.message = Some(message.clone());
         self.trace(rec);
         self.log(Level::Info, message);
@@ -821,7 +822,7 @@ impl Coordinator {
         }
         self.refresh_peers();
         if !was_alive {
-            let mut rec = TraceRecord::new(self.now_ms, "agent_up", &name);
+            let mut rec = TraceRecord::new(self.now_ms, TraceEvent::AgentUp, &name);
             rec.agent = Some(name.clone());
             self.trace(rec);
             let roles =
@@ -870,14 +871,14 @@ impl Coordinator {
             let epoch = tok.epoch;
             if info.held.iter().any(|h| h.run == run && h.token == id && h.epoch == epoch) {
                 sync = true;
-                let mut rec = TraceRecord::new(self.now_ms, "resume", &entry);
+                let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Resume, &entry);
                 rec.agent = Some(name.clone());
                 rec.token = Some(id.to_string());
                 rec.epoch = Some(epoch);
                 rec.message = Some("still held by the agent".to_string());
                 self.trace(rec);
             } else {
-                self.send_token(id, "resume");
+                self.send_token(id, TraceEvent::Resume);
             }
         }
         if sync {
@@ -956,7 +957,7 @@ impl Coordinator {
         }
         agent.alive = false;
         let lease_ms = agent.lease_ms;
-        let mut rec = TraceRecord::new(self.now_ms, "agent_lost", name);
+        let mut rec = TraceRecord::new(self.now_ms, TraceEvent::AgentLost, name);
         rec.agent = Some(name.to_string());
         self.trace(rec);
         let mut held: Vec<TokenId> =
@@ -1012,7 +1013,7 @@ impl Coordinator {
     }
 
     fn alarm(&mut self, message: String) {
-        let mut rec = TraceRecord::new(self.now_ms, "alarm", &self.program.name);
+        let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Alarm, &self.program.name);
         rec.message = Some(message.clone());
         self.trace(rec);
         self.log(Level::Error, message);
@@ -1171,7 +1172,7 @@ impl Coordinator {
             }
             tok.stale_traced.push(report.epoch);
             let entry = self.program.steps[tok.entry.index()].name.clone();
-            let mut rec = TraceRecord::new(self.now_ms, "reject_stale", &entry);
+            let mut rec = TraceRecord::new(self.now_ms, TraceEvent::RejectStale, &entry);
             rec.agent = Some(report.agent.clone());
             rec.token = Some(report.token.to_string());
             rec.epoch = Some(report.epoch);
@@ -1225,7 +1226,7 @@ impl Coordinator {
             let t_ms = dispatched_ms.saturating_add(ev.dt_ms).clamp(floor, self.now_ms.max(floor));
             floor = t_ms;
             // Which run of its segment it happened in: a test can tell a segment run twice in one epoch.
-            let rec = |event: &str, name: &str, message: Option<String>| {
+            let rec = |event: TraceEvent, name: &str, message: Option<String>| {
                 let mut rec = TraceRecord::new(t_ms, event, name);
                 rec.agent = Some(r.agent.clone());
                 rec.token = Some(r.token.to_string());
@@ -1264,17 +1265,17 @@ impl Coordinator {
                         continue;
                     }
                     let on = matches!(ev.kind, AgentEventKind::ActionOn { .. });
-                    let rec = rec(if on { "action_on" } else { "action_off" }, &info.name, None);
+                    let rec = rec(if on { TraceEvent::ActionOn } else { TraceEvent::ActionOff }, &info.name, None);
                     self.trace(rec);
                 }
                 AgentEventKind::SkillDone { action } => {
                     let Some(info) = program.actions.get(*action as usize) else { continue };
-                    let rec = rec("skill_done", &info.name, None);
+                    let rec = rec(TraceEvent::SkillDone, &info.name, None);
                     self.trace(rec);
                 }
                 AgentEventKind::SkillFault { action, message } => {
                     let Some(info) = program.actions.get(*action as usize) else { continue };
-                    let rec = rec("skill_fault", &info.name, Some(message.clone()));
+                    let rec = rec(TraceEvent::SkillFault, &info.name, Some(message.clone()));
                     self.log(
                         Level::Warn,
                         format!("skill of action `{}` on `{}` failed: {message}", info.name, r.agent),
@@ -1282,7 +1283,7 @@ impl Coordinator {
                     self.trace(rec);
                 }
                 AgentEventKind::Fault { message } => {
-                    let rec = rec("fault", &program.name, Some(message.clone()));
+                    let rec = rec(TraceEvent::Fault, &program.name, Some(message.clone()));
                     self.log(Level::Error, format!("on `{}`: {message}", r.agent));
                     self.trace(rec);
                 }
@@ -1315,7 +1316,7 @@ impl Coordinator {
             );
         }
         self.stats.returned += 1;
-        let mut rec = TraceRecord::new(self.now_ms, "return", &self.program.steps[tok.entry.index()].name);
+        let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Return, &self.program.steps[tok.entry.index()].name);
         rec.agent = Some(agent.clone());
         rec.token = Some(id.to_string());
         rec.epoch = Some(epoch);
@@ -1479,7 +1480,7 @@ impl Coordinator {
         for (b, why) in &down {
             if !before.contains_key(b) {
                 let binding = &self.layout.io[*b as usize];
-                let mut rec = TraceRecord::new(self.now_ms, "device_down", &binding.name);
+                let mut rec = TraceRecord::new(self.now_ms, TraceEvent::DeviceDown, &binding.name);
                 rec.agent = Some(name.clone());
                 rec.message = Some(format!("{}: {why}", binding.device()));
                 let text = format!(
@@ -1495,7 +1496,7 @@ impl Coordinator {
         }
         for b in before.keys().filter(|b| !down.contains_key(b)) {
             let binding = &self.layout.io[*b as usize];
-            let mut rec = TraceRecord::new(self.now_ms, "device_up", &binding.name);
+            let mut rec = TraceRecord::new(self.now_ms, TraceEvent::DeviceUp, &binding.name);
             rec.agent = Some(name.clone());
             rec.message = Some(binding.device());
             let text = format!("agent `{name}` reaches the device of `{}` again ({})", binding.name, binding.device());
@@ -1512,7 +1513,7 @@ impl Coordinator {
         let info = &program.vars[var.index()];
         let shown = info.ty.show(&v);
         self.engine.handle(Input::Set(var, v)).map_err(|e| e.to_string())?;
-        let mut rec = TraceRecord::new(self.now_ms, "set", &info.name);
+        let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Set, &info.name);
         rec.message = Some(shown.clone());
         self.trace(rec);
         self.settle();
@@ -1665,7 +1666,7 @@ mod tests {
             let mut out = Vec::new();
             while let Some(o) = c.poll_output() {
                 if let CoordOutput::Trace(t) = o {
-                    if t.event.starts_with("device") {
+                    if matches!(t.event, TraceEvent::DeviceUp | TraceEvent::DeviceDown) {
                         out.push((t.event, t.name, t.message.unwrap_or_default()));
                     }
                 }
@@ -1681,7 +1682,7 @@ mod tests {
         c.handle_devices(10, down[0].clone());
         let t = traced(&mut c);
         assert_eq!(t.len(), 1, "{t:?}");
-        assert_eq!((t[0].0.as_str(), t[0].1.as_str()), ("device_down", "door"));
+        assert_eq!((t[0].0, t[0].1.as_str()), (TraceEvent::DeviceDown, "door"));
         assert!(t[0].2.contains("OPC UA node ns=2;s=Door") && t[0].2.contains("BadTimeout"), "{}", t[0].2);
         assert_eq!(c.status().agents[0].devices_down[0].var, "door");
         // The same report again (a Join answered), a late one, another process's, and one about a binding of
@@ -1712,7 +1713,7 @@ mod tests {
         }
         assert_eq!(
             traced(&mut c),
-            vec![("device_up".into(), "door".into(), "OPC UA node ns=2;s=Door on opc.tcp://10.0.0.5:4840".into())]
+            vec![(TraceEvent::DeviceUp, "door".into(), "OPC UA node ns=2;s=Door on opc.tcp://10.0.0.5:4840".into())]
         );
         assert!(c.status().agents[0].devices_down.is_empty());
     }

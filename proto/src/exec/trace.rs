@@ -1,0 +1,171 @@
+//! The trace: what a run did, one record per event, as `baton sim`, `baton run --trace`, the simulated cluster,
+//! the recording and `baton test` write and read it. The event is a type: a record is made with a
+//! `TraceEvent` and matched on one, so a misspelt event does not compile; the JSON spells it in snake case
+//! (`"action_on"`), as it always has.
+
+use serde::{Deserialize, Serialize};
+
+/// What a trace record says happened. Engine events (`activate` … `value`) come from `baton sim` and every
+/// engine of a run; the rest from the coordinator of a distributed run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TraceEvent {
+    /// A step became active (`name` is the step).
+    Activate,
+    /// A step stopped being active.
+    Deactivate,
+    /// A transition cleared (`name` is the transition).
+    Fire,
+    /// An action's output Q rose (`name` is the action).
+    ActionOn,
+    /// An action's output Q fell.
+    ActionOff,
+    /// A watched variable's value after the first cycle or a change (`value` holds it).
+    Value,
+    /// A run-time fault, with `message`.
+    Fault,
+    /// A token left for an agent: `name` is the step it enters, with `agent`, `token`, `epoch`.
+    Dispatch,
+    /// The token came back (`name` is the step it entered).
+    Return,
+    /// A token has no live agent matching its placement yet.
+    Wait,
+    /// An agent became live.
+    AgentUp,
+    /// An agent's liveliness token vanished, or its lease ran out.
+    AgentLost,
+    /// Something needs a person (with `message`).
+    Alarm,
+    /// A token went back to its agent in the same epoch.
+    Resume,
+    /// A coordinator process took the run over from its journal.
+    Recover,
+    /// A report of an older epoch of a token arrived; the agent was told to drop it.
+    RejectStale,
+    /// A skill finished.
+    SkillDone,
+    /// A skill failed (with `message`).
+    SkillFault,
+    /// An input was set (`message` holds the value).
+    Set,
+    /// A device binding's connection came up.
+    DeviceUp,
+    /// A device binding's connection went down (with `message`).
+    DeviceDown,
+}
+
+impl TraceEvent {
+    /// Every event, in the order above.
+    pub const ALL: [TraceEvent; 21] = [
+        TraceEvent::Activate,
+        TraceEvent::Deactivate,
+        TraceEvent::Fire,
+        TraceEvent::ActionOn,
+        TraceEvent::ActionOff,
+        TraceEvent::Value,
+        TraceEvent::Fault,
+        TraceEvent::Dispatch,
+        TraceEvent::Return,
+        TraceEvent::Wait,
+        TraceEvent::AgentUp,
+        TraceEvent::AgentLost,
+        TraceEvent::Alarm,
+        TraceEvent::Resume,
+        TraceEvent::Recover,
+        TraceEvent::RejectStale,
+        TraceEvent::SkillDone,
+        TraceEvent::SkillFault,
+        TraceEvent::Set,
+        TraceEvent::DeviceUp,
+        TraceEvent::DeviceDown,
+    ];
+
+    /// The event's name in the JSON (`action_on`). Not public: code outside matches on the event itself, and
+    /// writes it with `Display`.
+    pub(crate) fn as_str(self) -> &'static str {
+        match self {
+            TraceEvent::Activate => "activate",
+            TraceEvent::Deactivate => "deactivate",
+            TraceEvent::Fire => "fire",
+            TraceEvent::ActionOn => "action_on",
+            TraceEvent::ActionOff => "action_off",
+            TraceEvent::Value => "value",
+            TraceEvent::Fault => "fault",
+            TraceEvent::Dispatch => "dispatch",
+            TraceEvent::Return => "return",
+            TraceEvent::Wait => "wait",
+            TraceEvent::AgentUp => "agent_up",
+            TraceEvent::AgentLost => "agent_lost",
+            TraceEvent::Alarm => "alarm",
+            TraceEvent::Resume => "resume",
+            TraceEvent::Recover => "recover",
+            TraceEvent::RejectStale => "reject_stale",
+            TraceEvent::SkillDone => "skill_done",
+            TraceEvent::SkillFault => "skill_fault",
+            TraceEvent::Set => "set",
+            TraceEvent::DeviceUp => "device_up",
+            TraceEvent::DeviceDown => "device_down",
+        }
+    }
+}
+
+impl std::fmt::Display for TraceEvent {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// One line of a trace: `{"t_ms": 20, "event": "activate", "name": "Fill"}`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TraceRecord {
+    pub t_ms: u64,
+    pub event: TraceEvent,
+    pub name: String,
+    /// In a distributed run: the agent the event happened on (or a token was sent to).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub agent: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub token: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub epoch: Option<u32>,
+    /// What went wrong, for `fault` and `skill_fault` records.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub message: Option<String>,
+    /// A watched variable's new value, for `value` records (`T#10ms`, `TRUE`, `42`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub value: Option<String>,
+}
+
+impl TraceRecord {
+    pub fn new(t_ms: u64, event: TraceEvent, name: &str) -> TraceRecord {
+        TraceRecord {
+            t_ms,
+            event,
+            name: name.to_string(),
+            agent: None,
+            token: None,
+            epoch: None,
+            message: None,
+            value: None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_event_is_written_as_its_snake_case_name_and_read_back() {
+        for event in TraceEvent::ALL {
+            let json = serde_json::to_string(&event).expect("an event serializes");
+            assert_eq!(json, format!("\"{}\"", event.as_str()));
+            assert_eq!(serde_json::from_str::<TraceEvent>(&json).expect("and reads back"), event);
+        }
+        let line = r#"{"t_ms":20,"event":"action_on","name":"Fill"}"#;
+        let record: TraceRecord = serde_json::from_str(line).expect("a record");
+        assert_eq!(record, TraceRecord::new(20, TraceEvent::ActionOn, "Fill"));
+        assert_eq!(serde_json::to_string(&record).expect("serializes"), line);
+        assert!(serde_json::from_str::<TraceRecord>(r#"{"t_ms":0,"event":"actoin_on","name":"x"}"#).is_err());
+    }
+}
