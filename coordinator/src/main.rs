@@ -1,6 +1,7 @@
 //! `baton`: checks, simulates and coordinates IEC 61131-3 sequential function charts.
 
 mod bench;
+mod chart_file;
 mod cli;
 mod client;
 mod demo;

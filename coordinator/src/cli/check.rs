@@ -1,0 +1,114 @@
+//! `baton check`: syntax, names, types, safety and reachability, as text or as one JSON object.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use baton_proto::front::diag::LineIndex;
+use baton_proto::front::source;
+use baton_proto::pipeline::check_source;
+
+use super::{print_diagnostics, EXIT_INVALID, EXIT_USAGE};
+use crate::chart_file::read_chart;
+
+/// The arguments of `baton check`.
+#[derive(clap::Args)]
+pub struct Check {
+    /// The chart: IEC 61131-3 textual SFC (`.st`).
+    pub chart: PathBuf,
+    /// Print one JSON object (the charts' steps, transitions and actions, and every diagnostic) instead.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl Check {
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        if self.json {
+            check_json(&self.chart)
+        } else {
+            check(&self.chart)
+        }
+    }
+}
+
+fn check(path: &Path) -> anyhow::Result<ExitCode> {
+    let src = read_chart(path)?.text;
+    let report = check_source(&src);
+    print_diagnostics(path, &src, &report, |_| true);
+    let errors = report.error_count();
+    let warnings = report.diagnostics.len() - errors;
+    if errors > 0 {
+        eprintln!("{}: {errors} error(s), {warnings} warning(s)", path.display());
+        return Ok(ExitCode::from(EXIT_INVALID));
+    }
+    for c in &report.charts {
+        if let Some(p) = &c.program {
+            println!(
+                "{}: chart `{}` is valid: {} steps, {} transitions, {} actions, {} warning(s)",
+                path.display(),
+                p.name,
+                p.steps.len(),
+                p.transitions.len(),
+                p.actions.len(),
+                warnings
+            );
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `baton check --json`: the charts of the file and every diagnostic, as one JSON object; the exit status is
+/// `baton check`'s.
+fn check_json(path: &Path) -> anyhow::Result<ExitCode> {
+    let file = path.display().to_string();
+    // Always one JSON object, whatever happened: a file that cannot be read is an error diagnostic of its own.
+    let read = std::fs::metadata(path)
+        .map_err(anyhow::Error::from)
+        .and_then(|m| source::check_size(m.len()).map_err(anyhow::Error::from))
+        .and_then(|()| std::fs::read(path).map_err(anyhow::Error::from))
+        .and_then(|bytes| source::decode(&bytes).map_err(anyhow::Error::from));
+    let decoded = match read {
+        Ok(d) => d,
+        Err(e) => {
+            let message = format!("cannot read {file}: {e}");
+            let diagnostic =
+                serde_json::json!({ "severity": "error", "file": file, "line": 0, "col": 0, "message": message });
+            println!("{}", serde_json::json!({ "charts": [], "diagnostics": [diagnostic] }));
+            return Ok(ExitCode::from(EXIT_USAGE));
+        }
+    };
+    let src = decoded.text;
+    let report = check_source(&src);
+    let index = LineIndex::new(&src);
+    let names = |ids: &[baton_proto::front::model::Ident]| ids.iter().map(|i| i.name.clone()).collect::<Vec<_>>();
+    let charts: Vec<serde_json::Value> = report
+        .charts
+        .iter()
+        .map(|c| {
+            let chart = &c.chart;
+            serde_json::json!({
+                "pou": chart.name.name,
+                "steps": chart.steps.iter().map(|s| s.name.name.clone()).collect::<Vec<_>>(),
+                "initial_steps": chart.steps.iter().filter(|s| s.initial).map(|s| s.name.name.clone()).collect::<Vec<_>>(),
+                "transitions": chart.transitions.iter().map(|t| serde_json::json!({
+                    "name": t.name.as_ref().map(|n| n.name.clone()),
+                    "from": names(&t.from),
+                    "to": names(&t.to),
+                })).collect::<Vec<_>>(),
+                "actions": chart.actions.iter().map(|a| a.name.name.clone()).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    let note = decoded.note.map(|n| {
+        serde_json::json!({ "severity": "warning", "file": file, "line": n.line, "col": n.col, "message": n.message })
+    });
+    let diagnostics: Vec<serde_json::Value> = note
+        .into_iter()
+        .chain(report.diagnostics.iter().map(|d| {
+            let (line, col) = index.line_col(d.span.start);
+            let severity = if d.is_error() { "error" } else { "warning" };
+            serde_json::json!({ "severity": severity, "file": file, "line": line, "col": col, "message": d.message })
+        }))
+        .collect();
+    println!("{}", serde_json::json!({ "charts": charts, "diagnostics": diagnostics }));
+    Ok(if report.error_count() > 0 { ExitCode::from(EXIT_INVALID) } else { ExitCode::SUCCESS })
+}

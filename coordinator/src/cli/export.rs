@@ -1,0 +1,68 @@
+//! `baton export --plcopen`: valid charts written out as PLCopen TC6 v2.01 XML, with positions.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::Context;
+use baton_proto::pipeline::{check_source, CheckedChart};
+
+use super::{print_diagnostics, EXIT_INVALID};
+use crate::chart_file::{pick, read_chart};
+
+/// The arguments of `baton export`.
+#[derive(clap::Args)]
+pub struct Export {
+    pub chart: PathBuf,
+    /// PLCopen TC6 v2.01 XML (the only format today).
+    #[arg(long, required = true)]
+    pub plcopen: bool,
+    #[arg(long)]
+    pub pou: Option<String>,
+    /// Write here instead of to stdout.
+    #[arg(long, short = 'o', value_name = "FILE")]
+    pub output: Option<PathBuf>,
+}
+
+impl Export {
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        export(&self.chart, self.pou.as_deref(), self.output.as_deref())
+    }
+}
+
+/// `baton export --plcopen`: the file's charts as PLCopen XML; a chart with errors exports nothing.
+fn export(path: &Path, pou: Option<&str>, output: Option<&Path>) -> anyhow::Result<ExitCode> {
+    let src = read_chart(path)?.text;
+    let report = check_source(&src);
+    print_diagnostics(path, &src, &report, |_| true);
+    if report.error_count() > 0 || report.charts.is_empty() {
+        eprintln!("{}: nothing was exported: the file has errors or no chart", path.display());
+        return Ok(ExitCode::from(EXIT_INVALID));
+    }
+    let chosen: Vec<&CheckedChart> = match pou {
+        Some(_) => vec![pick(&report, pou)?],
+        None => report.charts.iter().collect(),
+    };
+    let charts: Vec<_> = chosen.iter().filter_map(|c| Some((&c.chart, c.program.as_ref()?))).collect();
+    let project = path.file_stem().map_or_else(|| "baton".to_string(), |s| s.to_string_lossy().into_owned());
+    let xml = baton_proto::back::plcopen::export(&charts, &report.library, &report.types, &project, &utc_now());
+    match output {
+        Some(file) => std::fs::write(file, xml).with_context(|| format!("cannot write {}", file.display()))?,
+        None => {
+            let mut out = std::io::stdout().lock();
+            match out.write_all(xml.as_bytes()).and_then(|()| out.flush()) {
+                Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {}
+                other => other.context("cannot write the export")?,
+            }
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The current UTC time as an `xsd:dateTime` (`2026-12-01T12:34:56`).
+fn utc_now() -> String {
+    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()) as i64;
+    let (days, rest) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    let (year, month, day) = baton_proto::types::civil_from_days(days);
+    format!("{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}", rest / 3600, rest % 3600 / 60, rest % 60)
+}

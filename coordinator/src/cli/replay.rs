@@ -1,0 +1,25 @@
+//! `baton replay`: a past run rebuilt from its journal.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+/// The arguments of `baton replay`.
+#[derive(clap::Args)]
+pub struct Replay {
+    /// The folder given to `baton run --journal`.
+    #[arg(long, value_name = "DIR")]
+    pub journal: PathBuf,
+    /// Where the recording goes: save:PATH.rrd, connect[:URL], spawn, or off.
+    #[arg(long, value_name = "SINK", default_value = "off")]
+    pub rerun: crate::recording::Sink,
+    /// Write the run's trace as JSON Lines.
+    #[arg(long, value_name = "FILE")]
+    pub trace: Option<PathBuf>,
+}
+
+impl Replay {
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        let Replay { journal, rerun, trace } = self;
+        crate::replay::replay(&crate::replay::ReplayOptions { journal, rerun, trace }).map(|()| ExitCode::SUCCESS)
+    }
+}

@@ -1,0 +1,99 @@
+//! `baton run`: coordinate a chart across agents over Zenoh.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use baton_proto::dist::runtime::coordinator::LossPolicy;
+
+use super::block_on;
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum OnAgentLoss {
+    Pause,
+    Reassign,
+    Fail,
+}
+
+/// The arguments of `baton run`.
+#[derive(clap::Args)]
+pub struct Run {
+    pub chart: PathBuf,
+    /// Embed a Zenoh router listening here, such as tcp/127.0.0.1:7447.
+    #[arg(long, value_name = "ENDPOINT", conflicts_with = "connect", required_unless_present = "connect")]
+    pub listen: Vec<String>,
+    /// Join the router (zenohd or another baton) at this endpoint.
+    #[arg(long, value_name = "ENDPOINT")]
+    pub connect: Vec<String>,
+    /// Write the run's events as JSON Lines, flushed after every event.
+    #[arg(long, value_name = "FILE")]
+    pub trace: Option<PathBuf>,
+    /// Write the final summary as JSON.
+    #[arg(long, value_name = "FILE")]
+    pub summary: Option<PathBuf>,
+    /// Set an input before the first cycle (repeatable): --set parts=5.
+    #[arg(long = "set", value_name = "NAME=VALUE", value_parser = crate::client::parse_assignment)]
+    pub sets: Vec<(String, serde_json::Value)>,
+    /// The run's scan cycle, on the coordinator and every agent (a resumed run keeps its own).
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=baton_proto::limits::CYCLE_MS_MAX))]
+    pub cycle_ms: u64,
+    #[arg(long)]
+    pub pou: Option<String>,
+    /// Find routers and peers by multicast scouting too (off by default).
+    #[arg(long)]
+    pub multicast_scouting: bool,
+    /// Print only warnings, errors and the summary.
+    #[arg(long, short)]
+    pub quiet: bool,
+    /// A Zenoh configuration file (TLS, credentials…); Baton's own settings apply on top of it.
+    #[arg(long, value_name = "FILE")]
+    pub zenoh_config: Option<PathBuf>,
+    /// What to do with the tokens of a lost agent: hold them until it is back, restart their segments on
+    /// another agent (new epoch), or end the run with an error.
+    #[arg(long, value_enum, default_value_t = OnAgentLoss::Pause)]
+    pub on_agent_loss: OnAgentLoss,
+    /// Record every change of the run in a journal in this folder, durably, before acting on it. If the
+    /// folder holds the journal of a run that did not end (the coordinator crashed or was stopped), that
+    /// run resumes where it was, with the tokens still out reconciled with their agents.
+    #[arg(long, value_name = "DIR")]
+    pub journal: Option<PathBuf>,
+    /// Record the run for the Rerun viewer: off, save:PATH.rrd, connect[:URL] (a running viewer), or spawn
+    /// (start one).
+    #[arg(long, value_name = "SINK", default_value = "off")]
+    pub rerun: crate::recording::Sink,
+    /// Trace this variable's value, as `baton sim --watch` does: a `value` record after the first cycle and
+    /// after every change. Repeat for more.
+    #[arg(long, value_name = "VARIABLE")]
+    pub watch: Vec<String>,
+}
+
+impl Run {
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        let loss_policy = match self.on_agent_loss {
+            OnAgentLoss::Pause => LossPolicy::Pause,
+            OnAgentLoss::Reassign => LossPolicy::Reassign,
+            OnAgentLoss::Fail => LossPolicy::Fail,
+        };
+        let opts = crate::run::RunOptions {
+            chart: self.chart,
+            pou: self.pou,
+            listen: self.listen,
+            connect: self.connect,
+            trace: self.trace,
+            summary: self.summary,
+            cycle_ms: self.cycle_ms,
+            sets: self.sets,
+            multicast_scouting: self.multicast_scouting,
+            quiet: self.quiet,
+            zenoh_config: self.zenoh_config,
+            loss_policy,
+            journal: self.journal,
+            rerun: self.rerun,
+            watch: self.watch,
+        };
+        block_on(async move {
+            let summary = crate::run::run(opts).await?;
+            summary.print();
+            Ok(ExitCode::SUCCESS)
+        })
+    }
+}

@@ -1,0 +1,29 @@
+//! `baton status`: the charts running behind a router, their active steps, tokens and agents.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use super::block_on;
+
+/// The arguments of `baton status`.
+#[derive(clap::Args)]
+pub struct Status {
+    #[arg(long, value_name = "ENDPOINT", required = true)]
+    pub connect: Vec<String>,
+    /// One JSON object per running chart.
+    #[arg(long)]
+    pub json: bool,
+    /// A Zenoh configuration file (TLS, credentials…).
+    #[arg(long, value_name = "FILE")]
+    pub zenoh_config: Option<PathBuf>,
+}
+
+impl Status {
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        let Status { connect, json, zenoh_config } = self;
+        block_on(async move {
+            crate::client::status(&connect, zenoh_config.as_deref(), json).await?;
+            Ok(ExitCode::SUCCESS)
+        })
+    }
+}

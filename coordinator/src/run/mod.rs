@@ -1,0 +1,414 @@
+//! `baton run`: the coordinator's Zenoh shell. It turns samples into inputs of the pure `Coordinator`, runs its
+//! cycles, publishes what it asks for, writes the trace and answers the chart, status and set queries. It
+//! decides nothing about charts: every rule lives in `baton_proto::dist::runtime::coordinator`.
+//!
+//! With `--journal DIR`, every input is recorded (`baton_proto::dist::journal::Journaled`) and what the coordinator
+//! asks for is held back until the records that led to it are durable (`crate::journal`, group commit). A
+//! journal of a run that did not end is resumed: replayed, then reconciled with the agents.
+
+mod records;
+mod resume;
+mod shell;
+mod summary;
+
+pub use records::Probe;
+pub use records::{replay_records, Records};
+pub use resume::check_pin;
+pub use summary::Summary;
+
+use std::collections::{HashMap, VecDeque};
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{anyhow, bail, Context};
+use baton_proto::dist::journal::{self, JournalHeader, Journaled, JOURNAL_FORMAT};
+use baton_proto::dist::keys;
+use baton_proto::dist::netconfig::NetConfig;
+use baton_proto::dist::runtime::coordinator::{Coordinator, LossPolicy};
+use baton_proto::dist::wire::{self, ChartHash, ChartSource, RunId};
+use tokio::sync::mpsc;
+
+use crate::chart_file::{load, Loaded};
+use resume::*;
+use shell::*;
+
+pub struct RunOptions {
+    pub chart: PathBuf,
+    pub pou: Option<String>,
+    pub listen: Vec<String>,
+    pub connect: Vec<String>,
+    pub trace: Option<PathBuf>,
+    pub summary: Option<PathBuf>,
+    pub cycle_ms: u64,
+    pub sets: Vec<(String, serde_json::Value)>,
+    pub multicast_scouting: bool,
+    pub quiet: bool,
+    /// The user's own Zenoh configuration (TLS, credentials), under Baton's settings.
+    pub zenoh_config: Option<PathBuf>,
+    pub loss_policy: LossPolicy,
+    /// Record every input in this folder before acting on it; resume the run found there.
+    pub journal: Option<PathBuf>,
+    /// Where the run's Rerun recording goes.
+    pub rerun: crate::recording::Sink,
+    /// Variables whose value the trace records: once after the first cycle and after every change.
+    pub watch: Vec<String>,
+}
+
+pub async fn run(opts: RunOptions) -> anyhow::Result<Summary> {
+    run_with(opts, None).await
+}
+
+pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<Summary> {
+    let loaded = load(&opts.chart, opts.pou.as_deref())?;
+    if opts.listen.is_empty() == opts.connect.is_empty() {
+        bail!("give either --listen ENDPOINT (embed a router) or --connect ENDPOINT (join one)");
+    }
+    let hash = ChartHash::of(&loaded.source, &loaded.pou);
+    let mut watch = Vec::with_capacity(opts.watch.len());
+    for name in &opts.watch {
+        match loaded.program.var_by_name(name) {
+            Some(v) => watch.push(v),
+            None => bail!("--watch {name}: chart `{}` has no variable `{name}`", loaded.program.name),
+        }
+    }
+    // The journal first: a refused one costs nothing, not even a Zenoh session.
+    let Opened { run, started_unix_ms, resume, writer } = open_journal(&opts, &loaded, &hash)?;
+    let net =
+        if opts.listen.is_empty() { NetConfig::client(&opts.connect, true) } else { NetConfig::router(&opts.listen) };
+    let net = NetConfig { multicast_scouting: opts.multicast_scouting, ..net };
+    let zconfig = crate::zconf::load(&net, opts.zenoh_config.as_deref())?;
+    let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
+    // A resumed run keeps the period it started with.
+    let cycle_ms = match &resume {
+        Some((header, _)) => {
+            if header.cycle_ms != opts.cycle_ms {
+                eprintln!(
+                    "warning: --cycle-ms {} ignored: the run resumes with the period it started with, {} ms",
+                    opts.cycle_ms, header.cycle_ms
+                );
+            }
+            header.cycle_ms
+        }
+        None => opts.cycle_ms,
+    }
+    .max(1);
+    let chart_reply = wire::encode(&ChartSource {
+        hash: hash.clone(),
+        pou: loaded.pou.clone(),
+        source: loaded.source.clone(),
+        cycle_ms,
+    });
+    let mut core =
+        Coordinator::new(Arc::clone(&loaded.program), Arc::clone(&loaded.layout), run, hash, journal::token_ids(run));
+    core.set_cycle_ms(cycle_ms);
+    let inboxes = Inboxes::declare(&session, run).await?;
+    let trace = match &opts.trace {
+        Some(p) => Some(BufWriter::new(File::create(p).with_context(|| format!("cannot create {}", p.display()))?)),
+        None => None,
+    };
+    let where_ = if opts.listen.is_empty() {
+        format!("joined {}", opts.connect.join(", "))
+    } else {
+        format!("router on {}", opts.listen.join(", "))
+    };
+    let recorder = crate::recording::Recorder::start(
+        &opts.rerun,
+        crate::recording::RecordedRun {
+            program: Arc::clone(&loaded.program),
+            layout: Arc::clone(&loaded.layout),
+            run: run.key(),
+            started_unix_ms,
+        },
+    )?;
+    let mut shell = Shell {
+        session: session.clone(),
+        core: Journaled::new(core),
+        started: Instant::now(),
+        base_ms: 0,
+        journal: writer,
+        held: VecDeque::new(),
+        held_replies: VecDeque::new(),
+        quiet: opts.quiet,
+        publishers: HashMap::new(),
+        vars_key: keys::vars(run, baton_proto::dist::runtime::COORDINATOR),
+        decode_drops: 0,
+        out: Records::new(trace, probe, recorder, cycle_ms),
+        cycle_ms,
+        last_cycle_ms: None,
+        live: std::collections::HashSet::new(),
+    };
+    shell.out.watch(watch);
+    begin(&mut shell, resume, &opts, &loaded, run, &where_)?;
+    let ended = serve(&mut shell, &inboxes, run, chart_reply).await?;
+    wind_down(shell, session, &opts, &loaded, ended).await
+}
+
+/// Starts the run afresh (with `--set`'s values), or resumes it: the past replayed from the journal (its trace
+/// written again, so that the file holds the whole run), nothing sent, the clock going on from wall-clock time.
+fn begin(
+    shell: &mut Shell,
+    resume: Option<(JournalHeader, Vec<Vec<u8>>)>,
+    opts: &RunOptions,
+    loaded: &Loaded,
+    run: RunId,
+    where_: &str,
+) -> anyhow::Result<()> {
+    match resume {
+        Some((header, records)) => {
+            // The past, replayed: its trace is written again (the file then holds the whole run), nothing is
+            // sent, and the run's clock goes on from wall-clock time, downtime included.
+            let replayed = replay_records(&mut shell.core, &records, &mut shell.out)?;
+            let wall = unix_ms().saturating_sub(header.started_unix_ms);
+            shell.base_ms = replayed.last_ms.max(wall);
+            if !opts.sets.is_empty() {
+                eprintln!("warning: --set ignored: the run resumes from its journal with the values it had");
+            }
+            let now = shell.now_ms();
+            shell.core.set_loss_policy(now, opts.loss_policy);
+            shell.core.recover(now);
+            if !opts.quiet {
+                eprintln!(
+                    "baton: resuming run {} of chart `{}` from its journal ({} records, {} token(s) out; {where_})",
+                    run.key(),
+                    loaded.pou,
+                    replayed.records,
+                    shell.core.core().tokens_in_flight()
+                );
+            }
+        }
+        None => {
+            shell.core.set_loss_policy(0, opts.loss_policy);
+            for (name, value) in &opts.sets {
+                shell.core.set(0, name, value).map_err(|e| anyhow!("--set {name}: {e}"))?;
+            }
+            if !opts.quiet {
+                eprintln!("baton: running chart `{}` as run {} ({where_})", loaded.pou, run.key());
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A run's identity and where its journal stands: a new run's header written, or a resumable one's records.
+struct Opened {
+    run: RunId,
+    started_unix_ms: u64,
+    resume: Option<(JournalHeader, Vec<Vec<u8>>)>,
+    writer: Option<crate::journal::Writer>,
+}
+
+/// Opens `--journal DIR`, if given: a new journal gets its header, an old one is checked and its records read.
+fn open_journal(opts: &RunOptions, loaded: &Loaded, hash: &ChartHash) -> anyhow::Result<Opened> {
+    let Some(dir) = &opts.journal else {
+        return Ok(Opened { run: RunId(uuid::Uuid::new_v4()), started_unix_ms: unix_ms(), resume: None, writer: None });
+    };
+    let mut opened = crate::journal::open(dir)?;
+    let path = opened.store.path().display().to_string();
+    let (run, started_unix_ms, resume) = match opened.header.take() {
+        None => {
+            let header = JournalHeader {
+                format: JOURNAL_FORMAT,
+                run: RunId(uuid::Uuid::new_v4()),
+                chart: hash.clone(),
+                pou: loaded.pou.clone(),
+                source: loaded.source.clone(),
+                started_unix_ms: unix_ms(),
+                cycle_ms: opts.cycle_ms,
+                program: journal::program_pin(&loaded.program, &loaded.layout),
+            };
+            opened.store.write_header(&header)?;
+            (header.run, header.started_unix_ms, None)
+        }
+        Some(header) => {
+            check_resumable(&header, &opened.records, loaded, hash, &opts.chart, &path)?;
+            let (run, started) = (header.run, header.started_unix_ms);
+            (run, started, Some((header, std::mem::take(&mut opened.records))))
+        }
+    };
+    Ok(Opened { run, started_unix_ms, resume, writer: Some(opened.store.start_writer()) })
+}
+
+/// How the main loop ended.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Ended {
+    /// The chart reached a terminal situation, failed, or Zenoh closed an inbox.
+    Ran,
+    /// SIGINT or SIGTERM: the run is left as it stands (its journal resumes it).
+    Interrupted,
+}
+
+/// The main loop: asleep until a message comes or the next cycle is due.
+async fn serve(shell: &mut Shell, inboxes: &Inboxes, run: RunId, chart_reply: Vec<u8>) -> anyhow::Result<Ended> {
+    let (tx, mut rx) = mpsc::unbounded_channel::<Identity>();
+    let mut durable_rx = shell.journal.as_ref().map(crate::journal::Writer::watcher);
+    // Signal streams made once: polling them each turn of the loop costs nothing.
+    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
+    shell.due_cycles().await?;
+    while !shell.core.core().is_terminal() && shell.core.core().failure().is_none() {
+        // An idle run does not wake.
+        let deadline = shell.next_cycle().map(|t| shell.instant_of(t));
+        let timer = async move {
+            match deadline {
+                Some(at) => tokio::time::sleep_until(at.into()).await,
+                None => std::future::pending().await,
+            }
+        };
+        let wake = tokio::select! {
+            s = inboxes.report.recv_async() => s.map_or(Wake::Closed, Wake::Report),
+            s = inboxes.vars.recv_async() => s.map_or(Wake::Closed, Wake::Vars),
+            s = inboxes.devices.recv_async() => s.map_or(Wake::Closed, Wake::Devices),
+            s = inboxes.alive.recv_async() => s.map_or(Wake::Closed, Wake::Alive),
+            Some(ev) = rx.recv() => Wake::Identity(ev),
+            q = inboxes.chart.recv_async() => q.map_or(Wake::Closed, Wake::Chart),
+            q = inboxes.status.recv_async() => q.map_or(Wake::Closed, Wake::Status),
+            q = inboxes.set.recv_async() => q.map_or(Wake::Closed, Wake::Set),
+            // A journal batch became durable: what it led to may go now.
+            _ = async { durable_rx.as_mut().expect("journal").changed().await }, if durable_rx.is_some() => Wake::Durable,
+            () = timer => Wake::Timer,
+            _ = sigint.recv() => Wake::Stop,
+            _ = sigterm.recv() => Wake::Stop,
+        };
+        // Cycles due run first, at their grid times, so that what arrived now comes after them.
+        shell.due_cycles().await?;
+        match wake {
+            Wake::Report(s) => {
+                shell.on_report(&s);
+                while let Ok(Some(s)) = inboxes.report.try_recv() {
+                    shell.on_report(&s);
+                }
+            }
+            Wake::Vars(s) => shell.on_vars(&s),
+            Wake::Devices(s) => shell.on_devices(&s),
+            Wake::Alive(s) => shell.on_alive(&s, &tx),
+            Wake::Identity(ev) => shell.on_identity(ev, &tx),
+            Wake::Chart(q) => reply(&q, keys::chart(run), chart_reply.clone()).await,
+            Wake::Status(q) => {
+                // The run's clock now, not the time of its last input: an idle run's time goes on.
+                let mut status = shell.core.core().status();
+                status.t_ms = shell.now_ms();
+                reply(&q, keys::status(run), wire::encode(&status)).await
+            }
+            Wake::Set(q) => {
+                let answer = wire::encode(&shell.on_set(&q));
+                match &shell.journal {
+                    // Its record goes in the batch written just below; the answer waits for it.
+                    Some(j) => shell.held_replies.push_back((j.sent() + 1, q, answer)),
+                    None => reply(&q, keys::set(run), answer).await,
+                }
+            }
+            Wake::Durable => shell.release().await?,
+            Wake::Timer => {}
+            Wake::Stop => return Ok(Ended::Interrupted),
+            Wake::Closed => break,
+        }
+        shell.commit(Vec::new()).await?;
+    }
+    Ok(Ended::Ran)
+}
+
+/// Ends the run (unless interrupted), makes durable and carries out whatever was taken in, and says how it went.
+async fn wind_down(
+    mut shell: Shell,
+    session: zenoh::Session,
+    opts: &RunOptions,
+    loaded: &Loaded,
+    ended: Ended,
+) -> anyhow::Result<Summary> {
+    if ended == Ended::Ran {
+        let now = shell.now_ms();
+        shell.core.end(now);
+        shell.commit(Vec::new()).await?;
+    }
+    // Whatever was taken in is made durable and carried out before the process leaves.
+    if let Some(w) = &mut shell.journal {
+        w.sync().await?;
+    }
+    shell.release().await?;
+    if let Some(w) = &mut shell.journal {
+        w.close();
+    }
+    shell.out.finish()?;
+    let failure = shell.core.core().failure().map(str::to_string);
+    let summary = shell.summary(loaded);
+    drop(shell);
+    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    if ended == Ended::Interrupted {
+        if let Some(dir) = &opts.journal {
+            eprintln!("baton: the run is kept in its journal; `baton run … --journal {}` resumes it", dir.display());
+        }
+        bail!("interrupted before the chart reached a terminal situation");
+    }
+    if let Some(why) = &failure {
+        bail!("the run failed: {why}");
+    }
+    if let Some(p) = &opts.summary {
+        let text = serde_json::to_string_pretty(&summary)?;
+        std::fs::write(p, text).with_context(|| format!("cannot write {}", p.display()))?;
+    }
+    Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn options(chart: PathBuf, journal: PathBuf) -> RunOptions {
+        RunOptions {
+            chart,
+            pou: None,
+            listen: vec!["tcp/127.0.0.1:0".into()],
+            connect: Vec::new(),
+            trace: None,
+            summary: None,
+            cycle_ms: 10,
+            sets: Vec::new(),
+            multicast_scouting: false,
+            quiet: true,
+            zenoh_config: None,
+            loss_policy: LossPolicy::Pause,
+            journal: Some(journal),
+            rerun: crate::recording::Sink::Off,
+            watch: Vec::new(),
+        }
+    }
+
+    /// The same chart text, compiled by a baton that numbers its program otherwise (simulated by a journal whose
+    /// pin is not this build's): resuming it would apply the records to other variables, so it is refused.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
+    async fn a_journal_of_another_compilation_is_not_resumed() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let chart = dir.path().join("wait.st");
+        let source = "PROGRAM wait\nVAR go : BOOL; END_VAR\nINITIAL_STEP A: END_STEP\n\
+                      TRANSITION FROM A TO B := go; END_TRANSITION\nSTEP B: END_STEP\nEND_PROGRAM\n";
+        std::fs::write(&chart, source).expect("write the chart");
+        let loaded = load(&chart, None).expect("a valid chart");
+        let pin = journal::program_pin(&loaded.program, &loaded.layout);
+        let other = format!("{}{}", if pin.starts_with('0') { '1' } else { '0' }, &pin[1..]);
+        let header = JournalHeader {
+            format: JOURNAL_FORMAT,
+            run: RunId(uuid::Uuid::from_u128(3)),
+            chart: ChartHash::of(source, "wait"),
+            pou: "wait".into(),
+            source: source.into(),
+            started_unix_ms: 1,
+            cycle_ms: 10,
+            program: other.clone(),
+        };
+        let journal_dir = dir.path().join("journal");
+        let mut opened = crate::journal::open(&journal_dir).expect("a new journal");
+        opened.store.write_header(&header).expect("header");
+        drop(opened);
+        let err = run(options(chart, journal_dir.clone())).await.err().expect("refused").to_string();
+        assert!(err.contains("compiled chart `wait` to other numbers") && err.contains(&other), "{err}");
+        assert!(err.contains(&pin), "the message names both programs: {err}");
+        // baton replay refuses it as well.
+        let replay =
+            crate::replay::ReplayOptions { journal: journal_dir, rerun: crate::recording::Sink::Off, trace: None };
+        let err = crate::replay::replay(&replay).expect_err("refused").to_string();
+        assert!(err.contains("to other numbers"), "{err}");
+    }
+}

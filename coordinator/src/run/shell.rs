@@ -1,0 +1,426 @@
+//! The coordinator's Zenoh shell: samples and queries in, the pure `Coordinator`'s inputs out, its outputs held
+//! until the journal has what led to them, then published; agents that go live are asked who they are.
+
+use std::collections::{HashMap, VecDeque};
+use std::time::{Duration, Instant};
+
+use anyhow::anyhow;
+use baton_proto::dist::journal::Journaled;
+use baton_proto::dist::keys;
+use baton_proto::dist::runtime::coordinator::CoordOutput;
+use baton_proto::dist::runtime::Level;
+use baton_proto::dist::wire::{self, AgentInfo, RunId, SetReply, SetRequest};
+use baton_proto::limits::{CATCH_UP_CYCLES_MAX, RECEIVE_QUEUE_MAX};
+use tokio::sync::mpsc;
+use zenoh::handlers::{FifoChannel, FifoChannelHandler};
+use zenoh::pubsub::Publisher;
+use zenoh::pubsub::Subscriber;
+use zenoh::qos::CongestionControl;
+use zenoh::query::Query;
+use zenoh::query::Queryable;
+use zenoh::sample::{Sample, SampleKind};
+use zenoh::Session;
+
+use super::records::Records;
+use super::summary::Summary;
+use crate::chart_file::Loaded;
+
+pub(crate) const INFO_QUERY_TIMEOUT: Duration = Duration::from_secs(3);
+
+pub(crate) const INFO_QUERY_ATTEMPTS: u32 = 5;
+
+/// Replies to one info query taken into account: two already mean a conflict.
+pub(crate) const INFO_REPLIES_MAX: usize = 16;
+
+/// How often a name that several processes answer to is asked again.
+pub(crate) const CONFLICT_RECHECK: Duration = Duration::from_secs(2);
+
+/// Who answered to an agent's name.
+pub(crate) enum Identity {
+    One(AgentInfo),
+    /// Several processes answered to this name (how many).
+    Several(String, u32),
+    /// Nobody that makes sense, and why.
+    Unknown(String, String),
+}
+
+pub(crate) struct Shell {
+    pub(crate) session: Session,
+    pub(crate) core: Journaled,
+    pub(crate) started: Instant,
+    /// The run's time when this process started: 0, or where a resumed run stood (downtime included).
+    pub(crate) base_ms: u64,
+    pub(crate) journal: Option<crate::journal::Writer>,
+    /// What the coordinator asked for, per journal batch, until that batch is durable.
+    pub(crate) held: VecDeque<(u64, Vec<CoordOutput>)>,
+    /// Answers to `baton set`, likewise: a client is told a value was taken only once it is durable.
+    pub(crate) held_replies: VecDeque<(u64, Query, Vec<u8>)>,
+    pub(crate) quiet: bool,
+    /// One publisher per key, declared on first use.
+    pub(crate) publishers: HashMap<String, Publisher<'static>>,
+    pub(crate) vars_key: String,
+    pub(crate) decode_drops: u64,
+    pub(crate) out: Records,
+    /// The run's cycle period, and the grid time of the last cycle this process ran.
+    pub(crate) cycle_ms: u64,
+    pub(crate) last_cycle_ms: Option<u64>,
+    /// Agents whose liveliness token is there: those are asked again until they say who they are.
+    pub(crate) live: std::collections::HashSet<String>,
+}
+
+/// The run's inboxes: reports, variables, devices and liveliness in, and the queries it answers.
+pub(crate) struct Inboxes {
+    pub(crate) report: Subscriber<FifoChannelHandler<Sample>>,
+    pub(crate) vars: Subscriber<FifoChannelHandler<Sample>>,
+    pub(crate) devices: Subscriber<FifoChannelHandler<Sample>>,
+    pub(crate) alive: Subscriber<FifoChannelHandler<Sample>>,
+    pub(crate) chart: Queryable<FifoChannelHandler<Query>>,
+    pub(crate) status: Queryable<FifoChannelHandler<Query>>,
+    pub(crate) set: Queryable<FifoChannelHandler<Query>>,
+}
+
+impl Inboxes {
+    pub(crate) async fn declare(session: &Session, run: RunId) -> anyhow::Result<Inboxes> {
+        let zerr = |e: zenoh::Error| anyhow!("{e}");
+        let inbox = || FifoChannel::new(RECEIVE_QUEUE_MAX);
+        Ok(Inboxes {
+            report: session.declare_subscriber(keys::report(run)).with(inbox()).await.map_err(zerr)?,
+            vars: session.declare_subscriber(keys::vars(run, "*")).with(inbox()).await.map_err(zerr)?,
+            devices: session.declare_subscriber(keys::devices(run, "*")).with(inbox()).await.map_err(zerr)?,
+            alive: session.liveliness().declare_subscriber(keys::alive_any()).history(true).await.map_err(zerr)?,
+            chart: session.declare_queryable(keys::chart(run)).await.map_err(zerr)?,
+            status: session.declare_queryable(keys::status(run)).await.map_err(zerr)?,
+            set: session.declare_queryable(keys::set(run)).await.map_err(zerr)?,
+        })
+    }
+}
+
+/// What woke the coordinator's main loop.
+pub(crate) enum Wake {
+    Report(Sample),
+    Vars(Sample),
+    Devices(Sample),
+    Alive(Sample),
+    Identity(Identity),
+    Chart(Query),
+    Status(Query),
+    Set(Query),
+    Durable,
+    Timer,
+    Stop,
+    Closed,
+}
+
+/// Answers on the queryable's own key, which names the run: a client that asked all runs (`baton/run/*/status`)
+/// gets one reply per run, where replies on the query's key would be consolidated into one.
+pub(crate) async fn reply(q: &Query, key: String, payload: Vec<u8>) {
+    if let Err(e) = q.reply(key, payload).await {
+        eprintln!("warning: cannot answer a query on {}: {e}", q.key_expr());
+    }
+}
+
+impl Shell {
+    pub(crate) fn now_ms(&self) -> u64 {
+        self.base_ms + self.started.elapsed().as_millis() as u64
+    }
+
+    pub(crate) fn on_report(&mut self, s: &Sample) {
+        let now = self.now_ms();
+        if let Err(e) = self.core.report(now, &s.payload().to_bytes()) {
+            self.decode_drop(s, e);
+        }
+        self.out.values(now, self.core.core());
+    }
+
+    pub(crate) fn on_vars(&mut self, s: &Sample) {
+        let now = self.now_ms();
+        if let Err(e) = self.core.vars(now, &s.payload().to_bytes()) {
+            self.decode_drop(s, e);
+        }
+        self.out.values(now, self.core.core());
+    }
+
+    pub(crate) fn on_devices(&mut self, s: &Sample) {
+        let now = self.now_ms();
+        if let Err(e) = self.core.devices(now, &s.payload().to_bytes()) {
+            self.decode_drop(s, e);
+        }
+    }
+
+    pub(crate) fn decode_drop(&mut self, s: &Sample, e: wire::WireError) {
+        self.decode_drops += 1;
+        eprintln!("warning: dropped a message on {}: {e}", s.key_expr());
+    }
+
+    /// A live agent is asked for its roles before the coordinator counts on it.
+    pub(crate) fn on_alive(&mut self, s: &Sample, tx: &mpsc::UnboundedSender<Identity>) {
+        let Some(name) = keys::agent_of_alive(s.key_expr().as_str()).map(str::to_string) else { return };
+        match s.kind() {
+            SampleKind::Put => {
+                if self.live.len() < baton_proto::limits::AGENTS_MAX {
+                    self.live.insert(name.clone());
+                }
+                identify(self.session.clone(), name, tx.clone(), Duration::ZERO);
+            }
+            SampleKind::Delete => {
+                self.live.remove(&name);
+                let now = self.now_ms();
+                self.core.agent_down(now, &name);
+            }
+        }
+    }
+
+    pub(crate) fn on_identity(&mut self, ev: Identity, tx: &mpsc::UnboundedSender<Identity>) {
+        let now = self.now_ms();
+        match ev {
+            Identity::One(info) => self.core.agent_up(now, info),
+            Identity::Several(name, n) => {
+                self.core.agent_conflict(now, &name, n);
+                // Asked again until one process answers alone (or none does).
+                if self.live.contains(&name) {
+                    identify(self.session.clone(), name, tx.clone(), CONFLICT_RECHECK);
+                }
+            }
+            Identity::Unknown(name, why) => {
+                // Its liveliness token is there, so it is asked again (a link that comes back, a process that was
+                // stopped): as long as it is not known, nothing is dispatched to it.
+                if self.live.contains(&name) {
+                    eprintln!("warning: agent `{name}` is live but did not say who it is: {why}; asking again");
+                    identify(self.session.clone(), name, tx.clone(), CONFLICT_RECHECK);
+                }
+            }
+        }
+    }
+
+    pub(crate) fn on_set(&mut self, q: &Query) -> SetReply {
+        let chart = self.core.core().program().name.clone();
+        let request: Result<SetRequest, _> = match q.payload() {
+            Some(p) => wire::decode(&p.to_bytes()),
+            None => return SetReply { chart, ok: false, message: "the request carries no value".into() },
+        };
+        let now = self.now_ms();
+        match request {
+            Ok(r) => match self.core.set(now, &r.name, &r.value) {
+                Ok(message) => SetReply { chart, ok: true, message },
+                Err(message) => SetReply { chart, ok: false, message },
+            },
+            Err(e) => SetReply { chart, ok: false, message: format!("malformed request: {e}") },
+        }
+    }
+
+    /// The grid time of the next cycle, if the coordinator needs one.
+    pub(crate) fn next_cycle(&self) -> Option<u64> {
+        self.core.core().next_cycle_ms(self.last_cycle_ms)
+    }
+
+    pub(crate) fn instant_of(&self, t_ms: u64) -> Instant {
+        self.started + Duration::from_millis(t_ms.saturating_sub(self.base_ms))
+    }
+
+    /// Runs the cycles that are due, each at its grid time (one that fell far behind skips to the present), and
+    /// has what they asked for carried out — at once, or once its journal batch is durable.
+    pub(crate) async fn due_cycles(&mut self) -> anyhow::Result<()> {
+        let now = self.now_ms();
+        while let Some(due) = self.next_cycle().filter(|&t| t <= now) {
+            let at = if now - due > CATCH_UP_CYCLES_MAX * self.cycle_ms { now - now % self.cycle_ms } else { due };
+            self.last_cycle_ms = Some(at);
+            self.core.cycle(at);
+            self.commit(Vec::new()).await?;
+        }
+        Ok(())
+    }
+
+    pub(crate) async fn commit(&mut self, mut outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
+        while let Some(out) = self.core.poll_output() {
+            outputs.push(out);
+        }
+        let records = self.core.take_records();
+        // The recording's values after every input, as a replay of the journal sees them.
+        let now = self.core.core().now_ms();
+        self.out.values(now, self.core.core());
+        outputs.extend(self.out.watched_changes(now, self.core.core()).into_iter().map(CoordOutput::Trace));
+        let Some(journal) = &mut self.journal else {
+            return self.carry_out(outputs).await;
+        };
+        if !records.is_empty() {
+            let batch = journal.write(records)?;
+            self.held.push_back((batch, outputs));
+        } else if !outputs.is_empty() {
+            // Nothing new to record: these follow the last batch.
+            self.held.push_back((journal.sent(), outputs));
+        }
+        self.release().await
+    }
+
+    /// Carries out what waited for journal batches that are now durable, in order.
+    pub(crate) async fn release(&mut self) -> anyhow::Result<()> {
+        let durable = match &self.journal {
+            Some(j) => j.durable()?,
+            None => u64::MAX,
+        };
+        while self.held.front().is_some_and(|(batch, _)| *batch <= durable) {
+            let Some((_, outputs)) = self.held.pop_front() else { break };
+            self.carry_out(outputs).await?;
+        }
+        while self.held_replies.front().is_some_and(|(batch, _, _)| *batch <= durable) {
+            let Some((_, q, answer)) = self.held_replies.pop_front() else { break };
+            reply(&q, keys::set(self.core.core().run()), answer).await;
+        }
+        Ok(())
+    }
+
+    pub(crate) async fn carry_out(&mut self, outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
+        // Messages leave before the trace is written: a token's round trip does not wait for the disk.
+        let mut local = Vec::new();
+        for out in outputs {
+            match out {
+                CoordOutput::Send { agent, incarnation, msg } => {
+                    self.send(keys::agent_cmd(&agent, incarnation), wire::encode(&msg)).await?
+                }
+                CoordOutput::Vars(update) => self.send(self.vars_key.clone(), wire::encode(&update)).await?,
+                other => local.push(other),
+            }
+        }
+        for out in local {
+            match out {
+                CoordOutput::Send { .. } | CoordOutput::Vars(_) => {}
+                CoordOutput::Trace(rec) => self.out.record(rec),
+                CoordOutput::Log { level, message } => {
+                    let tag = match level {
+                        Level::Info => "info",
+                        Level::Warn => "warning",
+                        Level::Error => "error",
+                    };
+                    if level > Level::Info || !self.quiet {
+                        eprintln!("{tag}: {message}");
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Publishes in the main loop, without a hop to another task (a hop cost a third of a token's round trip).
+    /// This cannot deadlock with an agent doing the same: a put waits only while the link's queue is full, and
+    /// each side's Zenoh reader hands samples to an inbox of `RECEIVE_QUEUE_MAX` without waiting for the main
+    /// loop, so both sides would need that many messages unread at once.
+    pub(crate) async fn send(&mut self, key: String, payload: Vec<u8>) -> anyhow::Result<()> {
+        if !self.publishers.contains_key(&key) {
+            let p = self
+                .session
+                .declare_publisher(key.clone())
+                .congestion_control(CongestionControl::Block)
+                .express(true)
+                .await
+                .map_err(|e| anyhow!("cannot publish on {key}: {e}"))?;
+            self.publishers.insert(key.clone(), p);
+        }
+        if let Some(p) = self.publishers.get(&key) {
+            if let Err(e) = p.put(payload).await {
+                eprintln!("warning: cannot publish on {key}: {e}");
+            }
+        }
+        Ok(())
+    }
+
+    pub(crate) fn summary(&self, loaded: &Loaded) -> Summary {
+        let now = self.now_ms();
+        let stats = self.core.core().stats();
+        let steps = self
+            .out
+            .steps
+            .iter()
+            .map(|(name, (t, since))| {
+                let mut t = *t;
+                if let Some(t0) = since {
+                    t.active_ms += now.saturating_sub(*t0);
+                }
+                (name.clone(), t)
+            })
+            .collect();
+        let vars = loaded
+            .program
+            .vars
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| !v.constant && !v.hidden)
+            .map(|(i, v)| {
+                (v.name.clone(), self.core.core().value(baton_proto::exec::program::VarId(i as u32)).to_string())
+            })
+            .collect();
+        Summary {
+            chart: loaded.pou.clone(),
+            run: self.core.core().run().key(),
+            duration_ms: now,
+            tokens_dispatched: stats.dispatched,
+            tokens_returned: stats.returned,
+            messages_dropped: stats.dropped + self.decode_drops,
+            steps,
+            vars,
+            journal: self.journal.as_ref().map(crate::journal::Writer::stats),
+        }
+    }
+}
+
+/// After `delay`, asks agent `name` who it is and tells the main loop: one process (`AgentUp`), several
+/// (`AgentConflict`), or none that makes sense.
+pub(crate) fn identify(session: Session, name: String, tx: mpsc::UnboundedSender<Identity>, delay: Duration) {
+    tokio::spawn(async move {
+        tokio::time::sleep(delay).await;
+        let ev = match ask_info(&session, &name).await {
+            Ok(mut infos) if infos.len() == 1 => match infos.pop() {
+                Some(info) if info.name == name => Identity::One(info),
+                Some(info) => Identity::Unknown(name, format!("it calls itself `{}`", info.name)),
+                None => Identity::Unknown(name, "no answer".to_string()),
+            },
+            Ok(infos) => Identity::Several(name, infos.len() as u32),
+            Err(why) => Identity::Unknown(name, why),
+        };
+        let _ = tx.send(ev);
+    });
+}
+
+/// Asks a live agent who it is, a few times: its answer may trail its liveliness token through a router. Every
+/// process answering to the name replies; they are told apart by their incarnation.
+pub(crate) async fn ask_info(session: &Session, name: &str) -> Result<Vec<AgentInfo>, String> {
+    let mut last = String::new();
+    for attempt in 0..INFO_QUERY_ATTEMPTS {
+        match ask_info_once(session, name).await {
+            Ok(infos) if !infos.is_empty() => return Ok(infos),
+            Ok(_) => last = "no answer to the info query".to_string(),
+            Err(why) => last = why,
+        }
+        tokio::time::sleep(Duration::from_millis(100 << attempt)).await;
+    }
+    Err(last)
+}
+
+pub(crate) async fn ask_info_once(session: &Session, name: &str) -> Result<Vec<AgentInfo>, String> {
+    let replies = session
+        .get(keys::agent_info(name))
+        // Every reply, not one per key: two processes of one name answer on the same key.
+        .consolidation(zenoh::query::ConsolidationMode::None)
+        .timeout(INFO_QUERY_TIMEOUT)
+        .await
+        .map_err(|e| e.to_string())?;
+    let mut infos: Vec<AgentInfo> = Vec::new();
+    let mut last = String::new();
+    while let Ok(reply) = replies.recv_async().await {
+        let info = match reply.result() {
+            Ok(sample) => wire::decode::<AgentInfo>(&sample.payload().to_bytes()).map_err(|e| e.to_string()),
+            Err(e) => Err(format!("{e:?}")),
+        };
+        match info {
+            Ok(info) if !infos.iter().any(|i| i.incarnation == info.incarnation) => infos.push(info),
+            Ok(_) => {}
+            Err(why) => last = why,
+        }
+        if infos.len() >= INFO_REPLIES_MAX {
+            break;
+        }
+    }
+    if infos.is_empty() && !last.is_empty() {
+        return Err(last);
+    }
+    Ok(infos)
+}

@@ -1,0 +1,48 @@
+//! What a run did, as `baton run --summary` writes it and `baton run` prints it.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+/// What `baton run` prints at the end, and writes with `--summary FILE`.
+#[derive(Serialize)]
+pub struct Summary {
+    pub chart: String,
+    pub run: String,
+    pub duration_ms: u64,
+    pub tokens_dispatched: u64,
+    pub tokens_returned: u64,
+    pub messages_dropped: u64,
+    /// Per step: how many times it was active and for how long in all.
+    pub steps: BTreeMap<String, StepTime>,
+    /// Final values of the chart's variables.
+    pub vars: BTreeMap<String, String>,
+    /// With `--journal`: records written and transactions committed by this process.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub journal: Option<crate::journal::JournalStats>,
+}
+
+#[derive(Serialize, Default, Clone, Copy)]
+pub struct StepTime {
+    pub activations: u64,
+    pub active_ms: u64,
+}
+
+impl Summary {
+    pub fn print(&self) {
+        println!("chart `{}` finished in {} ms", self.chart, self.duration_ms);
+        println!(
+            "tokens: {} dispatched, {} returned; {} message(s) dropped",
+            self.tokens_dispatched, self.tokens_returned, self.messages_dropped
+        );
+        println!("{:<24} {:>11} {:>14}", "step", "activations", "active ms");
+        for (name, t) in &self.steps {
+            println!("{name:<24} {:>11} {:>14}", t.activations, t.active_ms);
+        }
+        let vars: Vec<String> = self.vars.iter().map(|(k, v)| format!("{k} = {v}")).collect();
+        println!("variables: {}", vars.join(", "));
+        if let Some(j) = &self.journal {
+            println!("journal: {} records in {} commits", j.records, j.commits);
+        }
+    }
+}
