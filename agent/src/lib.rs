@@ -3,7 +3,7 @@
 //!
 //! ```no_run
 //! # async fn example() -> anyhow::Result<()> {
-//! use baton_agent::{run, AgentConfig, Skills};
+//! use baton_agent::{run, AgentConfig, Connections, Skills};
 //! let config = AgentConfig {
 //!     name: "robot1".into(),
 //!     roles: vec!["picker".into()],
@@ -12,10 +12,11 @@
 //!     verbose: false,
 //!     zenoh_config: None,
 //! };
-//! run(config, Skills::builtin()).await
+//! run(config, Skills::builtin(), Connections::default()).await
 //! # }
 //! ```
 
+pub mod connections;
 pub mod io;
 pub mod opcua;
 pub mod ros2;
@@ -23,5 +24,6 @@ pub mod shell;
 pub mod simulate;
 pub mod skill;
 
+pub use connections::Connections;
 pub use shell::{run, AgentConfig};
 pub use skill::{Skill, SkillCall, SkillFuture, Skills};

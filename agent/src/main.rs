@@ -5,7 +5,7 @@ use std::process::ExitCode;
 use baton_proto::limits::CHART_STACK_BYTES;
 use std::sync::Arc;
 
-use baton_agent::{run, AgentConfig, Skills};
+use baton_agent::{run, AgentConfig, Connections, Skills};
 use clap::Parser;
 
 /// Runs the segments of Baton charts placed on this agent (by name or by role) and hands the tokens back.
@@ -111,11 +111,11 @@ fn agent_main() -> ExitCode {
         pki_dir: args.opcua_pki.unwrap_or_else(default_pki_dir),
         agent: config.name.clone(),
     });
-    let skills = match &args.simulate {
+    let (skills, connections) = match &args.simulate {
         Some(path) => match baton_proto::testing::scenario::load(path, &|p| std::fs::read_to_string(p)) {
             Ok(sc) => {
                 let seed = args.seed.unwrap_or(sc.seed);
-                baton_agent::simulate::Simulated::new(sc, seed).skills()
+                (baton_agent::simulate::Simulated::new(sc, seed).skills(), Connections::default())
             }
             Err(baton_proto::testing::scenario::LoadError::Malformed(errors)) => {
                 for e in errors {
@@ -128,7 +128,7 @@ fn agent_main() -> ExitCode {
                 return ExitCode::from(2);
             }
         },
-        None => Skills::builtin().with_ros2(ros2).with_opcua(opcua),
+        None => (Skills::builtin(), Connections::default().with_ros2(ros2).with_opcua(opcua)),
     };
     let skills = if args.allow_shell { skills.with_shell() } else { skills };
     let runtime = match tokio::runtime::Builder::new_multi_thread()
@@ -143,7 +143,7 @@ fn agent_main() -> ExitCode {
             return ExitCode::from(1);
         }
     };
-    match runtime.block_on(run(config, skills)) {
+    match runtime.block_on(run(config, skills, connections)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");

@@ -23,6 +23,7 @@ use zenoh::qos::CongestionControl;
 use zenoh::sample::Sample;
 use zenoh::Session;
 
+use crate::connections::Connections;
 use crate::skill::{SkillCall, SkillContext, SkillFuture, Skills, STOP_WAIT_MAX};
 use baton_proto::types::Value;
 
@@ -122,6 +123,7 @@ struct Run {
 struct Shell {
     config: AgentConfig,
     skills: Skills,
+    connections: Connections,
     session: Session,
     started: Instant,
     runs: HashMap<RunId, Run>,
@@ -182,8 +184,10 @@ async fn drive_skill(
     }
 }
 
-/// Runs the agent until interrupted (Ctrl-C or SIGTERM).
-pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
+/// Runs the agent until interrupted (Ctrl-C or SIGTERM), with `skills` and the protocols of `connections` (whose
+/// skills it adds: `Connections::skills`).
+pub async fn run(config: AgentConfig, skills: Skills, connections: Connections) -> anyhow::Result<()> {
+    let skills = connections.skills(skills);
     config.validate()?;
     let net = NetConfig { lease_ms: Some(config.lease_ms), ..NetConfig::client(&config.connect, true) };
     let zconfig = zenoh_config(&net, config.zenoh_config.as_deref())?;
@@ -238,6 +242,7 @@ pub async fn run(config: AgentConfig, skills: Skills) -> anyhow::Result<()> {
     let mut shell = Shell {
         config: config.clone(),
         skills,
+        connections,
         session: session.clone(),
         started: Instant::now(),
         runs: HashMap::new(),
@@ -523,7 +528,7 @@ impl Shell {
         let sink = crate::io::Sink::new(move || {
             let _ = tx.send(Event::Devices(run));
         });
-        crate::io::Devices::start(&self.session, &self.skills, state.io_here(), sink)
+        crate::io::Devices::start(&self.session, &self.connections, state.io_here(), sink)
     }
 
     /// Forgets the least recently used run that holds no token when the table is full.

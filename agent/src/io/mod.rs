@@ -21,7 +21,7 @@ use tokio::sync::Notify;
 use tokio::task::JoinHandle;
 use zenoh::Session;
 
-use crate::skill::Skills;
+use crate::connections::Connections;
 
 /// What the devices of a run gave since the agent last looked: per binding (`Layout::io` index), the latest
 /// value of an input and the latest state of the connection (`Err` says why it cannot be reached).
@@ -122,10 +122,10 @@ impl Drop for Devices {
 }
 
 impl Devices {
-    /// Connects the bindings `here` (index in `Layout::io`, binding), with the protocols `skills` speak.
+    /// Connects the bindings `here` (index in `Layout::io`, binding), with the agent's `connections`.
     pub fn start<'a>(
         session: &Session,
-        skills: &Skills,
+        connections: &Connections,
         here: impl Iterator<Item = (usize, &'a IoBinding)>,
         sink: Sink,
     ) -> Devices {
@@ -141,8 +141,8 @@ impl Devices {
                     devices.tasks.push(tokio::spawn(keys::output(session.clone(), i, b.clone(), latest, sink.clone())));
                 }
                 (IoKind::Ros2, dir) => {
-                    let Some(ros2) = skills.ros2() else {
-                        sink.state(i, Err("this agent was built without ROS 2 (Skills::with_ros2)".into()));
+                    let Some(ros2) = connections.ros2() else {
+                        sink.state(i, Err("this agent was built without ROS 2 (Connections::with_ros2)".into()));
                         continue;
                     };
                     let task = match dir {
@@ -164,8 +164,8 @@ impl Devices {
                     devices.tasks.push(task);
                 }
                 (IoKind::OpcUa, _) => {
-                    if skills.opcua().is_none() {
-                        sink.state(i, Err("this agent was built without OPC UA (Skills::with_opcua)".into()));
+                    if connections.opcua().is_none() {
+                        sink.state(i, Err("this agent was built without OPC UA (Connections::with_opcua)".into()));
                         continue;
                     }
                     servers.entry(nodes::server_key(b)).or_default().push((i, b.clone()));
@@ -180,7 +180,7 @@ impl Devices {
                     devices.outputs.insert(*i, Arc::clone(&latest));
                 }
             }
-            let opcua = Arc::clone(skills.opcua().expect("checked above"));
+            let opcua = Arc::clone(connections.opcua().expect("checked above"));
             devices.tasks.push(tokio::spawn(nodes::server(opcua, bindings, latest, sink.clone())));
         }
         devices

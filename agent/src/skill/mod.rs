@@ -10,8 +10,13 @@
 //! mappings (`result := 'sequence[4] => last'`), written with `SkillContext::write`.
 //!
 //! Users who embed the agent in their own robot program implement `Skill` and register it with
-//! `Skills::with`; `baton-agent` ships `motion` (a simulated motion), `ros2_action` and `ros2_service` (see
-//! `crate::ros2`), `opcua_method` (see `crate::opcua`), and `shell` (a command, opt-in).
+//! `Skills::with`; `baton-agent` ships `motion` (a simulated motion) and `shell` (a command, opt-in) in
+//! `builtin`, and, given `crate::Connections`, `ros2_action` and `ros2_service` (see `crate::ros2`) and
+//! `opcua_method` (see `crate::opcua`).
+
+mod builtin;
+
+pub use builtin::{ShellCommand, SimulatedMotion};
 
 use std::collections::{BTreeMap, HashMap};
 use std::future::Future;
@@ -121,13 +126,11 @@ pub trait Skill: Send + Sync {
 /// How long the agent waits for a skill that stops itself before it drops it.
 pub const STOP_WAIT_MAX: Duration = Duration::from_secs(30);
 
-/// The skills an agent offers, by name, and the protocols they speak — which serve the chart's bound variables
-/// too (`crate::io`).
+/// The skills an agent offers, by name. The protocols some of them speak are `crate::Connections`, which the
+/// chart's bound variables use too.
 #[derive(Clone, Default)]
 pub struct Skills {
     by_name: HashMap<String, Arc<dyn Skill>>,
-    ros2: Option<Arc<crate::ros2::Ros2>>,
-    opcua: Option<Arc<crate::opcua::OpcUa>>,
 }
 
 impl Skills {
@@ -138,28 +141,6 @@ impl Skills {
 
     pub fn with_shell(self) -> Skills {
         self.with("shell", ShellCommand)
-    }
-
-    /// `ros2_action` and `ros2_service`, speaking rmw_zenoh over the agent's session; and variables bound to
-    /// ROS 2 topics.
-    pub fn with_ros2(mut self, ros2: Arc<crate::ros2::Ros2>) -> Skills {
-        self.ros2 = Some(Arc::clone(&ros2));
-        self.with("ros2_action", crate::ros2::skills::Ros2Action { ros2: Arc::clone(&ros2) })
-            .with("ros2_service", crate::ros2::skills::Ros2Service { ros2 })
-    }
-
-    /// `opcua_method`, with async-opcua's client; and variables bound to OPC UA nodes.
-    pub fn with_opcua(mut self, opcua: Arc<crate::opcua::OpcUa>) -> Skills {
-        self.opcua = Some(Arc::clone(&opcua));
-        self.with("opcua_method", crate::opcua::skills::OpcuaMethod { opcua })
-    }
-
-    pub fn ros2(&self) -> Option<&Arc<crate::ros2::Ros2>> {
-        self.ros2.as_ref()
-    }
-
-    pub fn opcua(&self) -> Option<&Arc<crate::opcua::OpcUa>> {
-        self.opcua.as_ref()
     }
 
     pub fn with(mut self, name: &str, skill: impl Skill + 'static) -> Skills {
@@ -175,102 +156,5 @@ impl Skills {
         let mut names: Vec<String> = self.by_name.keys().cloned().collect();
         names.sort();
         names
-    }
-}
-
-/// A uniform random number in [0, 1), from the operating system's generator (through `uuid`).
-fn uniform() -> f64 {
-    (uuid::Uuid::new_v4().as_u128() >> 75) as f64 / (1u64 << 53) as f64
-}
-
-/// `{skill := 'motion', ms := 800, fault_rate := 0.1}`: takes `ms` milliseconds (default 500), then fails with
-/// probability `fault_rate` (default 0).
-pub struct SimulatedMotion;
-
-impl Skill for SimulatedMotion {
-    fn start(&self, call: SkillCall) -> SkillFuture {
-        let ms = call.number("ms").unwrap_or(500.0).clamp(0.0, 86_400_000.0) as u64;
-        let fault_rate = call.number("fault_rate").unwrap_or(0.0);
-        Box::pin(async move {
-            tokio::time::sleep(Duration::from_millis(ms)).await;
-            if uniform() < fault_rate {
-                Err(format!("simulated fault after {ms} ms (fault_rate {fault_rate})"))
-            } else {
-                Ok(())
-            }
-        })
-    }
-}
-
-/// `{skill := 'shell', cmd := 'gripper close'}`: runs `cmd` with `sh -c`; succeeds on exit status 0. The
-/// command is killed if the action ends first.
-pub struct ShellCommand;
-
-impl Skill for ShellCommand {
-    fn start(&self, call: SkillCall) -> SkillFuture {
-        let cmd = call.text("cmd").map(str::to_string);
-        let agent = call.agent.clone();
-        let action = call.action.clone();
-        Box::pin(async move {
-            let cmd = cmd.ok_or_else(|| "the shell skill needs `cmd := '…'`".to_string())?;
-            let status = tokio::process::Command::new("sh")
-                .arg("-c")
-                .arg(&cmd)
-                .env("BATON_AGENT", agent)
-                .env("BATON_ACTION", action)
-                .kill_on_drop(true)
-                .status()
-                .await
-                .map_err(|e| format!("cannot run `{cmd}`: {e}"))?;
-            if status.success() {
-                Ok(())
-            } else {
-                Err(format!("`{cmd}` ended with {status}"))
-            }
-        })
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A session on nothing: no scouting, no listener, no router.
-    pub(crate) async fn lone_session() -> zenoh::Session {
-        let mut config = zenoh::Config::default();
-        for (k, v) in [("scouting/multicast/enabled", "false"), ("listen/endpoints", "[]"), ("connect/endpoints", "[]")]
-        {
-            config.insert_json5(k, v).expect("config");
-        }
-        zenoh::open(config).await.expect("a lone session")
-    }
-
-    async fn call(params: &[(&str, Param)]) -> SkillCall {
-        SkillCall {
-            agent: "a".into(),
-            action: "Act".into(),
-            params: params.iter().map(|(k, v)| (k.to_string(), v.clone())).collect(),
-            outputs: Vec::new(),
-            session: lone_session().await,
-            ctx: SkillContext::new().0,
-        }
-    }
-
-    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
-    async fn motion_succeeds_or_faults_as_configured() {
-        let ok = SimulatedMotion.start(call(&[("ms", Param::Value(Value::Int(1)))]).await).await;
-        assert_eq!(ok, Ok(()));
-        let bad = SimulatedMotion
-            .start(call(&[("ms", Param::Value(Value::Int(0))), ("fault_rate", Param::Value(Value::Real(1.0)))]).await)
-            .await;
-        assert!(bad.unwrap_err().contains("simulated fault"));
-    }
-
-    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
-    async fn shell_reports_the_exit_status() {
-        assert_eq!(ShellCommand.start(call(&[("cmd", Param::Str("true".into()))]).await).await, Ok(()));
-        let err = ShellCommand.start(call(&[("cmd", Param::Str("exit 3".into()))]).await).await.unwrap_err();
-        assert!(err.contains("exit status: 3"), "{err}");
-        assert!(ShellCommand.start(call(&[]).await).await.unwrap_err().contains("needs `cmd"));
     }
 }
