@@ -1,0 +1,448 @@
+//! Calls of function block instances (standard and user), their members, and actions called as subroutines.
+
+use super::*;
+
+impl<'a> Compiler<'a> {
+    /// `instance.Action();`: the action of a user block instance, run in the instance's scope (CODESYS, TwinCAT).
+    pub(super) fn instance_action_call(
+        &mut self,
+        callee: &Ident,
+        instance: &str,
+        action: &str,
+        args: &[Arg],
+    ) -> Option<CStmt> {
+        let key = instance.to_ascii_uppercase();
+        if let Some(&u) = self.user_of.get(&key) {
+            let def = self.users[u].def;
+            let Some(a) = def.actions.iter().find(|a| a.name.name.eq_ignore_ascii_case(action)) else {
+                let has: Vec<&str> = def.actions.iter().map(|a| a.name.name.as_str()).collect();
+                let list = if has.is_empty() { "none".to_string() } else { has.join(", ") };
+                let message = format!(
+                    "`{instance}` is a `{}` instance, and `{}` has no action `{action}` (its actions: {list})",
+                    def.name.name, def.name.name
+                );
+                self.error(callee.span, message);
+                return None;
+            };
+            if let Some(arg) = args.first() {
+                self.error(arg.span, format!("action `{}` of `{}` takes no arguments", a.name.name, def.name.name));
+                return None;
+            }
+            let body = self.users[u].actions.get(&a.name.key()).cloned()?;
+            let eno = self.users[u].eno;
+            let call = UserCall { body, en: None, inputs: Vec::new(), inouts: Vec::new(), outputs: Vec::new(), eno };
+            return Some(CStmt::UserFb(Box::new(call)));
+        }
+        let message = match self.instances.get(&key) {
+            Some((fb, _)) => {
+                format!("`{instance}` is a {} instance: a standard block has no action `{action}`", fb.name())
+            }
+            None => format!(
+                "`{}` calls action `{action}` of `{instance}`, and chart `{}` has no function block instance \
+                 `{instance}` (a call of another program's action is not something one chart can make)",
+                callee.name, self.chart.name.name
+            ),
+        };
+        self.error(callee.span, message);
+        None
+    }
+
+    /// `Action();` of the POU's own action (CODESYS), run where it is called, as a subroutine: its body, once,
+    /// whatever its step associations do; RETURN ends it. `None` when the name is no action of this POU.
+    pub(super) fn own_action_call(&mut self, callee: &Ident, args: &[Arg], vars: &[VarInfo]) -> Option<Option<CStmt>> {
+        let key = callee.key();
+        let (body, eno) = if let Some(u) = self.current_user {
+            // Inside a function block's body: one of the block's actions.
+            self.users[u].def.actions.iter().find(|a| a.name.key() == key)?;
+            (self.fb_action_body(u, callee, vars), self.users[u].eno)
+        } else {
+            let chart = self.chart;
+            let action = chart.actions.iter().find(|a| a.name.key() == key)?;
+            if action.sfc.is_some() {
+                let message = format!(
+                    "action `{}` is written in SFC: it runs under its step's qualifier, and cannot be called",
+                    action.name.name
+                );
+                self.error(callee.span, message);
+                return Some(None);
+            }
+            (self.chart_action_body(callee, &action.body, vars), self.call_eno(callee))
+        };
+        if let Some(arg) = args.first() {
+            self.error(arg.span, format!("action `{}` takes no arguments", callee.name));
+            return Some(None);
+        }
+        let body = body?;
+        let call = UserCall { body, en: None, inputs: Vec::new(), inouts: Vec::new(), outputs: Vec::new(), eno };
+        Some(Some(CStmt::UserFb(Box::new(call))))
+    }
+
+    /// The body of action `name` of user instance `u`, compiled once in the instance's scope (which must be the
+    /// current one); an action that calls itself, directly or through others, is an error.
+    pub(super) fn fb_action_body(&mut self, u: usize, name: &Ident, vars: &[VarInfo]) -> Option<Arc<Vec<CStmt>>> {
+        let key = name.key();
+        if let Some(body) = self.users[u].actions.get(&key) {
+            return Some(Arc::clone(body));
+        }
+        let def = self.users[u].def;
+        let action = def.actions.iter().find(|a| a.name.key() == key)?;
+        let stack = format!("{}#{key}", def.name.key());
+        let body = self.action_body(&stack, name, &action.body, vars)?;
+        self.users[u].actions.insert(key, Arc::clone(&body));
+        Some(body)
+    }
+
+    /// The body of the chart's action called as a subroutine, compiled once.
+    pub(super) fn chart_action_body(
+        &mut self,
+        name: &Ident,
+        body: &'a [Stmt],
+        vars: &[VarInfo],
+    ) -> Option<Arc<Vec<CStmt>>> {
+        let key = name.key();
+        if let Some(body) = self.called_actions.get(&key) {
+            return Some(Arc::clone(body));
+        }
+        let compiled = self.action_body(&key, name, body, vars)?;
+        self.called_actions.insert(key, Arc::clone(&compiled));
+        Some(compiled)
+    }
+
+    pub(super) fn action_body(
+        &mut self,
+        key: &str,
+        name: &Ident,
+        body: &[Stmt],
+        vars: &[VarInfo],
+    ) -> Option<Arc<Vec<CStmt>>> {
+        if self.calling_actions.iter().any(|k| k == key) {
+            self.error(name.span, format!("action `{}` calls itself, directly or through others", name.name));
+            return None;
+        }
+        if self.calling_actions.len() >= NESTING_DEPTH_MAX {
+            self.error(name.span, format!("calls of actions nested more than {NESTING_DEPTH_MAX} levels deep"));
+            return None;
+        }
+        self.calling_actions.push(key.to_string());
+        let compiled = self.statements(body, vars);
+        self.calling_actions.pop();
+        Some(Arc::new(compiled))
+    }
+
+    /// A hidden variable for the ENO of a call of `callee` that has none of its own (an action).
+    pub(super) fn call_eno(&mut self, callee: &Ident) -> VarId {
+        let id = VarId((self.declared + self.temps.len()) as u32);
+        self.temps.push(VarInfo {
+            name: format!("{}.ENO#{}", callee.name, self.temps.len() + 1),
+            ty: Type::Bool,
+            init: Value::Bool(false),
+            constant: false,
+            section: VarSection::Temp,
+            hidden: true,
+        });
+        id
+    }
+
+    /// A member of an instance, by name (hidden state has none).
+    pub(super) fn member(&mut self, fb: StdFb, base: VarId, inst: &Ident, field: &Ident) -> Option<VarId> {
+        let members = fb.members();
+        match members.iter().position(|m| m.kind != MemberKind::State && m.name.eq_ignore_ascii_case(&field.name)) {
+            Some(i) => Some(VarId(base.0 + i as u32)),
+            None => {
+                let list = |kind: MemberKind| {
+                    members.iter().filter(|m| m.kind == kind).map(|m| m.name).collect::<Vec<_>>().join(", ")
+                };
+                let message = format!(
+                    "{} has no member `{}` (`{}` is a {}: its inputs are {}; its outputs {})",
+                    fb.name(),
+                    field.name,
+                    inst.name,
+                    fb.name(),
+                    list(MemberKind::Input),
+                    list(MemberKind::Output)
+                );
+                self.error(field.span, message);
+                None
+            }
+        }
+    }
+
+    /// A call of a standard function block instance as a statement.
+    pub(super) fn fb_call(&mut self, callee: &Ident, args: &[Arg], span: Span, vars: &[VarInfo]) -> Option<CStmt> {
+        if let Some(plain) = self.unqualified_name(callee) {
+            return self.fb_call(&plain, args, span, vars);
+        }
+        if let Some((instance, action)) = callee.name.rsplit_once('.') {
+            return self.instance_action_call(callee, instance, action, args);
+        }
+        if let Some((input, parts)) = DatePart::of_split(&callee.key()) {
+            return self.split_call(callee, args, Ty::of(&input), parts, vars);
+        }
+        // A variable of the action's name shadows the action (Beremiz lets an action `Blink` call its TON `blink`).
+        if !self.declared_name(&callee.key()) {
+            if let Some(called) = self.own_action_call(callee, args, vars) {
+                return called;
+            }
+        }
+        if let Some(&u) = self.user_of.get(&callee.key()) {
+            return self.user_call(u, callee, args, vars);
+        }
+        let Some(&(fb, base)) = self.instances.get(&callee.key()) else {
+            let message = if StdFb::from_name(&callee.key()).is_some() {
+                format!(
+                    "`{0}` is a function block type: declare an instance (`t1 : {0};`) and call that",
+                    callee.name.to_ascii_uppercase()
+                )
+            } else if Func::from_name(&callee.key()).is_some() {
+                format!("`{}` is a function: use its result (`x := {}(…);`)", callee.name, callee.name)
+            } else if let Some(&v) = self.vars.get(&callee.key()) {
+                match vars.get(v.index()).map(|v| &v.ty) {
+                    Some(Type::Unsupported(ty)) => format!(
+                        "`{}` is a {ty} instance: Baton runs the standard function blocks (TON, TOF, TP, R_TRIG, F_TRIG, CTU, CTD, CTUD, SR, RS), not user function blocks yet",
+                        callee.name
+                    ),
+                    _ => format!("`{}` is a variable, not a function block instance: it cannot be called", callee.name),
+                }
+            } else if self.chart.broken.var(&callee.key()) {
+                return None;
+            } else {
+                format!(
+                    "unknown function block instance `{}`: declare it as a variable, such as `{}: TON;`",
+                    callee.name, callee.name
+                )
+            };
+            self.error(callee.span, message);
+            return None;
+        };
+        let members = fb.members();
+        let inputs_order: Vec<usize> = (0..members.len()).filter(|&i| members[i].kind == MemberKind::Input).collect();
+        let (mut en, mut inputs, mut outputs) = (None, Vec::new(), Vec::new());
+        let formal = args.iter().any(|a| a.name.is_some());
+        let mut positional = 0;
+        let mut ok = true;
+        for arg in args {
+            if formal && arg.name.is_none() {
+                self.error(arg.span, "a call mixes formal (`IN := x`) and non-formal arguments: name every argument");
+                ok = false;
+                continue;
+            }
+            let name = arg.name.as_ref();
+            if name.is_some_and(|n| n.key() == "EN") {
+                if arg.output {
+                    self.error(arg.span, "EN is an input: write `EN := condition`");
+                    ok = false;
+                } else {
+                    en = Some(self.condition(&arg.value, vars, "EN"));
+                }
+                continue;
+            }
+            let index = match name {
+                Some(n) => match members
+                    .iter()
+                    .position(|m| m.kind != MemberKind::State && m.name.eq_ignore_ascii_case(&n.name))
+                {
+                    Some(i) => i,
+                    None => {
+                        self.member(fb, base, callee, n);
+                        ok = false;
+                        continue;
+                    }
+                },
+                None => match inputs_order.get(positional) {
+                    Some(&i) => {
+                        positional += 1;
+                        i
+                    }
+                    None => {
+                        let message = format!("too many arguments: {} takes {} inputs", fb.name(), inputs_order.len());
+                        self.error(arg.span, message);
+                        ok = false;
+                        continue;
+                    }
+                },
+            };
+            let member = &members[index];
+            let id = VarId(base.0 + index as u32);
+            if arg.output {
+                if member.kind == MemberKind::Input {
+                    let message =
+                        format!("`{}` is an input of {}: write `{} := value`", member.name, fb.name(), member.name);
+                    self.error(arg.span, message);
+                    ok = false;
+                    continue;
+                }
+                let Some(target) = self.place(&arg.value, vars) else {
+                    ok = false;
+                    continue;
+                };
+                let target_ty = Ty::of(&vars[target.index()].ty);
+                let member_ty = Ty::of(&member.ty);
+                if arg.negated && member_ty != Ty::Bool {
+                    self.error(
+                        arg.span,
+                        format!("NOT applies to BOOL outputs, and `{}` is {}", member.name, member.ty),
+                    );
+                    ok = false;
+                } else if !assignable(target_ty, member_ty) {
+                    let message = format!(
+                        "`{}` is {} and cannot be written to `{}`, which is {}",
+                        member.name,
+                        member.ty,
+                        vars[target.index()].name,
+                        vars[target.index()].ty
+                    );
+                    self.error(arg.value.span, message);
+                    ok = false;
+                } else {
+                    outputs.push(FbOutput { member: id, target, negated: arg.negated });
+                }
+                continue;
+            }
+            if member.kind != MemberKind::Input {
+                let message =
+                    format!("`{}` is an output of {}: write `{} => variable`", member.name, fb.name(), member.name);
+                self.error(arg.span, message);
+                ok = false;
+                continue;
+            }
+            let (mut value, mut ty) = self.expr(&arg.value, vars);
+            if Ty::of(&member.ty) == Ty::Bool {
+                if let ExprKind::Int(v @ (0 | 1)) = arg.value.kind {
+                    (value, ty) = (CExpr::Const(Value::Bool(v == 1)), Ty::Bool);
+                }
+            }
+            if !assignable(Ty::of(&member.ty), ty) {
+                let message = format!("input `{}` of {} is {}, found {}", member.name, fb.name(), member.ty, ty.name());
+                self.error(arg.value.span, message);
+                ok = false;
+                continue;
+            }
+            inputs.push((id, value));
+        }
+        let _ = span;
+        ok.then_some(CStmt::Fb { fb, base, en, inputs, outputs })
+    }
+
+    /// A call of a user function block instance: formal or non-formal inputs and in-outs (in declaration
+    /// order), outputs with `=>`, EN and ENO.
+    pub(super) fn user_call(&mut self, u: usize, callee: &Ident, args: &[Arg], vars: &[VarInfo]) -> Option<CStmt> {
+        let def_name = self.users[u].def.name.name.clone();
+        let params = self.users[u].params.clone();
+        let eno = self.users[u].eno;
+        let positional_params: Vec<usize> = (0..params.len()).filter(|&i| params[i].1 != VarSection::Output).collect();
+        let formal = args.iter().any(|a| a.name.is_some());
+        let (mut en, mut inputs, mut inouts, mut outputs) = (None, Vec::new(), Vec::new(), Vec::new());
+        let mut ok = true;
+        let mut positional = 0;
+        let list = || params.iter().map(|p| p.0.clone()).collect::<Vec<_>>().join(", ");
+        for arg in args {
+            if formal && arg.name.is_none() {
+                self.error(arg.span, "a call mixes formal (`IN := x`) and non-formal arguments: name every argument");
+                ok = false;
+                continue;
+            }
+            let index = match &arg.name {
+                Some(n) if n.key() == "EN" => {
+                    en = Some(self.condition(&arg.value, vars, "EN"));
+                    continue;
+                }
+                Some(n) if n.key() == "ENO" && arg.output => {
+                    if let Some(target) = self.place(&arg.value, vars) {
+                        outputs.push(FbOutput { member: eno, target, negated: arg.negated });
+                    }
+                    continue;
+                }
+                Some(n) => match params.iter().position(|p| p.0.eq_ignore_ascii_case(&n.name)) {
+                    Some(i) => i,
+                    None => {
+                        let message =
+                            format!("function block `{def_name}` has no parameter `{}` (it has {})", n.name, list());
+                        self.error(n.span, message);
+                        ok = false;
+                        continue;
+                    }
+                },
+                None => match positional_params.get(positional) {
+                    Some(&i) => {
+                        positional += 1;
+                        i
+                    }
+                    None => {
+                        let message =
+                            format!("too many arguments: `{def_name}` takes {} inputs", positional_params.len());
+                        self.error(arg.span, message);
+                        ok = false;
+                        continue;
+                    }
+                },
+            };
+            let (name, section, id) = params[index].clone();
+            match (section, arg.output) {
+                (VarSection::Output, true) => {
+                    let Some(target) = self.place(&arg.value, vars) else {
+                        ok = false;
+                        continue;
+                    };
+                    if !assignable(Ty::of(&vars[target.index()].ty), Ty::of(&vars[id.index()].ty)) {
+                        let message = format!(
+                            "`{name}` is {} and cannot be written to `{}`, which is {}",
+                            vars[id.index()].ty,
+                            vars[target.index()].name,
+                            vars[target.index()].ty
+                        );
+                        self.error(arg.value.span, message);
+                        ok = false;
+                        continue;
+                    }
+                    outputs.push(FbOutput { member: id, target, negated: arg.negated });
+                }
+                (VarSection::Output, false) => {
+                    self.error(arg.span, format!("`{name}` is an output of `{def_name}`: write `{name} => variable`"));
+                    ok = false;
+                }
+                (VarSection::InOut, false) => {
+                    let Some(caller) = self.place(&arg.value, vars) else {
+                        ok = false;
+                        continue;
+                    };
+                    if vars[caller.index()].ty != vars[id.index()].ty {
+                        let message = format!(
+                            "in-out `{name}` of `{def_name}` is {}, and `{}` is {}",
+                            vars[id.index()].ty,
+                            vars[caller.index()].name,
+                            vars[caller.index()].ty
+                        );
+                        self.error(arg.value.span, message);
+                        ok = false;
+                        continue;
+                    }
+                    inouts.push((id, caller));
+                }
+                (_, true) => {
+                    self.error(arg.span, format!("`{name}` is an input of `{def_name}`: write `{name} := value`"));
+                    ok = false;
+                }
+                (_, false) => {
+                    let (mut value, mut ty) = self.expr(&arg.value, vars);
+                    let target = Ty::of(&vars[id.index()].ty);
+                    if target == Ty::Bool {
+                        if let ExprKind::Int(v @ (0 | 1)) = arg.value.kind {
+                            (value, ty) = (CExpr::Const(Value::Bool(v == 1)), Ty::Bool);
+                        }
+                    }
+                    if !assignable(target, ty) {
+                        let message =
+                            format!("input `{name}` of `{def_name}` is {}, found {}", vars[id.index()].ty, ty.name());
+                        self.error(arg.value.span, message);
+                        ok = false;
+                        continue;
+                    }
+                    inputs.push((id, value));
+                }
+            }
+        }
+        let _ = callee;
+        let body = Arc::clone(&self.users[u].body);
+        ok.then(|| CStmt::UserFb(Box::new(UserCall { body, en, inputs, inouts, outputs, eno })))
+    }
+}
