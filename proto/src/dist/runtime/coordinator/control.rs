@@ -1,0 +1,94 @@
+//! Control from outside: `baton set` (an input, checked and applied) and `baton status`.
+
+use super::*;
+
+impl Coordinator {
+    /// `baton set NAME=VALUE`: sets an input (a variable no action writes) before the next cycle.
+    pub fn handle_set(&mut self, now_ms: u64, name: &str, value: &serde_json::Value) -> Result<String, String> {
+        self.advance(now_ms);
+        let (var, v) = self.check_set(name, value)?;
+        let program = Arc::clone(&self.program);
+        let info = &program.vars[var.index()];
+        let shown = info.ty.show(&v);
+        self.engine.handle(Input::Set(var, v)).map_err(|e| e.to_string())?;
+        let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Set, &info.name);
+        rec.message = Some(shown.clone());
+        self.trace(rec);
+        self.settle();
+        Ok(format!("{} := {shown}", info.name))
+    }
+
+    /// Whether `baton set NAME=VALUE` would apply; why not, if not (then it is not journaled).
+    pub fn check_set(&self, name: &str, value: &serde_json::Value) -> Result<(VarId, Value), String> {
+        let var = self
+            .program
+            .var_by_name(name)
+            .ok_or_else(|| format!("chart `{}` has no variable `{name}`", self.program.name))?;
+        let info = &self.program.vars[var.index()];
+        if !self.layout.settable[var.index()] {
+            let why = if info.constant {
+                "it is a CONSTANT".to_string()
+            } else {
+                format!("the chart writes it on {}", self.layout.writer[var.index()])
+            };
+            return Err(format!("`{}` cannot be set: {why}", info.name));
+        }
+        let v = parse_value(&info.ty, value)
+            .ok_or_else(|| format!("`{}` is {}, and {value} is not a {} value", info.name, info.ty, info.ty))?;
+        Ok((var, v))
+    }
+
+    pub fn status(&self) -> StatusReport {
+        let mut active_steps: Vec<StatusStep> = self
+            .engine
+            .active_steps()
+            .iter()
+            .map(|&s| StatusStep {
+                name: self.program.steps[s.index()].name.clone(),
+                placement: self.layout.placement[s.index()].to_string(),
+                agent: self.holder(s).map(str::to_string),
+            })
+            .collect();
+        active_steps.sort_by(|a, b| a.name.cmp(&b.name));
+        let mut tokens: Vec<StatusToken> = self
+            .tokens
+            .iter()
+            .map(|(id, t)| StatusToken {
+                token: *id,
+                epoch: t.epoch,
+                entry: self.program.steps[t.entry.index()].name.clone(),
+                agent: t.agent.clone(),
+                since_ms: t.dispatched_ms,
+                paused: t.paused,
+            })
+            .collect();
+        tokens.sort_by_key(|t| (t.since_ms, t.token));
+        let agents = self
+            .agents
+            .iter()
+            .filter(|(_, a)| a.alive)
+            .map(|(name, a)| StatusAgent {
+                name: name.clone(),
+                roles: a.roles.clone(),
+                tokens: a.tokens,
+                devices_down: a
+                    .devices_down
+                    .iter()
+                    .map(|(b, why)| {
+                        let binding = &self.layout.io[*b as usize];
+                        StatusDevice { var: binding.name.clone(), device: binding.device(), message: why.clone() }
+                    })
+                    .collect(),
+            })
+            .collect();
+        StatusReport {
+            run: self.run,
+            chart: self.program.name.clone(),
+            hash: self.hash.clone(),
+            t_ms: self.now_ms,
+            active_steps,
+            tokens,
+            agents,
+        }
+    }
+}
