@@ -1,5 +1,7 @@
-//! Scenarios as data. A simulation scenario is a folder with `chart.st` (or `chart.xml`), an optional `inputs.jsonl`, an optional
-//! `sim.json` (`{"cycle_ms": 10, "until_ms": 1000}`) and `expected.jsonl`; a diagnostics scenario is a `NAME.st` (or `NAME.xml`)
+//! Scenarios as data. A simulation scenario is a folder with `chart.st` (or `chart.xml`), an optional `inputs.jsonl`,
+//! an optional
+//! `sim.json` (`{"cycle_ms": 10, "until_ms": 1000}`) and `expected.jsonl`; a diagnostics scenario is a `NAME.st` (or
+//! `NAME.xml`)
 //! beside `NAME.expected`, the exact text `baton check` prints. `check` is the only code that drives them, so a
 //! refactor touches one place. `UPDATE_EXPECT=1` rewrites the expectations instead; review the diff.
 

@@ -1,4 +1,5 @@
-//! The `opcua_method` skill and variables bound to OPC UA nodes, against an OPC UA server Baton did not write: FreeOpcUa's asyncua (PyPI), running
+//! The `opcua_method` skill and variables bound to OPC UA nodes, against an OPC UA server Baton did not write:
+//! FreeOpcUa's asyncua (PyPI), running
 //! `tests/scripts/opcua_server.py` on a loopback port. The chart names its endpoint; the test writes the
 //! server's port into a copy of the chart.
 

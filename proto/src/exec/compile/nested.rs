@@ -1,4 +1,5 @@
-//! Charts nested in a chart's function blocks: their steps, transitions and actions, lowered to the program's nested charts.
+//! Charts nested in a chart's function blocks: their steps, transitions and actions, lowered to the program's nested
+//! charts.
 
 use super::*;
 

@@ -1,4 +1,5 @@
-//! The net's reconstruction: an SFC body's elements, and each transition's source and target steps, walked back and forward through divergences, convergences, macro steps and jumps.
+//! The net's reconstruction: an SFC body's elements, and each transition's source and target steps, walked back and
+//! forward through divergences, convergences, macro steps and jumps.
 
 use super::*;
 

@@ -1,4 +1,5 @@
-//! Baton's element order (`ORDER_DATA`): an export's steps, transitions and actions read back in the order they were written.
+//! Baton's element order (`ORDER_DATA`): an export's steps, transitions and actions read back in the order they were
+//! written.
 
 use super::*;
 

@@ -1,4 +1,5 @@
-//! POUs and types: programs and function blocks with their interfaces, data types, global variable lists, and named actions and their bodies.
+//! POUs and types: programs and function blocks with their interfaces, data types, global variable lists, and named
+//! actions and their bodies.
 
 use super::*;
 

@@ -1,4 +1,5 @@
-//! LD and FBD networks as expressions and assignments: contacts, coils, blocks and their wires, for conditions and action bodies.
+//! LD and FBD networks as expressions and assignments: contacts, coils, blocks and their wires, for conditions and
+//! action bodies.
 
 use super::*;
 

@@ -1,4 +1,5 @@
-//! XML helpers: elements by local name in any TC6 namespace, ids and flags, positions, and the markup of a body blanked in place so that ST in it keeps its offsets in the file.
+//! XML helpers: elements by local name in any TC6 namespace, ids and flags, positions, and the markup of a body blanked
+//! in place so that ST in it keeps its offsets in the file.
 
 use super::*;
 

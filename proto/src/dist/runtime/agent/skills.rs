@@ -1,4 +1,5 @@
-//! Skills: what a skill that an action started says back — done, failed, an output value, stopped — set on the association's indicators.
+//! Skills: what a skill that an action started says back — done, failed, an output value, stopped — set on the
+//! association's indicators.
 
 use super::*;
 

@@ -1,4 +1,5 @@
-//! Time: the agent's cycles on the run's grid, caught up after a stall, what is sent again, and the lease fence — no contact with the router for too long, and the tokens that may go elsewhere are stopped.
+//! Time: the agent's cycles on the run's grid, caught up after a stall, what is sent again, and the lease fence — no
+//! contact with the router for too long, and the tokens that may go elsewhere are stopped.
 
 use super::*;
 

@@ -1,4 +1,5 @@
-//! Tokens: a dispatch taken once per epoch, its segment run by the agent's engine, what happened reported (and sent again until acknowledged), a join, a drop, and what finished.
+//! Tokens: a dispatch taken once per epoch, its segment run by the agent's engine, what happened reported (and sent
+//! again until acknowledged), a join, a drop, and what finished.
 
 use super::*;
 

@@ -1,4 +1,5 @@
-//! Variables: the values this agent writes, published with an update number; the values it reads, taken only from their writer's current process or the coordinator, in order.
+//! Variables: the values this agent writes, published with an update number; the values it reads, taken only from their
+//! writer's current process or the coordinator, in order.
 
 use super::*;
 

@@ -1,4 +1,5 @@
-//! Membership: agents that come up (with who they are and which process), go down, collide on a name, and the peers table every agent is told.
+//! Membership: agents that come up (with who they are and which process), go down, collide on a name, and the peers
+//! table every agent is told.
 
 use super::*;
 

@@ -1,4 +1,5 @@
-//! Reports: what an agent says it did with a token, admitted once and in order per token, mirrored in the coordinator's engine, or refused as stale.
+//! Reports: what an agent says it did with a token, admitted once and in order per token, mirrored in the coordinator's
+//! engine, or refused as stale.
 
 use super::*;
 

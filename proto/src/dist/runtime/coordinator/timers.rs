@@ -1,4 +1,5 @@
-//! Time: the run's cycles on their grid, the next deadline (`poll_timeout`), and what falls due — dispatches sent again, silent agents given up on, reassignments.
+//! Time: the run's cycles on their grid, the next deadline (`poll_timeout`), and what falls due — dispatches sent
+//! again, silent agents given up on, reassignments.
 
 use super::*;
 

@@ -1,4 +1,5 @@
-//! Tokens: made when the engine enters a placed segment, dispatched to an agent (or left waiting), sent again, acknowledged, finished when they come back, and restarted on another agent.
+//! Tokens: made when the engine enters a placed segment, dispatched to an agent (or left waiting), sent again,
+//! acknowledged, finished when they come back, and restarted on another agent.
 
 use super::*;
 

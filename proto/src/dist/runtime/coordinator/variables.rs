@@ -1,4 +1,5 @@
-//! Variables: the values an agent writes, taken from the writer's current process only, and the coordinator's own values published to the agents that read them.
+//! Variables: the values an agent writes, taken from the writer's current process only, and the coordinator's own
+//! values published to the agents that read them.
 
 use super::*;
 
