@@ -25,13 +25,13 @@ fn check_exit_codes() {
     assert_eq!(valid.status.code(), Some(0), "{}", String::from_utf8_lossy(&valid.stderr));
     assert!(String::from_utf8_lossy(&valid.stdout).contains("chart `Tank` is valid"));
 
-    let invalid = baton(&["check", &repo("tests/diagnostics/names.st")]);
+    let invalid = baton(&["check", &repo("tests/conformance/diagnostics/names.st")]);
     assert_eq!(invalid.status.code(), Some(1));
     let stderr = String::from_utf8_lossy(&invalid.stderr);
     assert!(stderr.contains("names.st:13:25: error: unknown step `Nowhere`"), "{stderr}");
     assert!(stderr.contains("^^^^^^^"), "offending text is underlined: {stderr}");
 
-    let warned = baton(&["check", &repo("tests/diagnostics/warnings_only.st")]);
+    let warned = baton(&["check", &repo("tests/conformance/diagnostics/warnings_only.st")]);
     assert_eq!(warned.status.code(), Some(0), "warnings keep exit 0");
     assert!(String::from_utf8_lossy(&warned.stderr).contains("warning:"));
 
@@ -83,7 +83,7 @@ fn sim_rejects_a_malformed_input_file_with_exit_2() {
 
 #[test]
 fn sim_refuses_an_invalid_chart_with_exit_1() {
-    let out = baton(&["sim", &repo("tests/diagnostics/unsafe_exit_from_parallel.st")]);
+    let out = baton(&["sim", &repo("tests/conformance/diagnostics/unsafe_exit_from_parallel.st")]);
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("unsafe chart"));
     assert!(out.stdout.is_empty());
@@ -138,7 +138,7 @@ fn a_reader_that_goes_away_ends_the_output_quietly() {
 
 #[test]
 fn check_json_lists_the_charts_and_every_diagnostic() {
-    let out = baton(&["check", "--json", &repo("tests/diagnostics/names.st")]);
+    let out = baton(&["check", "--json", &repo("tests/conformance/diagnostics/names.st")]);
     assert_eq!(out.status.code(), Some(1), "the exit status of baton check");
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
     let d = v["diagnostics"].as_array().expect("diagnostics");
@@ -182,7 +182,7 @@ fn export_writes_plcopen_that_baton_reads_back_and_refuses_an_invalid_chart() {
     assert_eq!(written.status.code(), Some(0));
     assert!(std::fs::read_to_string(&target).expect("written").contains("<pou name=\"cell\""));
 
-    let invalid = baton(&["export", "--plcopen", &repo("tests/diagnostics/names.st")]);
+    let invalid = baton(&["export", "--plcopen", &repo("tests/conformance/diagnostics/names.st")]);
     assert_eq!(invalid.status.code(), Some(1));
     assert!(invalid.stdout.is_empty(), "nothing is exported from a chart with errors");
     assert!(String::from_utf8_lossy(&invalid.stderr).contains("nothing was exported"));

@@ -1,6 +1,7 @@
 //! Test support for Baton: the scenario driver and chart generators shared by tests and benchmarks.
 
 pub mod cluster;
+pub mod conformance;
 pub mod gen;
 pub mod invariants;
 pub mod netns;
@@ -8,7 +9,6 @@ pub mod peer;
 pub mod reference;
 pub mod roundtrip;
 pub mod rrd;
-pub mod scenario;
 
 use std::path::PathBuf;
 

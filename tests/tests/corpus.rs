@@ -38,7 +38,7 @@ fn corpus_charts_parse_or_are_rejected_precisely() {
     let Some(files) = corpus_files() else { return };
     let failures: Vec<String> = files
         .iter()
-        .filter_map(|f| baton_tests::scenario::check_diagnostics_against(f, &expected_path(f)).err())
+        .filter_map(|f| baton_tests::conformance::check_diagnostics_against(f, &expected_path(f)).err())
         .collect();
     assert!(failures.is_empty(), "{}", failures.join("\n\n"));
 }

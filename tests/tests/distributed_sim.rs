@@ -617,10 +617,12 @@ fn a_timer_inside_a_user_block_on_an_agent_computes_what_baton_sim_computes() {
 /// a distributed run carries it and ends with what `baton sim` computes.
 #[test]
 fn a_nested_chart_on_an_agent_computes_what_baton_sim_computes() {
-    let source =
-        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/nested_action_chart/chart.st"))
-            .expect("scenario")
-            .replace("STEP Work: Batch(N); END_STEP", "STEP Work: {agent := 'r1'} Batch(N); END_STEP");
+    let source = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/conformance/traces/nested_action_chart/chart.st"
+    ))
+    .expect("scenario")
+    .replace("STEP Work: Batch(N); END_STEP", "STEP Work: {agent := 'r1'} Batch(N); END_STEP");
     assert!(source.contains("{agent := 'r1'}"), "the scenario still has the step placed here");
     let names = ["fills", "mixes", "valve", "beep", "Batch.Hold.X", "Batch.Leave.Q"];
     let expected = baton_tests::reference::final_shown(&source, 10, &names);

@@ -1,4 +1,4 @@
-//! `baton export --plcopen`: every chart of the project's scenarios, examples and test charts, and every valid
+//! `baton export --plcopen`: every chart of the project's conformance cases, examples and test charts, and every valid
 //! chart of the shared corpus, written as PLCopen TC6 v2.01 and read back, is the same program with the same
 //! trace; and the files validate against the TC6 schema and parse with the `plcopen` package's bindings —
 //! implementations we did not write.
@@ -14,7 +14,7 @@ fn repo(path: &str) -> PathBuf {
 /// Every chart source of the project, and the corpus files that load.
 fn sources() -> Vec<(String, String)> {
     let mut files = Vec::new();
-    for dir in ["tests/scenarios", "examples", "tests/charts"] {
+    for dir in ["tests/conformance/traces", "examples", "tests/charts"] {
         let mut entries: Vec<PathBuf> =
             std::fs::read_dir(repo(dir)).expect("project folder").map(|e| e.expect("entry").path()).collect();
         entries.sort();
@@ -49,7 +49,7 @@ fn every_valid_chart_reads_back_from_its_export_as_the_same_program_with_the_sam
     let mut exported = 0;
     for (what, src) in &sources {
         if baton_proto::pipeline::check_source(src).error_count() > 0 {
-            continue; // diagnostics scenarios and refused corpus files
+            continue; // diagnostics cases and refused corpus files
         }
         // Every valid chart exports: blocks and edge contacts wired into conditions (Beremiz's traffic light,
         // plcopen_wired_blocks) are read as the action Beremiz compiles them to, which exports as any action.

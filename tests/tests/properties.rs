@@ -251,7 +251,7 @@ proptest! {
         len in 0usize..40,
         insert in "[ -~]{0,8}",
     ) {
-        check_mutated(include_str!("../scenarios/st_arithmetic/chart.st"), cut, len, &insert);
+        check_mutated(include_str!("../conformance/traces/st_arithmetic/chart.st"), cut, len, &insert);
     }
 }
 

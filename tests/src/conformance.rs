@@ -1,9 +1,10 @@
-//! Scenarios as data. A simulation scenario is a folder with `chart.st` (or `chart.xml`), an optional `inputs.jsonl`,
-//! an optional
-//! `sim.json` (`{"cycle_ms": 10, "until_ms": 1000}`) and `expected.jsonl`; a diagnostics scenario is a `NAME.st` (or
-//! `NAME.xml`)
+//! Conformance cases as data, in `tests/conformance/`: a trace case is a folder in `traces/` with `chart.st` (or
+//! `chart.xml`), an optional `inputs.jsonl`, an optional `sim.json` (`{"cycle_ms": 10, "until_ms": 1000}`) and
+//! `expected.jsonl`, what `baton sim` prints; a diagnostics case is a `NAME.st` (or `NAME.xml`) in `diagnostics/`
 //! beside `NAME.expected`, the exact text `baton check` prints. `check` is the only code that drives them, so a
 //! refactor touches one place. `UPDATE_EXPECT=1` rewrites the expectations instead; review the diff.
+//!
+//! ("Scenario" is the word for users' `*.test.toml` files, which `baton test` runs.)
 
 use std::fs;
 use std::path::Path;
@@ -21,7 +22,7 @@ fn updating() -> bool {
     std::env::var_os("UPDATE_EXPECT").is_some()
 }
 
-/// Checks one scenario: a folder (simulation) or a `.st` file (diagnostics).
+/// Checks one conformance case: a folder (a trace case) or a `.st` or `.xml` file (a diagnostics case).
 pub fn check(path: &Path) -> Result<(), String> {
     if path.is_dir() {
         compare(&path.join("expected.jsonl"), &run_simulation(path)?)
