@@ -20,8 +20,8 @@ pub mod connections;
 pub mod io;
 pub mod opcua;
 pub mod ros2;
+pub mod scenario_skills;
 pub mod shell;
-pub mod simulate;
 pub mod skill;
 
 pub use connections::Connections;

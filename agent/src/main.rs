@@ -115,7 +115,7 @@ fn agent_main() -> ExitCode {
         Some(path) => match baton_proto::testing::scenario::load(path, &|p| std::fs::read_to_string(p)) {
             Ok(sc) => {
                 let seed = args.seed.unwrap_or(sc.seed);
-                (baton_agent::simulate::Simulated::new(sc, seed).skills(), Connections::default())
+                (baton_agent::scenario_skills::Simulated::new(sc, seed).skills(), Connections::default())
             }
             Err(baton_proto::testing::scenario::LoadError::Malformed(errors)) => {
                 for e in errors {

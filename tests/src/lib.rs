@@ -1,9 +1,9 @@
 //! Test support for Baton: the scenario driver and chart generators shared by tests and benchmarks.
 
-pub mod cluster;
 pub mod conformance;
 pub mod gen;
 pub mod invariants;
+pub mod loopback;
 pub mod netns;
 pub mod peer;
 pub mod reference;

@@ -6,7 +6,7 @@ use std::process::Stdio;
 use tokio::io::{AsyncBufReadExt, BufReader, Lines};
 use tokio::process::{Child, ChildStdout, Command};
 
-use crate::cluster::{free_port, repo, TIMEOUT};
+use crate::loopback::{free_port, repo, TIMEOUT};
 
 /// A server process whose stdout says what it saw, one line per event; its stdin held open (it serves until
 /// stdin closes) and it is killed when dropped.

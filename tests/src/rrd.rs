@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use crate::cluster::repo;
+use crate::loopback::repo;
 
 /// Whether `python3` has rerun-sdk 0.36.3; in CI (`CI` set) its absence fails the test.
 pub fn reader_available() -> bool {

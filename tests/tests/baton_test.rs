@@ -9,7 +9,7 @@ use std::process::{Command, Output};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_proto::testing::run::run;
 use baton_proto::testing::scenario::{self, LoadError};
-use baton_tests::cluster::{bin, read_trace, repo};
+use baton_tests::loopback::{bin, read_trace, repo};
 
 fn scenario(path: &str) -> scenario::Scenario {
     match scenario::load(&repo(path), &|p| std::fs::read_to_string(p)) {
@@ -359,7 +359,7 @@ fn a_time_limit_or_an_interrupt_stops_the_runs_and_the_junit_report_is_still_wri
 /// says — the first step towards `baton test --cluster`.
 #[tokio::test(flavor = "multi_thread")]
 async fn agents_started_with_simulate_run_the_scenarios_skills_over_the_real_network() {
-    let mut cluster = baton_tests::cluster::Cluster::with_router().await;
+    let mut cluster = baton_tests::loopback::Cluster::with_router().await;
     let scenario_path = repo("examples/cell.test.toml");
     let scenario_arg = scenario_path.to_str().expect("utf-8");
     cluster.agent("robot1", &[], &["--simulate", scenario_arg]);
@@ -528,7 +528,7 @@ fn the_processes_of_a_cluster_run_die_with_their_runner() {
         .spawn()
         .expect("baton test starts");
     // Wait for its coordinator and both agents.
-    let deadline = std::time::Instant::now() + baton_tests::cluster::TIMEOUT;
+    let deadline = std::time::Instant::now() + baton_tests::loopback::TIMEOUT;
     let children = loop {
         let c = children_of(runner.id());
         if c.len() >= 3 {
@@ -543,7 +543,7 @@ fn the_processes_of_a_cluster_run_die_with_their_runner() {
         std::fs::read_to_string(format!("/proc/{pid}/stat"))
             .is_ok_and(|s| s.rsplit_once(')').is_some_and(|(_, rest)| !rest.trim_start().starts_with('Z')))
     };
-    let deadline = std::time::Instant::now() + baton_tests::cluster::TIMEOUT;
+    let deadline = std::time::Instant::now() + baton_tests::loopback::TIMEOUT;
     while children.iter().any(alive) {
         assert!(
             std::time::Instant::now() < deadline,

@@ -6,7 +6,7 @@ use baton_proto::dist::keys;
 use baton_proto::dist::netconfig::NetConfig;
 use baton_proto::dist::wire::{self, ChartHash, RunId, StatusReport, ToAgent, TokenId};
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::cluster::{check_trace_invariants, events, repo, Cluster, TIMEOUT};
+use baton_tests::loopback::{check_trace_invariants, events, repo, Cluster, TIMEOUT};
 use zenoh::sample::Locality;
 
 fn chart(name: &str) -> std::path::PathBuf {
@@ -304,7 +304,7 @@ async fn a_set_reaches_only_the_run_it_names() {
     let two = run_of(second.wait_for_log("running chart").await);
     let ep = cluster.endpoint.clone();
     // The second run's queryables reach the router a moment after it says it runs.
-    let listed = tokio::time::timeout(baton_tests::cluster::TIMEOUT, async {
+    let listed = tokio::time::timeout(baton_tests::loopback::TIMEOUT, async {
         loop {
             let status = cluster.baton(&["status", "--connect", &ep]).await;
             let listed = String::from_utf8_lossy(&status.stdout).to_string();

@@ -1,7 +1,7 @@
 //! The scan cycle on real processes: a distributed run computes what `baton sim` computes, whatever the traffic
 //! between the coordinator and its agents, and an idle run with a journal writes (almost) nothing.
 
-use baton_tests::cluster::{check_trace_invariants, repo, Cluster, TIMEOUT};
+use baton_tests::loopback::{check_trace_invariants, repo, Cluster, TIMEOUT};
 use baton_tests::reference::final_values;
 
 fn chart(name: &str) -> std::path::PathBuf {

@@ -2,13 +2,13 @@
 
 use baton_proto::dist::keys;
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::cluster::{
+use baton_tests::loopback::{
     self, check_trace_invariants, check_trace_invariants_with_tokens_out, dispatches, repo, step_id, Cluster, Samples,
 };
 
 /// Starts the one-part cell with two assemblers and waits, on the agents' command keys, for the dispatch of
 /// Assemble; returns the cluster, the coordinator and the agent that holds the token.
-async fn assembling(policy: &str) -> (Cluster, baton_tests::cluster::Coordinator, String, zenoh::Session) {
+async fn assembling(policy: &str) -> (Cluster, baton_tests::loopback::Coordinator, String, zenoh::Session) {
     let (cluster, coordinator, holder, session, _) = assembling_with(policy, 1, &[]).await;
     (cluster, coordinator, holder, session)
 }
@@ -19,7 +19,7 @@ async fn assembling_with(
     policy: &str,
     parts: u32,
     agent_args: &[&str],
-) -> (Cluster, baton_tests::cluster::Coordinator, String, zenoh::Session, Commands) {
+) -> (Cluster, baton_tests::loopback::Coordinator, String, zenoh::Session, Commands) {
     let mut cluster = Cluster::new();
     let parts = format!("parts={parts}");
     let mut coordinator = cluster.coordinator(&repo("examples/cell.st"), &["--set", &parts, "--on-agent-loss", policy]);
@@ -36,7 +36,7 @@ type Commands = Samples;
 
 /// Waits for the dispatch of the cell's `step` in `epoch`; returns the agent it went to.
 async fn next_dispatch(cmds: &Commands, step: &str, epoch: u32) -> String {
-    cluster::next_dispatch(cmds, step_id(&repo("examples/cell.st"), step), epoch).await.0
+    loopback::next_dispatch(cmds, step_id(&repo("examples/cell.st"), step), epoch).await.0
 }
 
 fn other(agent: &str) -> &'static str {

@@ -5,7 +5,7 @@
 use baton_proto::dist::keys;
 use baton_proto::dist::wire::{self, AgentInfo};
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::cluster::{bin, check_trace_invariants, events, read_trace, repo, Cluster, TIMEOUT};
+use baton_tests::loopback::{bin, check_trace_invariants, events, read_trace, repo, Cluster, TIMEOUT};
 use tokio::process::Command;
 
 fn chart() -> std::path::PathBuf {

@@ -5,7 +5,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 
 use baton_proto::dist::keys;
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::cluster::{self, check_trace_invariants, dispatches, free_port, repo, step_id, Cluster};
+use baton_tests::loopback::{self, check_trace_invariants, dispatches, free_port, repo, step_id, Cluster};
 use baton_tests::netns::Netns;
 
 /// A network namespace, or `None` where none can be made (not root, no iproute2): the test then says SKIPPED
@@ -29,7 +29,7 @@ async fn behind_a_cable(
     chart: &std::path::Path,
     extra: &[&str],
     roles: &[&str],
-) -> (Cluster, cluster::Coordinator, zenoh::Session, cluster::Samples) {
+) -> (Cluster, loopback::Coordinator, zenoh::Session, loopback::Samples) {
     let mut cluster = Cluster::new();
     let far = format!("tcp/{}:{}", netns.host_addr, free_port());
     let mut args = extra.to_vec();
@@ -59,7 +59,7 @@ async fn a_cut_off_agent_stops_before_its_token_moves_under_reassign() {
     let (mut cluster, mut coordinator, _watch, cmds) =
         behind_a_cable(&netns, &chart, &["--on-agent-loss", "reassign"], &["worker"]).await;
     let work = step_id(&chart, "Work");
-    let Some((holder, _)) = cluster::next_dispatch_within(&cmds, work, 1).await else {
+    let Some((holder, _)) = loopback::next_dispatch_within(&cmds, work, 1).await else {
         panic!("Work was not dispatched; the coordinator logged:\n{}", coordinator.unread_log().await);
     };
     assert_eq!(holder, "robot1");
@@ -67,7 +67,7 @@ async fn a_cut_off_agent_stops_before_its_token_moves_under_reassign() {
     coordinator.wait_for_log("agent `robot2` is live").await;
     netns.cut();
     let cut_ms = unix_ms();
-    let Some((moved_to, _)) = cluster::next_dispatch_within(&cmds, work, 2).await else {
+    let Some((moved_to, _)) = loopback::next_dispatch_within(&cmds, work, 2).await else {
         panic!("Work was not reassigned; the coordinator logged:\n{}", coordinator.unread_log().await);
     };
     let reassigned_ms = unix_ms();
@@ -107,7 +107,7 @@ async fn a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back() {
     let (mut cluster, mut coordinator, _watch, cmds) =
         behind_a_cable(&netns, &cell, &["--set", "parts=1"], &["assembler"]).await;
     cluster.agent("robot2", &[], &[]);
-    let Some((holder, _)) = cluster::next_dispatch_within(&cmds, step_id(&cell, "Assemble"), 1).await else {
+    let Some((holder, _)) = loopback::next_dispatch_within(&cmds, step_id(&cell, "Assemble"), 1).await else {
         panic!(
             "Assemble was not dispatched in time; the coordinator logged:\n{}\nrobot1:\n{}\nrobot2:\n{}",
             coordinator.unread_log().await,

@@ -3,7 +3,7 @@
 use baton_proto::dist::keys;
 use baton_proto::dist::wire::{self, Report};
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::cluster::{self, check_trace_invariants, dispatches, repo, step_id, Cluster, TIMEOUT};
+use baton_tests::loopback::{self, check_trace_invariants, dispatches, repo, step_id, Cluster, TIMEOUT};
 
 fn journal_args(cluster: &Cluster) -> Vec<String> {
     let journal = cluster.dir.path().join("journal");
@@ -26,7 +26,7 @@ async fn a_coordinator_killed_mid_segment_resumes_from_its_journal() {
     coordinator.wait_for_log("running chart").await;
     cluster.agent("robot1", &["assembler"], &[]);
     cluster.agent("robot2", &["assembler"], &[]);
-    let (holder, token) = cluster::next_dispatch(&cmds, step_id(&cell, "Assemble"), 1).await;
+    let (holder, token) = loopback::next_dispatch(&cmds, step_id(&cell, "Assemble"), 1).await;
     coordinator.kill().await;
     // The holder finishes with nobody to acknowledge it, and keeps its result: its done report goes out (and
     // out again, with backoff) unanswered.
@@ -73,7 +73,7 @@ async fn agents_reconnect_to_a_coordinator_restarted_with_its_router() {
     let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
     cluster.agent("robot1", &["assembler"], &[]);
     cluster.agent("robot2", &["assembler"], &[]);
-    cluster::next_dispatch(&cmds, step_id(&cell, "Pick2"), 1).await;
+    loopback::next_dispatch(&cmds, step_id(&cell, "Pick2"), 1).await;
     coordinator.kill().await;
     let coordinator = cluster.coordinator(&cell, &args);
     let (status, log, trace, summary) = coordinator.finish().await;

@@ -307,7 +307,7 @@ fn cell_losing_robot1(
 }
 
 fn assembled_by(sim: &SimCluster) -> Vec<(String, Option<u32>)> {
-    baton_tests::cluster::dispatches(&sim.trace, "Assemble")
+    baton_tests::loopback::dispatches(&sim.trace, "Assemble")
 }
 
 #[test]

@@ -4,7 +4,7 @@
 use std::time::Duration;
 
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::cluster::{repo, Cluster, TIMEOUT};
+use baton_tests::loopback::{repo, Cluster, TIMEOUT};
 use zenoh::pubsub::Publisher;
 use zenoh::Session;
 

@@ -6,7 +6,7 @@
 
 use baton_proto::limits::NESTING_DEPTH_MAX;
 use baton_proto::pipeline::check_source;
-use baton_tests::cluster::{bin, Cluster};
+use baton_tests::loopback::{bin, Cluster};
 
 /// One way code nests, `k` levels deep: what it adds before the program, to its variables, and as an action's
 /// body or a transition's condition; `n` is the counter it writes.

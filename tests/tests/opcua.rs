@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
-use baton_tests::cluster::{events, free_port, repo, Cluster, Coordinator};
+use baton_tests::loopback::{events, free_port, repo, Cluster, Coordinator};
 use baton_tests::peer::{opcua_server as server, opcua_server_on, with_opcua_port};
 
 /// `tests/charts/NAME` with the server's port in its endpoints.

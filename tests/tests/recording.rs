@@ -7,7 +7,7 @@ use std::path::Path;
 
 use baton_proto::dist::keys;
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
-use baton_tests::cluster::{self, read_trace, repo, step_id, Cluster};
+use baton_tests::loopback::{self, read_trace, repo, step_id, Cluster};
 use baton_tests::rrd::{log_lines, read_recording, reader_available};
 
 /// A step's activity over time: (time, active), the last of each instant, without repeats.
@@ -195,7 +195,7 @@ async fn a_lost_agent_and_the_reassignment_are_on_the_timeline() {
     let cmds = session.declare_subscriber(keys::agent_cmd_any("*")).await.expect("subscriber");
     cluster.agent("robot1", &["assembler"], &[]);
     cluster.agent("robot2", &["assembler"], &[]);
-    let (holder, token) = cluster::next_dispatch(&cmds, step_id(&cell, "Assemble"), 1).await;
+    let (holder, token) = loopback::next_dispatch(&cmds, step_id(&cell, "Assemble"), 1).await;
     let other = if holder == "robot1" { "robot2" } else { "robot1" };
     cluster.kill_agent(&holder).await;
     let (status, log, trace, _) = coordinator.finish().await;

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::process::Stdio;
 
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::cluster::{events, repo, Cluster};
+use baton_tests::loopback::{events, repo, Cluster};
 use baton_tests::peer::{opcua_server, with_opcua_port, Server};
 use tokio::process::Command;
 
@@ -313,7 +313,7 @@ async fn a_robot_on_dds_only_is_driven_through_zenoh_bridge_ros2dds() {
     }
     let mut cluster = Cluster::with_router().await;
     // A DDS domain of the test's own, on loopback.
-    let domain = (baton_tests::cluster::free_port() % 200 + 1).to_string();
+    let domain = (baton_tests::loopback::free_port() % 200 + 1).to_string();
     let mut cmd = Command::new("python3");
     cmd.arg(repo("tests/scripts/dds_robot.py")).arg(&domain).env("CYCLONEDDS_URI", CYCLONE_ON_LOOPBACK);
     let mut robot = Server::start(cmd);

@@ -8,9 +8,9 @@
 //! are taken together, the latest of each. So a device that floods the agent, or one that answers slowly,
 //! costs a bounded amount of memory and work: one value per binding.
 
-pub mod keys;
 pub mod nodes;
 pub mod topics;
+pub mod zenoh_keys;
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
@@ -134,11 +134,17 @@ impl Devices {
         for (i, b) in here {
             match (b.kind, b.dir) {
                 (IoKind::Zenoh, IoDir::Input) => {
-                    devices.tasks.push(tokio::spawn(keys::input(session.clone(), i, b.clone(), sink.clone())));
+                    devices.tasks.push(tokio::spawn(zenoh_keys::input(session.clone(), i, b.clone(), sink.clone())));
                 }
                 (IoKind::Zenoh, IoDir::Output) => {
                     let latest = devices.output(i);
-                    devices.tasks.push(tokio::spawn(keys::output(session.clone(), i, b.clone(), latest, sink.clone())));
+                    devices.tasks.push(tokio::spawn(zenoh_keys::output(
+                        session.clone(),
+                        i,
+                        b.clone(),
+                        latest,
+                        sink.clone(),
+                    )));
                 }
                 (IoKind::Ros2, dir) => {
                     let Some(ros2) = connections.ros2() else {

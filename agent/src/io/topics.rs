@@ -19,7 +19,7 @@ use zenoh::Session;
 
 use super::{Latest, Resend, Sink};
 use crate::ros2::interfaces::{TopicType, WireType};
-use crate::ros2::keys::{self, Kind};
+use crate::ros2::rmw_keys::{self as keys, Kind};
 use crate::ros2::{cdr, Ros2};
 
 /// How long an input waits for the ROS graph to show a publisher before it says there is none: the graph's

@@ -15,7 +15,7 @@ use zenoh::sample::SampleKind;
 use zenoh::Session;
 
 use super::interfaces::{ActionType, Interfaces, ServiceType, TopicType, WireType};
-use super::keys::{self, Kind, NodeId, Via};
+use super::rmw_keys::{self as keys, Kind, NodeId, Via};
 
 /// A call whose server takes this long to answer is given up: a service answers at once, and an action's
 /// result is waited for through its own step time in the chart. (rmw_zenoh waits for ever.)

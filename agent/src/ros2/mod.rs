@@ -7,9 +7,9 @@
 pub mod cdr;
 pub mod client;
 pub mod interfaces;
-pub mod keys;
+pub mod rmw_keys;
 pub mod skills;
 
 pub use client::Ros2;
 pub use interfaces::{Distro, Interfaces};
-pub use keys::Via;
+pub use rmw_keys::Via;

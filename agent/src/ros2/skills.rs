@@ -22,7 +22,7 @@ use baton_proto::types::Value;
 use super::cdr::{self, RosValue};
 use super::client::{Node, Ros2};
 use super::interfaces::{ActionType, Interfaces, ServiceType};
-use super::keys::{self, Kind};
+use super::rmw_keys::{self as keys, Kind};
 use crate::skill::{outputs_of, Skill, SkillCall, SkillFuture};
 
 const TIMEOUT_MS_DEFAULT: f64 = 5000.0;

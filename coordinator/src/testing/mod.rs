@@ -7,7 +7,7 @@
 //! malformed (`FILE:LINE:COL`). The highest applies.
 
 pub mod cable;
-pub mod cluster;
+pub mod real_processes;
 
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -243,7 +243,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
     let mut runnable: Vec<(usize, u64)> = Vec::new();
     for path in &files {
         let v = match scenario::load(path, &|p| std::fs::read_to_string(p)) {
-            Ok(sc) => match opts.cluster.then(|| cluster::unsupported(&sc)).flatten() {
+            Ok(sc) => match opts.cluster.then(|| real_processes::unsupported(&sc)).flatten() {
                 Some(why) => Verdict::refused(path, EXIT_CANNOT_RUN, format!("{}: {why}", path.display())),
                 None => {
                     let i = verdicts.len();
@@ -291,7 +291,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
     let finished = AtomicUsize::new(0);
     let timed_out = AtomicBool::new(false);
     let bins = if opts.cluster {
-        match cluster::Binaries::find() {
+        match real_processes::Binaries::find() {
             Ok(b) => Some(b),
             Err(e) => {
                 eprintln!("error: {e:#}");
@@ -302,7 +302,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
         None
     };
     let run_one = |sc: &Scenario, seed: u64, stop: &AtomicBool| match &bins {
-        Some(b) => cluster::run_until(sc, seed, stop, b, &opts.out),
+        Some(b) => real_processes::run_until(sc, seed, stop, b, &opts.out),
         None => run_until(sc, seed, stop),
     };
     catch_interrupts();
