@@ -9,7 +9,7 @@ pub fn cell_chart(robots: usize) -> String {
     let list = |f: &dyn Fn(usize) -> String| ks.iter().map(|&k| f(k)).collect::<Vec<_>>();
     let mut s = String::new();
     s.push_str(&format!(
-        "(* A multi-robot cell, the chart `baton demo` runs.\n   {robots} robot(s) pick parts in parallel; when every robot has picked, a robot with the role\n   `assembler` assembles the part and inspects it; inspection passes the part or sends it to rework; the\n   cell loops until `parts` parts are done. Skills are bound in the ACTIONs below (see the README). *)\n"
+        "(* A multi-robot cell, the chart `baton demo` runs.\n   {robots} robot(s) pick parts in parallel; when every robot has picked, a robot with the role\n   `assembler` assembles the part and inspects it; inspection passes the part or sends it to rework; the\n   cell loops until `parts` parts are done. Skills are bound in the ACTIONs below (the user guide's chapter\n   \"Skills and devices\" says how). *)\n"
     ));
     s.push_str(
         "PROGRAM cell\nVAR_INPUT\n  parts : INT := 3;\nEND_VAR\nVAR\n  done : INT := 0;\n  reworks : INT := 0;\n",

@@ -4,7 +4,7 @@
 //! passes them through a bounded queue to a thread of its own that logs them: the coordinator's cycle never
 //! waits for Rerun. When the queue is full (a slow sink), records are dropped and counted, and the run says so.
 //!
-//! Entity paths (documented in the README):
+//! Entity paths (documented in the user guide, `docs/book/src/rerun.md`):
 //! - `sfc/graph` — the chart: steps as nodes, transitions as edges, laid out once; node colours follow the
 //!   steps (active here, active on an agent, waiting at a convergence, faulted, inactive).
 //! - `sfc/steps/<step>` — each step's state over time: `active` (on the coordinator), `on <agent>`,
@@ -15,6 +15,14 @@
 //! - `log` — alarms and warnings: agents lost, stale epochs rejected, skill faults, run-time faults.
 //!
 //! Two timelines: `wall` (Unix time) and `cycle` (the coordinator's cycle number).
+//!
+//! # Rules the recording keeps
+//!
+//! - Recording never paces the coordinator: the shell only clones records into a bounded channel (`try_send`; a full
+//!   channel drops and counts); the Rerun SDK runs on the `baton-rerun` thread. The recording is derived from the trace
+//!   and variable values alone, so a replayed journal yields the same recording as the live run. Anything logged
+//!   `static` in Rerun hides every timed value of the same component, so only what never changes (graph nodes and
+//!   edges, state colours, series styles) is static.
 
 use std::collections::{BTreeMap, HashMap};
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs};

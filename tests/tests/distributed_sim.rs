@@ -111,7 +111,7 @@ fn a_role_served_by_two_agents_shares_the_work() {
 }
 
 /// The seeds of the random runs: `BATON_SIM_SEED=N` replays one, `BATON_SIM_SEEDS=N` runs seeds 0 to N − 1
-/// (64 by default; the soak in the README runs thousands).
+/// (64 by default; the soak in CONTRIBUTING.md runs thousands).
 fn seeds() -> Vec<u64> {
     let var = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<u64>().ok());
     match var("BATON_SIM_SEED") {

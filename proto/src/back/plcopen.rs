@@ -10,6 +10,13 @@
 //! the POU's. Baton's element order — which is execution order — goes to the POU's `addData` under
 //! `ORDER_DATA`, which Baton's reader follows and other tools ignore, so that importing the export gives the
 //! same program.
+//!
+//! `plcopen.rs`: PLCopen TC6 v2.01 XML from a chart and its program (`baton export --plcopen`): rows by breadth-first
+//! distance, back edges as jumps, divergences and convergences where the net needs them, every transition's priority
+//! (the clearing order), named transitions and actions with ST bodies, step pragmas in `documentation`, and Baton's
+//! element order in the POU's `addData` (`ORDER_DATA`), which the reader follows instead of its Beremiz order. An
+//! imported chart whose conditions were wired to blocks exports its `COMPUTE_FUNCTION_BLOCKS` action as any ST action,
+//! so every valid chart exports. The test of "the same chart" is `tests/src/roundtrip.rs`.
 #![allow(clippy::disallowed_types, reason = "tables looked up only: the XML follows the chart's order")]
 
 use std::collections::HashMap;

@@ -18,6 +18,24 @@
 //! it to the device. Declared in the chart, so that `baton check` sees the one-writer rule and the reviewer sees
 //! the I/O beside the program; the agent does the protocol. What only the agent can know (a ROS 2 type's
 //! fields, an OPC UA node's data type) it checks when it joins the run, and reports as a device it cannot reach.
+//!
+//! `io.rs`: chart variables bound to device signals (`IoBinding`, read from a declaration's pragmas: a Zenoh key, a ROS
+//! 2 topic's field, an OPC UA node; each kind's parameters checked as far as `proto` can, without ROS types or an OPC
+//! UA stack): an input's agent is its one writer (the layout adds it to the writers and refuses any other), and every
+//! bound variable is published (`read_by_agents`), so inputs reach the coordinator and outputs their agent.
+//!
+//! # Rules bindings keep
+//!
+//! - A skill's answer reaches the chart only through variables the layout gave its agent: the binding's mappings
+//!   (`SkillOutput`) make the agent their one writer, so `baton check` refuses a chart where anything else writes them;
+//!   a skill that no longer runs (its action's Q fell) writes nothing.
+//!
+//! - Goals, requests and mappings are IEC literals (`front/literal.rs`), read by `baton check`; ROS 2 types are
+//!   resolved on the agent only, which knows its robots' interfaces: the coordinator needs no ROS knowledge.
+//!
+//! - A bound input has one writer, its agent, fed by its device: `baton check` refuses a chart where anything else
+//!   writes it, and a sample that is not a value of its type changes nothing. A device that cannot be reached changes
+//!   no variable either: it is a state (`AgentRun::handle_device`), reported, never a value.
 
 use std::collections::BTreeMap;
 

@@ -3,6 +3,14 @@
 //! Only these types are serialized: engine and runtime state convert to them by explicit code, so a refactor
 //! cannot silently change the protocol. Every message carries the protocol version; a decoder refuses other
 //! versions, oversized payloads and malformed JSON with an error, never a panic.
+//!
+//! `wire.rs`: the only serialized runtime types (`ToAgent`, `Report`, `VarUpdate`, `DeviceReport`, `AgentInfo`,
+//! `ChartSource`, `SetRequest`/`SetReply`, `StatusReport`), JSON with a protocol version, size-limited decoding.
+//! `Peers` is the coordinator's word on whose variable updates an agent may take: the coordinator's own process and
+//! each writer agent's current process (sent with `Dispatch` and `Join`, and as `ToAgent::Peers` when it changes). A
+//! `DeviceReport` is an agent's whole list of bound devices it cannot reach, numbered per process, sent when it changes
+//! and on every `Join` (a restarted coordinator hears it again); the coordinator turns each change into a
+//! `device_down`/`device_up` trace record.
 
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};

@@ -17,6 +17,28 @@
 //! The cost of a cycle depends on the active steps, their transitions and associations, and the actions with
 //! stored state, never on the size of the chart: per-element scratch is indexed by id and stamped with the
 //! cycle number instead of being cleared.
+//!
+//! `engine.rs`: `Engine`, the scan-cycle state machine: `handle(Input)`, `handle_cycle(now_ms)`, `poll_event()`;
+//! `Engine::with_scope(Scope)` runs part of a chart (which transitions it judges, which are exits whose targets live
+//! elsewhere, which steps' actions it runs) and `handle_remote` applies what another engine did (a token arrived; a
+//! transition cleared elsewhere). Between cycles, `react` scans what became active or was left and judges the
+//! transitions that read no step time and something that changed; `needs_cycle` says whether a cycle could change
+//! anything; `set_grid` gives the cycle grid from which steps made active between cycles count their time (and the time
+//! function blocks see, `Env::now_ms`, is that grid point in a reaction). Before judging a cycle's transitions it runs
+//! the calls of those whose sources are active (a condition's user function calls), so that every condition is judged
+//! against one snapshot; a transition with calls reads the clock, so it is judged in cycles only (`Reads::step_time`).
+//! An action associated only as entry or exit actions (`ActionInfo::once`) runs once where its step is entered or left,
+//! without a final scan, exit actions first, then entry actions, then the others (CODESYS's order). The initial steps'
+//! first scan is the first cycle's: a chart's first cycle judges the transitions first, so an initial step whose
+//! transition is already TRUE is left before its actions ever run (matiec's order; CODESYS runs them once first).
+//!
+//! # Rules the engine keeps
+//!
+//! - A cycle's cost depends on the active steps, their transitions and associations and the actions with stored state,
+//!   never on the chart's size: per-element scratch is stamped with the cycle number, not cleared.
+//!
+//! - `Engine::collisions()` counts a step receiving a token while holding one. The validator's job is to make it
+//!   impossible; property tests hold it to zero.
 
 use std::collections::VecDeque;
 use std::sync::Arc;

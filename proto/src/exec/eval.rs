@@ -1,4 +1,8 @@
 //! Evaluates typed expressions and runs action bodies against the engine's state (or none, for constants).
+//!
+//! `eval.rs`: evaluation of `CExpr` and execution of `CStmt` against the `Env`/`EnvMut` traits; loops (FOR, WHILE,
+//! REPEAT) share one budget of `LOOP_ITERATIONS_MAX` per run of a body, past which it stops with `Fault::LoopLimit`;
+//! EXIT and RETURN are control flow (`Flow`), not faults.
 
 pub use crate::exec::env::{Env, EnvMut, Fault, NoEnv};
 use crate::exec::program::{ArithOp, CExpr, CStmt, CmpOp, DurationSrc, LogicOp, NestedChart, NestedStep, VarId};

@@ -11,6 +11,12 @@
 //! reference, with one deliberate difference: a timer compares its elapsed time with PT in the same call in which
 //! it starts, so TON with PT = T#0s sets Q in the call where IN rises (as CODESYS does; matiec sets it one call
 //! later).
+//!
+//! `stdlib.rs`: the standard library's behaviour — each standard block's members (their order is the instance's
+//! variable layout) and one call of it (`run_fb`, time from `Env::now_ms`), and the standard functions' evaluation
+//! helpers (conversions, shifts, integer powers, BCD, the date functions `DateFn`). Counters follow the runtimes users
+//! come from (CTD and CTUD stop counting down at 0, CTU counts to its type's maximum; the doc's "Where runtimes
+//! differ"). Standard and nothing else: no I/O.
 
 use crate::exec::env::{EnvMut, Fault};
 use crate::exec::program::VarId;
@@ -166,7 +172,7 @@ pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
                 cv = m.int(2);
             } else if rising && cv > 0 {
                 // Stops at 0, as matiec, CODESYS and TwinCAT do (the standard's text counts down to the type's
-                // minimum): docs/standard-library.md, Counters.
+                // minimum): docs/book/src/standard-library.md, Counters.
                 cv -= 1;
             }
             m.set_int(4, cv);

@@ -2,6 +2,9 @@
 //! spelling (`type`, `action` or `step` are IEC keywords, and fine keys). A pragma that names one of Baton's keys
 //! but cannot be read, and one whose key is a near miss of Baton's, are reported (`baton check`); any other
 //! pragma is another tool's and is left alone.
+//!
+//! `pragma.rs`: reads a pragma's text as `key := literal` pairs (keys are names whatever their spelling), as malformed
+//! (with why), or as another tool's; near misses of Baton's keys.
 
 use crate::front::lexer::{lex, Kw, Tok, Token};
 use crate::types::Value;

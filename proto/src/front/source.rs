@@ -3,6 +3,10 @@
 //! that is none of these, Windows-1252 — what CODESYS and TwinCAT exports and most Western PLC tools write, and a
 //! superset of Latin-1's printable characters. Reading a file other than UTF-8 is said in a note at its place, so
 //! that a user knows how the text was read; nothing is refused for its encoding alone.
+//!
+//! `source.rs`: a file's bytes to text before anything reads it: UTF-8 (with or without a byte-order mark), UTF-16 with
+//! a byte-order mark, an XML declaration's encoding, else Windows-1252 (what vendor tools write), said in a located
+//! warning; past `SOURCE_BYTES_MAX` a file is refused before it is read whole (encoding_rs).
 
 use encoding_rs::{Encoding, UTF_16BE, UTF_16LE, UTF_8, WINDOWS_1252};
 

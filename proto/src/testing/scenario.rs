@@ -3,7 +3,7 @@
 //! variable it names exists, every time is a duration, every condition parses — and each mistake is said at its
 //! `FILE:LINE:COL`. A scenario that reads is one that can run.
 //!
-//! The format, key by key, is in the README ("Testing your chart") and in `docs/baton-test.schema.json`.
+//! The format, key by key, is in the user guide (`docs/book/src/testing.md`) and in `docs/baton-test.schema.json`.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::ops::Range;

@@ -141,7 +141,7 @@ pub enum Type {
         long: bool,
     },
     Time,
-    /// STRING[max]: at most `max` characters; a longer value is cut to its first `max` when stored.
+    /// `STRING[max]`: at most `max` characters; a longer value is cut to its first `max` when stored.
     Str {
         max: u32,
     },

@@ -1,6 +1,53 @@
 //! The pure halves of a distributed run: the coordinator's and the agent's state machines. The Zenoh shells in
 //! `baton-coordinator` and `baton-agent` feed them decoded messages and the time, and carry out what they
 //! output; a simulation can drive them just as well, in one thread.
+//!
+//! `runtime/coordinator.rs`, `runtime/agent.rs`: the two halves of a distributed run as pure state machines (an agent
+//! sets its engine's grid when it plans its first cycle or takes its first token, whichever comes first, so that step
+//! times and timers are floored to the grid its cycles run on; the coordinator publishes changed variables before a
+//! dispatch, so that the dispatch's values carry an update number of their own) (`handle_*` in, `poll_output` and
+//! `poll_timeout` out): token creation and dispatch, agent choice, report sequencing and acknowledgement (an agent
+//! numbers no new report past `REPORTS_UNACKED_MAX` unacknowledged, and coalesces what waits), mirroring, variable
+//! ownership, skill start/stop, resend with backoff, the cycle grid (cycles only when needed, reactions after every
+//! input), what happens to the tokens of a lost agent (`LossPolicy`: pause, reassign in a new epoch after the fence
+//! margin, fail), agent conflicts (two processes under one name) and the agent's lease fence (`handle_contact`).
+//! `runtime/mod.rs` has `VarWrites`, which write of each variable was applied last (writer, process, update number),
+//! and `VarsResend`, the one schedule on which the coordinator and an agent publish their last variable update again. A
+//! dispatch and a join carry the current value of every variable the agent reads or writes, so a restarted agent starts
+//! from the chart's values (`AgentRun::seeded`: a process publishes nothing before it has them). An agent applies an
+//! update only from the variable's one writer, in the process `Peers` names, and parks (bounded by
+//! `PARKED_UPDATE_BYTES_MAX`) one from a process not named yet. The coordinator decides before it journals:
+//! `classify_report`/`admit_report`, `admit_vars`, `admit_devices` and `check_set` say what would apply, and only that
+//! becomes a record; reports held ahead of a gap are bounded by count and by `REPORTS_AHEAD_BYTES_MAX`.
+//!
+//! # Rules the runtimes keep
+//!
+//! - A token's reports apply once each, in sequence order; its messages carry its id and epoch; whatever is malformed,
+//!   stale, duplicated or from the wrong sender is counted and dropped, never applied. A report of an older epoch (the
+//!   segment was reassigned) is answered with `ToAgent::Drop`, so its agent stops the old run.
+//!
+//! - A token goes back to an agent in the same epoch only if it is the same process (`AgentInfo::incarnation`): a
+//!   restarted agent lost the segment's progress, so the segment starts again in a new epoch — even if the coordinator
+//!   never saw the old process go.
+//!
+//! - A name is one process: commands go to `baton/agent/<name>/<incarnation>/cmd`, reports and variable updates carry
+//!   their process, and a name two processes answer to gets nothing dispatched. Sequence numbers belong to a process: a
+//!   variable's last applied write is kept with its writer's incarnation (`VarWrites`), one entry per variable, so a
+//!   peer cannot grow it.
+//!
+//! - The coordinator is deterministic: the same records (`journal::Record`) at the same times give the same situation,
+//!   tokens and trace. A cycle that changed nothing is not recorded (only the last of a series, before the next record,
+//!   to carry the time): it leaves the coordinator as it was but for its clock, and activation times come from the
+//!   cycle grid, not from the cycles that ran. So it must never iterate a `HashMap (clippy refuses it in `proto`)`
+//!   where order shows (it sorts ids first), never read a clock or a random source, and every input goes through
+//!   `journal::apply`. The simulation checks after each crash that the replay rebuilt the trace exactly.
+//!
+//! - A coordinator that restarts trusts nothing it knew about agents until each answers (`recovering`): a token is kept
+//!   by an agent that lists it (same incarnation, same epoch), sent again to one that lacks it, restarted in a new
+//!   epoch on one that restarted, and an agent silent for its lease after the restart is lost.
+//!
+//! - Agents remember finished tokens with their epoch: a dispatch of that epoch or older is a duplicate, a newer one
+//!   runs.
 
 pub mod agent;
 pub mod coordinator;

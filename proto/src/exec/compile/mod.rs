@@ -4,6 +4,34 @@
 //! (variables and block instances), `aggregate` (arrays and structures), `typing` (type names and `Ty`),
 //! `functions` (function calls), `blocks` (block calls and actions called), `sfc` (actions, associations,
 //! transitions), `statements`, `expressions`, and `nested` (charts inside function blocks).
+//!
+//! `compile.rs`: name resolution (case-insensitive, reported as first declared), type checking of the Structured Text
+//! subset, boolean actions, durations and indicators; builds a `Program`. A standard function block instance is
+//! declared as a run of variables, one per member (`t1.IN`, `t1.Q`, …, hidden state last, `VarInfo::hidden`), with its
+//! initial inputs from `t1 : TON := (PT := T#2s)`; calls resolve formal, non-formal and output (`=>`, `NOT Q =>`)
+//! arguments and EN/ENO; ADD, GT and their kin fold into operators; the other standard functions become `CExpr::Call`.
+//! An instance of a user function block (`FbDef`, which the parsers keep in `Parsed::library` with their syntax errors
+//! until a chart instantiates one) is declared recursively as variables named by path (`m.settle.timer.Q`; VAR members
+//! hidden), and its body is compiled once per instance in the instance's own scope (`compile_user_bodies`, nested
+//! instances first); a call is a `CStmt::UserFb` holding that body. A user function (an `FbDef` with `returns`) has one
+//! frame of hidden VAR_TEMP variables shared by its calls (scratch: the layout lets several places write it) and one
+//! body, compiled at its first call; a call in an expression is hoisted before its statement (`hoisted`: into a loop's
+//! `pre` for WHILE/UNTIL conditions, into the transition's calls for a condition) and its result copied to a variable
+//! of its own (`temps`), which the expression reads. `instance.Action();` runs a user block's action in the instance's
+//! scope (`instance_action_call`), `Action();` the POU's own action where it is called (`own_action_call`; a variable
+//! of that name shadows it), each body compiled once and guarded against calling itself; `GVL.x` is read as `x` where
+//! `GVL` is one of the chart's global lists (`unqualified`), and `Main.x` is refused by name (`foreign_name`). A
+//! literal 0 or 1 is a BOOL wherever a BOOL is wanted (`bool_literal`). The operator-named functions fold into
+//! operators (AND, OR, XOR balanced; ADD, SUB, … left to right, at most `NESTING_DEPTH_MAX` arguments); ADD_TIME and
+//! its kin are the operators on the types their names give (`time_function`); SPLIT_DATE and its kin are statements
+//! writing their outputs (`split_call`). What the standard's tables hold and what Baton does with each is
+//! `docs/book/src/standard-library.md`, which `tests/tests/standard_library.rs` checks against the compiler.
+//!
+//! Depth: every recursive walk over what a user wrote is bounded by `NESTING_DEPTH_MAX` — parentheses, operator chains,
+//! arguments, indices, statements, macro steps, wired logic, function blocks and functions inside one another, nested
+//! charts — and `program::exec_depth` measures the composed depth of what a body runs (a call runs its callee's body)
+//! so that a chart `baton check` accepts runs within `CHART_STACK_BYTES` on every thread that compiles or runs a chart
+//! (the binaries' main threads and runtimes, `baton test`'s workers).
 #![allow(
     clippy::disallowed_types,
     reason = "name tables, looked up only: what compile emits follows the source's order"

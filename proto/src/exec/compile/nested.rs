@@ -1,5 +1,12 @@
 //! Charts nested in a chart's function blocks: their steps, transitions and actions, lowered to the program's nested
 //! charts.
+//!
+//! Nested charts: an action written in SFC gets its state as variables (`declare_nested`: `started`, each step's `X`,
+//! `since`, `last`, each controlled action's `Q` and `stored`), and its body becomes one `CStmt::Chart(NestedChart)`
+//! (`nested_charts`, the charts it controls first, so that each carries its controlled actions' compiled bodies; a
+//! cycle is an error). `S.X` of a nested step is its variable, `S.T` a `CExpr::NestedT`. `eval::scan` runs one scan;
+//! `walk_body` reports every variable it may write, so the layout sees the chart's state as written where its action
+//! runs.
 
 use super::*;
 

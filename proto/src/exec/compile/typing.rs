@@ -1,4 +1,17 @@
 //! Type names resolved (aliases, subranges, enumerations), and `Ty`, the compiler's view of an expression's type.
+//!
+//! Types: `resolve_type` turns a declared type (`TypeDef`, from a TYPE block or PLCopen `dataTypes`, kept in
+//! `Parsed::types`) into a `Type`: an enumeration becomes `Type::Enum` (values held as ordinals, shown by name), a
+//! subrange or an alias its base type; `STRING[n]` is a type name of its own (`Type::Str`), which both parsers write
+//! so. Enumeration values resolve after variables, alone or as `T#V`. An array variable is a run of element variables
+//! (`a[1,2]`, row-major, `declare_array`); an element with constant indices compiles to that variable, one with a
+//! run-time index to `CExpr::Index` / `CStmt::AssignIndex`, which read (and write) every element as far as `Reads` and
+//! the layout know. A structure variable is a run of field variables (`s.f`, `declare_struct`), recursively: a field
+//! that is a structure or an array is a run of its own (`s.a.x`, `s.tags[1]`), and an array of structures holds its
+//! elements' runs one after another (`struct_elements`), so that `pts[i].x` is `CExpr::Index` with a stride and the
+//! field's offset. The parser reads a path as one name up to its last member (`s.a` in `s.a.x`, and `pts[2]` when the
+//! indices are literals), which is how those variables are named; only `pts[i].x` with a run-time index is an
+//! `ExprKind::IndexField`.
 
 use super::*;
 

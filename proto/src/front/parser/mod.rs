@@ -2,6 +2,15 @@
 //!
 //! POUs without an SFC body (ST functions, configurations, type declarations) are skipped: a chart file may
 //! hold a whole project.
+//!
+//! `parser.rs`: recursive descent over the tokens into the chart model, with error recovery at each SFC element so that
+//! every syntax error is reported. Function blocks and functions with ST bodies go to the library (`Parsed::library`,
+//! their syntax errors kept until a chart uses them), TYPE blocks to `Parsed::types`; ST programs and configurations
+//! are skipped. `parse_fragment` parses one condition, body or value found in another format, given a map from its
+//! offsets to the file's, applied to the tokens as they are made (so every span of the tree is the file's). Pragmas are
+//! attached afterwards by position (`attach_pragmas`; one right after a declaration's `;`, on its line, is the
+//! declaration's). What a syntax error took out is noted in `Chart::broken`, so that the compiler does not report it
+//! again as unknown.
 
 mod declarations;
 mod expressions;

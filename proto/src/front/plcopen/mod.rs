@@ -8,6 +8,29 @@
 //! convergences and simultaneous divergences to steps and jumps. Conditions and actions are ST text (parsed by
 //! the textual parser as fragments, at their place in the file) or LD/FBD networks, which become expressions
 //! and assignments. What Baton does not run yet is refused with an error that names it.
+//!
+//! `plcopen.rs`: the PLCopen TC6 XML reader (roxmltree, positions kept). It rebuilds the net from the consumer-side
+//! arcs (walking back through selection divergences and simultaneous convergences to a transition's sources, forward
+//! through convergences, divergences and jumps to its targets), turns wired LD/FBD logic into expressions and LD/FBD
+//! bodies into assignments (with a budget on connections walked), and parses ST bodies with `parser::parse_fragment`,
+//! markup blanked in place and each decoded entity noted in the offset map, so that diagnostics point into the XML. A
+//! block with an `instanceName` becomes a call of that instance (`fb_call`), queued once after the calls its inputs
+//! need: in an LD/FBD action it runs in execution order, and wired into a condition it goes, with the edge contacts'
+//! statements, into the POU's action `COMPUTE_FUNCTION_BLOCKS`, held stored (S) by the first initial step
+//! (`compute_blocks`), which is how Beremiz's generator compiles such a chart for matiec and so how OpenPLC runs it:
+//! every cycle, after the transitions are judged; other blocks become operators or function calls that the compiler
+//! types. A step's and a POU's `<documentation>` may hold pragmas; an `indicator` may list two names (`done, fault`); a
+//! POU with Baton's order data is ordered by it. It orders elements depth first from the initial steps, as Beremiz's
+//! generator does, because action order is execution order. An action whose body is `<SFC>` is read by the same walk
+//! into the action's `Sfc` (its inline actions become the POU's); a `macroStep`'s body is read the same way and joined
+//! to the chart, the macro standing for its entry step where arcs lead to it and its exit step where they leave it
+//! (`macros`, `macro_ends`, both linear: continuations are found through a map of connectors, and a body's exit through
+//! one pass over its arcs). CODESYS's per-step vendor data gives a step its active (N), entry and exit actions
+//! (`codesys_step_actions`, by GUID); a function block's `<actions>` in ST become `FbDef::actions`; the project's
+//! global variable lists (a configuration's or resource's `globalVars`, CODESYS's and TwinCAT's GVLs in project-level
+//! vendor data) are given to every chart (`share_globals`: an external variable without a value takes the global's, a
+//! global the POU does not declare becomes its VAR_GLOBAL) and the named ones kept as `Chart::global_lists`, so that
+//! `GVL.x` resolves.
 #![allow(
     clippy::disallowed_types,
     reason = "id and name tables, looked up only: the chart follows the XML's order (or Baton's element order)"
