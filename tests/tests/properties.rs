@@ -7,39 +7,10 @@ use baton_proto::exec::analysis::{analyse, exhaustive};
 use baton_proto::exec::engine::{Engine, Input};
 use baton_proto::pipeline::check_source;
 use baton_proto::types::Value;
-use baton_tests::gen::{shape_strategy, ChartBuilder};
+use baton_tests::gen::{check_mutated, shape_strategy, ChartBuilder};
 use proptest::prelude::*;
 
 const INPUTS: usize = 4;
-
-/// PLCopen files of the shared corpus to mutate (absent outside a checkout with ../shared beside it).
-fn corpus_xml(i: usize) -> Option<&'static str> {
-    const FILES: [&str; 3] = [
-        "beremiz__exemples__first_steps__plc.xml",
-        "matiec__tests__SFC_TEST.xml",
-        "beremiz__exemples__svghmi_traffic_light__plc.xml",
-    ];
-    static READ: std::sync::OnceLock<Vec<String>> = std::sync::OnceLock::new();
-    let read = READ.get_or_init(|| {
-        let dir = baton_tests::shared_dir().join("corpus/sfc");
-        let read: Vec<String> = FILES.iter().filter_map(|f| std::fs::read_to_string(dir.join(f)).ok()).collect();
-        if read.len() < FILES.len() {
-            baton_tests::missing(&format!("the PLCopen files of the shared corpus ({}) are absent", dir.display()));
-        }
-        read
-    });
-    read.get(i).map(String::as_str)
-}
-
-/// Checks `base` with `len` bytes at `cut` replaced by `insert` (cuts inside a character are skipped): whatever
-/// the text, the check returns.
-fn check_mutated(base: &str, cut: prop::sample::Index, len: usize, insert: &str) {
-    let at = cut.index(base.len());
-    let end = (at + len).min(base.len());
-    if base.is_char_boundary(at) && base.is_char_boundary(end) {
-        let _ = check_source(&format!("{}{}{}", &base[..at], insert, &base[end..]));
-    }
-}
 
 /// One SFC-body element with small ids, so that references often hit, miss, loop or point at the wrong kind.
 fn xml_element() -> impl Strategy<Value = String> {
@@ -218,21 +189,6 @@ proptest! {
         "END_FUNCTION", "END_FUNCTION_BLOCK", "#", "**", "IN", "PT", "LIMIT", "INT_TO_REAL",
     ]), 0..120)) {
         let _ = check_source(&words.join(" "));
-    }
-
-    #[test]
-    fn xml_reader_never_panics_on_mutated_plcopen_files(
-        file in 0usize..3,
-        cut in any::<prop::sample::Index>(),
-        len in 0usize..60,
-        insert in prop::sample::select(vec![
-            "", "<", ">", "/>", "</step>", "<step localId=\"1\" name=\"S\">", "refLocalId=\"0\"", "&amp;", "&#0;",
-            "<![CDATA[", "]]>", "\"", "<connection refLocalId=\"99\"/>", "<jumpStep localId=\"7\" targetName=\"X\"/>",
-            "initialStep=\"true\"", "x := (", "<!--", "-->", "\u{feff}", "<block localId=\"5\" typeName=\"TON\">",
-        ]),
-    ) {
-        let Some(base) = corpus_xml(file) else { return Ok(()) };
-        check_mutated(base, cut, len, insert);
     }
 
     #[test]

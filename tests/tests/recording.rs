@@ -133,7 +133,6 @@ async fn run_two_parts(cluster: &mut Cluster, extra: &[&str]) -> Vec<TraceRecord
     trace
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn a_live_recording_holds_every_entity_and_the_steps_states_of_the_trace() {
     if !reader_available() {
         return;
@@ -147,7 +146,6 @@ async fn a_live_recording_holds_every_entity_and_the_steps_states_of_the_trace()
 
 /// A run recorded with `--rerun off` can still be reviewed: `baton replay` rebuilds its trace, identical to the
 /// live one, and its recording, which passes the same checks as a live recording.
-#[tokio::test(flavor = "multi_thread")]
 async fn a_run_without_a_recording_is_recorded_afterwards_from_its_journal() {
     if !reader_available() {
         return;
@@ -179,7 +177,6 @@ async fn a_run_without_a_recording_is_recorded_afterwards_from_its_journal() {
 /// What went wrong is on the timeline: the robot holding Assemble is killed under `--on-agent-loss reassign`;
 /// the recording shows the agent lost, the alarm, the token dispatched again in a new epoch to the other robot,
 /// and the step running there.
-#[tokio::test(flavor = "multi_thread")]
 async fn a_lost_agent_and_the_reassignment_are_on_the_timeline() {
     if !reader_available() {
         return;
@@ -237,3 +234,9 @@ async fn a_lost_agent_and_the_reassignment_are_on_the_timeline() {
     assert!(assemble.contains(&format!("on {holder}")) && assemble.contains(&format!("on {other}")), "{assemble:?}");
     assert!(trace.iter().any(|r| r.event == TraceEvent::AgentLost && r.name == holder));
 }
+
+baton_tests::harness_main!(
+    tokio a_live_recording_holds_every_entity_and_the_steps_states_of_the_trace,
+    tokio a_run_without_a_recording_is_recorded_afterwards_from_its_journal,
+    tokio a_lost_agent_and_the_reassignment_are_on_the_timeline,
+);

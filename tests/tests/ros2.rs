@@ -19,16 +19,15 @@ fn var(summary: &serde_json::Value, name: &str) -> String {
     summary["vars"][name].as_str().unwrap_or("<missing>").to_string()
 }
 
-/// hiroz's action server, if `.ci/run` built it.
-fn action_server(cluster: &Cluster, mode: &str) -> Option<Server> {
+/// hiroz's action server, which `.ci/run` builds (the test is ignored, or fails under CI, without it).
+fn action_server(cluster: &Cluster, mode: &str) -> Server {
     let bin = repo("tests/ros2-peer/target/debug/ros2-peer");
     if !bin.is_file() {
         baton_tests::missing(&format!("{} is absent: run .ci/run once (it builds tests/ros2-peer)", bin.display()));
-        return None;
     }
     let mut cmd = Command::new(bin);
     cmd.args([&cluster.endpoint, "0", "/arm/move_to", mode]);
-    Some(Server::start(cmd))
+    Server::start(cmd)
 }
 
 /// zenoh-ros2-sdk's SetBool server on `/gripper/close` in ROS domain `domain` (`tests/scripts/ros2_service_server.py`;
@@ -77,10 +76,9 @@ fn fault_message(trace: &[baton_proto::exec::trace::TraceRecord]) -> String {
     fault.message.clone().unwrap_or_default()
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn a_goal_is_followed_to_its_result_and_its_feedback_and_result_reach_the_chart() {
     let mut cluster = Cluster::with_router().await;
-    let Some(mut server) = action_server(&cluster, "succeed") else { return };
+    let mut server = action_server(&cluster, "succeed");
     server.wait_for("READY").await;
     let (_, trace, summary) = run(&mut cluster, "ros2_action.st", "arm1", &[]).await;
     assert!(ends_in(&trace, "Done"), "{trace:?}\n{}", cluster.agent_log("arm1"));
@@ -95,7 +93,7 @@ async fn a_goal_is_followed_to_its_result_and_its_feedback_and_result_reach_the_
 /// Runs `ros2_action.st` against a server in `mode`, which says `line` and makes the goal a fault saying `why`.
 async fn goal_fault(mode: &str, line: &str, why: &str) {
     let mut cluster = Cluster::with_router().await;
-    let Some(mut server) = action_server(&cluster, mode) else { return };
+    let mut server = action_server(&cluster, mode);
     server.wait_for("READY").await;
     let (_, trace, summary) = run(&mut cluster, "ros2_action.st", "arm1", &[]).await;
     assert!(ends_in(&trace, "Fallback"));
@@ -104,20 +102,17 @@ async fn goal_fault(mode: &str, line: &str, why: &str) {
     assert_eq!(var(&summary, "last"), "0", "no result is written");
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn a_rejected_goal_is_a_fault() {
     goal_fault("reject", "REJECTED", "rejected the goal").await;
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn an_aborted_goal_is_a_fault() {
     goal_fault("abort", "ABORTED", "aborted the goal").await;
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn leaving_the_step_early_cancels_the_goal_on_the_server() {
     let mut cluster = Cluster::with_router().await;
-    let Some(mut server) = action_server(&cluster, "slow") else { return };
+    let mut server = action_server(&cluster, "slow");
     server.wait_for("READY").await;
     let (_, trace, summary) = run(&mut cluster, "ros2_action_cancel.st", "arm1", &["--verbose"]).await;
     assert!(ends_in(&trace, "Left"), "{trace:?}");
@@ -132,7 +127,6 @@ async fn leaving_the_step_early_cancels_the_goal_on_the_server() {
     assert_eq!(var(&summary, "done"), "FALSE");
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn no_action_server_is_a_fault_after_the_timeout() {
     let mut cluster = Cluster::with_router().await;
     let (_, trace, _) = run(&mut cluster, "ros2_action.st", "arm1", &[]).await;
@@ -144,7 +138,6 @@ async fn no_action_server_is_a_fault_after_the_timeout() {
     assert!(fault_at - on_at >= 2000, "the fault came {} ms after the action started", fault_at - on_at);
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn a_service_answers_true_and_false_and_false_is_a_fault() {
     if !python_has_sdk() {
         return;
@@ -165,7 +158,6 @@ async fn a_service_answers_true_and_false_and_false_is_a_fault() {
     assert!(message.contains("/gripper/close answered success = FALSE: nothing to grip"), "{message}");
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn a_misspelt_type_or_goal_is_said_when_the_agent_joins_and_faults_by_name() {
     let mut cluster = Cluster::with_router().await;
     let (_, trace, _) = run(&mut cluster, "ros2_misspelt.st", "arm1", &[]).await;
@@ -186,13 +178,12 @@ async fn a_misspelt_type_or_goal_is_said_when_the_agent_joins_and_faults_by_name
 
 /// The example cell (`examples/robot_cell.st`): two agents drive the two ROS 2 servers in parallel branches, the
 /// coordinator converges them, and one agent then has the OPC UA server run a job, its lamp lit meanwhile.
-#[tokio::test(flavor = "multi_thread")]
 async fn two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_converges_them() {
     if !python_has_sdk() {
         return;
     }
     let mut cluster = Cluster::with_router().await;
-    let Some(mut action) = action_server(&cluster, "succeed") else { return };
+    let mut action = action_server(&cluster, "succeed");
     let Some((mut machine, ua_port)) = opcua_server().await else { return };
     let cmd = service_server(&cluster, "0", &[]);
     let mut service = Server::start(cmd);
@@ -238,7 +229,6 @@ async fn topics(cluster: &Cluster) -> Server {
     server
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn topic_fields_drive_a_transition_outputs_are_published_and_a_sensor_gone_is_reported() {
     if !python_has_sdk() {
         return;
@@ -298,7 +288,6 @@ const CYCLONE_ON_LOOPBACK: &str = "<CycloneDDS><Domain id=\"any\"><General><Inte
 /// Zenoh's own zenoh-bridge-ros2dds plugin between it and the cluster's router: the agent, started with
 /// `--ros-bridge`, drives its topics, its service and its action on the bridge's keys. A wrong key, token, CDR
 /// layout or reply routing on Baton's side and the robot never hears a thing.
-#[tokio::test(flavor = "multi_thread")]
 async fn a_robot_on_dds_only_is_driven_through_zenoh_bridge_ros2dds() {
     let bridge = repo("tests/ros2dds-bridge/target/debug/ros2dds-bridge");
     if !bridge.is_file() {
@@ -306,7 +295,6 @@ async fn a_robot_on_dds_only_is_driven_through_zenoh_bridge_ros2dds() {
             "{} is absent: run .ci/run once (it builds tests/ros2dds-bridge)",
             bridge.display()
         ));
-        return;
     }
     if !baton_tests::peer::python_has("cyclonedds", "cyclonedds") {
         return;
@@ -353,13 +341,11 @@ async fn a_robot_on_dds_only_is_driven_through_zenoh_bridge_ros2dds() {
     assert_eq!(said.iter().filter(|l| *l == "SUCCEEDED").count(), 1, "{said:?}");
 }
 
-#[tokio::test(flavor = "multi_thread")]
 async fn a_goal_whose_step_was_left_before_its_server_appeared_is_never_sent() {
     let mut cluster = Cluster::with_router().await;
     // Checked before the run: a missing peer is said once, not after a run that proved nothing.
     if !repo("tests/ros2-peer/target/debug/ros2-peer").is_file() {
         action_server(&cluster, "succeed");
-        return;
     }
     let (_, trace, _) = run(&mut cluster, "ros2_action_late.st", "arm1", &["--verbose"]).await;
     assert!(ends_in(&trace, "Left"), "{trace:?}");
@@ -367,7 +353,7 @@ async fn a_goal_whose_step_was_left_before_its_server_appeared_is_never_sent() {
     // left to cancel (it used to wait for the server, send the goal, then cancel it).
     cluster.wait_for_agent_log("arm1", "skill of action `MoveArm` stopped: it confirmed the stop").await;
     // The server appears; a goal of a run that wants it gets there, the old one never.
-    let Some(mut server) = action_server(&cluster, "succeed") else { return };
+    let mut server = action_server(&cluster, "succeed");
     server.wait_for("READY").await;
     let coordinator = cluster.coordinator_joining(&chart("ros2_action.st"), &[]);
     let (status, log, trace, _) = coordinator.finish().await;
@@ -383,7 +369,6 @@ async fn a_goal_whose_step_was_left_before_its_server_appeared_is_never_sent() {
 /// the graph before a call can reach it (this made the test above fail once in a cold CI run). A call that no
 /// server took is sent again for a while, not turned into a fault: here the server holds its queryable back until
 /// the agent said that nobody took its call.
-#[tokio::test(flavor = "multi_thread")]
 async fn a_call_that_no_server_took_yet_is_sent_again() {
     if !python_has_sdk() {
         return;
@@ -401,3 +386,18 @@ async fn a_call_that_no_server_took_yet_is_sent_again() {
     assert!(ends_in(&trace, "Done"), "{trace:?}");
     assert_eq!(server.wait_for("REQUEST").await, "REQUEST data=True");
 }
+
+baton_tests::harness_main!(
+    tokio a_goal_is_followed_to_its_result_and_its_feedback_and_result_reach_the_chart,
+    tokio a_rejected_goal_is_a_fault,
+    tokio an_aborted_goal_is_a_fault,
+    tokio leaving_the_step_early_cancels_the_goal_on_the_server,
+    tokio no_action_server_is_a_fault_after_the_timeout,
+    tokio a_service_answers_true_and_false_and_false_is_a_fault,
+    tokio a_misspelt_type_or_goal_is_said_when_the_agent_joins_and_faults_by_name,
+    tokio two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_converges_them,
+    tokio topic_fields_drive_a_transition_outputs_are_published_and_a_sensor_gone_is_reported,
+    tokio a_robot_on_dds_only_is_driven_through_zenoh_bridge_ros2dds,
+    tokio a_goal_whose_step_was_left_before_its_server_appeared_is_never_sent,
+    tokio a_call_that_no_server_took_yet_is_sent_again,
+);
