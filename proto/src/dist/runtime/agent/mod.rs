@@ -341,3 +341,6 @@ impl AgentRun {
         self.write_from_device(var, value, format!("input `{name}`"));
     }
 }
+
+#[cfg(test)]
+mod tests;
