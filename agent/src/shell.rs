@@ -6,11 +6,8 @@
 //! - Agents declare their info queryable and command subscriber before their liveliness token, so a coordinator that
 //!   sees the token can use them at once.
 //!
-//! - Shells publish from their main loop (`CongestionControl::Block`, express) and never wait to read: every subscriber
-//!   has an inbox of `RECEIVE_QUEUE_MAX` samples that Zenoh's reader fills without waiting for the main loop. A put
-//!   waits only while its link's queue is full, so two processes publishing to each other can only block each other if
-//!   both inboxes are full at once. (With Zenoh's default inbox of 256 this deadlocked under the throughput benchmark;
-//!   a separate sender task avoided it but cost ~30 µs per message.)
+//! The shell's Zenoh plumbing that the coordinator shares (settings, inboxes, the outbox, the loop's waits) is
+//! `baton_shell`, with the rules it keeps.
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
@@ -25,12 +22,9 @@ use baton_proto::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch, Join};
 use baton_proto::dist::runtime::Level;
 use baton_proto::dist::wire::{self, AgentInfo, ChartHash, ChartSource, HeldToken, RunId, ToAgent, VarUpdate};
 use baton_proto::exec::program::{ActionId, Program};
-use baton_proto::limits::{fence_after_ms, fence_check_ms, CHART_SOURCE_BYTES_MAX, RECEIVE_QUEUE_MAX};
+use baton_proto::limits::{fence_after_ms, fence_check_ms, CHART_SOURCE_BYTES_MAX};
 use baton_proto::pipeline::check_source;
 use tokio::sync::{mpsc, watch};
-use zenoh::handlers::FifoChannel;
-use zenoh::pubsub::Publisher;
-use zenoh::qos::CongestionControl;
 use zenoh::sample::Sample;
 use zenoh::Session;
 
@@ -148,7 +142,7 @@ struct Shell {
     skill_serial: u64,
     events: mpsc::UnboundedSender<Event>,
     /// One publisher per key, declared on first use.
-    publishers: HashMap<String, Publisher<'static>>,
+    outbox: baton_shell::Outbox,
     dropped: u64,
     /// This process, as the coordinator tells it from a restarted one of the same name.
     incarnation: uuid::Uuid,
@@ -201,7 +195,7 @@ pub async fn run(config: AgentConfig, skills: Skills, connections: Connections) 
     let skills = connections.skills(skills);
     config.validate()?;
     let net = NetConfig { lease_ms: Some(config.lease_ms), ..NetConfig::client(&config.connect, true) };
-    let zconfig = zenoh_config(&net, config.zenoh_config.as_deref())?;
+    let zconfig = baton_shell::zenoh_config(&net, config.zenoh_config.as_deref())?;
     let name = config.name.clone();
     // The agent waits for its router as long as it takes (a robot may boot before the cell's network), but says
     // that it waits: a silent agent behind a wrong address or a cut cable is a puzzle.
@@ -235,15 +229,18 @@ pub async fn run(config: AgentConfig, skills: Skills, connections: Connections) 
     // Everything a coordinator may use is declared before the liveliness token announces the agent: a
     // coordinator asks for the info as soon as it sees the token, and may dispatch right after.
     let info_q = session.declare_queryable(keys::agent_info(&name)).await.map_err(|e| anyhow!("{e}"))?;
-    let inbox = || FifoChannel::new(RECEIVE_QUEUE_MAX);
     // Commands to this process only: a second process of the same name (which the check above refuses, but two
     // may start at the same moment) hears none of them.
     let cmd_sub = session
         .declare_subscriber(keys::agent_cmd(&name, incarnation))
-        .with(inbox())
+        .with(baton_shell::inbox())
         .await
         .map_err(|e| anyhow!("{e}"))?;
-    let vars_sub = session.declare_subscriber(keys::vars_any_run()).with(inbox()).await.map_err(|e| anyhow!("{e}"))?;
+    let vars_sub = session
+        .declare_subscriber(keys::vars_any_run())
+        .with(baton_shell::inbox())
+        .await
+        .map_err(|e| anyhow!("{e}"))?;
     let _alive = session
         .liveliness()
         .declare_token(keys::alive(&name))
@@ -263,7 +260,7 @@ pub async fn run(config: AgentConfig, skills: Skills, connections: Connections) 
         deferred: HashMap::new(),
         skill_serial: 0,
         events: tx,
-        publishers: HashMap::new(),
+        outbox: baton_shell::Outbox::new(&session),
         dropped: 0,
         incarnation,
     };
@@ -275,19 +272,11 @@ pub async fn run(config: AgentConfig, skills: Skills, connections: Connections) 
         config.connect.join(", "),
         shell.skills.names().join(", ")
     );
-    // Signal streams made once: polling them each turn of the loop costs nothing.
-    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
+    let mut stop = baton_shell::Stop::new()?;
     loop {
         // Asleep until a message comes or a run's next cycle or resend is due: an idle agent runs no cycle (only
         // `watch_router` wakes it).
         let deadline = shell.deadline();
-        let timer = async move {
-            match deadline {
-                Some(at) => tokio::time::sleep_until(at.into()).await,
-                None => std::future::pending().await,
-            }
-        };
         tokio::select! {
             s = cmd_sub.recv_async() => {
                 let Ok(s) = s else { break };
@@ -308,9 +297,8 @@ pub async fn run(config: AgentConfig, skills: Skills, connections: Connections) 
                 }
             }
             Some(ev) = rx.recv() => shell.on_event(ev),
-            () = timer => shell.timeout(),
-            _ = sigint.recv() => break,
-            _ = sigterm.recv() => break,
+            () = baton_shell::until(deadline) => shell.timeout(),
+            () = stop.recv() => break,
         }
         shell.carry_out_all().await;
     }
@@ -709,33 +697,11 @@ impl Shell {
         }
     }
 
-    /// Publishes in the main loop, without a hop to another task (a hop cost a third of a token's round trip).
-    /// This cannot deadlock with a coordinator doing the same: a put waits only while the link's queue is full,
-    /// and each side's Zenoh reader hands samples to an inbox of `RECEIVE_QUEUE_MAX` without waiting for the
-    /// main loop, so both sides would need that many messages unread at once.
+    /// Publishes through the outbox, in the main loop; a failure is logged (the state machines resend what
+    /// matters).
     async fn put(&mut self, key: String, payload: Vec<u8>) {
-        if self.publishers.len() >= PUBLISHERS_MAX && !self.publishers.contains_key(&key) {
-            // Keys of finished runs accumulate otherwise; the live ones are declared again on next use.
-            self.publishers.clear();
-        }
-        if !self.publishers.contains_key(&key) {
-            let declared = self
-                .session
-                .declare_publisher(key.clone())
-                .congestion_control(CongestionControl::Block)
-                .express(true)
-                .await;
-            match declared {
-                Ok(p) => {
-                    self.publishers.insert(key.clone(), p);
-                }
-                Err(e) => return eprintln!("warning: cannot publish on {key}: {e}"),
-            }
-        }
-        if let Some(p) = self.publishers.get(&key) {
-            if let Err(e) = p.put(payload).await {
-                eprintln!("warning: cannot publish on {key}: {e}");
-            }
+        if let Err(e) = self.outbox.put(key, payload).await {
+            eprintln!("warning: {e}");
         }
     }
 }
@@ -775,21 +741,6 @@ async fn watch_router(session: Session, name: String, lease_ms: u64, tx: mpsc::U
 
 fn unix_ms() -> u128 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis())
-}
-
-/// Publishers kept declared at once.
-const PUBLISHERS_MAX: usize = 256;
-
-/// Baton's settings, on top of the user's own Zenoh file when given.
-fn zenoh_config(net: &NetConfig, file: Option<&std::path::Path>) -> anyhow::Result<zenoh::Config> {
-    let Some(file) = file else {
-        return zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"));
-    };
-    let mut config = zenoh::Config::from_file(file).map_err(|e| anyhow!("cannot load {}: {e}", file.display()))?;
-    for (key, value) in net.overrides() {
-        config.insert_json5(key, &value).map_err(|e| anyhow!("zenoh configuration `{key}`: {e}"))?;
-    }
-    Ok(config)
 }
 
 /// Asks the coordinator of `run` for its chart and compiles it; the chart must hash to `hash`.

@@ -13,7 +13,7 @@ const QUERY_TIMEOUT: Duration = Duration::from_secs(3);
 
 async fn open(connect: &[String], file: Option<&Path>) -> anyhow::Result<Session> {
     let net = NetConfig::client(connect, false);
-    let config = crate::zconf::load(&net, file)?;
+    let config = baton_shell::zenoh_config(&net, file)?;
     zenoh::open(config).await.map_err(|e| anyhow!("cannot reach a router at {}: {e}", connect.join(", ")))
 }
 

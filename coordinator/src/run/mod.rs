@@ -16,7 +16,7 @@ pub use records::{replay_records, Records};
 pub use resume::check_pin;
 pub use summary::Summary;
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::PathBuf;
@@ -79,7 +79,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let net =
         if opts.listen.is_empty() { NetConfig::client(&opts.connect, true) } else { NetConfig::router(&opts.listen) };
     let net = NetConfig { multicast_scouting: opts.multicast_scouting, ..net };
-    let zconfig = crate::zconf::load(&net, opts.zenoh_config.as_deref())?;
+    let zconfig = baton_shell::zenoh_config(&net, opts.zenoh_config.as_deref())?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     // A resumed run keeps the period it started with.
     let cycle_ms = match &resume {
@@ -132,7 +132,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         held: VecDeque::new(),
         held_replies: VecDeque::new(),
         quiet: opts.quiet,
-        publishers: HashMap::new(),
+        outbox: baton_shell::Outbox::new(&session),
         vars_key: keys::vars(run, baton_proto::dist::runtime::COORDINATOR),
         decode_drops: 0,
         out: Records::new(trace, probe, recorder, cycle_ms),
@@ -244,19 +244,11 @@ enum Ended {
 async fn serve(shell: &mut Shell, inboxes: &Inboxes, run: RunId, chart_reply: Vec<u8>) -> anyhow::Result<Ended> {
     let (tx, mut rx) = mpsc::unbounded_channel::<Identity>();
     let mut durable_rx = shell.journal.as_ref().map(crate::journal::Writer::watcher);
-    // Signal streams made once: polling them each turn of the loop costs nothing.
-    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
+    let mut stop = baton_shell::Stop::new()?;
     shell.due_cycles().await?;
     while !shell.core.core().is_terminal() && shell.core.core().failure().is_none() {
         // An idle run does not wake.
         let deadline = shell.next_cycle().map(|t| shell.instant_of(t));
-        let timer = async move {
-            match deadline {
-                Some(at) => tokio::time::sleep_until(at.into()).await,
-                None => std::future::pending().await,
-            }
-        };
         let wake = tokio::select! {
             s = inboxes.report.recv_async() => s.map_or(Wake::Closed, Wake::Report),
             s = inboxes.vars.recv_async() => s.map_or(Wake::Closed, Wake::Vars),
@@ -268,9 +260,8 @@ async fn serve(shell: &mut Shell, inboxes: &Inboxes, run: RunId, chart_reply: Ve
             q = inboxes.set.recv_async() => q.map_or(Wake::Closed, Wake::Set),
             // A journal batch became durable: what it led to may go now.
             _ = async { durable_rx.as_mut().expect("journal").changed().await }, if durable_rx.is_some() => Wake::Durable,
-            () = timer => Wake::Timer,
-            _ = sigint.recv() => Wake::Stop,
-            _ = sigterm.recv() => Wake::Stop,
+            () = baton_shell::until(deadline) => Wake::Timer,
+            () = stop.recv() => Wake::Stop,
         };
         // Cycles due run first, at their grid times, so that what arrived now comes after them.
         shell.due_cycles().await?;

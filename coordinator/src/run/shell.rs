@@ -1,7 +1,7 @@
 //! The coordinator's Zenoh shell: samples and queries in, the pure `Coordinator`'s inputs out, its outputs held
 //! until the journal has what led to them, then published; agents that go live are asked who they are.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use anyhow::anyhow;
@@ -10,12 +10,10 @@ use baton_proto::dist::keys;
 use baton_proto::dist::runtime::coordinator::CoordOutput;
 use baton_proto::dist::runtime::Level;
 use baton_proto::dist::wire::{self, AgentInfo, RunId, SetReply, SetRequest};
-use baton_proto::limits::{CATCH_UP_CYCLES_MAX, RECEIVE_QUEUE_MAX};
+use baton_proto::limits::CATCH_UP_CYCLES_MAX;
 use tokio::sync::mpsc;
-use zenoh::handlers::{FifoChannel, FifoChannelHandler};
-use zenoh::pubsub::Publisher;
+use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
-use zenoh::qos::CongestionControl;
 use zenoh::query::Query;
 use zenoh::query::Queryable;
 use zenoh::sample::{Sample, SampleKind};
@@ -57,7 +55,7 @@ pub(crate) struct Shell {
     pub(crate) held_replies: VecDeque<(u64, Query, Vec<u8>)>,
     pub(crate) quiet: bool,
     /// One publisher per key, declared on first use.
-    pub(crate) publishers: HashMap<String, Publisher<'static>>,
+    pub(crate) outbox: baton_shell::Outbox,
     pub(crate) vars_key: String,
     pub(crate) decode_drops: u64,
     pub(crate) out: Records,
@@ -82,7 +80,7 @@ pub(crate) struct Inboxes {
 impl Inboxes {
     pub(crate) async fn declare(session: &Session, run: RunId) -> anyhow::Result<Inboxes> {
         let zerr = |e: zenoh::Error| anyhow!("{e}");
-        let inbox = || FifoChannel::new(RECEIVE_QUEUE_MAX);
+        let inbox = baton_shell::inbox;
         Ok(Inboxes {
             report: session.declare_subscriber(keys::report(run)).with(inbox()).await.map_err(zerr)?,
             vars: session.declare_subscriber(keys::vars(run, "*")).with(inbox()).await.map_err(zerr)?,
@@ -300,25 +298,11 @@ impl Shell {
         Ok(())
     }
 
-    /// Publishes in the main loop, without a hop to another task (a hop cost a third of a token's round trip).
-    /// This cannot deadlock with an agent doing the same: a put waits only while the link's queue is full, and
-    /// each side's Zenoh reader hands samples to an inbox of `RECEIVE_QUEUE_MAX` without waiting for the main
-    /// loop, so both sides would need that many messages unread at once.
+    /// Publishes through the outbox, in the main loop; a failure is logged (the state machine resends what
+    /// matters).
     pub(crate) async fn send(&mut self, key: String, payload: Vec<u8>) -> anyhow::Result<()> {
-        if !self.publishers.contains_key(&key) {
-            let p = self
-                .session
-                .declare_publisher(key.clone())
-                .congestion_control(CongestionControl::Block)
-                .express(true)
-                .await
-                .map_err(|e| anyhow!("cannot publish on {key}: {e}"))?;
-            self.publishers.insert(key.clone(), p);
-        }
-        if let Some(p) = self.publishers.get(&key) {
-            if let Err(e) = p.put(payload).await {
-                eprintln!("warning: cannot publish on {key}: {e}");
-            }
+        if let Err(e) = self.outbox.put(key, payload).await {
+            eprintln!("warning: {e}");
         }
         Ok(())
     }

@@ -299,7 +299,7 @@ impl<'a> World<'a> {
         for _ in 0..5 {
             let port = crate::demo::free_port()?;
             let endpoint = format!("tcp/127.0.0.1:{port}");
-            let config = crate::zconf::load(&NetConfig::router(std::slice::from_ref(&endpoint)), None)?;
+            let config = baton_shell::zenoh_config(&NetConfig::router(std::slice::from_ref(&endpoint)), None)?;
             if let Ok(session) = zenoh::open(config).await {
                 opened = Some((session, endpoint, port));
                 break;

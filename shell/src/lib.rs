@@ -1,0 +1,172 @@
+//! What the two binaries' Zenoh shells share, so that it is written once: the session's configuration (Baton's
+//! settings over the user's `--zenoh-config`), the inbox every subscriber gets, the publisher outbox the main
+//! loop publishes through, and the main loop's waits (a deadline or nothing; SIGINT and SIGTERM).
+//!
+//! A shell here is what `coordinator/src/run` and `agent/src/shell.rs` are around their `proto` state machines:
+//! it turns samples into inputs, feeds the machine, drains its outputs and re-arms one timer. This crate holds
+//! none of a chart's rules — it depends on `proto` only for the settings and limits — and no Rerun: the agent
+//! links it.
+//!
+//! # Rules the shells keep
+//!
+//! - Shells publish from their main loop (`CongestionControl::Block`, express) and never wait to read: every
+//!   subscriber has an inbox of `RECEIVE_QUEUE_MAX` samples that Zenoh's reader fills without waiting for the
+//!   main loop. A put waits only while its link's queue is full, so two processes publishing to each other can
+//!   only block each other if both inboxes are full at once. (With Zenoh's default inbox of 256 this deadlocked
+//!   under the throughput benchmark; a separate sender task avoided it but cost ~30 µs per message.)
+//! - The outbox holds at most `PUBLISHERS_MAX` publishers: keys of finished runs would accumulate otherwise,
+//!   and a live key is declared again on its next use.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{anyhow, Context};
+use baton_proto::dist::netconfig::NetConfig;
+use baton_proto::limits::RECEIVE_QUEUE_MAX;
+use zenoh::handlers::FifoChannel;
+use zenoh::pubsub::Publisher;
+use zenoh::qos::CongestionControl;
+use zenoh::Session;
+
+/// Publishers a shell keeps declared at once.
+pub const PUBLISHERS_MAX: usize = 256;
+
+/// The Zenoh configuration of a Baton process: Baton's settings (`net`), on top of the user's own file when one
+/// is given (`--zenoh-config`, for TLS endpoints, credentials and the like).
+pub fn zenoh_config(net: &NetConfig, file: Option<&Path>) -> anyhow::Result<zenoh::Config> {
+    let Some(file) = file else {
+        return zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"));
+    };
+    let mut config = zenoh::Config::from_file(file)
+        .map_err(|e| anyhow!("{e}"))
+        .with_context(|| format!("cannot load {}", file.display()))?;
+    for (key, value) in net.overrides() {
+        config.insert_json5(key, &value).map_err(|e| anyhow!("zenoh configuration `{key}`: {e}"))?;
+    }
+    Ok(config)
+}
+
+/// The inbox of a subscriber or queryable: `RECEIVE_QUEUE_MAX` samples, filled by Zenoh's reader without waiting
+/// for the main loop.
+pub fn inbox() -> FifoChannel {
+    FifoChannel::new(RECEIVE_QUEUE_MAX)
+}
+
+/// The publishers a shell's main loop publishes through, one per key, declared on first use.
+pub struct Outbox {
+    session: Session,
+    publishers: HashMap<String, Publisher<'static>>,
+}
+
+impl Outbox {
+    pub fn new(session: &Session) -> Outbox {
+        Outbox { session: session.clone(), publishers: HashMap::new() }
+    }
+
+    /// Publishes `payload` on `key`, in the main loop, without a hop to another task (a hop cost a third of a
+    /// token's round trip). A key that cannot be declared, or a put that fails, is an error to log: the caller
+    /// goes on, as the state machines resend what matters.
+    pub async fn put(&mut self, key: String, payload: Vec<u8>) -> Result<(), String> {
+        if self.publishers.len() >= PUBLISHERS_MAX && !self.publishers.contains_key(&key) {
+            self.publishers.clear();
+        }
+        if !self.publishers.contains_key(&key) {
+            let declared = self
+                .session
+                .declare_publisher(key.clone())
+                .congestion_control(CongestionControl::Block)
+                .express(true)
+                .await
+                .map_err(|e| format!("cannot publish on {key}: {e}"))?;
+            self.publishers.insert(key.clone(), declared);
+        }
+        match self.publishers.get(&key) {
+            Some(p) => p.put(payload).await.map_err(|e| format!("cannot publish on {key}: {e}")),
+            None => Ok(()),
+        }
+    }
+
+    /// How many publishers are declared now.
+    pub fn len(&self) -> usize {
+        self.publishers.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.publishers.is_empty()
+    }
+}
+
+/// Waits until `deadline`, or for ever without one: the main loop's timer, re-armed each turn at the state
+/// machine's `poll_timeout`.
+pub async fn until(deadline: Option<Instant>) {
+    match deadline {
+        Some(at) => tokio::time::sleep_until(at.into()).await,
+        None => std::future::pending().await,
+    }
+}
+
+/// SIGINT and SIGTERM, as one stream: the main loop's way out.
+pub struct Stop {
+    interrupt: tokio::signal::unix::Signal,
+    terminate: tokio::signal::unix::Signal,
+}
+
+impl Stop {
+    /// The signal streams, made once (polling them each turn of the loop then costs nothing).
+    pub fn new() -> anyhow::Result<Stop> {
+        use tokio::signal::unix::{signal, SignalKind};
+        Ok(Stop { interrupt: signal(SignalKind::interrupt())?, terminate: signal(SignalKind::terminate())? })
+    }
+
+    /// The next SIGINT or SIGTERM.
+    pub async fn recv(&mut self) {
+        tokio::select! {
+            _ = self.interrupt.recv() => {}
+            _ = self.terminate.recv() => {}
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A session on nothing: no scouting, no listener, no router.
+    async fn lone_session() -> Session {
+        let mut config = zenoh::Config::default();
+        for (k, v) in [("scouting/multicast/enabled", "false"), ("listen/endpoints", "[]"), ("connect/endpoints", "[]")]
+        {
+            config.insert_json5(k, v).expect("config");
+        }
+        zenoh::open(config).await.expect("a lone session")
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
+    async fn the_outbox_keeps_at_most_its_cap_of_publishers() {
+        let session = lone_session().await;
+        let mut outbox = Outbox::new(&session);
+        for i in 0..PUBLISHERS_MAX + 10 {
+            outbox.put(format!("baton/test/{i}"), vec![1]).await.expect("a put on a lone session");
+            assert!(outbox.len() <= PUBLISHERS_MAX, "{} publishers after {i} keys", outbox.len());
+        }
+        outbox.put("baton/test/0".to_string(), vec![2]).await.expect("again");
+        assert!(outbox.len() <= PUBLISHERS_MAX);
+    }
+
+    #[test]
+    fn the_users_file_is_read_and_batons_settings_apply_over_it() {
+        let dir = std::env::temp_dir().join(format!("baton-shell-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("a folder");
+        let file = dir.join("z.json5");
+        std::fs::write(&file, r#"{ scouting: { multicast: { enabled: true } }, metadata: { name: "mine" } }"#)
+            .expect("write");
+        let net = NetConfig::client(&["tcp/127.0.0.1:7447".to_string()], true);
+        let config = zenoh_config(&net, Some(&file)).expect("a configuration");
+        assert_eq!(config.get_json("scouting/multicast/enabled").expect("scouting"), "false", "Baton's setting wins");
+        assert!(config.get_json("metadata").expect("metadata").contains("mine"), "the user's own stays");
+        let missing = zenoh_config(&net, Some(&dir.join("absent.json5"))).expect_err("a missing file");
+        assert!(format!("{missing:#}").contains("absent.json5"), "{missing:#}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
