@@ -215,200 +215,81 @@ impl<'a> Compiler<'a> {
             return None;
         };
         let members = fb.members();
-        let inputs_order: Vec<usize> = (0..members.len()).filter(|&i| members[i].kind == MemberKind::Input).collect();
-        let (mut en, mut inputs, mut outputs) = (None, Vec::new(), Vec::new());
-        let formal = args.iter().any(|a| a.name.is_some());
-        let mut positional = 0;
-        let mut ok = true;
-        for arg in args {
-            if formal && arg.name.is_none() {
-                self.error(arg.span, "a call mixes formal (`IN := x`) and non-formal arguments: name every argument");
-                ok = false;
-                continue;
-            }
-            let name = arg.name.as_ref();
-            if name.is_some_and(|n| n.key() == "EN") {
-                if arg.output {
-                    self.error(arg.span, "EN is an input: write `EN := condition`");
-                    ok = false;
-                } else {
-                    en = Some(self.condition(&arg.value, vars, "EN"));
+        // What a call may name: every member but the hidden state, in the instance's order.
+        let visible: Vec<usize> = (0..members.len()).filter(|&i| members[i].kind != MemberKind::State).collect();
+        let dir = |kind: MemberKind| if kind == MemberKind::Input { Dir::Input } else { Dir::Output };
+        let params = Params::block(
+            fb.name(),
+            visible.iter().map(|&i| (members[i].name.to_string(), dir(members[i].kind))).collect(),
+        );
+        let bound = self.bind(&params, args, vars, &mut |c: &mut Self, n: &Ident| {
+            c.member(fb, base, callee, n);
+        })?;
+        let (mut inputs, mut outputs, mut ok) = (Vec::new(), Vec::new(), true);
+        for (p, arg) in bound.args {
+            let member = &members[visible[p]];
+            let id = VarId(base.0 + visible[p] as u32);
+            if member.kind == MemberKind::Input {
+                let what = format!("input `{}` of {}", member.name, fb.name());
+                match self.input_value(arg, &member.ty, &what, vars) {
+                    Some(value) => inputs.push((id, value)),
+                    None => ok = false,
                 }
-                continue;
-            }
-            let index = match name {
-                Some(n) => match members
-                    .iter()
-                    .position(|m| m.kind != MemberKind::State && m.name.eq_ignore_ascii_case(&n.name))
-                {
-                    Some(i) => i,
-                    None => {
-                        self.member(fb, base, callee, n);
-                        ok = false;
-                        continue;
-                    }
-                },
-                None => match inputs_order.get(positional) {
-                    Some(&i) => {
-                        positional += 1;
-                        i
-                    }
-                    None => {
-                        let message = format!("too many arguments: {} takes {} inputs", fb.name(), inputs_order.len());
-                        self.error(arg.span, message);
-                        ok = false;
-                        continue;
-                    }
-                },
-            };
-            let member = &members[index];
-            let id = VarId(base.0 + index as u32);
-            if arg.output {
-                if member.kind == MemberKind::Input {
-                    let message =
-                        format!("`{}` is an input of {}: write `{} := value`", member.name, fb.name(), member.name);
-                    self.error(arg.span, message);
-                    ok = false;
-                    continue;
-                }
-                let Some(target) = self.place(&arg.value, vars) else {
-                    ok = false;
-                    continue;
-                };
-                let target_ty = Ty::of(&vars[target.index()].ty);
-                let member_ty = Ty::of(&member.ty);
-                if arg.negated && member_ty != Ty::Bool {
-                    self.error(
-                        arg.span,
-                        format!("NOT applies to BOOL outputs, and `{}` is {}", member.name, member.ty),
-                    );
-                    ok = false;
-                } else if !assignable(target_ty, member_ty) {
-                    let message = format!(
-                        "`{}` is {} and cannot be written to `{}`, which is {}",
-                        member.name,
-                        member.ty,
-                        vars[target.index()].name,
-                        vars[target.index()].ty
-                    );
-                    self.error(arg.value.span, message);
-                    ok = false;
-                } else {
-                    outputs.push(FbOutput { member: id, target, negated: arg.negated });
-                }
-                continue;
-            }
-            if member.kind != MemberKind::Input {
-                let message =
-                    format!("`{}` is an output of {}: write `{} => variable`", member.name, fb.name(), member.name);
-                self.error(arg.span, message);
-                ok = false;
-                continue;
-            }
-            let (mut value, mut ty) = self.expr(&arg.value, vars);
-            if Ty::of(&member.ty) == Ty::Bool {
-                if let ExprKind::Int(v @ (0 | 1)) = arg.value.kind {
-                    (value, ty) = (CExpr::Const(Value::Bool(v == 1)), Ty::Bool);
+            } else {
+                match self.output_target(arg, member.name, &member.ty, vars) {
+                    Some(target) => outputs.push(FbOutput { member: id, target, negated: arg.negated }),
+                    None => ok = false,
                 }
             }
-            if !assignable(Ty::of(&member.ty), ty) {
-                let message = format!("input `{}` of {} is {}, found {}", member.name, fb.name(), member.ty, ty.name());
-                self.error(arg.value.span, message);
-                ok = false;
-                continue;
-            }
-            inputs.push((id, value));
         }
         let _ = span;
-        ok.then_some(CStmt::Fb { fb, base, en, inputs, outputs })
+        ok.then_some(CStmt::Fb { fb, base, en: bound.en, inputs, outputs })
     }
 
     /// A call of a user function block instance: formal or non-formal inputs and in-outs (in declaration
     /// order), outputs with `=>`, EN and ENO.
     pub(super) fn user_call(&mut self, u: usize, callee: &Ident, args: &[Arg], vars: &[VarInfo]) -> Option<CStmt> {
         let def_name = self.users[u].def.name.name.clone();
-        let params = self.users[u].params.clone();
+        let user_params = self.users[u].params.clone();
         let eno = self.users[u].eno;
-        let positional_params: Vec<usize> = (0..params.len()).filter(|&i| params[i].1 != VarSection::Output).collect();
-        let formal = args.iter().any(|a| a.name.is_some());
-        let (mut en, mut inputs, mut inouts, mut outputs) = (None, Vec::new(), Vec::new(), Vec::new());
-        let mut ok = true;
-        let mut positional = 0;
-        let list = || params.iter().map(|p| p.0.clone()).collect::<Vec<_>>().join(", ");
-        for arg in args {
-            if formal && arg.name.is_none() {
-                self.error(arg.span, "a call mixes formal (`IN := x`) and non-formal arguments: name every argument");
-                ok = false;
+        let dir = |section: VarSection| match section {
+            VarSection::Output => Dir::Output,
+            VarSection::InOut => Dir::InOut,
+            _ => Dir::Input,
+        };
+        let mut names: Vec<(String, Dir)> =
+            user_params.iter().map(|(n, section, _)| (n.clone(), dir(*section))).collect();
+        names.push(("ENO".to_string(), Dir::Output));
+        let params = Params::block(format!("`{def_name}`"), names);
+        let list = user_params.iter().map(|p| p.0.clone()).collect::<Vec<_>>().join(", ");
+        let bound = self.bind(&params, args, vars, &mut |c: &mut Self, n: &Ident| {
+            let message = format!("function block `{def_name}` has no parameter `{}` (it has {list})", n.name);
+            c.error(n.span, message);
+        })?;
+        let (mut inputs, mut inouts, mut outputs, mut ok) = (Vec::new(), Vec::new(), Vec::new(), true);
+        for (p, arg) in bound.args {
+            let Some((name, section, id)) = user_params.get(p).cloned() else {
+                // ENO, after the declared parameters.
+                match self.place(&arg.value, vars) {
+                    Some(target) => outputs.push(FbOutput { member: eno, target, negated: arg.negated }),
+                    None => ok = false,
+                }
                 continue;
-            }
-            let index = match &arg.name {
-                Some(n) if n.key() == "EN" => {
-                    en = Some(self.condition(&arg.value, vars, "EN"));
-                    continue;
-                }
-                Some(n) if n.key() == "ENO" && arg.output => {
-                    if let Some(target) = self.place(&arg.value, vars) {
-                        outputs.push(FbOutput { member: eno, target, negated: arg.negated });
-                    }
-                    continue;
-                }
-                Some(n) => match params.iter().position(|p| p.0.eq_ignore_ascii_case(&n.name)) {
-                    Some(i) => i,
-                    None => {
-                        let message =
-                            format!("function block `{def_name}` has no parameter `{}` (it has {})", n.name, list());
-                        self.error(n.span, message);
-                        ok = false;
-                        continue;
-                    }
-                },
-                None => match positional_params.get(positional) {
-                    Some(&i) => {
-                        positional += 1;
-                        i
-                    }
-                    None => {
-                        let message =
-                            format!("too many arguments: `{def_name}` takes {} inputs", positional_params.len());
-                        self.error(arg.span, message);
-                        ok = false;
-                        continue;
-                    }
-                },
             };
-            let (name, section, id) = params[index].clone();
-            match (section, arg.output) {
-                (VarSection::Output, true) => {
-                    let Some(target) = self.place(&arg.value, vars) else {
-                        ok = false;
-                        continue;
-                    };
-                    if !assignable(Ty::of(&vars[target.index()].ty), Ty::of(&vars[id.index()].ty)) {
-                        let message = format!(
-                            "`{name}` is {} and cannot be written to `{}`, which is {}",
-                            vars[id.index()].ty,
-                            vars[target.index()].name,
-                            vars[target.index()].ty
-                        );
-                        self.error(arg.value.span, message);
-                        ok = false;
-                        continue;
-                    }
-                    outputs.push(FbOutput { member: id, target, negated: arg.negated });
-                }
-                (VarSection::Output, false) => {
-                    self.error(arg.span, format!("`{name}` is an output of `{def_name}`: write `{name} => variable`"));
-                    ok = false;
-                }
-                (VarSection::InOut, false) => {
+            let ty = vars[id.index()].ty.clone();
+            match section {
+                VarSection::Output => match self.output_target(arg, &name, &ty, vars) {
+                    Some(target) => outputs.push(FbOutput { member: id, target, negated: arg.negated }),
+                    None => ok = false,
+                },
+                VarSection::InOut => {
                     let Some(caller) = self.place(&arg.value, vars) else {
                         ok = false;
                         continue;
                     };
-                    if vars[caller.index()].ty != vars[id.index()].ty {
+                    if vars[caller.index()].ty != ty {
                         let message = format!(
-                            "in-out `{name}` of `{def_name}` is {}, and `{}` is {}",
-                            vars[id.index()].ty,
+                            "in-out `{name}` of `{def_name}` is {ty}, and `{}` is {}",
                             vars[caller.index()].name,
                             vars[caller.index()].ty
                         );
@@ -418,31 +299,15 @@ impl<'a> Compiler<'a> {
                     }
                     inouts.push((id, caller));
                 }
-                (_, true) => {
-                    self.error(arg.span, format!("`{name}` is an input of `{def_name}`: write `{name} := value`"));
-                    ok = false;
-                }
-                (_, false) => {
-                    let (mut value, mut ty) = self.expr(&arg.value, vars);
-                    let target = Ty::of(&vars[id.index()].ty);
-                    if target == Ty::Bool {
-                        if let ExprKind::Int(v @ (0 | 1)) = arg.value.kind {
-                            (value, ty) = (CExpr::Const(Value::Bool(v == 1)), Ty::Bool);
-                        }
-                    }
-                    if !assignable(target, ty) {
-                        let message =
-                            format!("input `{name}` of `{def_name}` is {}, found {}", vars[id.index()].ty, ty.name());
-                        self.error(arg.value.span, message);
-                        ok = false;
-                        continue;
-                    }
-                    inputs.push((id, value));
-                }
+                _ => match self.input_value(arg, &ty, &format!("input `{name}` of `{def_name}`"), vars) {
+                    Some(value) => inputs.push((id, value)),
+                    None => ok = false,
+                },
             }
         }
         let _ = callee;
         let body = Arc::clone(&self.users[u].body);
+        let en = bound.en;
         ok.then(|| CStmt::UserFb(Box::new(UserCall { body, en, inputs, inouts, outputs, eno })))
     }
 }

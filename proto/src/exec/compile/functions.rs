@@ -193,50 +193,23 @@ impl<'a> Compiler<'a> {
         vars: &[VarInfo],
     ) -> Option<CStmt> {
         let name = callee.key();
-        let formal = args.iter().any(|a| a.name.is_some());
-        let mut value = None;
-        let mut targets: Vec<(DatePart, &Expr)> = Vec::new();
-        for (i, arg) in args.iter().enumerate() {
-            let slot = match &arg.name {
-                Some(n) if n.key() == "IN" && !arg.output => None,
-                Some(n) => match parts.iter().find(|(p, _)| *p == n.key()) {
-                    Some(&(_, part)) if arg.output => Some(part),
-                    Some(_) => {
-                        self.error(
-                            arg.span,
-                            format!("`{}` is an output of {name}: write it `{} => variable`", n.name, n.name),
-                        );
-                        return None;
-                    }
-                    None => {
-                        let outputs: Vec<&str> = parts.iter().map(|(p, _)| *p).collect();
-                        let message =
-                            format!("{name} has no parameter `{}`: it has IN and {}", n.name, outputs.join(", "));
-                        self.error(n.span, message);
-                        return None;
-                    }
-                },
-                None if formal => {
-                    self.error(
-                        arg.span,
-                        "a call mixes formal (`IN := x`) and non-formal arguments: name every argument",
-                    );
-                    return None;
-                }
-                None if i == 0 => None,
-                None => match parts.get(i - 1) {
-                    Some(&(_, part)) => Some(part),
-                    None => {
-                        self.error(arg.span, format!("{name} takes IN and {} outputs", parts.len()));
-                        return None;
-                    }
-                },
-            };
-            match slot {
-                None => value = Some(&arg.value),
-                Some(part) => targets.push((part, &arg.value)),
-            }
-        }
+        let mut names = vec![("IN".to_string(), Dir::Input)];
+        names.extend(parts.iter().map(|(p, _)| (p.to_string(), Dir::Output)));
+        let outputs: Vec<&str> = parts.iter().map(|(p, _)| *p).collect();
+        let params = Params {
+            shown: name.clone(),
+            positional: (0..names.len()).collect(),
+            params: names,
+            en: false,
+            too_many: format!("{name} takes IN and {} outputs", parts.len()),
+        };
+        let bound = self.bind(&params, args, vars, &mut |c: &mut Self, n: &Ident| {
+            let message = format!("{name} has no parameter `{}`: it has IN and {}", n.name, outputs.join(", "));
+            c.error(n.span, message);
+        })?;
+        let value = bound.args.iter().find(|(p, _)| *p == 0).map(|(_, arg)| &arg.value);
+        let targets: Vec<(DatePart, &Expr)> =
+            bound.args.iter().filter(|(p, _)| *p > 0).map(|(p, arg)| (parts[p - 1].1, &arg.value)).collect();
         let Some(value) = value else {
             self.error(callee.span, format!("{name} needs its input `IN`"));
             return None;

@@ -2,10 +2,11 @@
 //!
 //! One `Compiler` walks a chart; its methods are grouped by what they lower, a file each: `declare`
 //! (variables and block instances), `aggregate` (arrays and structures), `typing` (type names and `Ty`),
-//! `functions` (function calls), `blocks` (block calls and actions called), `sfc` (actions, associations,
-//! transitions), `statements`, `expressions`, and `nested` (charts inside function blocks).
+//! `binding` (the one binder of arguments to parameters), `functions` (function calls), `blocks` (block calls and
+//! actions called), `sfc` (actions, associations, transitions), `statements`, `expressions`, and `nested` (charts
+//! inside function blocks).
 //!
-//! `compile.rs`: name resolution (case-insensitive, reported as first declared), type checking of the Structured Text
+//! What it does: name resolution (case-insensitive, reported as first declared), type checking of the Structured Text
 //! subset, boolean actions, durations and indicators; builds a `Program`. A standard function block instance is
 //! declared as a run of variables, one per member (`t1.IN`, `t1.Q`, …, hidden state last, `VarInfo::hidden`), with its
 //! initial inputs from `t1 : TON := (PT := T#2s)`; calls resolve formal, non-formal and output (`=>`, `NOT Q =>`)
@@ -38,6 +39,7 @@
 )]
 
 mod aggregate;
+mod binding;
 mod blocks;
 mod declare;
 mod expressions;
@@ -57,6 +59,7 @@ use crate::front::model::*;
 use crate::limits::NESTING_DEPTH_MAX;
 use crate::types::library::{DateFn, DatePart, Func, MemberKind, StdFb, TextFn};
 use crate::types::{IntKind, Type, Value};
+use binding::*;
 use typing::*;
 
 /// The result of compiling one chart: a program (with placeholders wherever an error was reported) and whether
