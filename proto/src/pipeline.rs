@@ -1,6 +1,6 @@
 //! `check_source`: parse, compile and analyse every chart of a source text, reporting every problem at once.
 //!
-//! `check.rs`: `pipeline::check_source` picks the front end by content (XML or text), ties parse, compile and analysis
+//! `pipeline::check_source` picks the front end by content (XML or text), ties parse, compile and analysis
 //! together (no net analysis after a syntax error: the net is not the one drawn), sorts and dedups the diagnostics.
 
 use crate::dist::layout::{layout, Layout};

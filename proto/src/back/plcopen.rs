@@ -11,7 +11,7 @@
 //! `ORDER_DATA`, which Baton's reader follows and other tools ignore, so that importing the export gives the
 //! same program.
 //!
-//! `plcopen.rs`: PLCopen TC6 v2.01 XML from a chart and its program (`baton export --plcopen`): rows by breadth-first
+//! PLCopen TC6 v2.01 XML from a chart and its program (`baton export --plcopen`): rows by breadth-first
 //! distance, back edges as jumps, divergences and convergences where the net needs them, every transition's priority
 //! (the clearing order), named transitions and actions with ST bodies, step pragmas in `documentation`, and Baton's
 //! element order in the POU's `addData` (`ORDER_DATA`), which the reader follows instead of its Beremiz order. An

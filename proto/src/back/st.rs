@@ -1,7 +1,7 @@
 //! Structured Text from the chart model: expressions and statements printed so that Baton's parser reads back
 //! the same tree (parentheses where precedence needs them, literals in a form the lexer takes).
 //!
-//! `st.rs`: Structured Text from the model, parenthesised so that the parser reads back the same tree (tested by
+//! Structured Text from the model, parenthesised so that the parser reads back the same tree (tested by
 //! printing and re-parsing).
 
 use std::fmt::Write;

@@ -19,7 +19,7 @@
 //! the I/O beside the program; the agent does the protocol. What only the agent can know (a ROS 2 type's
 //! fields, an OPC UA node's data type) it checks when it joins the run, and reports as a device it cannot reach.
 //!
-//! `io.rs`: chart variables bound to device signals (`IoBinding`, read from a declaration's pragmas: a Zenoh key, a ROS
+//! Chart variables bound to device signals (`IoBinding`, read from a declaration's pragmas: a Zenoh key, a ROS
 //! 2 topic's field, an OPC UA node; each kind's parameters checked as far as `proto` can, without ROS types or an OPC
 //! UA stack): an input's agent is its one writer (the layout adds it to the writers and refuses any other), and every
 //! bound variable is published (`read_by_agents`), so inputs reach the coordinator and outputs their agent.

@@ -11,7 +11,7 @@
 //! A record is `[tag: u8][t_ms: u64, little endian][body]`. Bodies of reports, variable updates and agent
 //! announcements are the wire messages as they arrived, so journaling them costs a copy, not an encoding.
 //!
-//! `journal.rs`: the coordinator's journal as records — every input of `Coordinator` with its time (`Record`: cycle,
+//! The coordinator's journal as records — every input of `Coordinator` with its time (`Record`: cycle,
 //! report, variable update, device report, agent up/down, set, loss policy, recover, end) — their binary framing,
 //! `apply` (the one place records become inputs), `Journaled` (a `Coordinator` whose inputs are all recorded first, and
 //! `replay`), the journal header (with `program_pin`, a hash of what the records' variable, step, transition, action

@@ -15,9 +15,7 @@
 //! Agent names and roles are restricted to letters, digits, `_` and `-` (`is_valid_name`), so they are
 //! always single chunks; a run is 32 hex digits.
 //!
-//! `keys.rs`: every Zenoh key expression of Baton's own (rmw_zenoh's are in `agent/src/ros2/rmw_keys.rs`).
-//! `netconfig.rs`: the Zenoh session configuration as JSON5 text (router or client, scouting off, lease), shared by
-//! every process without `proto` depending on Zenoh.
+//! Every Zenoh key expression of Baton's own is built here (rmw_zenoh's are in `agent/src/ros2/rmw_keys.rs`).
 
 use crate::dist::wire::RunId;
 use uuid::Uuid;

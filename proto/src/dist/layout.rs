@@ -10,7 +10,7 @@
 //! - an action runs in one place, each variable has one writer, and a transition judged on an agent reads only
 //!   steps of its own placement.
 //!
-//! `layout.rs`: placement pragmas, segments (union-find over one-source one-target transitions of equal placement),
+//! Placement pragmas, segments (union-find over one-source one-target transitions of equal placement),
 //! waiting steps, each variable's one writer, skill bindings (with their structured parameters read and their output
 //! mappings, whose variables the action's agent writes); the coordinator's and agents' scopes. Its refusals are `baton
 //! check` diagnostics.

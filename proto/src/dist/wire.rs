@@ -4,7 +4,7 @@
 //! cannot silently change the protocol. Every message carries the protocol version; a decoder refuses other
 //! versions, oversized payloads and malformed JSON with an error, never a panic.
 //!
-//! `wire.rs`: the only serialized runtime types (`ToAgent`, `Report`, `VarUpdate`, `DeviceReport`, `AgentInfo`,
+//! The only serialized runtime types (`ToAgent`, `Report`, `VarUpdate`, `DeviceReport`, `AgentInfo`,
 //! `ChartSource`, `SetRequest`/`SetReply`, `StatusReport`), JSON with a protocol version, size-limited decoding.
 //! `Peers` is the coordinator's word on whose variable updates an agent may take: the coordinator's own process and
 //! each writer agent's current process (sent with `Dispatch` and `Join`, and as `ToAgent::Peers` when it changes). A

@@ -9,7 +9,7 @@
 //! a convergence of mutually exclusive steps, initial steps that meet) is settled by the exhaustive pass,
 //! which explores the reachable situations (sets of active steps) up to `ANALYSIS_SITUATIONS_MAX`.
 //!
-//! `analysis.rs`: safety and reachability with conditions taken as free. A linear structural pass (threads of tokens
+//! Safety and reachability with conditions taken as free. A linear structural pass (threads of tokens
 //! through simultaneous divergences and convergences) decides structured charts; anything else goes to an exhaustive
 //! exploration of reachable situations, bounded by `ANALYSIS_SITUATIONS_MAX`.
 #![allow(

@@ -18,7 +18,7 @@
 //! stored state, never on the size of the chart: per-element scratch is indexed by id and stamped with the
 //! cycle number instead of being cleared.
 //!
-//! `engine.rs`: `Engine`, the scan-cycle state machine: `handle(Input)`, `handle_cycle(now_ms)`, `poll_event()`;
+//! `Engine`, the scan-cycle state machine: `handle(Input)`, `handle_cycle(now_ms)`, `poll_event()`;
 //! `Engine::with_scope(Scope)` runs part of a chart (which transitions it judges, which are exits whose targets live
 //! elsewhere, which steps' actions it runs) and `handle_remote` applies what another engine did (a token arrived; a
 //! transition cleared elsewhere). Between cycles, `react` scans what became active or was left and judges the

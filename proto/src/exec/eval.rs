@@ -1,6 +1,6 @@
 //! Evaluates typed expressions and runs action bodies against the engine's state (or none, for constants).
 //!
-//! `eval.rs`: evaluation of `CExpr` and execution of `CStmt` against the `Env`/`EnvMut` traits; loops (FOR, WHILE,
+//! Evaluation of `CExpr` and execution of `CStmt` against the `Env`/`EnvMut` traits; loops (FOR, WHILE,
 //! REPEAT) share one budget of `LOOP_ITERATIONS_MAX` per run of a body, past which it stops with `Fault::LoopLimit`;
 //! EXIT and RETURN are control flow (`Flow`), not faults.
 

@@ -1,7 +1,7 @@
 //! The executable form of a chart: names resolved to ids, expressions typed, transitions ranked by priority.
 //! The engine runs a `Program`; only `compile` builds one, and only from a chart without errors.
 //!
-//! `program.rs`: the executable form: ids (`StepId`, `TransitionId`, `ActionId`, `VarId`), typed expressions (`CExpr`,
+//! The executable form: ids (`StepId`, `TransitionId`, `ActionId`, `VarId`), typed expressions (`CExpr`,
 //! `CStmt`; a function call is boxed so that every other node stays small); the data the engine reads each cycle is
 //! flat and id-ordered (`Program::assemble`); the function calls a condition needs (hoisted user function calls) are a
 //! sparse table beside it (`calls(t)`), read only by programs that have some. `walk_body` is the one walk over

@@ -1,10 +1,7 @@
 //! Virtual-time simulation as `baton sim` runs it: a JSON Lines input script in, trace records out.
 //!
-//! `sim.rs` (in `exec/`): the virtual-time loop and JSON formats of `baton sim` (input script in, `TraceRecord` out,
-//! with `value` records for watched variables). `types.rs` (in `exec/`): elementary types and values. A `Value` is not
-//! `Copy`: a STRING is an `Arc<String>` (the enum stays 16 bytes, a copy of a value is a reference count at most),
-//! never changed in place; a variable's length cuts what is stored in it (`Type::coerce`), and `STRING_CHARS_MAX`
-//! bounds a chart's strings so that a dispatch fits a message.
+//! The virtual-time loop and JSON formats of `baton sim`: the input script in, `TraceRecord`s out, with `value`
+//! records for watched variables.
 
 use std::sync::Arc;
 

@@ -12,7 +12,7 @@
 //! it starts, so TON with PT = T#0s sets Q in the call where IN rises (as CODESYS does; matiec sets it one call
 //! later).
 //!
-//! `stdlib.rs`: the standard library's behaviour — each standard block's members (their order is the instance's
+//! The standard library's behaviour — each standard block's members (their order is the instance's
 //! variable layout) and one call of it (`run_fb`, time from `Env::now_ms`), and the standard functions' evaluation
 //! helpers (conversions, shifts, integer powers, BCD, the date functions `DateFn`). Counters follow the runtimes users
 //! come from (CTD and CTUD stop counting down at 0, CTU counts to its type's maximum; the doc's "Where runtimes

@@ -1,6 +1,6 @@
 //! Source spans and diagnostics, rendered as `PATH:LINE:COL: error: message` with the offending text quoted.
 //!
-//! `diag.rs`: `Span`, `Diagnostic`, and the rustc-style rendering `PATH:LINE:COL: error: message`.
+//! `Span`, `Diagnostic`, and the rustc-style rendering `PATH:LINE:COL: error: message`.
 
 use std::fmt::Write as _;
 

@@ -1,6 +1,6 @@
 //! Turns IEC 61131-3 source text into tokens; comments vanish, pragmas are kept aside with their spans.
 //!
-//! `lexer.rs`: source text to tokens; comments vanish; `{ … }` pragmas are set aside with their spans.
+//! Source text to tokens; comments vanish; `{ … }` pragmas are set aside with their spans.
 
 use crate::front::diag::{Diagnostic, Span};
 

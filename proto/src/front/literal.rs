@@ -4,7 +4,7 @@
 //! because a pragma ends at its first `}` (so never JSON), and they are read here, where `baton check` sees
 //! them, so that a malformed goal is an error in the editor rather than a fault on the robot.
 //!
-//! `literal.rs`: IEC 61131-3 structure and array literals in skill parameters (a goal `'(order := 5)'`, arguments `'[3,
+//! IEC 61131-3 structure and array literals in skill parameters (a goal `'(order := 5)'`, arguments `'[3,
 //! T#2s]'`) and the mappings of a skill's answer to variables (`'sequence[4] => last'`), bounded by
 //! `LITERAL_ELEMENTS_MAX`.
 

@@ -1,6 +1,6 @@
 //! The chart model: what a parser (textual SFC today, PLCopen XML later) produces, before names are resolved.
 //!
-//! `model.rs`: the chart model (`Chart`, `Step`, `Transition`, `Action`, `Association`, `Qualifier` — the IEC ones and
+//! The chart model (`Chart`, `Step`, `Transition`, `Action`, `Association`, `Qualifier` — the IEC ones and
 //! CODESYS's `Entry`/`Exit`, which only vendor data writes —, `Expr`, `Stmt`; `Sfc`, an action written in SFC; `FbDef`
 //! with its `actions`; `GlobalList`) as both parsers produce it, names unresolved, spans kept. Operator chains that are
 //! associative (AND, OR, XOR) are built balanced (`Expr::balanced`, by `fold_balanced`, which the compiler's typing of

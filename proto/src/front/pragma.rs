@@ -3,7 +3,7 @@
 //! but cannot be read, and one whose key is a near miss of Baton's, are reported (`baton check`); any other
 //! pragma is another tool's and is left alone.
 //!
-//! `pragma.rs`: reads a pragma's text as `key := literal` pairs (keys are names whatever their spelling), as malformed
+//! Reads a pragma's text as `key := literal` pairs (keys are names whatever their spelling), as malformed
 //! (with why), or as another tool's; near misses of Baton's keys.
 
 use crate::front::lexer::{lex, Kw, Tok, Token};

@@ -4,7 +4,7 @@
 //! superset of Latin-1's printable characters. Reading a file other than UTF-8 is said in a note at its place, so
 //! that a user knows how the text was read; nothing is refused for its encoding alone.
 //!
-//! `source.rs`: a file's bytes to text before anything reads it: UTF-8 (with or without a byte-order mark), UTF-16 with
+//! A file's bytes to text before anything reads it: UTF-8 (with or without a byte-order mark), UTF-16 with
 //! a byte-order mark, an XML declaration's encoding, else Windows-1252 (what vendor tools write), said in a located
 //! warning; past `SOURCE_BYTES_MAX` a file is refused before it is read whole (encoding_rs).
 

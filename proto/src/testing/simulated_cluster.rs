@@ -13,7 +13,7 @@
 //! `fault_rate`); `baton test` gives each action the behaviour its scenario declares. Faults of the network can
 //! be global (`Faults`) or on one agent's link for a while (`link_faults_at`).
 //!
-//! `simulated_cluster.rs`: deterministic simulation of a distributed run (real state machines, simulated network that
+//! Deterministic simulation of a distributed run (real state machines, simulated network that
 //! loses, duplicates, reorders and delays, agents killed, restarted, or cut silently — lost when their lease runs out,
 //! fencing themselves first —, the coordinator crashed before or after its journal and restarted from it, one seed;
 //! what agents start is watched, and `settled` finds tokens stuck between the coordinator and an agent). Product code,

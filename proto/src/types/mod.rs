@@ -1,4 +1,8 @@
 //! Elementary data types and run-time values of the Structured Text subset Baton executes.
+//!
+//! A `Value` is not `Copy`: a STRING is an `Arc<String>` (the enum stays 16 bytes, a copy of a value is a
+//! reference count at most), never changed in place; a variable's length cuts what is stored in it
+//! (`Type::coerce`), and `STRING_CHARS_MAX` bounds a chart's strings so that a dispatch fits a message.
 
 pub mod library;
 

@@ -3,7 +3,7 @@
 //! POUs without an SFC body (ST functions, configurations, type declarations) are skipped: a chart file may
 //! hold a whole project.
 //!
-//! `parser.rs`: recursive descent over the tokens into the chart model, with error recovery at each SFC element so that
+//! Recursive descent over the tokens into the chart model, with error recovery at each SFC element so that
 //! every syntax error is reported. Function blocks and functions with ST bodies go to the library (`Parsed::library`,
 //! their syntax errors kept until a chart uses them), TYPE blocks to `Parsed::types`; ST programs and configurations
 //! are skipped. `parse_fragment` parses one condition, body or value found in another format, given a map from its

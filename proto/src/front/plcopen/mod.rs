@@ -9,7 +9,7 @@
 //! the textual parser as fragments, at their place in the file) or LD/FBD networks, which become expressions
 //! and assignments. What Baton does not run yet is refused with an error that names it.
 //!
-//! `plcopen.rs`: the PLCopen TC6 XML reader (roxmltree, positions kept). It rebuilds the net from the consumer-side
+//! The PLCopen TC6 XML reader (roxmltree, positions kept). It rebuilds the net from the consumer-side
 //! arcs (walking back through selection divergences and simultaneous convergences to a transition's sources, forward
 //! through convergences, divergences and jumps to its targets), turns wired LD/FBD logic into expressions and LD/FBD
 //! bodies into assignments (with a budget on connections walked), and parses ST bodies with `parser::parse_fragment`,
