@@ -1,0 +1,256 @@
+//! `Coordinator` at its seams, one input at a time, without a network: membership (agents that come and go,
+//! devices), tokens (a dispatch waits for its placement), reports (applied once, in order; an older epoch is
+//! told to drop), and control (what `baton set` may set). Agents are played by `AgentRun`s where a real
+//! answer is needed.
+
+use super::*;
+use crate::limits::AGENTS_MAX;
+
+const RUN: RunId = RunId(uuid::Uuid::from_u128(7));
+
+fn coordinator_of(program: &Arc<Program>, layout: &Arc<Layout>) -> Coordinator {
+    let (program, layout) = (Arc::clone(program), Arc::clone(layout));
+    Coordinator::new(program, layout, RUN, ChartHash("h".into()), crate::dist::journal::token_ids(RUN))
+}
+
+fn coordinator() -> Coordinator {
+    let (program, layout) = crate::testing::simulated_cluster::compile(
+        "PROGRAM p\nINITIAL_STEP A: END_STEP\nTRANSITION FROM A TO B := TRUE; END_TRANSITION\n\
+         STEP B: {role := 'worker'} END_STEP\nEND_PROGRAM\n",
+    );
+    coordinator_of(&program, &layout)
+}
+
+fn info(name: &str, n: u128) -> AgentInfo {
+    AgentInfo {
+        name: name.into(),
+        roles: Vec::new(),
+        lease_ms: 1000,
+        incarnation: uuid::Uuid::from_u128(n),
+        held: Vec::new(),
+    }
+}
+
+#[test]
+fn agents_that_are_gone_and_hold_nothing_are_forgotten() {
+    let mut c = coordinator();
+    // Far more names than the coordinator tracks come and go, as on a cell whose agents restart under new
+    // names for months.
+    for i in 0..(2 * AGENTS_MAX) {
+        let name = format!("a{i}");
+        c.handle_agent_up(i as u64, info(&name, i as u128));
+        c.handle_agent_down(i as u64, &name);
+    }
+    assert!(c.agents.is_empty(), "{} agents remembered", c.agents.len());
+    c.handle_agent_up(10_000, info("newcomer", 1));
+    assert_eq!(c.status().agents.len(), 1, "a new agent is still taken");
+}
+
+#[test]
+fn a_device_that_cannot_be_reached_is_traced_once_each_way_and_a_rogue_report_changes_nothing() {
+    use crate::dist::runtime::agent::{AgentOutput, AgentRun};
+    let source = "PROGRAM p\nVAR\n  door : BOOL; {input := 'opcua', agent := 'cell1', endpoint := \
+                  'opc.tcp://10.0.0.5:4840', node := 'ns=2;s=Door'}\n  lamp : BOOL; {output := 'zenoh', \
+                  agent := 'cell2', key := 'cell2/lamp'}\nEND_VAR\nINITIAL_STEP A: END_STEP\n\
+                  TRANSITION FROM A TO B := door; END_TRANSITION\nSTEP B: END_STEP\nEND_PROGRAM\n";
+    let (program, layout) = crate::testing::simulated_cluster::compile(source);
+    let mut c = coordinator_of(&program, &layout);
+    let mut agent = AgentRun::new("cell1", &[], RUN, ChartHash("h".into()), program, layout, 10);
+    agent.set_incarnation(uuid::Uuid::from_u128(1));
+    c.handle_agent_up(0, info("cell1", 1));
+    c.handle_agent_up(0, info("cell2", 2));
+    let reports = |a: &mut AgentRun| {
+        let mut out = Vec::new();
+        while let Some(o) = a.poll_output() {
+            if let AgentOutput::Devices(d) = o {
+                out.push(d);
+            }
+        }
+        out
+    };
+    let traced = |c: &mut Coordinator| {
+        let mut out = Vec::new();
+        while let Some(o) = c.poll_output() {
+            if let CoordOutput::Trace(t) = o {
+                if matches!(t.event, TraceEvent::DeviceUp | TraceEvent::DeviceDown) {
+                    out.push((t.event, t.name, t.message.unwrap_or_default()));
+                }
+            }
+        }
+        out
+    };
+    traced(&mut c);
+    agent.handle_device(0, Err("cannot reach opc.tcp://10.0.0.5:4840: BadTimeout".into()));
+    // Tried again and failing for another reason: no second report.
+    agent.handle_device(0, Err("cannot reach opc.tcp://10.0.0.5:4840: BadConnectionRejected".into()));
+    let down = reports(&mut agent);
+    assert_eq!(down.len(), 1);
+    c.handle_devices(10, down[0].clone());
+    let t = traced(&mut c);
+    assert_eq!(t.len(), 1, "{t:?}");
+    assert_eq!((t[0].0, t[0].1.as_str()), (TraceEvent::DeviceDown, "door"));
+    assert!(t[0].2.contains("OPC UA node ns=2;s=Door") && t[0].2.contains("BadTimeout"), "{}", t[0].2);
+    assert_eq!(c.status().agents[0].devices_down[0].var, "door");
+    // The same report again (a Join answered), a late one, another process's, and one about a binding of
+    // another agent: nothing is traced.
+    c.handle_devices(11, down[0].clone());
+    let join = crate::dist::runtime::agent::Join { vars: Vec::new(), vars_seq: 0, peers: Peers::default() };
+    agent.handle_join(0, join);
+    let again = reports(&mut agent);
+    c.handle_devices(12, again[0].clone());
+    let mut stale = again[0].clone();
+    stale.seq = 1;
+    stale.down.clear();
+    c.handle_devices(13, stale);
+    let mut other = again[0].clone();
+    other.seq = 99;
+    other.incarnation = uuid::Uuid::from_u128(5);
+    other.down.clear();
+    c.handle_devices(14, other);
+    let mut rogue = again[0].clone();
+    rogue.seq = 100;
+    rogue.down[0].binding = 1;
+    c.handle_devices(15, rogue);
+    assert!(traced(&mut c).is_empty());
+    assert_eq!(c.status().agents[0].devices_down.len(), 1);
+    agent.handle_device(0, Ok(()));
+    for r in reports(&mut agent) {
+        c.handle_devices(20, r);
+    }
+    assert_eq!(
+        traced(&mut c),
+        vec![(TraceEvent::DeviceUp, "door".into(), "OPC UA node ns=2;s=Door on opc.tcp://10.0.0.5:4840".into())]
+    );
+    assert!(c.status().agents[0].devices_down.is_empty());
+}
+
+/// The chart of the seam tests: a segment of one step on the role `worker`, whose exit waits for `done`.
+const WORKER_CHART: &str =
+    "PROGRAM p\nVAR go : BOOL; done : BOOL; n : INT; END_VAR\nINITIAL_STEP A: Count(N); END_STEP\n\
+    TRANSITION FROM A TO B := go; END_TRANSITION\nSTEP B: {role := 'worker'} END_STEP\n\
+    TRANSITION FROM B TO C := TRUE; END_TRANSITION\nSTEP C: END_STEP\n\
+    ACTION Count: n := n + 1; END_ACTION\nEND_PROGRAM\n";
+
+fn worker(name: &str, n: u128) -> AgentInfo {
+    AgentInfo { roles: vec!["worker".into()], ..info(name, n) }
+}
+
+/// Every output, in order.
+fn drain(c: &mut Coordinator) -> Vec<CoordOutput> {
+    std::iter::from_fn(|| c.poll_output()).collect()
+}
+
+fn dispatches(out: &[CoordOutput]) -> Vec<(String, TokenId, u32)> {
+    out.iter()
+        .filter_map(|o| match o {
+            CoordOutput::Send { agent, msg: ToAgent::Dispatch { token, epoch, .. }, .. } => {
+                Some((agent.clone(), *token, *epoch))
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+fn traced(out: &[CoordOutput], event: TraceEvent) -> usize {
+    out.iter().filter(|o| matches!(o, CoordOutput::Trace(t) if t.event == event)).count()
+}
+
+#[test]
+fn a_token_waits_for_an_agent_of_its_role_and_goes_to_the_first_that_comes() {
+    let (program, layout) = crate::testing::simulated_cluster::compile(WORKER_CHART);
+    let mut c = coordinator_of(&program, &layout);
+    c.handle_set(0, "go", &serde_json::json!(true)).expect("go is an input");
+    c.handle_cycle(10);
+    let out = drain(&mut c);
+    assert!(dispatches(&out).is_empty(), "{out:?}");
+    assert_eq!(traced(&out, TraceEvent::Wait), 1, "the token says it waits: {out:?}");
+    c.handle_agent_up(20, info("stranger", 1));
+    assert!(dispatches(&drain(&mut c)).is_empty(), "an agent without the role takes nothing");
+    c.handle_agent_up(30, worker("w1", 2));
+    let sent = dispatches(&drain(&mut c));
+    assert_eq!(sent.len(), 1, "{sent:?}");
+    assert_eq!((sent[0].0.as_str(), sent[0].2), ("w1", 1));
+    assert_eq!(c.tokens_in_flight(), 1);
+}
+
+/// The coordinator and one worker agent, with the token of `B` on the agent; returns the agent's reports.
+fn one_token_out() -> (Coordinator, Vec<Report>) {
+    use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch};
+    let (program, layout) = crate::testing::simulated_cluster::compile(WORKER_CHART);
+    let mut c = coordinator_of(&program, &layout);
+    let mut agent = AgentRun::new("w1", &["worker".into()], RUN, ChartHash("h".into()), program, layout, 10);
+    agent.set_incarnation(uuid::Uuid::from_u128(2));
+    c.handle_agent_up(0, worker("w1", 2));
+    c.handle_set(1, "go", &serde_json::json!(true)).expect("go is an input");
+    c.handle_cycle(10);
+    let msg = drain(&mut c)
+        .into_iter()
+        .find_map(|o| match o {
+            CoordOutput::Send { msg: m @ ToAgent::Dispatch { .. }, .. } => Some(m),
+            _ => None,
+        })
+        .expect("a dispatch");
+    let ToAgent::Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, .. } = msg else {
+        unreachable!()
+    };
+    agent.handle_dispatch(10, Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers });
+    let mut reports = Vec::new();
+    let mut now = 10;
+    while reports.iter().all(|r: &Report| !r.done) && now < 1_000 {
+        now += 10;
+        agent.handle_timeout(now);
+        while let Some(o) = agent.poll_output() {
+            if let AgentOutput::Report(r) = o {
+                reports.push(r);
+            }
+        }
+    }
+    assert!(reports.iter().any(|r| r.done), "the token came back: {reports:?}");
+    (c, reports)
+}
+
+#[test]
+fn a_report_applies_once_and_its_duplicate_changes_nothing() {
+    let (mut c, reports) = one_token_out();
+    let last = reports.last().expect("a report").clone();
+    for r in &reports {
+        c.handle_report(100, r.clone());
+    }
+    let out = drain(&mut c);
+    assert_eq!(traced(&out, TraceEvent::Return), 1, "{out:?}");
+    assert_eq!((c.stats().returned, c.tokens_in_flight()), (1, 0));
+    let dropped = c.stats().dropped;
+    c.handle_report(110, last);
+    let out = drain(&mut c);
+    assert_eq!(traced(&out, TraceEvent::Return), 0, "a duplicate returns nothing: {out:?}");
+    assert_eq!(c.stats().returned, 1);
+    assert!(c.stats().dropped > dropped, "the duplicate is counted as dropped");
+}
+
+#[test]
+fn a_report_of_an_older_epoch_is_answered_with_a_drop() {
+    let (mut c, reports) = one_token_out();
+    let mut stale = reports[0].clone();
+    stale.epoch = 0;
+    c.handle_report(100, stale.clone());
+    let out = drain(&mut c);
+    let dropped = out.iter().any(
+        |o| matches!(o, CoordOutput::Send { msg: ToAgent::Drop { token, epoch: 0, .. }, .. } if *token == stale.token),
+    );
+    assert!(dropped, "{out:?}");
+    assert_eq!(traced(&out, TraceEvent::RejectStale), 1, "{out:?}");
+    assert_eq!(c.tokens_in_flight(), 1, "the current epoch is untouched");
+}
+
+#[test]
+fn baton_set_sets_inputs_and_refuses_what_the_chart_writes() {
+    let (program, layout) = crate::testing::simulated_cluster::compile(WORKER_CHART);
+    let mut c = coordinator_of(&program, &layout);
+    let n = program.var_by_name("n").expect("n");
+    let err = c.handle_set(0, "n", &serde_json::json!(3)).expect_err("n is written by Count");
+    assert!(err.contains("cannot be set") && err.contains("writes it"), "{err}");
+    assert!(c.handle_set(0, "go", &serde_json::json!(7)).is_err(), "7 is not a BOOL");
+    assert!(c.handle_set(0, "nothing", &serde_json::json!(true)).is_err());
+    assert_eq!(c.value(n), Value::Int(0), "a refused set changed nothing");
+    assert_eq!(c.handle_set(0, "go", &serde_json::json!(true)), Ok("go := TRUE".to_string()));
+}
