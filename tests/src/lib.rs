@@ -12,8 +12,8 @@
 //! Eclipse Zenoh's zenoh-plugin-ros2dds in a zenoh runtime (zenoh-bridge-ros2dds for the tests; its own workspace too:
 //! it builds Cyclone DDS from C and needs zenoh's internal API); `src/loopback.rs`, the loopback cluster kit (real
 //! processes, free ports, timeouts, cleanup, a router of the test's own); `src/netns.rs`, a network namespace and veth
-//! pair for partitions; `charts/`, charts of the distributed tests; `scenarios/` (chart + inputs + expected trace),
-//! `diagnostics/` (chart + expected `baton check` output), `corpus_expected/` (our verdicts on `../shared/corpus/sfc`);
+//! pair for partitions; `charts/`, charts of the distributed tests; `conformance/traces/` (chart + inputs + expected
+//! trace), `conformance/diagnostics/` (chart + expected `baton check` output), `corpus_expected/` (our verdicts on `../shared/corpus/sfc`);
 //! `tests/` (conformance — one test per case, on libtest-mimic —, tidy, book, properties, corpus, export,
 //! distributed_sim, cluster, cluster_cycles, cluster_loss, cluster_names, cluster_restart, cluster_partition,
 //! recording, ros2, opcua, io, baton_test, limits, standard_library); `baton_test/` (`baton test`'s own scenarios on
