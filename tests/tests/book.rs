@@ -100,6 +100,33 @@ fn the_table_of_contents_lists_every_chapter_and_only_chapters_that_exist() {
     }
 }
 
+/// Every relative link of the book and the project's front pages names a file that exists (mdBook does not
+/// check them; a moved file or chapter would otherwise leave a dead link).
+fn every_relative_link_names_a_file_that_exists() {
+    let root = book().join("../..");
+    let mut pages = chapters();
+    pages.extend(
+        ["README.md", "CONTRIBUTING.md", "ARCHITECTURE.md", "docs/benchmarks.md", "deploy/README.md"]
+            .map(|p| root.join(p)),
+    );
+    let mut dead = Vec::new();
+    for page in pages {
+        let text = std::fs::read_to_string(&page).unwrap_or_else(|e| panic!("{}: {e}", page.display()));
+        // Links inside fenced blocks are code, not links.
+        let prose: String = text.split("```").step_by(2).collect::<Vec<_>>().join("\n");
+        for target in prose.split("](").skip(1).filter_map(|rest| rest.split([')', ' ']).next()) {
+            let path = target.split('#').next().unwrap_or("");
+            if path.is_empty() || path.starts_with("http://") || path.starts_with("https://") {
+                continue;
+            }
+            if !page.parent().expect("a folder").join(path).exists() {
+                dead.push(format!("{}: {target}", page.strip_prefix(&root).unwrap_or(&page).display()));
+            }
+        }
+    }
+    assert!(dead.is_empty(), "dead links:\n{}", dead.join("\n"));
+}
+
 fn the_book_builds_with_the_pinned_mdbook() {
     let version = match std::process::Command::new("mdbook").arg("--version").output() {
         Ok(out) if out.status.success() => String::from_utf8_lossy(&out.stdout).trim().to_string(),
@@ -123,5 +150,6 @@ fn the_book_builds_with_the_pinned_mdbook() {
 baton_tests::harness_main!(
     sync every_chart_in_the_book_checks_without_errors,
     sync the_table_of_contents_lists_every_chapter_and_only_chapters_that_exist,
+    sync every_relative_link_names_a_file_that_exists,
     sync the_book_builds_with_the_pinned_mdbook,
 );
