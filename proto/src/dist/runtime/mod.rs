@@ -51,6 +51,7 @@
 
 pub mod agent;
 pub mod coordinator;
+pub mod packml;
 
 use std::collections::VecDeque;
 
