@@ -154,3 +154,13 @@ const _: () = assert!(STRING_CHARS_MAX * 6 * 2 <= MESSAGE_BYTES_MAX);
 
 /// Characters kept of why a bound device cannot be reached (`DeviceReport`): a peer's text is bounded.
 pub const DEVICE_MESSAGE_CHARS_MAX: usize = 1024;
+
+/// Alarms a run keeps standing at once (active, or waiting for an acknowledgement); a raise past it is counted
+/// and refused, never grows the list.
+pub const ALARMS_STANDING_MAX: usize = 1024;
+
+/// The longest an operator may shelve an alarm: shelving is bounded in time (ISA-18.2).
+pub const ALARM_SHELVE_MAX_MS: u64 = 8 * 3_600_000;
+
+/// Characters kept of an alarm's message, an acknowledgement's comment and the name of who gave it.
+pub const ALARM_TEXT_CHARS_MAX: usize = 1024;

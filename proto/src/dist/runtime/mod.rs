@@ -50,6 +50,7 @@
 //!   runs.
 
 pub mod agent;
+pub mod alarms;
 pub mod coordinator;
 pub mod packml;
 
