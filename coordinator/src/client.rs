@@ -158,6 +158,8 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool) -> anyh
     }
     for r in &reports {
         println!("chart `{}` (run {}, version {}), running for {} ms", r.chart, r.run.key(), r.hash.0, r.t_ms);
+        let legal: Vec<&str> = r.available.iter().map(|c| c.name()).collect();
+        println!("  state: {} (legal commands: {})", r.state, legal.join(", "));
         println!("  active steps:");
         for s in &r.active_steps {
             let at = s.agent.as_ref().map_or(String::new(), |a| format!(" on `{a}`"));

@@ -568,6 +568,7 @@ impl Logger {
                 self.log(level, text);
             }
             TraceEvent::Recover => self.log("WARN", format!("coordinator restarted: {message}")),
+            TraceEvent::State => self.log("INFO", format!("run state: {}", rec.name)),
             TraceEvent::SkillFault | TraceEvent::Fault => {
                 let on = agent.map(|a| format!(" on {a}")).unwrap_or_default();
                 let level = if rec.event == TraceEvent::Fault { "ERROR" } else { "WARN" };

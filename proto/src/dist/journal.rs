@@ -235,7 +235,7 @@ pub fn apply(core: &mut Coordinator, entry: &Entry) -> Option<Result<String, Str
         Record::Devices(d) => core.handle_devices(now, d.clone()),
         Record::Policy(p) => core.set_loss_policy(*p),
         Record::Recover => core.handle_recover(now),
-        Record::End { .. } => {}
+        Record::End { failure } => core.handle_end(now, failure.as_deref()),
     }
     None
 }

@@ -334,6 +334,16 @@ pub struct StatusReport {
     pub active_steps: Vec<StatusStep>,
     pub tokens: Vec<StatusToken>,
     pub agents: Vec<StatusAgent>,
+    /// The run's PackML state, and the commands legal in it (OPC UA's AvailableTransitions). A coordinator
+    /// from before run states answers without them: it was executing.
+    #[serde(default = "executing")]
+    pub state: crate::dist::runtime::packml::State,
+    #[serde(default)]
+    pub available: Vec<crate::dist::runtime::packml::Command>,
+}
+
+fn executing() -> crate::dist::runtime::packml::State {
+    crate::dist::runtime::packml::State::Execute
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -52,11 +52,13 @@ pub enum TraceEvent {
     DeviceUp,
     /// A device binding's connection went down (with `message`).
     DeviceDown,
+    /// The run's PackML state changed (`name` is the new state: `execute`, `completing`, `complete`, …).
+    State,
 }
 
 impl TraceEvent {
     /// Every event, in the order above.
-    pub const ALL: [TraceEvent; 21] = [
+    pub const ALL: [TraceEvent; 22] = [
         TraceEvent::Activate,
         TraceEvent::Deactivate,
         TraceEvent::Fire,
@@ -78,6 +80,7 @@ impl TraceEvent {
         TraceEvent::Set,
         TraceEvent::DeviceUp,
         TraceEvent::DeviceDown,
+        TraceEvent::State,
     ];
 
     /// The event's name in the JSON (`action_on`). Not public: code outside matches on the event itself, and
@@ -105,6 +108,7 @@ impl TraceEvent {
             TraceEvent::Set => "set",
             TraceEvent::DeviceUp => "device_up",
             TraceEvent::DeviceDown => "device_down",
+            TraceEvent::State => "state",
         }
     }
 }

@@ -89,6 +89,31 @@ impl Coordinator {
             active_steps,
             tokens,
             agents,
+            state: self.run_state,
+            available: self.run_state.available(),
         }
+    }
+
+    /// The run's PackML state.
+    pub fn run_state(&self) -> State {
+        self.run_state
+    }
+
+    /// The run ends (the shell's last record): a chart that reached a terminal situation, without a failure,
+    /// goes Completing and, with nothing left to finish, Complete; each change is a `state` trace record.
+    pub fn handle_end(&mut self, now_ms: u64, failure: Option<&str>) {
+        self.advance(now_ms);
+        if failure.is_none() && self.is_terminal() && self.run_state == State::Execute {
+            self.change_state(State::Completing);
+            if let Some(done) = State::Completing.when_done() {
+                self.change_state(done);
+            }
+        }
+    }
+
+    fn change_state(&mut self, to: State) {
+        self.run_state = to;
+        let rec = TraceRecord::new(self.now_ms, TraceEvent::State, to.name());
+        self.trace(rec);
     }
 }

@@ -39,6 +39,7 @@ use crate::limits::{
 };
 use crate::types::Value;
 
+use super::packml::State;
 use super::{Level, VarWrites, VarsResend, COORDINATOR};
 use membership::*;
 use tokens::*;
@@ -121,6 +122,8 @@ pub struct Coordinator {
     policy: LossPolicy,
     /// Why the run must end, under `LossPolicy::Fail`.
     failure: Option<String>,
+    /// The run's PackML state (`packml`): Execute from the start, Completing then Complete at its end.
+    run_state: State,
     /// When this coordinator last started again from its journal.
     recovered_ms: Option<u64>,
     /// The run's cycle period (`set_cycle_ms`).
@@ -181,6 +184,7 @@ impl Coordinator {
             acks_since_ms: 0,
             policy: LossPolicy::default(),
             failure: None,
+            run_state: State::Execute,
             recovered_ms: None,
             cycle_ms: 1,
             stats: CoordStats::default(),

@@ -254,3 +254,48 @@ fn baton_set_sets_inputs_and_refuses_what_the_chart_writes() {
     assert_eq!(c.value(n), Value::Int(0), "a refused set changed nothing");
     assert_eq!(c.handle_set(0, "go", &serde_json::json!(true)), Ok("go := TRUE".to_string()));
 }
+
+#[test]
+fn a_run_that_reaches_its_end_goes_completing_then_complete() {
+    use crate::dist::runtime::packml::{Command, State};
+    let (mut c, reports) = one_token_out();
+    assert_eq!((c.run_state(), c.status().state), (State::Execute, State::Execute));
+    assert_eq!(c.status().available, vec![Command::Stop, Command::Hold, Command::Suspend, Command::Abort]);
+    for r in &reports {
+        c.handle_report(100, r.clone());
+    }
+    c.handle_cycle(110);
+    assert!(c.is_terminal(), "C has no way out");
+    drain(&mut c);
+    c.handle_end(120, None);
+    let states: Vec<String> = drain(&mut c)
+        .into_iter()
+        .filter_map(|o| match o {
+            CoordOutput::Trace(t) if t.event == TraceEvent::State => Some(t.name),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(states, ["completing", "complete"]);
+    let status = c.status();
+    assert_eq!(status.state, State::Complete);
+    assert_eq!(status.available, vec![Command::Reset, Command::Stop, Command::Abort]);
+    // Ending again changes nothing.
+    c.handle_end(130, None);
+    assert_eq!(traced(&drain(&mut c), TraceEvent::State), 0);
+}
+
+#[test]
+fn a_run_that_ends_failed_or_not_terminal_does_not_complete() {
+    let (mut c, _) = one_token_out();
+    c.handle_end(100, None);
+    assert_eq!(traced(&drain(&mut c), TraceEvent::State), 0, "a token is still out: the chart is not done");
+    let (mut c, reports) = one_token_out();
+    for r in &reports {
+        c.handle_report(100, r.clone());
+    }
+    c.handle_cycle(110);
+    drain(&mut c);
+    c.handle_end(120, Some("agent `w1` was lost"));
+    assert_eq!(traced(&drain(&mut c), TraceEvent::State), 0);
+    assert_eq!(c.run_state(), crate::dist::runtime::packml::State::Execute);
+}
