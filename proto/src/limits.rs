@@ -164,3 +164,6 @@ pub const ALARM_SHELVE_MAX_MS: u64 = 8 * 3_600_000;
 
 /// Characters kept of an alarm's message, an acknowledgement's comment and the name of who gave it.
 pub const ALARM_TEXT_CHARS_MAX: usize = 1024;
+
+/// The longest step supervision time (`min_ms`): a year, in milliseconds.
+pub const SUPERVISION_MS_MAX: u64 = 365 * 86_400_000;

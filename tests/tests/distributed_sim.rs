@@ -26,6 +26,22 @@ fn three_branches_converge_after_the_slowest() {
     assert!(done.0 >= 300, "B's motion takes 300 ms; Done at {}", done.0);
 }
 
+/// A step's minimum time (`{min_ms := …}`) holds on the agent that runs the step, as in `baton sim`: its exit
+/// is TRUE at once, and still the token comes back no sooner.
+#[test]
+fn a_placed_steps_minimum_time_holds_on_its_agent() {
+    let chart = "PROGRAM p\nINITIAL_STEP A: END_STEP\nTRANSITION FROM A TO W := TRUE; END_TRANSITION\n\
+                 STEP W: {agent := 'r1', min_ms := T#300ms} END_STEP\nTRANSITION FROM W TO B := TRUE; END_TRANSITION\n\
+                 STEP B: END_STEP\nEND_PROGRAM\n";
+    let mut sim = SimCluster::new(chart, &[("r1", &[])], Faults::default(), 1);
+    assert!(sim.run(5_000), "did not finish; trace: {:#?}", sim.trace);
+    let at = |event: TraceEvent, name: &str| sim.events(event).into_iter().find(|e| e.1 == name).map(|e| e.0);
+    let (dispatched, back) = (at(TraceEvent::Dispatch, "W").expect("W dispatched"), at(TraceEvent::Activate, "B"));
+    let back = back.expect("B reached");
+    assert!(back >= dispatched + 300, "W held its token {} ms, under its 300 ms minimum", back - dispatched);
+    assert!(back < dispatched + 400, "and not much longer: {} ms", back - dispatched);
+}
+
 fn cell() -> String {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/cell.st");
     std::fs::read_to_string(path).expect("examples/cell.st")

@@ -210,7 +210,8 @@ pub fn layout(chart: &Chart, program: &Program, diags: &mut Vec<Diagnostic>) -> 
 }
 
 /// The keys a step's pragma may hold.
-const STEP_KEYS: [&str; 2] = ["agent", "role"];
+/// A step's keys: its placement, and its supervision (`min_ms`, which `compile` reads).
+const STEP_KEYS: [&str; 3] = ["agent", "role", "min_ms"];
 
 /// A pragma Baton may read, as pairs: `None` (after reporting it) when it names Baton's `keys` but cannot be read,
 /// or when it only names near misses of them (a warning: it may be another tool's), or is another tool's.
@@ -259,11 +260,14 @@ fn step_placement(pragmas: &[Pragma], diags: &mut Vec<Diagnostic>) -> Placement 
         let Some(pairs) = baton_pairs(pragma, &STEP_KEYS, "step", diags) else { continue };
         for (key, value) in pairs {
             let err = |m: String| Diagnostic::error(pragma.span, m);
+            if key == "min_ms" {
+                continue;
+            }
             if !STEP_KEYS.contains(&key.as_str()) {
                 let hint = crate::front::pragma::near_miss(&key, &STEP_KEYS)
                     .map_or(String::new(), |k| format!(" (did you mean `{k}`?)"));
                 diags.push(err(format!(
-                    "unknown key `{key}` in a step's placement{hint}: a step takes `agent := 'name'` or `role := 'name'`"
+                    "unknown key `{key}` in a step's placement{hint}: a step takes `agent := 'name'`, `role := 'name'` or `min_ms := T#200ms`"
                 )));
                 continue;
             }

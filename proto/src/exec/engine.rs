@@ -616,8 +616,11 @@ impl Engine {
         }
         for &(_, t) in &candidates {
             let sources = program.sources(t);
-            let enabled =
-                sources.iter().all(|s| self.steps[s.index()].active && self.consumed_stamp[s.index()] != stamp);
+            let enabled = sources.iter().all(|s| {
+                self.steps[s.index()].active
+                    && self.consumed_stamp[s.index()] != stamp
+                    && self.step_t(*s) >= program.steps[s.index()].min_ms as i64
+            });
             if !enabled {
                 continue;
             }

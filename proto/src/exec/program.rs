@@ -138,6 +138,9 @@ pub struct StepInfo {
     pub name: String,
     pub initial: bool,
     pub pragmas: Vec<Pragma>,
+    /// `{min_ms := 200}`: no transition out of the step clears before it has been active this long (step
+    /// supervision's minimum time); 0 without it.
+    pub min_ms: u64,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -653,8 +656,10 @@ impl Program {
             .iter()
             .map(|t| {
                 let mut reads = Reads::of(&t.info.condition);
-                // A call may read the clock: judged in cycles only, never in a reaction.
+                // A call may read the clock, and a source's minimum time is a reading of its step time: judged
+                // in cycles only, never in a reaction.
                 reads.step_time |= !t.calls.is_empty();
+                reads.step_time |= t.sources.iter().any(|s| infos[s.index()].min_ms > 0);
                 reads
             })
             .collect();

@@ -56,7 +56,7 @@ use crate::exec::eval::{eval, is_constant, NoEnv};
 use crate::exec::program::*;
 use crate::front::diag::{Diagnostic, Span};
 use crate::front::model::*;
-use crate::limits::NESTING_DEPTH_MAX;
+use crate::limits::{NESTING_DEPTH_MAX, SUPERVISION_MS_MAX};
 use crate::types::library::{DateFn, DatePart, Func, MemberKind, StdFb, TextFn};
 use crate::types::{IntKind, Type, Value};
 use binding::*;
@@ -275,7 +275,12 @@ impl<'a> Compiler<'a> {
             self.steps.insert(step.name.key(), StepId(steps.len() as u32));
             step_sources.push(step);
             steps.push(StepParts {
-                info: StepInfo { name: step.name.name.clone(), initial: step.initial, pragmas: step.pragmas.clone() },
+                info: StepInfo {
+                    name: step.name.name.clone(),
+                    initial: step.initial,
+                    pragmas: step.pragmas.clone(),
+                    min_ms: self.min_ms_of(step),
+                },
                 associations: Vec::new(),
             });
         }

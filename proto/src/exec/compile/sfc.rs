@@ -231,4 +231,31 @@ impl<'a> Compiler<'a> {
         }
         net_ok
     }
+
+    /// `{min_ms := T#200ms}` (or `200`) after `STEP name:`: the step's minimum time, as S7-GRAPH and CODESYS
+    /// supervise it — before it, no transition out of the step clears. 0 without it.
+    pub(super) fn min_ms_of(&mut self, step: &Step) -> u64 {
+        let mut min_ms = 0;
+        for pragma in &step.pragmas {
+            let crate::front::pragma::Pragma::Pairs(pairs) = crate::front::pragma::read(&pragma.text) else {
+                continue;
+            };
+            for (_, value) in pairs.iter().filter(|(k, _)| k == "min_ms") {
+                match value.as_f64() {
+                    Some(ms) if ms.fract() == 0.0 && (0.0..=SUPERVISION_MS_MAX as f64).contains(&ms) => {
+                        min_ms = ms as u64;
+                    }
+                    _ => self.error(
+                        pragma.span,
+                        format!(
+                            "`min_ms` of step `{}` needs a duration or whole milliseconds, at most a year, such as \
+                             `min_ms := T#200ms`",
+                            step.name.name
+                        ),
+                    ),
+                }
+            }
+        }
+        min_ms
+    }
 }
