@@ -160,6 +160,20 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool) -> anyh
         println!("chart `{}` (run {}, version {}), running for {} ms", r.chart, r.run.key(), r.hash.0, r.t_ms);
         let legal: Vec<&str> = r.available.iter().map(|c| c.name()).collect();
         println!("  state: {} (legal commands: {})", r.state, legal.join(", "));
+        if !r.alarms.is_empty() {
+            println!("  alarms: {}", r.alarms.len());
+            for a in &r.alarms {
+                let state = serde_json::to_value(a.state).ok().and_then(|v| v.as_str().map(str::to_string));
+                println!(
+                    "    {} {} ({}, at {} ms): {}",
+                    a.id,
+                    a.source,
+                    state.unwrap_or_default(),
+                    a.raised_ms,
+                    a.message
+                );
+            }
+        }
         println!("  active steps:");
         for s in &r.active_steps {
             let at = s.agent.as_ref().map_or(String::new(), |a| format!(" on `{a}`"));

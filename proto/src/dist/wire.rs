@@ -340,6 +340,18 @@ pub struct StatusReport {
     pub state: crate::dist::runtime::packml::State,
     #[serde(default)]
     pub available: Vec<crate::dist::runtime::packml::Command>,
+    /// Alarms not yet back to normal, oldest first.
+    #[serde(default)]
+    pub alarms: Vec<StatusAlarm>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StatusAlarm {
+    pub id: u64,
+    pub source: String,
+    pub message: String,
+    pub state: crate::dist::runtime::alarms::AlarmState,
+    pub raised_ms: u64,
 }
 
 fn executing() -> crate::dist::runtime::packml::State {

@@ -138,6 +138,9 @@ pub struct TraceRecord {
     /// A watched variable's new value, for `value` records (`T#10ms`, `TRUE`, `42`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub value: Option<String>,
+    /// An alarm's occurrence, for `alarm` records (`dist::runtime::alarms::AlarmId`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub id: Option<String>,
 }
 
 impl TraceRecord {
@@ -151,6 +154,7 @@ impl TraceRecord {
             epoch: None,
             message: None,
             value: None,
+            id: None,
         }
     }
 }

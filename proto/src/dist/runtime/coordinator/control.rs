@@ -91,6 +91,17 @@ impl Coordinator {
             agents,
             state: self.run_state,
             available: self.run_state.available(),
+            alarms: self
+                .alarms
+                .standing()
+                .map(|a| StatusAlarm {
+                    id: a.id.0,
+                    source: a.source.clone(),
+                    message: a.message.clone(),
+                    state: a.state(),
+                    raised_ms: a.raised_ms,
+                })
+                .collect(),
         }
     }
 

@@ -161,13 +161,16 @@ impl Coordinator {
             if tok.incarnation != info.incarnation {
                 if self.policy == LossPolicy::Fail {
                     let why = format!("agent `{name}` restarted while holding the token of step `{entry}`");
-                    self.alarm(why.clone());
+                    self.alarm(&name, why.clone());
                     self.failure.get_or_insert(why);
                     continue;
                 }
-                self.alarm(format!(
+                self.alarm(
+                    &name,
+                    format!(
                     "agent `{name}` came back restarted: the segment of step `{entry}` runs again from its first step"
-                ));
+                ),
+                );
                 self.restart_on(id, Some(name.clone()));
                 continue;
             }
@@ -247,7 +250,7 @@ impl Coordinator {
             t.paused = true;
         }
         self.refresh_peers();
-        self.alarm(format!(
+        self.alarm(name, format!(
             "{processes} processes answer as agent `{name}`: nothing is sent to `{name}`, and its tokens are held, until one of them stops"
         ));
         self.settle();
@@ -280,9 +283,10 @@ impl Coordinator {
                     if let Some(t) = self.tokens.get_mut(&id) {
                         t.paused = true;
                     }
-                    self.alarm(format!(
-                        "agent `{name}` lost holding the token of step `{entry}`: paused until it comes back"
-                    ));
+                    self.alarm(
+                        name,
+                        format!("agent `{name}` lost holding the token of step `{entry}`: paused until it comes back"),
+                    );
                 }
                 LossPolicy::Reassign => {
                     // The agent stops the segment's skills once it has lost its router for long enough; only then
@@ -292,13 +296,13 @@ impl Coordinator {
                         t.paused = true;
                         t.reassign_at_ms = Some(self.now_ms + margin);
                     }
-                    self.alarm(format!(
+                    self.alarm(name, format!(
                         "agent `{name}` lost holding the token of step `{entry}`: reassigned, from its first step, in {margin} ms unless it comes back"
                     ));
                 }
                 LossPolicy::Fail => {
                     let why = format!("agent `{name}` was lost holding the token of step `{entry}`");
-                    self.alarm(why.clone());
+                    self.alarm(name, why.clone());
                     self.failure.get_or_insert(why);
                 }
             }

@@ -26,7 +26,7 @@ use std::sync::Arc;
 
 use crate::dist::layout::{Layout, Placement, SegmentId};
 use crate::dist::wire::{
-    AckEntry, AgentEventKind, AgentInfo, ChartHash, DeviceReport, Peer, Peers, Report, RunId, StatusAgent,
+    AckEntry, AgentEventKind, AgentInfo, ChartHash, DeviceReport, Peer, Peers, Report, RunId, StatusAgent, StatusAlarm,
     StatusDevice, StatusReport, StatusStep, StatusToken, ToAgent, TokenId, VarUpdate, VarValue,
 };
 use crate::exec::engine::{Engine, Event, EventKind, Input, RemoteInput};
@@ -39,6 +39,7 @@ use crate::limits::{
 };
 use crate::types::Value;
 
+use super::alarms::{AlarmChange, Alarms};
 use super::packml::State;
 use super::{Level, VarWrites, VarsResend, COORDINATOR};
 use membership::*;
@@ -124,6 +125,8 @@ pub struct Coordinator {
     failure: Option<String>,
     /// The run's PackML state (`packml`): Execute from the start, Completing then Complete at its end.
     run_state: State,
+    /// Alarms raised and not yet back to normal.
+    alarms: Alarms,
     /// When this coordinator last started again from its journal.
     recovered_ms: Option<u64>,
     /// The run's cycle period (`set_cycle_ms`).
@@ -185,6 +188,7 @@ impl Coordinator {
             policy: LossPolicy::default(),
             failure: None,
             run_state: State::Execute,
+            alarms: Alarms::default(),
             recovered_ms: None,
             cycle_ms: 1,
             stats: CoordStats::default(),
@@ -269,11 +273,21 @@ impl Coordinator {
         self.outbox.push_back(CoordOutput::Trace(rec));
     }
 
-    fn alarm(&mut self, message: String) {
-        let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Alarm, &self.program.name);
+    /// Something needs a person: a new occurrence in the run's alarm list (`alarms`), traced with its id and its
+    /// `source` (an agent's name), and logged.
+    fn alarm(&mut self, source: &str, message: String) {
+        let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Alarm, source);
+        if let Some(AlarmChange::Raised { id, .. }) = self.alarms.raise(self.now_ms, source, &message, false) {
+            rec.id = Some(id.to_string());
+        }
         rec.message = Some(message.clone());
         self.trace(rec);
         self.log(Level::Error, message);
+    }
+
+    /// The run's standing alarms.
+    pub fn alarms(&self) -> &Alarms {
+        &self.alarms
     }
 }
 

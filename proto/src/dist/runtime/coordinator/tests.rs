@@ -299,3 +299,29 @@ fn a_run_that_ends_failed_or_not_terminal_does_not_complete() {
     assert_eq!(traced(&drain(&mut c), TraceEvent::State), 0);
     assert_eq!(c.run_state(), crate::dist::runtime::packml::State::Execute);
 }
+
+#[test]
+fn an_agent_lost_holding_a_token_raises_an_alarm_of_its_own_that_the_status_lists() {
+    use crate::dist::runtime::alarms::AlarmState;
+    let (mut c, _) = one_token_out();
+    drain(&mut c);
+    c.handle_agent_down(50, "w1");
+    let alarms: Vec<TraceRecord> = drain(&mut c)
+        .into_iter()
+        .filter_map(|o| match o {
+            CoordOutput::Trace(t) if t.event == TraceEvent::Alarm => Some(t),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(alarms.len(), 1, "{alarms:?}");
+    assert_eq!((alarms[0].name.as_str(), alarms[0].id.as_deref()), ("w1", Some("1")), "its source and its id");
+    assert!(alarms[0].message.as_deref().is_some_and(|m| m.contains("lost holding the token of step `B`")));
+    let status = c.status();
+    assert_eq!(status.alarms.len(), 1);
+    assert_eq!((status.alarms[0].id, status.alarms[0].state), (1, AlarmState::ActiveUnacknowledged));
+    // The next occurrence is an alarm of its own.
+    c.handle_agent_up(60, worker("w1", 3));
+    c.handle_agent_down(70, "w1");
+    let ids: Vec<u64> = c.status().alarms.iter().map(|a| a.id).collect();
+    assert!(ids.len() >= 2 && ids.windows(2).all(|w| w[0] < w[1]), "{ids:?}");
+}
