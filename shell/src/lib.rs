@@ -53,6 +53,23 @@ pub fn inbox() -> FifoChannel {
     FifoChannel::new(RECEIVE_QUEUE_MAX)
 }
 
+/// Why the outbox sent nothing, and what it was told.
+#[derive(Debug)]
+pub enum Unsent {
+    /// The key could not be declared (the session is closing).
+    Declare(String),
+    /// The put itself failed.
+    Put(String),
+}
+
+impl std::fmt::Display for Unsent {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Unsent::Declare(why) | Unsent::Put(why) => f.write_str(why),
+        }
+    }
+}
+
 /// The publishers a shell's main loop publishes through, one per key, declared on first use.
 pub struct Outbox {
     session: Session,
@@ -65,9 +82,9 @@ impl Outbox {
     }
 
     /// Publishes `payload` on `key`, in the main loop, without a hop to another task (a hop cost a third of a
-    /// token's round trip). A key that cannot be declared, or a put that fails, is an error to log: the caller
-    /// goes on, as the state machines resend what matters.
-    pub async fn put(&mut self, key: String, payload: Vec<u8>) -> Result<(), String> {
+    /// token's round trip). Which step failed is the caller's to weigh: a put that fails is worth a warning (the
+    /// state machines resend what matters), a key that cannot be declared may end the process.
+    pub async fn put(&mut self, key: String, payload: Vec<u8>) -> Result<(), Unsent> {
         if self.publishers.len() >= PUBLISHERS_MAX && !self.publishers.contains_key(&key) {
             self.publishers.clear();
         }
@@ -78,11 +95,11 @@ impl Outbox {
                 .congestion_control(CongestionControl::Block)
                 .express(true)
                 .await
-                .map_err(|e| format!("cannot publish on {key}: {e}"))?;
+                .map_err(|e| Unsent::Declare(format!("cannot publish on {key}: {e}")))?;
             self.publishers.insert(key.clone(), declared);
         }
         match self.publishers.get(&key) {
-            Some(p) => p.put(payload).await.map_err(|e| format!("cannot publish on {key}: {e}")),
+            Some(p) => p.put(payload).await.map_err(|e| Unsent::Put(format!("cannot publish on {key}: {e}"))),
             None => Ok(()),
         }
     }

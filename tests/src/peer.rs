@@ -93,9 +93,9 @@ impl Server {
     }
 }
 
-/// Whether python3 imports `module` (from the PyPI `package`); when not, the test is ignored with the reason
-/// (under CI it fails).
-pub fn python_has(module: &str, package: &str) -> bool {
+/// A test that needs python3 to import `module` (from the PyPI `package`): without it the test is ignored with
+/// the reason (under CI it fails).
+pub fn require_python(module: &str, package: &str) {
     let ok = std::process::Command::new("python3")
         .args(["-c", &format!("import {module}")])
         .stdout(Stdio::null())
@@ -105,26 +105,23 @@ pub fn python_has(module: &str, package: &str) -> bool {
     if !ok {
         crate::missing(&format!("python3 with {package} is absent: run .ci/run once"));
     }
-    ok
 }
 
-/// FreeOpcUa's asyncua server (`tests/scripts/opcua_server.py`) on a free loopback port, once it is up; `None`
-/// (the test ignored, or failed under CI) without asyncua.
-pub async fn opcua_server() -> Option<(Server, u16)> {
+/// FreeOpcUa's asyncua server (`tests/scripts/opcua_server.py`) on a free loopback port, once it is up (the test
+/// is ignored, or fails under CI, without asyncua).
+pub async fn opcua_server() -> (Server, u16) {
     let port = free_port();
-    Some((opcua_server_on(port).await?, port))
+    (opcua_server_on(port).await, port)
 }
 
 /// The same on `port` (a server that comes back where it was).
-pub async fn opcua_server_on(port: u16) -> Option<Server> {
-    if !python_has("asyncua", "asyncua") {
-        return None;
-    }
+pub async fn opcua_server_on(port: u16) -> Server {
+    require_python("asyncua", "asyncua");
     let mut cmd = Command::new("python3");
     cmd.arg(repo("tests/scripts/opcua_server.py")).arg(port.to_string());
     let mut server = Server::start(cmd);
     server.wait_for("READY").await;
-    Some(server)
+    server
 }
 
 /// A copy of `chart` in `dir` whose OPC UA endpoints name `port` instead of 4840.

@@ -5,19 +5,23 @@ use std::path::Path;
 
 use crate::loopback::repo;
 
-/// Whether `python3` has rerun-sdk 0.36.3; in CI (`CI` set) its absence fails the test.
-pub fn reader_available() -> bool {
+/// Why a recording cannot be read back here.
+pub const NO_READER: &str = "reading a recording back needs python3 with rerun-sdk 0.36.3: \
+                             pip install 'rerun-sdk[datafusion]==0.36.3' (as .ci/run does)";
+
+/// Whether `python3` has rerun-sdk 0.36.3, to read recordings back.
+pub fn has_reader() -> bool {
     let probe = std::process::Command::new("python3")
         .args(["-c", "import rerun, sys; sys.exit(0 if rerun.__version__ == '0.36.3' else 1)"])
         .output();
-    let ok = probe.is_ok_and(|o| o.status.success());
-    if !ok {
-        crate::missing(
-            "reading a recording back needs python3 with rerun-sdk 0.36.3: \
-             pip install 'rerun-sdk[datafusion]==0.36.3' (as .ci/run does)",
-        );
+    probe.is_ok_and(|o| o.status.success())
+}
+
+/// A test that reads a recording back needs the reader: without it the test is ignored (in CI it fails).
+pub fn require_reader() {
+    if !has_reader() {
+        crate::missing(NO_READER);
     }
-    ok
 }
 
 pub fn read_recording(rrd: &Path) -> serde_json::Value {

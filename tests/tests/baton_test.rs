@@ -246,9 +246,7 @@ fn the_junit_report_has_a_suite_per_file_and_a_case_per_expectation() {
     let system_out = value.descendants().find(|n| n.has_tag_name("system-out")).and_then(|n| n.text()).unwrap_or("");
     assert!(system_out.contains("timeline:") && system_out.contains("activate Done"), "{system_out}");
     // And as CI's tools read it: junitparser, a JUnit reader we did not write.
-    if !baton_tests::peer::python_has("junitparser", "junitparser") {
-        return;
-    }
+    baton_tests::peer::require_python("junitparser", "junitparser");
     let script = "import sys, junitparser\n\
         x = junitparser.JUnitXml.fromfile(sys.argv[1])\n\
         cases = [c for s in x for c in s]\n\
@@ -262,9 +260,7 @@ fn the_junit_report_has_a_suite_per_file_and_a_case_per_expectation() {
     if !xsd.is_file() {
         baton_tests::missing(&format!("{} is absent: run .ci/run once", xsd.display()));
     }
-    if !baton_tests::peer::python_has("xmlschema", "xmlschema") {
-        return;
-    }
+    baton_tests::peer::require_python("xmlschema", "xmlschema");
     let o = Command::new("python3")
         .arg(repo("tests/scripts/validate_junit.py"))
         .arg(&xsd)
@@ -279,9 +275,7 @@ fn the_junit_report_has_a_suite_per_file_and_a_case_per_expectation() {
 /// The published schema (`docs/baton-test.schema.json`), as an editor would apply it: it accepts every scenario
 /// of the project and refuses a key that does not exist.
 fn the_published_schema_accepts_the_scenarios_and_refuses_unknown_keys() {
-    if !baton_tests::peer::python_has("jsonschema", "jsonschema") {
-        return;
-    }
+    baton_tests::peer::require_python("jsonschema", "jsonschema");
     let o = Command::new("python3")
         .arg(repo("tests/scripts/check_scenario_schema.py"))
         .arg(repo(""))

@@ -17,11 +17,8 @@ fn book() -> PathBuf {
 
 /// The book's chapters, sorted.
 fn chapters() -> Vec<PathBuf> {
-    chapters_in(&book().join("src"))
-}
-
-fn chapters_in(src: &Path) -> Vec<PathBuf> {
-    let mut out: Vec<PathBuf> = std::fs::read_dir(src)
+    let src = book().join("src");
+    let mut out: Vec<PathBuf> = std::fs::read_dir(&src)
         .unwrap_or_else(|e| panic!("cannot list {}: {e}", src.display()))
         .map(|e| e.expect("a directory entry").path())
         .filter(|p| p.extension().is_some_and(|e| e == "md"))

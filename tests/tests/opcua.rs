@@ -42,7 +42,7 @@ fn faults(trace: &[TraceRecord]) -> Vec<String> {
 }
 
 async fn methods_are_called_with_their_declared_types_and_a_job_is_followed_to_its_end() {
-    let Some((server, port)) = server().await else { return };
+    let (server, port) = server().await;
     let mut cluster = Cluster::with_router().await;
     let chart = chart_for(&cluster, "opcua_method.st", port);
     let (trace, summary) = run(&mut cluster, &chart).await;
@@ -58,7 +58,7 @@ async fn methods_are_called_with_their_declared_types_and_a_job_is_followed_to_i
 }
 
 async fn a_bad_status_an_argument_that_does_not_fit_and_a_fault_node_are_faults() {
-    let Some((server, port)) = server().await else { return };
+    let (server, port) = server().await;
     let mut cluster = Cluster::with_router().await;
     let chart = chart_for(&cluster, "opcua_faults.st", port);
     let (trace, _) = run(&mut cluster, &chart).await;
@@ -74,7 +74,7 @@ async fn a_bad_status_an_argument_that_does_not_fit_and_a_fault_node_are_faults(
 }
 
 async fn a_job_whose_step_is_left_is_cancelled_on_the_server_and_never_reported_done() {
-    let Some((mut server, port)) = server().await else { return };
+    let (mut server, port) = server().await;
     let mut cluster = Cluster::with_router().await;
     let chart = chart_for(&cluster, "opcua_cancel.st", port);
     let (trace, summary) = run(&mut cluster, &chart).await;
@@ -88,7 +88,7 @@ async fn a_job_whose_step_is_left_is_cancelled_on_the_server_and_never_reported_
 }
 
 async fn a_server_killed_during_a_call_is_a_fault_at_once() {
-    let Some((mut server, port)) = server().await else { return };
+    let (mut server, port) = server().await;
     let mut cluster = Cluster::with_router().await;
     let chart = chart_for(&cluster, "opcua_hang.st", port);
     let coordinator = start(&mut cluster, &chart);
@@ -121,7 +121,7 @@ async fn bound_nodes_drive_a_transition_take_the_outputs_and_a_server_away_is_re
     let mut coordinator = start(&mut cluster, &chart);
     // No server yet: the agent says so, through the coordinator, and keeps trying.
     coordinator.wait_for_log("cannot reach the device of `door`").await;
-    let Some(mut server) = opcua_server_on(port).await else { return };
+    let mut server = opcua_server_on(port).await;
     // Once the session is up, the outputs' values are written, and the inputs are watched.
     server.wait_for("WRITE Lamp False").await;
     server.wait_for("WRITE Setpoint 0").await;
@@ -137,7 +137,7 @@ async fn bound_nodes_drive_a_transition_take_the_outputs_and_a_server_away_is_re
     let said = coordinator.wait_for_log("cannot reach the device of `door`").await;
     assert!(said.last().is_some_and(|l| l.contains("`door` keeps its value TRUE")), "{said:?}");
     // It comes back (restarted, its nodes at their initial values): the chart's outputs are written again.
-    let Some(mut again) = opcua_server_on(port).await else { return };
+    let mut again = opcua_server_on(port).await;
     again.wait_for("WRITE Lamp True").await;
     again.wait_for("WRITE Setpoint 20").await;
     coordinator.wait_for_log("reaches the device of `door` again").await;
@@ -161,7 +161,7 @@ async fn bound_nodes_drive_a_transition_take_the_outputs_and_a_server_away_is_re
 }
 
 async fn a_step_entered_again_starts_its_job_only_once_the_old_job_is_cancelled() {
-    let Some((mut server, port)) = server().await else { return };
+    let (mut server, port) = server().await;
     let mut cluster = Cluster::with_router().await;
     let chart = chart_for(&cluster, "opcua_reenter.st", port);
     let (trace, _) = run(&mut cluster, &chart).await;

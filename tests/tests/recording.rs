@@ -8,7 +8,7 @@ use std::path::Path;
 use baton_proto::dist::keys;
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::loopback::{self, read_trace, repo, step_id, Cluster};
-use baton_tests::rrd::{log_lines, read_recording, reader_available};
+use baton_tests::rrd::{log_lines, read_recording, require_reader};
 
 /// A step's activity over time: (time, active), the last of each instant, without repeats.
 fn activity(changes: impl IntoIterator<Item = (i64, bool)>) -> Vec<(i64, bool)> {
@@ -134,9 +134,7 @@ async fn run_two_parts(cluster: &mut Cluster, extra: &[&str]) -> Vec<TraceRecord
 }
 
 async fn a_live_recording_holds_every_entity_and_the_steps_states_of_the_trace() {
-    if !reader_available() {
-        return;
-    }
+    require_reader();
     let mut cluster = Cluster::new();
     let rrd = cluster.dir.path().join("run.rrd");
     let sink = format!("save:{}", rrd.display());
@@ -147,9 +145,7 @@ async fn a_live_recording_holds_every_entity_and_the_steps_states_of_the_trace()
 /// A run recorded with `--rerun off` can still be reviewed: `baton replay` rebuilds its trace, identical to the
 /// live one, and its recording, which passes the same checks as a live recording.
 async fn a_run_without_a_recording_is_recorded_afterwards_from_its_journal() {
-    if !reader_available() {
-        return;
-    }
+    require_reader();
     let mut cluster = Cluster::new();
     let journal = cluster.dir.path().join("journal");
     let journal_arg = journal.display().to_string();
@@ -178,9 +174,7 @@ async fn a_run_without_a_recording_is_recorded_afterwards_from_its_journal() {
 /// the recording shows the agent lost, the alarm, the token dispatched again in a new epoch to the other robot,
 /// and the step running there.
 async fn a_lost_agent_and_the_reassignment_are_on_the_timeline() {
-    if !reader_available() {
-        return;
-    }
+    require_reader();
     let cell = repo("examples/cell.st");
     let mut cluster = Cluster::new();
     let rrd = cluster.dir.path().join("loss.rrd");

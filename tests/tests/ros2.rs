@@ -4,7 +4,6 @@
 //! hash, attachment or CDR layout on Baton's side and these servers never answer.
 
 use std::path::PathBuf;
-use std::process::Stdio;
 
 use baton_proto::exec::trace::TraceEvent;
 use baton_tests::loopback::{events, repo, Cluster};
@@ -39,17 +38,8 @@ fn service_server(cluster: &Cluster, domain: &str, extra: &[&str]) -> Command {
     cmd
 }
 
-fn python_has_sdk() -> bool {
-    let ok = std::process::Command::new("python3")
-        .args(["-c", "import zenoh_ros2_sdk"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if !ok {
-        baton_tests::missing("python3 with zenoh-ros2-sdk is absent: run .ci/run once");
-    }
-    ok
+fn require_sdk() {
+    baton_tests::peer::require_python("zenoh_ros2_sdk", "zenoh-ros2-sdk");
 }
 
 /// Runs `chart` with `agent` (and `extra` agent flags) until it ends. The router is the test's own, so that it
@@ -139,9 +129,7 @@ async fn no_action_server_is_a_fault_after_the_timeout() {
 }
 
 async fn a_service_answers_true_and_false_and_false_is_a_fault() {
-    if !python_has_sdk() {
-        return;
-    }
+    require_sdk();
     let mut cluster = Cluster::with_router().await;
     let cmd = service_server(&cluster, "7", &[]);
     cluster.agent("cell1", &[], &["--ros-domain-id", "7"]);
@@ -179,12 +167,10 @@ async fn a_misspelt_type_or_goal_is_said_when_the_agent_joins_and_faults_by_name
 /// The example cell (`examples/robot_cell.st`): two agents drive the two ROS 2 servers in parallel branches, the
 /// coordinator converges them, and one agent then has the OPC UA server run a job, its lamp lit meanwhile.
 async fn two_agents_drive_two_servers_in_parallel_branches_and_the_coordinator_converges_them() {
-    if !python_has_sdk() {
-        return;
-    }
+    require_sdk();
     let mut cluster = Cluster::with_router().await;
     let mut action = action_server(&cluster, "succeed");
-    let Some((mut machine, ua_port)) = opcua_server().await else { return };
+    let (mut machine, ua_port) = opcua_server().await;
     let cmd = service_server(&cluster, "0", &[]);
     let mut service = Server::start(cmd);
     action.wait_for("READY").await;
@@ -230,10 +216,11 @@ async fn topics(cluster: &Cluster) -> Server {
 }
 
 async fn topic_fields_drive_a_transition_outputs_are_published_and_a_sensor_gone_is_reported() {
-    if !python_has_sdk() {
-        return;
+    require_sdk();
+    let recorded = baton_tests::rrd::has_reader();
+    if !recorded {
+        baton_tests::harness::not_checked(baton_tests::rrd::NO_READER);
     }
-    let recorded = baton_tests::rrd::reader_available();
     let mut cluster = Cluster::with_router().await;
     cluster.agent("arm1", &[], &["--verbose"]);
     let rrd = cluster.dir.path().join("topics.rrd");
@@ -296,9 +283,7 @@ async fn a_robot_on_dds_only_is_driven_through_zenoh_bridge_ros2dds() {
             bridge.display()
         ));
     }
-    if !baton_tests::peer::python_has("cyclonedds", "cyclonedds") {
-        return;
-    }
+    baton_tests::peer::require_python("cyclonedds", "cyclonedds");
     let mut cluster = Cluster::with_router().await;
     // A DDS domain of the test's own, on loopback.
     let domain = (baton_tests::loopback::free_port() % 200 + 1).to_string();
@@ -370,9 +355,7 @@ async fn a_goal_whose_step_was_left_before_its_server_appeared_is_never_sent() {
 /// server took is sent again for a while, not turned into a fault: here the server holds its queryable back until
 /// the agent said that nobody took its call.
 async fn a_call_that_no_server_took_yet_is_sent_again() {
-    if !python_has_sdk() {
-        return;
-    }
+    require_sdk();
     let mut cluster = Cluster::with_router().await;
     let cmd = service_server(&cluster, "7", &["late"]);
     let mut server = Server::start(cmd);

@@ -230,7 +230,8 @@ fn tree(s: &str) -> (Vec<Vec<String>>, usize) {
 /// One crate's source files by module path (`["exec", "eval"]` for `exec/eval.rs`).
 struct Crate {
     name: &'static str,
-    files: BTreeMap<Vec<String>, PathBuf>,
+    /// Each file's text by module path, read once.
+    files: BTreeMap<Vec<String>, String>,
     /// Files that are `#[cfg(test)] mod NAME;` of their parent: test code, which may build its fixtures with a
     /// layer above the code under test.
     tests: BTreeSet<Vec<String>>,
@@ -251,11 +252,10 @@ impl Crate {
                 "lib.rs" | "main.rs" | "mod.rs" => {}
                 other => module.push(other.trim_end_matches(".rs").to_string()),
             }
-            files.insert(module, path);
+            files.insert(module, std::fs::read_to_string(&path).expect("a source file"));
         }
         let mut tests = BTreeSet::new();
-        for (module, path) in &files {
-            let text = std::fs::read_to_string(path).expect("a source file");
+        for (module, text) in &files {
             let lines: Vec<&str> = text.lines().map(str::trim).collect();
             for pair in lines.windows(2) {
                 if pair[0] == "#[cfg(test)]" {
@@ -295,12 +295,11 @@ impl Crate {
     /// what its parent declares; the parent declaring the child is not an import).
     fn edges(&self) -> BTreeMap<Vec<String>, BTreeSet<Vec<String>>> {
         let mut out: BTreeMap<Vec<String>, BTreeSet<Vec<String>>> = BTreeMap::new();
-        for (module, path) in &self.files {
+        for (module, text) in &self.files {
             if self.tests.contains(module) {
                 continue;
             }
-            let text = std::fs::read_to_string(path).expect("a source file");
-            let code = without_tests(&code_only(&text));
+            let code = without_tests(&code_only(text));
             let entry = out.entry(module.clone()).or_default();
             // `super` inside a file is relative to the file's module; in `mod.rs` and in a nested `mod tests`
             // alike it reaches the file's parent at most, which is an ancestor and so left out below.

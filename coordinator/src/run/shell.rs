@@ -298,13 +298,17 @@ impl Shell {
         Ok(())
     }
 
-    /// Publishes through the outbox, in the main loop; a failure is logged (the state machine resends what
-    /// matters).
+    /// Publishes through the outbox, in the main loop: a key that cannot be declared ends the run, a failed put
+    /// is a warning (the state machine resends what matters).
     pub(crate) async fn send(&mut self, key: String, payload: Vec<u8>) -> anyhow::Result<()> {
-        if let Err(e) = self.outbox.put(key, payload).await {
-            eprintln!("warning: {e}");
+        match self.outbox.put(key, payload).await {
+            Err(baton_shell::Unsent::Declare(why)) => Err(anyhow!(why)),
+            Err(baton_shell::Unsent::Put(why)) => {
+                eprintln!("warning: {why}");
+                Ok(())
+            }
+            Ok(()) => Ok(()),
         }
-        Ok(())
     }
 
     pub(crate) fn summary(&self, loaded: &Loaded) -> Summary {
