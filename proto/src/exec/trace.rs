@@ -138,9 +138,9 @@ pub struct TraceRecord {
     /// A watched variable's new value, for `value` records (`T#10ms`, `TRUE`, `42`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub value: Option<String>,
-    /// An alarm's occurrence, for `alarm` records (`dist::runtime::alarms::AlarmId`).
+    /// An alarm's occurrence, for `alarm` records (`dist::runtime::alarms::AlarmId`, a number).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub id: Option<String>,
+    pub id: Option<u64>,
 }
 
 impl TraceRecord {
@@ -175,5 +175,9 @@ mod tests {
         assert_eq!(record, TraceRecord::new(20, TraceEvent::ActionOn, "Fill"));
         assert_eq!(serde_json::to_string(&record).expect("serializes"), line);
         assert!(serde_json::from_str::<TraceRecord>(r#"{"t_ms":0,"event":"actoin_on","name":"x"}"#).is_err());
+        let mut alarm = TraceRecord::new(5, TraceEvent::Alarm, "robot1");
+        alarm.id = Some(3);
+        let json = serde_json::to_string(&alarm).expect("serializes");
+        assert_eq!(json, r#"{"t_ms":5,"event":"alarm","name":"robot1","id":3}"#, "an alarm's id is a number");
     }
 }

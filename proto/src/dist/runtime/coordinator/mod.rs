@@ -278,7 +278,7 @@ impl Coordinator {
     fn alarm(&mut self, source: &str, message: String) {
         let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Alarm, source);
         if let Some(AlarmChange::Raised { id, .. }) = self.alarms.raise(self.now_ms, source, &message, false) {
-            rec.id = Some(id.to_string());
+            rec.id = Some(id.0);
         }
         rec.message = Some(message.clone());
         self.trace(rec);

@@ -314,7 +314,7 @@ fn an_agent_lost_holding_a_token_raises_an_alarm_of_its_own_that_the_status_list
         })
         .collect();
     assert_eq!(alarms.len(), 1, "{alarms:?}");
-    assert_eq!((alarms[0].name.as_str(), alarms[0].id.as_deref()), ("w1", Some("1")), "its source and its id");
+    assert_eq!((alarms[0].name.as_str(), alarms[0].id), ("w1", Some(1)), "its source and its id");
     assert!(alarms[0].message.as_deref().is_some_and(|m| m.contains("lost holding the token of step `B`")));
     let status = c.status();
     assert_eq!(status.alarms.len(), 1);
