@@ -343,8 +343,10 @@ impl Shell {
         };
         let now = self.now_ms();
         match msg {
-            ToAgent::Dispatch { run, chart, token, epoch, segment, entry, vars, vars_seq, acks, fence, peers } => {
-                let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers };
+            ToAgent::Dispatch {
+                run, chart, token, epoch, segment, entry, vars, vars_seq, acks, fence, peers, held,
+            } => {
+                let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held };
                 match self.runs.get_mut(&run) {
                     Some(r) if *r.state.hash() == chart => {
                         r.last_used = Instant::now();
@@ -395,6 +397,18 @@ impl Shell {
                 if let Some(r) = self.runs.get_mut(&run) {
                     r.state.handle_sync(now);
                 }
+            }
+            ToAgent::Hold { run, token, epoch, held } => {
+                if let Some(r) = self.runs.get_mut(&run) {
+                    r.state.handle_hold(now, token, epoch, held);
+                }
+            }
+            ToAgent::Abort { run } => {
+                if let Some(r) = self.runs.get_mut(&run) {
+                    r.state.handle_abort(now);
+                }
+                // A dispatch of this run still waiting for its chart never runs.
+                self.pending.remove(&run);
             }
         }
     }

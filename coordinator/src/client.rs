@@ -6,7 +6,7 @@ use std::time::Duration;
 use anyhow::{anyhow, bail};
 use baton_proto::dist::keys;
 use baton_proto::dist::netconfig::NetConfig;
-use baton_proto::dist::wire::{self, RunId, SetReply, SetRequest, StatusReport};
+use baton_proto::dist::wire::{self, CtlReply, CtlRequest, RunId, SetReply, SetRequest, StatusReport};
 use zenoh::Session;
 
 const QUERY_TIMEOUT: Duration = Duration::from_secs(3);
@@ -40,6 +40,21 @@ async fn ask<T: serde::de::DeserializeOwned>(
         }
     }
     Ok(out)
+}
+
+/// Who this process acts for, as commands say it: `user@host` (the Zenoh identity, where authentication is
+/// configured, is the router's to check).
+pub fn who() -> String {
+    let user = std::env::var("USER").or_else(|_| std::env::var("LOGNAME")).unwrap_or_else(|_| "unknown".into());
+    let mut buf = [0u8; 256];
+    // SAFETY: gethostname writes at most `buf.len()` bytes into the buffer it is given.
+    let host = if unsafe { libc::gethostname(buf.as_mut_ptr().cast(), buf.len()) } == 0 {
+        let end = buf.iter().position(|&b| b == 0).unwrap_or(buf.len());
+        String::from_utf8_lossy(&buf[..end]).into_owned()
+    } else {
+        "unknown-host".into()
+    };
+    format!("{user}@{host}")
 }
 
 /// A command-line value: JSON (`true`, `42`, `1.5`) or else a string (`T#2s`).
@@ -84,6 +99,36 @@ pub async fn set(
             println!("{}: {}", r.chart, r.message);
         } else {
             eprintln!("{}: {}", r.chart, r.message);
+        }
+    }
+    Ok(replies.iter().any(|r| r.ok))
+}
+
+/// Sends an operator's command to one running chart (picked as `set` picks it) and prints its answer: what it did,
+/// or why it was refused and what is legal now. True when the run took it.
+pub async fn ctl(connect: &[String], file: Option<&Path>, run: Option<&str>, request: CtlRequest) -> anyhow::Result<bool> {
+    let session = open(connect, file).await?;
+    let result = async {
+        let runs: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
+        let target = pick_run(&runs, run, connect)?;
+        ask::<CtlReply>(&session, keys::ctl(target), Some(wire::encode(&request))).await
+    }
+    .await;
+    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    let replies = result?;
+    if replies.is_empty() {
+        bail!(
+            "the run did not answer behind {} (it ended, or the router's access control refused you)",
+            connect.join(", ")
+        );
+    }
+    for r in &replies {
+        let legal: Vec<&str> = r.available.iter().map(|c| c.name()).collect();
+        let state = format!("state {}; legal now: {}", r.state, legal.join(", "));
+        if r.ok {
+            println!("{}: {} ({state})", r.chart, r.message);
+        } else {
+            eprintln!("{}: refused: {} ({state})", r.chart, r.message);
         }
     }
     Ok(replies.iter().any(|r| r.ok))
@@ -160,6 +205,9 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool) -> anyh
         println!("chart `{}` (run {}, version {}), running for {} ms", r.chart, r.run.key(), r.hash.0, r.t_ms);
         let legal: Vec<&str> = r.available.iter().map(|c| c.name()).collect();
         println!("  state: {} (legal commands: {})", r.state, legal.join(", "));
+        if !r.held.is_empty() {
+            println!("  held while the rest goes on: {}", r.held.join(", "));
+        }
         if !r.alarms.is_empty() {
             println!("  alarms: {}", r.alarms.len());
             for a in &r.alarms {
@@ -182,7 +230,12 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool) -> anyh
         println!("  tokens in flight: {}", r.tokens.len());
         for t in &r.tokens {
             let at = t.agent.as_ref().map_or("waiting for an agent".to_string(), |a| format!("on `{a}`"));
-            let paused = if t.paused { " (paused: its agent is lost)" } else { "" };
+            let paused = match (t.paused, t.held, t.held_confirmed) {
+                (true, _, _) => " (paused: its agent is lost)",
+                (_, true, true) => " (held: nothing of it runs)",
+                (_, true, false) => " (holding: waiting for its agent to confirm)",
+                _ => "",
+            };
             println!("    {} epoch {} at {} {at}, since {} ms{paused}", t.token, t.epoch, t.entry, t.since_ms);
         }
         println!("  live agents: {}", r.agents.len());

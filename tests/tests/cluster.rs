@@ -257,6 +257,7 @@ async fn garbage_on_batons_keys_changes_nothing() {
         acks: vec![],
         fence: false,
         peers: wire::Peers::default(),
+        held: false,
     };
     put(r1_cmd, wire::encode(&bogus)).await;
     // An agent that announces itself but never says who it is.

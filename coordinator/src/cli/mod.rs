@@ -4,6 +4,7 @@
 
 mod bench;
 mod check;
+mod ctl;
 mod demo;
 mod export;
 mod replay;
@@ -26,6 +27,10 @@ use clap::{Parser, Subcommand};
 const EXIT_INVALID: u8 = 1;
 /// Exit status for usage and I/O errors (clap uses it too).
 const EXIT_USAGE: u8 = 2;
+/// Exit status of `baton run` when an operator stopped the run (`baton ctl stop`, an interrupt).
+const EXIT_STOPPED: u8 = 3;
+/// Exit status of `baton run` when an operator aborted the run (`baton ctl abort`, a second interrupt).
+const EXIT_ABORTED: u8 = 4;
 
 #[derive(Parser)]
 #[command(name = "baton", version, about = "Sequential function charts (IEC 61131-3), checked and run")]
@@ -43,7 +48,8 @@ enum Command {
     /// Write a valid chart file out in another format: `--plcopen`, PLCopen TC6 v2.01 XML with positions, for
     /// Beremiz, OpenPLC Editor and other IEC 61131-3 tools. Every chart of the file, or the one `--pou` names.
     Export(export::Export),
-    /// Coordinate a chart across agents over Zenoh; exit 0 when it reaches a terminal situation.
+    /// Coordinate a chart across agents over Zenoh; exit 0 when it reaches a terminal situation, 3 when an
+    /// operator stopped it (an interrupt stops it too), 4 when one aborted it (a second interrupt).
     Run(run::Run),
     /// Rebuild a past run from its journal: its Rerun recording and its trace (no network, no agents).
     Replay(replay::Replay),
@@ -62,6 +68,9 @@ enum Command {
     BenchEcho(bench::BenchEcho),
     /// Print the active steps, tokens in flight and live agents of the charts running behind a router.
     Status(status::Status),
+    /// Operate a running chart: hold, unhold, suspend, unsuspend, stop, abort; ack or shelve an alarm.
+    /// baton ctl --connect EP [--run ID] COMMAND [TARGET] [--agent NAME] [--step S] [--reason TEXT]
+    Ctl(ctl::Ctl),
 }
 
 pub fn main() -> ExitCode {
@@ -78,6 +87,7 @@ pub fn main() -> ExitCode {
         Command::Bench(c) => c.run(),
         Command::BenchEcho(c) => c.run(),
         Command::Status(c) => c.run(),
+        Command::Ctl(c) => c.run(),
     };
     match result {
         Ok(code) => code,

@@ -3,6 +3,8 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use super::{EXIT_ABORTED, EXIT_STOPPED};
+
 use baton_proto::dist::runtime::coordinator::LossPolicy;
 
 use super::block_on;
@@ -93,7 +95,11 @@ impl Run {
         block_on(async move {
             let summary = crate::run::run(opts).await?;
             summary.print();
-            Ok(ExitCode::SUCCESS)
+            Ok(match summary.state.as_str() {
+                "stopped" => ExitCode::from(EXIT_STOPPED),
+                "aborted" => ExitCode::from(EXIT_ABORTED),
+                _ => ExitCode::SUCCESS,
+            })
         })
     }
 }

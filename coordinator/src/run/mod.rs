@@ -234,10 +234,15 @@ fn open_journal(opts: &RunOptions, loaded: &Loaded, hash: &ChartHash) -> anyhow:
 /// How the main loop ended.
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Ended {
-    /// The chart reached a terminal situation, failed, or Zenoh closed an inbox.
+    /// The chart reached a terminal situation, failed, was stopped or aborted.
     Ran,
-    /// SIGINT or SIGTERM: the run is left as it stands (its journal resumes it).
-    Interrupted,
+    /// Zenoh closed an inbox: the run is left as it stands (its journal resumes it).
+    Closed,
+}
+
+/// Who an interrupt comes from, in the trace: the user and host of this process.
+fn signal_sender(signal: &str) -> String {
+    format!("{} ({signal})", crate::client::who())
 }
 
 /// The main loop: asleep until a message comes or the next cycle is due.
@@ -246,7 +251,8 @@ async fn serve(shell: &mut Shell, inboxes: &Inboxes, run: RunId, chart_reply: Ve
     let mut durable_rx = shell.journal.as_ref().map(crate::journal::Writer::watcher);
     let mut stop = baton_shell::Stop::new()?;
     shell.due_cycles().await?;
-    while !shell.core.core().is_terminal() && shell.core.core().failure().is_none() {
+    let mut interrupts = 0;
+    while !shell.core.core().is_over() {
         // An idle run does not wake.
         let deadline = shell.next_cycle().map(|t| shell.instant_of(t));
         let wake = tokio::select! {
@@ -258,6 +264,7 @@ async fn serve(shell: &mut Shell, inboxes: &Inboxes, run: RunId, chart_reply: Ve
             q = inboxes.chart.recv_async() => q.map_or(Wake::Closed, Wake::Chart),
             q = inboxes.status.recv_async() => q.map_or(Wake::Closed, Wake::Status),
             q = inboxes.set.recv_async() => q.map_or(Wake::Closed, Wake::Set),
+            q = inboxes.ctl.recv_async() => q.map_or(Wake::Closed, Wake::Ctl),
             // A journal batch became durable: what it led to may go now.
             _ = async { durable_rx.as_mut().expect("journal").changed().await }, if durable_rx.is_some() => Wake::Durable,
             () = baton_shell::until(deadline) => Wake::Timer,
@@ -287,14 +294,45 @@ async fn serve(shell: &mut Shell, inboxes: &Inboxes, run: RunId, chart_reply: Ve
                 let answer = wire::encode(&shell.on_set(&q));
                 match &shell.journal {
                     // Its record goes in the batch written just below; the answer waits for it.
-                    Some(j) => shell.held_replies.push_back((j.sent() + 1, q, answer)),
+                    Some(j) => shell.held_replies.push_back((j.sent() + 1, q, keys::set(run), answer)),
                     None => reply(&q, keys::set(run), answer).await,
+                }
+            }
+            Wake::Ctl(q) => {
+                let answer = wire::encode(&shell.on_ctl(&q));
+                match &shell.journal {
+                    Some(j) => shell.held_replies.push_back((j.sent() + 1, q, keys::ctl(run), answer)),
+                    None => reply(&q, keys::ctl(run), answer).await,
                 }
             }
             Wake::Durable => shell.release().await?,
             Wake::Timer => {}
-            Wake::Stop => return Ok(Ended::Interrupted),
-            Wake::Closed => break,
+            Wake::Stop => {
+                // The first interrupt stops the run (what runs finishes, nothing new starts), the next aborts it.
+                interrupts += 1;
+                let command = if interrupts == 1 { "stop" } else { "abort" };
+                let request = baton_proto::dist::wire::CtlRequest {
+                    command: command.into(),
+                    target: None,
+                    agent: None,
+                    step: None,
+                    for_ms: None,
+                    reason: "interrupted".into(),
+                    by: signal_sender("SIGINT or SIGTERM"),
+                };
+                if !shell.quiet {
+                    let what = if interrupts == 1 {
+                        "stopping: running skills finish, nothing new starts (interrupt again to abort)"
+                    } else {
+                        "aborting: running skills are cancelled"
+                    };
+                    eprintln!("baton: interrupted, {what}");
+                }
+                if let Err(why) = shell.command(request) {
+                    eprintln!("baton: {command} refused: {why}");
+                }
+            }
+            Wake::Closed => return Ok(Ended::Closed),
         }
         shell.commit(Vec::new()).await?;
     }
@@ -327,11 +365,11 @@ async fn wind_down(
     let summary = shell.summary(loaded);
     drop(shell);
     session.close().await.map_err(|e| anyhow!("{e}"))?;
-    if ended == Ended::Interrupted {
+    if ended == Ended::Closed {
         if let Some(dir) = &opts.journal {
             eprintln!("baton: the run is kept in its journal; `baton run … --journal {}` resumes it", dir.display());
         }
-        bail!("interrupted before the chart reached a terminal situation");
+        bail!("the Zenoh session closed before the chart reached a terminal situation");
     }
     if let Some(why) = &failure {
         bail!("the run failed: {why}");

@@ -9,7 +9,7 @@ use baton_proto::dist::journal::Journaled;
 use baton_proto::dist::keys;
 use baton_proto::dist::runtime::coordinator::CoordOutput;
 use baton_proto::dist::runtime::Level;
-use baton_proto::dist::wire::{self, AgentInfo, RunId, SetReply, SetRequest};
+use baton_proto::dist::wire::{self, AgentInfo, CtlReply, CtlRequest, RunId, SetReply, SetRequest};
 use baton_proto::limits::CATCH_UP_CYCLES_MAX;
 use tokio::sync::mpsc;
 use zenoh::handlers::FifoChannelHandler;
@@ -51,8 +51,9 @@ pub(crate) struct Shell {
     pub(crate) journal: Option<crate::journal::Writer>,
     /// What the coordinator asked for, per journal batch, until that batch is durable.
     pub(crate) held: VecDeque<(u64, Vec<CoordOutput>)>,
-    /// Answers to `baton set`, likewise: a client is told a value was taken only once it is durable.
-    pub(crate) held_replies: VecDeque<(u64, Query, Vec<u8>)>,
+    /// Answers to `baton set` and `baton ctl`, likewise (with the key they answer on): a client is told a value
+    /// or a command was taken only once it is durable.
+    pub(crate) held_replies: VecDeque<(u64, Query, String, Vec<u8>)>,
     pub(crate) quiet: bool,
     /// One publisher per key, declared on first use.
     pub(crate) outbox: baton_shell::Outbox,
@@ -75,6 +76,7 @@ pub(crate) struct Inboxes {
     pub(crate) chart: Queryable<FifoChannelHandler<Query>>,
     pub(crate) status: Queryable<FifoChannelHandler<Query>>,
     pub(crate) set: Queryable<FifoChannelHandler<Query>>,
+    pub(crate) ctl: Queryable<FifoChannelHandler<Query>>,
 }
 
 impl Inboxes {
@@ -89,6 +91,7 @@ impl Inboxes {
             chart: session.declare_queryable(keys::chart(run)).await.map_err(zerr)?,
             status: session.declare_queryable(keys::status(run)).await.map_err(zerr)?,
             set: session.declare_queryable(keys::set(run)).await.map_err(zerr)?,
+            ctl: session.declare_queryable(keys::ctl(run)).await.map_err(zerr)?,
         })
     }
 }
@@ -103,6 +106,7 @@ pub(crate) enum Wake {
     Chart(Query),
     Status(Query),
     Set(Query),
+    Ctl(Query),
     Durable,
     Timer,
     Stop,
@@ -206,6 +210,36 @@ impl Shell {
         }
     }
 
+    /// `baton ctl`: an operator's command, recorded and applied (or refused, which is recorded too: the trace
+    /// says so).
+    pub(crate) fn on_ctl(&mut self, q: &Query) -> CtlReply {
+        let request: Result<CtlRequest, String> = match q.payload() {
+            Some(p) => wire::decode(&p.to_bytes()).map_err(|e| format!("malformed request: {e}")),
+            None => Err("the request carries no command".into()),
+        };
+        let result = match request {
+            Ok(r) => self.command(r),
+            Err(why) => Err(why),
+        };
+        self.ctl_reply(result)
+    }
+
+    /// An operator's command from this process (an interrupt is a `stop`, a second one an `abort`).
+    pub(crate) fn command(&mut self, request: CtlRequest) -> Result<String, String> {
+        let now = self.now_ms();
+        self.core.command(now, request)
+    }
+
+    pub(crate) fn ctl_reply(&self, result: Result<String, String>) -> CtlReply {
+        let core = self.core.core();
+        let (ok, message) = match result {
+            Ok(m) => (true, m),
+            Err(m) => (false, m),
+        };
+        let state = core.run_state();
+        CtlReply { chart: core.program().name.clone(), ok, message, state, available: state.available() }
+    }
+
     /// The grid time of the next cycle, if the coordinator needs one.
     pub(crate) fn next_cycle(&self) -> Option<u64> {
         self.core.core().next_cycle_ms(self.last_cycle_ms)
@@ -260,9 +294,9 @@ impl Shell {
             let Some((_, outputs)) = self.held.pop_front() else { break };
             self.carry_out(outputs).await?;
         }
-        while self.held_replies.front().is_some_and(|(batch, _, _)| *batch <= durable) {
-            let Some((_, q, answer)) = self.held_replies.pop_front() else { break };
-            reply(&q, keys::set(self.core.core().run()), answer).await;
+        while self.held_replies.front().is_some_and(|(batch, _, _, _)| *batch <= durable) {
+            let Some((_, q, key, answer)) = self.held_replies.pop_front() else { break };
+            reply(&q, key, answer).await;
         }
         Ok(())
     }
@@ -339,6 +373,7 @@ impl Shell {
         Summary {
             chart: loaded.pou.clone(),
             run: self.core.core().run().key(),
+            state: self.core.core().run_state().name().to_string(),
             duration_ms: now,
             tokens_dispatched: stats.dispatched,
             tokens_returned: stats.returned,

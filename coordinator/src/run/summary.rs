@@ -9,6 +9,9 @@ use serde::Serialize;
 pub struct Summary {
     pub chart: String,
     pub run: String,
+    /// How the run ended, as its PackML state: `complete`, `stopped` or `aborted` (`execute` for a run that
+    /// failed or reached a terminal situation without its end recorded).
+    pub state: String,
     pub duration_ms: u64,
     pub tokens_dispatched: u64,
     pub tokens_returned: u64,
@@ -30,7 +33,10 @@ pub struct StepTime {
 
 impl Summary {
     pub fn print(&self) {
-        println!("chart `{}` finished in {} ms", self.chart, self.duration_ms);
+        match self.state.as_str() {
+            "stopped" | "aborted" => println!("chart `{}` was {} after {} ms", self.chart, self.state, self.duration_ms),
+            _ => println!("chart `{}` finished in {} ms", self.chart, self.duration_ms),
+        }
         println!(
             "tokens: {} dispatched, {} returned; {} message(s) dropped",
             self.tokens_dispatched, self.tokens_returned, self.messages_dropped

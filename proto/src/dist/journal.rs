@@ -25,7 +25,7 @@ use uuid::Uuid;
 use crate::dist::layout::Layout;
 use crate::dist::runtime::coordinator::{Coordinator, LossPolicy};
 use crate::dist::wire::{
-    self, AgentInfo, ChartHash, DeviceReport, Report, RunId, SetRequest, TokenId, VarUpdate, WireError,
+    self, AgentInfo, ChartHash, CtlRequest, DeviceReport, Report, RunId, SetRequest, TokenId, VarUpdate, WireError,
 };
 use crate::exec::program::{Program, TransitionId};
 
@@ -100,6 +100,8 @@ pub enum Record {
     /// Several processes answered to this agent name (how many).
     AgentConflict(String, u32),
     Set(SetRequest),
+    /// An operator's command (`baton ctl`), accepted or refused: both are in the trace, which a replay rebuilds.
+    Command(CtlRequest),
     /// An agent said which of its bound devices it cannot reach.
     Devices(DeviceReport),
     Policy(LossPolicy),
@@ -138,6 +140,7 @@ const RECOVER: u8 = 8;
 const END: u8 = 9;
 const AGENT_CONFLICT: u8 = 10;
 const DEVICES: u8 = 11;
+const COMMAND: u8 = 12;
 
 const HEAD: usize = 9;
 
@@ -172,6 +175,7 @@ pub fn encode(entry: &Entry) -> Vec<u8> {
             frame(AGENT_CONFLICT, t, &body)
         }
         Record::Set(s) => frame(SET, t, &wire::encode(s)),
+        Record::Command(c) => frame(COMMAND, t, &wire::encode(c)),
         Record::Devices(d) => frame(DEVICES, t, &wire::encode(d)),
         Record::Policy(p) => frame(POLICY, t, &[policy_byte(*p)]),
         Record::Recover => frame(RECOVER, t, &[]),
@@ -204,6 +208,7 @@ pub fn decode(bytes: &[u8]) -> Result<Entry, JournalError> {
             Record::AgentConflict(name, n)
         }
         SET => Record::Set(wire::decode(body).map_err(wire_err)?),
+        COMMAND => Record::Command(wire::decode(body).map_err(wire_err)?),
         DEVICES => Record::Devices(wire::decode(body).map_err(wire_err)?),
         POLICY => Record::Policy(match body {
             [0] => LossPolicy::Pause,
@@ -232,6 +237,7 @@ pub fn apply(core: &mut Coordinator, entry: &Entry) -> Option<Result<String, Str
         Record::AgentDown(name) => core.handle_agent_down(now, name),
         Record::AgentConflict(name, n) => core.handle_agent_conflict(now, name, *n as usize),
         Record::Set(s) => return Some(core.handle_set(now, &s.name, &s.value)),
+        Record::Command(c) => return Some(core.handle_command(now, c)),
         Record::Devices(d) => core.handle_devices(now, d.clone()),
         Record::Policy(p) => core.set_loss_policy(*p),
         Record::Recover => core.handle_recover(now),
@@ -391,6 +397,11 @@ impl Journaled {
         self.core.check_set(name, value)?;
         let request = SetRequest { name: name.to_string(), value: value.clone() };
         self.input(now_ms, Record::Set(request)).unwrap_or_else(|| Err("not applied".to_string()))
+    }
+
+    /// An operator's command: recorded whether it is taken or refused (the refusal is in the trace too).
+    pub fn command(&mut self, now_ms: u64, request: CtlRequest) -> Result<String, String> {
+        self.input(now_ms, Record::Command(request)).unwrap_or_else(|| Err("not applied".to_string()))
     }
 
     pub fn set_loss_policy(&mut self, now_ms: u64, policy: LossPolicy) {

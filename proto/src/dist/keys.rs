@@ -11,6 +11,7 @@
 //! baton/run/<run>/chart               queryable: the chart's source (ChartSource)
 //! baton/run/<run>/status              queryable: active steps, tokens, agents (StatusReport)
 //! baton/run/<run>/set                 queryable: set an input (SetRequest → SetReply)
+//! baton/run/<run>/ctl                 queryable: an operator's command (CtlRequest → CtlReply)
 //! ```
 //! Agent names and roles are restricted to letters, digits, `_` and `-` (`is_valid_name`), so they are
 //! always single chunks; a run is 32 hex digits.
@@ -106,6 +107,11 @@ pub fn set(run: RunId) -> String {
 
 pub fn set_any_run() -> String {
     format!("{ROOT}/run/*/set")
+}
+
+/// Queryable: an operator's command to the run (`CtlRequest` → `CtlReply`).
+pub fn ctl(run: RunId) -> String {
+    format!("{ROOT}/run/{}/ctl", run.key())
 }
 
 /// Everything under Baton's root, for tools that watch or test the whole protocol.

@@ -21,8 +21,10 @@ use crate::limits::MESSAGE_BYTES_MAX;
 use crate::types::Value;
 
 /// 3: dispatches and joins carry the values of the variables the agent writes (a new process takes them) and the
-/// writers it may hear variables from (`Peer`); `ToAgent::Peers` tells agents when those change.
-pub const PROTOCOL_VERSION: u32 = 3;
+/// writers it may hear variables from (`Peer`); `ToAgent::Peers` tells agents when those change. 4: operators'
+/// commands (`CtlRequest`): tokens are held and released (`ToAgent::Hold`, confirmed by `AgentEventKind::Held` and
+/// `Released`) and a run is aborted (`ToAgent::Abort`).
+pub const PROTOCOL_VERSION: u32 = 4;
 
 /// One run of a chart by one coordinator.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -137,7 +139,17 @@ pub enum ToAgent {
         /// its router for a quarter of its lease cancels this token's skills (`limits::fence_after_ms`).
         fence: bool,
         peers: Peers,
+        /// The token arrives held (`Hold`): its entry step becomes active only when it is released.
+        #[serde(default)]
+        held: bool,
     },
+    /// Hold this token (`held`), or release it: a held token's transitions do not clear, no skill of it starts,
+    /// its step times stand still; its running skills finish (or are cancelled where the action says
+    /// `{hold := 'cancel'}`). The agent confirms with `AgentEventKind::Held` once nothing of the token runs, and
+    /// with `Released` when it goes on. Sent again until confirmed; a repeat changes nothing.
+    Hold { run: RunId, token: TokenId, epoch: u32, held: bool },
+    /// The run is aborted: cancel every skill of it, give its actions their final scan, forget its tokens.
+    Abort { run: RunId },
     /// This token's epoch is over (its segment was taken back): stop running it and forget it.
     Drop { run: RunId, token: TokenId, epoch: u32 },
     /// Reports applied since the last acknowledgement to this agent (at most `ACK_DELAY_MS` old, unless a
@@ -199,6 +211,10 @@ pub enum AgentEventKind {
     Fault { message: String },
     SkillDone { action: u32 },
     SkillFault { action: u32, message: String },
+    /// The token is held and nothing of it runs any more (its skills finished or were cancelled).
+    Held,
+    /// The token was released: its transitions may clear again.
+    Released,
 }
 
 /// Agent → coordinator, on the run's report key: the events of one token, numbered per token from 0.
@@ -324,6 +340,41 @@ pub struct SetReply {
     pub message: String,
 }
 
+/// `baton ctl`: an operator's command to a run. `command` is a PackML command (`hold`, `unhold`, `suspend`,
+/// `unsuspend`, `stop`, `abort`, `clear`, `reset`, `start`), `mode`, `confirm`, `force`, `activate`,
+/// `deactivate`, `ack` or `shelve`; `target` its object (the mode, a transition, a step, an alarm id or `all`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CtlRequest {
+    pub command: String,
+    #[serde(default)]
+    pub target: Option<String>,
+    /// `hold --agent NAME`: only the branches on that agent.
+    #[serde(default)]
+    pub agent: Option<String>,
+    /// `hold --step S`: only the branch that holds step S.
+    #[serde(default)]
+    pub step: Option<String>,
+    /// `shelve --for`: how long, in ms.
+    #[serde(default)]
+    pub for_ms: Option<u64>,
+    /// Why, in the operator's words (`--reason`, or an acknowledgement's comment).
+    #[serde(default)]
+    pub reason: String,
+    /// Who sent it: the Zenoh identity where authentication is configured, `user@host` otherwise.
+    #[serde(default)]
+    pub by: String,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CtlReply {
+    pub chart: String,
+    pub ok: bool,
+    pub message: String,
+    /// The run's state after the command, and the commands legal in it.
+    pub state: crate::dist::runtime::packml::State,
+    pub available: Vec<crate::dist::runtime::packml::Command>,
+}
+
 /// `baton status`: a running chart's situation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StatusReport {
@@ -343,6 +394,9 @@ pub struct StatusReport {
     /// Alarms not yet back to normal, oldest first.
     #[serde(default)]
     pub alarms: Vec<StatusAlarm>,
+    /// Parts of the run held while the rest goes on (`agent robot1`, `step Pick`).
+    #[serde(default)]
+    pub held: Vec<String>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -375,6 +429,11 @@ pub struct StatusToken {
     /// Held while its agent is lost (or several processes answer to its name).
     #[serde(default)]
     pub paused: bool,
+    /// Held by an operator (`baton ctl hold`), and whether its agent confirmed that nothing of it runs.
+    #[serde(default)]
+    pub held: bool,
+    #[serde(default)]
+    pub held_confirmed: bool,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -479,7 +538,8 @@ mod tests {
     #[test]
     fn bad_bytes_are_errors() {
         assert!(matches!(decode::<ToAgent>(b"\xff\x00garbage"), Err(WireError::Malformed(_))));
-        assert!(matches!(decode::<ToAgent>(br#"{"v":3,"m":{"launch_missiles":{}}}"#), Err(WireError::Malformed(_))));
+        let unknown = format!(r#"{{"v":{PROTOCOL_VERSION},"m":{{"launch_missiles":{{}}}}}}"#);
+        assert!(matches!(decode::<ToAgent>(unknown.as_bytes()), Err(WireError::Malformed(_))));
         assert_eq!(decode::<ToAgent>(br#"{"v":99,"m":{"ack":{}}}"#), Err(WireError::Version(99)));
         let big = vec![b' '; MESSAGE_BYTES_MAX + 1];
         assert_eq!(decode::<ToAgent>(&big), Err(WireError::TooLarge(MESSAGE_BYTES_MAX + 1, MESSAGE_BYTES_MAX)));

@@ -167,6 +167,8 @@ struct StepState {
     remote_cycle: u64,
     /// Index into `Engine::active` while active.
     slot: u32,
+    /// Held (`Engine::set_held`) since then, while active: its time stands still and no outgoing transition clears.
+    held_at: Option<u64>,
 }
 
 #[derive(Clone, Copy, Default, PartialEq)]
@@ -245,6 +247,10 @@ pub struct Engine {
     /// Per action: the cycle in which a step using it became active or was left (what a reaction controls).
     touched: Vec<u64>,
     judged: Vec<ActionId>,
+    /// Per step: held by an operator (`set_held`), whenever it is active.
+    held: Vec<bool>,
+    /// Per action: its stored timers stand still since then, a step it is associated with being held.
+    frozen_at: Vec<Option<u64>>,
 }
 
 impl Engine {
@@ -300,7 +306,8 @@ impl Engine {
                     t_last_ms: 0,
                     activated_cycle: NEVER,
                     remote_cycle: NEVER,
-                    slot: u32::MAX
+                    slot: u32::MAX,
+                    held_at: None,
                 };
                 n_steps
             ],
@@ -328,6 +335,8 @@ impl Engine {
             demand_stamp: vec![NEVER; n_actions],
             touched: vec![NEVER; n_actions],
             judged: Vec::new(),
+            held: vec![false; n_steps],
+            frozen_at: vec![None; n_actions],
             now_ms: 0,
             cycle: 0,
             started: false,
@@ -541,6 +550,84 @@ impl Engine {
         self.collisions
     }
 
+    /// Holds step `s` from `now_ms` (`held`), or releases it. While a held step is active, none of its outgoing
+    /// transitions clears, and its time (`S.T`), its timed qualifiers (L, D, DS) and the stored timers (SD, SL) of
+    /// its actions stand still; its actions' bodies go on running. A held step that becomes active (a token arriving
+    /// at it) is held from then. On release its time goes on from where it stood.
+    pub fn set_held(&mut self, now_ms: u64, s: StepId, held: bool) {
+        let Some(&was) = self.held.get(s.index()) else { return };
+        if was == held {
+            return;
+        }
+        self.held[s.index()] = held;
+        let now = now_ms.max(self.now_ms);
+        let program = Arc::clone(&self.program);
+        let state = &mut self.steps[s.index()];
+        if held {
+            if state.active {
+                state.held_at = Some(now);
+            }
+            for assoc in program.associations(s) {
+                let f = &mut self.frozen_at[assoc.action.index()];
+                if f.is_none() && self.steps[s.index()].active {
+                    *f = Some(now);
+                }
+            }
+        } else {
+            if let Some(at) = state.held_at.take() {
+                state.activated_ms += now - at;
+            }
+            for assoc in program.associations(s) {
+                let a = assoc.action.index();
+                // Still frozen while another held step uses it.
+                let still = (0..program.steps.len()).map(|i| StepId(i as u32)).any(|o| {
+                    o != s
+                        && self.held[o.index()]
+                        && self.steps[o.index()].active
+                        && program.associations(o).iter().any(|x| x.action == assoc.action)
+                });
+                if let (Some(at), false) = (self.frozen_at[a], still) {
+                    self.frozen_at[a] = None;
+                    let st = &mut self.actions[a];
+                    let shift = |x: &mut Option<(u64, i64)>| {
+                        if let Some((start, _)) = x {
+                            *start += now - at;
+                        }
+                    };
+                    shift(&mut st.stored_sd);
+                    shift(&mut st.stored_sl);
+                }
+            }
+        }
+        self.mutations += 1;
+        self.gen += 1;
+        self.xq_gen = self.gen;
+    }
+
+    /// Ends the chart at `now_ms` (an operator's abort or stop): every active step is left, every stored qualifier
+    /// reset, and the actions whose Q falls get their final scan; nothing becomes active. Events as for a cycle.
+    pub fn abort(&mut self, now_ms: u64) -> Result<(), InputError> {
+        self.advance(now_ms)?;
+        self.gen += 1;
+        while let Some(&s) = self.active.last() {
+            self.deactivate(s);
+        }
+        for a in &mut self.actions {
+            let q = a.q;
+            *a = ActionState { q, ..ActionState::default() };
+        }
+        self.frozen_at.iter_mut().for_each(|f| *f = None);
+        self.control_actions(false);
+        self.deactivated.clear();
+        self.cycle += 1;
+        Ok(())
+    }
+
+    /// Whether step `s` is held (`set_held`).
+    pub fn is_held(&self, s: StepId) -> bool {
+        self.held.get(s.index()).copied().unwrap_or(false)
+    }
+
     /// Changes counted so far (events, variable values, actions' stored state): equal counts before and after
     /// a cycle mean it changed nothing.
     pub fn mutations(&self) -> u64 {
@@ -619,6 +706,7 @@ impl Engine {
             let enabled = sources.iter().all(|s| {
                 self.steps[s.index()].active
                     && self.consumed_stamp[s.index()] != stamp
+                    && self.steps[s.index()].held_at.is_none()
                     && self.step_t(*s) >= program.steps[s.index()].min_ms as i64
             });
             if !enabled {
@@ -684,6 +772,7 @@ impl Engine {
         state.activated_ms = since;
         state.activated_cycle = self.cycle;
         state.slot = slot;
+        state.held_at = self.held[s.index()].then_some(since);
         self.active.push(s);
         self.xq_gen = self.gen;
         if self.timed[s.index()] {
@@ -698,7 +787,8 @@ impl Engine {
             return;
         }
         state.active = false;
-        state.t_last_ms = (self.now_ms - state.activated_ms) as i64;
+        state.t_last_ms = (state.held_at.unwrap_or(self.now_ms) - state.activated_ms) as i64;
+        state.held_at = None;
         self.xq_gen = self.gen;
         if self.timed[s.index()] {
             self.timed_active -= 1;
@@ -757,7 +847,7 @@ impl Engine {
                 continue;
             }
             let state = self.steps[s.index()];
-            let elapsed = (self.now_ms - state.activated_ms) as i64;
+            let elapsed = (state.held_at.unwrap_or(self.now_ms) - state.activated_ms) as i64;
             let just_activated = state.activated_cycle == self.cycle;
             for assoc in program.associations(s) {
                 let dur = eval::duration_ms(assoc.duration, self);
@@ -828,7 +918,8 @@ impl Engine {
                     st.stored_sl = d.set_sl.map(|dur| (now, dur));
                 }
             }
-            let since = |start: u64| (self.now_ms - start) as i64;
+            let at = self.frozen_at[a.index()].unwrap_or(self.now_ms);
+            let since = |start: u64| at.saturating_sub(start) as i64;
             let q = d.direct
                 || st.stored_s
                 || st.stored_ds
@@ -906,7 +997,7 @@ impl Env for Engine {
     fn step_t(&self, id: StepId) -> i64 {
         let s = &self.steps[id.index()];
         if s.active {
-            (self.now_ms - s.activated_ms) as i64
+            (s.held_at.unwrap_or(self.now_ms) - s.activated_ms) as i64
         } else {
             s.t_last_ms
         }
@@ -960,5 +1051,59 @@ mod tests {
         }
         assert_eq!(faults, [(10, StepId(2))]);
         assert_eq!(engine.collisions(), 1);
+    }
+
+    fn compiled(src: &str) -> Arc<Program> {
+        let parsed = crate::front::parser::parse(src);
+        let mut diags = Vec::new();
+        let compiled = crate::exec::compile::compile(&parsed.charts[0], &parsed.library, &parsed.types, &mut diags);
+        assert!(diags.is_empty(), "{diags:?}");
+        Arc::new(compiled.program)
+    }
+
+    /// Runs cycles every 10 ms from `from` to `to` (inclusive), returning when each transition cleared.
+    fn cycles(engine: &mut Engine, from: u64, to: u64, fired: &mut Vec<(u64, TransitionId)>) {
+        for now in (from..=to).step_by(10) {
+            engine.handle_cycle(now).expect("cycle");
+            while let Some(ev) = engine.poll_event() {
+                if let EventKind::Fire(t) = ev.kind {
+                    fired.push((ev.t_ms, t));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_held_step_keeps_its_time_and_its_token_until_released() {
+        // B waits for its own time to reach 100 ms; it is held from 50 ms to 250 ms, so its time reaches 100 ms
+        // 200 ms later than it would have, at 300 ms (it became active in the first cycle, at 0 ms). C's transition is TRUE at once
+        // but C is held as soon as a token reaches it, until released.
+        let program = compiled(
+            "PROGRAM p
+            INITIAL_STEP A: END_STEP
+            TRANSITION FROM A TO B := TRUE; END_TRANSITION
+            STEP B: END_STEP
+            TRANSITION FROM B TO C := B.T >= T#100ms; END_TRANSITION
+            STEP C: END_STEP
+            TRANSITION FROM C TO D := TRUE; END_TRANSITION
+            STEP D: END_STEP
+            END_PROGRAM",
+        );
+        let (b, c) = (program.step_by_name("B").unwrap(), program.step_by_name("C").unwrap());
+        let mut engine = Engine::new(Arc::clone(&program));
+        let mut fired = Vec::new();
+        cycles(&mut engine, 0, 40, &mut fired);
+        engine.set_held(50, b, true);
+        engine.set_held(50, c, true);
+        cycles(&mut engine, 50, 240, &mut fired);
+        assert_eq!(engine.step_t(b), 50, "B's time stood still at what it was when held");
+        assert_eq!(fired.len(), 1, "only A's transition cleared: {fired:?}");
+        engine.set_held(250, b, false);
+        cycles(&mut engine, 250, 400, &mut fired);
+        assert_eq!(fired.iter().map(|f| f.0).collect::<Vec<_>>(), [0, 300], "C is held: its TRUE transition waits");
+        assert!(engine.is_active(c));
+        engine.set_held(405, c, false);
+        cycles(&mut engine, 410, 420, &mut fired);
+        assert_eq!(fired.last().map(|f| f.0), Some(410), "released, C's transition clears at the next cycle");
     }
 }

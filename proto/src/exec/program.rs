@@ -742,6 +742,16 @@ impl Program {
     }
 
     /// A variable by name (`t1.Q` for an instance's member); hidden state has none.
+    /// The step named `name` (steps' names are unique in a chart, case-insensitively).
+    pub fn step_by_name(&self, name: &str) -> Option<StepId> {
+        self.steps.iter().position(|s| s.name.eq_ignore_ascii_case(name)).map(|i| StepId(i as u32))
+    }
+
+    /// The transition named `name`.
+    pub fn transition_by_name(&self, name: &str) -> Option<TransitionId> {
+        self.transitions.iter().position(|t| t.name.eq_ignore_ascii_case(name)).map(|i| TransitionId(i as u32))
+    }
+
     pub fn var_by_name(&self, name: &str) -> Option<VarId> {
         self.vars.iter().position(|v| !v.hidden && v.name.eq_ignore_ascii_case(name)).map(|i| VarId(i as u32))
     }

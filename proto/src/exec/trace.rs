@@ -54,11 +54,23 @@ pub enum TraceEvent {
     DeviceDown,
     /// The run's PackML state changed (`name` is the new state: `execute`, `completing`, `complete`, …).
     State,
+    /// An operator's command was accepted (`name` is the command, `message` the reason, `by` who sent it).
+    Command,
+    /// An operator's command was refused (`message` says why and what is legal).
+    CommandRefused,
+    /// The run's mode changed (`name`: `auto`, `step`, `manual`).
+    Mode,
+    /// An alarm was acknowledged (`id`, `by`, `message` the comment; `name` its source).
+    Ack,
+    /// An alarm is back to normal: acknowledged and its cause gone (`id`).
+    AlarmClear,
+    /// An alarm was shelved (`id`, `by`, until when in `message`).
+    Shelve,
 }
 
 impl TraceEvent {
     /// Every event, in the order above.
-    pub const ALL: [TraceEvent; 22] = [
+    pub const ALL: [TraceEvent; 28] = [
         TraceEvent::Activate,
         TraceEvent::Deactivate,
         TraceEvent::Fire,
@@ -81,6 +93,12 @@ impl TraceEvent {
         TraceEvent::DeviceUp,
         TraceEvent::DeviceDown,
         TraceEvent::State,
+        TraceEvent::Command,
+        TraceEvent::CommandRefused,
+        TraceEvent::Mode,
+        TraceEvent::Ack,
+        TraceEvent::AlarmClear,
+        TraceEvent::Shelve,
     ];
 
     /// The event's name in the JSON (`action_on`). Not public: code outside matches on the event itself, and
@@ -109,6 +127,12 @@ impl TraceEvent {
             TraceEvent::DeviceUp => "device_up",
             TraceEvent::DeviceDown => "device_down",
             TraceEvent::State => "state",
+            TraceEvent::Command => "command",
+            TraceEvent::CommandRefused => "command_refused",
+            TraceEvent::Mode => "mode",
+            TraceEvent::Ack => "ack",
+            TraceEvent::AlarmClear => "alarm_clear",
+            TraceEvent::Shelve => "shelve",
         }
     }
 }
@@ -141,6 +165,9 @@ pub struct TraceRecord {
     /// An alarm's occurrence, for `alarm` records (`dist::runtime::alarms::AlarmId`, a number).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub id: Option<u64>,
+    /// Who sent a `command` (or `command_refused`), acknowledged (`ack`) or shelved (`shelve`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub by: Option<String>,
 }
 
 impl TraceRecord {
@@ -155,6 +182,7 @@ impl TraceRecord {
             message: None,
             value: None,
             id: None,
+            by: None,
         }
     }
 }

@@ -27,7 +27,7 @@ use crate::dist::journal::{self, Journaled};
 use crate::dist::layout::{Layout, SkillBinding};
 use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch, Join};
 use crate::dist::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
-use crate::dist::wire::{self, AgentInfo, ChartHash, RunId, ToAgent, VarUpdate};
+use crate::dist::wire::{self, AgentInfo, ChartHash, CtlRequest, RunId, ToAgent, VarUpdate};
 use crate::exec::program::{ActionId, Program};
 use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::front::pragma::Param;
@@ -202,6 +202,12 @@ pub struct SimCluster {
     hash: ChartHash,
     /// Inputs to set, as (time, name, value), applied when their time comes.
     inputs: Vec<(u64, String, serde_json::Value)>,
+    /// Operators' commands, and when (`command_at`).
+    commands: Vec<(u64, CtlRequest)>,
+    /// What the coordinator answered each command, in order.
+    pub answers: Vec<(u64, Result<String, String>)>,
+    /// When an operator's stop or abort ended the run.
+    operator_end_ms: Option<u64>,
     /// Variable updates a rogue peer publishes, and when.
     forged: Vec<(u64, VarUpdate)>,
     agents: Vec<SimAgent>,
@@ -327,6 +333,9 @@ impl SimCluster {
             layout: Arc::clone(&layout),
             hash: hash.clone(),
             inputs: Vec::new(),
+            commands: Vec::new(),
+            answers: Vec::new(),
+            operator_end_ms: None,
             forged: Vec::new(),
             agents: sim_agents,
             net: Vec::new(),
@@ -587,6 +596,12 @@ impl SimCluster {
         self.inputs.sort_by_key(|i| i.0);
     }
 
+    /// An operator sends `request` at `t_ms`, as `baton ctl` would; the answer goes to `answers`.
+    pub fn command_at(&mut self, t_ms: u64, request: CtlRequest) {
+        self.commands.push((t_ms, request));
+        self.commands.sort_by_key(|c| c.0);
+    }
+
     /// A rogue peer publishes `update` on the run's variable keys at `t_ms`: the coordinator and every agent it
     /// reaches hear it, as they would hear a process that is not theirs.
     pub fn forge_vars_at(&mut self, t_ms: u64, update: VarUpdate) {
@@ -644,6 +659,12 @@ impl SimCluster {
                 }
                 self.flush_coordinator();
             }
+            while up && self.commands.first().is_some_and(|c| c.0 <= self.now_ms) {
+                let (_, request) = self.commands.remove(0);
+                let answer = self.coordinator.command(self.now_ms, request);
+                self.answers.push((self.now_ms, answer));
+                self.flush_coordinator();
+            }
             while self.forged.first().is_some_and(|f| f.0 <= self.now_ms) {
                 let (_, update) = self.forged.remove(0);
                 let now = self.now_ms;
@@ -684,6 +705,14 @@ impl SimCluster {
             if up && self.coordinator.core().is_terminal() && self.net.is_empty() {
                 return Some(true);
             }
+            if up && self.coordinator.core().is_ended_by_operator() {
+                // Stopped or aborted: `baton run` ends here (exit status 3 or 4); what it said on the way out reaches
+                // the agents (unless lost), which the simulation lets happen for a while.
+                let since = *self.operator_end_ms.get_or_insert(self.now_ms);
+                if self.net.is_empty() || self.now_ms >= since + 2_000 {
+                    return Some(true);
+                }
+            }
             if up && self.coordinator.core().failure().is_some() {
                 // `baton run` ends here, with exit status 2.
                 return Some(false);
@@ -703,6 +732,7 @@ impl SimCluster {
         due.extend(self.crashes_after_journal.first().map(|c| c.0));
         due.extend(self.fates.first().map(|f| f.0));
         due.extend(self.inputs.first().map(|i| i.0));
+        due.extend(self.commands.first().map(|c| c.0));
         due.extend(self.forged.first().map(|f| f.0));
         due.extend(self.net.iter().map(|(t, _)| *t));
         if self.down_until.is_none() {
@@ -798,12 +828,12 @@ impl SimCluster {
                 Packet::ToAgent(i, _, bytes) => {
                     match wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages") {
                         ToAgent::Dispatch {
-                            token, epoch, segment, entry, vars, vars_seq, acks, fence, peers, ..
+                            token, epoch, segment, entry, vars, vars_seq, acks, fence, peers, held, ..
                         } => {
                             for a in acks {
                                 self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
                             }
-                            let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers };
+                            let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held };
                             let before = self.agents[i].run.held();
                             self.agents[i].run.handle_dispatch(self.now_ms, d);
                             // A segment started here: never twice in one epoch, on any agent.
@@ -824,6 +854,10 @@ impl SimCluster {
                             }
                         }
                         ToAgent::Sync { .. } => self.agents[i].run.handle_sync(self.now_ms),
+                        ToAgent::Hold { token, epoch, held, .. } => {
+                            self.agents[i].run.handle_hold(self.now_ms, token, epoch, held)
+                        }
+                        ToAgent::Abort { .. } => self.agents[i].run.handle_abort(self.now_ms),
                         ToAgent::Join { vars, vars_seq, peers, .. } => {
                             self.agents[i].run.handle_join(self.now_ms, Join { vars, vars_seq, peers })
                         }

@@ -13,6 +13,7 @@
 //! more than once per cycle, whatever the traffic.
 
 mod devices;
+mod hold;
 mod skills;
 mod timers;
 mod tokens;
@@ -87,6 +88,8 @@ pub struct Dispatch {
     /// The coordinator may give the token to another agent if this one is lost: fence its skills.
     pub fence: bool,
     pub peers: Peers,
+    /// The token arrives held: its entry step becomes active when it is released.
+    pub held: bool,
 }
 
 /// A join, decoded: the run's values and writers, before any token.
@@ -113,6 +116,11 @@ struct Holding {
     events: Vec<AgentEvent>,
     done: bool,
     unacked: VecDeque<Unacked>,
+    /// Held by an operator (`handle_hold`); what this agent last confirmed of it (`Held` or `Released`).
+    held: bool,
+    held_said: Option<bool>,
+    /// It arrived held: its entry step, made active when it is released.
+    pending_entry: Option<StepId>,
 }
 
 pub struct AgentRun {
@@ -175,6 +183,10 @@ pub struct AgentRun {
     /// The bindings whose device cannot be reached, and why; the number of the last `DeviceReport`.
     devices_down: BTreeMap<usize, String>,
     devices_seq: u64,
+    /// The run was aborted (`handle_abort`): nothing of it runs here again.
+    aborted: bool,
+    /// Skills cancelled because their token was held (`{hold := 'cancel'}`): started again on release.
+    cancelled_on_hold: BTreeSet<ActionId>,
 }
 
 impl AgentRun {
@@ -245,6 +257,8 @@ impl AgentRun {
             io_sent: vec![None; bindings],
             devices_down: BTreeMap::new(),
             devices_seq: 0,
+            aborted: false,
+            cancelled_on_hold: BTreeSet::new(),
         };
         run.send_outputs();
         run

@@ -73,6 +73,7 @@ impl Fixture {
             vars_seq: 1,
             fence,
             peers: Peers { seq: 1, coordinator: COORDINATOR_PROCESS, agents: Vec::new() },
+            held: false,
         }
     }
 }
@@ -224,4 +225,68 @@ fn a_value_claiming_the_coordinators_name_from_another_process_is_refused() {
     let genuine = VarUpdate { incarnation: COORDINATOR_PROCESS, seq: 2, ..forged };
     a.handle_vars(7, &genuine);
     assert_eq!(a.engine.value(go), Value::Bool(true), "the coordinator's own process is heard");
+}
+
+fn events(out: &[AgentOutput]) -> Vec<AgentEventKind> {
+    reports(out).iter().flat_map(|r| r.events.iter().map(|e| e.kind.clone())).collect()
+}
+
+fn stopped(out: &[AgentOutput]) -> Vec<ActionId> {
+    out.iter().filter_map(|o| if let AgentOutput::StopSkill { action } = o { Some(*action) } else { None }).collect()
+}
+
+/// A hold lets the running skill finish: the agent confirms `Held` only after its result, and the transition its
+/// result makes TRUE does not clear until the token is released.
+#[test]
+fn a_held_token_is_confirmed_only_when_its_skill_finished_and_clears_nothing_until_released() {
+    let f = Fixture::new();
+    let mut a = f.agent("a1");
+    let token = TokenId(Uuid::from_u128(1));
+    a.handle_dispatch(0, f.dispatch(1, 1, false));
+    run_until(&mut a, 15);
+    a.handle_hold(20, token, 1, true);
+    let out = run_until(&mut a, 30);
+    assert!(!events(&out).contains(&AgentEventKind::Held), "confirmed while its skill runs: {out:?}");
+    a.handle_skill_result(35, f.action("Move"), Ok(()));
+    let out = run_until(&mut a, 200);
+    let ev = events(&out);
+    assert!(ev.contains(&AgentEventKind::Held), "{ev:?}");
+    assert!(!ev.iter().any(|e| matches!(e, AgentEventKind::Fire { .. })), "a held token cleared a transition: {ev:?}");
+    // A repeat of the hold changes nothing and says nothing new.
+    a.handle_hold(210, token, 1, true);
+    assert!(events(&run_until(&mut a, 220)).is_empty());
+    a.handle_hold(230, token, 1, false);
+    let ev = events(&run_until(&mut a, 260));
+    assert_eq!(ev.first(), Some(&AgentEventKind::Released), "{ev:?}");
+    assert!(ev.iter().any(|e| matches!(e, AgentEventKind::Fire { .. })), "released, Done clears: {ev:?}");
+}
+
+/// A token that arrives held starts nothing (its entry step waits) and is confirmed at once; released, it runs.
+#[test]
+fn a_token_dispatched_held_starts_nothing_until_released() {
+    let f = Fixture::new();
+    let mut a = f.agent("a1");
+    a.handle_dispatch(0, Dispatch { held: true, ..f.dispatch(1, 1, false) });
+    let out = run_until(&mut a, 100);
+    assert!(started(&out).is_empty(), "{out:?}");
+    assert_eq!(events(&out), [AgentEventKind::Held]);
+    assert!(!reports(&out).iter().any(|r| r.done), "a token waiting to be released is not done");
+    a.handle_hold(110, TokenId(Uuid::from_u128(1)), 1, false);
+    assert_eq!(started(&run_until(&mut a, 130)), [f.action("Move")]);
+}
+
+/// An abort cancels the running skill, forgets the token and refuses what comes for the run later.
+#[test]
+fn an_abort_cancels_the_running_skill_and_forgets_the_run() {
+    let f = Fixture::new();
+    let mut a = f.agent("a1");
+    a.handle_dispatch(0, f.dispatch(1, 1, false));
+    run_until(&mut a, 15);
+    a.handle_abort(20);
+    let out = drain(&mut a);
+    assert_eq!(stopped(&out), [f.action("Move")], "{out:?}");
+    assert_eq!(a.tokens_held(), 0);
+    assert!(a.poll_timeout().is_none_or(|t| t > 20), "nothing due at once");
+    a.handle_dispatch(30, f.dispatch(2, 1, false));
+    assert!(started(&drain(&mut a)).is_empty() && a.tokens_held() == 0, "a dispatch after the abort runs nothing");
 }

@@ -17,6 +17,9 @@ impl AgentRun {
     /// that epoch changes nothing; a newer epoch of a token dropped here runs.
     pub fn handle_dispatch(&mut self, now_ms: u64, d: Dispatch) {
         self.catch_up(now_ms);
+        if self.aborted {
+            return self.drop_msg(format!("dispatch of token {} refused: the run was aborted", d.token));
+        }
         let seen = self.tokens.get(&d.token).map(|t| t.epoch).or_else(|| self.finished.get(&d.token).copied());
         if seen.is_some_and(|epoch| epoch >= d.epoch) {
             self.dropped += 1;
@@ -49,8 +52,16 @@ impl AgentRun {
         self.handle_peers_table(d.peers);
         self.take_coordinator_values(&d.vars, d.vars_seq);
         self.anchor_grid();
-        if let Err(e) = self.engine.handle_remote(self.now_ms, RemoteInput::Activate(entry)) {
-            return self.drop_msg(format!("token {} dropped: {e}", d.token));
+        if self.engine.is_active(entry) {
+            return self.drop_msg(format!("token {} dropped: its entry step is already active here", d.token));
+        }
+        for s in self.layout.segments[g.index()].steps.clone() {
+            self.engine.set_held(self.now_ms, s, d.held);
+        }
+        if !d.held {
+            if let Err(e) = self.engine.handle_remote(self.now_ms, RemoteInput::Activate(entry)) {
+                return self.drop_msg(format!("token {} dropped: {e}", d.token));
+            }
         }
         let held = Holding {
             epoch: d.epoch,
@@ -61,6 +72,9 @@ impl AgentRun {
             events: Vec::new(),
             done: false,
             unacked: VecDeque::new(),
+            held: d.held,
+            held_said: None,
+            pending_entry: d.held.then_some(entry),
         };
         self.tokens.insert(d.token, held);
         self.by_segment.insert(g, d.token);
@@ -101,6 +115,7 @@ impl AgentRun {
             if self.engine.is_active(s) {
                 let _ = self.engine.handle_remote(self.now_ms, RemoteInput::Deactivate(s));
             }
+            self.engine.set_held(self.now_ms, s, false);
         }
         self.remember_finished(token, held.epoch);
     }
@@ -230,7 +245,8 @@ impl AgentRun {
         for id in ids {
             let segment_active = {
                 let held = &self.tokens[&id];
-                self.layout.segments[held.segment.index()].steps.iter().any(|&s| self.engine.is_active(s))
+                held.pending_entry.is_some()
+                    || self.layout.segments[held.segment.index()].steps.iter().any(|&s| self.engine.is_active(s))
             };
             let Some(held) = self.tokens.get_mut(&id) else { continue };
             while !held.done && held.unacked.len() < REPORTS_UNACKED_MAX {

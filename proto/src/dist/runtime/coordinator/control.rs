@@ -60,6 +60,8 @@ impl Coordinator {
                 agent: t.agent.clone(),
                 since_ms: t.dispatched_ms,
                 paused: t.paused,
+                held: t.hold,
+                held_confirmed: t.hold && t.hold_ok,
             })
             .collect();
         tokens.sort_by_key(|t| (t.since_ms, t.token));
@@ -102,6 +104,7 @@ impl Coordinator {
                     raised_ms: a.raised_ms,
                 })
                 .collect(),
+            held: self.partial_holds(),
         }
     }
 
@@ -122,7 +125,7 @@ impl Coordinator {
         }
     }
 
-    fn change_state(&mut self, to: State) {
+    pub(super) fn change_state(&mut self, to: State) {
         self.run_state = to;
         let rec = TraceRecord::new(self.now_ms, TraceEvent::State, to.name());
         self.trace(rec);

@@ -16,6 +16,7 @@
 mod control;
 mod devices;
 mod membership;
+mod operate;
 mod reports;
 mod timers;
 mod tokens;
@@ -43,6 +44,7 @@ use super::alarms::{AlarmChange, Alarms};
 use super::packml::State;
 use super::{Level, VarWrites, VarsResend, COORDINATOR};
 use membership::*;
+use operate::PartialHolds;
 use tokens::*;
 
 /// First and largest delay before a dispatch that no report answered is sent again (the agent drops the
@@ -127,6 +129,8 @@ pub struct Coordinator {
     run_state: State,
     /// Alarms raised and not yet back to normal.
     alarms: Alarms,
+    /// Parts of the run held while the rest goes on (`hold --agent`, `hold --step`).
+    partial: PartialHolds,
     /// When this coordinator last started again from its journal.
     recovered_ms: Option<u64>,
     /// The run's cycle period (`set_cycle_ms`).
@@ -189,6 +193,7 @@ impl Coordinator {
             failure: None,
             run_state: State::Execute,
             alarms: Alarms::default(),
+            partial: PartialHolds::default(),
             recovered_ms: None,
             cycle_ms: 1,
             stats: CoordStats::default(),
@@ -230,6 +235,11 @@ impl Coordinator {
     /// The run is over: no active step has a transition left and no token is out.
     pub fn is_terminal(&self) -> bool {
         self.tokens.is_empty() && self.engine.is_terminal()
+    }
+
+    /// The run is over for whatever reason: terminal, failed, stopped or aborted.
+    pub fn is_over(&self) -> bool {
+        self.is_terminal() || self.failure.is_some() || self.is_ended_by_operator()
     }
 
     /// A variable's current value here.

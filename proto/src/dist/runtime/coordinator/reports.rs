@@ -239,6 +239,10 @@ impl Coordinator {
                     );
                     self.trace(rec);
                 }
+                AgentEventKind::Held | AgentEventKind::Released => {
+                    let held = matches!(ev.kind, AgentEventKind::Held);
+                    self.hold_confirmed(r.token, held);
+                }
                 AgentEventKind::Fault { message } => {
                     let rec = rec(TraceEvent::Fault, &program.name, Some(message.clone()));
                     self.log(Level::Error, format!("on `{}`: {message}", r.agent));

@@ -28,6 +28,12 @@ pub(super) struct TokenState {
     /// Its agent was lost under `LossPolicy::Reassign`: when the token goes to another agent, unless the lost one
     /// comes back first. Not before the agent has stopped its skills (`limits::fence_margin_ms`).
     pub(super) reassign_at_ms: Option<u64>,
+    /// Held by an operator (`operate`); whether its agent confirmed that (or its release); when the hold or release
+    /// is sent again if not, and the delay after that.
+    pub(super) hold: bool,
+    pub(super) hold_ok: bool,
+    pub(super) hold_resend_at_ms: u64,
+    pub(super) hold_backoff_ms: u64,
 }
 
 impl Coordinator {
@@ -96,9 +102,22 @@ impl Coordinator {
             resend_backoff_ms: 0,
             incarnation: uuid::Uuid::nil(),
             reassign_at_ms: None,
+            hold: false,
+            hold_ok: true,
+            hold_resend_at_ms: 0,
+            hold_backoff_ms: 0,
         };
+        let hold = self.token_should_hold(&tok);
         self.tokens.insert(id, tok);
         self.by_segment[g.index()] = Some(id);
+        if hold {
+            if let Some(t) = self.tokens.get_mut(&id) {
+                t.hold = true;
+            }
+            for s in self.layout.segments[g.index()].steps.clone() {
+                self.engine.set_held(self.now_ms, s, true);
+            }
+        }
         if let Some(agent) = self.choose_agent(&self.layout.segments[g.index()].placement.clone()) {
             self.assign(id, agent);
         }
@@ -173,6 +192,12 @@ impl Coordinator {
             tok.dispatched_ms = self.now_ms;
             tok.resend_at_ms = self.now_ms + DISPATCH_RESEND_FIRST_MS;
             tok.resend_backoff_ms = DISPATCH_RESEND_FIRST_MS;
+            // A held token arrives held: its agent confirms that in its first report.
+            if tok.hold {
+                tok.hold_ok = false;
+                tok.hold_resend_at_ms = self.now_ms + DISPATCH_RESEND_FIRST_MS;
+                tok.hold_backoff_ms = DISPATCH_RESEND_FIRST_MS;
+            }
         }
         if event == TraceEvent::Dispatch {
             self.stats.dispatched += 1;
@@ -203,6 +228,7 @@ impl Coordinator {
             acks: Vec::new(),
             fence: self.policy == LossPolicy::Reassign,
             peers: self.peers.clone(),
+            held: tok.hold,
         };
         Some((agent, msg))
     }

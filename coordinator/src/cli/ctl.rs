@@ -1,0 +1,88 @@
+//! `baton ctl`: an operator's command to a running chart.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use super::{block_on, EXIT_INVALID};
+
+/// The arguments of `baton ctl`.
+#[derive(clap::Args)]
+pub struct Ctl {
+    #[arg(long, value_name = "ENDPOINT", required = true)]
+    pub connect: Vec<String>,
+    /// The run, by its id as `baton status` lists it (or the start of it).
+    #[arg(long, value_name = "ID")]
+    pub run: Option<String>,
+    /// hold, unhold, suspend, unsuspend, stop, abort (PackML's commands; reset, start and clear are refused by
+    /// `baton run` for now); ack ALARM_ID|all; shelve ALARM_ID --for DURATION.
+    #[arg(value_name = "COMMAND")]
+    pub command: String,
+    /// What the command is about: an alarm's id (or `all`) for ack and shelve.
+    #[arg(value_name = "TARGET")]
+    pub target: Option<String>,
+    /// hold / unhold only the branches on this agent; the rest of the run goes on.
+    #[arg(long, value_name = "NAME")]
+    pub agent: Option<String>,
+    /// hold / unhold only the branch that holds this step.
+    #[arg(long, value_name = "STEP")]
+    pub step: Option<String>,
+    /// shelve: for how long (`30s`, `5m`, `1h`, or milliseconds).
+    #[arg(long = "for", value_name = "DURATION", value_parser = parse_duration_ms)]
+    pub for_ms: Option<u64>,
+    /// Why, in your words: it goes to the trace, the journal and the Rerun log.
+    #[arg(long, value_name = "TEXT", default_value = "")]
+    pub reason: String,
+    /// ack: a comment kept with the acknowledgement (the same as --reason).
+    #[arg(long, value_name = "TEXT")]
+    pub comment: Option<String>,
+    /// A Zenoh configuration file (TLS, credentials…).
+    #[arg(long, value_name = "FILE")]
+    pub zenoh_config: Option<PathBuf>,
+}
+
+impl Ctl {
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        let request = baton_proto::dist::wire::CtlRequest {
+            command: self.command.to_ascii_lowercase(),
+            target: self.target,
+            agent: self.agent,
+            step: self.step,
+            for_ms: self.for_ms,
+            reason: self.comment.unwrap_or(self.reason),
+            by: crate::client::who(),
+        };
+        let (connect, run, file) = (self.connect, self.run, self.zenoh_config);
+        block_on(async move {
+            let taken = crate::client::ctl(&connect, file.as_deref(), run.as_deref(), request).await?;
+            Ok(if taken { ExitCode::SUCCESS } else { ExitCode::from(EXIT_INVALID) })
+        })
+    }
+}
+
+/// `30s`, `5m`, `1h`, `250ms`, or a number of milliseconds.
+fn parse_duration_ms(text: &str) -> Result<u64, String> {
+    let t = text.trim();
+    let (digits, unit) = t.split_at(t.find(|c: char| !c.is_ascii_digit()).unwrap_or(t.len()));
+    let n: u64 = digits.parse().map_err(|_| format!("`{text}` is not a duration: give 30s, 5m, 1h or milliseconds"))?;
+    let factor = match unit {
+        "" | "ms" => 1,
+        "s" => 1_000,
+        "m" | "min" => 60_000,
+        "h" => 3_600_000,
+        _ => return Err(format!("`{text}`: unknown unit `{unit}` (ms, s, m, h)")),
+    };
+    n.checked_mul(factor).ok_or_else(|| format!("`{text}` is too long"))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn durations_read_as_people_write_them() {
+        assert_eq!(super::parse_duration_ms("30s"), Ok(30_000));
+        assert_eq!(super::parse_duration_ms("5m"), Ok(300_000));
+        assert_eq!(super::parse_duration_ms("250"), Ok(250));
+        assert_eq!(super::parse_duration_ms("2h"), Ok(7_200_000));
+        assert!(super::parse_duration_ms("soon").is_err());
+        assert!(super::parse_duration_ms("3d").is_err());
+    }
+}

@@ -1,0 +1,138 @@
+//! Operators' commands as an agent carries them out: a token held (nothing of it clears or starts, its times stand
+//! still, its running skills finish or, where the action says `{hold := 'cancel'}`, are cancelled) and confirmed
+//! held once nothing of it runs; released; and a run aborted (every skill cancelled, every action's final scan,
+//! every token forgotten).
+
+use super::*;
+
+impl AgentRun {
+    /// `ToAgent::Hold`: holds the token (`held`) or releases it. A repeat changes nothing but says again what
+    /// this agent already confirmed, in case the confirmation was lost with its report.
+    pub fn handle_hold(&mut self, now_ms: u64, token: TokenId, epoch: u32, held: bool) {
+        self.catch_up(now_ms);
+        let Some(h) = self.tokens.get_mut(&token).filter(|h| h.epoch == epoch && !h.done) else {
+            self.dropped += 1;
+            return;
+        };
+        if h.held != held {
+            h.held = held;
+            h.held_said = None;
+            let segment = h.segment;
+            for s in self.layout.segments[segment.index()].steps.clone() {
+                self.engine.set_held(self.now_ms, s, held);
+            }
+            if held {
+                self.cancel_on_hold(token);
+            } else {
+                if let Some(entry) = self.tokens.get_mut(&token).and_then(|h| h.pending_entry.take()) {
+                    if let Err(e) = self.engine.handle_remote(self.now_ms, RemoteInput::Activate(entry)) {
+                        self.log(Level::Error, format!("token {token} released but its entry step refused: {e}"));
+                    }
+                }
+                self.restart_cancelled(segment);
+            }
+        }
+        self.confirm_holds();
+        self.settle();
+    }
+
+    /// Cancels the running skills of `token` whose binding says `{hold := 'cancel'}`: their indicators say
+    /// neither done nor failed, so the step runs the skill again when released.
+    fn cancel_on_hold(&mut self, token: TokenId) {
+        let Some(segment) = self.tokens.get(&token).map(|h| h.segment) else { return };
+        let cancel: Vec<ActionId> = self
+            .running_skills
+            .iter()
+            .copied()
+            .filter(|a| self.action_segments[a.index()].contains(&segment))
+            .filter(|a| {
+                self.layout.skills[a.index()]
+                    .as_ref()
+                    .and_then(|b| b.params.get("hold"))
+                    .is_some_and(|p| p.as_str().is_some_and(|t| t.eq_ignore_ascii_case("cancel")))
+            })
+            .collect();
+        for a in cancel {
+            self.running_skills.remove(&a);
+            self.outbox.push_back(AgentOutput::StopSkill { action: a });
+            let name = self.program.actions[a.index()].name.clone();
+            self.log(Level::Info, format!("skill of action `{name}` cancelled: its token is held"));
+            self.cancelled_on_hold.insert(a);
+        }
+    }
+
+    /// The skills cancelled by a hold start again when their token is released, if their action is still on.
+    fn restart_cancelled(&mut self, segment: SegmentId) {
+        let again: Vec<ActionId> = self
+            .cancelled_on_hold
+            .iter()
+            .copied()
+            .filter(|a| self.action_segments[a.index()].contains(&segment))
+            .collect();
+        for a in again {
+            self.cancelled_on_hold.remove(&a);
+            let on = crate::exec::env::Env::action_q(&self.engine, a);
+            if let (true, Some(binding)) = (on, self.layout.skills[a.index()].clone()) {
+                self.running_skills.insert(a);
+                let name = self.program.actions[a.index()].name.clone();
+                self.outbox.push_back(AgentOutput::StartSkill { action: a, name, binding });
+            }
+        }
+    }
+
+    /// Says `Held` for each held token nothing of which runs any more, and `Released` for each released one, once
+    /// per change.
+    pub(super) fn confirm_holds(&mut self) {
+        let ids: Vec<TokenId> = self.tokens.keys().copied().collect();
+        for id in ids {
+            let h = &self.tokens[&id];
+            if h.done || h.held_said == Some(h.held) {
+                continue;
+            }
+            let segment = h.segment;
+            let running = self.running_skills.iter().any(|a| self.action_segments[a.index()].contains(&segment));
+            if h.held && running {
+                continue;
+            }
+            let kind = if h.held { AgentEventKind::Held } else { AgentEventKind::Released };
+            if let Some(h) = self.tokens.get_mut(&id) {
+                h.held_said = Some(h.held);
+            }
+            self.record(Some(id), kind);
+        }
+    }
+
+    /// `ToAgent::Abort`: every skill of the run is cancelled, every step left with its actions' final scan, every
+    /// token forgotten; a dispatch of this run that comes later is refused.
+    pub fn handle_abort(&mut self, now_ms: u64) {
+        self.catch_up(now_ms);
+        if self.aborted {
+            return;
+        }
+        self.aborted = true;
+        self.log(Level::Warn, "the run was aborted: its skills are cancelled and its tokens forgotten".to_string());
+        for a in std::mem::take(&mut self.running_skills) {
+            self.outbox.push_back(AgentOutput::StopSkill { action: a });
+            let name = self.program.actions[a.index()].name.clone();
+            self.log(Level::Warn, format!("skill of action `{name}` cancelled: the run was aborted"));
+        }
+        if let Err(e) = self.engine.abort(self.now_ms) {
+            self.log(Level::Error, format!("abort refused: {e}"));
+        }
+        self.drain_engine();
+        let ids: Vec<TokenId> = self.tokens.keys().copied().collect();
+        for id in ids {
+            if let Some(h) = self.tokens.remove(&id) {
+                self.remember_finished(id, h.epoch);
+            }
+        }
+        self.by_segment.clear();
+        self.next_cycle_ms = None;
+        self.send_outputs();
+    }
+
+    /// Whether the run was aborted here.
+    pub fn is_aborted(&self) -> bool {
+        self.aborted
+    }
+}

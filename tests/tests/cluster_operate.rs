@@ -1,0 +1,229 @@
+//! Operating a cell with real processes on loopback: `baton ctl hold`, `unhold`, `hold --agent`, `abort`, and an
+//! interrupt that stops the run — each checked against what the robots (shell skills that leave marks in files)
+//! actually did.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
+use baton_tests::loopback::{check_trace_invariants, Cluster, TIMEOUT};
+
+/// Two robots, each with two shell motions in sequence that write `start NAME` and `end NAME` to `marks`; the
+/// branches meet at `Done`. r1's first motion takes `first_s` seconds.
+fn cell(dir: &Path, first_s: f64) -> PathBuf {
+    let m = dir.join("marks");
+    let m = m.display();
+    cell_with(dir, &format!("sleep {first_s}; echo end MoveA1 >> {m}"))
+}
+
+/// The cell, r1's first motion doing `first` after its start mark.
+fn cell_with(dir: &Path, first: &str) -> PathBuf {
+    let marks = dir.join("marks");
+    let m = marks.display();
+    let motion = |name: &str, secs: f64| {
+        let body = if name == "MoveA1" { first.to_string() } else { format!("sleep {secs}; echo end {name} >> {m}") };
+        format!("ACTION {name}: {{skill := 'shell', cmd := 'echo start {name} >> {m}; {body}'}} END_ACTION\n")
+    };
+    let text = format!(
+        "PROGRAM cell\nVAR a1, a2, b1, b2 : BOOL; END_VAR\n\
+         INITIAL_STEP Idle: END_STEP\nTRANSITION FROM Idle TO (A1, B1) := TRUE; END_TRANSITION\n\
+         STEP A1: {{agent := 'r1'}} MoveA1(N, a1); END_STEP\nTRANSITION FROM A1 TO A2 := a1; END_TRANSITION\n\
+         STEP A2: {{agent := 'r1'}} MoveA2(N, a2); END_STEP\nTRANSITION FROM A2 TO AEnd := a2; END_TRANSITION\n\
+         STEP AEnd: END_STEP\n\
+         STEP B1: {{agent := 'r2'}} MoveB1(N, b1); END_STEP\nTRANSITION FROM B1 TO B2 := b1; END_TRANSITION\n\
+         STEP B2: {{agent := 'r2'}} MoveB2(N, b2); END_STEP\nTRANSITION FROM B2 TO BEnd := b2; END_TRANSITION\n\
+         STEP BEnd: END_STEP\nTRANSITION FROM (AEnd, BEnd) TO Done := TRUE; END_TRANSITION\nSTEP Done: END_STEP\n\
+         {}{}{}{}END_PROGRAM\n",
+        motion("MoveA1", 0.0),
+        motion("MoveA2", 0.1),
+        motion("MoveB1", 0.2),
+        motion("MoveB2", 0.1),
+    );
+    let path = dir.join("cell.st");
+    std::fs::write(&path, text).expect("write the chart");
+    path
+}
+
+fn marks(dir: &Path) -> Vec<String> {
+    std::fs::read_to_string(dir.join("marks")).unwrap_or_default().lines().map(str::to_string).collect()
+}
+
+/// Waits until `marks` holds `line` (the file is read again every 20 ms, under the timeout).
+async fn wait_for_mark(dir: &Path, line: &str) {
+    let found = tokio::time::timeout(TIMEOUT, async {
+        while !marks(dir).iter().any(|l| l == line) {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await;
+    assert!(found.is_ok(), "never marked `{line}`: {:?}", marks(dir));
+}
+
+/// `baton ctl ARGS…` on the cluster: its exit status and what it printed.
+async fn ctl(cluster: &Cluster, args: &[&str]) -> (bool, String) {
+    let mut all = vec!["ctl", "--connect", cluster.endpoint.as_str()];
+    all.extend_from_slice(args);
+    let out = cluster.baton(&all).await;
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    (out.status.success(), text)
+}
+
+/// The run's status as `baton status --json` gives it.
+async fn status(cluster: &Cluster) -> serde_json::Value {
+    let out = cluster.baton(&["status", "--connect", &cluster.endpoint, "--json"]).await;
+    let text = String::from_utf8_lossy(&out.stdout);
+    serde_json::from_str(text.lines().next().unwrap_or("null")).unwrap_or(serde_json::Value::Null)
+}
+
+/// Asks `baton status` until the run's state is `state` (under the timeout).
+async fn wait_for_state(cluster: &Cluster, state: &str) -> serde_json::Value {
+    let found = tokio::time::timeout(TIMEOUT, async {
+        loop {
+            let s = status(cluster).await;
+            if s["state"] == state {
+                return s;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await;
+    found.unwrap_or_else(|_| panic!("the run never reached `{state}`"))
+}
+
+fn first(trace: &[TraceRecord], event: TraceEvent, name: &str) -> Option<usize> {
+    trace.iter().position(|r| r.event == event && r.name == name)
+}
+
+fn count(trace: &[TraceRecord], event: TraceEvent, name: &str) -> usize {
+    trace.iter().filter(|r| r.event == event && r.name == name).count()
+}
+
+/// `hold` while r1's first motion runs: no motion starts from then on, the run is `held` only once the running
+/// motions ended and the agents confirmed, the held step's time stands still; `unhold` goes on, nothing runs
+/// twice, and the run completes.
+#[tokio::test(flavor = "multi_thread")]
+async fn hold_waits_for_the_running_motion_and_unhold_goes_on() {
+    let mut cluster = Cluster::new();
+    let chart = cell(cluster.dir.path(), 1.5);
+    let mut coordinator = cluster.coordinator(&chart, &[]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &["--allow-shell"]);
+    cluster.agent("r2", &[], &["--allow-shell"]);
+    let dir = cluster.dir.path().to_path_buf();
+    wait_for_mark(&dir, "start MoveA1").await;
+    let (ok, said) = ctl(&cluster, &["hold", "--reason", "material late"]).await;
+    assert!(ok, "{said}");
+    let held = wait_for_state(&cluster, "held").await;
+    let m = marks(&dir);
+    assert!(m.contains(&"end MoveA1".to_string()), "held before r1's motion ended: {m:?}");
+    assert!(!m.contains(&"start MoveA2".to_string()), "a motion started while holding: {m:?}");
+    assert!(held["tokens"].as_array().is_some_and(|t| t.iter().all(|t| t["held_confirmed"] == true)), "{held}");
+    assert_eq!(held["available"], serde_json::json!(["stop", "unhold", "abort"]), "{held}");
+    let (ok, said) = ctl(&cluster, &["hold"]).await;
+    assert!(!ok && said.contains("held") && said.contains("unhold"), "a second hold is refused: {said}");
+    let (ok, said) = ctl(&cluster, &["unhold", "--reason", "material here"]).await;
+    assert!(ok, "{said}");
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    assert_eq!(summary["state"], "complete", "{summary}");
+    check_trace_invariants(&trace, &chart);
+    let hold = trace.iter().position(|r| r.event == TraceEvent::Command && r.name == "hold").expect("hold traced");
+    assert_eq!(trace[hold].message.as_deref(), Some("material late"));
+    assert!(trace[hold].by.as_deref().is_some_and(|b| b.contains('@')), "{:?}", trace[hold]);
+    let unhold = trace.iter().position(|r| r.event == TraceEvent::Command && r.name == "unhold").expect("unhold");
+    let refused = trace.iter().position(|r| r.event == TraceEvent::CommandRefused && r.name == "hold");
+    assert!(refused.is_some_and(|r| hold < r && r < unhold), "the refused hold is traced between them");
+    for motion in ["MoveA1", "MoveA2", "MoveB1", "MoveB2"] {
+        assert_eq!(count(&trace, TraceEvent::ActionOn, motion), 1, "{motion} ran once");
+    }
+    assert!(first(&trace, TraceEvent::ActionOn, "MoveA2").is_some_and(|a2| a2 > unhold), "A2 started after unhold");
+    let m = marks(&dir);
+    assert_eq!(m.iter().filter(|l| l.starts_with("start")).count(), 4, "{m:?}");
+}
+
+/// `hold --agent r1` holds r1's branch while r2's branch completes; the run stays in Execute.
+#[tokio::test(flavor = "multi_thread")]
+async fn holding_one_robot_lets_the_other_go_on() {
+    let mut cluster = Cluster::new();
+    let chart = cell(cluster.dir.path(), 1.0);
+    let mut coordinator = cluster.coordinator(&chart, &[]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &["--allow-shell"]);
+    cluster.agent("r2", &[], &["--allow-shell"]);
+    let dir = cluster.dir.path().to_path_buf();
+    wait_for_mark(&dir, "start MoveA1").await;
+    let (ok, said) = ctl(&cluster, &["hold", "--agent", "r1", "--reason", "r1 gripper check"]).await;
+    assert!(ok, "{said}");
+    wait_for_mark(&dir, "end MoveB2").await;
+    let s = status(&cluster).await;
+    assert_eq!(s["state"], "execute", "{s}");
+    assert_eq!(s["held"], serde_json::json!(["agent r1"]), "{s}");
+    wait_for_mark(&dir, "end MoveA1").await;
+    assert!(!marks(&dir).contains(&"start MoveA2".to_string()), "r1 started a motion while held");
+    let (ok, said) = ctl(&cluster, &["unhold", "--agent", "r1"]).await;
+    assert!(ok, "{said}");
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace, &chart);
+    let unhold = trace.iter().position(|r| r.event == TraceEvent::Command && r.name == "unhold").expect("unhold");
+    assert!(first(&trace, TraceEvent::ActionOn, "MoveA2").is_some_and(|a2| a2 > unhold));
+    assert!(first(&trace, TraceEvent::Activate, "BEnd").is_some_and(|b| b < unhold), "r2's branch went on");
+}
+
+/// `abort` mid-motion: the run ends at once, `aborted` (exit 4), and the running shell motion is killed on its
+/// agent (its process, which would sleep 100 s, is gone).
+#[tokio::test(flavor = "multi_thread")]
+async fn abort_cancels_the_running_motion_and_ends_the_run_aborted() {
+    let mut cluster = Cluster::new();
+    let pid_file = cluster.dir.path().join("motion.pid");
+    // `$$` is how an IEC 61131-3 string writes one `$`: the shell gets `echo $$`, its own pid.
+    let chart = cell_with(cluster.dir.path(), &format!("echo $$$$ > {}; exec sleep 100", pid_file.display()));
+    let mut coordinator = cluster.coordinator(&chart, &[]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &["--allow-shell", "--verbose"]);
+    cluster.agent("r2", &[], &["--allow-shell"]);
+    let dir = cluster.dir.path().to_path_buf();
+    wait_for_mark(&dir, "start MoveA1").await;
+    let (ok, said) = ctl(&cluster, &["abort", "--reason", "collision risk"]).await;
+    assert!(ok, "{said}");
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert_eq!(status.code(), Some(4), "{log}");
+    assert_eq!(summary["state"], "aborted");
+    let states: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
+    assert_eq!(states, ["aborting", "aborted"]);
+    cluster.wait_for_agent_log("r1", "skill of action `MoveA1` cancelled: the run was aborted").await;
+    let pid = std::fs::read_to_string(&pid_file).expect("the motion wrote its pid");
+    assert!(pid.trim().parse::<u32>().is_ok(), "`{pid}` is not a pid");
+    let proc = PathBuf::from(format!("/proc/{}", pid.trim()));
+    let gone = tokio::time::timeout(TIMEOUT, async {
+        while proc.exists() && !std::fs::read_to_string(proc.join("stat")).unwrap_or_default().contains(") Z ") {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await;
+    assert!(gone.is_ok(), "the motion's process {} still runs", pid.trim());
+}
+
+/// An interrupt (SIGINT, as Ctrl-C) stops the run: the running motion finishes, nothing new starts, and `baton run`
+/// exits 3 with its summary.
+#[tokio::test(flavor = "multi_thread")]
+async fn an_interrupt_stops_the_run_after_the_running_motion() {
+    let mut cluster = Cluster::new();
+    let chart = cell(cluster.dir.path(), 1.0);
+    let mut coordinator = cluster.coordinator(&chart, &[]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &["--allow-shell"]);
+    cluster.agent("r2", &[], &["--allow-shell"]);
+    let dir = cluster.dir.path().to_path_buf();
+    wait_for_mark(&dir, "start MoveA1").await;
+    let pid = coordinator.child.id().expect("running").to_string();
+    assert!(std::process::Command::new("kill").args(["-INT", &pid]).status().expect("kill").success());
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert_eq!(status.code(), Some(3), "{log}");
+    assert_eq!(summary["state"], "stopped");
+    let m = marks(&dir);
+    assert!(m.contains(&"end MoveA1".to_string()), "stopped before the running motion ended: {m:?}");
+    assert!(!m.contains(&"start MoveA2".to_string()), "a motion started while stopping: {m:?}");
+    let stop = trace.iter().find(|r| r.event == TraceEvent::Command).expect("the stop is traced");
+    assert_eq!((stop.name.as_str(), stop.message.as_deref()), ("stop", Some("interrupted")));
+}

@@ -1,0 +1,232 @@
+//! Operating a cell, in deterministic simulation: an operator's hold, unhold, stop and abort carried out by the real
+//! coordinator and agents over a simulated network, with the run's PackML state following what the agents confirm.
+
+use baton_proto::dist::runtime::packml::State;
+use baton_proto::dist::wire::CtlRequest;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
+use baton_proto::testing::simulated_cluster::{Fate, Faults, SimCluster};
+
+/// Two robots, two motions each in sequence: r1's take 1 s each, r2's 0.6 s; the branches meet at the end.
+const CELL: &str = "PROGRAM cell
+VAR a1, a2, b1, b2 : BOOL; END_VAR
+INITIAL_STEP Idle: END_STEP
+TRANSITION FROM Idle TO (A1, B1) := TRUE; END_TRANSITION
+STEP A1: {agent := 'r1'} MoveA1(N, a1); END_STEP
+TRANSITION FROM A1 TO A2 := a1; END_TRANSITION
+STEP A2: {agent := 'r1'} MoveA2(N, a2); END_STEP
+TRANSITION FROM A2 TO AEnd := a2; END_TRANSITION
+STEP AEnd: END_STEP
+STEP B1: {agent := 'r2'} MoveB1(N, b1); END_STEP
+TRANSITION FROM B1 TO B2 := b1; END_TRANSITION
+STEP B2: {agent := 'r2'} MoveB2(N, b2); END_STEP
+TRANSITION FROM B2 TO BEnd := b2; END_TRANSITION
+STEP BEnd: END_STEP
+TRANSITION FROM (AEnd, BEnd) TO Done := TRUE; END_TRANSITION
+STEP Done: END_STEP
+ACTION MoveA1: {skill := 'motion', ms := 1000} END_ACTION
+ACTION MoveA2: {skill := 'motion', ms := 1000} END_ACTION
+ACTION MoveB1: {skill := 'motion', ms := 600} END_ACTION
+ACTION MoveB2: {skill := 'motion', ms := 600} END_ACTION
+END_PROGRAM
+";
+
+const AGENTS: &[(&str, &[&str])] = &[("r1", &[]), ("r2", &[])];
+
+fn ctl(command: &str) -> CtlRequest {
+    CtlRequest {
+        command: command.into(),
+        target: None,
+        agent: None,
+        step: None,
+        for_ms: None,
+        reason: format!("test {command}"),
+        by: "operator@cell".into(),
+    }
+}
+
+fn first(trace: &[TraceRecord], event: TraceEvent, name: &str) -> Option<u64> {
+    trace.iter().find(|r| r.event == event && r.name == name).map(|r| r.t_ms)
+}
+
+fn all(trace: &[TraceRecord], event: TraceEvent, name: &str) -> Vec<u64> {
+    trace.iter().filter(|r| r.event == event && r.name == name).map(|r| r.t_ms).collect()
+}
+
+fn states(trace: &[TraceRecord]) -> Vec<(u64, String)> {
+    trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| (r.t_ms, r.name.clone())).collect()
+}
+
+fn check(sim: &SimCluster) {
+    let program = sim.coordinator.core().program();
+    let complete = !sim.coordinator.core().is_ended_by_operator();
+    if let Err(why) = baton_tests::invariants::check(&sim.trace, program, complete) {
+        panic!("seed {}: {why}", sim.seed);
+    }
+    assert!(sim.violations.is_empty(), "seed {}: {:?}", sim.seed, sim.violations);
+}
+
+/// `hold` while both robots move: the run is `held` only when both motions finished and both agents confirmed;
+/// nothing starts while held and the step times stand still; `unhold` goes on and nothing runs twice.
+#[test]
+fn a_hold_waits_for_the_running_motions_and_nothing_starts_until_unhold() {
+    for seed in 0..8 {
+        let faults = if seed % 2 == 0 { Faults::default() } else { Faults { duplicate: 0.3, reorder: true, delay_ms_max: 8, loss: 0.05 } };
+        let mut sim = SimCluster::new(CELL, AGENTS, faults, seed);
+        sim.command_at(300, ctl("hold"));
+        sim.command_at(4_000, ctl("unhold"));
+        assert!(sim.run(20_000), "seed {seed}: did not finish: {:#?}", sim.trace);
+        check(&sim);
+        let t = &sim.trace;
+        assert!(matches!(sim.answers[0].1, Ok(_)) && matches!(sim.answers[1].1, Ok(_)), "{:?}", sim.answers);
+        let st = states(t);
+        let names: Vec<&str> = st.iter().map(|s| s.1.as_str()).collect();
+        assert_eq!(names, ["holding", "held", "unholding", "execute"], "seed {seed}");
+        let held_at = st[1].0;
+        // A motion running when the hold came finished before the run was held (a dispatch lost on the way and
+        // sent again after the hold arrives held, and its motion starts only at unhold).
+        for motion in ["MoveA1", "MoveB1"] {
+            let on = first(t, TraceEvent::ActionOn, motion).expect("started");
+            let done = first(t, TraceEvent::SkillDone, motion).expect("finished");
+            if on < 300 {
+                assert!(held_at >= done, "seed {seed}: held at {held_at} before {motion} ended at {done}");
+            } else {
+                assert!(on >= 4_000, "seed {seed}: {motion} started at {on} while held");
+            }
+        }
+        for next in ["MoveA2", "MoveB2"] {
+            let on = all(t, TraceEvent::ActionOn, next);
+            assert_eq!(on.len(), 1, "seed {seed}: {next} started {on:?}");
+            assert!(on[0] >= 4_000, "seed {seed}: {next} started at {} while held", on[0]);
+        }
+        for motion in ["MoveA1", "MoveB1", "MoveA2", "MoveB2"] {
+            assert_eq!(all(t, TraceEvent::ActionOn, motion).len(), 1, "seed {seed}: {motion} ran twice");
+        }
+        let command = t.iter().find(|r| r.event == TraceEvent::Command).expect("the command is traced");
+        assert_eq!((command.name.as_str(), command.by.as_deref()), ("hold", Some("operator@cell")));
+        assert_eq!(command.message.as_deref(), Some("test hold"));
+    }
+}
+
+/// A step's time stands still while the run is held: a wait of 500 ms on the coordinator, held for 2 s from
+/// 200 ms, ends at 2.5 s, not at 0.5 s.
+#[test]
+fn step_times_stand_still_while_held() {
+    let chart = "PROGRAM p\nINITIAL_STEP A: END_STEP\nTRANSITION FROM A TO W := TRUE; END_TRANSITION\n\
+                 STEP W: END_STEP\nTRANSITION FROM W TO B := W.T >= T#500ms; END_TRANSITION\nSTEP B: END_STEP\nEND_PROGRAM\n";
+    let mut sim = SimCluster::new(chart, &[], Faults::default(), 1);
+    sim.command_at(200, ctl("hold"));
+    sim.command_at(2_200, ctl("unhold"));
+    assert!(sim.run(10_000));
+    let w = first(&sim.trace, TraceEvent::Activate, "W").expect("W");
+    let b = first(&sim.trace, TraceEvent::Activate, "B").expect("B");
+    assert_eq!(b - w, 2_500, "W held 2 s of its 500 ms: {:?}", states(&sim.trace));
+}
+
+/// `hold --agent r1` holds r1's branch; r2's branch goes on to its end and the run stays in Execute.
+#[test]
+fn holding_one_robot_lets_the_other_finish_its_branch() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 3);
+    sim.command_at(300, CtlRequest { agent: Some("r1".into()), ..ctl("hold") });
+    sim.command_at(5_000, CtlRequest { agent: Some("r1".into()), ..ctl("unhold") });
+    assert!(sim.run(20_000), "did not finish: {:#?}", sim.trace);
+    check(&sim);
+    let t = &sim.trace;
+    let b_end = first(t, TraceEvent::Activate, "BEnd").expect("r2's branch ended");
+    assert!(b_end < 5_000, "r2's branch ended at {b_end}, not while r1 was held");
+    let a2 = first(t, TraceEvent::ActionOn, "MoveA2").expect("A2 ran");
+    assert!(a2 >= 5_000, "A2 started at {a2} while r1 was held");
+    let names: Vec<String> = states(t).into_iter().map(|s| s.1).collect();
+    assert!(names.is_empty(), "a partial hold leaves the run in Execute: {names:?}");
+}
+
+/// `stop` lets the running motions finish, starts nothing, and ends the run `stopped`.
+#[test]
+fn stop_lets_running_motions_finish_and_ends_the_run_stopped() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 4);
+    sim.command_at(300, ctl("stop"));
+    assert!(sim.run(20_000));
+    check(&sim);
+    assert_eq!(sim.coordinator.core().run_state(), State::Stopped);
+    let t = &sim.trace;
+    let names: Vec<String> = states(t).into_iter().map(|s| s.1).collect();
+    assert_eq!(names, ["stopping", "stopped"]);
+    let stopped = states(t)[1].0;
+    assert!(stopped >= first(t, TraceEvent::SkillDone, "MoveA1").expect("A1 finished"));
+    assert!(first(t, TraceEvent::ActionOn, "MoveA2").is_none() && first(t, TraceEvent::ActionOn, "MoveB2").is_none());
+    assert!(first(t, TraceEvent::Activate, "Done").is_none());
+}
+
+/// `abort` mid-motion ends the run at once: both running motions are cancelled on their agents (no result comes
+/// back), the actions get their final scan, and the run is `aborted`.
+#[test]
+fn abort_cancels_the_running_motions_and_ends_the_run_aborted() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 5);
+    sim.command_at(300, ctl("abort"));
+    assert!(sim.run(20_000));
+    assert_eq!(sim.coordinator.core().run_state(), State::Aborted);
+    let t = &sim.trace;
+    let names: Vec<String> = states(t).into_iter().map(|s| s.1).collect();
+    assert_eq!(names, ["aborting", "aborted"]);
+    assert!(first(t, TraceEvent::SkillDone, "MoveA1").is_none(), "the motion was cancelled, not finished");
+    assert_eq!(first(t, TraceEvent::Deactivate, "A1"), Some(300), "A1 was left at the abort");
+    assert_eq!(sim.coordinator.core().tokens_in_flight(), 0);
+}
+
+/// `abort` with a robot cut off: the run does not wait for it; its token is abandoned with an alarm.
+#[test]
+fn abort_with_a_robot_cut_off_abandons_its_token_with_an_alarm() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 6);
+    sim.fate_at(200, "r1", Fate::Cut);
+    sim.command_at(4_000, ctl("abort"));
+    assert!(sim.run(20_000));
+    assert_eq!(sim.coordinator.core().run_state(), State::Aborted);
+    let abandoned = sim.trace.iter().find(|r| r.event == TraceEvent::Alarm && r.at_least_after(4_000));
+    let abandoned = abandoned.expect("an alarm for the abandoned token");
+    assert_eq!(abandoned.name, "r1");
+    assert!(abandoned.message.as_deref().is_some_and(|m| m.contains("abandoned")), "{abandoned:?}");
+}
+
+/// A command the run's state does not allow is refused, saying the state and what is legal, and traced.
+#[test]
+fn an_illegal_command_is_refused_with_what_is_legal() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 7);
+    sim.command_at(300, ctl("unhold"));
+    sim.command_at(400, ctl("launch"));
+    assert!(sim.run(20_000));
+    let why = sim.answers[0].1.clone().expect_err("refused");
+    assert!(why.contains("execute") && why.contains("hold") && why.contains("abort"), "{why}");
+    assert!(sim.answers[1].1.as_ref().is_err_and(|w| w.contains("unknown command")));
+    let refused: Vec<&TraceRecord> = sim.trace.iter().filter(|r| r.event == TraceEvent::CommandRefused).collect();
+    assert_eq!(refused.len(), 2);
+    assert_eq!(refused[0].message.as_deref(), Some(why.as_str()));
+    assert!(states(&sim.trace).is_empty(), "nothing changed the run's state");
+}
+
+/// A coordinator that dies while the run is held comes back held, from its journal (the simulation checks that the
+/// replay rebuilds the live trace, commands included), and the run goes on after `unhold`.
+#[test]
+fn a_coordinator_restarted_while_held_comes_back_held() {
+    for seed in 0..4 {
+        let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), seed);
+        sim.command_at(300, ctl("hold"));
+        sim.crash_coordinator_at(2_500, 700);
+        sim.command_at(5_000, ctl("unhold"));
+        assert!(sim.run(20_000), "seed {seed}: did not finish: {:#?}", sim.trace);
+        check(&sim);
+        let names: Vec<String> = states(&sim.trace).into_iter().map(|s| s.1).collect();
+        assert_eq!(names, ["holding", "held", "unholding", "execute"], "seed {seed}");
+        let a2 = first(&sim.trace, TraceEvent::ActionOn, "MoveA2").expect("A2 ran");
+        assert!(a2 >= 5_000, "seed {seed}: A2 started at {a2} while held");
+    }
+}
+
+trait After {
+    fn at_least_after(&self, t_ms: u64) -> bool;
+}
+
+impl After for TraceRecord {
+    fn at_least_after(&self, t_ms: u64) -> bool {
+        self.t_ms >= t_ms
+    }
+}
+
