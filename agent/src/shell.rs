@@ -344,7 +344,18 @@ impl Shell {
         let now = self.now_ms();
         match msg {
             ToAgent::Dispatch {
-                run, chart, token, epoch, segment, entry, vars, vars_seq, acks, fence, peers, held,
+                run,
+                chart,
+                token,
+                epoch,
+                segment,
+                entry,
+                vars,
+                vars_seq,
+                acks,
+                fence,
+                peers,
+                held,
             } => {
                 let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held };
                 match self.runs.get_mut(&run) {
@@ -401,6 +412,11 @@ impl Shell {
             ToAgent::Hold { run, token, epoch, held } => {
                 if let Some(r) = self.runs.get_mut(&run) {
                     r.state.handle_hold(now, token, epoch, held);
+                }
+            }
+            ToAgent::AckOverrun { run, token, epoch, step } => {
+                if let Some(r) = self.runs.get_mut(&run) {
+                    r.state.handle_ack_overrun(now, token, epoch, step);
                 }
             }
             ToAgent::Abort { run } => {

@@ -106,7 +106,12 @@ pub async fn set(
 
 /// Sends an operator's command to one running chart (picked as `set` picks it) and prints its answer: what it did,
 /// or why it was refused and what is legal now. True when the run took it.
-pub async fn ctl(connect: &[String], file: Option<&Path>, run: Option<&str>, request: CtlRequest) -> anyhow::Result<bool> {
+pub async fn ctl(
+    connect: &[String],
+    file: Option<&Path>,
+    run: Option<&str>,
+    request: CtlRequest,
+) -> anyhow::Result<bool> {
     let session = open(connect, file).await?;
     let result = async {
         let runs: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;

@@ -93,14 +93,11 @@ async fn a_journal_of_another_chart_version_or_a_finished_run_is_refused() {
     let cluster = Cluster::new();
     let journal = cluster.dir.path().join("journal");
     let journal = journal.to_str().expect("utf-8 path");
-    // A run that waits for agents that never come, stopped with SIGTERM: its journal stays resumable.
+    // A run that waits for agents that never come, killed outright (SIGKILL, a power cut): its journal stays
+    // resumable.
     let mut coordinator = cluster.coordinator(&cell, &["--journal", journal]);
     coordinator.wait_for_log("waits: no live agent").await;
-    let pid = coordinator.child.id().expect("running").to_string();
-    assert!(std::process::Command::new("kill").args(["-TERM", &pid]).status().expect("kill").success());
-    let (status, log, _, _) = coordinator.finish().await;
-    assert_eq!(status.code(), Some(2), "{log}");
-    assert!(log.contains("resumes it"), "{log}");
+    coordinator.kill().await;
     // The same chart with one value changed is another version.
     let source = std::fs::read_to_string(&cell).expect("cell chart");
     let changed = cluster.dir.path().join("cell_v2.st");
@@ -123,6 +120,23 @@ async fn a_journal_of_another_chart_version_or_a_finished_run_is_refused() {
     let err = String::from_utf8_lossy(&again.stderr);
     assert_eq!(again.status.code(), Some(2), "{err}");
     assert!(err.contains("is over (it finished)"), "{err}");
+    // SIGTERM (systemd stopping the service) is an operator's stop: the run ends `stopped`, exit 3, its journal
+    // closed as ended.
+    let stopped_journal = cluster.dir.path().join("stopped_journal");
+    let stopped_journal = stopped_journal.to_str().unwrap();
+    let mut coordinator = cluster.coordinator(&cell, &["--journal", stopped_journal]);
+    coordinator.wait_for_log("waits: no live agent").await;
+    let pid = coordinator.child.id().expect("running").to_string();
+    assert!(std::process::Command::new("kill").args(["-TERM", &pid]).status().expect("kill").success());
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert_eq!(status.code(), Some(3), "{log}");
+    let states: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
+    assert_eq!(states, ["stopping", "stopped"], "{log}");
+    let again =
+        cluster.baton(&["run", cell.to_str().unwrap(), "--listen", &endpoint, "--journal", stopped_journal]).await;
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert_eq!(again.status.code(), Some(2), "{err}");
+    assert!(err.contains("is over"), "{err}");
 }
 
 /// A peer floods the run with what the coordinator refuses — a megabyte at a time from an agent it does not know,

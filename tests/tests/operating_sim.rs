@@ -70,7 +70,11 @@ fn check(sim: &SimCluster) {
 #[test]
 fn a_hold_waits_for_the_running_motions_and_nothing_starts_until_unhold() {
     for seed in 0..8 {
-        let faults = if seed % 2 == 0 { Faults::default() } else { Faults { duplicate: 0.3, reorder: true, delay_ms_max: 8, loss: 0.05 } };
+        let faults = if seed % 2 == 0 {
+            Faults::default()
+        } else {
+            Faults { duplicate: 0.3, reorder: true, delay_ms_max: 8, loss: 0.05 }
+        };
         let mut sim = SimCluster::new(CELL, AGENTS, faults, seed);
         sim.command_at(300, ctl("hold"));
         sim.command_at(4_000, ctl("unhold"));
@@ -230,3 +234,63 @@ impl After for TraceRecord {
     }
 }
 
+/// `{max_ms}`: r1's step passes its maximum time while its motion runs. A latched alarm is raised with an id; the
+/// step's transition waits for the acknowledgement though the motion finished, while r2's branch goes on; once
+/// acknowledged, the step goes on, and the alarm is back to normal when the step is left.
+#[test]
+fn a_step_past_its_maximum_time_waits_for_an_acknowledgement_and_only_its_path_waits() {
+    let chart = CELL.replace("STEP A1: {agent := 'r1'}", "STEP A1: {agent := 'r1', max_ms := T#500ms}");
+    for seed in 0..4 {
+        let mut sim = SimCluster::new(&chart, AGENTS, Faults::default(), seed);
+        sim.command_at(3_000, CtlRequest { target: Some("1".into()), ..ctl("ack") });
+        sim.command_at(3_100, CtlRequest { target: Some("1".into()), ..ctl("ack") });
+        assert!(sim.run(20_000), "seed {seed}: {:#?}", sim.trace);
+        check(&sim);
+        let t = &sim.trace;
+        let alarm = t.iter().find(|r| r.event == TraceEvent::Alarm).expect("a supervision alarm");
+        assert_eq!((alarm.name.as_str(), alarm.id, alarm.agent.as_deref()), ("A1", Some(1), Some("r1")));
+        assert!((500..=520).contains(&alarm.t_ms), "seed {seed}: raised at {}", alarm.t_ms);
+        assert!(alarm.message.as_deref().is_some_and(|m| m.contains("500 ms")), "{alarm:?}");
+        let done = first(t, TraceEvent::SkillDone, "MoveA1").expect("A1's motion finished");
+        assert!(done < 3_000);
+        let left = first(t, TraceEvent::Fire, "A1->A2").expect("A1 cleared");
+        assert!(left >= 3_000, "seed {seed}: A1 cleared at {left}, before the acknowledgement");
+        assert!(first(t, TraceEvent::Activate, "BEnd").is_some_and(|b| b < 3_000), "r2's branch went on");
+        let ack = t.iter().find(|r| r.event == TraceEvent::Ack).expect("the acknowledgement is traced");
+        assert_eq!((ack.id, ack.by.as_deref()), (Some(1), Some("operator@cell")));
+        let clear = t.iter().find(|r| r.event == TraceEvent::AlarmClear).expect("back to normal");
+        assert_eq!(clear.id, Some(1));
+        assert!(clear.t_ms >= left, "normal only once the step is left");
+        let again = sim.answers[1].1.clone().expect_err("a second acknowledgement is refused");
+        assert!(again.contains("no standing alarm 1") || again.contains("acknowledged already"), "{again}");
+    }
+}
+
+/// A chart that reads `S.overrun` branches to its own recovery at once; the alarm stays latched until acknowledged.
+#[test]
+fn a_chart_branches_to_its_own_recovery_on_a_fault_and_the_alarm_stays_until_acknowledged() {
+    let chart = "PROGRAM p\nVAR done, retry : BOOL; END_VAR\nINITIAL_STEP A: END_STEP\n\
+                 TRANSITION FROM A TO Move := TRUE; END_TRANSITION\n\
+                 STEP Move: {agent := 'r1', max_ms := T#300ms} Drive(N, done); END_STEP\n\
+                 TRANSITION FROM Move TO Finished := done; END_TRANSITION\n\
+                 TRANSITION FROM Move TO Recover := Move.overrun; END_TRANSITION\n\
+                 STEP Finished: END_STEP\nSTEP Recover: END_STEP\n\
+                 TRANSITION FROM Recover TO Finished2 := retry; END_TRANSITION\nSTEP Finished2: END_STEP\n\
+                 ACTION Drive: {skill := 'motion', ms := 1000} END_ACTION\nEND_PROGRAM\n";
+    let mut sim = SimCluster::new(chart, &[("r1", &[])], Faults::default(), 1);
+    sim.command_at(5_000, CtlRequest { target: Some("all".into()), reason: "drive checked".into(), ..ctl("ack") });
+    assert!(!sim.run(2_000), "the chart waits in Recover");
+    let t = &sim.trace;
+    let alarm = first(t, TraceEvent::Alarm, "Move").expect("alarm");
+    let recover = first(t, TraceEvent::Activate, "Recover").expect("recovery taken");
+    assert!(recover >= alarm && recover < alarm + 50, "recovery at {recover}, alarm at {alarm}");
+    assert!(first(t, TraceEvent::Activate, "Finished").is_none());
+    let standing = sim.coordinator.core().status().alarms;
+    assert_eq!(standing.len(), 1, "latched: the alarm stands though its step was left");
+    assert_eq!(serde_json::to_value(standing[0].state).unwrap(), "active_unacknowledged");
+    sim.run(6_000);
+    assert!(sim.coordinator.core().status().alarms.is_empty(), "acknowledged, it is back to normal");
+    let ack = sim.trace.iter().find(|r| r.event == TraceEvent::Ack).expect("ack traced");
+    assert_eq!(ack.message.as_deref(), Some("drive checked"));
+    assert!(sim.trace.iter().any(|r| r.event == TraceEvent::AlarmClear && r.id == ack.id));
+}

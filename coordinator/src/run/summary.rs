@@ -34,7 +34,9 @@ pub struct StepTime {
 impl Summary {
     pub fn print(&self) {
         match self.state.as_str() {
-            "stopped" | "aborted" => println!("chart `{}` was {} after {} ms", self.chart, self.state, self.duration_ms),
+            "stopped" | "aborted" => {
+                println!("chart `{}` was {} after {} ms", self.chart, self.state, self.duration_ms)
+            }
             _ => println!("chart `{}` finished in {} ms", self.chart, self.duration_ms),
         }
         println!(

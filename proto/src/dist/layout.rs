@@ -210,8 +210,8 @@ pub fn layout(chart: &Chart, program: &Program, diags: &mut Vec<Diagnostic>) -> 
 }
 
 /// The keys a step's pragma may hold.
-/// A step's keys: its placement, and its supervision (`min_ms`, which `compile` reads).
-const STEP_KEYS: [&str; 3] = ["agent", "role", "min_ms"];
+/// A step's keys: its placement, and its supervision (`min_ms` and `max_ms`, which `compile` reads).
+const STEP_KEYS: [&str; 4] = ["agent", "role", "min_ms", "max_ms"];
 
 /// A pragma Baton may read, as pairs: `None` (after reporting it) when it names Baton's `keys` but cannot be read,
 /// or when it only names near misses of them (a warning: it may be another tool's), or is another tool's.
@@ -260,14 +260,14 @@ fn step_placement(pragmas: &[Pragma], diags: &mut Vec<Diagnostic>) -> Placement 
         let Some(pairs) = baton_pairs(pragma, &STEP_KEYS, "step", diags) else { continue };
         for (key, value) in pairs {
             let err = |m: String| Diagnostic::error(pragma.span, m);
-            if key == "min_ms" {
+            if key == "min_ms" || key == "max_ms" {
                 continue;
             }
             if !STEP_KEYS.contains(&key.as_str()) {
                 let hint = crate::front::pragma::near_miss(&key, &STEP_KEYS)
                     .map_or(String::new(), |k| format!(" (did you mean `{k}`?)"));
                 diags.push(err(format!(
-                    "unknown key `{key}` in a step's placement{hint}: a step takes `agent := 'name'`, `role := 'name'` or `min_ms := T#200ms`"
+                    "unknown key `{key}` in a step's placement{hint}: a step takes `agent := 'name'`, `role := 'name'`, `min_ms := T#200ms` or `max_ms := T#5s`"
                 )));
                 continue;
             }
@@ -625,7 +625,7 @@ impl Refs {
         match e {
             CExpr::Const(_) => {}
             CExpr::Var(v) => self.vars.push(*v),
-            CExpr::StepX(s) | CExpr::StepT(s) => self.steps.push(*s),
+            CExpr::StepX(s) | CExpr::StepT(s) | CExpr::StepOverrun(s) => self.steps.push(*s),
             CExpr::ActionQ(a) => self.actions.push(*a),
             CExpr::NestedT(v) => self.vars.extend(v.iter()),
             CExpr::Not(x) | CExpr::Neg(x, _) => self.expr(x),

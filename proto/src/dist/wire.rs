@@ -150,6 +150,9 @@ pub enum ToAgent {
     Hold { run: RunId, token: TokenId, epoch: u32, held: bool },
     /// The run is aborted: cancel every skill of it, give its actions their final scan, forget its tokens.
     Abort { run: RunId },
+    /// An operator acknowledged the supervision fault of `step` (of this token): its transitions may clear again.
+    /// Sent again until the agent says `OverrunAcknowledged`.
+    AckOverrun { run: RunId, token: TokenId, epoch: u32, step: u32 },
     /// This token's epoch is over (its segment was taken back): stop running it and forget it.
     Drop { run: RunId, token: TokenId, epoch: u32 },
     /// Reports applied since the last acknowledgement to this agent (at most `ACK_DELAY_MS` old, unless a
@@ -205,14 +208,35 @@ pub struct AgentEvent {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum AgentEventKind {
-    Fire { transition: u32 },
-    ActionOn { action: u32 },
-    ActionOff { action: u32 },
-    Fault { message: String },
-    SkillDone { action: u32 },
-    SkillFault { action: u32, message: String },
+    Fire {
+        transition: u32,
+    },
+    ActionOn {
+        action: u32,
+    },
+    ActionOff {
+        action: u32,
+    },
+    Fault {
+        message: String,
+    },
+    SkillDone {
+        action: u32,
+    },
+    SkillFault {
+        action: u32,
+        message: String,
+    },
     /// The token is held and nothing of it runs any more (its skills finished or were cancelled).
     Held,
+    /// A step of the token was active longer than its `max_ms` (`S.overrun`).
+    Overrun {
+        step: u32,
+    },
+    /// The step's supervision fault was acknowledged here (`ToAgent::AckOverrun`).
+    OverrunAcknowledged {
+        step: u32,
+    },
     /// The token was released: its transitions may clear again.
     Released,
 }

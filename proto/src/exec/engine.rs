@@ -64,6 +64,9 @@ pub enum EventKind {
     ActionOff(ActionId),
     /// A run-time fault: the condition counted as FALSE, or the body stopped where it happened.
     Fault(FaultSource, Fault),
+    /// A step was active longer than its `max_ms`: it is faulted (`S.overrun`), and its outgoing transitions
+    /// wait for `acknowledge_overrun` (except those that read `S.overrun`).
+    Overrun(StepId),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -169,6 +172,9 @@ struct StepState {
     slot: u32,
     /// Held (`Engine::set_held`) since then, while active: its time stands still and no outgoing transition clears.
     held_at: Option<u64>,
+    /// Its `max_ms` passed in this activation (`S.overrun`), and the fault is not acknowledged yet.
+    overrun: bool,
+    overrun_unacked: bool,
 }
 
 #[derive(Clone, Copy, Default, PartialEq)]
@@ -292,7 +298,7 @@ impl Engine {
                             Qualifier::L | Qualifier::D | Qualifier::SD | Qualifier::DS | Qualifier::SL
                         )
                     });
-                t_exit || timed_assoc
+                t_exit || timed_assoc || (scope.runs_actions[s.index()] && program.steps[s.index()].max_ms > 0)
             })
             .collect();
         let mut engine = Engine {
@@ -308,6 +314,8 @@ impl Engine {
                     remote_cycle: NEVER,
                     slot: u32::MAX,
                     held_at: None,
+                    overrun: false,
+                    overrun_unacked: false,
                 };
                 n_steps
             ],
@@ -399,12 +407,49 @@ impl Engine {
         // One generation for the whole cycle: what its own actions change is judged by the next cycle, as in
         // `baton sim`, never by a reaction.
         self.gen += 1;
+        self.supervise();
         self.clear_transitions(false);
         self.evolve(false);
         self.control_actions(false);
         self.deactivated.clear();
         self.cycle += 1;
         Ok(())
+    }
+
+    /// Step supervision, at the start of a cycle: an active step that runs here and has been active longer than
+    /// its `max_ms` is faulted, once per activation.
+    fn supervise(&mut self) {
+        for i in 0..self.active.len() {
+            let s = self.active[i];
+            let max = self.program.steps[s.index()].max_ms;
+            if max == 0 || !self.scope.runs_actions[s.index()] || self.steps[s.index()].overrun {
+                continue;
+            }
+            if self.step_t(s) > max as i64 {
+                let st = &mut self.steps[s.index()];
+                st.overrun = true;
+                st.overrun_unacked = true;
+                self.push(EventKind::Overrun(s));
+            }
+        }
+    }
+
+    /// An operator acknowledged step `s`'s supervision fault: its outgoing transitions may clear again (`S.overrun`
+    /// stays TRUE until the step is left). False if the step has no fault waiting.
+    pub fn acknowledge_overrun(&mut self, s: StepId) -> bool {
+        let Some(st) = self.steps.get_mut(s.index()) else { return false };
+        if !(st.active && st.overrun_unacked) {
+            return false;
+        }
+        st.overrun_unacked = false;
+        self.gen += 1;
+        self.mutations += 1;
+        true
+    }
+
+    /// Whether step `s` is faulted and waits for an acknowledgement.
+    pub fn overrun_waits(&self, s: StepId) -> bool {
+        self.steps.get(s.index()).is_some_and(|st| st.active && st.overrun_unacked)
     }
 
     /// Sets the cycle grid (see `grid_floor`): the run's cycle period, from `origin_ms`.
@@ -707,6 +752,7 @@ impl Engine {
                 self.steps[s.index()].active
                     && self.consumed_stamp[s.index()] != stamp
                     && self.steps[s.index()].held_at.is_none()
+                    && (!self.steps[s.index()].overrun_unacked || program.reads(t).overrun)
                     && self.step_t(*s) >= program.steps[s.index()].min_ms as i64
             });
             if !enabled {
@@ -773,6 +819,8 @@ impl Engine {
         state.activated_cycle = self.cycle;
         state.slot = slot;
         state.held_at = self.held[s.index()].then_some(since);
+        state.overrun = false;
+        state.overrun_unacked = false;
         self.active.push(s);
         self.xq_gen = self.gen;
         if self.timed[s.index()] {
@@ -789,6 +837,7 @@ impl Engine {
         state.active = false;
         state.t_last_ms = (state.held_at.unwrap_or(self.now_ms) - state.activated_ms) as i64;
         state.held_at = None;
+        state.overrun_unacked = false;
         self.xq_gen = self.gen;
         if self.timed[s.index()] {
             self.timed_active -= 1;
@@ -1005,6 +1054,11 @@ impl Env for Engine {
 
     fn action_q(&self, id: ActionId) -> bool {
         self.actions[id.index()].q
+    }
+
+    fn step_overrun(&self, id: StepId) -> bool {
+        let s = &self.steps[id.index()];
+        s.active && s.overrun
     }
 
     /// A reaction runs on the last cycle's time, as the steps it activates count theirs.

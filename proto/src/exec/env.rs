@@ -12,6 +12,10 @@ pub trait Env {
     /// `S.T` in milliseconds.
     fn step_t(&self, id: StepId) -> i64;
     fn action_q(&self, id: ActionId) -> bool;
+    /// `S.overrun`: the step's supervision fault (its `max_ms` passed in this activation).
+    fn step_overrun(&self, _id: StepId) -> bool {
+        false
+    }
     /// The cycle's time in milliseconds, as function blocks see it.
     fn now_ms(&self) -> i64;
 }

@@ -31,6 +31,7 @@ pub fn eval(e: &CExpr, env: &impl Env) -> Result<Value, Fault> {
         CExpr::Var(id) => env.var(*id),
         CExpr::StepX(id) => Value::Bool(env.step_x(*id)),
         CExpr::StepT(id) => Value::Time(env.step_t(*id)),
+        CExpr::StepOverrun(id) => Value::Bool(env.step_overrun(*id)),
         CExpr::ActionQ(id) => Value::Bool(env.action_q(*id)),
         CExpr::Not(a) => Value::Bool(!eval(a, env)?.as_bool()),
         CExpr::Neg(a, wrap) => match eval(a, env)? {
@@ -491,7 +492,7 @@ fn scan(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Resul
 pub fn is_constant(e: &CExpr) -> bool {
     match e {
         CExpr::Const(_) => true,
-        CExpr::Var(_) | CExpr::StepX(_) | CExpr::StepT(_) | CExpr::ActionQ(_) => false,
+        CExpr::Var(_) | CExpr::StepX(_) | CExpr::StepT(_) | CExpr::StepOverrun(_) | CExpr::ActionQ(_) => false,
         CExpr::Not(a) | CExpr::Neg(a, _) => is_constant(a),
         CExpr::Logic(_, a, b) | CExpr::Cmp(_, a, b) => is_constant(a) && is_constant(b),
         CExpr::Arith { lhs, rhs, .. } => is_constant(lhs) && is_constant(rhs),

@@ -70,6 +70,9 @@ pub struct Reads {
     pub steps_or_actions: bool,
     /// It reads a step's `T`, or calls a user function first (whose body may read the clock).
     pub step_time: bool,
+    /// It reads a step's supervision fault (`S.overrun`): a transition of the chart's own recovery, which clears
+    /// though the fault is not acknowledged.
+    pub overrun: bool,
 }
 
 impl Reads {
@@ -87,6 +90,10 @@ impl Reads {
             CExpr::Var(v) => self.vars.push(*v),
             CExpr::StepX(_) | CExpr::ActionQ(_) => self.steps_or_actions = true,
             CExpr::StepT(_) => self.step_time = true,
+            CExpr::StepOverrun(_) => {
+                self.overrun = true;
+                self.step_time = true;
+            }
             CExpr::NestedT(v) => {
                 self.vars.extend(v.iter());
                 self.step_time = true;
@@ -141,6 +148,10 @@ pub struct StepInfo {
     /// `{min_ms := 200}`: no transition out of the step clears before it has been active this long (step
     /// supervision's minimum time); 0 without it.
     pub min_ms: u64,
+    /// `{max_ms := 5000}`: active longer than this, the step is faulted (`S.overrun`), and its outgoing transitions
+    /// clear only once the fault is acknowledged — except those that read `S.overrun`, the chart's own recovery;
+    /// 0 without it.
+    pub max_ms: u64,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -218,6 +229,8 @@ pub enum CExpr {
     Var(VarId),
     StepX(StepId),
     StepT(StepId),
+    /// `S.overrun`: the step has been active longer than its `max_ms` (this activation).
+    StepOverrun(StepId),
     ActionQ(ActionId),
     Not(Box<CExpr>),
     Neg(Box<CExpr>, Option<IntKind>),

@@ -204,8 +204,19 @@ pub fn output_of(program: &Program, ev: Event) -> SimOutput {
         EventKind::Fault(source, fault) => {
             return SimOutput::Fault { t_ms: ev.t_ms, message: fault_message(program, source, fault) }
         }
+        EventKind::Overrun(s) => {
+            let mut rec = TraceRecord::new(ev.t_ms, TraceEvent::Alarm, &program.steps[s.index()].name);
+            rec.message = Some(overrun_message(program, s));
+            return SimOutput::Trace(rec);
+        }
     };
     SimOutput::Trace(TraceRecord::new(ev.t_ms, event, name))
+}
+
+/// What a step's supervision alarm says.
+pub fn overrun_message(program: &Program, s: crate::exec::program::StepId) -> String {
+    let step = &program.steps[s.index()];
+    format!("step `{}` has been active longer than its maximum time of {} ms", step.name, step.max_ms)
 }
 
 pub fn fault_message(program: &Program, source: FaultSource, fault: Fault) -> String {

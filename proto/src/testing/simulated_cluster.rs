@@ -828,7 +828,17 @@ impl SimCluster {
                 Packet::ToAgent(i, _, bytes) => {
                     match wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages") {
                         ToAgent::Dispatch {
-                            token, epoch, segment, entry, vars, vars_seq, acks, fence, peers, held, ..
+                            token,
+                            epoch,
+                            segment,
+                            entry,
+                            vars,
+                            vars_seq,
+                            acks,
+                            fence,
+                            peers,
+                            held,
+                            ..
                         } => {
                             for a in acks {
                                 self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
@@ -858,6 +868,9 @@ impl SimCluster {
                             self.agents[i].run.handle_hold(self.now_ms, token, epoch, held)
                         }
                         ToAgent::Abort { .. } => self.agents[i].run.handle_abort(self.now_ms),
+                        ToAgent::AckOverrun { token, epoch, step, .. } => {
+                            self.agents[i].run.handle_ack_overrun(self.now_ms, token, epoch, step)
+                        }
                         ToAgent::Join { vars, vars_seq, peers, .. } => {
                             self.agents[i].run.handle_join(self.now_ms, Join { vars, vars_seq, peers })
                         }

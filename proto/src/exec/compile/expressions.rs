@@ -217,8 +217,9 @@ impl<'a> Compiler<'a> {
     }
 
     pub(super) fn field(&mut self, base: &Ident, field: &Ident, vars: &[VarInfo]) -> (CExpr, Ty) {
-        let step_field = matches!(field.key().as_str(), "X" | "T")
-            && (self.steps.contains_key(&base.key()) || self.nested_steps.contains_key(&base.key()));
+        let step_field = (matches!(field.key().as_str(), "X" | "T")
+            && (self.steps.contains_key(&base.key()) || self.nested_steps.contains_key(&base.key())))
+            || (field.key() == "OVERRUN" && self.steps.contains_key(&base.key()));
         if self.structs.contains_key(&base.key()) && !step_field {
             return match self.vars.get(&format!("{}.{}", base.key(), field.key())) {
                 Some(&id) => match vars.get(id.index()) {
@@ -283,8 +284,9 @@ impl<'a> Compiler<'a> {
             return (FALSE, Ty::Err);
         }
         match field.key().as_str() {
-            "X" | "T" => match self.steps.get(&base.key()) {
+            "X" | "T" | "OVERRUN" => match self.steps.get(&base.key()) {
                 Some(&id) if field.key() == "X" => (CExpr::StepX(id), Ty::Bool),
+                Some(&id) if field.key() == "OVERRUN" => (CExpr::StepOverrun(id), Ty::Bool),
                 Some(&id) => (CExpr::StepT(id), Ty::Time),
                 None => {
                     if !self.chart.broken.step(&base.key()) {
@@ -309,7 +311,7 @@ impl<'a> Compiler<'a> {
             }
             _ => {
                 let message = format!(
-                    "unknown field `.{}`: a step has `.X` and `.T`, an action has `.Q`, a function block instance its outputs",
+                    "unknown field `.{}`: a step has `.X`, `.T` and `.overrun`, an action has `.Q`, a function block instance its outputs",
                     field.name
                 );
                 self.error(field.span, message);

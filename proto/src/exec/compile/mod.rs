@@ -279,7 +279,8 @@ impl<'a> Compiler<'a> {
                     name: step.name.name.clone(),
                     initial: step.initial,
                     pragmas: step.pragmas.clone(),
-                    min_ms: self.min_ms_of(step),
+                    min_ms: self.supervision_of(step, "min_ms"),
+                    max_ms: self.supervision_of(step, "max_ms"),
                 },
                 associations: Vec::new(),
             });

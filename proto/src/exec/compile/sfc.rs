@@ -233,14 +233,15 @@ impl<'a> Compiler<'a> {
     }
 
     /// `{min_ms := T#200ms}` (or `200`) after `STEP name:`: the step's minimum time, as S7-GRAPH and CODESYS
-    /// supervise it — before it, no transition out of the step clears. 0 without it.
-    pub(super) fn min_ms_of(&mut self, step: &Step) -> u64 {
+    /// supervise it — before it, no transition out of the step clears; `{max_ms := T#5s}` its maximum time, past
+    /// which it is faulted. 0 without it.
+    pub(super) fn supervision_of(&mut self, step: &Step, key: &str) -> u64 {
         let mut min_ms = 0;
         for pragma in &step.pragmas {
             let crate::front::pragma::Pragma::Pairs(pairs) = crate::front::pragma::read(&pragma.text) else {
                 continue;
             };
-            for (_, value) in pairs.iter().filter(|(k, _)| k == "min_ms") {
+            for (_, value) in pairs.iter().filter(|(k, _)| k == key) {
                 match value.as_f64() {
                     Some(ms) if ms.fract() == 0.0 && (0.0..=SUPERVISION_MS_MAX as f64).contains(&ms) => {
                         min_ms = ms as u64;
@@ -248,8 +249,8 @@ impl<'a> Compiler<'a> {
                     _ => self.error(
                         pragma.span,
                         format!(
-                            "`min_ms` of step `{}` needs a duration or whole milliseconds, at most a year, such as \
-                             `min_ms := T#200ms`",
+                            "`{key}` of step `{}` needs a duration or whole milliseconds, at most a year, such as \
+                             `{key} := T#200ms`",
                             step.name.name
                         ),
                     ),

@@ -131,6 +131,24 @@ impl AgentRun {
         self.send_outputs();
     }
 
+    /// `ToAgent::AckOverrun`: an operator acknowledged a step's supervision fault. Said back each time (the
+    /// coordinator sends it again until it hears).
+    pub fn handle_ack_overrun(&mut self, now_ms: u64, token: TokenId, epoch: u32, step: u32) {
+        self.catch_up(now_ms);
+        let s = StepId(step);
+        let ours = self
+            .tokens
+            .get(&token)
+            .is_some_and(|h| h.epoch == epoch && !h.done && self.layout.segments[h.segment.index()].steps.contains(&s));
+        if !ours {
+            self.dropped += 1;
+            return;
+        }
+        self.engine.acknowledge_overrun(s);
+        self.record(Some(token), AgentEventKind::OverrunAcknowledged { step });
+        self.settle();
+    }
+
     /// Whether the run was aborted here.
     pub fn is_aborted(&self) -> bool {
         self.aborted

@@ -200,6 +200,10 @@ impl AgentRun {
                     };
                     self.record(token, AgentEventKind::Fault { message });
                 }
+                EventKind::Overrun(s) => {
+                    let token = self.layout.segment_of[s.index()].and_then(|g| self.by_segment.get(&g).copied());
+                    self.record(token, AgentEventKind::Overrun { step: s.0 });
+                }
                 EventKind::Activate(_) | EventKind::Deactivate(_) => {}
             }
         }

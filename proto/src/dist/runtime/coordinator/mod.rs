@@ -18,6 +18,7 @@ mod devices;
 mod membership;
 mod operate;
 mod reports;
+mod supervision;
 mod timers;
 mod tokens;
 mod variables;
@@ -45,6 +46,7 @@ use super::packml::State;
 use super::{Level, VarWrites, VarsResend, COORDINATOR};
 use membership::*;
 use operate::PartialHolds;
+use supervision::Supervised;
 use tokens::*;
 
 /// First and largest delay before a dispatch that no report answered is sent again (the agent drops the
@@ -131,6 +133,8 @@ pub struct Coordinator {
     alarms: Alarms,
     /// Parts of the run held while the rest goes on (`hold --agent`, `hold --step`).
     partial: PartialHolds,
+    /// Supervision alarms (`max_ms`) by id, with their step.
+    supervised: BTreeMap<super::alarms::AlarmId, Supervised>,
     /// When this coordinator last started again from its journal.
     recovered_ms: Option<u64>,
     /// The run's cycle period (`set_cycle_ms`).
@@ -194,6 +198,7 @@ impl Coordinator {
             run_state: State::Execute,
             alarms: Alarms::default(),
             partial: PartialHolds::default(),
+            supervised: BTreeMap::new(),
             recovered_ms: None,
             cycle_ms: 1,
             stats: CoordStats::default(),

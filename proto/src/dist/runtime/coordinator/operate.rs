@@ -83,7 +83,10 @@ impl Coordinator {
     /// `hold --agent A` / `--step S` and their `unhold`: only those parts.
     fn partial_hold(&mut self, command: Command, req: &CtlRequest) -> Result<String, String> {
         if !matches!(command, Command::Hold | Command::Unhold) {
-            return Err(format!("`{}` applies to the whole run: --agent and --step go with hold and unhold", command.name()));
+            return Err(format!(
+                "`{}` applies to the whole run: --agent and --step go with hold and unhold",
+                command.name()
+            ));
         }
         if !self.run_state.is_inside(crate::dist::runtime::packml::Machine::Running)
             || matches!(self.run_state, State::Complete | State::Completing)
@@ -96,14 +99,18 @@ impl Coordinator {
             if !crate::dist::keys::is_valid_name(agent) {
                 return Err(format!("`{agent}` is not an agent name"));
             }
-            let changed = if hold { self.partial.agents.insert(agent.clone()) } else { self.partial.agents.remove(agent) };
+            let changed =
+                if hold { self.partial.agents.insert(agent.clone()) } else { self.partial.agents.remove(agent) };
             if !changed {
                 return Err(format!("agent `{agent}` is {}held", if hold { "already " } else { "not " }));
             }
             said.push(format!("agent `{agent}`"));
         }
         if let Some(step) = &req.step {
-            let s = self.program.step_by_name(step).ok_or_else(|| format!("chart `{}` has no step `{step}`", self.program.name))?;
+            let s = self
+                .program
+                .step_by_name(step)
+                .ok_or_else(|| format!("chart `{}` has no step `{step}`", self.program.name))?;
             let changed = if hold { self.partial.steps.insert(s) } else { self.partial.steps.remove(&s) };
             if !changed {
                 return Err(format!("step `{step}` is {}held", if hold { "already " } else { "not " }));
@@ -138,6 +145,9 @@ impl Coordinator {
     /// Trace records of alarms' changes: `ack`, `shelve`, `alarm_clear` (back to normal).
     pub(super) fn alarm_changes(&mut self, changes: Vec<AlarmChange>) {
         for change in changes {
+            if let AlarmChange::Acknowledged { id, .. } = &change {
+                self.supervision_acknowledged(*id);
+            }
             let rec = match change {
                 AlarmChange::Acknowledged { id, by, comment } => {
                     let source = self.alarms.get(id).map(|a| a.source.clone()).unwrap_or_default();
@@ -294,7 +304,10 @@ impl Coordinator {
             })
             .collect();
         for (id, agent, entry) in lost {
-            self.alarm(&agent, format!("token {id} (from step `{entry}`) abandoned: `{agent}` could not be told of the abort"));
+            self.alarm(
+                &agent,
+                format!("token {id} (from step `{entry}`) abandoned: `{agent}` could not be told of the abort"),
+            );
         }
         self.end_segments();
         if let Some(next) = self.run_state.when_done() {

@@ -239,6 +239,18 @@ impl Coordinator {
                     );
                     self.trace(rec);
                 }
+                AgentEventKind::Overrun { step } | AgentEventKind::OverrunAcknowledged { step } => {
+                    let s = StepId(*step);
+                    if !self.layout.segments[segment.index()].steps.contains(&s) {
+                        self.drop_msg(format!("`{}` reported step {step}, which is not of its segment", r.agent));
+                        continue;
+                    }
+                    if matches!(ev.kind, AgentEventKind::Overrun { .. }) {
+                        self.on_overrun(t_ms, s, Some((r.token, epoch)), Some(&r.agent));
+                    } else {
+                        self.overrun_acknowledged(r.token, s);
+                    }
+                }
                 AgentEventKind::Held | AgentEventKind::Released => {
                     let held = matches!(ev.kind, AgentEventKind::Held);
                     self.hold_confirmed(r.token, held);

@@ -23,6 +23,7 @@ impl Coordinator {
         self.drain_engine();
         self.resend_dispatches();
         self.resend_holds();
+        self.resend_overrun_acks();
         self.reassign_due();
         self.give_up_on_silent_agents();
         self.publish_vars();
@@ -73,7 +74,18 @@ impl Coordinator {
             self.agents.values().filter(|a| a.recovering && a.alive).map(|a| since.saturating_add(a.lease_ms)).min()
         });
         let reassign = self.tokens.values().filter_map(|t| t.reassign_at_ms).min();
-        [resend, acks, give_up, reassign, self.vars_resend.at_ms(), self.next_hold_resend_ms()].into_iter().flatten().min()
+        [
+            resend,
+            acks,
+            give_up,
+            reassign,
+            self.vars_resend.at_ms(),
+            self.next_hold_resend_ms(),
+            self.next_overrun_ack_ms(),
+        ]
+        .into_iter()
+        .flatten()
+        .min()
     }
 
     /// After a restart from the journal, an agent that has not come back within its lease is lost, as if its

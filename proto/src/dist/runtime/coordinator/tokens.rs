@@ -54,6 +54,11 @@ impl Coordinator {
 
     pub(super) fn on_engine_event(&mut self, ev: Event) {
         let program = Arc::clone(&self.program);
+        match ev.kind {
+            EventKind::Overrun(s) => return self.on_overrun(ev.t_ms, s, None, None),
+            EventKind::Deactivate(s) if !self.supervised.is_empty() => self.supervised_step_left(s),
+            _ => {}
+        }
         let mut created = None;
         if let EventKind::Activate(s) = ev.kind {
             if let Some(g) = self.layout.segment_of[s.index()] {
