@@ -73,7 +73,9 @@ impl Coordinator {
                     self.engine.value(binding.var)
                 );
                 self.trace(rec);
-                self.log(Level::Warn, text);
+                if let Some(id) = self.alarm(&name, text) {
+                    self.device_alarms.insert((name.clone(), *b), id);
+                }
             }
         }
         for b in before.keys().filter(|b| !down.contains_key(b)) {
@@ -84,6 +86,10 @@ impl Coordinator {
             let text = format!("agent `{name}` reaches the device of `{}` again ({})", binding.name, binding.device());
             self.trace(rec);
             self.log(Level::Info, text);
+            if let Some(id) = self.device_alarms.remove(&(name.clone(), *b)) {
+                let changes = self.alarms.cause_gone(id);
+                self.alarm_changes(changes);
+            }
         }
     }
 }

@@ -135,6 +135,8 @@ pub struct Coordinator {
     partial: PartialHolds,
     /// Supervision alarms (`max_ms`) by id, with their step.
     supervised: BTreeMap<super::alarms::AlarmId, Supervised>,
+    /// The alarm of each device an agent cannot reach, by agent and binding: its cause is gone when it is reached.
+    device_alarms: BTreeMap<(String, u32), super::alarms::AlarmId>,
     /// When this coordinator last started again from its journal.
     recovered_ms: Option<u64>,
     /// The run's cycle period (`set_cycle_ms`).
@@ -199,6 +201,7 @@ impl Coordinator {
             alarms: Alarms::default(),
             partial: PartialHolds::default(),
             supervised: BTreeMap::new(),
+            device_alarms: BTreeMap::new(),
             recovered_ms: None,
             cycle_ms: 1,
             stats: CoordStats::default(),
@@ -290,14 +293,35 @@ impl Coordinator {
 
     /// Something needs a person: a new occurrence in the run's alarm list (`alarms`), traced with its id and its
     /// `source` (an agent's name), and logged.
-    fn alarm(&mut self, source: &str, message: String) {
-        let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Alarm, source);
+    fn alarm(&mut self, source: &str, message: String) -> Option<super::alarms::AlarmId> {
+        self.alarm_at(self.now_ms, source, message)
+    }
+
+    fn alarm_at(&mut self, t_ms: u64, source: &str, message: String) -> Option<super::alarms::AlarmId> {
+        let mut rec = TraceRecord::new(t_ms, TraceEvent::Alarm, source);
+        let mut raised = None;
         if let Some(AlarmChange::Raised { id, .. }) = self.alarms.raise(self.now_ms, source, &message, false) {
             rec.id = Some(id.0);
+            raised = Some(id);
         }
         rec.message = Some(message.clone());
         self.trace(rec);
         self.log(Level::Error, message);
+        raised
+    }
+
+    /// Something that happened and is over at once (a skill's fault, a run-time fault) still needs a person: an
+    /// alarm whose cause is gone as it is raised, standing until acknowledged. One like it that is standing and not
+    /// acknowledged yet is not raised again (a fault every cycle is one alarm, not a flood).
+    fn event_alarm(&mut self, t_ms: u64, source: &str, message: String) {
+        let standing = self.alarms.standing().any(|a| a.ack.is_none() && a.source == source && a.message == message);
+        if standing {
+            return;
+        }
+        if let Some(id) = self.alarm_at(t_ms, source, message) {
+            let changes = self.alarms.cause_gone(id);
+            self.alarm_changes(changes);
+        }
     }
 
     /// The run's standing alarms.

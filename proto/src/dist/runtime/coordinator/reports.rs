@@ -233,11 +233,9 @@ impl Coordinator {
                 AgentEventKind::SkillFault { action, message } => {
                     let Some(info) = program.actions.get(*action as usize) else { continue };
                     let rec = rec(TraceEvent::SkillFault, &info.name, Some(message.clone()));
-                    self.log(
-                        Level::Warn,
-                        format!("skill of action `{}` on `{}` failed: {message}", info.name, r.agent),
-                    );
                     self.trace(rec);
+                    let text = format!("skill of action `{}` on `{}` failed: {message}", info.name, r.agent);
+                    self.event_alarm(t_ms, &r.agent, text);
                 }
                 AgentEventKind::Overrun { step } | AgentEventKind::OverrunAcknowledged { step } => {
                     let s = StepId(*step);
@@ -257,8 +255,8 @@ impl Coordinator {
                 }
                 AgentEventKind::Fault { message } => {
                     let rec = rec(TraceEvent::Fault, &program.name, Some(message.clone()));
-                    self.log(Level::Error, format!("on `{}`: {message}", r.agent));
                     self.trace(rec);
+                    self.event_alarm(t_ms, &r.agent, format!("run-time fault on `{}`: {message}", r.agent));
                 }
             }
         }

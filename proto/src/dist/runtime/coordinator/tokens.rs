@@ -73,17 +73,21 @@ impl Coordinator {
             _ => None,
         };
         let agent = by.map(str::to_string);
+        let mut fault = None;
         let mut rec = match output_of(&program, ev) {
             SimOutput::Trace(rec) => rec,
             SimOutput::Fault { t_ms, message } => {
-                self.log(Level::Error, message.clone());
                 let mut rec = TraceRecord::new(t_ms, TraceEvent::Fault, &program.name);
-                rec.message = Some(message);
+                rec.message = Some(message.clone());
+                fault = Some((t_ms, message));
                 rec
             }
         };
         rec.agent = agent;
         self.trace(rec);
+        if let Some((t_ms, message)) = fault {
+            self.event_alarm(t_ms, COORDINATOR, format!("run-time fault on the coordinator: {message}"));
+        }
         if let Some(id) = created {
             self.emit_dispatch_or_wait(id);
         }

@@ -49,6 +49,8 @@ use crate::front::model::Qualifier;
 use crate::limits::REACTION_ROUNDS_MAX;
 use crate::types::{Type, Value};
 
+mod operator;
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Event {
     pub t_ms: u64,
@@ -416,42 +418,6 @@ impl Engine {
         Ok(())
     }
 
-    /// Step supervision, at the start of a cycle: an active step that runs here and has been active longer than
-    /// its `max_ms` is faulted, once per activation.
-    fn supervise(&mut self) {
-        for i in 0..self.active.len() {
-            let s = self.active[i];
-            let max = self.program.steps[s.index()].max_ms;
-            if max == 0 || !self.scope.runs_actions[s.index()] || self.steps[s.index()].overrun {
-                continue;
-            }
-            if self.step_t(s) > max as i64 {
-                let st = &mut self.steps[s.index()];
-                st.overrun = true;
-                st.overrun_unacked = true;
-                self.push(EventKind::Overrun(s));
-            }
-        }
-    }
-
-    /// An operator acknowledged step `s`'s supervision fault: its outgoing transitions may clear again (`S.overrun`
-    /// stays TRUE until the step is left). False if the step has no fault waiting.
-    pub fn acknowledge_overrun(&mut self, s: StepId) -> bool {
-        let Some(st) = self.steps.get_mut(s.index()) else { return false };
-        if !(st.active && st.overrun_unacked) {
-            return false;
-        }
-        st.overrun_unacked = false;
-        self.gen += 1;
-        self.mutations += 1;
-        true
-    }
-
-    /// Whether step `s` is faulted and waits for an acknowledgement.
-    pub fn overrun_waits(&self, s: StepId) -> bool {
-        self.steps.get(s.index()).is_some_and(|st| st.active && st.overrun_unacked)
-    }
-
     /// Sets the cycle grid (see `grid_floor`): the run's cycle period, from `origin_ms`.
     pub fn set_grid(&mut self, origin_ms: u64, period_ms: u64) {
         self.grid_origin_ms = origin_ms;
@@ -593,84 +559,6 @@ impl Engine {
     /// count is a bug in the validator.
     pub fn collisions(&self) -> u64 {
         self.collisions
-    }
-
-    /// Holds step `s` from `now_ms` (`held`), or releases it. While a held step is active, none of its outgoing
-    /// transitions clears, and its time (`S.T`), its timed qualifiers (L, D, DS) and the stored timers (SD, SL) of
-    /// its actions stand still; its actions' bodies go on running. A held step that becomes active (a token arriving
-    /// at it) is held from then. On release its time goes on from where it stood.
-    pub fn set_held(&mut self, now_ms: u64, s: StepId, held: bool) {
-        let Some(&was) = self.held.get(s.index()) else { return };
-        if was == held {
-            return;
-        }
-        self.held[s.index()] = held;
-        let now = now_ms.max(self.now_ms);
-        let program = Arc::clone(&self.program);
-        let state = &mut self.steps[s.index()];
-        if held {
-            if state.active {
-                state.held_at = Some(now);
-            }
-            for assoc in program.associations(s) {
-                let f = &mut self.frozen_at[assoc.action.index()];
-                if f.is_none() && self.steps[s.index()].active {
-                    *f = Some(now);
-                }
-            }
-        } else {
-            if let Some(at) = state.held_at.take() {
-                state.activated_ms += now - at;
-            }
-            for assoc in program.associations(s) {
-                let a = assoc.action.index();
-                // Still frozen while another held step uses it.
-                let still = (0..program.steps.len()).map(|i| StepId(i as u32)).any(|o| {
-                    o != s
-                        && self.held[o.index()]
-                        && self.steps[o.index()].active
-                        && program.associations(o).iter().any(|x| x.action == assoc.action)
-                });
-                if let (Some(at), false) = (self.frozen_at[a], still) {
-                    self.frozen_at[a] = None;
-                    let st = &mut self.actions[a];
-                    let shift = |x: &mut Option<(u64, i64)>| {
-                        if let Some((start, _)) = x {
-                            *start += now - at;
-                        }
-                    };
-                    shift(&mut st.stored_sd);
-                    shift(&mut st.stored_sl);
-                }
-            }
-        }
-        self.mutations += 1;
-        self.gen += 1;
-        self.xq_gen = self.gen;
-    }
-
-    /// Ends the chart at `now_ms` (an operator's abort or stop): every active step is left, every stored qualifier
-    /// reset, and the actions whose Q falls get their final scan; nothing becomes active. Events as for a cycle.
-    pub fn abort(&mut self, now_ms: u64) -> Result<(), InputError> {
-        self.advance(now_ms)?;
-        self.gen += 1;
-        while let Some(&s) = self.active.last() {
-            self.deactivate(s);
-        }
-        for a in &mut self.actions {
-            let q = a.q;
-            *a = ActionState { q, ..ActionState::default() };
-        }
-        self.frozen_at.iter_mut().for_each(|f| *f = None);
-        self.control_actions(false);
-        self.deactivated.clear();
-        self.cycle += 1;
-        Ok(())
-    }
-
-    /// Whether step `s` is held (`set_held`).
-    pub fn is_held(&self, s: StepId) -> bool {
-        self.held.get(s.index()).copied().unwrap_or(false)
     }
 
     /// Changes counted so far (events, variable values, actions' stored state): equal counts before and after
@@ -1074,90 +962,4 @@ impl EnvMut for Engine {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_second_token_on_a_step_is_a_reported_fault() {
-        // Not safe: C can be given a token by B while it holds the one from the divergence. `check_source` refuses
-        // such a chart (unless its safety could not be decided and the user accepted that); compiled directly,
-        // it shows what the engine does then.
-        let src = "PROGRAM p
-            INITIAL_STEP A: END_STEP
-            TRANSITION FROM A TO (B, C) := TRUE; END_TRANSITION
-            STEP B: END_STEP
-            STEP C: END_STEP
-            TRANSITION FROM B TO C := TRUE; END_TRANSITION
-            END_PROGRAM";
-        let parsed = crate::front::parser::parse(src);
-        let mut diags = Vec::new();
-        let compiled = crate::exec::compile::compile(&parsed.charts[0], &parsed.library, &parsed.types, &mut diags);
-        assert!(diags.is_empty(), "{diags:?}");
-        let mut engine = Engine::new(Arc::new(compiled.program));
-        let mut faults = Vec::new();
-        for now in [0, 10, 20] {
-            engine.handle_cycle(now).expect("cycle");
-            while let Some(ev) = engine.poll_event() {
-                if let EventKind::Fault(FaultSource::Transition(_), Fault::SecondToken(s)) = ev.kind {
-                    faults.push((ev.t_ms, s));
-                }
-            }
-        }
-        assert_eq!(faults, [(10, StepId(2))]);
-        assert_eq!(engine.collisions(), 1);
-    }
-
-    fn compiled(src: &str) -> Arc<Program> {
-        let parsed = crate::front::parser::parse(src);
-        let mut diags = Vec::new();
-        let compiled = crate::exec::compile::compile(&parsed.charts[0], &parsed.library, &parsed.types, &mut diags);
-        assert!(diags.is_empty(), "{diags:?}");
-        Arc::new(compiled.program)
-    }
-
-    /// Runs cycles every 10 ms from `from` to `to` (inclusive), returning when each transition cleared.
-    fn cycles(engine: &mut Engine, from: u64, to: u64, fired: &mut Vec<(u64, TransitionId)>) {
-        for now in (from..=to).step_by(10) {
-            engine.handle_cycle(now).expect("cycle");
-            while let Some(ev) = engine.poll_event() {
-                if let EventKind::Fire(t) = ev.kind {
-                    fired.push((ev.t_ms, t));
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn a_held_step_keeps_its_time_and_its_token_until_released() {
-        // B waits for its own time to reach 100 ms; it is held from 50 ms to 250 ms, so its time reaches 100 ms
-        // 200 ms later than it would have, at 300 ms (it became active in the first cycle, at 0 ms). C's transition is TRUE at once
-        // but C is held as soon as a token reaches it, until released.
-        let program = compiled(
-            "PROGRAM p
-            INITIAL_STEP A: END_STEP
-            TRANSITION FROM A TO B := TRUE; END_TRANSITION
-            STEP B: END_STEP
-            TRANSITION FROM B TO C := B.T >= T#100ms; END_TRANSITION
-            STEP C: END_STEP
-            TRANSITION FROM C TO D := TRUE; END_TRANSITION
-            STEP D: END_STEP
-            END_PROGRAM",
-        );
-        let (b, c) = (program.step_by_name("B").unwrap(), program.step_by_name("C").unwrap());
-        let mut engine = Engine::new(Arc::clone(&program));
-        let mut fired = Vec::new();
-        cycles(&mut engine, 0, 40, &mut fired);
-        engine.set_held(50, b, true);
-        engine.set_held(50, c, true);
-        cycles(&mut engine, 50, 240, &mut fired);
-        assert_eq!(engine.step_t(b), 50, "B's time stood still at what it was when held");
-        assert_eq!(fired.len(), 1, "only A's transition cleared: {fired:?}");
-        engine.set_held(250, b, false);
-        cycles(&mut engine, 250, 400, &mut fired);
-        assert_eq!(fired.iter().map(|f| f.0).collect::<Vec<_>>(), [0, 300], "C is held: its TRUE transition waits");
-        assert!(engine.is_active(c));
-        engine.set_held(405, c, false);
-        cycles(&mut engine, 410, 420, &mut fired);
-        assert_eq!(fired.last().map(|f| f.0), Some(410), "released, C's transition clears at the next cycle");
-    }
-}
+mod tests;
