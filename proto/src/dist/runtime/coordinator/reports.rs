@@ -235,7 +235,13 @@ impl Coordinator {
                     let rec = rec(TraceEvent::SkillFault, &info.name, Some(message.clone()));
                     self.trace(rec);
                     let text = format!("skill of action `{}` on `{}` failed: {message}", info.name, r.agent);
-                    self.event_alarm(t_ms, &r.agent, text);
+                    // A fault the chart reads (the association's second indicator) is the chart's to handle, as
+                    // the cell's rework loop does; one it cannot see needs a person.
+                    if self.chart_reads_fault(*action) {
+                        self.log(Level::Warn, text);
+                    } else {
+                        self.event_alarm(t_ms, &r.agent, text);
+                    }
                 }
                 AgentEventKind::Overrun { step } | AgentEventKind::OverrunAcknowledged { step } => {
                     let s = StepId(*step);
@@ -268,5 +274,16 @@ impl Coordinator {
         if r.done {
             self.finish(r.token, epoch, r.seq, agent);
         }
+    }
+
+    /// Whether the chart reads the faults of `action`'s skill: an association of it has a fault indicator.
+    fn chart_reads_fault(&self, action: u32) -> bool {
+        (0..self.program.steps.len() as u32).map(StepId).any(|s| {
+            self.program
+                .associations(s)
+                .iter()
+                .zip(self.program.indicators(s))
+                .any(|(a, inds)| a.action.0 == action && inds.len() >= 2)
+        })
     }
 }
