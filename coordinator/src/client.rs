@@ -116,7 +116,7 @@ pub async fn ctl(
     let result = async {
         let runs: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
         let target = pick_run(&runs, run, connect)?;
-        ask::<CtlReply>(&session, keys::ctl(target), Some(wire::encode(&request))).await
+        ctl_on(&session, Some(target), &request).await
     }
     .await;
     session.close().await.map_err(|e| anyhow!("{e}"))?;
@@ -137,6 +137,13 @@ pub async fn ctl(
         }
     }
     Ok(replies.iter().any(|r| r.ok))
+}
+
+/// Sends an operator's command to run `run` (or, with `None`, to every chart behind `session`'s router, which only a
+/// router of one run may do): their replies.
+pub async fn ctl_on(session: &Session, run: Option<RunId>, request: &CtlRequest) -> anyhow::Result<Vec<CtlReply>> {
+    let key = run.map_or_else(keys::ctl_any_run, keys::ctl);
+    ask(session, key, Some(wire::encode(request))).await
 }
 
 /// The run `wanted` names — a run id, or a prefix of one, as `baton status` lists them — among `runs`; without

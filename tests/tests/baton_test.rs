@@ -56,6 +56,41 @@ fn the_example_cell_passes_with_a_robot_killed_and_an_inspection_failing_twice()
     assert!(stdout.contains("faster)"), "{stdout}");
 }
 
+/// The operating examples — the demo cell held mid-part and unheld, the cell aborted, and a motion whose step passes
+/// its maximum time and waits for an acknowledgement — pass on every seed, and what they say happened did.
+fn the_operating_examples_hold_abort_and_acknowledge_on_every_seed() {
+    let first = |t: &[TraceRecord], e: TraceEvent, name: &str| t.iter().position(|r| r.event == e && r.name == name);
+    let hold = scenario("examples/cell_hold.test.toml");
+    for seed in 0..16 {
+        let o = run(&hold, seed);
+        assert!(o.passed(), "seed {seed}: {:?}\n{:?}", o.cases, o.errors);
+        let t = &o.trace;
+        let held = first(t, TraceEvent::State, "held").expect("held");
+        let unhold = t.iter().position(|r| r.event == TraceEvent::Command && r.name == "unhold").expect("unhold");
+        assert!(first(t, TraceEvent::SkillDone, "AssemblePart").is_some_and(|d| d < held), "seed {seed}");
+        assert!(first(t, TraceEvent::ActionOn, "InspectPart").is_some_and(|i| i > unhold), "seed {seed}");
+        assert_eq!(count(t, TraceEvent::ActionOn, "AssemblePart"), 3, "seed {seed}: three parts, one assembly each");
+    }
+    let abort = scenario("examples/cell_abort.test.toml");
+    for seed in 0..16 {
+        let o = run(&abort, seed);
+        assert!(o.passed(), "seed {seed}: {:?}\n{:?}", o.cases, o.errors);
+        assert_eq!(count(&o.trace, TraceEvent::SkillDone, "AssemblePart"), 0, "seed {seed}: cancelled, not finished");
+    }
+    let motion = scenario("examples/motion.test.toml");
+    for seed in 0..16 {
+        let o = run(&motion, seed);
+        assert!(o.passed(), "seed {seed}: {:?}\n{:?}", o.cases, o.errors);
+        let t = &o.trace;
+        let alarm = t.iter().find(|r| r.event == TraceEvent::Alarm).expect("the supervision alarm");
+        assert_eq!((alarm.name.as_str(), alarm.id), ("Moving", Some(1)));
+        let ack = t.iter().find(|r| r.event == TraceEvent::Ack).expect("acknowledged");
+        assert_eq!((ack.id, ack.by.as_deref()), (Some(1), Some("baton test")));
+        assert_eq!(ack.message.as_deref(), Some("drive checked, it was only slow"));
+        assert!(t.iter().any(|r| r.event == TraceEvent::AlarmClear && r.id == Some(1) && r.name == "Moving"));
+    }
+}
+
 /// The README's example: the convergence waits for the slower robot, whatever each seed draws for it.
 fn the_readme_example_waits_for_both_robots_on_every_seed() {
     let sc = scenario("examples/two_robots.test.toml");
@@ -116,6 +151,7 @@ fn each_kind_of_expectation_fails_with_its_message() {
         ("ends_by", "the chart ended at 301ms, after 100ms"),
         ("alarms", "never raised: `lost`"),
         ("state", "expected the run to end failed; it finished at 301ms"),
+        ("states", "never reached `unholding` in that order; the states the run passed: holding, held"),
     ];
     let dir = repo("tests/baton_test");
     let out = tempfile::tempdir().expect("tmp");
@@ -143,6 +179,10 @@ fn malformed_files_are_said_at_file_line_col_with_exit_status_3() {
     let (o, stdout, stderr) = baton_test(&dir, &["malformed"], out.path());
     assert_eq!(o.status.code(), Some(3), "{stdout}{stderr}");
     let expected = [
+        "malformed/commands.test.toml:11:11: error: `pause` is no command (they are: hold, unhold, suspend",
+        "malformed/commands.test.toml:14:1: error: `ack` names its alarm: `target = 1`",
+        "malformed/commands.test.toml:18:1: error: no agent named `r3` in the scenario (it has: r1, r2)",
+        "malformed/commands.test.toml:24:19: error: `paused` is no run state",
         "malformed/keys.test.toml:3:1: error: unknown field `untill`",
         "malformed/names.test.toml:10:1: error: no agent named `r3` in the scenario (it has: r1, r2)",
         "malformed/names.test.toml:14:1: error: the chart has no step `Finish`",
@@ -157,7 +197,7 @@ fn malformed_files_are_said_at_file_line_col_with_exit_status_3() {
     for e in expected {
         assert!(stderr.lines().any(|l| l.starts_with(e)), "expected `{e}` in:\n{stderr}");
     }
-    assert!(stdout.contains("4 scenario(s): 0 passed, 0 failed, 4 malformed"), "{stdout}");
+    assert!(stdout.contains("5 scenario(s): 0 passed, 0 failed, 5 malformed"), "{stdout}");
     // Malformed outranks failed: a folder of both exits 3.
     let (o, stdout, _) = baton_test(&dir, &["fail/value.test.toml", "malformed/keys.test.toml"], out.path());
     assert_eq!(o.status.code(), Some(3), "{stdout}");
@@ -229,8 +269,8 @@ fn the_junit_report_has_a_suite_per_file_and_a_case_per_expectation() {
     let root = doc.root_element();
     assert_eq!(root.tag_name().name(), "testsuites");
     let suites: Vec<_> = root.children().filter(|n| n.has_tag_name("testsuite")).collect();
-    assert_eq!(suites.len(), 12, "one per file");
-    assert_eq!(root.attribute("failures"), Some("10"));
+    assert_eq!(suites.len(), 13, "one per file");
+    assert_eq!(root.attribute("failures"), Some("11"));
     assert_eq!(root.attribute("errors"), Some("1"));
     let crash = suites.iter().find(|s| s.attribute("name") == Some("crash")).expect("crash suite");
     assert_eq!(crash.attribute("file"), Some("pass/crash.test.toml"));
@@ -254,7 +294,7 @@ fn the_junit_report_has_a_suite_per_file_and_a_case_per_expectation() {
         print(len(list(x)), len(cases), len(bad))\n";
     let o = Command::new("python3").args(["-c", script, report_arg]).output().expect("python3");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert_eq!(String::from_utf8_lossy(&o.stdout).trim(), "12 14 11");
+    assert_eq!(String::from_utf8_lossy(&o.stdout).trim(), "13 15 12");
     // And against the JUnit schema CI's reporters follow (Surefire's junit-10.xsd, from pytest's sources).
     let xsd = repo("target/junit/junit-10.xsd");
     if !xsd.is_file() {
@@ -269,7 +309,7 @@ fn the_junit_report_has_a_suite_per_file_and_a_case_per_expectation() {
         .expect("python3");
     let said = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{said}{}", String::from_utf8_lossy(&o.stderr));
-    assert_eq!(said.trim(), "valid 14");
+    assert_eq!(said.trim(), "valid 15");
 }
 
 /// The published schema (`docs/baton-test.schema.json`), as an editor would apply it: it accepts every scenario
@@ -437,6 +477,18 @@ fn cluster_runs_the_example_and_each_fault_with_real_processes() {
     let b = t.iter().find(|r| r.event == TraceEvent::Dispatch && r.name == "B").expect("B dispatched");
     assert!(b.t_ms >= 1000 && b.agent.as_deref() == Some("r2"), "{b:?}");
 
+    // The operating examples on real processes: commands go as `baton ctl` sends them, and `baton run`'s exit
+    // status says how the run ended.
+    let files =
+        ["cell_hold.test.toml", "cell_abort.test.toml", "motion.test.toml", "--cluster", "--keep", "--jobs", "2"];
+    let (o, stdout, stderr) = baton_test(&repo("examples"), &files, out.path());
+    assert!(o.status.success(), "{stdout}{stderr}");
+    assert!(stdout.contains("PASS cell_abort (cell_abort.test.toml): 4 expectation(s), seed 1, chart"), "{stdout}");
+    assert!(stdout.contains("(aborted)"), "{stdout}");
+    let t = trace("cell_hold");
+    let hold = t.iter().find(|r| r.event == TraceEvent::Command && r.name == "hold").expect("the hold, traced");
+    assert_eq!((hold.by.as_deref(), hold.message.as_deref()), (Some("baton test"), Some("material late")));
+
     // A failing expectation on real processes: the same message, the processes' logs kept, and the replay
     // command runs on real processes again.
     let (o, stdout, _) = baton_test(&dir, &["fail/value.test.toml", "--cluster"], out.path());
@@ -550,6 +602,7 @@ fn the_processes_of_a_cluster_run_die_with_their_runner() {
 baton_tests::harness_main!(
     sync the_example_cell_passes_with_a_robot_killed_and_an_inspection_failing_twice,
     sync the_readme_example_waits_for_both_robots_on_every_seed,
+    sync the_operating_examples_hold_abort_and_acknowledge_on_every_seed,
     sync a_fault_of_each_kind_strikes_and_the_run_survives_it,
     sync each_kind_of_expectation_fails_with_its_message,
     sync malformed_files_are_said_at_file_line_col_with_exit_status_3,

@@ -217,6 +217,8 @@ fn state_word(s: &RunState) -> &'static str {
         RunState::Finished => "finished",
         RunState::Failed => "failed",
         RunState::Running => "still running",
+        RunState::Stopped => "stopped",
+        RunState::Aborted => "aborted",
     }
 }
 

@@ -206,6 +206,8 @@ fn not_run(sc: &Scenario, seed: u64, why: String) -> Outcome {
 enum Act {
     StartAgent(usize),
     Input(usize),
+    /// An operator's command (`[[commands]]`), sent as `baton ctl` sends it.
+    Command(usize),
     Fault(usize),
     Heal(String),
     /// A link fault's time is over: back to the network's own delay.
@@ -331,6 +333,11 @@ impl<'a> World<'a> {
                 Trigger::At(0) => {}
                 Trigger::At(t) => plan.push((t, Act::Input(i))),
                 Trigger::When { .. } => {}
+            }
+        }
+        for (i, c) in sc.commands.iter().enumerate() {
+            if let Trigger::At(t) = c.trigger {
+                plan.push((t, Act::Command(i)));
             }
         }
         let follower = Follower::new(dir.join("trace.1.jsonl"), 0);
@@ -564,6 +571,9 @@ impl<'a> World<'a> {
             for (k, after) in due.inputs {
                 self.plan.push((t + after, Act::Input(k)));
             }
+            for (k, after) in due.commands {
+                self.plan.push((t + after, Act::Command(k)));
+            }
             i = j;
         }
         self.trace.extend(records);
@@ -579,7 +589,7 @@ impl<'a> World<'a> {
                 .iter()
                 .enumerate()
                 .filter(|(_, (t, _))| now.map_or(*t == 0, |n| *t <= n))
-                .filter(|(_, (_, act))| !(down && matches!(act, Act::Input(_))))
+                .filter(|(_, (_, act))| !(down && matches!(act, Act::Input(_) | Act::Command(_))))
                 .min_by_key(|(k, (t, _))| (*t, *k))
                 .map(|(k, _)| k);
             let Some(k) = due else { return };
@@ -601,6 +611,22 @@ impl<'a> World<'a> {
                     self.set(name, value).await?;
                 }
                 Ok(())
+            }
+            Act::Command(i) => {
+                // Refused or taken, the command is the run's to judge (its trace says which); only a run that
+                // does not answer is the runner's error.
+                let request = &self.sc.commands[i].request;
+                let deadline = Instant::now() + SET_WAIT;
+                loop {
+                    let replies = crate::client::ctl_on(&self.session, None, request).await?;
+                    if !replies.is_empty() {
+                        return Ok(());
+                    }
+                    if Instant::now() >= deadline {
+                        anyhow::bail!("cannot send `{}`: no chart answered for {SET_WAIT:?}", request.command);
+                    }
+                    tokio::time::sleep(Duration::from_millis(20)).await;
+                }
             }
             Act::Fault(i) => {
                 let f = &self.sc.faults[i];
@@ -696,6 +722,11 @@ impl<'a> World<'a> {
                     }
                     if status.success() {
                         break RunState::Finished;
+                    }
+                    match status.code() {
+                        Some(3) => break RunState::Stopped,
+                        Some(4) => break RunState::Aborted,
+                        _ => {}
                     }
                     let log = self.dir.join(format!("coordinator.{}.log", self.coordinator_runs));
                     let text = std::fs::read_to_string(&log).unwrap_or_default();

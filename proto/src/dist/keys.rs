@@ -114,6 +114,10 @@ pub fn ctl(run: RunId) -> String {
     format!("{ROOT}/run/{}/ctl", run.key())
 }
 
+pub fn ctl_any_run() -> String {
+    format!("{ROOT}/run/*/ctl")
+}
+
 /// Everything under Baton's root, for tools that watch or test the whole protocol.
 pub fn everything() -> String {
     format!("{ROOT}/**")

@@ -123,6 +123,7 @@ impl View for Now<'_> {
 pub struct Due {
     pub faults: Vec<(usize, u64)>,
     pub inputs: Vec<(usize, u64)>,
+    pub commands: Vec<(usize, u64)>,
 }
 
 /// Watches a run as it goes, wherever it runs (the simulated cell, or real processes): the steps active and
@@ -138,6 +139,7 @@ pub struct Observer<'a> {
     active_at_failure: Option<(u64, ActiveSteps)>,
     fault_fired: Vec<bool>,
     input_fired: Vec<bool>,
+    command_fired: Vec<bool>,
 }
 
 impl<'a> Observer<'a> {
@@ -152,6 +154,7 @@ impl<'a> Observer<'a> {
             active_at_failure: None,
             fault_fired: sc.faults.iter().map(|f| matches!(f.trigger, Trigger::At(_))).collect(),
             input_fired: sc.inputs.iter().map(|i| matches!(i.trigger, Trigger::At(_))).collect(),
+            command_fired: sc.commands.iter().map(|c| matches!(c.trigger, Trigger::At(_))).collect(),
         }
     }
 
@@ -220,6 +223,14 @@ impl<'a> Observer<'a> {
                 if cond.holds(&view) {
                     self.input_fired[i] = true;
                     due.inputs.push((i, *after_ms));
+                }
+            }
+        }
+        for (i, c) in self.sc.commands.iter().enumerate() {
+            if let (false, Trigger::When { cond, after_ms, .. }) = (self.command_fired[i], &c.trigger) {
+                if cond.holds(&view) {
+                    self.command_fired[i] = true;
+                    due.commands.push((i, *after_ms));
                 }
             }
         }
@@ -353,6 +364,9 @@ impl<'a> Observer<'a> {
                 RunState::Finished => Some(format!("the chart ended at {}, after {}", show_ms(chart_ms), show_ms(*by))),
                 RunState::Failed => Some(format!("the run failed at {}", show_ms(chart_ms))),
                 RunState::Running => Some(format!("the chart had not ended by {}", show_ms(chart_ms))),
+                RunState::Stopped | RunState::Aborted => {
+                    Some(format!("the run was {} at {}", format!("{state:?}").to_lowercase(), show_ms(chart_ms)))
+                }
             },
             ExpectKind::Alarms(expected) => {
                 let alarms: Vec<String> = trace
@@ -386,9 +400,21 @@ impl<'a> Observer<'a> {
                         RunState::Finished => format!("finished at {}", show_ms(chart_ms)),
                         RunState::Failed => format!("failed at {}", show_ms(chart_ms)),
                         RunState::Running => format!("was still running at {}", show_ms(chart_ms)),
+                        RunState::Stopped => format!("was stopped at {}", show_ms(chart_ms)),
+                        RunState::Aborted => format!("was aborted at {}", show_ms(chart_ms)),
                     }
                 )
             }),
+            ExpectKind::States(expected) => {
+                let seen: Vec<&str> =
+                    trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
+                let mut rest = seen.iter();
+                let missing = expected.iter().find(|want| !rest.any(|s| s == want));
+                missing.map(|m| {
+                    let seen = if seen.is_empty() { "none".to_string() } else { seen.join(", ") };
+                    format!("never reached `{m}` in that order; the states the run passed: {seen}")
+                })
+            }
             ExpectKind::OncePerEpoch(action) => runs_twice(trace, action).map(|(t, why)| {
                 at_ms = Some(t);
                 why
@@ -529,6 +555,11 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
             }
         }
     }
+    for c in &sc.commands {
+        if let Trigger::At(t) = c.trigger {
+            sim.command_at(t, c.request.clone());
+        }
+    }
     let mut obs = Observer::new(sc);
     let mut seen = 0usize;
     let mut stopped = false;
@@ -558,6 +589,9 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
                 sim.set_at(sim.now_ms + after, name, v.clone());
             }
         }
+        for (i, after) in due.commands {
+            sim.command_at(sim.now_ms + after, sc.commands[i].request.clone());
+        }
         if let Some(finished) = over {
             break Some(finished);
         }
@@ -565,7 +599,13 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
         let limit = obs.next_snapshot().unwrap_or(u64::MAX).min(sc.until_ms + 1);
         sim.skip_idle(limit);
     };
+    let by_operator = match sim.coordinator.core().run_state() {
+        crate::dist::runtime::packml::State::Stopped => Some(RunState::Stopped),
+        crate::dist::runtime::packml::State::Aborted => Some(RunState::Aborted),
+        _ => None,
+    };
     let state = match ended {
+        Some(true) if by_operator.is_some() => by_operator.unwrap_or(RunState::Finished),
         Some(true) => RunState::Finished,
         Some(false) => RunState::Failed,
         None => RunState::Running,

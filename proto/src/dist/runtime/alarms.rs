@@ -111,6 +111,7 @@ pub enum AlarmChange {
     /// Back to normal: acknowledged and its cause gone. The occurrence is over.
     Normal {
         id: AlarmId,
+        source: String,
     },
 }
 
@@ -252,10 +253,11 @@ impl Alarms {
     /// Removes `id` when it is back to normal.
     fn settle(&mut self, id: AlarmId) -> Option<AlarmChange> {
         let normal = self.standing.get(&id).is_some_and(|a| a.state() == AlarmState::Normal);
-        normal.then(|| {
-            self.standing.remove(&id);
-            AlarmChange::Normal { id }
-        })
+        if !normal {
+            return None;
+        }
+        let alarm = self.standing.remove(&id)?;
+        Some(AlarmChange::Normal { id, source: alarm.source })
     }
 
     /// The standing alarms, oldest first.
@@ -294,14 +296,17 @@ mod tests {
         let acked = a.acknowledge(5, one, "op", Some("seen")).expect("first ack");
         assert_eq!(acked, vec![AlarmChange::Acknowledged { id: one, by: "op".into(), comment: Some("seen".into()) }]);
         assert_eq!(a.get(one).map(Alarm::state), Some(AlarmState::ActiveAcknowledged));
-        assert_eq!(a.cause_gone(one), vec![AlarmChange::CauseGone { id: one }, AlarmChange::Normal { id: one }]);
+        assert_eq!(
+            a.cause_gone(one),
+            vec![AlarmChange::CauseGone { id: one }, AlarmChange::Normal { id: one, source: "agent robot1".into() }]
+        );
         assert!(a.get(one).is_none());
         // The cause goes first: returned-unacknowledged, until someone acknowledges it.
         let two = raised(&mut a, 10, "device door", false);
         a.cause_gone(two);
         assert_eq!(a.get(two).map(Alarm::state), Some(AlarmState::ReturnedUnacknowledged));
         let acked = a.acknowledge(20, two, "op", None).expect("ack");
-        assert_eq!(acked.last(), Some(&AlarmChange::Normal { id: two }));
+        assert_eq!(acked.last(), Some(&AlarmChange::Normal { id: two, source: "device door".into() }));
     }
 
     #[test]
@@ -312,7 +317,7 @@ mod tests {
         assert_eq!(a.get(id).map(Alarm::state), Some(AlarmState::ActiveUnacknowledged));
         assert!(a.unacknowledged_from("step Move"), "its step's transitions still wait");
         let acked = a.acknowledge(9, id, "op", None).expect("ack");
-        assert_eq!(acked.last(), Some(&AlarmChange::Normal { id }));
+        assert_eq!(acked.last(), Some(&AlarmChange::Normal { id, source: "step Move".into() }));
         assert!(!a.unacknowledged_from("step Move"));
     }
 

@@ -165,8 +165,8 @@ impl Coordinator {
                     rec.message = Some(format!("until {until_ms} ms"));
                     rec
                 }
-                AlarmChange::Normal { id } => {
-                    let mut rec = TraceRecord::new(self.now_ms, TraceEvent::AlarmClear, "");
+                AlarmChange::Normal { id, source } => {
+                    let mut rec = TraceRecord::new(self.now_ms, TraceEvent::AlarmClear, &source);
                     rec.id = Some(id.0);
                     rec
                 }

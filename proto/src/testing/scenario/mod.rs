@@ -10,7 +10,6 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use serde::Deserialize;
 use toml::Spanned;
 
 use super::cond::Cond;
@@ -20,6 +19,10 @@ use crate::dist::wire::ChartHash;
 use crate::exec::program::Program;
 use crate::front::diag::LineIndex;
 use crate::pipeline::check_source;
+use raw::*;
+
+mod commands;
+mod raw;
 
 /// How long a scenario may run in chart time unless it says (`until`).
 pub const UNTIL_DEFAULT_MS: u64 = 600_000;
@@ -41,121 +44,6 @@ pub enum LoadError {
     Malformed(Vec<ScenarioError>),
     /// The scenario reads, but what it names cannot be had: its chart is missing or has errors.
     CannotRun(String),
-}
-
-// ---- the file as written -------------------------------------------------------------------------------
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RawScenario {
-    chart: Spanned<String>,
-    pou: Option<Spanned<String>>,
-    name: Option<String>,
-    until: Option<Spanned<String>>,
-    seed: Option<u64>,
-    #[serde(default)]
-    run: RawRun,
-    #[serde(default)]
-    network: RawNetwork,
-    #[serde(default)]
-    agents: Vec<Spanned<RawAgent>>,
-    #[serde(default)]
-    actions: BTreeMap<String, Spanned<RawAction>>,
-    #[serde(default)]
-    inputs: Vec<Spanned<RawInput>>,
-    #[serde(default)]
-    faults: Vec<Spanned<RawFault>>,
-    #[serde(default)]
-    expect: Vec<Spanned<RawExpect>>,
-}
-
-#[derive(Deserialize, Default)]
-#[serde(deny_unknown_fields)]
-struct RawRun {
-    on_agent_loss: Option<Spanned<String>>,
-    journal: Option<bool>,
-    cycle_ms: Option<Spanned<u64>>,
-}
-
-#[derive(Deserialize, Default)]
-#[serde(deny_unknown_fields)]
-struct RawNetwork {
-    delay: Option<Spanned<String>>,
-    drop: Option<Spanned<f64>>,
-    duplicate: Option<Spanned<f64>>,
-    reorder: Option<bool>,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RawAgent {
-    name: String,
-    #[serde(default)]
-    roles: Vec<String>,
-    start: Option<Spanned<String>>,
-    skills: Option<Vec<String>>,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RawAction {
-    duration: Option<Spanned<toml::Value>>,
-    outcomes: Option<Vec<Spanned<String>>>,
-    #[serde(default)]
-    hang: bool,
-    message: Option<String>,
-    #[serde(default)]
-    writes: BTreeMap<String, toml::Value>,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RawInput {
-    at: Option<Spanned<String>>,
-    when: Option<Spanned<String>>,
-    after: Option<Spanned<String>>,
-    set: BTreeMap<String, toml::Value>,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RawFault {
-    kill: Option<String>,
-    restart: Option<String>,
-    cut: Option<String>,
-    heal: Option<String>,
-    link: Option<String>,
-    crash_coordinator: Option<bool>,
-    at: Option<Spanned<String>>,
-    when: Option<Spanned<String>>,
-    after: Option<Spanned<String>>,
-    jitter: Option<Spanned<String>>,
-    heal_after: Option<Spanned<String>>,
-    down: Option<Spanned<String>>,
-    /// `for`, how long a link's faults last.
-    #[serde(rename = "for")]
-    lasting: Option<Spanned<String>>,
-    delay: Option<Spanned<String>>,
-    drop: Option<Spanned<f64>>,
-    duplicate: Option<Spanned<f64>>,
-    reorder: Option<bool>,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RawExpect {
-    reached: Option<String>,
-    on: Option<String>,
-    by: Option<Spanned<String>>,
-    order: Option<Vec<String>>,
-    value: Option<BTreeMap<String, toml::Value>>,
-    at: Option<Spanned<String>>,
-    always: Option<Spanned<String>>,
-    never: Option<Spanned<String>>,
-    ends_by: Option<Spanned<String>>,
-    alarms: Option<Vec<String>>,
-    state: Option<Spanned<String>>,
-    once_per_epoch: Option<String>,
 }
 
 // ---- the scenario, checked ---------------------------------------------------------------------------
@@ -262,18 +150,42 @@ pub enum RunState {
     Finished,
     Failed,
     Running,
+    /// An operator's `stop` ended it.
+    Stopped,
+    /// An operator's `abort` ended it.
+    Aborted,
 }
+
+/// An operator's command the scenario sends (`[[commands]]`), as `baton ctl` would.
+#[derive(Clone, Debug)]
+pub struct Command {
+    pub trigger: Trigger,
+    pub request: crate::dist::wire::CtlRequest,
+    pub line: usize,
+}
+
+/// The commands `[[commands]]` may send.
+pub const COMMANDS: [&str; 8] = ["hold", "unhold", "suspend", "unsuspend", "stop", "abort", "ack", "shelve"];
 
 #[derive(Clone, Debug)]
 pub enum ExpectKind {
-    Reached { step: String, on: Option<String>, by_ms: Option<u64> },
+    Reached {
+        step: String,
+        on: Option<String>,
+        by_ms: Option<u64>,
+    },
     Order(Vec<String>),
-    Value { vars: Vec<(String, toml::Value)>, at_ms: Option<u64> },
+    Value {
+        vars: Vec<(String, toml::Value)>,
+        at_ms: Option<u64>,
+    },
     Always(Cond, String),
     Never(Cond, String),
     EndsBy(u64),
     Alarms(Vec<String>),
     State(RunState),
+    /// The run passes through these PackML states, in this order (others may come between).
+    States(Vec<String>),
     OncePerEpoch(String),
 }
 
@@ -304,6 +216,7 @@ impl Expect {
             ExpectKind::Alarms(a) if a.is_empty() => "no alarm is raised".to_string(),
             ExpectKind::Alarms(a) => format!("alarms raised: {}", a.join("; ")),
             ExpectKind::State(s) => format!("the run ends {}", format!("{s:?}").to_lowercase()),
+            ExpectKind::States(s) => format!("the run passes through the states {}", s.join(", ")),
             ExpectKind::OncePerEpoch(a) => format!("the skill of {a} never runs twice in an epoch"),
         }
     }
@@ -328,6 +241,7 @@ pub struct Scenario {
     pub behaviours: BTreeMap<usize, Behaviour>,
     pub inputs: Vec<Input>,
     pub faults: Vec<Fault>,
+    pub commands: Vec<Command>,
     pub expects: Vec<Expect>,
 }
 
@@ -367,17 +281,17 @@ pub fn parse_duration(text: &str) -> Result<u64, String> {
     Ok(ms.round() as u64)
 }
 
-struct Ctx<'a> {
+pub(super) struct Ctx<'a> {
     lines: LineIndex<'a>,
     errors: Vec<ScenarioError>,
 }
 
 impl Ctx<'_> {
-    fn at(&self, span: &Range<usize>) -> (usize, usize) {
+    pub(super) fn at(&self, span: &Range<usize>) -> (usize, usize) {
         self.lines.line_col(span.start as u32)
     }
 
-    fn error(&mut self, span: &Range<usize>, message: impl Into<String>) {
+    pub(super) fn error(&mut self, span: &Range<usize>, message: impl Into<String>) {
         let (line, col) = self.at(span);
         self.errors.push(ScenarioError { line, col, message: message.into() });
     }
@@ -392,7 +306,7 @@ impl Ctx<'_> {
         }
     }
 
-    fn opt_duration(&mut self, s: &Option<Spanned<String>>) -> Option<u64> {
+    pub(super) fn opt_duration(&mut self, s: &Option<Spanned<String>>) -> Option<u64> {
         s.as_ref().map(|s| self.duration(s))
     }
 
@@ -824,6 +738,8 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
         faults.push(Fault { kind: fault_kind, trigger, jitter_ms, line });
     }
 
+    let commands = commands::check(&mut cx, &raw.commands, &program, &agent_names, &trigger);
+
     // Expectations.
     let step_known = |cx: &mut Ctx, span: &Range<usize>, name: &str| -> Option<String> {
         match program.steps.iter().find(|s| s.name.eq_ignore_ascii_case(name)) {
@@ -850,6 +766,7 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
                 ("ends_by", r.ends_by.is_some()),
                 ("alarms", r.alarms.is_some()),
                 ("state", r.state.is_some()),
+                ("states", r.states.is_some()),
                 ("once_per_epoch", r.once_per_epoch.is_some()),
             ],
         ) {
@@ -931,11 +848,37 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
                     "finished" => ExpectKind::State(RunState::Finished),
                     "failed" => ExpectKind::State(RunState::Failed),
                     "running" => ExpectKind::State(RunState::Running),
+                    "stopped" => ExpectKind::State(RunState::Stopped),
+                    "aborted" => ExpectKind::State(RunState::Aborted),
                     other => {
-                        cx.error(&s.span(), format!("`state` is finished, failed or running, not `{other}`"));
+                        cx.error(
+                            &s.span(),
+                            format!("`state` is finished, failed, running, stopped or aborted, not `{other}`"),
+                        );
                         continue;
                     }
                 }
+            }
+            "states" => {
+                let mut names = Vec::new();
+                for s in r.states.iter().flatten() {
+                    let known = crate::dist::runtime::packml::State::ALL.iter().any(|st| st.name() == s.get_ref());
+                    if known {
+                        names.push(s.get_ref().clone());
+                    } else {
+                        let all: Vec<&str> =
+                            crate::dist::runtime::packml::State::ALL.iter().map(|s| s.name()).collect();
+                        cx.error(
+                            &s.span(),
+                            format!("`{}` is no run state (they are: {})", s.get_ref(), all.join(", ")),
+                        );
+                    }
+                }
+                if names.is_empty() {
+                    cx.error(&span, "`states` names one run state or more, such as [\"held\", \"execute\"]");
+                    continue;
+                }
+                ExpectKind::States(names)
             }
             _ => {
                 let name = r.once_per_epoch.as_deref().unwrap_or_default();
@@ -987,6 +930,7 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
         behaviours,
         inputs,
         faults,
+        commands,
         expects,
     })
 }

@@ -1,0 +1,98 @@
+//! `[[commands]]`: an operator's commands in a scenario — `hold`, `unhold`, `suspend`, `unsuspend`, `stop`, `abort`,
+//! `ack` and `shelve`, at a time or when a condition holds — checked against the chart and the cell.
+
+use std::ops::Range;
+
+use toml::Spanned;
+
+use super::raw::RawCommand;
+use super::{Command, Ctx, Trigger, COMMANDS};
+use crate::dist::wire::CtlRequest;
+use crate::exec::program::Program;
+
+/// Who sends a scenario's commands, unless it says (`by`).
+pub const SCENARIO_OPERATOR: &str = "baton test";
+
+type TriggerOf<'a> = &'a dyn Fn(
+    &mut Ctx,
+    &str,
+    &Range<usize>,
+    &Option<Spanned<String>>,
+    &Option<Spanned<String>>,
+    &Option<Spanned<String>>,
+) -> Option<Trigger>;
+
+pub(super) fn check(
+    cx: &mut Ctx,
+    raw: &[Spanned<RawCommand>],
+    program: &Program,
+    agents: &[String],
+    trigger: TriggerOf<'_>,
+) -> Vec<Command> {
+    let mut out = Vec::new();
+    for c in raw {
+        let span = c.span();
+        let r = c.get_ref();
+        let name = r.command.get_ref().to_ascii_lowercase();
+        if !COMMANDS.contains(&name.as_str()) {
+            cx.error(
+                &r.command.span(),
+                format!("`{}` is no command (they are: {})", r.command.get_ref(), COMMANDS.join(", ")),
+            );
+            continue;
+        }
+        let target = match &r.target {
+            None => None,
+            Some(t) => match t.get_ref() {
+                toml::Value::Integer(i) if *i > 0 => Some(i.to_string()),
+                toml::Value::String(s) if s == "all" => Some(s.clone()),
+                _ => {
+                    cx.error(&t.span(), "`target` is an alarm's number (1, 2, …) or \"all\"");
+                    continue;
+                }
+            },
+        };
+        let needs_target = matches!(name.as_str(), "ack" | "shelve");
+        if needs_target != target.is_some() {
+            let message = if needs_target {
+                format!("`{name}` names its alarm: `target = 1` (or \"all\" to acknowledge every one)")
+            } else {
+                format!("`target` goes with ack and shelve, not with `{name}`")
+            };
+            cx.error(&span, message);
+            continue;
+        }
+        if (r.agent.is_some() || r.step.is_some()) && !matches!(name.as_str(), "hold" | "unhold") {
+            cx.error(&span, format!("`agent` and `step` go with hold and unhold, not with `{name}`"));
+            continue;
+        }
+        if let Some(a) = &r.agent {
+            if !agents.iter().any(|x| x == a) {
+                cx.error(&span, format!("no agent named `{a}` in the scenario (it has: {})", agents.join(", ")));
+            }
+        }
+        if let Some(s) = &r.step {
+            if program.step_by_name(s).is_none() {
+                cx.error(&span, super::super::cond::no_step(program, s));
+            }
+        }
+        let for_ms = cx.opt_duration(&r.lasting);
+        if (name == "shelve") != for_ms.is_some() {
+            cx.error(&span, "`for` goes with shelve, which needs it: `for = \"10min\"`");
+            continue;
+        }
+        let Some(trigger) = trigger(cx, "a command", &span, &r.at, &r.when, &r.after) else { continue };
+        let (line, _) = cx.at(&span);
+        let request = CtlRequest {
+            command: name,
+            target,
+            agent: r.agent.clone(),
+            step: r.step.clone(),
+            for_ms,
+            reason: r.reason.clone().unwrap_or_default(),
+            by: r.by.clone().unwrap_or_else(|| SCENARIO_OPERATOR.to_string()),
+        };
+        out.push(Command { trigger, request, line });
+    }
+    out
+}
