@@ -356,8 +356,9 @@ impl Shell {
                 fence,
                 peers,
                 held,
+                mode,
             } => {
-                let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held };
+                let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held, mode };
                 match self.runs.get_mut(&run) {
                     Some(r) if *r.state.hash() == chart => {
                         r.last_used = Instant::now();
@@ -412,6 +413,11 @@ impl Shell {
             ToAgent::Hold { run, token, epoch, held } => {
                 if let Some(r) = self.runs.get_mut(&run) {
                     r.state.handle_hold(now, token, epoch, held);
+                }
+            }
+            ToAgent::Gate { run, token, epoch, mode, permit, seq } => {
+                if let Some(r) = self.runs.get_mut(&run) {
+                    r.state.handle_gate(now, token, epoch, mode, permit, seq);
                 }
             }
             ToAgent::AckOverrun { run, token, epoch, step } => {

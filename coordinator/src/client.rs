@@ -217,6 +217,10 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool) -> anyh
         println!("chart `{}` (run {}, version {}), running for {} ms", r.chart, r.run.key(), r.hash.0, r.t_ms);
         let legal: Vec<&str> = r.available.iter().map(|c| c.name()).collect();
         println!("  state: {} (legal commands: {})", r.state, legal.join(", "));
+        if r.mode != baton_proto::exec::engine::Mode::Auto {
+            let waiting = if r.waiting.is_empty() { "none".to_string() } else { r.waiting.join(", ") };
+            println!("  mode: {} (waiting for confirm: {waiting})", r.mode.name());
+        }
         if !r.held.is_empty() {
             println!("  held while the rest goes on: {}", r.held.join(", "));
         }

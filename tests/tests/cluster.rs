@@ -258,6 +258,7 @@ async fn garbage_on_batons_keys_changes_nothing() {
         fence: false,
         peers: wire::Peers::default(),
         held: false,
+        mode: Default::default(),
     };
     put(r1_cmd, wire::encode(&bogus)).await;
     // An agent that announces itself but never says who it is.

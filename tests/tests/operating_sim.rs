@@ -294,3 +294,60 @@ fn a_chart_branches_to_its_own_recovery_on_a_fault_and_the_alarm_stays_until_ack
     assert_eq!(ack.message.as_deref(), Some("drive checked"));
     assert!(sim.trace.iter().any(|r| r.event == TraceEvent::AlarmClear && r.id == ack.id));
 }
+
+fn ctl_on(command: &str, target: &str) -> CtlRequest {
+    CtlRequest { target: Some(target.into()), ..ctl(command) }
+}
+
+/// Step mode: a transition whose condition is TRUE waits for `confirm`, on an agent as on the coordinator; a
+/// confirmation without a name is refused when several wait; back in auto mode the chart goes on by itself.
+#[test]
+fn in_step_mode_a_true_transition_waits_for_its_confirmation() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 8);
+    sim.command_at(50, ctl_on("mode", "step"));
+    sim.command_at(1_500, ctl("confirm"));
+    sim.command_at(2_000, ctl_on("confirm", "A1->A2"));
+    sim.command_at(2_500, ctl_on("mode", "auto"));
+    assert!(sim.run(20_000), "{:#?}", sim.trace);
+    check(&sim);
+    let t = &sim.trace;
+    let modes: Vec<&str> = t.iter().filter(|r| r.event == TraceEvent::Mode).map(|r| r.name.as_str()).collect();
+    assert_eq!(modes, ["step", "auto"]);
+    let why = sim.answers[1].1.clone().expect_err("which one?");
+    assert!(why.contains("A1->A2") && why.contains("B1->B2"), "both wait: {why}");
+    assert!(sim.answers[2].1.is_ok(), "{:?}", sim.answers);
+    let a = first(t, TraceEvent::Fire, "A1->A2").expect("A1->A2");
+    assert!((2_000..2_050).contains(&a), "A1->A2 cleared at {a}, not on its confirmation");
+    let b = first(t, TraceEvent::Fire, "B1->B2").expect("B1->B2");
+    assert!((2_500..2_550).contains(&b), "B1->B2 cleared at {b}, not when the mode went back to auto");
+}
+
+/// Manual mode: nothing clears by itself; `force` clears a transition whatever its condition; a manual change of
+/// the active steps that the chart could never reach by itself is refused, saying why.
+#[test]
+fn in_manual_mode_transitions_clear_only_when_forced_and_unsafe_switches_are_refused() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 9);
+    sim.command_at(50, ctl_on("mode", "manual"));
+    sim.command_at(2_000, ctl_on("force", "A1->A2"));
+    sim.command_at(2_100, ctl_on("activate", "AEnd"));
+    sim.command_at(2_200, ctl_on("deactivate", "B1"));
+    sim.command_at(2_300, ctl_on("force", "A2->AEnd"));
+    sim.command_at(5_000, ctl_on("mode", "auto"));
+    assert!(sim.run(20_000), "{:#?}", sim.trace);
+    check(&sim);
+    let t = &sim.trace;
+    let a = first(t, TraceEvent::Fire, "A1->A2").expect("forced");
+    assert!(
+        (2_000..2_050).contains(&a),
+        "A1->A2 cleared at {a}: its motion ended at 1 s, and only the force clears it"
+    );
+    for (i, what) in [(2, "activate AEnd"), (3, "deactivate B1")] {
+        let why = sim.answers[i].1.clone().expect_err(what);
+        assert!(why.contains("could never reach"), "{what}: {why}");
+    }
+    let a2 = first(t, TraceEvent::Fire, "A2->AEnd").expect("forced before its motion ended");
+    assert!((2_300..2_350).contains(&a2), "forced at 2.3 s, cleared at {a2}");
+    assert!(first(t, TraceEvent::Fire, "B1->B2").is_some_and(|b| b >= 5_000), "B1->B2 waited for auto mode");
+    let refused = t.iter().filter(|r| r.event == TraceEvent::CommandRefused).count();
+    assert_eq!(refused, 2);
+}

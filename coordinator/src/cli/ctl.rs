@@ -14,10 +14,11 @@ pub struct Ctl {
     #[arg(long, value_name = "ID")]
     pub run: Option<String>,
     /// hold, unhold, suspend, unsuspend, stop, abort (PackML's commands; reset, start and clear are refused by
-    /// `baton run` for now); ack ALARM_ID|all; shelve ALARM_ID --for DURATION.
+    /// `baton run` for now); mode auto|step|manual; confirm [TRANSITION] (step mode); force TRANSITION, activate STEP,
+    /// deactivate STEP (manual mode); ack ALARM_ID|all; shelve ALARM_ID --for DURATION.
     #[arg(value_name = "COMMAND")]
     pub command: String,
-    /// What the command is about: an alarm's id (or `all`) for ack and shelve.
+    /// What the command is about: the mode, a transition, a step, or an alarm's id (or `all`).
     #[arg(value_name = "TARGET")]
     pub target: Option<String>,
     /// hold / unhold only the branches on this agent; the rest of the run goes on.

@@ -142,7 +142,13 @@ pub enum ToAgent {
         /// The token arrives held (`Hold`): its entry step becomes active only when it is released.
         #[serde(default)]
         held: bool,
+        /// The run's mode (`Gate`): how the segment's transitions clear.
+        #[serde(default)]
+        mode: crate::exec::engine::Mode,
     },
+    /// The run's mode, and a transition of this token an operator confirmed (step mode) or forced (manual mode).
+    /// Numbered per token; the agent says `Gated` with the number, and the coordinator sends it again until then.
+    Gate { run: RunId, token: TokenId, epoch: u32, mode: crate::exec::engine::Mode, permit: Option<u32>, seq: u64 },
     /// Hold this token (`held`), or release it: a held token's transitions do not clear, no skill of it starts,
     /// its step times stand still; its running skills finish (or are cancelled where the action says
     /// `{hold := 'cancel'}`). The agent confirms with `AgentEventKind::Held` once nothing of the token runs, and
@@ -236,6 +242,15 @@ pub enum AgentEventKind {
     /// The step's supervision fault was acknowledged here (`ToAgent::AckOverrun`).
     OverrunAcknowledged {
         step: u32,
+    },
+    /// `ToAgent::Gate` number `seq` applied.
+    Gated {
+        seq: u64,
+    },
+    /// A transition of the token is TRUE and waits for a confirmation (step mode), or no longer does.
+    Waiting {
+        transition: u32,
+        waiting: bool,
     },
     /// The token was released: its transitions may clear again.
     Released,
@@ -421,6 +436,11 @@ pub struct StatusReport {
     /// Parts of the run held while the rest goes on (`agent robot1`, `step Pick`).
     #[serde(default)]
     pub held: Vec<String>,
+    /// The run's mode (`auto`, `step`, `manual`), and in step mode the transitions waiting for `confirm`.
+    #[serde(default)]
+    pub mode: crate::exec::engine::Mode,
+    #[serde(default)]
+    pub waiting: Vec<String>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

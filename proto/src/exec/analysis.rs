@@ -202,3 +202,50 @@ pub fn exhaustive(program: &Program) -> Vec<Finding> {
     findings.sort();
     findings
 }
+
+/// Whether `situation` (the set of active steps) is one the chart can reach by itself from its initial steps, with
+/// every condition taken as free: a manual change to it keeps the chart's promises (one token per step, whole
+/// simultaneous branches, no stranded token). `None` when the exploration stopped at `ANALYSIS_SITUATIONS_MAX`
+/// before finding it.
+pub fn is_reachable(program: &Program, situation: &[StepId]) -> Option<bool> {
+    let mut wanted: Vec<StepId> = situation.to_vec();
+    wanted.sort();
+    wanted.dedup();
+    let mut initial: Vec<StepId> = program.initial_steps.clone();
+    initial.sort();
+    let mut seen: HashSet<Vec<StepId>> = HashSet::new();
+    let mut queue = VecDeque::new();
+    seen.insert(initial.clone());
+    queue.push_back(initial);
+    let mut candidates = Vec::new();
+    while let Some(here) = queue.pop_front() {
+        if here == wanted {
+            return Some(true);
+        }
+        candidates.clear();
+        for s in &here {
+            candidates.extend_from_slice(program.outgoing(*s));
+        }
+        candidates.sort();
+        candidates.dedup();
+        for &t in &candidates {
+            let sources = program.sources(t);
+            if !sources.iter().all(|s| here.binary_search(s).is_ok()) {
+                continue;
+            }
+            let mut next: Vec<StepId> = here.iter().copied().filter(|s| !sources.contains(s)).collect();
+            for &target in program.targets(t) {
+                if let Err(at) = next.binary_search(&target) {
+                    next.insert(at, target);
+                }
+            }
+            if seen.len() >= ANALYSIS_SITUATIONS_MAX {
+                return None;
+            }
+            if seen.insert(next.clone()) {
+                queue.push_back(next);
+            }
+        }
+    }
+    Some(false)
+}

@@ -51,6 +51,8 @@ use crate::types::{Type, Value};
 
 mod operator;
 
+pub use operator::Mode;
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Event {
     pub t_ms: u64,
@@ -259,6 +261,12 @@ pub struct Engine {
     held: Vec<bool>,
     /// Per action: its stored timers stand still since then, a step it is associated with being held.
     frozen_at: Vec<Option<u64>>,
+    /// How transitions clear (`set_mode`): by their conditions, only once confirmed, or only when forced.
+    mode: Mode,
+    /// Per transition: confirmed (step mode) or forced (manual mode) to clear once.
+    permits: Vec<bool>,
+    /// Per transition: TRUE, and waiting for a confirmation (step mode).
+    waiting: Vec<bool>,
 }
 
 impl Engine {
@@ -347,6 +355,9 @@ impl Engine {
             judged: Vec::new(),
             held: vec![false; n_steps],
             frozen_at: vec![None; n_actions],
+            mode: Mode::Auto,
+            permits: vec![false; program.transitions.len()],
+            waiting: vec![false; program.transitions.len()],
             now_ms: 0,
             cycle: 0,
             started: false,
@@ -647,14 +658,29 @@ impl Engine {
                 continue;
             }
             self.judged_gen[t.index()] = self.gen;
-            match eval::eval(&program.transitions[t.index()].condition, self) {
-                Ok(v) if v.as_bool() => {
+            if self.mode == Mode::Manual {
+                // Conditions are not judged: only a forced transition clears, whatever its condition says.
+                if std::mem::take(&mut self.permits[t.index()]) {
                     for s in sources {
                         self.consumed_stamp[s.index()] = stamp;
                     }
                     self.fired.push(t);
                 }
-                Ok(_) => {}
+                continue;
+            }
+            match eval::eval(&program.transitions[t.index()].condition, self) {
+                Ok(v) if v.as_bool() && self.mode == Mode::Step && !self.permits[t.index()] => {
+                    self.waiting[t.index()] = true;
+                }
+                Ok(v) if v.as_bool() => {
+                    self.permits[t.index()] = false;
+                    self.waiting[t.index()] = false;
+                    for s in sources {
+                        self.consumed_stamp[s.index()] = stamp;
+                    }
+                    self.fired.push(t);
+                }
+                Ok(_) => self.waiting[t.index()] = false,
                 Err(fault) => self.push(EventKind::Fault(FaultSource::Transition(t), fault)),
             }
         }
@@ -726,6 +752,10 @@ impl Engine {
         state.t_last_ms = (state.held_at.unwrap_or(self.now_ms) - state.activated_ms) as i64;
         state.held_at = None;
         state.overrun_unacked = false;
+        for &t in self.program.outgoing(s) {
+            self.waiting[t.index()] = false;
+            self.permits[t.index()] = false;
+        }
         self.xq_gen = self.gen;
         if self.timed[s.index()] {
             self.timed_active -= 1;

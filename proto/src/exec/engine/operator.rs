@@ -1,9 +1,70 @@
 //! What an operator does to a running engine, and what supervises its steps: steps held and released (their times
 //! standing still), a step's maximum time and its acknowledgement, and the whole chart ended (`abort`).
 
+use serde::{Deserialize, Serialize};
+
 use super::*;
 
+/// How a chart's transitions clear: by their conditions (`auto`); only once an operator confirms one whose
+/// condition is TRUE (`step`, S7-GRAPH's TAP, CODESYS's tip mode); or only when an operator forces one, whatever
+/// its condition, with steps switched by hand (`manual`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    #[default]
+    Auto,
+    Step,
+    Manual,
+}
+
+impl Mode {
+    pub const ALL: [Mode; 3] = [Mode::Auto, Mode::Step, Mode::Manual];
+
+    /// Its name in the trace, the status and `baton ctl mode`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Mode::Auto => "auto",
+            Mode::Step => "step",
+            Mode::Manual => "manual",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Mode> {
+        Mode::ALL.into_iter().find(|m| m.name().eq_ignore_ascii_case(name))
+    }
+}
+
 impl Engine {
+    /// How transitions clear from now on. Permits given in another mode are withdrawn.
+    pub fn set_mode(&mut self, mode: Mode) {
+        if self.mode != mode {
+            self.mode = mode;
+            self.permits.iter_mut().for_each(|p| *p = false);
+            self.waiting.iter_mut().for_each(|w| *w = false);
+            self.mutations += 1;
+            self.gen += 1;
+        }
+    }
+
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// Lets transition `t` clear once: in step mode when its condition is TRUE, in manual mode whatever its
+    /// condition (a force). It clears in the next cycle in which its sources are active (and not held).
+    pub fn permit(&mut self, t: TransitionId) {
+        if let Some(p) = self.permits.get_mut(t.index()) {
+            *p = true;
+            self.mutations += 1;
+            self.gen += 1;
+        }
+    }
+
+    /// The transitions whose condition is TRUE and which wait for a confirmation (step mode), in id order.
+    pub fn waiting(&self) -> impl Iterator<Item = TransitionId> + '_ {
+        self.waiting.iter().enumerate().filter(|(_, w)| **w).map(|(i, _)| TransitionId(i as u32))
+    }
+
     /// Step supervision, at the start of a cycle: an active step that runs here and has been active longer than
     /// its `max_ms` is faulted, once per activation.
     pub(super) fn supervise(&mut self) {

@@ -41,26 +41,53 @@ pub(super) fn check(
             );
             continue;
         }
-        let target = match &r.target {
-            None => None,
-            Some(t) => match t.get_ref() {
+        let target = match (&r.target, name.as_str()) {
+            (None, _) => None,
+            (Some(t), "ack" | "shelve") => match t.get_ref() {
                 toml::Value::Integer(i) if *i > 0 => Some(i.to_string()),
-                toml::Value::String(s) if s == "all" => Some(s.clone()),
+                toml::Value::String(s) if s == "all" && name == "ack" => Some(s.clone()),
                 _ => {
-                    cx.error(&t.span(), "`target` is an alarm's number (1, 2, …) or \"all\"");
+                    cx.error(&t.span(), "`target` is an alarm's number (1, 2, …), or \"all\" to acknowledge every one");
+                    continue;
+                }
+            },
+            (Some(t), _) => match t.get_ref() {
+                toml::Value::String(s) => Some(s.clone()),
+                _ => {
+                    cx.error(&t.span(), format!("`target` of `{name}` is a name: `target = \"…\"`"));
                     continue;
                 }
             },
         };
-        let needs_target = matches!(name.as_str(), "ack" | "shelve");
-        if needs_target != target.is_some() {
-            let message = if needs_target {
-                format!("`{name}` names its alarm: `target = 1` (or \"all\" to acknowledge every one)")
-            } else {
-                format!("`target` goes with ack and shelve, not with `{name}`")
+        let needs_target = matches!(name.as_str(), "ack" | "shelve" | "mode" | "force" | "activate" | "deactivate");
+        let takes_target = needs_target || name == "confirm";
+        if (needs_target && target.is_none()) || (!takes_target && target.is_some()) {
+            let message = match name.as_str() {
+                "ack" | "shelve" => {
+                    format!("`{name}` names its alarm: `target = 1` (or \"all\" to acknowledge every one)")
+                }
+                "mode" => "`mode` names the mode: `target = \"step\"` (auto, step or manual)".to_string(),
+                "force" => "`force` names its transition: `target = \"Load->Weld\"`".to_string(),
+                "activate" | "deactivate" => format!("`{name}` names its step: `target = \"Weld\"`"),
+                _ => format!("`{name}` takes no `target`"),
             };
             cx.error(&span, message);
             continue;
+        }
+        match (name.as_str(), target.as_deref()) {
+            ("mode", Some(m)) if crate::exec::engine::Mode::from_name(m).is_none() => {
+                cx.error(&span, format!("`{m}` is no mode: auto, step or manual"));
+                continue;
+            }
+            ("force" | "confirm", Some(t)) if program.transition_by_name(t).is_none() => {
+                cx.error(&span, format!("the chart has no transition `{t}`"));
+                continue;
+            }
+            ("activate" | "deactivate", Some(st)) if program.step_by_name(st).is_none() => {
+                cx.error(&span, super::super::cond::no_step(program, st));
+                continue;
+            }
+            _ => {}
         }
         if (r.agent.is_some() || r.step.is_some()) && !matches!(name.as_str(), "hold" | "unhold") {
             cx.error(&span, format!("`agent` and `step` go with hold and unhold, not with `{name}`"));

@@ -165,7 +165,21 @@ pub struct Command {
 }
 
 /// The commands `[[commands]]` may send.
-pub const COMMANDS: [&str; 8] = ["hold", "unhold", "suspend", "unsuspend", "stop", "abort", "ack", "shelve"];
+pub const COMMANDS: [&str; 13] = [
+    "hold",
+    "unhold",
+    "suspend",
+    "unsuspend",
+    "stop",
+    "abort",
+    "mode",
+    "confirm",
+    "force",
+    "activate",
+    "deactivate",
+    "ack",
+    "shelve",
+];
 
 #[derive(Clone, Debug)]
 pub enum ExpectKind {

@@ -776,12 +776,13 @@ impl SimCluster {
                             fence,
                             peers,
                             held,
+                            mode,
                             ..
                         } => {
                             for a in acks {
                                 self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
                             }
-                            let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held };
+                            let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held, mode };
                             let before = self.agents[i].run.held();
                             self.agents[i].run.handle_dispatch(self.now_ms, d);
                             // A segment started here: never twice in one epoch, on any agent.
@@ -806,6 +807,9 @@ impl SimCluster {
                             self.agents[i].run.handle_hold(self.now_ms, token, epoch, held)
                         }
                         ToAgent::Abort { .. } => self.agents[i].run.handle_abort(self.now_ms),
+                        ToAgent::Gate { token, epoch, mode, permit, seq, .. } => {
+                            self.agents[i].run.handle_gate(self.now_ms, token, epoch, mode, permit, seq)
+                        }
                         ToAgent::AckOverrun { token, epoch, step, .. } => {
                             self.agents[i].run.handle_ack_overrun(self.now_ms, token, epoch, step)
                         }

@@ -13,7 +13,7 @@
 //! more than once per cycle, whatever the traffic.
 
 mod devices;
-mod hold;
+mod operator;
 mod skills;
 mod timers;
 mod tokens;
@@ -90,6 +90,8 @@ pub struct Dispatch {
     pub peers: Peers,
     /// The token arrives held: its entry step becomes active when it is released.
     pub held: bool,
+    /// The run's mode: how its transitions clear.
+    pub mode: crate::exec::engine::Mode,
 }
 
 /// A join, decoded: the run's values and writers, before any token.
@@ -187,6 +189,8 @@ pub struct AgentRun {
     aborted: bool,
     /// Skills cancelled because their token was held (`{hold := 'cancel'}`): started again on release.
     cancelled_on_hold: BTreeSet<ActionId>,
+    /// The transitions said to be waiting for a confirmation (step mode), as last reported.
+    waiting_said: BTreeSet<u32>,
 }
 
 impl AgentRun {
@@ -259,6 +263,7 @@ impl AgentRun {
             devices_seq: 0,
             aborted: false,
             cancelled_on_hold: BTreeSet::new(),
+            waiting_said: BTreeSet::new(),
         };
         run.send_outputs();
         run

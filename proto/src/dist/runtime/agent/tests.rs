@@ -74,6 +74,7 @@ impl Fixture {
             fence,
             peers: Peers { seq: 1, coordinator: COORDINATOR_PROCESS, agents: Vec::new() },
             held: false,
+            mode: Default::default(),
         }
     }
 }

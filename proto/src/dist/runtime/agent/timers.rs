@@ -38,7 +38,6 @@ impl AgentRun {
             }
             self.next_cycle_ms = Some(self.engine.grid_floor(self.now_ms) + self.cycle_ms);
         }
-        self.confirm_holds();
         self.report();
     }
 

@@ -58,6 +58,7 @@ impl AgentRun {
         for s in self.layout.segments[g.index()].steps.clone() {
             self.engine.set_held(self.now_ms, s, d.held);
         }
+        self.engine.set_mode(d.mode);
         if !d.held {
             if let Err(e) = self.engine.handle_remote(self.now_ms, RemoteInput::Activate(entry)) {
                 return self.drop_msg(format!("token {} dropped: {e}", d.token));
@@ -225,6 +226,8 @@ impl AgentRun {
     /// counts), and all of it leaves, in reports of at most `REPORT_EVENTS_MAX` events, once there is room. So
     /// whatever the coordinator has not acknowledged can always be sent again, however long it was away.
     pub(super) fn report(&mut self) {
+        self.confirm_holds();
+        self.report_waiting();
         self.send_outputs();
         let mut changed = Vec::new();
         for (i, &v) in self.owned.iter().enumerate() {

@@ -105,6 +105,12 @@ impl Coordinator {
                 })
                 .collect(),
             held: self.partial_holds(),
+            mode: self.engine.mode(),
+            waiting: self
+                .waiting_transitions()
+                .into_iter()
+                .map(|t| self.program.transitions[t.index()].name.clone())
+                .collect(),
         }
     }
 

@@ -16,6 +16,7 @@
 mod control;
 mod devices;
 mod membership;
+mod modes;
 mod operate;
 mod reports;
 mod supervision;
@@ -137,6 +138,8 @@ pub struct Coordinator {
     supervised: BTreeMap<super::alarms::AlarmId, Supervised>,
     /// The alarm of each device an agent cannot reach, by agent and binding: its cause is gone when it is reached.
     device_alarms: BTreeMap<(String, u32), super::alarms::AlarmId>,
+    /// The transitions agents said wait for a confirmation (step mode).
+    agent_waiting: BTreeSet<TransitionId>,
     /// When this coordinator last started again from its journal.
     recovered_ms: Option<u64>,
     /// The run's cycle period (`set_cycle_ms`).
@@ -202,6 +205,7 @@ impl Coordinator {
             partial: PartialHolds::default(),
             supervised: BTreeMap::new(),
             device_alarms: BTreeMap::new(),
+            agent_waiting: BTreeSet::new(),
             recovered_ms: None,
             cycle_ms: 1,
             stats: CoordStats::default(),

@@ -53,14 +53,21 @@ impl Coordinator {
 
     fn command(&mut self, req: &CtlRequest) -> Result<String, String> {
         let name = req.command.to_ascii_lowercase();
+        let target = req.target.as_deref();
         match name.as_str() {
             "ack" => return self.ack_command(req),
             "shelve" => return self.shelve_command(req),
+            "mode" => return self.mode_command(target),
+            "confirm" => return self.confirm_command(target),
+            "force" => return self.force_command(target),
+            "activate" => return self.switch_command(true, target),
+            "deactivate" => return self.switch_command(false, target),
             _ => {}
         }
         let Some(command) = Command::from_name(&name) else {
             return Err(format!(
-                "unknown command `{}`: reset, start, stop, hold, unhold, suspend, unsuspend, abort, clear, ack, shelve",
+                "unknown command `{}`: hold, unhold, suspend, unsuspend, stop, abort, reset, start, clear, mode, \
+                 confirm, force, activate, deactivate, ack, shelve",
                 req.command
             ));
         };

@@ -255,6 +255,19 @@ impl Coordinator {
                         self.overrun_acknowledged(r.token, s);
                     }
                 }
+                AgentEventKind::Gated { seq } => self.gated(r.token, *seq),
+                AgentEventKind::Waiting { transition, waiting } => {
+                    let t = TransitionId(*transition);
+                    if self.layout.agent_judges(&program, t) != Some(segment) {
+                        self.drop_msg(format!("`{}` reported transition {transition}, which is not its", r.agent));
+                        continue;
+                    }
+                    if *waiting {
+                        self.agent_waiting.insert(t);
+                    } else {
+                        self.agent_waiting.remove(&t);
+                    }
+                }
                 AgentEventKind::Held | AgentEventKind::Released => {
                     let held = matches!(ev.kind, AgentEventKind::Held);
                     self.hold_confirmed(r.token, held);

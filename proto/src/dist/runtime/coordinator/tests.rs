@@ -190,10 +190,10 @@ fn one_token_out() -> (Coordinator, Vec<Report>) {
             _ => None,
         })
         .expect("a dispatch");
-    let ToAgent::Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held, .. } = msg else {
+    let ToAgent::Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held, mode, .. } = msg else {
         unreachable!()
     };
-    agent.handle_dispatch(10, Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held });
+    agent.handle_dispatch(10, Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held, mode });
     let mut reports = Vec::new();
     let mut now = 10;
     while reports.iter().all(|r: &Report| !r.done) && now < 1_000 {

@@ -24,6 +24,7 @@ impl Coordinator {
         self.resend_dispatches();
         self.resend_holds();
         self.resend_overrun_acks();
+        self.resend_gates();
         self.reassign_due();
         self.give_up_on_silent_agents();
         self.publish_vars();
@@ -82,6 +83,7 @@ impl Coordinator {
             self.vars_resend.at_ms(),
             self.next_hold_resend_ms(),
             self.next_overrun_ack_ms(),
+            self.next_gate_resend_ms(),
         ]
         .into_iter()
         .flatten()

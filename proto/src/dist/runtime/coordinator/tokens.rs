@@ -34,6 +34,8 @@ pub(super) struct TokenState {
     pub(super) hold_ok: bool,
     pub(super) hold_resend_at_ms: u64,
     pub(super) hold_backoff_ms: u64,
+    /// The mode and permits its agent was told (`modes`).
+    pub(super) gate: super::modes::TokenGate,
 }
 
 impl Coordinator {
@@ -115,6 +117,7 @@ impl Coordinator {
             hold_ok: true,
             hold_resend_at_ms: 0,
             hold_backoff_ms: 0,
+            gate: Default::default(),
         };
         let hold = self.token_should_hold(&tok);
         self.tokens.insert(id, tok);
@@ -238,6 +241,7 @@ impl Coordinator {
             fence: self.policy == LossPolicy::Reassign,
             peers: self.peers.clone(),
             held: tok.hold,
+            mode: self.engine.mode(),
         };
         Some((agent, msg))
     }

@@ -1,7 +1,8 @@
 //! Operators' commands as an agent carries them out: a token held (nothing of it clears or starts, its times stand
 //! still, its running skills finish or, where the action says `{hold := 'cancel'}`, are cancelled) and confirmed
-//! held once nothing of it runs; released; and a run aborted (every skill cancelled, every action's final scan,
-//! every token forgotten).
+//! held once nothing of it runs; released; the run's mode and the transitions confirmed or forced in it; a step's
+//! supervision fault acknowledged; and a run aborted (every skill cancelled, every action's final scan, every token
+//! forgotten).
 
 use super::*;
 
@@ -147,6 +148,59 @@ impl AgentRun {
         self.engine.acknowledge_overrun(s);
         self.record(Some(token), AgentEventKind::OverrunAcknowledged { step });
         self.settle();
+    }
+
+    /// `ToAgent::Gate`: the run's mode, and a transition of this token confirmed (step mode) or forced (manual
+    /// mode). Said back with the number, each time (the coordinator sends it again until it hears).
+    pub fn handle_gate(
+        &mut self,
+        now_ms: u64,
+        token: TokenId,
+        epoch: u32,
+        mode: crate::exec::engine::Mode,
+        permit: Option<u32>,
+        seq: u64,
+    ) {
+        self.catch_up(now_ms);
+        let Some(segment) = self.tokens.get(&token).filter(|h| h.epoch == epoch && !h.done).map(|h| h.segment) else {
+            self.dropped += 1;
+            return;
+        };
+        self.engine.set_mode(mode);
+        if let Some(t) = permit {
+            let program = Arc::clone(&self.program);
+            let ours = (t as usize) < program.transitions.len()
+                && self.layout.agent_judges(&program, crate::exec::program::TransitionId(t)) == Some(segment);
+            if !ours {
+                self.dropped += 1;
+                return;
+            }
+            self.engine.permit(crate::exec::program::TransitionId(t));
+        }
+        self.record(Some(token), AgentEventKind::Gated { seq });
+        self.settle();
+    }
+
+    /// Says which of this agent's transitions wait for a confirmation (step mode), when that changed.
+    pub(super) fn report_waiting(&mut self) {
+        let now: BTreeSet<u32> = self.engine.waiting().map(|t| t.0).collect();
+        if now == self.waiting_said {
+            return;
+        }
+        let program = Arc::clone(&self.program);
+        let changed: Vec<(u32, bool)> = now
+            .difference(&self.waiting_said)
+            .map(|&t| (t, true))
+            .chain(self.waiting_said.difference(&now).map(|&t| (t, false)))
+            .collect();
+        for (t, waiting) in changed {
+            let token = self
+                .layout
+                .agent_judges(&program, crate::exec::program::TransitionId(t))
+                .and_then(|g| self.by_segment.get(&g).copied());
+            self.record(token, AgentEventKind::Waiting { transition: t, waiting });
+        }
+        self.waiting_said = now;
     }
 
     /// Whether the run was aborted here.
