@@ -229,6 +229,7 @@ pub async fn run(config: AgentConfig, skills: Skills, connections: Connections) 
     // Everything a coordinator may use is declared before the liveliness token announces the agent: a
     // coordinator asks for the info as soon as it sees the token, and may dispatch right after.
     let info_q = session.declare_queryable(keys::agent_info(&name)).await.map_err(|e| anyhow!("{e}"))?;
+    let why_q = session.declare_queryable(keys::agent_why(&name)).await.map_err(|e| anyhow!("{e}"))?;
     // Commands to this process only: a second process of the same name (which the check above refuses, but two
     // may start at the same moment) hears none of them.
     let cmd_sub = session
@@ -296,6 +297,15 @@ pub async fn run(config: AgentConfig, skills: Skills, connections: Connections) 
                     eprintln!("warning: cannot answer an info query: {e}");
                 }
             }
+            q = why_q.recv_async() => {
+                let Ok(q) = q else { break };
+                // One answer per run this agent takes part in, each its own reply.
+                for report in shell.why() {
+                    if let Err(e) = q.reply(q.key_expr().clone(), wire::encode(&report)).await {
+                        eprintln!("warning: cannot answer a why query: {e}");
+                    }
+                }
+            }
             Some(ev) = rx.recv() => shell.on_event(ev),
             () = baton_shell::until(deadline) => shell.timeout(),
             () = stop.recv() => break,
@@ -314,6 +324,21 @@ impl Shell {
     }
 
     /// Who this agent is, and the tokens it holds (a coordinator that restarted reconciles its own with them).
+    /// Why the active steps of each run here wait (`baton status --why`).
+    fn why(&mut self) -> Vec<baton_proto::dist::wire::WhyReport> {
+        let now = self.now_ms();
+        let name = self.config.name.clone();
+        self.runs
+            .values_mut()
+            .map(|r| {
+                // The engine's state as of now: cycles due run first, as any input would have them.
+                r.state.handle_timeout(now);
+                baton_proto::dist::wire::WhyReport { run: r.state.run_id(), agent: name.clone(), steps: r.state.why() }
+            })
+            .filter(|w| !w.steps.is_empty())
+            .collect()
+    }
+
     fn info(&self, incarnation: uuid::Uuid) -> AgentInfo {
         let mut held: Vec<HeldToken> = self.runs.values().flat_map(|r| r.state.held()).collect();
         held.sort_unstable();

@@ -6,7 +6,7 @@ use std::time::Duration;
 use anyhow::{anyhow, bail};
 use baton_proto::dist::keys;
 use baton_proto::dist::netconfig::NetConfig;
-use baton_proto::dist::wire::{self, CtlReply, CtlRequest, RunId, SetReply, SetRequest, StatusReport};
+use baton_proto::dist::wire::{self, CtlReply, CtlRequest, RunId, SetReply, SetRequest, StatusReport, WhyReport};
 use zenoh::Session;
 
 const QUERY_TIMEOUT: Duration = Duration::from_secs(3);
@@ -40,6 +40,41 @@ async fn ask<T: serde::de::DeserializeOwned>(
         }
     }
     Ok(out)
+}
+
+fn print_why(steps: &[baton_proto::dist::wire::StepWhy]) {
+    println!("  why the active steps wait:");
+    for w in steps {
+        let at = w.agent.as_ref().map_or(String::new(), |a| format!(" on `{a}`"));
+        let mut notes = vec![format!("active {} ms", w.active_ms)];
+        if w.held {
+            notes.push("held: nothing clears until it is released".into());
+        }
+        if w.faulted {
+            notes.push("past its maximum time: its alarm waits for an acknowledgement".into());
+        }
+        if w.min_left_ms > 0 {
+            notes.push(format!("its minimum time is {} ms away", w.min_left_ms));
+        }
+        println!("    {}{at} ({})", w.step, notes.join("; "));
+        for s in &w.skills {
+            println!("      skill of `{}` running for {} ms", s.action, s.running_ms);
+        }
+        for t in &w.transitions {
+            let mut parts = Vec::new();
+            if !t.missing.is_empty() {
+                parts.push(format!("waits for {}", t.missing.join(", ")));
+            }
+            parts.extend(t.false_parts.iter().cloned());
+            if t.waiting_confirm {
+                parts.push("TRUE, waiting for `baton ctl confirm`".into());
+            }
+            if parts.is_empty() {
+                parts.push("TRUE".into());
+            }
+            println!("      {}: {}", t.name, parts.join("; "));
+        }
+    }
 }
 
 /// Who this process acts for, as commands say it: `user@host` (the Zenoh identity, where authentication is
@@ -199,9 +234,26 @@ pub async fn set_on(
     ask(session, key, Some(request)).await
 }
 
-pub async fn status(connect: &[String], file: Option<&Path>, json: bool) -> anyhow::Result<()> {
+pub async fn status(connect: &[String], file: Option<&Path>, json: bool, why: bool) -> anyhow::Result<()> {
     let session = open(connect, file).await?;
     let mut reports: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
+    if why {
+        // The agents say why their own steps wait: each is asked once, for every run it takes part in.
+        let mut agents: Vec<String> = reports.iter().flat_map(|r| r.agents.iter().map(|a| a.name.clone())).collect();
+        agents.sort();
+        agents.dedup();
+        for agent in agents {
+            let answers: Vec<WhyReport> = ask(&session, keys::agent_why(&agent), None).await?;
+            for answer in answers.into_iter().filter(|w| w.agent == agent) {
+                if let Some(r) = reports.iter_mut().find(|r| r.run == answer.run) {
+                    r.why.extend(answer.steps);
+                    r.why.sort_by(|a, b| a.step.cmp(&b.step));
+                }
+            }
+        }
+    } else {
+        reports.iter_mut().for_each(|r| r.why.clear());
+    }
     session.close().await.map_err(|e| anyhow!("{e}"))?;
     if reports.is_empty() {
         bail!("no running chart answered behind {}", connect.join(", "));
@@ -237,6 +289,9 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool) -> anyh
                     a.message
                 );
             }
+        }
+        if why {
+            print_why(&r.why);
         }
         println!("  active steps:");
         for s in &r.active_steps {

@@ -44,6 +44,7 @@ pub mod exec {
     pub mod sim;
     pub mod stdlib;
     pub mod trace;
+    pub mod why;
 }
 
 /// The distributed part: where each part of a chart runs, the wire protocol and key space, the journal, the

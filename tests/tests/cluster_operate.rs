@@ -227,3 +227,81 @@ async fn an_interrupt_stops_the_run_after_the_running_motion() {
     let stop = trace.iter().find(|r| r.event == TraceEvent::Command).expect("the stop is traced");
     assert_eq!((stop.name.as_str(), stop.message.as_deref()), ("stop", Some("interrupted")));
 }
+
+/// `baton status --json --why`, the run's entry.
+async fn status_why(cluster: &Cluster) -> serde_json::Value {
+    let out = cluster.baton(&["status", "--connect", &cluster.endpoint, "--json", "--why"]).await;
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    serde_json::from_str::<serde_json::Value>(text.lines().next().unwrap_or("null")).unwrap_or_default()
+}
+
+/// `baton status --why`: the agents say why their steps wait — the FALSE parts of a condition with their values,
+/// a skill still running — and the coordinator why a convergence waits: the branch still missing.
+#[tokio::test(flavor = "multi_thread")]
+async fn status_why_gathers_what_each_transition_waits_for_from_the_agents() {
+    let mut cluster = Cluster::new();
+    let chart = cluster.dir.path().join("why.st");
+    std::fs::write(
+        &chart,
+        "PROGRAM why\nVAR part_ok : BOOL; pressure : INT; moved : BOOL; END_VAR\n\
+         INITIAL_STEP Idle: END_STEP\nTRANSITION FROM Idle TO (Check, Move) := TRUE; END_TRANSITION\n\
+         STEP Check: {agent := 'r1'} END_STEP\nTRANSITION FROM Check TO Checked := part_ok AND pressure > 5; END_TRANSITION\n\
+         STEP Checked: END_STEP\nSTEP Move: {agent := 'r2'} Drive(N, moved); END_STEP\n\
+         TRANSITION FROM Move TO Moved := moved; END_TRANSITION\nSTEP Moved: END_STEP\n\
+         TRANSITION FROM (Checked, Moved) TO Done := TRUE; END_TRANSITION\nSTEP Done: END_STEP\n\
+         ACTION Drive: {skill := 'motion', ms := 60000} END_ACTION\nEND_PROGRAM\n",
+    )
+    .expect("write the chart");
+    let mut coordinator = cluster.coordinator(&chart, &[]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &[]);
+    cluster.agent("r2", &[], &[]);
+    let step = |s: &serde_json::Value, name: &str| {
+        s["why"].as_array().and_then(|w| w.iter().find(|x| x["step"] == name).cloned()).unwrap_or_default()
+    };
+    // Both branches out: r1 judges Check's condition, r2 runs its motion.
+    let s = tokio::time::timeout(TIMEOUT, async {
+        loop {
+            let s = status_why(&cluster).await;
+            if step(&s, "Check")["agent"] == "r1" && step(&s, "Move")["agent"] == "r2" {
+                return s;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await
+    .expect("the agents answer why");
+    let check = step(&s, "Check");
+    assert_eq!(
+        check["transitions"][0]["false_parts"],
+        serde_json::json!(["`part_ok` is FALSE", "`pressure > 5` is FALSE (pressure = 0)"]),
+        "{s}"
+    );
+    let mv = step(&s, "Move");
+    assert_eq!(mv["skills"][0]["action"], "Drive", "{s}");
+    assert_eq!(mv["transitions"][0]["false_parts"], serde_json::json!(["`moved` is FALSE"]), "{s}");
+    // Half of it true: only the other half is said.
+    let set = cluster.baton(&["set", "--connect", &cluster.endpoint, "part_ok=true"]).await;
+    assert!(set.status.success());
+    let set = cluster.baton(&["set", "--connect", &cluster.endpoint, "pressure=7"]).await;
+    assert!(set.status.success());
+    // Check cleared: the coordinator's convergence now waits for r2's branch.
+    let s = tokio::time::timeout(TIMEOUT, async {
+        loop {
+            let s = status_why(&cluster).await;
+            if !step(&s, "Checked").is_null() {
+                return s;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await
+    .expect("Checked is reached");
+    let checked = step(&s, "Checked");
+    assert_eq!(checked["agent"], serde_json::Value::Null, "{s}");
+    assert_eq!(checked["transitions"][0]["missing"], serde_json::json!(["Moved"]), "{s}");
+    let (ok, said) = ctl(&cluster, &["abort"]).await;
+    assert!(ok, "{said}");
+    let (status, log, _, _) = coordinator.finish().await;
+    assert_eq!(status.code(), Some(4), "{log}");
+}

@@ -251,6 +251,9 @@ fn a_step_past_its_maximum_time_waits_for_an_acknowledgement_and_only_its_path_w
         assert_eq!((alarm.name.as_str(), alarm.id, alarm.agent.as_deref()), ("A1", Some(1), Some("r1")));
         assert!((500..=520).contains(&alarm.t_ms), "seed {seed}: raised at {}", alarm.t_ms);
         assert!(alarm.message.as_deref().is_some_and(|m| m.contains("500 ms")), "{alarm:?}");
+        // What the step waited for when it faulted stays with the alarm: its motion, still running.
+        let said = alarm.message.as_deref().unwrap_or_default();
+        assert!(said.contains("A1->A2: `a1` is FALSE") && said.contains("skill of `MoveA1` running for"), "{said}");
         let done = first(t, TraceEvent::SkillDone, "MoveA1").expect("A1's motion finished");
         assert!(done < 3_000);
         let left = first(t, TraceEvent::Fire, "A1->A2").expect("A1 cleared");

@@ -13,6 +13,10 @@ pub struct Status {
     /// One JSON object per running chart.
     #[arg(long)]
     pub json: bool,
+    /// Why each active step waits: its transitions' FALSE parts with their values, a convergence's missing
+    /// branches, a skill still running, a hold, a fault, a minimum time — asked of the agents for their steps.
+    #[arg(long)]
+    pub why: bool,
     /// A Zenoh configuration file (TLS, credentials…).
     #[arg(long, value_name = "FILE")]
     pub zenoh_config: Option<PathBuf>,
@@ -20,9 +24,9 @@ pub struct Status {
 
 impl Status {
     pub fn run(self) -> anyhow::Result<ExitCode> {
-        let Status { connect, json, zenoh_config } = self;
+        let Status { connect, json, why, zenoh_config } = self;
         block_on(async move {
-            crate::client::status(&connect, zenoh_config.as_deref(), json).await?;
+            crate::client::status(&connect, zenoh_config.as_deref(), json, why).await?;
             Ok(ExitCode::SUCCESS)
         })
     }

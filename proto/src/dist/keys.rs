@@ -3,6 +3,7 @@
 //! ```text
 //! baton/alive/<agent>                 liveliness token of a live agent
 //! baton/agent/<agent>/info            queryable: the agent's roles, lease and held tokens (AgentInfo)
+//! baton/agent/<agent>/why             queryable: why its active steps wait (WhyReport per run)
 //! baton/agent/<agent>/<incarnation>/cmd  coordinator → one process of the agent: Dispatch, Ack, Drop, Sync, Join
 //!                                     (ToAgent); a second process of the same name hears none of it
 //! baton/run/<run>/report              agents → coordinator: token reports (Report)
@@ -54,6 +55,11 @@ pub fn agent_of_alive(key: &str) -> Option<&str> {
 
 pub fn agent_info(agent: &str) -> String {
     format!("{ROOT}/agent/{agent}/info")
+}
+
+/// Queryable: why the agent's active steps wait (`WhyReport`, one per run it takes part in).
+pub fn agent_why(agent: &str) -> String {
+    format!("{ROOT}/agent/{agent}/why")
 }
 
 pub fn agent_cmd(agent: &str, incarnation: Uuid) -> String {

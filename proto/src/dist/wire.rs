@@ -235,9 +235,12 @@ pub enum AgentEventKind {
     },
     /// The token is held and nothing of it runs any more (its skills finished or were cancelled).
     Held,
-    /// A step of the token was active longer than its `max_ms` (`S.overrun`).
+    /// A step of the token was active longer than its `max_ms` (`S.overrun`), and why its transitions had not
+    /// cleared at that moment (`StepWhy::summary`, S7-GRAPH's CRIT_FLT).
     Overrun {
         step: u32,
+        #[serde(default)]
+        why: String,
     },
     /// The step's supervision fault was acknowledged here (`ToAgent::AckOverrun`).
     OverrunAcknowledged {
@@ -441,6 +444,9 @@ pub struct StatusReport {
     pub mode: crate::exec::engine::Mode,
     #[serde(default)]
     pub waiting: Vec<String>,
+    /// Why the coordinator's own active steps wait (`baton status --why` adds the agents' from them).
+    #[serde(default)]
+    pub why: Vec<StepWhy>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -496,6 +502,16 @@ pub struct StatusDevice {
     pub var: String,
     pub device: String,
     pub message: String,
+}
+
+pub use crate::exec::why::{SkillWhy, StepWhy, TransitionWhy};
+
+/// An agent's answer to the why query (`keys::agent_why`): its active steps of each run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WhyReport {
+    pub run: RunId,
+    pub agent: String,
+    pub steps: Vec<StepWhy>,
 }
 
 /// `{"v": 1, "m": MESSAGE}`. Enums are externally tagged (`{"dispatch": {…}}`) and nothing is flattened, so

@@ -60,6 +60,46 @@ impl Engine {
         }
     }
 
+    /// Why active step `s` waits: its time, hold, fault and minimum time, and for each outgoing transition this
+    /// engine judges, the FALSE parts of its condition and the sources not active yet.
+    pub fn why(&self, s: StepId) -> crate::exec::why::StepWhy {
+        let program = Arc::clone(&self.program);
+        let st = &self.steps[s.index()];
+        let t_now = self.step_t(s).max(0) as u64;
+        let min = program.steps[s.index()].min_ms;
+        let transitions = program
+            .outgoing(s)
+            .iter()
+            .filter(|t| self.scope.transitions[t.index()] != TransitionScope::Remote)
+            .map(|&t| crate::exec::why::TransitionWhy {
+                name: program.transitions[t.index()].name.clone(),
+                false_parts: crate::exec::why::false_parts(
+                    &program,
+                    &program.transitions[t.index()].condition,
+                    self,
+                    8,
+                ),
+                missing: program
+                    .sources(t)
+                    .iter()
+                    .filter(|x| !self.steps[x.index()].active)
+                    .map(|x| program.steps[x.index()].name.clone())
+                    .collect(),
+                waiting_confirm: self.waiting[t.index()],
+            })
+            .collect();
+        crate::exec::why::StepWhy {
+            step: program.steps[s.index()].name.clone(),
+            agent: None,
+            active_ms: t_now,
+            held: st.held_at.is_some(),
+            faulted: st.overrun_unacked,
+            min_left_ms: min.saturating_sub(t_now),
+            skills: Vec::new(),
+            transitions,
+        }
+    }
+
     /// The transitions whose condition is TRUE and which wait for a confirmation (step mode), in id order.
     pub fn waiting(&self) -> impl Iterator<Item = TransitionId> + '_ {
         self.waiting.iter().enumerate().filter(|(_, w)| **w).map(|(i, _)| TransitionId(i as u32))

@@ -191,6 +191,8 @@ pub struct AgentRun {
     cancelled_on_hold: BTreeSet<ActionId>,
     /// The transitions said to be waiting for a confirmation (step mode), as last reported.
     waiting_said: BTreeSet<u32>,
+    /// When each running skill started.
+    skill_started: BTreeMap<ActionId, u64>,
 }
 
 impl AgentRun {
@@ -264,6 +266,7 @@ impl AgentRun {
             aborted: false,
             cancelled_on_hold: BTreeSet::new(),
             waiting_said: BTreeSet::new(),
+            skill_started: BTreeMap::new(),
         };
         run.send_outputs();
         run

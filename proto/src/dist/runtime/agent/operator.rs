@@ -75,6 +75,7 @@ impl AgentRun {
             let on = crate::exec::env::Env::action_q(&self.engine, a);
             if let (true, Some(binding)) = (on, self.layout.skills[a.index()].clone()) {
                 self.running_skills.insert(a);
+                self.skill_started.insert(a, self.now_ms);
                 let name = self.program.actions[a.index()].name.clone();
                 self.outbox.push_back(AgentOutput::StartSkill { action: a, name, binding });
             }
@@ -201,6 +202,41 @@ impl AgentRun {
             self.record(token, AgentEventKind::Waiting { transition: t, waiting });
         }
         self.waiting_said = now;
+    }
+
+    /// Why this agent's active steps wait: what its engine judges of them, and their skills still running.
+    pub fn why(&self) -> Vec<crate::exec::why::StepWhy> {
+        let mut out: Vec<crate::exec::why::StepWhy> = self
+            .engine
+            .active_steps()
+            .iter()
+            .map(|&s| {
+                let mut why = self.engine.why(s);
+                why.agent = Some(self.name.clone());
+                why.skills = self.skills_of(s);
+                why
+            })
+            .collect();
+        out.sort_by(|a, b| a.step.cmp(&b.step));
+        out
+    }
+
+    /// The skills of step `s`'s actions still running here, and for how long.
+    pub(super) fn skills_of(&self, s: StepId) -> Vec<crate::exec::why::SkillWhy> {
+        self.program
+            .associations(s)
+            .iter()
+            .filter(|a| self.running_skills.contains(&a.action))
+            .map(|a| crate::exec::why::SkillWhy {
+                action: self.program.actions[a.action.index()].name.clone(),
+                running_ms: self.now_ms.saturating_sub(self.skill_started.get(&a.action).copied().unwrap_or(0)),
+            })
+            .collect()
+    }
+
+    /// The run's id.
+    pub fn run_id(&self) -> RunId {
+        self.run
     }
 
     /// Whether the run was aborted here.

@@ -176,6 +176,7 @@ impl AgentRun {
                             continue;
                         }
                         self.running_skills.insert(a);
+                        self.skill_started.insert(a, self.now_ms);
                         let name = program.actions[a.index()].name.clone();
                         self.outbox.push_back(AgentOutput::StartSkill { action: a, name, binding });
                     }
@@ -203,7 +204,9 @@ impl AgentRun {
                 }
                 EventKind::Overrun(s) => {
                     let token = self.layout.segment_of[s.index()].and_then(|g| self.by_segment.get(&g).copied());
-                    self.record(token, AgentEventKind::Overrun { step: s.0 });
+                    let mut why = self.engine.why(s);
+                    why.skills = self.skills_of(s);
+                    self.record(token, AgentEventKind::Overrun { step: s.0, why: why.summary() });
                 }
                 EventKind::Activate(_) | EventKind::Deactivate(_) => {}
             }

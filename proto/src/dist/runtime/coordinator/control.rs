@@ -111,7 +111,29 @@ impl Coordinator {
                 .into_iter()
                 .map(|t| self.program.transitions[t.index()].name.clone())
                 .collect(),
+            why: self.why(),
         }
+    }
+
+    /// Why the coordinator's own active steps wait, and the convergences it judges (the agents say why theirs do).
+    pub fn why(&self) -> Vec<crate::exec::why::StepWhy> {
+        let mut out: Vec<crate::exec::why::StepWhy> = self
+            .engine
+            .active_steps()
+            .iter()
+            .filter(|&&s| {
+                self.layout.placement[s.index()] == Placement::Coordinator
+                    || self.program.outgoing(s).iter().any(|&t| self.layout.agent_judges(&self.program, t).is_none())
+            })
+            .map(|&s| {
+                let mut why = self.engine.why(s);
+                why.agent = self.holder(s).map(str::to_string);
+                why
+            })
+            .filter(|w| w.agent.is_none() || !w.transitions.is_empty())
+            .collect();
+        out.sort_by(|a, b| a.step.cmp(&b.step));
+        out
     }
 
     /// The run's PackML state.

@@ -243,14 +243,15 @@ impl Coordinator {
                         self.event_alarm(t_ms, &r.agent, text);
                     }
                 }
-                AgentEventKind::Overrun { step } | AgentEventKind::OverrunAcknowledged { step } => {
+                AgentEventKind::Overrun { step, .. } | AgentEventKind::OverrunAcknowledged { step } => {
                     let s = StepId(*step);
                     if !self.layout.segments[segment.index()].steps.contains(&s) {
                         self.drop_msg(format!("`{}` reported step {step}, which is not of its segment", r.agent));
                         continue;
                     }
-                    if matches!(ev.kind, AgentEventKind::Overrun { .. }) {
-                        self.on_overrun(t_ms, s, Some((r.token, epoch)), Some(&r.agent));
+                    if let AgentEventKind::Overrun { why, .. } = &ev.kind {
+                        let why: String = why.chars().take(crate::limits::ALARM_TEXT_CHARS_MAX).collect();
+                        self.on_overrun(t_ms, s, Some((r.token, epoch)), Some(&r.agent), &why);
                     } else {
                         self.overrun_acknowledged(r.token, s);
                     }

@@ -23,11 +23,22 @@ pub(super) struct Supervised {
 
 impl Coordinator {
     /// A step passed its maximum time: a latched alarm, kept with the step (and the token on an agent).
-    pub(super) fn on_overrun(&mut self, t_ms: u64, s: StepId, token: Option<(TokenId, u32)>, agent: Option<&str>) {
+    pub(super) fn on_overrun(
+        &mut self,
+        t_ms: u64,
+        s: StepId,
+        token: Option<(TokenId, u32)>,
+        agent: Option<&str>,
+        why: &str,
+    ) {
         let step = self.program.steps[s.index()].name.clone();
         let mut message = overrun_message(&self.program, s);
         if let Some(a) = agent {
             message.push_str(&format!(" (on `{a}`)"));
+        }
+        // What it waited for at that moment stays with the alarm (S7-GRAPH's CRIT_FLT).
+        if !why.is_empty() {
+            message.push_str(&format!("; it waited for: {why}"));
         }
         let mut rec = TraceRecord::new(t_ms, TraceEvent::Alarm, &step);
         if let Some(AlarmChange::Raised { id, .. }) = self.alarms.raise(self.now_ms, &step, &message, true) {

@@ -57,7 +57,10 @@ impl Coordinator {
     pub(super) fn on_engine_event(&mut self, ev: Event) {
         let program = Arc::clone(&self.program);
         match ev.kind {
-            EventKind::Overrun(s) => return self.on_overrun(ev.t_ms, s, None, None),
+            EventKind::Overrun(s) => {
+                let why = self.engine.why(s).summary();
+                return self.on_overrun(ev.t_ms, s, None, None, &why);
+            }
             EventKind::Deactivate(s) if !self.supervised.is_empty() => self.supervised_step_left(s),
             _ => {}
         }
