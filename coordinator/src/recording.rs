@@ -555,7 +555,38 @@ impl Logger {
                 self.ok(self.rec.log(format!("agents/{}", rec.name), &StateChange::single("lost")));
                 self.log("WARN", format!("agent {} lost", rec.name));
             }
-            TraceEvent::Alarm => self.log("ERROR", format!("alarm: {message}")),
+            TraceEvent::Alarm => {
+                let id = rec.id.map(|i| format!(" #{i}")).unwrap_or_default();
+                self.log("ERROR", format!("alarm{id} ({}): {message}", rec.name));
+                // A supervision alarm names its step: the chart view marks it faulted.
+                if self.steps.contains_key(&rec.name) {
+                    self.step_state(&rec.name, StepState::Faulted, "faulted");
+                }
+            }
+            TraceEvent::Ack | TraceEvent::Shelve | TraceEvent::AlarmClear => {
+                let id = rec.id.map(|i| format!(" #{i}")).unwrap_or_default();
+                let by = rec.by.as_deref().unwrap_or("?");
+                let text = match rec.event {
+                    TraceEvent::Ack if message.is_empty() => format!("alarm{id} acknowledged by {by}"),
+                    TraceEvent::Ack => format!("alarm{id} acknowledged by {by}: {message}"),
+                    TraceEvent::Shelve => format!("alarm{id} shelved by {by} ({message})"),
+                    _ => format!("alarm{id} ({}) back to normal", rec.name),
+                };
+                self.log("INFO", text);
+            }
+            TraceEvent::Command | TraceEvent::CommandRefused => {
+                let by = rec.by.as_deref().unwrap_or("?");
+                let part = rec.agent.as_deref().map(|a| format!(" --agent {a}")).unwrap_or_default();
+                let (level, text) = match rec.event {
+                    TraceEvent::Command if message.is_empty() => {
+                        ("INFO", format!("command {}{part} by {by}", rec.name))
+                    }
+                    TraceEvent::Command => ("INFO", format!("command {}{part} by {by}: {message}", rec.name)),
+                    _ => ("WARN", format!("command {}{part} by {by} refused: {message}", rec.name)),
+                };
+                self.log(level, text);
+            }
+            TraceEvent::Mode => self.log("INFO", format!("mode: {}", rec.name)),
             TraceEvent::DeviceDown | TraceEvent::DeviceUp => {
                 let a = agent.unwrap_or("?");
                 let (level, text) = match rec.event {

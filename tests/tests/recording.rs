@@ -195,7 +195,7 @@ async fn a_lost_agent_and_the_reassignment_are_on_the_timeline() {
     let recording = read_recording(&rrd);
     let lines = log_lines(&recording);
     assert!(lines.contains(&("WARN".to_string(), format!("agent {holder} lost"))), "{lines:?}");
-    assert!(lines.iter().any(|(level, text)| level == "ERROR" && text.starts_with("alarm: ")), "{lines:?}");
+    assert!(lines.iter().any(|(level, text)| level == "ERROR" && text.starts_with("alarm #")), "{lines:?}");
 
     let states = |agent: &str| -> Vec<String> {
         recording["agents"][agent]
@@ -229,7 +229,73 @@ async fn a_lost_agent_and_the_reassignment_are_on_the_timeline() {
     assert!(trace.iter().any(|r| r.event == TraceEvent::AgentLost && r.name == holder));
 }
 
+/// An operator's work is on the timeline: a supervision alarm (its step marked faulted), a hold and an unhold with
+/// who sent them and why, the run's states, and the alarm acknowledged with its comment and back to normal.
+async fn commands_states_and_alarms_are_in_the_log() {
+    require_reader();
+    let mut cluster = Cluster::new();
+    let chart = cluster.dir.path().join("slow.st");
+    std::fs::write(
+        &chart,
+        "PROGRAM slow\nVAR moved : BOOL; END_VAR\nINITIAL_STEP Idle: END_STEP\n\
+         TRANSITION FROM Idle TO Move := TRUE; END_TRANSITION\n\
+         STEP Move: {agent := 'r1', max_ms := T#300ms} Drive(N, moved); END_STEP\n\
+         TRANSITION FROM Move TO Done := moved; END_TRANSITION\nSTEP Done: END_STEP\n\
+         ACTION Drive: {skill := 'motion', ms := 1000} END_ACTION\nEND_PROGRAM\n",
+    )
+    .expect("write the chart");
+    let rrd = cluster.dir.path().join("operate.rrd");
+    let sink = format!("save:{}", rrd.display());
+    let mut coordinator = cluster.coordinator(&chart, &["--rerun", &sink]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &[]);
+    coordinator.wait_for_log("has been active longer than its maximum time").await;
+    let ctl = |args: &[&str]| {
+        let mut all = vec!["ctl".to_string(), "--connect".to_string(), cluster.endpoint.clone()];
+        all.extend(args.iter().map(|a| a.to_string()));
+        all
+    };
+    for args in [
+        ctl(&["hold", "--reason", "inspect the drive"]),
+        ctl(&["unhold"]),
+        ctl(&["ack", "1", "--comment", "drive checked"]),
+    ] {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        // A hold is confirmed once the motion ends; the unhold is legal only then.
+        let ok = tokio::time::timeout(baton_tests::loopback::TIMEOUT, async {
+            loop {
+                let out = cluster.baton(&args).await;
+                if out.status.success() {
+                    return;
+                }
+                tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+            }
+        })
+        .await;
+        assert!(ok.is_ok(), "{args:?} never taken");
+    }
+    let (status, log, _, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    let recording = read_recording(&rrd);
+    let lines = log_lines(&recording);
+    let has = |level: &str, start: &str| lines.iter().any(|(l, t)| l == level && t.starts_with(start));
+    assert!(has("ERROR", "alarm #1 (Move): step `Move` has been active longer than its maximum time of 300 ms"));
+    assert!(lines.iter().any(|(_, t)| t.starts_with("command hold by ") && t.ends_with(": inspect the drive")));
+    assert!(has("INFO", "run state: holding") && has("INFO", "run state: held"), "{lines:?}");
+    assert!(lines.iter().any(|(_, t)| t.starts_with("command unhold by ")), "{lines:?}");
+    assert!(lines.iter().any(|(_, t)| t.starts_with("alarm #1 acknowledged by ") && t.ends_with(": drive checked")));
+    assert!(has("INFO", "alarm #1 (Move) back to normal"), "{lines:?}");
+    let states: Vec<String> = recording["steps"]["Move"]
+        .as_array()
+        .expect("Move")
+        .iter()
+        .map(|s| s[1].as_str().unwrap_or_default().to_string())
+        .collect();
+    assert!(states.contains(&"faulted".to_string()), "{states:?}");
+}
+
 baton_tests::harness_main!(
+    tokio commands_states_and_alarms_are_in_the_log,
     tokio a_live_recording_holds_every_entity_and_the_steps_states_of_the_trace,
     tokio a_run_without_a_recording_is_recorded_afterwards_from_its_journal,
     tokio a_lost_agent_and_the_reassignment_are_on_the_timeline,
