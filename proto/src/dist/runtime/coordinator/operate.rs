@@ -48,7 +48,8 @@ impl Coordinator {
             Err(why) => self.log(Level::Warn, format!("{} by {} refused: {why}", req.command, req.by)),
         }
         self.after_command();
-        result
+        // A state that left by itself meanwhile (nothing to wait for) is the one to tell.
+        result.map(|m| if m.starts_with("the run is ") { format!("the run is {}", self.run_state.name()) } else { m })
     }
 
     fn command(&mut self, req: &CtlRequest) -> Result<String, String> {
