@@ -113,6 +113,8 @@ struct SimAgent {
     cut_at: Option<u64>,
     fenced: bool,
     lost: bool,
+    /// Skills its agent started while their branch was held, as last counted.
+    held_starts: u64,
     /// The coordinator process of now knows it: a coordinator that started while the agent was cut off asks it
     /// (again and again, as `baton run` does) once its link is back.
     announced: bool,
@@ -252,6 +254,7 @@ impl SimCluster {
                     cut_at: None,
                     fenced: false,
                     lost: false,
+                    held_starts: 0,
                     announced: now,
                 }
             })
@@ -493,6 +496,7 @@ impl SimCluster {
                 // A restart is a new incarnation; a healed cut is the same process.
                 self.agents[i].restarts += 1;
                 let a = &mut self.agents[i];
+                a.held_starts = 0;
                 a.run = agent_run(agent, &a.roles, &self.hash, &self.program, &self.layout, a.restarts, self.cycle_ms);
                 a.alive = true;
                 a.reachable = true;
@@ -872,6 +876,13 @@ impl SimCluster {
                 AgentOutput::Vars(u) if reachable => self.send(Packet::Vars(Some(i), wire::encode(&u))),
                 AgentOutput::Report(_) | AgentOutput::Vars(_) => {}
                 AgentOutput::StartSkill { action, name, binding } => {
+                    // A held branch starts nothing: not its entry's skills, not a timed qualifier's.
+                    if self.agents[i].run.started_while_held() > self.agents[i].held_starts {
+                        self.agents[i].held_starts = self.agents[i].run.started_while_held();
+                        let (now, agent) = (self.now_ms, self.agents[i].name.clone());
+                        self.violations
+                            .push(format!("by {now} ms `{agent}` started `{name}` while its branch was held"));
+                    }
                     let random = self.random();
                     let skill = match self.skill_model.as_mut() {
                         Some(model) => {

@@ -193,6 +193,8 @@ pub struct AgentRun {
     waiting_said: BTreeSet<u32>,
     /// When each running skill started.
     skill_started: BTreeMap<ActionId, u64>,
+    /// Skills started while their branch was held: a broken promise, counted for the simulation to find.
+    started_while_held: u64,
 }
 
 impl AgentRun {
@@ -267,6 +269,7 @@ impl AgentRun {
             cancelled_on_hold: BTreeSet::new(),
             waiting_said: BTreeSet::new(),
             skill_started: BTreeMap::new(),
+            started_while_held: 0,
         };
         run.send_outputs();
         run

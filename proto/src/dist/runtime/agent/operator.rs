@@ -234,6 +234,18 @@ impl AgentRun {
             .collect()
     }
 
+    /// Whether the token that `action`'s skill belongs to is held here.
+    pub(super) fn skill_held(&self, action: ActionId) -> bool {
+        super::tokens::action_token(&self.action_segments, &self.by_segment, action)
+            .and_then(|t| self.tokens.get(&t))
+            .is_some_and(|h| h.held)
+    }
+
+    /// How many skills this agent started while their branch was held (the runtime's promise: none).
+    pub fn started_while_held(&self) -> u64 {
+        self.started_while_held
+    }
+
     /// The run's id.
     pub fn run_id(&self) -> RunId {
         self.run

@@ -175,6 +175,9 @@ impl AgentRun {
                             self.record(token, AgentEventKind::SkillFault { action: a.0, message });
                             continue;
                         }
+                        if self.skill_held(a) {
+                            self.started_while_held += 1;
+                        }
                         self.running_skills.insert(a);
                         self.skill_started.insert(a, self.now_ms);
                         let name = program.actions[a.index()].name.clone();
