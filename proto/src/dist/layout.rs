@@ -426,6 +426,16 @@ fn skill_bindings(
                 )));
             }
             let params: BTreeMap<String, Param> = pairs.into_iter().filter(|(k, _)| k != "skill").collect();
+            // What a hold does to the running skill: let it finish (a robot completes its motion), or cancel it.
+            if let Some(hold) = params.get("hold") {
+                if !hold.as_str().is_some_and(|h| h.eq_ignore_ascii_case("finish") || h.eq_ignore_ascii_case("cancel"))
+                {
+                    diags.push(Diagnostic::error(
+                        pragma.span,
+                        format!("`hold` of action `{}` is 'finish' (the default) or 'cancel'", action.name),
+                    ));
+                }
+            }
             let outputs = skill_outputs(program, &params, pragma.span, diags);
             binding = Some(SkillBinding { skill, params, outputs });
         }
