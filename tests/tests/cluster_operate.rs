@@ -305,3 +305,44 @@ async fn status_why_gathers_what_each_transition_waits_for_from_the_agents() {
     let (status, log, _, _) = coordinator.finish().await;
     assert_eq!(status.code(), Some(4), "{log}");
 }
+
+/// `{hold := 'cancel'}`: a hold cancels the running motion on its agent (its process is killed), so the run is held
+/// at once rather than after the motion; `unhold` starts the motion again, and the run completes.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_hold_cancels_a_motion_that_says_so_and_unhold_runs_it_again() {
+    let mut cluster = Cluster::new();
+    let dir = cluster.dir.path().to_path_buf();
+    let m = dir.join("marks");
+    let chart = dir.join("cancel.st");
+    // The first run of the motion sleeps 100 s (it must be cancelled); the second, after the unhold, is quick.
+    let cmd = format!(
+        "echo start MoveA >> {m}; if [ -f {m}.again ]; then sleep 0.2; else touch {m}.again; exec sleep 100; fi; echo end MoveA >> {m}",
+        m = m.display()
+    );
+    std::fs::write(
+        &chart,
+        format!(
+            "PROGRAM cancel\nVAR moved : BOOL; END_VAR\nINITIAL_STEP Idle: END_STEP\n\
+             TRANSITION FROM Idle TO A := TRUE; END_TRANSITION\nSTEP A: {{agent := 'r1'}} MoveA(N, moved); END_STEP\n\
+             TRANSITION FROM A TO Done := moved; END_TRANSITION\nSTEP Done: END_STEP\n\
+             ACTION MoveA: {{skill := 'shell', cmd := '{cmd}', hold := 'cancel'}} END_ACTION\nEND_PROGRAM\n"
+        ),
+    )
+    .expect("write the chart");
+    let mut coordinator = cluster.coordinator(&chart, &[]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &["--allow-shell", "--verbose"]);
+    wait_for_mark(&dir, "start MoveA").await;
+    let (ok, said) = ctl(&cluster, &["hold"]).await;
+    assert!(ok, "{said}");
+    // Held well before the 100 s motion could have ended: it was cancelled.
+    wait_for_state(&cluster, "held").await;
+    cluster.wait_for_agent_log("r1", "skill of action `MoveA` cancelled: its token is held").await;
+    assert_eq!(marks(&dir), ["start MoveA"], "nothing ran while held");
+    let (ok, said) = ctl(&cluster, &["unhold"]).await;
+    assert!(ok, "{said}");
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    assert_eq!(marks(&dir), ["start MoveA", "start MoveA", "end MoveA"], "the motion ran again from its start");
+    check_trace_invariants(&trace, &chart);
+}
