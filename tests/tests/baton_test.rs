@@ -77,6 +77,18 @@ fn the_operating_examples_hold_abort_and_acknowledge_on_every_seed() {
         assert!(o.passed(), "seed {seed}: {:?}\n{:?}", o.cases, o.errors);
         assert_eq!(count(&o.trace, TraceEvent::SkillDone, "AssemblePart"), 0, "seed {seed}: cancelled, not finished");
     }
+    let modes = scenario("tests/baton_test/pass/modes.test.toml");
+    for seed in 0..16 {
+        let o = run(&modes, seed);
+        assert!(o.passed(), "seed {seed}: {:?}\n{:?}", o.cases, o.errors);
+        let confirms: Vec<&str> = o
+            .trace
+            .iter()
+            .filter(|r| r.event == TraceEvent::Command && r.name == "confirm")
+            .map(|r| r.by.as_deref().unwrap_or_default())
+            .collect();
+        assert_eq!(confirms, ["baton test", "baton test"], "seed {seed}");
+    }
     let motion = scenario("examples/motion.test.toml");
     for seed in 0..16 {
         let o = run(&motion, seed);
@@ -364,7 +376,7 @@ fn a_time_limit_or_an_interrupt_stops_the_runs_and_the_junit_report_is_still_wri
     let doc = roxmltree::Document::parse(&xml).expect("well-formed XML");
     assert_eq!(doc.root_element().attribute("name"), Some("baton test (interrupted: the time limit of 500ms)"));
     // Every scenario had its first seeds before the limit: each has a suite of its own.
-    assert_eq!(doc.root_element().children().filter(|n| n.has_tag_name("testsuite")).count(), 7);
+    assert_eq!(doc.root_element().children().filter(|n| n.has_tag_name("testsuite")).count(), 8);
     // An interrupt, once the runs are under way.
     let report = out.path().join("interrupt.xml");
     let mut child = Command::new(bin("baton"))

@@ -405,14 +405,15 @@ impl<'a> Observer<'a> {
                     }
                 )
             }),
-            ExpectKind::States(expected) => {
-                let seen: Vec<&str> =
-                    trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
+            ExpectKind::States(expected) | ExpectKind::Modes(expected) => {
+                let event = if matches!(e.kind, ExpectKind::States(_)) { TraceEvent::State } else { TraceEvent::Mode };
+                let seen: Vec<&str> = trace.iter().filter(|r| r.event == event).map(|r| r.name.as_str()).collect();
                 let mut rest = seen.iter();
                 let missing = expected.iter().find(|want| !rest.any(|s| s == want));
                 missing.map(|m| {
                     let seen = if seen.is_empty() { "none".to_string() } else { seen.join(", ") };
-                    format!("never reached `{m}` in that order; the states the run passed: {seen}")
+                    let what = if event == TraceEvent::State { "states" } else { "modes" };
+                    format!("never reached `{m}` in that order; the {what} the run passed: {seen}")
                 })
             }
             ExpectKind::OncePerEpoch(action) => runs_twice(trace, action).map(|(t, why)| {

@@ -200,6 +200,8 @@ pub enum ExpectKind {
     State(RunState),
     /// The run passes through these PackML states, in this order (others may come between).
     States(Vec<String>),
+    /// The run's mode changes to these, in this order.
+    Modes(Vec<String>),
     OncePerEpoch(String),
 }
 
@@ -231,6 +233,7 @@ impl Expect {
             ExpectKind::Alarms(a) => format!("alarms raised: {}", a.join("; ")),
             ExpectKind::State(s) => format!("the run ends {}", format!("{s:?}").to_lowercase()),
             ExpectKind::States(s) => format!("the run passes through the states {}", s.join(", ")),
+            ExpectKind::Modes(m) => format!("the run's mode changes to {}", m.join(", ")),
             ExpectKind::OncePerEpoch(a) => format!("the skill of {a} never runs twice in an epoch"),
         }
     }
@@ -781,6 +784,7 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
                 ("alarms", r.alarms.is_some()),
                 ("state", r.state.is_some()),
                 ("states", r.states.is_some()),
+                ("modes", r.modes.is_some()),
                 ("once_per_epoch", r.once_per_epoch.is_some()),
             ],
         ) {
@@ -893,6 +897,20 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
                     continue;
                 }
                 ExpectKind::States(names)
+            }
+            "modes" => {
+                let mut names = Vec::new();
+                for m in r.modes.iter().flatten() {
+                    match crate::exec::engine::Mode::from_name(m.get_ref()) {
+                        Some(mode) => names.push(mode.name().to_string()),
+                        None => cx.error(&m.span(), format!("`{}` is no mode: auto, step or manual", m.get_ref())),
+                    }
+                }
+                if names.is_empty() {
+                    cx.error(&span, "`modes` names one mode or more, such as [\"step\", \"auto\"]");
+                    continue;
+                }
+                ExpectKind::Modes(names)
             }
             _ => {
                 let name = r.once_per_epoch.as_deref().unwrap_or_default();

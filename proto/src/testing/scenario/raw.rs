@@ -135,5 +135,6 @@ pub(super) struct RawExpect {
     pub(super) alarms: Option<Vec<String>>,
     pub(super) state: Option<Spanned<String>>,
     pub(super) states: Option<Vec<Spanned<String>>>,
+    pub(super) modes: Option<Vec<Spanned<String>>>,
     pub(super) once_per_epoch: Option<String>,
 }
