@@ -119,6 +119,10 @@ async fn hold_waits_for_the_running_motion_and_unhold_goes_on() {
     assert!(!m.contains(&"start MoveA2".to_string()), "a motion started while holding: {m:?}");
     assert!(held["tokens"].as_array().is_some_and(|t| t.iter().all(|t| t["held_confirmed"] == true)), "{held}");
     assert_eq!(held["available"], serde_json::json!(["stop", "unhold", "abort"]), "{held}");
+    // Held, A1's time stands still (r1 says so twice, apart in time).
+    let t1 = step_time(&status_why(&cluster).await, "A1");
+    let t2 = step_time(&status_why(&cluster).await, "A1");
+    assert!(t1.is_some() && t1 == t2, "A1.T went on while held: {t1:?} then {t2:?}");
     let (ok, said) = ctl(&cluster, &["hold"]).await;
     assert!(!ok && said.contains("held") && said.contains("unhold"), "a second hold is refused: {said}");
     let (ok, said) = ctl(&cluster, &["unhold", "--reason", "material here"]).await;
@@ -226,6 +230,11 @@ async fn an_interrupt_stops_the_run_after_the_running_motion() {
     assert!(!m.contains(&"start MoveA2".to_string()), "a motion started while stopping: {m:?}");
     let stop = trace.iter().find(|r| r.event == TraceEvent::Command).expect("the stop is traced");
     assert_eq!((stop.name.as_str(), stop.message.as_deref()), ("stop", Some("interrupted")));
+}
+
+/// A step's `S.T` as `baton status --why` gives it.
+fn step_time(status: &serde_json::Value, step: &str) -> Option<u64> {
+    status["why"].as_array()?.iter().find(|w| w["step"] == step)?["active_ms"].as_u64()
 }
 
 /// `baton status --json --why`, the run's entry.
@@ -345,4 +354,54 @@ async fn a_hold_cancels_a_motion_that_says_so_and_unhold_runs_it_again() {
     assert!(status.success(), "{log}");
     assert_eq!(marks(&dir), ["start MoveA", "start MoveA", "end MoveA"], "the motion ran again from its start");
     check_trace_invariants(&trace, &chart);
+}
+
+/// A coordinator killed while the run is held, in step mode, with a supervision alarm standing, comes back from its
+/// journal held, in step mode, with the alarm; the motion does not run again, and the run goes on when released.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_restarted_coordinator_comes_back_held_in_its_mode_with_its_alarms() {
+    let mut cluster = Cluster::with_router().await;
+    let dir = cluster.dir.path().to_path_buf();
+    let m = dir.join("marks");
+    let chart = dir.join("slow.st");
+    std::fs::write(
+        &chart,
+        format!(
+            "PROGRAM slow\nVAR moved : BOOL; END_VAR\nINITIAL_STEP Idle: END_STEP\n\
+             TRANSITION FROM Idle TO A := TRUE; END_TRANSITION\n\
+             STEP A: {{agent := 'r1', max_ms := T#300ms}} MoveA(N, moved); END_STEP\n\
+             TRANSITION FROM A TO Done := moved; END_TRANSITION\nSTEP Done: END_STEP\n\
+             ACTION MoveA: {{skill := 'shell', cmd := 'echo start MoveA >> {m}; sleep 1; echo end MoveA >> {m}'}} END_ACTION\n\
+             END_PROGRAM\n",
+            m = m.display()
+        ),
+    )
+    .expect("write the chart");
+    let journal = dir.join("journal");
+    let args = ["--journal", journal.to_str().expect("utf-8 path")];
+    let mut coordinator = cluster.coordinator_joining(&chart, &args);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &["--allow-shell"]);
+    coordinator.wait_for_log("has been active longer than its maximum time").await;
+    for command in [&["mode", "step"][..], &["hold", "--reason", "check the drive"][..]] {
+        let (ok, said) = ctl(&cluster, command).await;
+        assert!(ok, "{said}");
+    }
+    wait_for_state(&cluster, "held").await;
+    coordinator.kill().await;
+    let mut coordinator = cluster.coordinator_joining(&chart, &args);
+    coordinator.wait_for_log("resuming run").await;
+    let s = wait_for_state(&cluster, "held").await;
+    assert_eq!(s["mode"], "step", "{s}");
+    assert_eq!(s["alarms"][0]["id"], 1, "{s}");
+    assert_eq!(s["alarms"][0]["source"], "A", "{s}");
+    for command in [&["mode", "auto"][..], &["unhold"][..], &["ack", "1", "--comment", "ok"][..]] {
+        let (ok, said) = ctl(&cluster, command).await;
+        assert!(ok, "{command:?}: {said}");
+    }
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    assert_eq!(marks(&dir), ["start MoveA", "end MoveA"], "the motion ran once");
+    let states: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
+    assert_eq!(states, ["holding", "held", "unholding", "execute", "completing", "complete"], "the whole run's states");
 }
