@@ -117,6 +117,25 @@ async fn leaving_the_step_early_cancels_the_goal_on_the_server() {
     assert_eq!(var(&summary, "done"), "FALSE");
 }
 
+/// `baton ctl abort` mid-goal: the run ends aborted at once, and the goal is cancelled on the server — the cancel
+/// path ran, on a server Baton did not write.
+async fn an_abort_mid_goal_cancels_it_on_the_server() {
+    let mut cluster = Cluster::with_router().await;
+    let mut server = action_server(&cluster, "slow");
+    server.wait_for("READY").await;
+    cluster.agent("arm1", &[], &["--verbose"]);
+    let coordinator = cluster.coordinator_joining(&chart("ros2_action.st"), &[]);
+    server.wait_for("GOAL").await;
+    let out = cluster.baton(&["ctl", "--connect", &cluster.endpoint, "abort", "--reason", "arm in the way"]).await;
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert_eq!(status.code(), Some(4), "{log}");
+    server.wait_for("CANCEL REQUESTED").await;
+    server.wait_for("CANCELED").await;
+    cluster.wait_for_agent_log("arm1", "skill of action `MoveArm` cancelled: the run was aborted").await;
+    assert!(events(&trace, TraceEvent::SkillDone).is_empty(), "{trace:?}");
+}
+
 async fn no_action_server_is_a_fault_after_the_timeout() {
     let mut cluster = Cluster::with_router().await;
     let (_, trace, _) = run(&mut cluster, "ros2_action.st", "arm1", &[]).await;
@@ -375,6 +394,7 @@ baton_tests::harness_main!(
     tokio a_rejected_goal_is_a_fault,
     tokio an_aborted_goal_is_a_fault,
     tokio leaving_the_step_early_cancels_the_goal_on_the_server,
+    tokio an_abort_mid_goal_cancels_it_on_the_server,
     tokio no_action_server_is_a_fault_after_the_timeout,
     tokio a_service_answers_true_and_false_and_false_is_a_fault,
     tokio a_misspelt_type_or_goal_is_said_when_the_agent_joins_and_faults_by_name,
