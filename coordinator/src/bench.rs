@@ -326,6 +326,7 @@ async fn run_chart(
         journal: extras.journal.map(Path::to_path_buf),
         rerun: extras.rerun.map_or(crate::recording::Sink::Off, crate::recording::Sink::Save),
         watch: Vec::new(),
+        wait_start: false,
     };
     tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe))).await.context("the bench chart did not finish")?
 }

@@ -405,3 +405,23 @@ async fn a_restarted_coordinator_comes_back_held_in_its_mode_with_its_alarms() {
     let states: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
     assert_eq!(states, ["holding", "held", "unholding", "execute", "completing", "complete"], "the whole run's states");
 }
+
+/// `baton run --wait-start` waits in Idle, saying `start` is legal, and runs the chart once started.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_run_started_by_an_operator() {
+    let mut cluster = Cluster::new();
+    let chart = cell(cluster.dir.path(), 0.1);
+    let mut coordinator = cluster.coordinator(&chart, &["--wait-start"]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &["--allow-shell"]);
+    cluster.agent("r2", &[], &["--allow-shell"]);
+    let s = wait_for_state(&cluster, "idle").await;
+    assert_eq!(s["available"], serde_json::json!(["start", "stop", "abort"]), "{s}");
+    assert!(marks(cluster.dir.path()).is_empty(), "nothing ran before the start");
+    let (ok, said) = ctl(&cluster, &["start", "--reason", "shift begins"]).await;
+    assert!(ok, "{said}");
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    let states: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
+    assert_eq!(states, ["idle", "starting", "execute", "completing", "complete"]);
+}

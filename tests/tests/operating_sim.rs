@@ -490,3 +490,22 @@ fn random_commands_on_a_faulty_cell_keep_every_promise() {
 fn plan_commands(sim: &SimCluster) -> usize {
     sim.trace.iter().filter(|r| matches!(r.event, TraceEvent::Command | TraceEvent::CommandRefused)).count()
 }
+
+/// `baton run --wait-start`: the run waits in Idle — no cycle, no dispatch, a hold refused — until `start`.
+#[test]
+fn a_run_that_waits_for_start_runs_nothing_until_started() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 10);
+    sim.coordinator.wait_start(0);
+    sim.command_at(500, ctl("hold"));
+    sim.command_at(2_000, ctl("start"));
+    assert!(sim.run(20_000), "{:#?}", sim.trace);
+    check(&sim);
+    let t = &sim.trace;
+    let names: Vec<String> = states(t).into_iter().map(|s| s.1).collect();
+    assert_eq!(names, ["idle", "starting", "execute"]);
+    let why = sim.answers[0].1.clone().expect_err("hold is not legal in idle");
+    assert!(why.contains("idle") && why.contains("start"), "{why}");
+    let first_fire = t.iter().find(|r| r.event == TraceEvent::Fire).map(|r| r.t_ms).expect("it ran");
+    assert!(first_fire >= 2_000, "a transition cleared at {first_fire}, before the start");
+    assert!(first(t, TraceEvent::Dispatch, "A1").is_some_and(|d| d >= 2_000));
+}

@@ -13,8 +13,8 @@ pub struct Ctl {
     /// The run, by its id as `baton status` lists it (or the start of it).
     #[arg(long, value_name = "ID")]
     pub run: Option<String>,
-    /// hold, unhold, suspend, unsuspend, stop, abort (PackML's commands; reset, start and clear are refused by
-    /// `baton run` for now); mode auto|step|manual; confirm [TRANSITION] (step mode); force TRANSITION, activate STEP,
+    /// start (a run begun with --wait-start), hold, unhold, suspend, unsuspend, stop, abort (PackML's commands;
+    /// reset and clear are refused: a run that ended is over); mode auto|step|manual; confirm [TRANSITION] (step mode); force TRANSITION, activate STEP,
     /// deactivate STEP (manual mode); ack ALARM_ID|all; shelve ALARM_ID --for DURATION.
     #[arg(value_name = "COMMAND")]
     pub command: String,

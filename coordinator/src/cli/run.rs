@@ -66,6 +66,10 @@ pub struct Run {
     /// after every change. Repeat for more.
     #[arg(long, value_name = "VARIABLE")]
     pub watch: Vec<String>,
+    /// Wait in the Idle state, the chart not started, until an operator sends `baton ctl start` (PackML's Idle →
+    /// Starting → Execute); inputs may be set meanwhile.
+    #[arg(long)]
+    pub wait_start: bool,
 }
 
 impl Run {
@@ -91,6 +95,7 @@ impl Run {
             journal: self.journal,
             rerun: self.rerun,
             watch: self.watch,
+            wait_start: self.wait_start,
         };
         block_on(async move {
             let summary = crate::run::run(opts).await?;

@@ -55,6 +55,8 @@ pub struct RunOptions {
     pub rerun: crate::recording::Sink,
     /// Variables whose value the trace records: once after the first cycle and after every change.
     pub watch: Vec<String>,
+    /// Wait in Idle, the chart not started, for an operator's `baton ctl start`.
+    pub wait_start: bool,
 }
 
 pub async fn run(opts: RunOptions) -> anyhow::Result<Summary> {
@@ -181,6 +183,9 @@ fn begin(
         }
         None => {
             shell.core.set_loss_policy(0, opts.loss_policy);
+            if opts.wait_start {
+                shell.core.wait_start(0);
+            }
             for (name, value) in &opts.sets {
                 shell.core.set(0, name, value).map_err(|e| anyhow!("--set {name}: {e}"))?;
             }
@@ -402,6 +407,7 @@ mod tests {
             journal: Some(journal),
             rerun: crate::recording::Sink::Off,
             watch: Vec::new(),
+            wait_start: false,
         }
     }
 

@@ -107,6 +107,8 @@ pub enum Record {
     Policy(LossPolicy),
     /// A coordinator process took over from the journal here.
     Recover,
+    /// The run waits in Idle for `start` (`baton run --wait-start`).
+    WaitStart,
     /// The run is over (`failure` says why it failed, if it did). Nothing follows.
     End {
         failure: Option<String>,
@@ -141,6 +143,7 @@ const END: u8 = 9;
 const AGENT_CONFLICT: u8 = 10;
 const DEVICES: u8 = 11;
 const COMMAND: u8 = 12;
+const WAIT_START: u8 = 13;
 
 const HEAD: usize = 9;
 
@@ -179,6 +182,7 @@ pub fn encode(entry: &Entry) -> Vec<u8> {
         Record::Devices(d) => frame(DEVICES, t, &wire::encode(d)),
         Record::Policy(p) => frame(POLICY, t, &[policy_byte(*p)]),
         Record::Recover => frame(RECOVER, t, &[]),
+        Record::WaitStart => frame(WAIT_START, t, &[]),
         Record::End { failure } => frame(END, t, failure.as_deref().unwrap_or("").as_bytes()),
     }
 }
@@ -217,6 +221,7 @@ pub fn decode(bytes: &[u8]) -> Result<Entry, JournalError> {
             _ => return Err(bad("unknown loss policy".to_string())),
         }),
         RECOVER => Record::Recover,
+        WAIT_START => Record::WaitStart,
         END => Record::End { failure: Some(text()?).filter(|s| !s.is_empty()) },
         other => return Err(JournalError::UnknownTag(other)),
     };
@@ -241,6 +246,7 @@ pub fn apply(core: &mut Coordinator, entry: &Entry) -> Option<Result<String, Str
         Record::Devices(d) => core.handle_devices(now, d.clone()),
         Record::Policy(p) => core.set_loss_policy(*p),
         Record::Recover => core.handle_recover(now),
+        Record::WaitStart => core.handle_wait_start(),
         Record::End { failure } => core.handle_end(now, failure.as_deref()),
     }
     None
@@ -410,6 +416,11 @@ impl Journaled {
 
     pub fn recover(&mut self, now_ms: u64) {
         self.input(now_ms, Record::Recover);
+    }
+
+    /// The run waits in Idle for an operator's `start`.
+    pub fn wait_start(&mut self, now_ms: u64) {
+        self.input(now_ms, Record::WaitStart);
     }
 
     /// The last record of a run that ended.

@@ -136,6 +136,13 @@ impl Coordinator {
         out
     }
 
+    /// `baton run --wait-start`: the run waits in Idle, its chart not started, until an operator's `start`.
+    pub fn handle_wait_start(&mut self) {
+        if self.run_state == State::Execute && self.engine.now_ms() == 0 {
+            self.change_state(State::Idle);
+        }
+    }
+
     /// The run's PackML state.
     pub fn run_state(&self) -> State {
         self.run_state

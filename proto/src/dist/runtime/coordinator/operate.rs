@@ -76,12 +76,21 @@ impl Coordinator {
             return self.partial_hold(command, req);
         }
         let to = self.run_state.apply(command).map_err(|r| r.to_string())?;
-        if matches!(command, Command::Reset | Command::Clear | Command::Start) {
-            // The table allows them only in states a `baton run` never stays in (it ends at Complete, Stopped and
-            // Aborted, and starts in Execute).
-            return Err(format!("`{}` is not supported by `baton run` yet", command.name()));
+        if matches!(command, Command::Reset | Command::Clear) {
+            // The table allows them only in states a `baton run` does not stay in: it ends at Complete, Stopped and
+            // Aborted (its journal closed), and a new run starts from the initial steps.
+            return Err(format!(
+                "`{}` is not supported: `baton run` ends a run that is complete, stopped or aborted; start a new run",
+                command.name()
+            ));
         }
         self.change_state(to);
+        if command == Command::Start {
+            // Starting has nothing to wait for: the first cycle runs at the next grid time.
+            if let Some(next) = to.when_done() {
+                self.change_state(next);
+            }
+        }
         if command == Command::Abort {
             self.abort_now();
         }

@@ -17,8 +17,11 @@ impl Coordinator {
     pub fn handle_cycle(&mut self, now_ms: u64) -> bool {
         self.advance(now_ms);
         let (mutations, outputs, recovering) = (self.engine.mutations(), self.outbox.len(), self.recovered_ms);
-        if let Err(e) = self.engine.handle_cycle(self.now_ms) {
-            self.log(Level::Error, format!("cycle refused: {e}"));
+        // Idle (`--wait-start`), the chart has not started: no cycle runs until `start`.
+        if self.run_state != State::Idle {
+            if let Err(e) = self.engine.handle_cycle(self.now_ms) {
+                self.log(Level::Error, format!("cycle refused: {e}"));
+            }
         }
         self.drain_engine();
         self.resend_dispatches();
@@ -36,6 +39,9 @@ impl Coordinator {
     /// After an input: the engine reacts to it (first scans of steps that became active, transitions that read
     /// what changed), and what that changed leaves at once.
     pub(super) fn settle(&mut self) {
+        if self.run_state == State::Idle {
+            return;
+        }
         if let Err(e) = self.engine.react(self.now_ms) {
             self.log(Level::Error, format!("reaction refused: {e}"));
         }
@@ -61,7 +67,7 @@ impl Coordinator {
     /// When the next cycle is needed: at once (the next grid time) when the engine needs one, else at the
     /// earliest deadline (a dispatch to send again, acknowledgements to send, an agent to give up on), or never.
     pub fn poll_timeout(&self) -> Option<u64> {
-        if self.engine.needs_cycle() {
+        if self.engine.needs_cycle() && self.run_state != State::Idle {
             return Some(self.now_ms);
         }
         let resend = self
