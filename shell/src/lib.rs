@@ -47,6 +47,16 @@ pub fn zenoh_config(net: &NetConfig, file: Option<&Path>) -> anyhow::Result<zeno
     Ok(config)
 }
 
+/// The identity a process authenticates with, from the user's Zenoh configuration file: its user name
+/// (`transport/auth/usrpwd/user`), which the router checks; `None` without one.
+pub fn zenoh_identity(file: Option<&Path>) -> Option<String> {
+    let config = zenoh::Config::from_file(file?).ok()?;
+    // A JSON string (`"operator"`), or `null` without one.
+    let user = config.get_json("transport/auth/usrpwd/user").ok()?;
+    let user = user.trim().strip_prefix('"')?.strip_suffix('"')?;
+    (!user.is_empty() && !user.contains(['"', '\\'])).then(|| user.to_string())
+}
+
 /// The inbox of a subscriber or queryable: `RECEIVE_QUEUE_MAX` samples, filled by Zenoh's reader without waiting
 /// for the main loop.
 pub fn inbox() -> FifoChannel {
@@ -157,6 +167,19 @@ mod tests {
             config.insert_json5(k, v).expect("config");
         }
         zenoh::open(config).await.expect("a lone session")
+    }
+
+    #[test]
+    fn the_identity_is_the_user_name_a_configuration_authenticates_with() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let with = dir.path().join("operator.json5");
+        std::fs::write(&with, r#"{ transport: { auth: { usrpwd: { user: "operator", password: "x" } } } }"#)
+            .expect("write");
+        let without = dir.path().join("plain.json5");
+        std::fs::write(&without, "{ scouting: { multicast: { enabled: false } } }").expect("write");
+        assert_eq!(zenoh_identity(Some(&with)).as_deref(), Some("operator"));
+        assert_eq!(zenoh_identity(Some(&without)), None);
+        assert_eq!(zenoh_identity(None), None);
     }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 1)]

@@ -50,7 +50,8 @@ impl Ctl {
             step: self.step,
             for_ms: self.for_ms,
             reason: self.comment.unwrap_or(self.reason),
-            by: crate::client::who(),
+            // The Zenoh identity where authentication is configured (the router checked it), else user@host.
+            by: baton_shell::zenoh_identity(self.zenoh_config.as_deref()).unwrap_or_else(crate::client::who),
         };
         let (connect, run, file) = (self.connect, self.run, self.zenoh_config);
         block_on(async move {
