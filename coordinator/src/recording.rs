@@ -300,6 +300,8 @@ enum StepState {
     OnAgent,
     Waiting,
     Faulted,
+    /// Held by an operator: nothing of it clears or starts.
+    Held,
 }
 
 impl StepState {
@@ -310,6 +312,7 @@ impl StepState {
             StepState::OnAgent => Color::from_rgb(70, 130, 230),
             StepState::Waiting => Color::from_rgb(245, 165, 35),
             StepState::Faulted => Color::from_rgb(220, 50, 50),
+            StepState::Held => Color::from_rgb(150, 90, 200),
         }
     }
 }
@@ -320,6 +323,8 @@ struct Logger {
     steps: HashMap<String, StepId>,
     state: Vec<StepState>,
     graph_dirty: bool,
+    /// The steps' states when the run was held, to show again when it goes on.
+    before_hold: Option<Vec<StepState>>,
     /// Per step: it is a source of a simultaneous convergence.
     converging: Vec<bool>,
     /// Per agent: the tokens it holds, as token → step.
@@ -340,7 +345,17 @@ impl Logger {
                 }
             }
         }
-        Logger { rec, run, steps, state, converging, graph_dirty: false, agents: BTreeMap::new(), cycle: 0 }
+        Logger {
+            rec,
+            run,
+            steps,
+            state,
+            converging,
+            graph_dirty: false,
+            before_hold: None,
+            agents: BTreeMap::new(),
+            cycle: 0,
+        }
     }
 
     fn ok(&self, r: rerun::RecordingStreamResult<()>) {
@@ -353,31 +368,55 @@ impl Logger {
     fn static_parts(&mut self) {
         let program = Arc::clone(&self.run.program);
         let names: Vec<String> = program.steps.iter().map(|s| s.name.clone()).collect();
-        let positions = layered_layout(&program);
-        // Static: the nodes, their labels and places. Not their colours: static data hides every temporal
+        let step_positions = layered_layout(&program);
+        // SFC notation: each transition is a node of its own between its steps, labelled with its condition; a
+        // simultaneous divergence or convergence (several targets or sources) is marked `‖`, a selection is a step
+        // with several transitions below it.
+        let (mut ids, mut labels, mut positions, mut radii) =
+            (names.clone(), names.clone(), step_positions.clone(), Vec::new());
+        radii.resize(names.len(), 12.0f32);
+        let mut edges = Vec::new();
+        for t in 0..program.transitions.len() {
+            let t = TransitionId(t as u32);
+            let (sources, targets) = (program.sources(t), program.targets(t));
+            let id = format!("t{}", t.0);
+            let condition = baton_proto::exec::why::show(&program, &program.transitions[t.index()].condition);
+            let simultaneous = sources.len() > 1 || targets.len() > 1;
+            labels.push(if simultaneous { format!("‖ {condition}") } else { condition });
+            let at = |steps: &[StepId]| {
+                let n = steps.len().max(1) as f32;
+                steps.iter().fold([0.0f32, 0.0], |acc, s| {
+                    let p = step_positions[s.index()];
+                    [acc[0] + p[0] / n, acc[1] + p[1] / n]
+                })
+            };
+            let (from, to) = (at(sources), at(targets));
+            positions.push([(from[0] + to[0]) / 2.0, (from[1] + to[1]) / 2.0]);
+            radii.push(4.0);
+            for &s in sources {
+                edges.push((program.steps[s.index()].name.clone(), id.clone()));
+            }
+            for &d in targets {
+                edges.push((id.clone(), program.steps[d.index()].name.clone()));
+            }
+            ids.push(id);
+        }
+        // Static: the nodes, their labels, sizes and places. Not their colours: static data hides every temporal
         // value of the same component, so the colours are logged on the timelines, from the start.
-        let nodes = GraphNodes::new(names.clone()).with_labels(names.clone()).with_positions(positions);
+        let nodes = GraphNodes::new(ids).with_labels(labels).with_positions(positions).with_radii(radii);
         self.ok(self.rec.log_static("sfc/graph", &nodes));
         self.at(0);
         self.graph_dirty = true;
         self.flush_graph();
-        let mut edges = Vec::new();
-        for t in 0..program.transitions.len() {
-            let t = TransitionId(t as u32);
-            for &s in program.sources(t) {
-                for &d in program.targets(t) {
-                    edges.push((program.steps[s.index()].name.clone(), program.steps[d.index()].name.clone()));
-                }
-            }
-        }
         self.ok(self.rec.log_static("sfc/graph", &GraphEdges::new(edges).with_directed_edges()));
         let steps_config = StateConfiguration::new()
-            .with_values(["active", "waiting", "no agent yet", "faulted", "inactive"])
+            .with_values(["active", "waiting", "no agent yet", "faulted", "held", "inactive"])
             .with_colors([
                 StepState::Active.color(),
                 StepState::Waiting.color(),
                 StepState::Waiting.color(),
                 StepState::Faulted.color(),
+                StepState::Held.color(),
                 StepState::Inactive.color(),
             ]);
         for name in &names {
@@ -424,7 +463,13 @@ impl Logger {
             return;
         }
         self.graph_dirty = false;
-        let colors: Vec<Color> = self.state.iter().map(|s| s.color()).collect();
+        let transitions = self.run.program.transitions.len();
+        let colors: Vec<Color> = self
+            .state
+            .iter()
+            .map(|s| s.color())
+            .chain(std::iter::repeat_n(Color::from_rgb(200, 200, 200), transitions))
+            .collect();
         self.ok(self.rec.log("sfc/graph", &GraphNodes::update_fields().with_colors(colors)));
     }
 
@@ -599,7 +644,28 @@ impl Logger {
                 self.log(level, text);
             }
             TraceEvent::Recover => self.log("WARN", format!("coordinator restarted: {message}")),
-            TraceEvent::State => self.log("INFO", format!("run state: {}", rec.name)),
+            TraceEvent::State => {
+                self.log("INFO", format!("run state: {}", rec.name));
+                // Held (or suspended, or stopped), every active step is marked so; back to executing, as it was.
+                let held = matches!(rec.name.as_str(), "held" | "suspended");
+                if held && self.before_hold.is_none() {
+                    self.before_hold = Some(self.state.clone());
+                    for s in self.state.iter_mut().filter(|s| !matches!(s, StepState::Inactive | StepState::Faulted)) {
+                        *s = StepState::Held;
+                    }
+                    self.graph_dirty = true;
+                } else if !held {
+                    if let Some(before) = self.before_hold.take() {
+                        // What changed while held (a step left, a fault) stands; the rest is as it was.
+                        for (now, was) in self.state.iter_mut().zip(before) {
+                            if *now == StepState::Held {
+                                *now = was;
+                            }
+                        }
+                        self.graph_dirty = true;
+                    }
+                }
+            }
             TraceEvent::SkillFault | TraceEvent::Fault => {
                 let on = agent.map(|a| format!(" on {a}")).unwrap_or_default();
                 let level = if rec.event == TraceEvent::Fault { "ERROR" } else { "WARN" };

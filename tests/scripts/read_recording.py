@@ -7,7 +7,9 @@ JSON, every row it holds, in the order they were logged:
      "tokens": {id: [[level, text], ...]},           tokens/<id>
      "log":    [[wall_ms, level, text], ...],        log
      "vars":   {name: [[wall_ms, value], ...]},      vars/<name>
-     "graph_colour_updates": N}                      timed colour rows of sfc/graph
+     "graph_colour_updates": N,                      timed colour rows of sfc/graph
+     "graph_nodes": [[id, label], ...],              the static nodes of sfc/graph
+     "graph_edges": [[from, to], ...]}               its static edges
 
     python3 tests/scripts/read_recording.py RUN.rrd
 
@@ -26,11 +28,21 @@ def wall_ms(row):
 
 def main(path):
     rows = []  # (row id, entity path, row)
+    static = {}
     paths = set()
     for chunk in RrdReader(path).stream().to_chunks():
         entity = str(chunk.entity_path)
         paths.add(entity)
         if chunk.is_static:
+            if entity == "/sfc/graph":
+                for row in chunk.to_record_batch().to_pylist():
+                    for key, value in row.items():
+                        if key == "GraphNodes:node_ids" and value:
+                            static["ids"] = value
+                        elif key == "GraphNodes:labels" and value:
+                            static["labels"] = value
+                        elif key == "GraphEdges:edges" and value:
+                            static["edges"] = value
             continue
         for row in chunk.to_record_batch().to_pylist():
             rows.append((row["rerun.controls.RowId"], entity, row))
@@ -51,7 +63,15 @@ def main(path):
             out["vars"].setdefault(entity[len("/vars/"):], []).append([wall_ms(row), float(row["Scalars:scalars"][0])])
         elif entity == "/sfc/graph" and row.get("GraphNodes:colors"):
             out["graph_colour_updates"] += 1
+    out["graph_nodes"] = [list(p) for p in zip(static.get("ids", []), static.get("labels", []))]
+    out["graph_edges"] = [edge_pair(e) for e in static.get("edges", [])]
     print(json.dumps(out))
+
+
+def edge_pair(e):
+    if isinstance(e, dict):
+        return [e.get("first") or e.get("source"), e.get("second") or e.get("target")]
+    return list(e)
 
 
 if __name__ == "__main__":
