@@ -509,3 +509,18 @@ fn a_run_that_waits_for_start_runs_nothing_until_started() {
     assert!(first_fire >= 2_000, "a transition cleared at {first_fire}, before the start");
     assert!(first(t, TraceEvent::Dispatch, "A1").is_some_and(|d| d >= 2_000));
 }
+
+/// `hold --step B1` holds only the branch that holds B1 (r2's), wherever its token is: r1's branch goes on to its end.
+#[test]
+fn holding_one_step_holds_its_branch_only() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 11);
+    sim.command_at(100, CtlRequest { step: Some("B1".into()), ..ctl("hold") });
+    sim.command_at(4_000, CtlRequest { step: Some("B1".into()), ..ctl("unhold") });
+    assert!(sim.run(20_000), "{:#?}", sim.trace);
+    check(&sim);
+    let t = &sim.trace;
+    assert!(first(t, TraceEvent::Activate, "AEnd").is_some_and(|a| a < 4_000), "r1's branch went on");
+    let b2 = first(t, TraceEvent::ActionOn, "MoveB2").expect("B2 ran");
+    assert!(b2 >= 4_000, "B2 started at {b2}, while B1's branch was held");
+    assert!(states(t).is_empty(), "a step's hold leaves the run in Execute");
+}
