@@ -425,3 +425,117 @@ async fn a_run_started_by_an_operator() {
     let states: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
     assert_eq!(states, ["idle", "starting", "execute", "completing", "complete"]);
 }
+
+/// Asks `baton status` until transition `t` waits for a confirmation.
+async fn wait_for_waiting(cluster: &Cluster, t: &str) -> serde_json::Value {
+    let found = tokio::time::timeout(TIMEOUT, async {
+        loop {
+            let s = status_why(cluster).await;
+            if s["waiting"].as_array().is_some_and(|w| w.iter().any(|x| x == t)) {
+                return s;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await;
+    found.unwrap_or_else(|_| panic!("`{t}` never waited for a confirmation"))
+}
+
+/// Step mode with real processes: r1's TRUE transition waits on r1 for `confirm`; manual mode: a switch the chart
+/// could never reach is refused, and `force` clears a transition whatever its condition.
+#[tokio::test(flavor = "multi_thread")]
+async fn step_mode_waits_for_confirm_and_manual_mode_forces_and_refuses_unsafe_switches() {
+    let mut cluster = Cluster::new();
+    let chart = cell(cluster.dir.path(), 0.2);
+    let mut coordinator = cluster.coordinator(&chart, &["--wait-start"]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &["--allow-shell"]);
+    cluster.agent("r2", &[], &["--allow-shell"]);
+    wait_for_state(&cluster, "idle").await;
+    for args in [&["mode", "step"][..], &["start"][..]] {
+        let (ok, said) = ctl(&cluster, args).await;
+        assert!(ok, "{args:?}: {said}");
+    }
+    let dir = cluster.dir.path().to_path_buf();
+    // The first clearing, the coordinator's divergence, waits too: nothing has started.
+    let waiting = wait_for_waiting(&cluster, "Idle->(A1,B1)").await;
+    assert_eq!(waiting["mode"], "step", "{waiting}");
+    assert!(marks(&dir).is_empty(), "a motion started before the confirmation");
+    let (ok, said) = ctl(&cluster, &["confirm"]).await;
+    assert!(ok, "the only one waiting is confirmed without its name: {said}");
+    wait_for_mark(&dir, "end MoveA1").await;
+    // r1 says its transition waits; nothing of A2 starts until it is confirmed.
+    wait_for_waiting(&cluster, "A1->A2").await;
+    assert!(!marks(&dir).contains(&"start MoveA2".to_string()));
+    let (ok, said) = ctl(&cluster, &["confirm", "A1->A2"]).await;
+    assert!(ok, "{said}");
+    wait_for_mark(&dir, "end MoveA2").await;
+    // Manual: B's branch is at B1 or B2; activating AEnd's sibling Done alone could never happen.
+    let (ok, said) = ctl(&cluster, &["mode", "manual"]).await;
+    assert!(ok, "{said}");
+    let (ok, said) = ctl(&cluster, &["activate", "Done"]).await;
+    assert!(!ok && said.contains("could never reach"), "{said}");
+    wait_for_mark(&dir, "end MoveB1").await;
+    let (ok, said) = ctl(&cluster, &["force", "B1->B2"]).await;
+    assert!(ok, "{said}");
+    wait_for_mark(&dir, "end MoveB2").await;
+    let (ok, said) = ctl(&cluster, &["mode", "auto"]).await;
+    assert!(ok, "{said}");
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace, &chart);
+    let modes: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::Mode).map(|r| r.name.as_str()).collect();
+    assert_eq!(modes, ["step", "manual", "auto"]);
+}
+
+/// `{max_ms}` with real processes: the chart branches to its own recovery on `S.overrun` (cancelling the slow motion
+/// by leaving its step), the alarm is raised with what the step waited for, and acknowledged.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_step_past_its_maximum_time_branches_to_the_charts_recovery_and_the_alarm_is_acknowledged() {
+    let mut cluster = Cluster::new();
+    let dir = cluster.dir.path().to_path_buf();
+    let chart = dir.join("recover.st");
+    std::fs::write(
+        &chart,
+        "PROGRAM recover\nVAR moved, reset : BOOL; END_VAR\nINITIAL_STEP Idle: END_STEP\n\
+         TRANSITION FROM Idle TO Move := TRUE; END_TRANSITION\n\
+         STEP Move: {agent := 'r1', max_ms := T#300ms} Drive(N, moved); END_STEP\n\
+         TRANSITION FROM Move TO Done := moved; END_TRANSITION\n\
+         TRANSITION FROM Move TO Recover := Move.overrun; END_TRANSITION\n\
+         STEP Done: END_STEP\nSTEP Recover: END_STEP\nTRANSITION FROM Recover TO Idle := reset; END_TRANSITION\n\
+         ACTION Drive: {skill := 'motion', ms := 5000} END_ACTION\nEND_PROGRAM\n",
+    )
+    .expect("write the chart");
+    let mut coordinator = cluster.coordinator(&chart, &[]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &[]);
+    coordinator.wait_for_log("has been active longer than its maximum time").await;
+    let s = tokio::time::timeout(TIMEOUT, async {
+        loop {
+            let s = status_why(&cluster).await;
+            if s["active_steps"].as_array().is_some_and(|a| a.iter().any(|x| x["name"] == "Recover")) {
+                return s;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await
+    .expect("the chart took its recovery");
+    let alarm = &s["alarms"][0];
+    assert_eq!((alarm["id"].as_u64(), alarm["source"].as_str()), (Some(1), Some("Move")), "{s}");
+    let message = alarm["message"].as_str().unwrap_or_default();
+    assert!(message.contains("it waited for: Move->Done: `moved` is FALSE"), "{message}");
+    assert!(message.contains("skill of `Drive` running for"), "{message}");
+    let (ok, said) = ctl(&cluster, &["ack", "1", "--comment", "drive replaced"]).await;
+    assert!(ok, "{said}");
+    let (ok, said) = ctl(&cluster, &["ack", "1"]).await;
+    assert!(!ok && said.contains("no standing alarm 1"), "acknowledged and gone: {said}");
+    let (ok, said) = ctl(&cluster, &["abort"]).await;
+    assert!(ok, "{said}");
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert_eq!(status.code(), Some(4), "{log}");
+    let ack = trace.iter().find(|r| r.event == TraceEvent::Ack).expect("the acknowledgement");
+    assert_eq!((ack.id, ack.message.as_deref()), (Some(1), Some("drive replaced")));
+    assert!(trace.iter().any(|r| r.event == TraceEvent::AlarmClear && r.id == Some(1)));
+    assert!(trace.iter().all(|r| !(r.event == TraceEvent::SkillDone)), "the slow motion was cancelled, not finished");
+}

@@ -267,6 +267,8 @@ pub struct Engine {
     permits: Vec<bool>,
     /// Per transition: TRUE, and waiting for a confirmation (step mode).
     waiting: Vec<bool>,
+    /// Why each step that just passed its maximum time waited then (`take_overrun_why`).
+    overrun_why: Vec<(StepId, crate::exec::why::StepWhy)>,
 }
 
 impl Engine {
@@ -358,6 +360,7 @@ impl Engine {
             mode: Mode::Auto,
             permits: vec![false; program.transitions.len()],
             waiting: vec![false; program.transitions.len()],
+            overrun_why: Vec::new(),
             now_ms: 0,
             cycle: 0,
             started: false,

@@ -118,9 +118,21 @@ impl Engine {
                 let st = &mut self.steps[s.index()];
                 st.overrun = true;
                 st.overrun_unacked = true;
+                // What it waits for at this moment, before this cycle's transitions (its recovery among them)
+                // move on: kept with the alarm (S7-GRAPH's CRIT_FLT).
+                let why = self.why(s);
+                // One kept per step at most, whether or not anyone takes it (`baton sim` does not).
+                self.overrun_why.retain(|(x, _)| *x != s);
+                self.overrun_why.push((s, why));
                 self.push(EventKind::Overrun(s));
             }
         }
+    }
+
+    /// Why step `s` waited when it passed its maximum time (`EventKind::Overrun`), taken once.
+    pub fn take_overrun_why(&mut self, s: StepId) -> Option<crate::exec::why::StepWhy> {
+        let at = self.overrun_why.iter().position(|(x, _)| *x == s)?;
+        Some(self.overrun_why.swap_remove(at).1)
     }
 
     /// An operator acknowledged step `s`'s supervision fault: its outgoing transitions may clear again (`S.overrun`

@@ -207,7 +207,7 @@ impl AgentRun {
                 }
                 EventKind::Overrun(s) => {
                     let token = self.layout.segment_of[s.index()].and_then(|g| self.by_segment.get(&g).copied());
-                    let mut why = self.engine.why(s);
+                    let mut why = self.engine.take_overrun_why(s).unwrap_or_else(|| self.engine.why(s));
                     why.skills = self.skills_of(s);
                     self.record(token, AgentEventKind::Overrun { step: s.0, why: why.summary() });
                 }

@@ -58,7 +58,7 @@ impl Coordinator {
         let program = Arc::clone(&self.program);
         match ev.kind {
             EventKind::Overrun(s) => {
-                let why = self.engine.why(s).summary();
+                let why = self.engine.take_overrun_why(s).unwrap_or_else(|| self.engine.why(s)).summary();
                 return self.on_overrun(ev.t_ms, s, None, None, &why);
             }
             EventKind::Deactivate(s) if !self.supervised.is_empty() => self.supervised_step_left(s),
