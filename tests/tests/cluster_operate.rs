@@ -537,5 +537,5 @@ async fn a_step_past_its_maximum_time_branches_to_the_charts_recovery_and_the_al
     let ack = trace.iter().find(|r| r.event == TraceEvent::Ack).expect("the acknowledgement");
     assert_eq!((ack.id, ack.message.as_deref()), (Some(1), Some("drive replaced")));
     assert!(trace.iter().any(|r| r.event == TraceEvent::AlarmClear && r.id == Some(1)));
-    assert!(trace.iter().all(|r| !(r.event == TraceEvent::SkillDone)), "the slow motion was cancelled, not finished");
+    assert!(trace.iter().all(|r| r.event != TraceEvent::SkillDone), "the slow motion was cancelled, not finished");
 }
