@@ -104,21 +104,22 @@ pub fn parse_assignment(text: &str) -> Result<(String, serde_json::Value), Strin
     Ok((name.to_string(), json))
 }
 
-/// Sets an input of one running chart: the run `run` names (its id as `baton status` prints it, or a prefix of
-/// it), or the only run behind the router. Several runs that could be meant are refused and listed: a set must
-/// never reach a run the operator did not mean. True when the run took it.
-pub async fn set(
+/// Sends `payload` to one running chart's queryable `key_of(run)` — the run `run` names (its id as `baton status`
+/// prints it, or a prefix of it), or the only run behind the router — and returns its replies, at least one.
+/// Several runs that could be meant are refused and listed: a request must never reach a run the operator did not
+/// mean.
+async fn ask_one_run<T: serde::de::DeserializeOwned>(
     connect: &[String],
     file: Option<&Path>,
     run: Option<&str>,
-    name: &str,
-    value: serde_json::Value,
-) -> anyhow::Result<bool> {
+    key_of: fn(RunId) -> String,
+    payload: Vec<u8>,
+) -> anyhow::Result<Vec<T>> {
     let session = open(connect, file).await?;
     let result = async {
         let runs: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
         let target = pick_run(&runs, run, connect)?;
-        set_on(&session, Some(target), name, value).await
+        ask(&session, key_of(target), Some(payload)).await
     }
     .await;
     session.close().await.map_err(|e| anyhow!("{e}"))?;
@@ -129,6 +130,19 @@ pub async fn set(
             connect.join(", ")
         );
     }
+    Ok(replies)
+}
+
+/// Sets an input of one running chart (`ask_one_run` picks it). True when the run took it.
+pub async fn set(
+    connect: &[String],
+    file: Option<&Path>,
+    run: Option<&str>,
+    name: &str,
+    value: serde_json::Value,
+) -> anyhow::Result<bool> {
+    let request = wire::encode(&SetRequest { name: name.to_string(), value });
+    let replies: Vec<SetReply> = ask_one_run(connect, file, run, keys::set, request).await?;
     for r in &replies {
         if r.ok {
             println!("{}: {}", r.chart, r.message);
@@ -139,7 +153,7 @@ pub async fn set(
     Ok(replies.iter().any(|r| r.ok))
 }
 
-/// Sends an operator's command to one running chart (picked as `set` picks it) and prints its answer: what it did,
+/// Sends an operator's command to one running chart (`ask_one_run` picks it) and prints its answer: what it did,
 /// or why it was refused and what is legal now. True when the run took it.
 pub async fn ctl(
     connect: &[String],
@@ -147,21 +161,7 @@ pub async fn ctl(
     run: Option<&str>,
     request: CtlRequest,
 ) -> anyhow::Result<bool> {
-    let session = open(connect, file).await?;
-    let result = async {
-        let runs: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
-        let target = pick_run(&runs, run, connect)?;
-        ctl_on(&session, Some(target), &request).await
-    }
-    .await;
-    session.close().await.map_err(|e| anyhow!("{e}"))?;
-    let replies = result?;
-    if replies.is_empty() {
-        bail!(
-            "the run did not answer behind {} (it ended, or the router's access control refused you)",
-            connect.join(", ")
-        );
-    }
+    let replies: Vec<CtlReply> = ask_one_run(connect, file, run, keys::ctl, wire::encode(&request)).await?;
     for r in &replies {
         let legal: Vec<&str> = r.available.iter().map(|c| c.name()).collect();
         let state = format!("state {}; legal now: {}", r.state, legal.join(", "));

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
-use baton_tests::loopback::{check_trace_invariants, Cluster, TIMEOUT};
+use baton_tests::loopback::{check_trace_invariants, Cluster, Coordinator, TIMEOUT};
 
 /// Two robots, each with two shell motions in sequence that write `start NAME` and `end NAME` to `marks`; the
 /// branches meet at `Done`. r1's first motion takes `first_s` seconds.
@@ -14,6 +14,23 @@ fn cell(dir: &Path, first_s: f64) -> PathBuf {
     let m = dir.join("marks");
     let m = m.display();
     cell_with(dir, &format!("sleep {first_s}; echo end MoveA1 >> {m}"))
+}
+
+/// The cell that `chart` writes in the cluster's folder, running: a coordinator (with `args`, once it has begun
+/// its run) and the robots r1 (with `r1_extra`) and r2, both allowed shell motions.
+async fn running_cell(
+    chart: impl FnOnce(&Path) -> PathBuf,
+    args: &[&str],
+    r1_extra: &[&str],
+) -> (Cluster, PathBuf, Coordinator) {
+    let mut cluster = Cluster::new();
+    let chart = chart(cluster.dir.path());
+    let mut coordinator = cluster.coordinator(&chart, args);
+    coordinator.wait_for_log("running chart").await;
+    let r1: Vec<&str> = ["--allow-shell"].into_iter().chain(r1_extra.iter().copied()).collect();
+    cluster.agent("r1", &[], &r1);
+    cluster.agent("r2", &[], &["--allow-shell"]);
+    (cluster, chart, coordinator)
 }
 
 /// The cell, r1's first motion doing `first` after its start mark.
@@ -75,19 +92,29 @@ async fn status(cluster: &Cluster) -> serde_json::Value {
     serde_json::from_str(text.lines().next().unwrap_or("null")).unwrap_or(serde_json::Value::Null)
 }
 
-/// Asks `baton status` until the run's state is `state` (under the timeout).
-async fn wait_for_state(cluster: &Cluster, state: &str) -> serde_json::Value {
+/// Asks `baton status --why` every 50 ms until `holds` says yes of its answer (under the timeout); `what` names
+/// what was waited for, if it never came.
+async fn wait_for_status(
+    cluster: &Cluster,
+    what: &str,
+    holds: impl Fn(&serde_json::Value) -> bool,
+) -> serde_json::Value {
     let found = tokio::time::timeout(TIMEOUT, async {
         loop {
-            let s = status(cluster).await;
-            if s["state"] == state {
+            let s = status_why(cluster).await;
+            if holds(&s) {
                 return s;
             }
             tokio::time::sleep(Duration::from_millis(50)).await;
         }
     })
     .await;
-    found.unwrap_or_else(|_| panic!("the run never reached `{state}`"))
+    found.unwrap_or_else(|_| panic!("{what} never came"))
+}
+
+/// Asks `baton status` until the run's state is `state`.
+async fn wait_for_state(cluster: &Cluster, state: &str) -> serde_json::Value {
+    wait_for_status(cluster, &format!("the state `{state}`"), |s| s["state"] == state).await
 }
 
 fn first(trace: &[TraceRecord], event: TraceEvent, name: &str) -> Option<usize> {
@@ -103,12 +130,7 @@ fn count(trace: &[TraceRecord], event: TraceEvent, name: &str) -> usize {
 /// twice, and the run completes.
 #[tokio::test(flavor = "multi_thread")]
 async fn hold_waits_for_the_running_motion_and_unhold_goes_on() {
-    let mut cluster = Cluster::new();
-    let chart = cell(cluster.dir.path(), 1.5);
-    let mut coordinator = cluster.coordinator(&chart, &[]);
-    coordinator.wait_for_log("running chart").await;
-    cluster.agent("r1", &[], &["--allow-shell"]);
-    cluster.agent("r2", &[], &["--allow-shell"]);
+    let (cluster, chart, coordinator) = running_cell(|dir| cell(dir, 1.5), &[], &[]).await;
     let dir = cluster.dir.path().to_path_buf();
     wait_for_mark(&dir, "start MoveA1").await;
     let (ok, said) = ctl(&cluster, &["hold", "--reason", "material late"]).await;
@@ -148,12 +170,7 @@ async fn hold_waits_for_the_running_motion_and_unhold_goes_on() {
 /// `hold --agent r1` holds r1's branch while r2's branch completes; the run stays in Execute.
 #[tokio::test(flavor = "multi_thread")]
 async fn holding_one_robot_lets_the_other_go_on() {
-    let mut cluster = Cluster::new();
-    let chart = cell(cluster.dir.path(), 1.0);
-    let mut coordinator = cluster.coordinator(&chart, &[]);
-    coordinator.wait_for_log("running chart").await;
-    cluster.agent("r1", &[], &["--allow-shell"]);
-    cluster.agent("r2", &[], &["--allow-shell"]);
+    let (cluster, chart, coordinator) = running_cell(|dir| cell(dir, 1.0), &[], &[]).await;
     let dir = cluster.dir.path().to_path_buf();
     wait_for_mark(&dir, "start MoveA1").await;
     let (ok, said) = ctl(&cluster, &["hold", "--agent", "r1", "--reason", "r1 gripper check"]).await;
@@ -178,14 +195,11 @@ async fn holding_one_robot_lets_the_other_go_on() {
 /// agent (its process, which would sleep 100 s, is gone).
 #[tokio::test(flavor = "multi_thread")]
 async fn abort_cancels_the_running_motion_and_ends_the_run_aborted() {
-    let mut cluster = Cluster::new();
-    let pid_file = cluster.dir.path().join("motion.pid");
     // `$$` is how an IEC 61131-3 string writes one `$`: the shell gets `echo $$`, its own pid.
-    let chart = cell_with(cluster.dir.path(), &format!("echo $$$$ > {}; exec sleep 100", pid_file.display()));
-    let mut coordinator = cluster.coordinator(&chart, &[]);
-    coordinator.wait_for_log("running chart").await;
-    cluster.agent("r1", &[], &["--allow-shell", "--verbose"]);
-    cluster.agent("r2", &[], &["--allow-shell"]);
+    let motion =
+        |dir: &Path| cell_with(dir, &format!("echo $$$$ > {}; exec sleep 100", dir.join("motion.pid").display()));
+    let (cluster, _, coordinator) = running_cell(motion, &[], &["--verbose"]).await;
+    let pid_file = cluster.dir.path().join("motion.pid");
     let dir = cluster.dir.path().to_path_buf();
     wait_for_mark(&dir, "start MoveA1").await;
     let (ok, said) = ctl(&cluster, &["abort", "--reason", "collision risk"]).await;
@@ -212,12 +226,7 @@ async fn abort_cancels_the_running_motion_and_ends_the_run_aborted() {
 /// exits 3 with its summary.
 #[tokio::test(flavor = "multi_thread")]
 async fn an_interrupt_stops_the_run_after_the_running_motion() {
-    let mut cluster = Cluster::new();
-    let chart = cell(cluster.dir.path(), 1.0);
-    let mut coordinator = cluster.coordinator(&chart, &[]);
-    coordinator.wait_for_log("running chart").await;
-    cluster.agent("r1", &[], &["--allow-shell"]);
-    cluster.agent("r2", &[], &["--allow-shell"]);
+    let (cluster, _, coordinator) = running_cell(|dir| cell(dir, 1.0), &[], &[]).await;
     let dir = cluster.dir.path().to_path_buf();
     wait_for_mark(&dir, "start MoveA1").await;
     let pid = coordinator.child.id().expect("running").to_string();
@@ -269,17 +278,10 @@ async fn status_why_gathers_what_each_transition_waits_for_from_the_agents() {
         s["why"].as_array().and_then(|w| w.iter().find(|x| x["step"] == name).cloned()).unwrap_or_default()
     };
     // Both branches out: r1 judges Check's condition, r2 runs its motion.
-    let s = tokio::time::timeout(TIMEOUT, async {
-        loop {
-            let s = status_why(&cluster).await;
-            if step(&s, "Check")["agent"] == "r1" && step(&s, "Move")["agent"] == "r2" {
-                return s;
-            }
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
+    let s = wait_for_status(&cluster, "the agents' answers", |s| {
+        step(s, "Check")["agent"] == "r1" && step(s, "Move")["agent"] == "r2"
     })
-    .await
-    .expect("the agents answer why");
+    .await;
     let check = step(&s, "Check");
     assert_eq!(
         check["transitions"][0]["false_parts"],
@@ -295,17 +297,7 @@ async fn status_why_gathers_what_each_transition_waits_for_from_the_agents() {
     let set = cluster.baton(&["set", "--connect", &cluster.endpoint, "pressure=7"]).await;
     assert!(set.status.success());
     // Check cleared: the coordinator's convergence now waits for r2's branch.
-    let s = tokio::time::timeout(TIMEOUT, async {
-        loop {
-            let s = status_why(&cluster).await;
-            if !step(&s, "Checked").is_null() {
-                return s;
-            }
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
-    })
-    .await
-    .expect("Checked is reached");
+    let s = wait_for_status(&cluster, "step Checked", |s| !step(s, "Checked").is_null()).await;
     let checked = step(&s, "Checked");
     assert_eq!(checked["agent"], serde_json::Value::Null, "{s}");
     assert_eq!(checked["transitions"][0]["missing"], serde_json::json!(["Moved"]), "{s}");
@@ -409,12 +401,7 @@ async fn a_restarted_coordinator_comes_back_held_in_its_mode_with_its_alarms() {
 /// `baton run --wait-start` waits in Idle, saying `start` is legal, and runs the chart once started.
 #[tokio::test(flavor = "multi_thread")]
 async fn a_run_started_by_an_operator() {
-    let mut cluster = Cluster::new();
-    let chart = cell(cluster.dir.path(), 0.1);
-    let mut coordinator = cluster.coordinator(&chart, &["--wait-start"]);
-    coordinator.wait_for_log("running chart").await;
-    cluster.agent("r1", &[], &["--allow-shell"]);
-    cluster.agent("r2", &[], &["--allow-shell"]);
+    let (cluster, _, coordinator) = running_cell(|dir| cell(dir, 0.1), &["--wait-start"], &[]).await;
     let s = wait_for_state(&cluster, "idle").await;
     assert_eq!(s["available"], serde_json::json!(["start", "stop", "abort"]), "{s}");
     assert!(marks(cluster.dir.path()).is_empty(), "nothing ran before the start");
@@ -428,29 +415,15 @@ async fn a_run_started_by_an_operator() {
 
 /// Asks `baton status` until transition `t` waits for a confirmation.
 async fn wait_for_waiting(cluster: &Cluster, t: &str) -> serde_json::Value {
-    let found = tokio::time::timeout(TIMEOUT, async {
-        loop {
-            let s = status_why(cluster).await;
-            if s["waiting"].as_array().is_some_and(|w| w.iter().any(|x| x == t)) {
-                return s;
-            }
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
-    })
-    .await;
-    found.unwrap_or_else(|_| panic!("`{t}` never waited for a confirmation"))
+    let what = format!("a confirmation wait of `{t}`");
+    wait_for_status(cluster, &what, |s| s["waiting"].as_array().is_some_and(|w| w.iter().any(|x| x == t))).await
 }
 
 /// Step mode with real processes: r1's TRUE transition waits on r1 for `confirm`; manual mode: a switch the chart
 /// could never reach is refused, and `force` clears a transition whatever its condition.
 #[tokio::test(flavor = "multi_thread")]
 async fn step_mode_waits_for_confirm_and_manual_mode_forces_and_refuses_unsafe_switches() {
-    let mut cluster = Cluster::new();
-    let chart = cell(cluster.dir.path(), 0.2);
-    let mut coordinator = cluster.coordinator(&chart, &["--wait-start"]);
-    coordinator.wait_for_log("running chart").await;
-    cluster.agent("r1", &[], &["--allow-shell"]);
-    cluster.agent("r2", &[], &["--allow-shell"]);
+    let (cluster, chart, coordinator) = running_cell(|dir| cell(dir, 0.2), &["--wait-start"], &[]).await;
     wait_for_state(&cluster, "idle").await;
     for args in [&["mode", "step"][..], &["start"][..]] {
         let (ok, said) = ctl(&cluster, args).await;
@@ -510,17 +483,10 @@ async fn a_step_past_its_maximum_time_branches_to_the_charts_recovery_and_the_al
     coordinator.wait_for_log("running chart").await;
     cluster.agent("r1", &[], &[]);
     coordinator.wait_for_log("has been active longer than its maximum time").await;
-    let s = tokio::time::timeout(TIMEOUT, async {
-        loop {
-            let s = status_why(&cluster).await;
-            if s["active_steps"].as_array().is_some_and(|a| a.iter().any(|x| x["name"] == "Recover")) {
-                return s;
-            }
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
+    let s = wait_for_status(&cluster, "the chart's recovery", |s| {
+        s["active_steps"].as_array().is_some_and(|a| a.iter().any(|x| x["name"] == "Recover"))
     })
-    .await
-    .expect("the chart took its recovery");
+    .await;
     let alarm = &s["alarms"][0];
     assert_eq!((alarm["id"].as_u64(), alarm["source"].as_str()), (Some(1), Some("Move")), "{s}");
     let message = alarm["message"].as_str().unwrap_or_default();

@@ -158,20 +158,12 @@ pub fn exhaustive(program: &Program) -> Vec<Finding> {
         candidates.sort();
         candidates.dedup();
         for &t in &candidates {
-            let sources = program.sources(t);
-            if !sources.iter().all(|s| situation.binary_search(s).is_ok()) {
+            let Some(next) = clear(program, &situation, t, |target| {
+                unsafe_pairs.insert((t, target));
+            }) else {
                 continue;
-            }
+            };
             enabled[t.index()] = true;
-            let mut next: Vec<StepId> = situation.iter().copied().filter(|s| !sources.contains(s)).collect();
-            for &target in program.targets(t) {
-                match next.binary_search(&target) {
-                    Ok(_) => {
-                        unsafe_pairs.insert((t, target));
-                    }
-                    Err(at) => next.insert(at, target),
-                }
-            }
             if seen.len() >= ANALYSIS_SITUATIONS_MAX {
                 complete = false;
                 continue;
@@ -229,16 +221,7 @@ pub fn is_reachable(program: &Program, situation: &[StepId]) -> Option<bool> {
         candidates.sort();
         candidates.dedup();
         for &t in &candidates {
-            let sources = program.sources(t);
-            if !sources.iter().all(|s| here.binary_search(s).is_ok()) {
-                continue;
-            }
-            let mut next: Vec<StepId> = here.iter().copied().filter(|s| !sources.contains(s)).collect();
-            for &target in program.targets(t) {
-                if let Err(at) = next.binary_search(&target) {
-                    next.insert(at, target);
-                }
-            }
+            let Some(next) = clear(program, &here, t, |_| {}) else { continue };
             if seen.len() >= ANALYSIS_SITUATIONS_MAX {
                 return None;
             }
@@ -248,4 +231,26 @@ pub fn is_reachable(program: &Program, situation: &[StepId]) -> Option<bool> {
         }
     }
     Some(false)
+}
+
+/// The situation (sorted active steps) after `t` clears in `situation`, or `None` if it is not enabled there. A
+/// target that is active already is said to `second_token` (the net is not safe there) and stays one entry.
+fn clear(
+    program: &Program,
+    situation: &[StepId],
+    t: TransitionId,
+    mut second_token: impl FnMut(StepId),
+) -> Option<Vec<StepId>> {
+    let sources = program.sources(t);
+    if !sources.iter().all(|s| situation.binary_search(s).is_ok()) {
+        return None;
+    }
+    let mut next: Vec<StepId> = situation.iter().copied().filter(|s| !sources.contains(s)).collect();
+    for &target in program.targets(t) {
+        match next.binary_search(&target) {
+            Ok(_) => second_token(target),
+            Err(at) => next.insert(at, target),
+        }
+    }
+    Some(next)
 }
