@@ -327,6 +327,8 @@ async fn run_chart(
         rerun: extras.rerun.map_or(crate::recording::Sink::Off, crate::recording::Sink::Save),
         watch: Vec::new(),
         wait_start: false,
+        stay: false,
+        abort_wait_ms: 0,
     };
     tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe))).await.context("the bench chart did not finish")?
 }

@@ -505,3 +505,89 @@ async fn a_step_past_its_maximum_time_branches_to_the_charts_recovery_and_the_al
     assert!(trace.iter().any(|r| r.event == TraceEvent::AlarmClear && r.id == Some(1)));
     assert!(trace.iter().all(|r| r.event != TraceEvent::SkillDone), "the slow motion was cancelled, not finished");
 }
+
+/// `baton run --stay --journal`: the run stays at Complete; `reset` starts the chart again as a new run (new id,
+/// Idle until `start`); an abort, then `clear`, leaves it Stopped; a coordinator killed there comes back from its
+/// journal in that run, Stopped; `reset` and `start` run the cell a third time; an interrupt at Complete ends the
+/// process with status 0. Every motion ran once per run that reached it, never twice.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_run_that_stays_is_reset_cleared_and_resumed_as_new_runs_of_its_journal() {
+    let mut cluster = Cluster::with_router().await;
+    let dir = cluster.dir.path().to_path_buf();
+    let chart = cell(&dir, 0.1);
+    let journal = dir.join("journal");
+    let args = ["--stay", "--journal", journal.to_str().expect("utf-8 path")];
+    let mut coordinator = cluster.coordinator_joining(&chart, &args);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &["--allow-shell"]);
+    cluster.agent("r2", &[], &["--allow-shell"]);
+    let s = wait_for_state(&cluster, "complete").await;
+    assert_eq!(s["available"], serde_json::json!(["reset", "stop", "abort"]), "{s}");
+    let first = s["run"].clone();
+    let ends = |n: usize| {
+        let m = marks(&dir);
+        ["MoveA1", "MoveA2", "MoveB1", "MoveB2"]
+            .iter()
+            .all(|a| m.iter().filter(|l| **l == format!("end {a}")).count() == n)
+    };
+    assert!(ends(1), "{:?}", marks(&dir));
+    let (ok, said) = ctl(&cluster, &["reset", "--reason", "next batch"]).await;
+    assert!(ok, "{said}");
+    let s = wait_for_state(&cluster, "idle").await;
+    assert_ne!(s["run"], first, "a new run");
+    assert!(ends(1), "nothing runs before start: {:?}", marks(&dir));
+    let (ok, said) = ctl(&cluster, &["start"]).await;
+    assert!(ok, "{said}");
+    wait_for_state(&cluster, "complete").await;
+    assert!(ends(2), "{:?}", marks(&dir));
+    // The third run is aborted once r1's first motion started, then cleared.
+    for command in [&["reset"][..], &["start"][..]] {
+        let (ok, said) = ctl(&cluster, command).await;
+        assert!(ok, "{command:?}: {said}");
+    }
+    let m = dir.join("marks");
+    let third_start = |n: usize| marks(&dir).iter().filter(|l| *l == "start MoveA1").count() == n;
+    let found = tokio::time::timeout(TIMEOUT, async {
+        while !third_start(3) {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await;
+    assert!(found.is_ok(), "{:?}", std::fs::read_to_string(&m));
+    let (ok, said) = ctl(&cluster, &["abort", "--reason", "jam"]).await;
+    assert!(ok, "{said}");
+    wait_for_state(&cluster, "aborted").await;
+    let at_abort = marks(&dir);
+    let (ok, said) = ctl(&cluster, &["clear"]).await;
+    assert!(ok, "{said}");
+    let s = wait_for_state(&cluster, "stopped").await;
+    let third = s["run"].clone();
+    coordinator.kill().await;
+    let mut coordinator = cluster.coordinator_joining(&chart, &args);
+    coordinator.wait_for_log("resuming run").await;
+    let s = wait_for_state(&cluster, "stopped").await;
+    assert_eq!(s["run"], third, "the journal's latest run, where it stood");
+    assert_eq!(marks(&dir), at_abort, "nothing ran after the abort, nor on the resumed coordinator");
+    for command in [&["reset"][..], &["start"][..]] {
+        let (ok, said) = ctl(&cluster, command).await;
+        assert!(ok, "{command:?}: {said}");
+    }
+    let s = wait_for_state(&cluster, "complete").await;
+    let fourth = s["run"].clone();
+    // The fourth run moved each robot once more, from the initial steps.
+    let count = |m: &[String], l: &str| m.iter().filter(|x| *x == l).count();
+    let now = marks(&dir);
+    for a in ["MoveA1", "MoveA2", "MoveB1", "MoveB2"] {
+        for l in [format!("start {a}"), format!("end {a}")] {
+            assert_eq!(count(&now, &l), count(&at_abort, &l) + 1, "{l}: {now:?}");
+        }
+    }
+    let pid = coordinator.child.id().expect("running").to_string();
+    assert!(std::process::Command::new("kill").args(["-INT", &pid]).status().expect("kill").success());
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    let fourth = fourth.as_str().expect("a run id").replace('-', "");
+    assert_eq!((summary["state"].as_str(), summary["run"].as_str()), (Some("complete"), Some(fourth.as_str())));
+    let news = trace.iter().filter(|r| r.event == TraceEvent::NewRun).count();
+    assert_eq!(news, 3, "three resets: {trace:#?}");
+}

@@ -62,7 +62,7 @@ impl Ctl {
 }
 
 /// `30s`, `5m`, `1h`, `250ms`, or a number of milliseconds.
-fn parse_duration_ms(text: &str) -> Result<u64, String> {
+pub(super) fn parse_duration_ms(text: &str) -> Result<u64, String> {
     let t = text.trim();
     let (digits, unit) = t.split_at(t.find(|c: char| !c.is_ascii_digit()).unwrap_or(t.len()));
     let n: u64 = digits.parse().map_err(|_| format!("`{text}` is not a duration: give 30s, 5m, 1h or milliseconds"))?;

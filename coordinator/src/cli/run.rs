@@ -70,6 +70,15 @@ pub struct Run {
     /// Starting → Execute); inputs may be set meanwhile.
     #[arg(long)]
     pub wait_start: bool,
+    /// Stay at the run's end (Complete, Stopped, Aborted) for PackML's `baton ctl clear` and `reset`, which start
+    /// the chart again from its initial steps as a new run in the same journal; an interrupt then ends the
+    /// process, with the exit status of the state it was in.
+    #[arg(long)]
+    pub stay: bool,
+    /// After an abort, how long `baton run` waits to tell the agents it could not reach (cut off, lost) of the
+    /// abort, if they come back meanwhile: one told stops what it still runs of the run.
+    #[arg(long, value_name = "DURATION", default_value = "30s", value_parser = super::ctl::parse_duration_ms)]
+    pub abort_wait: u64,
 }
 
 impl Run {
@@ -96,6 +105,8 @@ impl Run {
             rerun: self.rerun,
             watch: self.watch,
             wait_start: self.wait_start,
+            stay: self.stay,
+            abort_wait_ms: self.abort_wait,
         };
         block_on(async move {
             let summary = crate::run::run(opts).await?;

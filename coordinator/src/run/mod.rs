@@ -57,6 +57,10 @@ pub struct RunOptions {
     pub watch: Vec<String>,
     /// Wait in Idle, the chart not started, for an operator's `baton ctl start`.
     pub wait_start: bool,
+    /// Stay at the run's end for `clear` and `reset` (`--stay`).
+    pub stay: bool,
+    /// After an abort, how long to wait for agents that could not be told of it.
+    pub abort_wait_ms: u64,
 }
 
 pub async fn run(opts: RunOptions) -> anyhow::Result<Summary> {
@@ -106,7 +110,6 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let mut core =
         Coordinator::new(Arc::clone(&loaded.program), Arc::clone(&loaded.layout), run, hash, journal::token_ids(run));
     core.set_cycle_ms(cycle_ms);
-    let inboxes = Inboxes::declare(&session, run).await?;
     let trace = match &opts.trace {
         Some(p) => Some(BufWriter::new(File::create(p).with_context(|| format!("cannot create {}", p.display()))?)),
         None => None,
@@ -144,7 +147,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     };
     shell.out.watch(watch);
     begin(&mut shell, resume, &opts, &loaded, run, &where_)?;
-    let ended = serve(&mut shell, &inboxes, run, chart_reply).await?;
+    let ended = serve(&mut shell, &session, chart_reply, opts.abort_wait_ms).await?;
     wind_down(shell, session, &opts, &loaded, ended).await
 }
 
@@ -183,6 +186,9 @@ fn begin(
         }
         None => {
             shell.core.set_loss_policy(0, opts.loss_policy);
+            if opts.stay {
+                shell.core.stay(0);
+            }
             if opts.wait_start {
                 shell.core.wait_start(0);
             }
@@ -250,16 +256,57 @@ fn signal_sender(signal: &str) -> String {
     format!("{} ({signal})", crate::client::who())
 }
 
+/// Whether the main loop goes on: until the run is over — unless it stays at its end (`--stay`), or an abort left
+/// agents that could not be told, which are waited for until `tell_until` (set here when that wait begins).
+fn keeps_serving(shell: &Shell, tell_until: &mut Option<Instant>, abort_wait_ms: u64) -> bool {
+    let core = shell.core.core();
+    if !core.is_over() || (core.stays() && core.failure().is_none()) {
+        return true;
+    }
+    let untold: Vec<&str> = core.untold_agents().collect();
+    if untold.is_empty() {
+        return false;
+    }
+    let until = *tell_until.get_or_insert_with(|| {
+        if !shell.quiet {
+            eprintln!(
+                "baton: the run is {}; waiting up to {abort_wait_ms} ms to tell {} of it (interrupt to leave now)",
+                core.run_state().name(),
+                untold.join(", ")
+            );
+        }
+        Instant::now() + std::time::Duration::from_millis(abort_wait_ms)
+    });
+    if Instant::now() < until {
+        return true;
+    }
+    eprintln!(
+        "baton: warning: {} never heard of the end of the run: what they still run of it goes on",
+        untold.join(", ")
+    );
+    false
+}
+
 /// The main loop: asleep until a message comes or the next cycle is due.
-async fn serve(shell: &mut Shell, inboxes: &Inboxes, run: RunId, chart_reply: Vec<u8>) -> anyhow::Result<Ended> {
+async fn serve(
+    shell: &mut Shell,
+    session: &zenoh::Session,
+    chart_reply: Vec<u8>,
+    abort_wait_ms: u64,
+) -> anyhow::Result<Ended> {
+    // A resumed journal may have gone on to a later run than its header's (a `reset`).
+    let mut run = shell.core.core().run();
+    let mut inboxes = Inboxes::declare(session, run).await?;
+    shell.vars_key = keys::vars(run, baton_proto::dist::runtime::COORDINATOR);
     let (tx, mut rx) = mpsc::unbounded_channel::<Identity>();
     let mut durable_rx = shell.journal.as_ref().map(crate::journal::Writer::watcher);
     let mut stop = baton_shell::Stop::new()?;
     shell.due_cycles().await?;
     let mut interrupts = 0;
-    while !shell.core.core().is_over() {
+    let mut tell_until = None;
+    while keeps_serving(shell, &mut tell_until, abort_wait_ms) {
         // An idle run does not wake.
-        let deadline = shell.next_cycle().map(|t| shell.instant_of(t));
+        let deadline = shell.next_cycle().map(|t| shell.instant_of(t)).into_iter().chain(tell_until).min();
         let wake = tokio::select! {
             s = inboxes.report.recv_async() => s.map_or(Wake::Closed, Wake::Report),
             s = inboxes.vars.recv_async() => s.map_or(Wake::Closed, Wake::Vars),
@@ -312,6 +359,10 @@ async fn serve(shell: &mut Shell, inboxes: &Inboxes, run: RunId, chart_reply: Ve
             }
             Wake::Durable => shell.release().await?,
             Wake::Timer => {}
+            Wake::Stop if shell.core.core().is_over() => {
+                // At the end of a run that stays, or waiting for agents to tell: the process leaves.
+                return Ok(Ended::Ran);
+            }
             Wake::Stop => {
                 // The first interrupt stops the run (what runs finishes, nothing new starts), the next aborts it.
                 interrupts += 1;
@@ -340,6 +391,24 @@ async fn serve(shell: &mut Shell, inboxes: &Inboxes, run: RunId, chart_reply: Ve
             Wake::Closed => return Ok(Ended::Closed),
         }
         shell.commit(Vec::new()).await?;
+        if shell.core.core().wants_new_run() {
+            // `reset`: the chart starts again as a new run, journaled, with inboxes of its own.
+            let next = RunId(uuid::Uuid::new_v4());
+            let now = shell.now_ms();
+            shell.core.new_run(now, next);
+            shell.commit(Vec::new()).await?;
+            inboxes = Inboxes::declare(session, next).await?;
+            shell.vars_key = keys::vars(next, baton_proto::dist::runtime::COORDINATOR);
+            if !shell.quiet {
+                eprintln!(
+                    "baton: reset: chart `{}` starts again as run {} (after `baton ctl start`)",
+                    shell.core.core().program().name,
+                    next.key()
+                );
+            }
+            run = next;
+            interrupts = 0;
+        }
     }
     Ok(Ended::Ran)
 }
@@ -408,6 +477,8 @@ mod tests {
             rerun: crate::recording::Sink::Off,
             watch: Vec::new(),
             wait_start: false,
+            stay: false,
+            abort_wait_ms: 0,
         }
     }
 

@@ -109,6 +109,11 @@ pub enum Record {
     Recover,
     /// The run waits in Idle for `start` (`baton run --wait-start`).
     WaitStart,
+    /// The run stays at its end for `clear` and `reset` (`baton run --stay`).
+    Stay,
+    /// After a `reset`, the chart starts again from its initial steps as this new run (`Coordinator::new_run`);
+    /// what follows is that run's.
+    NewRun(RunId),
     /// The run is over (`failure` says why it failed, if it did). Nothing follows.
     End {
         failure: Option<String>,
@@ -144,6 +149,8 @@ const AGENT_CONFLICT: u8 = 10;
 const DEVICES: u8 = 11;
 const COMMAND: u8 = 12;
 const WAIT_START: u8 = 13;
+const STAY: u8 = 14;
+const NEW_RUN: u8 = 15;
 
 const HEAD: usize = 9;
 
@@ -183,6 +190,8 @@ pub fn encode(entry: &Entry) -> Vec<u8> {
         Record::Policy(p) => frame(POLICY, t, &[policy_byte(*p)]),
         Record::Recover => frame(RECOVER, t, &[]),
         Record::WaitStart => frame(WAIT_START, t, &[]),
+        Record::Stay => frame(STAY, t, &[]),
+        Record::NewRun(run) => frame(NEW_RUN, t, run.0.as_bytes()),
         Record::End { failure } => frame(END, t, failure.as_deref().unwrap_or("").as_bytes()),
     }
 }
@@ -222,6 +231,10 @@ pub fn decode(bytes: &[u8]) -> Result<Entry, JournalError> {
         }),
         RECOVER => Record::Recover,
         WAIT_START => Record::WaitStart,
+        STAY => Record::Stay,
+        NEW_RUN => Record::NewRun(RunId(
+            Uuid::from_slice(body).map_err(|_| bad(format!("a run id is 16 bytes, not {}", body.len())))?,
+        )),
         END => Record::End { failure: Some(text()?).filter(|s| !s.is_empty()) },
         other => return Err(JournalError::UnknownTag(other)),
     };
@@ -247,6 +260,11 @@ pub fn apply(core: &mut Coordinator, entry: &Entry) -> Option<Result<String, Str
         Record::Policy(p) => core.set_loss_policy(*p),
         Record::Recover => core.handle_recover(now),
         Record::WaitStart => core.handle_wait_start(),
+        Record::Stay => core.handle_stay(),
+        Record::NewRun(run) => {
+            let next = core.new_run(now, *run, token_ids(*run));
+            *core = next;
+        }
         Record::End { failure } => core.handle_end(now, failure.as_deref()),
     }
     None
@@ -423,6 +441,16 @@ impl Journaled {
         self.input(now_ms, Record::WaitStart);
     }
 
+    /// The run stays at its end for `clear` and `reset`.
+    pub fn stay(&mut self, now_ms: u64) {
+        self.input(now_ms, Record::Stay);
+    }
+
+    /// After a `reset` (`Coordinator::wants_new_run`): the chart starts again as run `run`.
+    pub fn new_run(&mut self, now_ms: u64, run: RunId) {
+        self.input(now_ms, Record::NewRun(run));
+    }
+
     /// The last record of a run that ended.
     pub fn end(&mut self, now_ms: u64) {
         let failure = self.core.failure().map(str::to_string);
@@ -494,6 +522,8 @@ mod tests {
                 }),
             },
             Entry { t_ms: 13, record: Record::Recover },
+            Entry { t_ms: 13, record: Record::Stay },
+            Entry { t_ms: 13, record: Record::NewRun(RunId(Uuid::from_u128(0x1234_5678_9abc))) },
             Entry {
                 t_ms: 14,
                 record: Record::Devices(DeviceReport {
@@ -514,6 +544,7 @@ mod tests {
         assert_eq!(decode(&[200, 0, 0, 0, 0, 0, 0, 0, 0]), Err(JournalError::UnknownTag(200)));
         assert!(matches!(decode(&frame(REPORT, 1, b"{not json")), Err(JournalError::Malformed { tag: REPORT, .. })));
         assert!(matches!(decode(&frame(POLICY, 1, &[9])), Err(JournalError::Malformed { .. })));
+        assert!(matches!(decode(&frame(NEW_RUN, 1, &[1, 2, 3])), Err(JournalError::Malformed { .. })));
     }
 
     #[test]
@@ -556,6 +587,68 @@ mod tests {
 
     fn value(j: &Journaled, name: &str, v: crate::types::Value) -> wire::VarValue {
         wire::VarValue::new(j.core().program().var_by_name(name).expect("a variable"), v)
+    }
+
+    /// A run that stays, completes, is reset and runs again: its journal, replayed into a new coordinator, makes
+    /// the same trace and ends in the same run, state and situation.
+    #[test]
+    fn a_reset_is_replayed_into_the_same_runs_and_trace() {
+        use crate::dist::runtime::coordinator::CoordOutput;
+        use crate::dist::runtime::packml::State;
+        let (program, layout) = crate::testing::simulated_cluster::compile(
+            "PROGRAM p\nVAR go : BOOL; n : DINT; END_VAR\nINITIAL_STEP A: Count(N); END_STEP\n\
+             TRANSITION FROM A TO B := go; END_TRANSITION\nSTEP B: END_STEP\n\
+             ACTION Count: n := n + 1; END_ACTION\nEND_PROGRAM\n",
+        );
+        let first = RunId(Uuid::from_u128(7));
+        let fresh = || {
+            let (p, l) = (std::sync::Arc::clone(&program), std::sync::Arc::clone(&layout));
+            Coordinator::new(p, l, first, ChartHash("h".into()), token_ids(first))
+        };
+        let trace = |j: &mut Journaled| {
+            std::iter::from_fn(|| j.poll_output())
+                .filter_map(|o| match o {
+                    CoordOutput::Trace(t) => Some(t),
+                    _ => None,
+                })
+                .collect::<Vec<_>>()
+        };
+        let ctl = |command: &str| CtlRequest {
+            command: command.into(),
+            target: None,
+            agent: None,
+            step: None,
+            for_ms: None,
+            reason: "shift change".into(),
+            by: "op".into(),
+        };
+        let mut live = Journaled::new(fresh());
+        live.stay(0);
+        live.set(0, "go", &serde_json::json!(true)).expect("go");
+        for t in [10, 20, 30] {
+            live.cycle(t);
+        }
+        assert_eq!(live.core().run_state(), State::Complete);
+        live.command(40, ctl("reset")).expect("reset");
+        let second = RunId(Uuid::from_u128(8));
+        assert!(live.core().wants_new_run());
+        live.new_run(40, second);
+        live.command(50, ctl("start")).expect("start");
+        for t in [60, 70] {
+            live.cycle(t);
+        }
+        let n = program.var_by_name("n").expect("n");
+        let counted = live.core().value(n);
+        let live_trace = trace(&mut live);
+        assert!(live_trace
+            .iter()
+            .any(|r| r.event == crate::exec::trace::TraceEvent::NewRun && r.message == Some(second.key())));
+        let records = live.take_records();
+        let mut again = Journaled::new(fresh());
+        again.replay(records.iter().map(Vec::as_slice)).expect("the records decode");
+        assert_eq!(trace(&mut again), live_trace);
+        assert_eq!((again.core().run(), again.core().run_state()), (second, State::Execute));
+        assert_eq!(again.core().value(n), counted);
     }
 
     #[test]

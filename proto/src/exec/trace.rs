@@ -66,11 +66,16 @@ pub enum TraceEvent {
     AlarmClear,
     /// An alarm was shelved (`id`, `by`, until when in `message`).
     Shelve,
+    /// An agent that could not be told of the run's abort (or stop) was heard from again and told (`name` is the
+    /// agent): from then on nothing of the run runs there.
+    Told,
+    /// `reset` started the chart again from its initial steps as a new run (`message` holds the new run's id).
+    NewRun,
 }
 
 impl TraceEvent {
     /// Every event, in the order above.
-    pub const ALL: [TraceEvent; 28] = [
+    pub const ALL: [TraceEvent; 30] = [
         TraceEvent::Activate,
         TraceEvent::Deactivate,
         TraceEvent::Fire,
@@ -99,6 +104,8 @@ impl TraceEvent {
         TraceEvent::Ack,
         TraceEvent::AlarmClear,
         TraceEvent::Shelve,
+        TraceEvent::Told,
+        TraceEvent::NewRun,
     ];
 
     /// The event's name in the JSON (`action_on`). Not public: code outside matches on the event itself, and
@@ -133,6 +140,8 @@ impl TraceEvent {
             TraceEvent::Ack => "ack",
             TraceEvent::AlarmClear => "alarm_clear",
             TraceEvent::Shelve => "shelve",
+            TraceEvent::Told => "told",
+            TraceEvent::NewRun => "new_run",
         }
     }
 }

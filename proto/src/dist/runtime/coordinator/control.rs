@@ -92,7 +92,7 @@ impl Coordinator {
             tokens,
             agents,
             state: self.run_state,
-            available: self.run_state.available(),
+            available: self.available(),
             alarms: self
                 .alarms
                 .standing()

@@ -198,6 +198,8 @@ impl Coordinator {
             let msg = self.join_msg(&name);
             self.send(name.clone(), msg);
         }
+        // Back after an abort it could not be told of: it is told now.
+        self.tell_of_end(&name);
         // What the agent still holds of an older epoch (its segment moved on while it was away) or of a token
         // that is over: it must not run it a moment longer.
         let mut stale: Vec<(TokenId, u32)> = info

@@ -19,6 +19,7 @@ mod membership;
 mod modes;
 mod operate;
 mod reports;
+mod restart;
 mod supervision;
 mod timers;
 mod tokens;
@@ -151,6 +152,11 @@ pub struct Coordinator {
     writer_roles: BTreeSet<String>,
     /// The writers agents were told of last (`ToAgent::Peers`).
     peers: Peers,
+    /// The run stays at its end for `clear` and `reset` (`baton run --stay`).
+    stays: bool,
+    /// Agents that held tokens of a run when it was aborted and could not be told: the run they were not told of,
+    /// and the alarms raised for their abandoned tokens (`restart::tell_of_end`).
+    untold: BTreeMap<String, (RunId, Vec<super::alarms::AlarmId>)>,
 }
 
 impl Coordinator {
@@ -212,6 +218,8 @@ impl Coordinator {
             writer_names,
             writer_roles,
             peers: Peers { seq: 0, coordinator: uuid::Uuid::nil(), agents: Vec::new() },
+            stays: false,
+            untold: BTreeMap::new(),
         }
     }
 

@@ -75,16 +75,23 @@ impl Coordinator {
         if req.agent.is_some() || req.step.is_some() {
             return self.partial_hold(command, req);
         }
-        let to = self.run_state.apply(command).map_err(|r| r.to_string())?;
-        if matches!(command, Command::Reset | Command::Clear) {
-            // The table allows them only in states a `baton run` does not stay in: it ends at Complete, Stopped and
-            // Aborted (its journal closed), and a new run starts from the initial steps.
+        if matches!(command, Command::Reset | Command::Clear) && !self.stays {
+            // The table allows them only in states a run ends in: without `--stay`, `baton run` ends there.
             return Err(format!(
-                "`{}` is not supported: `baton run` ends a run that is complete, stopped or aborted; start a new run",
+                "`{}` needs a run that stays at its end: this one ends when it is complete, stopped or aborted \
+                 (start it with `baton run --stay` to clear and reset it)",
                 command.name()
             ));
         }
+        let to = self.run_state.apply(command).map_err(|r| r.to_string())?;
         self.change_state(to);
+        if command == Command::Clear {
+            // Nothing is left to clear: the abort ended every segment (agents that could not be told are told when
+            // they are heard from again).
+            if let Some(next) = to.when_done() {
+                self.change_state(next);
+            }
+        }
         if command == Command::Start {
             // Starting has nothing to wait for: the first cycle runs at the next grid time.
             if let Some(next) = to.when_done() {
@@ -321,10 +328,12 @@ impl Coordinator {
             })
             .collect();
         for (id, agent, entry) in lost {
-            self.alarm(
+            let alarm = self.alarm(
                 &agent,
                 format!("token {id} (from step `{entry}`) abandoned: `{agent}` could not be told of the abort"),
             );
+            let run = self.run;
+            self.untold.entry(agent).or_insert_with(|| (run, Vec::new())).1.extend(alarm);
         }
         self.end_segments();
         if let Some(next) = self.run_state.when_done() {

@@ -70,10 +70,12 @@ impl Coordinator {
     /// stale one of its epoch, which the trace shows): only those are journaled. The others are answered, counted
     /// and dropped, and change nothing a replay needs — so a peer's garbage costs no disk.
     pub fn admit_report(&self, report: &Report) -> bool {
-        matches!(
-            self.classify_report(report),
-            ReportFate::Next | ReportFate::Ahead { room: true } | ReportFate::Stale { first: true }
-        )
+        match self.classify_report(report) {
+            ReportFate::Next | ReportFate::Ahead { room: true } | ReportFate::Stale { first: true } => true,
+            // The first word from an agent that could not be told of the abort: it is told now (`tell_of_end`).
+            ReportFate::UnknownToken => self.untold.contains_key(&report.agent),
+            _ => false,
+        }
     }
 
     /// A report from an agent, decoded. Reports of a token apply once each, in sequence order.
@@ -87,6 +89,12 @@ impl Coordinator {
                 self.ack(report.agent, entry);
             }
             ReportFate::UnknownToken => {
+                if self.untold.contains_key(&report.agent) {
+                    self.tell_of_end(&report.agent);
+                } else if self.is_ended_by_operator() {
+                    // An agent still working for the run after its end (it missed the word): told again.
+                    self.send(report.agent.clone(), ToAgent::Abort { run: self.run });
+                }
                 self.drop_msg(format!("report from `{}` for unknown token {} dropped", report.agent, report.token))
             }
             ReportFate::Stale { first } => self.stale_report(report, first),

@@ -278,10 +278,123 @@ fn a_run_that_reaches_its_end_goes_completing_then_complete() {
     assert_eq!(states, ["completing", "complete"]);
     let status = c.status();
     assert_eq!(status.state, State::Complete);
-    assert_eq!(status.available, vec![Command::Reset, Command::Stop, Command::Abort]);
+    // PackML's table allows `reset` here, but this run ends at Complete: it is not offered, and refused.
+    assert_eq!(status.available, vec![Command::Stop, Command::Abort]);
+    let err = c.handle_command(125, &ctl("reset")).expect_err("the run does not stay");
+    assert!(err.contains("baton run --stay"), "{err}");
+    assert_eq!(c.run_state(), State::Complete);
     // Ending again changes nothing.
     c.handle_end(130, None);
     assert_eq!(traced(&drain(&mut c), TraceEvent::State), 0);
+}
+
+fn ctl(command: &str) -> crate::dist::wire::CtlRequest {
+    crate::dist::wire::CtlRequest {
+        command: command.into(),
+        target: None,
+        agent: None,
+        step: None,
+        for_ms: None,
+        reason: String::new(),
+        by: "op".into(),
+    }
+}
+
+fn states(out: &[CoordOutput]) -> Vec<String> {
+    out.iter()
+        .filter_map(|o| match o {
+            CoordOutput::Trace(t) if matches!(t.event, TraceEvent::State | TraceEvent::NewRun) => {
+                Some(if t.event == TraceEvent::NewRun { "new_run".to_string() } else { t.name.clone() })
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+/// `baton run --stay`: the run completes by itself, offers `reset`, and the reset run is the same chart from its
+/// initial steps under a new run id, waiting for `start`; its token goes to the agent the old run knew.
+#[test]
+fn a_run_that_stays_completes_by_itself_and_reset_starts_the_chart_again_as_a_new_run() {
+    use crate::dist::runtime::packml::{Command, State};
+    let (mut c, reports) = one_token_out();
+    c.handle_stay();
+    for r in &reports {
+        c.handle_report(100, r.clone());
+    }
+    c.handle_cycle(110);
+    assert_eq!(states(&drain(&mut c)), ["completing", "complete"], "no End record needed");
+    assert_eq!(c.status().available, vec![Command::Reset, Command::Stop, Command::Abort]);
+    assert_eq!(c.status().active_steps.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(), ["C"]);
+    let go = c.program().var_by_name("go").expect("go");
+    assert_eq!(c.value(go), Value::Bool(true));
+    c.handle_cycle(120);
+    assert!(drain(&mut c).is_empty(), "a complete run does not cycle its chart");
+    assert!(!c.wants_new_run());
+    c.handle_command(130, &ctl("reset")).expect("reset is legal at Complete");
+    assert!(c.wants_new_run());
+    assert_eq!(states(&drain(&mut c)), ["resetting"]);
+    let second = RunId(uuid::Uuid::from_u128(8));
+    let mut next = c.new_run(140, second, crate::dist::journal::token_ids(second));
+    assert_eq!(states(&drain(&mut next)), ["new_run", "idle"]);
+    assert_eq!((next.run(), next.run_state(), next.stays()), (second, State::Idle, true));
+    assert_eq!(next.status().active_steps.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(), ["A"]);
+    assert_eq!(next.value(go), Value::Bool(false), "the initial values again");
+    next.handle_cycle(150);
+    assert_eq!(next.status().active_steps.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(), ["A"]);
+    next.handle_command(160, &ctl("start")).expect("start from Idle");
+    next.handle_set(161, "go", &serde_json::json!(true)).expect("go is an input");
+    next.handle_cycle(170);
+    let out = drain(&mut next);
+    let sent: Vec<(String, RunId)> = out
+        .iter()
+        .filter_map(|o| match o {
+            CoordOutput::Send { agent, msg: ToAgent::Dispatch { run, .. }, .. } => Some((agent.clone(), *run)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(sent, [("w1".to_string(), second)], "{out:?}");
+}
+
+/// Aborted, then `clear` (to Stopped) and `reset` (to Resetting), as PackML's table says.
+#[test]
+fn clear_takes_an_aborted_run_that_stays_to_stopped_and_reset_on() {
+    use crate::dist::runtime::packml::State;
+    let (mut c, _) = one_token_out();
+    c.handle_stay();
+    drain(&mut c);
+    assert!(c.handle_command(100, &ctl("reset")).is_err(), "reset is not legal in Execute");
+    c.handle_command(110, &ctl("abort")).expect("abort");
+    c.handle_command(120, &ctl("clear")).expect("clear from Aborted");
+    assert_eq!(states(&drain(&mut c)), ["aborting", "aborted", "clearing", "stopped"]);
+    assert!(c.handle_command(125, &ctl("clear")).is_err(), "clear only from Aborted");
+    c.handle_command(130, &ctl("reset")).expect("reset from Stopped");
+    assert_eq!(c.run_state(), State::Resetting);
+}
+
+/// An agent lost when the run is aborted is not waited for: its token is abandoned with an alarm. When it is heard
+/// from again it is told of the abort (and the alarm's cause is gone); until then it is listed as untold.
+#[test]
+fn an_agent_cut_off_at_the_abort_is_told_when_it_comes_back() {
+    use crate::dist::runtime::alarms::AlarmState;
+    let (mut c, _) = one_token_out();
+    c.handle_agent_down(50, "w1");
+    drain(&mut c);
+    c.handle_command(60, &ctl("abort")).expect("abort");
+    let out = drain(&mut c);
+    let aborts = |out: &[CoordOutput]| {
+        out.iter().filter(|o| matches!(o, CoordOutput::Send { msg: ToAgent::Abort { run }, .. } if *run == RUN)).count()
+    };
+    assert_eq!(aborts(&out), 0, "w1 cannot hear it now: {out:?}");
+    assert_eq!(c.untold_agents().collect::<Vec<_>>(), ["w1"]);
+    let abandoned = c.status().alarms.into_iter().find(|a| a.message.contains("abandoned")).expect("the alarm");
+    assert_eq!(abandoned.state, AlarmState::ActiveUnacknowledged);
+    c.handle_agent_up(70, worker("w1", 2));
+    let out = drain(&mut c);
+    assert_eq!(aborts(&out), 1, "{out:?}");
+    assert_eq!(traced(&out, TraceEvent::Told), 1, "{out:?}");
+    assert_eq!(c.untold_agents().count(), 0);
+    let alarm = c.status().alarms.into_iter().find(|a| a.id == abandoned.id).expect("latched until acknowledged");
+    assert_eq!(alarm.state, AlarmState::ReturnedUnacknowledged);
 }
 
 #[test]

@@ -17,13 +17,14 @@ impl Coordinator {
     pub fn handle_cycle(&mut self, now_ms: u64) -> bool {
         self.advance(now_ms);
         let (mutations, outputs, recovering) = (self.engine.mutations(), self.outbox.len(), self.recovered_ms);
-        // Idle (`--wait-start`), the chart has not started: no cycle runs until `start`.
-        if self.run_state != State::Idle {
+        // Idle (`--wait-start`), the chart has not started: no cycle runs until `start`; nor once the run ended.
+        if self.chart_runs() {
             if let Err(e) = self.engine.handle_cycle(self.now_ms) {
                 self.log(Level::Error, format!("cycle refused: {e}"));
             }
         }
         self.drain_engine();
+        self.complete_if_done();
         self.resend_dispatches();
         self.resend_holds();
         self.resend_overrun_acks();
@@ -42,10 +43,13 @@ impl Coordinator {
         if self.run_state == State::Idle {
             return;
         }
-        if let Err(e) = self.engine.react(self.now_ms) {
-            self.log(Level::Error, format!("reaction refused: {e}"));
+        if self.chart_runs() {
+            if let Err(e) = self.engine.react(self.now_ms) {
+                self.log(Level::Error, format!("reaction refused: {e}"));
+            }
         }
         self.drain_engine();
+        self.complete_if_done();
         self.publish_vars();
         self.flush_acks(false);
     }
@@ -67,7 +71,7 @@ impl Coordinator {
     /// When the next cycle is needed: at once (the next grid time) when the engine needs one, else at the
     /// earliest deadline (a dispatch to send again, acknowledgements to send, an agent to give up on), or never.
     pub fn poll_timeout(&self) -> Option<u64> {
-        if self.engine.needs_cycle() && self.run_state != State::Idle {
+        if self.engine.needs_cycle() && self.chart_runs() {
             return Some(self.now_ms);
         }
         let resend = self
