@@ -677,6 +677,20 @@ impl Logger {
                 self.fault_steps(&rec.name, rec.event == TraceEvent::Fault);
             }
             TraceEvent::Set => self.log("INFO", format!("set {} := {message}", rec.name)),
+            TraceEvent::Told => {
+                let text = format!("{} is back and was told of the end of the run ({message})", rec.name);
+                self.progress_log(&rec.name, None, "WARN", text.clone());
+                self.log("WARN", text);
+            }
+            TraceEvent::NewRun => {
+                // The chart starts again from its initial steps: no step is held or faulted any more.
+                self.before_hold = None;
+                for s in self.state.iter_mut() {
+                    *s = StepState::Inactive;
+                }
+                self.graph_dirty = true;
+                self.log("INFO", format!("reset: chart {} starts again as run {message}", rec.name));
+            }
             TraceEvent::SkillDone => {
                 if let Some(a) = agent {
                     self.progress_log(a, None, "INFO", format!("skill {} done on {a}", rec.name));

@@ -1,6 +1,8 @@
 //! What the two binaries' Zenoh shells share, so that it is written once: the session's configuration (Baton's
 //! settings over the user's `--zenoh-config`), the inbox every subscriber gets, the publisher outbox the main
-//! loop publishes through, and the main loop's waits (a deadline or nothing; SIGINT and SIGTERM).
+//! loop publishes through, and the main loop's waits (a deadline or nothing; SIGINT and SIGTERM). And, for tests of
+//! real processes (`baton test --cluster`, the workspace's cluster tests), the cable between an agent and its router
+//! that a test pulls out (`cable`).
 //!
 //! A shell here is what `coordinator/src/run` and `agent/src/shell.rs` are around their `proto` state machines:
 //! it turns samples into inputs, feeds the machine, drains its outputs and re-arms one timer. This crate holds
@@ -16,6 +18,8 @@
 //!   under the throughput benchmark; a separate sender task avoided it but cost ~30 µs per message.)
 //! - The outbox holds at most `PUBLISHERS_MAX` publishers: keys of finished runs would accumulate otherwise,
 //!   and a live key is declared again on its next use.
+
+pub mod cable;
 
 use std::collections::HashMap;
 use std::path::Path;

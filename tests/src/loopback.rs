@@ -90,6 +90,16 @@ impl Cluster {
         self.agent_via(Command::new(bin("baton-agent")), &endpoint, name, roles, extra);
     }
 
+    /// Starts an agent that joins the router through `endpoint` (a `baton_shell::cable::Cable`'s, say).
+    pub fn agent_at(&mut self, endpoint: &str, name: &str, roles: &[&str], extra: &[&str]) {
+        self.agent_via(Command::new(bin("baton-agent")), endpoint, name, roles, extra);
+    }
+
+    /// The router's TCP address (of `endpoint`, `tcp/127.0.0.1:PORT`).
+    pub fn router_addr(&self) -> std::net::SocketAddr {
+        self.endpoint.trim_start_matches("tcp/").parse().expect("a tcp endpoint")
+    }
+
     /// Starts an agent inside a network namespace, joining the router at `endpoint`.
     pub fn agent_in(
         &mut self,

@@ -591,3 +591,51 @@ async fn a_run_that_stays_is_reset_cleared_and_resumed_as_new_runs_of_its_journa
     let news = trace.iter().filter(|r| r.event == TraceEvent::NewRun).count();
     assert_eq!(news, 3, "three resets: {trace:#?}");
 }
+
+/// `abort` with a robot cut off (its cable pulled out, past its lease): the run ends `aborted` at once, its token
+/// abandoned with an alarm; the robot, cut off, does not know and its motion goes on. `baton run` waits for it;
+/// when the cable is plugged back in, the robot is told, its motion is cancelled (the process is gone) and nothing
+/// after it starts; then `baton run` exits 4.
+#[tokio::test(flavor = "multi_thread")]
+async fn abort_with_a_robot_cut_off_tells_it_once_it_is_back() {
+    let mut cluster = Cluster::with_router().await;
+    let dir = cluster.dir.path().to_path_buf();
+    let pid_file = dir.join("motion.pid");
+    let chart = cell_with(&dir, &format!("echo $$$$ > {}; exec sleep 100", pid_file.display()));
+    let mut coordinator = cluster.coordinator_joining(&chart, &["--abort-wait", "60s"]);
+    coordinator.wait_for_log("running chart").await;
+    let cable = baton_shell::cable::Cable::lay(cluster.router_addr(), 1).await.expect("lay r1's cable");
+    cluster.agent_at(&cable.endpoint(), "r1", &[], &["--allow-shell", "--lease-ms", "1000", "--verbose"]);
+    cluster.agent("r2", &[], &["--allow-shell"]);
+    wait_for_mark(&dir, "start MoveA1").await;
+    cable.cut();
+    coordinator.wait_for_log("agent `r1` lost holding the token").await;
+    let (ok, said) = ctl(&cluster, &["abort", "--reason", "r1 unreachable"]).await;
+    assert!(ok, "{said}");
+    coordinator.wait_for_log("waiting up to 60000 ms to tell r1").await;
+    let s = wait_for_state(&cluster, "aborted").await;
+    let abandoned = s["alarms"].as_array().and_then(|a| {
+        a.iter().find(|x| x["message"].as_str().is_some_and(|m| m.contains("abandoned: `r1` could not be told")))
+    });
+    assert!(abandoned.is_some(), "{s}");
+    let pid = std::fs::read_to_string(&pid_file).expect("the motion wrote its pid");
+    let proc = PathBuf::from(format!("/proc/{}", pid.trim()));
+    assert!(proc.exists(), "cut off, r1 does not know: its motion still runs");
+    cable.heal();
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert_eq!(status.code(), Some(4), "{log}");
+    assert_eq!(summary["state"], "aborted");
+    let aborted = trace.iter().position(|r| r.event == TraceEvent::State && r.name == "aborted").expect("aborted");
+    let told = trace.iter().position(|r| r.event == TraceEvent::Told && r.name == "r1");
+    let told = told.unwrap_or_else(|| panic!("r1 was never told: {trace:#?}"));
+    assert!(told > aborted);
+    cluster.wait_for_agent_log("r1", "skill of action `MoveA1` cancelled: the run was aborted").await;
+    let gone = tokio::time::timeout(TIMEOUT, async {
+        while proc.exists() && !std::fs::read_to_string(proc.join("stat")).unwrap_or_default().contains(") Z ") {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await;
+    assert!(gone.is_ok(), "the motion's process {} still runs", pid.trim());
+    assert!(!marks(&dir).iter().any(|l| l.contains("MoveA2")), "{:?}", marks(&dir));
+}

@@ -176,14 +176,21 @@ fn abort_cancels_the_running_motions_and_ends_the_run_aborted() {
     assert_eq!(sim.coordinator.core().tokens_in_flight(), 0);
 }
 
-/// `abort` with a robot cut off: the run does not wait for it; its token is abandoned with an alarm.
+/// `abort` with a robot cut off: the run does not wait for it; its token is abandoned with an alarm. The robot,
+/// which cannot know, goes on with its segment; the run waits for it, and once it is back it is told (`told`) and
+/// holds nothing of the run.
 #[test]
 fn abort_with_a_robot_cut_off_abandons_its_token_with_an_alarm() {
     let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 6);
     sim.fate_at(200, "r1", Fate::Cut);
     sim.command_at(4_000, ctl("abort"));
-    assert!(sim.run(20_000));
+    assert!(!sim.run(5_000), "the run waits to tell r1");
     assert_eq!(sim.coordinator.core().run_state(), State::Aborted);
+    sim.fate_at(6_000, "r1", Fate::Heal);
+    assert!(sim.run(40_000));
+    let told = sim.trace.iter().find(|r| r.event == TraceEvent::Told).expect("r1 told");
+    assert!(told.name == "r1" && told.t_ms >= 6_000, "{told:?}");
+    assert_eq!(sim.agent_holds("r1"), (0, 0), "told, r1 forgot the run and cancelled its skills");
     let abandoned = sim.trace.iter().find(|r| r.event == TraceEvent::Alarm && r.at_least_after(4_000));
     let abandoned = abandoned.expect("an alarm for the abandoned token");
     assert_eq!(abandoned.name, "r1");

@@ -6,7 +6,6 @@
 //! Exit status: 0 every expectation held; 1 one failed; 2 a scenario could not run; 3 a scenario file is
 //! malformed (`FILE:LINE:COL`). The highest applies.
 
-pub mod cable;
 pub mod real_processes;
 
 use std::collections::BTreeMap;

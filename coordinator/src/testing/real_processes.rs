@@ -1,6 +1,6 @@
 //! `baton test --cluster`: a scenario on real processes on loopback, in real time. The runner embeds a Zenoh
 //! router, starts `baton run` against it and one `baton-agent --simulate SCENARIO` per agent, each behind a
-//! cable it can pull out (`cable.rs`). Inputs go in as `baton set` sends them; faults are signals (kill,
+//! cable it can pull out (`baton_shell::cable`). Inputs go in as `baton set` sends them; faults are signals (kill,
 //! restart), pulled cables (cut, heal), slow cables (link delays) and a coordinator killed and started again on
 //! its journal. What the runner knows of the run is what `baton run --trace` writes (with `--watch` for every
 //! variable); it follows that file as it grows and judges it with the simulation's own observer
@@ -30,7 +30,7 @@ use baton_proto::types::{Type, Value};
 use tokio::process::{Child, Command};
 use zenoh::Session;
 
-use super::cable::Cable;
+use baton_shell::cable::Cable;
 
 /// How often the runner looks at the trace and the clock.
 const POLL: Duration = Duration::from_millis(5);

@@ -99,6 +99,9 @@ pub enum Fate {
 /// How a running simulated skill ends: when, with what, and the outputs it writes first.
 type Ending = (u64, Result<(), String>, Vec<(usize, Value)>);
 
+/// How long a run that was aborted waits for the agents it could not tell (`baton run --abort-wait`'s default).
+const ABORT_WAIT_MS: u64 = 30_000;
+
 struct SimAgent {
     name: String,
     roles: Vec<String>,
@@ -538,6 +541,12 @@ impl SimCluster {
         self.inputs.sort_by_key(|i| i.0);
     }
 
+    /// What agent `name`'s process holds now: its tokens and its running skills.
+    pub fn agent_holds(&self, name: &str) -> (usize, usize) {
+        let a = self.agents.iter().rev().find(|a| a.name == name).expect("an agent of the cluster");
+        (a.run.tokens_held(), a.skills.len())
+    }
+
     /// An operator sends `request` at `t_ms`, as `baton ctl` would; the answer goes to `answers`.
     pub fn command_at(&mut self, t_ms: u64, request: CtlRequest) {
         self.commands.push((t_ms, request));
@@ -644,14 +653,18 @@ impl SimCluster {
             }
             // Up now: it may have died since the start of this millisecond, with the end in its journal only.
             let up = self.down_until.is_none();
-            if up && self.coordinator.core().is_terminal() && self.net.is_empty() {
+            let by_operator = self.coordinator.core().is_ended_by_operator();
+            if up && !by_operator && self.coordinator.core().is_terminal() && self.net.is_empty() {
                 return Some(true);
             }
-            if up && self.coordinator.core().is_ended_by_operator() {
+            if up && by_operator {
                 // Stopped or aborted: `baton run` ends here (exit status 3 or 4); what it said on the way out reaches
-                // the agents (unless lost), which the simulation lets happen for a while.
+                // the agents (unless lost), which the simulation lets happen for a while — and agents it could not
+                // tell of an abort are waited for as `baton run --abort-wait` does by default.
                 let since = *self.operator_end_ms.get_or_insert(self.now_ms);
-                if self.net.is_empty() || self.now_ms >= since + 2_000 {
+                let untold = self.coordinator.core().untold_agents().next().is_some();
+                let wait_ms = if untold { ABORT_WAIT_MS } else { 2_000 };
+                if (self.net.is_empty() && !untold) || self.now_ms >= since + wait_ms {
                     return Some(true);
                 }
             }
