@@ -52,13 +52,27 @@ pub fn zenoh_config(net: &NetConfig, file: Option<&Path>) -> anyhow::Result<zeno
 }
 
 /// The identity a process authenticates with, from the user's Zenoh configuration file: its user name
-/// (`transport/auth/usrpwd/user`), which the router checks; `None` without one.
+/// (`transport/auth/usrpwd/user`), or else the common name of the TLS certificate it connects with
+/// (`transport/link/tls/connect_certificate`, for mutual TLS) — what the router checks; `None` without either.
 pub fn zenoh_identity(file: Option<&Path>) -> Option<String> {
     let config = zenoh::Config::from_file(file?).ok()?;
     // A JSON string (`"operator"`), or `null` without one.
-    let user = config.get_json("transport/auth/usrpwd/user").ok()?;
-    let user = user.trim().strip_prefix('"')?.strip_suffix('"')?;
-    (!user.is_empty() && !user.contains(['"', '\\'])).then(|| user.to_string())
+    let text = |key: &str| {
+        let json = config.get_json(key).ok()?;
+        let text = json.trim().strip_prefix('"')?.strip_suffix('"')?;
+        (!text.is_empty() && !text.contains(['"', '\\'])).then(|| text.to_string())
+    };
+    text("transport/auth/usrpwd/user")
+        .or_else(|| certificate_name(Path::new(&text("transport/link/tls/connect_certificate")?)))
+}
+
+/// The common name of the first certificate in a PEM file; `None` if the file cannot be read or holds none.
+pub fn certificate_name(pem_file: &Path) -> Option<String> {
+    let bytes = std::fs::read(pem_file).ok()?;
+    let (_, pem) = x509_parser::pem::parse_x509_pem(&bytes).ok()?;
+    let cert = pem.parse_x509().ok()?;
+    let name = cert.subject().iter_common_name().next()?.as_str().ok()?.trim().to_string();
+    (!name.is_empty() && !name.chars().any(char::is_control)).then_some(name)
 }
 
 /// The inbox of a subscriber or queryable: `RECEIVE_QUEUE_MAX` samples, filled by Zenoh's reader without waiting
@@ -184,6 +198,38 @@ mod tests {
         assert_eq!(zenoh_identity(Some(&with)).as_deref(), Some("operator"));
         assert_eq!(zenoh_identity(Some(&without)), None);
         assert_eq!(zenoh_identity(None), None);
+    }
+
+    /// With mutual TLS and no user name, who sends a command is the common name of the certificate the client
+    /// connects with (made here by rcgen, as a CA would issue it); a file that is not a certificate names nobody.
+    #[test]
+    fn the_identity_is_the_common_name_of_the_clients_tls_certificate() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let key = rcgen::KeyPair::generate().expect("a key");
+        let mut params = rcgen::CertificateParams::new(vec!["localhost".to_string()]).expect("params");
+        params.distinguished_name.push(rcgen::DnType::CommonName, "shift-lead-anna");
+        params.distinguished_name.push(rcgen::DnType::OrganizationName, "Cell 4");
+        let cert = params.self_signed(&key).expect("a certificate");
+        let pem = dir.path().join("anna.pem");
+        std::fs::write(&pem, cert.pem()).expect("write");
+        let config = dir.path().join("anna.json5");
+        let text = format!(
+            r#"{{ transport: {{ link: {{ tls: {{ connect_certificate: "{}", enable_mtls: true }} }} }} }}"#,
+            pem.display()
+        );
+        std::fs::write(&config, text).expect("write");
+        assert_eq!(zenoh_identity(Some(&config)).as_deref(), Some("shift-lead-anna"));
+        // A user name, where there is one, is the identity the router checks first.
+        let both = dir.path().join("both.json5");
+        let text = format!(
+            r#"{{ transport: {{ auth: {{ usrpwd: {{ user: "operator", password: "x" }} }}, link: {{ tls: {{ connect_certificate: "{}" }} }} }} }}"#,
+            pem.display()
+        );
+        std::fs::write(&both, text).expect("write");
+        assert_eq!(zenoh_identity(Some(&both)).as_deref(), Some("operator"));
+        std::fs::write(&pem, "not a certificate").expect("write");
+        assert_eq!(zenoh_identity(Some(&config)), None);
+        assert_eq!(certificate_name(&dir.path().join("missing.pem")), None);
     }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
