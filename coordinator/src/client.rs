@@ -174,6 +174,11 @@ pub async fn ctl(
     Ok(replies.iter().any(|r| r.ok))
 }
 
+/// The status of every run behind `session`'s router.
+pub async fn status_on(session: &Session) -> anyhow::Result<Vec<StatusReport>> {
+    ask(session, keys::status_any_run(), None).await
+}
+
 /// Sends an operator's command to run `run` (or, with `None`, to every chart behind `session`'s router, which only a
 /// router of one run may do): their replies.
 pub async fn ctl_on(session: &Session, run: Option<RunId>, request: &CtlRequest) -> anyhow::Result<Vec<CtlReply>> {

@@ -89,6 +89,23 @@ fn the_operating_examples_hold_abort_and_acknowledge_on_every_seed() {
             .collect();
         assert_eq!(confirms, ["baton test", "baton test"], "seed {seed}");
     }
+    // A run that stays: reset after it completes (each robot moves twice, in two runs), and cleared after an abort
+    // (the aborted run's motions are cancelled, the next run's finish).
+    for (name, done_per_robot) in [("reset", 2), ("clear", 1)] {
+        let sc = scenario(&format!("tests/baton_test/pass/{name}.test.toml"));
+        for seed in 0..16 {
+            let o = run(&sc, seed);
+            assert!(o.passed(), "{name} seed {seed}: {:?}
+{:?}", o.cases, o.errors);
+            let t = &o.trace;
+            assert_eq!(count(t, TraceEvent::NewRun, "line"), 1, "{name} seed {seed}");
+            assert_eq!(count(t, TraceEvent::SkillDone, "DoA"), done_per_robot, "{name} seed {seed}: {t:#?}");
+            assert_eq!(count(t, TraceEvent::SkillDone, "DoB"), done_per_robot, "{name} seed {seed}");
+            let new_run = first(t, TraceEvent::NewRun, "line").expect("the new run");
+            assert!(t[..new_run].iter().all(|r| r.t_ms <= t[new_run].t_ms), "{name} seed {seed}: time goes on");
+            assert!(t[new_run..].windows(2).all(|w| w[0].t_ms <= w[1].t_ms), "{name} seed {seed}: {t:#?}");
+        }
+    }
     let motion = scenario("examples/motion.test.toml");
     for seed in 0..16 {
         let o = run(&motion, seed);
@@ -191,10 +208,12 @@ fn malformed_files_are_said_at_file_line_col_with_exit_status_3() {
     let (o, stdout, stderr) = baton_test(&dir, &["malformed"], out.path());
     assert_eq!(o.status.code(), Some(3), "{stdout}{stderr}");
     let expected = [
-        "malformed/commands.test.toml:11:11: error: `pause` is no command (they are: hold, unhold, suspend",
+        "malformed/commands.test.toml:11:11: error: `pause` is no command (they are: start, clear, reset, hold",
         "malformed/commands.test.toml:14:1: error: `ack` names its alarm: `target = 1`",
         "malformed/commands.test.toml:18:1: error: no agent named `r3` in the scenario (it has: r1, r2)",
         "malformed/commands.test.toml:24:19: error: `paused` is no run state",
+        "malformed/commands.test.toml:27:11: error: `reset` needs a run that stays at its end: `stay = true` in [run]",
+        "malformed/commands.test.toml:32:8: error: `state waiting`: `waiting` is not a run state (stopped, resetting,",
         "malformed/keys.test.toml:3:1: error: unknown field `untill`",
         "malformed/names.test.toml:10:1: error: no agent named `r3` in the scenario (it has: r1, r2)",
         "malformed/names.test.toml:14:1: error: the chart has no step `Finish`",
@@ -376,7 +395,7 @@ fn a_time_limit_or_an_interrupt_stops_the_runs_and_the_junit_report_is_still_wri
     let doc = roxmltree::Document::parse(&xml).expect("well-formed XML");
     assert_eq!(doc.root_element().attribute("name"), Some("baton test (interrupted: the time limit of 500ms)"));
     // Every scenario had its first seeds before the limit: each has a suite of its own.
-    assert_eq!(doc.root_element().children().filter(|n| n.has_tag_name("testsuite")).count(), 8);
+    assert_eq!(doc.root_element().children().filter(|n| n.has_tag_name("testsuite")).count(), 10);
     // An interrupt, once the runs are under way.
     let report = out.path().join("interrupt.xml");
     let mut child = Command::new(bin("baton"))
@@ -497,6 +516,16 @@ fn cluster_runs_the_example_and_each_fault_with_real_processes() {
     assert!(o.status.success(), "{stdout}{stderr}");
     assert!(stdout.contains("PASS cell_abort (cell_abort.test.toml): 4 expectation(s), seed 1, chart"), "{stdout}");
     assert!(stdout.contains("(aborted)"), "{stdout}");
+    // Runs that stay at their end, reset and cleared by `baton ctl`, ended by an interrupt at their end.
+    let files = ["pass/reset.test.toml", "pass/clear.test.toml", "--cluster", "--keep", "--jobs", "2"];
+    let (o, stdout, stderr) = baton_test(&dir, &files, out.path());
+    assert!(o.status.success(), "{stdout}{stderr}");
+    for name in ["reset", "clear"] {
+        let t = trace(name);
+        assert_eq!(count(&t, TraceEvent::NewRun, "line"), 1, "{name}: {t:#?}");
+        let last = t.iter().rev().find(|r| r.event == TraceEvent::State).expect("states");
+        assert_eq!(last.name, "complete", "{name}");
+    }
     let t = trace("cell_hold");
     let hold = t.iter().find(|r| r.event == TraceEvent::Command && r.name == "hold").expect("the hold, traced");
     assert_eq!((hold.by.as_deref(), hold.message.as_deref()), (Some("baton test"), Some("material late")));

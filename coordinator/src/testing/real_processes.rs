@@ -292,6 +292,8 @@ struct World<'a> {
     struck: Vec<(u64, String)>,
     errors: Vec<String>,
     rng: Rng,
+    /// The coordinator of a run that stays was interrupted at the run's end (`at_end`).
+    interrupted: bool,
 }
 
 impl<'a> World<'a> {
@@ -362,6 +364,7 @@ impl<'a> World<'a> {
             struck: Vec::new(),
             errors: Vec::new(),
             rng,
+            interrupted: false,
         };
         // Chart time 0 is when the cell is there, as in the simulation: the agents that start at once are live
         // on the router before the coordinator starts its run.
@@ -443,6 +446,9 @@ impl<'a> World<'a> {
         cmd.args(["--on-agent-loss", policy, "--cycle-ms", &sc.cycle_ms.to_string(), "--quiet"]);
         if sc.journal {
             cmd.arg("--journal").arg(self.dir.join("journal"));
+        }
+        if sc.stay {
+            cmd.arg("--stay");
         }
         for v in sc.program.vars.iter().filter(|v| !v.hidden) {
             cmd.args(["--watch", &v.name]);
@@ -713,6 +719,13 @@ impl<'a> World<'a> {
                 break RunState::Running;
             }
             self.carry_out(now).await;
+            if sc.stay && !self.interrupted && self.at_end().await {
+                // A run that stays ends as its operator ends it, with an interrupt at its end.
+                if let Some(pid) = self.coordinator.as_ref().and_then(Child::id) {
+                    unsafe { libc::kill(pid as libc::pid_t, libc::SIGINT) };
+                    self.interrupted = true;
+                }
+            }
             if let Some(c) = self.coordinator.as_mut() {
                 if let Ok(Some(status)) = c.try_wait() {
                     self.coordinator = None;
@@ -772,6 +785,21 @@ impl<'a> World<'a> {
             active: obs.active(),
             active_at_failure,
             logs: None,
+        }
+    }
+
+    /// Whether a run that stays is at its end for good: its last state is complete, stopped or aborted, no
+    /// command is left to send, and the run itself is in that state (so that the trace read so far, whose moments
+    /// the `when` commands were judged on, has caught up with it).
+    async fn at_end(&self) -> bool {
+        let Some(last) = self.trace.iter().rev().find(|r| r.event == TraceEvent::State) else { return false };
+        let end = matches!(last.name.as_str(), "complete" | "stopped" | "aborted");
+        if !end || self.plan.iter().any(|(_, a)| matches!(a, Act::Command(_))) {
+            return false;
+        }
+        match crate::client::status_on(&self.session).await {
+            Ok(runs) => !runs.is_empty() && runs.iter().all(|r| r.state.name() == last.name),
+            Err(_) => false,
         }
     }
 

@@ -175,6 +175,24 @@ pub enum ToAgent {
     Peers { run: RunId, peers: Peers },
 }
 
+impl ToAgent {
+    /// The run the message belongs to.
+    pub fn run(&self) -> RunId {
+        match self {
+            ToAgent::Dispatch { run, .. }
+            | ToAgent::Gate { run, .. }
+            | ToAgent::Hold { run, .. }
+            | ToAgent::Abort { run }
+            | ToAgent::AckOverrun { run, .. }
+            | ToAgent::Drop { run, .. }
+            | ToAgent::Ack { run, .. }
+            | ToAgent::Sync { run }
+            | ToAgent::Join { run, .. }
+            | ToAgent::Peers { run, .. } => *run,
+        }
+    }
+}
+
 /// Who may publish the variables an agent reads: the coordinator's process, and each agent that writes some of
 /// them, with its current process and its roles. An agent takes a variable update only from the variable's one
 /// writer (its agent, or an agent of its role), and only from the process named here — so a made-up writer, or a

@@ -1,6 +1,7 @@
 //! Conditions of a scenario: when an input is set or a fault strikes, and what must always (or never) hold.
 //!
-//! A condition is `step Load active`, `step Load active on robot2`, `step Load inactive`, or an ST boolean
+//! A condition is `step Load active`, `step Load active on robot2`, `step Load inactive`, `state held` (the run's
+//! PackML state, as its `state` records say), or an ST boolean
 //! expression over the chart's step flags and variables, read by the chart's own parser: `Pick1.X AND
 //! Weld.X`, `done >= 2 AND NOT Idle.X`. A step's name alone stands for its flag when no variable has that name.
 //! It is evaluated on the coordinator's view of the run: the steps active anywhere (and where), the values of
@@ -18,6 +19,8 @@ pub enum Cond {
     Str(String),
     /// A step is active (on this agent, if given).
     Step(usize, Option<String>),
+    /// The run is in this PackML state.
+    State(crate::dist::runtime::packml::State),
     Var(VarId),
     Not(Box<Cond>),
     Neg(Box<Cond>),
@@ -29,6 +32,10 @@ pub trait View {
     /// Where step `index` is active: `Some(None)` on the coordinator, `Some(Some(agent))` on an agent.
     fn step(&self, index: usize) -> Option<Option<&str>>;
     fn value(&self, var: VarId) -> Value;
+    /// The run's PackML state, if known.
+    fn state(&self) -> Option<crate::dist::runtime::packml::State> {
+        None
+    }
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -64,6 +71,15 @@ impl Cond {
     /// Reads `text` against `program`; `agents` are the scenario's agent names.
     pub fn parse(text: &str, program: &Program, agents: &[String]) -> Result<Cond, String> {
         let words: Vec<&str> = text.split_whitespace().collect();
+        if let ["state" | "STATE" | "State", name] = words[..] {
+            use crate::dist::runtime::packml::State;
+            return State::ALL.into_iter().find(|s| s.name().eq_ignore_ascii_case(name)).map(Cond::State).ok_or_else(
+                || {
+                    let names: Vec<&str> = State::ALL.iter().map(|s| s.name()).collect();
+                    format!("`{text}`: `{name}` is not a run state ({})", names.join(", "))
+                },
+            );
+        }
         if words.first().is_some_and(|w| w.eq_ignore_ascii_case("step")) {
             let bad =
                 || format!("`{text}`: write `step NAME active`, `step NAME active on AGENT` or `step NAME inactive`");
@@ -139,7 +155,7 @@ impl Cond {
         let mut stack = vec![self];
         while let Some(c) = stack.pop() {
             match c {
-                Cond::Step(..) | Cond::Var(_) => return None,
+                Cond::Step(..) | Cond::Var(_) | Cond::State(_) => return None,
                 Cond::Not(x) | Cond::Neg(x) => stack.push(x),
                 Cond::Bin(_, a, b) => {
                     stack.push(a);
@@ -174,6 +190,7 @@ impl Cond {
                 (Some(Some(at)), Some(agent)) => at == agent,
                 _ => false,
             }),
+            Cond::State(s) => V::Bool(view.state() == Some(*s)),
             Cond::Var(v) => match view.value(*v) {
                 Value::Bool(b) => V::Bool(b),
                 Value::Int(i) | Value::Time(i) => V::Num(i as f64),

@@ -105,6 +105,7 @@ pub fn follow_steps(active: &mut BTreeMap<usize, Option<String>>, step: usize, r
 struct Now<'a> {
     active: &'a BTreeMap<usize, Option<String>>,
     value: &'a dyn Fn(VarId) -> Value,
+    state: crate::dist::runtime::packml::State,
 }
 
 impl View for Now<'_> {
@@ -114,6 +115,10 @@ impl View for Now<'_> {
 
     fn value(&self, var: VarId) -> Value {
         (self.value)(var)
+    }
+
+    fn state(&self) -> Option<crate::dist::runtime::packml::State> {
+        Some(self.state)
     }
 }
 
@@ -140,6 +145,8 @@ pub struct Observer<'a> {
     fault_fired: Vec<bool>,
     input_fired: Vec<bool>,
     command_fired: Vec<bool>,
+    /// The run's PackML state, as its last `state` record said (Execute before any).
+    state: crate::dist::runtime::packml::State,
 }
 
 impl<'a> Observer<'a> {
@@ -155,12 +162,28 @@ impl<'a> Observer<'a> {
             fault_fired: sc.faults.iter().map(|f| matches!(f.trigger, Trigger::At(_))).collect(),
             input_fired: sc.inputs.iter().map(|i| matches!(i.trigger, Trigger::At(_))).collect(),
             command_fired: sc.commands.iter().map(|c| matches!(c.trigger, Trigger::At(_))).collect(),
+            state: crate::dist::runtime::packml::State::Execute,
         }
     }
 
     /// Follows the steps through new trace records (an agent's steps come with its reports).
     pub fn follow(&mut self, records: &[TraceRecord]) {
+        use crate::dist::runtime::packml::State;
         for r in records {
+            match r.event {
+                TraceEvent::State => {
+                    if let Some(s) = State::ALL.into_iter().find(|s| s.name() == r.name) {
+                        self.state = s;
+                    }
+                    continue;
+                }
+                // `reset`: the chart starts again, nothing of the old run is active.
+                TraceEvent::NewRun => {
+                    self.active.clear();
+                    continue;
+                }
+                _ => {}
+            }
             if let Some(&i) = self.steps.get(&r.name) {
                 follow_steps(&mut self.active, i, r);
             }
@@ -195,7 +218,7 @@ impl<'a> Observer<'a> {
     /// Judges the moment `t` (after everything that happened at it): invariants, and `when` triggers, each of
     /// which fires once.
     pub fn judge(&mut self, t: u64, value: &dyn Fn(VarId) -> Value) -> Due {
-        let view = Now { active: &self.active, value };
+        let view = Now { active: &self.active, value, state: self.state };
         let mut due = Due::default();
         for (k, e) in self.sc.expects.iter().enumerate() {
             let holds = match &e.kind {
@@ -539,6 +562,9 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
         sc.cycle_ms,
     );
     sim.set_loss_policy(sc.loss_policy);
+    if sc.stay {
+        sim.set_stay();
+    }
     sim.set_skill_model(skill_model(sc));
     let mut rng = fault_rng(seed);
     let mut struck: Vec<(u64, String)> = Vec::new();
@@ -593,7 +619,8 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
         for (i, after) in due.commands {
             sim.command_at(sim.now_ms + after, sc.commands[i].request.clone());
         }
-        if let Some(finished) = over {
+        // A run that stays at its end goes on while an operator's command is still to come.
+        if let Some(finished) = over.filter(|_| !(sc.stay && sim.commands_pending())) {
             break Some(finished);
         }
         // Jump over idle time, but not past a moment a value is expected at, nor the end.

@@ -542,6 +542,21 @@ impl Engine {
         Ok(())
     }
 
+    /// An engine made after t = 0 (the run a `reset` starts): its clock begins at `t_ms`, and its initial steps
+    /// are active since then (their `Activate` events say so). Nothing changes once it ran.
+    pub fn begin_at(&mut self, t_ms: u64) {
+        if self.started {
+            return;
+        }
+        self.now_ms = t_ms;
+        for e in &mut self.events {
+            e.t_ms = t_ms;
+        }
+        for &s in &self.active {
+            self.steps[s.index()].activated_ms = t_ms;
+        }
+    }
+
     /// The time of the last cycle or remote input.
     pub fn now_ms(&self) -> u64 {
         self.now_ms

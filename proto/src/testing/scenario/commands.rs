@@ -1,5 +1,6 @@
-//! `[[commands]]`: an operator's commands in a scenario — `hold`, `unhold`, `suspend`, `unsuspend`, `stop`, `abort`,
-//! `ack` and `shelve`, at a time or when a condition holds — checked against the chart and the cell.
+//! `[[commands]]`: an operator's commands in a scenario — `start`, `hold`, `unhold`, `suspend`, `unsuspend`, `stop`,
+//! `abort`, `clear`, `reset`, the modes, `ack` and `shelve`, at a time or when a condition holds — checked against
+//! the chart and the cell.
 
 use std::ops::Range;
 
@@ -28,6 +29,7 @@ pub(super) fn check(
     program: &Program,
     agents: &[String],
     trigger: TriggerOf<'_>,
+    stay: bool,
 ) -> Vec<Command> {
     let mut out = Vec::new();
     for c in raw {
@@ -38,6 +40,13 @@ pub(super) fn check(
             cx.error(
                 &r.command.span(),
                 format!("`{}` is no command (they are: {})", r.command.get_ref(), COMMANDS.join(", ")),
+            );
+            continue;
+        }
+        if matches!(name.as_str(), "clear" | "reset") && !stay {
+            cx.error(
+                &r.command.span(),
+                format!("`{name}` needs a run that stays at its end: `stay = true` in [run] (`baton run --stay`)"),
             );
             continue;
         }

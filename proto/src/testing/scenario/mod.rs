@@ -165,7 +165,10 @@ pub struct Command {
 }
 
 /// The commands `[[commands]]` may send.
-pub const COMMANDS: [&str; 13] = [
+pub const COMMANDS: [&str; 16] = [
+    "start",
+    "clear",
+    "reset",
     "hold",
     "unhold",
     "suspend",
@@ -251,6 +254,9 @@ pub struct Scenario {
     pub seed: u64,
     pub loss_policy: LossPolicy,
     pub journal: bool,
+    /// The run stays at its end for `clear` and `reset` (`baton run --stay`): the scenario ends once the run is
+    /// at an end (complete, stopped, aborted) with no command left to send.
+    pub stay: bool,
     pub cycle_ms: u64,
     pub network: NetFaults,
     pub agents: Vec<Agent>,
@@ -523,6 +529,7 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
         None => crate::testing::simulated_cluster::CYCLE_MS,
     };
     let journal = raw.run.journal.unwrap_or(true);
+    let stay = raw.run.stay.unwrap_or(false);
     let n = &raw.network;
     let network = cx.net_faults(&n.delay, &n.drop, &n.duplicate, n.reorder);
 
@@ -755,7 +762,7 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
         faults.push(Fault { kind: fault_kind, trigger, jitter_ms, line });
     }
 
-    let commands = commands::check(&mut cx, &raw.commands, &program, &agent_names, &trigger);
+    let commands = commands::check(&mut cx, &raw.commands, &program, &agent_names, &trigger, stay);
 
     // Expectations.
     let step_known = |cx: &mut Ctx, span: &Range<usize>, name: &str| -> Option<String> {
@@ -956,6 +963,7 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
         seed: raw.seed.unwrap_or(1),
         loss_policy,
         journal,
+        stay,
         cycle_ms,
         network,
         agents,

@@ -54,6 +54,7 @@ pub(super) struct RawRun {
     pub(super) on_agent_loss: Option<Spanned<String>>,
     pub(super) journal: Option<bool>,
     pub(super) cycle_ms: Option<Spanned<u64>>,
+    pub(super) stay: Option<bool>,
 }
 
 #[derive(Deserialize, Default)]

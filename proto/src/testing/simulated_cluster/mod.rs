@@ -181,6 +181,7 @@ pub fn compile(source: &str) -> (Arc<Program>, Arc<Layout>) {
 
 /// A fresh agent process (its `restarts`-th incarnation) in the simulated run.
 fn agent_run(
+    run: RunId,
     name: &str,
     roles: &[String],
     hash: &ChartHash,
@@ -189,7 +190,6 @@ fn agent_run(
     restarts: u128,
     cycle_ms: u64,
 ) -> AgentRun {
-    let run = RunId(Uuid::from_u128(1));
     let mut a = AgentRun::new(name, roles, run, hash.clone(), Arc::clone(program), Arc::clone(layout), cycle_ms);
     a.set_incarnation(Uuid::from_u128(restarts));
     a
@@ -252,7 +252,7 @@ impl SimCluster {
                     alive: now,
                     reachable: now,
                     restarts: 0,
-                    run: agent_run(&spec.name, &spec.roles, &hash, &program, &layout, 0, cycle_ms),
+                    run: agent_run(run, &spec.name, &spec.roles, &hash, &program, &layout, 0, cycle_ms),
                     skills: BTreeMap::new(),
                     cut_at: None,
                     fenced: false,
@@ -498,9 +498,10 @@ impl SimCluster {
             Fate::Restart => {
                 // A restart is a new incarnation; a healed cut is the same process.
                 self.agents[i].restarts += 1;
+                let run = self.coordinator.core().run();
                 let a = &mut self.agents[i];
                 a.held_starts = 0;
-                a.run = agent_run(agent, &a.roles, &self.hash, &self.program, &self.layout, a.restarts, self.cycle_ms);
+                a.run = agent_run(run, agent, &a.roles, &self.hash, &self.program, &self.layout, a.restarts, self.cycle_ms);
                 a.alive = true;
                 a.reachable = true;
                 a.cut_at = None;
@@ -539,6 +540,31 @@ impl SimCluster {
     pub fn set_at(&mut self, t_ms: u64, name: &str, value: serde_json::Value) {
         self.inputs.push((t_ms, name.to_string(), value));
         self.inputs.sort_by_key(|i| i.0);
+    }
+
+    /// The run stays at its end for `clear` and `reset` (`baton run --stay`).
+    pub fn set_stay(&mut self) {
+        self.coordinator.stay(self.now_ms);
+        self.flush_coordinator();
+    }
+
+    /// Whether an operator's command is still to be sent.
+    pub fn commands_pending(&self) -> bool {
+        !self.commands.is_empty()
+    }
+
+    /// After a `reset`: the chart starts again as a new run (numbered on from the first), as the shell does; every
+    /// agent process forgets the old run's part and takes the new run's.
+    fn new_run(&mut self) {
+        let run = RunId(Uuid::from_u128(self.coordinator.core().run().0.as_u128() + 1));
+        self.coordinator.new_run(self.now_ms, run);
+        for a in &mut self.agents {
+            a.run = agent_run(run, &a.name, &a.roles, &self.hash, &self.program, &self.layout, a.restarts, self.cycle_ms);
+            a.skills.clear();
+            a.held_starts = 0;
+        }
+        self.operator_end_ms = None;
+        self.flush_coordinator();
     }
 
     /// What agent `name`'s process holds now: its tokens and its running skills.
@@ -615,6 +641,9 @@ impl SimCluster {
                 let answer = self.coordinator.command(self.now_ms, request);
                 self.answers.push((self.now_ms, answer));
                 self.flush_coordinator();
+                if self.coordinator.core().wants_new_run() {
+                    self.new_run();
+                }
             }
             while self.forged.first().is_some_and(|f| f.0 <= self.now_ms) {
                 let (_, update) = self.forged.remove(0);
@@ -653,11 +682,23 @@ impl SimCluster {
             }
             // Up now: it may have died since the start of this millisecond, with the end in its journal only.
             let up = self.down_until.is_none();
-            let by_operator = self.coordinator.core().is_ended_by_operator();
-            if up && !by_operator && self.coordinator.core().is_terminal() && self.net.is_empty() {
+            let core = self.coordinator.core();
+            let by_operator = core.is_ended_by_operator();
+            if up && core.stays() && core.failure().is_none() {
+                // `baton run --stay`: the run waits at its end for `clear` and `reset`; the simulation ends there
+                // once no command is left to send (and what was said on the way has arrived, or had its time).
+                use crate::dist::runtime::packml::State;
+                if matches!(core.run_state(), State::Complete | State::Stopped | State::Aborted) {
+                    let since = *self.operator_end_ms.get_or_insert(self.now_ms);
+                    if self.commands.is_empty() && (self.net.is_empty() || self.now_ms >= since + 2_000) {
+                        return Some(true);
+                    }
+                } else {
+                    self.operator_end_ms = None;
+                }
+            } else if up && !by_operator && core.is_terminal() && self.net.is_empty() {
                 return Some(true);
-            }
-            if up && by_operator {
+            } else if up && by_operator {
                 // Stopped or aborted: `baton run` ends here (exit status 3 or 4); what it said on the way out reaches
                 // the agents (unless lost), which the simulation lets happen for a while — and agents it could not
                 // tell of an abort are waited for as `baton run --abort-wait` does by default.
@@ -781,7 +822,12 @@ impl SimCluster {
                 // A command for a process that is gone reaches nobody.
                 Packet::ToAgent(i, incarnation, _) if incarnation != Uuid::from_u128(self.agents[i].restarts) => {}
                 Packet::ToAgent(i, _, bytes) => {
-                    match wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages") {
+                    let msg = wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages");
+                    // Of a run the agent no longer runs (one before a `reset`): it forgot that run.
+                    if msg.run() != self.agents[i].run.run() {
+                        continue;
+                    }
+                    match msg {
                         ToAgent::Dispatch {
                             token,
                             epoch,

@@ -285,6 +285,11 @@ impl AgentRun {
         self.incarnation = incarnation;
     }
 
+    /// The run this agent's part belongs to.
+    pub fn run(&self) -> RunId {
+        self.run
+    }
+
     pub fn hash(&self) -> &ChartHash {
         &self.hash
     }

@@ -66,6 +66,7 @@ impl Coordinator {
         next.device_alarms = self.device_alarms.clone();
         next.untold = self.untold.clone();
         next.engine.set_mode(self.engine.mode());
+        next.engine.begin_at(next.now_ms);
         for (name, a) in &self.agents {
             let mut fresh = AgentState::new(a.incarnation, a.lease_ms);
             fresh.roles = a.roles.clone();
@@ -80,6 +81,8 @@ impl Coordinator {
         rec.message = Some(run.key());
         next.trace(rec);
         next.change_state(State::Idle);
+        // The initial situation, as a run that waits for `start` shows it.
+        next.drain_engine();
         let chart = &self.program.name;
         next.log(Level::Info, format!("reset: run {} starts chart `{chart}` again from its initial steps", run.key()));
         next.refresh_peers();
