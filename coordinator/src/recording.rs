@@ -582,6 +582,9 @@ impl Logger {
                 }
             }
             TraceEvent::Wait => self.token_log(rec, "WARN", format!("waits for an agent: step {}{epoch}", rec.name)),
+            TraceEvent::Withdraw => {
+                self.token_log(rec, "WARN", format!("taken back by the operator: step {}{epoch}", rec.name))
+            }
             TraceEvent::RejectStale => {
                 let a = agent.unwrap_or("?");
                 let text = format!("stale report from {a} rejected (step {}{epoch}); told to drop it", rec.name);

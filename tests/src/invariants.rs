@@ -54,7 +54,8 @@ pub fn check(trace: &[TraceRecord], program: &Program, all_back: bool) -> Result
                 }
                 last_epoch.insert(token, epoch);
             }
-            TraceEvent::Return => {
+            // An operator's withdrawal accounts for a token as its return does.
+            TraceEvent::Return | TraceEvent::Withdraw => {
                 let token = r.token.as_deref().ok_or(format!("return without a token at {at} ms"))?;
                 let epoch = r.epoch.unwrap_or(0);
                 if last_epoch.get(token) != Some(&epoch) {
@@ -83,7 +84,10 @@ pub fn check(trace: &[TraceRecord], program: &Program, all_back: bool) -> Result
 pub fn tokens_out(trace: &[TraceRecord]) -> usize {
     let left: HashSet<&str> =
         trace.iter().filter(|r| r.event == TraceEvent::Dispatch).filter_map(|r| r.token.as_deref()).collect();
-    let back: HashSet<&str> =
-        trace.iter().filter(|r| r.event == TraceEvent::Return).filter_map(|r| r.token.as_deref()).collect();
+    let back: HashSet<&str> = trace
+        .iter()
+        .filter(|r| matches!(r.event, TraceEvent::Return | TraceEvent::Withdraw))
+        .filter_map(|r| r.token.as_deref())
+        .collect();
     left.difference(&back).count()
 }

@@ -95,8 +95,13 @@ fn the_operating_examples_hold_abort_and_acknowledge_on_every_seed() {
         let sc = scenario(&format!("tests/baton_test/pass/{name}.test.toml"));
         for seed in 0..16 {
             let o = run(&sc, seed);
-            assert!(o.passed(), "{name} seed {seed}: {:?}
-{:?}", o.cases, o.errors);
+            assert!(
+                o.passed(),
+                "{name} seed {seed}: {:?}
+{:?}",
+                o.cases,
+                o.errors
+            );
             let t = &o.trace;
             assert_eq!(count(t, TraceEvent::NewRun, "line"), 1, "{name} seed {seed}");
             assert_eq!(count(t, TraceEvent::SkillDone, "DoA"), done_per_robot, "{name} seed {seed}: {t:#?}");

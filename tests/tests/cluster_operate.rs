@@ -452,6 +452,12 @@ async fn step_mode_waits_for_confirm_and_manual_mode_forces_and_refuses_unsafe_s
     let (ok, said) = ctl(&cluster, &["force", "B1->B2"]).await;
     assert!(ok, "{said}");
     wait_for_mark(&dir, "end MoveB2").await;
+    // r2's token waits at B2 (nothing clears by itself): the operator moves it to the end of its branch, taking it
+    // back from r2 in one checked change; moving it into A's branch is refused.
+    let (ok, said) = ctl(&cluster, &["move", "B2", "A1"]).await;
+    assert!(!ok && said.contains("could never reach"), "{said}");
+    let (ok, said) = ctl(&cluster, &["move", "B2", "BEnd", "--reason", "B2 done by hand"]).await;
+    assert!(ok && said.contains("the token of `B2` moved to `BEnd`"), "{said}");
     let (ok, said) = ctl(&cluster, &["mode", "auto"]).await;
     assert!(ok, "{said}");
     let (status, log, trace, _) = coordinator.finish().await;
@@ -459,6 +465,10 @@ async fn step_mode_waits_for_confirm_and_manual_mode_forces_and_refuses_unsafe_s
     check_trace_invariants(&trace, &chart);
     let modes: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::Mode).map(|r| r.name.as_str()).collect();
     assert_eq!(modes, ["step", "manual", "auto"]);
+    let withdrawn = trace.iter().find(|r| r.event == TraceEvent::Withdraw).expect("r2's token taken back");
+    assert_eq!((withdrawn.name.as_str(), withdrawn.agent.as_deref()), ("B2", Some("r2")));
+    assert!(first(&trace, TraceEvent::Activate, "BEnd")
+        .is_some_and(|b| b > first(&trace, TraceEvent::Withdraw, "B2").unwrap_or(usize::MAX)));
 }
 
 /// `{max_ms}` with real processes: the chart branches to its own recovery on `S.overrun` (cancelling the slow motion

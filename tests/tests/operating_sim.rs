@@ -39,6 +39,7 @@ fn ctl(command: &str) -> CtlRequest {
         agent: None,
         step: None,
         for_ms: None,
+        to: None,
         reason: format!("test {command}"),
         by: "operator@cell".into(),
     }
@@ -360,6 +361,32 @@ fn in_manual_mode_transitions_clear_only_when_forced_and_unsafe_switches_are_ref
     assert!(first(t, TraceEvent::Fire, "B1->B2").is_some_and(|b| b >= 5_000), "B1->B2 waited for auto mode");
     let refused = t.iter().filter(|r| r.event == TraceEvent::CommandRefused).count();
     assert_eq!(refused, 2);
+}
+
+/// Manual mode: `move FROM TO` takes a token from one step to another in one change, checked as one — r1's token
+/// from its first motion straight to the end of its branch (its second motion never runs); a move that would put
+/// two tokens in one branch is refused, saying why; back in auto mode the chart ends.
+#[test]
+fn in_manual_mode_a_token_moves_in_one_checked_change() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 10);
+    let mv = |from: &str, to: &str| CtlRequest { to: Some(to.into()), ..ctl_on("move", from) };
+    sim.command_at(50, ctl_on("mode", "manual"));
+    sim.command_at(2_000, mv("A1", "AEnd"));
+    sim.command_at(2_100, mv("B1", "A2"));
+    sim.command_at(2_200, mv("B1", "BEnd"));
+    sim.command_at(2_300, ctl_on("mode", "auto"));
+    assert!(sim.run(20_000), "{:#?}", sim.trace);
+    check(&sim);
+    let answers: Vec<Result<String, String>> = sim.answers.iter().map(|a| a.1.clone()).collect();
+    assert_eq!(answers[1], Ok("the token of `A1` moved to `AEnd`".to_string()));
+    let why = answers[2].clone().expect_err("two tokens in branch A");
+    assert!(why.contains("could never reach") && why.contains("{A2, AEnd}"), "{why}");
+    assert_eq!(answers[3], Ok("the token of `B1` moved to `BEnd`".to_string()));
+    let t = &sim.trace;
+    assert!(first(t, TraceEvent::ActionOn, "MoveA2").is_none(), "A2 was skipped: {t:#?}");
+    assert!(first(t, TraceEvent::ActionOn, "MoveB2").is_none(), "B2 was skipped");
+    let done = first(t, TraceEvent::Activate, "Done").expect("the chart ended");
+    assert!(done >= 2_300, "Done at {done}, before auto mode");
 }
 
 /// Operators' commands at random moments — hold, unhold, suspend, partial holds, modes, confirmations, a stop or

@@ -13,14 +13,18 @@ pub struct Ctl {
     /// The run, by its id as `baton status` lists it (or the start of it).
     #[arg(long, value_name = "ID")]
     pub run: Option<String>,
-    /// start (a run begun with --wait-start), hold, unhold, suspend, unsuspend, stop, abort (PackML's commands;
-    /// reset and clear are refused: a run that ended is over); mode auto|step|manual; confirm [TRANSITION] (step mode); force TRANSITION, activate STEP,
-    /// deactivate STEP (manual mode); ack ALARM_ID|all; shelve ALARM_ID --for DURATION.
+    /// start (a run begun with --wait-start), hold, unhold, suspend, unsuspend, stop, abort, clear, reset
+    /// (PackML's commands; clear and reset for a run begun with --stay); mode auto|step|manual; confirm
+    /// [TRANSITION] (step mode); force TRANSITION, activate STEP, deactivate STEP, move FROM TO (manual mode); ack
+    /// ALARM_ID|all; shelve ALARM_ID --for DURATION.
     #[arg(value_name = "COMMAND")]
     pub command: String,
     /// What the command is about: the mode, a transition, a step, or an alarm's id (or `all`).
     #[arg(value_name = "TARGET")]
     pub target: Option<String>,
+    /// move: the step the token goes to.
+    #[arg(value_name = "TO")]
+    pub to: Option<String>,
     /// hold / unhold only the branches on this agent; the rest of the run goes on.
     #[arg(long, value_name = "NAME")]
     pub agent: Option<String>,
@@ -49,6 +53,7 @@ impl Ctl {
             agent: self.agent,
             step: self.step,
             for_ms: self.for_ms,
+            to: self.to,
             reason: self.comment.unwrap_or(self.reason),
             // The Zenoh identity where authentication is configured (the router checked it), else user@host.
             by: baton_shell::zenoh_identity(self.zenoh_config.as_deref()).unwrap_or_else(crate::client::who),

@@ -373,6 +373,7 @@ async fn serve(
                     agent: None,
                     step: None,
                     for_ms: None,
+                    to: None,
                     reason: "interrupted".into(),
                     by: signal_sender("SIGINT or SIGTERM"),
                 };

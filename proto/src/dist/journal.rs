@@ -619,6 +619,7 @@ mod tests {
             agent: None,
             step: None,
             for_ms: None,
+            to: None,
             reason: "shift change".into(),
             by: "op".into(),
         };

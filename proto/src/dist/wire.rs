@@ -417,6 +417,9 @@ pub struct CtlRequest {
     /// `shelve --for`: how long, in ms.
     #[serde(default)]
     pub for_ms: Option<u64>,
+    /// `move FROM TO`: the step the token goes to (`target` is the step it leaves).
+    #[serde(default)]
+    pub to: Option<String>,
     /// Why, in the operator's words (`--reason`, or an acknowledgement's comment).
     #[serde(default)]
     pub reason: String,

@@ -71,11 +71,14 @@ pub enum TraceEvent {
     Told,
     /// `reset` started the chart again from its initial steps as a new run (`message` holds the new run's id).
     NewRun,
+    /// An operator took a token back (manual mode: `deactivate` or `move` of the step it held): its agent drops it
+    /// (`name` is that step, with `agent`, `token`, `epoch`). It does not come back.
+    Withdraw,
 }
 
 impl TraceEvent {
     /// Every event, in the order above.
-    pub const ALL: [TraceEvent; 30] = [
+    pub const ALL: [TraceEvent; 31] = [
         TraceEvent::Activate,
         TraceEvent::Deactivate,
         TraceEvent::Fire,
@@ -106,6 +109,7 @@ impl TraceEvent {
         TraceEvent::Shelve,
         TraceEvent::Told,
         TraceEvent::NewRun,
+        TraceEvent::Withdraw,
     ];
 
     /// The event's name in the JSON (`action_on`). Not public: code outside matches on the event itself, and
@@ -142,6 +146,7 @@ impl TraceEvent {
             TraceEvent::Shelve => "shelve",
             TraceEvent::Told => "told",
             TraceEvent::NewRun => "new_run",
+            TraceEvent::Withdraw => "withdraw",
         }
     }
 }

@@ -68,7 +68,8 @@ pub(super) fn check(
                 }
             },
         };
-        let needs_target = matches!(name.as_str(), "ack" | "shelve" | "mode" | "force" | "activate" | "deactivate");
+        let needs_target =
+            matches!(name.as_str(), "ack" | "shelve" | "mode" | "force" | "activate" | "deactivate" | "move");
         let takes_target = needs_target || name == "confirm";
         if (needs_target && target.is_none()) || (!takes_target && target.is_some()) {
             let message = match name.as_str() {
@@ -78,6 +79,9 @@ pub(super) fn check(
                 "mode" => "`mode` names the mode: `target = \"step\"` (auto, step or manual)".to_string(),
                 "force" => "`force` names its transition: `target = \"Load->Weld\"`".to_string(),
                 "activate" | "deactivate" => format!("`{name}` names its step: `target = \"Weld\"`"),
+                "move" => "`move` names the step the token leaves and the one it goes to: `target = \"Load\"`, \
+                           `to = \"Weld\"`"
+                    .to_string(),
                 _ => format!("`{name}` takes no `target`"),
             };
             cx.error(&span, message);
@@ -92,8 +96,24 @@ pub(super) fn check(
                 cx.error(&span, format!("the chart has no transition `{t}`"));
                 continue;
             }
-            ("activate" | "deactivate", Some(st)) if program.step_by_name(st).is_none() => {
+            ("activate" | "deactivate" | "move", Some(st)) if program.step_by_name(st).is_none() => {
                 cx.error(&span, super::super::cond::no_step(program, st));
+                continue;
+            }
+            _ => {}
+        }
+        let to = r.to.as_ref().map(|t| (t.span(), t.get_ref().clone()));
+        match (&to, name.as_str()) {
+            (None, "move") => {
+                cx.error(&span, "`move` names the step the token goes to: `to = \"Weld\"`");
+                continue;
+            }
+            (Some((at, _)), n) if n != "move" => {
+                cx.error(at, format!("`to` goes with move, not with `{n}`"));
+                continue;
+            }
+            (Some((at, st)), _) if program.step_by_name(st).is_none() => {
+                cx.error(at, super::super::cond::no_step(program, st));
                 continue;
             }
             _ => {}
@@ -125,6 +145,7 @@ pub(super) fn check(
             agent: r.agent.clone(),
             step: r.step.clone(),
             for_ms,
+            to: to.map(|(_, t)| t),
             reason: r.reason.clone().unwrap_or_default(),
             by: r.by.clone().unwrap_or_else(|| SCENARIO_OPERATOR.to_string()),
         };

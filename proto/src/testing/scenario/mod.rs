@@ -165,7 +165,7 @@ pub struct Command {
 }
 
 /// The commands `[[commands]]` may send.
-pub const COMMANDS: [&str; 16] = [
+pub const COMMANDS: [&str; 17] = [
     "start",
     "clear",
     "reset",
@@ -180,6 +180,7 @@ pub const COMMANDS: [&str; 16] = [
     "force",
     "activate",
     "deactivate",
+    "move",
     "ack",
     "shelve",
 ];

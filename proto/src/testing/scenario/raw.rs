@@ -43,6 +43,7 @@ pub(super) struct RawCommand {
     pub(super) lasting: Option<Spanned<String>>,
     pub(super) reason: Option<String>,
     pub(super) by: Option<String>,
+    pub(super) to: Option<Spanned<String>>,
     pub(super) at: Option<Spanned<String>>,
     pub(super) when: Option<Spanned<String>>,
     pub(super) after: Option<Spanned<String>>,

@@ -501,7 +501,8 @@ impl SimCluster {
                 let run = self.coordinator.core().run();
                 let a = &mut self.agents[i];
                 a.held_starts = 0;
-                a.run = agent_run(run, agent, &a.roles, &self.hash, &self.program, &self.layout, a.restarts, self.cycle_ms);
+                a.run =
+                    agent_run(run, agent, &a.roles, &self.hash, &self.program, &self.layout, a.restarts, self.cycle_ms);
                 a.alive = true;
                 a.reachable = true;
                 a.cut_at = None;
@@ -559,7 +560,8 @@ impl SimCluster {
         let run = RunId(Uuid::from_u128(self.coordinator.core().run().0.as_u128() + 1));
         self.coordinator.new_run(self.now_ms, run);
         for a in &mut self.agents {
-            a.run = agent_run(run, &a.name, &a.roles, &self.hash, &self.program, &self.layout, a.restarts, self.cycle_ms);
+            a.run =
+                agent_run(run, &a.name, &a.roles, &self.hash, &self.program, &self.layout, a.restarts, self.cycle_ms);
             a.skills.clear();
             a.held_starts = 0;
         }

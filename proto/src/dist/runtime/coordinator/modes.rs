@@ -109,25 +109,47 @@ impl Coordinator {
 
     /// `activate STEP` / `deactivate STEP` (manual mode): only to a situation the chart could reach by itself.
     pub(super) fn switch_command(&mut self, activate: bool, target: Option<&str>) -> Result<String, String> {
+        let s = self.manual_step(target)?;
+        let (off, on) = if activate { (None, Some(s)) } else { (Some(s), None) };
+        self.switch(off, on)
+    }
+
+    /// `move FROM TO`: the token of step FROM goes to step TO at once — one change, checked as one (a token moved
+    /// along its branch passes through no situation without it).
+    pub(super) fn move_command(&mut self, from: Option<&str>, to: Option<&str>) -> Result<String, String> {
+        if to.is_none() {
+            return Err("move names two steps: `move FROM TO`".to_string());
+        }
+        let (from, to) = (self.manual_step(from)?, self.manual_step(to)?);
+        if from == to {
+            return Err("a token moved to its own step stays where it is".to_string());
+        }
+        self.switch(Some(from), Some(to))
+    }
+
+    /// The step an operator names in manual mode.
+    fn manual_step(&self, name: Option<&str>) -> Result<StepId, String> {
         if self.engine.mode() != Mode::Manual {
             return Err(format!("steps are switched in manual mode; the run is in {} mode", self.engine.mode().name()));
         }
-        let name = target.unwrap_or("");
-        let s = self
-            .program
-            .step_by_name(name)
-            .ok_or_else(|| format!("chart `{}` has no step `{name}`", self.program.name))?;
-        let step = self.program.steps[s.index()].name.clone();
-        if activate == self.engine.is_active(s) {
-            let why = if activate { "holds a token already: a second one" } else { "is not active" };
-            return Err(format!("`{step}` {why} is refused"));
+        let name = name.unwrap_or("");
+        self.program.step_by_name(name).ok_or_else(|| format!("chart `{}` has no step `{name}`", self.program.name))
+    }
+
+    /// Deactivates `off` and activates `on` (either may be absent) as one change, if the chart could reach the
+    /// resulting situation by itself.
+    fn switch(&mut self, off: Option<StepId>, on: Option<StepId>) -> Result<String, String> {
+        let program = Arc::clone(&self.program);
+        let name = |s: StepId| program.steps[s.index()].name.clone();
+        if let Some(s) = on.filter(|&s| self.engine.is_active(s)) {
+            return Err(format!("`{}` holds a token already: a second one is refused", name(s)));
+        }
+        if let Some(s) = off.filter(|&s| !self.engine.is_active(s)) {
+            return Err(format!("`{}` is not active", name(s)));
         }
         let mut situation: Vec<StepId> = self.engine.active_steps().to_vec();
-        if activate {
-            situation.push(s);
-        } else {
-            situation.retain(|&x| x != s);
-        }
+        situation.retain(|&x| Some(x) != off);
+        situation.extend(on);
         let mut names: Vec<&str> = situation.iter().map(|s| self.program.steps[s.index()].name.as_str()).collect();
         names.sort_unstable();
         match analysis::is_reachable(&self.program, &situation) {
@@ -141,30 +163,44 @@ impl Coordinator {
             }
             None => return Err("refused: the chart is too large to prove the change safe".to_string()),
         }
-        if !activate {
+        if let Some(s) = off {
             if let Some(g) = self.layout.segment_of[s.index()] {
                 let still = self.layout.segments[g.index()].steps.iter().any(|&x| x != s && self.engine.is_active(x));
                 if still {
                     return Err(format!(
-                        "`{step}` runs on an agent with other steps of its branch: deactivate those first"
+                        "`{}` runs on an agent with other steps of its branch: deactivate those first",
+                        name(s)
                     ));
                 }
                 if let Some(id) = self.by_segment[g.index()] {
-                    self.take_back(id);
+                    self.take_back(id, s);
                 }
             }
+            self.engine.handle_remote(self.now_ms, RemoteInput::Deactivate(s)).map_err(|e| e.to_string())?;
         }
-        let input = if activate { RemoteInput::Activate(s) } else { RemoteInput::Deactivate(s) };
-        self.engine.handle_remote(self.now_ms, input).map_err(|e| e.to_string())?;
+        if let Some(s) = on {
+            self.engine.handle_remote(self.now_ms, RemoteInput::Activate(s)).map_err(|e| e.to_string())?;
+        }
         self.drain_engine();
-        Ok(format!("`{step}` {}", if activate { "activated" } else { "deactivated" }))
+        Ok(match (off, on) {
+            (Some(a), Some(b)) => format!("the token of `{}` moved to `{}`", name(a), name(b)),
+            (Some(a), None) => format!("`{}` deactivated", name(a)),
+            (None, Some(b)) => format!("`{}` activated", name(b)),
+            (None, None) => "nothing to switch".to_string(),
+        })
     }
 
-    /// A token taken back by an operator (its only active step deactivated): its agent drops it, and it is gone.
-    fn take_back(&mut self, id: TokenId) {
+    /// A token taken back by an operator (its only active step, `step`, deactivated): its agent drops it, and it
+    /// is gone (`withdraw`).
+    fn take_back(&mut self, id: TokenId, step: StepId) {
         let Some(tok) = self.tokens.remove(&id) else { return };
         self.by_segment[tok.segment.index()] = None;
         self.waiting.retain(|w| *w != id);
+        let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Withdraw, &self.program.steps[step.index()].name);
+        rec.agent = tok.agent.clone();
+        rec.token = Some(id.to_string());
+        rec.epoch = Some(tok.epoch);
+        self.trace(rec);
         if let Some(agent) = tok.agent {
             if let Some(a) = self.agents.get_mut(&agent) {
                 a.tokens = a.tokens.saturating_sub(1);

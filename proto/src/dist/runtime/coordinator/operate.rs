@@ -63,12 +63,13 @@ impl Coordinator {
             "force" => return self.force_command(target),
             "activate" => return self.switch_command(true, target),
             "deactivate" => return self.switch_command(false, target),
+            "move" => return self.move_command(target, req.to.as_deref()),
             _ => {}
         }
         let Some(command) = Command::from_name(&name) else {
             return Err(format!(
                 "unknown command `{}`: hold, unhold, suspend, unsuspend, stop, abort, reset, start, clear, mode, \
-                 confirm, force, activate, deactivate, ack, shelve",
+                 confirm, force, activate, deactivate, move, ack, shelve",
                 req.command
             ));
         };

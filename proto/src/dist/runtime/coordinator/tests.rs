@@ -295,6 +295,7 @@ fn ctl(command: &str) -> crate::dist::wire::CtlRequest {
         agent: None,
         step: None,
         for_ms: None,
+        to: None,
         reason: String::new(),
         by: "op".into(),
     }
