@@ -180,17 +180,18 @@ pub fn compile(source: &str) -> (Arc<Program>, Arc<Layout>) {
 }
 
 /// A fresh agent process (its `restarts`-th incarnation) in the simulated run.
-fn agent_run(
-    run: RunId,
-    name: &str,
-    roles: &[String],
-    hash: &ChartHash,
-    program: &Arc<Program>,
-    layout: &Arc<Layout>,
-    restarts: u128,
+/// The chart a simulated cell runs, as its agents' processes take it.
+struct ChartOf<'a> {
+    hash: &'a ChartHash,
+    program: &'a Arc<Program>,
+    layout: &'a Arc<Layout>,
     cycle_ms: u64,
-) -> AgentRun {
-    let mut a = AgentRun::new(name, roles, run, hash.clone(), Arc::clone(program), Arc::clone(layout), cycle_ms);
+}
+
+/// The part of run `run` that process number `restarts` of agent `name` runs.
+fn agent_run(run: RunId, name: &str, roles: &[String], chart: &ChartOf<'_>, restarts: u128) -> AgentRun {
+    let (program, layout) = (Arc::clone(chart.program), Arc::clone(chart.layout));
+    let mut a = AgentRun::new(name, roles, run, chart.hash.clone(), program, layout, chart.cycle_ms);
     a.set_incarnation(Uuid::from_u128(restarts));
     a
 }
@@ -252,7 +253,13 @@ impl SimCluster {
                     alive: now,
                     reachable: now,
                     restarts: 0,
-                    run: agent_run(run, &spec.name, &spec.roles, &hash, &program, &layout, 0, cycle_ms),
+                    run: agent_run(
+                        run,
+                        &spec.name,
+                        &spec.roles,
+                        &ChartOf { hash: &hash, program: &program, layout: &layout, cycle_ms },
+                        0,
+                    ),
                     skills: BTreeMap::new(),
                     cut_at: None,
                     fenced: false,
@@ -499,10 +506,11 @@ impl SimCluster {
                 // A restart is a new incarnation; a healed cut is the same process.
                 self.agents[i].restarts += 1;
                 let run = self.coordinator.core().run();
+                let chart =
+                    ChartOf { hash: &self.hash, program: &self.program, layout: &self.layout, cycle_ms: self.cycle_ms };
                 let a = &mut self.agents[i];
                 a.held_starts = 0;
-                a.run =
-                    agent_run(run, agent, &a.roles, &self.hash, &self.program, &self.layout, a.restarts, self.cycle_ms);
+                a.run = agent_run(run, agent, &a.roles, &chart, a.restarts);
                 a.alive = true;
                 a.reachable = true;
                 a.cut_at = None;
@@ -559,9 +567,9 @@ impl SimCluster {
     fn new_run(&mut self) {
         let run = RunId(Uuid::from_u128(self.coordinator.core().run().0.as_u128() + 1));
         self.coordinator.new_run(self.now_ms, run);
+        let chart = ChartOf { hash: &self.hash, program: &self.program, layout: &self.layout, cycle_ms: self.cycle_ms };
         for a in &mut self.agents {
-            a.run =
-                agent_run(run, &a.name, &a.roles, &self.hash, &self.program, &self.layout, a.restarts, self.cycle_ms);
+            a.run = agent_run(run, &a.name, &a.roles, &chart, a.restarts);
             a.skills.clear();
             a.held_starts = 0;
         }
