@@ -22,6 +22,8 @@ pub fn check(trace: &[TraceRecord], program: &Program, all_back: bool) -> Result
     for r in trace {
         let at = r.t_ms;
         match r.event {
+            // `reset`: the chart starts again from its initial steps; the old run's steps are gone with it.
+            TraceEvent::NewRun => active.clear(),
             TraceEvent::Activate if !active.insert(&r.name) => {
                 return Err(format!("`{}` got a second token at {at} ms", r.name));
             }

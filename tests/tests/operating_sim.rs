@@ -389,6 +389,81 @@ fn in_manual_mode_a_token_moves_in_one_checked_change() {
     assert!(done >= 2_300, "Done at {done}, before auto mode");
 }
 
+/// A cell that stays at its end, operated at random moments on a faulty network — held, stopped or aborted, then
+/// cleared, reset and started again, over and over, with a robot restarted and the coordinator crashed (its journal
+/// replayed across the resets): the whole trace keeps the invariants, nothing starts while held, and the last run,
+/// unless stopped or aborted, makes its three parts from the initial values.
+#[test]
+fn random_commands_on_a_cell_that_stays_keep_every_promise_across_resets() {
+    use baton_proto::testing::simulated_cluster::Rng;
+    let cell = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/cell.st"))
+        .expect("examples/cell.st");
+    let agents: &[(&str, &[&str])] = &[("robot1", &["assembler"]), ("robot2", &["assembler"])];
+    let seeds: u64 = std::env::var("BATON_SIM_SEEDS").ok().and_then(|s| s.parse().ok()).unwrap_or(16);
+    let mut new_runs = 0;
+    for seed in 0..seeds {
+        let mut rng = Rng::new(seed, 0x2545_F491_4F6C_DD1D);
+        let faults = Faults { duplicate: 0.1, reorder: true, delay_ms_max: 5, loss: 0.03 };
+        let mut sim = SimCluster::new(&cell, agents, faults, seed);
+        sim.set_stay();
+        let mut plan = Vec::new();
+        let mut t = 0;
+        for round in 0..4 {
+            t += 300 + rng.next_u64() % 2_500;
+            let command = ["hold", "stop", "abort", "suspend"][(rng.next_u64() % 4) as usize];
+            plan.push(format!("{t} {command}"));
+            sim.command_at(t, ctl(command));
+            t += 200 + rng.next_u64() % 1_500;
+            for command in ["unhold", "unsuspend", "clear", "reset", "start"] {
+                plan.push(format!("{t} {command}"));
+                sim.command_at(t, ctl(command));
+                t += 50 + rng.next_u64() % 300;
+            }
+            if round == 1 && seed % 2 == 0 {
+                plan.push(format!("{t} coordinator crash"));
+                sim.crash_coordinator_at(t, 300);
+            }
+            if round == 2 && seed % 3 == 0 {
+                plan.push(format!("{t} restart robot2"));
+                sim.fate_at(t, "robot2", Fate::Restart);
+            }
+        }
+        // Then the cell is let go on, again and again (a hold takes a motion's time to be held, and an unhold
+        // before that is refused).
+        for k in 0..6 {
+            let at = t + 400 + k * 900;
+            for command in ["unhold", "unsuspend", "clear", "reset", "start"] {
+                sim.command_at(at, ctl(command));
+            }
+        }
+        let plan = plan.join("\n");
+        let ended = sim.run(200_000);
+        assert!(
+            ended,
+            "seed {seed}: the cell did not end ({})\n{plan}\n{:#?}",
+            sim.coordinator.core().run_state().name(),
+            &sim.trace[sim.trace.len().saturating_sub(20)..]
+        );
+        let core = sim.coordinator.core();
+        let by_operator = core.is_ended_by_operator();
+        let last_run = sim.trace.iter().rposition(|r| r.event == TraceEvent::NewRun).map_or(0, |i| i + 1);
+        new_runs += sim.trace.iter().filter(|r| r.event == TraceEvent::NewRun).count();
+        // The whole trace, every run in it; every token of the last run back unless it was ended by an operator.
+        if let Err(why) = baton_tests::invariants::check(&sim.trace, core.program(), false) {
+            panic!("seed {seed}: {why}\n{plan}");
+        }
+        if let Err(why) = baton_tests::invariants::check(&sim.trace[last_run..], core.program(), !by_operator) {
+            panic!("seed {seed}, the last run: {why}\n{plan}");
+        }
+        assert!(sim.violations.is_empty(), "seed {seed}: {:?}\n{plan}", sim.violations);
+        if !by_operator {
+            assert_eq!(core.run_state(), State::Complete, "seed {seed}\n{plan}");
+            assert_eq!(sim.value("done"), Some(baton_proto::types::Value::Int(3)), "seed {seed}\n{plan}");
+        }
+    }
+    assert!(new_runs >= seeds as usize, "{new_runs} resets in {seeds} seeds: the plan should reset most runs");
+}
+
 /// Operators' commands at random moments — hold, unhold, suspend, partial holds, modes, confirmations, a stop or
 /// an abort — on a network that loses, duplicates and reorders, with a robot restarted and the coordinator crashed:
 /// no skill starts while its branch is held, no segment runs twice in an epoch, every token is accounted for, the

@@ -54,9 +54,11 @@ impl Coordinator {
     /// The run that follows a `reset`: the same chart from its initial steps, run `run`, waiting in Idle for
     /// `start`. What belongs to the cell rather than to the run goes on: the agents known and their processes, the
     /// loss policy, the cycle period, the mode, and the alarms still standing (an alarm stays until acknowledged).
-    pub fn new_run(&self, now_ms: u64, run: RunId, new_token: Box<dyn FnMut() -> TokenId + Send>) -> Coordinator {
+    /// What the ended run asked for and nobody took yet comes first in the new run's outputs.
+    pub fn new_run(&mut self, now_ms: u64, run: RunId, new_token: Box<dyn FnMut() -> TokenId + Send>) -> Coordinator {
         let mut next =
             Coordinator::new(Arc::clone(&self.program), Arc::clone(&self.layout), run, self.hash.clone(), new_token);
+        next.outbox = std::mem::take(&mut self.outbox);
         next.now_ms = self.now_ms.max(now_ms);
         next.cycle_ms = self.cycle_ms;
         next.policy = self.policy;

@@ -1,0 +1,197 @@
+//! The simulated network between the coordinator and its agents: what each process sends goes out as packets, each
+//! meeting the faults of its link (lost, duplicated, delayed, reordered), and what arrives is given to its process
+//! — the coordinator's records made durable first, as the shell does.
+
+use super::*;
+
+impl SimCluster {
+    /// The faults a packet meets now: its agent's link's, while they last, else the run's.
+    pub(super) fn faults_for(&self, packet: &Packet) -> Faults {
+        let agent = match packet {
+            Packet::ToAgent(i, _, _) | Packet::Report(i, _) | Packet::Vars(Some(i), _) => Some(*i),
+            Packet::Vars(None, _) => None,
+        };
+        let now = self.now_ms;
+        agent
+            .and_then(|i| self.links.iter().find(|l| l.agent == i && l.from_ms <= now && now < l.until_ms))
+            .map_or(self.faults, |l| l.faults)
+    }
+
+    pub(super) fn send(&mut self, packet: Packet) {
+        self.messages += 1;
+        if self.calm_from_ms.is_some_and(|t| self.now_ms >= t) {
+            self.faults = Faults::default();
+        }
+        let faults = self.faults_for(&packet);
+        if self.chance(faults.loss) {
+            return;
+        }
+        let delay = if faults.delay_ms_max > 0 { self.random() % (faults.delay_ms_max + 1) } else { 0 };
+        let copy = match &packet {
+            Packet::ToAgent(i, inc, b) => Packet::ToAgent(*i, *inc, b.clone()),
+            Packet::Report(i, b) => Packet::Report(*i, b.clone()),
+            Packet::Vars(i, b) => Packet::Vars(*i, b.clone()),
+        };
+        self.net.push((self.now_ms + delay, packet));
+        if self.chance(faults.duplicate) {
+            let later = self.now_ms + delay + self.random() % 5;
+            self.net.push((later, copy));
+        }
+    }
+
+    pub(super) fn deliver(&mut self) {
+        loop {
+            let ready: Vec<usize> = (0..self.net.len()).filter(|&i| self.net[i].0 <= self.now_ms).collect();
+            if ready.is_empty() {
+                return;
+            }
+            let pick =
+                if self.faults.reorder { ready[(self.random() % ready.len() as u64) as usize] } else { ready[0] };
+            let (_, packet) = self.net.remove(pick);
+            match packet {
+                Packet::ToAgent(i, _, _) if !self.agents[i].reachable => {}
+                // A command for a process that is gone reaches nobody.
+                Packet::ToAgent(i, incarnation, _) if incarnation != Uuid::from_u128(self.agents[i].restarts) => {}
+                Packet::ToAgent(i, _, bytes) => {
+                    let msg = wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages");
+                    // Of a run the agent no longer runs (one before a `reset`): it forgot that run.
+                    if msg.run() != self.agents[i].run.run() {
+                        continue;
+                    }
+                    match msg {
+                        ToAgent::Dispatch {
+                            token,
+                            epoch,
+                            segment,
+                            entry,
+                            vars,
+                            vars_seq,
+                            acks,
+                            fence,
+                            peers,
+                            held,
+                            mode,
+                            ..
+                        } => {
+                            for a in acks {
+                                self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
+                            }
+                            let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held, mode };
+                            let before = self.agents[i].run.held();
+                            self.agents[i].run.handle_dispatch(self.now_ms, d);
+                            // A segment started here: never twice in one epoch, on any agent.
+                            for h in self.agents[i].run.held() {
+                                if !before.contains(&h) && !self.started.insert((h.token, h.epoch)) {
+                                    let (now, name) = (self.now_ms, self.agents[i].name.clone());
+                                    self.violations.push(format!(
+                                        "at {now} ms token {} started a second time in epoch {} (on `{name}`)",
+                                        h.token, h.epoch
+                                    ));
+                                }
+                            }
+                        }
+                        ToAgent::Drop { token, epoch, .. } => self.agents[i].run.handle_drop(self.now_ms, token, epoch),
+                        ToAgent::Ack { acks, .. } => {
+                            for a in acks {
+                                self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
+                            }
+                        }
+                        ToAgent::Sync { .. } => self.agents[i].run.handle_sync(self.now_ms),
+                        ToAgent::Hold { token, epoch, held, .. } => {
+                            self.agents[i].run.handle_hold(self.now_ms, token, epoch, held)
+                        }
+                        ToAgent::Abort { .. } => self.agents[i].run.handle_abort(self.now_ms),
+                        ToAgent::Gate { token, epoch, mode, permit, seq, .. } => {
+                            self.agents[i].run.handle_gate(self.now_ms, token, epoch, mode, permit, seq)
+                        }
+                        ToAgent::AckOverrun { token, epoch, step, .. } => {
+                            self.agents[i].run.handle_ack_overrun(self.now_ms, token, epoch, step)
+                        }
+                        ToAgent::Join { vars, vars_seq, peers, .. } => {
+                            self.agents[i].run.handle_join(self.now_ms, Join { vars, vars_seq, peers })
+                        }
+                        ToAgent::Peers { peers, .. } => self.agents[i].run.handle_peers(self.now_ms, peers),
+                    }
+                }
+                // A coordinator that is down hears nothing.
+                Packet::Report(..) | Packet::Vars(..) if self.down_until.is_some() => {}
+                Packet::Report(_, bytes) => {
+                    self.coordinator.report(self.now_ms, &bytes).expect("agents send valid reports");
+                }
+                Packet::Vars(_, bytes) => {
+                    let update: VarUpdate = wire::decode(&bytes).expect("valid update");
+                    self.coordinator.vars(self.now_ms, &bytes).expect("valid update");
+                    let now = self.now_ms;
+                    for a in self.agents.iter_mut().filter(|a| a.reachable) {
+                        a.run.handle_vars(now, &update);
+                    }
+                }
+            }
+            self.flush_coordinator();
+        }
+    }
+
+    /// Makes the coordinator's records durable, then carries out what it asked for — unless it dies in between.
+    pub(super) fn flush_coordinator(&mut self) {
+        let records = self.coordinator.take_records();
+        self.journal.extend(records);
+        let due = self.crashes_after_journal.first().is_some_and(|c| c.0 <= self.now_ms);
+        if due && self.down_until.is_none() && self.coordinator.has_output() {
+            let (_, down_ms) = self.crashes_after_journal.remove(0);
+            while self.coordinator.poll_output().is_some() {}
+            self.outputs_lost = true;
+            self.down_until = Some(self.now_ms + down_ms);
+            return;
+        }
+        while let Some(out) = self.coordinator.poll_output() {
+            match out {
+                CoordOutput::Send { agent, incarnation, msg } => {
+                    let i = self.agents.iter().position(|a| a.name == agent).expect("known agent");
+                    self.send(Packet::ToAgent(i, incarnation, wire::encode(&msg)));
+                }
+                CoordOutput::Vars(update) => self.send(Packet::Vars(None, wire::encode(&update))),
+                CoordOutput::Trace(rec) => self.trace.push(rec),
+                CoordOutput::Log { .. } => {}
+            }
+        }
+    }
+
+    pub(super) fn flush_agent(&mut self, i: usize) {
+        while let Some(out) = self.agents[i].run.poll_output() {
+            // Cut off, what it says is lost (its unacknowledged reports are resent once it is back); its skills
+            // are its own business and go on.
+            let reachable = self.agents[i].reachable;
+            match out {
+                AgentOutput::Report(r) if reachable => self.send(Packet::Report(i, wire::encode(&r))),
+                AgentOutput::Vars(u) if reachable => self.send(Packet::Vars(Some(i), wire::encode(&u))),
+                AgentOutput::Report(_) | AgentOutput::Vars(_) => {}
+                AgentOutput::StartSkill { action, name, binding } => {
+                    // A held branch starts nothing: not its entry's skills, not a timed qualifier's.
+                    if self.agents[i].run.started_while_held() > self.agents[i].held_starts {
+                        self.agents[i].held_starts = self.agents[i].run.started_while_held();
+                        let (now, agent) = (self.now_ms, self.agents[i].name.clone());
+                        self.violations
+                            .push(format!("by {now} ms `{agent}` started `{name}` while its branch was held"));
+                    }
+                    let random = self.random();
+                    let skill = match self.skill_model.as_mut() {
+                        Some(model) => {
+                            model(SkillStart { agent: &self.agents[i].name, action: &name, binding: &binding, random })
+                        }
+                        None => motion(&binding, random),
+                    };
+                    let entry = match skill {
+                        SimSkill::Finish { after_ms, result, writes } => Some((self.now_ms + after_ms, result, writes)),
+                        SimSkill::Hang => None,
+                    };
+                    self.agents[i].skills.insert(action, entry);
+                }
+                AgentOutput::StopSkill { action } => {
+                    self.agents[i].skills.remove(&action);
+                }
+                // The simulated cells have no devices.
+                AgentOutput::Log { .. } | AgentOutput::Output { .. } | AgentOutput::Devices(_) => {}
+            }
+        }
+    }
+}
