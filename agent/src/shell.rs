@@ -73,6 +73,22 @@ impl AgentConfig {
         if self.connect.is_empty() {
             anyhow::bail!("give the router's endpoint with --connect, such as tcp/127.0.0.1:7447");
         }
+        // With a TLS certificate, the agent is who its certificate says: under another name it would claim an
+        // identity it cannot prove (and the router's access control, which matches the certificate, would refuse
+        // it what the name needs).
+        if let Some(file) = self.zenoh_config.as_deref() {
+            if let Some((cert, cn)) = baton_shell::certificate_identity(file) {
+                if cn != self.name {
+                    anyhow::bail!(
+                        "the certificate {} is `{cn}`'s: this agent cannot run as `{}` with it (--name {cn}, or the \
+                         certificate of `{}`)",
+                        cert.display(),
+                        self.name,
+                        self.name
+                    );
+                }
+            }
+        }
         Ok(())
     }
 }

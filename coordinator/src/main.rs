@@ -31,6 +31,7 @@ mod cli;
 mod client;
 mod demo;
 mod demo_chart;
+mod deploy;
 mod journal;
 mod recording;
 mod replay;

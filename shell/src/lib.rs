@@ -56,14 +56,24 @@ pub fn zenoh_config(net: &NetConfig, file: Option<&Path>) -> anyhow::Result<zeno
 /// (`transport/link/tls/connect_certificate`, for mutual TLS) — what the router checks; `None` without either.
 pub fn zenoh_identity(file: Option<&Path>) -> Option<String> {
     let config = zenoh::Config::from_file(file?).ok()?;
+    config_text(&config, "transport/auth/usrpwd/user").or_else(|| certificate_identity(file?).map(|(_, cn)| cn))
+}
+
+/// The TLS certificate a Zenoh configuration file connects with (`transport/link/tls/connect_certificate`) and the
+/// common name it carries; `None` without one (or one that names nobody).
+pub fn certificate_identity(file: &Path) -> Option<(std::path::PathBuf, String)> {
+    let config = zenoh::Config::from_file(file).ok()?;
+    let path = std::path::PathBuf::from(config_text(&config, "transport/link/tls/connect_certificate")?);
+    let name = certificate_name(&path)?;
+    Some((path, name))
+}
+
+/// A string setting of a Zenoh configuration; `None` when it is unset, empty or not a plain string.
+fn config_text(config: &zenoh::Config, key: &str) -> Option<String> {
     // A JSON string (`"operator"`), or `null` without one.
-    let text = |key: &str| {
-        let json = config.get_json(key).ok()?;
-        let text = json.trim().strip_prefix('"')?.strip_suffix('"')?;
-        (!text.is_empty() && !text.contains(['"', '\\'])).then(|| text.to_string())
-    };
-    text("transport/auth/usrpwd/user")
-        .or_else(|| certificate_name(Path::new(&text("transport/link/tls/connect_certificate")?)))
+    let json = config.get_json(key).ok()?;
+    let text = json.trim().strip_prefix('"')?.strip_suffix('"')?;
+    (!text.is_empty() && !text.contains(['"', '\\'])).then(|| text.to_string())
 }
 
 /// The common name of the first certificate in a PEM file; `None` if the file cannot be read or holds none.

@@ -6,6 +6,7 @@ mod bench;
 mod check;
 mod ctl;
 mod demo;
+mod deploy;
 mod export;
 mod replay;
 mod run;
@@ -71,6 +72,9 @@ enum Command {
     /// Operate a running chart: hold, unhold, suspend, unsuspend, stop, abort; ack or shelve an alarm.
     /// baton ctl --connect EP [--run ID] COMMAND [TARGET] [--agent NAME] [--step S] [--reason TEXT]
     Ctl(ctl::Ctl),
+    /// Prepare a cell's deployment: `certs` makes a CA and a certificate per process (the name as its common name).
+    #[command(subcommand)]
+    Deploy(deploy::Deploy),
 }
 
 pub fn main() -> ExitCode {
@@ -88,6 +92,7 @@ pub fn main() -> ExitCode {
         Command::BenchEcho(c) => c.run(),
         Command::Status(c) => c.run(),
         Command::Ctl(c) => c.run(),
+        Command::Deploy(c) => c.run(),
     };
     match result {
         Ok(code) => code,
