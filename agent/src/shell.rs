@@ -653,7 +653,7 @@ impl Shell {
 
     async fn carry_out(&mut self, run: RunId, out: AgentOutput) {
         match out {
-            AgentOutput::Report(report) => self.put(keys::report(run), wire::encode(&report)).await,
+            AgentOutput::Report(report) => self.put(keys::report(run, &self.config.name), wire::encode(&report)).await,
             AgentOutput::Vars(update) => self.put(keys::vars(run, &self.config.name), wire::encode(&update)).await,
             AgentOutput::StartSkill { action, name, binding } => {
                 let tx = self.events.clone();

@@ -150,7 +150,7 @@ async fn echo_chaos(
     let mut held: Option<zenoh::sample::Sample> = None;
     while let Ok(sample) = sub.recv_async().await {
         let key = sample.key_expr().as_str().to_string();
-        if !(key.ends_with("/report") || key.ends_with("/cmd") || key.contains("/vars/")) {
+        if !(key.contains("/report/") || key.ends_with("/cmd") || key.contains("/vars/")) {
             continue;
         }
         match held.take() {
@@ -240,7 +240,7 @@ async fn garbage_on_batons_keys_changes_nothing() {
     let info: wire::AgentInfo = wire::decode(&info.result().expect("ok").payload().to_bytes()).expect("info");
     let r1_cmd = keys::agent_cmd("r1", info.incarnation);
     for g in &garbage {
-        put(keys::report(run), g.clone()).await;
+        put(keys::report(run, "r1"), g.clone()).await;
         put(keys::vars(run, "intruder"), g.clone()).await;
         put(r1_cmd.clone(), g.clone()).await;
     }

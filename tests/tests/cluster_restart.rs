@@ -21,7 +21,7 @@ async fn a_coordinator_killed_mid_segment_resumes_from_its_journal() {
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let watch = cluster.watch().await;
     let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
-    let reports = watch.declare_subscriber("baton/run/*/report").await.expect("report subscriber");
+    let reports = watch.declare_subscriber("baton/run/*/report/*").await.expect("report subscriber");
     let mut coordinator = cluster.coordinator_joining(&cell, &args);
     coordinator.wait_for_log("running chart").await;
     cluster.agent("robot1", &["assembler"], &[]);
@@ -175,7 +175,7 @@ async fn what_the_coordinator_refuses_never_reaches_its_journal() {
             vars_seq: 0,
             done: true,
         };
-        rogue.put(keys::report(run), wire::encode(&report)).await.expect("put");
+        rogue.put(keys::report(run, "ghost"), wire::encode(&report)).await.expect("put");
     }
     for _ in 0..FLOOD {
         coordinator.wait_for_log("variable update from unknown agent `ghost` dropped").await;

@@ -84,7 +84,7 @@ impl Inboxes {
         let zerr = |e: zenoh::Error| anyhow!("{e}");
         let inbox = baton_shell::inbox;
         Ok(Inboxes {
-            report: session.declare_subscriber(keys::report(run)).with(inbox()).await.map_err(zerr)?,
+            report: session.declare_subscriber(keys::report_any(run)).with(inbox()).await.map_err(zerr)?,
             vars: session.declare_subscriber(keys::vars(run, "*")).with(inbox()).await.map_err(zerr)?,
             devices: session.declare_subscriber(keys::devices(run, "*")).with(inbox()).await.map_err(zerr)?,
             alive: session.liveliness().declare_subscriber(keys::alive_any()).history(true).await.map_err(zerr)?,
@@ -128,7 +128,8 @@ impl Shell {
 
     pub(crate) fn on_report(&mut self, s: &Sample) {
         let now = self.now_ms();
-        if let Err(e) = self.core.report(now, &s.payload().to_bytes()) {
+        let Some(sender) = self.sender(s) else { return };
+        if let Err(e) = self.core.report(now, sender, &s.payload().to_bytes()) {
             self.decode_drop(s, e);
         }
         self.out.values(now, self.core.core());
@@ -136,7 +137,8 @@ impl Shell {
 
     pub(crate) fn on_vars(&mut self, s: &Sample) {
         let now = self.now_ms();
-        if let Err(e) = self.core.vars(now, &s.payload().to_bytes()) {
+        let Some(sender) = self.sender(s) else { return };
+        if let Err(e) = self.core.vars(now, sender, &s.payload().to_bytes()) {
             self.decode_drop(s, e);
         }
         self.out.values(now, self.core.core());
@@ -144,9 +146,20 @@ impl Shell {
 
     pub(crate) fn on_devices(&mut self, s: &Sample) {
         let now = self.now_ms();
-        if let Err(e) = self.core.devices(now, &s.payload().to_bytes()) {
+        let Some(sender) = self.sender(s) else { return };
+        if let Err(e) = self.core.devices(now, sender, &s.payload().to_bytes()) {
             self.decode_drop(s, e);
         }
+    }
+
+    /// The process a run's message comes from, as its key names it (what the router's access control checks).
+    fn sender<'s>(&mut self, s: &'s Sample) -> Option<&'s str> {
+        let sender = keys::sender(s.key_expr().as_str());
+        if sender.is_none() {
+            self.decode_drops += 1;
+            eprintln!("warning: dropped a message on {}: its key names no sender", s.key_expr());
+        }
+        sender
     }
 
     pub(crate) fn decode_drop(&mut self, s: &Sample, e: wire::WireError) {

@@ -371,16 +371,25 @@ impl Journaled {
         }
     }
 
-    pub fn report(&mut self, now_ms: u64, bytes: &[u8]) -> Result<(), WireError> {
+    /// A report as it arrived from `sender` (the agent its key names): one that claims another agent is dropped.
+    pub fn report(&mut self, now_ms: u64, sender: &str, bytes: &[u8]) -> Result<(), WireError> {
         let report: Report = wire::decode(bytes)?;
+        if report.agent != sender {
+            self.core.refuse_misaddressed(now_ms, "report", sender, &report.agent);
+            return Ok(());
+        }
         let record = self.core.admit_report(&report).then(|| frame(REPORT, now_ms, bytes));
         self.arrived(now_ms, record, Record::Report(report));
         Ok(())
     }
 
     /// A variable update: only its values that apply are recorded (the bytes as they came when all do).
-    pub fn vars(&mut self, now_ms: u64, bytes: &[u8]) -> Result<(), WireError> {
+    pub fn vars(&mut self, now_ms: u64, sender: &str, bytes: &[u8]) -> Result<(), WireError> {
         let update: VarUpdate = wire::decode(bytes)?;
+        if update.from != sender {
+            self.core.refuse_misaddressed(now_ms, "variable update", sender, &update.from);
+            return Ok(());
+        }
         let record = self.core.admit_vars(&update).map(|kept| {
             if kept.len() == update.vars.len() {
                 frame(VARS, now_ms, bytes)
@@ -393,8 +402,12 @@ impl Journaled {
     }
 
     /// A device report: recorded as it applies (messages cut, each binding once).
-    pub fn devices(&mut self, now_ms: u64, bytes: &[u8]) -> Result<(), WireError> {
+    pub fn devices(&mut self, now_ms: u64, sender: &str, bytes: &[u8]) -> Result<(), WireError> {
         let report: DeviceReport = wire::decode(bytes)?;
+        if report.agent != sender {
+            self.core.refuse_misaddressed(now_ms, "device report", sender, &report.agent);
+            return Ok(());
+        }
         let Some(kept) = self.core.admit_devices(&report) else {
             self.arrived(now_ms, None, Record::Devices(report));
             return Ok(());
@@ -668,14 +681,15 @@ mod tests {
         // to record.
         let big = value(&j, "note", Value::Str(std::sync::Arc::new("x".repeat(1_000_000))));
         for seq in 0..50 {
-            j.vars(10, &wire::encode(&update("ghost", 9, seq, vec![big.clone()]))).expect("decodes");
+            j.vars(10, "ghost", &wire::encode(&update("ghost", 9, seq, vec![big.clone()]))).expect("decodes");
         }
-        j.vars(11, &wire::encode(&update("r1", 2, 1, vec![value(&j, "n", Value::Int(5))]))).expect("decodes");
+        j.vars(11, "r1", &wire::encode(&update("r1", 2, 1, vec![value(&j, "n", Value::Int(5))]))).expect("decodes");
         let mut other = update("r1", 1, 1, vec![value(&j, "n", Value::Int(5))]);
         other.run = RunId(Uuid::from_u128(8));
-        j.vars(12, &wire::encode(&other)).expect("decodes");
-        j.vars(13, &wire::encode(&update("r1", 1, 1, vec![value(&j, "go", Value::Bool(true))]))).expect("decodes");
-        j.vars(14, &wire::encode(&update("r1", 1, 1, vec![big.clone()]))).expect("decodes");
+        j.vars(12, "r1", &wire::encode(&other)).expect("decodes");
+        j.vars(13, "r1", &wire::encode(&update("r1", 1, 1, vec![value(&j, "go", Value::Bool(true))])))
+            .expect("decodes");
+        j.vars(14, "r1", &wire::encode(&update("r1", 1, 1, vec![big.clone()]))).expect("decodes");
         assert!(j.take_records().is_empty(), "refused updates were journaled");
         assert_eq!(j.core().value(j.core().program().var_by_name("go").expect("go")), Value::Bool(false));
         // A set the coordinator refuses is not journaled either; one it takes is.
@@ -691,14 +705,19 @@ mod tests {
             2,
             vec![value(&j, "n", Value::Int(7)), value(&j, "go", Value::Bool(true)), value(&j, "n", Value::Int(8))],
         );
-        j.vars(17, &wire::encode(&mixed)).expect("decodes");
+        j.vars(17, "r1", &wire::encode(&mixed)).expect("decodes");
         let records = j.take_records();
         assert_eq!(records.len(), 1);
         let Ok(Entry { record: Record::Vars(kept), .. }) = decode(&records[0]) else { panic!("a Vars record") };
         assert_eq!(kept.vars, vec![value(&j, "n", Value::Int(7))]);
         // The same update again is old news: not recorded.
-        j.vars(18, &wire::encode(&mixed)).expect("decodes");
+        j.vars(18, "r1", &wire::encode(&mixed)).expect("decodes");
         assert!(j.take_records().is_empty());
+        // r2 publishing on its own key an update that says it is r1's: dropped, not recorded, nothing taken.
+        let claimed = update("r1", 1, 3, vec![value(&j, "n", Value::Int(9))]);
+        j.vars(19, "r2", &wire::encode(&claimed)).expect("decodes");
+        assert!(j.take_records().is_empty());
+        assert_eq!(j.core().value(j.core().program().var_by_name("n").expect("n")), Value::Int(7));
     }
 
     #[test]
@@ -733,21 +752,24 @@ mod tests {
         // recorded, since they will apply), the rest are dropped unrecorded (the agent sends them again).
         let mut recorded = 0;
         for seq in 1..100 {
-            j.report(20, &wire::encode(&report(seq, "f".repeat(100_000)))).expect("decodes");
+            j.report(20, "r1", &wire::encode(&report(seq, "f".repeat(100_000)))).expect("decodes");
             recorded += j.take_records().len();
         }
         assert!(recorded > 0 && recorded * 100_000 <= REPORTS_AHEAD_BYTES_MAX, "{recorded} held");
         // The same one ahead again, and one from another process: not recorded.
-        j.report(21, &wire::encode(&report(1, "f".into()))).expect("decodes");
+        j.report(21, "r1", &wire::encode(&report(1, "f".into()))).expect("decodes");
         let mut forged = report(0, "f".into());
         forged.incarnation = Uuid::from_u128(2);
-        j.report(21, &wire::encode(&forged)).expect("decodes");
+        j.report(21, "r1", &wire::encode(&forged)).expect("decodes");
+        assert!(j.take_records().is_empty());
+        // On r2's key, saying it is r1's: dropped before anything looks at it.
+        j.report(21, "r2", &wire::encode(&report(0, "f".into()))).expect("decodes");
         assert!(j.take_records().is_empty());
         // The one it waits for applies, and so do those held.
-        j.report(22, &wire::encode(&report(0, "f".into()))).expect("decodes");
+        j.report(22, "r1", &wire::encode(&report(0, "f".into()))).expect("decodes");
         assert_eq!(j.take_records().len(), 1);
         // Now old: acknowledged again, not recorded.
-        j.report(23, &wire::encode(&report(0, "f".into()))).expect("decodes");
+        j.report(23, "r1", &wire::encode(&report(0, "f".into()))).expect("decodes");
         assert!(j.take_records().is_empty());
     }
 

@@ -71,8 +71,24 @@ pub fn agent_cmd_any(agent: &str) -> String {
     format!("{ROOT}/agent/{agent}/*/cmd")
 }
 
-pub fn report(run: RunId) -> String {
-    format!("{ROOT}/run/{}/report", run.key())
+/// An agent's reports to the run: the key names the agent, so that a router's access control can let each agent
+/// publish only its own (`sender`).
+pub fn report(run: RunId, agent: &str) -> String {
+    format!("{ROOT}/run/{}/report/{agent}", run.key())
+}
+
+/// Every agent's reports to the run: what its coordinator subscribes to.
+pub fn report_any(run: RunId) -> String {
+    report(run, "*")
+}
+
+/// Who a run's report, variable update or device report claims to come from, as its key names it
+/// (`baton/run/<run>/report/<agent>`, `…/vars/<writer>`, `…/devices/<agent>`).
+pub fn sender(key: &str) -> Option<&str> {
+    let rest = key.strip_prefix(ROOT)?.strip_prefix("/run/")?;
+    let (_, rest) = rest.split_once('/')?;
+    let (kind, name) = rest.split_once('/')?;
+    (matches!(kind, "report" | "vars" | "devices") && !name.is_empty() && !name.contains('/')).then_some(name)
 }
 
 pub fn vars(run: RunId, writer: &str) -> String {
@@ -145,6 +161,12 @@ mod tests {
     fn variable_keys_name_their_writer() {
         let run = RunId(Uuid::from_u128(3));
         assert_eq!(writer_of_vars(&vars(run, "r1")), Some("r1"));
+        assert_eq!(sender(&vars(run, "r1")), Some("r1"));
+        assert_eq!(sender(&report(run, "r2")), Some("r2"));
+        assert_eq!(sender(&devices(run, "cell1")), Some("cell1"));
+        assert_eq!(sender(&chart(run)), None);
+        assert_eq!(sender(&format!("{}/x", report(run, "r2"))), None);
+        assert_eq!(sender("baton/run/x/ctl/r1"), None);
         assert_eq!(writer_of_vars("baton/run/x/vars/"), None);
         assert_eq!(writer_of_vars("baton/run/x/vars/a/b"), None);
     }

@@ -23,8 +23,10 @@ use crate::types::Value;
 /// 3: dispatches and joins carry the values of the variables the agent writes (a new process takes them) and the
 /// writers it may hear variables from (`Peer`); `ToAgent::Peers` tells agents when those change. 4: operators'
 /// commands (`CtlRequest`): tokens are held and released (`ToAgent::Hold`, confirmed by `AgentEventKind::Held` and
-/// `Released`) and a run is aborted (`ToAgent::Abort`).
-pub const PROTOCOL_VERSION: u32 = 4;
+/// `Released`) and a run is aborted (`ToAgent::Abort`). 5: each agent's reports on a key of its own
+/// (`keys::report`), which must name the agent the report says it is from, as variable updates and device reports
+/// name theirs; `CtlRequest::to` (`move`).
+pub const PROTOCOL_VERSION: u32 = 5;
 
 /// One run of a chart by one coordinator.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]

@@ -630,7 +630,8 @@ impl SimCluster {
                 let (_, update) = self.forged.remove(0);
                 let now = self.now_ms;
                 if up {
-                    self.coordinator.vars(now, &wire::encode(&update)).expect("a forged update encodes");
+                    // Without access control on the router, a rogue publishes on the key of the writer it claims.
+                    self.coordinator.vars(now, &update.from, &wire::encode(&update)).expect("a forged update encodes");
                 }
                 for a in self.agents.iter_mut().filter(|a| a.alive && a.reachable) {
                     a.run.handle_vars(now, &update);

@@ -115,12 +115,13 @@ impl SimCluster {
                 }
                 // A coordinator that is down hears nothing.
                 Packet::Report(..) | Packet::Vars(..) if self.down_until.is_some() => {}
-                Packet::Report(_, bytes) => {
-                    self.coordinator.report(self.now_ms, &bytes).expect("agents send valid reports");
+                Packet::Report(i, bytes) => {
+                    let sender = self.agents[i].name.clone();
+                    self.coordinator.report(self.now_ms, &sender, &bytes).expect("agents send valid reports");
                 }
                 Packet::Vars(_, bytes) => {
                     let update: VarUpdate = wire::decode(&bytes).expect("valid update");
-                    self.coordinator.vars(self.now_ms, &bytes).expect("valid update");
+                    self.coordinator.vars(self.now_ms, &update.from, &bytes).expect("valid update");
                     let now = self.now_ms;
                     for a in self.agents.iter_mut().filter(|a| a.reachable) {
                         a.run.handle_vars(now, &update);

@@ -78,6 +78,14 @@ impl Coordinator {
         }
     }
 
+    /// A message on the key of `sender` that says it is from `claimed`: dropped and counted, never journaled. (With
+    /// access control on the router, a process can publish only on its own keys; without it, this keeps one
+    /// agent from speaking for another by the name it writes.)
+    pub fn refuse_misaddressed(&mut self, now_ms: u64, what: &str, sender: &str, claimed: &str) {
+        self.advance(now_ms);
+        self.drop_msg(format!("{what} on `{sender}`'s key claiming to be from `{claimed}` dropped"));
+    }
+
     /// A report from an agent, decoded. Reports of a token apply once each, in sequence order.
     pub fn handle_report(&mut self, now_ms: u64, report: Report) {
         self.advance(now_ms);
