@@ -170,6 +170,11 @@ impl Cluster {
         self.start_coordinator(chart, "--connect", extra)
     }
 
+    /// Starts `baton run CHART --connect EP …` joining a router the test started itself (a `zenohd`).
+    pub fn coordinator_connecting(&self, chart: &Path, extra: &[&str]) -> Coordinator {
+        self.start_coordinator(chart, "--connect", extra)
+    }
+
     /// Another coordinator joining the test's router, whose trace and summary files are named after `name`: two
     /// runs behind one router.
     pub fn coordinator_joining_as(&self, name: &str, chart: &Path, extra: &[&str]) -> Coordinator {

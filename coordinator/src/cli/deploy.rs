@@ -10,6 +10,50 @@ pub enum Deploy {
     /// it, the name as the certificate's common name: DIR/ca.pem, DIR/ca.key, DIR/NAME.pem, DIR/NAME.key (PEM).
     /// Give each process its own: an agent's name, the coordinator's, each operator's.
     Certs(Certs),
+    /// Write a router's configuration for a chart's cell: deny by default, and each identity allowed only what its
+    /// part needs (an agent its own keys and the chart's bindings on it; a coordinator the coordinator's keys;
+    /// operators set and ctl). Works with `zenohd` and with `baton run --listen … --zenoh-config`.
+    Acl(Acl),
+}
+
+#[derive(clap::Args)]
+pub struct Acl {
+    pub chart: PathBuf,
+    #[arg(long)]
+    pub pou: Option<String>,
+    /// A coordinator's identity (repeatable).
+    #[arg(long = "coordinator", value_name = "NAME")]
+    pub coordinators: Vec<String>,
+    /// An agent's identity, and the roles it serves: --agent robot1 --agent assembler1=assembler,welder.
+    #[arg(long = "agent", value_name = "NAME[=ROLE,…]", value_parser = parse_agent)]
+    pub agents: Vec<(String, Vec<String>)>,
+    /// An operator's identity: may set inputs and operate runs (repeatable).
+    #[arg(long = "operator", value_name = "NAME")]
+    pub operators: Vec<String>,
+    /// A viewer's identity: may read status and why (repeatable).
+    #[arg(long = "viewer", value_name = "NAME")]
+    pub viewers: Vec<String>,
+    /// How the router knows a process: its certificate's common name, or its Zenoh user name.
+    #[arg(long, value_enum, default_value_t = crate::deploy::acl::By::Cert)]
+    pub by: crate::deploy::acl::By,
+    /// Where the router listens (repeatable).
+    #[arg(long, value_name = "ENDPOINT", default_value = "tls/0.0.0.0:7447")]
+    pub listen: Vec<String>,
+    /// Mutual TLS with the certificates of `baton deploy certs --ca DIR`: the router's are DIR/ROUTER.pem and .key.
+    #[arg(long, value_name = "DIR")]
+    pub pki: Option<PathBuf>,
+    /// The router's name in --pki (the coordinator's, for a router embedded in `baton run`).
+    #[arg(long, value_name = "NAME", default_value = "router")]
+    pub router: String,
+    /// Write the configuration here rather than to standard output.
+    #[arg(long, short, value_name = "FILE")]
+    pub output: Option<PathBuf>,
+}
+
+fn parse_agent(text: &str) -> Result<(String, Vec<String>), String> {
+    let (name, roles) = text.split_once('=').unwrap_or((text, ""));
+    let roles = roles.split(',').map(str::trim).filter(|r| !r.is_empty()).map(str::to_string).collect();
+    Ok((name.trim().to_string(), roles))
 }
 
 #[derive(clap::Args)]
@@ -39,6 +83,33 @@ impl Deploy {
                 for i in &made.issued {
                     let what = if i.made { "issued" } else { "kept (--renew to issue again)" };
                     println!("{}: {what}: {} {}", i.name, i.cert.display(), i.key.display());
+                }
+                Ok(ExitCode::SUCCESS)
+            }
+            Deploy::Acl(a) => {
+                let loaded = crate::chart_file::load(&a.chart, a.pou.as_deref())?;
+                let ids = crate::deploy::acl::Identities {
+                    coordinators: a.coordinators,
+                    agents: a.agents,
+                    operators: a.operators,
+                    viewers: a.viewers,
+                };
+                let acl = crate::deploy::acl::access_control(&loaded.program, &loaded.layout, &ids, a.by)?;
+                let tls = a.pki.map(|dir| {
+                    let file = |f: String| dir.join(f).display().to_string();
+                    (file("ca.pem".into()), file(format!("{}.pem", a.router)), file(format!("{}.key", a.router)))
+                });
+                let config = crate::deploy::acl::router_config(acl, &a.listen, tls);
+                let text = format!(
+                    "// The router of chart `{}`'s cell: written by `baton deploy acl`; deny by default.\n{}\n",
+                    loaded.pou,
+                    serde_json::to_string_pretty(&config)?
+                );
+                match &a.output {
+                    Some(p) => {
+                        std::fs::write(p, text).map_err(|e| anyhow::anyhow!("cannot write {}: {e}", p.display()))?
+                    }
+                    None => print!("{text}"),
                 }
                 Ok(ExitCode::SUCCESS)
             }
