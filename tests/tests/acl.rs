@@ -247,7 +247,8 @@ async fn cell(
             s.put(key, payload).await.expect("a put is accepted locally");
         }
         let set = SetRequest { name: "go".into(), value: serde_json::json!(false) };
-        let abort = CtlRequest { command: "abort".into(), reason: "rogue".into(), by: "robot1".into(), ..ctl() };
+        let abort =
+            CtlRequest { command: "abort".into(), reason: "rogue".into(), by: "robot1".into(), ..Default::default() };
         for (key, payload) in [(keys::set(run), wire::encode(&set)), (keys::ctl(run), wire::encode(&abort))] {
             let replies = s.get(key).payload(payload).timeout(Duration::from_secs(2)).await.expect("a query goes out");
             while let Ok(r) = replies.recv_async().await {
@@ -271,19 +272,6 @@ async fn cell(
         tokio::time::timeout(TIMEOUT, s.close()).await.ok();
     }
     (status.code(), trace, summary, got)
-}
-
-fn ctl() -> CtlRequest {
-    CtlRequest {
-        command: String::new(),
-        target: None,
-        agent: None,
-        step: None,
-        for_ms: None,
-        to: None,
-        reason: String::new(),
-        by: String::new(),
-    }
 }
 
 async fn behind_its_acl_a_rogue_with_another_agents_certificate_changes_nothing() {

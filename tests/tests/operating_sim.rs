@@ -35,13 +35,9 @@ const AGENTS: &[(&str, &[&str])] = &[("r1", &[]), ("r2", &[])];
 fn ctl(command: &str) -> CtlRequest {
     CtlRequest {
         command: command.into(),
-        target: None,
-        agent: None,
-        step: None,
-        for_ms: None,
-        to: None,
         reason: format!("test {command}"),
         by: "operator@cell".into(),
+        ..Default::default()
     }
 }
 

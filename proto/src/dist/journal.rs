@@ -628,13 +628,9 @@ mod tests {
         };
         let ctl = |command: &str| CtlRequest {
             command: command.into(),
-            target: None,
-            agent: None,
-            step: None,
-            for_ms: None,
-            to: None,
             reason: "shift change".into(),
             by: "op".into(),
+            ..Default::default()
         };
         let mut live = Journaled::new(fresh());
         live.stay(0);

@@ -404,8 +404,9 @@ pub struct SetReply {
 
 /// `baton ctl`: an operator's command to a run. `command` is a PackML command (`hold`, `unhold`, `suspend`,
 /// `unsuspend`, `stop`, `abort`, `clear`, `reset`, `start`), `mode`, `confirm`, `force`, `activate`,
-/// `deactivate`, `ack` or `shelve`; `target` its object (the mode, a transition, a step, an alarm id or `all`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// `deactivate`, `move`, `ack` or `shelve`; `target` its object (the mode, a transition, a step, an alarm id or
+/// `all`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct CtlRequest {
     pub command: String,
     #[serde(default)]

@@ -289,16 +289,7 @@ fn a_run_that_reaches_its_end_goes_completing_then_complete() {
 }
 
 fn ctl(command: &str) -> crate::dist::wire::CtlRequest {
-    crate::dist::wire::CtlRequest {
-        command: command.into(),
-        target: None,
-        agent: None,
-        step: None,
-        for_ms: None,
-        to: None,
-        reason: String::new(),
-        by: "op".into(),
-    }
+    crate::dist::wire::CtlRequest { command: command.into(), by: "op".into(), ..Default::default() }
 }
 
 fn states(out: &[CoordOutput]) -> Vec<String> {
