@@ -39,8 +39,10 @@ const PENDING_DISPATCHES_MAX: usize = 1024;
 const CHART_FETCH_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long the agent waits for its router before it says that it waits.
 const ROUTER_WAIT_NOTICE: Duration = Duration::from_secs(3);
-/// How long the agent waits for the router to say whether another process holds its name.
-const LIVELINESS_CHECK_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long the agent waits for the router to say whether another process holds its name. The router answers at
+/// once from its tables, ending the wait; the bound is for a router too busy to answer (a loaded machine took
+/// more than 2 s once), and a second process under the name must not slip through it.
+const LIVELINESS_CHECK_TIMEOUT: Duration = Duration::from_secs(10);
 /// Held tokens listed in the info reply; a coordinator sends the dispatch of any other again, which the agent
 /// recognises as a duplicate.
 const HELD_LISTED_MAX: usize = 4096;
