@@ -681,7 +681,7 @@ impl Logger {
             }
             TraceEvent::Set => self.log("INFO", format!("set {} := {message}", rec.name)),
             TraceEvent::Told => {
-                let text = format!("{} is back and was told of the end of the run ({message})", rec.name);
+                let text = format!("{} is back and was told: {message}", rec.name);
                 self.progress_log(&rec.name, None, "WARN", text.clone());
                 self.log("WARN", text);
             }

@@ -56,14 +56,17 @@ pub fn zenoh_config(net: &NetConfig, file: Option<&Path>) -> anyhow::Result<zeno
 /// (`transport/link/tls/connect_certificate`, for mutual TLS) — what the router checks; `None` without either.
 pub fn zenoh_identity(file: Option<&Path>) -> Option<String> {
     let config = zenoh::Config::from_file(file?).ok()?;
-    config_text(&config, "transport/auth/usrpwd/user").or_else(|| certificate_identity(file?).map(|(_, cn)| cn))
+    config_text(&config, "transport/auth/usrpwd/user").or_else(|| certificate_of(&config).map(|(_, cn)| cn))
 }
 
 /// The TLS certificate a Zenoh configuration file connects with (`transport/link/tls/connect_certificate`) and the
 /// common name it carries; `None` without one (or one that names nobody).
 pub fn certificate_identity(file: &Path) -> Option<(std::path::PathBuf, String)> {
-    let config = zenoh::Config::from_file(file).ok()?;
-    let path = std::path::PathBuf::from(config_text(&config, "transport/link/tls/connect_certificate")?);
+    certificate_of(&zenoh::Config::from_file(file).ok()?)
+}
+
+fn certificate_of(config: &zenoh::Config) -> Option<(std::path::PathBuf, String)> {
+    let path = std::path::PathBuf::from(config_text(config, "transport/link/tls/connect_certificate")?);
     let name = certificate_name(&path)?;
     Some((path, name))
 }

@@ -351,3 +351,28 @@ pub async fn next_dispatch_within(
     .await;
     found.ok().flatten()
 }
+
+/// `baton deploy certs --ca PKI ARGS…` (names and `--san`s), which must succeed.
+pub fn deploy_certs(pki: &Path, args: &[&str]) {
+    let out = std::process::Command::new(bin("baton"))
+        .args(["deploy", "certs", "--ca"])
+        .arg(pki)
+        .args(args)
+        .output()
+        .expect("baton deploy certs runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
+/// The Zenoh configuration file of process `name` of the CA in `pki`, written in `dir` from the deployment's own
+/// templates (`deploy/tls/router.json5` for one that listens, `client.json5` for one that connects), their paths
+/// and names put to the test's.
+pub fn tls_config(dir: &Path, pki: &Path, name: &str, listen: bool) -> PathBuf {
+    let (template, example) = if listen { ("router.json5", "router") } else { ("client.json5", "robot1") };
+    let text = std::fs::read_to_string(repo(&format!("deploy/tls/{template}")))
+        .expect("the template")
+        .replace(&format!("/etc/baton/pki/{example}."), &format!("/etc/baton/pki/{name}."))
+        .replace("/etc/baton/pki/", &format!("{}/", pki.display()));
+    let path = dir.join(format!("{name}-{}.json5", if listen { "router" } else { "client" }));
+    std::fs::write(&path, text).expect("write the configuration");
+    path
+}

@@ -13,7 +13,7 @@ use baton_proto::dist::keys;
 use baton_proto::dist::wire::{self, CtlRequest, DeviceReport, Report, RunId, SetRequest, TokenId, VarUpdate};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::harness::missing;
-use baton_tests::loopback::{bin, free_port, repo, Cluster, TIMEOUT};
+use baton_tests::loopback::{bin, deploy_certs, free_port, repo, tls_config, Cluster, TIMEOUT};
 
 baton_tests::harness_main!(
     tokio behind_its_acl_a_rogue_with_another_agents_certificate_changes_nothing,
@@ -56,17 +56,6 @@ fn baton(args: &[&str]) -> std::process::Output {
     out
 }
 
-/// A client configuration for `name` of the CA in `pki`, from the deployment's template.
-fn client_config(dir: &Path, pki: &Path, name: &str) -> PathBuf {
-    let text = std::fs::read_to_string(repo("deploy/tls/client.json5"))
-        .expect("the template")
-        .replace("/etc/baton/pki/robot1.", &format!("/etc/baton/pki/{name}."))
-        .replace("/etc/baton/pki/", &format!("{}/", pki.display()));
-    let path = dir.join(format!("{name}.json5"));
-    std::fs::write(&path, text).expect("write");
-    path
-}
-
 /// The run's events that say what it did, without their times and token ids.
 fn story(trace: &[TraceRecord]) -> Vec<(TraceEvent, String, Option<String>)> {
     trace
@@ -88,7 +77,7 @@ type Heard = zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh
 
 /// A process with robot2's certificate joins: it announces robot1 and listens to what is sent to robot1.
 async fn rogue_joins(endpoint: &str, dir: &Path, pki: &Path) -> RogueSession {
-    let config = client_config(dir, pki, "robot2");
+    let config = tls_config(dir, pki, "robot2", false);
     let mut config = zenoh::Config::from_file(&config).expect("config");
     let net = baton_proto::dist::netconfig::NetConfig::client(&[endpoint.to_string()], false);
     for (key, value) in net.overrides() {
@@ -115,19 +104,7 @@ async fn cell(
     let dir = cluster.dir.path().to_path_buf();
     let pki = dir.join("pki");
     let pki_arg = pki.to_str().expect("utf-8");
-    baton(&[
-        "deploy",
-        "certs",
-        "--ca",
-        pki_arg,
-        "router",
-        "coordinator",
-        "robot1",
-        "robot2",
-        "anna",
-        "--san",
-        "127.0.0.1",
-    ]);
+    deploy_certs(&pki, &["router", "coordinator", "robot1", "robot2", "anna", "--san", "127.0.0.1"]);
     let chart = dir.join("line.st");
     std::fs::write(&chart, CHART).expect("write the chart");
     let router = dir.join("router.json5");
@@ -165,7 +142,7 @@ async fn cell(
                 "zenohd never listened: {}",
                 std::fs::read_to_string(dir.join("zenohd.log")).unwrap_or_default()
             );
-            let own = client_config(&dir, &pki, "coordinator");
+            let own = tls_config(&dir, &pki, "coordinator", false);
             cluster.coordinator_connecting(&chart, &["--zenoh-config", own.to_str().expect("utf-8")])
         }
         None => cluster.coordinator(&chart, &["--zenoh-config", router.to_str().expect("utf-8")]),
@@ -179,10 +156,10 @@ async fn cell(
         (rogue_session, heard) = rogue_joins(&cluster.endpoint, &dir, &pki).await;
     }
     for name in ["robot1", "robot2"] {
-        let config = client_config(&dir, &pki, name);
+        let config = tls_config(&dir, &pki, name, false);
         cluster.agent(name, &[], &["--zenoh-config", config.to_str().expect("utf-8")]);
     }
-    let anna = client_config(&dir, &pki, "anna");
+    let anna = tls_config(&dir, &pki, "anna", false);
     let anna = anna.to_str().expect("utf-8");
     // Both robots live before the part starts, as an operator sees them.
     let live = tokio::time::timeout(TIMEOUT, async {

@@ -294,20 +294,18 @@ async fn commands_states_and_alarms_are_in_the_log() {
     assert!(states.contains(&"faulted".to_string()), "{states:?}");
     // The chart view follows SFC notation: each transition a node of its own, labelled with its condition, between
     // its steps.
-    let nodes: Vec<(String, String)> = recording["graph_nodes"]
-        .as_array()
-        .expect("graph nodes")
-        .iter()
-        .map(|n| (n[0].as_str().unwrap_or_default().to_string(), n[1].as_str().unwrap_or_default().to_string()))
-        .collect();
+    let pairs = |key: &str| -> Vec<(String, String)> {
+        recording[key]
+            .as_array()
+            .unwrap_or_else(|| panic!("no {key} in the recording"))
+            .iter()
+            .map(|n| (n[0].as_str().unwrap_or_default().to_string(), n[1].as_str().unwrap_or_default().to_string()))
+            .collect()
+    };
+    let nodes = pairs("graph_nodes");
     let t = nodes.iter().find(|(_, label)| label == "moved").map(|(id, _)| id.clone());
     let t = t.unwrap_or_else(|| panic!("no node labelled with Move's condition: {nodes:?}"));
-    let edges: Vec<(String, String)> = recording["graph_edges"]
-        .as_array()
-        .expect("graph edges")
-        .iter()
-        .map(|e| (e[0].as_str().unwrap_or_default().to_string(), e[1].as_str().unwrap_or_default().to_string()))
-        .collect();
+    let edges = pairs("graph_edges");
     assert!(edges.contains(&("Move".to_string(), t.clone())) && edges.contains(&(t, "Done".to_string())), "{edges:?}");
 }
 

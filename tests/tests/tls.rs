@@ -7,32 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::loopback::{bin, free_port, Cluster, TIMEOUT};
-
-/// `baton deploy certs --ca DIR ARGS…`, which must succeed.
-fn certs(dir: &Path, args: &[&str]) {
-    let out = std::process::Command::new(bin("baton"))
-        .args(["deploy", "certs", "--ca"])
-        .arg(dir)
-        .args(args)
-        .output()
-        .expect("baton deploy certs runs");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-}
-
-/// The Zenoh configuration file for process `name` of the CA in `pki`, made from the deployment's own templates
-/// (`deploy/tls/router.json5` for one that listens, `client.json5` for one that connects), their paths and names
-/// put to this test's.
-fn tls_config(dir: &Path, pki: &Path, name: &str, listen: bool) -> PathBuf {
-    let (template, example) = if listen { ("router.json5", "router") } else { ("client.json5", "robot1") };
-    let text = std::fs::read_to_string(baton_tests::loopback::repo(&format!("deploy/tls/{template}")))
-        .expect("the template")
-        .replace(&format!("/etc/baton/pki/{example}."), &format!("/etc/baton/pki/{name}."))
-        .replace("/etc/baton/pki/", &format!("{}/", pki.display()));
-    let path = dir.join(format!("{name}-{}.json5", if listen { "router" } else { "client" }));
-    std::fs::write(&path, text).expect("write the configuration");
-    path
-}
+use baton_tests::loopback::{bin, deploy_certs as certs, free_port, tls_config, Cluster, TIMEOUT};
 
 /// A session of the test's own from a configuration file, with Baton's settings for `endpoint` on top.
 async fn open(file: &Path, endpoint: &str, listen: bool) -> zenoh::Result<zenoh::Session> {
@@ -97,16 +72,23 @@ async fn only_a_process_certified_by_the_cells_ca_connects() {
     assert!(open(&forged, &endpoint, false).await.is_err(), "a certificate of another CA connected");
 }
 
-/// A cell over mutual TLS: the coordinator's embedded router and both agents with their own certificates run the
-/// chart to its end; `baton ctl` with an operator's certificate is traced as that operator; an agent started under
-/// another name than its certificate's refuses to run, saying why.
-#[tokio::test(flavor = "multi_thread")]
-async fn a_cell_runs_over_mutual_tls_and_each_process_is_who_its_certificate_says() {
+/// A cluster on a TLS endpoint, with certificates for `names` (and 127.0.0.1) in its folder's `pki`.
+fn tls_cluster(names: &[&str]) -> (Cluster, PathBuf, PathBuf) {
     let mut cluster = Cluster::new();
     cluster.endpoint = format!("tls/127.0.0.1:{}", free_port());
     let dir = cluster.dir.path().to_path_buf();
     let pki = dir.join("pki");
-    certs(&pki, &["coordinator", "r1", "r2", "anna", "--san", "127.0.0.1"]);
+    let args: Vec<&str> = names.iter().copied().chain(["--san", "127.0.0.1"]).collect();
+    certs(&pki, &args);
+    (cluster, dir, pki)
+}
+
+/// A cell over mutual TLS: the coordinator's embedded router and both agents with their own certificates run the
+/// chart to its end; `baton set` with an operator's certificate is taken; an agent started under another name than
+/// its certificate's refuses to run, saying why.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_cell_runs_over_mutual_tls_and_each_process_is_who_its_certificate_says() {
+    let (mut cluster, dir, pki) = tls_cluster(&["coordinator", "r1", "r2", "anna"]);
     let chart = dir.join("cell.st");
     std::fs::write(
         &chart,
@@ -153,11 +135,7 @@ async fn a_cell_runs_over_mutual_tls_and_each_process_is_who_its_certificate_say
 /// `baton ctl` over mutual TLS names the operator by the certificate it connects with.
 #[tokio::test(flavor = "multi_thread")]
 async fn an_operators_command_is_traced_with_the_name_of_its_certificate() {
-    let mut cluster = Cluster::new();
-    cluster.endpoint = format!("tls/127.0.0.1:{}", free_port());
-    let dir = cluster.dir.path().to_path_buf();
-    let pki = dir.join("pki");
-    certs(&pki, &["coordinator", "anna", "--san", "127.0.0.1"]);
+    let (cluster, dir, pki) = tls_cluster(&["coordinator", "anna"]);
     let chart = dir.join("wait.st");
     std::fs::write(
         &chart,

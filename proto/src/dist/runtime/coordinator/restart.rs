@@ -64,9 +64,9 @@ impl Coordinator {
         next.policy = self.policy;
         next.stays = true;
         next.stats = self.stats;
-        next.alarms = self.alarms.clone();
-        next.device_alarms = self.device_alarms.clone();
-        next.untold = self.untold.clone();
+        next.alarms = std::mem::take(&mut self.alarms);
+        next.device_alarms = std::mem::take(&mut self.device_alarms);
+        next.untold = std::mem::take(&mut self.untold);
         next.engine.set_mode(self.engine.mode());
         next.engine.begin_at(next.now_ms);
         for (name, a) in &self.agents {
@@ -102,15 +102,15 @@ impl Coordinator {
         next
     }
 
-    /// An agent that could not be told of the abort (or stop) of this run was heard from: it is told now, and
-    /// its alarm's cause is gone.
+    /// An agent that could not be told of the abort of a run (this one, or the one before a `reset`) was heard from:
+    /// it is told now, and its alarm's cause is gone.
     pub(super) fn tell_of_end(&mut self, agent: &str) {
         let Some((run, alarms)) = self.untold.remove(agent) else { return };
         self.send(agent.to_string(), ToAgent::Abort { run });
-        self.log(Level::Info, format!("agent `{agent}` is back and told the run ended ({})", self.run_state.name()));
+        self.log(Level::Info, format!("agent `{agent}` is back and told that run {} was aborted", run.key()));
         let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Told, agent);
         rec.agent = Some(agent.to_string());
-        rec.message = Some(format!("run {} ended {}", run.key(), self.run_state.name()));
+        rec.message = Some(format!("run {} was aborted", run.key()));
         self.trace(rec);
         for id in alarms {
             let changes = self.alarms.cause_gone(id);
