@@ -18,7 +18,8 @@
 //!
 //! # Where things are
 //!
-//! `scenario_skills.rs` (`--simulate SCENARIO`: every skill the scenario's chart binds does what the scenario says,
+//! `many.rs` (`run_many`: several agents in one process, each its own session, for benchmarks and tests — `baton-agent
+//! --instances N`); `scenario_skills.rs` (`--simulate SCENARIO`: every skill the scenario's chart binds does what the scenario says,
 //! with `testing::run::skill_model`, in real time); `shell.rs`, the agent's Zenoh shell (refusal of a taken name,
 //! liveliness token, info queryable, commands on its own process's key, chart fetch, one `AgentRun` per run, a timer at
 //! the runs' `poll_timeout`, skill tasks (`drive_skill`: a skill's writes pass on in order before its end; a skill is
@@ -51,6 +52,7 @@
 
 pub mod connections;
 pub mod io;
+pub mod many;
 pub mod opcua;
 pub mod ros2;
 pub mod scenario_skills;
@@ -58,5 +60,5 @@ pub mod shell;
 pub mod skill;
 
 pub use connections::Connections;
-pub use shell::{run, AgentConfig};
+pub use shell::{run, run_until, AgentConfig};
 pub use skill::{Skill, SkillCall, SkillFuture, Skills};

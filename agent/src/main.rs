@@ -59,6 +59,9 @@ struct Args {
     /// Default: $XDG_STATE_HOME/baton-agent/pki, else ~/.local/state/baton-agent/pki.
     #[arg(long, value_name = "DIR")]
     opcua_pki: Option<std::path::PathBuf>,
+    /// For benchmarks and tests: host N agents in this process, named NAME1 … NAMEN, each its own session.
+    #[arg(long, hide = true, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=4096))]
+    instances: Option<u32>,
 }
 
 /// Where the agent keeps its OPC UA certificates unless told.
@@ -132,7 +135,7 @@ fn agent_main() -> ExitCode {
     };
     let skills = if args.allow_shell { skills.with_shell() } else { skills };
     let runtime = match tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
+        .worker_threads(if args.instances.is_some() { 2 } else { 1 })
         .thread_stack_size(CHART_STACK_BYTES)
         .enable_all()
         .build()
@@ -143,7 +146,13 @@ fn agent_main() -> ExitCode {
             return ExitCode::from(1);
         }
     };
-    match runtime.block_on(run(config, skills, connections)) {
+    let agents = match args.instances {
+        Some(n) => {
+            runtime.block_on(baton_agent::many::run_many(baton_agent::many::instances(&config, n), skills, connections))
+        }
+        None => runtime.block_on(run(config, skills, connections)),
+    };
+    match agents {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");

@@ -210,6 +210,18 @@ async fn drive_skill(
 /// Runs the agent until interrupted (Ctrl-C or SIGTERM), with `skills` and the protocols of `connections` (whose
 /// skills it adds: `Connections::skills`).
 pub async fn run(config: AgentConfig, skills: Skills, connections: Connections) -> anyhow::Result<()> {
+    let mut stop = baton_shell::Stop::new()?;
+    run_until(config, skills, connections, async move { stop.recv().await }).await
+}
+
+/// Runs the agent until `stop` completes: one of several agents in a process (`crate::many`), or an agent embedded
+/// in a program that decides itself when it ends.
+pub async fn run_until(
+    config: AgentConfig,
+    skills: Skills,
+    connections: Connections,
+    stop: impl std::future::Future<Output = ()>,
+) -> anyhow::Result<()> {
     let skills = connections.skills(skills);
     config.validate()?;
     let net = NetConfig { lease_ms: Some(config.lease_ms), ..NetConfig::client(&config.connect, true) };
@@ -291,7 +303,7 @@ pub async fn run(config: AgentConfig, skills: Skills, connections: Connections) 
         config.connect.join(", "),
         shell.skills.names().join(", ")
     );
-    let mut stop = baton_shell::Stop::new()?;
+    tokio::pin!(stop);
     loop {
         // Asleep until a message comes or a run's next cycle or resend is due: an idle agent runs no cycle (only
         // `watch_router` wakes it).
@@ -326,7 +338,7 @@ pub async fn run(config: AgentConfig, skills: Skills, connections: Connections) 
             }
             Some(ev) = rx.recv() => shell.on_event(ev),
             () = baton_shell::until(deadline) => shell.timeout(),
-            () = stop.recv() => break,
+            () = &mut stop => break,
         }
         shell.carry_out_all().await;
     }

@@ -36,6 +36,19 @@ pub fn repo(path: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join(path)
 }
 
+/// `zenohd` 1.10.2, as `.ci/run` installs it under `target/zenohd` (or `$ZENOHD`); the test is ignored without it
+/// (and fails under CI).
+pub fn zenohd() -> PathBuf {
+    let path = std::env::var_os("ZENOHD").map(PathBuf::from).unwrap_or_else(|| repo("target/zenohd/bin/zenohd"));
+    if !path.is_file() {
+        crate::harness::missing(&format!(
+            "no zenohd at {}: `cargo install zenohd@1.10.2 --locked --root target/zenohd`",
+            path.display()
+        ));
+    }
+    path
+}
+
 pub struct Cluster {
     pub endpoint: String,
     pub dir: tempfile::TempDir,

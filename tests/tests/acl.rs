@@ -6,14 +6,13 @@
 //! coordinator, and the run's events are those of a run without it; an operator can. Without access control, the
 //! same messages reach the coordinator (which drops them by its own checks).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Duration;
 
 use baton_proto::dist::keys;
 use baton_proto::dist::wire::{self, CtlRequest, DeviceReport, Report, RunId, SetRequest, TokenId, VarUpdate};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
-use baton_tests::harness::missing;
-use baton_tests::loopback::{bin, deploy_certs, free_port, repo, tls_config, Cluster, TIMEOUT};
+use baton_tests::loopback::{bin, deploy_certs, free_port, tls_config, zenohd, Cluster, TIMEOUT};
 
 baton_tests::harness_main!(
     tokio behind_its_acl_a_rogue_with_another_agents_certificate_changes_nothing,
@@ -28,18 +27,6 @@ enum Router {
     Embedded,
     /// A `zenohd` process the coordinator joins with its own certificate.
     Zenohd,
-}
-
-/// `zenohd` 1.10.2, as `.ci/run` installs it (or `$ZENOHD`).
-fn zenohd() -> PathBuf {
-    let path = std::env::var_os("ZENOHD").map(PathBuf::from).unwrap_or_else(|| repo("target/zenohd/bin/zenohd"));
-    if !path.is_file() {
-        missing(&format!(
-            "no zenohd at {}: `cargo install zenohd@1.10.2 --locked --root target/zenohd`",
-            path.display()
-        ));
-    }
-    path
 }
 
 const CHART: &str = "PROGRAM line\nVAR go, a, b : BOOL; END_VAR\nINITIAL_STEP Idle: END_STEP\n\

@@ -70,3 +70,54 @@ async fn two_processes_answering_to_one_name_get_nothing_until_one_is_left() {
     check_trace_invariants(&trace, &chart());
     assert_eq!(events(&trace, TraceEvent::Dispatch).len(), 1);
 }
+
+/// `baton-agent --instances N` (benchmarks and tests): N agents in one process, each its own session and name,
+/// each taking the steps placed on it; an instance whose name is taken stops the whole process, saying which.
+#[tokio::test(flavor = "multi_thread")]
+async fn agents_hosted_in_one_process_each_take_their_own_steps() {
+    let mut cluster = Cluster::new();
+    let chart = cluster.dir.path().join("three.st");
+    std::fs::write(
+        &chart,
+        "PROGRAM three\nINITIAL_STEP Start: END_STEP\nTRANSITION FROM Start TO (A, B, C) := TRUE; END_TRANSITION\n\
+         STEP A: {agent := 'h1'} END_STEP\nTRANSITION FROM A TO AW := TRUE; END_TRANSITION\nSTEP AW: END_STEP\n\
+         STEP B: {agent := 'h2'} END_STEP\nTRANSITION FROM B TO BW := TRUE; END_TRANSITION\nSTEP BW: END_STEP\n\
+         STEP C: {agent := 'h3'} END_STEP\nTRANSITION FROM C TO CW := TRUE; END_TRANSITION\nSTEP CW: END_STEP\n\
+         TRANSITION FROM (AW, BW, CW) TO Done := TRUE; END_TRANSITION\nSTEP Done: END_STEP\nEND_PROGRAM\n",
+    )
+    .expect("write the chart");
+    let mut coordinator = cluster.coordinator(&chart, &[]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("h", &[], &["--instances", "3"]);
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace, &chart);
+    let mut dispatched: Vec<(String, Option<String>)> =
+        events(&trace, TraceEvent::Dispatch).into_iter().map(|(_, step, agent)| (step, agent)).collect();
+    dispatched.sort();
+    let expected: Vec<(String, Option<String>)> =
+        [("A", "h1"), ("B", "h2"), ("C", "h3")].iter().map(|(s, a)| (s.to_string(), Some(a.to_string()))).collect();
+    assert_eq!(dispatched, expected);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_hosted_agent_whose_name_is_taken_stops_its_process() {
+    let mut cluster = Cluster::new();
+    let mut coordinator = cluster.coordinator(&chart(), &[]);
+    coordinator.wait_for_log("running chart").await;
+    // x2 is taken; the chart needs none of the x's, so that a hosted x1 that came up first is given nothing.
+    cluster.agent("x2", &[], &[]);
+    coordinator.wait_for_log("agent `x2` is live").await;
+    let hosted = Command::new(bin("baton-agent"))
+        .args(["--connect", &cluster.endpoint, "--name", "x", "--instances", "3"])
+        .kill_on_drop(true)
+        .output();
+    let hosted = tokio::time::timeout(TIMEOUT, hosted).await.expect("the hosting process ended").expect("it ran");
+    let stderr = String::from_utf8_lossy(&hosted.stderr);
+    assert!(!hosted.status.success(), "three agents ran beside a live `x2`: {stderr}");
+    assert!(stderr.contains("agent `x2`: an agent named `x2` is already live"), "{stderr}");
+    cluster.agent("r1", &[], &[]);
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace, &chart());
+}

@@ -27,6 +27,15 @@ pub struct Bench {
     /// Print the figures as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Only phases 1–6: latency, throughput, the journal, the demo chart.
+    #[arg(long, conflicts_with = "scale_only")]
+    pub base_only: bool,
+    /// Only phases 7–10: many agents, concurrent runs, a mesh of routers, memory.
+    #[arg(long)]
+    pub scale_only: bool,
+    /// The agent counts of phase 7, hosted in one `baton-agent` process each time.
+    #[arg(long, value_delimiter = ',', default_value = "8,64,256", value_name = "N,N,…")]
+    pub scale_agents: Vec<u32>,
 }
 
 /// The arguments of the hidden `baton bench-echo`.
@@ -38,12 +47,24 @@ pub struct BenchEcho {
 
 impl Bench {
     pub fn run(self) -> anyhow::Result<ExitCode> {
-        let Bench { samples, tokens, agents, lanes_per_agent, parts, json } = self;
+        let Bench { samples, tokens, agents, lanes_per_agent, parts, json, base_only, scale_only, scale_agents } = self;
         block_on(async move {
             if samples == 0 || tokens == 0 || agents == 0 || lanes_per_agent == 0 || parts == 0 {
                 bail!("--samples, --tokens, --agents, --lanes-per-agent and --parts must be at least 1");
             }
-            let options = crate::bench::BenchOptions { samples, tokens, agents, lanes_per_agent, parts };
+            if scale_agents.is_empty() || scale_agents.iter().any(|n| !(1..=4096).contains(n)) {
+                bail!("--scale-agents takes counts from 1 to 4096, such as 8,64,256");
+            }
+            let options = crate::bench::BenchOptions {
+                samples,
+                tokens,
+                agents,
+                lanes_per_agent,
+                parts,
+                base: !scale_only,
+                scale: !base_only,
+                scale_agents,
+            };
             let report = crate::bench::bench(options).await?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);

@@ -17,6 +17,8 @@ use tokio::process::{Child, Command};
 use zenoh::qos::CongestionControl;
 
 use crate::demo::{agent_binary, free_port};
+
+mod scale;
 use crate::run::{run_with, Probe, RunOptions};
 use baton_proto::exec::trace::TraceEvent;
 
@@ -37,6 +39,12 @@ pub struct BenchOptions {
     pub lanes_per_agent: u32,
     /// Parts the demo chart makes in the recording phase.
     pub parts: u32,
+    /// Run phases 1–6 (latency, throughput, journal, demo chart).
+    pub base: bool,
+    /// Run phases 7–10 (agents on one coordinator, concurrent runs, a mesh of routers, memory).
+    pub scale: bool,
+    /// The agent counts of phase 7.
+    pub scale_agents: Vec<u32>,
 }
 
 #[derive(Serialize, Clone, Copy)]
@@ -63,6 +71,31 @@ impl Latency {
 
 #[derive(Serialize)]
 pub struct BenchReport {
+    #[serde(flatten)]
+    pub base: Option<BaseReport>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scale: Option<ScaleReport>,
+}
+
+/// Phases 7–10.
+#[derive(Serialize)]
+pub struct ScaleReport {
+    /// (7) per agent count.
+    pub agents: Vec<scale::ScalePoint>,
+    /// The largest count's throughput over the smallest's (target ≥ 0.8).
+    pub throughput_ratio: f64,
+    /// (8)
+    pub concurrent_runs: scale::ConcurrentRuns,
+    /// (9)
+    pub mesh: scale::MeshRoundTrip,
+    /// (10) with the largest agent count.
+    pub memory_per_token_bytes: f64,
+    pub memory_tokens: u32,
+}
+
+/// Phases 1–6.
+#[derive(Serialize)]
+pub struct BaseReport {
     pub zenoh_round_trip: Latency,
     pub token_round_trip: Latency,
     pub token_to_zenoh_ratio: f64,
@@ -104,6 +137,45 @@ fn marks(keep: &'static [TraceEvent]) -> (Marks, Probe) {
 
 pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
     let dir = tempfile::tempdir()?;
+    let base = if opts.base { Some(base(dir.path(), &opts).await?) } else { None };
+    let scale = if opts.scale { Some(scale(dir.path(), &opts).await?) } else { None };
+    Ok(BenchReport { base, scale })
+}
+
+/// In-flight tokens of phase 7 at every agent count (one per agent at the largest).
+const SCALE_IN_FLIGHT: u32 = 256;
+const CONCURRENT_RUNS: u32 = 16;
+/// Tokens parked for phase 10 (a chart lists at most 1,024 branches in one divergence).
+const PARKED_TOKENS: u32 = 1024;
+
+async fn scale(dir: &Path, opts: &BenchOptions) -> anyhow::Result<ScaleReport> {
+    let mut points = Vec::new();
+    let in_flight = opts.scale_agents.iter().copied().max().unwrap_or(1).max(SCALE_IN_FLIGHT);
+    for &n in &opts.scale_agents {
+        eprintln!("7/10 {n} agents in one process: round trips one at a time, then {in_flight} tokens in flight");
+        points.push(scale::scale_point(dir, n, opts.samples, opts.tokens, in_flight).await?);
+    }
+    let (Some(first), Some(last)) = (points.first(), points.last()) else { bail!("no agent count to measure") };
+    let throughput_ratio = last.throughput_tokens_per_s / first.throughput_tokens_per_s;
+    eprintln!("8/10 {CONCURRENT_RUNS} runs at once behind one router, 2 agents each");
+    let concurrent_runs =
+        scale::concurrent_runs(dir, CONCURRENT_RUNS, 2, (opts.tokens / CONCURRENT_RUNS).max(100)).await?;
+    eprintln!("9/10 token round trip across a mesh of three routers");
+    let mesh = scale::mesh_round_trip(dir, opts.samples).await?;
+    let largest = opts.scale_agents.iter().copied().max().unwrap_or(1);
+    eprintln!("10/10 coordinator memory: {PARKED_TOKENS} tokens parked on {largest} agents");
+    let memory_per_token_bytes = scale::memory_per_token(dir, largest, PARKED_TOKENS).await?;
+    Ok(ScaleReport {
+        agents: points,
+        throughput_ratio,
+        concurrent_runs,
+        mesh,
+        memory_per_token_bytes,
+        memory_tokens: PARKED_TOKENS,
+    })
+}
+
+async fn base(dir: &Path, opts: &BenchOptions) -> anyhow::Result<BaseReport> {
     // (1) and (2) alternate in rounds, so that both see the same machine: loopback latency on a shared VM
     // drifts by more than the difference being measured.
     let per_round = opts.samples.div_ceil(ROUNDS).max(1);
@@ -112,11 +184,11 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
         eprintln!("1/5 raw Zenoh round trip, round {round}/{ROUNDS}, {per_round} samples");
         raw.extend(raw_round_trip(per_round).await?);
         eprintln!("2/5 token round trip through Baton, round {round}/{ROUNDS}, {per_round} samples");
-        token.extend(token_round_trip(dir.path(), per_round).await?);
+        token.extend(token_round_trip(dir, per_round).await?);
     }
     let (zenoh_round_trip, token_round_trip) = (Latency::of(raw)?, Latency::of(token)?);
     eprintln!("3/5 convergence latency, 3 branches, {} samples", opts.samples.min(2000));
-    let convergence = convergence(dir.path(), opts.samples.min(2000)).await?;
+    let convergence = convergence(dir, opts.samples.min(2000)).await?;
     let lanes = opts.agents * opts.lanes_per_agent;
     // Off and on alternate too, for the same reason; each figure is the median of its rounds.
     let (mut off, mut on, mut records_per_commit) = (Vec::new(), Vec::new(), Vec::new());
@@ -128,9 +200,9 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
                 "4/5 throughput, {with}, round {round}/{ROUNDS}: {} agents, {lanes} tokens in flight, {} tokens",
                 opts.agents, opts.tokens
             );
-            let journal = journal.then(|| dir.path().join(format!("journal-{round}")));
+            let journal = journal.then(|| dir.join(format!("journal-{round}")));
             let (n, secs, stats) =
-                throughput(dir.path(), opts.agents, opts.lanes_per_agent, opts.tokens, journal.as_deref()).await?;
+                throughput(dir, opts.agents, opts.lanes_per_agent, opts.tokens, journal.as_deref()).await?;
             tokens = n;
             if let Some(j) = stats {
                 records_per_commit.push(j.records as f64 / j.commits.max(1) as f64);
@@ -149,8 +221,8 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
         for record in [false, true] {
             let with = if record { "--rerun save" } else { "--rerun off" };
             eprintln!("5/5 demo chart, {with}, round {round}/{ROUNDS}: {} parts, motions of 0 ms", opts.parts);
-            let rrd = record.then(|| dir.path().join(format!("demo-{round}.rrd")));
-            let (n, secs) = demo_throughput(dir.path(), opts.parts, rrd.clone()).await?;
+            let rrd = record.then(|| dir.join(format!("demo-{round}.rrd")));
+            let (n, secs) = demo_throughput(dir, opts.parts, rrd.clone()).await?;
             if let Some(path) = rrd {
                 rrd_bytes = std::fs::metadata(&path).map_or(0, |m| m.len());
                 recorded.push(n as f64 / secs);
@@ -160,7 +232,7 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
         }
     }
     let (plain, recorded) = (median(plain), median(recorded));
-    Ok(BenchReport {
+    Ok(BaseReport {
         demo_tokens_per_s: plain,
         demo_recorded_tokens_per_s: recorded,
         demo_recorded_ratio: recorded / plain,
@@ -182,6 +254,57 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
 
 impl BenchReport {
     pub fn print(&self) {
+        if let Some(base) = &self.base {
+            base.print();
+        }
+        if let Some(scale) = &self.scale {
+            scale.print();
+        }
+    }
+}
+
+impl ScaleReport {
+    fn print(&self) {
+        println!("(7) agents on one coordinator (hosted in one process); dispatch → return one token at a time:");
+        println!(
+            "{:>8} {:>12} {:>12} {:>14} {:>10} {:>14}",
+            "agents", "median", "p99", "tokens/s", "in flight", "memory/agent"
+        );
+        for p in &self.agents {
+            println!(
+                "{:>8} {:>9.1} µs {:>9.1} µs {:>14.0} {:>10} {:>11.1} kB",
+                p.agents,
+                p.dispatch_to_return.median_us,
+                p.dispatch_to_return.p99_us,
+                p.throughput_tokens_per_s,
+                p.in_flight,
+                p.memory_per_agent_bytes / 1e3
+            );
+        }
+        println!(
+            "    throughput, most agents over fewest: {:.2} (target ≥ 0.8; p99 target < 5 ms)",
+            self.throughput_ratio
+        );
+        let c = &self.concurrent_runs;
+        println!(
+            "(8) {} runs behind one router ({} agents each): {:.0} tokens/s in all; runs between {:.0} and {:.0} tokens/s",
+            c.runs, c.agents_per_run, c.total_tokens_per_s, c.slowest_run_tokens_per_s, c.fastest_run_tokens_per_s
+        );
+        let m = &self.mesh;
+        println!(
+            "(9) round trip, agent on the coordinator's router: {:.1} µs median, {:.1} µs p99; two routers away on a mesh of three: {:.1} µs, {:.1} µs; ratio of medians {:.2} (target ≤ 2)",
+            m.one_router.median_us, m.one_router.p99_us, m.three_routers.median_us, m.three_routers.p99_us, m.ratio
+        );
+        println!(
+            "(10) coordinator memory per token in flight: {:.1} kB ({} tokens parked)",
+            self.memory_per_token_bytes / 1e3,
+            self.memory_tokens
+        );
+    }
+}
+
+impl BaseReport {
+    fn print(&self) {
         let row = |name: &str, l: &Latency| {
             println!("{name:<42} {:>9.1} µs {:>9.1} µs {:>8}", l.median_us, l.p99_us, l.samples);
         };
@@ -290,31 +413,61 @@ fn spawn_agents(endpoint: &str, names: &[String]) -> anyhow::Result<Vec<Child>> 
         .collect()
 }
 
+/// The agents of a bench chart.
+enum Agents<'a> {
+    /// One process each.
+    Processes(&'a [String]),
+    /// `count` agents named `PREFIX1` … in one process (`baton-agent --instances`).
+    Hosted { prefix: &'a str, count: u32 },
+}
+
+impl Agents<'_> {
+    fn spawn(&self, endpoint: &str) -> anyhow::Result<Vec<Child>> {
+        match self {
+            Agents::Processes(names) => spawn_agents(endpoint, names),
+            Agents::Hosted { prefix, count } => {
+                let n = count.to_string();
+                let args = ["--connect", endpoint, "--name", prefix, "--instances", &n];
+                Ok(vec![spawn_logged(Command::new(agent_binary()?).args(args))?])
+            }
+        }
+    }
+}
+
 /// How a bench chart runs besides its chart and agents.
 #[derive(Default)]
 struct Extras<'a> {
     journal: Option<&'a Path>,
     rerun: Option<PathBuf>,
     sets: Vec<(String, serde_json::Value)>,
+    /// The coordinator joins this router rather than embedding its own.
+    connect: Option<String>,
+    /// The agents join this router rather than the coordinator's.
+    agents_at: Option<String>,
 }
 
 async fn run_chart(
     dir: &Path,
     file: &str,
     chart: String,
-    agents: &[String],
+    agents: Agents<'_>,
     probe: Probe,
     extras: Extras<'_>,
 ) -> anyhow::Result<crate::run::Summary> {
     let path = dir.join(file);
     std::fs::write(&path, chart)?;
-    let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
-    let _agents = spawn_agents(&endpoint, agents)?;
+    let (listen, connect) = match extras.connect {
+        Some(router) => (Vec::new(), vec![router]),
+        None => (vec![format!("tcp/127.0.0.1:{}", free_port()?)], Vec::new()),
+    };
+    let agents_at =
+        extras.agents_at.clone().unwrap_or_else(|| listen.iter().chain(&connect).next().cloned().unwrap_or_default());
+    let _agents = agents.spawn(&agents_at)?;
     let opts = RunOptions {
         chart: path,
         pou: None,
-        listen: vec![endpoint],
-        connect: Vec::new(),
+        listen,
+        connect,
         trace: None,
         summary: None,
         cycle_ms: 10,
@@ -350,7 +503,7 @@ async fn token_round_trip(dir: &Path, samples: u32) -> anyhow::Result<Vec<Durati
         "TRANSITION FROM Back TO Home := TRUE; END_TRANSITION\nEND_PROGRAM\n",
     ));
     let (marks, probe) = marks(&[TraceEvent::Dispatch, TraceEvent::Activate]);
-    run_chart(dir, "token_rtt.st", chart, &["bench1".to_string()], probe, Extras::default()).await?;
+    run_chart(dir, "token_rtt.st", chart, Agents::Processes(&["bench1".to_string()]), probe, Extras::default()).await?;
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
     let mut rtts = Vec::new();
     let mut sent: Option<Instant> = None;
@@ -386,7 +539,7 @@ async fn convergence(dir: &Path, samples: u32) -> anyhow::Result<Latency> {
     ));
     let (marks, probe) = marks(&[TraceEvent::Return, TraceEvent::Activate]);
     let agents: Vec<String> = (1..=3).map(|k| format!("bench{k}")).collect();
-    run_chart(dir, "convergence.st", chart, &agents, probe, Extras::default()).await?;
+    run_chart(dir, "convergence.st", chart, Agents::Processes(&agents), probe, Extras::default()).await?;
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
     let mut lat = Vec::new();
     let mut last_return: Option<Instant> = None;
@@ -413,6 +566,25 @@ async fn throughput(
     tokens: u32,
     journal: Option<&Path>,
 ) -> anyhow::Result<(u64, f64, Option<crate::journal::JournalStats>)> {
+    let chart = throughput_chart("bench", agents, lanes_per_agent, tokens);
+    let (marks, probe) = marks(&[TraceEvent::Return]);
+    let names: Vec<String> = (1..=agents).map(|k| format!("bench{k}")).collect();
+    let summary = run_chart(
+        dir,
+        "throughput.st",
+        chart,
+        Agents::Processes(&names),
+        probe,
+        Extras { journal, ..Extras::default() },
+    )
+    .await?;
+    let (counted, secs) = steady_returns(&marks)?;
+    Ok((counted, secs, summary.journal))
+}
+
+/// `agents × lanes` independent loops, lane `j` dispatching a one-step segment to agent `PREFIXk` over and over,
+/// `tokens` in all; the chart ends when every lane has made its share.
+fn throughput_chart(prefix: &str, agents: u32, lanes_per_agent: u32, tokens: u32) -> String {
     let lanes = agents * lanes_per_agent;
     let per_lane = tokens.div_ceil(lanes).max(1);
     let mut chart = String::from("PROGRAM throughput\nVAR\n");
@@ -425,19 +597,14 @@ async fn throughput(
     for j in 1..=lanes {
         let agent = (j - 1) % agents + 1;
         chart.push_str(&format!(
-            "STEP H{j}: END_STEP\nTRANSITION FROM H{j} TO R{j} := c{j} < n; END_TRANSITION\nTRANSITION FROM H{j} TO D{j} := c{j} >= n; END_TRANSITION\nSTEP R{j}: {{agent := 'bench{agent}'}} END_STEP\nTRANSITION FROM R{j} TO B{j} := TRUE; END_TRANSITION\nSTEP B{j}: Count{j}(P); END_STEP\nTRANSITION FROM B{j} TO H{j} := TRUE; END_TRANSITION\nSTEP D{j}: END_STEP\nACTION Count{j}: IF Count{j}.Q THEN c{j} := c{j} + 1; END_IF; END_ACTION\n"
+            "STEP H{j}: END_STEP\nTRANSITION FROM H{j} TO R{j} := c{j} < n; END_TRANSITION\nTRANSITION FROM H{j} TO D{j} := c{j} >= n; END_TRANSITION\nSTEP R{j}: {{agent := '{prefix}{agent}'}} END_STEP\nTRANSITION FROM R{j} TO B{j} := TRUE; END_TRANSITION\nSTEP B{j}: Count{j}(P); END_STEP\nTRANSITION FROM B{j} TO H{j} := TRUE; END_TRANSITION\nSTEP D{j}: END_STEP\nACTION Count{j}: IF Count{j}.Q THEN c{j} := c{j} + 1; END_IF; END_ACTION\n"
         ));
     }
     chart.push_str(&format!(
         "TRANSITION FROM ({}) TO Finished := TRUE; END_TRANSITION\nSTEP Finished: END_STEP\nEND_PROGRAM\n",
         list("D")
     ));
-    let (marks, probe) = marks(&[TraceEvent::Return]);
-    let names: Vec<String> = (1..=agents).map(|k| format!("bench{k}")).collect();
-    let summary =
-        run_chart(dir, "throughput.st", chart, &names, probe, Extras { journal, ..Extras::default() }).await?;
-    let (counted, secs) = steady_returns(&marks)?;
-    Ok((counted, secs, summary.journal))
+    chart
 }
 
 /// Tokens returned in steady state and the seconds they took: the first tenth of the returns (agents
@@ -459,7 +626,7 @@ async fn demo_throughput(dir: &Path, parts: u32, record: Option<PathBuf>) -> any
     let names: Vec<String> = (1..=2).map(|k| format!("robot{k}")).collect();
     let extras =
         Extras { rerun: record, sets: vec![("parts".to_string(), serde_json::json!(parts))], ..Extras::default() };
-    run_chart(dir, "cell.st", chart, &names, probe, extras).await?;
+    run_chart(dir, "cell.st", chart, Agents::Processes(&names), probe, extras).await?;
     steady_returns(&marks)
 }
 
