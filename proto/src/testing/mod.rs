@@ -18,6 +18,7 @@
 
 pub mod cond;
 pub mod coverage;
+pub mod fuzz;
 pub mod junit;
 pub mod run;
 pub mod scenario;

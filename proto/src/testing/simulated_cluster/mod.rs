@@ -172,6 +172,9 @@ pub struct SimCluster {
     pub trace: Vec<TraceRecord>,
     pub seed: u64,
     pub messages: u64,
+    /// Every message sent, as it went on the wire, when `capture` is on: `(what, bytes)` with `what` the fuzz
+    /// target's selector (`testing::fuzz::wire_message`: 0 to an agent, 1 a report, 2 a variable update).
+    pub captured: Option<Vec<(u8, Vec<u8>)>>,
 }
 
 /// The first chart of `source`, compiled and laid out; panics with the diagnostics if it has errors. (For the
@@ -305,6 +308,7 @@ impl SimCluster {
             trace: Vec::new(),
             seed,
             messages: 0,
+            captured: None,
         };
         sim.flush_coordinator();
         sim

@@ -19,6 +19,13 @@ impl SimCluster {
 
     pub(super) fn send(&mut self, packet: Packet) {
         self.messages += 1;
+        if let Some(captured) = self.captured.as_mut() {
+            captured.push(match &packet {
+                Packet::ToAgent(_, _, b) => (0, b.clone()),
+                Packet::Report(_, b) => (1, b.clone()),
+                Packet::Vars(_, b) => (2, b.clone()),
+            });
+        }
         if self.calm_from_ms.is_some_and(|t| self.now_ms >= t) {
             self.faults = Faults::default();
         }
