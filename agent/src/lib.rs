@@ -34,12 +34,12 @@
 //! converted to the node's DataType out, reconnecting with backoff and writing the outputs again); `skill/`, the
 //! `Skill` trait, `SkillContext` (writes to the binding's mapped variables, the stop signal) and, in `builtin.rs`, the
 //! built-in `motion` and `shell` skills; `connections.rs`, `Connections`, the ROS 2 and OPC UA protocols that skills
-//! and bindings are both given; `build.rs` embeds the ROS 2 interface definitions (hiroz's bundled Jazzy packages and
-//! `interfaces/`, Nav2's NavigateToPose). `ros2/` is ROS 2 over the agent's own session, spoken as rmw_zenoh or, with
-//! `--ros-bridge`, as zenoh-bridge-ros2dds routes a DDS graph (`Via`): `interfaces.rs` (the type library: built-in and
-//! `--ros-interfaces` definitions read with hiroz-codegen's parser and resolver, which gives the RIHS01 hashes of
-//! services, actions and their sub-services), `cdr.rs` (messages of run-time types: an IEC literal encoded field by
-//! field with hiroz-cdr's writer, an answer decoded to a `RosValue` whose parts the mappings take), `rmw_keys.rs` (the
+//! and bindings are both given. `ros2/` is ROS 2 over the agent's own session, spoken as rmw_zenoh or, with
+//! `--ros-bridge`, as zenoh-bridge-ros2dds routes a DDS graph (`Via`): `interfaces` and `cdr` are the `baton-ros2`
+//! crate's (the type library — built-in definitions that its `build.rs` embeds, hiroz's bundled Jazzy packages and its
+//! `interfaces/` with Nav2's NavigateToPose, and `--ros-interfaces` folders, with the RIHS01 hashes of services, actions
+//! and their sub-services; messages of run-time types: an IEC literal encoded field by field with hiroz-cdr's writer,
+//! an answer decoded to a `RosValue` whose parts the mappings take), `rmw_keys.rs` (the
 //! one place the key expressions, liveliness tokens and attachments of both are spelt), `client.rs` (the agent's node:
 //! its tokens, waiting for a server in the graph, a service call as a query), `skills.rs` (`ros2_service`,
 //! `ros2_action`: an action is its three services and its feedback topic, as rmw_zenoh and the bridge make it).

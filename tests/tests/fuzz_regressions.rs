@@ -1,6 +1,7 @@
-//! The fuzz targets (`fuzz/`, `baton_proto::testing::fuzz`) on every seed they start from and on every input a
+//! The fuzz targets (`fuzz/`, `baton_proto::testing::fuzz`, `baton_ros2::cdr::fuzz_decode`) on every seed they start from and on every input a
 //! fuzzer once made them fail on (`fuzz/regressions/TARGET/`): what a fuzzer found stays found. The wire and
-//! journal seeds are messages and records a simulated cell really sent and journaled; they must still decode, or
+//! journal seeds are messages and records a simulated cell really sent and journaled, the cdr seeds messages of
+//! the built-in ROS 2 types; they must still decode, or
 //! the fuzzer would start from noise (write them again with `BATON_FUZZ_SEEDS=write`).
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -10,6 +11,8 @@ use baton_proto::dist::journal;
 use baton_proto::dist::wire::{self, Report, ToAgent, VarUpdate};
 use baton_proto::testing::fuzz::TARGETS;
 use baton_proto::testing::simulated_cluster::{Faults, SimCluster};
+use baton_ros2::cdr::{self, FUZZ_TYPES};
+use baton_ros2::interfaces::{Distro, Interfaces};
 use baton_tests::harness::not_checked;
 use baton_tests::loopback::repo;
 use baton_tests::shared_dir;
@@ -54,10 +57,22 @@ fn seeds(target: &str) -> Vec<PathBuf> {
     all
 }
 
+/// A target's body, whichever crate holds it.
+type Body<'a> = dyn Fn(&[u8]) + 'a;
+
+/// The built-in ROS 2 interface library, as the `cdr` target loads it.
+fn ros2_library() -> Interfaces {
+    Interfaces::load(Distro::Jazzy, &[]).expect("the built-in interfaces")
+}
+
 #[test]
 fn every_seed_and_every_input_a_fuzzer_failed_on_passes_its_target() {
+    let lib = ros2_library();
+    let cdr = |data: &[u8]| baton_ros2::cdr::fuzz_decode(&lib, data);
+    let mut targets: Vec<(&str, &Body<'_>)> = TARGETS.iter().map(|(n, f)| (*n, f as &Body<'_>)).collect();
+    targets.push(("cdr", &cdr));
     let mut failed = Vec::new();
-    for (target, body) in TARGETS {
+    for (target, body) in targets {
         let inputs: Vec<PathBuf> =
             seeds(target).into_iter().chain(files(&repo(&format!("fuzz/regressions/{target}")), &[])).collect();
         assert!(!inputs.is_empty(), "target `{target}` has no seed");
@@ -89,6 +104,33 @@ fn spread<T: Clone>(items: &[T], n: usize) -> Vec<T> {
     items.iter().step_by(step).cloned().collect()
 }
 
+/// Each type of the `cdr` target, its default and (for those that have them) a value with strings and sequences
+/// filled in, encoded as a peer would send them.
+fn write_cdr_seeds() {
+    let dir = repo("fuzz/seeds/cdr");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("make the seed folder");
+    let lib = ros2_library();
+    let filled: &[(&str, &str)] = &[
+        ("std_msgs/msg/String", "(data := 'gripper closed')"),
+        ("sensor_msgs/msg/JointState", "(name := ['a', 'b'], position := [0.5, 1.5], velocity := [0.0])"),
+        ("nav_msgs/msg/Path", "(header := (frame_id := 'map'), poses := [(pose := (position := (x := 1.0)))])"),
+    ];
+    for (i, name) in FUZZ_TYPES.iter().enumerate() {
+        let def = lib.msg(name).expect("a built-in type");
+        let mut values = vec![cdr::encode(&lib, &def, None).expect("the default encodes")];
+        for (_, text) in filled.iter().filter(|(n, _)| n == name) {
+            let lit = baton_proto::front::literal::parse(text).expect("a literal");
+            values.push(cdr::encode(&lib, &def, Some(&lit)).expect("the value encodes"));
+        }
+        for (k, bytes) in values.into_iter().enumerate() {
+            let mut seed = vec![i as u8];
+            seed.extend(bytes);
+            std::fs::write(dir.join(format!("{i:02}-{k}")), seed).expect("write a seed");
+        }
+    }
+}
+
 #[test]
 fn the_wire_and_journal_seeds_still_decode() {
     let wire_dir = repo("fuzz/seeds/wire");
@@ -111,10 +153,14 @@ fn the_wire_and_journal_seeds_still_decode() {
         for (i, record) in spread(&cell.journal, 40).into_iter().enumerate() {
             std::fs::write(journal_dir.join(format!("{i:02}")), record).expect("write a seed");
         }
+        write_cdr_seeds();
     }
     let wire_seeds = files(&wire_dir, &[]);
     let journal_seeds = files(&journal_dir, &[]);
-    assert!(wire_seeds.len() >= 30 && journal_seeds.len() >= 20, "too few seeds: write them with BATON_FUZZ_SEEDS=write");
+    assert!(
+        wire_seeds.len() >= 30 && journal_seeds.len() >= 20,
+        "too few seeds: write them with BATON_FUZZ_SEEDS=write"
+    );
     for path in wire_seeds {
         let bytes = std::fs::read(&path).expect("read a seed");
         let decoded = match bytes.split_first() {
@@ -123,6 +169,16 @@ fn the_wire_and_journal_seeds_still_decode() {
             Some((2, m)) => wire::decode::<VarUpdate>(m).map(drop),
             _ => panic!("{}: not a wire seed", path.display()),
         };
+        assert!(decoded.is_ok(), "{} no longer decodes ({decoded:?}): write the seeds again", path.display());
+    }
+    let lib = ros2_library();
+    let cdr_seeds = files(&repo("fuzz/seeds/cdr"), &[]);
+    assert!(cdr_seeds.len() > FUZZ_TYPES.len(), "too few seeds: write them with BATON_FUZZ_SEEDS=write");
+    for path in cdr_seeds {
+        let bytes = std::fs::read(&path).expect("read a seed");
+        let (&pick, message) = bytes.split_first().expect("a seed");
+        let def = lib.msg(FUZZ_TYPES[pick as usize % FUZZ_TYPES.len()]).expect("a built-in type");
+        let decoded = cdr::decode(&lib, &def, message).map(drop);
         assert!(decoded.is_ok(), "{} no longer decodes ({decoded:?}): write the seeds again", path.display());
     }
     for path in journal_seeds {

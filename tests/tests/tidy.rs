@@ -387,6 +387,7 @@ fn crates() -> Vec<Crate> {
     vec![
         Crate::read("proto", &root.join("proto/src"), &[]),
         Crate::read("shell", &root.join("shell/src"), &[]),
+        Crate::read("ros2", &root.join("ros2/src"), &[]),
         Crate::read("coordinator", &root.join("coordinator/src"), &[]),
         Crate::read("agent", &root.join("agent/src"), &["main.rs"]),
         Crate::read("tests", &root.join("tests/src"), &[]),

@@ -4,9 +4,8 @@
 //! robots on DDS (`keys`, `client`) — and the skills `ros2_service` and `ros2_action` drive servers with it
 //! (`skills`).
 
-pub mod cdr;
+pub use baton_ros2::{cdr, interfaces};
 pub mod client;
-pub mod interfaces;
 pub mod rmw_keys;
 pub mod skills;
 

@@ -14,8 +14,11 @@ use crate::front::source;
 use crate::pipeline;
 use crate::testing::scenario;
 
+/// A target's body: any bytes in.
+pub type Target = fn(&[u8]);
+
 /// The targets, by name, as `fuzz/Cargo.toml` names its binaries.
-pub const TARGETS: &[(&str, fn(&[u8]))] =
+pub const TARGETS: &[(&str, Target)] =
     &[("wire", wire_message), ("journal", journal_record), ("chart", chart_file), ("scenario", scenario_file)];
 
 /// Every message a Baton process decodes from a peer: the first byte picks the type, the rest is the message.

@@ -33,7 +33,7 @@ fn main() {
         assert!(dir.is_dir(), "hiroz-codegen no longer bundles {package} at {}", dir.display());
         collect(&dir, package, &mut files);
     }
-    for entry in std::fs::read_dir(&ours).expect("agent/interfaces") {
+    for entry in std::fs::read_dir(&ours).expect("ros2/interfaces") {
         let entry = entry.expect("entry");
         let package = entry.file_name().to_string_lossy().into_owned();
         collect(&entry.path(), &package, &mut files);
