@@ -1,11 +1,19 @@
-//! `baton run --journal DIR`: the coordinator's records (`baton_proto::dist::journal`) kept in an embedded database
-//! (redb, one file `DIR/journal.redb`), written by a thread of their own with group commit.
+//! `baton run --journal DIR`: the coordinator's records (`baton_proto::dist::journal`) appended to one file,
+//! `DIR/journal.log`, by a thread of their own with group commit.
 //!
 //! The shell hands each batch of records to the writer and holds back what the coordinator asked for until the
-//! writer says the batch is durable (an fsync'd transaction). While one transaction commits, the batches that
-//! arrive meanwhile wait and go together in the next one, so a slow disk makes batches larger, not the chart
-//! slower: durability costs latency (one commit), not throughput.
+//! writer says the batch is durable (written and `fdatasync`'d). While one commit is on its way to the disk, the
+//! batches that arrive meanwhile wait and go together in the next one, so a slow disk makes batches larger, not
+//! the chart slower: durability costs latency (one commit), not throughput.
+//!
+//! The file: `MAGIC`, then frames — payload length (u32, little-endian), CRC-32 of the kind and payload (u32), the
+//! kind (0 the run's header, JSON; 1 a record), the payload. A crash while a commit was being written leaves a
+//! torn last frame, which nobody was told was durable: opening the journal cuts it off. A bad frame with good
+//! ones after it is damage, and the journal is refused. (An append-only file replaced redb here: a commit is one
+//! write and one `fdatasync` instead of a B-tree's pages, `docs/benchmarks.md`.)
 
+use std::fs::{File, OpenOptions};
+use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc as std_mpsc;
@@ -13,13 +21,17 @@ use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
 use baton_proto::dist::journal::{JournalHeader, JOURNAL_FORMAT};
-use redb::{Database, ReadableDatabase, ReadableTable, TableDefinition};
 use tokio::sync::watch;
 
-const RECORDS: TableDefinition<u64, &[u8]> = TableDefinition::new("records");
-const META: TableDefinition<&str, &[u8]> = TableDefinition::new("meta");
-const HEADER_KEY: &str = "header";
-pub const FILE_NAME: &str = "journal.redb";
+pub const FILE_NAME: &str = "journal.log";
+/// Where journals of Baton before the append-only file were kept.
+const OLD_FILE_NAME: &str = "journal.redb";
+const MAGIC: &[u8; 16] = b"BATON-JOURNAL-1\n";
+const FRAME_HEAD: usize = 9;
+const KIND_HEADER: u8 = 0;
+const KIND_RECORD: u8 = 1;
+/// A frame larger than this is damage, not a record (a record is at most a message and a chart's header).
+const FRAME_BYTES_MAX: usize = 64 << 20;
 
 /// An opened journal: a fresh one, or the header and records of a run to resume.
 pub struct Opened {
@@ -30,54 +42,122 @@ pub struct Opened {
 }
 
 pub struct Store {
-    db: Database,
+    file: File,
     path: PathBuf,
-    next_key: u64,
 }
 
 /// Opens (or creates) the journal in `dir`. Another process using it is refused.
 pub fn open(dir: &Path) -> anyhow::Result<Opened> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create the journal folder {}", dir.display()))?;
     let path = dir.join(FILE_NAME);
-    let db = Database::create(&path).map_err(|e| match e {
-        redb::DatabaseError::DatabaseAlreadyOpen => {
-            anyhow!("the journal {} is in use by another coordinator", path.display())
+    if !path.exists() && dir.join(OLD_FILE_NAME).exists() {
+        bail!(
+            "{} holds a journal of an earlier Baton ({OLD_FILE_NAME}); this one keeps journals in {FILE_NAME}: \
+             resume or replay it with the Baton that wrote it",
+            dir.display()
+        );
+    }
+    let mut file = OpenOptions::new()
+        .read(true)
+        .append(true)
+        .create(true)
+        .open(&path)
+        .with_context(|| format!("cannot open the journal {}", path.display()))?;
+    match file.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
+            bail!("the journal {} is in use by another coordinator", path.display())
         }
-        other => anyhow!("cannot open the journal {}: {other}", path.display()),
-    })?;
-    let (header, records) = read(&db).with_context(|| format!("cannot read the journal {}", path.display()))?;
-    let next_key = records.len() as u64;
-    Ok(Opened { store: Store { db, path, next_key }, header, records })
+        Err(std::fs::TryLockError::Error(e)) => bail!("cannot lock the journal {}: {e}", path.display()),
+    }
+    let mut bytes = Vec::new();
+    file.read_to_end(&mut bytes).with_context(|| format!("cannot read the journal {}", path.display()))?;
+    let (header, records, good) =
+        read(&bytes).with_context(|| format!("cannot read the journal {}", path.display()))?;
+    if bytes.is_empty() {
+        file.write_all(MAGIC)?;
+        file.sync_data()?;
+    } else if good < bytes.len() {
+        // The torn frame of a commit that never finished: nothing in it was acknowledged.
+        file.set_len(good as u64)?;
+        file.sync_data()?;
+    }
+    Ok(Opened { store: Store { file, path }, header, records })
 }
 
-fn read(db: &Database) -> anyhow::Result<(Option<JournalHeader>, Vec<Vec<u8>>)> {
-    let tx = db.begin_read()?;
-    let header = match tx.open_table(META) {
-        Ok(meta) => match meta.get(HEADER_KEY)? {
-            Some(bytes) => Some(
-                serde_json::from_slice::<JournalHeader>(bytes.value())
-                    .map_err(|e| anyhow!("its header is malformed: {e}"))?,
-            ),
-            None => None,
-        },
-        Err(redb::TableError::TableDoesNotExist(_)) => None,
-        Err(e) => return Err(e.into()),
-    };
-    let mut records = Vec::new();
-    match tx.open_table(RECORDS) {
-        Ok(table) => {
-            for (i, item) in table.iter()?.enumerate() {
-                let (key, value) = item?;
-                if key.value() != i as u64 {
-                    bail!("record {i} is missing (next is {})", key.value());
-                }
-                records.push(value.value().to_vec());
-            }
-        }
-        Err(redb::TableError::TableDoesNotExist(_)) => {}
-        Err(e) => return Err(e.into()),
+/// The header and records of a journal file's bytes, and how many of its bytes are whole frames.
+fn read(bytes: &[u8]) -> anyhow::Result<(Option<JournalHeader>, Vec<Vec<u8>>, usize)> {
+    if bytes.is_empty() {
+        return Ok((None, Vec::new(), 0));
     }
-    Ok((header, records))
+    if !bytes.starts_with(MAGIC) {
+        bail!("it is not a Baton journal (it does not start with {:?})", String::from_utf8_lossy(MAGIC).trim());
+    }
+    let (mut header, mut records, mut at) = (None, Vec::new(), MAGIC.len());
+    while at < bytes.len() {
+        let frame = Frame::at(&bytes[at..]);
+        let (kind, payload, len) = match frame {
+            Frame::Whole { kind, payload } => (kind, payload, FRAME_HEAD + payload.len()),
+            // Only the last frame may be torn.
+            Frame::Torn => break,
+            Frame::Bad { len } if at + len >= bytes.len() => break,
+            Frame::Bad { .. } => bail!("its frame at byte {at} is damaged (record {} and later)", records.len()),
+        };
+        match kind {
+            KIND_HEADER if header.is_none() && records.is_empty() => {
+                header = Some(
+                    serde_json::from_slice::<JournalHeader>(payload)
+                        .map_err(|e| anyhow!("its header is malformed: {e}"))?,
+                );
+            }
+            KIND_RECORD if header.is_some() => records.push(payload.to_vec()),
+            _ => bail!("its frame at byte {at} (kind {kind}) is out of place"),
+        }
+        at += len;
+    }
+    Ok((header, records, at.min(bytes.len())))
+}
+
+enum Frame<'a> {
+    Whole {
+        kind: u8,
+        payload: &'a [u8],
+    },
+    /// Its length runs past the end of the file.
+    Torn,
+    /// Its checksum does not match (`len`: the bytes it claims).
+    Bad {
+        len: usize,
+    },
+}
+
+impl Frame<'_> {
+    fn at(bytes: &[u8]) -> Frame<'_> {
+        if bytes.len() < FRAME_HEAD {
+            return Frame::Torn;
+        }
+        let len = u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]) as usize;
+        let crc = u32::from_le_bytes([bytes[4], bytes[5], bytes[6], bytes[7]]);
+        if len > FRAME_BYTES_MAX {
+            return Frame::Bad { len: FRAME_HEAD.saturating_add(len) };
+        }
+        let Some(body) = bytes.get(8..FRAME_HEAD + len) else { return Frame::Torn };
+        if crc32fast::hash(body) != crc {
+            return Frame::Bad { len: FRAME_HEAD + len };
+        }
+        Frame::Whole { kind: body[0], payload: &body[1..] }
+    }
+}
+
+/// Appends one frame to `out`.
+fn frame(out: &mut Vec<u8>, kind: u8, payload: &[u8]) {
+    let mut hasher = crc32fast::Hasher::new();
+    hasher.update(&[kind]);
+    hasher.update(payload);
+    out.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+    out.extend_from_slice(&hasher.finalize().to_le_bytes());
+    out.push(kind);
+    out.extend_from_slice(payload);
 }
 
 impl Store {
@@ -88,25 +168,21 @@ impl Store {
     /// Writes the header of a new run (durably) before anything else.
     pub fn write_header(&mut self, header: &JournalHeader) -> anyhow::Result<()> {
         assert_eq!(header.format, JOURNAL_FORMAT);
-        let bytes = serde_json::to_vec(header)?;
-        let tx = self.db.begin_write()?;
-        tx.open_table(META)?.insert(HEADER_KEY, bytes.as_slice())?;
-        tx.open_table(RECORDS)?;
-        tx.commit()?;
+        let mut out = Vec::new();
+        frame(&mut out, KIND_HEADER, &serde_json::to_vec(header)?);
+        self.file.write_all(&out)?;
+        self.file.sync_data()?;
         Ok(())
     }
 
-    /// Appends records in one durable transaction.
-    fn append(&mut self, batches: &[Vec<Vec<u8>>]) -> anyhow::Result<()> {
-        let tx = self.db.begin_write()?;
-        {
-            let mut table = tx.open_table(RECORDS)?;
-            for record in batches.iter().flatten() {
-                table.insert(self.next_key, record.as_slice())?;
-                self.next_key += 1;
-            }
+    /// Appends records in one write, made durable by one `fdatasync`.
+    fn append(&mut self, batches: &[Vec<Vec<u8>>], buffer: &mut Vec<u8>) -> anyhow::Result<()> {
+        buffer.clear();
+        for record in batches.iter().flatten() {
+            frame(buffer, KIND_RECORD, record);
         }
-        tx.commit()?;
+        self.file.write_all(buffer)?;
+        self.file.sync_data()?;
         Ok(())
     }
 
@@ -152,13 +228,14 @@ fn writer_loop(
     counters: &Counters,
 ) {
     let mut committed = 0u64;
+    let mut buffer = Vec::new();
     while let Ok(first) = rx.recv() {
         // Group commit: everything that queued up while the last transaction was committing goes in this one.
         let mut batches = vec![first];
         while let Ok(more) = rx.try_recv() {
             batches.push(more);
         }
-        if let Err(e) = store.append(&batches) {
+        if let Err(e) = store.append(&batches, &mut buffer) {
             let _ = done.send(Durable::Failed(format!("cannot write the journal {}: {e}", store.path.display())));
             return;
         }
@@ -292,5 +369,55 @@ mod tests {
         let again = open(dir.path()).unwrap();
         assert_eq!(again.header, Some(header()));
         assert_eq!(again.records, expected);
+    }
+
+    /// A journal with `n` records written and made durable, and the bytes of its file.
+    async fn written(dir: &Path, n: u8) -> Vec<u8> {
+        let mut opened = open(dir).unwrap();
+        opened.store.write_header(&header()).unwrap();
+        let mut writer = opened.store.start_writer();
+        for b in 0..n {
+            writer.write(vec![vec![b; 3]]).unwrap();
+        }
+        writer.sync().await.unwrap();
+        drop(writer);
+        std::fs::read(dir.join(FILE_NAME)).unwrap()
+    }
+
+    #[tokio::test]
+    async fn a_torn_last_commit_is_cut_off_and_the_journal_goes_on() {
+        let dir = tempfile::tempdir().unwrap();
+        let whole = written(dir.path(), 5).await;
+        // A crash in the middle of the sixth commit: part of its frame reached the disk.
+        let mut torn = whole.clone();
+        frame(&mut torn, KIND_RECORD, &[9, 9, 9, 9]);
+        torn.truncate(whole.len() + 6);
+        std::fs::write(dir.path().join(FILE_NAME), &torn).unwrap();
+        let again = open(dir.path()).unwrap();
+        assert_eq!(again.records, (0..5u8).map(|b| vec![b; 3]).collect::<Vec<_>>());
+        assert_eq!(std::fs::metadata(dir.path().join(FILE_NAME)).unwrap().len(), whole.len() as u64);
+        // What comes next follows the five, and reads back.
+        let mut writer = again.store.start_writer();
+        writer.write(vec![vec![7]]).unwrap();
+        writer.sync().await.unwrap();
+        drop(writer);
+        assert_eq!(open(dir.path()).unwrap().records.last(), Some(&vec![7]));
+    }
+
+    #[tokio::test]
+    async fn damage_before_good_records_is_refused_not_skipped() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut bytes = written(dir.path(), 5).await;
+        // Flip a byte in the second record's payload: three good records follow it.
+        let second = bytes.len() - 3 * (FRAME_HEAD + 3) - 1;
+        bytes[second] ^= 0xff;
+        std::fs::write(dir.path().join(FILE_NAME), &bytes).unwrap();
+        let err = format!("{:#}", open(dir.path()).err().expect("refused"));
+        assert!(err.contains("is damaged (record 1 and later)"), "{err}");
+        // A file that is not a journal is refused too, and left as it was.
+        std::fs::write(dir.path().join(FILE_NAME), b"PROGRAM p END_PROGRAM").unwrap();
+        let err = format!("{:#}", open(dir.path()).err().expect("refused"));
+        assert!(err.contains("not a Baton journal"), "{err}");
+        assert_eq!(std::fs::read(dir.path().join(FILE_NAME)).unwrap(), b"PROGRAM p END_PROGRAM");
     }
 }

@@ -5,8 +5,8 @@
 //! The command line (`cli/`, clap, one file per command); `chart_file.rs`, a chart file read, decoded and picked;
 //! `run/`, the coordinator's Zenoh shell (samples in, `Coordinator` outputs out, trace file, summary, the
 //! chart/status/set queryables); `client.rs` (`baton set`, `baton status`); `demo.rs` and `demo_chart.rs` (`baton demo`
-//! and its cell chart, of which `examples/cell.st` is the two-robot rendering); `bench.rs` (`baton bench`); `baton-shell`'s `zenoh_config`
-//! (Baton's Zenoh settings over the user's `--zenoh-config` file); `journal.rs` (`--journal DIR`: the records in redb,
+//! and its cell chart, of which `examples/cell.st` is the two-robot rendering); `bench/` (`baton bench`); `baton-shell`'s `zenoh_config`
+//! (Baton's Zenoh settings over the user's `--zenoh-config` file); `journal.rs` (`--journal DIR`: the records appended to one file,
 //! a writer thread with group commit, `Writer::durable` telling the shell which batches it may act on); `recording.rs`
 //! (`--rerun SINK`: `Recorder`, which the shell hands trace records and changed variable values, and the `baton-rerun`
 //! thread's `Logger`, which turns them into Rerun entities, plus the default blueprint); `replay.rs` (`baton replay`: a

@@ -102,7 +102,7 @@ pub struct BaseReport {
     pub convergence: Latency,
     /// Median of the rounds without a journal.
     pub throughput_tokens_per_s: f64,
-    /// Median of the rounds with `--journal` (group commit to redb, fsync per commit).
+    /// Median of the rounds with `--journal` (group commit to an append-only file, fdatasync per commit).
     pub throughput_journal_tokens_per_s: f64,
     pub throughput_journal_ratio: f64,
     /// Group commit at work: journal records per durable transaction.
