@@ -10,8 +10,8 @@ fn uniform() -> f64 {
     (uuid::Uuid::new_v4().as_u128() >> 75) as f64 / (1u64 << 53) as f64
 }
 
-/// `{skill := 'motion', ms := 800, fault_rate := 0.1}`: takes `ms` milliseconds (default 500), then fails with
-/// probability `fault_rate` (default 0).
+/// `{skill := 'motion', ms := 800, fault_rate := 0.1}`: takes `ms` milliseconds (default 500; 0 ends at the agent's
+/// next turn), then fails with probability `fault_rate` (default 0).
 pub struct SimulatedMotion;
 
 impl Skill for SimulatedMotion {
@@ -19,7 +19,13 @@ impl Skill for SimulatedMotion {
         let ms = call.number("ms").unwrap_or(500.0).clamp(0.0, 86_400_000.0) as u64;
         let fault_rate = call.number("fault_rate").unwrap_or(0.0);
         Box::pin(async move {
-            tokio::time::sleep(Duration::from_millis(ms)).await;
+            if ms > 0 {
+                tokio::time::sleep(Duration::from_millis(ms)).await;
+            } else {
+                // Tokio's timers tick in milliseconds: a sleep of 0 ms would last until the next tick (about 1 ms),
+                // and a motion of 0 ms (`baton bench`'s demo chart) would measure the timer wheel, not the chart.
+                tokio::task::yield_now().await;
+            }
             if uniform() < fault_rate {
                 Err(format!("simulated fault after {ms} ms (fault_rate {fault_rate})"))
             } else {
