@@ -49,6 +49,28 @@ pub fn zenohd() -> PathBuf {
     path
 }
 
+/// Starts `zenohd` with `config`, its output appended to `log`; returns once it accepts connections on `port`.
+pub async fn start_zenohd(config: &Path, port: u16, log: &Path) -> Child {
+    let out = std::fs::OpenOptions::new().create(true).append(true).open(log).expect("zenohd's log");
+    let child = Command::new(zenohd())
+        .env("RUST_LOG", "warn")
+        .arg("-c")
+        .arg(config)
+        .stdout(out.try_clone().expect("zenohd's log"))
+        .stderr(out)
+        .kill_on_drop(true)
+        .spawn()
+        .expect("start zenohd");
+    let up = tokio::time::timeout(TIMEOUT, async {
+        while tokio::net::TcpStream::connect(("127.0.0.1", port)).await.is_err() {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await;
+    assert!(up.is_ok(), "zenohd never listened on {port}: {}", std::fs::read_to_string(log).unwrap_or_default());
+    child
+}
+
 pub struct Cluster {
     pub endpoint: String,
     pub dir: tempfile::TempDir,

@@ -12,7 +12,7 @@ use std::time::Duration;
 use baton_proto::dist::keys;
 use baton_proto::dist::wire::{self, CtlRequest, DeviceReport, Report, RunId, SetRequest, TokenId, VarUpdate};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
-use baton_tests::loopback::{bin, deploy_certs, free_port, tls_config, zenohd, Cluster, TIMEOUT};
+use baton_tests::loopback::{bin, deploy_certs, free_port, start_zenohd, tls_config, zenohd, Cluster, TIMEOUT};
 
 baton_tests::harness_main!(
     tokio behind_its_acl_a_rogue_with_another_agents_certificate_changes_nothing,
@@ -108,27 +108,8 @@ async fn cell(
     // The router: zenohd, ready once it accepts connections; or the coordinator's own.
     let mut _zenohd = None;
     let mut coordinator = match &zenohd {
-        Some(bin) => {
-            let child = tokio::process::Command::new(bin)
-                .arg("-c")
-                .arg(&router)
-                .stdout(std::process::Stdio::null())
-                .stderr(std::fs::File::create(dir.join("zenohd.log")).expect("log"))
-                .kill_on_drop(true)
-                .spawn()
-                .expect("start zenohd");
-            _zenohd = Some(child);
-            let up = tokio::time::timeout(TIMEOUT, async {
-                while tokio::net::TcpStream::connect(("127.0.0.1", port)).await.is_err() {
-                    tokio::time::sleep(Duration::from_millis(20)).await;
-                }
-            })
-            .await;
-            assert!(
-                up.is_ok(),
-                "zenohd never listened: {}",
-                std::fs::read_to_string(dir.join("zenohd.log")).unwrap_or_default()
-            );
+        Some(_) => {
+            _zenohd = Some(start_zenohd(&router, port, &dir.join("zenohd.log")).await);
             let own = tls_config(&dir, &pki, "coordinator", false);
             cluster.coordinator_connecting(&chart, &["--zenoh-config", own.to_str().expect("utf-8")])
         }

@@ -334,15 +334,16 @@ impl BaseReport {
     }
 }
 
-fn router_config(endpoint: &str) -> anyhow::Result<zenoh::Config> {
-    let net = NetConfig::router(&[endpoint.to_string()]);
+/// A router listening on `listen` and linked to the routers at `connect`.
+fn router_config(listen: &str, connect: &[String]) -> anyhow::Result<zenoh::Config> {
+    let net = NetConfig { connect: connect.to_vec(), ..NetConfig::router(&[listen.to_string()]) };
     zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("{e}"))
 }
 
 /// Phase 1: put → the echo process's subscriber → put back → our subscriber, 64-byte payloads.
 async fn raw_round_trip(samples: u32) -> anyhow::Result<Vec<Duration>> {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
-    let session = zenoh::open(router_config(&endpoint)?).await.map_err(|e| anyhow!("{e}"))?;
+    let session = zenoh::open(router_config(&endpoint, &[])?).await.map_err(|e| anyhow!("{e}"))?;
     let alive = session.liveliness().declare_subscriber(ECHO_ALIVE_KEY).await.map_err(|e| anyhow!("{e}"))?;
     let pong = session.declare_subscriber(PONG_KEY).await.map_err(|e| anyhow!("{e}"))?;
     let ping = session
@@ -566,7 +567,7 @@ async fn throughput(
     tokens: u32,
     journal: Option<&Path>,
 ) -> anyhow::Result<(u64, f64, Option<crate::journal::JournalStats>)> {
-    let chart = throughput_chart("bench", agents, lanes_per_agent, tokens);
+    let chart = throughput_chart("bench", 0, agents, lanes_per_agent, tokens);
     let (marks, probe) = marks(&[TraceEvent::Return]);
     let names: Vec<String> = (1..=agents).map(|k| format!("bench{k}")).collect();
     let summary = run_chart(
@@ -582,9 +583,9 @@ async fn throughput(
     Ok((counted, secs, summary.journal))
 }
 
-/// `agents × lanes` independent loops, lane `j` dispatching a one-step segment to agent `PREFIXk` over and over,
-/// `tokens` in all; the chart ends when every lane has made its share.
-fn throughput_chart(prefix: &str, agents: u32, lanes_per_agent: u32, tokens: u32) -> String {
+/// `agents × lanes` independent loops, lane `j` dispatching a one-step segment to agent `PREFIXk` over and over
+/// (k from `first + 1` to `first + agents`), `tokens` in all; the chart ends when every lane has made its share.
+fn throughput_chart(prefix: &str, first: u32, agents: u32, lanes_per_agent: u32, tokens: u32) -> String {
     let lanes = agents * lanes_per_agent;
     let per_lane = tokens.div_ceil(lanes).max(1);
     let mut chart = String::from("PROGRAM throughput\nVAR\n");
@@ -595,7 +596,7 @@ fn throughput_chart(prefix: &str, agents: u32, lanes_per_agent: u32, tokens: u32
     let list = |p: &str| (1..=lanes).map(|j| format!("{p}{j}")).collect::<Vec<_>>().join(", ");
     chart.push_str(&format!("TRANSITION FROM Start TO ({}) := TRUE; END_TRANSITION\n", list("H")));
     for j in 1..=lanes {
-        let agent = (j - 1) % agents + 1;
+        let agent = first + (j - 1) % agents + 1;
         chart.push_str(&format!(
             "STEP H{j}: END_STEP\nTRANSITION FROM H{j} TO R{j} := c{j} < n; END_TRANSITION\nTRANSITION FROM H{j} TO D{j} := c{j} >= n; END_TRANSITION\nSTEP R{j}: {{agent := '{prefix}{agent}'}} END_STEP\nTRANSITION FROM R{j} TO B{j} := TRUE; END_TRANSITION\nSTEP B{j}: Count{j}(P); END_STEP\nTRANSITION FROM B{j} TO H{j} := TRUE; END_TRANSITION\nSTEP D{j}: END_STEP\nACTION Count{j}: IF Count{j}.Q THEN c{j} := c{j} + 1; END_IF; END_ACTION\n"
         ));
@@ -607,14 +608,21 @@ fn throughput_chart(prefix: &str, agents: u32, lanes_per_agent: u32, tokens: u32
     chart
 }
 
-/// Tokens returned in steady state and the seconds they took: the first tenth of the returns (agents
-/// starting, caches warming) is left out.
+/// The returns of the first 1/`STEADY_SKIP` of a run (agents starting, caches warming) are left out of its rate.
+const STEADY_SKIP: usize = 10;
+
+/// Of the instants tokens came back at, in order: how many came back in steady state, and in how many seconds.
+fn steady(returns: &[Instant]) -> Option<(u64, f64)> {
+    let skip = returns.len() / STEADY_SKIP;
+    let (first, last) = (returns.get(skip)?, returns.last()?);
+    Some(((returns.len() - skip - 1) as u64, (*last - *first).as_secs_f64().max(1e-9)))
+}
+
+/// Tokens returned in steady state and the seconds they took.
 fn steady_returns(marks: &Marks) -> anyhow::Result<(u64, f64)> {
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
     let returns: Vec<Instant> = marks.iter().filter(|m| m.1 == TraceEvent::Return).map(|m| m.0).collect();
-    let skip = returns.len() / 10;
-    let (Some(first), Some(last)) = (returns.get(skip), returns.last()) else { bail!("no token came back") };
-    Ok(((returns.len() - skip - 1) as u64, (*last - *first).as_secs_f64().max(1e-9)))
+    steady(&returns).ok_or_else(|| anyhow!("no token came back"))
 }
 
 /// Phase 6: the demo's cell chart (two robots) with its motions taking no time and no inspection faults, `parts`

@@ -8,11 +8,13 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail};
-use baton_proto::dist::netconfig::NetConfig;
 use baton_proto::exec::trace::TraceEvent;
 use serde::Serialize;
 
-use super::{marks, run_chart, steady_returns, throughput_chart, Agents, Extras, Latency, Marks};
+use super::{
+    marks, router_config, run_chart, steady, steady_returns, throughput_chart, Agents, Extras, Latency, Marks,
+    STEADY_SKIP,
+};
 use crate::demo::free_port;
 use crate::run::Probe;
 
@@ -138,7 +140,7 @@ pub async fn scale_point(
         _ => f64::NAN,
     };
     let lanes_per_agent = (in_flight / agents).max(1);
-    let chart = throughput_chart("bench", agents, lanes_per_agent, tokens);
+    let chart = throughput_chart("bench", 0, agents, lanes_per_agent, tokens);
     let (marks, probe) = marks(&[TraceEvent::Return]);
     let hosted = Agents::Hosted { prefix: "bench", count: agents };
     run_chart(dir, &format!("throughput_{agents}.st"), chart, hosted, probe, Extras::default()).await?;
@@ -198,11 +200,6 @@ pub async fn memory_per_token(dir: &Path, agents: u32, tokens: u32) -> anyhow::R
     }
 }
 
-fn router(listen: &str, connect: &[String]) -> anyhow::Result<zenoh::Config> {
-    let net = NetConfig { connect: connect.to_vec(), ..NetConfig::router(&[listen.to_string()]) };
-    zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("{e}"))
-}
-
 /// `runs` coordinators at once behind one router of their own, each with `agents_per_run` agents (all hosted in
 /// one process) and `tokens` tokens.
 pub async fn concurrent_runs(
@@ -212,17 +209,15 @@ pub async fn concurrent_runs(
     tokens: u32,
 ) -> anyhow::Result<ConcurrentRuns> {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
-    let _router = zenoh::open(router(&endpoint, &[])?).await.map_err(|e| anyhow!("{e}"))?;
+    let _router = zenoh::open(router_config(&endpoint, &[])?).await.map_err(|e| anyhow!("{e}"))?;
     let _agents = Agents::Hosted { prefix: "c", count: runs * agents_per_run }.spawn(&endpoint)?;
     let mut all = tokio::task::JoinSet::new();
     for r in 0..runs {
         let dir = dir.to_path_buf();
         let endpoint = endpoint.clone();
         all.spawn(async move {
-            // Run r's agents are c(r·k+1) … c(r·k+k): a chart names them by number after the prefix.
-            let first = r * agents_per_run;
-            let chart = throughput_chart("c", agents_per_run, 4, tokens);
-            let chart = renumber_agents(&chart, "c", first, agents_per_run);
+            // Run r's agents are c(r·k+1) … c(r·k+k).
+            let chart = throughput_chart("c", r * agents_per_run, agents_per_run, 4, tokens);
             let (marks, probe) = marks(&[TraceEvent::Return]);
             let extras = Extras { connect: Some(endpoint), ..Extras::default() };
             run_chart(&dir, &format!("run{r}.st"), chart, Agents::Processes(&[]), probe, extras).await?;
@@ -234,16 +229,9 @@ pub async fn concurrent_runs(
     while let Some(run) = all.join_next().await {
         returns.push(run??);
     }
-    let rate = |v: &[Instant]| {
-        let skip = v.len() / 10;
-        match (v.get(skip), v.last()) {
-            (Some(a), Some(b)) if b > a => (v.len() - skip - 1) as f64 / (*b - *a).as_secs_f64(),
-            _ => 0.0,
-        }
-    };
-    let rates: Vec<f64> = returns.iter().map(|v| rate(v)).collect();
+    let rates: Vec<f64> = returns.iter().map(|v| steady(v).map_or(0.0, |(n, secs)| n as f64 / secs)).collect();
     // The window in which every run was running: from the latest first return to the earliest last one.
-    let start = returns.iter().filter_map(|v: &Vec<Instant>| v.get(v.len() / 10)).max().copied();
+    let start = returns.iter().filter_map(|v: &Vec<Instant>| v.get(v.len() / STEADY_SKIP)).max().copied();
     let end = returns.iter().filter_map(|v| v.last()).min().copied();
     let (Some(start), Some(end)) = (start, end) else { bail!("a run returned nothing") };
     let window = end.saturating_duration_since(start).max(Duration::from_micros(1));
@@ -255,16 +243,6 @@ pub async fn concurrent_runs(
         slowest_run_tokens_per_s: rates.iter().copied().fold(f64::INFINITY, f64::min),
         fastest_run_tokens_per_s: rates.iter().copied().fold(0.0, f64::max),
     })
-}
-
-/// `chart` with its agents `PREFIXk` (k from 1 to `count`) named `PREFIX(first+k)`.
-fn renumber_agents(chart: &str, prefix: &str, first: u32, count: u32) -> String {
-    let mut out = chart.to_string();
-    // Highest first, so that `c1` never rewrites the start of `c12`.
-    for k in (1..=count).rev() {
-        out = out.replace(&format!("'{prefix}{k}'"), &format!("'{prefix}#{}'", first + k));
-    }
-    out.replace(&format!("'{prefix}#"), &format!("'{prefix}"))
 }
 
 /// The token round trip with the agent on the coordinator's router, and with it two routers away on a mesh of
@@ -287,11 +265,11 @@ async fn mesh_samples(dir: &Path, samples: u32, mesh: bool) -> anyhow::Result<Ve
     let warmup = 200;
     let ports = [free_port()?, free_port()?, free_port()?];
     let at = |i: usize| format!("tcp/127.0.0.1:{}", ports[i]);
-    let r0 = zenoh::open(router(&at(0), &[])?).await.map_err(|e| anyhow!("{e}"))?;
+    let r0 = zenoh::open(router_config(&at(0), &[])?).await.map_err(|e| anyhow!("{e}"))?;
     let mut routers = vec![r0];
     if mesh {
-        routers.push(zenoh::open(router(&at(1), &[at(0)])?).await.map_err(|e| anyhow!("{e}"))?);
-        routers.push(zenoh::open(router(&at(2), &[at(0), at(1)])?).await.map_err(|e| anyhow!("{e}"))?);
+        routers.push(zenoh::open(router_config(&at(1), &[at(0)])?).await.map_err(|e| anyhow!("{e}"))?);
+        routers.push(zenoh::open(router_config(&at(2), &[at(0), at(1)])?).await.map_err(|e| anyhow!("{e}"))?);
     }
     let chart = round_robin_chart("bench", 1, samples + warmup);
     let (marks, probe) = marks(&[TraceEvent::Dispatch, TraceEvent::Return]);

@@ -23,8 +23,15 @@ pub const TARGETS: &[(&str, Target)] =
 
 /// Every message a Baton process decodes from a peer: the first byte picks the type, the rest is the message.
 pub fn wire_message(data: &[u8]) {
-    let Some((&kind, bytes)) = data.split_first() else { return };
-    let _ = match kind % 10 {
+    if let Some((&kind, bytes)) = data.split_first() {
+        let _ = decode_message(kind, bytes);
+    }
+}
+
+/// `bytes` decoded as the message type `kind` picks (modulo 10): 0 to an agent, 1 a report, 2 a variable update,
+/// 3 a device report, 4 an agent's info, 5 `set`, 6 `ctl`, 7 a status, 8 a why report, 9 a chart's source.
+pub fn decode_message(kind: u8, bytes: &[u8]) -> Result<(), wire::WireError> {
+    match kind % 10 {
         0 => wire::decode::<ToAgent>(bytes).map(drop),
         1 => wire::decode::<Report>(bytes).map(drop),
         2 => wire::decode::<VarUpdate>(bytes).map(drop),
@@ -35,7 +42,7 @@ pub fn wire_message(data: &[u8]) {
         7 => wire::decode::<StatusReport>(bytes).map(drop),
         8 => wire::decode::<WhyReport>(bytes).map(drop),
         _ => wire::decode_with_limit::<ChartSource>(bytes, crate::limits::CHART_SOURCE_BYTES_MAX).map(drop),
-    };
+    }
 }
 
 /// A journal's record as read back on resume or replay: it decodes or says why, and what decodes, encoded
