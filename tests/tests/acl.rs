@@ -18,6 +18,7 @@ baton_tests::harness_main!(
     tokio behind_its_acl_a_rogue_with_another_agents_certificate_changes_nothing,
     tokio without_access_control_the_rogue_hears_robot1_and_aborts_the_run,
     tokio the_same_rules_keep_the_rogue_out_on_a_real_zenohd,
+    sync the_identities_may_be_listed_after_one_plural_flag,
 );
 
 /// Which router enforces the rules.
@@ -259,4 +260,30 @@ async fn without_access_control_the_rogue_hears_robot1_and_aborts_the_run() {
     assert!(rogue.answers > 0, "the rogue's set or abort was answered");
     let abort = trace.iter().find(|r| r.event == TraceEvent::Command && r.name == "abort").expect("aborted");
     assert_eq!(abort.by.as_deref(), Some("robot1"), "who the rogue said it was");
+}
+
+/// `--agents robot1 robot2 --operators op1 op2`, as the issue that asked for `baton deploy acl` writes it, gives
+/// the rules that one flag per name gives.
+fn the_identities_may_be_listed_after_one_plural_flag() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let chart = dir.path().join("line.st");
+    std::fs::write(&chart, CHART).expect("write the chart");
+    let chart = chart.to_str().expect("utf-8");
+    let write = |file: &str, identities: &[&str]| {
+        let out = dir.path().join(file);
+        let mut args = vec!["deploy", "acl", chart, "--coordinator", "coordinator"];
+        args.extend(identities);
+        args.extend(["-o", out.to_str().expect("utf-8")]);
+        baton(&args);
+        std::fs::read_to_string(out).expect("the rules")
+    };
+    let plural = write("plural.json5", &["--agents", "robot1", "robot2=welder", "--operators", "op1", "op2"]);
+    let singular = write(
+        "singular.json5",
+        &["--agent", "robot1", "--agent", "robot2=welder", "--operator", "op1", "--operator", "op2"],
+    );
+    assert_eq!(plural, singular);
+    for name in ["robot1", "robot2", "op1", "op2"] {
+        assert!(plural.contains(&format!("\"{name}\"")), "{name} has no rule:\n{plural}");
+    }
 }

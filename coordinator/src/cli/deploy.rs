@@ -21,17 +21,20 @@ pub struct Acl {
     pub chart: PathBuf,
     #[arg(long)]
     pub pou: Option<String>,
+    // Each identity flag takes one name or several (`--agents robot1 robot2`, as the plural alias reads), and
+    // repeats; several names after one flag come after CHART.
     /// A coordinator's identity (repeatable).
-    #[arg(long = "coordinator", value_name = "NAME")]
+    #[arg(long = "coordinator", visible_alias = "coordinators", value_name = "NAME", num_args = 1..)]
     pub coordinators: Vec<String>,
-    /// An agent's identity, and the roles it serves: --agent robot1 --agent assembler1=assembler,welder.
-    #[arg(long = "agent", value_name = "NAME[=ROLE,…]", value_parser = parse_agent)]
+    /// An agent's identity, and the roles it serves: --agent robot1 --agent assembler1=assembler,welder, or
+    /// --agents robot1 assembler1=assembler,welder.
+    #[arg(long = "agent", visible_alias = "agents", value_name = "NAME[=ROLE,…]", value_parser = parse_agent, num_args = 1..)]
     pub agents: Vec<(String, Vec<String>)>,
     /// An operator's identity: may set inputs and operate runs (repeatable).
-    #[arg(long = "operator", value_name = "NAME")]
+    #[arg(long = "operator", visible_alias = "operators", value_name = "NAME", num_args = 1..)]
     pub operators: Vec<String>,
     /// A viewer's identity: may read status and why (repeatable).
-    #[arg(long = "viewer", value_name = "NAME")]
+    #[arg(long = "viewer", visible_alias = "viewers", value_name = "NAME", num_args = 1..)]
     pub viewers: Vec<String>,
     /// How the router knows a process: its certificate's common name, or its Zenoh user name.
     #[arg(long, value_enum, default_value_t = crate::deploy::acl::By::Cert)]
