@@ -407,13 +407,18 @@ fn cell_with_coordinator_crash(seed: u64, at: u64, down: u64) -> SimCluster {
     let faults = Faults { duplicate: 0.2, reorder: true, delay_ms_max: 5, loss: 0.0 };
     let mut sim = SimCluster::new(&cell(), CELL_AGENTS, faults, seed);
     sim.crash_coordinator_at(at, down);
+    // Snapshots often, so that most crashes resume from one.
+    sim.snapshot_every = 8;
     sim
 }
 
 #[test]
 fn the_cell_survives_a_coordinator_crash_at_any_moment() {
     // From before the first dispatch to the end of the run, in steps that land in every phase: each crash at a
-    // different fraction of the time the same seed takes without one.
+    // different fraction of the time the same seed takes without one. A restart resumes from the latest snapshot
+    // (here one every 8 records) when there is one, and its trace is checked against the live
+    // run's and the whole journal's replay.
+    let mut from_snapshot = 0;
     for k in 0..27u64 {
         let mut calm = SimCluster::new(
             &cell(),
@@ -427,7 +432,9 @@ fn the_cell_survives_a_coordinator_crash_at_any_moment() {
         assert!(sim.run(120_000), "crash at {at} ms: did not finish");
         check_cell_run(&sim);
         assert_eq!(sim.events(TraceEvent::Recover).len(), 1, "crash at {at} ms");
+        from_snapshot += sim.resumed_from_snapshot;
     }
+    assert!(from_snapshot >= 20, "only {from_snapshot} of 27 restarts resumed from a snapshot");
 }
 
 #[test]

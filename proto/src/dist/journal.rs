@@ -271,15 +271,25 @@ pub fn apply(core: &mut Coordinator, entry: &Entry) -> Option<Result<String, Str
 }
 
 /// The ids of a run's tokens: the run id mixed with a counter, so that a replay makes the same ones.
-pub fn token_ids(run: RunId) -> Box<dyn FnMut() -> TokenId + Send> {
-    let base = run.0.as_u128();
-    let mut n: u64 = 0;
-    Box::new(move || {
-        n += 1;
+pub fn token_ids(run: RunId) -> TokenIds {
+    TokenIds { base: run.0.as_u128(), made: 0 }
+}
+
+/// A run's token ids, one after the other (`token_ids`): a counter, kept in a snapshot with the rest.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TokenIds {
+    base: u128,
+    made: u64,
+}
+
+impl TokenIds {
+    pub fn next_id(&mut self) -> TokenId {
+        self.made += 1;
+        let n = self.made;
         let hi = u128::from(splitmix64(n));
         let lo = u128::from(splitmix64(n ^ 0x5bd1_e995_5bd1_e995));
-        TokenId(Uuid::from_u128(base ^ (hi << 64 | lo)))
-    })
+        TokenId(Uuid::from_u128(self.base ^ (hi << 64 | lo)))
+    }
 }
 
 /// SplitMix64's finalizer: a bijection of u64, so distinct counters give distinct ids.
@@ -296,11 +306,83 @@ pub struct Journaled {
     records: Vec<Vec<u8>>,
     /// The time of the last cycle that changed nothing, if no record followed it yet.
     quiet_ms: Option<u64>,
+    /// Records made (or replayed) since the run's first, trace records taken, and the last record's time: what a
+    /// snapshot says of where it stands.
+    counted: u64,
+    traced: u64,
+    last_ms: u64,
+}
+
+/// Where a journal's snapshot stands in its run, besides the coordinator's state.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SnapshotMeta {
+    /// The journal records before it, counted from the run's first: a resume replays those after it.
+    pub records: u64,
+    /// The trace records the run had made: a resumed run's trace file keeps these and the replay writes the rest.
+    pub trace_records: u64,
+    /// The time of the last record before it.
+    pub last_ms: u64,
+    /// The shell's own (`baton run`: the summary's step times), opaque here.
+    #[serde(default)]
+    pub shell: serde_json::Value,
+}
+
+/// A snapshot's bytes: the length of its `SnapshotMeta` (u32, little-endian), the meta as JSON, the coordinator's
+/// state (`Coordinator::snapshot`).
+fn encode_snapshot(meta: &SnapshotMeta, core: &[u8]) -> Vec<u8> {
+    let meta = serde_json::to_vec(meta).expect("a snapshot's meta serializes");
+    let mut out = Vec::with_capacity(4 + meta.len() + core.len());
+    out.extend_from_slice(&(meta.len() as u32).to_le_bytes());
+    out.extend_from_slice(&meta);
+    out.extend_from_slice(core);
+    out
 }
 
 impl Journaled {
     pub fn new(core: Coordinator) -> Journaled {
-        Journaled { core, records: Vec::new(), quiet_ms: None }
+        Journaled { core, records: Vec::new(), quiet_ms: None, counted: 0, traced: 0, last_ms: 0 }
+    }
+
+    /// A snapshot of the coordinator after every record made so far, with `shell`'s data; `None` while it has
+    /// outputs not yet taken (their trace records would be counted nowhere). A cycle that changed nothing and
+    /// was not recorded yet is recorded first, so that the snapshot follows the last record exactly: take the
+    /// records after this call, and write them before the snapshot.
+    pub fn snapshot(&mut self, shell: serde_json::Value) -> Option<Vec<u8>> {
+        if self.core.has_output() {
+            return None;
+        }
+        if let Some(t_ms) = self.quiet_ms.take() {
+            self.push(encode(&Entry { t_ms, record: Record::Cycle }), t_ms);
+        }
+        let meta = SnapshotMeta { records: self.counted, trace_records: self.traced, last_ms: self.last_ms, shell };
+        Some(encode_snapshot(&meta, &self.core.snapshot()))
+    }
+
+    /// The coordinator a snapshot holds, and where it stands; the records after it are replayed next.
+    pub fn restore(
+        program: std::sync::Arc<Program>,
+        layout: std::sync::Arc<Layout>,
+        bytes: &[u8],
+    ) -> Result<(Journaled, SnapshotMeta), String> {
+        let (len, rest) = bytes.split_at_checked(4).ok_or("the snapshot is truncated")?;
+        let len = u32::from_le_bytes(len.try_into().map_err(|_| "the snapshot is truncated")?) as usize;
+        let (meta, core) = rest.split_at_checked(len).ok_or("the snapshot is truncated")?;
+        let meta: SnapshotMeta = serde_json::from_slice(meta).map_err(|e| format!("its meta is malformed: {e}"))?;
+        let core = Coordinator::restore(program, layout, core).map_err(|e| e.to_string())?;
+        let mut j = Journaled::new(core);
+        (j.counted, j.traced, j.last_ms) = (meta.records, meta.trace_records, meta.last_ms);
+        Ok((j, meta))
+    }
+
+    /// Records made or replayed since the run's first.
+    pub fn records_counted(&self) -> u64 {
+        self.counted
+    }
+
+    fn push(&mut self, bytes: Vec<u8>, t_ms: u64) {
+        self.records.push(bytes);
+        self.counted += 1;
+        self.last_ms = self.last_ms.max(t_ms);
     }
 
     /// The coordinator, to read from; inputs go through the methods below.
@@ -310,7 +392,11 @@ impl Journaled {
 
     /// What the coordinator asks for, once the records taken so far are durable.
     pub fn poll_output(&mut self) -> Option<crate::dist::runtime::coordinator::CoordOutput> {
-        self.core.poll_output()
+        let out = self.core.poll_output();
+        if let Some(crate::dist::runtime::coordinator::CoordOutput::Trace(_)) = &out {
+            self.traced += 1;
+        }
+        out
     }
 
     /// The records made since the last call, oldest first.
@@ -332,9 +418,9 @@ impl Journaled {
         // before this input, so that a replay reaches it at the same time (on the same situation, it changes
         // nothing there either).
         if let Some(t_ms) = self.quiet_ms.take() {
-            self.records.push(encode(&Entry { t_ms, record: Record::Cycle }));
+            self.push(encode(&Entry { t_ms, record: Record::Cycle }), t_ms);
         }
-        self.records.push(bytes);
+        self.push(bytes, entry.t_ms);
         apply(&mut self.core, &entry)
     }
 
@@ -349,7 +435,7 @@ impl Journaled {
     pub fn cycle(&mut self, now_ms: u64) {
         if self.core.handle_cycle(now_ms) {
             self.quiet_ms = None;
-            self.records.push(encode(&Entry { t_ms: now_ms, record: Record::Cycle }));
+            self.push(encode(&Entry { t_ms: now_ms, record: Record::Cycle }), now_ms);
         } else {
             self.quiet_ms = Some(now_ms);
         }
@@ -487,6 +573,8 @@ impl Journaled {
 
     /// Applies one record read back from the journal (it is not recorded again), and counts it in `out`.
     pub fn apply_replayed(&mut self, entry: &Entry, out: &mut Replayed) {
+        self.counted += 1;
+        self.last_ms = self.last_ms.max(entry.t_ms);
         out.records += 1;
         out.last_ms = out.last_ms.max(entry.t_ms);
         match &entry.record {
@@ -565,13 +653,13 @@ mod tests {
         let run = RunId(Uuid::from_u128(0xfeed));
         let mut a = token_ids(run);
         let mut b = token_ids(run);
-        let first: Vec<TokenId> = (0..1000).map(|_| a()).collect();
-        let again: Vec<TokenId> = (0..1000).map(|_| b()).collect();
+        let first: Vec<TokenId> = (0..1000).map(|_| a.next_id()).collect();
+        let again: Vec<TokenId> = (0..1000).map(|_| b.next_id()).collect();
         assert_eq!(first, again);
         let distinct: std::collections::BTreeSet<_> = first.iter().collect();
         assert_eq!(distinct.len(), first.len());
         let mut other = token_ids(RunId(Uuid::from_u128(0xbeef)));
-        assert_ne!(other(), first[0]);
+        assert_ne!(other.next_id(), first[0]);
     }
 
     /// A coordinator of a chart with a step on r1 that writes `n` and waits for input `go`, with r1 up.

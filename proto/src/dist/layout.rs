@@ -45,7 +45,7 @@ impl fmt::Display for Placement {
     }
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize)]
 pub struct SegmentId(pub u32);
 
 impl SegmentId {
@@ -90,7 +90,7 @@ pub const OUTPUT_KEYS: [&str; 4] = ["result", "feedback", "response", "outputs"]
 /// The skill parameters that hold a structured literal (a goal, a request, arguments): read at check time.
 pub const LITERAL_KEYS: [&str; 3] = ["goal", "request", "args"];
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Layout {
     /// Per step.
     pub placement: Vec<Placement>,

@@ -26,7 +26,7 @@ pub trait EnvMut: Env {
 }
 
 /// A run-time fault; the engine reports it and carries on.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Fault {
     DivisionByZero,
     /// A transition gave an active step a second token (the net is not safe); the tokens merged. Only a chart

@@ -15,7 +15,7 @@ use crate::types::{IntKind, Type, Value};
 
 macro_rules! id {
     ($name:ident) => {
-        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize)]
         pub struct $name(pub u32);
 
         impl $name {
@@ -34,7 +34,7 @@ id!(VarId);
 /// A chart ready to run. What the engine reads every cycle (outgoing transitions, associations, arcs, ranks) is
 /// kept flat, in id order, apart from what it rarely reads (names, pragmas): a cycle then touches a few
 /// neighbouring cache lines per active step however large the chart is.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Program {
     pub name: String,
     pub vars: Vec<VarInfo>,

@@ -284,7 +284,7 @@ impl fmt::Display for Type {
 
 /// A run-time value. TIME is held in milliseconds. A STRING is shared, so that copying a value stays cheap (a
 /// string is never changed in place: every string function makes a new one).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum Value {
     Bool(bool),
     Int(i64),

@@ -147,7 +147,7 @@ impl fmt::Display for AlarmRefusal {
 impl std::error::Error for AlarmRefusal {}
 
 /// The standing alarms of a run: every occurrence that is active or not yet acknowledged.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct Alarms {
     last_id: u64,
     standing: BTreeMap<AlarmId, Alarm>,

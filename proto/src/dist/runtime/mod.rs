@@ -68,7 +68,7 @@ const VARS_RESEND_MAX_MS: u64 = 3_200;
 
 /// When a writer's last variable update is published again (`VARS_RESEND_FIRST_MS`, doubling up to
 /// `VARS_RESEND_MAX_MS`); a new update starts the series over.
-#[derive(Default)]
+#[derive(Default, serde::Serialize, serde::Deserialize)]
 pub(crate) struct VarsResend {
     at_ms: Option<u64>,
     backoff_ms: u64,
@@ -104,13 +104,14 @@ pub const COORDINATOR: &str = "coordinator";
 /// which of its numbered updates — so that a duplicated or late value never overwrites a newer one, and a
 /// restarted writer, whose numbers start again, is heard at once. One entry per variable: what a peer sends
 /// cannot grow it.
+#[derive(serde::Serialize, serde::Deserialize)]
 pub(crate) struct VarWrites {
     last: Vec<Option<VarWrite>>,
     /// Processes replaced by a newer one of the same name: whatever they still send is late.
     retired: VecDeque<(String, Uuid)>,
 }
 
-#[derive(Clone, PartialEq)]
+#[derive(Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 struct VarWrite {
     writer: String,
     incarnation: Uuid,
@@ -120,6 +121,11 @@ struct VarWrite {
 impl VarWrites {
     pub(crate) fn new(vars: usize) -> VarWrites {
         VarWrites { last: vec![None; vars], retired: VecDeque::new() }
+    }
+
+    /// Whether it was made for a program of `vars` variables (a restored snapshot).
+    pub(crate) fn fits(&self, vars: usize) -> bool {
+        self.last.len() == vars
     }
 
     /// Whether a value of variable `var` in update `seq` of `writer`'s process `incarnation` is newer than the
@@ -176,7 +182,7 @@ impl VarWrites {
     }
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, serde::Serialize, serde::Deserialize)]
 pub enum Level {
     Info,
     Warn,

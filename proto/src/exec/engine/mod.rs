@@ -54,13 +54,13 @@ mod operator;
 
 pub use operator::Mode;
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Event {
     pub t_ms: u64,
     pub kind: EventKind,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum EventKind {
     Fire(TransitionId),
     Deactivate(StepId),
@@ -74,7 +74,7 @@ pub enum EventKind {
     Overrun(StepId),
 }
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum FaultSource {
     Transition(TransitionId),
     Action(ActionId),
@@ -97,7 +97,7 @@ pub enum RemoteInput {
 }
 
 /// Whether an engine judges a transition, and whether it activates the transition's targets when it clears.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum TransitionScope {
     /// Judged here; its targets become active here.
     Local,
@@ -109,7 +109,7 @@ pub enum TransitionScope {
 
 /// The part of a chart one engine runs. A chart that runs on one machine has `Scope::whole`; in a distributed
 /// run the coordinator and each agent run complementary scopes of the same program.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Scope {
     /// Per transition.
     pub transitions: Vec<TransitionScope>,
@@ -159,7 +159,7 @@ pub enum InputError {
 
 const NEVER: u64 = u64::MAX;
 
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, serde::Serialize, serde::Deserialize)]
 struct StepState {
     active: bool,
     /// Made active by another engine or by a reaction (not by a cycle of this engine).
@@ -182,7 +182,7 @@ struct StepState {
     overrun_unacked: bool,
 }
 
-#[derive(Clone, Copy, Default, PartialEq)]
+#[derive(Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 struct ActionState {
     q: bool,
     stored_s: bool,
@@ -200,7 +200,7 @@ impl ActionState {
 }
 
 /// What the associations of one cycle ask of one action.
-#[derive(Clone, Copy, Default)]
+#[derive(Clone, Copy, Default, serde::Serialize, serde::Deserialize)]
 struct Demand {
     direct: bool,
     reset: bool,
@@ -210,7 +210,10 @@ struct Demand {
     set_sl: Option<i64>,
 }
 
+#[derive(serde::Serialize, serde::Deserialize)]
 pub struct Engine {
+    /// Not in a snapshot: `restore` is given it.
+    #[serde(skip)]
     program: Arc<Program>,
     scope: Scope,
     now_ms: u64,
@@ -376,6 +379,65 @@ impl Engine {
             engine.steps[s.index()].activated_cycle = NEVER;
         }
         engine
+    }
+
+    /// An engine read back from a snapshot (`dist::snapshot`) meets its program again. A snapshot whose sizes or
+    /// ids do not fit the program is refused, so that nothing indexes past what the program has.
+    pub fn attach(&mut self, program: Arc<Program>) -> Result<(), String> {
+        let (n_vars, n_steps, n_actions) = (program.vars.len(), program.steps.len(), program.actions.len());
+        let n_transitions = program.transitions.len();
+        let sizes = [
+            ("variables", self.vars.len(), n_vars),
+            ("variable changes", self.var_gen.len(), n_vars),
+            ("steps", self.steps.len(), n_steps),
+            ("step stamps", self.consumed_stamp.len(), n_steps),
+            ("held steps", self.held.len(), n_steps),
+            ("timed steps", self.timed.len(), n_steps),
+            ("scope steps", self.scope.runs_actions.len(), n_steps),
+            ("actions", self.actions.len(), n_actions),
+            ("demands", self.demand.len(), n_actions),
+            ("demand stamps", self.demand_stamp.len(), n_actions),
+            ("touched actions", self.touched.len(), n_actions),
+            ("frozen actions", self.frozen_at.len(), n_actions),
+            ("scope actions", self.scope.skill_actions.len(), n_actions),
+            ("transitions", self.judged_gen.len(), n_transitions),
+            ("reactive transitions", self.reactive_ok.len(), n_transitions),
+            ("permits", self.permits.len(), n_transitions),
+            ("waiting transitions", self.waiting.len(), n_transitions),
+            ("scope transitions", self.scope.transitions.len(), n_transitions),
+        ];
+        if let Some((what, has, wants)) = sizes.iter().find(|(_, has, wants)| has != wants) {
+            return Err(format!("it holds {has} {what} where the chart has {wants}"));
+        }
+        let step_ids = self.active.iter().chain(self.deactivated.iter()).map(|s| s.index());
+        let step_ids = step_ids.chain(self.overrun_why.iter().map(|(s, _)| s.index()));
+        if step_ids.clone().any(|s| s >= n_steps) {
+            return Err("it names a step the chart does not have".into());
+        }
+        let action_ids = self.live.iter().chain(self.judged.iter()).map(|a| a.index());
+        let transition_ids = self.fired.iter().chain(self.candidates.iter().map(|(_, t)| t)).map(|t| t.index());
+        if action_ids.clone().any(|a| a >= n_actions) || transition_ids.clone().any(|t| t >= n_transitions) {
+            return Err("it names an action or a transition the chart does not have".into());
+        }
+        let event_fits = |e: &Event| match e.kind {
+            EventKind::Fire(t) | EventKind::Fault(FaultSource::Transition(t), _) => t.index() < n_transitions,
+            EventKind::Activate(s) | EventKind::Deactivate(s) | EventKind::Overrun(s) => s.index() < n_steps,
+            EventKind::ActionOn(a) | EventKind::ActionOff(a) | EventKind::Fault(FaultSource::Action(a), _) => {
+                a.index() < n_actions
+            }
+        };
+        let fault_fits = |e: &Event| match e.kind {
+            EventKind::Fault(_, Fault::SecondToken(s)) => s.index() < n_steps,
+            _ => true,
+        };
+        if !self.events.iter().all(|e| event_fits(e) && fault_fits(e)) {
+            return Err("an event it holds names what the chart does not have".into());
+        }
+        if self.active.iter().enumerate().any(|(i, s)| self.steps[s.index()].slot as usize != i) {
+            return Err("its active steps do not match its steps' state".into());
+        }
+        self.program = program;
+        Ok(())
     }
 
     pub fn program(&self) -> &Arc<Program> {

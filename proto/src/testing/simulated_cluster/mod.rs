@@ -103,6 +103,9 @@ type Ending = (u64, Result<(), String>, Vec<(usize, Value)>);
 /// The simulated cell's first run: its journal begins with it.
 const FIRST_RUN: RunId = RunId(Uuid::from_u128(1));
 
+/// How many records the simulated coordinator journals between snapshots: few, so that crashes resume from them.
+const SNAPSHOT_EVERY: usize = 16;
+
 /// How long a run that was aborted waits for the agents it could not tell (`baton run --abort-wait`'s default).
 const ABORT_WAIT_MS: u64 = 30_000;
 
@@ -131,6 +134,12 @@ pub struct SimCluster {
     pub coordinator: Journaled,
     /// The coordinator's durable records: everything it took before its outputs left.
     pub journal: Vec<Vec<u8>>,
+    /// Snapshots of the coordinator (`Journaled::snapshot`), each with the number of records before it: taken every
+    /// `snapshot_every` records, as `baton run --journal` does, and resumed from after a crash.
+    pub snapshots: Vec<(usize, Vec<u8>)>,
+    pub snapshot_every: usize,
+    /// Restarts that resumed from a snapshot (and were checked against the whole journal's replay).
+    pub resumed_from_snapshot: u32,
     /// While the coordinator is down: when it starts again.
     down_until: Option<u64>,
     crashes: Vec<(u64, u64)>,
@@ -279,6 +288,9 @@ impl SimCluster {
         let mut sim = SimCluster {
             coordinator,
             journal: Vec::new(),
+            snapshots: Vec::new(),
+            snapshot_every: SNAPSHOT_EVERY,
+            resumed_from_snapshot: 0,
             down_until: None,
             crashes: Vec::new(),
             crashes_after_journal: Vec::new(),
@@ -370,8 +382,9 @@ impl SimCluster {
         self.down_until = Some(self.now_ms + down_ms);
     }
 
-    /// A new coordinator process: replays the journal, checks that it rebuilt the same run, and reconciles
-    /// with the agents that answer.
+    /// A new coordinator process: resumes from the latest snapshot and the records after it, checks that this
+    /// rebuilt the same run as replaying the whole journal (what `baton replay` does) and as the live run wrote,
+    /// and reconciles with the agents that answer.
     fn restart_coordinator(&mut self) {
         self.down_until = None;
         // The journal begins with the first run (a `reset` goes on to others in it).
@@ -384,31 +397,39 @@ impl SimCluster {
             journal::token_ids(run),
         );
         core.set_cycle_ms(self.cycle_ms);
-        let mut fresh = Journaled::new(core);
+        let mut whole = Journaled::new(core);
         self.last_cycle_ms = None;
-        let replayed = fresh.replay(self.journal.iter().map(Vec::as_slice)).expect("the journal replays");
+        let replayed = whole.replay(self.journal.iter().map(Vec::as_slice)).expect("the journal replays");
         assert!(replayed.ended.is_none(), "seed {}: a run that ended was restarted", self.seed);
-        let mut again = Vec::new();
-        while let Some(out) = fresh.poll_output() {
-            if let CoordOutput::Trace(rec) = out {
-                again.push(rec);
-            }
-        }
+        let again: Vec<TraceRecord> = std::iter::from_fn(|| whole.poll_output())
+            .filter_map(|out| match out {
+                CoordOutput::Trace(rec) => Some(rec),
+                _ => None,
+            })
+            .collect();
         // The replay rebuilds what the run wrote, and — when the process died after its journal but before it
         // sent anything — what it was about to write; the resumed run writes the trace again in full.
-        let rebuilt =
-            if std::mem::take(&mut self.outputs_lost) { again.starts_with(&self.trace) } else { again == self.trace };
-        if !rebuilt {
-            let at =
-                again.iter().zip(&self.trace).position(|(a, b)| a != b).unwrap_or(again.len().min(self.trace.len()));
-            let lo = at.saturating_sub(3);
-            panic!(
-                "seed {}: the replay did not rebuild the run's trace; from record {at}:\nreplayed: {:#?}\nlive: {:#?}",
-                self.seed,
-                &again[lo..(at + 3).min(again.len())],
-                &self.trace[lo..(at + 3).min(self.trace.len())]
-            );
-        }
+        let outputs_lost = std::mem::take(&mut self.outputs_lost);
+        self.check_rebuilt("the replay of the whole journal", &again, &self.trace, outputs_lost);
+        // What `baton run --journal` resumes from: the latest snapshot, then the records after it. Its trace goes
+        // on from the snapshot's count of trace records, and must be the rest of the same trace.
+        let fresh = match self.snapshots.last() {
+            None => whole,
+            Some((at, bytes)) => {
+                let (mut fresh, meta) =
+                    Journaled::restore(Arc::clone(&self.program), Arc::clone(&self.layout), bytes).expect("restores");
+                assert_eq!(meta.records, *at as u64, "seed {}: the snapshot's record count", self.seed);
+                fresh.replay(self.journal[*at..].iter().map(Vec::as_slice)).expect("the records after it replay");
+                let mut resumed = again[..meta.trace_records as usize].to_vec();
+                resumed.extend(std::iter::from_fn(|| fresh.poll_output()).filter_map(|out| match out {
+                    CoordOutput::Trace(rec) => Some(rec),
+                    _ => None,
+                }));
+                self.check_rebuilt("the resume from a snapshot", &resumed, &again, false);
+                self.resumed_from_snapshot += 1;
+                fresh
+            }
+        };
         self.trace = again;
         self.coordinator = fresh;
         self.coordinator.recover(self.now_ms);
@@ -433,6 +454,21 @@ impl SimCluster {
                 self.coordinator.agent_up(self.now_ms, info);
             }
             self.flush_coordinator();
+        }
+    }
+
+    /// Panics, showing where, unless `rebuilt` is `live` (or, when outputs were lost, goes on from it).
+    fn check_rebuilt(&self, how: &str, rebuilt: &[TraceRecord], live: &[TraceRecord], outputs_lost: bool) {
+        let same = if outputs_lost { rebuilt.starts_with(live) } else { rebuilt == live };
+        if !same {
+            let at = rebuilt.iter().zip(live).position(|(a, b)| a != b).unwrap_or(rebuilt.len().min(live.len()));
+            let lo = at.saturating_sub(3);
+            panic!(
+                "seed {}: {how} did not rebuild the run's trace; from record {at}:\nrebuilt: {:#?}\nlive: {:#?}",
+                self.seed,
+                &rebuilt[lo..(at + 3).min(rebuilt.len())],
+                &live[lo..(at + 3).min(live.len())]
+            );
         }
     }
 

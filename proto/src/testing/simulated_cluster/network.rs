@@ -162,6 +162,22 @@ impl SimCluster {
                 CoordOutput::Log { .. } => {}
             }
         }
+        let since = self.snapshots.last().map_or(0, |(at, _)| *at);
+        if self.down_until.is_none() && self.journal.len() >= since + self.snapshot_every {
+            if let Some(bytes) = self.coordinator.snapshot(serde_json::Value::Null) {
+                // A quiet cycle it recorded first goes before it.
+                let records = self.coordinator.take_records();
+                self.journal.extend(records);
+                // The run goes on with the coordinator the snapshot restores: whatever it failed to keep would
+                // show in what the run does. And it must be the same to the byte.
+                let (program, layout) = (Arc::clone(&self.program), Arc::clone(&self.layout));
+                let (mut restored, _) = Journaled::restore(program, layout, &bytes).expect("a snapshot restores");
+                let again = restored.snapshot(serde_json::Value::Null).expect("nothing pending");
+                assert!(again == bytes, "seed {}: a restored coordinator's snapshot differs", self.seed);
+                self.coordinator = restored;
+                self.snapshots.push((self.journal.len(), bytes));
+            }
+        }
     }
 
     pub(super) fn flush_agent(&mut self, i: usize) {

@@ -3,6 +3,7 @@
 
 use super::*;
 
+#[derive(serde::Serialize, serde::Deserialize)]
 pub(super) struct AgentState {
     pub(super) roles: Vec<String>,
     pub(super) alive: bool,

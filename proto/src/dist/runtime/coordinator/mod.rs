@@ -20,6 +20,7 @@ mod modes;
 mod operate;
 mod reports;
 mod restart;
+mod snapshot;
 mod supervision;
 mod timers;
 mod tokens;
@@ -58,7 +59,7 @@ const DISPATCH_RESEND_FIRST_MS: u64 = 500;
 const DISPATCH_RESEND_MAX_MS: u64 = 5_000;
 
 /// What the coordinator asks its shell to do.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum CoordOutput {
     /// A command for one process (`incarnation`) of `agent`.
     Send {
@@ -75,7 +76,7 @@ pub enum CoordOutput {
 }
 
 /// What the coordinator does with the tokens of an agent that is lost (`baton run --on-agent-loss`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum LossPolicy {
     /// Hold the segment and raise an alarm; the token resumes when the agent comes back. The default,
     /// because running a motion again can be unsafe.
@@ -87,7 +88,7 @@ pub enum LossPolicy {
     Fail,
 }
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct CoordStats {
     pub dispatched: u64,
     pub returned: u64,
@@ -97,10 +98,14 @@ pub struct CoordStats {
     pub dropped: u64,
 }
 
+#[derive(serde::Serialize, serde::Deserialize)]
 pub struct Coordinator {
     run: RunId,
     hash: ChartHash,
+    /// Not in a snapshot: `restore` is given them.
+    #[serde(skip)]
     program: Arc<Program>,
+    #[serde(skip)]
     layout: Arc<Layout>,
     engine: Engine,
     now_ms: u64,
@@ -119,7 +124,7 @@ pub struct Coordinator {
     vars_resend: VarsResend,
     /// The last write applied to each variable an agent writes.
     var_writes: VarWrites,
-    new_token: Box<dyn FnMut() -> TokenId + Send>,
+    new_token: crate::dist::journal::TokenIds,
     round_robin: usize,
     outbox: VecDeque<CoordOutput>,
     /// Acknowledgements owed, per agent: sent together at the end of the cycle.
@@ -160,13 +165,13 @@ pub struct Coordinator {
 }
 
 impl Coordinator {
-    /// `new_token` gives each token its id: random in a real run, counted in a simulation.
+    /// `new_token` gives each token its id (`journal::token_ids`: the run id and a counter, so a replay makes the same).
     pub fn new(
         program: Arc<Program>,
         layout: Arc<Layout>,
         run: RunId,
         hash: ChartHash,
-        new_token: Box<dyn FnMut() -> TokenId + Send>,
+        new_token: crate::dist::journal::TokenIds,
     ) -> Coordinator {
         let engine = Engine::with_scope(Arc::clone(&program), layout.coordinator_scope(&program));
         let program_vars = program.vars.len();

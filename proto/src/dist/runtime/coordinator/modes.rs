@@ -15,7 +15,7 @@ const GATE_RESEND_FIRST_MS: u64 = 200;
 const GATE_RESEND_MAX_MS: u64 = 2_000;
 
 /// What a token's agent was told of the mode and permits, and what it said back.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub(super) struct TokenGate {
     pub(super) seq: u64,
     pub(super) confirmed: u64,

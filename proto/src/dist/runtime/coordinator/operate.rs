@@ -20,7 +20,7 @@ const HOLD_RESEND_FIRST_MS: u64 = 200;
 const HOLD_RESEND_MAX_MS: u64 = 2_000;
 
 /// Parts of a run held while the rest goes on (`hold --agent`, `hold --step`).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub(super) struct PartialHolds {
     pub(super) agents: BTreeSet<String>,
     pub(super) steps: BTreeSet<StepId>,

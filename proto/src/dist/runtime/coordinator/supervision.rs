@@ -13,6 +13,7 @@ const ACK_RESEND_MAX_MS: u64 = 2_000;
 
 /// A supervision alarm: whose step, on which token (none: the coordinator's own step), and the acknowledgement
 /// on its way to the agent.
+#[derive(serde::Serialize, serde::Deserialize)]
 pub(super) struct Supervised {
     pub(super) step: StepId,
     pub(super) token: Option<(TokenId, u32)>,

@@ -3,6 +3,7 @@
 
 use super::*;
 
+#[derive(serde::Serialize, serde::Deserialize)]
 pub(super) struct TokenState {
     pub(super) segment: SegmentId,
     pub(super) entry: StepId,
@@ -99,7 +100,7 @@ impl Coordinator {
     }
 
     pub(super) fn new_token(&mut self, g: SegmentId, entry: StepId) -> TokenId {
-        let id = (self.new_token)();
+        let id = self.new_token.next_id();
         let tok = TokenState {
             segment: g,
             entry,
