@@ -1,16 +1,23 @@
-//! `baton run --journal DIR`: the coordinator's records (`baton_proto::dist::journal`) appended to one file,
-//! `DIR/journal.log`, by a thread of their own with group commit.
+//! `baton run --journal DIR`: the coordinator's records (`baton_proto::dist::journal`) appended to segment files by
+//! a thread of their own with group commit, and the coordinator's snapshots that begin each segment after the first.
 //!
 //! The shell hands each batch of records to the writer and holds back what the coordinator asked for until the
 //! writer says the batch is durable (written and `fdatasync`'d). While one commit is on its way to the disk, the
 //! batches that arrive meanwhile wait and go together in the next one, so a slow disk makes batches larger, not
 //! the chart slower: durability costs latency (one commit), not throughput.
 //!
-//! The file: `MAGIC`, then frames — payload length (u32, little-endian), CRC-32 of the kind and payload (u32), the
-//! kind (0 the run's header, JSON; 1 a record), the payload. A crash while a commit was being written leaves a
-//! torn last frame, which nobody was told was durable: opening the journal cuts it off. A bad frame with good
-//! ones after it is damage, and the journal is refused. (An append-only file replaced redb here: a commit is one
-//! write and one `fdatasync` instead of a B-tree's pages, `docs/benchmarks.md`.)
+//! A segment file: `MAGIC`, then frames — payload length (u32, little-endian), CRC-32 of the kind and payload
+//! (u32), the kind (0 the run's header, JSON; 1 a record; 2 a snapshot), the payload. The first segment is
+//! `journal.log`: the header, then records. Every `snapshot_every` records the shell hands the writer a snapshot
+//! of the coordinator (`Journaled::snapshot`); the writer starts segment `journal-NNNNNN.log` with the header and
+//! the snapshot (written apart, `fdatasync`'d, then renamed into place, so a segment is never seen without its
+//! snapshot), the records after it go there, and the segments beyond `keep` are deleted: the journal is
+//! compacted behind its snapshots. A resume reads only the last segment: the snapshot, then its records.
+//!
+//! A crash while a commit was being written leaves a torn last frame, which nobody was told was durable: opening
+//! the journal cuts it off. A bad frame with good ones after it is damage, and the journal is refused. (An
+//! append-only file replaced redb here: a commit is one write and one `fdatasync` instead of a B-tree's pages,
+//! `docs/benchmarks.md`.)
 
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Write};
@@ -23,77 +30,205 @@ use anyhow::{anyhow, bail, Context};
 use baton_proto::dist::journal::{JournalHeader, JOURNAL_FORMAT};
 use tokio::sync::watch;
 
+/// The first segment of a journal, which holds the run from its start.
 pub const FILE_NAME: &str = "journal.log";
+/// Held (locked) while a coordinator uses the journal.
+const LOCK_NAME: &str = "journal.lock";
 /// Where journals of Baton before the append-only file were kept.
 const OLD_FILE_NAME: &str = "journal.redb";
 const MAGIC: &[u8; 16] = b"BATON-JOURNAL-1\n";
 const FRAME_HEAD: usize = 9;
 const KIND_HEADER: u8 = 0;
 const KIND_RECORD: u8 = 1;
-/// A frame larger than this is damage, not a record (a record is at most a message and a chart's header).
-const FRAME_BYTES_MAX: usize = 64 << 20;
+const KIND_SNAPSHOT: u8 = 2;
+/// A frame larger than this is damage, not a record or a snapshot.
+const FRAME_BYTES_MAX: usize = 1 << 30;
 
-/// An opened journal: a fresh one, or the header and records of a run to resume.
+/// Segment `n`'s file name: `journal.log` for the first, `journal-NNNNNN.log` after it.
+fn segment_name(n: u64) -> String {
+    if n == 0 {
+        FILE_NAME.to_string()
+    } else {
+        format!("journal-{n:06}.log")
+    }
+}
+
+fn segment_number(name: &str) -> Option<u64> {
+    if name == FILE_NAME {
+        return Some(0);
+    }
+    let digits = name.strip_prefix("journal-")?.strip_suffix(".log")?;
+    digits.bytes().all(|b| b.is_ascii_digit()).then(|| digits.parse().ok()).flatten().filter(|n| *n > 0)
+}
+
+/// When the coordinator snapshots itself, and how much of the journal is kept (`baton run --snapshot-every`,
+/// `--journal-keep`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Settings {
+    /// A snapshot after this many records since the last (0: never).
+    pub snapshot_every: u64,
+    pub keep: Keep,
+}
+
+/// A snapshot every 100 000 records: a resume replays at most that many (well under a second), and a snapshot
+/// costs the coordinator a few milliseconds at most that often.
+pub const SNAPSHOT_EVERY: u64 = 100_000;
+
+/// The last segment and the one before it: the run from the last snapshot but one.
+pub const KEEP: Keep = Keep::Last(2);
+
+impl Default for Settings {
+    fn default() -> Settings {
+        Settings { snapshot_every: SNAPSHOT_EVERY, keep: KEEP }
+    }
+}
+
+/// How many segments a journal keeps: all of them (a replay rebuilds the whole run), or the last `n` (a replay
+/// rebuilds the run from the oldest kept snapshot on).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Keep {
+    All,
+    Last(u32),
+}
+
+impl std::str::FromStr for Keep {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Keep, String> {
+        match s {
+            "all" => Ok(Keep::All),
+            n => match n.parse::<u32>() {
+                Ok(n) if n >= 1 => Ok(Keep::Last(n)),
+                _ => Err(format!("`{s}` is neither `all` nor a number of segments of at least 1")),
+            },
+        }
+    }
+}
+
+/// An opened journal: a fresh one, or the header, the latest snapshot and the records after it of a run to resume.
 pub struct Opened {
     pub store: Store,
     /// `None` for a journal without a run yet.
     pub header: Option<JournalHeader>,
+    /// The snapshot that begins the last segment (none in the first segment).
+    pub snapshot: Option<Vec<u8>>,
+    pub records: Vec<Vec<u8>>,
+}
+
+/// One segment, read whole (`Store::segments`).
+pub struct Segment {
+    pub number: u64,
+    pub snapshot: Option<Vec<u8>>,
     pub records: Vec<Vec<u8>>,
 }
 
 pub struct Store {
+    dir: PathBuf,
+    /// The last segment, which records are appended to, and its number.
     file: File,
     path: PathBuf,
+    number: u64,
+    /// The header's frame, which begins every segment.
+    header_frame: Vec<u8>,
+    keep: Keep,
+    _lock: File,
 }
 
 /// Opens (or creates) the journal in `dir`. Another process using it is refused.
 pub fn open(dir: &Path) -> anyhow::Result<Opened> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create the journal folder {}", dir.display()))?;
-    let path = dir.join(FILE_NAME);
-    if !path.exists() && dir.join(OLD_FILE_NAME).exists() {
+    let numbers = segment_numbers(dir)?;
+    if numbers.is_empty() && dir.join(OLD_FILE_NAME).exists() {
         bail!(
             "{} holds a journal of an earlier Baton ({OLD_FILE_NAME}); this one keeps journals in {FILE_NAME}: \
              resume or replay it with the Baton that wrote it",
             dir.display()
         );
     }
+    let lock = OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(dir.join(LOCK_NAME))
+        .with_context(|| format!("cannot open the journal's lock {}", dir.join(LOCK_NAME).display()))?;
+    let shown = dir.join(numbers.last().map_or(FILE_NAME.to_string(), |n| segment_name(*n)));
+    match lock.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
+            bail!("the journal {} is in use by another coordinator", shown.display())
+        }
+        Err(std::fs::TryLockError::Error(e)) => bail!("cannot lock the journal {}: {e}", shown.display()),
+    }
+    // A segment that was being started when the process died: it was never renamed into place, nothing in it
+    // was acknowledged.
+    for entry in std::fs::read_dir(dir)?.flatten() {
+        if entry.file_name().to_str().is_some_and(|n| n.starts_with("journal-") && n.ends_with(".log.new")) {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
+    let number = numbers.last().copied().unwrap_or(0);
+    let path = dir.join(segment_name(number));
     let mut file = OpenOptions::new()
         .read(true)
         .append(true)
         .create(true)
         .open(&path)
         .with_context(|| format!("cannot open the journal {}", path.display()))?;
-    match file.try_lock() {
-        Ok(()) => {}
-        Err(std::fs::TryLockError::WouldBlock) => {
-            bail!("the journal {} is in use by another coordinator", path.display())
-        }
-        Err(std::fs::TryLockError::Error(e)) => bail!("cannot lock the journal {}: {e}", path.display()),
-    }
     let mut bytes = Vec::new();
     file.read_to_end(&mut bytes).with_context(|| format!("cannot read the journal {}", path.display()))?;
-    let (header, records, good) =
-        read(&bytes).with_context(|| format!("cannot read the journal {}", path.display()))?;
+    let read = read(&bytes).with_context(|| format!("cannot read the journal {}", path.display()))?;
+    if number > 0 && read.snapshot.is_none() {
+        bail!("cannot read the journal {}: it does not begin with its snapshot", path.display());
+    }
     if bytes.is_empty() {
         file.write_all(MAGIC)?;
         file.sync_data()?;
-    } else if good < bytes.len() {
+    } else if read.good < bytes.len() {
         // The torn frame of a commit that never finished: nothing in it was acknowledged.
-        file.set_len(good as u64)?;
+        file.set_len(read.good as u64)?;
         file.sync_data()?;
     }
-    Ok(Opened { store: Store { file, path }, header, records })
+    let mut header_frame = Vec::new();
+    if let Some(h) = &read.header {
+        frame(&mut header_frame, KIND_HEADER, &serde_json::to_vec(h)?);
+    }
+    let store = Store { dir: dir.to_path_buf(), file, path, number, header_frame, keep: Keep::All, _lock: lock };
+    Ok(Opened { store, header: read.header, snapshot: read.snapshot, records: read.records })
 }
 
-/// The header and records of a journal file's bytes, and how many of its bytes are whole frames.
-fn read(bytes: &[u8]) -> anyhow::Result<(Option<JournalHeader>, Vec<Vec<u8>>, usize)> {
+/// Whether `dir` holds a journal (one segment at least).
+pub fn exists(dir: &Path) -> bool {
+    segment_numbers(dir).is_ok_and(|n| !n.is_empty())
+}
+
+/// The numbers of the segments in `dir`, in order.
+fn segment_numbers(dir: &Path) -> anyhow::Result<Vec<u64>> {
+    let mut numbers = Vec::new();
+    for entry in std::fs::read_dir(dir).with_context(|| format!("cannot read the journal folder {}", dir.display()))? {
+        if let Some(n) = entry?.file_name().to_str().and_then(segment_number) {
+            numbers.push(n);
+        }
+    }
+    numbers.sort_unstable();
+    Ok(numbers)
+}
+
+/// A segment file's contents, and how many of its bytes are whole frames.
+struct Contents {
+    header: Option<JournalHeader>,
+    snapshot: Option<Vec<u8>>,
+    records: Vec<Vec<u8>>,
+    good: usize,
+}
+
+fn read(bytes: &[u8]) -> anyhow::Result<Contents> {
+    let mut out = Contents { header: None, snapshot: None, records: Vec::new(), good: 0 };
     if bytes.is_empty() {
-        return Ok((None, Vec::new(), 0));
+        return Ok(out);
     }
     if !bytes.starts_with(MAGIC) {
         bail!("it is not a Baton journal (it does not start with {:?})", String::from_utf8_lossy(MAGIC).trim());
     }
-    let (mut header, mut records, mut at) = (None, Vec::new(), MAGIC.len());
+    let mut at = MAGIC.len();
     while at < bytes.len() {
         let frame = Frame::at(&bytes[at..]);
         let (kind, payload, len) = match frame {
@@ -101,21 +236,24 @@ fn read(bytes: &[u8]) -> anyhow::Result<(Option<JournalHeader>, Vec<Vec<u8>>, us
             // Only the last frame may be torn.
             Frame::Torn => break,
             Frame::Bad { len } if at + len >= bytes.len() => break,
-            Frame::Bad { .. } => bail!("its frame at byte {at} is damaged (record {} and later)", records.len()),
+            Frame::Bad { .. } => bail!("its frame at byte {at} is damaged (record {} and later)", out.records.len()),
         };
+        let first = out.snapshot.is_none() && out.records.is_empty();
         match kind {
-            KIND_HEADER if header.is_none() && records.is_empty() => {
-                header = Some(
+            KIND_HEADER if out.header.is_none() && first => {
+                out.header = Some(
                     serde_json::from_slice::<JournalHeader>(payload)
                         .map_err(|e| anyhow!("its header is malformed: {e}"))?,
                 );
             }
-            KIND_RECORD if header.is_some() => records.push(payload.to_vec()),
+            KIND_SNAPSHOT if out.header.is_some() && first => out.snapshot = Some(payload.to_vec()),
+            KIND_RECORD if out.header.is_some() => out.records.push(payload.to_vec()),
             _ => bail!("its frame at byte {at} (kind {kind}) is out of place"),
         }
         at += len;
     }
-    Ok((header, records, at.min(bytes.len())))
+    out.good = at.min(bytes.len());
+    Ok(out)
 }
 
 enum Frame<'a> {
@@ -161,8 +299,19 @@ fn frame(out: &mut Vec<u8>, kind: u8, payload: &[u8]) {
 }
 
 impl Store {
+    /// The last segment's file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// The number of the last segment.
+    pub fn number(&self) -> u64 {
+        self.number
+    }
+
+    /// How many segments to keep when a snapshot starts a new one.
+    pub fn keep(&mut self, keep: Keep) {
+        self.keep = keep;
     }
 
     /// Writes the header of a new run (durably) before anything else.
@@ -172,7 +321,27 @@ impl Store {
         frame(&mut out, KIND_HEADER, &serde_json::to_vec(header)?);
         self.file.write_all(&out)?;
         self.file.sync_data()?;
+        self.header_frame = out;
         Ok(())
+    }
+
+    /// Every segment the journal keeps, oldest first, read whole (for `baton replay`). A segment of the middle
+    /// with a torn end is damage: only the last one is written to.
+    pub fn segments(&self) -> anyhow::Result<Vec<Segment>> {
+        let mut out = Vec::new();
+        for number in segment_numbers(&self.dir)? {
+            let path = self.dir.join(segment_name(number));
+            let bytes = std::fs::read(&path).with_context(|| format!("cannot read the journal {}", path.display()))?;
+            let read = read(&bytes).with_context(|| format!("cannot read the journal {}", path.display()))?;
+            if read.good < bytes.len() && number != self.number {
+                bail!("cannot read the journal {}: it ends in a torn frame, and segments follow it", path.display());
+            }
+            if number > 0 && read.snapshot.is_none() {
+                bail!("cannot read the journal {}: it does not begin with its snapshot", path.display());
+            }
+            out.push(Segment { number, snapshot: read.snapshot, records: read.records });
+        }
+        Ok(out)
     }
 
     /// Appends records in one write, made durable by one `fdatasync`.
@@ -186,9 +355,37 @@ impl Store {
         Ok(())
     }
 
+    /// Starts the next segment with the header and `snapshot`, then deletes the segments beyond `keep`. The new
+    /// segment is written apart and renamed into place once durable, so it is never seen without its snapshot; if
+    /// anything fails before the rename, the journal goes on in the segment it was in.
+    fn start_segment(&mut self, snapshot: &[u8]) -> anyhow::Result<()> {
+        let number = self.number + 1;
+        let path = self.dir.join(segment_name(number));
+        let new = path.with_extension("log.new");
+        let mut bytes = Vec::with_capacity(MAGIC.len() + self.header_frame.len() + FRAME_HEAD + snapshot.len());
+        bytes.extend_from_slice(MAGIC);
+        bytes.extend_from_slice(&self.header_frame);
+        frame(&mut bytes, KIND_SNAPSHOT, snapshot);
+        let mut file = OpenOptions::new().read(true).append(true).create(true).truncate(false).open(&new)?;
+        file.write_all(&bytes)?;
+        file.sync_data()?;
+        std::fs::rename(&new, &path)?;
+        File::open(&self.dir)?.sync_all()?;
+        self.file = file;
+        self.path = path;
+        self.number = number;
+        if let Keep::Last(n) = self.keep {
+            let oldest = number.saturating_sub(u64::from(n) - 1);
+            for old in segment_numbers(&self.dir)?.into_iter().filter(|&k| k < oldest) {
+                std::fs::remove_file(self.dir.join(segment_name(old)))?;
+            }
+        }
+        Ok(())
+    }
+
     /// Starts the writer thread; batches are numbered from 1 in the order given.
     pub fn start_writer(self) -> Writer {
-        let (tx, rx) = std_mpsc::channel::<Vec<Vec<u8>>>();
+        let (tx, rx) = std_mpsc::channel::<Job>();
         let (done_tx, done_rx) = watch::channel(Durable::Upto(0));
         let stats = Arc::new(Counters::default());
         let counters = Arc::clone(&stats);
@@ -213,42 +410,75 @@ pub enum Durable {
 struct Counters {
     commits: AtomicU64,
     records: AtomicU64,
+    snapshots: AtomicU64,
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct JournalStats {
     pub records: u64,
     pub commits: u64,
+    /// Snapshots written, each starting a segment.
+    pub snapshots: u64,
 }
 
-fn writer_loop(
-    mut store: Store,
-    rx: std_mpsc::Receiver<Vec<Vec<u8>>>,
-    done: watch::Sender<Durable>,
-    counters: &Counters,
-) {
+/// What the shell hands the writer.
+enum Job {
+    Batch(Vec<Vec<u8>>),
+    /// A snapshot of the coordinator after every batch handed before it.
+    Snapshot(Vec<u8>),
+}
+
+fn writer_loop(mut store: Store, rx: std_mpsc::Receiver<Job>, done: watch::Sender<Durable>, counters: &Counters) {
     let mut committed = 0u64;
     let mut buffer = Vec::new();
+    let mut batches = Vec::new();
     while let Ok(first) = rx.recv() {
-        // Group commit: everything that queued up while the last transaction was committing goes in this one.
-        let mut batches = vec![first];
+        // Group commit: everything that queued up while the last transaction was committing goes in this one,
+        // up to a snapshot, which starts the next segment after the batches before it.
+        let mut jobs = vec![first];
         while let Ok(more) = rx.try_recv() {
-            batches.push(more);
+            jobs.push(more);
         }
-        if let Err(e) = store.append(&batches, &mut buffer) {
-            let _ = done.send(Durable::Failed(format!("cannot write the journal {}: {e}", store.path.display())));
-            return;
+        for job in jobs.into_iter().map(Some).chain([None]) {
+            match job {
+                Some(Job::Batch(b)) => {
+                    batches.push(b);
+                    continue;
+                }
+                Some(Job::Snapshot(_)) | None if batches.is_empty() => {}
+                Some(Job::Snapshot(_)) | None => {
+                    if let Err(e) = store.append(&batches, &mut buffer) {
+                        let why = format!("cannot write the journal {}: {e}", store.path.display());
+                        let _ = done.send(Durable::Failed(why));
+                        return;
+                    }
+                    committed += batches.len() as u64;
+                    counters.commits.fetch_add(1, Ordering::Relaxed);
+                    counters.records.fetch_add(batches.iter().map(|b| b.len() as u64).sum(), Ordering::Relaxed);
+                    batches.clear();
+                    let _ = done.send(Durable::Upto(committed));
+                }
+            }
+            if let Some(Job::Snapshot(snapshot)) = job {
+                match store.start_segment(&snapshot) {
+                    Ok(()) => {
+                        counters.snapshots.fetch_add(1, Ordering::Relaxed);
+                    }
+                    // The records stay durable in the segment they were in; the next snapshot tries again.
+                    Err(e) => eprintln!(
+                        "warning: cannot start the journal's next segment in {}: {e}; it goes on in {}",
+                        store.dir.display(),
+                        store.path.display()
+                    ),
+                }
+            }
         }
-        committed += batches.len() as u64;
-        counters.commits.fetch_add(1, Ordering::Relaxed);
-        counters.records.fetch_add(batches.iter().map(|b| b.len() as u64).sum(), Ordering::Relaxed);
-        let _ = done.send(Durable::Upto(committed));
     }
 }
 
 /// The shell's side of the writer thread.
 pub struct Writer {
-    tx: Option<std_mpsc::Sender<Vec<Vec<u8>>>>,
+    tx: Option<std_mpsc::Sender<Job>>,
     durable: watch::Receiver<Durable>,
     sent: u64,
     thread: Option<std::thread::JoinHandle<()>>,
@@ -258,12 +488,22 @@ pub struct Writer {
 impl Writer {
     /// Queues a batch; returns its number.
     pub fn write(&mut self, records: Vec<Vec<u8>>) -> anyhow::Result<u64> {
-        let tx = self.tx.as_ref().ok_or_else(|| anyhow!("the journal is closed"))?;
-        if tx.send(records).is_err() {
-            return Err(anyhow!("{}", self.failure().unwrap_or_else(|| "the journal writer stopped".into())));
-        }
+        self.send(Job::Batch(records))?;
         self.sent += 1;
         Ok(self.sent)
+    }
+
+    /// Queues a snapshot of the coordinator after every batch queued so far: it starts the next segment.
+    pub fn snapshot(&mut self, snapshot: Vec<u8>) -> anyhow::Result<()> {
+        self.send(Job::Snapshot(snapshot))
+    }
+
+    fn send(&mut self, job: Job) -> anyhow::Result<()> {
+        let tx = self.tx.as_ref().ok_or_else(|| anyhow!("the journal is closed"))?;
+        if tx.send(job).is_err() {
+            return Err(anyhow!("{}", self.failure().unwrap_or_else(|| "the journal writer stopped".into())));
+        }
+        Ok(())
     }
 
     /// A receiver that changes when batches become durable, for a `select!` outside the shell.
@@ -271,11 +511,12 @@ impl Writer {
         self.durable.clone()
     }
 
-    /// Records written and transactions committed so far.
+    /// Records written, transactions committed and snapshots written so far.
     pub fn stats(&self) -> JournalStats {
         JournalStats {
             records: self.stats.records.load(Ordering::Relaxed),
             commits: self.stats.commits.load(Ordering::Relaxed),
+            snapshots: self.stats.snapshots.load(Ordering::Relaxed),
         }
     }
 
@@ -382,6 +623,68 @@ mod tests {
         writer.sync().await.unwrap();
         drop(writer);
         std::fs::read(dir.join(FILE_NAME)).unwrap()
+    }
+
+    /// Batches, then a snapshot, then more, twice: each snapshot starts a segment with the header and itself,
+    /// the records after it go there, a resume reads only the last segment, and a replay reads them all.
+    #[tokio::test]
+    async fn a_snapshot_starts_a_segment_and_a_resume_reads_only_the_last() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut opened = open(dir.path()).unwrap();
+        opened.store.write_header(&header()).unwrap();
+        let mut writer = opened.store.start_writer();
+        let record = |k: u8| vec![k; 4];
+        for part in 0..3u8 {
+            for k in 0..5u8 {
+                writer.write(vec![record(10 * part + k)]).unwrap();
+            }
+            if part < 2 {
+                writer.snapshot(vec![b'S', part]).unwrap();
+            }
+        }
+        writer.sync().await.unwrap();
+        assert_eq!(writer.stats().snapshots, 2);
+        drop(writer);
+        let again = open(dir.path()).unwrap();
+        assert_eq!(again.header, Some(header()), "every segment begins with the header");
+        assert_eq!(again.snapshot, Some(vec![b'S', 1]));
+        assert_eq!(again.records, (20..25).map(record).collect::<Vec<_>>());
+        assert_eq!(again.store.number(), 2);
+        let segments = again.store.segments().unwrap();
+        let shape: Vec<_> = segments.iter().map(|s| (s.number, s.snapshot.clone(), s.records.len())).collect();
+        assert_eq!(shape, [(0, None, 5), (1, Some(vec![b'S', 0]), 5), (2, Some(vec![b'S', 1]), 5)]);
+        assert_eq!(segments[1].records, (10..15).map(record).collect::<Vec<_>>());
+    }
+
+    /// With `Keep::Last(2)`, a snapshot deletes the segments before the one before it; a segment that was being
+    /// started when the process died is never read, and is removed.
+    #[tokio::test]
+    async fn segments_beyond_what_is_kept_are_deleted_and_a_half_made_one_is_ignored() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut opened = open(dir.path()).unwrap();
+        opened.store.write_header(&header()).unwrap();
+        opened.store.keep(Keep::Last(2));
+        let mut writer = opened.store.start_writer();
+        for k in 0..4u8 {
+            writer.write(vec![vec![k]]).unwrap();
+            writer.snapshot(vec![k]).unwrap();
+        }
+        writer.write(vec![vec![9]]).unwrap();
+        writer.sync().await.unwrap();
+        drop(writer);
+        let mut names: Vec<String> =
+            std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+        names.sort();
+        assert_eq!(names, ["journal-000003.log", "journal-000004.log", LOCK_NAME]);
+        // A crash while segment 5 was being written: its bytes never got their name.
+        std::fs::write(dir.path().join("journal-000005.log.new"), b"BATON-JOURNAL-1\n partial").unwrap();
+        let again = open(dir.path()).unwrap();
+        assert_eq!((again.snapshot, again.records), (Some(vec![3]), vec![vec![9]]));
+        assert!(!dir.path().join("journal-000005.log.new").exists());
+        assert_eq!(again.store.segments().unwrap().len(), 2);
+        assert_eq!("all".parse::<Keep>(), Ok(Keep::All));
+        assert_eq!("3".parse::<Keep>(), Ok(Keep::Last(3)));
+        assert!("0".parse::<Keep>().is_err() && "some".parse::<Keep>().is_err());
     }
 
     #[tokio::test]

@@ -1,5 +1,10 @@
 //! `baton replay --journal DIR`: a past run rebuilt from its journal — its trace and its Rerun recording —
 //! without a network, agents or the chart file (the journal holds the chart's source).
+//!
+//! It replays every segment the journal keeps, oldest first. A journal that kept all of them (`baton run
+//! --journal-keep all`) gives the whole run; one compacted behind its snapshots gives the run from the oldest
+//! snapshot it kept, whose coordinator it starts from. Each later segment's snapshot must stand where the records
+//! before it end: a segment missing from the middle is refused, not skipped.
 
 use std::fs::File;
 use std::io::BufWriter;
@@ -7,12 +12,12 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::dist::journal::{self, Journaled, JOURNAL_FORMAT};
+use baton_proto::dist::journal::{self, JournalHeader, Journaled, Replayed, SnapshotMeta, JOURNAL_FORMAT};
 use baton_proto::dist::runtime::coordinator::Coordinator;
 use baton_proto::pipeline::check_source;
 
 use crate::recording::{RecordedRun, Recorder, Sink};
-use crate::run::{replay_records, Records};
+use crate::run::{replay_segments, Records};
 
 pub struct ReplayOptions {
     pub journal: PathBuf,
@@ -21,15 +26,52 @@ pub struct ReplayOptions {
 }
 
 pub fn replay(opts: &ReplayOptions) -> anyhow::Result<()> {
-    if !opts.journal.join(crate::journal::FILE_NAME).is_file() {
-        bail!("{} holds no journal ({} is missing)", opts.journal.display(), crate::journal::FILE_NAME);
+    let (header, replayed, from) = rebuild(opts)?;
+    let how = match &replayed.ended {
+        None => "did not end (a coordinator resumes it with `baton run … --journal`)".to_string(),
+        Some(None) => "finished".to_string(),
+        Some(Some(why)) => format!("failed: {why}"),
+    };
+    let from = match from {
+        None => String::new(),
+        Some(meta) => format!(
+            " from its snapshot at record {} ({} ms; the journal keeps the run from there: `baton run --journal-keep`)",
+            meta.records, meta.last_ms
+        ),
+    };
+    println!(
+        "run {} of chart `{}`{from}: {} records, {} cycles, {} ms; it {how}",
+        header.run.key(),
+        header.pou,
+        replayed.records,
+        replayed.cycles,
+        replayed.last_ms
+    );
+    if let Sink::Save(p) = &opts.rerun {
+        println!("recording: open it with: rerun {}", p.display());
+    }
+    Ok(())
+}
+
+/// Replays a journal with no recording and no trace (`baton bench`): the records replayed.
+pub fn replay_quietly(journal: &std::path::Path) -> anyhow::Result<u64> {
+    let opts = ReplayOptions { journal: journal.to_path_buf(), rerun: Sink::Off, trace: None };
+    rebuild(&opts).map(|(_, replayed, _)| replayed.records)
+}
+
+/// The run rebuilt from every segment the journal keeps into the trace and recording `opts` asks for: its header,
+/// what was replayed, and the snapshot it began from (if the journal no longer holds the run's start).
+fn rebuild(opts: &ReplayOptions) -> anyhow::Result<(JournalHeader, Replayed, Option<SnapshotMeta>)> {
+    if !crate::journal::exists(&opts.journal) {
+        bail!("{} holds no journal (no {} in it)", opts.journal.display(), crate::journal::FILE_NAME);
     }
     let opened = crate::journal::open(&opts.journal)?;
     let path = opened.store.path().display().to_string();
-    let header = opened.header.ok_or_else(|| anyhow!("the journal {path} holds no run"))?;
+    let header = opened.header.ok_or_else(|| anyhow!("{} holds no journal of a run", opts.journal.display()))?;
     if header.format != JOURNAL_FORMAT {
         bail!("the journal {path} is in format {}; this baton reads format {JOURNAL_FORMAT}", header.format);
     }
+    let segments = opened.store.segments()?;
     let mut report = check_source(&header.source);
     let i = report
         .charts
@@ -53,27 +95,30 @@ pub fn replay(opts: &ReplayOptions) -> anyhow::Result<()> {
         started_unix_ms: header.started_unix_ms,
     };
     let recorder = Recorder::start(&opts.rerun, recorded)?;
-    let mut core = Coordinator::new(program, layout, header.run, header.chart.clone(), journal::token_ids(header.run));
-    core.set_cycle_ms(header.cycle_ms);
-    let mut core = Journaled::new(core);
     let mut out = Records::new(trace, None, recorder, header.cycle_ms);
-    let replayed = replay_records(&mut core, &opened.records, &mut out)?;
-    out.finish()?;
-    let how = match &replayed.ended {
-        None => "did not end (a coordinator resumes it with `baton run … --journal`)".to_string(),
-        Some(None) => "finished".to_string(),
-        Some(Some(why)) => format!("failed: {why}"),
+    // The oldest segment kept: the run's start, or a snapshot the replay starts from.
+    let (mut core, from) = match segments.first().and_then(|s| s.snapshot.as_deref()) {
+        None => {
+            let mut core = Coordinator::new(
+                Arc::clone(&program),
+                Arc::clone(&layout),
+                header.run,
+                header.chart.clone(),
+                journal::token_ids(header.run),
+            );
+            core.set_cycle_ms(header.cycle_ms);
+            (Journaled::new(core), None)
+        }
+        Some(bytes) => {
+            let (core, meta) = Journaled::restore(Arc::clone(&program), Arc::clone(&layout), bytes)
+                .map_err(|why| anyhow!("cannot replay the journal {path}: its oldest snapshot {why}"))?;
+            // The recording begins with the values the snapshot holds.
+            out.values(meta.last_ms, core.core());
+            (core, Some(meta))
+        }
     };
-    println!(
-        "run {} of chart `{}`: {} records, {} cycles, {} ms; it {how}",
-        header.run.key(),
-        header.pou,
-        replayed.records,
-        replayed.cycles,
-        replayed.last_ms
-    );
-    if let Sink::Save(p) = &opts.rerun {
-        println!("recording: open it with: rerun {}", p.display());
-    }
-    Ok(())
+    let replayed =
+        replay_segments(&mut core, &segments, &mut out, &path).map_err(|e| anyhow!("cannot replay {e:#}"))?;
+    out.finish()?;
+    Ok((header, replayed, from))
 }

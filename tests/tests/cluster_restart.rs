@@ -2,7 +2,7 @@
 
 use baton_proto::dist::keys;
 use baton_proto::dist::wire::{self, Report};
-use baton_proto::exec::trace::TraceEvent;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::loopback::{self, check_trace_invariants, dispatches, repo, step_id, Cluster, TIMEOUT};
 
 fn journal_args(cluster: &Cluster) -> Vec<String> {
@@ -57,6 +57,63 @@ async fn a_coordinator_killed_mid_segment_resumes_from_its_journal() {
     assert!(recover < resume && resume < back, "recover, reconcile, then the held result");
     let motions = trace.iter().filter(|r| r.event == TraceEvent::ActionOn && r.name == "AssemblePart").count();
     assert_eq!(motions, 1, "the assembly motion ran once");
+}
+
+/// Snapshots every few records, every segment kept: the coordinator killed while an agent assembles resumes from
+/// its last snapshot, not from the run's start; the trace file it leaves is the live run's up to the kill, then the
+/// rest, the records after the snapshot written again as the live run wrote them; and `baton replay`, which
+/// replays the whole journal from the run's start, rebuilds that same trace record for record.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_coordinator_resumes_from_its_last_snapshot_and_its_trace_goes_on_as_the_live_one() {
+    let cell = repo("examples/cell.st");
+    let mut cluster = Cluster::with_router().await;
+    let journal = cluster.dir.path().join("journal");
+    let journal_arg = journal.to_str().expect("utf-8 path");
+    let args = ["--set", "parts=1", "--journal", journal_arg, "--snapshot-every", "4", "--journal-keep", "all"];
+    let watch = cluster.watch().await;
+    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
+    let mut coordinator = cluster.coordinator_joining(&cell, &args);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("robot1", &["assembler"], &[]);
+    cluster.agent("robot2", &["assembler"], &[]);
+    loopback::next_dispatch(&cmds, step_id(&cell, "Assemble"), 1).await;
+    let trace_path = coordinator.trace.clone();
+    coordinator.kill().await;
+    // What the live run wrote (its last line, if the kill tore it, is not a record).
+    let text = std::fs::read_to_string(&trace_path).expect("the live run's trace");
+    let whole = &text[..text.rfind('\n').map_or(0, |i| i + 1)];
+    let live: Vec<TraceRecord> = whole.lines().map(|l| serde_json::from_str(l).expect("a trace record")).collect();
+    let segments = |dir: &std::path::Path| {
+        let mut names: Vec<String> = std::fs::read_dir(dir)
+            .expect("the journal folder")
+            .map(|e| e.expect("an entry").file_name().into_string().expect("utf-8"))
+            .filter(|n| n.starts_with("journal") && n.ends_with(".log"))
+            .collect();
+        names.sort();
+        names
+    };
+    assert!(segments(&journal).len() >= 3, "snapshots before the kill: {:?}", segments(&journal));
+    let coordinator = cluster.coordinator_joining(&cell, &args);
+    let (status, log, trace, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    assert!(log.contains("from its journal (its snapshot at record"), "{log}");
+    check_trace_invariants(&trace, &cell);
+    assert_eq!(summary["vars"]["done"], "1", "{log}");
+    assert_eq!(dispatches(&trace, "Assemble").len(), 1, "Assemble was sent once");
+    assert!(trace.len() > live.len() && trace[..live.len()] == live[..], "the live run's trace goes on unchanged");
+    // The whole journal, replayed from the run's start, gives the trace the run wrote.
+    let replayed = cluster.dir.path().join("replayed.jsonl");
+    let out = cluster.baton(&["replay", "--journal", journal_arg, "--trace", replayed.to_str().unwrap()]).await;
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("it finished"), "{}", String::from_utf8_lossy(&out.stdout));
+    assert_eq!(loopback::read_trace(&replayed), trace, "the replay rebuilds the trace the run wrote");
+    // A segment missing from the middle is refused, not skipped.
+    let names = segments(&journal);
+    std::fs::remove_file(journal.join(&names[1])).expect("remove a segment");
+    let out = cluster.baton(&["replay", "--journal", journal_arg]).await;
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("a segment is missing or damaged"), "{err}");
 }
 
 /// The usual setup, where the coordinator embeds the router: the agents lose the router with it, reconnect to

@@ -18,6 +18,7 @@ use zenoh::qos::CongestionControl;
 
 use crate::demo::{agent_binary, free_port};
 
+mod resume;
 mod scale;
 use crate::run::{run_with, Probe, RunOptions};
 use baton_proto::exec::trace::TraceEvent;
@@ -45,6 +46,9 @@ pub struct BenchOptions {
     pub scale: bool,
     /// The agent counts of phase 7.
     pub scale_agents: Vec<u32>,
+    /// Run phase 11 (a journaled run of `resume_tokens` tokens, resumed).
+    pub resume: bool,
+    pub resume_tokens: u64,
 }
 
 #[derive(Serialize, Clone, Copy)]
@@ -75,6 +79,9 @@ pub struct BenchReport {
     pub base: Option<BaseReport>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub scale: Option<ScaleReport>,
+    /// (11)
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub resume: Option<resume::Resume>,
 }
 
 /// Phases 7–10.
@@ -139,7 +146,13 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
     let dir = tempfile::tempdir()?;
     let base = if opts.base { Some(base(dir.path(), &opts).await?) } else { None };
     let scale = if opts.scale { Some(scale(dir.path(), &opts).await?) } else { None };
-    Ok(BenchReport { base, scale })
+    let resume = if opts.resume {
+        eprintln!("11/11 a run of {} tokens with --journal, its coordinator gone, resumed", opts.resume_tokens);
+        Some(resume::resume(dir.path(), opts.resume_tokens).await?)
+    } else {
+        None
+    };
+    Ok(BenchReport { base, scale, resume })
 }
 
 /// In-flight tokens of phase 7 at every agent count (one per agent at the largest).
@@ -259,6 +272,21 @@ impl BenchReport {
         }
         if let Some(scale) = &self.scale {
             scale.print();
+        }
+        if let Some(r) = &self.resume {
+            println!(
+                "(11) a run of {} tokens with --journal ({:.0} tokens/s; {} records in {} segments, {:.0} MB): \
+                 resumed in {:.0} ms from its last snapshot ({} trace records replayed; target < 1 s); the whole \
+                 journal replays in {:.0} ms",
+                r.tokens,
+                r.tokens_per_s,
+                r.records,
+                r.segments,
+                r.journal_bytes as f64 / 1e6,
+                r.resume_ms,
+                r.resume_replayed_trace_records,
+                r.full_replay_ms
+            );
         }
     }
 }
@@ -445,6 +473,8 @@ struct Extras<'a> {
     connect: Option<String>,
     /// The agents join this router rather than the coordinator's.
     agents_at: Option<String>,
+    /// Snapshots and retention of the journal, if not the defaults.
+    journal_settings: Option<crate::journal::Settings>,
 }
 
 async fn run_chart(
@@ -455,6 +485,44 @@ async fn run_chart(
     probe: Probe,
     extras: Extras<'_>,
 ) -> anyhow::Result<crate::run::Summary> {
+    let (opts, _agents) = chart_options(dir, file, chart, &agents, extras)?;
+    tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe))).await.context("the bench chart did not finish")?
+}
+
+/// Runs a chart until `stop` turns true, then drops the run where it stands — its coordinator gone, as if killed,
+/// with what it handed its journal written — or until it ends.
+async fn run_chart_until(
+    dir: &Path,
+    file: &str,
+    chart: String,
+    agents: Agents<'_>,
+    probe: Probe,
+    extras: Extras<'_>,
+    mut stop: tokio::sync::watch::Receiver<bool>,
+) -> anyhow::Result<()> {
+    let (opts, _agents) = chart_options(dir, file, chart, &agents, extras)?;
+    let run = run_with(opts, Some(probe));
+    let stopped = async {
+        let _ = stop.wait_for(|s| *s).await;
+    };
+    tokio::time::timeout(resume::RESUME_TIMEOUT, async {
+        tokio::select! {
+            ended = run => ended.map(|_| ()),
+            () = stopped => Ok(()),
+        }
+    })
+    .await
+    .context("the bench chart did not finish")?
+}
+
+/// The options of a bench chart's run, with its agents started.
+fn chart_options(
+    dir: &Path,
+    file: &str,
+    chart: String,
+    agents: &Agents<'_>,
+    extras: Extras<'_>,
+) -> anyhow::Result<(RunOptions, Vec<Child>)> {
     let path = dir.join(file);
     std::fs::write(&path, chart)?;
     let (listen, connect) = match extras.connect {
@@ -463,7 +531,7 @@ async fn run_chart(
     };
     let agents_at =
         extras.agents_at.clone().unwrap_or_else(|| listen.iter().chain(&connect).next().cloned().unwrap_or_default());
-    let _agents = agents.spawn(&agents_at)?;
+    let agents = agents.spawn(&agents_at)?;
     let opts = RunOptions {
         chart: path,
         pou: None,
@@ -478,13 +546,14 @@ async fn run_chart(
         zenoh_config: None,
         loss_policy: baton_proto::dist::runtime::coordinator::LossPolicy::Pause,
         journal: extras.journal.map(Path::to_path_buf),
+        journal_settings: extras.journal_settings.unwrap_or_default(),
         rerun: extras.rerun.map_or(crate::recording::Sink::Off, crate::recording::Sink::Save),
         watch: Vec::new(),
         wait_start: false,
         stay: false,
         abort_wait_ms: 0,
     };
-    tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe))).await.context("the bench chart did not finish")?
+    Ok((opts, agents))
 }
 
 fn counted_loop_header(name: &str, n: u32) -> String {

@@ -28,11 +28,17 @@ pub struct Bench {
     #[arg(long)]
     pub json: bool,
     /// Only phases 1–6: latency, throughput, the journal, the demo chart.
-    #[arg(long, conflicts_with = "scale_only")]
+    #[arg(long, conflicts_with_all = ["scale_only", "resume_only"])]
     pub base_only: bool,
     /// Only phases 7–10: many agents, concurrent runs, a mesh of routers, memory.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "resume_only")]
     pub scale_only: bool,
+    /// Only phase 11: a long journaled run, its coordinator gone, resumed from its last snapshot.
+    #[arg(long)]
+    pub resume_only: bool,
+    /// Tokens of phase 11's run.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub resume_tokens: u64,
     /// The agent counts of phase 7, hosted in one `baton-agent` process each time.
     #[arg(long, value_delimiter = ',', default_value = "8,64,256", value_name = "N,N,…")]
     pub scale_agents: Vec<u32>,
@@ -47,7 +53,19 @@ pub struct BenchEcho {
 
 impl Bench {
     pub fn run(self) -> anyhow::Result<ExitCode> {
-        let Bench { samples, tokens, agents, lanes_per_agent, parts, json, base_only, scale_only, scale_agents } = self;
+        let Bench {
+            samples,
+            tokens,
+            agents,
+            lanes_per_agent,
+            parts,
+            json,
+            base_only,
+            scale_only,
+            resume_only,
+            resume_tokens,
+            scale_agents,
+        } = self;
         block_on(async move {
             if samples == 0 || tokens == 0 || agents == 0 || lanes_per_agent == 0 || parts == 0 {
                 bail!("--samples, --tokens, --agents, --lanes-per-agent and --parts must be at least 1");
@@ -61,9 +79,11 @@ impl Bench {
                 agents,
                 lanes_per_agent,
                 parts,
-                base: !scale_only,
-                scale: !base_only,
+                base: !scale_only && !resume_only,
+                scale: !base_only && !resume_only,
                 scale_agents,
+                resume: !base_only && !scale_only,
+                resume_tokens: resume_tokens.max(1),
             };
             let report = crate::bench::bench(options).await?;
             if json {

@@ -58,6 +58,15 @@ pub struct Run {
     /// run resumes where it was, with the tokens still out reconciled with their agents.
     #[arg(long, value_name = "DIR")]
     pub journal: Option<PathBuf>,
+    /// With --journal: snapshot the coordinator's state after this many records since the last snapshot, and
+    /// start a new journal segment with it; a resume then replays only the records after the last snapshot
+    /// (0: never).
+    #[arg(long, value_name = "RECORDS", default_value_t = crate::journal::SNAPSHOT_EVERY, requires = "journal")]
+    pub snapshot_every: u64,
+    /// With --journal: how many segments to keep, the last one included (`all`: every one, so that `baton replay`
+    /// rebuilds the whole run). Older segments are deleted when a snapshot starts a new one.
+    #[arg(long, value_name = "N|all", default_value = "2", requires = "journal")]
+    pub journal_keep: crate::journal::Keep,
     /// Record the run for the Rerun viewer: off, save:PATH.rrd, connect[:URL] (a running viewer), or spawn
     /// (start one).
     #[arg(long, value_name = "SINK", default_value = "off")]
@@ -102,6 +111,7 @@ impl Run {
             zenoh_config: self.zenoh_config,
             loss_policy,
             journal: self.journal,
+            journal_settings: crate::journal::Settings { snapshot_every: self.snapshot_every, keep: self.journal_keep },
             rerun: self.rerun,
             watch: self.watch,
             wait_start: self.wait_start,

@@ -13,7 +13,7 @@ mod summary;
 
 pub use records::Probe;
 pub use records::{replay_records, Records};
-pub use resume::check_pin;
+pub use resume::{check_pin, replay_segments};
 pub use summary::Summary;
 
 use std::collections::VecDeque;
@@ -51,6 +51,8 @@ pub struct RunOptions {
     pub loss_policy: LossPolicy,
     /// Record every input in this folder before acting on it; resume the run found there.
     pub journal: Option<PathBuf>,
+    /// When the journal gets a snapshot, and how many of its segments are kept.
+    pub journal_settings: crate::journal::Settings,
     /// Where the run's Rerun recording goes.
     pub rerun: crate::recording::Sink,
     /// Variables whose value the trace records: once after the first cycle and after every change.
@@ -89,7 +91,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     // A resumed run keeps the period it started with.
     let cycle_ms = match &resume {
-        Some((header, _)) => {
+        Some(Resume { header, .. }) => {
             if header.cycle_ms != opts.cycle_ms {
                 eprintln!(
                     "warning: --cycle-ms {} ignored: the run resumes with the period it started with, {} ms",
@@ -107,11 +109,24 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         source: loaded.source.clone(),
         cycle_ms,
     });
-    let mut core =
-        Coordinator::new(Arc::clone(&loaded.program), Arc::clone(&loaded.layout), run, hash, journal::token_ids(run));
-    core.set_cycle_ms(cycle_ms);
+    // A run resumed from a snapshot is the coordinator the snapshot holds; any other starts from the chart.
+    let fresh = || {
+        let (program, layout) = (Arc::clone(&loaded.program), Arc::clone(&loaded.layout));
+        let mut core = Coordinator::new(program, layout, run, hash.clone(), journal::token_ids(run));
+        core.set_cycle_ms(cycle_ms);
+        Journaled::new(core)
+    };
+    let (resume, core, meta) = match resume {
+        Some(Resume { header, snapshot: Some((core, meta)), segments }) => {
+            (Some(Resume { header, snapshot: Some(meta.clone()), segments }), core, Some(meta))
+        }
+        Some(Resume { header, snapshot: None, segments }) => {
+            (Some(Resume { header, snapshot: None, segments }), fresh(), None)
+        }
+        None => (None, fresh(), None),
+    };
     let trace = match &opts.trace {
-        Some(p) => Some(BufWriter::new(File::create(p).with_context(|| format!("cannot create {}", p.display()))?)),
+        Some(p) => Some(open_trace(p, meta.as_ref().map(|m| m.trace_records))?),
         None => None,
     };
     let where_ = if opts.listen.is_empty() {
@@ -130,10 +145,12 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     )?;
     let mut shell = Shell {
         session: session.clone(),
-        core: Journaled::new(core),
+        core,
         started: Instant::now(),
         base_ms: 0,
         journal: writer,
+        snapshot_every: opts.journal_settings.snapshot_every,
+        snapshot_due: opts.journal_settings.snapshot_every,
         held: VecDeque::new(),
         held_replies: VecDeque::new(),
         quiet: opts.quiet,
@@ -155,19 +172,30 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
 /// written again, so that the file holds the whole run), nothing sent, the clock going on from wall-clock time.
 fn begin(
     shell: &mut Shell,
-    resume: Option<(JournalHeader, Vec<Vec<u8>>)>,
+    resume: Option<Resume<journal::SnapshotMeta>>,
     opts: &RunOptions,
     loaded: &Loaded,
     run: RunId,
     where_: &str,
 ) -> anyhow::Result<()> {
     match resume {
-        Some((header, records)) => {
-            // The past, replayed: its trace is written again (the file then holds the whole run), nothing is
-            // sent, and the run's clock goes on from wall-clock time, downtime included.
-            let replayed = replay_records(&mut shell.core, &records, &mut shell.out)?;
+        Some(Resume { header, snapshot, segments }) => {
+            // The past, replayed from the snapshot on (the coordinator is the snapshot's already): its trace is
+            // written again after the records the trace file kept, nothing is sent, and the run's clock goes on
+            // from wall-clock time, downtime included.
+            let from = match &snapshot {
+                Some(meta) => {
+                    shell.out.steps = serde_json::from_value(meta.shell.clone()).unwrap_or_default();
+                    format!("its snapshot at record {} and ", meta.records)
+                }
+                None => String::new(),
+            };
+            shell.snapshot_due = shell.core.records_counted() + shell.snapshot_every;
+            let path = opts.journal.as_ref().map_or(String::new(), |d| d.display().to_string());
+            let replayed = replay_segments(&mut shell.core, &segments, &mut shell.out, &path)?;
             let wall = unix_ms().saturating_sub(header.started_unix_ms);
-            shell.base_ms = replayed.last_ms.max(wall);
+            let last_ms = snapshot.as_ref().map_or(0, |m| m.last_ms);
+            shell.base_ms = replayed.last_ms.max(last_ms).max(wall);
             if !opts.sets.is_empty() {
                 eprintln!("warning: --set ignored: the run resumes from its journal with the values it had");
             }
@@ -176,7 +204,8 @@ fn begin(
             shell.core.recover(now);
             if !opts.quiet {
                 eprintln!(
-                    "baton: resuming run {} of chart `{}` from its journal ({} records, {} token(s) out; {where_})",
+                    "baton: resuming run {} of chart `{}` from its journal ({from}{} records, {} token(s) out; \
+                     {where_})",
                     run.key(),
                     loaded.pou,
                     replayed.records,
@@ -207,8 +236,47 @@ fn begin(
 struct Opened {
     run: RunId,
     started_unix_ms: u64,
-    resume: Option<(JournalHeader, Vec<Vec<u8>>)>,
+    resume: Option<Resume<(Journaled, journal::SnapshotMeta)>>,
     writer: Option<crate::journal::Writer>,
+}
+
+/// A run to resume: its header, the snapshot it resumes from (`S`: restored, then what it said), and the segments
+/// to replay (from that snapshot's on).
+struct Resume<S> {
+    header: JournalHeader,
+    snapshot: Option<S>,
+    segments: Vec<crate::journal::Segment>,
+}
+
+/// The trace file: a new one, or — for a run resumed from a snapshot — the one the run wrote, cut back to the
+/// `kept` records made before the snapshot (the replay of the records after it writes the rest again). So the
+/// file holds the whole run, as the live run wrote it, when it still holds what was written before the snapshot.
+fn open_trace(path: &std::path::Path, kept: Option<u64>) -> anyhow::Result<BufWriter<File>> {
+    let cannot = || format!("cannot open the trace {}", path.display());
+    let Some(kept) = kept else {
+        return Ok(BufWriter::new(File::create(path).with_context(cannot)?));
+    };
+    let mut file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(path)
+        .with_context(cannot)?;
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(&mut file, &mut bytes).with_context(cannot)?;
+    let ends = bytes.iter().enumerate().filter(|(_, b)| **b == b'\n').map(|(i, _)| i + 1);
+    let (lines, end) = ends.take(kept as usize).fold((0u64, 0usize), |(n, _), at| (n + 1, at));
+    if lines < kept {
+        eprintln!(
+            "warning: the trace {} holds {lines} of the {kept} records the run made before its journal's snapshot: \
+             the records after the snapshot follow them (with `--journal-keep all`, `baton replay` rebuilds it whole)",
+            path.display()
+        );
+    }
+    file.set_len(end as u64).with_context(cannot)?;
+    std::io::Seek::seek(&mut file, std::io::SeekFrom::Start(end as u64)).with_context(cannot)?;
+    Ok(BufWriter::new(file))
 }
 
 /// Opens `--journal DIR`, if given: a new journal gets its header, an old one is checked and its records read.
@@ -217,6 +285,7 @@ fn open_journal(opts: &RunOptions, loaded: &Loaded, hash: &ChartHash) -> anyhow:
         return Ok(Opened { run: RunId(uuid::Uuid::new_v4()), started_unix_ms: unix_ms(), resume: None, writer: None });
     };
     let mut opened = crate::journal::open(dir)?;
+    opened.store.keep(opts.journal_settings.keep);
     let path = opened.store.path().display().to_string();
     let (run, started_unix_ms, resume) = match opened.header.take() {
         None => {
@@ -236,7 +305,22 @@ fn open_journal(opts: &RunOptions, loaded: &Loaded, hash: &ChartHash) -> anyhow:
         Some(header) => {
             check_resumable(&header, &opened.records, loaded, hash, &opts.chart, &path)?;
             let (run, started) = (header.run, header.started_unix_ms);
-            (run, started, Some((header, std::mem::take(&mut opened.records))))
+            let last = crate::journal::Segment {
+                number: opened.store.number(),
+                snapshot: opened.snapshot.take(),
+                records: std::mem::take(&mut opened.records),
+            };
+            let segments = resume_segments(&opened.store, last, opts.trace.as_deref().map(trace_lines))?;
+            let snapshot = match segments.first().and_then(|s| s.snapshot.as_deref()) {
+                Some(bytes) => {
+                    let (program, layout) = (Arc::clone(&loaded.program), Arc::clone(&loaded.layout));
+                    let restored = Journaled::restore(program, layout, bytes)
+                        .map_err(|why| anyhow!("cannot resume from the journal {path}: its snapshot {why}"))?;
+                    Some(restored)
+                }
+                None => None,
+            };
+            (run, started, Some(Resume { header, snapshot, segments }))
         }
     };
     Ok(Opened { run, started_unix_ms, resume, writer: Some(opened.store.start_writer()) })
@@ -423,6 +507,8 @@ async fn wind_down(
     ended: Ended,
 ) -> anyhow::Result<Summary> {
     if ended == Ended::Ran {
+        // The run's end is its journal's last record: no snapshot after it.
+        shell.snapshot_every = 0;
         let now = shell.now_ms();
         shell.core.end(now);
         shell.commit(Vec::new()).await?;
@@ -475,6 +561,7 @@ mod tests {
             zenoh_config: None,
             loss_policy: LossPolicy::Pause,
             journal: Some(journal),
+            journal_settings: Default::default(),
             rerun: crate::recording::Sink::Off,
             watch: Vec::new(),
             wait_start: false,

@@ -1,7 +1,7 @@
 //! Whether a journal may be resumed by this chart and this build, and the wall clock a run starts on.
 
-use anyhow::bail;
-use baton_proto::dist::journal::{self, JournalHeader, Record, JOURNAL_FORMAT};
+use anyhow::{anyhow, bail};
+use baton_proto::dist::journal::{self, JournalHeader, Journaled, Record, Replayed, JOURNAL_FORMAT};
 use baton_proto::dist::layout::Layout;
 use baton_proto::dist::wire::ChartHash;
 use baton_proto::exec::program::Program;
@@ -74,4 +74,79 @@ pub fn check_pin(header: &JournalHeader, program: &Program, layout: &Layout, pat
         );
     }
     Ok(())
+}
+
+/// Replays `segments` (oldest first) into `core`, which stands where the first begins (the run's start, or the
+/// first's snapshot restored). Each later segment's snapshot must stand where the records before it end: a segment
+/// missing from the middle is refused, not skipped.
+pub fn replay_segments(
+    core: &mut Journaled,
+    segments: &[crate::journal::Segment],
+    out: &mut super::Records,
+    path: &str,
+) -> anyhow::Result<Replayed> {
+    let mut replayed = Replayed::default();
+    for (i, segment) in segments.iter().enumerate() {
+        if let (true, Some(bytes)) = (i > 0, &segment.snapshot) {
+            let meta = journal::snapshot_meta(bytes)
+                .map_err(|why| anyhow!("the journal {path}: segment {}'s snapshot {why}", segment.number))?;
+            if meta.records != core.records_counted() {
+                bail!(
+                    "the journal {path}: segment {} begins after record {}, and the segments before it end after \
+                     record {}: a segment is missing or damaged",
+                    segment.number,
+                    meta.records,
+                    core.records_counted()
+                );
+            }
+        }
+        let part = super::replay_records(core, &segment.records, out)?;
+        replayed.records += part.records;
+        replayed.cycles += part.cycles;
+        replayed.last_ms = replayed.last_ms.max(part.last_ms);
+        replayed.ended = part.ended.or(replayed.ended);
+    }
+    Ok(replayed)
+}
+
+/// The segments a resume replays: the last one (from its snapshot), or — when the trace file lacks trace records
+/// made before that snapshot (the process died after the snapshot was durable and before it wrote them) — from
+/// the newest kept snapshot the file does hold, so that the replay writes the missing records again. `trace_lines`:
+/// the whole records the trace file holds, if the run writes one.
+pub(crate) fn resume_segments(
+    store: &crate::journal::Store,
+    last: crate::journal::Segment,
+    trace_lines: Option<u64>,
+) -> anyhow::Result<Vec<crate::journal::Segment>> {
+    let traced = |s: &crate::journal::Segment| match &s.snapshot {
+        None => Ok(0),
+        Some(bytes) => journal::snapshot_meta(bytes).map(|m| m.trace_records).map_err(|why| anyhow!("{why}")),
+    };
+    let Some(lines) = trace_lines else { return Ok(vec![last]) };
+    if traced(&last)? <= lines {
+        return Ok(vec![last]);
+    }
+    let mut all = store.segments()?;
+    let mut from = None;
+    for (i, s) in all.iter().enumerate().rev() {
+        if traced(s)? <= lines {
+            from = Some(i);
+            break;
+        }
+    }
+    match from {
+        Some(i) => Ok(all.split_off(i)),
+        None => {
+            eprintln!(
+                "warning: the trace file holds {lines} records, fewer than the journal's oldest kept snapshot \
+                 follows: the records in between are missing from it"
+            );
+            Ok(vec![last])
+        }
+    }
+}
+
+/// How many whole records (lines) a trace file holds; none if it is missing.
+pub(crate) fn trace_lines(path: &std::path::Path) -> u64 {
+    std::fs::read(path).map_or(0, |bytes| bytes.iter().filter(|b| **b == b'\n').count() as u64)
 }

@@ -49,6 +49,9 @@ pub(crate) struct Shell {
     /// The run's time when this process started: 0, or where a resumed run stood (downtime included).
     pub(crate) base_ms: u64,
     pub(crate) journal: Option<crate::journal::Writer>,
+    /// A snapshot after this many records since the last (0: none), and the record count it is due at.
+    pub(crate) snapshot_every: u64,
+    pub(crate) snapshot_due: u64,
     /// What the coordinator asked for, per journal batch, until that batch is durable.
     pub(crate) held: VecDeque<(u64, Vec<CoordOutput>)>,
     /// Answers to `baton set` and `baton ctl`, likewise (with the key they answer on): a client is told a value
@@ -294,7 +297,27 @@ impl Shell {
             // Nothing new to record: these follow the last batch.
             self.held.push_back((journal.sent(), outputs));
         }
+        if self.snapshot_every > 0 && self.core.records_counted() >= self.snapshot_due {
+            self.snapshot()?;
+        }
         self.release().await
+    }
+
+    /// Hands the journal a snapshot of the coordinator after every record so far (with the summary's step times,
+    /// which the trace before it would otherwise have to give): it starts the next segment.
+    fn snapshot(&mut self) -> anyhow::Result<()> {
+        let steps = serde_json::to_value(&self.out.steps)?;
+        let (Some(journal), Some(bytes)) = (self.journal.as_mut(), self.core.snapshot(steps)) else {
+            return Ok(());
+        };
+        // A cycle that changed nothing, recorded so that the snapshot follows the last record: it led to nothing.
+        let quiet = self.core.take_records();
+        if !quiet.is_empty() {
+            journal.write(quiet)?;
+        }
+        journal.snapshot(bytes)?;
+        self.snapshot_due = self.core.records_counted() + self.snapshot_every;
+        Ok(())
     }
 
     /// Carries out what waited for journal batches that are now durable, in order.

@@ -25,7 +25,7 @@ pub struct Summary {
     pub journal: Option<crate::journal::JournalStats>,
 }
 
-#[derive(Serialize, Default, Clone, Copy)]
+#[derive(Serialize, serde::Deserialize, Default, Clone, Copy)]
 pub struct StepTime {
     pub activations: u64,
     pub active_ms: u64,

@@ -23,9 +23,10 @@ use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
 use crate::dist::layout::Layout;
+pub use crate::dist::runtime::coordinator::{token_ids, TokenIds};
 use crate::dist::runtime::coordinator::{Coordinator, LossPolicy};
 use crate::dist::wire::{
-    self, AgentInfo, ChartHash, CtlRequest, DeviceReport, Report, RunId, SetRequest, TokenId, VarUpdate, WireError,
+    self, AgentInfo, ChartHash, CtlRequest, DeviceReport, Report, RunId, SetRequest, VarUpdate, WireError,
 };
 use crate::exec::program::{Program, TransitionId};
 
@@ -270,36 +271,6 @@ pub fn apply(core: &mut Coordinator, entry: &Entry) -> Option<Result<String, Str
     None
 }
 
-/// The ids of a run's tokens: the run id mixed with a counter, so that a replay makes the same ones.
-pub fn token_ids(run: RunId) -> TokenIds {
-    TokenIds { base: run.0.as_u128(), made: 0 }
-}
-
-/// A run's token ids, one after the other (`token_ids`): a counter, kept in a snapshot with the rest.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct TokenIds {
-    base: u128,
-    made: u64,
-}
-
-impl TokenIds {
-    pub fn next_id(&mut self) -> TokenId {
-        self.made += 1;
-        let n = self.made;
-        let hi = u128::from(splitmix64(n));
-        let lo = u128::from(splitmix64(n ^ 0x5bd1_e995_5bd1_e995));
-        TokenId(Uuid::from_u128(self.base ^ (hi << 64 | lo)))
-    }
-}
-
-/// SplitMix64's finalizer: a bijection of u64, so distinct counters give distinct ids.
-fn splitmix64(x: u64) -> u64 {
-    let mut z = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
 /// A coordinator whose every input is recorded first.
 pub struct Journaled {
     core: Coordinator,
@@ -338,6 +309,19 @@ fn encode_snapshot(meta: &SnapshotMeta, core: &[u8]) -> Vec<u8> {
     out
 }
 
+/// What a snapshot says of where it stands, without restoring it.
+pub fn snapshot_meta(bytes: &[u8]) -> Result<SnapshotMeta, String> {
+    split_snapshot(bytes).map(|(meta, _)| meta)
+}
+
+fn split_snapshot(bytes: &[u8]) -> Result<(SnapshotMeta, &[u8]), String> {
+    let (len, rest) = bytes.split_at_checked(4).ok_or("is truncated")?;
+    let len = u32::from_le_bytes(len.try_into().map_err(|_| "is truncated")?) as usize;
+    let (meta, core) = rest.split_at_checked(len).ok_or("is truncated")?;
+    let meta = serde_json::from_slice(meta).map_err(|e| format!("has a malformed head: {e}"))?;
+    Ok((meta, core))
+}
+
 impl Journaled {
     pub fn new(core: Coordinator) -> Journaled {
         Journaled { core, records: Vec::new(), quiet_ms: None, counted: 0, traced: 0, last_ms: 0 }
@@ -364,10 +348,7 @@ impl Journaled {
         layout: std::sync::Arc<Layout>,
         bytes: &[u8],
     ) -> Result<(Journaled, SnapshotMeta), String> {
-        let (len, rest) = bytes.split_at_checked(4).ok_or("the snapshot is truncated")?;
-        let len = u32::from_le_bytes(len.try_into().map_err(|_| "the snapshot is truncated")?) as usize;
-        let (meta, core) = rest.split_at_checked(len).ok_or("the snapshot is truncated")?;
-        let meta: SnapshotMeta = serde_json::from_slice(meta).map_err(|e| format!("its meta is malformed: {e}"))?;
+        let (meta, core) = split_snapshot(bytes)?;
         let core = Coordinator::restore(program, layout, core).map_err(|e| e.to_string())?;
         let mut j = Journaled::new(core);
         (j.counted, j.traced, j.last_ms) = (meta.records, meta.trace_records, meta.last_ms);
@@ -653,8 +634,8 @@ mod tests {
         let run = RunId(Uuid::from_u128(0xfeed));
         let mut a = token_ids(run);
         let mut b = token_ids(run);
-        let first: Vec<TokenId> = (0..1000).map(|_| a.next_id()).collect();
-        let again: Vec<TokenId> = (0..1000).map(|_| b.next_id()).collect();
+        let first: Vec<wire::TokenId> = (0..1000).map(|_| a.next_id()).collect();
+        let again: Vec<wire::TokenId> = (0..1000).map(|_| b.next_id()).collect();
         assert_eq!(first, again);
         let distinct: std::collections::BTreeSet<_> = first.iter().collect();
         assert_eq!(distinct.len(), first.len());

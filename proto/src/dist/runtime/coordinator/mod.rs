@@ -51,6 +51,7 @@ use membership::*;
 use operate::PartialHolds;
 use supervision::Supervised;
 use tokens::*;
+pub use tokens::{token_ids, TokenIds};
 
 /// First and largest delay before a dispatch that no report answered is sent again (the agent drops the
 /// duplicate if it has the token).
@@ -124,7 +125,7 @@ pub struct Coordinator {
     vars_resend: VarsResend,
     /// The last write applied to each variable an agent writes.
     var_writes: VarWrites,
-    new_token: crate::dist::journal::TokenIds,
+    new_token: TokenIds,
     round_robin: usize,
     outbox: VecDeque<CoordOutput>,
     /// Acknowledgements owed, per agent: sent together at the end of the cycle.
@@ -165,13 +166,13 @@ pub struct Coordinator {
 }
 
 impl Coordinator {
-    /// `new_token` gives each token its id (`journal::token_ids`: the run id and a counter, so a replay makes the same).
+    /// `new_token` gives each token its id (`token_ids`: the run id and a counter, so a replay makes the same).
     pub fn new(
         program: Arc<Program>,
         layout: Arc<Layout>,
         run: RunId,
         hash: ChartHash,
-        new_token: crate::dist::journal::TokenIds,
+        new_token: TokenIds,
     ) -> Coordinator {
         let engine = Engine::with_scope(Arc::clone(&program), layout.coordinator_scope(&program));
         let program_vars = program.vars.len();

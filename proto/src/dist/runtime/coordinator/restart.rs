@@ -55,7 +55,7 @@ impl Coordinator {
     /// `start`. What belongs to the cell rather than to the run goes on: the agents known and their processes, the
     /// loss policy, the cycle period, the mode, and the alarms still standing (an alarm stays until acknowledged).
     /// What the ended run asked for and nobody took yet comes first in the new run's outputs.
-    pub fn new_run(&mut self, now_ms: u64, run: RunId, new_token: crate::dist::journal::TokenIds) -> Coordinator {
+    pub fn new_run(&mut self, now_ms: u64, run: RunId, new_token: TokenIds) -> Coordinator {
         let mut next =
             Coordinator::new(Arc::clone(&self.program), Arc::clone(&self.layout), run, self.hash.clone(), new_token);
         next.outbox = std::mem::take(&mut self.outbox);

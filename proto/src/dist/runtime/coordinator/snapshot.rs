@@ -11,7 +11,7 @@ use super::*;
 
 /// A snapshot that cannot be restored: malformed, or made from another chart.
 #[derive(Debug, thiserror::Error, PartialEq)]
-#[error("the coordinator's snapshot cannot be restored: {0}")]
+#[error("cannot be restored: {0}")]
 pub struct SnapshotError(pub String);
 
 impl Coordinator {

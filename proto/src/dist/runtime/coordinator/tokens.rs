@@ -379,3 +379,33 @@ impl Coordinator {
         self.acks.entry(agent).or_default().push(entry);
     }
 }
+
+/// The ids of a run's tokens: the run id mixed with a counter, so that a replay makes the same ones.
+pub fn token_ids(run: RunId) -> TokenIds {
+    TokenIds { base: run.0.as_u128(), made: 0 }
+}
+
+/// A run's token ids, one after the other (`token_ids`): a counter, kept in a snapshot with the rest.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct TokenIds {
+    base: u128,
+    made: u64,
+}
+
+impl TokenIds {
+    pub fn next_id(&mut self) -> TokenId {
+        self.made += 1;
+        let n = self.made;
+        let hi = u128::from(splitmix64(n));
+        let lo = u128::from(splitmix64(n ^ 0x5bd1_e995_5bd1_e995));
+        TokenId(uuid::Uuid::from_u128(self.base ^ (hi << 64 | lo)))
+    }
+}
+
+/// SplitMix64's finalizer: a bijection of u64, so distinct counters give distinct ids.
+fn splitmix64(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
