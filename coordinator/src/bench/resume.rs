@@ -10,7 +10,7 @@ use anyhow::{anyhow, bail, Context};
 use baton_proto::exec::trace::TraceEvent;
 use serde::Serialize;
 
-use super::{run_chart_until, throughput_chart, Agents, Extras};
+use super::{chart_options, run_chart_until, throughput_chart, Agents, Extras};
 use crate::run::Probe;
 
 #[derive(Serialize, Clone)]
@@ -24,12 +24,18 @@ pub struct Resume {
     pub segments: u64,
     pub journal_bytes: u64,
     /// From `baton run`'s start to the resumed coordinator's `recover` record: the journal opened, the last
-    /// snapshot restored and the records after it replayed (and a Zenoh session opened).
+    /// snapshot restored and the records after it replayed, and a Zenoh session opened.
     pub resume_ms: f64,
-    /// Trace records the resume replayed (those after the snapshot).
+    /// The journal's part of it alone (`run::resume_offline`): opened, snapshot restored, records replayed.
+    pub resume_journal_ms: f64,
+    /// Journal records and trace records the resume replayed (those after the snapshot).
+    pub resume_replayed_records: u64,
     pub resume_replayed_trace_records: u64,
-    /// Every record from the run's start replayed (`baton replay` without a recording).
+    /// Every record from the run's start replayed (`baton replay` without a recording), and its rate: a resume
+    /// replays at most `--snapshot-every` records, so its worst case is that many at this rate.
     pub full_replay_ms: f64,
+    pub replay_records_per_s: f64,
+    pub worst_case_resume_ms: f64,
 }
 
 /// Agents and tokens in flight while the run makes its tokens: the bench's throughput setting.
@@ -100,10 +106,16 @@ pub async fn resume(dir: &Path, tokens: u64) -> anyhow::Result<Resume> {
     let (recovered, replayed) =
         counted.lock().map_err(|_| anyhow!("poisoned"))?.recovered.ok_or_else(|| anyhow!("the run did not resume"))?;
     let resume_ms = (recovered - started).as_secs_f64() * 1e3;
+    let (opts, _) = chart_options(dir, "resume.st", String::new(), &Agents::Processes(&[]), extras())?;
+    let started = Instant::now();
+    let resume_replayed_records = crate::run::resume_offline(&opts)?;
+    let resume_journal_ms = started.elapsed().as_secs_f64() * 1e3;
     // What a resume cost before snapshots: every record from the start.
     let started = Instant::now();
     let records = crate::replay::replay_quietly(&journal)?;
     let full_replay_ms = started.elapsed().as_secs_f64() * 1e3;
+    let replay_records_per_s = records as f64 / (full_replay_ms / 1e3).max(1e-9);
+    let worst_case_resume_ms = crate::journal::SNAPSHOT_EVERY as f64 / replay_records_per_s * 1e3;
     std::fs::remove_dir_all(&journal).context("cannot remove the bench's journal")?;
     Ok(Resume {
         tokens: returned,
@@ -112,8 +124,12 @@ pub async fn resume(dir: &Path, tokens: u64) -> anyhow::Result<Resume> {
         segments,
         journal_bytes,
         resume_ms,
+        resume_journal_ms,
+        resume_replayed_records,
         resume_replayed_trace_records: replayed,
         full_replay_ms,
+        replay_records_per_s,
+        worst_case_resume_ms,
     })
 }
 

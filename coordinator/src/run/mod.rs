@@ -168,6 +168,32 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     wind_down(shell, session, &opts, &loaded, ended).await
 }
 
+/// What `baton run` does with a journal before it serves — open it, restore its last snapshot, replay the records
+/// after it — without a network, for `baton bench`: the records replayed. (The journal is left as it was.)
+pub fn resume_offline(opts: &RunOptions) -> anyhow::Result<u64> {
+    let loaded = load(&opts.chart, opts.pou.as_deref())?;
+    let hash = ChartHash::of(&loaded.source, &loaded.pou);
+    let Opened { resume: Some(Resume { header, snapshot, segments }), .. } = open_journal(opts, &loaded, &hash)? else {
+        bail!("no run to resume");
+    };
+    let mut core = match snapshot {
+        Some((core, _)) => core,
+        None => {
+            let mut core = Coordinator::new(
+                Arc::clone(&loaded.program),
+                Arc::clone(&loaded.layout),
+                header.run,
+                hash,
+                journal::token_ids(header.run),
+            );
+            core.set_cycle_ms(header.cycle_ms);
+            Journaled::new(core)
+        }
+    };
+    let mut out = Records::new(None, None, None, header.cycle_ms);
+    Ok(replay_segments(&mut core, &segments, &mut out, "")?.records)
+}
+
 /// Starts the run afresh (with `--set`'s values), or resumes it: the past replayed from the journal (its trace
 /// written again, so that the file holds the whole run), nothing sent, the clock going on from wall-clock time.
 fn begin(
