@@ -373,12 +373,25 @@ impl Shell {
         let mut held: Vec<HeldToken> = self.runs.values().flat_map(|r| r.state.held()).collect();
         held.sort_unstable();
         held.truncate(HELD_LISTED_MAX);
+        let max = baton_proto::limits::PENDING_LISTED_MAX;
+        let mut weight = 0;
+        let pending: Vec<_> = self
+            .runs
+            .values()
+            .flat_map(|r| r.state.pending_reports(max))
+            .take(max)
+            .take_while(|r| {
+                weight += r.weight();
+                weight <= baton_proto::limits::PENDING_LISTED_BYTES_MAX
+            })
+            .collect();
         AgentInfo {
             name: self.config.name.clone(),
             roles: self.config.roles.clone(),
             lease_ms: self.config.lease_ms,
             incarnation,
             held,
+            pending,
         }
     }
 

@@ -69,6 +69,11 @@ pub const MESSAGE_BYTES_MAX: usize = 1024 * 1024;
 /// a byte), with room for the rest. Derived, so that every chart `baton check` accepts reaches every agent.
 pub const CHART_SOURCE_BYTES_MAX: usize = 6 * SOURCE_BYTES_MAX + 64 * 1024;
 
+/// Unacknowledged reports an agent lists in its info answer (`AgentInfo::pending`), oldest first, and what they may
+/// weigh together (`Report::weight`): the answer stays a message.
+pub const PENDING_LISTED_MAX: usize = 32;
+pub const PENDING_LISTED_BYTES_MAX: usize = MESSAGE_BYTES_MAX / 2;
+
 /// Reports of one token that arrived ahead of a missing one and wait for it; more are dropped (and resent).
 pub const REPORTS_AHEAD_MAX: usize = 256;
 

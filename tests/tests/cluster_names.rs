@@ -47,6 +47,7 @@ async fn two_processes_answering_to_one_name_get_nothing_until_one_is_left() {
         lease_ms: 10_000,
         incarnation: uuid::Uuid::from_u128(0xdead),
         held: Vec::new(),
+        pending: Vec::new(),
     };
     let answering = tokio::spawn(async move {
         while let Ok(q) = impostor.recv_async().await {

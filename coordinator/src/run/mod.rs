@@ -161,6 +161,8 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         cycle_ms,
         last_cycle_ms: None,
         live: std::collections::HashSet::new(),
+        answers: None,
+        asking: std::collections::HashSet::new(),
     };
     shell.out.watch(watch);
     begin(&mut shell, resume, &opts, &loaded, run, &where_)?;
@@ -409,6 +411,7 @@ async fn serve(
     let mut inboxes = Inboxes::declare(session, run).await?;
     shell.vars_key = keys::vars(run, baton_proto::dist::runtime::COORDINATOR);
     let (tx, mut rx) = mpsc::unbounded_channel::<Identity>();
+    shell.answers = Some(tx.clone());
     let mut durable_rx = shell.journal.as_ref().map(crate::journal::Writer::watcher);
     let mut stop = baton_shell::Stop::new()?;
     shell.due_cycles().await?;

@@ -40,6 +40,9 @@ pub(crate) enum Identity {
     Several(String, u32),
     /// Nobody that makes sense, and why.
     Unknown(String, String),
+    /// What an agent asked because a token of it was quiet (`CoordOutput::Ask`) listed as sent and not
+    /// acknowledged (nothing if it did not answer).
+    Pending(String, Vec<baton_proto::dist::wire::Report>),
 }
 
 pub(crate) struct Shell {
@@ -68,6 +71,10 @@ pub(crate) struct Shell {
     pub(crate) last_cycle_ms: Option<u64>,
     /// Agents whose liveliness token is there: those are asked again until they say who they are.
     pub(crate) live: std::collections::HashSet<String>,
+    /// Where answers to questions go (the main loop's), and the agents asked for their pending reports whose
+    /// answer has not come yet (one question at a time each).
+    pub(crate) answers: Option<mpsc::UnboundedSender<Identity>>,
+    pub(crate) asking: std::collections::HashSet<String>,
 }
 
 /// The run's inboxes: reports, variables, devices and liveliness in, and the queries it answers.
@@ -191,7 +198,17 @@ impl Shell {
     pub(crate) fn on_identity(&mut self, ev: Identity, tx: &mpsc::UnboundedSender<Identity>) {
         let now = self.now_ms();
         match ev {
-            Identity::One(info) => self.core.agent_up(now, info),
+            Identity::One(mut info) => {
+                // Its pending reports are not part of who it is: they go in as reports, after it is up.
+                let pending = std::mem::take(&mut info.pending);
+                let name = info.name.clone();
+                self.core.agent_up(now, info);
+                self.take_pending(&name, pending);
+            }
+            Identity::Pending(name, pending) => {
+                self.asking.remove(&name);
+                self.take_pending(&name, pending);
+            }
             Identity::Several(name, n) => {
                 self.core.agent_conflict(now, &name, n);
                 // Asked again until one process answers alone (or none does).
@@ -208,6 +225,40 @@ impl Shell {
                 }
             }
         }
+    }
+
+    /// Reports an agent listed in its answer, taken as reports from it (duplicates of what arrived are answered
+    /// and dropped, as any duplicate is).
+    fn take_pending(&mut self, agent: &str, pending: Vec<baton_proto::dist::wire::Report>) {
+        let now = self.now_ms();
+        for report in pending {
+            if let Err(e) = self.core.report(now, agent, &wire::encode(&report)) {
+                self.decode_drops += 1;
+                eprintln!("warning: dropped a report `{agent}` listed: {e}");
+            }
+        }
+        self.out.values(now, self.core.core());
+    }
+
+    /// Asks process `incarnation` of `agent` for the reports it has not had acknowledged; the answer comes back to
+    /// the main loop as `Identity::Pending`.
+    fn ask(&mut self, agent: String, incarnation: uuid::Uuid) {
+        let Some(tx) = self.answers.clone() else { return };
+        if !self.asking.insert(agent.clone()) {
+            return;
+        }
+        let session = self.session.clone();
+        tokio::spawn(async move {
+            let pending = match ask_info_once(&session, &agent).await {
+                Ok(infos) => infos
+                    .into_iter()
+                    .find(|i| i.name == agent && i.incarnation == incarnation)
+                    .map(|i| i.pending)
+                    .unwrap_or_default(),
+                Err(_) => Vec::new(),
+            };
+            let _ = tx.send(Identity::Pending(agent, pending));
+        });
     }
 
     pub(crate) fn on_set(&mut self, q: &Query) -> SetReply {
@@ -346,12 +397,13 @@ impl Shell {
                     self.send(keys::agent_cmd(&agent, incarnation), wire::encode(&msg)).await?
                 }
                 CoordOutput::Vars(update) => self.send(self.vars_key.clone(), wire::encode(&update)).await?,
+                CoordOutput::Ask { agent, incarnation } => self.ask(agent, incarnation),
                 other => local.push(other),
             }
         }
         for out in local {
             match out {
-                CoordOutput::Send { .. } | CoordOutput::Vars(_) => {}
+                CoordOutput::Send { .. } | CoordOutput::Vars(_) | CoordOutput::Ask { .. } => {}
                 CoordOutput::Trace(rec) => self.out.record(rec),
                 CoordOutput::Log { level, message } => {
                     let tag = match level {

@@ -660,6 +660,7 @@ mod tests {
             lease_ms: 1000,
             incarnation: Uuid::from_u128(1),
             held: Vec::new(),
+            pending: Vec::new(),
         };
         j.agent_up(0, info);
         j.cycle(0);

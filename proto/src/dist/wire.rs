@@ -369,6 +369,12 @@ pub struct AgentInfo {
     /// that started again from its journal can tell a token still out from a dispatch that never arrived.
     #[serde(default)]
     pub held: Vec<HeldToken>,
+    /// Reports it sent that no acknowledgement answered yet, oldest first (at most `limits::PENDING_LISTED_MAX`):
+    /// a coordinator that asks because a token has been quiet (`CoordOutput::Ask`) takes them from the answer,
+    /// for when the reports themselves do not reach it (a router that lost its routes, as zenoh 1.10's do after a
+    /// router restart).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub pending: Vec<Report>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]

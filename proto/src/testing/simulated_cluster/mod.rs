@@ -257,6 +257,7 @@ impl SimCluster {
                             lease_ms: LEASE_MS,
                             incarnation: Uuid::from_u128(0),
                             held: Vec::new(),
+                            pending: Vec::new(),
                         },
                     );
                 } else {
@@ -480,6 +481,7 @@ impl SimCluster {
             lease_ms: LEASE_MS,
             incarnation: Uuid::from_u128(a.restarts),
             held: a.run.held(),
+            pending: Vec::new(),
         }
     }
 

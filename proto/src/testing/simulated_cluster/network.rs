@@ -158,6 +158,17 @@ impl SimCluster {
                     self.send(Packet::ToAgent(i, incarnation, wire::encode(&msg)));
                 }
                 CoordOutput::Vars(update) => self.send(Packet::Vars(None, wire::encode(&update))),
+                CoordOutput::Ask { agent, incarnation } => {
+                    // The question and its answer cross the network as the reports would: the answer's reports
+                    // arrive as reports (with the faults of the agent's link).
+                    let i = self.agents.iter().position(|a| a.name == agent).expect("known agent");
+                    let a = &self.agents[i];
+                    if a.alive && a.reachable && incarnation == Uuid::from_u128(a.restarts) {
+                        for r in a.run.pending_reports(crate::limits::PENDING_LISTED_MAX) {
+                            self.send(Packet::Report(i, wire::encode(&r)));
+                        }
+                    }
+                }
                 CoordOutput::Trace(rec) => self.trace.push(rec),
                 CoordOutput::Log { .. } => {}
             }

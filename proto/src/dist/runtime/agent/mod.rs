@@ -318,6 +318,15 @@ impl AgentRun {
         held
     }
 
+    /// Reports sent and not acknowledged yet, by token and sequence number, at most `max` (for the info answer).
+    pub fn pending_reports(&self, max: usize) -> Vec<Report> {
+        let mut pending: Vec<Report> =
+            self.tokens.values().flat_map(|t| t.unacked.iter().map(|u| u.report.clone())).collect();
+        pending.sort_by_key(|r| (r.token, r.seq));
+        pending.truncate(max);
+        pending
+    }
+
     /// How many times this agent's engine gave a step a second token (a validated chart: never).
     pub fn collisions(&self) -> u64 {
         self.engine.collisions()

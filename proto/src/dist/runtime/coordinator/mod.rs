@@ -59,6 +59,13 @@ const DISPATCH_RESEND_FIRST_MS: u64 = 500;
 
 const DISPATCH_RESEND_MAX_MS: u64 = 5_000;
 
+/// First and largest delay before the agent of a token that reported once and then went quiet is asked for the
+/// reports it has not had acknowledged (`CoordOutput::Ask`). A token whose motion runs long is quiet too: the
+/// answer then lists nothing, at one question per agent per `ASK_MAX_MS` at most.
+const ASK_FIRST_MS: u64 = 1_000;
+
+const ASK_MAX_MS: u64 = 8_000;
+
 /// What the coordinator asks its shell to do.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum CoordOutput {
@@ -69,6 +76,14 @@ pub enum CoordOutput {
         msg: ToAgent,
     },
     Vars(VarUpdate),
+    /// Ask process `incarnation` of `agent` for its info (`AgentInfo::pending`: the reports it sent that no
+    /// acknowledgement answered) and give what it lists to `Journaled::report` as if the reports had arrived: a
+    /// token of it has been quiet (`ASK_FIRST_MS`). A router that lost its routes drops puts and still carries
+    /// queries.
+    Ask {
+        agent: String,
+        incarnation: uuid::Uuid,
+    },
     Trace(TraceRecord),
     Log {
         level: Level,
@@ -95,6 +110,8 @@ pub struct CoordStats {
     pub returned: u64,
     /// Dispatches sent again because no report answered them.
     pub resent: u64,
+    /// Agents asked for their unacknowledged reports because a token of theirs was quiet.
+    pub asked: u64,
     /// Reports and updates that were malformed, stale, duplicated or from the wrong agent.
     pub dropped: u64,
 }

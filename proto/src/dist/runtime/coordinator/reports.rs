@@ -300,6 +300,9 @@ impl Coordinator {
         self.ack(agent.clone(), AckEntry { token: r.token, epoch, seq: r.seq, done: r.done });
         if let Some(tok) = self.tokens.get_mut(&r.token) {
             tok.next_seq = r.seq + 1;
+            // Heard from: its agent is asked only if it goes quiet from now on.
+            tok.resend_at_ms = self.now_ms + ASK_FIRST_MS;
+            tok.resend_backoff_ms = ASK_FIRST_MS;
         }
         if r.done {
             self.finish(r.token, epoch, r.seq, agent);

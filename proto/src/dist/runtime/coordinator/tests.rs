@@ -28,6 +28,7 @@ fn info(name: &str, n: u128) -> AgentInfo {
         lease_ms: 1000,
         incarnation: uuid::Uuid::from_u128(n),
         held: Vec::new(),
+        pending: Vec::new(),
     }
 }
 
@@ -429,4 +430,77 @@ fn an_agent_lost_holding_a_token_raises_an_alarm_of_its_own_that_the_status_list
     c.handle_agent_down(70, "w1");
     let ids: Vec<u64> = c.status().alarms.iter().map(|a| a.id).collect();
     assert!(ids.len() >= 2 && ids.windows(2).all(|w| w[0] < w[1]), "{ids:?}");
+}
+
+/// A token that reported and then went quiet makes the coordinator ask its agent for the reports it has not had
+/// acknowledged — after `ASK_FIRST_MS`, then at doubling delays — and a token that came back is never asked for.
+#[test]
+fn the_agent_of_a_token_gone_quiet_is_asked_for_its_pending_reports() {
+    use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch};
+    // Two steps on the worker: it reports the first transition, then waits for `done`.
+    let (program, layout) = crate::testing::simulated_cluster::compile(
+        "PROGRAM p\nVAR go : BOOL; done : BOOL; END_VAR\nINITIAL_STEP A: END_STEP\n\
+         TRANSITION FROM A TO B := go; END_TRANSITION\nSTEP B: {role := 'worker'} END_STEP\n\
+         TRANSITION FROM B TO B2 := TRUE; END_TRANSITION\nSTEP B2: {role := 'worker'} END_STEP\n\
+         TRANSITION FROM B2 TO C := done; END_TRANSITION\nSTEP C: END_STEP\nEND_PROGRAM\n",
+    );
+    let mut c = coordinator_of(&program, &layout);
+    let mut agent = AgentRun::new("w1", &["worker".into()], RUN, ChartHash("h".into()), program, layout, 10);
+    agent.set_incarnation(uuid::Uuid::from_u128(2));
+    c.handle_agent_up(0, worker("w1", 2));
+    c.handle_set(1, "go", &serde_json::json!(true)).expect("go is an input");
+    c.handle_cycle(10);
+    // What the coordinator sends reaches the agent, what the agent reports reaches the coordinator at `now`.
+    let exchange = |c: &mut Coordinator, agent: &mut AgentRun, now: u64| -> Vec<(String, uuid::Uuid)> {
+        let mut asks = Vec::new();
+        for o in drain(c) {
+            match o {
+                CoordOutput::Send {
+                    msg:
+                        ToAgent::Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held, mode, .. },
+                    ..
+                } => {
+                    let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held, mode };
+                    agent.handle_dispatch(now, d);
+                }
+                CoordOutput::Send { msg: ToAgent::Ack { acks, .. }, .. } => {
+                    for a in acks {
+                        agent.handle_ack(a.token, a.epoch, a.seq, a.done);
+                    }
+                }
+                CoordOutput::Vars(u) => agent.handle_vars(now, &u),
+                CoordOutput::Ask { agent, incarnation } => asks.push((agent, incarnation)),
+                _ => {}
+            }
+        }
+        agent.handle_timeout(now);
+        while let Some(o) = agent.poll_output() {
+            if let AgentOutput::Report(r) = o {
+                c.handle_report(now, r);
+            }
+        }
+        asks
+    };
+    let mut asked_at = Vec::new();
+    for t in (10..=8_000).step_by(10) {
+        if c.poll_timeout().is_some_and(|due| due <= t) {
+            c.handle_cycle(t);
+        }
+        for ask in exchange(&mut c, &mut agent, t) {
+            assert_eq!(ask, ("w1".to_string(), uuid::Uuid::from_u128(2)), "the process that holds it");
+            asked_at.push(t);
+        }
+    }
+    let first = asked_at.first().copied().expect("asked");
+    assert!((1_000..1_100).contains(&first), "a second after its report: {asked_at:?}");
+    assert_eq!(asked_at, [first, first + 2_000, first + 6_000], "then after 2 s, then after 4 s");
+    assert_eq!(c.stats().asked, 3);
+    assert_eq!(agent.pending_reports(8), Vec::new(), "its report was acknowledged: nothing to list");
+    // It comes back: nothing is asked any more.
+    c.handle_set(8_000, "done", &serde_json::json!(true)).expect("done is an input");
+    for t in (8_010..=30_000).step_by(10) {
+        c.handle_cycle(t);
+        assert!(exchange(&mut c, &mut agent, t).is_empty(), "asked at {t} about a token that came back");
+    }
+    assert_eq!(c.tokens_in_flight(), 0);
 }

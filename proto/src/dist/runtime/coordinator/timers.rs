@@ -25,7 +25,8 @@ impl Coordinator {
         }
         self.drain_engine();
         self.complete_if_done();
-        self.resend_dispatches();
+        let resent_to = self.resend_dispatches();
+        self.ask_quiet_agents(resent_to);
         self.resend_holds();
         self.resend_overrun_acks();
         self.resend_gates();
@@ -74,10 +75,11 @@ impl Coordinator {
         if self.engine.needs_cycle() && self.chart_runs() {
             return Some(self.now_ms);
         }
+        // A dispatch to send again (no report yet), or an agent to ask (reported, then quiet).
         let resend = self
             .tokens
             .values()
-            .filter(|t| t.next_seq == 0 && !t.paused && t.confirmed && t.agent.is_some())
+            .filter(|t| !t.paused && t.confirmed && t.agent.is_some())
             .map(|t| t.resend_at_ms)
             .min();
         let acks = (!self.acks.is_empty()).then_some(self.acks_since_ms + ACK_DELAY_MS);
@@ -122,8 +124,10 @@ impl Coordinator {
 
     /// A dispatch lost on the way (a link that broke and came back within the agent's lease) would leave its
     /// segment waiting for ever: a dispatch that no report answered goes again, with doubling delays. The agent
-    /// drops the copy if the first one arrived.
-    pub(super) fn resend_dispatches(&mut self) {
+    /// drops the copy if the first one arrived. Returns the agents sent to: they are asked too (`ask_quiet_agents`),
+    /// for a dispatch that did arrive, and a report of it that did not.
+    pub(super) fn resend_dispatches(&mut self) -> BTreeSet<String> {
+        let mut resent_to = BTreeSet::new();
         let now = self.now_ms;
         let mut due: Vec<TokenId> = self
             .tokens
@@ -142,7 +146,30 @@ impl Coordinator {
             }
             self.stats.resent += 1;
             self.log(Level::Info, format!("token {id} sent again to `{agent}`: no report on it yet"));
+            resent_to.insert(agent.clone());
             self.send(agent, msg);
+        }
+        resent_to
+    }
+
+    /// The agents of tokens that reported and then went quiet, and those a dispatch was just sent again to
+    /// (`asked`), are asked for the reports they have not had acknowledged (`CoordOutput::Ask`), once per agent
+    /// however many of its tokens are quiet, with doubling delays; a report on the token starts them over.
+    pub(super) fn ask_quiet_agents(&mut self, mut asked: BTreeSet<String>) {
+        let now = self.now_ms;
+        for t in self.tokens.values_mut() {
+            let live = t.agent.as_ref().and_then(|a| self.agents.get(a)).is_some_and(|a| a.alive);
+            if t.next_seq == 0 || t.paused || !t.confirmed || !live || t.resend_at_ms > now {
+                continue;
+            }
+            t.resend_backoff_ms = (t.resend_backoff_ms * 2).min(ASK_MAX_MS);
+            t.resend_at_ms = now + t.resend_backoff_ms;
+            asked.extend(t.agent.clone());
+        }
+        for agent in asked {
+            let Some(a) = self.agents.get(&agent) else { continue };
+            self.stats.asked += 1;
+            self.outbox.push_back(CoordOutput::Ask { incarnation: a.incarnation, agent });
         }
     }
 
