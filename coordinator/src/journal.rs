@@ -483,14 +483,17 @@ struct Counters {
     commits: AtomicU64,
     records: AtomicU64,
     snapshots: AtomicU64,
+    commit_ns: AtomicU64,
 }
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct JournalStats {
     pub records: u64,
     pub commits: u64,
     /// Snapshots written, each starting a segment.
     pub snapshots: u64,
+    /// What a commit (its write and `fdatasync`) took on average, in µs: what a round trip waits for at least.
+    pub commit_us: f64,
 }
 
 /// What the shell hands the writer.
@@ -519,6 +522,7 @@ fn writer_loop(mut store: Store, rx: std_mpsc::Receiver<Job>, done: watch::Sende
                 }
                 Some(Job::Snapshot(_)) | None if batches.is_empty() => {}
                 Some(Job::Snapshot(_)) | None => {
+                    let started = std::time::Instant::now();
                     if let Err(e) = store.append(&batches, &mut buffer) {
                         let why = format!("cannot write the journal {}: {e}", store.path.display());
                         let _ = done.send(Durable::Failed(why));
@@ -526,6 +530,7 @@ fn writer_loop(mut store: Store, rx: std_mpsc::Receiver<Job>, done: watch::Sende
                     }
                     committed += batches.len() as u64;
                     counters.commits.fetch_add(1, Ordering::Relaxed);
+                    counters.commit_ns.fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
                     counters.records.fetch_add(batches.iter().map(|b| b.len() as u64).sum(), Ordering::Relaxed);
                     batches.clear();
                     let _ = done.send(Durable::Upto(committed));
@@ -590,6 +595,9 @@ impl Writer {
             records: self.stats.records.load(Ordering::Relaxed),
             commits: self.stats.commits.load(Ordering::Relaxed),
             snapshots: self.stats.snapshots.load(Ordering::Relaxed),
+            commit_us: self.stats.commit_ns.load(Ordering::Relaxed) as f64
+                / 1e3
+                / self.stats.commits.load(Ordering::Relaxed).max(1) as f64,
         }
     }
 

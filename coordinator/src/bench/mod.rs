@@ -114,6 +114,8 @@ pub struct BaseReport {
     pub throughput_journal_ratio: f64,
     /// Group commit at work: journal records per durable transaction.
     pub throughput_journal_records_per_commit: f64,
+    /// A commit's write and `fdatasync`, on average: what a token's round trip waits for at least with the journal.
+    pub throughput_journal_commit_us: f64,
     pub throughput_agents: u32,
     pub throughput_tokens: u64,
     pub throughput_in_flight: u32,
@@ -204,7 +206,7 @@ async fn base(dir: &Path, opts: &BenchOptions) -> anyhow::Result<BaseReport> {
     let convergence = convergence(dir, opts.samples.min(2000)).await?;
     let lanes = opts.agents * opts.lanes_per_agent;
     // Off and on alternate too, for the same reason; each figure is the median of its rounds.
-    let (mut off, mut on, mut records_per_commit) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut off, mut on, mut records_per_commit, mut commit_us) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let mut tokens = 0;
     for round in 1..=ROUNDS {
         for journal in [false, true] {
@@ -219,6 +221,7 @@ async fn base(dir: &Path, opts: &BenchOptions) -> anyhow::Result<BaseReport> {
             tokens = n;
             if let Some(j) = stats {
                 records_per_commit.push(j.records as f64 / j.commits.max(1) as f64);
+                commit_us.push(j.commit_us);
             }
             if journal.is_some() { &mut on } else { &mut off }.push(n as f64 / secs);
         }
@@ -228,6 +231,7 @@ async fn base(dir: &Path, opts: &BenchOptions) -> anyhow::Result<BaseReport> {
         v[v.len() / 2]
     };
     let (off, on, records_per_commit) = (median(off), median(on), median(records_per_commit));
+    let commit_us = median(commit_us);
     // (6) The demo chart recorded to a file against not recorded, alternating as well.
     let (mut plain, mut recorded, mut rrd_bytes) = (Vec::new(), Vec::new(), 0);
     for round in 1..=ROUNDS {
@@ -259,6 +263,7 @@ async fn base(dir: &Path, opts: &BenchOptions) -> anyhow::Result<BaseReport> {
         throughput_journal_tokens_per_s: on,
         throughput_journal_ratio: on / off,
         throughput_journal_records_per_commit: records_per_commit,
+        throughput_journal_commit_us: commit_us,
         throughput_agents: opts.agents,
         throughput_tokens: tokens,
         throughput_in_flight: lanes,
@@ -351,10 +356,13 @@ impl BaseReport {
             self.throughput_tokens_per_s, self.throughput_tokens, self.throughput_agents, self.throughput_in_flight
         );
         println!(
-            "(5) throughput with --journal: {:.0} tokens/s, {:.2} of (4) ({:.1} records per commit)",
+            "(5) throughput with --journal: {:.0} tokens/s, {:.2} of (4) ({:.1} records per commit, a commit's write \
+             and fdatasync {:.0} µs; a round trip of (4) takes {:.0} µs)",
             self.throughput_journal_tokens_per_s,
             self.throughput_journal_ratio,
-            self.throughput_journal_records_per_commit
+            self.throughput_journal_records_per_commit,
+            self.throughput_journal_commit_us,
+            self.throughput_in_flight as f64 / self.throughput_tokens_per_s * 1e6
         );
         println!(
             "(6) demo chart: {:.0} tokens/s; with --rerun save: {:.0} tokens/s, {:.2} of it (target ≥ 0.9; {} parts, {:.1} MB recorded)",

@@ -50,7 +50,10 @@ impl Summary {
         let vars: Vec<String> = self.vars.iter().map(|(k, v)| format!("{k} = {v}")).collect();
         println!("variables: {}", vars.join(", "));
         if let Some(j) = &self.journal {
-            println!("journal: {} records in {} commits", j.records, j.commits);
+            println!(
+                "journal: {} records in {} commits ({:.0} µs each on average), {} snapshots",
+                j.records, j.commits, j.commit_us, j.snapshots
+            );
         }
     }
 }
