@@ -284,9 +284,16 @@ pub struct Journaled {
     last_ms: u64,
 }
 
+/// Bumped when the coordinator's state changes shape; a snapshot is also restored only by the Baton version that
+/// wrote it (`SnapshotMeta::baton`), since its fields are the coordinator's own.
+pub const SNAPSHOT_FORMAT: u32 = 1;
+
 /// Where a journal's snapshot stands in its run, besides the coordinator's state.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct SnapshotMeta {
+    /// `SNAPSHOT_FORMAT` and the version of Baton that wrote it.
+    pub format: u32,
+    pub baton: String,
     /// The journal records before it, counted from the run's first: a resume replays those after it.
     pub records: u64,
     /// The trace records the run had made: a resumed run's trace file keeps these and the replay writes the rest.
@@ -338,7 +345,14 @@ impl Journaled {
         if let Some(t_ms) = self.quiet_ms.take() {
             self.push(encode(&Entry { t_ms, record: Record::Cycle }), t_ms);
         }
-        let meta = SnapshotMeta { records: self.counted, trace_records: self.traced, last_ms: self.last_ms, shell };
+        let meta = SnapshotMeta {
+            format: SNAPSHOT_FORMAT,
+            baton: env!("CARGO_PKG_VERSION").to_string(),
+            records: self.counted,
+            trace_records: self.traced,
+            last_ms: self.last_ms,
+            shell,
+        };
         Some(encode_snapshot(&meta, &self.core.snapshot()))
     }
 
@@ -349,6 +363,15 @@ impl Journaled {
         bytes: &[u8],
     ) -> Result<(Journaled, SnapshotMeta), String> {
         let (meta, core) = split_snapshot(bytes)?;
+        if meta.format != SNAPSHOT_FORMAT || meta.baton != env!("CARGO_PKG_VERSION") {
+            return Err(format!(
+                "was written by Baton {} (snapshot format {}), and this is Baton {} (format {SNAPSHOT_FORMAT}): \
+                 resume it with the Baton that wrote it",
+                meta.baton,
+                meta.format,
+                env!("CARGO_PKG_VERSION")
+            ));
+        }
         let core = Coordinator::restore(program, layout, core).map_err(|e| e.to_string())?;
         let mut j = Journaled::new(core);
         (j.counted, j.traced, j.last_ms) = (meta.records, meta.trace_records, meta.last_ms);
@@ -670,6 +693,45 @@ mod tests {
 
     fn value(j: &Journaled, name: &str, v: crate::types::Value) -> wire::VarValue {
         wire::VarValue::new(j.core().program().var_by_name(name).expect("a variable"), v)
+    }
+
+    /// A snapshot says where it stands (records, trace records, time) and restores the coordinator it was taken
+    /// of; one taken with outputs not yet taken is not made; one of another Baton version or format is refused.
+    #[test]
+    fn a_snapshot_restores_where_it_stands_and_only_for_the_baton_that_wrote_it() {
+        let (mut j, _) = journaled();
+        j.set(20, "go", &serde_json::json!(true)).expect("go");
+        assert!(j.snapshot(serde_json::Value::Null).is_none(), "outputs not yet taken");
+        let traced = std::iter::from_fn(|| j.poll_output())
+            .filter(|o| matches!(o, crate::dist::runtime::coordinator::CoordOutput::Trace(_)))
+            .count() as u64;
+        j.cycle(30);
+        while j.poll_output().is_some() {}
+        j.take_records();
+        let bytes = j.snapshot(serde_json::json!({"shell": 1})).expect("nothing pending");
+        // The cycle at 30 changed nothing and was not recorded yet: the snapshot records it first, so that it
+        // follows the last record exactly.
+        let quiet: Vec<Entry> = j.take_records().iter().map(|r| decode(r).expect("a record")).collect();
+        assert_eq!(quiet, [Entry { t_ms: 30, record: Record::Cycle }]);
+        let records = j.records_counted();
+        let (program, layout) = (std::sync::Arc::clone(j.core().program()), std::sync::Arc::clone(j.core().layout()));
+        let (again, meta) = Journaled::restore(std::sync::Arc::clone(&program), std::sync::Arc::clone(&layout), &bytes)
+            .expect("restores");
+        assert_eq!((meta.records, meta.last_ms, meta.shell), (records, 30, serde_json::json!({"shell": 1})));
+        assert!(
+            meta.trace_records >= traced && traced > 0,
+            "{} trace records, {traced} taken before",
+            meta.trace_records
+        );
+        assert_eq!(again.core().snapshot(), j.core().snapshot(), "the same coordinator");
+        // Another version's snapshot: its meta rewritten, the state as it was.
+        let (old, state) = split_snapshot(&bytes).expect("a snapshot");
+        let older = encode_snapshot(&SnapshotMeta { baton: "0.0.1".into(), ..old }, state);
+        let err = Journaled::restore(program, layout, &older).err().expect("refused");
+        assert!(
+            err.contains("was written by Baton 0.0.1") && err.contains("resume it with the Baton that wrote it"),
+            "{err}"
+        );
     }
 
     /// A run that stays, completes, is reset and runs again: its journal, replayed into a new coordinator, makes

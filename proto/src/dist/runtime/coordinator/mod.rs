@@ -250,6 +250,10 @@ impl Coordinator {
         &self.program
     }
 
+    pub fn layout(&self) -> &Arc<Layout> {
+        &self.layout
+    }
+
     pub fn run(&self) -> RunId {
         self.run
     }
