@@ -175,15 +175,30 @@ fn a_token_waits_for_an_agent_of_its_role_and_goes_to_the_first_that_comes() {
 }
 
 /// The coordinator and one worker agent, with the token of `B` on the agent; returns the agent's reports.
-fn one_token_out() -> (Coordinator, Vec<Report>) {
-    use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch};
-    let (program, layout) = crate::testing::simulated_cluster::compile(WORKER_CHART);
+/// A coordinator of `chart` with `w1` (process 2) up as its worker, `go` set and the first cycle run at 10 ms,
+/// and the agent `w1` itself.
+fn worker_up(chart: &str) -> (Coordinator, crate::dist::runtime::agent::AgentRun) {
+    let (program, layout) = crate::testing::simulated_cluster::compile(chart);
     let mut c = coordinator_of(&program, &layout);
-    let mut agent = AgentRun::new("w1", &["worker".into()], RUN, ChartHash("h".into()), program, layout, 10);
+    let mut agent = crate::dist::runtime::agent::AgentRun::new(
+        "w1",
+        &["worker".into()],
+        RUN,
+        ChartHash("h".into()),
+        program,
+        layout,
+        10,
+    );
     agent.set_incarnation(uuid::Uuid::from_u128(2));
     c.handle_agent_up(0, worker("w1", 2));
     c.handle_set(1, "go", &serde_json::json!(true)).expect("go is an input");
     c.handle_cycle(10);
+    (c, agent)
+}
+
+fn one_token_out() -> (Coordinator, Vec<Report>) {
+    use crate::dist::runtime::agent::{AgentOutput, Dispatch};
+    let (mut c, mut agent) = worker_up(WORKER_CHART);
     let msg = drain(&mut c)
         .into_iter()
         .find_map(|o| match o {
@@ -438,18 +453,12 @@ fn an_agent_lost_holding_a_token_raises_an_alarm_of_its_own_that_the_status_list
 fn the_agent_of_a_token_gone_quiet_is_asked_for_its_pending_reports() {
     use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch};
     // Two steps on the worker: it reports the first transition, then waits for `done`.
-    let (program, layout) = crate::testing::simulated_cluster::compile(
+    let (mut c, mut agent) = worker_up(
         "PROGRAM p\nVAR go : BOOL; done : BOOL; END_VAR\nINITIAL_STEP A: END_STEP\n\
          TRANSITION FROM A TO B := go; END_TRANSITION\nSTEP B: {role := 'worker'} END_STEP\n\
          TRANSITION FROM B TO B2 := TRUE; END_TRANSITION\nSTEP B2: {role := 'worker'} END_STEP\n\
          TRANSITION FROM B2 TO C := done; END_TRANSITION\nSTEP C: END_STEP\nEND_PROGRAM\n",
     );
-    let mut c = coordinator_of(&program, &layout);
-    let mut agent = AgentRun::new("w1", &["worker".into()], RUN, ChartHash("h".into()), program, layout, 10);
-    agent.set_incarnation(uuid::Uuid::from_u128(2));
-    c.handle_agent_up(0, worker("w1", 2));
-    c.handle_set(1, "go", &serde_json::json!(true)).expect("go is an input");
-    c.handle_cycle(10);
     // What the coordinator sends reaches the agent, what the agent reports reaches the coordinator at `now`.
     let exchange = |c: &mut Coordinator, agent: &mut AgentRun, now: u64| -> Vec<(String, uuid::Uuid)> {
         let mut asks = Vec::new();
