@@ -2,7 +2,8 @@
 //! file; the import of an LD body whose rungs go through continuations and of a macro step's long body, each at
 //! two sizes four times apart (linear work takes four times as long; the quadratic reader took 19 s and 21 s at
 //! the larger); and the cost of one engine cycle on a 1,000-step and a 100,000-step chart with the same 100
-//! active steps, without and with 1,000 TON instances. Run with `cargo bench -p baton-tests --bench core`.
+//! active steps, without and with 1,000 TON instances; and a journal's snapshot of a coordinator with 1,024 tokens
+//! out on 256 agents, taken and restored. Run with `cargo bench -p baton-tests --bench core`.
 
 use std::hint::black_box;
 use std::sync::Arc;
@@ -70,5 +71,45 @@ fn engine_cycle(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, parse_and_check, engine_cycle);
+/// A coordinator with 1,024 tokens out on 256 agents (a simulated cell, every token parked on a transition that
+/// waits for an input): what a snapshot of it costs the coordinator's main loop, and what restoring it costs a resume.
+fn snapshot(c: &mut Criterion) {
+    use baton_proto::dist::runtime::coordinator::Coordinator;
+    use baton_proto::testing::simulated_cluster::{Faults, SimCluster};
+    let (tokens, agents) = (1024, 256);
+    let mut src = String::from("PROGRAM snap\nVAR go : BOOL; END_VAR\nINITIAL_STEP Start: END_STEP\n");
+    let list = |p: &str| (1..=tokens).map(|k| format!("{p}{k}")).collect::<Vec<_>>().join(", ");
+    src.push_str(&format!("TRANSITION FROM Start TO ({}) := TRUE; END_TRANSITION\n", list("S")));
+    for k in 1..=tokens {
+        let a = (k - 1) % agents + 1;
+        src.push_str(&format!(
+            "STEP S{k}: {{agent := 'a{a}'}} END_STEP\nTRANSITION FROM S{k} TO W{k} := go; END_TRANSITION\nSTEP W{k}: END_STEP\n"
+        ));
+    }
+    src.push_str(&format!(
+        "TRANSITION FROM ({}) TO Done := TRUE; END_TRANSITION\nSTEP Done: END_STEP\nEND_PROGRAM\n",
+        list("W")
+    ));
+    let names: Vec<String> = (1..=agents).map(|a| format!("a{a}")).collect();
+    let specs: Vec<(&str, &[&str])> = names.iter().map(|n| (n.as_str(), &[][..])).collect();
+    let mut sim = SimCluster::new(&src, &specs, Faults::default(), 1);
+    sim.snapshot_every = usize::MAX;
+    sim.run(2_000);
+    let core = sim.coordinator.core();
+    assert_eq!(core.tokens_in_flight(), tokens, "every token out");
+    let bytes = core.snapshot();
+    eprintln!("snapshot of {tokens} tokens on {agents} agents: {} kB", bytes.len() / 1000);
+    let (program, layout) = (Arc::clone(core.program()), Arc::clone(core.layout()));
+    let mut group = c.benchmark_group("snapshot");
+    group.bench_function("take_1024_tokens_256_agents", |b| b.iter(|| black_box(core.snapshot().len())));
+    group.bench_function("restore_1024_tokens_256_agents", |b| {
+        b.iter(|| {
+            let restored = Coordinator::restore(Arc::clone(&program), Arc::clone(&layout), black_box(&bytes));
+            black_box(restored.expect("restores").tokens_in_flight())
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, parse_and_check, engine_cycle, snapshot);
 criterion_main!(benches);

@@ -135,7 +135,7 @@ pub struct SimCluster {
     /// The coordinator's durable records: everything it took before its outputs left.
     pub journal: Vec<Vec<u8>>,
     /// Snapshots of the coordinator (`Journaled::snapshot`), each with the number of records before it: taken every
-    /// `snapshot_every` records, as `baton run --journal` does, and resumed from after a crash.
+    /// `snapshot_every` records (`usize::MAX`: never), as `baton run --journal` does, and resumed from after a crash.
     pub snapshots: Vec<(usize, Vec<u8>)>,
     pub snapshot_every: usize,
     /// Restarts that resumed from a snapshot (and were checked against the whole journal's replay).

@@ -174,7 +174,7 @@ impl SimCluster {
             }
         }
         let since = self.snapshots.last().map_or(0, |(at, _)| *at);
-        if self.down_until.is_none() && self.journal.len() >= since + self.snapshot_every {
+        if self.down_until.is_none() && self.journal.len() >= since.saturating_add(self.snapshot_every) {
             if let Some(bytes) = self.coordinator.snapshot(serde_json::Value::Null) {
                 // A quiet cycle it recorded first goes before it.
                 let records = self.coordinator.take_records();
