@@ -44,13 +44,27 @@ fn baton(args: &[&str]) -> std::process::Output {
     out
 }
 
-/// The run's events that say what it did, without their times and token ids.
+/// The run's events that say what it did, without their times and token ids. A robot whose session the router
+/// dropped and took back (`agent_lost`, the alarm of its token, `resume`) is left out: a loaded machine does that
+/// now and then with or without a rogue (2026-12-04: 1 run in 25 with two busy loops beside the test, in calm and
+/// attacked runs alike), and the rogue's own doing — a second robot1, a forged report, a set or an abort — shows
+/// in what remains, and in `is_loss`'s complement of alarms.
 fn story(trace: &[TraceRecord]) -> Vec<(TraceEvent, String, Option<String>)> {
     trace
         .iter()
         .filter(|r| !matches!(r.event, TraceEvent::Value | TraceEvent::Set | TraceEvent::AgentUp))
+        .filter(|r| !is_loss(r))
         .map(|r| (r.event, r.name.clone(), r.agent.clone()))
         .collect()
+}
+
+/// A record of a robot lost and back: its `agent_lost`, the alarm of the token it held, the token's `resume`.
+fn is_loss(r: &TraceRecord) -> bool {
+    match r.event {
+        TraceEvent::AgentLost | TraceEvent::Resume => true,
+        TraceEvent::Alarm => r.message.as_deref().is_some_and(|m| m.contains(" lost holding the token")),
+        _ => false,
+    }
 }
 
 /// What a rogue saw and got: samples of robot1's commands, and answers to its set and ctl queries.
@@ -241,7 +255,8 @@ async fn kept_out(router: Router) {
     assert_eq!(calm_summary["messages_dropped"], 0, "{calm_summary}");
     assert_eq!(rogue.commands_heard, 0, "the rogue heard robot1's commands");
     assert_eq!(rogue.answers, 0, "the rogue's set or ctl was answered");
-    assert!(!attacked.iter().any(|r| r.event == TraceEvent::Alarm), "robot1 was announced twice: {attacked:#?}");
+    let alarm = |r: &&TraceRecord| r.event == TraceEvent::Alarm && !is_loss(r);
+    assert!(!attacked.iter().any(|r| alarm(&r)), "robot1 was announced twice: {attacked:#?}");
     // A's motion ran its 600 ms: no forged report ended it.
     let at = |e: TraceEvent, n: &str| attacked.iter().find(|r| r.event == e && r.name == n).map(|r| r.t_ms);
     let (a, b) = (at(TraceEvent::Activate, "A").expect("A"), at(TraceEvent::Activate, "B").expect("B"));

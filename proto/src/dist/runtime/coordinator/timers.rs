@@ -124,8 +124,9 @@ impl Coordinator {
 
     /// A dispatch lost on the way (a link that broke and came back within the agent's lease) would leave its
     /// segment waiting for ever: a dispatch that no report answered goes again, with doubling delays. The agent
-    /// drops the copy if the first one arrived. Returns the agents sent to: they are asked too (`ask_quiet_agents`),
-    /// for a dispatch that did arrive, and a report of it that did not.
+    /// drops the copy if the first one arrived. Returns the agents sent to from the second time on (a token quiet
+    /// for `ASK_FIRST_MS` and more): they are asked too (`ask_quiet_agents`), for a dispatch that did arrive and a
+    /// report of it that did not. The first resend asks nothing: a motion is usually running then.
     pub(super) fn resend_dispatches(&mut self) -> BTreeSet<String> {
         let mut resent_to = BTreeSet::new();
         let now = self.now_ms;
@@ -141,12 +142,14 @@ impl Coordinator {
             self.publish_vars();
             let Some((agent, msg)) = self.dispatch_msg(id) else { continue };
             if let Some(t) = self.tokens.get_mut(&id) {
+                if now.saturating_sub(t.dispatched_ms) >= ASK_FIRST_MS {
+                    resent_to.insert(agent.clone());
+                }
                 t.resend_backoff_ms = (t.resend_backoff_ms * 2).min(DISPATCH_RESEND_MAX_MS);
                 t.resend_at_ms = now + t.resend_backoff_ms;
             }
             self.stats.resent += 1;
             self.log(Level::Info, format!("token {id} sent again to `{agent}`: no report on it yet"));
-            resent_to.insert(agent.clone());
             self.send(agent, msg);
         }
         resent_to
