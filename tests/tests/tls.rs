@@ -128,8 +128,15 @@ async fn a_cell_runs_over_mutual_tls_and_each_process_is_who_its_certificate_say
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
     assert!(trace.iter().any(|r| r.event == TraceEvent::Activate && r.name == "Done"), "{trace:#?}");
+    // r1 and r2 came up, nobody else; and none came up again without having been lost first (on a loaded machine
+    // zenoh now and then drops a session and takes it back: that is a loss and a return, not a second process).
     let ups: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::AgentUp).map(|r| r.name.as_str()).collect();
-    assert_eq!(ups.len(), 2, "{ups:?}");
+    let mut names = ups.clone();
+    names.sort_unstable();
+    names.dedup();
+    assert_eq!(names, ["r1", "r2"], "{ups:?}");
+    let lost = trace.iter().filter(|r| r.event == TraceEvent::AgentLost).count();
+    assert_eq!(ups.len(), 2 + lost, "an agent came up again without having been lost: {ups:?}");
 }
 
 /// `baton ctl` over mutual TLS names the operator by the certificate it connects with.
