@@ -12,8 +12,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::dist::journal::{self, JournalHeader, Journaled, Replayed, SnapshotMeta, JOURNAL_FORMAT};
-use baton_proto::dist::runtime::coordinator::Coordinator;
+use baton_proto::dist::journal::{JournalHeader, Journaled, Replayed, SnapshotMeta, JOURNAL_FORMAT};
 use baton_proto::pipeline::check_source;
 
 use crate::recording::{RecordedRun, Recorder, Sink};
@@ -99,15 +98,8 @@ fn rebuild(opts: &ReplayOptions) -> anyhow::Result<(JournalHeader, Replayed, Opt
     // The oldest segment kept: the run's start, or a snapshot the replay starts from.
     let (mut core, from) = match segments.first().and_then(|s| s.snapshot.as_deref()) {
         None => {
-            let mut core = Coordinator::new(
-                Arc::clone(&program),
-                Arc::clone(&layout),
-                header.run,
-                header.chart.clone(),
-                journal::token_ids(header.run),
-            );
-            core.set_cycle_ms(header.cycle_ms);
-            (Journaled::new(core), None)
+            let (p, l) = (Arc::clone(&program), Arc::clone(&layout));
+            (Journaled::start(p, l, header.run, header.chart.clone(), header.cycle_ms), None)
         }
         Some(bytes) => {
             let (core, meta) = Journaled::restore(Arc::clone(&program), Arc::clone(&layout), bytes)

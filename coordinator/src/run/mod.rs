@@ -27,7 +27,7 @@ use anyhow::{anyhow, bail, Context};
 use baton_proto::dist::journal::{self, JournalHeader, Journaled, JOURNAL_FORMAT};
 use baton_proto::dist::keys;
 use baton_proto::dist::netconfig::NetConfig;
-use baton_proto::dist::runtime::coordinator::{Coordinator, LossPolicy};
+use baton_proto::dist::runtime::coordinator::LossPolicy;
 use baton_proto::dist::wire::{self, ChartHash, ChartSource, RunId};
 use tokio::sync::mpsc;
 
@@ -110,12 +110,8 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         cycle_ms,
     });
     // A run resumed from a snapshot is the coordinator the snapshot holds; any other starts from the chart.
-    let fresh = || {
-        let (program, layout) = (Arc::clone(&loaded.program), Arc::clone(&loaded.layout));
-        let mut core = Coordinator::new(program, layout, run, hash.clone(), journal::token_ids(run));
-        core.set_cycle_ms(cycle_ms);
-        Journaled::new(core)
-    };
+    let fresh =
+        || Journaled::start(Arc::clone(&loaded.program), Arc::clone(&loaded.layout), run, hash.clone(), cycle_ms);
     let (resume, core, meta) = match resume {
         Some(Resume { header, snapshot: Some((core, meta)), segments }) => {
             (Some(Resume { header, snapshot: Some(meta.clone()), segments }), core, Some(meta))
@@ -180,17 +176,7 @@ pub fn resume_offline(opts: &RunOptions) -> anyhow::Result<u64> {
     };
     let mut core = match snapshot {
         Some((core, _)) => core,
-        None => {
-            let mut core = Coordinator::new(
-                Arc::clone(&loaded.program),
-                Arc::clone(&loaded.layout),
-                header.run,
-                hash,
-                journal::token_ids(header.run),
-            );
-            core.set_cycle_ms(header.cycle_ms);
-            Journaled::new(core)
-        }
+        None => Journaled::start(loaded.program, loaded.layout, header.run, hash, header.cycle_ms),
     };
     let mut out = Records::new(None, None, None, header.cycle_ms);
     Ok(replay_segments(&mut core, &segments, &mut out, "")?.records)

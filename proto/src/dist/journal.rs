@@ -334,6 +334,20 @@ impl Journaled {
         Journaled { core, records: Vec::new(), quiet_ms: None, counted: 0, traced: 0, last_ms: 0 }
     }
 
+    /// Run `run` of a chart at its start, on the cycle period `cycle_ms`, its tokens numbered from the run id
+    /// (`token_ids`): what a new run, a replay from the start and a resume without a snapshot all begin with.
+    pub fn start(
+        program: std::sync::Arc<Program>,
+        layout: std::sync::Arc<Layout>,
+        run: RunId,
+        hash: ChartHash,
+        cycle_ms: u64,
+    ) -> Journaled {
+        let mut core = Coordinator::new(program, layout, run, hash, token_ids(run));
+        core.set_cycle_ms(cycle_ms);
+        Journaled::new(core)
+    }
+
     /// A snapshot of the coordinator after every record made so far, with `shell`'s data; `None` while it has
     /// outputs not yet taken (their trace records would be counted nowhere). A cycle that changed nothing and
     /// was not recorded yet is recorded first, so that the snapshot follows the last record exactly: take the

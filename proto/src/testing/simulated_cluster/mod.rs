@@ -23,10 +23,10 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use crate::dist::journal::{self, Journaled};
+use crate::dist::journal::Journaled;
 use crate::dist::layout::Layout;
 use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch, Join};
-use crate::dist::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
+use crate::dist::runtime::coordinator::{CoordOutput, LossPolicy};
 use crate::dist::wire::{self, AgentInfo, ChartHash, CtlRequest, RunId, ToAgent, VarUpdate};
 use crate::exec::program::{ActionId, Program};
 use crate::exec::trace::{TraceEvent, TraceRecord};
@@ -239,10 +239,7 @@ impl SimCluster {
         cycle_ms: u64,
     ) -> SimCluster {
         let run = FIRST_RUN;
-        let mut core =
-            Coordinator::new(Arc::clone(&program), Arc::clone(&layout), run, hash.clone(), journal::token_ids(run));
-        core.set_cycle_ms(cycle_ms);
-        let mut coordinator = Journaled::new(core);
+        let mut coordinator = Journaled::start(Arc::clone(&program), Arc::clone(&layout), run, hash.clone(), cycle_ms);
         let mut fates = Vec::new();
         let sim_agents = agents
             .iter()
@@ -390,15 +387,8 @@ impl SimCluster {
         self.down_until = None;
         // The journal begins with the first run (a `reset` goes on to others in it).
         let run = FIRST_RUN;
-        let mut core = Coordinator::new(
-            Arc::clone(&self.program),
-            Arc::clone(&self.layout),
-            run,
-            self.hash.clone(),
-            journal::token_ids(run),
-        );
-        core.set_cycle_ms(self.cycle_ms);
-        let mut whole = Journaled::new(core);
+        let (program, layout) = (Arc::clone(&self.program), Arc::clone(&self.layout));
+        let mut whole = Journaled::start(program, layout, run, self.hash.clone(), self.cycle_ms);
         self.last_cycle_ms = None;
         let replayed = whole.replay(self.journal.iter().map(Vec::as_slice)).expect("the journal replays");
         assert!(replayed.ended.is_none(), "seed {}: a run that ended was restarted", self.seed);
