@@ -1,10 +1,12 @@
 //! `baton run --journal DIR`: the coordinator's records (`baton_proto::dist::journal`) appended to segment files by
 //! a thread of their own with group commit, and the coordinator's snapshots that begin each segment after the first.
 //!
-//! The shell hands each batch of records to the writer and holds back what the coordinator asked for until the
-//! writer says the batch is durable (written and `fdatasync`'d). While one commit is on its way to the disk, the
-//! batches that arrive meanwhile wait and go together in the next one, so a slow disk makes batches larger, not
-//! the chart slower: durability costs latency (one commit), not throughput.
+//! The shell hands each batch of records to the writer with the messages the coordinator asked to send (its
+//! dispatches, its variable updates) and holds back the rest of what it asked for. The writer sends the messages
+//! itself the moment the batch is durable (written and `fdatasync`'d), then says so, and the shell carries out
+//! the rest: a round trip waits for the commit, not for the main loop's turn as well. While one commit is on its
+//! way to the disk, the batches that arrive meanwhile wait and go together in the next one, so a slow disk makes
+//! batches larger, not the chart slower: durability costs latency (one commit), not throughput.
 //!
 //! A segment file: `MAGIC`, then frames — payload length (u32, little-endian), CRC-32 of the kind and payload
 //! (u32), the kind (0 the run's header, JSON; 1 a record; 2 a snapshot), the payload. The first segment is
@@ -25,6 +27,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc as std_mpsc;
 use std::sync::Arc;
+use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context};
 use baton_proto::dist::journal::{JournalHeader, JOURNAL_FORMAT};
@@ -41,8 +44,9 @@ const FRAME_HEAD: usize = 9;
 const KIND_HEADER: u8 = 0;
 const KIND_RECORD: u8 = 1;
 const KIND_SNAPSHOT: u8 = 2;
-/// How much a segment's file is allocated ahead of its records at a time.
-const ALLOCATE_BYTES: u64 = 16 << 20;
+/// How much a segment's file is allocated ahead of its records at a time (about a thousand commits; zeroing it
+/// takes the writer 1–3 ms on this project's disks).
+const ALLOCATE_BYTES: u64 = 4 << 20;
 /// A frame larger than this is damage, not a record or a snapshot.
 const FRAME_BYTES_MAX: usize = 1 << 30;
 
@@ -369,22 +373,35 @@ impl Store {
         Ok(())
     }
 
-    /// Allocates the segment's file up to `len` bytes ahead of its records, so that a commit writes inside the
-    /// file: its `fdatasync` then flushes the data alone, not the file's size and block map as well (a third
-    /// less time on this project's disks, `docs/benchmarks.md`). Where the file system cannot, the file grows as
-    /// it is written.
+    /// Allocates the segment's file up to `len` bytes, ahead of its records, and writes zeros there, durably: a
+    /// commit then overwrites blocks that are already the file's, and its `fdatasync` flushes the data alone — not
+    /// the file's size, nor the inode of extents that `fallocate` left unwritten, each an extra write the commit
+    /// would wait for (`docs/benchmarks.md`). Where that fails (a full disk), the file grows as it is written.
     fn allocate(&mut self, len: u64) {
+        if len <= self.allocated {
+            return;
+        }
         #[cfg(target_os = "linux")]
         {
             use std::os::fd::AsRawFd;
             let (from, more) = (self.allocated as libc::off_t, (len - self.allocated) as libc::off_t);
             // SAFETY: `fallocate` on a file descriptor this store owns, with offsets that fit `off_t`.
-            if unsafe { libc::fallocate(self.file.as_raw_fd(), 0, from, more) } == 0 {
-                self.allocated = len;
+            if unsafe { libc::fallocate(self.file.as_raw_fd(), 0, from, more) } != 0 {
+                return;
             }
         }
-        #[cfg(not(target_os = "linux"))]
-        let _ = len;
+        let zeros = vec![0u8; (len - self.allocated) as usize];
+        let written = std::os::unix::fs::FileExt::write_all_at(&self.file, &zeros, self.allocated);
+        if written.and_then(|()| self.file.sync_data()).is_ok() {
+            self.allocated = len;
+        }
+    }
+
+    /// Allocates the next stretch ahead before the records reach it, between commits.
+    fn allocate_ahead(&mut self) {
+        if self.allocated < self.end + ALLOCATE_BYTES / 4 {
+            self.allocate(self.end + ALLOCATE_BYTES);
+        }
     }
 
     /// Cuts off the space allocated ahead of the records (when the segment is done with).
@@ -455,15 +472,16 @@ impl Store {
         Ok(())
     }
 
-    /// Starts the writer thread; batches are numbered from 1 in the order given.
-    pub fn start_writer(self) -> Writer {
+    /// Starts the writer thread; batches are numbered from 1 in the order given. `deliver` sends the messages
+    /// handed with a batch once it is durable (none are handed without it).
+    pub fn start_writer(self, deliver: Option<Deliver>) -> Writer {
         let (tx, rx) = std_mpsc::channel::<Job>();
         let (done_tx, done_rx) = watch::channel(Durable::Upto(0));
         let stats = Arc::new(Counters::default());
         let counters = Arc::clone(&stats);
         let thread = std::thread::Builder::new()
             .name("baton-journal".into())
-            .spawn(move || writer_loop(self, rx, done_tx, &counters))
+            .spawn(move || writer_loop(self, rx, done_tx, &counters, deliver))
             .expect("start the journal writer thread");
         Writer { tx: Some(tx), durable: done_rx, sent: 0, thread: Some(thread), stats }
     }
@@ -484,6 +502,9 @@ struct Counters {
     records: AtomicU64,
     snapshots: AtomicU64,
     commit_ns: AtomicU64,
+    /// Batches whose messages were sent, and how long they waited in all.
+    held: AtomicU64,
+    held_ns: AtomicU64,
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
@@ -494,19 +515,47 @@ pub struct JournalStats {
     pub snapshots: u64,
     /// What a commit (its write and `fdatasync`) took on average, in µs: what a round trip waits for at least.
     pub commit_us: f64,
+    /// From the shell's handing a batch to the writer to the writer's having sent what the batch led to, on
+    /// average, in µs: the wait for the commit under way when the batch came, its own commit, the messages of the
+    /// batches before it in that commit, and the wake-up.
+    pub held_us: f64,
 }
+
+/// A message the coordinator asked to send: it leaves once the batch that led to it is durable.
+pub struct Outgoing {
+    pub key: String,
+    pub payload: Vec<u8>,
+}
+
+/// Sends messages, in order, from the writer thread; an error (a key that cannot be declared) stops the journal,
+/// and with it the run.
+pub type Deliver = Box<dyn FnMut(Vec<Outgoing>) -> Result<(), String> + Send>;
 
 /// What the shell hands the writer.
 enum Job {
-    Batch(Vec<Vec<u8>>),
+    /// Records, and the messages they led to, handed at that instant.
+    Batch(Vec<Vec<u8>>, Vec<Outgoing>, Instant),
+    /// Messages that follow the batches handed before them (nothing new to record led to them).
+    Messages(Vec<Outgoing>, Instant),
     /// A snapshot of the coordinator after every batch handed before it.
     Snapshot(Vec<u8>),
 }
 
-fn writer_loop(mut store: Store, rx: std_mpsc::Receiver<Job>, done: watch::Sender<Durable>, counters: &Counters) {
+fn writer_loop(
+    mut store: Store,
+    rx: std_mpsc::Receiver<Job>,
+    done: watch::Sender<Durable>,
+    counters: &Counters,
+    mut deliver: Option<Deliver>,
+) {
     let mut committed = 0u64;
     let mut buffer = Vec::new();
     let mut batches = Vec::new();
+    // The messages of each batch that led to some, and when the batch was handed.
+    let mut waiting: Vec<(Instant, Vec<Outgoing>)> = Vec::new();
+    let fail = |why: String| {
+        let _ = done.send(Durable::Failed(why));
+    };
     while let Ok(first) = rx.recv() {
         // Group commit: everything that queued up while the last transaction was committing goes in this one,
         // up to a snapshot, which starts the next segment after the batches before it.
@@ -514,27 +563,51 @@ fn writer_loop(mut store: Store, rx: std_mpsc::Receiver<Job>, done: watch::Sende
         while let Ok(more) = rx.try_recv() {
             jobs.push(more);
         }
-        for job in jobs.into_iter().map(Some).chain([None]) {
-            match job {
-                Some(Job::Batch(b)) => {
-                    batches.push(b);
+        for mut job in jobs.into_iter().map(Some).chain([None]) {
+            let only_messages = matches!(job, Some(Job::Messages(..)));
+            match &mut job {
+                Some(Job::Batch(b, m, at)) => {
+                    batches.push(std::mem::take(b));
+                    if !m.is_empty() {
+                        waiting.push((*at, std::mem::take(m)));
+                    }
                     continue;
+                }
+                Some(Job::Messages(m, at)) => {
+                    waiting.push((*at, std::mem::take(m)));
+                    if !batches.is_empty() {
+                        continue;
+                    }
+                    // What came before is durable already.
                 }
                 Some(Job::Snapshot(_)) | None if batches.is_empty() => {}
                 Some(Job::Snapshot(_)) | None => {
                     let started = std::time::Instant::now();
                     if let Err(e) = store.append(&batches, &mut buffer) {
-                        let why = format!("cannot write the journal {}: {e}", store.path.display());
-                        let _ = done.send(Durable::Failed(why));
-                        return;
+                        return fail(format!("cannot write the journal {}: {e}", store.path.display()));
                     }
                     committed += batches.len() as u64;
                     counters.commits.fetch_add(1, Ordering::Relaxed);
                     counters.commit_ns.fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
                     counters.records.fetch_add(batches.iter().map(|b| b.len() as u64).sum(), Ordering::Relaxed);
                     batches.clear();
-                    let _ = done.send(Durable::Upto(committed));
                 }
+            }
+            // Sent from this thread: a hand-over to another cost more than it saved (`docs/benchmarks.md`).
+            for (at, messages) in waiting.drain(..) {
+                if let Some(send) = deliver.as_mut() {
+                    if let Err(why) = send(messages) {
+                        return fail(why);
+                    }
+                }
+                counters.held.fetch_add(1, Ordering::Relaxed);
+                counters.held_ns.fetch_add(at.elapsed().as_nanos() as u64, Ordering::Relaxed);
+            }
+            if !only_messages {
+                let _ = done.send_if_modified(|d| {
+                    let was = std::mem::replace(d, Durable::Upto(committed));
+                    was != *d
+                });
             }
             if let Some(Job::Snapshot(snapshot)) = job {
                 match store.start_segment(&snapshot) {
@@ -550,6 +623,7 @@ fn writer_loop(mut store: Store, rx: std_mpsc::Receiver<Job>, done: watch::Sende
                 }
             }
         }
+        store.allocate_ahead();
     }
     store.trim();
 }
@@ -564,11 +638,19 @@ pub struct Writer {
 }
 
 impl Writer {
-    /// Queues a batch; returns its number.
-    pub fn write(&mut self, records: Vec<Vec<u8>>) -> anyhow::Result<u64> {
-        self.send(Job::Batch(records))?;
+    /// Queues a batch, and the messages it led to; returns its number.
+    pub fn write(&mut self, records: Vec<Vec<u8>>, messages: Vec<Outgoing>) -> anyhow::Result<u64> {
+        self.send(Job::Batch(records, messages, Instant::now()))?;
         self.sent += 1;
         Ok(self.sent)
+    }
+
+    /// Queues messages to send once every batch queued so far is durable.
+    pub fn send_after(&mut self, messages: Vec<Outgoing>) -> anyhow::Result<()> {
+        if messages.is_empty() {
+            return Ok(());
+        }
+        self.send(Job::Messages(messages, Instant::now()))
     }
 
     /// Queues a snapshot of the coordinator after every batch queued so far: it starts the next segment.
@@ -598,6 +680,9 @@ impl Writer {
             commit_us: self.stats.commit_ns.load(Ordering::Relaxed) as f64
                 / 1e3
                 / self.stats.commits.load(Ordering::Relaxed).max(1) as f64,
+            held_us: self.stats.held_ns.load(Ordering::Relaxed) as f64
+                / 1e3
+                / self.stats.held.load(Ordering::Relaxed).max(1) as f64,
         }
     }
 
@@ -669,18 +754,72 @@ mod tests {
         }
     }
 
+    /// What a batch led to leaves from the writer once the batch is in the journal, and in the order it was
+    /// handed — messages with nothing new to record after the batches handed before them.
+    #[tokio::test]
+    async fn messages_leave_once_the_records_that_led_to_them_are_written_and_in_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut opened = open(dir.path()).unwrap();
+        opened.store.write_header(&header()).unwrap();
+        let path = dir.path().join(FILE_NAME);
+        let sent = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let seen = Arc::clone(&sent);
+        let deliver: Deliver = Box::new(move |messages| {
+            let bytes = std::fs::read(&path).map_err(|e| e.to_string())?;
+            let written = read(&bytes).map_err(|e| e.to_string())?.records;
+            for m in messages {
+                // Each message carries the record that led to it.
+                if !written.contains(&m.payload) {
+                    return Err(format!("{} left before its record {:?} was written", m.key, m.payload));
+                }
+                seen.lock().unwrap().push(m.key);
+            }
+            Ok(())
+        });
+        let mut writer = opened.store.start_writer(Some(deliver));
+        let mut expected = Vec::new();
+        for k in 0..60u8 {
+            let key = format!("m{k}");
+            if k % 5 == 4 {
+                writer.send_after(vec![Outgoing { key: key.clone(), payload: vec![k - 1] }]).unwrap();
+            } else {
+                writer.write(vec![vec![k]], vec![Outgoing { key: key.clone(), payload: vec![k] }]).unwrap();
+            }
+            expected.push(key);
+        }
+        writer.sync().await.unwrap();
+        writer.close();
+        assert_eq!(*sent.lock().unwrap(), expected);
+        assert!(writer.stats().held_us > 0.0);
+    }
+
+    /// A message that cannot be sent (its key cannot be declared) stops the journal with the reason, as the run's
+    /// own sending would stop the run.
+    #[tokio::test]
+    async fn a_message_that_cannot_be_sent_stops_the_journal() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut opened = open(dir.path()).unwrap();
+        opened.store.write_header(&header()).unwrap();
+        let deliver: Deliver = Box::new(|_| Err("cannot publish on baton/x: refused".into()));
+        let mut writer = opened.store.start_writer(Some(deliver));
+        writer.write(vec![vec![1]], vec![Outgoing { key: "baton/x".into(), payload: vec![1] }]).unwrap();
+        let err = writer.sync().await.unwrap_err().to_string();
+        assert!(err.contains("cannot publish on baton/x: refused"), "{err}");
+        assert!(writer.durable().is_err());
+    }
+
     #[tokio::test]
     async fn records_written_in_batches_are_read_back_in_order() {
         let dir = tempfile::tempdir().unwrap();
         let mut opened = open(dir.path()).unwrap();
         assert!(opened.header.is_none() && opened.records.is_empty());
         opened.store.write_header(&header()).unwrap();
-        let mut writer = opened.store.start_writer();
+        let mut writer = opened.store.start_writer(None);
         let mut expected = Vec::new();
         for b in 0..50u8 {
             let batch: Vec<Vec<u8>> = (0..b % 7).map(|i| vec![b, i]).collect();
             expected.extend(batch.clone());
-            writer.write(batch).unwrap();
+            writer.write(batch, Vec::new()).unwrap();
         }
         writer.sync().await.unwrap();
         assert_eq!(writer.durable().unwrap(), 50);
@@ -697,9 +836,9 @@ mod tests {
     async fn written(dir: &Path, n: u8) -> Vec<u8> {
         let mut opened = open(dir).unwrap();
         opened.store.write_header(&header()).unwrap();
-        let mut writer = opened.store.start_writer();
+        let mut writer = opened.store.start_writer(None);
         for b in 0..n {
-            writer.write(vec![vec![b; 3]]).unwrap();
+            writer.write(vec![vec![b; 3]], Vec::new()).unwrap();
         }
         writer.sync().await.unwrap();
         drop(writer);
@@ -713,11 +852,11 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut opened = open(dir.path()).unwrap();
         opened.store.write_header(&header()).unwrap();
-        let mut writer = opened.store.start_writer();
+        let mut writer = opened.store.start_writer(None);
         let record = |k: u8| vec![k; 4];
         for part in 0..3u8 {
             for k in 0..5u8 {
-                writer.write(vec![record(10 * part + k)]).unwrap();
+                writer.write(vec![record(10 * part + k)], Vec::new()).unwrap();
             }
             if part < 2 {
                 writer.snapshot(vec![b'S', part]).unwrap();
@@ -745,12 +884,12 @@ mod tests {
         let mut opened = open(dir.path()).unwrap();
         opened.store.write_header(&header()).unwrap();
         opened.store.keep(Keep::Last(2));
-        let mut writer = opened.store.start_writer();
+        let mut writer = opened.store.start_writer(None);
         for k in 0..4u8 {
-            writer.write(vec![vec![k]]).unwrap();
+            writer.write(vec![vec![k]], Vec::new()).unwrap();
             writer.snapshot(vec![k]).unwrap();
         }
-        writer.write(vec![vec![9]]).unwrap();
+        writer.write(vec![vec![9]], Vec::new()).unwrap();
         writer.sync().await.unwrap();
         drop(writer);
         let mut names: Vec<String> =
@@ -781,8 +920,8 @@ mod tests {
         assert_eq!(again.records, (0..5u8).map(|b| vec![b; 3]).collect::<Vec<_>>());
         assert_eq!(std::fs::metadata(dir.path().join(FILE_NAME)).unwrap().len(), whole.len() as u64);
         // What comes next follows the five, and reads back.
-        let mut writer = again.store.start_writer();
-        writer.write(vec![vec![7]]).unwrap();
+        let mut writer = again.store.start_writer(None);
+        writer.write(vec![vec![7]], Vec::new()).unwrap();
         writer.sync().await.unwrap();
         drop(writer);
         assert_eq!(open(dir.path()).unwrap().records.last(), Some(&vec![7]));
@@ -797,9 +936,9 @@ mod tests {
         let path = dir.path().join(FILE_NAME);
         let mut opened = open(dir.path()).unwrap();
         opened.store.write_header(&header()).unwrap();
-        let mut writer = opened.store.start_writer();
+        let mut writer = opened.store.start_writer(None);
         for b in 0..5u8 {
-            writer.write(vec![vec![b; 3]]).unwrap();
+            writer.write(vec![vec![b; 3]], Vec::new()).unwrap();
         }
         writer.sync().await.unwrap();
         let whole = MAGIC.len() + FRAME_HEAD + serde_json::to_vec(&header()).unwrap().len() + 5 * (FRAME_HEAD + 3);

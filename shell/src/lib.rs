@@ -15,7 +15,10 @@
 //!   subscriber has an inbox of `RECEIVE_QUEUE_MAX` samples that Zenoh's reader fills without waiting for the
 //!   main loop. A put waits only while its link's queue is full, so two processes publishing to each other can
 //!   only block each other if both inboxes are full at once. (With Zenoh's default inbox of 256 this deadlocked
-//!   under the throughput benchmark; a separate sender task avoided it but cost ~30 µs per message.)
+//!   under the throughput benchmark; a separate sender task avoided it but cost ~30 µs per message.) The one
+//!   exception is the coordinator with a journal: what a batch led to is sent by the journal's writer thread the
+//!   moment the batch is durable (`Outbox::put_now`), since it would otherwise wait for the main loop's turn too;
+//!   the main loop then never waits on a put at all.
 //! - The outbox holds at most `PUBLISHERS_MAX` publishers: keys of finished runs would accumulate otherwise,
 //!   and a live key is declared again on its next use.
 
@@ -126,23 +129,42 @@ impl Outbox {
     /// token's round trip). Which step failed is the caller's to weigh: a put that fails is worth a warning (the
     /// state machines resend what matters), a key that cannot be declared may end the process.
     pub async fn put(&mut self, key: String, payload: Vec<u8>) -> Result<(), Unsent> {
-        if self.publishers.len() >= PUBLISHERS_MAX && !self.publishers.contains_key(&key) {
-            self.publishers.clear();
-        }
         if !self.publishers.contains_key(&key) {
-            let declared = self
-                .session
-                .declare_publisher(key.clone())
-                .congestion_control(CongestionControl::Block)
-                .express(true)
-                .await
-                .map_err(|e| Unsent::Declare(format!("cannot publish on {key}: {e}")))?;
-            self.publishers.insert(key.clone(), declared);
+            let declared = self.declaring(&key).await;
+            self.keep(key.clone(), declared)?;
         }
         match self.publishers.get(&key) {
             Some(p) => p.put(payload).await.map_err(|e| Unsent::Put(format!("cannot publish on {key}: {e}"))),
             None => Ok(()),
         }
+    }
+
+    /// `put`, from a thread outside the async runtime (blocking while the link's queue is full): the coordinator's
+    /// journal writer sends what a batch led to as soon as the batch is durable.
+    pub fn put_now(&mut self, key: String, payload: Vec<u8>) -> Result<(), Unsent> {
+        use zenoh::Wait;
+        if !self.publishers.contains_key(&key) {
+            let declared = self.declaring(&key).wait();
+            self.keep(key.clone(), declared)?;
+        }
+        match self.publishers.get(&key) {
+            Some(p) => p.put(payload).wait().map_err(|e| Unsent::Put(format!("cannot publish on {key}: {e}"))),
+            None => Ok(()),
+        }
+    }
+
+    fn declaring(&self, key: &str) -> zenoh::pubsub::PublisherBuilder<'_, 'static> {
+        self.session.declare_publisher(key.to_string()).congestion_control(CongestionControl::Block).express(true)
+    }
+
+    /// Keeps a declared publisher, the outbox emptied first when it is full.
+    fn keep(&mut self, key: String, declared: zenoh::Result<Publisher<'static>>) -> Result<(), Unsent> {
+        let declared = declared.map_err(|e| Unsent::Declare(format!("cannot publish on {key}: {e}")))?;
+        if self.publishers.len() >= PUBLISHERS_MAX {
+            self.publishers.clear();
+        }
+        self.publishers.insert(key, declared);
+        Ok(())
     }
 
     /// How many publishers are declared now.

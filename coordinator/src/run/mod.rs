@@ -83,12 +83,13 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         }
     }
     // The journal first: a refused one costs nothing, not even a Zenoh session.
-    let Opened { run, started_unix_ms, resume, writer } = open_journal(&opts, &loaded, &hash)?;
+    let Opened { run, started_unix_ms, resume, store } = open_journal(&opts, &loaded, &hash)?;
     let net =
         if opts.listen.is_empty() { NetConfig::client(&opts.connect, true) } else { NetConfig::router(&opts.listen) };
     let net = NetConfig { multicast_scouting: opts.multicast_scouting, ..net };
     let zconfig = baton_shell::zenoh_config(&net, opts.zenoh_config.as_deref())?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
+    let writer = store.map(|store| store.start_writer(Some(shell::deliver_through(&session))));
     // A resumed run keeps the period it started with.
     let cycle_ms = match &resume {
         Some(Resume { header, .. }) => {
@@ -251,7 +252,7 @@ struct Opened {
     run: RunId,
     started_unix_ms: u64,
     resume: Option<Resume<(Journaled, journal::SnapshotMeta)>>,
-    writer: Option<crate::journal::Writer>,
+    store: Option<crate::journal::Store>,
 }
 
 /// A run to resume: its header, the snapshot it resumes from (`S`: restored, then what it said), and the segments
@@ -296,7 +297,7 @@ fn open_trace(path: &std::path::Path, kept: Option<u64>) -> anyhow::Result<BufWr
 /// Opens `--journal DIR`, if given: a new journal gets its header, an old one is checked and its records read.
 fn open_journal(opts: &RunOptions, loaded: &Loaded, hash: &ChartHash) -> anyhow::Result<Opened> {
     let Some(dir) = &opts.journal else {
-        return Ok(Opened { run: RunId(uuid::Uuid::new_v4()), started_unix_ms: unix_ms(), resume: None, writer: None });
+        return Ok(Opened { run: RunId(uuid::Uuid::new_v4()), started_unix_ms: unix_ms(), resume: None, store: None });
     };
     let mut opened = crate::journal::open(dir)?;
     opened.store.keep(opts.journal_settings.keep);
@@ -337,7 +338,7 @@ fn open_journal(opts: &RunOptions, loaded: &Loaded, hash: &ChartHash) -> anyhow:
             (run, started, Some(Resume { header, snapshot, segments }))
         }
     };
-    Ok(Opened { run, started_unix_ms, resume, writer: Some(opened.store.start_writer()) })
+    Ok(Opened { run, started_unix_ms, resume, store: Some(opened.store) })
 }
 
 /// How the main loop ended.

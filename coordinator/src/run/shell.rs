@@ -22,6 +22,7 @@ use zenoh::Session;
 use super::records::Records;
 use super::summary::Summary;
 use crate::chart_file::Loaded;
+use crate::journal::Outgoing;
 
 pub(crate) const INFO_QUERY_TIMEOUT: Duration = Duration::from_secs(3);
 
@@ -43,6 +44,24 @@ pub(crate) enum Identity {
     /// What an agent asked because a token of it was quiet (`CoordOutput::Ask`) listed as sent and not
     /// acknowledged (nothing if it did not answer).
     Pending(String, Vec<baton_proto::dist::wire::Report>),
+}
+
+/// How the journal's writer sends what a durable batch led to: through an outbox of its own on the run's session,
+/// from its thread, without waiting for the main loop's turn. A key that cannot be declared stops the journal and
+/// the run (as it ends the run in `Shell::send`); a put that fails is a warning (the state machines resend what
+/// matters).
+pub(crate) fn deliver_through(session: &Session) -> crate::journal::Deliver {
+    let mut outbox = baton_shell::Outbox::new(session);
+    Box::new(move |messages| {
+        for Outgoing { key, payload } in messages {
+            match outbox.put_now(key, payload) {
+                Err(baton_shell::Unsent::Declare(why)) => return Err(why),
+                Err(baton_shell::Unsent::Put(why)) => eprintln!("warning: {why}"),
+                Ok(()) => {}
+            }
+        }
+        Ok(())
+    })
 }
 
 pub(crate) struct Shell {
@@ -341,12 +360,28 @@ impl Shell {
         let Some(journal) = &mut self.journal else {
             return self.carry_out(outputs).await;
         };
-        if !records.is_empty() {
-            let batch = journal.write(records)?;
-            self.held.push_back((batch, outputs));
-        } else if !outputs.is_empty() {
+        // Messages go with the batch: the writer sends them once it is durable. The rest waits here for it.
+        let (mut messages, mut local) = (Vec::new(), Vec::new());
+        for out in outputs {
+            match out {
+                CoordOutput::Send { agent, incarnation, msg } => {
+                    messages.push(Outgoing { key: keys::agent_cmd(&agent, incarnation), payload: wire::encode(&msg) })
+                }
+                CoordOutput::Vars(update) => {
+                    messages.push(Outgoing { key: self.vars_key.clone(), payload: wire::encode(&update) })
+                }
+                other => local.push(other),
+            }
+        }
+        let batch = if records.is_empty() {
             // Nothing new to record: these follow the last batch.
-            self.held.push_back((journal.sent(), outputs));
+            journal.send_after(messages)?;
+            journal.sent()
+        } else {
+            journal.write(records, messages)?
+        };
+        if !local.is_empty() {
+            self.held.push_back((batch, local));
         }
         if self.snapshot_every > 0 && self.core.records_counted() >= self.snapshot_due {
             self.snapshot()?;
@@ -364,7 +399,7 @@ impl Shell {
         // A cycle that changed nothing, recorded so that the snapshot follows the last record: it led to nothing.
         let quiet = self.core.take_records();
         if !quiet.is_empty() {
-            journal.write(quiet)?;
+            journal.write(quiet, Vec::new())?;
         }
         journal.snapshot(bytes)?;
         self.snapshot_due = self.core.records_counted() + self.snapshot_every;
@@ -388,6 +423,7 @@ impl Shell {
         Ok(())
     }
 
+    /// Carries out what the coordinator asked for: messages first, then what stays in this process.
     pub(crate) async fn carry_out(&mut self, outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
         // Messages leave before the trace is written: a token's round trip does not wait for the disk.
         let mut local = Vec::new();
@@ -420,7 +456,8 @@ impl Shell {
         Ok(())
     }
 
-    /// Publishes through the outbox, in the main loop: a key that cannot be declared ends the run, a failed put
+    /// Publishes through the outbox, in the main loop (without a journal; with one, the journal's writer sends,
+    /// `deliver_through`): a key that cannot be declared ends the run, a failed put
     /// is a warning (the state machine resends what matters).
     pub(crate) async fn send(&mut self, key: String, payload: Vec<u8>) -> anyhow::Result<()> {
         match self.outbox.put(key, payload).await {
