@@ -563,35 +563,36 @@ fn writer_loop(
         while let Ok(more) = rx.try_recv() {
             jobs.push(more);
         }
-        for mut job in jobs.into_iter().map(Some).chain([None]) {
-            let only_messages = matches!(job, Some(Job::Messages(..)));
-            match &mut job {
+        for job in jobs.into_iter().map(Some).chain([None]) {
+            let segment = match job {
                 Some(Job::Batch(b, m, at)) => {
-                    batches.push(std::mem::take(b));
+                    batches.push(b);
                     if !m.is_empty() {
-                        waiting.push((*at, std::mem::take(m)));
+                        waiting.push((at, m));
                     }
                     continue;
                 }
                 Some(Job::Messages(m, at)) => {
-                    waiting.push((*at, std::mem::take(m)));
+                    waiting.push((at, m));
                     if !batches.is_empty() {
                         continue;
                     }
                     // What came before is durable already.
+                    None
                 }
-                Some(Job::Snapshot(_)) | None if batches.is_empty() => {}
-                Some(Job::Snapshot(_)) | None => {
-                    let started = std::time::Instant::now();
-                    if let Err(e) = store.append(&batches, &mut buffer) {
-                        return fail(format!("cannot write the journal {}: {e}", store.path.display()));
-                    }
-                    committed += batches.len() as u64;
-                    counters.commits.fetch_add(1, Ordering::Relaxed);
-                    counters.commit_ns.fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
-                    counters.records.fetch_add(batches.iter().map(|b| b.len() as u64).sum(), Ordering::Relaxed);
-                    batches.clear();
+                Some(Job::Snapshot(snapshot)) => Some(snapshot),
+                None => None,
+            };
+            if !batches.is_empty() {
+                let started = Instant::now();
+                if let Err(e) = store.append(&batches, &mut buffer) {
+                    return fail(format!("cannot write the journal {}: {e}", store.path.display()));
                 }
+                committed += batches.len() as u64;
+                counters.commits.fetch_add(1, Ordering::Relaxed);
+                counters.commit_ns.fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
+                counters.records.fetch_add(batches.iter().map(|b| b.len() as u64).sum(), Ordering::Relaxed);
+                batches.clear();
             }
             // Sent from this thread: a hand-over to another cost more than it saved (`docs/benchmarks.md`).
             for (at, messages) in waiting.drain(..) {
@@ -603,13 +604,12 @@ fn writer_loop(
                 counters.held.fetch_add(1, Ordering::Relaxed);
                 counters.held_ns.fetch_add(at.elapsed().as_nanos() as u64, Ordering::Relaxed);
             }
-            if !only_messages {
-                let _ = done.send_if_modified(|d| {
-                    let was = std::mem::replace(d, Durable::Upto(committed));
-                    was != *d
-                });
-            }
-            if let Some(Job::Snapshot(snapshot)) = job {
+            // The shell is told only when more is durable.
+            done.send_if_modified(|d| {
+                let was = std::mem::replace(d, Durable::Upto(committed));
+                was != *d
+            });
+            if let Some(snapshot) = segment {
                 match store.start_segment(&snapshot) {
                     Ok(()) => {
                         counters.snapshots.fetch_add(1, Ordering::Relaxed);

@@ -116,8 +116,8 @@ pub struct BaseReport {
     pub throughput_journal_records_per_commit: f64,
     /// A commit's write and `fdatasync`, on average: what a token's round trip waits for at least with the journal.
     pub throughput_journal_commit_us: f64,
-    /// What the coordinator asked for waited for its batch to be durable, on average: what the journal adds to a
-    /// round trip (a commit, and part of the one before it if it came while one was under way).
+    /// What a batch led to was sent this long after the batch was handed to the writer, on average
+    /// (`JournalStats::held_us`): what the journal adds to a round trip.
     pub throughput_journal_held_us: f64,
     pub throughput_agents: u32,
     pub throughput_tokens: u64,

@@ -54,14 +54,35 @@ pub(crate) fn deliver_through(session: &Session) -> crate::journal::Deliver {
     let mut outbox = baton_shell::Outbox::new(session);
     Box::new(move |messages| {
         for Outgoing { key, payload } in messages {
-            match outbox.put_now(key, payload) {
-                Err(baton_shell::Unsent::Declare(why)) => return Err(why),
-                Err(baton_shell::Unsent::Put(why)) => eprintln!("warning: {why}"),
-                Ok(()) => {}
-            }
+            weigh(outbox.put_now(key, payload))?;
         }
         Ok(())
     })
+}
+
+/// What a put that did not go means for the run: a key that cannot be declared ends it (the reason returned), a
+/// failed put is a warning (the state machines resend what matters).
+fn weigh(sent: Result<(), baton_shell::Unsent>) -> Result<(), String> {
+    match sent {
+        Err(baton_shell::Unsent::Declare(why)) => Err(why),
+        Err(baton_shell::Unsent::Put(why)) => {
+            eprintln!("warning: {why}");
+            Ok(())
+        }
+        Ok(()) => Ok(()),
+    }
+}
+
+/// The message an output of the coordinator puts on the wire, with its key (`vars_key` for variable updates);
+/// `None` for an output that stays in this process.
+fn message(vars_key: &str, out: &CoordOutput) -> Option<Outgoing> {
+    match out {
+        CoordOutput::Send { agent, incarnation, msg } => {
+            Some(Outgoing { key: keys::agent_cmd(agent, *incarnation), payload: wire::encode(msg) })
+        }
+        CoordOutput::Vars(update) => Some(Outgoing { key: vars_key.to_string(), payload: wire::encode(update) }),
+        _ => None,
+    }
 }
 
 pub(crate) struct Shell {
@@ -74,7 +95,8 @@ pub(crate) struct Shell {
     /// A snapshot after this many records since the last (0: none), and the record count it is due at.
     pub(crate) snapshot_every: u64,
     pub(crate) snapshot_due: u64,
-    /// What the coordinator asked for, per journal batch, until that batch is durable.
+    /// What the coordinator asked for that stays in this process (trace records, logs, questions), per journal
+    /// batch, until that batch is durable; the batch's messages go with it to the journal's writer.
     pub(crate) held: VecDeque<(u64, Vec<CoordOutput>)>,
     /// Answers to `baton set` and `baton ctl`, likewise (with the key they answer on): a client is told a value
     /// or a command was taken only once it is durable.
@@ -363,14 +385,9 @@ impl Shell {
         // Messages go with the batch: the writer sends them once it is durable. The rest waits here for it.
         let (mut messages, mut local) = (Vec::new(), Vec::new());
         for out in outputs {
-            match out {
-                CoordOutput::Send { agent, incarnation, msg } => {
-                    messages.push(Outgoing { key: keys::agent_cmd(&agent, incarnation), payload: wire::encode(&msg) })
-                }
-                CoordOutput::Vars(update) => {
-                    messages.push(Outgoing { key: self.vars_key.clone(), payload: wire::encode(&update) })
-                }
-                other => local.push(other),
+            match message(&self.vars_key, &out) {
+                Some(m) => messages.push(m),
+                None => local.push(out),
             }
         }
         let batch = if records.is_empty() {
@@ -428,13 +445,10 @@ impl Shell {
         // Messages leave before the trace is written: a token's round trip does not wait for the disk.
         let mut local = Vec::new();
         for out in outputs {
-            match out {
-                CoordOutput::Send { agent, incarnation, msg } => {
-                    self.send(keys::agent_cmd(&agent, incarnation), wire::encode(&msg)).await?
-                }
-                CoordOutput::Vars(update) => self.send(self.vars_key.clone(), wire::encode(&update)).await?,
-                CoordOutput::Ask { agent, incarnation } => self.ask(agent, incarnation),
-                other => local.push(other),
+            match (message(&self.vars_key, &out), out) {
+                (Some(Outgoing { key, payload }), _) => self.send(key, payload).await?,
+                (None, CoordOutput::Ask { agent, incarnation }) => self.ask(agent, incarnation),
+                (None, other) => local.push(other),
             }
         }
         for out in local {
@@ -457,17 +471,9 @@ impl Shell {
     }
 
     /// Publishes through the outbox, in the main loop (without a journal; with one, the journal's writer sends,
-    /// `deliver_through`): a key that cannot be declared ends the run, a failed put
-    /// is a warning (the state machine resends what matters).
+    /// `deliver_through`), the outcome weighed by `weigh`.
     pub(crate) async fn send(&mut self, key: String, payload: Vec<u8>) -> anyhow::Result<()> {
-        match self.outbox.put(key, payload).await {
-            Err(baton_shell::Unsent::Declare(why)) => Err(anyhow!(why)),
-            Err(baton_shell::Unsent::Put(why)) => {
-                eprintln!("warning: {why}");
-                Ok(())
-            }
-            Ok(()) => Ok(()),
-        }
+        weigh(self.outbox.put(key, payload).await).map_err(|why| anyhow!(why))
     }
 
     pub(crate) fn summary(&self, loaded: &Loaded) -> Summary {
