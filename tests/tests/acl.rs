@@ -67,11 +67,13 @@ fn is_loss(r: &TraceRecord) -> bool {
     }
 }
 
-/// What a rogue saw and got: samples of robot1's commands, and answers to its set and ctl queries.
+/// What a rogue saw and got: samples of robot1's commands, and answers to its set and ctl queries; and the
+/// coordinator's log of the run, to say what it dropped when a check fails.
 #[derive(Default, Debug)]
 struct Rogue {
     commands_heard: usize,
     answers: usize,
+    log: String,
 }
 
 type RogueSession = (Option<(zenoh::Session, zenoh::Result<zenoh::liveliness::LivelinessToken>)>, Option<Heard>);
@@ -223,6 +225,7 @@ async fn cell(
     if std::env::var_os("ACL_DEBUG").is_some() {
         eprintln!("=== coordinator log (acl {acl}, rogue {rogue}):\n{log}");
     }
+    got.log = log;
     if let Some(h) = heard {
         while let Ok(Some(_)) = h.try_recv() {
             got.commands_heard += 1;
@@ -245,14 +248,14 @@ async fn the_same_rules_keep_the_rogue_out_on_a_real_zenohd() {
 }
 
 async fn kept_out(router: Router) {
-    let (calm_status, calm, calm_summary, _) = cell(router, true, false).await;
+    let (calm_status, calm, calm_summary, calm_got) = cell(router, true, false).await;
     let (status, attacked, summary, rogue) = cell(router, true, true).await;
     assert_eq!((calm_status, status), (Some(0), Some(0)), "{attacked:#?}");
     assert_eq!(story(&attacked), story(&calm), "the rogue changed the run");
     assert!(attacked.iter().any(|r| r.event == TraceEvent::Activate && r.name == "Done"));
     // Nothing the rogue sent reached the coordinator: the router dropped it all.
-    assert_eq!(summary["messages_dropped"], 0, "{summary}");
-    assert_eq!(calm_summary["messages_dropped"], 0, "{calm_summary}");
+    assert_eq!(summary["messages_dropped"], 0, "{summary}\n{}", rogue.log);
+    assert_eq!(calm_summary["messages_dropped"], 0, "{calm_summary}\n{}", calm_got.log);
     assert_eq!(rogue.commands_heard, 0, "the rogue heard robot1's commands");
     assert_eq!(rogue.answers, 0, "the rogue's set or ctl was answered");
     let alarm = |r: &&TraceRecord| r.event == TraceEvent::Alarm && !is_loss(r);
