@@ -43,7 +43,7 @@ pub async fn run_many(configs: Vec<AgentConfig>, skills: Skills, connections: Co
     let mut first_error = None;
     loop {
         tokio::select! {
-            () = signal.recv() => {
+            _ = signal.recv() => {
                 let _ = stop_tx.send(true);
             }
             ended = agents.join_next() => match ended {

@@ -211,7 +211,10 @@ async fn drive_skill(
 /// skills it adds: `Connections::skills`).
 pub async fn run(config: AgentConfig, skills: Skills, connections: Connections) -> anyhow::Result<()> {
     let mut stop = baton_shell::Stop::new()?;
-    run_until(config, skills, connections, async move { stop.recv().await }).await
+    run_until(config, skills, connections, async move {
+        stop.recv().await;
+    })
+    .await
 }
 
 /// Runs the agent until `stop` completes: one of several agents in a process (`crate::many`), or an agent embedded

@@ -19,9 +19,9 @@
 //! pulled cables and a journal restart; `cable.rs`, an agent's cable to the router — a loopback TCP relay that can be
 //! cut without closing anything, healed, or delayed in order); a run's folder is claimed with a lock (`claim_run_dir`),
 //! so two scenarios of one name never share one, and every child process dies with the runner (`PR_SET_PDEATHSIG`).
-//! `baton set --run ID` addresses one run, and refuses to guess when several answer. `--watch` values reach the trace
-//! through `Records::watched_changes`, with the outputs of the input that changed them, so that they too wait for the
-//! journal. `run/records.rs`'s `Records` is the one place trace records go: the bench's probe, the recording, the
+//! `baton set --run ID` addresses one run, and refuses to guess when several answer. `--watch` values are the
+//! journaled coordinator's own trace records (`Journaled::watch`), made after each record as its replay makes them, so
+//! that they too wait for the journal and a resumed run traces them as the live one did. `run/records.rs`'s `Records` is the one place trace records go: the bench's probe, the recording, the
 //! summary's step times and the trace file; `replay_records` feeds a journal's records to a coordinator and its outputs
 //! to `Records`, for a resumed run and for `baton replay` alike.
 

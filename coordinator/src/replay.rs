@@ -13,6 +13,7 @@ use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
 use baton_proto::dist::journal::{JournalHeader, Journaled, Replayed, SnapshotMeta, JOURNAL_FORMAT};
+use baton_proto::dist::runtime::packml::State;
 use baton_proto::pipeline::check_source;
 
 use crate::recording::{RecordedRun, Recorder, Sink};
@@ -22,14 +23,15 @@ pub struct ReplayOptions {
     pub journal: PathBuf,
     pub rerun: Sink,
     pub trace: Option<PathBuf>,
+    /// The variables the run watched (`baton run --watch`), traced as it traced them.
+    pub watch: Vec<String>,
 }
 
 pub fn replay(opts: &ReplayOptions) -> anyhow::Result<()> {
-    let (header, replayed, from) = rebuild(opts)?;
+    let (header, replayed, from, state) = rebuild(opts)?;
     let how = match &replayed.ended {
         None => "did not end (a coordinator resumes it with `baton run … --journal`)".to_string(),
-        Some(None) => "finished".to_string(),
-        Some(Some(why)) => format!("failed: {why}"),
+        Some(failure) => crate::run::how_it_ended(state, failure.as_deref()),
     };
     let from = match from {
         None => String::new(),
@@ -54,23 +56,24 @@ pub fn replay(opts: &ReplayOptions) -> anyhow::Result<()> {
 
 /// Replays a journal with no recording and no trace (`baton bench`): the records replayed.
 pub fn replay_quietly(journal: &std::path::Path) -> anyhow::Result<u64> {
-    let opts = ReplayOptions { journal: journal.to_path_buf(), rerun: Sink::Off, trace: None };
-    rebuild(&opts).map(|(_, replayed, _)| replayed.records)
+    let opts = ReplayOptions { journal: journal.to_path_buf(), rerun: Sink::Off, trace: None, watch: Vec::new() };
+    rebuild(&opts).map(|(_, replayed, _, _)| replayed.records)
 }
 
 /// The run rebuilt from every segment the journal keeps into the trace and recording `opts` asks for: its header,
-/// what was replayed, and the snapshot it began from (if the journal no longer holds the run's start).
-fn rebuild(opts: &ReplayOptions) -> anyhow::Result<(JournalHeader, Replayed, Option<SnapshotMeta>)> {
+/// what was replayed, the snapshot it began from (if the journal no longer holds the run's start), and the state
+/// it was left in.
+fn rebuild(opts: &ReplayOptions) -> anyhow::Result<(JournalHeader, Replayed, Option<SnapshotMeta>, State)> {
     if !crate::journal::exists(&opts.journal) {
         bail!("{} holds no journal (no {} in it)", opts.journal.display(), crate::journal::FILE_NAME);
     }
-    let opened = crate::journal::open(&opts.journal)?;
-    let path = opened.store.path().display().to_string();
-    let header = opened.header.ok_or_else(|| anyhow!("{} holds no journal of a run", opts.journal.display()))?;
+    // Read as it stands: a replay never writes to the journal, not even to cut off a torn last commit.
+    let (header, segments) = crate::journal::read_only(&opts.journal)?;
+    let path = opts.journal.display().to_string();
+    let header = header.ok_or_else(|| anyhow!("{} holds no journal of a run", opts.journal.display()))?;
     if header.format != JOURNAL_FORMAT {
         bail!("the journal {path} is in format {}; this baton reads format {JOURNAL_FORMAT}", header.format);
     }
-    let segments = opened.store.segments()?;
     let mut report = check_source(&header.source);
     let i = report
         .charts
@@ -109,8 +112,9 @@ fn rebuild(opts: &ReplayOptions) -> anyhow::Result<(JournalHeader, Replayed, Opt
             (core, Some(meta))
         }
     };
+    core.watch(crate::run::watched(&program, &opts.watch)?);
     let replayed =
         replay_segments(&mut core, &segments, &mut out, &path).map_err(|e| anyhow!("cannot replay {e:#}"))?;
     out.finish()?;
-    Ok((header, replayed, from))
+    Ok((header, replayed, from, core.core().run_state()))
 }

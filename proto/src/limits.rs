@@ -108,6 +108,10 @@ pub const CATCH_UP_CYCLES_MAX: u64 = 10;
 /// processes publishing to each other from their main loops never both wait (see the shells' `put`).
 pub const RECEIVE_QUEUE_MAX: usize = 16_384;
 
+/// Answers to `baton set` and `baton ctl` a journaled coordinator holds until what they answer is durable; a request
+/// past it is refused at once, untaken (the operator asks again), rather than held without bound.
+pub const HELD_REPLIES_MAX: usize = 1024;
+
 /// How long the coordinator may hold acknowledgements to batch them (or send them with the next dispatch to the
 /// same agent). Far below the agents' first resend delay, so acknowledged reports are not sent twice.
 pub const ACK_DELAY_MS: u64 = 5;

@@ -199,13 +199,21 @@ impl Stop {
         Ok(Stop { interrupt: signal(SignalKind::interrupt())?, terminate: signal(SignalKind::terminate())? })
     }
 
-    /// The next SIGINT or SIGTERM.
-    pub async fn recv(&mut self) {
+    /// The next SIGINT or SIGTERM, and which.
+    pub async fn recv(&mut self) -> Signal {
         tokio::select! {
-            _ = self.interrupt.recv() => {}
-            _ = self.terminate.recv() => {}
+            _ = self.interrupt.recv() => Signal::Interrupt,
+            _ = self.terminate.recv() => Signal::Terminate,
         }
     }
+}
+
+/// What a signal asks of a process: SIGINT is a person at the terminal (Ctrl-C), SIGTERM the system taking the
+/// process away (`systemctl stop` and `restart`, a reboot, `kill`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Signal {
+    Interrupt,
+    Terminate,
 }
 
 #[cfg(test)]

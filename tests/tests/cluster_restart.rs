@@ -59,17 +59,21 @@ async fn a_coordinator_killed_mid_segment_resumes_from_its_journal() {
     assert_eq!(motions, 1, "the assembly motion ran once");
 }
 
-/// Snapshots every few records, every segment kept: the coordinator killed while an agent assembles resumes from
-/// its last snapshot, not from the run's start; the trace file it leaves is the live run's up to the kill, then the
-/// rest, the records after the snapshot written again as the live run wrote them; and `baton replay`, which
-/// replays the whole journal from the run's start, rebuilds that same trace record for record.
+/// Snapshots every few records, every segment kept, every variable watched: the coordinator killed while an agent
+/// assembles resumes from its last snapshot, not from the run's start; the trace file it leaves is the live run's up
+/// to the kill, then the rest, the records after the snapshot written again as the live run wrote them — watched
+/// values included; and `baton replay --watch`, which replays the whole journal from the run's start, rebuilds that
+/// same trace record for record.
 #[tokio::test(flavor = "multi_thread")]
 async fn a_coordinator_resumes_from_its_last_snapshot_and_its_trace_goes_on_as_the_live_one() {
     let cell = repo("examples/cell.st");
     let mut cluster = Cluster::with_router().await;
     let journal = cluster.dir.path().join("journal");
     let journal_arg = journal.to_str().expect("utf-8 path");
-    let args = ["--set", "parts=1", "--journal", journal_arg, "--snapshot-every", "4", "--journal-keep", "all"];
+    const WATCHED: [&str; 8] = ["parts", "done", "reworks", "picked1", "picked2", "assembled", "passed", "failed"];
+    let watching: Vec<&str> = WATCHED.iter().flat_map(|v| ["--watch", v]).collect();
+    let mut args = vec!["--set", "parts=1", "--journal", journal_arg, "--snapshot-every", "4", "--journal-keep", "all"];
+    args.extend(&watching);
     let watch = cluster.watch().await;
     let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
     let mut coordinator = cluster.coordinator_joining(&cell, &args);
@@ -103,10 +107,14 @@ async fn a_coordinator_resumes_from_its_last_snapshot_and_its_trace_goes_on_as_t
     assert!(trace.len() > live.len() && trace[..live.len()] == live[..], "the live run's trace goes on unchanged");
     // The whole journal, replayed from the run's start, gives the trace the run wrote.
     let replayed = cluster.dir.path().join("replayed.jsonl");
-    let out = cluster.baton(&["replay", "--journal", journal_arg, "--trace", replayed.to_str().unwrap()]).await;
+    let mut replay = vec!["replay", "--journal", journal_arg, "--trace", replayed.to_str().unwrap()];
+    replay.extend(&watching);
+    let out = cluster.baton(&replay).await;
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert!(String::from_utf8_lossy(&out.stdout).contains("it finished"), "{}", String::from_utf8_lossy(&out.stdout));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("it completed"), "{}", String::from_utf8_lossy(&out.stdout));
     assert_eq!(loopback::read_trace(&replayed), trace, "the replay rebuilds the trace the run wrote");
+    let values = trace.iter().filter(|r| r.event == TraceEvent::Value).count();
+    assert!(values > WATCHED.len(), "the watched values are in it: {values}");
     // A segment missing from the middle is refused, not skipped.
     let names = segments(&journal);
     std::fs::remove_file(journal.join(&names[1])).expect("remove a segment");
@@ -176,15 +184,15 @@ async fn a_journal_of_another_chart_version_or_a_finished_run_is_refused() {
     let again = cluster.baton(&run).await;
     let err = String::from_utf8_lossy(&again.stderr);
     assert_eq!(again.status.code(), Some(2), "{err}");
-    assert!(err.contains("is over (it finished)"), "{err}");
-    // SIGTERM (systemd stopping the service) is an operator's stop: the run ends `stopped`, exit 3, its journal
-    // closed as ended.
+    assert!(err.contains("is over (it completed)"), "{err}");
+    // Ctrl-C (SIGINT, a person at the terminal) is an operator's stop: the run ends `stopped`, exit 3, its journal
+    // closed as ended — and a resume says how it ended.
     let stopped_journal = cluster.dir.path().join("stopped_journal");
     let stopped_journal = stopped_journal.to_str().unwrap();
     let mut coordinator = cluster.coordinator(&cell, &["--journal", stopped_journal]);
     coordinator.wait_for_log("waits: no live agent").await;
     let pid = coordinator.child.id().expect("running").to_string();
-    assert!(std::process::Command::new("kill").args(["-TERM", &pid]).status().expect("kill").success());
+    assert!(std::process::Command::new("kill").args(["-INT", &pid]).status().expect("kill").success());
     let (status, log, trace, _) = coordinator.finish().await;
     assert_eq!(status.code(), Some(3), "{log}");
     let states: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
@@ -193,7 +201,10 @@ async fn a_journal_of_another_chart_version_or_a_finished_run_is_refused() {
         cluster.baton(&["run", cell.to_str().unwrap(), "--listen", &endpoint, "--journal", stopped_journal]).await;
     let err = String::from_utf8_lossy(&again.stderr);
     assert_eq!(again.status.code(), Some(2), "{err}");
-    assert!(err.contains("is over"), "{err}");
+    assert!(err.contains("is over (it was stopped)"), "{err}");
+    let replay = cluster.baton(&["replay", "--journal", stopped_journal]).await;
+    let said = String::from_utf8_lossy(&replay.stdout);
+    assert!(replay.status.success() && said.contains("it was stopped"), "{said}");
 }
 
 /// A peer floods the run with what the coordinator refuses — a megabyte at a time from an agent it does not know,
@@ -251,4 +262,122 @@ async fn what_the_coordinator_refuses_never_reaches_its_journal() {
     // The run itself takes a few kilobytes; the flood was 80 MB.
     assert!(size < 1024 * 1024, "the journal holds {size} bytes");
     tokio::time::timeout(TIMEOUT, rogue.close()).await.ok();
+}
+
+/// A run that waits for its start, on a journal: `x` is set eight times, each acknowledged.
+const WAITING: &str = "PROGRAM waiting\nVAR x : INT; END_VAR\nINITIAL_STEP A: END_STEP\n\
+    TRANSITION FROM A TO B := x >= 8; END_TRANSITION\nSTEP B: END_STEP\nEND_PROGRAM\n";
+
+/// Eight acknowledged `baton set`s, the coordinator SIGKILLed, and the length in the head of the commit that holds
+/// the second damaged — a byte the frames' checksums once did not cover: `baton replay` and a resume both refuse
+/// the journal, saying where the damage is, and neither changes a byte of it. With the byte put back, the run
+/// resumes with every value it was told it had.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_damaged_commit_is_refused_where_it_is_and_never_cut_off() {
+    let mut cluster = Cluster::new();
+    let chart = cluster.dir.path().join("waiting.st");
+    std::fs::write(&chart, WAITING).expect("write the chart");
+    let journal = cluster.dir.path().join("journal");
+    let journal_arg = journal.to_str().expect("utf-8 path");
+    let mut coordinator = cluster.coordinator(&chart, &["--journal", journal_arg, "--wait-start"]);
+    coordinator.wait_for_log("running chart").await;
+    for n in 1..=8 {
+        let out = cluster.baton(&["set", "--connect", &cluster.endpoint, &format!("x={n}")]).await;
+        assert!(out.status.success(), "set x={n}: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    coordinator.kill().await;
+    // The commit holding `x = 2`: its head (`BTNC`, the segment format in coordinator/src/journal/segment.rs)
+    // is the last before the record, and its length is bytes 20..24 of it.
+    let path = journal.join("journal.log");
+    let good = std::fs::read(&path).expect("the journal");
+    let find = |needle: &[u8], before: usize| good[..before].windows(needle.len()).rposition(|w| w == needle);
+    let record = find(br#""value":2}"#, good.len()).expect("the second set's record");
+    let head = find(b"BTNC", record).expect("its commit's head");
+    let mut damaged = good.clone();
+    damaged[head + 22] ^= 0x40;
+    std::fs::write(&path, &damaged).expect("damage the journal");
+    let replay = cluster.baton(&["replay", "--journal", journal_arg]).await;
+    let err = String::from_utf8_lossy(&replay.stderr).to_string();
+    assert!(!replay.status.success(), "{err}");
+    let located = format!("at byte {head} is damaged");
+    assert!(err.contains(&located) && err.contains("were acknowledged and cannot be read"), "{err}");
+    assert_eq!(std::fs::read(&path).expect("the journal"), damaged, "a replay never writes");
+    let endpoint = cluster.endpoint.clone();
+    let resume =
+        cluster.baton(&["run", chart.to_str().unwrap(), "--listen", &endpoint, "--journal", journal_arg]).await;
+    let err = String::from_utf8_lossy(&resume.stderr).to_string();
+    assert_eq!(resume.status.code(), Some(2), "{err}");
+    assert!(err.contains(&located), "{err}");
+    assert_eq!(std::fs::read(&path).expect("the journal"), damaged, "a refused resume never writes");
+    // Undamaged, it resumes with all eight values, and the chart goes on with x = 8.
+    std::fs::write(&path, &good).expect("repair the journal");
+    let mut coordinator = cluster.coordinator(&chart, &["--journal", journal_arg]);
+    coordinator.wait_for_log("resuming run").await;
+    cluster.agent("nobody-needed", &[], &[]);
+    let start = cluster.baton(&["ctl", "--connect", &endpoint, "start"]).await;
+    assert!(start.status.success(), "{}", String::from_utf8_lossy(&start.stderr));
+    let (status, log, _, summary) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    assert_eq!(summary["vars"]["x"], "8", "{log}");
+}
+
+/// What a journaled run refuses while it waits — for its start, or at its end — is answered at once with the
+/// reason, as a run without a journal answers it: an input it does not have, a command not legal now, a
+/// malformed request. (It once waited for a journal batch that a refusal never writes: the client gave up after
+/// its three seconds, exit 2, "the run did not answer".)
+#[tokio::test(flavor = "multi_thread")]
+async fn refusals_are_answered_at_once_with_or_without_a_journal() {
+    for journaled in [false, true] {
+        let cluster = Cluster::new();
+        let chart = cluster.dir.path().join("waiting.st");
+        std::fs::write(&chart, WAITING).expect("write the chart");
+        let journal = cluster.dir.path().join("journal");
+        let mut args = vec!["--wait-start", "--stay"];
+        if journaled {
+            args.extend(["--journal", journal.to_str().expect("utf-8 path")]);
+        }
+        let mut coordinator = cluster.coordinator(&chart, &args);
+        coordinator.wait_for_log("running chart").await;
+        let ep = cluster.endpoint.clone();
+        let refused = |out: std::process::Output, why: &str| {
+            let err = String::from_utf8_lossy(&out.stderr).to_string();
+            assert_eq!(out.status.code(), Some(1), "journal {journaled}: {err}");
+            assert!(err.contains(why), "journal {journaled}: {err}");
+        };
+        for state in ["idle", "aborted"] {
+            refused(cluster.baton(&["set", "--connect", &ep, "nosuch=1"]).await, "nosuch");
+            refused(cluster.baton(&["set", "--connect", &ep, "x=yes"]).await, "x");
+            refused(cluster.baton(&["ctl", "--connect", &ep, "unhold"]).await, "refused");
+            // A request no client of Baton's would send.
+            let session = cluster.watch().await;
+            let status = baton_coordinator_status(&session).await;
+            let run: wire::RunId = serde_json::from_value(status["run"].clone()).expect("run id");
+            for key in [keys::set(run), keys::ctl(run)] {
+                let replies = session
+                    .get(&key)
+                    .payload(b"{not a request".to_vec())
+                    .timeout(std::time::Duration::from_secs(30))
+                    .await
+                    .expect("asked");
+                let reply = replies.recv_async().await.expect("an answer");
+                let text = String::from_utf8_lossy(&reply.result().expect("a reply").payload().to_bytes()).to_string();
+                assert!(text.contains("malformed request") && text.contains("\"ok\":false"), "{state}: {text}");
+            }
+            tokio::time::timeout(TIMEOUT, session.close()).await.ok();
+            if state == "idle" {
+                let out = cluster.baton(&["ctl", "--connect", &ep, "abort", "--reason", "test"]).await;
+                assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+            }
+        }
+        coordinator.kill().await;
+    }
+}
+
+/// What `baton status --json` says of the only run behind the session's router.
+async fn baton_coordinator_status(session: &zenoh::Session) -> serde_json::Value {
+    let replies = session.get(keys::status_any_run()).await.expect("asked");
+    let reply = replies.recv_async().await.expect("a run answers");
+    let status: wire::StatusReport =
+        wire::decode(&reply.result().expect("a reply").payload().to_bytes()).expect("a status");
+    serde_json::to_value(status).expect("json")
 }

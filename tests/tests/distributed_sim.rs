@@ -407,8 +407,10 @@ fn cell_with_coordinator_crash(seed: u64, at: u64, down: u64) -> SimCluster {
     let faults = Faults { duplicate: 0.2, reorder: true, delay_ms_max: 5, loss: 0.0 };
     let mut sim = SimCluster::new(&cell(), CELL_AGENTS, faults, seed);
     sim.crash_coordinator_at(at, down);
-    // Snapshots often, so that most crashes resume from one.
+    // Snapshots often, so that most crashes resume from one; every variable watched, so that a resume traces their
+    // values as the live run did.
     sim.snapshot_every = 8;
+    sim.watch_all();
     sim
 }
 

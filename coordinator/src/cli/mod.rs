@@ -32,6 +32,9 @@ const EXIT_USAGE: u8 = 2;
 const EXIT_STOPPED: u8 = 3;
 /// Exit status of `baton run` when an operator aborted the run (`baton ctl abort`, a second interrupt).
 const EXIT_ABORTED: u8 = 4;
+/// Exit status of `baton run` when SIGTERM took the process away from a journaled run, which its journal resumes
+/// (`deploy/systemd/baton-run@.service` counts it a clean stop).
+const EXIT_LEFT: u8 = 5;
 
 #[derive(Parser)]
 #[command(name = "baton", version, about = "Sequential function charts (IEC 61131-3), checked and run")]

@@ -15,11 +15,16 @@ pub struct Replay {
     /// Write the run's trace as JSON Lines.
     #[arg(long, value_name = "FILE")]
     pub trace: Option<PathBuf>,
+    /// Trace this variable's value as `baton run --watch` did (give the run's own): the trace is then the one the
+    /// run wrote. Repeat for more.
+    #[arg(long, value_name = "VARIABLE")]
+    pub watch: Vec<String>,
 }
 
 impl Replay {
     pub fn run(self) -> anyhow::Result<ExitCode> {
-        let Replay { journal, rerun, trace } = self;
-        crate::replay::replay(&crate::replay::ReplayOptions { journal, rerun, trace }).map(|()| ExitCode::SUCCESS)
+        let Replay { journal, rerun, trace, watch } = self;
+        let opts = crate::replay::ReplayOptions { journal, rerun, trace, watch };
+        crate::replay::replay(&opts).map(|()| ExitCode::SUCCESS)
     }
 }

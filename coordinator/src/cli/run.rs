@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use super::{EXIT_ABORTED, EXIT_STOPPED};
+use super::{EXIT_ABORTED, EXIT_LEFT, EXIT_STOPPED};
 
 use baton_proto::dist::runtime::coordinator::LossPolicy;
 
@@ -122,6 +122,7 @@ impl Run {
             let summary = crate::run::run(opts).await?;
             summary.print();
             Ok(match summary.state.as_str() {
+                _ if summary.left => ExitCode::from(EXIT_LEFT),
                 "stopped" => ExitCode::from(EXIT_STOPPED),
                 "aborted" => ExitCode::from(EXIT_ABORTED),
                 _ => ExitCode::SUCCESS,

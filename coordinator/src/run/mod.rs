@@ -13,7 +13,7 @@ mod summary;
 
 pub use records::Probe;
 pub use records::{replay_records, Records};
-pub use resume::{check_pin, replay_segments};
+pub use resume::{check_pin, how_it_ended, replay_segments};
 pub use summary::Summary;
 
 use std::collections::VecDeque;
@@ -29,6 +29,7 @@ use baton_proto::dist::keys;
 use baton_proto::dist::netconfig::NetConfig;
 use baton_proto::dist::runtime::coordinator::LossPolicy;
 use baton_proto::dist::wire::{self, ChartHash, ChartSource, RunId};
+use baton_proto::exec::program::VarId;
 use tokio::sync::mpsc;
 
 use crate::chart_file::{load, Loaded};
@@ -75,13 +76,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         bail!("give either --listen ENDPOINT (embed a router) or --connect ENDPOINT (join one)");
     }
     let hash = ChartHash::of(&loaded.source, &loaded.pou);
-    let mut watch = Vec::with_capacity(opts.watch.len());
-    for name in &opts.watch {
-        match loaded.program.var_by_name(name) {
-            Some(v) => watch.push(v),
-            None => bail!("--watch {name}: chart `{}` has no variable `{name}`", loaded.program.name),
-        }
-    }
+    let watch = watched(&loaded.program, &opts.watch)?;
     // The journal first: a refused one costs nothing, not even a Zenoh session.
     let Opened { run, started_unix_ms, resume, store } = open_journal(&opts, &loaded, &hash)?;
     let net =
@@ -161,10 +156,20 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         answers: None,
         asking: std::collections::HashSet::new(),
     };
-    shell.out.watch(watch);
+    shell.core.watch(watch);
     begin(&mut shell, resume, &opts, &loaded, run, &where_)?;
     let ended = serve(&mut shell, &session, chart_reply, opts.abort_wait_ms).await?;
     wind_down(shell, session, &opts, &loaded, ended).await
+}
+
+/// The variables `--watch` names, each a variable of `program`.
+pub fn watched(program: &baton_proto::exec::program::Program, names: &[String]) -> anyhow::Result<Vec<VarId>> {
+    let var = |name: &String| {
+        program
+            .var_by_name(name)
+            .ok_or_else(|| anyhow!("--watch {name}: chart `{}` has no variable `{name}`", program.name))
+    };
+    names.iter().map(var).collect()
 }
 
 /// What `baton run` does with a journal before it serves — open it, restore its last snapshot, replay the records
@@ -318,8 +323,9 @@ fn open_journal(opts: &RunOptions, loaded: &Loaded, hash: &ChartHash) -> anyhow:
             (header.run, header.started_unix_ms, None)
         }
         Some(header) => {
-            check_resumable(&header, &opened.records, loaded, hash, &opts.chart, &path)?;
+            check_resumable(&header, loaded, hash, &opts.chart, &path)?;
             let (run, started) = (header.run, header.started_unix_ms);
+            let ended = end_of(&opened.records);
             let last = crate::journal::Segment {
                 number: opened.store.number(),
                 snapshot: opened.snapshot.take(),
@@ -335,6 +341,30 @@ fn open_journal(opts: &RunOptions, loaded: &Loaded, hash: &ChartHash) -> anyhow:
                 }
                 None => None,
             };
+            if let Some(failure) = ended {
+                // Over: replayed (with nothing written) to say how — completed, stopped, aborted or failed.
+                let mut core = match segments.first().and_then(|s| s.snapshot.as_deref()) {
+                    Some(bytes) => {
+                        Journaled::restore(Arc::clone(&loaded.program), Arc::clone(&loaded.layout), bytes)
+                            .map_err(|why| anyhow!("cannot read the journal {path}: its snapshot {why}"))?
+                            .0
+                    }
+                    None => Journaled::start(
+                        Arc::clone(&loaded.program),
+                        Arc::clone(&loaded.layout),
+                        run,
+                        hash.clone(),
+                        header.cycle_ms,
+                    ),
+                };
+                let mut out = Records::new(None, None, None, header.cycle_ms);
+                replay_segments(&mut core, &segments, &mut out, &path)?;
+                bail!(
+                    "the run {} in the journal {path} is over (it {}); give another --journal folder for a new run",
+                    header.run.key(),
+                    how_it_ended(core.core().run_state(), failure.as_deref())
+                );
+            }
             (run, started, Some(Resume { header, snapshot, segments }))
         }
     };
@@ -348,6 +378,10 @@ enum Ended {
     Ran,
     /// Zenoh closed an inbox: the run is left as it stands (its journal resumes it).
     Closed,
+    /// SIGTERM with a journal: the process goes away (a service stopped or restarted, a reboot) and leaves the run
+    /// as it stands, for the coordinator that starts on its journal next — as after a crash, the agents keep their
+    /// tokens, and nothing is ended.
+    Left,
 }
 
 /// Who an interrupt comes from, in the trace: the user and host of this process.
@@ -420,7 +454,7 @@ async fn serve(
             // A journal batch became durable: what it led to may go now.
             _ = async { durable_rx.as_mut().expect("journal").changed().await }, if durable_rx.is_some() => Wake::Durable,
             () = baton_shell::until(deadline) => Wake::Timer,
-            () = stop.recv() => Wake::Stop,
+            signal = stop.recv() => Wake::Stop(signal),
         };
         // Cycles due run first, at their grid times, so that what arrived now comes after them.
         shell.due_cycles().await?;
@@ -442,29 +476,35 @@ async fn serve(
                 status.t_ms = shell.now_ms();
                 reply(&q, keys::status(run), wire::encode(&status)).await
             }
+            Wake::Set(q) if shell.replies_full() => {
+                reply(&q, keys::set(run), wire::encode(&shell.set_busy())).await;
+            }
+            Wake::Ctl(q) if shell.replies_full() => {
+                reply(&q, keys::ctl(run), wire::encode(&shell.ctl_reply(Err(shell.busy())))).await;
+            }
             Wake::Set(q) => {
                 let answer = wire::encode(&shell.on_set(&q));
-                match &shell.journal {
-                    // Its record goes in the batch written just below; the answer waits for it.
-                    Some(j) => shell.held_replies.push_back((j.sent() + 1, q, keys::set(run), answer)),
-                    None => reply(&q, keys::set(run), answer).await,
-                }
+                shell.answer(q, keys::set(run), answer).await;
             }
             Wake::Ctl(q) => {
                 let answer = wire::encode(&shell.on_ctl(&q));
-                match &shell.journal {
-                    Some(j) => shell.held_replies.push_back((j.sent() + 1, q, keys::ctl(run), answer)),
-                    None => reply(&q, keys::ctl(run), answer).await,
-                }
+                shell.answer(q, keys::ctl(run), answer).await;
             }
             Wake::Durable => shell.release().await?,
             Wake::Timer => {}
-            Wake::Stop if shell.core.core().is_over() => {
+            Wake::Stop(baton_shell::Signal::Terminate) if shell.journal.is_some() => {
+                if !shell.quiet {
+                    eprintln!("baton: SIGTERM: leaving the run as it stands, for its journal to resume");
+                }
+                return Ok(Ended::Left);
+            }
+            Wake::Stop(_) if shell.core.core().is_over() => {
                 // At the end of a run that stays, or waiting for agents to tell: the process leaves.
                 return Ok(Ended::Ran);
             }
-            Wake::Stop => {
+            Wake::Stop(signal) => {
                 // The first interrupt stops the run (what runs finishes, nothing new starts), the next aborts it.
+                // So does SIGTERM without a journal: no coordinator could take the run up again.
                 interrupts += 1;
                 let command = if interrupts == 1 { "stop" } else { "abort" };
                 let request = baton_proto::dist::wire::CtlRequest {
@@ -475,7 +515,10 @@ async fn serve(
                     for_ms: None,
                     to: None,
                     reason: "interrupted".into(),
-                    by: signal_sender("SIGINT or SIGTERM"),
+                    by: signal_sender(match signal {
+                        baton_shell::Signal::Interrupt => "SIGINT",
+                        baton_shell::Signal::Terminate => "SIGTERM",
+                    }),
                 };
                 if !shell.quiet {
                     let what = if interrupts == 1 {
@@ -539,13 +582,24 @@ async fn wind_down(
     }
     shell.out.finish()?;
     let failure = shell.core.core().failure().map(str::to_string);
-    let summary = shell.summary(loaded);
+    let mut summary = shell.summary(loaded);
+    summary.left = ended == Ended::Left;
+    let tokens_out = shell.core.core().tokens_in_flight();
     drop(shell);
     session.close().await.map_err(|e| anyhow!("{e}"))?;
-    if ended == Ended::Closed {
+    if ended != Ended::Ran {
         if let Some(dir) = &opts.journal {
-            eprintln!("baton: the run is kept in its journal; `baton run … --journal {}` resumes it", dir.display());
+            eprintln!(
+                "baton: run {} is kept in its journal ({} token(s) out, their agents keep them); `baton run {} … \
+                 --journal {}` resumes it",
+                summary.run,
+                tokens_out,
+                opts.chart.display(),
+                dir.display()
+            );
         }
+    }
+    if ended == Ended::Closed {
         bail!("the Zenoh session closed before the chart reached a terminal situation");
     }
     if let Some(why) = &failure {
@@ -616,8 +670,12 @@ mod tests {
         assert!(err.contains("compiled chart `wait` to other numbers") && err.contains(&other), "{err}");
         assert!(err.contains(&pin), "the message names both programs: {err}");
         // baton replay refuses it as well.
-        let replay =
-            crate::replay::ReplayOptions { journal: journal_dir, rerun: crate::recording::Sink::Off, trace: None };
+        let replay = crate::replay::ReplayOptions {
+            journal: journal_dir,
+            rerun: crate::recording::Sink::Off,
+            trace: None,
+            watch: Vec::new(),
+        };
         let err = crate::replay::replay(&replay).expect_err("refused").to_string();
         assert!(err.contains("to other numbers"), "{err}");
     }

@@ -8,9 +8,7 @@ use std::io::{BufWriter, Write};
 use anyhow::{anyhow, Context};
 use baton_proto::dist::journal::{self, Journaled};
 use baton_proto::dist::runtime::coordinator::{CoordOutput, Coordinator};
-use baton_proto::exec::program::VarId;
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
-use baton_proto::types::Value;
 
 use super::summary::StepTime;
 
@@ -26,8 +24,6 @@ pub struct Records {
     pub(super) steps: BTreeMap<String, (StepTime, Option<u64>)>,
     probe: Option<Probe>,
     pub recorder: Option<crate::recording::Recorder>,
-    /// `--watch`: each variable with the value the trace last recorded.
-    watched: Vec<(VarId, Option<Value>)>,
 }
 
 impl Records {
@@ -37,37 +33,7 @@ impl Records {
         recorder: Option<crate::recording::Recorder>,
         cycle_ms: u64,
     ) -> Records {
-        Records {
-            cycle_ms: cycle_ms.max(1),
-            trace,
-            trace_error: false,
-            steps: BTreeMap::new(),
-            probe,
-            recorder,
-            watched: Vec::new(),
-        }
-    }
-
-    /// Records the values of `vars` too (`--watch`), as `baton sim --watch` does.
-    pub fn watch(&mut self, vars: Vec<VarId>) {
-        self.watched = vars.into_iter().map(|v| (v, None)).collect();
-    }
-
-    /// `value` records of the watched variables that changed since the trace last said: they go with the
-    /// outputs of the input that changed them, so that they are written only once it is durable.
-    pub fn watched_changes(&mut self, t_ms: u64, core: &Coordinator) -> Vec<TraceRecord> {
-        let mut out = Vec::new();
-        for (var, last) in &mut self.watched {
-            let value = core.value(*var);
-            if last.as_ref() != Some(&value) {
-                let decl = &core.program().vars[var.index()];
-                let mut record = TraceRecord::new(t_ms, TraceEvent::Value, &decl.name);
-                record.value = Some(decl.ty.show(&value));
-                *last = Some(value);
-                out.push(record);
-            }
-        }
-        out
+        Records { cycle_ms: cycle_ms.max(1), trace, trace_error: false, steps: BTreeMap::new(), probe, recorder }
     }
 
     pub fn record(&mut self, rec: TraceRecord) {
@@ -148,9 +114,6 @@ pub fn replay_records(
         }
         // After every input, as the live run does.
         out.values(entry.t_ms, core.core());
-        for rec in out.watched_changes(entry.t_ms, core.core()) {
-            out.record(rec);
-        }
     }
     Ok(replayed)
 }

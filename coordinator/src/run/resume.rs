@@ -12,11 +12,10 @@ pub(crate) fn unix_ms() -> u64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64)
 }
 
-/// A journal is resumed only by the same chart version, only in a format this build reads, and only if its
-/// run did not end.
+/// A journal is resumed only by the same chart version and only in a format this build reads (whether its run
+/// ended is `end_of`'s to say).
 pub(crate) fn check_resumable(
     header: &JournalHeader,
-    records: &[Vec<u8>],
     loaded: &Loaded,
     hash: &ChartHash,
     chart: &std::path::Path,
@@ -45,19 +44,27 @@ pub(crate) fn check_resumable(
         );
     }
     check_pin(header, &loaded.program, &loaded.layout, path)?;
-    if let Some(last) = records.last() {
-        if let Ok(journal::Entry { record: Record::End { failure }, .. }) = journal::decode(last) {
-            let how = match failure {
-                Some(why) => format!("failed: {why}"),
-                None => "finished".to_string(),
-            };
-            bail!(
-                "the run {} in the journal {path} is over (it {how}); give another --journal folder for a new run",
-                header.run.key()
-            );
-        }
-    }
     Ok(())
+}
+
+/// How a journal's run ended, if its last record is its end: the failure, if it failed.
+pub(crate) fn end_of(records: &[Vec<u8>]) -> Option<Option<String>> {
+    match journal::decode(records.last()?) {
+        Ok(journal::Entry { record: Record::End { failure }, .. }) => Some(failure),
+        _ => None,
+    }
+}
+
+/// How a run ended, in words: `state` its PackML state at the end, `failure` why it failed.
+pub fn how_it_ended(state: baton_proto::dist::runtime::packml::State, failure: Option<&str>) -> String {
+    use baton_proto::dist::runtime::packml::State;
+    match (failure, state) {
+        (Some(why), _) => format!("failed: {why}"),
+        (None, State::Complete) => "completed".to_string(),
+        (None, State::Stopped) => "was stopped".to_string(),
+        (None, State::Aborted) => "was aborted".to_string(),
+        (None, other) => format!("ended in state {}", other.name()),
+    }
 }
 
 /// A journal's records mean something only for the program it pins: a build of Baton that compiles the same chart

@@ -99,8 +99,10 @@ pub(crate) struct Shell {
     /// batch, until that batch is durable; the batch's messages go with it to the journal's writer.
     pub(crate) held: VecDeque<(u64, Vec<CoordOutput>)>,
     /// Answers to `baton set` and `baton ctl`, likewise (with the key they answer on): a client is told a value
-    /// or a command was taken only once it is durable.
-    pub(crate) held_replies: VecDeque<(u64, Query, String, Vec<u8>)>,
+    /// or a command was taken only once it is durable. Each waits for the batch its request went into, which the
+    /// next `commit` gives it (`None` until then); a request that recorded nothing waits only for the batches
+    /// before it, at most `HELD_REPLIES_MAX` of them.
+    pub(crate) held_replies: VecDeque<(Option<u64>, Query, String, Vec<u8>)>,
     pub(crate) quiet: bool,
     /// One publisher per key, declared on first use.
     pub(crate) outbox: baton_shell::Outbox,
@@ -160,7 +162,7 @@ pub(crate) enum Wake {
     Ctl(Query),
     Durable,
     Timer,
-    Stop,
+    Stop(baton_shell::Signal),
     Closed,
 }
 
@@ -318,6 +320,32 @@ impl Shell {
         }
     }
 
+    /// Answers a `set` or `ctl` request: at once without a journal; with one, once the batch its request went into
+    /// is durable (`held_replies`).
+    pub(crate) async fn answer(&mut self, q: Query, key: String, answer: Vec<u8>) {
+        if self.journal.is_some() {
+            self.held_replies.push_back((None, q, key, answer));
+        } else {
+            reply(&q, key, answer).await;
+        }
+    }
+
+    /// Whether as many answers wait for the journal as are held: a request now is refused untaken.
+    pub(crate) fn replies_full(&self) -> bool {
+        self.held_replies.len() >= baton_proto::limits::HELD_REPLIES_MAX
+    }
+
+    pub(crate) fn busy(&self) -> String {
+        format!(
+            "not taken: {} answers already wait for the journal to be written; ask again in a moment",
+            self.held_replies.len()
+        )
+    }
+
+    pub(crate) fn set_busy(&self) -> SetReply {
+        SetReply { chart: self.core.core().program().name.clone(), ok: false, message: self.busy() }
+    }
+
     /// `baton ctl`: an operator's command, recorded and applied (or refused, which is recorded too: the trace
     /// says so).
     pub(crate) fn on_ctl(&mut self, q: &Query) -> CtlReply {
@@ -378,7 +406,6 @@ impl Shell {
         // The recording's values after every input, as a replay of the journal sees them.
         let now = self.core.core().now_ms();
         self.out.values(now, self.core.core());
-        outputs.extend(self.out.watched_changes(now, self.core.core()).into_iter().map(CoordOutput::Trace));
         let Some(journal) = &mut self.journal else {
             return self.carry_out(outputs).await;
         };
@@ -397,6 +424,10 @@ impl Shell {
         } else {
             journal.write(records, messages)?
         };
+        // Answers to requests taken since the last commit: the batch just written holds what they did.
+        for (waits, ..) in self.held_replies.iter_mut().rev().take_while(|(waits, ..)| waits.is_none()) {
+            *waits = Some(batch);
+        }
         if !local.is_empty() {
             self.held.push_back((batch, local));
         }
@@ -433,7 +464,7 @@ impl Shell {
             let Some((_, outputs)) = self.held.pop_front() else { break };
             self.carry_out(outputs).await?;
         }
-        while self.held_replies.front().is_some_and(|(batch, _, _, _)| *batch <= durable) {
+        while self.held_replies.front().is_some_and(|(batch, _, _, _)| batch.is_some_and(|b| b <= durable)) {
             let Some((_, q, key, answer)) = self.held_replies.pop_front() else { break };
             reply(&q, key, answer).await;
         }
@@ -509,6 +540,7 @@ impl Shell {
             tokens_dispatched: stats.dispatched,
             tokens_returned: stats.returned,
             messages_dropped: stats.dropped + self.decode_drops,
+            left: false,
             steps,
             vars,
             journal: self.journal.as_ref().map(crate::journal::Writer::stats),

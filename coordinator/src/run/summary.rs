@@ -20,6 +20,9 @@ pub struct Summary {
     pub steps: BTreeMap<String, StepTime>,
     /// Final values of the chart's variables.
     pub vars: BTreeMap<String, String>,
+    /// The process went away (SIGTERM with a journal) and left the run as it stands, for its journal to resume:
+    /// `state` is where it stood.
+    pub left: bool,
     /// With `--journal`: records written and transactions committed by this process.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub journal: Option<crate::journal::JournalStats>,
@@ -34,6 +37,10 @@ pub struct StepTime {
 impl Summary {
     pub fn print(&self) {
         match self.state.as_str() {
+            _ if self.left => println!(
+                "chart `{}` left in state {} after {} ms, for its journal to resume",
+                self.chart, self.state, self.duration_ms
+            ),
             "stopped" | "aborted" => {
                 println!("chart `{}` was {} after {} ms", self.chart, self.state, self.duration_ms)
             }

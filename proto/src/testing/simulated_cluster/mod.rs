@@ -181,6 +181,8 @@ pub struct SimCluster {
     pub trace: Vec<TraceRecord>,
     pub seed: u64,
     pub messages: u64,
+    /// Variables whose `value` records the coordinator traces (`watch`), as `baton run --watch` has them.
+    pub(super) watched: Vec<crate::exec::program::VarId>,
     /// Every message sent, as it went on the wire, when `capture` is on: `(what, bytes)` with `what` the fuzz
     /// target's selector (`testing::fuzz::wire_message`: 0 to an agent, 1 a report, 2 a variable update).
     pub captured: Option<Vec<(u8, Vec<u8>)>>,
@@ -318,6 +320,7 @@ impl SimCluster {
             trace: Vec::new(),
             seed,
             messages: 0,
+            watched: Vec::new(),
             captured: None,
         };
         sim.flush_coordinator();
@@ -357,6 +360,14 @@ impl SimCluster {
 
     /// The coordinator process dies at `t_ms` (SIGKILL: what it took but had not yet made durable is lost) and
     /// starts again from its journal `down_ms` later.
+    /// Traces the values of every variable of the chart that an operator may see (`baton run --watch` on each),
+    /// in the live run and in every resume and replay of it.
+    pub fn watch_all(&mut self) {
+        let vars = self.program.vars.iter().enumerate().filter(|(_, v)| !v.constant && !v.hidden);
+        self.watched = vars.map(|(i, _)| crate::exec::program::VarId(i as u32)).collect();
+        self.coordinator.watch(self.watched.clone());
+    }
+
     pub fn crash_coordinator_at(&mut self, t_ms: u64, down_ms: u64) {
         self.crashes.push((t_ms, down_ms));
         self.crashes.sort_unstable();
@@ -389,6 +400,7 @@ impl SimCluster {
         let run = FIRST_RUN;
         let (program, layout) = (Arc::clone(&self.program), Arc::clone(&self.layout));
         let mut whole = Journaled::start(program, layout, run, self.hash.clone(), self.cycle_ms);
+        whole.watch(self.watched.clone());
         self.last_cycle_ms = None;
         let replayed = whole.replay(self.journal.iter().map(Vec::as_slice)).expect("the journal replays");
         assert!(replayed.ended.is_none(), "seed {}: a run that ended was restarted", self.seed);
@@ -410,6 +422,7 @@ impl SimCluster {
                 let (mut fresh, meta) =
                     Journaled::restore(Arc::clone(&self.program), Arc::clone(&self.layout), bytes).expect("restores");
                 assert_eq!(meta.records, *at as u64, "seed {}: the snapshot's record count", self.seed);
+                fresh.watch(self.watched.clone());
                 fresh.replay(self.journal[*at..].iter().map(Vec::as_slice)).expect("the records after it replay");
                 let mut resumed = again[..meta.trace_records as usize].to_vec();
                 resumed.extend(std::iter::from_fn(|| fresh.poll_output()).filter_map(|out| match out {

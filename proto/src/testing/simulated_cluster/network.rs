@@ -183,6 +183,7 @@ impl SimCluster {
                 // show in what the run does. And it must be the same to the byte.
                 let (program, layout) = (Arc::clone(&self.program), Arc::clone(&self.layout));
                 let (mut restored, _) = Journaled::restore(program, layout, &bytes).expect("a snapshot restores");
+                restored.watch(self.watched.clone());
                 let again = restored.snapshot(serde_json::Value::Null).expect("nothing pending");
                 assert!(again == bytes, "seed {}: a restored coordinator's snapshot differs", self.seed);
                 self.coordinator = restored;
