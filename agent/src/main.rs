@@ -74,6 +74,8 @@ fn default_pki_dir() -> std::path::PathBuf {
 }
 
 fn main() -> ExitCode {
+    // Zenoh's own log, when `RUST_LOG` asks for it (`RUST_LOG=zenoh=debug`): what its sessions, links and routing do.
+    zenoh::try_init_log_from_env();
     // The whole agent runs on a thread of the stack a chart may need (`limits::CHART_STACK_BYTES`), as do its
     // runtime's threads, where fetched charts are compiled: whatever `baton check` accepts runs here.
     let main = std::thread::Builder::new().name("baton-agent".into()).stack_size(CHART_STACK_BYTES).spawn(agent_main);

@@ -28,6 +28,8 @@ use tokio::sync::{mpsc, watch};
 use zenoh::sample::Sample;
 use zenoh::Session;
 
+use baton_shell::traffic;
+
 use crate::connections::Connections;
 use crate::skill::{SkillCall, SkillContext, SkillFuture, Skills, STOP_WAIT_MAX};
 use baton_proto::types::Value;
@@ -164,6 +166,8 @@ struct Shell {
     dropped: u64,
     /// This process, as the coordinator tells it from a restarted one of the same name.
     incarnation: uuid::Uuid,
+    /// Since when the router has been silent, while it is (`watch_router`): a run joined meanwhile starts fenced.
+    contact_lost: Option<u64>,
 }
 
 enum SkillEvent {
@@ -243,10 +247,27 @@ pub async fn run_until(
     let opened = zenoh::open(zconfig).await;
     notice.abort();
     let session = opened.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
+    // Its roles, each a liveliness token the router's access control lets only the identities deployed with that
+    // role announce: refused, the agent says so and does not run (a coordinator would not give it the role's
+    // steps either). Before the name check, so that the reason a process is refused is its own; the tokens of a
+    // second process under a taken name give the first no role it does not claim (`announced_roles`).
+    let mut _roles = Vec::with_capacity(config.roles.len());
+    for role in &config.roles {
+        let token = traffic::token(&session, keys::alive_role(&name, role))
+            .await
+            .map_err(|e| anyhow!("cannot announce role `{role}`: {e}"))?;
+        _roles.push(token);
+    }
+    if let Some(role) = refused_role(&session, &name, &config.roles).await? {
+        session.close().await.map_err(|e| anyhow!("{e}"))?;
+        anyhow::bail!(
+            "the router does not let `{name}` serve role `{role}`: its access control lets an identity announce only \
+             the roles its deployment gives it (`baton deploy acl … --agent {name}={role}`); run without --role \
+             {role}, or deploy it"
+        );
+    }
     // A name is held by one live process: two would both run what is sent to it.
-    let holders = session
-        .liveliness()
-        .get(keys::alive(&name))
+    let holders = traffic::liveliness_get(&session, keys::alive(&name))
         .timeout(LIVELINESS_CHECK_TIMEOUT)
         .await
         .map_err(|e| anyhow!("cannot ask the router which agents are live: {e}"))?;
@@ -261,23 +282,19 @@ pub async fn run_until(
     let incarnation = uuid::Uuid::new_v4();
     // Everything a coordinator may use is declared before the liveliness token announces the agent: a
     // coordinator asks for the info as soon as it sees the token, and may dispatch right after.
-    let info_q = session.declare_queryable(keys::agent_info(&name)).await.map_err(|e| anyhow!("{e}"))?;
-    let why_q = session.declare_queryable(keys::agent_why(&name)).await.map_err(|e| anyhow!("{e}"))?;
+    let info_q = traffic::queryable(&session, keys::agent_info(&name)).await.map_err(|e| anyhow!("{e}"))?;
+    let why_q = traffic::queryable(&session, keys::agent_why(&name)).await.map_err(|e| anyhow!("{e}"))?;
     // Commands to this process only: a second process of the same name (which the check above refuses, but two
     // may start at the same moment) hears none of them.
-    let cmd_sub = session
-        .declare_subscriber(keys::agent_cmd(&name, incarnation))
+    let cmd_sub = traffic::subscriber(&session, keys::agent_cmd(&name, incarnation))
         .with(baton_shell::inbox())
         .await
         .map_err(|e| anyhow!("{e}"))?;
-    let vars_sub = session
-        .declare_subscriber(keys::vars_any_run())
+    let vars_sub = traffic::subscriber(&session, keys::vars_any_run())
         .with(baton_shell::inbox())
         .await
         .map_err(|e| anyhow!("{e}"))?;
-    let _alive = session
-        .liveliness()
-        .declare_token(keys::alive(&name))
+    let _alive = traffic::token(&session, keys::alive(&name))
         .await
         .map_err(|e| anyhow!("cannot declare the liveliness token: {e}"))?;
     let (tx, mut rx) = mpsc::unbounded_channel();
@@ -297,6 +314,7 @@ pub async fn run_until(
         outbox: baton_shell::Outbox::new(&session),
         dropped: 0,
         incarnation,
+        contact_lost: None,
     };
     tokio::spawn(watch_router(session.clone(), name.clone(), config.lease_ms, shell.events.clone()));
     let roles =
@@ -326,7 +344,7 @@ pub async fn run_until(
             q = info_q.recv_async() => {
                 let Ok(q) = q else { break };
                 let info = wire::encode(&shell.info(incarnation));
-                if let Err(e) = q.reply(q.key_expr().clone(), info).await {
+                if let Err(e) = traffic::reply(&q, q.key_expr().to_string(), info).await {
                     eprintln!("warning: cannot answer an info query: {e}");
                 }
             }
@@ -334,7 +352,7 @@ pub async fn run_until(
                 let Ok(q) = q else { break };
                 // One answer per run this agent takes part in, each its own reply.
                 for report in shell.why() {
-                    if let Err(e) = q.reply(q.key_expr().clone(), wire::encode(&report)).await {
+                    if let Err(e) = traffic::reply(&q, q.key_expr().to_string(), wire::encode(&report)).await {
                         eprintln!("warning: cannot answer a why query: {e}");
                     }
                 }
@@ -561,6 +579,9 @@ impl Shell {
                 let (name, roles) = (&self.config.name, &self.config.roles);
                 let mut state = AgentRun::new(name, roles, run, hash.clone(), program, layout, cycle_ms);
                 state.set_incarnation(self.incarnation);
+                if let Some(silent_ms) = self.contact_lost {
+                    state.handle_contact(now, Some(silent_ms));
+                }
                 self.check_skills(&state);
                 let devices = self.start_devices(run, &state);
                 let mut r = Run { state, last_used: Instant::now(), devices };
@@ -590,6 +611,7 @@ impl Shell {
                     ),
                     None => eprintln!("the router is back"),
                 }
+                self.contact_lost = lost;
                 for r in self.runs.values_mut() {
                     r.state.handle_contact(now, lost);
                 }
@@ -813,6 +835,27 @@ impl Shell {
     }
 }
 
+/// The first of `roles` the router did not take the agent's token of, if any: the router's answer to a liveliness
+/// query lists the tokens it has, and this session answers with its own, so each role taken is answered twice.
+async fn refused_role(session: &Session, name: &str, roles: &[String]) -> anyhow::Result<Option<String>> {
+    if roles.is_empty() {
+        return Ok(None);
+    }
+    let replies = traffic::liveliness_get(session, keys::alive_roles(name))
+        .timeout(LIVELINESS_CHECK_TIMEOUT)
+        .await
+        .map_err(|e| anyhow!("cannot ask the router which roles it took: {e}"))?;
+    let mut answers: HashMap<String, usize> = HashMap::new();
+    while let Ok(reply) = replies.recv_async().await {
+        if let Ok(sample) = reply.result() {
+            if let Some(role) = keys::role_of_alive(sample.key_expr().as_str(), name) {
+                *answers.entry(role.to_string()).or_default() += 1;
+            }
+        }
+    }
+    Ok(roles.iter().find(|r| answers.get(r.as_str()).copied().unwrap_or(0) < 2).cloned())
+}
+
 /// Watches the link to the router for the lease fence: every `fence_check_ms` the agent asks the router for its
 /// own liveliness token (the router's answer comes besides the session's own). Silent for `fence_after_ms`, the
 /// agent is fenced: it tells the main loop, and again when the router answers.
@@ -826,7 +869,7 @@ async fn watch_router(session: Session, name: String, lease_ms: u64, tx: mpsc::U
     loop {
         tick.tick().await;
         let mut answers = 0;
-        if let Ok(replies) = session.liveliness().get(keys::alive(&name)).timeout(check).await {
+        if let Ok(replies) = traffic::liveliness_get(&session, keys::alive(&name)).timeout(check).await {
             while let Ok(reply) = replies.recv_async().await {
                 answers += usize::from(reply.result().is_ok());
             }
@@ -852,8 +895,7 @@ fn unix_ms() -> u128 {
 
 /// Asks the coordinator of `run` for its chart and compiles it; the chart must hash to `hash`.
 async fn fetch_chart(session: &Session, run: RunId, hash: &ChartHash) -> Result<Fetched, String> {
-    let replies = session
-        .get(keys::chart(run))
+    let replies = traffic::get(session, keys::chart(run))
         .timeout(CHART_FETCH_TIMEOUT)
         .await
         .map_err(|e| format!("cannot ask for the chart: {e}"))?;

@@ -24,7 +24,9 @@ async fn ask<T: serde::de::DeserializeOwned>(
     payload: Option<Vec<u8>>,
 ) -> anyhow::Result<Vec<T>> {
     // Every run's reply, even if two ever came on one key.
-    let mut get = session.get(key).consolidation(zenoh::query::ConsolidationMode::None).timeout(QUERY_TIMEOUT);
+    let mut get = baton_shell::traffic::get(session, key)
+        .consolidation(zenoh::query::ConsolidationMode::None)
+        .timeout(QUERY_TIMEOUT);
     if let Some(p) = payload {
         get = get.payload(p);
     }
@@ -77,8 +79,14 @@ fn print_why(steps: &[baton_proto::dist::wire::StepWhy]) {
     }
 }
 
-/// Who this process acts for, as commands say it: `user@host` (the Zenoh identity, where authentication is
-/// configured, is the router's to check).
+/// Who this process sends `set` and `ctl` as, on the keys that name it (`keys::set`, `keys::ctl`): the Zenoh
+/// identity it authenticates with (its user name, or its certificate's common name), which the router's access
+/// control lets ask only on its own keys; else `user@host`, which nothing checks.
+pub fn sender(file: Option<&Path>) -> String {
+    keys::sender_name(&baton_shell::zenoh_identity(file).unwrap_or_else(who))
+}
+
+/// Who this process acts for: `user@host`.
 pub fn who() -> String {
     let user = std::env::var("USER").or_else(|_| std::env::var("LOGNAME")).unwrap_or_else(|_| "unknown".into());
     let mut buf = [0u8; 256];
@@ -112,14 +120,14 @@ async fn ask_one_run<T: serde::de::DeserializeOwned>(
     connect: &[String],
     file: Option<&Path>,
     run: Option<&str>,
-    key_of: fn(RunId) -> String,
+    key_of: fn(RunId, &str) -> String,
     payload: Vec<u8>,
 ) -> anyhow::Result<Vec<T>> {
     let session = open(connect, file).await?;
     let result = async {
         let runs: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
         let target = pick_run(&runs, run, connect)?;
-        ask(&session, key_of(target), Some(payload)).await
+        ask(&session, key_of(target, &sender(file)), Some(payload)).await
     }
     .await;
     session.close().await.map_err(|e| anyhow!("{e}"))?;
@@ -141,7 +149,7 @@ pub async fn set(
     name: &str,
     value: serde_json::Value,
 ) -> anyhow::Result<bool> {
-    let request = wire::encode(&SetRequest { name: name.to_string(), value });
+    let request = wire::encode(&SetRequest { name: name.to_string(), value, by: sender(file) });
     let replies: Vec<SetReply> = ask_one_run(connect, file, run, keys::set, request).await?;
     for r in &replies {
         if r.ok {
@@ -174,15 +182,48 @@ pub async fn ctl(
     Ok(replies.iter().any(|r| r.ok))
 }
 
+/// Waits until the run `run` names (`pick_run`) has left its acting ("-ing") state — PackML's state complete — and
+/// prints the state it reached; an error after `limit`.
+pub async fn wait_settled(
+    connect: &[String],
+    file: Option<&Path>,
+    run: Option<&str>,
+    limit: Duration,
+) -> anyhow::Result<()> {
+    let session = open(connect, file).await?;
+    let settled = tokio::time::timeout(limit, async {
+        loop {
+            let runs: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
+            let target = pick_run(&runs, run, connect)?;
+            let now = runs.iter().find(|r| r.run == target).map(|r| r.state);
+            match now {
+                Some(state) if state.when_done().is_none() => return anyhow::Ok(state),
+                // Acting, or gone for a moment between two answers: asked again.
+                _ => tokio::time::sleep(Duration::from_millis(50)).await,
+            }
+        }
+    })
+    .await;
+    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    match settled {
+        Ok(state) => {
+            println!("the run is {}", state?.name());
+            Ok(())
+        }
+        Err(_) => bail!("the run did not finish what the command began within {} s (--wait)", limit.as_secs()),
+    }
+}
+
 /// The status of every run behind `session`'s router.
 pub async fn status_on(session: &Session) -> anyhow::Result<Vec<StatusReport>> {
     ask(session, keys::status_any_run(), None).await
 }
 
 /// Sends an operator's command to run `run` (or, with `None`, to every chart behind `session`'s router, which only a
-/// router of one run may do): their replies.
+/// router of one run may do), as `request.by`: their replies.
 pub async fn ctl_on(session: &Session, run: Option<RunId>, request: &CtlRequest) -> anyhow::Result<Vec<CtlReply>> {
-    let key = run.map_or_else(keys::ctl_any_run, keys::ctl);
+    let by = keys::sender_name(&request.by);
+    let key = run.map_or_else(|| keys::ctl_any_run(&by), |r| keys::ctl(r, &by));
     ask(session, key, Some(wire::encode(request))).await
 }
 
@@ -234,8 +275,9 @@ pub async fn set_on(
     name: &str,
     value: serde_json::Value,
 ) -> anyhow::Result<Vec<SetReply>> {
-    let request = wire::encode(&SetRequest { name: name.to_string(), value });
-    let key = run.map_or_else(keys::set_any_run, keys::set);
+    let by = sender(None);
+    let request = wire::encode(&SetRequest { name: name.to_string(), value, by: by.clone() });
+    let key = run.map_or_else(|| keys::set_any_run(&by), |r| keys::set(r, &by));
     ask(session, key, Some(request)).await
 }
 

@@ -145,6 +145,22 @@ const fn fence_holds(lease_ms: u64) -> bool {
 }
 const _: () = assert!(fence_holds(100) && fence_holds(1_000) && fence_holds(10_000) && fence_holds(600_000));
 
+/// How long an agent whose liveliness token went stays live for the coordinator, in case it comes back: a session
+/// that Zenoh drops and takes back in milliseconds — zenoh-link-tls 1.10.2 drops a TLS session now and then and
+/// reconnects it at once (`tests/tests/zenoh_tls_race.rs`) — is no loss, and raises no alarm. An eighth of the
+/// agent's lease, at most `LOSS_GRACE_MS_MAX`; it only delays what a loss does (a reassignment comes later still,
+/// so the fence above holds as it did).
+pub const LOSS_GRACE_MS_MAX: u64 = 250;
+
+pub const fn loss_grace_ms(lease_ms: u64) -> u64 {
+    let g = lease_ms / 8;
+    if g < LOSS_GRACE_MS_MAX {
+        g
+    } else {
+        LOSS_GRACE_MS_MAX
+    }
+}
+
 /// Agents one coordinator tracks (live ones, and lost ones that still hold a token).
 pub const AGENTS_MAX: usize = 4096;
 

@@ -23,6 +23,7 @@
 //!   and a live key is declared again on its next use.
 
 pub mod cable;
+pub mod traffic;
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -154,7 +155,7 @@ impl Outbox {
     }
 
     fn declaring(&self, key: &str) -> zenoh::pubsub::PublisherBuilder<'_, 'static> {
-        self.session.declare_publisher(key.to_string()).congestion_control(CongestionControl::Block).express(true)
+        traffic::publisher(&self.session, key.to_string()).congestion_control(CongestionControl::Block).express(true)
     }
 
     /// Keeps a declared publisher, the outbox emptied first when it is full.

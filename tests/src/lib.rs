@@ -27,6 +27,7 @@
 //! `check_scenario_schema.py`, `docs/baton-test.schema.json` applied to every scenario with `jsonschema`;
 //! `screenshot.py`, the README's picture); `benches/core.rs` (criterion).
 
+pub mod access;
 pub mod conformance;
 pub mod gen;
 pub mod harness;

@@ -208,10 +208,12 @@ async fn cell(
         ] {
             s.put(key, payload).await.expect("a put is accepted locally");
         }
-        let set = SetRequest { name: "go".into(), value: serde_json::json!(false) };
+        let set = SetRequest { name: "go".into(), value: serde_json::json!(false), by: "robot1".into() };
         let abort =
             CtlRequest { command: "abort".into(), reason: "rogue".into(), by: "robot1".into(), ..Default::default() };
-        for (key, payload) in [(keys::set(run), wire::encode(&set)), (keys::ctl(run), wire::encode(&abort))] {
+        for (key, payload) in
+            [(keys::set(run, "robot1"), wire::encode(&set)), (keys::ctl(run, "robot1"), wire::encode(&abort))]
+        {
             let replies = s.get(key).payload(payload).timeout(Duration::from_secs(2)).await.expect("a query goes out");
             while let Ok(r) = replies.recv_async().await {
                 if r.result().is_ok() {

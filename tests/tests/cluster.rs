@@ -264,7 +264,8 @@ async fn garbage_on_batons_keys_changes_nothing() {
     // An agent that announces itself but never says who it is.
     let _ghost = session.liveliness().declare_token(keys::alive("ghost")).await.expect("token");
     // A set request that is not one.
-    let bad_set = session.get(keys::set(run)).payload(b"nonsense".to_vec()).timeout(TIMEOUT).await.expect("set query");
+    let bad_set =
+        session.get(keys::set(run, "tester")).payload(b"nonsense".to_vec()).timeout(TIMEOUT).await.expect("set query");
     let answer = bad_set.recv_async().await.expect("an answer");
     let text = String::from_utf8_lossy(&answer.result().expect("ok").payload().to_bytes()).into_owned();
     assert!(text.contains("\"ok\":false") && text.contains("malformed request"), "{text}");

@@ -352,7 +352,7 @@ async fn refusals_are_answered_at_once_with_or_without_a_journal() {
             let session = cluster.watch().await;
             let status = baton_coordinator_status(&session).await;
             let run: wire::RunId = serde_json::from_value(status["run"].clone()).expect("run id");
-            for key in [keys::set(run), keys::ctl(run)] {
+            for key in [keys::set(run, "tester"), keys::ctl(run, "tester")] {
                 let replies = session
                     .get(&key)
                     .payload(b"{not a request".to_vec())

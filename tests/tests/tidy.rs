@@ -497,3 +497,42 @@ fn the_path_reader_expands_use_trees_and_skips_comments_and_strings() {
     let found: Vec<String> = paths(&kept).iter().map(|p| p.join("::")).collect();
     assert_eq!(found, ["crate::a"]);
 }
+
+/// Calls that send a Zenoh message without `baton_shell::traffic` listing it.
+const ZENOH_UNLISTED: &[&str] = &[
+    ".declare_subscriber(",
+    ".declare_queryable(",
+    ".declare_publisher(",
+    ".declare_token(",
+    ".declare_querier(",
+    ".liveliness()",
+    ".reply(",
+    ".reply_err(",
+    "session.get(",
+    "session.put(",
+    "session.delete(",
+];
+
+/// Every Zenoh message a process of Baton's sends is declared through `baton_shell::traffic`, which lists it
+/// (`BATON_TRAFFIC`): the access control `baton deploy acl` writes is checked against those lists
+/// (`tests/tests/deploying.rs`), so a message sent around it would be one the rules were never checked for.
+#[test]
+fn every_zenoh_message_goes_through_traffic() {
+    let root = root();
+    let mut found = Vec::new();
+    for dir in ["shell/src", "agent/src", "coordinator/src"] {
+        for path in sources(&root.join(dir)) {
+            let rel = path.strip_prefix(&root).expect("in the workspace");
+            if rel == Path::new("shell/src/traffic.rs") {
+                continue;
+            }
+            let code = without_tests(&code_only(&std::fs::read_to_string(&path).expect("a source file")));
+            for (n, line) in code.lines().enumerate() {
+                if let Some(call) = ZENOH_UNLISTED.iter().find(|c| line.contains(*c)) {
+                    found.push(format!("{}:{}: {call}", rel.display(), n + 1));
+                }
+            }
+        }
+    }
+    assert!(found.is_empty(), "Zenoh messages sent around baton_shell::traffic:\n  {}", found.join("\n  "));
+}

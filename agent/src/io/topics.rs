@@ -44,12 +44,13 @@ async fn follow(ros2: &Ros2, session: &Session, binding: usize, b: &IoBinding, s
     let (topic, ty, path) = resolve(ros2, b, false)?;
     let node = ros2.node(session).await?;
     let (_endpoint, subscriber) = node.subscription(&topic, &ty.wire).await?;
-    let graph = session
-        .liveliness()
-        .declare_subscriber(keys::servers(node.via(), node.domain(), Kind::Publisher, &topic))
-        .history(true)
-        .await
-        .map_err(|e| format!("cannot watch the ROS graph: {e}"))?;
+    let graph = baton_shell::traffic::liveliness_subscriber(
+        session,
+        keys::servers(node.via(), node.domain(), Kind::Publisher, &topic),
+    )
+    .history(true)
+    .await
+    .map_err(|e| format!("cannot watch the ROS graph: {e}"))?;
     // Publishers in the graph by token: those of our type, and those of another (which never reach us).
     let mut ours: BTreeSet<String> = BTreeSet::new();
     let mut others: BTreeMap<String, WireType> = BTreeMap::new();

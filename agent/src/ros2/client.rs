@@ -114,7 +114,7 @@ pub struct Endpoint {
 
 /// Declares a liveliness token; `what` says what it announces, for the error.
 async fn announce(session: &Session, key: String, what: &str) -> Result<LivelinessToken, String> {
-    session.liveliness().declare_token(key).await.map_err(|e| format!("cannot announce {what}: {e}"))
+    baton_shell::traffic::token(session, key).await.map_err(|e| format!("cannot announce {what}: {e}"))
 }
 
 /// Whether `name` is one of an action's services or topics (`<action>/_action/send_goal`…), which a bridge
@@ -177,10 +177,7 @@ impl Node {
         deadline: Instant,
     ) -> Result<WireType, String> {
         let pattern = keys::servers(self.via, self.id.domain, kind, name);
-        let sub = self
-            .session
-            .liveliness()
-            .declare_subscriber(pattern)
+        let sub = baton_shell::traffic::liveliness_subscriber(&self.session, pattern)
             .history(true)
             .await
             .map_err(|e| format!("cannot watch the ROS graph: {e}"))?;
@@ -260,23 +257,21 @@ impl Node {
     /// Subscribes to `topic` as rmw_zenoh does: the data key of its type, and the subscription's token.
     pub async fn subscription(&self, topic: &str, wire: &WireType) -> Result<(Endpoint, Subscription), String> {
         let endpoint = self.endpoint(Kind::Subscription, topic, wire, keys::TOPIC_QOS).await?;
-        let subscriber = self
-            .session
-            .declare_subscriber(keys::data(self.via, self.id.domain, topic, wire))
-            .await
-            .map_err(|e| format!("cannot subscribe to {topic}: {e}"))?;
+        let subscriber =
+            baton_shell::traffic::subscriber(&self.session, keys::data(self.via, self.id.domain, topic, wire))
+                .await
+                .map_err(|e| format!("cannot subscribe to {topic}: {e}"))?;
         Ok((endpoint, subscriber))
     }
 
     /// A publication on `topic`, announced in the graph; its messages carry rmw_zenoh's attachment.
     pub async fn publisher(&self, topic: &str, ty: &TopicType) -> Result<TopicPublisher, String> {
         let endpoint = self.endpoint(Kind::Publisher, topic, &ty.wire, keys::TOPIC_QOS).await?;
-        let publisher = self
-            .session
-            .declare_publisher(keys::data(self.via, self.id.domain, topic, &ty.wire))
-            .congestion_control(CongestionControl::Block)
-            .await
-            .map_err(|e| format!("cannot publish on {topic}: {e}"))?;
+        let publisher =
+            baton_shell::traffic::publisher(&self.session, keys::data(self.via, self.id.domain, topic, &ty.wire))
+                .congestion_control(CongestionControl::Block)
+                .await
+                .map_err(|e| format!("cannot publish on {topic}: {e}"))?;
         Ok(TopicPublisher { endpoint, publisher, sequence: 0 })
     }
 
@@ -301,9 +296,7 @@ impl Node {
             let sequence = self.next_sequence.fetch_add(1, Ordering::Relaxed);
             let sent = Instant::now();
             let left = limit.saturating_sub(sent - started);
-            let replies = self
-                .session
-                .get(&key)
+            let replies = baton_shell::traffic::get(&self.session, key.clone())
                 .payload(request.clone())
                 .attachment(keys::attachment(sequence, now_ns(), &client.gid))
                 .target(match self.via {

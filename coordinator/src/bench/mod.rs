@@ -22,6 +22,7 @@ mod resume;
 mod scale;
 use crate::run::{run_with, Probe, RunOptions};
 use baton_proto::exec::trace::TraceEvent;
+use baton_shell::traffic;
 
 const PING_KEY: &str = "baton/bench/ping";
 const PONG_KEY: &str = "baton/bench/pong";
@@ -392,10 +393,9 @@ fn router_config(listen: &str, connect: &[String]) -> anyhow::Result<zenoh::Conf
 async fn raw_round_trip(samples: u32) -> anyhow::Result<Vec<Duration>> {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
     let session = zenoh::open(router_config(&endpoint, &[])?).await.map_err(|e| anyhow!("{e}"))?;
-    let alive = session.liveliness().declare_subscriber(ECHO_ALIVE_KEY).await.map_err(|e| anyhow!("{e}"))?;
-    let pong = session.declare_subscriber(PONG_KEY).await.map_err(|e| anyhow!("{e}"))?;
-    let ping = session
-        .declare_publisher(PING_KEY)
+    let alive = traffic::liveliness_subscriber(&session, ECHO_ALIVE_KEY.into()).await.map_err(|e| anyhow!("{e}"))?;
+    let pong = traffic::subscriber(&session, PONG_KEY.into()).await.map_err(|e| anyhow!("{e}"))?;
+    let ping = traffic::publisher(&session, PING_KEY.into())
         .congestion_control(CongestionControl::Block)
         .express(true)
         .await
@@ -435,14 +435,13 @@ pub async fn echo(connect: &[String]) -> anyhow::Result<()> {
     let net = NetConfig::client(connect, false);
     let config = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("{e}"))?;
     let session = zenoh::open(config).await.map_err(|e| anyhow!("{e}"))?;
-    let pings = session.declare_subscriber(PING_KEY).await.map_err(|e| anyhow!("{e}"))?;
-    let pong = session
-        .declare_publisher(PONG_KEY)
+    let pings = traffic::subscriber(&session, PING_KEY.into()).await.map_err(|e| anyhow!("{e}"))?;
+    let pong = traffic::publisher(&session, PONG_KEY.into())
         .congestion_control(CongestionControl::Block)
         .express(true)
         .await
         .map_err(|e| anyhow!("{e}"))?;
-    let _alive = session.liveliness().declare_token(ECHO_ALIVE_KEY).await.map_err(|e| anyhow!("{e}"))?;
+    let _alive = traffic::token(&session, ECHO_ALIVE_KEY.into()).await.map_err(|e| anyhow!("{e}"))?;
     while let Ok(s) = pings.recv_async().await {
         pong.put(s.payload().clone()).await.map_err(|e| anyhow!("{e}"))?;
     }

@@ -43,6 +43,11 @@ pub struct Ctl {
     /// A Zenoh configuration file (TLS, credentials…).
     #[arg(long, value_name = "FILE")]
     pub zenoh_config: Option<PathBuf>,
+    /// Once the command is taken, wait (at most DURATION, 10 minutes if not given) until the run has done what it
+    /// leads to — `hold` until the run is held (its running motions finished), `stop` until it is stopped — and
+    /// say the state it reached.
+    #[arg(long, value_name = "DURATION", num_args = 0..=1, default_missing_value = "10m", value_parser = parse_duration_ms)]
+    pub wait: Option<u64>,
 }
 
 impl Ctl {
@@ -55,12 +60,16 @@ impl Ctl {
             for_ms: self.for_ms,
             to: self.to,
             reason: self.comment.unwrap_or(self.reason),
-            // The Zenoh identity where authentication is configured (the router checked it), else user@host.
-            by: baton_shell::zenoh_identity(self.zenoh_config.as_deref()).unwrap_or_else(crate::client::who),
+            // The coordinator records the name the request's key gives (`client::sender`).
+            by: crate::client::sender(self.zenoh_config.as_deref()),
         };
-        let (connect, run, file) = (self.connect, self.run, self.zenoh_config);
+        let (connect, run, file, wait) = (self.connect, self.run, self.zenoh_config, self.wait);
         block_on(async move {
             let taken = crate::client::ctl(&connect, file.as_deref(), run.as_deref(), request).await?;
+            if let (true, Some(limit_ms)) = (taken, wait) {
+                let limit = std::time::Duration::from_millis(limit_ms);
+                crate::client::wait_settled(&connect, file.as_deref(), run.as_deref(), limit).await?;
+            }
             Ok(if taken { ExitCode::SUCCESS } else { ExitCode::from(EXIT_INVALID) })
         })
     }

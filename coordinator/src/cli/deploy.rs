@@ -7,8 +7,9 @@ use std::process::ExitCode;
 #[derive(clap::Subcommand)]
 pub enum Deploy {
     /// Make a certificate authority in DIR (or reuse the one there) and a certificate and key per NAME, signed by
-    /// it, the name as the certificate's common name: DIR/ca.pem, DIR/ca.key, DIR/NAME.pem, DIR/NAME.key (PEM).
-    /// Give each process its own: an agent's name, the coordinator's, each operator's.
+    /// it, the name as the certificate's common name: DIR/ca.pem, DIR/ca.key, DIR/NAME.pem, DIR/NAME.key (PEM), and
+    /// DIR/NAME.json5, the Zenoh configuration NAME's process connects with (--zenoh-config). Give each process its
+    /// own: an agent's name, the coordinator's, each operator's.
     Certs(Certs),
     /// Write a router's configuration for a chart's cell: deny by default, and each identity allowed only what its
     /// part needs (an agent its own keys and the chart's bindings on it; a coordinator the coordinator's keys;
@@ -85,7 +86,13 @@ impl Deploy {
                 println!("CA {what}: {}", made.ca.display());
                 for i in &made.issued {
                     let what = if i.made { "issued" } else { "kept (--renew to issue again)" };
-                    println!("{}: {what}: {} {}", i.name, i.cert.display(), i.key.display());
+                    println!(
+                        "{}: {what}: {} {}; connects with --zenoh-config {}",
+                        i.name,
+                        i.cert.display(),
+                        i.key.display(),
+                        i.config.display()
+                    );
                 }
                 Ok(ExitCode::SUCCESS)
             }

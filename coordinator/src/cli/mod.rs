@@ -81,6 +81,9 @@ enum Command {
 }
 
 pub fn main() -> ExitCode {
+    // Zenoh's own log, when `RUST_LOG` asks for it (`RUST_LOG=zenoh=debug`): what its sessions, links, routing and a
+    // router's access control do.
+    zenoh::try_init_log_from_env();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Check(c) => c.run(),

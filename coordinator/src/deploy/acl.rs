@@ -1,13 +1,19 @@
 //! `baton deploy acl CHART`: a router's access control for a cell, from the chart's placement and the identities
 //! of its processes — deny by default, and each identity allowed only what its part needs:
 //!
-//! - an agent declares only its own liveliness token and queryables (`baton/alive/A`, `baton/agent/A/info|why`),
-//!   subscribes only to its own commands (`baton/agent/A/*/cmd`) and to variable updates, publishes reports,
-//!   variable updates and device reports only on its own keys (`…/report/A`, `…/vars/A`, `…/devices/A`), fetches
-//!   charts, and uses the Zenoh keys its bindings in the chart name;
+//! - an agent declares only its own liveliness token, the tokens of the roles its deployment gives it
+//!   (`baton/alive/A`, `baton/alive/A/role/R`) and its own queryables (`baton/agent/A/info|why`), asks the router
+//!   only about its own tokens (the name check at its start, and the lease watch), subscribes only to its own
+//!   commands (`baton/agent/A/*/cmd`) and to variable updates, publishes reports, variable updates and device
+//!   reports only on its own keys (`…/report/A`, `…/vars/A`, `…/devices/A`), fetches charts, and uses the Zenoh keys
+//!   its bindings in the chart name;
 //! - a coordinator alone commands agents, publishes the coordinator's variables, and answers `chart`, `status`,
 //!   `set` and `ctl`;
-//! - operators alone `set` and `ctl` (and read `status` and `why`); viewers only read `status` and `why`.
+//! - each operator alone `set`s and `ctl`s on its own keys (`baton/run/*/set/O`, `…/ctl/O`), whose name the
+//!   coordinator records as who asked (and reads `status` and `why`); viewers only read `status` and `why`.
+//!
+//! What each Baton process sends is what `baton_shell::traffic` lists; `tests/tests/deploying.rs` runs a cell
+//! behind these rules with every process listing it, and checks each message against them.
 //!
 //! Rules name keys per flow: `ingress` is what a process sends into the router, `egress` what the router lets reach
 //! it. Declarations of subscribers, queryables and liveliness tokens reach every Baton process (they say where
@@ -53,19 +59,27 @@ fn allow(flow: &'static str, messages: &'static [&'static str], keys: &[&str]) -
     Allow { flow, messages, keys: keys.iter().map(|k| k.to_string()).collect() }
 }
 
-/// What an agent named `a` may do, with the Zenoh keys its bindings publish (`outputs`) and subscribe (`inputs`).
-fn agent_rules(a: &str, inputs: &[String], outputs: &[String]) -> Vec<Allow> {
+/// What an agent named `a` serving `roles` may do, with the Zenoh keys its bindings publish (`outputs`) and
+/// subscribe (`inputs`).
+fn agent_rules(a: &str, roles: &[String], inputs: &[String], outputs: &[String]) -> Vec<Allow> {
     let own = |kind: &str| format!("baton/run/*/{kind}/{a}");
     let mut put_in = vec![own("report"), own("vars"), own("devices")];
     put_in.extend(outputs.iter().cloned());
     let mut sub = vec![format!("baton/agent/{a}/*/cmd"), "baton/run/*/vars/*".to_string()];
     sub.extend(inputs.iter().cloned());
     let queryables = [format!("baton/agent/{a}/info"), format!("baton/agent/{a}/why")];
+    let mut tokens = vec![format!("baton/alive/{a}")];
+    tokens.extend(roles.iter().map(|r| format!("baton/alive/{a}/role/{r}")));
     vec![
         Allow { flow: "ingress", messages: &["put"], keys: put_in },
         Allow { flow: "ingress", messages: &["declare_subscriber"], keys: sub.clone() },
         Allow { flow: "ingress", messages: &["declare_queryable", "reply"], keys: queryables.to_vec() },
-        Allow { flow: "ingress", messages: &["liveliness_token"], keys: vec![format!("baton/alive/{a}")] },
+        Allow { flow: "ingress", messages: &["liveliness_token"], keys: tokens },
+        Allow {
+            flow: "ingress",
+            messages: &["liveliness_query"],
+            keys: vec![format!("baton/alive/{a}"), format!("baton/alive/{a}/role/*")],
+        },
         allow("ingress", &["query"], &["baton/run/*/chart"]),
         Allow { flow: "egress", messages: &["put"], keys: sub },
         Allow { flow: "egress", messages: &["query"], keys: queryables.to_vec() },
@@ -74,12 +88,13 @@ fn agent_rules(a: &str, inputs: &[String], outputs: &[String]) -> Vec<Allow> {
 }
 
 fn coordinator_rules() -> Vec<Allow> {
-    let queryables = ["baton/run/*/chart", "baton/run/*/status", "baton/run/*/set", "baton/run/*/ctl"];
+    let queryables = ["baton/run/*/chart", "baton/run/*/status", "baton/run/*/set/*", "baton/run/*/ctl/*"];
     let from_agents = ["baton/run/*/report/*", "baton/run/*/vars/*", "baton/run/*/devices/*"];
     vec![
         allow("ingress", &["put"], &["baton/agent/*/*/cmd", "baton/run/*/vars/coordinator"]),
         allow("ingress", &["declare_subscriber"], &from_agents),
-        allow("ingress", &["declare_liveliness_subscriber", "liveliness_query"], &["baton/alive/*"]),
+        allow("ingress", &["declare_liveliness_subscriber"], &["baton/alive/*"]),
+        allow("ingress", &["liveliness_query"], &["baton/alive/*", "baton/alive/*/role/*"]),
         allow("ingress", &["query"], &["baton/agent/*/info"]),
         allow("ingress", &["declare_queryable", "reply"], &queryables),
         allow("egress", &["put"], &from_agents),
@@ -89,13 +104,16 @@ fn coordinator_rules() -> Vec<Allow> {
     ]
 }
 
-fn operator_rules(may_operate: bool) -> Vec<Allow> {
-    let asks: &[&str] = if may_operate {
-        &["baton/run/*/status", "baton/run/*/set", "baton/run/*/ctl", "baton/agent/*/why"]
-    } else {
-        &["baton/run/*/status", "baton/agent/*/why"]
-    };
-    vec![allow("ingress", &["query"], asks), allow("egress", &["reply"], asks)]
+/// What a viewer may ask; an operator `o` may also `set` and `ctl`, on the keys that name it.
+fn operator_rules(o: Option<&str>) -> Vec<Allow> {
+    let mut asks = vec!["baton/run/*/status".to_string(), "baton/agent/*/why".to_string()];
+    if let Some(o) = o {
+        asks.extend([format!("baton/run/*/set/{o}"), format!("baton/run/*/ctl/{o}")]);
+    }
+    vec![
+        Allow { flow: "ingress", messages: &["query"], keys: asks.clone() },
+        Allow { flow: "egress", messages: &["reply"], keys: asks },
+    ]
 }
 
 /// The `access_control` section of a router's configuration for `program` placed by `layout`.
@@ -137,7 +155,7 @@ pub fn access_control(program: &Program, layout: &Layout, ids: &Identities, by: 
     if !ids.coordinators.is_empty() {
         add("coordinators".to_string(), &ids.coordinators, coordinator_rules());
     }
-    for (name, _) in &ids.agents {
+    for (name, roles) in &ids.agents {
         let bound = |dir: IoDir| -> Vec<String> {
             let mut keys: Vec<String> = layout
                 .io
@@ -152,14 +170,15 @@ pub fn access_control(program: &Program, layout: &Layout, ids: &Identities, by: 
         add(
             format!("agent-{name}"),
             std::slice::from_ref(name),
-            agent_rules(name, &bound(IoDir::Input), &bound(IoDir::Output)),
+            agent_rules(name, roles, &bound(IoDir::Input), &bound(IoDir::Output)),
         );
     }
-    if !ids.operators.is_empty() {
-        add("operators".to_string(), &ids.operators, operator_rules(true));
+    // An operator's `set` and `ctl` keys name it: a policy of its own each.
+    for o in &ids.operators {
+        add(format!("operator-{o}"), std::slice::from_ref(o), operator_rules(Some(o)));
     }
     if !ids.viewers.is_empty() {
-        add("viewers".to_string(), &ids.viewers, operator_rules(false));
+        add("viewers".to_string(), &ids.viewers, operator_rules(None));
     }
     Ok(json!({
         "enabled": true,
@@ -196,6 +215,11 @@ fn check(program: &Program, layout: &Layout, ids: &Identities) -> anyhow::Result
         }
         if let Some(before) = seen.insert(name, what) {
             bail!("`{name}` is both {before} and {what}: one identity, one part (give each process its own)");
+        }
+    }
+    for (name, roles) in &ids.agents {
+        if let Some(bad) = roles.iter().find(|r| !is_valid_name(r)) {
+            bail!("agent `{name}`'s role `{bad}` is not a name Baton takes: letters, digits, `_` and `-`, at most 64");
         }
     }
     if ids.coordinators.is_empty() && ids.agents.is_empty() {
@@ -314,13 +338,25 @@ mod tests {
         );
         assert!(allowed(&acl, "agent-cell1", "ingress", "declare_subscriber").contains(&"cell1/door".to_string()));
         assert_eq!(allowed(&acl, "agent-robot1", "ingress", "liveliness_token"), ["baton/alive/robot1"]);
+        // w1 may announce the role its deployment gives it, and no other.
+        assert_eq!(
+            allowed(&acl, "agent-w1", "ingress", "liveliness_token"),
+            ["baton/alive/w1", "baton/alive/w1/role/welder"]
+        );
+        assert_eq!(
+            allowed(&acl, "agent-robot1", "ingress", "liveliness_query"),
+            ["baton/alive/robot1", "baton/alive/robot1/role/*"]
+        );
         assert!(allowed(&acl, "agent-robot1", "ingress", "query").iter().all(|k| k == "baton/run/*/chart"));
         let coordinator_puts = allowed(&acl, "coordinators", "ingress", "put");
         assert_eq!(coordinator_puts, ["baton/agent/*/*/cmd", "baton/run/*/vars/coordinator"]);
-        assert!(allowed(&acl, "operators", "ingress", "query").contains(&"baton/run/*/ctl".to_string()));
-        assert!(!allowed(&acl, "viewers", "ingress", "query")
-            .iter()
-            .any(|k| k.ends_with("/ctl") || k.ends_with("/set")));
+        // An operator asks only on the keys that name it.
+        let asks = allowed(&acl, "operator-anna", "ingress", "query");
+        assert!(
+            asks.contains(&"baton/run/*/ctl/anna".to_string()) && asks.contains(&"baton/run/*/set/anna".to_string())
+        );
+        assert!(!asks.iter().any(|k| k.ends_with("/*") && (k.contains("/ctl/") || k.contains("/set/"))), "{asks:?}");
+        assert!(!allowed(&acl, "viewers", "ingress", "query").iter().any(|k| k.contains("/ctl") || k.contains("/set")));
         let subjects = acl["subjects"].as_array().expect("subjects");
         assert!(subjects.iter().all(|s| s.get("cert_common_names").is_some()));
         let by_user = access_control(&program, &layout, &ids(), By::User).expect("rules");

@@ -3,9 +3,11 @@
 //! operator's — which mutual TLS proves to the router and the router's access control matches
 //! (`cert_common_names`). Every certificate serves both ends of a TLS link (a router listens, an agent connects).
 //!
-//! Files, all PEM: `DIR/ca.pem` and `DIR/ca.key` (made once, reused by every later call, so that certificates
-//! issued at different times trust each other), and `DIR/NAME.pem` + `DIR/NAME.key` per name. Keys are written
-//! readable by their owner only. A name that has its certificate already keeps it, unless `renew`.
+//! Files: `DIR/ca.pem` and `DIR/ca.key` (made once, reused by every later call, so that certificates issued at
+//! different times trust each other), and per name `DIR/NAME.pem` + `DIR/NAME.key` (PEM) and `DIR/NAME.json5`, the
+//! Zenoh configuration its process connects with (`--zenoh-config`: its certificate, its key and the CA, by absolute
+//! path, on mutual TLS). Keys are written readable by their owner only. A name that has its certificate already
+//! keeps it, unless `renew`.
 
 use std::fs;
 use std::io::Write;
@@ -33,6 +35,8 @@ pub struct Issued {
     pub key: PathBuf,
     /// Made now (false: its certificate was there already and is kept).
     pub made: bool,
+    /// The Zenoh configuration its process connects with.
+    pub config: PathBuf,
 }
 
 /// What `certs` did: whether it made the CA, and each name's certificate.
@@ -58,6 +62,8 @@ pub fn certs(dir: &Path, names: &[String], sans: &[String], renew: bool) -> anyh
         }
     }
     fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    // The configurations name the files by absolute path: a process may start anywhere.
+    let dir = &fs::canonicalize(dir).with_context(|| format!("cannot find {}", dir.display()))?;
     let (ca_pem, ca_key) = (dir.join("ca.pem"), dir.join("ca.key"));
     let ca_made = match (ca_pem.exists(), ca_key.exists()) {
         (true, true) => false,
@@ -94,9 +100,25 @@ pub fn certs(dir: &Path, names: &[String], sans: &[String], renew: bool) -> anyh
             write_key(&key, &keypair.serialize_pem())?;
             fs::write(&cert, signed.pem()).with_context(|| format!("cannot write {}", cert.display()))?;
         }
-        issued.push(Issued { name: name.clone(), cert, key, made });
+        let config = dir.join(format!("{name}.json5"));
+        let text = client_config(name, &dir.join("ca.pem"), &cert, &key);
+        fs::write(&config, text).with_context(|| format!("cannot write {}", config.display()))?;
+        issued.push(Issued { name: name.clone(), cert, key, made, config });
     }
     Ok(Made { ca: ca_pem, ca_made, issued })
+}
+
+/// The Zenoh configuration of process `name` connecting on the cell's mutual TLS.
+fn client_config(name: &str, ca: &Path, cert: &Path, key: &Path) -> String {
+    let path = |p: &Path| serde_json::Value::String(p.display().to_string()).to_string();
+    format!(
+        "// `{name}` on the cell's mutual TLS (written by `baton deploy certs`): give it to the process as \
+         --zenoh-config.\n{{\n  transport: {{\n    link: {{\n      tls: {{\n        root_ca_certificate: {},\n        \
+         connect_certificate: {},\n        connect_private_key: {},\n        enable_mtls: true,\n      }},\n    }},\n  }},\n}}\n",
+        path(ca),
+        path(cert),
+        path(key)
+    )
 }
 
 fn make_ca(cert: &Path, key: &Path) -> anyhow::Result<()> {
@@ -183,6 +205,10 @@ mod tests {
             assert!(general.iter().any(|g| matches!(g, GeneralName::IPAddress([127, 0, 0, 1]))), "{general:?}");
             let mode = fs::metadata(&i.key).expect("key").permissions().mode() & 0o777;
             assert_eq!(mode, 0o600, "{}", i.key.display());
+            // Its process's configuration: Zenoh reads it, and it connects with this certificate.
+            zenoh::Config::from_file(&i.config).expect("zenoh reads the configuration");
+            let (cert, cn) = baton_shell::certificate_identity(&i.config).expect("it connects with a certificate");
+            assert_eq!((cert, cn.as_str()), (i.cert.clone(), i.name.as_str()));
         }
         // Again, with one name more: the CA and robot1's certificate are kept, operator1's is signed by that CA.
         let before = (fs::read(&made.ca).expect("ca"), fs::read(dir.path().join("robot1.pem")).expect("robot1"));

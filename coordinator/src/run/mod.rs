@@ -476,20 +476,31 @@ async fn serve(
                 status.t_ms = shell.now_ms();
                 reply(&q, keys::status(run), wire::encode(&status)).await
             }
-            Wake::Set(q) if shell.replies_full() => {
-                reply(&q, keys::set(run), wire::encode(&shell.set_busy())).await;
-            }
-            Wake::Ctl(q) if shell.replies_full() => {
-                reply(&q, keys::ctl(run), wire::encode(&shell.ctl_reply(Err(shell.busy())))).await;
-            }
             Wake::Set(q) => {
-                let answer = wire::encode(&shell.on_set(&q));
-                shell.answer(q, keys::set(run), answer).await;
+                // Taken only from a sender the key names, answered on the run's own key with that name.
+                match request_sender(&q).map(str::to_string) {
+                    Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&shell.set_refused(why))).await,
+                    Ok(sender) if shell.replies_full() => {
+                        let answer = wire::encode(&shell.set_refused(shell.busy()));
+                        reply(&q, keys::set(run, &sender), answer).await;
+                    }
+                    Ok(sender) => {
+                        let answer = wire::encode(&shell.on_set(&q, &sender));
+                        shell.answer(q, keys::set(run, &sender), answer).await;
+                    }
+                }
             }
-            Wake::Ctl(q) => {
-                let answer = wire::encode(&shell.on_ctl(&q));
-                shell.answer(q, keys::ctl(run), answer).await;
-            }
+            Wake::Ctl(q) => match request_sender(&q).map(str::to_string) {
+                Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&shell.ctl_reply(Err(why)))).await,
+                Ok(sender) if shell.replies_full() => {
+                    let answer = wire::encode(&shell.ctl_reply(Err(shell.busy())));
+                    reply(&q, keys::ctl(run, &sender), answer).await;
+                }
+                Ok(sender) => {
+                    let answer = wire::encode(&shell.on_ctl(&q, &sender));
+                    shell.answer(q, keys::ctl(run, &sender), answer).await;
+                }
+            },
             Wake::Durable => shell.release().await?,
             Wake::Timer => {}
             Wake::Stop(baton_shell::Signal::Terminate) if shell.journal.is_some() => {

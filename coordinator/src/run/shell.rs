@@ -11,6 +11,7 @@ use baton_proto::dist::runtime::coordinator::CoordOutput;
 use baton_proto::dist::runtime::Level;
 use baton_proto::dist::wire::{self, AgentInfo, CtlReply, CtlRequest, RunId, SetReply, SetRequest};
 use baton_proto::limits::CATCH_UP_CYCLES_MAX;
+use baton_shell::traffic;
 use tokio::sync::mpsc;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
@@ -137,14 +138,14 @@ impl Inboxes {
         let zerr = |e: zenoh::Error| anyhow!("{e}");
         let inbox = baton_shell::inbox;
         Ok(Inboxes {
-            report: session.declare_subscriber(keys::report_any(run)).with(inbox()).await.map_err(zerr)?,
-            vars: session.declare_subscriber(keys::vars(run, "*")).with(inbox()).await.map_err(zerr)?,
-            devices: session.declare_subscriber(keys::devices(run, "*")).with(inbox()).await.map_err(zerr)?,
-            alive: session.liveliness().declare_subscriber(keys::alive_any()).history(true).await.map_err(zerr)?,
-            chart: session.declare_queryable(keys::chart(run)).await.map_err(zerr)?,
-            status: session.declare_queryable(keys::status(run)).await.map_err(zerr)?,
-            set: session.declare_queryable(keys::set(run)).await.map_err(zerr)?,
-            ctl: session.declare_queryable(keys::ctl(run)).await.map_err(zerr)?,
+            report: traffic::subscriber(session, keys::report_any(run)).with(inbox()).await.map_err(zerr)?,
+            vars: traffic::subscriber(session, keys::vars(run, "*")).with(inbox()).await.map_err(zerr)?,
+            devices: traffic::subscriber(session, keys::devices(run, "*")).with(inbox()).await.map_err(zerr)?,
+            alive: traffic::liveliness_subscriber(session, keys::alive_any()).history(true).await.map_err(zerr)?,
+            chart: traffic::queryable(session, keys::chart(run)).await.map_err(zerr)?,
+            status: traffic::queryable(session, keys::status(run)).await.map_err(zerr)?,
+            set: traffic::queryable(session, keys::set(run, "*")).await.map_err(zerr)?,
+            ctl: traffic::queryable(session, keys::ctl(run, "*")).await.map_err(zerr)?,
         })
     }
 }
@@ -166,10 +167,17 @@ pub(crate) enum Wake {
     Closed,
 }
 
+/// Who a `set` or `ctl` query's key says sent it; why it names nobody, if not.
+pub(crate) fn request_sender(q: &Query) -> Result<&str, String> {
+    keys::sender_of_request(q.key_expr().as_str()).ok_or_else(|| {
+        format!("the request on {} names no sender: ask on baton/run/<run>/ctl/<your name>", q.key_expr())
+    })
+}
+
 /// Answers on the queryable's own key, which names the run: a client that asked all runs (`baton/run/*/status`)
 /// gets one reply per run, where replies on the query's key would be consolidated into one.
 pub(crate) async fn reply(q: &Query, key: String, payload: Vec<u8>) {
-    if let Err(e) = q.reply(key, payload).await {
+    if let Err(e) = traffic::reply(q, key, payload).await {
         eprintln!("warning: cannot answer a query on {}: {e}", q.key_expr());
     }
 }
@@ -304,7 +312,8 @@ impl Shell {
         });
     }
 
-    pub(crate) fn on_set(&mut self, q: &Query) -> SetReply {
+    /// `baton set` of the sender `q`'s key names: applied and recorded, or refused.
+    pub(crate) fn on_set(&mut self, q: &Query, sender: &str) -> SetReply {
         let chart = self.core.core().program().name.clone();
         let request: Result<SetRequest, _> = match q.payload() {
             Some(p) => wire::decode(&p.to_bytes()),
@@ -312,7 +321,7 @@ impl Shell {
         };
         let now = self.now_ms();
         match request {
-            Ok(r) => match self.core.set(now, &r.name, &r.value) {
+            Ok(r) => match self.core.set_by(now, SetRequest { by: sender.to_string(), ..r }) {
                 Ok(message) => SetReply { chart, ok: true, message },
                 Err(message) => SetReply { chart, ok: false, message },
             },
@@ -342,19 +351,20 @@ impl Shell {
         )
     }
 
-    pub(crate) fn set_busy(&self) -> SetReply {
-        SetReply { chart: self.core.core().program().name.clone(), ok: false, message: self.busy() }
+    pub(crate) fn set_refused(&self, message: String) -> SetReply {
+        SetReply { chart: self.core.core().program().name.clone(), ok: false, message }
     }
 
-    /// `baton ctl`: an operator's command, recorded and applied (or refused, which is recorded too: the trace
-    /// says so).
-    pub(crate) fn on_ctl(&mut self, q: &Query) -> CtlReply {
+    /// `baton ctl`: a command of the operator `q`'s key names, recorded and applied (or refused, which is
+    /// recorded too: the trace says so). Who sent it is the key's name, which the router's access control
+    /// checked, whatever the request says.
+    pub(crate) fn on_ctl(&mut self, q: &Query, sender: &str) -> CtlReply {
         let request: Result<CtlRequest, String> = match q.payload() {
             Some(p) => wire::decode(&p.to_bytes()).map_err(|e| format!("malformed request: {e}")),
             None => Err("the request carries no command".into()),
         };
         let result = match request {
-            Ok(r) => self.command(r),
+            Ok(r) => self.command(CtlRequest { by: sender.to_string(), ..r }),
             Err(why) => Err(why),
         };
         self.ctl_reply(result)
@@ -555,7 +565,10 @@ pub(crate) fn identify(session: Session, name: String, tx: mpsc::UnboundedSender
         tokio::time::sleep(delay).await;
         let ev = match ask_info(&session, &name).await {
             Ok(mut infos) if infos.len() == 1 => match infos.pop() {
-                Some(info) if info.name == name => Identity::One(info),
+                Some(info) if info.name == name => match announced_roles(&session, info).await {
+                    Ok(info) => Identity::One(info),
+                    Err(why) => Identity::Unknown(name, why),
+                },
                 Some(info) => Identity::Unknown(name, format!("it calls itself `{}`", info.name)),
                 None => Identity::Unknown(name, "no answer".to_string()),
             },
@@ -564,6 +577,35 @@ pub(crate) fn identify(session: Session, name: String, tx: mpsc::UnboundedSender
         };
         let _ = tx.send(ev);
     });
+}
+
+/// The agent as the router vouches for it: only the roles it claims whose liveliness token the router has
+/// (`keys::alive_role`), which the router's access control lets an identity announce only for the roles its
+/// deployment gives it. A role claimed without its token is not taken, and said so.
+async fn announced_roles(session: &Session, mut info: AgentInfo) -> Result<AgentInfo, String> {
+    if info.roles.is_empty() {
+        return Ok(info);
+    }
+    let replies = traffic::liveliness_get(session, keys::alive_roles(&info.name))
+        .timeout(INFO_QUERY_TIMEOUT)
+        .await
+        .map_err(|e| format!("cannot ask the router for its roles: {e}"))?;
+    let mut announced = std::collections::BTreeSet::new();
+    while let Ok(reply) = replies.recv_async().await {
+        if let Some(role) = reply.result().ok().and_then(|s| keys::role_of_alive(s.key_expr().as_str(), &info.name)) {
+            announced.insert(role.to_string());
+        }
+    }
+    let (kept, claimed): (Vec<String>, Vec<String>) = info.roles.into_iter().partition(|r| announced.contains(r));
+    if !claimed.is_empty() {
+        eprintln!(
+            "warning: agent `{}` claims role(s) {} that the router did not let it announce: not taken",
+            info.name,
+            claimed.join(", ")
+        );
+    }
+    info.roles = kept;
+    Ok(info)
 }
 
 /// Asks a live agent who it is, a few times: its answer may trail its liveliness token through a router. Every
@@ -582,8 +624,7 @@ pub(crate) async fn ask_info(session: &Session, name: &str) -> Result<Vec<AgentI
 }
 
 pub(crate) async fn ask_info_once(session: &Session, name: &str) -> Result<Vec<AgentInfo>, String> {
-    let replies = session
-        .get(keys::agent_info(name))
+    let replies = traffic::get(session, keys::agent_info(name))
         // Every reply, not one per key: two processes of one name answer on the same key.
         .consolidation(zenoh::query::ConsolidationMode::None)
         .timeout(INFO_QUERY_TIMEOUT)

@@ -27,6 +27,7 @@ use baton_proto::testing::run::{fault_rng, jitter, CaseResult, Observer, Outcome
 use baton_proto::testing::scenario::{show_ms, FaultKind, NetFaults, RunState, Scenario, Trigger};
 use baton_proto::testing::simulated_cluster::{Rng, LEASE_MS};
 use baton_proto::types::{Type, Value};
+use baton_shell::traffic;
 use tokio::process::{Child, Command};
 use zenoh::Session;
 
@@ -490,7 +491,7 @@ impl<'a> World<'a> {
     /// The agents whose liveliness token the router holds; `None` when it cannot be asked.
     async fn live_agents(&self) -> Option<BTreeSet<String>> {
         let replies =
-            self.session.liveliness().get(keys::alive_any()).timeout(Duration::from_millis(500)).await.ok()?;
+            traffic::liveliness_get(&self.session, keys::alive_any()).timeout(Duration::from_millis(500)).await.ok()?;
         let mut live = BTreeSet::new();
         while let Ok(r) = replies.recv_async().await {
             if let Some(name) = r.result().ok().and_then(|s| keys::agent_of_alive(s.key_expr().as_str())) {

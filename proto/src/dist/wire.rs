@@ -25,8 +25,10 @@ use crate::types::Value;
 /// commands (`CtlRequest`): tokens are held and released (`ToAgent::Hold`, confirmed by `AgentEventKind::Held` and
 /// `Released`) and a run is aborted (`ToAgent::Abort`). 5: each agent's reports on a key of its own
 /// (`keys::report`), which must name the agent the report says it is from, as variable updates and device reports
-/// name theirs; `CtlRequest::to` (`move`).
-pub const PROTOCOL_VERSION: u32 = 5;
+/// name theirs; `CtlRequest::to` (`move`). 6: `set` and `ctl` on keys that name their sender (`keys::set`,
+/// `keys::ctl`), whose name the coordinator records as who asked; an agent's roles as liveliness tokens of their
+/// own (`keys::alive_role`).
+pub const PROTOCOL_VERSION: u32 = 6;
 
 /// One run of a chart by one coordinator.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -399,6 +401,9 @@ pub struct ChartSource {
 pub struct SetRequest {
     pub name: String,
     pub value: serde_json::Value,
+    /// Who set it, as the coordinator records it: the name the request's key gives (`keys::sender_of_request`).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub by: String,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -432,7 +437,8 @@ pub struct CtlRequest {
     /// Why, in the operator's words (`--reason`, or an acknowledgement's comment).
     #[serde(default)]
     pub reason: String,
-    /// Who sent it: the Zenoh identity where authentication is configured, `user@host` otherwise.
+    /// Who sent it, as the coordinator records it: the name the request's key gives (`keys::sender_of_request`),
+    /// which a router's access control checks; what a client writes here is replaced by it.
     #[serde(default)]
     pub by: String,
 }

@@ -45,7 +45,8 @@ struct Watch {
 
 /// Bumped when the coordinator's state changes shape; a snapshot is also restored only by the Baton version that
 /// wrote it (`SnapshotMeta::baton`), since its fields are the coordinator's own.
-pub const SNAPSHOT_FORMAT: u32 = 1;
+/// 2: an agent's `gone_at_ms` (its grace after its token went); the `--watch` values in the meta.
+pub const SNAPSHOT_FORMAT: u32 = 2;
 
 /// Where a journal's snapshot stands in its run, besides the coordinator's state.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -354,8 +355,12 @@ impl Journaled {
 
     /// `baton set`: recorded only if it applies.
     pub fn set(&mut self, now_ms: u64, name: &str, value: &serde_json::Value) -> Result<String, String> {
-        self.core.check_set(name, value)?;
-        let request = SetRequest { name: name.to_string(), value: value.clone() };
+        self.set_by(now_ms, SetRequest { name: name.to_string(), value: value.clone(), by: String::new() })
+    }
+
+    /// `baton set` of `request.by`: recorded only if it applies.
+    pub fn set_by(&mut self, now_ms: u64, request: SetRequest) -> Result<String, String> {
+        self.core.check_set(&request.name, &request.value)?;
         self.input(now_ms, Record::Set(request)).unwrap_or_else(|| Err("not applied".to_string()))
     }
 

@@ -256,7 +256,7 @@ pub fn apply(core: &mut Coordinator, entry: &Entry) -> Option<Result<String, Str
         Record::AgentUp(i) => core.handle_agent_up(now, i.clone()),
         Record::AgentDown(name) => core.handle_agent_down(now, name),
         Record::AgentConflict(name, n) => core.handle_agent_conflict(now, name, *n as usize),
-        Record::Set(s) => return Some(core.handle_set(now, &s.name, &s.value)),
+        Record::Set(s) => return Some(core.handle_set_by(now, &s.name, &s.value, &s.by)),
         Record::Command(c) => return Some(core.handle_command(now, c)),
         Record::Devices(d) => core.handle_devices(now, d.clone()),
         Record::Policy(p) => core.set_loss_policy(*p),

@@ -9,7 +9,14 @@ fn records_round_trip_and_garbage_is_an_error() {
         Entry { t_ms: 7, record: Record::Cycle },
         Entry { t_ms: 9, record: Record::AgentDown("r1".into()) },
         Entry { t_ms: 10, record: Record::AgentConflict("r1".into(), 2) },
-        Entry { t_ms: 11, record: Record::Set(SetRequest { name: "go".into(), value: serde_json::Value::Bool(true) }) },
+        Entry {
+            t_ms: 11,
+            record: Record::Set(SetRequest {
+                name: "go".into(),
+                value: serde_json::Value::Bool(true),
+                by: "anna".into(),
+            }),
+        },
         Entry {
             t_ms: 12,
             record: Record::Vars(VarUpdate {

@@ -5,6 +5,17 @@ use super::*;
 impl Coordinator {
     /// `baton set NAME=VALUE`: sets an input (a variable no action writes) before the next cycle.
     pub fn handle_set(&mut self, now_ms: u64, name: &str, value: &serde_json::Value) -> Result<String, String> {
+        self.handle_set_by(now_ms, name, value, "")
+    }
+
+    /// `handle_set` of a request `by` someone (the trace says who; nobody when empty).
+    pub fn handle_set_by(
+        &mut self,
+        now_ms: u64,
+        name: &str,
+        value: &serde_json::Value,
+        by: &str,
+    ) -> Result<String, String> {
         self.advance(now_ms);
         let (var, v) = self.check_set(name, value)?;
         let program = Arc::clone(&self.program);
@@ -13,6 +24,7 @@ impl Coordinator {
         self.engine.handle(Input::Set(var, v)).map_err(|e| e.to_string())?;
         let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Set, &info.name);
         rec.message = Some(shown.clone());
+        rec.by = (!by.is_empty()).then(|| by.to_string());
         self.trace(rec);
         self.settle();
         Ok(format!("{} := {shown}", info.name))

@@ -21,6 +21,9 @@ pub(super) struct AgentState {
     /// Its current process was sent a dispatch or a join: it takes part in the run, and hears when the writers
     /// it may take values from change (`ToAgent::Peers`).
     pub(super) joined: bool,
+    /// When its liveliness token went, while it may still come back (`limits::loss_grace_ms`): it is lost only if
+    /// it has not by then.
+    pub(super) gone_at_ms: Option<u64>,
 }
 
 impl AgentState {
@@ -37,6 +40,7 @@ impl AgentState {
             devices_down: BTreeMap::new(),
             devices_seq: 0,
             joined: false,
+            gone_at_ms: None,
         }
     }
 }
@@ -104,6 +108,11 @@ impl Coordinator {
             return;
         }
         let name = info.name.clone();
+        if self.agents.get(&name).is_some_and(|a| a.gone_at_ms.is_some() && a.incarnation != info.incarnation) {
+            // Its process went and another came within the grace: the one that went is lost, as it would have
+            // been without the grace (what it held runs again, or waits, as the loss policy says).
+            self.lose_agent(&name);
+        }
         let entry = self.agents.entry(name.clone()).or_insert_with(|| AgentState::new(info.incarnation, info.lease_ms));
         let was_alive = entry.alive;
         let recovering = std::mem::take(&mut entry.recovering);
@@ -112,6 +121,8 @@ impl Coordinator {
         let was_conflict = std::mem::take(&mut entry.conflict);
         entry.roles = info.roles.clone();
         entry.lease_ms = info.lease_ms;
+        // Back within its grace: never lost.
+        entry.gone_at_ms = None;
         entry.alive = true;
         entry.incarnation = info.incarnation;
         if restarted {
@@ -261,13 +272,47 @@ impl Coordinator {
 
     /// An agent's liveliness token is gone (killed: at once; hung or cut off: after its lease). Its tokens are
     /// paused, reassigned or fail the run, as the loss policy says.
+    /// The agent's liveliness token went: it is lost unless it comes back within its grace (`loss_grace_ms`), when
+    /// nothing happened; the next cycle after the grace loses it (`lose_gone_agents`).
     pub fn handle_agent_down(&mut self, now_ms: u64, name: &str) {
         self.advance(now_ms);
+        let Some(agent) = self.agents.get_mut(name) else { return };
+        if !agent.alive || agent.gone_at_ms.is_some() {
+            return;
+        }
+        if crate::limits::loss_grace_ms(agent.lease_ms) == 0 {
+            return self.lose_agent(name);
+        }
+        agent.gone_at_ms = Some(self.now_ms);
+    }
+
+    /// The agents whose token went and did not come back within their grace: lost now.
+    pub(super) fn lose_gone_agents(&mut self) {
+        let now = self.now_ms;
+        let due: Vec<String> = self
+            .agents
+            .iter()
+            .filter(|(_, a)| a.gone_at_ms.is_some_and(|t| now >= t + crate::limits::loss_grace_ms(a.lease_ms)))
+            .map(|(n, _)| n.clone())
+            .collect();
+        for name in due {
+            self.lose_agent(&name);
+        }
+    }
+
+    /// When the next agent whose token went is lost, if it does not come back.
+    pub(super) fn next_loss_ms(&self) -> Option<u64> {
+        self.agents.values().filter_map(|a| Some(a.gone_at_ms? + crate::limits::loss_grace_ms(a.lease_ms))).min()
+    }
+
+    /// The agent is lost: its tokens are paused, reassigned or fail the run, as the loss policy says.
+    pub(super) fn lose_agent(&mut self, name: &str) {
         let Some(agent) = self.agents.get_mut(name) else { return };
         if !agent.alive {
             return;
         }
         agent.alive = false;
+        agent.gone_at_ms = None;
         let lease_ms = agent.lease_ms;
         let mut rec = TraceRecord::new(self.now_ms, TraceEvent::AgentLost, name);
         rec.agent = Some(name.to_string());

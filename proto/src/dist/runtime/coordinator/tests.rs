@@ -39,11 +39,12 @@ fn agents_that_are_gone_and_hold_nothing_are_forgotten() {
     // names for months.
     for i in 0..(2 * AGENTS_MAX) {
         let name = format!("a{i}");
-        c.handle_agent_up(i as u64, info(&name, i as u128));
-        c.handle_agent_down(i as u64, &name);
+        let t = i as u64 * 1_000;
+        c.handle_agent_up(t, info(&name, i as u128));
+        lose(&mut c, t, &name);
     }
     assert!(c.agents.is_empty(), "{} agents remembered", c.agents.len());
-    c.handle_agent_up(10_000, info("newcomer", 1));
+    c.handle_agent_up(100_000_000, info("newcomer", 1));
     assert_eq!(c.status().agents.len(), 1, "a new agent is still taken");
 }
 
@@ -131,6 +132,12 @@ const WORKER_CHART: &str =
     TRANSITION FROM A TO B := go; END_TRANSITION\nSTEP B: {role := 'worker'} END_STEP\n\
     TRANSITION FROM B TO C := TRUE; END_TRANSITION\nSTEP C: END_STEP\n\
     ACTION Count: n := n + 1; END_ACTION\nEND_PROGRAM\n";
+
+/// Agent `name` (of `info`'s lease) is lost at `t_ms`: its token goes, and its grace passes without it.
+fn lose(c: &mut Coordinator, t_ms: u64, name: &str) {
+    c.handle_agent_down(t_ms, name);
+    c.handle_cycle(t_ms + crate::limits::loss_grace_ms(1000));
+}
 
 fn worker(name: &str, n: u128) -> AgentInfo {
     AgentInfo { roles: vec!["worker".into()], ..info(name, n) }
@@ -385,9 +392,9 @@ fn clear_takes_an_aborted_run_that_stays_to_stopped_and_reset_on() {
 fn an_agent_cut_off_at_the_abort_is_told_when_it_comes_back() {
     use crate::dist::runtime::alarms::AlarmState;
     let (mut c, _) = one_token_out();
-    c.handle_agent_down(50, "w1");
+    lose(&mut c, 50, "w1");
     drain(&mut c);
-    c.handle_command(60, &ctl("abort")).expect("abort");
+    c.handle_command(300, &ctl("abort")).expect("abort");
     let out = drain(&mut c);
     let aborts = |out: &[CoordOutput]| {
         out.iter().filter(|o| matches!(o, CoordOutput::Send { msg: ToAgent::Abort { run }, .. } if *run == RUN)).count()
@@ -396,7 +403,7 @@ fn an_agent_cut_off_at_the_abort_is_told_when_it_comes_back() {
     assert_eq!(c.untold_agents().collect::<Vec<_>>(), ["w1"]);
     let abandoned = c.status().alarms.into_iter().find(|a| a.message.contains("abandoned")).expect("the alarm");
     assert_eq!(abandoned.state, AlarmState::ActiveUnacknowledged);
-    c.handle_agent_up(70, worker("w1", 2));
+    c.handle_agent_up(400, worker("w1", 2));
     let out = drain(&mut c);
     assert_eq!(aborts(&out), 1, "{out:?}");
     assert_eq!(traced(&out, TraceEvent::Told), 1, "{out:?}");
@@ -426,7 +433,7 @@ fn an_agent_lost_holding_a_token_raises_an_alarm_of_its_own_that_the_status_list
     use crate::dist::runtime::alarms::AlarmState;
     let (mut c, _) = one_token_out();
     drain(&mut c);
-    c.handle_agent_down(50, "w1");
+    lose(&mut c, 50, "w1");
     let alarms: Vec<TraceRecord> = drain(&mut c)
         .into_iter()
         .filter_map(|o| match o {
@@ -441,8 +448,8 @@ fn an_agent_lost_holding_a_token_raises_an_alarm_of_its_own_that_the_status_list
     assert_eq!(status.alarms.len(), 1);
     assert_eq!((status.alarms[0].id, status.alarms[0].state), (1, AlarmState::ActiveUnacknowledged));
     // The next occurrence is an alarm of its own.
-    c.handle_agent_up(60, worker("w1", 3));
-    c.handle_agent_down(70, "w1");
+    c.handle_agent_up(300, worker("w1", 3));
+    lose(&mut c, 400, "w1");
     let ids: Vec<u64> = c.status().alarms.iter().map(|a| a.id).collect();
     assert!(ids.len() >= 2 && ids.windows(2).all(|w| w[0] < w[1]), "{ids:?}");
 }
@@ -512,4 +519,41 @@ fn the_agent_of_a_token_gone_quiet_is_asked_for_its_pending_reports() {
         assert!(exchange(&mut c, &mut agent, t).is_empty(), "asked at {t} about a token that came back");
     }
     assert_eq!(c.tokens_in_flight(), 0);
+}
+
+/// A session Zenoh drops and takes back within the agent's grace (`limits::loss_grace_ms`, an eighth of its lease)
+/// is no loss: nothing is traced, no alarm, the token stays where it is. Past the grace, the agent is lost; a new
+/// process of its name within the grace means the old one was lost.
+#[test]
+fn an_agent_back_within_its_grace_was_never_lost() {
+    let grace = crate::limits::loss_grace_ms(1000);
+    assert_eq!(grace, 125);
+    let (mut c, _) = one_token_out();
+    drain(&mut c);
+    c.handle_agent_down(50, "w1");
+    assert_eq!(c.poll_timeout(), Some(50 + grace), "the grace's end is a deadline");
+    c.handle_cycle(50 + grace - 10);
+    c.handle_agent_up(50 + grace - 5, worker("w1", 2));
+    c.handle_cycle(50 + 2 * grace);
+    let out = drain(&mut c);
+    for e in [TraceEvent::AgentLost, TraceEvent::Alarm, TraceEvent::AgentUp, TraceEvent::Resume] {
+        assert_eq!(traced(&out, e), 0, "{e:?}: {out:?}");
+    }
+    assert_eq!(c.status().tokens[0].agent.as_deref(), Some("w1"));
+    assert!(!c.status().tokens[0].paused);
+    // Gone past its grace: lost, with its alarm.
+    c.handle_agent_down(1_000, "w1");
+    c.handle_cycle(1_000 + grace - 1);
+    assert_eq!(traced(&drain(&mut c), TraceEvent::AgentLost), 0, "still within its grace");
+    c.handle_cycle(1_000 + grace);
+    let out = drain(&mut c);
+    assert_eq!((traced(&out, TraceEvent::AgentLost), traced(&out, TraceEvent::Alarm)), (1, 1), "{out:?}");
+    assert!(c.status().tokens[0].paused);
+    // Another process under its name within the grace: the one that went was lost.
+    let (mut c, _) = one_token_out();
+    drain(&mut c);
+    c.handle_agent_down(50, "w1");
+    c.handle_agent_up(60, worker("w1", 9));
+    let out = drain(&mut c);
+    assert_eq!((traced(&out, TraceEvent::AgentLost), traced(&out, TraceEvent::AgentUp)), (1, 1), "{out:?}");
 }

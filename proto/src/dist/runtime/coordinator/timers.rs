@@ -30,6 +30,7 @@ impl Coordinator {
         self.resend_holds();
         self.resend_overrun_acks();
         self.resend_gates();
+        self.lose_gone_agents();
         self.reassign_due();
         self.give_up_on_silent_agents();
         self.publish_vars();
@@ -91,6 +92,7 @@ impl Coordinator {
             resend,
             acks,
             give_up,
+            self.next_loss_ms(),
             reassign,
             self.vars_resend.at_ms(),
             self.next_hold_resend_ms(),
@@ -115,7 +117,7 @@ impl Coordinator {
             .collect();
         for name in silent {
             self.log(Level::Warn, format!("agent `{name}` did not come back within its lease after the restart"));
-            self.handle_agent_down(now, &name);
+            self.lose_agent(&name);
         }
         if self.agents.values().all(|a| !a.recovering || !a.alive) {
             self.recovered_ms = None;
