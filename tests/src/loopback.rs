@@ -40,23 +40,25 @@ pub fn repo(path: &str) -> PathBuf {
 /// tools (`$BATON_TOOLS`, `~/.cache/baton-tools` by default), so that every clone on the machine shares it — or
 /// `target/zenohd`; the test is ignored without it (and fails under CI).
 pub fn zenohd() -> PathBuf {
+    zenohd_candidates().into_iter().find(|p| p.is_file()).unwrap_or_else(|| {
+        crate::harness::missing(&format!(
+            "no zenohd at {}: `.ci/run` installs it (`cargo install zenohd@1.10.2 --locked --root \\
+             ~/.cache/baton-tools/zenohd-1.10.2`)",
+            zenohd_candidates().iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" or ")
+        ))
+    })
+}
+
+fn zenohd_candidates() -> Vec<PathBuf> {
     let tools = std::env::var_os("BATON_TOOLS")
         .map(PathBuf::from)
         .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache/baton-tools")));
-    let candidates: Vec<PathBuf> = std::env::var_os("ZENOHD")
+    std::env::var_os("ZENOHD")
         .map(PathBuf::from)
         .into_iter()
         .chain(tools.map(|t| t.join("zenohd-1.10.2/bin/zenohd")))
         .chain([repo("target/zenohd/bin/zenohd")])
-        .collect();
-    match candidates.iter().find(|p| p.is_file()) {
-        Some(path) => path.clone(),
-        None => crate::harness::missing(&format!(
-            "no zenohd at {}: `.ci/run` installs it (`cargo install zenohd@1.10.2 --locked --root \
-             ~/.cache/baton-tools/zenohd-1.10.2`)",
-            candidates.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" or ")
-        )),
-    }
+        .collect()
 }
 
 /// Starts `zenohd` with `config`, its output appended to `log`; returns once it accepts connections on `port`.

@@ -19,6 +19,7 @@ baton_tests::harness_main!(
     tokio without_access_control_the_rogue_hears_robot1_and_aborts_the_run,
     tokio the_same_rules_keep_the_rogue_out_on_a_real_zenohd,
     sync the_identities_may_be_listed_after_one_plural_flag,
+    tokio the_user_password_example_lets_only_operators_set_and_operate,
 );
 
 /// Which router enforces the rules.
@@ -306,4 +307,77 @@ fn the_identities_may_be_listed_after_one_plural_flag() {
     for name in ["robot1", "robot2", "op1", "op2"] {
         assert!(plural.contains(&format!("\"{name}\"")), "{name} has no rule:\n{plural}");
     }
+}
+
+/// `deploy/acl`, the worked example with user names and passwords, on a real `zenohd` 1.10.2 as its README runs it
+/// (from the repository's folder): the `cell` user runs the coordinator and an agent; the `operator` user's `set`
+/// and `ctl` are taken, the `cell` user's are refused — the router passes them on to nobody.
+async fn the_user_password_example_lets_only_operators_set_and_operate() {
+    let zenohd = zenohd();
+    let mut cluster = Cluster::new();
+    let port = free_port();
+    cluster.endpoint = format!("tcp/127.0.0.1:{port}");
+    let repo = baton_tests::loopback::repo("");
+    let example = std::fs::read_to_string(repo.join("deploy/acl/zenohd.json5")).expect("the example");
+    let config = cluster.dir.path().join("zenohd.json5");
+    std::fs::write(&config, example.replace("tcp/0.0.0.0:7447", &cluster.endpoint)).expect("write");
+    let log = std::fs::File::create(cluster.dir.path().join("zenohd.log")).expect("log");
+    let _router = tokio::process::Command::new(zenohd)
+        .arg("-c")
+        .arg(&config)
+        .current_dir(&repo)
+        .stdout(log.try_clone().expect("log"))
+        .stderr(log)
+        .kill_on_drop(true)
+        .spawn()
+        .expect("zenohd");
+    let up = tokio::time::timeout(TIMEOUT, async {
+        while tokio::net::TcpStream::connect(("127.0.0.1", port)).await.is_err() {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await;
+    assert!(up.is_ok(), "zenohd never listened");
+    let cell = repo.join("deploy/acl/cell.json5");
+    let operator = repo.join("deploy/acl/operator.json5");
+    let (cell, operator) = (cell.to_str().expect("utf-8"), operator.to_str().expect("utf-8"));
+    let chart = cluster.dir.path().join("wait.st");
+    std::fs::write(
+        &chart,
+        "PROGRAM wait\nVAR go : BOOL; END_VAR\nINITIAL_STEP A: END_STEP\nTRANSITION FROM A TO B := go; END_TRANSITION\n\
+         STEP B: {agent := 'r1'} END_STEP\nTRANSITION FROM B TO C := TRUE; END_TRANSITION\nSTEP C: END_STEP\nEND_PROGRAM\n",
+    )
+    .expect("write the chart");
+    let mut coordinator = cluster.coordinator_connecting(&chart, &["--zenoh-config", cell]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &["--zenoh-config", cell]);
+    cluster.wait_for_agent_log("r1", " ready on ").await;
+    let ep = cluster.endpoint.clone();
+    let refused = cluster.baton(&["set", "--connect", &ep, "--zenoh-config", cell, "go=true"]).await;
+    assert!(!refused.status.success(), "the cell user set an input");
+    let refused = cluster.baton(&["ctl", "--connect", &ep, "--zenoh-config", cell, "abort"]).await;
+    assert!(!refused.status.success(), "the cell user aborted the run");
+    let hold = ["ctl", "--connect", &ep, "--zenoh-config", operator, "hold", "--reason", "material late", "--wait"];
+    let hold = cluster.baton(&hold).await;
+    assert!(hold.status.success(), "{}", String::from_utf8_lossy(&hold.stderr));
+    let unhold = cluster.baton(&["ctl", "--connect", &ep, "--zenoh-config", operator, "unhold"]).await;
+    assert!(unhold.status.success(), "{}", String::from_utf8_lossy(&unhold.stderr));
+    let set = cluster.baton(&["set", "--connect", &ep, "--zenoh-config", operator, "go=true"]).await;
+    assert!(set.status.success(), "{}", String::from_utf8_lossy(&set.stderr));
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    let by: Vec<(TraceEvent, String, Option<&str>)> = trace
+        .iter()
+        .filter(|r| matches!(r.event, TraceEvent::Command | TraceEvent::Set))
+        .map(|r| (r.event, r.name.clone(), r.by.as_deref()))
+        .collect();
+    let operator = Some("operator");
+    assert_eq!(
+        by,
+        [
+            (TraceEvent::Command, "hold".to_string(), operator),
+            (TraceEvent::Command, "unhold".to_string(), operator),
+            (TraceEvent::Set, "go".to_string(), operator)
+        ]
+    );
 }
