@@ -291,7 +291,7 @@ async fn a_damaged_commit_is_refused_where_it_is_and_never_cut_off() {
     let path = journal.join("journal.log");
     let good = std::fs::read(&path).expect("the journal");
     let find = |needle: &[u8], before: usize| good[..before].windows(needle.len()).rposition(|w| w == needle);
-    let record = find(br#""value":2}"#, good.len()).expect("the second set's record");
+    let record = find(br#""value":2"#, good.len()).expect("the second set's record");
     let head = find(b"BTNC", record).expect("its commit's head");
     let mut damaged = good.clone();
     damaged[head + 22] ^= 0x40;

