@@ -4,14 +4,16 @@ zenohd 1.10.2 routers (ROUTERS, default 3; each connects to those started before
 after it), a subscriber client on R0, a publisher client on R1 putting every 20 ms. R1 is killed and started
 again on its port (NOKILL=1: not, the control). Then: do the old publisher's puts arrive, is its liveliness
 token seen, do a fresh session's puts arrive (REDECLARE=1 declares the subscriber again first; FIXED_ID=1 gives
-the routers fixed Zenoh ids)? Needs the `eclipse-zenoh==1.10.2` package and target/zenohd (as .ci/run installs).
+the routers fixed Zenoh ids)? Needs the `eclipse-zenoh==1.10.2` package and zenohd (ZENOHD, or where .ci/run
+installs it: ~/.cache/baton-tools/zenohd-1.10.2).
 
     python3 tests/scripts/zenoh_router_restart.py TRIALS
 """
 import json, os, socket, subprocess, sys, tempfile, time, threading
 import zenoh
 
-ZENOHD = os.environ.get("ZENOHD") or os.path.join(os.path.dirname(__file__), "../../target/zenohd/bin/zenohd")
+TOOLS = os.environ.get("BATON_TOOLS") or os.path.expanduser("~/.cache/baton-tools")
+ZENOHD = os.environ.get("ZENOHD") or os.path.join(TOOLS, "zenohd-1.10.2/bin/zenohd")
 
 def free_port():
     s = socket.socket(); s.bind(("127.0.0.1", 0)); p = s.getsockname()[1]; s.close(); return p

@@ -1,6 +1,6 @@
 //! A cell behind the access control `baton deploy acl` writes, on mutual TLS with the certificates of `baton deploy
 //! certs`, enforced by Zenoh's own router — the one `baton run --listen` embeds, and a real `zenohd` 1.10.2 (which
-//! `.ci/run` installs under `target/zenohd`) that the coordinator joins as a client: the cell runs; a rogue process
+//! `.ci/run` installs in the machine's cache of tools) that the coordinator joins as a client: the cell runs; a rogue process
 //! holding another agent's certificate cannot announce robot1, cannot hear robot1's commands, cannot put a report,
 //! a variable or a device report into the run, and cannot set or operate it — nothing it sends reaches the
 //! coordinator, and the run's events are those of a run without it; an operator can. Without access control, the

@@ -1,4 +1,4 @@
-//! A cell across a mesh of three real routers (`zenohd` 1.10.2, which `.ci/run` installs under `target/zenohd`):
+//! A cell across a mesh of three real routers (`zenohd` 1.10.2, which `.ci/run` installs in the machine's cache of tools):
 //! the coordinator on the first, each robot on another. One robot's router is killed mid-run and started again: the
 //! robot reconnects, its token resumes, and the run makes every part with nothing lost and nothing run twice. After
 //! such a restart zenoh 1.10.2 may stop routing the robot's puts to the coordinator's router while it still carries

@@ -449,7 +449,12 @@ pub async fn echo(connect: &[String]) -> anyhow::Result<()> {
 }
 
 fn spawn_logged(cmd: &mut Command) -> anyhow::Result<Child> {
-    cmd.stdout(Stdio::null()).stderr(Stdio::null()).kill_on_drop(true).spawn().context("cannot start a bench process")
+    // What the bench's processes say goes to `$BATON_BENCH_LOGS` when it is set, for a phase that did not finish.
+    let stderr = match std::env::var_os("BATON_BENCH_LOGS") {
+        Some(path) => Stdio::from(std::fs::OpenOptions::new().create(true).append(true).open(path)?),
+        None => Stdio::null(),
+    };
+    cmd.stdout(Stdio::null()).stderr(stderr).kill_on_drop(true).spawn().context("cannot start a bench process")
 }
 
 /// Agents named `names`, each also in role `assembler` (which only the demo chart uses).
