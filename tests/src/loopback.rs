@@ -61,10 +61,12 @@ fn zenohd_candidates() -> Vec<PathBuf> {
         .collect()
 }
 
-/// Starts `zenohd` with `config`, its output appended to `log`; returns once it accepts connections on `port`.
+/// Starts `zenohd` with `config`, its output appended to `log`; returns once it accepts connections on `port`. It
+/// runs in the repository's folder, as `deploy/`'s READMEs run it (`deploy/acl` names its dictionary from there).
 pub async fn start_zenohd(config: &Path, port: u16, log: &Path) -> Child {
     let out = std::fs::OpenOptions::new().create(true).append(true).open(log).expect("zenohd's log");
     let child = Command::new(zenohd())
+        .current_dir(repo(""))
         .env("RUST_LOG", "warn")
         .arg("-c")
         .arg(config)

@@ -313,7 +313,6 @@ fn the_identities_may_be_listed_after_one_plural_flag() {
 /// (from the repository's folder): the `cell` user runs the coordinator and an agent; the `operator` user's `set`
 /// and `ctl` are taken, the `cell` user's are refused — the router passes them on to nobody.
 async fn the_user_password_example_lets_only_operators_set_and_operate() {
-    let zenohd = zenohd();
     let mut cluster = Cluster::new();
     let port = free_port();
     cluster.endpoint = format!("tcp/127.0.0.1:{port}");
@@ -321,23 +320,7 @@ async fn the_user_password_example_lets_only_operators_set_and_operate() {
     let example = std::fs::read_to_string(repo.join("deploy/acl/zenohd.json5")).expect("the example");
     let config = cluster.dir.path().join("zenohd.json5");
     std::fs::write(&config, example.replace("tcp/0.0.0.0:7447", &cluster.endpoint)).expect("write");
-    let log = std::fs::File::create(cluster.dir.path().join("zenohd.log")).expect("log");
-    let _router = tokio::process::Command::new(zenohd)
-        .arg("-c")
-        .arg(&config)
-        .current_dir(&repo)
-        .stdout(log.try_clone().expect("log"))
-        .stderr(log)
-        .kill_on_drop(true)
-        .spawn()
-        .expect("zenohd");
-    let up = tokio::time::timeout(TIMEOUT, async {
-        while tokio::net::TcpStream::connect(("127.0.0.1", port)).await.is_err() {
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-    })
-    .await;
-    assert!(up.is_ok(), "zenohd never listened");
+    let _router = start_zenohd(&config, port, &cluster.dir.path().join("zenohd.log")).await;
     let cell = repo.join("deploy/acl/cell.json5");
     let operator = repo.join("deploy/acl/operator.json5");
     let (cell, operator) = (cell.to_str().expect("utf-8"), operator.to_str().expect("utf-8"));
