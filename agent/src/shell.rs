@@ -25,7 +25,7 @@ use baton_proto::exec::program::{ActionId, Program};
 use baton_proto::limits::{fence_after_ms, fence_check_ms, CHART_SOURCE_BYTES_MAX};
 use baton_proto::pipeline::check_source;
 use tokio::sync::{mpsc, watch};
-use zenoh::sample::Sample;
+use zenoh::sample::{Locality, Sample};
 use zenoh::Session;
 
 use baton_shell::traffic;
@@ -172,6 +172,24 @@ struct Shell {
     incarnation: uuid::Uuid,
     /// Since when the router has been silent, while it is (`watch_router`): a run joined meanwhile starts fenced.
     contact_lost: Option<u64>,
+    /// The deadline the main loop sleeps until: a command that needs an earlier one wakes it.
+    armed: Option<Instant>,
+}
+
+/// A Zenoh callback that hands each sample to `handle` under the shell's lock, carries out what the runs ask, and
+/// wakes the main loop if a run now needs its timer earlier.
+fn taking(
+    shared: &Arc<baton_shell::Shared<Shell>>,
+    handle: fn(&mut Shell, Sample),
+) -> impl Fn(Sample) + Send + Sync + 'static {
+    let shared = Arc::clone(shared);
+    move |sample| {
+        shared.handle(sample, move |shell, sample| {
+            handle(shell, sample);
+            shell.carry_out_all();
+            baton_shell::earlier(shell.deadline(), shell.armed)
+        })
+    }
 }
 
 enum SkillEvent {
@@ -288,21 +306,8 @@ pub async fn run_until(
     // coordinator asks for the info as soon as it sees the token, and may dispatch right after.
     let info_q = traffic::queryable(&session, keys::agent_info(&name)).await.map_err(|e| anyhow!("{e}"))?;
     let why_q = traffic::queryable(&session, keys::agent_why(&name)).await.map_err(|e| anyhow!("{e}"))?;
-    // Commands to this process only: a second process of the same name (which the check above refuses, but two
-    // may start at the same moment) hears none of them.
-    let cmd_sub = traffic::subscriber(&session, keys::agent_cmd(&name, incarnation))
-        .with(baton_shell::inbox())
-        .await
-        .map_err(|e| anyhow!("{e}"))?;
-    let vars_sub = traffic::subscriber(&session, keys::vars_any_run())
-        .with(baton_shell::inbox())
-        .await
-        .map_err(|e| anyhow!("{e}"))?;
-    let _alive = traffic::token(&session, keys::alive(&name))
-        .await
-        .map_err(|e| anyhow!("cannot declare the liveliness token: {e}"))?;
     let (tx, mut rx) = mpsc::unbounded_channel();
-    let mut shell = Shell {
+    let shared = baton_shell::Shared::new(Shell {
         config: config.clone(),
         skills,
         connections,
@@ -314,61 +319,72 @@ pub async fn run_until(
         stopping: HashMap::new(),
         deferred: HashMap::new(),
         skill_serial: 0,
-        events: tx,
+        events: tx.clone(),
         outbox: baton_shell::Outbox::new(&session),
         dropped: 0,
         incarnation,
         contact_lost: None,
-    };
-    tokio::spawn(watch_router(session.clone(), name.clone(), config.lease_ms, shell.events.clone()));
+        armed: None,
+    });
+    // Commands to this process only: a second process of the same name (which the check above refuses, but two
+    // may start at the same moment) hears none of them. Both are handled in Zenoh's callback (`baton_shell::shared`).
+    let _cmd_sub = traffic::subscriber(&session, keys::agent_cmd(&name, incarnation))
+        .allowed_origin(Locality::Remote)
+        .callback(taking(&shared, Shell::on_cmd))
+        .await
+        .map_err(|e| anyhow!("{e}"))?;
+    let _vars_sub = traffic::subscriber(&session, keys::vars_any_run())
+        .allowed_origin(Locality::Remote)
+        .callback(taking(&shared, Shell::on_vars))
+        .await
+        .map_err(|e| anyhow!("{e}"))?;
+    let _alive = traffic::token(&session, keys::alive(&name))
+        .await
+        .map_err(|e| anyhow!("cannot declare the liveliness token: {e}"))?;
+    tokio::spawn(watch_router(session.clone(), name.clone(), config.lease_ms, tx));
     let roles =
         if config.roles.is_empty() { String::new() } else { format!(" with role(s) {}", config.roles.join(", ")) };
-    eprintln!(
-        "baton-agent `{name}`{roles} ready on {} (skills: {})",
-        config.connect.join(", "),
-        shell.skills.names().join(", ")
-    );
+    let skill_names = shared.lock()?.skills.names().join(", ");
+    eprintln!("baton-agent `{name}`{roles} ready on {} (skills: {skill_names})", config.connect.join(", "));
     tokio::pin!(stop);
     loop {
-        // Asleep until a message comes or a run's next cycle or resend is due: an idle agent runs no cycle (only
+        // Asleep until a query, a skill's event or a run's next cycle or resend is due (commands come in Zenoh's
+        // callback, which wakes the loop only to move the deadline earlier or to hand it messages that queued up): an idle agent runs no cycle (only
         // `watch_router` wakes it).
-        let deadline = shell.deadline();
+        let deadline = {
+            let mut shell = shared.lock()?;
+            shell.armed = shell.deadline();
+            shell.armed
+        };
         tokio::select! {
-            s = cmd_sub.recv_async() => {
-                let Ok(s) = s else { break };
-                shell.on_cmd(&s);
-                while let Ok(Some(s)) = cmd_sub.try_recv() {
-                    shell.on_cmd(&s);
-                }
-            }
-            s = vars_sub.recv_async() => {
-                let Ok(s) = s else { break };
-                shell.on_vars(&s);
-            }
             q = info_q.recv_async() => {
                 let Ok(q) = q else { break };
-                let info = wire::encode(&shell.info(incarnation));
-                if let Err(e) = traffic::reply(&q, q.key_expr().to_string(), info).await {
+                let info = wire::encode(&shared.lock()?.info(incarnation));
+                if let Err(e) = traffic::reply(&q, q.key_expr().to_string(), info) {
                     eprintln!("warning: cannot answer an info query: {e}");
                 }
             }
             q = why_q.recv_async() => {
                 let Ok(q) = q else { break };
                 // One answer per run this agent takes part in, each its own reply.
-                for report in shell.why() {
-                    if let Err(e) = traffic::reply(&q, q.key_expr().to_string(), wire::encode(&report)).await {
+                let reports = shared.lock()?.why();
+                for report in reports {
+                    if let Err(e) = traffic::reply(&q, q.key_expr().to_string(), wire::encode(&report)) {
                         eprintln!("warning: cannot answer a why query: {e}");
                     }
                 }
             }
-            Some(ev) = rx.recv() => shell.on_event(ev),
-            () = baton_shell::until(deadline) => shell.timeout(),
+            Some(ev) = rx.recv() => shared.lock()?.on_event(ev),
+            () = baton_shell::until(deadline) => shared.lock()?.timeout(),
+            () = shared.rearmed() => {}
             () = &mut stop => break,
         }
-        shell.carry_out_all().await;
+        shared.lock()?.carry_out_all();
     }
-    eprintln!("baton-agent `{name}` stopping ({} message(s) dropped)", shell.dropped_total());
-    drop(shell);
+    let dropped = shared.lock()?.dropped_total();
+    eprintln!("baton-agent `{name}` stopping ({dropped} message(s) dropped)");
+    drop((_cmd_sub, _vars_sub));
+    drop(shared);
     session.close().await.map_err(|e| anyhow!("{e}"))?;
     Ok(())
 }
@@ -429,7 +445,7 @@ impl Shell {
         eprintln!("warning: dropped a message: {why}");
     }
 
-    fn on_cmd(&mut self, sample: &Sample) {
+    fn on_cmd(&mut self, sample: Sample) {
         let msg: ToAgent = match wire::decode(&sample.payload().to_bytes()) {
             Ok(m) => m,
             Err(e) => return self.drop_msg(format!("on {}: {e}", sample.key_expr())),
@@ -559,7 +575,7 @@ impl Shell {
         });
     }
 
-    fn on_vars(&mut self, sample: &Sample) {
+    fn on_vars(&mut self, sample: Sample) {
         let update: VarUpdate = match wire::decode(&sample.payload().to_bytes()) {
             Ok(u) => u,
             Err(e) => return self.drop_msg(format!("on {}: {e}", sample.key_expr())),
@@ -692,7 +708,7 @@ impl Shell {
     }
 
     /// Carries out what every run asks.
-    async fn carry_out_all(&mut self) {
+    fn carry_out_all(&mut self) {
         let ids: Vec<RunId> = self.runs.keys().copied().collect();
         for id in ids {
             let mut outputs = Vec::new();
@@ -702,15 +718,15 @@ impl Shell {
                 }
             }
             for out in outputs {
-                self.carry_out(id, out).await;
+                self.carry_out(id, out);
             }
         }
     }
 
-    async fn carry_out(&mut self, run: RunId, out: AgentOutput) {
+    fn carry_out(&mut self, run: RunId, out: AgentOutput) {
         match out {
-            AgentOutput::Report(report) => self.put(keys::report(run, &self.config.name), wire::encode(&report)).await,
-            AgentOutput::Vars(update) => self.put(keys::vars(run, &self.config.name), wire::encode(&update)).await,
+            AgentOutput::Report(report) => self.put(keys::report(run, &self.config.name), wire::encode(&report)),
+            AgentOutput::Vars(update) => self.put(keys::vars(run, &self.config.name), wire::encode(&update)),
             AgentOutput::StartSkill { action, name, binding } => {
                 let tx = self.events.clone();
                 self.skill_serial += 1;
@@ -756,7 +772,7 @@ impl Shell {
                 }
             }
             AgentOutput::Devices(report) => {
-                self.put(keys::devices(run, &self.config.name), wire::encode(&report)).await;
+                self.put(keys::devices(run, &self.config.name), wire::encode(&report));
             }
             AgentOutput::Log { level, message } => {
                 if level >= Level::Warn || self.config.verbose {
@@ -830,10 +846,9 @@ impl Shell {
         }
     }
 
-    /// Publishes through the outbox, in the main loop; a failure is logged (the state machines resend what
-    /// matters).
-    async fn put(&mut self, key: String, payload: Vec<u8>) {
-        if let Err(e) = self.outbox.put(key, payload).await {
+    /// Publishes through the outbox; a failure is logged (the state machines resend what matters).
+    fn put(&mut self, key: String, payload: Vec<u8>) {
+        if let Err(e) = self.outbox.put(key, payload) {
             eprintln!("warning: {e}");
         }
     }

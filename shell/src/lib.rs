@@ -11,19 +11,22 @@
 //!
 //! # Rules the shells keep
 //!
-//! - Shells publish from their main loop (`CongestionControl::Block`, express) and never wait to read: every
-//!   subscriber has an inbox of `RECEIVE_QUEUE_MAX` samples that Zenoh's reader fills without waiting for the
-//!   main loop. A put waits only while its link's queue is full, so two processes publishing to each other can
-//!   only block each other if both inboxes are full at once. (With Zenoh's default inbox of 256 this deadlocked
-//!   under the throughput benchmark; a separate sender task avoided it but cost ~30 µs per message.) The one
-//!   exception is the coordinator with a journal: what a batch led to is sent by the journal's writer thread the
-//!   moment the batch is durable (`Outbox::put_now`), since it would otherwise wait for the main loop's turn too;
-//!   the main loop then never waits on a put at all.
+//! - A run's messages are handled in the Zenoh callback that delivers them, under the shell's lock (`shared`):
+//!   decoded, fed to the state machine and what it asks for published before the callback returns, with no hop to
+//!   another thread (a hop cost 30–50 µs at each end of a token's round trip on a loaded two-core machine). The main
+//!   loop keeps queries, timers, skills' events and signals, and takes the same lock. The rules that come with it
+//!   are `shared`'s.
+//! - Puts are `CongestionControl::Block` and express, and wait only while their link's queue is full. The one
+//!   exception to "published where it was decided" is the coordinator with a journal: what a batch led to is sent
+//!   by the journal's writer thread the moment the batch is durable (`Outbox::put` from that thread).
 //! - The outbox holds at most `PUBLISHERS_MAX` publishers: keys of finished runs would accumulate otherwise,
 //!   and a live key is declared again on its next use.
 
 pub mod cable;
+pub mod shared;
 pub mod traffic;
+
+pub use shared::{earlier, Shared};
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -126,23 +129,11 @@ impl Outbox {
         Outbox { session: session.clone(), publishers: HashMap::new() }
     }
 
-    /// Publishes `payload` on `key`, in the main loop, without a hop to another task (a hop cost a third of a
-    /// token's round trip). Which step failed is the caller's to weigh: a put that fails is worth a warning (the
-    /// state machines resend what matters), a key that cannot be declared may end the process.
-    pub async fn put(&mut self, key: String, payload: Vec<u8>) -> Result<(), Unsent> {
-        if !self.publishers.contains_key(&key) {
-            let declared = self.declaring(&key).await;
-            self.keep(key.clone(), declared)?;
-        }
-        match self.publishers.get(&key) {
-            Some(p) => p.put(payload).await.map_err(|e| Unsent::Put(format!("cannot publish on {key}: {e}"))),
-            None => Ok(()),
-        }
-    }
-
-    /// `put`, from a thread outside the async runtime (blocking while the link's queue is full): the coordinator's
-    /// journal writer sends what a batch led to as soon as the batch is durable.
-    pub fn put_now(&mut self, key: String, payload: Vec<u8>) -> Result<(), Unsent> {
+    /// Publishes `payload` on `key`: in a Zenoh callback, the main loop or the journal's writer thread, blocking while
+    /// the link's queue is full (Zenoh's own asynchronous put resolves at once in the same way). Which step failed is
+    /// the caller's to weigh: a put that fails is worth a warning (the state machines resend what matters), a key
+    /// that cannot be declared may end the process.
+    pub fn put(&mut self, key: String, payload: Vec<u8>) -> Result<(), Unsent> {
         use zenoh::Wait;
         if !self.publishers.contains_key(&key) {
             let declared = self.declaring(&key).wait();
@@ -281,10 +272,10 @@ mod tests {
         let session = lone_session().await;
         let mut outbox = Outbox::new(&session);
         for i in 0..PUBLISHERS_MAX + 10 {
-            outbox.put(format!("baton/test/{i}"), vec![1]).await.expect("a put on a lone session");
+            outbox.put(format!("baton/test/{i}"), vec![1]).expect("a put on a lone session");
             assert!(outbox.len() <= PUBLISHERS_MAX, "{} publishers after {i} keys", outbox.len());
         }
-        outbox.put("baton/test/0".to_string(), vec![2]).await.expect("again");
+        outbox.put("baton/test/0".to_string(), vec![2]).expect("again");
         assert!(outbox.len() <= PUBLISHERS_MAX);
     }
 

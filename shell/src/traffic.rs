@@ -132,8 +132,9 @@ pub fn liveliness_subscriber(
     session.liveliness().declare_subscriber(key)
 }
 
-/// Answers `query` on `key`.
-pub async fn reply(query: &Query, key: String, payload: Vec<u8>) -> zenoh::Result<()> {
+/// Answers `query` on `key` (at once: Zenoh's asynchronous reply resolves at once in the same way).
+pub fn reply(query: &Query, key: String, payload: Vec<u8>) -> zenoh::Result<()> {
+    use zenoh::Wait;
     note(Message::Reply, &key);
-    query.reply(key, payload).await
+    query.reply(key, payload).wait()
 }

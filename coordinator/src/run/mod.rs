@@ -155,11 +155,14 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         live: std::collections::HashSet::new(),
         answers: None,
         asking: std::collections::HashSet::new(),
+        armed: None,
+        failed: None,
     };
     shell.core.watch(watch);
     begin(&mut shell, resume, &opts, &loaded, run, &where_)?;
-    let ended = serve(&mut shell, &session, chart_reply, opts.abort_wait_ms).await?;
-    wind_down(shell, session, &opts, &loaded, ended).await
+    let shared = baton_shell::Shared::new(shell);
+    let ended = serve(&shared, &session, chart_reply, opts.abort_wait_ms).await?;
+    wind_down(shared.take()?, session, &opts, &loaded, ended).await
 }
 
 /// The variables `--watch` names, each a variable of `program`.
@@ -420,152 +423,172 @@ fn keeps_serving(shell: &Shell, tell_until: &mut Option<Instant>, abort_wait_ms:
     false
 }
 
-/// The main loop: asleep until a message comes or the next cycle is due.
+/// The main loop: asleep until a query comes, a callback has something for it, or the next cycle is due. A run's
+/// messages from agents are handled in Zenoh's callbacks (`Callbacks`), under the same lock.
 async fn serve(
-    shell: &mut Shell,
+    shared: &Arc<baton_shell::Shared<Shell>>,
     session: &zenoh::Session,
     chart_reply: Vec<u8>,
     abort_wait_ms: u64,
 ) -> anyhow::Result<Ended> {
     // A resumed journal may have gone on to a later run than its header's (a `reset`).
-    let mut run = shell.core.core().run();
+    let mut run = shared.lock()?.core.core().run();
     let mut inboxes = Inboxes::declare(session, run).await?;
-    shell.vars_key = keys::vars(run, baton_proto::dist::runtime::COORDINATOR);
     let (tx, mut rx) = mpsc::unbounded_channel::<Identity>();
-    shell.answers = Some(tx.clone());
-    let mut durable_rx = shell.journal.as_ref().map(crate::journal::Writer::watcher);
+    {
+        let mut shell = shared.lock()?;
+        shell.vars_key = keys::vars(run, baton_proto::dist::runtime::COORDINATOR);
+        shell.answers = Some(tx.clone());
+        shell.due_cycles()?;
+        if let Some(journal) = &shell.journal {
+            journal.on_durable(releasing(shared));
+        }
+    }
+    let mut callbacks = Callbacks::declare(session, run, shared).await?;
     let mut stop = baton_shell::Stop::new()?;
-    shell.due_cycles().await?;
     let mut interrupts = 0;
     let mut tell_until = None;
-    while keeps_serving(shell, &mut tell_until, abort_wait_ms) {
-        // An idle run does not wake.
-        let deadline = shell.next_cycle().map(|t| shell.instant_of(t)).into_iter().chain(tell_until).min();
+    loop {
+        let deadline = {
+            let mut shell = shared.lock()?;
+            if let Some(e) = shell.failed.take() {
+                return Err(e);
+            }
+            if !keeps_serving(&shell, &mut tell_until, abort_wait_ms) {
+                break;
+            }
+            // An idle run does not wake.
+            let deadline = shell.next_cycle().map(|t| shell.instant_of(t)).into_iter().chain(tell_until).min();
+            shell.armed = deadline;
+            deadline
+        };
         let wake = tokio::select! {
-            s = inboxes.report.recv_async() => s.map_or(Wake::Closed, Wake::Report),
-            s = inboxes.vars.recv_async() => s.map_or(Wake::Closed, Wake::Vars),
-            s = inboxes.devices.recv_async() => s.map_or(Wake::Closed, Wake::Devices),
             s = inboxes.alive.recv_async() => s.map_or(Wake::Closed, Wake::Alive),
             Some(ev) = rx.recv() => Wake::Identity(ev),
             q = inboxes.chart.recv_async() => q.map_or(Wake::Closed, Wake::Chart),
             q = inboxes.status.recv_async() => q.map_or(Wake::Closed, Wake::Status),
             q = inboxes.set.recv_async() => q.map_or(Wake::Closed, Wake::Set),
             q = inboxes.ctl.recv_async() => q.map_or(Wake::Closed, Wake::Ctl),
-            // A journal batch became durable: what it led to may go now.
-            _ = async { durable_rx.as_mut().expect("journal").changed().await }, if durable_rx.is_some() => Wake::Durable,
             () = baton_shell::until(deadline) => Wake::Timer,
+            () = shared.rearmed() => Wake::Look,
             signal = stop.recv() => Wake::Stop(signal),
         };
-        // Cycles due run first, at their grid times, so that what arrived now comes after them.
-        shell.due_cycles().await?;
-        match wake {
-            Wake::Report(s) => {
-                shell.on_report(&s);
-                while let Ok(Some(s)) = inboxes.report.try_recv() {
-                    shell.on_report(&s);
+        // Taken under the lock, with no wait in it; a reset's new inboxes are declared after.
+        let reset = {
+            let mut shell = shared.lock()?;
+            // Cycles due run first, at their grid times, so that what arrived now comes after them.
+            shell.due_cycles()?;
+            match wake {
+                Wake::Alive(s) => shell.on_alive(&s, &tx),
+                Wake::Identity(ev) => shell.on_identity(ev, &tx),
+                Wake::Chart(q) => reply(&q, keys::chart(run), chart_reply.clone()),
+                Wake::Status(q) => {
+                    // The run's clock now, not the time of its last input: an idle run's time goes on.
+                    let mut status = shell.core.core().status();
+                    status.t_ms = shell.now_ms();
+                    reply(&q, keys::status(run), wire::encode(&status))
                 }
-            }
-            Wake::Vars(s) => shell.on_vars(&s),
-            Wake::Devices(s) => shell.on_devices(&s),
-            Wake::Alive(s) => shell.on_alive(&s, &tx),
-            Wake::Identity(ev) => shell.on_identity(ev, &tx),
-            Wake::Chart(q) => reply(&q, keys::chart(run), chart_reply.clone()).await,
-            Wake::Status(q) => {
-                // The run's clock now, not the time of its last input: an idle run's time goes on.
-                let mut status = shell.core.core().status();
-                status.t_ms = shell.now_ms();
-                reply(&q, keys::status(run), wire::encode(&status)).await
-            }
-            Wake::Set(q) => {
-                // Taken only from a sender the key names, answered on the run's own key with that name.
-                match request_sender(&q).map(str::to_string) {
-                    Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&shell.set_refused(why))).await,
+                Wake::Set(q) => {
+                    // Taken only from a sender the key names, answered on the run's own key with that name.
+                    match request_sender(&q).map(str::to_string) {
+                        Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&shell.set_refused(why))),
+                        Ok(sender) if shell.replies_full() => {
+                            let answer = wire::encode(&shell.set_refused(shell.busy()));
+                            reply(&q, keys::set(run, &sender), answer);
+                        }
+                        Ok(sender) => {
+                            let answer = wire::encode(&shell.on_set(&q, &sender));
+                            shell.answer(q, keys::set(run, &sender), answer);
+                        }
+                    }
+                }
+                Wake::Ctl(q) => match request_sender(&q).map(str::to_string) {
+                    Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&shell.ctl_reply(Err(why)))),
                     Ok(sender) if shell.replies_full() => {
-                        let answer = wire::encode(&shell.set_refused(shell.busy()));
-                        reply(&q, keys::set(run, &sender), answer).await;
+                        let answer = wire::encode(&shell.ctl_reply(Err(shell.busy())));
+                        reply(&q, keys::ctl(run, &sender), answer);
                     }
                     Ok(sender) => {
-                        let answer = wire::encode(&shell.on_set(&q, &sender));
-                        shell.answer(q, keys::set(run, &sender), answer).await;
+                        let answer = wire::encode(&shell.on_ctl(&q, &sender));
+                        shell.answer(q, keys::ctl(run, &sender), answer);
                     }
+                },
+                Wake::Timer | Wake::Look => {}
+                Wake::Stop(baton_shell::Signal::Terminate) if shell.journal.is_some() => {
+                    if !shell.quiet {
+                        eprintln!("baton: SIGTERM: leaving the run as it stands, for its journal to resume");
+                    }
+                    return Ok(Ended::Left);
                 }
+                Wake::Stop(_) if shell.core.core().is_over() => {
+                    // At the end of a run that stays, or waiting for agents to tell: the process leaves.
+                    return Ok(Ended::Ran);
+                }
+                Wake::Stop(signal) => {
+                    interrupts += 1;
+                    interrupted(&mut shell, signal, interrupts);
+                }
+                Wake::Closed => return Ok(Ended::Closed),
             }
-            Wake::Ctl(q) => match request_sender(&q).map(str::to_string) {
-                Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&shell.ctl_reply(Err(why)))).await,
-                Ok(sender) if shell.replies_full() => {
-                    let answer = wire::encode(&shell.ctl_reply(Err(shell.busy())));
-                    reply(&q, keys::ctl(run, &sender), answer).await;
-                }
-                Ok(sender) => {
-                    let answer = wire::encode(&shell.on_ctl(&q, &sender));
-                    shell.answer(q, keys::ctl(run, &sender), answer).await;
-                }
-            },
-            Wake::Durable => shell.release().await?,
-            Wake::Timer => {}
-            Wake::Stop(baton_shell::Signal::Terminate) if shell.journal.is_some() => {
+            shell.commit(Vec::new())?;
+            if shell.core.core().wants_new_run() {
+                // `reset`: the chart starts again as a new run, journaled, with inboxes of its own.
+                let next = RunId(uuid::Uuid::new_v4());
+                let now = shell.now_ms();
+                shell.core.new_run(now, next);
+                shell.commit(Vec::new())?;
+                shell.vars_key = keys::vars(next, baton_proto::dist::runtime::COORDINATOR);
                 if !shell.quiet {
-                    eprintln!("baton: SIGTERM: leaving the run as it stands, for its journal to resume");
+                    eprintln!(
+                        "baton: reset: chart `{}` starts again as run {} (after `baton ctl start`)",
+                        shell.core.core().program().name,
+                        next.key()
+                    );
                 }
-                return Ok(Ended::Left);
+                Some(next)
+            } else {
+                None
             }
-            Wake::Stop(_) if shell.core.core().is_over() => {
-                // At the end of a run that stays, or waiting for agents to tell: the process leaves.
-                return Ok(Ended::Ran);
-            }
-            Wake::Stop(signal) => {
-                // The first interrupt stops the run (what runs finishes, nothing new starts), the next aborts it.
-                // So does SIGTERM without a journal: no coordinator could take the run up again.
-                interrupts += 1;
-                let command = if interrupts == 1 { "stop" } else { "abort" };
-                let request = baton_proto::dist::wire::CtlRequest {
-                    command: command.into(),
-                    target: None,
-                    agent: None,
-                    step: None,
-                    for_ms: None,
-                    to: None,
-                    reason: "interrupted".into(),
-                    by: signal_sender(match signal {
-                        baton_shell::Signal::Interrupt => "SIGINT",
-                        baton_shell::Signal::Terminate => "SIGTERM",
-                    }),
-                };
-                if !shell.quiet {
-                    let what = if interrupts == 1 {
-                        "stopping: running skills finish, nothing new starts (interrupt again to abort)"
-                    } else {
-                        "aborting: running skills are cancelled"
-                    };
-                    eprintln!("baton: interrupted, {what}");
-                }
-                if let Err(why) = shell.command(request) {
-                    eprintln!("baton: {command} refused: {why}");
-                }
-            }
-            Wake::Closed => return Ok(Ended::Closed),
-        }
-        shell.commit(Vec::new()).await?;
-        if shell.core.core().wants_new_run() {
-            // `reset`: the chart starts again as a new run, journaled, with inboxes of its own.
-            let next = RunId(uuid::Uuid::new_v4());
-            let now = shell.now_ms();
-            shell.core.new_run(now, next);
-            shell.commit(Vec::new()).await?;
+        };
+        if let Some(next) = reset {
             inboxes = Inboxes::declare(session, next).await?;
-            shell.vars_key = keys::vars(next, baton_proto::dist::runtime::COORDINATOR);
-            if !shell.quiet {
-                eprintln!(
-                    "baton: reset: chart `{}` starts again as run {} (after `baton ctl start`)",
-                    shell.core.core().program().name,
-                    next.key()
-                );
-            }
+            callbacks = Callbacks::declare(session, next, shared).await?;
             run = next;
             interrupts = 0;
         }
     }
+    drop(callbacks);
     Ok(Ended::Ran)
+}
+
+/// An interrupt: the first stops the run (what runs finishes, nothing new starts), the next aborts it. So does
+/// SIGTERM without a journal: no coordinator could take the run up again.
+fn interrupted(shell: &mut Shell, signal: baton_shell::Signal, interrupts: u32) {
+    let command = if interrupts == 1 { "stop" } else { "abort" };
+    let request = baton_proto::dist::wire::CtlRequest {
+        command: command.into(),
+        target: None,
+        agent: None,
+        step: None,
+        for_ms: None,
+        to: None,
+        reason: "interrupted".into(),
+        by: signal_sender(match signal {
+            baton_shell::Signal::Interrupt => "SIGINT",
+            baton_shell::Signal::Terminate => "SIGTERM",
+        }),
+    };
+    if !shell.quiet {
+        let what = if interrupts == 1 {
+            "stopping: running skills finish, nothing new starts (interrupt again to abort)"
+        } else {
+            "aborting: running skills are cancelled"
+        };
+        eprintln!("baton: interrupted, {what}");
+    }
+    if let Err(why) = shell.command(request) {
+        eprintln!("baton: {command} refused: {why}");
+    }
 }
 
 /// Ends the run (unless interrupted), makes durable and carries out whatever was taken in, and says how it went.
@@ -581,13 +604,13 @@ async fn wind_down(
         shell.snapshot_every = 0;
         let now = shell.now_ms();
         shell.core.end(now);
-        shell.commit(Vec::new()).await?;
+        shell.commit(Vec::new())?;
     }
     // Whatever was taken in is made durable and carried out before the process leaves.
     if let Some(w) = &mut shell.journal {
         w.sync().await?;
     }
-    shell.release().await?;
+    shell.release()?;
     if let Some(w) = &mut shell.journal {
         w.close();
     }

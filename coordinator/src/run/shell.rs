@@ -2,6 +2,7 @@
 //! until the journal has what led to them, then published; agents that go live are asked who they are.
 
 use std::collections::VecDeque;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::anyhow;
@@ -11,19 +12,19 @@ use baton_proto::dist::runtime::coordinator::CoordOutput;
 use baton_proto::dist::runtime::Level;
 use baton_proto::dist::wire::{self, AgentInfo, CtlReply, CtlRequest, RunId, SetReply, SetRequest};
 use baton_proto::limits::CATCH_UP_CYCLES_MAX;
-use baton_shell::traffic;
+use baton_shell::{traffic, Shared};
 use tokio::sync::mpsc;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
 use zenoh::query::Query;
 use zenoh::query::Queryable;
-use zenoh::sample::{Sample, SampleKind};
+use zenoh::sample::{Locality, Sample, SampleKind};
 use zenoh::Session;
 
 use super::records::Records;
 use super::summary::Summary;
 use crate::chart_file::Loaded;
-use crate::journal::Outgoing;
+use crate::journal::{OnDurable, Outgoing};
 
 pub(crate) const INFO_QUERY_TIMEOUT: Duration = Duration::from_secs(3);
 
@@ -55,7 +56,7 @@ pub(crate) fn deliver_through(session: &Session) -> crate::journal::Deliver {
     let mut outbox = baton_shell::Outbox::new(session);
     Box::new(move |messages| {
         for Outgoing { key, payload } in messages {
-            weigh(outbox.put_now(key, payload))?;
+            weigh(outbox.put(key, payload))?;
         }
         Ok(())
     })
@@ -119,13 +120,15 @@ pub(crate) struct Shell {
     /// answer has not come yet (one question at a time each).
     pub(crate) answers: Option<mpsc::UnboundedSender<Identity>>,
     pub(crate) asking: std::collections::HashSet<String>,
+    /// The deadline the main loop sleeps until: a callback that needs an earlier cycle wakes it.
+    pub(crate) armed: Option<Instant>,
+    /// What went wrong in a callback (the journal, a key that cannot be declared): the main loop ends the run with it.
+    pub(crate) failed: Option<anyhow::Error>,
 }
 
-/// The run's inboxes: reports, variables, devices and liveliness in, and the queries it answers.
+/// The run's inboxes: liveliness in, and the queries it answers. (Reports, variables and device reports are taken in
+/// Zenoh's callbacks: `Callbacks`.)
 pub(crate) struct Inboxes {
-    pub(crate) report: Subscriber<FifoChannelHandler<Sample>>,
-    pub(crate) vars: Subscriber<FifoChannelHandler<Sample>>,
-    pub(crate) devices: Subscriber<FifoChannelHandler<Sample>>,
     pub(crate) alive: Subscriber<FifoChannelHandler<Sample>>,
     pub(crate) chart: Queryable<FifoChannelHandler<Query>>,
     pub(crate) status: Queryable<FifoChannelHandler<Query>>,
@@ -136,11 +139,7 @@ pub(crate) struct Inboxes {
 impl Inboxes {
     pub(crate) async fn declare(session: &Session, run: RunId) -> anyhow::Result<Inboxes> {
         let zerr = |e: zenoh::Error| anyhow!("{e}");
-        let inbox = baton_shell::inbox;
         Ok(Inboxes {
-            report: traffic::subscriber(session, keys::report_any(run)).with(inbox()).await.map_err(zerr)?,
-            vars: traffic::subscriber(session, keys::vars(run, "*")).with(inbox()).await.map_err(zerr)?,
-            devices: traffic::subscriber(session, keys::devices(run, "*")).with(inbox()).await.map_err(zerr)?,
             alive: traffic::liveliness_subscriber(session, keys::alive_any()).history(true).await.map_err(zerr)?,
             chart: traffic::queryable(session, keys::chart(run)).await.map_err(zerr)?,
             status: traffic::queryable(session, keys::status(run)).await.map_err(zerr)?,
@@ -150,19 +149,82 @@ impl Inboxes {
     }
 }
 
+/// The run's messages from agents — reports, variable updates, device reports — each handled in the Zenoh callback
+/// that delivers it, under the shell's lock (`baton_shell::shared`): cycles due first, then the message, then what it
+/// led to carried out (or handed to the journal).
+pub(crate) struct Callbacks {
+    _subscribers: [Subscriber<()>; 3],
+}
+
+impl Callbacks {
+    pub(crate) async fn declare(
+        session: &Session,
+        run: RunId,
+        shared: &Arc<Shared<Shell>>,
+    ) -> anyhow::Result<Callbacks> {
+        let zerr = |e: zenoh::Error| anyhow!("{e}");
+        let declare = |key: String, on: fn(&mut Shell, &Sample)| {
+            traffic::subscriber(session, key).allowed_origin(Locality::Remote).callback(taking(shared, on))
+        };
+        Ok(Callbacks {
+            _subscribers: [
+                declare(keys::report_any(run), Shell::on_report).await.map_err(zerr)?,
+                declare(keys::vars(run, "*"), Shell::on_vars).await.map_err(zerr)?,
+                declare(keys::devices(run, "*"), Shell::on_devices).await.map_err(zerr)?,
+            ],
+        })
+    }
+}
+
+/// A Zenoh callback that hands each sample to `on` under the shell's lock, with the cycles due run first and what
+/// it led to carried out after; it wakes the main loop when the loop has something to look at (`Shell::must_look`).
+fn taking(shared: &Arc<Shared<Shell>>, on: fn(&mut Shell, &Sample)) -> impl Fn(Sample) + Send + Sync + 'static {
+    let shared = Arc::clone(shared);
+    move |sample| {
+        shared.handle(sample, move |shell, sample| {
+            if shell.failed.is_none() {
+                let handled = shell.due_cycles().and_then(|()| {
+                    on(shell, &sample);
+                    shell.commit(Vec::new())
+                });
+                if let Err(e) = handled {
+                    shell.failed = Some(e);
+                }
+            }
+            shell.must_look()
+        })
+    }
+}
+
+/// The journal writer's hook (`Writer::on_durable`): what durable batches held (the trace, answers to requests) is
+/// released on the writer thread, under the shell's lock, rather than by a wake-up of the main loop per commit. A
+/// failed journal is the main loop's to report.
+pub(crate) fn releasing(shared: &Arc<Shared<Shell>>) -> OnDurable {
+    let shared = Arc::downgrade(shared);
+    Arc::new(move || {
+        let Some(shared) = shared.upgrade() else { return };
+        shared.try_handle((), |shell, ()| {
+            if shell.failed.is_none() {
+                if let Err(e) = shell.release() {
+                    shell.failed = Some(e);
+                }
+            }
+            shell.must_look()
+        });
+    })
+}
+
 /// What woke the coordinator's main loop.
 pub(crate) enum Wake {
-    Report(Sample),
-    Vars(Sample),
-    Devices(Sample),
     Alive(Sample),
     Identity(Identity),
     Chart(Query),
     Status(Query),
     Set(Query),
     Ctl(Query),
-    Durable,
     Timer,
+    /// A callback made the deadline earlier, failed, or ended or reset the run.
+    Look,
     Stop(baton_shell::Signal),
     Closed,
 }
@@ -176,8 +238,8 @@ pub(crate) fn request_sender(q: &Query) -> Result<&str, String> {
 
 /// Answers on the queryable's own key, which names the run: a client that asked all runs (`baton/run/*/status`)
 /// gets one reply per run, where replies on the query's key would be consolidated into one.
-pub(crate) async fn reply(q: &Query, key: String, payload: Vec<u8>) {
-    if let Err(e) = traffic::reply(q, key, payload).await {
+pub(crate) fn reply(q: &Query, key: String, payload: Vec<u8>) {
+    if let Err(e) = traffic::reply(q, key, payload) {
         eprintln!("warning: cannot answer a query on {}: {e}", q.key_expr());
     }
 }
@@ -331,11 +393,11 @@ impl Shell {
 
     /// Answers a `set` or `ctl` request: at once without a journal; with one, once the batch its request went into
     /// is durable (`held_replies`).
-    pub(crate) async fn answer(&mut self, q: Query, key: String, answer: Vec<u8>) {
+    pub(crate) fn answer(&mut self, q: Query, key: String, answer: Vec<u8>) {
         if self.journal.is_some() {
             self.held_replies.push_back((None, q, key, answer));
         } else {
-            reply(&q, key, answer).await;
+            reply(&q, key, answer);
         }
     }
 
@@ -397,18 +459,18 @@ impl Shell {
 
     /// Runs the cycles that are due, each at its grid time (one that fell far behind skips to the present), and
     /// has what they asked for carried out — at once, or once its journal batch is durable.
-    pub(crate) async fn due_cycles(&mut self) -> anyhow::Result<()> {
+    pub(crate) fn due_cycles(&mut self) -> anyhow::Result<()> {
         let now = self.now_ms();
         while let Some(due) = self.next_cycle().filter(|&t| t <= now) {
             let at = if now - due > CATCH_UP_CYCLES_MAX * self.cycle_ms { now - now % self.cycle_ms } else { due };
             self.last_cycle_ms = Some(at);
             self.core.cycle(at);
-            self.commit(Vec::new()).await?;
+            self.commit(Vec::new())?;
         }
         Ok(())
     }
 
-    pub(crate) async fn commit(&mut self, mut outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
+    pub(crate) fn commit(&mut self, mut outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
         while let Some(out) = self.core.poll_output() {
             outputs.push(out);
         }
@@ -417,7 +479,7 @@ impl Shell {
         let now = self.core.core().now_ms();
         self.out.values(now, self.core.core());
         let Some(journal) = &mut self.journal else {
-            return self.carry_out(outputs).await;
+            return self.carry_out(outputs);
         };
         // Messages go with the batch: the writer sends them once it is durable. The rest waits here for it.
         let (mut messages, mut local) = (Vec::new(), Vec::new());
@@ -444,7 +506,7 @@ impl Shell {
         if self.snapshot_every > 0 && self.core.records_counted() >= self.snapshot_due {
             self.snapshot()?;
         }
-        self.release().await
+        self.release()
     }
 
     /// Hands the journal a snapshot of the coordinator after every record so far (with the summary's step times,
@@ -465,29 +527,29 @@ impl Shell {
     }
 
     /// Carries out what waited for journal batches that are now durable, in order.
-    pub(crate) async fn release(&mut self) -> anyhow::Result<()> {
+    pub(crate) fn release(&mut self) -> anyhow::Result<()> {
         let durable = match &self.journal {
             Some(j) => j.durable()?,
             None => u64::MAX,
         };
         while self.held.front().is_some_and(|(batch, _)| *batch <= durable) {
             let Some((_, outputs)) = self.held.pop_front() else { break };
-            self.carry_out(outputs).await?;
+            self.carry_out(outputs)?;
         }
         while self.held_replies.front().is_some_and(|(batch, _, _, _)| batch.is_some_and(|b| b <= durable)) {
             let Some((_, q, key, answer)) = self.held_replies.pop_front() else { break };
-            reply(&q, key, answer).await;
+            reply(&q, key, answer);
         }
         Ok(())
     }
 
     /// Carries out what the coordinator asked for: messages first, then what stays in this process.
-    pub(crate) async fn carry_out(&mut self, outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
+    pub(crate) fn carry_out(&mut self, outputs: Vec<CoordOutput>) -> anyhow::Result<()> {
         // Messages leave before the trace is written: a token's round trip does not wait for the disk.
         let mut local = Vec::new();
         for out in outputs {
             match (message(&self.vars_key, &out), out) {
-                (Some(Outgoing { key, payload }), _) => self.send(key, payload).await?,
+                (Some(Outgoing { key, payload }), _) => self.send(key, payload)?,
                 (None, CoordOutput::Ask { agent, incarnation }) => self.ask(agent, incarnation),
                 (None, other) => local.push(other),
             }
@@ -511,10 +573,20 @@ impl Shell {
         Ok(())
     }
 
-    /// Publishes through the outbox, in the main loop (without a journal; with one, the journal's writer sends,
-    /// `deliver_through`), the outcome weighed by `weigh`.
-    pub(crate) async fn send(&mut self, key: String, payload: Vec<u8>) -> anyhow::Result<()> {
-        weigh(self.outbox.put(key, payload).await).map_err(|why| anyhow!(why))
+    /// Publishes through the outbox, where the coordinator decided it (without a journal; with one, the journal's
+    /// writer sends, `deliver_through`), the outcome weighed by `weigh`.
+    pub(crate) fn send(&mut self, key: String, payload: Vec<u8>) -> anyhow::Result<()> {
+        weigh(self.outbox.put(key, payload)).map_err(|why| anyhow!(why))
+    }
+
+    /// Whether the main loop must look again after a callback: it failed, the run ended or asks to start again,
+    /// or it needs a cycle earlier than the loop sleeps until.
+    fn must_look(&self) -> bool {
+        let core = self.core.core();
+        self.failed.is_some()
+            || core.is_over()
+            || core.wants_new_run()
+            || baton_shell::earlier(self.next_cycle().map(|t| self.instant_of(t)), self.armed)
     }
 
     pub(crate) fn summary(&self, loaded: &Loaded) -> Summary {
