@@ -29,7 +29,7 @@ mod segment;
 mod tests;
 mod writer;
 
-pub use writer::{Deliver, JournalStats, Outgoing, Writer};
+pub use writer::{Deliver, JournalStats, OnDurable, Outgoing, Writer};
 
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Write};

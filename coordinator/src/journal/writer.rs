@@ -3,7 +3,7 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc as std_mpsc;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use anyhow::anyhow;
@@ -19,11 +19,24 @@ impl Store {
         let (done_tx, done_rx) = watch::channel(Durable::Upto(0));
         let stats = Arc::new(Counters::default());
         let counters = Arc::clone(&stats);
+        let hook: Arc<Mutex<Option<OnDurable>>> = Arc::default();
+        let told = Arc::clone(&hook);
         let thread = std::thread::Builder::new()
             .name("baton-journal".into())
-            .spawn(move || writer_loop(self, rx, done_tx, &counters, deliver))
+            .spawn(move || {
+                // Called outside the hook's lock, so that `close` never waits for a call under way.
+                let tell = || {
+                    let f = told.lock().ok().and_then(|hook| hook.clone());
+                    if let Some(f) = f {
+                        f();
+                    }
+                };
+                writer_loop(self, rx, &done_tx, &counters, deliver, &tell);
+                // Whatever ended the writer (a failure, or the shell's closing it), the shell is told.
+                tell();
+            })
             .expect("start the journal writer thread");
-        Writer { tx: Some(tx), durable: done_rx, sent: 0, thread: Some(thread), stats }
+        Writer { tx: Some(tx), durable: done_rx, sent: 0, thread: Some(thread), stats, hook }
     }
 }
 
@@ -71,6 +84,10 @@ pub struct Outgoing {
 /// and with it the run.
 pub type Deliver = Box<dyn FnMut(Vec<Outgoing>) -> Result<(), String> + Send>;
 
+/// Called on the writer thread when more batches are durable, and when the writer fails: the shell releases what
+/// they held (`Writer::on_durable`).
+pub type OnDurable = Arc<dyn Fn() + Send + Sync>;
+
 /// What the shell hands the writer.
 enum Job {
     /// Records, and the messages they led to, handed at that instant.
@@ -84,9 +101,10 @@ enum Job {
 fn writer_loop(
     mut store: Store,
     rx: std_mpsc::Receiver<Job>,
-    done: watch::Sender<Durable>,
+    done: &watch::Sender<Durable>,
     counters: &Counters,
     mut deliver: Option<Deliver>,
+    tell: &dyn Fn(),
 ) {
     let mut committed = 0u64;
     let mut buffer = Vec::new();
@@ -145,10 +163,13 @@ fn writer_loop(
                 counters.held_ns.fetch_add(at.elapsed().as_nanos() as u64, Ordering::Relaxed);
             }
             // The shell is told only when more is durable.
-            done.send_if_modified(|d| {
+            let more = done.send_if_modified(|d| {
                 let was = std::mem::replace(d, Durable::Upto(committed));
                 was != *d
             });
+            if more {
+                tell();
+            }
             if let Some(snapshot) = segment {
                 match store.start_segment(&snapshot) {
                     Ok(()) => {
@@ -175,6 +196,7 @@ pub struct Writer {
     sent: u64,
     thread: Option<std::thread::JoinHandle<()>>,
     stats: Arc<Counters>,
+    hook: Arc<Mutex<Option<OnDurable>>>,
 }
 
 impl Writer {
@@ -206,9 +228,12 @@ impl Writer {
         Ok(())
     }
 
-    /// A receiver that changes when batches become durable, for a `select!` outside the shell.
-    pub fn watcher(&self) -> watch::Receiver<Durable> {
-        self.durable.clone()
+    /// Calls `f` on the writer thread each time more batches are durable, and when the writer fails or stops:
+    /// the shell releases what they held there, with no wake-up of its main loop per commit.
+    pub fn on_durable(&self, f: OnDurable) {
+        if let Ok(mut hook) = self.hook.lock() {
+            *hook = Some(f);
+        }
     }
 
     /// Records written, transactions committed and snapshots written so far.
@@ -264,6 +289,9 @@ impl Writer {
     /// Stops the writer after what was written so far.
     pub fn close(&mut self) {
         self.tx = None;
+        if let Ok(mut hook) = self.hook.lock() {
+            *hook = None;
+        }
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
