@@ -257,17 +257,39 @@ pub async fn run_until(
     let zconfig = baton_shell::zenoh_config(&net, config.zenoh_config.as_deref())?;
     let name = config.name.clone();
     // The agent waits for its router as long as it takes (a robot may boot before the cell's network), but says
-    // that it waits: a silent agent behind a wrong address or a cut cable is a puzzle.
-    // zenoh::open holds the thread that awaits it while it retries, so the notice is a task of its own.
-    let notice = {
-        let (name, at) = (name.clone(), config.connect.join(", "));
-        tokio::spawn(async move {
-            tokio::time::sleep(ROUTER_WAIT_NOTICE).await;
-            eprintln!("baton-agent `{name}`: no router answers at {at} yet; still trying (Ctrl-C to stop)");
+    // that it waits: a silent agent behind a wrong address or a cut cable is a puzzle. And it stops when asked
+    // while it waits. zenoh::open holds the thread that awaits it while it retries (the runtime's only worker, for
+    // one agent), so it opens on a thread of its own, and the notice and the stop are awaited here.
+    let (opened_tx, opened) = tokio::sync::oneshot::channel();
+    std::thread::Builder::new()
+        .name(format!("open {name}"))
+        .spawn(move || {
+            use zenoh::Wait;
+            let _ = opened_tx.send(zenoh::open(zconfig).wait());
         })
+        .map_err(|e| anyhow!("cannot start a thread to open the Zenoh session: {e}"))?;
+    let mut stop = std::pin::pin!(stop);
+    let notice = tokio::time::sleep(ROUTER_WAIT_NOTICE);
+    let mut notice = std::pin::pin!(notice);
+    let mut opened = std::pin::pin!(opened);
+    let mut noticed = false;
+    let opened = loop {
+        tokio::select! {
+            opened = &mut opened => break opened.map_err(|_| anyhow!("the thread opening the Zenoh session ended"))?,
+            () = &mut notice, if !noticed => {
+                noticed = true;
+                eprintln!(
+                    "baton-agent `{name}`: no router answers at {} yet; still trying (Ctrl-C to stop)",
+                    config.connect.join(", ")
+                );
+            }
+            () = &mut stop => {
+                // Nothing was joined, nothing is held: the session that may still open is never used.
+                eprintln!("baton-agent `{name}`: stopped before a router answered");
+                return Ok(());
+            }
+        }
     };
-    let opened = zenoh::open(zconfig).await;
-    notice.abort();
     let session = opened.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     // Its roles, each a liveliness token the router's access control lets only the identities deployed with that
     // role announce: refused, the agent says so and does not run (a coordinator would not give it the role's
@@ -346,11 +368,10 @@ pub async fn run_until(
         if config.roles.is_empty() { String::new() } else { format!(" with role(s) {}", config.roles.join(", ")) };
     let skill_names = shared.lock()?.skills.names().join(", ");
     eprintln!("baton-agent `{name}`{roles} ready on {} (skills: {skill_names})", config.connect.join(", "));
-    tokio::pin!(stop);
     loop {
         // Asleep until a query, a skill's event or a run's next cycle or resend is due (commands come in Zenoh's
-        // callback, which wakes the loop only to move the deadline earlier or to hand it messages that queued up): an idle agent runs no cycle (only
-        // `watch_router` wakes it).
+        // callback, which wakes the loop only to move the deadline earlier or to hand it messages that queued
+        // up): an idle agent runs no cycle (only `watch_router` wakes it).
         let deadline = {
             let mut shell = shared.lock()?;
             shell.armed = shell.deadline();

@@ -180,6 +180,15 @@ impl Cluster {
         tokio::time::timeout(TIMEOUT, child.wait()).await.expect("agent died in time").expect("wait");
     }
 
+    /// Waits (under the timeout) for the agent's process (the most recent one of that name) to end by itself.
+    pub async fn wait_agent(&mut self, name: &str) -> ExitStatus {
+        let (_, child) = self.agents.iter_mut().rev().find(|(n, _)| n == name).expect("agent started");
+        tokio::time::timeout(TIMEOUT, child.wait())
+            .await
+            .unwrap_or_else(|_| panic!("agent `{name}` did not end"))
+            .expect("wait")
+    }
+
     /// Sends a signal (`STOP`, `CONT`…) to the agent's process, as `kill -SIG` does.
     pub fn signal_agent(&self, name: &str, signal: &str) {
         let (_, child) = self.agents.iter().rev().find(|(n, _)| n == name).expect("agent started");

@@ -1,11 +1,11 @@
 //! A name is held by one live process: a second agent under a taken name is refused at start, a coordinator
 //! that hears two processes answer to one name dispatches to neither and raises an alarm, and commands reach
-//! one process only.
+//! one process only. An agent waiting for its router at start still stops when told.
 
 use baton_proto::dist::keys;
 use baton_proto::dist::wire::{self, AgentInfo};
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::loopback::{bin, check_trace_invariants, events, read_trace, repo, Cluster, TIMEOUT};
+use baton_tests::loopback::{bin, check_trace_invariants, events, free_port, read_trace, repo, Cluster, TIMEOUT};
 use tokio::process::Command;
 
 fn chart() -> std::path::PathBuf {
@@ -15,7 +15,17 @@ fn chart() -> std::path::PathBuf {
 #[tokio::test(flavor = "multi_thread")]
 async fn a_second_agent_under_a_taken_name_is_refused_at_start() {
     let mut cluster = Cluster::new();
-    let mut coordinator = cluster.coordinator(&chart(), &[]);
+    // r1 holds its step until the test says `go`: the run (and the router the coordinator hosts) stays up until the
+    // second agent has been refused, however fast the first one's step would otherwise end.
+    let chart = cluster.dir.path().join("held.st");
+    std::fs::write(
+        &chart,
+        "PROGRAM held\nVAR_INPUT go : BOOL; END_VAR\nINITIAL_STEP Start: END_STEP\n\
+         TRANSITION FROM Start TO Move := TRUE; END_TRANSITION\nSTEP Move: {agent := 'r1'} END_STEP\n\
+         TRANSITION FROM Move TO Done := go; END_TRANSITION\nSTEP Done: END_STEP\nEND_PROGRAM\n",
+    )
+    .expect("write the chart");
+    let mut coordinator = cluster.coordinator(&chart, &[]);
     coordinator.wait_for_log("running chart").await;
     cluster.agent("r1", &[], &[]);
     coordinator.wait_for_log("agent `r1` is live").await;
@@ -27,9 +37,11 @@ async fn a_second_agent_under_a_taken_name_is_refused_at_start() {
     let stderr = String::from_utf8_lossy(&second.stderr);
     assert!(!second.status.success(), "a second `r1` ran: {stderr}");
     assert!(stderr.contains("an agent named `r1` is already live"), "{stderr}");
+    let go = cluster.baton(&["set", "--connect", &cluster.endpoint, "go=true"]).await;
+    assert!(go.status.success(), "{}", String::from_utf8_lossy(&go.stderr));
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
-    check_trace_invariants(&trace, &chart());
+    check_trace_invariants(&trace, &chart);
     assert_eq!(events(&trace, TraceEvent::Dispatch).len(), 1);
 }
 
@@ -121,4 +133,22 @@ async fn a_hosted_agent_whose_name_is_taken_stops_its_process() {
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
     check_trace_invariants(&trace, &chart());
+}
+
+/// An agent started before its router waits for it, says so, and still stops on Ctrl-C (SIGINT) or the service
+/// manager's SIGTERM while it waits: it said "Ctrl-C to stop", and a unit that ignores SIGTERM is killed only after
+/// systemd's timeout.
+#[tokio::test(flavor = "multi_thread")]
+async fn an_agent_waiting_for_its_router_stops_when_told() {
+    let mut cluster = Cluster::new();
+    // Nothing listens there: the port was free a moment ago and nobody is started on it.
+    let nowhere = format!("tcp/127.0.0.1:{}", free_port());
+    for (name, signal) in [("waiting_int", "INT"), ("waiting_term", "TERM")] {
+        cluster.agent_at(&nowhere, name, &[], &[]);
+        cluster.wait_for_agent_log(name, "no router answers").await;
+        cluster.signal_agent(name, signal);
+        let status = cluster.wait_agent(name).await;
+        assert!(status.success(), "SIG{signal}: {status}; {}", cluster.agent_log(name));
+        assert!(cluster.agent_log(name).contains("stopped before a router answered"), "{}", cluster.agent_log(name));
+    }
 }
