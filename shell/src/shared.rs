@@ -95,16 +95,32 @@ impl<S: Send + 'static> Shared<S> {
     /// if somebody does, the callback returns at once and the holder handles it. After a panic in an earlier
     /// callback, nothing runs: the main loop reports it.
     pub fn handle<T: Send + 'static>(&self, input: T, f: impl FnOnce(&mut S, T) -> bool + Send + 'static) {
-        self.submit(input, f, true);
+        self.submit(input, f);
     }
 
-    /// As `handle`, for a message that may be dropped rather than wait when the queue is full (one that a later
-    /// message repeats, such as "more is durable"): it never waits for the state.
-    pub fn try_handle<T: Send + 'static>(&self, input: T, f: impl FnOnce(&mut S, T) -> bool + Send + 'static) {
-        self.submit(input, f, false);
+    /// As `handle`, for a message whose handling does not depend on the order of the others and that a later one
+    /// repeats (the journal's "more is durable"), from a thread with work of its own, which it never holds up: if the
+    /// state is free, this message alone is handled (the queue stays for the callbacks and the main loop, so that
+    /// the journal's writer does not handle reports while commits wait); if it is held, the message is queued for
+    /// the holder, and the main loop is woken in case the holder let go before it was queued.
+    pub fn handle_alone<T: Send + 'static>(&self, input: T, f: impl FnOnce(&mut S, T) -> bool + Send + 'static) {
+        let _context = self.runtime.enter();
+        if !self.main_waits.load(Ordering::SeqCst) {
+            if let Ok(mut guard) = self.state.try_lock() {
+                let earlier = guard.as_mut().is_some_and(|state| f(state, input));
+                self.let_go(guard, earlier);
+                return;
+            }
+        }
+        if let Ok(mut queued) = self.queued.lock() {
+            if queued.len() < RECEIVE_QUEUE_MAX {
+                queued.push_back(Box::new(move |state| f(state, input)));
+            }
+        }
+        self.rearm.notify_one();
     }
 
-    fn submit<T: Send + 'static>(&self, input: T, f: impl FnOnce(&mut S, T) -> bool + Send + 'static, wait: bool) {
+    fn submit<T: Send + 'static>(&self, input: T, f: impl FnOnce(&mut S, T) -> bool + Send + 'static) {
         let _context = self.runtime.enter();
         let job: Job<S> = Box::new(move |state| f(state, input));
         let full = match self.queued.lock() {
@@ -112,8 +128,8 @@ impl<S: Send + 'static> Shared<S> {
                 queued.push_back(job);
                 None
             }
-            Ok(_) if wait => Some(job),
-            Ok(_) | Err(_) => return,
+            Ok(_) => Some(job),
+            Err(_) => return,
         };
         if let Some(job) = full {
             // The queue is full: this callback waits for the state, handles what came before its message (its own
@@ -295,6 +311,32 @@ mod tests {
         assert!(held.is_empty(), "a message was handled while the main loop held the state");
         drop(held);
         assert_eq!(shared.take().expect("taken"), vec![0, 1, 2]);
+    }
+
+    /// The journal writer's "more is durable" (`handle_alone`): with the state free it is handled at once and alone
+    /// (what callbacks queued stays theirs); with the state held it is left for the holder, never lost.
+    #[test]
+    fn a_message_handled_alone_runs_at_once_or_is_left_for_the_holder() {
+        let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).build().expect("a runtime");
+        let shared = runtime.block_on(async { Shared::new(Vec::<u32>::new()) });
+        shared.handle_alone(1, |v, x| {
+            v.push(x);
+            false
+        });
+        assert_eq!(*shared.lock().expect("lock"), vec![1], "handled at once with the state free");
+        let held = shared.lock().expect("lock");
+        let s = Arc::clone(&shared);
+        std::thread::spawn(move || {
+            s.handle_alone(2, |v, x| {
+                v.push(x);
+                false
+            })
+        })
+        .join()
+        .expect("it returned while the state was held");
+        assert_eq!(*held, vec![1]);
+        drop(held);
+        assert_eq!(shared.take().expect("taken"), vec![1, 2]);
     }
 
     /// Whether the main loop would wake now: the callbacks have all returned, so a wake-up is there already or

@@ -203,7 +203,7 @@ pub(crate) fn releasing(shared: &Arc<Shared<Shell>>) -> OnDurable {
     let shared = Arc::downgrade(shared);
     Arc::new(move || {
         let Some(shared) = shared.upgrade() else { return };
-        shared.try_handle((), |shell, ()| {
+        shared.handle_alone((), |shell, ()| {
             if shell.failed.is_none() {
                 if let Err(e) = shell.release() {
                     shell.failed = Some(e);
