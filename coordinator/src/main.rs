@@ -25,9 +25,6 @@
 //! summary's step times and the trace file; `replay_records` feeds a journal's records to a coordinator and its outputs
 //! to `Records`, for a resumed run and for `baton replay` alike.
 
-#[global_allocator]
-static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
-
 mod bench;
 mod chart_file;
 mod cli;
