@@ -1,7 +1,7 @@
 //! `baton set` and `baton status`: one-shot clients of running charts, over Zenoh queries.
 
 use std::path::Path;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail};
 use baton_proto::dist::keys;
@@ -10,6 +10,9 @@ use baton_proto::dist::wire::{self, CtlReply, CtlRequest, RunId, SetReply, SetRe
 use zenoh::Session;
 
 const QUERY_TIMEOUT: Duration = Duration::from_secs(3);
+/// How long `--wait` asks again while no run answers before it says so: a session dropped and made again answers
+/// within it.
+const SILENCE_GRACE: Duration = Duration::from_secs(5);
 
 async fn open(connect: &[String], file: Option<&Path>) -> anyhow::Result<Session> {
     let net = NetConfig::client(connect, false);
@@ -192,9 +195,26 @@ pub async fn wait_settled(
 ) -> anyhow::Result<()> {
     let session = open(connect, file).await?;
     let settled = tokio::time::timeout(limit, async {
+        let mut target = None;
+        // Since when no run has answered: a run that just took the command does not vanish, but its session to the
+        // router may be dropped and made again meanwhile (zenoh-link-tls drops a TLS session under load and
+        // reconnects it at once: ARCHITECTURE.md, open points), and a question asked then finds nobody.
+        let mut silent_since: Option<Instant> = None;
         loop {
             let runs: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
-            let target = pick_run(&runs, run, connect)?;
+            if runs.is_empty() {
+                let since = *silent_since.get_or_insert_with(Instant::now);
+                if since.elapsed() >= SILENCE_GRACE {
+                    pick_run(&runs, run, connect)?;
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                continue;
+            }
+            silent_since = None;
+            let target = match target {
+                Some(t) => t,
+                None => *target.insert(pick_run(&runs, run, connect)?),
+            };
             let now = runs.iter().find(|r| r.run == target).map(|r| r.state);
             match now {
                 Some(state) if state.when_done().is_none() => return anyhow::Ok(state),

@@ -649,3 +649,78 @@ async fn abort_with_a_robot_cut_off_tells_it_once_it_is_back() {
     assert!(gone.is_ok(), "the motion's process {} still runs", pid.trim());
     assert!(!marks(&dir).iter().any(|l| l.contains("MoveA2")), "{:?}", marks(&dir));
 }
+
+/// `baton ctl … --wait` rides out a moment in which no run answers: the run's session to the router dropped and made
+/// again (zenoh-link-tls does so under load), as the deploying chapter's `hold --wait` once met. A stand-in run on
+/// the test's router takes the hold, answers `holding`, stops answering for a second, then answers `held`.
+#[tokio::test(flavor = "multi_thread")]
+async fn ctl_wait_asks_again_while_its_run_is_briefly_unreachable() {
+    use baton_proto::dist::keys;
+    use baton_proto::dist::runtime::packml::State;
+    use baton_proto::dist::wire::{self, ChartHash, CtlReply, RunId, StatusReport};
+
+    let cluster = Cluster::with_router().await;
+    let run = RunId(uuid::Uuid::from_u128(0x5eed));
+    let status = move |state| StatusReport {
+        run,
+        chart: "stand_in".into(),
+        hash: ChartHash("1".into()),
+        t_ms: 0,
+        active_steps: Vec::new(),
+        tokens: Vec::new(),
+        agents: Vec::new(),
+        state,
+        available: Vec::new(),
+        alarms: Vec::new(),
+        held: Vec::new(),
+        mode: Default::default(),
+        waiting: Vec::new(),
+        why: Vec::new(),
+    };
+    let session = cluster.watch().await;
+    let ctl = session.declare_queryable(format!("baton/run/{}/ctl/*", run.key())).await.expect("ctl queryable");
+    let ctl_task = tokio::spawn(async move {
+        while let Ok(q) = ctl.recv_async().await {
+            let reply = CtlReply {
+                chart: "stand_in".into(),
+                ok: true,
+                message: "the run is holding".into(),
+                state: State::Holding,
+                available: Vec::new(),
+            };
+            let _ = q.reply(q.key_expr().clone(), wire::encode(&reply)).await;
+        }
+    });
+    // The first question about its status finds it holding; then it is unreachable for a second; then held.
+    let statuses = session.declare_queryable(keys::status(run)).await.expect("status queryable");
+    let ask = tokio::spawn({
+        let (ep, dir) = (cluster.endpoint.clone(), cluster.dir.path().to_path_buf());
+        async move {
+            tokio::process::Command::new(baton_tests::loopback::bin("baton"))
+                .args(["ctl", "--connect", &ep, "hold", "--wait"])
+                .current_dir(dir)
+                .kill_on_drop(true)
+                .output()
+                .await
+                .expect("baton ctl ran")
+        }
+    });
+    let q = tokio::time::timeout(TIMEOUT, statuses.recv_async()).await.expect("asked for its status").expect("query");
+    q.reply(keys::status(run), wire::encode(&status(State::Holding))).await.expect("reply");
+    drop(q);
+    drop(statuses);
+    // Unreachable: what the client asks now finds no run. (The outage's length is the scenario, not a wait for an event.)
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let statuses = session.declare_queryable(keys::status(run)).await.expect("status queryable again");
+    let answering = tokio::spawn(async move {
+        while let Ok(q) = statuses.recv_async().await {
+            let _ = q.reply(keys::status(run), wire::encode(&status(State::Held))).await;
+        }
+    });
+    let out = tokio::time::timeout(TIMEOUT, ask).await.expect("ctl --wait ended").expect("joined");
+    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    assert!(stdout.contains("the run is held"), "{stdout}\n{stderr}");
+    ctl_task.abort();
+    answering.abort();
+}
