@@ -645,9 +645,17 @@ impl Shell {
                 eprintln!("error: cannot take part in run {}: {why} ({n} token(s) dropped)", run.key());
             }
             Event::Contact(lost) => {
+                let holding = self.runs.values().map(|r| r.state.tokens_held()).sum::<usize>();
                 match lost {
+                    // Nothing held, nothing to stop: the usual end of a run whose coordinator hosted the router.
+                    Some(ms) if holding == 0 => eprintln!(
+                        "baton-agent `{}`: no contact with the router for {ms} ms; no token is held here, nothing to \
+                         stop; still trying",
+                        self.config.name
+                    ),
                     Some(ms) => eprintln!(
-                        "warning: no contact with the router for {ms} ms: the skills of tokens that may go to another agent are stopped (lease fence, at unix ms {})",
+                        "warning: no contact with the router for {ms} ms: the skills of the {holding} token(s) held \
+                         here that may go to another agent are stopped (lease fence, at unix ms {})",
                         unix_ms()
                     ),
                     None => eprintln!("the router is back"),

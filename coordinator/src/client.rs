@@ -17,7 +17,44 @@ const SILENCE_GRACE: Duration = Duration::from_secs(5);
 async fn open(connect: &[String], file: Option<&Path>) -> anyhow::Result<Session> {
     let net = NetConfig::client(connect, false);
     let config = baton_shell::zenoh_config(&net, file)?;
-    zenoh::open(config).await.map_err(|e| anyhow!("cannot reach a router at {}: {e}", connect.join(", ")))
+    match zenoh::open(config).await {
+        Ok(session) => Ok(session),
+        Err(_) => Err(anyhow!("{}", unreachable(connect, file.is_some()))),
+    }
+}
+
+/// Why no session opened, in an operator's words (Zenoh's own error says "Timeout!" and where in its source): for
+/// each endpoint, whether anything listens there at all and, if something does over plain TCP, that it may be a TLS
+/// router and what to give then.
+fn unreachable(connect: &[String], has_config: bool) -> String {
+    let within = format!("{:.1} s", baton_proto::dist::netconfig::CLIENT_CONNECT_TIMEOUT_MS as f64 / 1000.0);
+    let mut said = vec![format!("no router answered at {} within {within}", connect.join(", "))];
+    for endpoint in connect {
+        let (proto, addr) = endpoint.split_once('/').unwrap_or(("", endpoint.as_str()));
+        let addr = addr.split('#').next().unwrap_or(addr);
+        let listening = addr
+            .parse::<std::net::SocketAddr>()
+            .ok()
+            .map(|a| std::net::TcpStream::connect_timeout(&a, Duration::from_millis(300)).is_ok());
+        match (proto, listening) {
+            (_, Some(false)) => said.push(format!(
+                "nothing listens at {addr}: is `baton run --listen {endpoint}` or the cell's router running there?"
+            )),
+            ("tcp", Some(true)) => said.push(format!(
+                "something listens at {addr} but no Zenoh session opened over plain TCP: if it is a secured (TLS) \
+                 router, connect with tls/{addr} and --zenoh-config with your identity's file (`baton deploy certs`)"
+            )),
+            ("tls" | "quic", _) if !has_config => said.push(format!(
+                "{endpoint} needs --zenoh-config with the cell's CA and your certificate (`baton deploy certs`)"
+            )),
+            ("tls" | "quic", Some(true)) => said.push(format!(
+                "something listens at {addr}: check that your --zenoh-config trusts its CA and that the router's \
+                 access control lets you in"
+            )),
+            _ => {}
+        }
+    }
+    said.join("; ")
 }
 
 /// Replies of every running chart to a query on `key`, decoded; undecodable ones are reported and skipped.
@@ -175,7 +212,12 @@ pub async fn ctl(
     let replies: Vec<CtlReply> = ask_one_run(connect, file, run, keys::ctl, wire::encode(&request)).await?;
     for r in &replies {
         let legal: Vec<&str> = r.available.iter().map(|c| c.name()).collect();
-        let state = format!("state {}; legal now: {}", r.state, legal.join(", "));
+        // A refusal of a PackML command says what is legal itself: not twice.
+        let state = if r.message.contains("legal now") {
+            format!("state {}", r.state)
+        } else {
+            format!("state {}; legal now: {}", r.state, legal.join(", "))
+        };
         if r.ok {
             println!("{}: {} ({state})", r.chart, r.message);
         } else {
@@ -258,7 +300,7 @@ pub fn pick_run(runs: &[StatusReport], wanted: Option<&str>, connect: &[String])
                     r.run.key(),
                     r.chart,
                     r.hash.0,
-                    r.t_ms
+                    r.t_ms.saturating_sub(r.started_ms)
                 )
             })
             .collect::<String>()
@@ -333,7 +375,8 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool, why: bo
         return Ok(());
     }
     for r in &reports {
-        println!("chart `{}` (run {}, version {}), running for {} ms", r.chart, r.run.key(), r.hash.0, r.t_ms);
+        let running = r.t_ms.saturating_sub(r.started_ms);
+        println!("chart `{}` (run {}, version {}), running for {running} ms", r.chart, r.run.key(), r.hash.0);
         let legal: Vec<&str> = r.available.iter().map(|c| c.name()).collect();
         println!("  state: {} (legal commands: {})", r.state, legal.join(", "));
         if r.mode != baton_proto::exec::engine::Mode::Auto {
@@ -357,6 +400,15 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool, why: bo
                 );
             }
         }
+        if !r.shelved.is_empty() {
+            println!("  shelved: {}", r.shelved.len());
+            for a in &r.shelved {
+                let until = a.shelved_until_ms.map(|t| format!("until {t} ms")).unwrap_or_default();
+                let (by, reason) = a.shelf.as_ref().map_or(("?", None), |s| (s.by.as_str(), s.reason.as_deref()));
+                let reason = reason.map(|r| format!(": {r}")).unwrap_or_default();
+                println!("    {} {} ({until}, by {by}{reason}): {}", a.id, a.source, a.message);
+            }
+        }
         if why {
             print_why(&r.why);
         }
@@ -374,7 +426,14 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool, why: bo
                 (_, true, false) => " (holding: waiting for its agent to confirm)",
                 _ => "",
             };
-            println!("    {} epoch {} at {} {at}, since {} ms{paused}", t.token, t.epoch, t.entry, t.since_ms);
+            // Where it is now; where it was dispatched, when that is another step.
+            let now = if t.at.is_empty() { t.entry.clone() } else { t.at.join(", ") };
+            let entered = if t.at.is_empty() || t.at == [t.entry.clone()] {
+                String::new()
+            } else {
+                format!(" (entered at {})", t.entry)
+            };
+            println!("    {} epoch {} at {now}{entered} {at}, since {} ms{paused}", t.token, t.epoch, t.since_ms);
         }
         println!("  live agents: {}", r.agents.len());
         for a in &r.agents {

@@ -611,13 +611,14 @@ impl Logger {
                     self.step_state(&rec.name, StepState::Faulted, "faulted");
                 }
             }
-            TraceEvent::Ack | TraceEvent::Shelve | TraceEvent::AlarmClear => {
+            TraceEvent::Ack | TraceEvent::Shelve | TraceEvent::Unshelve | TraceEvent::AlarmClear => {
                 let id = rec.id.map(|i| format!(" #{i}")).unwrap_or_default();
                 let by = rec.by.as_deref().unwrap_or("?");
                 let text = match rec.event {
                     TraceEvent::Ack if message.is_empty() => format!("alarm{id} acknowledged by {by}"),
                     TraceEvent::Ack => format!("alarm{id} acknowledged by {by}: {message}"),
                     TraceEvent::Shelve => format!("alarm{id} shelved by {by} ({message})"),
+                    TraceEvent::Unshelve => format!("alarm{id} ({}) back in the active list: {message}", rec.name),
                     _ => format!("alarm{id} ({}) back to normal", rec.name),
                 };
                 self.log("INFO", text);

@@ -306,3 +306,26 @@ fn sizes_and_dates_that_would_wrap_are_errors_at_their_place() {
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("has 10 elements, and more initial values"), "{err}");
 }
+
+/// `baton sim` runs no skills: a chart whose steps wait on skills stalls there, and the end of the run says which
+/// steps wait on which skill and how to drive them (the indicator to set in an input script), rather than
+/// stopping in silence; driven that way, the chart goes on.
+#[test]
+fn sim_says_which_steps_wait_on_skills_and_how_to_drive_them() {
+    let cell = repo("examples/cell.st");
+    let out = baton(&["sim", &cell, "--until-ms", "2000"]);
+    assert!(out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    for (step, action, indicator) in [("Pick1", "PickPart1", "picked1"), ("Pick2", "PickPart2", "picked2")] {
+        let line = err.lines().find(|l| l.contains(&format!("step `{step}`"))).unwrap_or_else(|| panic!("{err}"));
+        assert!(line.contains(&format!("action `{action}`")) && line.contains("skill `motion`"), "{line}");
+        assert!(line.contains(&format!("`{indicator}`")) && line.contains("baton test"), "{line}");
+    }
+    // What it says to do works: the indicators set, both picks end.
+    let inputs = temp_file("picks.jsonl", "{\"t_ms\": 500, \"set\": {\"picked1\": true, \"picked2\": true}}\n");
+    let out = baton(&["sim", &cell, "--until-ms", "2000", "--inputs", &inputs]);
+    let trace = String::from_utf8_lossy(&out.stdout);
+    assert!(trace.contains("\"name\":\"Picked1\"") && trace.contains("\"name\":\"Picked2\""), "{trace}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("step `Pick1`"), "{err}");
+}

@@ -344,3 +344,47 @@ async fn a_set_reaches_only_the_run_it_names() {
     let (status, log, _, _) = first.finish().await;
     assert!(status.success(), "{log}");
 }
+
+/// A client that reaches no router says so in an operator's words, soon (it tries for
+/// `CLIENT_CONNECT_TIMEOUT_MS`, 2.5 s), never with a dependency's source path: nothing listening is told apart
+/// from something that listens but does not open a Zenoh session over plain TCP (a TLS router, most likely).
+#[tokio::test(flavor = "multi_thread")]
+async fn a_client_that_reaches_no_router_says_why_in_plain_words() {
+    let cluster = Cluster::new();
+    let port = baton_tests::loopback::free_port();
+    let out = cluster.baton(&["status", "--connect", &format!("tcp/127.0.0.1:{port}")]).await;
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains(&format!("nothing listens at 127.0.0.1:{port}")), "{stderr}");
+    assert!(!stderr.contains(".cargo") && !stderr.contains("Timeout!"), "a dependency's words: {stderr}");
+
+    // Something listens (the kernel completes the connection) but speaks no Zenoh: as a TLS router is, to a client
+    // that came over plain TCP.
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("a listener");
+    let addr = listener.local_addr().expect("its address");
+    let out = cluster.baton(&["ctl", "--connect", &format!("tcp/{addr}"), "hold"]).await;
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains(&format!("something listens at {addr}")), "{stderr}");
+    assert!(stderr.contains(&format!("tls/{addr}")) && stderr.contains("--zenoh-config"), "{stderr}");
+    drop(listener);
+}
+
+/// A normal end is not reported as a fault: when a run whose coordinator hosted the router ends, its agents lose
+/// the router, but hold nothing — they say so plainly, with no lease-fence warning, and nothing of an abort.
+#[tokio::test(flavor = "multi_thread")]
+async fn agents_of_a_run_that_ended_normally_report_no_fault() {
+    let mut cluster = Cluster::new();
+    let chart = repo("tests/charts/one_step.st");
+    let mut coordinator = cluster.coordinator(&chart, &[]);
+    coordinator.wait_for_log("running chart").await;
+    // A short lease, so that the agent notices the router gone within a second or two.
+    cluster.agent("r1", &[], &["--lease-ms", "1000"]);
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace, &chart);
+    let said = cluster.wait_for_agent_log("r1", "no contact with the router").await;
+    let line = said.lines().find(|l| l.contains("no contact with the router")).unwrap_or_default();
+    assert!(!line.starts_with("warning") && line.contains("no token is held here"), "{said}");
+    assert!(!said.contains("lease fence") && !said.contains("aborted"), "{said}");
+}

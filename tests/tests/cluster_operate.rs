@@ -502,6 +502,20 @@ async fn a_step_past_its_maximum_time_branches_to_the_charts_recovery_and_the_al
     let message = alarm["message"].as_str().unwrap_or_default();
     assert!(message.contains("it waited for: Move->Done: `moved` is FALSE"), "{message}");
     assert!(message.contains("skill of `Drive` running for"), "{message}");
+    // Shelved for a minute: out of the active list, listed apart with who and why; unshelved: back.
+    let (ok, said) = ctl(&cluster, &["shelve", "1", "--for", "1m", "--reason", "drive being replaced"]).await;
+    assert!(ok, "{said}");
+    let out = cluster.baton(&["status", "--connect", &cluster.endpoint]).await;
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(!text.contains("alarms:") && text.contains("shelved: 1"), "{text}");
+    assert!(text.contains("drive being replaced") && text.contains("Move"), "{text}");
+    let (ok, said) = ctl(&cluster, &["unshelve", "1"]).await;
+    assert!(ok, "{said}");
+    let s = status(&cluster).await;
+    assert_eq!((s["alarms"].as_array().map(Vec::len), s["shelved"].as_array().map(Vec::len)), (Some(1), Some(0)));
+    // A refusal says what is legal once.
+    let (ok, said) = ctl(&cluster, &["unhold"]).await;
+    assert!(!ok && said.matches("legal now").count() == 1, "{said}");
     let (ok, said) = ctl(&cluster, &["ack", "1", "--comment", "drive replaced"]).await;
     assert!(ok, "{said}");
     let (ok, said) = ctl(&cluster, &["ack", "1"]).await;
@@ -511,7 +525,9 @@ async fn a_step_past_its_maximum_time_branches_to_the_charts_recovery_and_the_al
     let (status, log, trace, _) = coordinator.finish().await;
     assert_eq!(status.code(), Some(4), "{log}");
     let ack = trace.iter().find(|r| r.event == TraceEvent::Ack).expect("the acknowledgement");
-    assert_eq!((ack.id, ack.message.as_deref()), (Some(1), Some("drive replaced")));
+    assert_eq!((ack.id, ack.message.as_deref(), ack.name.as_str()), (Some(1), Some("drive replaced"), "Move"));
+    let unshelved = trace.iter().find(|r| r.event == TraceEvent::Unshelve).expect("the unshelve is traced");
+    assert!(unshelved.message.as_deref().is_some_and(|m| m.contains("drive being replaced")), "{unshelved:?}");
     assert!(trace.iter().any(|r| r.event == TraceEvent::AlarmClear && r.id == Some(1)));
     assert!(trace.iter().all(|r| r.event != TraceEvent::SkillDone), "the slow motion was cancelled, not finished");
 }
@@ -666,12 +682,14 @@ async fn ctl_wait_asks_again_while_its_run_is_briefly_unreachable() {
         chart: "stand_in".into(),
         hash: ChartHash("1".into()),
         t_ms: 0,
+        started_ms: 0,
         active_steps: Vec::new(),
         tokens: Vec::new(),
         agents: Vec::new(),
         state,
         available: Vec::new(),
         alarms: Vec::new(),
+        shelved: Vec::new(),
         held: Vec::new(),
         mode: Default::default(),
         waiting: Vec::new(),

@@ -140,6 +140,37 @@ fn holding_one_robot_lets_the_other_finish_its_branch() {
     assert!(names.is_empty(), "a partial hold leaves the run in Execute: {names:?}");
 }
 
+/// A misspelt agent in `hold --agent` is refused with the name meant — never "holding" while the robot it meant
+/// carries on — as a misspelt step is; an agent that comes only as a role-holder is known by its name.
+#[test]
+fn holding_an_agent_the_run_does_not_know_is_refused_with_the_name_meant() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 3);
+    sim.command_at(300, CtlRequest { agent: Some("rl".into()), ..ctl("hold") });
+    sim.command_at(310, CtlRequest { step: Some("B22".into()), ..ctl("hold") });
+    sim.command_at(320, CtlRequest { agent: Some("nobody".into()), ..ctl("hold") });
+    assert!(sim.run(20_000), "did not finish: {:#?}", sim.trace);
+    check(&sim);
+    let typo = sim.answers[0].1.clone().expect_err("an unknown agent is refused");
+    assert!(typo.contains("no agent `rl`") && typo.contains("did you mean `r1`?"), "{typo}");
+    let step = sim.answers[1].1.clone().expect_err("an unknown step is refused");
+    assert!(step.contains("no step `B22`") && step.contains("did you mean `B2`?"), "{step}");
+    let far = sim.answers[2].1.clone().expect_err("refused");
+    assert!(!far.contains("did you mean") && far.contains("r1, r2"), "{far}");
+    assert!(sim.coordinator.core().partial_holds().is_empty(), "nothing was held");
+    assert!(
+        sim.trace.iter().all(|r| r.event != TraceEvent::Command || r.name != "hold"),
+        "a refused hold is not traced as taken"
+    );
+
+    // An agent that serves a role, and has no step placed on it by name, is known once it was heard.
+    let chart = CELL.replace("STEP B1: {agent := 'r2'}", "STEP B1: {role := 'welder'}");
+    let mut sim = SimCluster::new(&chart, &[("r1", &[]), ("r2", &["welder"])], Faults::default(), 3);
+    sim.command_at(300, CtlRequest { agent: Some("r2".into()), ..ctl("hold") });
+    sim.command_at(5_000, CtlRequest { agent: Some("r2".into()), ..ctl("unhold") });
+    assert!(sim.run(20_000), "did not finish: {:#?}", sim.trace);
+    assert!(sim.answers[0].1.is_ok(), "{:?}", sim.answers[0]);
+}
+
 /// `stop` lets the running motions finish, starts nothing, and ends the run `stopped`.
 #[test]
 fn stop_lets_running_motions_finish_and_ends_the_run_stopped() {
@@ -192,6 +223,57 @@ fn abort_with_a_robot_cut_off_abandons_its_token_with_an_alarm() {
     let abandoned = abandoned.expect("an alarm for the abandoned token");
     assert_eq!(abandoned.name, "r1");
     assert!(abandoned.message.as_deref().is_some_and(|m| m.contains("abandoned")), "{abandoned:?}");
+}
+
+/// Words an operator reads say where things are now: a token's line names the step it is at (with the step it was
+/// dispatched at), and so does the alarm of an agent lost holding it.
+#[test]
+fn a_token_and_the_alarm_of_its_lost_agent_name_the_step_it_is_at_now() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 8);
+    // r1's token was dispatched at A1 and is at A2 from about 1 s.
+    assert!(!sim.run(1_500));
+    let status = sim.coordinator.core().status();
+    let r1 = status.tokens.iter().find(|t| t.agent.as_deref() == Some("r1")).expect("r1's token");
+    assert_eq!((r1.entry.as_str(), r1.at.clone()), ("A1", vec!["A2".to_string()]), "{r1:?}");
+    sim.fate_at(1_600, "r1", Fate::Cut);
+    sim.run(30_000);
+    let lost = sim
+        .trace
+        .iter()
+        .find(|r| r.event == TraceEvent::Alarm && r.name == "r1")
+        .and_then(|r| r.message.clone())
+        .expect("an alarm for the lost agent");
+    assert!(lost.contains("holding the token of step `A2` (entered at `A1`)"), "{lost}");
+}
+
+/// A command's answer says what it did: `mode step` confirms the mode (not the run's PackML state), and a refusal
+/// is worded once.
+#[test]
+fn a_mode_change_is_answered_with_the_mode_and_a_refusal_is_said_once() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 9);
+    sim.command_at(100, ctl_on("mode", "manual"));
+    sim.command_at(200, ctl_on("activate", "B2"));
+    sim.command_at(300, ctl_on("mode", "auto"));
+    sim.run(20_000);
+    assert_eq!(sim.answers[0].1.as_deref(), Ok("the run is in manual mode"));
+    let refused = sim.answers[1].1.clone().expect_err("activating B2 beside B1 is unsafe");
+    assert!(!refused.starts_with("refused"), "{refused}");
+    assert_eq!(sim.answers[2].1.as_deref(), Ok("the run is in auto mode"));
+}
+
+/// After `reset`, the new run's time starts at the reset: `baton status` must not say a new idle run has been
+/// running since the process started.
+#[test]
+fn a_run_made_by_reset_counts_its_time_from_the_reset() {
+    let mut sim = SimCluster::new(CELL, AGENTS, Faults::default(), 10);
+    sim.set_stay();
+    sim.command_at(300, ctl("stop"));
+    sim.command_at(4_000, ctl("reset"));
+    sim.run(5_000);
+    let status = sim.coordinator.core().status();
+    assert!(sim.trace.iter().any(|r| r.event == TraceEvent::NewRun), "the reset made a new run");
+    assert!(status.started_ms >= 4_000, "the new run began at {} ms", status.started_ms);
+    assert!(status.t_ms - status.started_ms <= 1_000, "{} ms since the reset", status.t_ms - status.started_ms);
 }
 
 /// A command the run's state does not allow is refused, saying the state and what is legal, and traced.
@@ -276,15 +358,7 @@ fn a_step_past_its_maximum_time_waits_for_an_acknowledgement_and_only_its_path_w
 /// A chart that reads `S.overrun` branches to its own recovery at once; the alarm stays latched until acknowledged.
 #[test]
 fn a_chart_branches_to_its_own_recovery_on_a_fault_and_the_alarm_stays_until_acknowledged() {
-    let chart = "PROGRAM p\nVAR done, retry : BOOL; END_VAR\nINITIAL_STEP A: END_STEP\n\
-                 TRANSITION FROM A TO Move := TRUE; END_TRANSITION\n\
-                 STEP Move: {agent := 'r1', max_ms := T#300ms} Drive(N, done); END_STEP\n\
-                 TRANSITION FROM Move TO Finished := done; END_TRANSITION\n\
-                 TRANSITION FROM Move TO Recover := Move.overrun; END_TRANSITION\n\
-                 STEP Finished: END_STEP\nSTEP Recover: END_STEP\n\
-                 TRANSITION FROM Recover TO Finished2 := retry; END_TRANSITION\nSTEP Finished2: END_STEP\n\
-                 ACTION Drive: {skill := 'motion', ms := 1000} END_ACTION\nEND_PROGRAM\n";
-    let mut sim = SimCluster::new(chart, &[("r1", &[])], Faults::default(), 1);
+    let mut sim = SimCluster::new(RECOVERING, &[("r1", &[])], Faults::default(), 1);
     sim.command_at(5_000, CtlRequest { target: Some("all".into()), reason: "drive checked".into(), ..ctl("ack") });
     assert!(!sim.run(2_000), "the chart waits in Recover");
     let t = &sim.trace;
@@ -299,7 +373,112 @@ fn a_chart_branches_to_its_own_recovery_on_a_fault_and_the_alarm_stays_until_ack
     assert!(sim.coordinator.core().status().alarms.is_empty(), "acknowledged, it is back to normal");
     let ack = sim.trace.iter().find(|r| r.event == TraceEvent::Ack).expect("ack traced");
     assert_eq!(ack.message.as_deref(), Some("drive checked"));
+    // The acknowledgement ended the alarm (its cause was gone): the record still names what raised it.
+    assert_eq!(ack.name, "Move", "{ack:?}");
     assert!(sim.trace.iter().any(|r| r.event == TraceEvent::AlarmClear && r.id == ack.id));
+}
+
+/// A chart that branches to its own recovery when `Move` passes its maximum time: the latched alarm stands after
+/// its step was left.
+const RECOVERING: &str = "PROGRAM p\nVAR done, retry : BOOL; END_VAR\nINITIAL_STEP A: END_STEP\n\
+                 TRANSITION FROM A TO Move := TRUE; END_TRANSITION\n\
+                 STEP Move: {agent := 'r1', max_ms := T#300ms} Drive(N, done); END_STEP\n\
+                 TRANSITION FROM Move TO Finished := done; END_TRANSITION\n\
+                 TRANSITION FROM Move TO Recover := Move.overrun; END_TRANSITION\n\
+                 STEP Finished: END_STEP\nSTEP Recover: END_STEP\n\
+                 TRANSITION FROM Recover TO Finished2 := retry; END_TRANSITION\nSTEP Finished2: END_STEP\n\
+                 ACTION Drive: {skill := 'motion', ms := 1000} END_ACTION\nEND_PROGRAM\n";
+
+/// ISA-18.2's shelving: a shelved alarm leaves the active list (status) and stays in the trace; when its time runs
+/// out it comes back by itself, traced with who shelved it and why; `unshelve` ends a shelf early.
+#[test]
+fn a_shelved_alarm_leaves_the_active_list_and_comes_back_when_its_time_runs_out_or_is_unshelved() {
+    let mut sim = SimCluster::new(RECOVERING, &[("r1", &[])], Faults::default(), 1);
+    let shelve = || CtlRequest {
+        target: Some("1".into()),
+        for_ms: Some(2_000),
+        reason: "sensor being replaced".into(),
+        by: "anna".into(),
+        ..ctl("shelve")
+    };
+    sim.command_at(1_000, shelve());
+    assert!(!sim.run(1_500), "the chart waits in Recover");
+    let status = sim.coordinator.core().status();
+    assert!(status.alarms.is_empty(), "shelved, it is not in the active list: {:?}", status.alarms);
+    assert_eq!(status.shelved.len(), 1);
+    assert_eq!(status.shelved[0].shelved_until_ms, Some(3_000));
+    assert_eq!(status.shelved[0].shelf.as_ref().map(|s| s.by.as_str()), Some("anna"));
+    let shelved = sim.trace.iter().find(|r| r.event == TraceEvent::Shelve).expect("the shelving is traced");
+    assert_eq!((shelved.name.as_str(), shelved.id, shelved.by.as_deref()), ("Move", Some(1), Some("anna")));
+    assert!(shelved.message.as_deref().is_some_and(|m| m.contains("sensor being replaced")), "{shelved:?}");
+
+    // Its time runs out at 3 s: back in the list, by itself, traced at that moment with who shelved it and why.
+    sim.run(3_500);
+    let status = sim.coordinator.core().status();
+    assert_eq!(status.alarms.iter().map(|a| a.id).collect::<Vec<_>>(), vec![1]);
+    assert!(status.shelved.is_empty());
+    let back = sim.trace.iter().find(|r| r.event == TraceEvent::Unshelve).expect("the return is traced");
+    assert_eq!((back.name.as_str(), back.id, back.by.as_deref()), ("Move", Some(1), Some("anna")));
+    assert!((3_000..3_100).contains(&back.t_ms), "back at {} ms, its shelf ended at 3000", back.t_ms);
+    let said = back.message.as_deref().unwrap_or_default();
+    assert!(said.contains("sensor being replaced") && said.contains("ran out"), "{said}");
+
+    // Shelved again, then unshelved early by another operator.
+    sim.command_at(4_000, shelve());
+    sim.command_at(4_500, CtlRequest { target: Some("1".into()), by: "ben".into(), ..ctl("unshelve") });
+    sim.run(5_000);
+    assert_eq!(sim.coordinator.core().status().alarms.len(), 1, "unshelved: back in the list");
+    let early: Vec<_> = sim.trace.iter().filter(|r| r.event == TraceEvent::Unshelve).collect();
+    assert_eq!(early.len(), 2);
+    assert_eq!((early[1].t_ms, early[1].by.as_deref()), (4_500, Some("ben")));
+    assert!(early[1].message.as_deref().is_some_and(|m| m.contains("shelved by anna")), "{:?}", early[1]);
+    // Nothing was shelved any more at 6.5 s: no second return.
+    sim.run(7_000);
+    assert_eq!(sim.trace.iter().filter(|r| r.event == TraceEvent::Unshelve).count(), 2);
+    let refused = sim.answers.last().map(|a| a.1.clone());
+    assert!(refused.is_some_and(|r| r.is_ok()), "the unshelve was taken");
+}
+
+/// With the alarm list full (`ALARMS_STANDING_MAX` standing, none acknowledged), a step that passes its maximum
+/// time gets no listed alarm, so nobody could acknowledge it: the overrun is said loudly, and the step does not wait
+/// for an acknowledgement that can never come — on the coordinator as on an agent.
+#[test]
+fn a_step_past_its_maximum_time_with_the_alarm_list_full_does_not_wait_for_ever() {
+    use baton_proto::limits::ALARMS_STANDING_MAX;
+    // `Loop` passes its maximum time on each turn and recovers by itself, leaving its latched alarm standing, until
+    // the list is full; then `Last` (on the coordinator) and `Remote` (on r1) overrun, each with a plain exit. `n`
+    // counts two a visit of `Again`: a P action's body runs at activation and once more in its final scan (IEC).
+    let visits = 2 * ALARMS_STANDING_MAX;
+    let chart = format!(
+        "PROGRAM full\nVAR n : DINT := 0; moved : BOOL; END_VAR\nINITIAL_STEP Start: END_STEP\n\
+         TRANSITION FROM Start TO Loop := TRUE; END_TRANSITION\n\
+         STEP Loop: {{max_ms := T#10ms}} END_STEP\n\
+         TRANSITION FROM Loop TO Again := Loop.overrun; END_TRANSITION\n\
+         STEP Again: Count(P); END_STEP\n\
+         TRANSITION FROM Again TO Loop := n <= {visits}; END_TRANSITION\n\
+         TRANSITION FROM Again TO Last := n > {visits}; END_TRANSITION\n\
+         STEP Last: {{max_ms := T#10ms}} END_STEP\n\
+         TRANSITION FROM Last TO Remote := Last.T >= T#50ms; END_TRANSITION\n\
+         STEP Remote: {{agent := 'r1', max_ms := T#10ms}} Move(N, moved); END_STEP\n\
+         TRANSITION FROM Remote TO Done := moved; END_TRANSITION\n\
+         STEP Done: END_STEP\n\
+         ACTION Count: n := n + 1; END_ACTION\n\
+         ACTION Move: {{skill := 'motion', ms := 100}} END_ACTION\nEND_PROGRAM\n"
+    );
+    let mut sim = SimCluster::new(&chart, &[("r1", &[])], Faults::default(), 3);
+    assert!(sim.run(600_000), "the run waits for an acknowledgement nobody can give: {:#?}", sim.trace.last());
+    let status = sim.coordinator.core().status();
+    assert_eq!(status.alarms.len(), ALARMS_STANDING_MAX, "the list stays full, never grows");
+    for step in ["Last", "Remote"] {
+        let alarm = sim
+            .trace
+            .iter()
+            .find(|r| r.event == TraceEvent::Alarm && r.name == step)
+            .unwrap_or_else(|| panic!("`{step}`'s overrun is traced"));
+        assert_eq!(alarm.id, None, "not listed: {alarm:?}");
+        let said = alarm.message.as_deref().unwrap_or_default();
+        assert!(said.contains("not listed") && said.contains("does not wait"), "{said}");
+    }
 }
 
 fn ctl_on(command: &str, target: &str) -> CtlRequest {

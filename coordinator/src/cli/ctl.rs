@@ -16,7 +16,7 @@ pub struct Ctl {
     /// start (a run begun with --wait-start), hold, unhold, suspend, unsuspend, stop, abort, clear, reset
     /// (PackML's commands; clear and reset for a run begun with --stay); mode auto|step|manual; confirm
     /// [TRANSITION] (step mode); force TRANSITION, activate STEP, deactivate STEP, move FROM TO (manual mode); ack
-    /// ALARM_ID|all; shelve ALARM_ID --for DURATION.
+    /// ALARM_ID|all; shelve ALARM_ID --for DURATION [--reason TEXT]; unshelve ALARM_ID.
     #[arg(value_name = "COMMAND")]
     pub command: String,
     /// What the command is about: the mode, a transition, a step, or an alarm's id (or `all`).

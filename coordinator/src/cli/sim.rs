@@ -79,7 +79,8 @@ fn sim(
     }
     let mut out = BufWriter::new(std::io::stdout().lock());
     let mut write_error = None;
-    simulate_watching(program, &records, cycle_ms, until_ms, &watched, |output| match output {
+    let layout = chosen.layout.clone();
+    let end = simulate_watching(Arc::clone(&program), &records, cycle_ms, until_ms, &watched, |output| match output {
         SimOutput::Trace(record) => {
             if write_error.is_none() {
                 let line = serde_json::to_string(&record).map_err(std::io::Error::other);
@@ -90,10 +91,52 @@ fn sim(
         }
         SimOutput::Fault { t_ms, message } => eprintln!("warning: t_ms={t_ms}: {message}"),
     })?;
+    if let Some(layout) = &layout {
+        for line in waiting_on_skills(&program, layout, &end, until_ms) {
+            eprintln!("{line}");
+        }
+    }
     match write_error.map_or_else(|| out.flush(), Err) {
         // A closed pipe (`baton sim … | head`) is the reader's choice, not an error.
         Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(ExitCode::SUCCESS),
         Err(e) => Err(e).context("cannot write the trace"),
         Ok(()) => Ok(ExitCode::SUCCESS),
     }
+}
+
+/// `baton sim` runs one engine and no skill: a step whose action is a skill waits for ever for what that skill
+/// would have written. Said at the end, for each such step still active, with how to drive it: an input script
+/// that sets the indicator (or output) the step waits for, or `baton test`, whose simulated cell runs skills.
+fn waiting_on_skills(
+    program: &baton_proto::exec::program::Program,
+    layout: &baton_proto::dist::layout::Layout,
+    active: &[baton_proto::exec::program::StepId],
+    until_ms: u64,
+) -> Vec<String> {
+    let mut lines = Vec::new();
+    for &s in active {
+        let indicators = program.indicators(s);
+        for (i, assoc) in program.associations(s).iter().enumerate() {
+            let Some(binding) = layout.skills.get(assoc.action.index()).and_then(Option::as_ref) else { continue };
+            let action = &program.actions[assoc.action.index()].name;
+            let drive: Vec<&str> =
+                indicators.get(i).into_iter().flatten().map(|v| program.vars[v.index()].name.as_str()).collect();
+            let how = match drive.as_slice() {
+                [] => String::new(),
+                names => format!(
+                    "; to go on here, set {} in an --inputs script, as the skill would (`{{\"t_ms\": 500, \"set\": \
+                     {{\"{}\": true}}}}`)",
+                    names.iter().map(|n| format!("`{n}`")).collect::<Vec<_>>().join(", "),
+                    names[0]
+                ),
+            };
+            lines.push(format!(
+                "note: step `{}` waits at {until_ms} ms on action `{action}`, the skill `{}`: `baton sim` runs no \
+                 skills{how}; `baton test` runs them simulated (durations, outcomes)",
+                program.steps[s.index()].name,
+                binding.skill
+            ));
+        }
+    }
+    lines
 }

@@ -13,6 +13,10 @@ pub enum Mode {
     Client,
 }
 
+/// How long a client that does not wait for its router (`baton status`, `set`, `ctl`) tries to reach it before it
+/// says that nothing answers: an operator at a terminal waits seconds, not ten.
+pub const CLIENT_CONNECT_TIMEOUT_MS: u64 = 2_500;
+
 #[derive(Clone, Debug)]
 pub struct NetConfig {
     pub mode: Mode,
@@ -39,6 +43,8 @@ impl NetConfig {
     }
 
     /// A client of the router at `connect`: long-running processes wait for it, one-shot tools fail at once.
+    /// A client of `connect`'s routers; one that does not wait for them (`baton status`, `set`, `ctl`) gives up
+    /// after `CLIENT_CONNECT_TIMEOUT_MS`.
     pub fn client(connect: &[String], wait_for_router: bool) -> NetConfig {
         NetConfig {
             mode: Mode::Client,
@@ -81,7 +87,7 @@ impl NetConfig {
             "listen": { "endpoints": self.listen },
             "connect": {
                 "endpoints": self.connect,
-                "timeout_ms": if self.wait_for_router { -1 } else { 10_000 },
+                "timeout_ms": if self.wait_for_router { -1 } else { CLIENT_CONNECT_TIMEOUT_MS as i64 },
                 "exit_on_failure": !self.wait_for_router,
                 "retry": { "period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2 },
             },

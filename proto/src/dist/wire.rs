@@ -459,7 +459,10 @@ pub struct StatusReport {
     pub run: RunId,
     pub chart: String,
     pub hash: ChartHash,
+    /// The coordinator's clock now; the run began at `started_ms` on it (later than 0 for a run a `reset` made).
     pub t_ms: u64,
+    #[serde(default)]
+    pub started_ms: u64,
     pub active_steps: Vec<StatusStep>,
     pub tokens: Vec<StatusToken>,
     pub agents: Vec<StatusAgent>,
@@ -469,9 +472,12 @@ pub struct StatusReport {
     pub state: crate::dist::runtime::packml::State,
     #[serde(default)]
     pub available: Vec<crate::dist::runtime::packml::Command>,
-    /// Alarms not yet back to normal, oldest first.
+    /// The active list: alarms not yet back to normal and not shelved, oldest first.
     #[serde(default)]
     pub alarms: Vec<StatusAlarm>,
+    /// Alarms an operator shelved, oldest first: out of the active list until their time runs out.
+    #[serde(default)]
+    pub shelved: Vec<StatusAlarm>,
     /// Parts of the run held while the rest goes on (`agent robot1`, `step Pick`).
     #[serde(default)]
     pub held: Vec<String>,
@@ -492,6 +498,11 @@ pub struct StatusAlarm {
     pub message: String,
     pub state: crate::dist::runtime::alarms::AlarmState,
     pub raised_ms: u64,
+    /// Shelved: until when, by whom and why.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shelved_until_ms: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shelf: Option<crate::dist::runtime::alarms::Shelf>,
 }
 
 fn executing() -> crate::dist::runtime::packml::State {
@@ -509,7 +520,11 @@ pub struct StatusStep {
 pub struct StatusToken {
     pub token: TokenId,
     pub epoch: u32,
+    /// The step its segment was entered at (where it was dispatched).
     pub entry: String,
+    /// Where it is now: the active steps of its segment, as its agent reported them.
+    #[serde(default)]
+    pub at: Vec<String>,
     pub agent: Option<String>,
     pub since_ms: u64,
     /// Held while its agent is lost (or several processes answer to its name).

@@ -9,7 +9,7 @@ use serde::Deserialize;
 
 use crate::exec::engine::{Engine, Event, EventKind, FaultSource, Input};
 use crate::exec::eval::Fault;
-use crate::exec::program::{Program, VarId};
+use crate::exec::program::{Program, StepId, VarId};
 use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::front::lexer::{lex, Tok};
 use crate::types::{Type, Value};
@@ -129,11 +129,11 @@ pub fn simulate(
     until_ms: u64,
     sink: impl FnMut(SimOutput),
 ) -> Result<(), SimError> {
-    simulate_watching(program, inputs, cycle_ms, until_ms, &[], sink)
+    simulate_watching(program, inputs, cycle_ms, until_ms, &[], sink).map(|_| ())
 }
 
 /// `simulate`, with a `value` record after the first cycle for each watched variable, and after every cycle that
-/// changed it.
+/// changed it; the steps active at the end.
 pub fn simulate_watching(
     program: Arc<Program>,
     inputs: &[InputRecord],
@@ -141,7 +141,7 @@ pub fn simulate_watching(
     until_ms: u64,
     watch: &[VarId],
     mut sink: impl FnMut(SimOutput),
-) -> Result<(), SimError> {
+) -> Result<Vec<StepId>, SimError> {
     if cycle_ms == 0 {
         return Err(SimError::ZeroCycle);
     }
@@ -184,7 +184,7 @@ pub fn simulate_watching(
         let Some(next) = now.checked_add(cycle_ms) else { break };
         now = next;
     }
-    Ok(())
+    Ok(engine.active_steps().to_vec())
 }
 
 fn drain(engine: &mut Engine, sink: &mut impl FnMut(SimOutput)) {

@@ -64,8 +64,11 @@ pub enum TraceEvent {
     Ack,
     /// An alarm is back to normal: acknowledged and its cause gone (`id`).
     AlarmClear,
-    /// An alarm was shelved (`id`, `by`, until when in `message`).
+    /// An alarm was shelved (`id`, `by`, until when and why in `message`; `name` its source).
     Shelve,
+    /// A shelved alarm is back in the active list (`id`; `name` its source): its time ran out (`by` who shelved it)
+    /// or an operator unshelved it (`by` that operator); `message` says which, with who shelved it and why.
+    Unshelve,
     /// An agent that could not be told of the run's abort (or stop) was heard from again and told (`name` is the
     /// agent): from then on nothing of the run runs there.
     Told,
@@ -78,7 +81,7 @@ pub enum TraceEvent {
 
 impl TraceEvent {
     /// Every event, in the order above.
-    pub const ALL: [TraceEvent; 31] = [
+    pub const ALL: [TraceEvent; 32] = [
         TraceEvent::Activate,
         TraceEvent::Deactivate,
         TraceEvent::Fire,
@@ -107,6 +110,7 @@ impl TraceEvent {
         TraceEvent::Ack,
         TraceEvent::AlarmClear,
         TraceEvent::Shelve,
+        TraceEvent::Unshelve,
         TraceEvent::Told,
         TraceEvent::NewRun,
         TraceEvent::Withdraw,
@@ -144,6 +148,7 @@ impl TraceEvent {
             TraceEvent::Ack => "ack",
             TraceEvent::AlarmClear => "alarm_clear",
             TraceEvent::Shelve => "shelve",
+            TraceEvent::Unshelve => "unshelve",
             TraceEvent::Told => "told",
             TraceEvent::NewRun => "new_run",
             TraceEvent::Withdraw => "withdraw",

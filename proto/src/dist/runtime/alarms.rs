@@ -4,7 +4,9 @@
 //! occurrence, with who and an optional comment; acknowledging twice is a typed refusal; a new occurrence is a
 //! new alarm, and one that returned to normal is never re-activated. A *latched* alarm (a step's supervision)
 //! stays active until acknowledged even when its cause is gone. *Shelving* is the operator's and bounded in time
-//! (`ALARM_SHELVE_MAX_MS`): a shelved alarm is kept, and not announced, until its time runs out.
+//! (`ALARM_SHELVE_MAX_MS`): a shelved alarm is kept (its bits move as ever, the trace and the journal have it) but
+//! leaves the active list until its time runs out or an operator unshelves it; one whose cause goes while shelved
+//! is simply gone (ISA-18.2's shelving; OPC UA's ShelvedStateMachine, TimedShelve and Unshelve).
 //!
 //! Every change is returned as an `AlarmChange`, the audit record the coordinator journals and traces (who,
 //! when, the comment). Time comes in as milliseconds, as everywhere in `proto`.
@@ -59,6 +61,16 @@ pub struct Alarm {
     pub ack: Option<Ack>,
     /// Shelved until then: kept, not announced.
     pub shelved_until_ms: Option<u64>,
+    /// Who shelved it, and why (with `shelved_until_ms`).
+    #[serde(default)]
+    pub shelved_by: Option<Shelf>,
+}
+
+/// Who shelved an alarm, and why.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Shelf {
+    pub by: String,
+    pub reason: Option<String>,
 }
 
 impl Alarm {
@@ -95,18 +107,25 @@ pub enum AlarmChange {
     CauseGone {
         id: AlarmId,
     },
+    /// Acknowledged, by whom; `source` is the alarm's, read before an acknowledgement that ends it removes it.
     Acknowledged {
         id: AlarmId,
+        source: String,
         by: String,
         comment: Option<String>,
     },
     Shelved {
         id: AlarmId,
-        by: String,
+        source: String,
+        shelf: Shelf,
         until_ms: u64,
     },
+    /// Back in the active list: its shelf time ran out (`by` none), or an operator unshelved it.
     Unshelved {
         id: AlarmId,
+        source: String,
+        shelf: Shelf,
+        by: Option<String>,
     },
     /// Back to normal: acknowledged and its cause gone. The occurrence is over.
     Normal {
@@ -129,6 +148,8 @@ pub enum AlarmRefusal {
         id: AlarmId,
         asked_ms: u64,
     },
+    /// Unshelving an alarm that is not shelved.
+    NotShelved(AlarmId),
 }
 
 impl fmt::Display for AlarmRefusal {
@@ -140,6 +161,7 @@ impl fmt::Display for AlarmRefusal {
                 f,
                 "alarm {id} cannot be shelved for {asked_ms} ms: shelving lasts from 1 ms to {ALARM_SHELVE_MAX_MS} ms"
             ),
+            AlarmRefusal::NotShelved(id) => write!(f, "alarm {id} is not shelved"),
         }
     }
 }
@@ -178,6 +200,7 @@ impl Alarms {
             cause: true,
             ack: None,
             shelved_until_ms: None,
+            shelved_by: None,
         };
         let change = AlarmChange::Raised { id, source: alarm.source.clone(), message: alarm.message.clone(), latched };
         self.standing.insert(id, alarm);
@@ -192,7 +215,14 @@ impl Alarms {
             return Vec::new();
         }
         alarm.cause = false;
+        let shelved = alarm.shelved_until_ms.is_some() && !alarm.is_active();
         let mut out = vec![AlarmChange::CauseGone { id }];
+        if shelved {
+            // Cleared while shelved: nobody is to be asked to acknowledge what they chose not to see.
+            let alarm = self.standing.remove(&id);
+            out.extend(alarm.map(|a| AlarmChange::Normal { id, source: a.source }));
+            return out;
+        }
         out.extend(self.settle(id));
         out
     }
@@ -211,7 +241,7 @@ impl Alarms {
         }
         let (by, comment) = (bounded(by), comment.map(bounded));
         alarm.ack = Some(Ack { by: by.clone(), at_ms: now_ms, comment: comment.clone() });
-        let mut out = vec![AlarmChange::Acknowledged { id, by, comment }];
+        let mut out = vec![AlarmChange::Acknowledged { id, source: alarm.source.clone(), by, comment }];
         out.extend(self.settle(id));
         Ok(out)
     }
@@ -222,27 +252,46 @@ impl Alarms {
         open.into_iter().flat_map(|id| self.acknowledge(now_ms, id, by, comment).unwrap_or_default()).collect()
     }
 
-    /// An operator shelves one occurrence for `for_ms` (at most `ALARM_SHELVE_MAX_MS`).
-    pub fn shelve(&mut self, now_ms: u64, id: AlarmId, by: &str, for_ms: u64) -> Result<AlarmChange, AlarmRefusal> {
+    /// An operator shelves one occurrence for `for_ms` (at most `ALARM_SHELVE_MAX_MS`), saying why (optional); a
+    /// shelved one is shelved again from now.
+    pub fn shelve(
+        &mut self,
+        now_ms: u64,
+        id: AlarmId,
+        by: &str,
+        for_ms: u64,
+        reason: Option<&str>,
+    ) -> Result<AlarmChange, AlarmRefusal> {
         let alarm = self.standing.get_mut(&id).ok_or(AlarmRefusal::Unknown(id))?;
         if for_ms == 0 || for_ms > ALARM_SHELVE_MAX_MS {
             return Err(AlarmRefusal::ShelveTooLong { id, asked_ms: for_ms });
         }
         let until_ms = now_ms.saturating_add(for_ms);
+        let shelf = Shelf { by: bounded(by), reason: reason.map(bounded) };
         alarm.shelved_until_ms = Some(until_ms);
-        Ok(AlarmChange::Shelved { id, by: bounded(by), until_ms })
+        alarm.shelved_by = Some(shelf.clone());
+        Ok(AlarmChange::Shelved { id, source: alarm.source.clone(), shelf, until_ms })
+    }
+
+    /// An operator ends a shelf early: the alarm is back in the active list.
+    pub fn unshelve(&mut self, id: AlarmId, by: &str) -> Result<AlarmChange, AlarmRefusal> {
+        let alarm = self.standing.get_mut(&id).ok_or(AlarmRefusal::Unknown(id))?;
+        Self::take_shelf(alarm, Some(bounded(by))).ok_or(AlarmRefusal::NotShelved(id))
     }
 
     /// Shelves whose time ran out by `now_ms`.
     pub fn expire_shelves(&mut self, now_ms: u64) -> Vec<AlarmChange> {
-        let mut out = Vec::new();
-        for alarm in self.standing.values_mut() {
-            if alarm.shelved_until_ms.is_some_and(|until| until <= now_ms) {
-                alarm.shelved_until_ms = None;
-                out.push(AlarmChange::Unshelved { id: alarm.id });
-            }
-        }
-        out
+        self.standing
+            .values_mut()
+            .filter(|a| a.shelved_until_ms.is_some_and(|until| until <= now_ms))
+            .filter_map(|a| Self::take_shelf(a, None))
+            .collect()
+    }
+
+    fn take_shelf(alarm: &mut Alarm, by: Option<String>) -> Option<AlarmChange> {
+        alarm.shelved_until_ms.take()?;
+        let shelf = alarm.shelved_by.take().unwrap_or(Shelf { by: String::new(), reason: None });
+        Some(AlarmChange::Unshelved { id: alarm.id, source: alarm.source.clone(), shelf, by })
     }
 
     /// The next moment a shelf runs out, for the shell's timer.
@@ -263,6 +312,16 @@ impl Alarms {
     /// The standing alarms, oldest first.
     pub fn standing(&self) -> impl Iterator<Item = &Alarm> {
         self.standing.values()
+    }
+
+    /// The active list: the standing alarms not shelved at `now_ms`, oldest first.
+    pub fn announced(&self, now_ms: u64) -> impl Iterator<Item = &Alarm> {
+        self.standing.values().filter(move |a| !a.is_shelved(now_ms))
+    }
+
+    /// The shelved ones at `now_ms`, oldest first.
+    pub fn shelved(&self, now_ms: u64) -> impl Iterator<Item = &Alarm> {
+        self.standing.values().filter(move |a| a.is_shelved(now_ms))
     }
 
     pub fn get(&self, id: AlarmId) -> Option<&Alarm> {
@@ -294,7 +353,15 @@ mod tests {
         let one = raised(&mut a, 0, "agent robot1", false);
         assert_eq!(a.get(one).map(Alarm::state), Some(AlarmState::ActiveUnacknowledged));
         let acked = a.acknowledge(5, one, "op", Some("seen")).expect("first ack");
-        assert_eq!(acked, vec![AlarmChange::Acknowledged { id: one, by: "op".into(), comment: Some("seen".into()) }]);
+        assert_eq!(
+            acked,
+            vec![AlarmChange::Acknowledged {
+                id: one,
+                source: "agent robot1".into(),
+                by: "op".into(),
+                comment: Some("seen".into())
+            }]
+        );
         assert_eq!(a.get(one).map(Alarm::state), Some(AlarmState::ActiveAcknowledged));
         assert_eq!(
             a.cause_gone(one),
@@ -351,15 +418,67 @@ mod tests {
     fn shelving_is_bounded_in_time_and_runs_out() {
         let mut a = Alarms::default();
         let id = raised(&mut a, 0, "device door", false);
-        assert_eq!(a.shelve(0, id, "op", 0), Err(AlarmRefusal::ShelveTooLong { id, asked_ms: 0 }));
+        assert_eq!(a.shelve(0, id, "op", 0, None), Err(AlarmRefusal::ShelveTooLong { id, asked_ms: 0 }));
         let long = ALARM_SHELVE_MAX_MS + 1;
-        assert_eq!(a.shelve(0, id, "op", long), Err(AlarmRefusal::ShelveTooLong { id, asked_ms: long }));
-        assert_eq!(a.shelve(100, id, "op", 1_000), Ok(AlarmChange::Shelved { id, by: "op".into(), until_ms: 1_100 }));
+        assert_eq!(a.shelve(0, id, "op", long, None), Err(AlarmRefusal::ShelveTooLong { id, asked_ms: long }));
+        let shelf = Shelf { by: "op".into(), reason: Some("sensor cleaned".into()) };
+        assert_eq!(
+            a.shelve(100, id, "op", 1_000, Some("sensor cleaned")),
+            Ok(AlarmChange::Shelved { id, source: "device door".into(), shelf: shelf.clone(), until_ms: 1_100 })
+        );
         assert!(a.get(id).is_some_and(|al| al.is_shelved(1_099) && !al.is_shelved(1_100)));
+        assert_eq!(a.announced(1_099).count(), 0, "a shelved alarm leaves the active list");
+        assert_eq!(a.shelved(1_099).count(), 1);
         assert_eq!(a.next_unshelve_ms(), Some(1_100));
         assert!(a.expire_shelves(1_099).is_empty());
-        assert_eq!(a.expire_shelves(1_100), vec![AlarmChange::Unshelved { id }]);
+        assert_eq!(
+            a.expire_shelves(1_100),
+            vec![AlarmChange::Unshelved { id, source: "device door".into(), shelf, by: None }]
+        );
         assert_eq!(a.next_unshelve_ms(), None);
+        assert_eq!(a.announced(1_100).count(), 1, "back in the active list");
+        assert_eq!(a.unshelve(id, "op"), Err(AlarmRefusal::NotShelved(id)));
+    }
+
+    #[test]
+    fn an_operator_ends_a_shelf_early_and_an_alarm_that_clears_while_shelved_is_gone() {
+        let mut a = Alarms::default();
+        let id = raised(&mut a, 0, "device door", false);
+        a.shelve(0, id, "anna", 60_000, None).expect("shelved");
+        let back = a.unshelve(id, "ben").expect("unshelved");
+        assert_eq!(
+            back,
+            AlarmChange::Unshelved {
+                id,
+                source: "device door".into(),
+                shelf: Shelf { by: "anna".into(), reason: None },
+                by: Some("ben".into())
+            }
+        );
+        assert_eq!(a.announced(1).count(), 1);
+        // Shelved, unacknowledged, and its cause goes: over, with nothing left to acknowledge.
+        a.shelve(1, id, "anna", 60_000, None).expect("shelved again");
+        assert_eq!(
+            a.cause_gone(id),
+            vec![AlarmChange::CauseGone { id }, AlarmChange::Normal { id, source: "device door".into() }]
+        );
+        assert!(a.get(id).is_none());
+        assert_eq!(a.next_unshelve_ms(), None);
+        // A latched one (a step's supervision) stays until acknowledged, shelved or not: its step waits for that.
+        let step = raised(&mut a, 2, "Move", true);
+        a.shelve(2, step, "anna", 60_000, None).expect("shelved");
+        assert_eq!(a.cause_gone(step), vec![AlarmChange::CauseGone { id: step }]);
+        assert!(a.get(step).is_some());
+    }
+
+    #[test]
+    fn an_acknowledgement_that_ends_an_alarm_still_names_its_source() {
+        let mut a = Alarms::default();
+        let id = raised(&mut a, 0, "Weld", false);
+        a.cause_gone(id);
+        let changes = a.acknowledge(5, id, "anna", None).expect("ack");
+        assert!(matches!(&changes[0], AlarmChange::Acknowledged { source, .. } if source == "Weld"), "{changes:?}");
+        assert!(a.get(id).is_none(), "back to normal, removed");
     }
 
     #[test]

@@ -52,7 +52,7 @@ pub(super) fn check(
         }
         let target = match (&r.target, name.as_str()) {
             (None, _) => None,
-            (Some(t), "ack" | "shelve") => match t.get_ref() {
+            (Some(t), "ack" | "shelve" | "unshelve") => match t.get_ref() {
                 toml::Value::Integer(i) if *i > 0 => Some(i.to_string()),
                 toml::Value::String(s) if s == "all" && name == "ack" => Some(s.clone()),
                 _ => {
@@ -68,12 +68,14 @@ pub(super) fn check(
                 }
             },
         };
-        let needs_target =
-            matches!(name.as_str(), "ack" | "shelve" | "mode" | "force" | "activate" | "deactivate" | "move");
+        let needs_target = matches!(
+            name.as_str(),
+            "ack" | "shelve" | "unshelve" | "mode" | "force" | "activate" | "deactivate" | "move"
+        );
         let takes_target = needs_target || name == "confirm";
         if (needs_target && target.is_none()) || (!takes_target && target.is_some()) {
             let message = match name.as_str() {
-                "ack" | "shelve" => {
+                "ack" | "shelve" | "unshelve" => {
                     format!("`{name}` names its alarm: `target = 1` (or \"all\" to acknowledge every one)")
                 }
                 "mode" => "`mode` names the mode: `target = \"step\"` (auto, step or manual)".to_string(),

@@ -165,7 +165,7 @@ pub struct Command {
 }
 
 /// The commands `[[commands]]` may send.
-pub const COMMANDS: [&str; 17] = [
+pub const COMMANDS: [&str; 18] = [
     "start",
     "clear",
     "reset",
@@ -183,6 +183,7 @@ pub const COMMANDS: [&str; 17] = [
     "move",
     "ack",
     "shelve",
+    "unshelve",
 ];
 
 #[derive(Clone, Debug)]

@@ -112,7 +112,17 @@ impl AgentRun {
             return;
         }
         self.aborted = true;
-        self.log(Level::Warn, "the run was aborted: its skills are cancelled and its tokens forgotten".to_string());
+        // Said as it is here: a stop ends the run after its motions finished, and an agent that held nothing of it
+        // has nothing to warn of (`ToAgent::Abort` ends a stopped run's segments too).
+        let (skills, tokens) = (self.running_skills.len(), self.tokens.len());
+        match (skills, tokens) {
+            (0, 0) => self.log(Level::Info, "the run ended: nothing of it was running here".to_string()),
+            (0, n) => self.log(Level::Info, format!("the run ended: its {n} token(s) here forgotten")),
+            (k, n) => self.log(
+                Level::Warn,
+                format!("the run was aborted: {k} skill(s) cancelled and its {n} token(s) here forgotten"),
+            ),
+        }
         for a in std::mem::take(&mut self.running_skills) {
             self.outbox.push_back(AgentOutput::StopSkill { action: a });
             let name = self.program.actions[a.index()].name.clone();

@@ -291,3 +291,31 @@ fn an_abort_cancels_the_running_skill_and_forgets_the_run() {
     a.handle_dispatch(30, f.dispatch(2, 1, false));
     assert!(started(&drain(&mut a)).is_empty() && a.tokens_held() == 0, "a dispatch after the abort runs nothing");
 }
+
+fn logs(out: &[AgentOutput]) -> Vec<(Level, String)> {
+    out.iter()
+        .filter_map(|o| match o {
+            AgentOutput::Log { level, message } => Some((*level, message.clone())),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The end of a run's segments (`ToAgent::Abort`, which a stop sends too, once the motions finished) is a warning
+/// only where it cancels something: an agent that held nothing says it plainly.
+#[test]
+fn the_end_of_a_run_is_a_warning_only_where_it_cancels_a_skill() {
+    let f = Fixture::new();
+    let mut idle = f.agent("a1");
+    idle.handle_abort(20);
+    let said = logs(&drain(&mut idle));
+    assert!(said.iter().all(|(level, _)| *level == Level::Info), "{said:?}");
+    assert!(said.iter().all(|(_, m)| !m.contains("aborted") && !m.contains("cancelled")), "{said:?}");
+
+    let mut busy = f.agent("a1");
+    busy.handle_dispatch(0, f.dispatch(1, 1, false));
+    run_until(&mut busy, 15);
+    busy.handle_abort(20);
+    let said = logs(&drain(&mut busy));
+    assert!(said.iter().any(|(l, m)| *l == Level::Warn && m.contains("1 skill(s) cancelled")), "{said:?}");
+}

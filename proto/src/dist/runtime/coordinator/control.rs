@@ -69,6 +69,13 @@ impl Coordinator {
                 token: *id,
                 epoch: t.epoch,
                 entry: self.program.steps[t.entry.index()].name.clone(),
+                at: self
+                    .engine
+                    .active_steps()
+                    .iter()
+                    .filter(|s| self.layout.segment_of[s.index()] == Some(t.segment))
+                    .map(|s| self.program.steps[s.index()].name.clone())
+                    .collect(),
                 agent: t.agent.clone(),
                 since_ms: t.dispatched_ms,
                 paused: t.paused,
@@ -100,22 +107,14 @@ impl Coordinator {
             chart: self.program.name.clone(),
             hash: self.hash.clone(),
             t_ms: self.now_ms,
+            started_ms: self.started_ms,
             active_steps,
             tokens,
             agents,
             state: self.run_state,
             available: self.available(),
-            alarms: self
-                .alarms
-                .standing()
-                .map(|a| StatusAlarm {
-                    id: a.id.0,
-                    source: a.source.clone(),
-                    message: a.message.clone(),
-                    state: a.state(),
-                    raised_ms: a.raised_ms,
-                })
-                .collect(),
+            alarms: self.alarms.announced(self.now_ms).map(status_alarm).collect(),
+            shelved: self.alarms.shelved(self.now_ms).map(status_alarm).collect(),
             held: self.partial_holds(),
             mode: self.engine.mode(),
             waiting: self
@@ -176,5 +175,17 @@ impl Coordinator {
         self.run_state = to;
         let rec = TraceRecord::new(self.now_ms, TraceEvent::State, to.name());
         self.trace(rec);
+    }
+}
+
+fn status_alarm(a: &crate::dist::runtime::alarms::Alarm) -> StatusAlarm {
+    StatusAlarm {
+        id: a.id.0,
+        source: a.source.clone(),
+        message: a.message.clone(),
+        state: a.state(),
+        raised_ms: a.raised_ms,
+        shelved_until_ms: a.shelved_until_ms,
+        shelf: a.shelved_by.clone(),
     }
 }

@@ -324,8 +324,7 @@ impl Coordinator {
             self.log(Level::Info, format!("agent `{name}` is gone; it held no token"));
         }
         for id in held {
-            let entry =
-                self.tokens.get(&id).map(|t| self.program.steps[t.entry.index()].name.clone()).unwrap_or_default();
+            let at = self.token_at(id);
             match self.policy {
                 LossPolicy::Pause => {
                     if let Some(t) = self.tokens.get_mut(&id) {
@@ -333,7 +332,7 @@ impl Coordinator {
                     }
                     self.alarm(
                         name,
-                        format!("agent `{name}` lost holding the token of step `{entry}`: paused until it comes back"),
+                        format!("agent `{name}` lost holding the token of step {at}: paused until it comes back"),
                     );
                 }
                 LossPolicy::Reassign => {
@@ -345,11 +344,11 @@ impl Coordinator {
                         t.reassign_at_ms = Some(self.now_ms + margin);
                     }
                     self.alarm(name, format!(
-                        "agent `{name}` lost holding the token of step `{entry}`: reassigned, from its first step, in {margin} ms unless it comes back"
+                        "agent `{name}` lost holding the token of step {at}: reassigned, from its first step, in {margin} ms unless it comes back"
                     ));
                 }
                 LossPolicy::Fail => {
-                    let why = format!("agent `{name}` was lost holding the token of step `{entry}`");
+                    let why = format!("agent `{name}` was lost holding the token of step {at}");
                     self.alarm(name, why.clone());
                     self.failure.get_or_insert(why);
                 }

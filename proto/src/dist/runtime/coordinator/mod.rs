@@ -177,6 +177,9 @@ pub struct Coordinator {
     peers: Peers,
     /// The run stays at its end for `clear` and `reset` (`baton run --stay`).
     stays: bool,
+    /// When this run began on the coordinator's clock: 0, or the moment a `reset` made it.
+    #[serde(default)]
+    started_ms: u64,
     /// Agents that held tokens of a run when it was aborted and could not be told: the run they were not told of,
     /// and the alarms raised for their abandoned tokens (`restart::tell_of_end`).
     untold: BTreeMap<String, (RunId, Vec<super::alarms::AlarmId>)>,
@@ -242,6 +245,7 @@ impl Coordinator {
             writer_roles,
             peers: Peers { seq: 0, coordinator: uuid::Uuid::nil(), agents: Vec::new() },
             stays: false,
+            started_ms: 0,
             untold: BTreeMap::new(),
         }
     }

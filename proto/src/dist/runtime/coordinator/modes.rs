@@ -156,12 +156,12 @@ impl Coordinator {
             Some(true) => {}
             Some(false) => {
                 return Err(format!(
-                    "refused: the chart could never reach the steps {{{}}} by itself — that would leave half a \
+                    "the chart could never reach the steps {{{}}} by itself — that would leave half a \
                      simultaneous branch, strand a token, or start a branch twice",
                     names.join(", ")
                 ))
             }
-            None => return Err("refused: the chart is too large to prove the change safe".to_string()),
+            None => return Err("the chart is too large to prove the change safe".to_string()),
         }
         if let Some(s) = off {
             if let Some(g) = self.layout.segment_of[s.index()] {

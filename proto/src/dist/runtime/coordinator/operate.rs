@@ -48,8 +48,13 @@ impl Coordinator {
             Err(why) => self.log(Level::Warn, format!("{} by {} refused: {why}", req.command, req.by)),
         }
         self.after_command();
-        // A state that left by itself meanwhile (nothing to wait for) is the one to tell.
-        result.map(|m| if m.starts_with("the run is ") { format!("the run is {}", self.run_state.name()) } else { m })
+        // A PackML command's answer is the state the run is in now: one that left by itself meanwhile (nothing to
+        // wait for) is the one to tell. Other commands say what they did (`mode step`: the mode).
+        let whole_run = req.agent.is_none() && req.step.is_none();
+        if whole_run && Command::from_name(&req.command.to_ascii_lowercase()).is_some() {
+            return result.map(|_| format!("the run is {}", self.run_state.name()));
+        }
+        result
     }
 
     fn command(&mut self, req: &CtlRequest) -> Result<String, String> {
@@ -58,6 +63,7 @@ impl Coordinator {
         match name.as_str() {
             "ack" => return self.ack_command(req),
             "shelve" => return self.shelve_command(req),
+            "unshelve" => return self.unshelve_command(req),
             "mode" => return self.mode_command(target),
             "confirm" => return self.confirm_command(target),
             "force" => return self.force_command(target),
@@ -69,7 +75,7 @@ impl Coordinator {
         let Some(command) = Command::from_name(&name) else {
             return Err(format!(
                 "unknown command `{}`: hold, unhold, suspend, unsuspend, stop, abort, reset, start, clear, mode, \
-                 confirm, force, activate, deactivate, move, ack, shelve",
+                 confirm, force, activate, deactivate, move, ack, shelve, unshelve",
                 req.command
             ));
         };
@@ -124,6 +130,12 @@ impl Coordinator {
             if !crate::dist::keys::is_valid_name(agent) {
                 return Err(format!("`{agent}` is not an agent name"));
             }
+            if hold && !self.partial.agents.contains(agent) {
+                self.known_agent(agent)?;
+                if self.partial.agents.len() >= HELD_AGENTS_MAX {
+                    return Err(format!("{HELD_AGENTS_MAX} agents are held already: hold the whole run instead"));
+                }
+            }
             let changed =
                 if hold { self.partial.agents.insert(agent.clone()) } else { self.partial.agents.remove(agent) };
             if !changed {
@@ -132,10 +144,12 @@ impl Coordinator {
             said.push(format!("agent `{agent}`"));
         }
         if let Some(step) = &req.step {
-            let s = self
-                .program
-                .step_by_name(step)
-                .ok_or_else(|| format!("chart `{}` has no step `{step}`", self.program.name))?;
+            let s = self.program.step_by_name(step).ok_or_else(|| {
+                let names: Vec<&str> = self.program.steps.iter().map(|s| s.name.as_str()).collect();
+                let hint = crate::front::pragma::near_miss(step, &names)
+                    .map_or(String::new(), |k| format!(" (did you mean `{k}`?)"));
+                format!("chart `{}` has no step `{step}`{hint}", self.program.name)
+            })?;
             let changed = if hold { self.partial.steps.insert(s) } else { self.partial.steps.remove(&s) };
             if !changed {
                 return Err(format!("step `{step}` is {}held", if hold { "already " } else { "not " }));
@@ -162,9 +176,24 @@ impl Coordinator {
     fn shelve_command(&mut self, req: &CtlRequest) -> Result<String, String> {
         let id = parse_alarm(req.target.as_deref().unwrap_or(""))?;
         let for_ms = req.for_ms.ok_or("shelve needs --for DURATION")?;
-        let change = self.alarms.shelve(self.now_ms, id, &req.by, for_ms).map_err(|e: AlarmRefusal| e.to_string())?;
+        let reason = (!req.reason.is_empty()).then_some(req.reason.as_str());
+        let change =
+            self.alarms.shelve(self.now_ms, id, &req.by, for_ms, reason).map_err(|e: AlarmRefusal| e.to_string())?;
         self.alarm_changes(vec![change]);
-        Ok(format!("alarm {id} shelved for {for_ms} ms"))
+        Ok(format!("alarm {id} shelved for {for_ms} ms: out of the active list until then, or until `unshelve {id}`"))
+    }
+
+    fn unshelve_command(&mut self, req: &CtlRequest) -> Result<String, String> {
+        let id = parse_alarm(req.target.as_deref().unwrap_or(""))?;
+        let change = self.alarms.unshelve(id, &req.by).map_err(|e: AlarmRefusal| e.to_string())?;
+        self.alarm_changes(vec![change]);
+        Ok(format!("alarm {id} unshelved: back in the active list"))
+    }
+
+    /// Shelves whose time ran out go back to the active list, traced.
+    pub(super) fn expire_shelves(&mut self) {
+        let changes = self.alarms.expire_shelves(self.now_ms);
+        self.alarm_changes(changes);
     }
 
     /// Trace records of alarms' changes: `ack`, `shelve`, `alarm_clear` (back to normal).
@@ -174,20 +203,33 @@ impl Coordinator {
                 self.supervision_acknowledged(*id);
             }
             let rec = match change {
-                AlarmChange::Acknowledged { id, by, comment } => {
-                    let source = self.alarms.get(id).map(|a| a.source.clone()).unwrap_or_default();
+                AlarmChange::Acknowledged { id, source, by, comment } => {
                     let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Ack, &source);
                     rec.id = Some(id.0);
                     rec.by = Some(by);
                     rec.message = comment;
                     rec
                 }
-                AlarmChange::Shelved { id, by, until_ms } => {
-                    let source = self.alarms.get(id).map(|a| a.source.clone()).unwrap_or_default();
+                AlarmChange::Shelved { id, source, shelf, until_ms } => {
                     let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Shelve, &source);
                     rec.id = Some(id.0);
-                    rec.by = Some(by);
-                    rec.message = Some(format!("until {until_ms} ms"));
+                    rec.message = Some(match &shelf.reason {
+                        Some(why) => format!("until {until_ms} ms: {why}"),
+                        None => format!("until {until_ms} ms"),
+                    });
+                    rec.by = Some(shelf.by);
+                    rec
+                }
+                AlarmChange::Unshelved { id, source, shelf, by } => {
+                    let mut rec = TraceRecord::new(self.now_ms, TraceEvent::Unshelve, &source);
+                    rec.id = Some(id.0);
+                    let why = shelf.reason.as_deref().map(|r| format!(" ({r})")).unwrap_or_default();
+                    rec.message = Some(match &by {
+                        Some(who) => format!("shelved by {}{why}, unshelved by {who}", shelf.by),
+                        None => format!("shelved by {}{why}, its shelf time ran out", shelf.by),
+                    });
+                    // Who ended the shelf: the operator who unshelved it, or (its time ran out) who shelved it.
+                    rec.by = Some(by.unwrap_or(shelf.by));
                     rec
                 }
                 AlarmChange::Normal { id, source } => {
@@ -195,7 +237,7 @@ impl Coordinator {
                     rec.id = Some(id.0);
                     rec
                 }
-                AlarmChange::Raised { .. } | AlarmChange::CauseGone { .. } | AlarmChange::Unshelved { .. } => continue,
+                AlarmChange::Raised { .. } | AlarmChange::CauseGone { .. } => continue,
             };
             self.trace(rec);
         }
@@ -325,13 +367,13 @@ impl Coordinator {
             .filter_map(|(id, t)| {
                 let agent = t.agent.clone()?;
                 let reachable = self.agents.get(&agent).is_some_and(|a| a.alive);
-                (!reachable).then(|| (*id, agent, self.program.steps[t.entry.index()].name.clone()))
+                (!reachable).then(|| (*id, agent, self.token_at(*id)))
             })
             .collect();
-        for (id, agent, entry) in lost {
+        for (id, agent, at) in lost {
             let alarm = self.alarm(
                 &agent,
-                format!("token {id} (from step `{entry}`) abandoned: `{agent}` could not be told of the abort"),
+                format!("token {id} (at step {at}) abandoned: `{agent}` could not be told of the abort"),
             );
             let run = self.run;
             self.untold.entry(agent).or_insert_with(|| (run, Vec::new())).1.extend(alarm);
@@ -369,6 +411,28 @@ impl Coordinator {
         matches!(self.run_state, State::Stopped | State::Aborted)
     }
 
+    /// Whether `agent` is a name this run knows — a step is placed on it, or an agent of that name was heard (any
+    /// role-holder too) — and, if not, a refusal with the nearest known name: a typo must not answer "holding"
+    /// while the robot it meant carries on.
+    fn known_agent(&self, agent: &str) -> Result<(), String> {
+        let mut known: BTreeSet<&str> = self.agents.keys().map(String::as_str).collect();
+        known.extend(self.layout.placement.iter().filter_map(|p| match p {
+            Placement::Agent(a) => Some(a.as_str()),
+            Placement::Coordinator | Placement::Role(_) => None,
+        }));
+        if known.contains(agent) {
+            return Ok(());
+        }
+        let names: Vec<&str> = known.iter().copied().collect();
+        let hint =
+            crate::front::pragma::near_miss(agent, &names).map_or(String::new(), |k| format!("did you mean `{k}`? "));
+        let listed = if names.is_empty() { "none yet".to_string() } else { names.join(", ") };
+        Err(format!(
+            "no agent `{agent}` in this run: no step is placed on it and no agent of that name was heard; {hint}the run's \
+             agents: {listed}"
+        ))
+    }
+
     /// The parts of the run held while the rest goes on: agents by name, then steps.
     pub fn partial_holds(&self) -> Vec<String> {
         let agents = self.partial.agents.iter().map(|a| format!("agent {a}"));
@@ -376,6 +440,9 @@ impl Coordinator {
         agents.chain(steps).collect()
     }
 }
+
+/// The most agents held by name at once (each must be one the run knows): the set stays small.
+const HELD_AGENTS_MAX: usize = 256;
 
 fn parse_alarm(text: &str) -> Result<AlarmId, String> {
     text.trim()

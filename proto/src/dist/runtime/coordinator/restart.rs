@@ -63,6 +63,7 @@ impl Coordinator {
         next.cycle_ms = self.cycle_ms;
         next.policy = self.policy;
         next.stays = true;
+        next.started_ms = next.now_ms;
         next.stats = self.stats;
         next.alarms = std::mem::take(&mut self.alarms);
         next.device_alarms = std::mem::take(&mut self.device_alarms);

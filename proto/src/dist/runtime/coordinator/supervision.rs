@@ -7,6 +7,7 @@
 use super::*;
 use crate::dist::runtime::alarms::AlarmId;
 use crate::exec::sim::overrun_message;
+use crate::limits::ALARMS_STANDING_MAX;
 
 const ACK_RESEND_FIRST_MS: u64 = 200;
 const ACK_RESEND_MAX_MS: u64 = 2_000;
@@ -42,9 +43,20 @@ impl Coordinator {
             message.push_str(&format!("; it waited for: {why}"));
         }
         let mut rec = TraceRecord::new(t_ms, TraceEvent::Alarm, &step);
+        let supervised = Supervised { step: s, token, ack_resend_at_ms: None, ack_backoff_ms: 0 };
         if let Some(AlarmChange::Raised { id, .. }) = self.alarms.raise(self.now_ms, &step, &message, true) {
             rec.id = Some(id.0);
-            self.supervised.insert(id, Supervised { step: s, token, ack_resend_at_ms: None, ack_backoff_ms: 0 });
+            self.supervised.insert(id, supervised);
+        } else {
+            // The list is full: an alarm nobody can see, nobody can acknowledge, so its step must not wait for
+            // that. Said loudly, and acknowledged at once under a number no listed alarm has.
+            message.push_str(&format!(
+                "; not listed: {ALARMS_STANDING_MAX} alarms stand already (acknowledge some), so its step does not \
+                 wait for an acknowledgement"
+            ));
+            let id = AlarmId(u64::MAX - self.alarms.refused);
+            self.supervised.insert(id, supervised);
+            self.supervision_acknowledged(id);
         }
         rec.agent = agent.map(str::to_string);
         rec.message = Some(message.clone());

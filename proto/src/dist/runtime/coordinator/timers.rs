@@ -29,6 +29,7 @@ impl Coordinator {
         self.ask_quiet_agents(resent_to);
         self.resend_holds();
         self.resend_overrun_acks();
+        self.expire_shelves();
         self.resend_gates();
         self.lose_gone_agents();
         self.reassign_due();
@@ -97,6 +98,7 @@ impl Coordinator {
             self.vars_resend.at_ms(),
             self.next_hold_resend_ms(),
             self.next_overrun_ack_ms(),
+            self.alarms.next_unshelve_ms(),
             self.next_gate_resend_ms(),
         ]
         .into_iter()

@@ -45,6 +45,25 @@ impl Coordinator {
         self.segment_holder(self.layout.segment_of[s.index()]?)
     }
 
+    /// Where token `id` is, for an operator's words: "`Weld2`" — its segment's active steps now, as its agent
+    /// reported them — with "(entered at `Weld`)" when it was dispatched at another step.
+    pub(super) fn token_at(&self, id: TokenId) -> String {
+        let Some(tok) = self.tokens.get(&id) else { return String::new() };
+        let entry = &self.program.steps[tok.entry.index()].name;
+        let now: Vec<String> = self
+            .engine
+            .active_steps()
+            .iter()
+            .filter(|s| self.layout.segment_of[s.index()] == Some(tok.segment))
+            .map(|s| format!("`{}`", self.program.steps[s.index()].name))
+            .collect();
+        match now.as_slice() {
+            [] => format!("`{entry}`"),
+            [one] if *one == format!("`{entry}`") => one.clone(),
+            _ => format!("{} (entered at `{entry}`)", now.join(", ")),
+        }
+    }
+
     pub(super) fn segment_holder(&self, g: SegmentId) -> Option<&str> {
         self.tokens.get(&self.by_segment[g.index()]?)?.agent.as_deref()
     }
