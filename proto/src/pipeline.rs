@@ -1,7 +1,8 @@
 //! `check_source`: parse, compile and analyse every chart of a source text, reporting every problem at once.
 //!
 //! `pipeline::check_source` picks the front end by content (XML or text), ties parse, compile and analysis
-//! together (no net analysis after a syntax error: the net is not the one drawn), sorts and dedups the diagnostics.
+//! together (no net analysis after a syntax error: the net is not the one drawn; placement checked beside the
+//! compiler's errors, so that one run reports them all), sorts and dedups the diagnostics.
 
 use crate::dist::layout::{layout, Layout};
 use crate::exec::analysis::{analyse, Finding};
@@ -80,9 +81,11 @@ pub fn check_source(src: &str) -> Report {
         }
         let mut ok = !parse_errors && !own.iter().any(Diagnostic::is_error);
         let mut placed = None;
-        if ok {
+        // Placement is checked beside the other errors, not after they are fixed, so that one run of `baton check`
+        // reports every problem the chart has — as long as its steps and transitions resolved (`net_ok`).
+        if !parse_errors && compiled.net_ok {
             let laid_out = layout(&chart, &compiled.program, &mut own);
-            ok = !own.iter().any(Diagnostic::is_error);
+            ok = ok && !own.iter().any(Diagnostic::is_error);
             placed = ok.then_some(laid_out);
         }
         diagnostics.extend(own);

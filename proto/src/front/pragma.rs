@@ -120,6 +120,33 @@ pub fn near_miss<'a>(key: &str, baton_keys: &[&'a str]) -> Option<&'a str> {
     })
 }
 
+/// The name among `candidates` that `name` looks like a misspelling of — compared without case, as IEC 61131-3
+/// names are; one edit for names under five letters, two from five — the nearest one, if any.
+pub fn nearest<'a>(name: &str, candidates: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
+    let wanted = name.to_ascii_lowercase();
+    candidates
+        .into_iter()
+        .filter(|c| !another_number(&wanted, &c.to_ascii_lowercase()))
+        .filter_map(|c| {
+            let d = edit_distance(&wanted, &c.to_ascii_lowercase());
+            let limit = if c.len() >= 5 { 2 } else { 1 };
+            (d > 0 && d <= limit).then_some((d, c))
+        })
+        .min_by_key(|(d, _)| *d)
+        .map(|(_, c)| c)
+}
+
+/// Whether two names differ only in their digits (`IX3`, `IX1`; `robot2`, `robot1`): another item of a numbered
+/// set, not a misspelling of it.
+fn another_number(a: &str, b: &str) -> bool {
+    a.len() == b.len() && a.bytes().zip(b.bytes()).all(|(x, y)| x == y || (x.is_ascii_digit() && y.is_ascii_digit()))
+}
+
+/// " (did you mean `X`?)" for the nearest of `candidates`, or nothing.
+pub fn did_you_mean<'a>(name: &str, candidates: impl IntoIterator<Item = &'a str>) -> String {
+    nearest(name, candidates).map_or(String::new(), |c| format!(" (did you mean `{c}`?)"))
+}
+
 /// Optimal string alignment distance: insertions, deletions, substitutions and swaps of two neighbours.
 fn edit_distance(a: &str, b: &str) -> usize {
     let (a, b): (Vec<char>, Vec<char>) = (a.chars().collect(), b.chars().collect());
@@ -144,6 +171,18 @@ fn edit_distance(a: &str, b: &str) -> usize {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_nearest_name_is_suggested_without_case_and_never_another_number() {
+        let names = ["Weld", "Load", "loaded", "LoadPart", "IX1", "robot1"];
+        assert_eq!(nearest("Wled", names), Some("Weld"));
+        assert_eq!(nearest("LOADEDD", names), Some("loaded"));
+        assert_eq!(nearest("LodPart", names), Some("LoadPart"));
+        assert_eq!(nearest("robto1", names), Some("robot1"));
+        assert_eq!(nearest("IX3", names), None, "another input of a numbered set, not a typo");
+        assert_eq!(nearest("robot2", names), None);
+        assert_eq!(nearest("weld", names), None, "the same name, as IEC compares names");
+        assert_eq!(nearest("Paint", names), None);
+    }
     use super::*;
 
     fn keys(p: &Pragma) -> Vec<String> {

@@ -174,7 +174,7 @@ impl<'a> Compiler<'a> {
         } else if self.chart.broken.var(&name.key()) {
             return (FALSE, Ty::Err);
         } else {
-            format!("undeclared variable `{}`", name.name)
+            format!("undeclared variable `{}`{}", name.name, self.var_hint(&name.name))
         };
         self.error(name.span, message);
         (FALSE, Ty::Err)
@@ -290,7 +290,8 @@ impl<'a> Compiler<'a> {
                 Some(&id) => (CExpr::StepT(id), Ty::Time),
                 None => {
                     if !self.chart.broken.step(&base.key()) {
-                        self.error(base.span, format!("unknown step `{}`", base.name));
+                        let hint = self.step_hint(&base.name);
+                        self.error(base.span, format!("unknown step `{}`{hint}", base.name));
                     }
                     (FALSE, Ty::Err)
                 }
@@ -299,7 +300,8 @@ impl<'a> Compiler<'a> {
                 Some(&id) => (CExpr::ActionQ(id), Ty::Bool),
                 None => {
                     if !self.chart.broken.action(&base.key()) {
-                        self.error(base.span, format!("unknown action `{}`", base.name));
+                        let hint = self.action_hint(&base.name);
+                        self.error(base.span, format!("unknown action `{}`{hint}", base.name));
                     }
                     (FALSE, Ty::Err)
                 }

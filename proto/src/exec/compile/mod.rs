@@ -237,6 +237,20 @@ impl<'a> Compiler<'a> {
         self.diags.push(Diagnostic::error(span, message));
     }
 
+    /// " (did you mean `Weld`?)" for a misspelt step, as the chart writes the step's name.
+    fn step_hint(&self, name: &str) -> String {
+        crate::front::pragma::did_you_mean(name, self.chart.steps.iter().map(|s| s.name.name.as_str()))
+    }
+
+    fn action_hint(&self, name: &str) -> String {
+        crate::front::pragma::did_you_mean(name, self.chart.actions.iter().map(|a| a.name.name.as_str()))
+    }
+
+    /// The chart's declared variables and instances.
+    fn var_hint(&self, name: &str) -> String {
+        crate::front::pragma::did_you_mean(name, self.chart.vars.iter().map(|v| v.name.name.as_str()))
+    }
+
     /// What runs nests deeper than the engine walks: each body alone is bounded by the parsers, so this comes of
     /// what it calls, each block's, function's and nested chart's body one level deeper than its call.
     fn too_deep(&mut self, span: Span, what: &str, depth: usize) {

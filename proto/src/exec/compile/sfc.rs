@@ -48,7 +48,10 @@ impl<'a> Compiler<'a> {
                             self.error(ind.span, message);
                         }
                         None if self.chart.broken.var(&ind.key()) => {}
-                        None => self.error(ind.span, format!("undeclared indicator variable `{}`", ind.name)),
+                        None => {
+                            let hint = self.var_hint(&ind.name);
+                            self.error(ind.span, format!("undeclared indicator variable `{}`{hint}", ind.name))
+                        }
                     }
                 }
                 assocs.push((Assoc { action, qualifier: a.qualifier, duration }, indicators));
@@ -113,8 +116,10 @@ impl<'a> Compiler<'a> {
                 self.error(
                     a.action.span,
                     format!(
-                        "unknown action `{}`: declare it with `ACTION {}: … END_ACTION` or as a BOOL variable",
-                        a.action.name, a.action.name
+                        "unknown action `{}`{}: declare it with `ACTION {}: … END_ACTION` or as a BOOL variable",
+                        a.action.name,
+                        self.action_hint(&a.action.name),
+                        a.action.name
                     ),
                 );
                 None
@@ -148,7 +153,8 @@ impl<'a> Compiler<'a> {
                 }
                 None => {
                     if !self.chart.broken.var(&name.key()) {
-                        self.error(name.span, format!("undeclared variable `{}`", name.name));
+                        let hint = self.var_hint(&name.name);
+                        self.error(name.span, format!("undeclared variable `{}`{hint}", name.name));
                     }
                     None
                 }
@@ -168,7 +174,8 @@ impl<'a> Compiler<'a> {
                 Some(&id) => ids.push(id),
                 None => {
                     if !self.chart.broken.step(&name.key()) {
-                        self.error(name.span, format!("unknown step `{}`", name.name));
+                        let hint = self.step_hint(&name.name);
+                        self.error(name.span, format!("unknown step `{}`{hint}", name.name));
                     }
                     ok = false;
                 }

@@ -220,7 +220,7 @@ impl<'a> Compiler<'a> {
                             name.name
                         )
                     } else {
-                        format!("undeclared variable `{}`", name.name)
+                        format!("undeclared variable `{}`{}", name.name, self.var_hint(&name.name))
                     };
                     self.error(name.span, message);
                     return None;
