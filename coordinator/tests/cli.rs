@@ -329,3 +329,55 @@ fn sim_says_which_steps_wait_on_skills_and_how_to_drive_them() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!err.contains("step `Pick1`"), "{err}");
 }
+
+/// Every argument and option of every command says what it is in `--help`: a bare `--connect <ENDPOINT>` or
+/// `<CHART>` leaves a new user guessing.
+#[test]
+fn every_argument_of_every_command_has_help_text() {
+    let commands: &[&[&str]] = &[
+        &["check"],
+        &["sim"],
+        &["export"],
+        &["run"],
+        &["replay"],
+        &["set"],
+        &["test"],
+        &["demo"],
+        &["bench"],
+        &["status"],
+        &["ctl"],
+        &["deploy", "certs"],
+        &["deploy", "acl"],
+    ];
+    let mut bare = Vec::new();
+    for command in commands {
+        let mut args = command.to_vec();
+        args.push("--help");
+        let out = baton(&args);
+        assert!(out.status.success(), "{args:?}");
+        let help = String::from_utf8_lossy(&out.stdout).to_string();
+        let mut listing = false;
+        let lines: Vec<&str> = help.lines().collect();
+        for (i, line) in lines.iter().enumerate() {
+            if line.ends_with(':') && !line.starts_with(' ') {
+                listing = *line == "Arguments:" || *line == "Options:";
+                continue;
+            }
+            let item = line.trim_start();
+            // An entry is its flag or name, then its help: after two or more spaces on its line, or (when clap
+            // lays the help out long) on the next line, indented deeper.
+            if listing && (item.starts_with('-') || item.starts_with('<') || item.starts_with('[')) {
+                let beside = item.split("  ").map(str::trim).filter(|p| !p.is_empty()).count() > 1;
+                let indent = |l: &str| l.len() - l.trim_start().len();
+                let below = lines.get(i + 1).is_some_and(|next| {
+                    let text = next.trim_start();
+                    !text.is_empty() && indent(next) > indent(line) && !text.starts_with('-')
+                });
+                if !beside && !below {
+                    bare.push(format!("baton {}: {item}", command.join(" ")));
+                }
+            }
+        }
+    }
+    assert!(bare.is_empty(), "arguments without help:\n{}", bare.join("\n"));
+}

@@ -54,6 +54,8 @@ fn the_example_cell_passes_with_a_robot_killed_and_an_inspection_failing_twice()
     assert!(stdout.starts_with("running 1 run(s) of 1 scenario(s)"), "{stdout}");
     assert!(stdout.contains("\nPASS cell (cell.test.toml): 8 expectation(s), seed 1"), "{stdout}");
     assert!(stdout.contains("faster)"), "{stdout}");
+    // The time given is the runs' own, summed over the threads they ran on: not called wall time.
+    assert!(stdout.contains(" ms of run time (") && !stdout.contains("ms wall"), "{stdout}");
 }
 
 /// The operating examples — the demo cell held mid-part and unheld, the cell aborted, and a motion whose step passes

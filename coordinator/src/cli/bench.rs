@@ -47,6 +47,8 @@ pub struct Bench {
 /// The arguments of the hidden `baton bench-echo`.
 #[derive(clap::Args)]
 pub struct BenchEcho {
+    /// The router to reach: the coordinator's `--listen` endpoint or the cell's router, such as
+    /// tcp/127.0.0.1:7447 or tls/router.cell4.local:7447 (repeat for several).
     #[arg(long, required = true)]
     pub connect: Vec<String>,
 }

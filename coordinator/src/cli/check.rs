@@ -13,7 +13,7 @@ use crate::chart_file::read_chart;
 /// The arguments of `baton check`.
 #[derive(clap::Args)]
 pub struct Check {
-    /// The chart: IEC 61131-3 textual SFC (`.st`).
+    /// The chart file: IEC 61131-3 textual SFC (`.st`) or PLCopen TC6 XML (`.xml`), as a PLC tool exports it.
     pub chart: PathBuf,
     /// Print one JSON object (the charts' steps, transitions and actions, and every diagnostic) instead.
     #[arg(long)]

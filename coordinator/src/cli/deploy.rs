@@ -19,7 +19,9 @@ pub enum Deploy {
 
 #[derive(clap::Args)]
 pub struct Acl {
+    /// The chart file: IEC 61131-3 textual SFC (`.st`) or PLCopen TC6 XML (`.xml`), as a PLC tool exports it.
     pub chart: PathBuf,
+    /// Which chart to use when the file holds several PROGRAMs or FUNCTION_BLOCKs with SFC bodies.
     #[arg(long)]
     pub pou: Option<String>,
     // Each identity flag takes one name or several (`--agents robot1 robot2`, as the plural alias reads), and

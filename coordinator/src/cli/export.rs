@@ -13,10 +13,12 @@ use crate::chart_file::{pick, read_chart};
 /// The arguments of `baton export`.
 #[derive(clap::Args)]
 pub struct Export {
+    /// The chart file: IEC 61131-3 textual SFC (`.st`) or PLCopen TC6 XML (`.xml`), as a PLC tool exports it.
     pub chart: PathBuf,
     /// PLCopen TC6 v2.01 XML (the only format today).
     #[arg(long, required = true)]
     pub plcopen: bool,
+    /// Which chart to use when the file holds several PROGRAMs or FUNCTION_BLOCKs with SFC bodies.
     #[arg(long)]
     pub pou: Option<String>,
     /// Write here instead of to stdout.

@@ -75,7 +75,8 @@ enum Command {
     /// Operate a running chart: hold, unhold, suspend, unsuspend, stop, abort; ack or shelve an alarm.
     /// baton ctl --connect EP [--run ID] COMMAND [TARGET] [--agent NAME] [--step S] [--reason TEXT]
     Ctl(ctl::Ctl),
-    /// Prepare a cell's deployment: `certs` makes a CA and a certificate per process (the name as its common name).
+    /// Prepare a cell's deployment: `certs` makes a CA and a certificate per process (the name as its common
+    /// name); `acl` writes the router's access control from the chart's placement and the identities.
     #[command(subcommand)]
     Deploy(deploy::Deploy),
 }

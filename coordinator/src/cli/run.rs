@@ -19,6 +19,7 @@ pub enum OnAgentLoss {
 /// The arguments of `baton run`.
 #[derive(clap::Args)]
 pub struct Run {
+    /// The chart file: IEC 61131-3 textual SFC (`.st`) or PLCopen TC6 XML (`.xml`), as a PLC tool exports it.
     pub chart: PathBuf,
     /// Embed a Zenoh router listening here, such as tcp/127.0.0.1:7447.
     #[arg(long, value_name = "ENDPOINT", conflicts_with = "connect", required_unless_present = "connect")]
@@ -38,6 +39,7 @@ pub struct Run {
     /// The run's scan cycle, on the coordinator and every agent (a resumed run keeps its own).
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=baton_proto::limits::CYCLE_MS_MAX))]
     pub cycle_ms: u64,
+    /// Which chart to use when the file holds several PROGRAMs or FUNCTION_BLOCKs with SFC bodies.
     #[arg(long)]
     pub pou: Option<String>,
     /// Find routers and peers by multicast scouting too (off by default).

@@ -15,6 +15,7 @@ use crate::chart_file::{pick, read, read_chart};
 /// The arguments of `baton sim`.
 #[derive(clap::Args)]
 pub struct Sim {
+    /// The chart file: IEC 61131-3 textual SFC (`.st`) or PLCopen TC6 XML (`.xml`), as a PLC tool exports it.
     pub chart: PathBuf,
     /// Input script, JSON Lines: {"t_ms": 100, "set": {"start": true}}.
     #[arg(long)]

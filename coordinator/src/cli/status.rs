@@ -8,6 +8,8 @@ use super::block_on;
 /// The arguments of `baton status`.
 #[derive(clap::Args)]
 pub struct Status {
+    /// The router to reach: the coordinator's `--listen` endpoint or the cell's router, such as
+    /// tcp/127.0.0.1:7447 or tls/router.cell4.local:7447 (repeat for several).
     #[arg(long, value_name = "ENDPOINT", required = true)]
     pub connect: Vec<String>,
     /// One JSON object per running chart.

@@ -412,6 +412,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
             continue;
         }
         runs.sort_by_key(|(o, _)| o.seed);
+        // The runs' own times, summed (they run side by side on `--jobs` threads): "run time", not wall time.
         v.wall = runs.iter().map(|(_, w)| *w).sum();
         v.outcomes = runs.into_iter().map(|(o, _)| o).collect();
         if let Some(why) = panics.get(&i) {
@@ -445,7 +446,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
             passed_n += 1;
             if !opts.quiet {
                 println!(
-                    "PASS {} ({file}): {cases} expectation(s), {seeds_text}, {chart_text} in {:.0} ms wall ({speed})",
+                    "PASS {} ({file}): {cases} expectation(s), {seeds_text}, {chart_text} in {:.0} ms of run time ({speed})",
                     sc.name, wall_ms
                 );
             }
@@ -455,7 +456,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
             code = code.max(if errors { EXIT_CANNOT_RUN } else { EXIT_FAILED });
             let seeds_failing: Vec<String> = failing.iter().take(10).map(|o| o.seed.to_string()).collect();
             println!(
-                "FAIL {} ({file}): {} of {seeds} run(s) failed (seed {}{}), {chart_text} in {:.0} ms wall",
+                "FAIL {} ({file}): {} of {seeds} run(s) failed (seed {}{}), {chart_text} in {:.0} ms of run time",
                 sc.name,
                 failing.len(),
                 seeds_failing.join(", "),
