@@ -69,13 +69,7 @@ impl Coordinator {
                 token: *id,
                 epoch: t.epoch,
                 entry: self.program.steps[t.entry.index()].name.clone(),
-                at: self
-                    .engine
-                    .active_steps()
-                    .iter()
-                    .filter(|s| self.layout.segment_of[s.index()] == Some(t.segment))
-                    .map(|s| self.program.steps[s.index()].name.clone())
-                    .collect(),
+                at: self.segment_at(t.segment).map(str::to_string).collect(),
                 agent: t.agent.clone(),
                 since_ms: t.dispatched_ms,
                 paused: t.paused,

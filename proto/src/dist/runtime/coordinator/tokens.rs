@@ -50,18 +50,21 @@ impl Coordinator {
     pub(super) fn token_at(&self, id: TokenId) -> String {
         let Some(tok) = self.tokens.get(&id) else { return String::new() };
         let entry = &self.program.steps[tok.entry.index()].name;
-        let now: Vec<String> = self
-            .engine
-            .active_steps()
-            .iter()
-            .filter(|s| self.layout.segment_of[s.index()] == Some(tok.segment))
-            .map(|s| format!("`{}`", self.program.steps[s.index()].name))
-            .collect();
+        let now: Vec<String> = self.segment_at(tok.segment).map(|s| format!("`{s}`")).collect();
         match now.as_slice() {
             [] => format!("`{entry}`"),
             [one] if *one == format!("`{entry}`") => one.clone(),
             _ => format!("{} (entered at `{entry}`)", now.join(", ")),
         }
+    }
+
+    /// The names of segment `g`'s active steps, as the coordinator mirrors them: where its token is now.
+    pub(super) fn segment_at(&self, g: SegmentId) -> impl Iterator<Item = &str> + '_ {
+        self.engine
+            .active_steps()
+            .iter()
+            .filter(move |s| self.layout.segment_of[s.index()] == Some(g))
+            .map(|s| self.program.steps[s.index()].name.as_str())
     }
 
     pub(super) fn segment_holder(&self, g: SegmentId) -> Option<&str> {
