@@ -145,9 +145,8 @@ impl Coordinator {
         }
         if let Some(step) = &req.step {
             let s = self.program.step_by_name(step).ok_or_else(|| {
-                let names: Vec<&str> = self.program.steps.iter().map(|s| s.name.as_str()).collect();
-                let hint = crate::front::pragma::near_miss(step, &names)
-                    .map_or(String::new(), |k| format!(" (did you mean `{k}`?)"));
+                let names = self.program.steps.iter().map(|s| s.name.as_str());
+                let hint = crate::front::pragma::did_you_mean(step, names);
                 format!("chart `{}` has no step `{step}`{hint}", self.program.name)
             })?;
             let changed = if hold { self.partial.steps.insert(s) } else { self.partial.steps.remove(&s) };
@@ -424,8 +423,8 @@ impl Coordinator {
             return Ok(());
         }
         let names: Vec<&str> = known.iter().copied().collect();
-        let hint =
-            crate::front::pragma::near_miss(agent, &names).map_or(String::new(), |k| format!("did you mean `{k}`? "));
+        let hint = crate::front::pragma::nearest(agent, names.iter().copied())
+            .map_or(String::new(), |k| format!("did you mean `{k}`? "));
         let listed = if names.is_empty() { "none yet".to_string() } else { names.join(", ") };
         Err(format!(
             "no agent `{agent}` in this run: no step is placed on it and no agent of that name was heard; {hint}the run's \
