@@ -13,11 +13,15 @@ use clap::Parser;
 #[command(name = "baton-agent", version)]
 struct Args {
     /// The router to join, such as tcp/127.0.0.1:7447 (repeat for several).
-    #[arg(long, required = true, value_name = "ENDPOINT")]
+    #[arg(long, required_unless_present = "list_skills", value_name = "ENDPOINT")]
     connect: Vec<String>,
     /// This agent's name, as charts pin steps to it: {agent := 'NAME'}.
+    #[arg(long, required_unless_present = "list_skills")]
+    name: Option<String>,
+    /// Print the skills this agent would offer with these options (TOML, as `baton check --skills FILE` reads
+    /// it), and exit.
     #[arg(long)]
-    name: String,
+    list_skills: bool,
     /// A role this agent serves, as charts place steps on it: {role := 'ROLE'} (repeatable).
     #[arg(long = "role", value_name = "ROLE")]
     roles: Vec<String>,
@@ -92,7 +96,7 @@ fn main() -> ExitCode {
 fn agent_main() -> ExitCode {
     let args = Args::parse();
     let config = AgentConfig {
-        name: args.name,
+        name: args.name.unwrap_or_default(),
         roles: args.roles,
         connect: args.connect,
         lease_ms: args.lease_ms,
@@ -136,6 +140,10 @@ fn agent_main() -> ExitCode {
         None => (Skills::builtin(), Connections::default().with_ros2(ros2).with_opcua(opcua)),
     };
     let skills = if args.allow_shell { skills.with_shell() } else { skills };
+    if args.list_skills {
+        print!("{}", connections.skills(skills).catalogue().to_toml());
+        return ExitCode::SUCCESS;
+    }
     let runtime = match tokio::runtime::Builder::new_multi_thread()
         .worker_threads(if args.instances.is_some() { 2 } else { 1 })
         .thread_stack_size(CHART_STACK_BYTES)

@@ -454,6 +454,7 @@ impl Shell {
             incarnation,
             held,
             pending,
+            skills: Some(self.skills.names()),
         }
     }
 

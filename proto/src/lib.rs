@@ -57,5 +57,6 @@ pub mod dist {
     pub mod layout;
     pub mod netconfig;
     pub mod runtime;
+    pub mod skills;
     pub mod wire;
 }

@@ -164,6 +164,10 @@ pub const fn loss_grace_ms(lease_ms: u64) -> u64 {
 /// Agents one coordinator tracks (live ones, and lost ones that still hold a token).
 pub const AGENTS_MAX: usize = 4096;
 
+/// Skill names an agent's announcement may list (`AgentInfo::skills`); an announcement with more is taken as one
+/// that says nothing of its skills.
+pub const SKILLS_ANNOUNCED_MAX: usize = 1024;
+
 /// Replaced processes (incarnations) whose late variable values are still recognised and refused.
 pub const RETIRED_INCARNATIONS_MAX: usize = 256;
 

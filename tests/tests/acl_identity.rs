@@ -131,6 +131,7 @@ async fn an_identity_serves_only_the_roles_its_deployment_gives_it() {
         incarnation: uuid::Uuid::from_u128(77),
         held: Vec::new(),
         pending: Vec::new(),
+        skills: None,
     };
     let answered = tokio::time::timeout(TIMEOUT, async {
         let q = info.recv_async().await.expect("asked who it is");

@@ -263,6 +263,61 @@ fn a_scenario_whose_chart_is_missing_or_wrong_cannot_run() {
     ));
 }
 
+/// A skill name that no agent has (`motoin`) fails the scenario, in the simulated cell and with real processes
+/// alike, with the nearest built-in name; said what it does (`[actions.X]`) or named in an agent's `skills`, a
+/// custom skill runs; an agent whose `skills` lack it is sent nothing of the step and an alarm names it.
+fn a_skill_nobody_has_fails_the_scenario_before_anything_runs() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let write = |name: &str, text: &str| std::fs::write(dir.path().join(name), text).expect("write");
+    let chart = |skill: &str| {
+        format!(
+            "PROGRAM p\nVAR picked : BOOL; END_VAR\nACTION Pick: {{skill := '{skill}', ms := 100}} END_ACTION\n\
+             INITIAL_STEP Home: END_STEP\nTRANSITION FROM Home TO Grab := TRUE; END_TRANSITION\n\
+             STEP Grab: {{agent := 'r1'}} Pick(N, picked); END_STEP\nTRANSITION FROM Grab TO Done := picked; END_TRANSITION\n\
+             STEP Done: END_STEP\nEND_PROGRAM\n"
+        )
+    };
+    write("typo.st", &chart("motoin"));
+    write("grip.st", &chart("grip"));
+    let expect_done = "[[agents]]\nname = \"r1\"\n\n[[expect]]\nreached = \"Done\"\n";
+    write("typo.test.toml", &format!("chart = \"typo.st\"\n\n{expect_done}"));
+    write("simulated.test.toml", &format!("chart = \"grip.st\"\n\n{expect_done}\n[actions.Pick]\nduration = \"1s\"\n"));
+    write(
+        "listed.test.toml",
+        "chart = \"grip.st\"\n\n[[agents]]\nname = \"r1\"\nskills = [\"grip\"]\n\n[[expect]]\nreached = \"Done\"\n",
+    );
+    // r2 has the skill, r1 (where the step is placed) does not: nothing is sent to r1, and the chart waits.
+    write(
+        "lacking.test.toml",
+        "chart = \"grip.st\"\n\n[[agents]]\nname = \"r1\"\nskills = [\"motion\"]\n\n[[agents]]\nname = \"r2\"\n\
+         skills = [\"grip\"]\n\n[[expect]]\nnever = \"Done.X\"\n\n[[expect]]\nstate = \"running\"\n",
+    );
+    let out = dir.path().join("out");
+    for mode in [&[][..], &["--cluster"][..]] {
+        let args: Vec<&str> = mode.iter().copied().chain(["typo.test.toml"]).collect();
+        let (o, stdout, stderr) = baton_test(dir.path(), &args, &out);
+        assert_eq!(o.status.code(), Some(3), "{mode:?}: {stdout}{stderr}");
+        assert!(
+            stderr.contains("typo.test.toml:1:9: error: action `Pick` of the chart uses skill `motoin`")
+                && stderr.contains("did you mean `motion`?"),
+            "{mode:?}: {stderr}"
+        );
+    }
+    let (o, stdout, stderr) = baton_test(dir.path(), &["simulated.test.toml", "listed.test.toml"], &out);
+    assert_eq!(o.status.code(), Some(0), "{stdout}{stderr}");
+    let lacking = scenario(dir.path().join("lacking.test.toml").to_str().expect("utf-8"));
+    let outcome = run(&lacking, lacking.seed);
+    let failures: Vec<_> = outcome.cases.iter().filter_map(|c| c.failure.as_ref()).collect();
+    assert!(outcome.passed(), "{:?} {failures:?}", outcome.errors);
+    let alarms: Vec<&TraceRecord> = outcome.trace.iter().filter(|r| r.event == TraceEvent::Alarm).collect();
+    assert!(
+        alarms.iter().any(|r| r.name == "r1"
+            && r.message.as_deref().is_some_and(|m| m.contains("has no skill `grip`") && m.contains("step `Grab`"))),
+        "{alarms:?}"
+    );
+    assert_eq!(count(&outcome.trace, TraceEvent::Dispatch, "Grab"), 0, "a step went to an agent without its skill");
+}
+
 fn seeds_find_a_planted_race_and_the_printed_command_replays_exactly_it() {
     let dir = repo("tests/baton_test");
     let out = tempfile::tempdir().expect("tmp");
@@ -655,6 +710,7 @@ baton_tests::harness_main!(
     sync each_kind_of_expectation_fails_with_its_message,
     sync malformed_files_are_said_at_file_line_col_with_exit_status_3,
     sync a_scenario_whose_chart_is_missing_or_wrong_cannot_run,
+    sync a_skill_nobody_has_fails_the_scenario_before_anything_runs,
     sync seeds_find_a_planted_race_and_the_printed_command_replays_exactly_it,
     sync the_junit_report_has_a_suite_per_file_and_a_case_per_expectation,
     sync the_published_schema_accepts_the_scenarios_and_refuses_unknown_keys,

@@ -60,6 +60,7 @@ async fn two_processes_answering_to_one_name_get_nothing_until_one_is_left() {
         incarnation: uuid::Uuid::from_u128(0xdead),
         held: Vec::new(),
         pending: Vec::new(),
+        skills: None,
     };
     let answering = tokio::spawn(async move {
         while let Ok(q) = impostor.recv_async().await {

@@ -532,6 +532,62 @@ async fn a_step_past_its_maximum_time_branches_to_the_charts_recovery_and_the_al
     assert!(trace.iter().all(|r| r.event != TraceEvent::SkillDone), "the slow motion was cancelled, not finished");
 }
 
+/// An agent that lacks a skill a step of its placement runs (r1 without `--allow-shell`, for a `shell` action) is
+/// sent nothing of that step — the command never runs — and an alarm names the agent, the skill, the action and the
+/// step from the moment it announces itself; started again with the skill, it is sent the step, the alarm's cause
+/// is gone, and the run completes.
+#[tokio::test(flavor = "multi_thread")]
+async fn an_agent_without_the_skill_of_a_step_is_sent_nothing_and_an_alarm_names_it() {
+    let mut cluster = Cluster::new();
+    let dir = cluster.dir.path().to_path_buf();
+    let chart = dir.join("grip.st");
+    let m = dir.join("marks");
+    std::fs::write(
+        &chart,
+        format!(
+            "PROGRAM grip\nVAR gripped : BOOL; END_VAR\nINITIAL_STEP Idle: END_STEP\n\
+             TRANSITION FROM Idle TO Grip := TRUE; END_TRANSITION\n\
+             STEP Grip: {{agent := 'r1'}} Close(N, gripped); END_STEP\n\
+             TRANSITION FROM Grip TO Done := gripped; END_TRANSITION\nSTEP Done: END_STEP\n\
+             ACTION Close: {{skill := 'shell', cmd := 'echo closed >> {}'}} END_ACTION\nEND_PROGRAM\n",
+            m.display()
+        ),
+    )
+    .expect("write the chart");
+    let mut coordinator = cluster.coordinator(&chart, &[]);
+    coordinator.wait_for_log("running chart").await;
+    cluster.agent("r1", &[], &[]);
+    coordinator.wait_for_log("has no skill `shell`").await;
+    let s = wait_for_status(&cluster, "the skill's alarm", |s| {
+        s["alarms"].as_array().is_some_and(|a| a.iter().any(|x| x["source"] == "r1"))
+    })
+    .await;
+    let alarm = s["alarms"].as_array().and_then(|a| a.iter().find(|x| x["source"] == "r1")).expect("r1's alarm");
+    let message = alarm["message"].as_str().unwrap_or_default();
+    for part in ["agent `r1` has no skill `shell`", "action `Close` of step `Grip`", "its skills: motion"] {
+        assert!(message.contains(part), "{part} missing from: {message}");
+    }
+    assert!(s["tokens"].as_array().is_some_and(|t| t.iter().all(|t| t["agent"].is_null())), "{s}");
+    assert!(marks(&dir).is_empty(), "{:?}", marks(&dir));
+    // The status says what each agent announced.
+    let r1 = s["agents"].as_array().and_then(|a| a.iter().find(|x| x["name"] == "r1")).expect("r1 is listed");
+    let skills: Vec<&str> =
+        r1["skills"].as_array().map(|a| a.iter().filter_map(|x| x.as_str()).collect()).unwrap_or_default();
+    assert!(skills.contains(&"motion") && !skills.contains(&"shell"), "{s}");
+    // Started again with the skill: the alarm's cause is gone, the step is sent, and the chart reaches its end.
+    cluster.kill_agent("r1").await;
+    cluster.agent("r1", &[], &["--allow-shell"]);
+    coordinator.wait_for_log("agent `r1` has skill `shell` now").await;
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    assert_eq!(marks(&dir), ["closed"], "the command ran once, on the process that has the skill");
+    let sent: Vec<_> = trace.iter().filter(|r| r.event == TraceEvent::Dispatch && r.name == "Grip").collect();
+    assert_eq!(sent.len(), 1, "{sent:?}");
+    let alarm_at = first(&trace, TraceEvent::Alarm, "r1").expect("the alarm is traced");
+    assert!(alarm_at < first(&trace, TraceEvent::Dispatch, "Grip").expect("dispatched"), "raised before any dispatch");
+    check_trace_invariants(&trace, &chart);
+}
+
 /// `baton run --stay --journal`: the run stays at Complete; `reset` starts the chart again as a new run (new id,
 /// Idle until `start`); an abort, then `clear`, leaves it Stopped; a coordinator killed there comes back from its
 /// journal in that run, Stopped; `reset` and `start` run the cell a third time; an interrupt at Complete ends the

@@ -3,9 +3,10 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use baton_proto::dist::skills::Catalogue;
 use baton_proto::front::diag::LineIndex;
 use baton_proto::front::source;
-use baton_proto::pipeline::check_source;
+use baton_proto::pipeline::{check_source, Report};
 
 use super::{print_diagnostics, EXIT_INVALID, EXIT_USAGE};
 use crate::chart_file::read_chart;
@@ -18,21 +19,47 @@ pub struct Check {
     /// Print one JSON object (the charts' steps, transitions and actions, and every diagnostic) instead.
     #[arg(long)]
     pub json: bool,
+    /// Skills the cell's agents have besides the built-in ones, as `baton-agent --list-skills` prints them (TOML,
+    /// or JSON for a `.json` file): a skill name neither built in nor listed is warned of (repeatable).
+    #[arg(long = "skills", value_name = "FILE")]
+    pub skills: Vec<PathBuf>,
 }
 
 impl Check {
     pub fn run(self) -> anyhow::Result<ExitCode> {
+        let mut known = Catalogue::builtin();
+        for file in &self.skills {
+            let text =
+                std::fs::read_to_string(file).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", file.display()))?;
+            let json = file.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"));
+            let read = Catalogue::parse(&text, json).map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
+            known.merge(read);
+        }
         if self.json {
-            check_json(&self.chart)
+            check_json(&self.chart, &known)
         } else {
-            check(&self.chart)
+            check(&self.chart, &known)
         }
     }
 }
 
-fn check(path: &Path) -> anyhow::Result<ExitCode> {
+/// `check_source`, and what the skills `known` say of the charts' skill bindings (`dist::skills::check`).
+fn checked(src: &str, known: &Catalogue) -> Report {
+    let mut report = check_source(src);
+    let more: Vec<_> = report
+        .charts
+        .iter()
+        .filter_map(|c| Some(baton_proto::dist::skills::check(c.program.as_ref()?, c.layout.as_ref()?, known)))
+        .flatten()
+        .collect();
+    report.diagnostics.extend(more);
+    report.diagnostics.sort_by_key(|d| d.span.start);
+    report
+}
+
+fn check(path: &Path, known: &Catalogue) -> anyhow::Result<ExitCode> {
     let src = read_chart(path)?.text;
-    let report = check_source(&src);
+    let report = checked(&src, known);
     print_diagnostics(path, &src, &report, |_| true);
     let errors = report.error_count();
     let warnings = report.diagnostics.len() - errors;
@@ -58,7 +85,7 @@ fn check(path: &Path) -> anyhow::Result<ExitCode> {
 
 /// `baton check --json`: the charts of the file and every diagnostic, as one JSON object; the exit status is
 /// `baton check`'s.
-fn check_json(path: &Path) -> anyhow::Result<ExitCode> {
+fn check_json(path: &Path, known: &Catalogue) -> anyhow::Result<ExitCode> {
     let file = path.display().to_string();
     // Always one JSON object, whatever happened: a file that cannot be read is an error diagnostic of its own.
     let read = std::fs::metadata(path)
@@ -77,7 +104,7 @@ fn check_json(path: &Path) -> anyhow::Result<ExitCode> {
         }
     };
     let src = decoded.text;
-    let report = check_source(&src);
+    let report = checked(&src, known);
     let index = LineIndex::new(&src);
     let names = |ids: &[baton_proto::front::model::Ident]| ids.iter().map(|i| i.name.clone()).collect::<Vec<_>>();
     let charts: Vec<serde_json::Value> = report

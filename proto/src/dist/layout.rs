@@ -70,6 +70,8 @@ pub struct SkillBinding {
     /// Where the parts of the skill's answer go: `result := 'sequence[4] => last'` and the like (see
     /// `OUTPUT_KEYS`). These variables are written by the agent that runs the action, and by nothing else.
     pub outputs: Vec<SkillOutput>,
+    /// The binding's pragma in the source, where `baton check` points at it.
+    pub span: Span,
 }
 
 /// One part of a skill's answer written to a chart variable.
@@ -105,6 +107,8 @@ pub struct Layout {
     pub settable: Vec<bool>,
     /// Per action.
     pub skills: Vec<Option<SkillBinding>>,
+    /// Per segment: the actions bound to skills that its steps run — what an agent must offer to be sent it.
+    pub segment_skills: Vec<Vec<ActionId>>,
     /// Per action: where it runs (the placement of the steps that use it).
     pub action_placement: Vec<Placement>,
     /// Per variable: read by code that runs on agents, or bound to a device (an input's agent publishes it, an
@@ -206,7 +210,32 @@ pub fn layout(chart: &Chart, program: &Program, diags: &mut Vec<Diagnostic>) -> 
     for b in &io {
         read_by_agents[b.var.index()] = true;
     }
-    Layout { placement, segment_of, segments, waiting, writer, settable, skills, action_placement, read_by_agents, io }
+    let segment_skills = segments.iter().map(|seg| skills_run_by(program, &seg.steps, &skills)).collect();
+    Layout {
+        placement,
+        segment_of,
+        segments,
+        waiting,
+        writer,
+        settable,
+        skills,
+        segment_skills,
+        action_placement,
+        read_by_agents,
+        io,
+    }
+}
+
+/// The actions bound to skills that `steps` run, each once, in id order.
+fn skills_run_by(program: &Program, steps: &[StepId], skills: &[Option<SkillBinding>]) -> Vec<ActionId> {
+    let mut out: Vec<ActionId> = steps
+        .iter()
+        .flat_map(|&s| program.associations(s).iter().map(|a| a.action))
+        .filter(|a| skills[a.index()].is_some())
+        .collect();
+    out.sort_unstable();
+    out.dedup();
+    out
 }
 
 /// The keys a step's pragma may hold.
@@ -437,7 +466,7 @@ fn skill_bindings(
                 }
             }
             let outputs = skill_outputs(program, &params, pragma.span, diags);
-            binding = Some(SkillBinding { skill, params, outputs });
+            binding = Some(SkillBinding { skill, params, outputs, span: pragma.span });
         }
         out.push(binding);
     }

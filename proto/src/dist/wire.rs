@@ -377,6 +377,10 @@ pub struct AgentInfo {
     /// router restart).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub pending: Vec<Report>,
+    /// The skills it has, by name (`dist::skills`): the coordinator sends it no segment that runs another. Absent:
+    /// it did not say, and is sent anything its placement allows.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub skills: Option<Vec<String>>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
@@ -545,6 +549,9 @@ pub struct StatusAgent {
     /// Its bound devices it cannot reach.
     #[serde(default)]
     pub devices_down: Vec<StatusDevice>,
+    /// The skills it announced (absent: it did not say), as `baton check --skills` reads them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub skills: Option<Vec<String>>,
 }
 
 /// A bound variable whose device its agent cannot reach: the variable keeps its last value.

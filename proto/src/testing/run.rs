@@ -550,7 +550,12 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
     let agents: Vec<SimAgentSpec> = sc
         .agents
         .iter()
-        .map(|a| SimAgentSpec { name: a.name.clone(), roles: a.roles.clone(), start_ms: a.start_ms })
+        .map(|a| SimAgentSpec {
+            name: a.name.clone(),
+            roles: a.roles.clone(),
+            start_ms: a.start_ms,
+            skills: a.skills.as_ref().map(|s| s.iter().cloned().collect()),
+        })
         .collect();
     let mut sim = SimCluster::with_program(
         sc.program.clone(),

@@ -85,6 +85,7 @@ fn journaled() -> (Journaled, RunId) {
         incarnation: Uuid::from_u128(1),
         held: Vec::new(),
         pending: Vec::new(),
+        skills: None,
     };
     j.agent_up(0, info);
     j.cycle(0);

@@ -649,6 +649,12 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
         }
         behaviours.insert(index, Behaviour { duration, outcomes, hang: b.hang, message: b.message.clone(), writes });
     }
+    // A skill the chart binds must be built in or simulated here, or a misspelt name would pass and wait on a robot.
+    let listed = |skill: &str| agents.iter().any(|a| a.skills.as_ref().is_some_and(|s| s.contains(skill)));
+    let simulated = |i: usize, skill: &str| behaviours.contains_key(&i) || listed(skill);
+    for message in crate::dist::skills::not_built_in(&program, &layout, simulated) {
+        cx.error(&raw.chart.span(), message);
+    }
 
     // Inputs.
     let trigger = |cx: &mut Ctx,

@@ -73,6 +73,8 @@ pub struct SimAgentSpec {
     pub roles: Vec<String>,
     /// When its process starts (0: with the run).
     pub start_ms: u64,
+    /// The skills it announces (`AgentInfo::skills`); `None`: it says nothing, and is sent anything.
+    pub skills: Option<Vec<String>>,
 }
 
 /// Faults on one agent's link (both ways) for a while.
@@ -112,6 +114,8 @@ const ABORT_WAIT_MS: u64 = 30_000;
 struct SimAgent {
     name: String,
     roles: Vec<String>,
+    /// The skills it announces.
+    offers: Option<Vec<String>>,
     alive: bool,
     reachable: bool,
     restarts: u128,
@@ -225,6 +229,7 @@ impl SimCluster {
                 name: name.to_string(),
                 roles: roles.iter().map(|r| r.to_string()).collect(),
                 start_ms: 0,
+                skills: None,
             })
             .collect();
         SimCluster::with_program(program, layout, hash, &agents, faults, seed, CYCLE_MS)
@@ -257,6 +262,7 @@ impl SimCluster {
                             incarnation: Uuid::from_u128(0),
                             held: Vec::new(),
                             pending: Vec::new(),
+                            skills: spec.skills.clone(),
                         },
                     );
                 } else {
@@ -266,6 +272,7 @@ impl SimCluster {
                 SimAgent {
                     name: spec.name.clone(),
                     roles: spec.roles.clone(),
+                    offers: spec.skills.clone(),
                     alive: now,
                     reachable: now,
                     restarts: 0,
@@ -485,6 +492,7 @@ impl SimCluster {
             incarnation: Uuid::from_u128(a.restarts),
             held: a.run.held(),
             pending: Vec::new(),
+            skills: a.offers.clone(),
         }
     }
 

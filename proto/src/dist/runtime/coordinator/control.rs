@@ -94,6 +94,7 @@ impl Coordinator {
                         StatusDevice { var: binding.name.clone(), device: binding.device(), message: why.clone() }
                     })
                     .collect(),
+                skills: a.skills.as_ref().map(|s| s.iter().cloned().collect()),
             })
             .collect();
         StatusReport {

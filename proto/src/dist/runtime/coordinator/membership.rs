@@ -24,6 +24,9 @@ pub(super) struct AgentState {
     /// When its liveliness token went, while it may still come back (`limits::loss_grace_ms`): it is lost only if
     /// it has not by then.
     pub(super) gone_at_ms: Option<u64>,
+    /// The skills its current process announced; `None`: it did not say (it is sent whatever its placement allows).
+    #[serde(default)]
+    pub(super) skills: Option<BTreeSet<String>>,
 }
 
 impl AgentState {
@@ -41,6 +44,7 @@ impl AgentState {
             devices_seq: 0,
             joined: false,
             gone_at_ms: None,
+            skills: None,
         }
     }
 }
@@ -121,6 +125,11 @@ impl Coordinator {
         let was_conflict = std::mem::take(&mut entry.conflict);
         entry.roles = info.roles.clone();
         entry.lease_ms = info.lease_ms;
+        entry.skills = info
+            .skills
+            .as_ref()
+            .filter(|s| s.len() <= crate::limits::SKILLS_ANNOUNCED_MAX)
+            .map(|s| s.iter().cloned().collect());
         // Back within its grace: never lost.
         entry.gone_at_ms = None;
         entry.alive = true;
@@ -139,6 +148,7 @@ impl Coordinator {
             self.var_writes.retire(name.clone(), old_incarnation);
         }
         self.refresh_peers();
+        self.check_skills_of(&name);
         if !was_alive {
             let mut rec = TraceRecord::new(self.now_ms, TraceEvent::AgentUp, &name);
             rec.agent = Some(name.clone());
@@ -233,8 +243,7 @@ impl Coordinator {
         let waiting = std::mem::take(&mut self.waiting);
         for id in waiting {
             let Some(tok) = self.tokens.get(&id) else { continue };
-            let placement = self.layout.segments[tok.segment.index()].placement.clone();
-            match self.choose_agent(&placement) {
+            match self.choose_agent(tok.segment) {
                 Some(agent) => {
                     self.assign(id, agent);
                     self.emit_dispatch_or_wait(id);
@@ -366,6 +375,67 @@ impl Coordinator {
             self.agents.remove(name);
             self.acks.remove(name);
             self.refresh_peers();
+        }
+    }
+
+    /// Whether `agent` may be sent `segment`: it has every skill the segment's steps run, or did not say which it
+    /// has.
+    pub(super) fn has_skills_for(&self, agent: &str, segment: usize) -> bool {
+        let Some(has) = self.agents.get(agent).and_then(|a| a.skills.as_ref()) else { return true };
+        crate::dist::skills::lacking(&self.program, &self.layout, segment, has).is_empty()
+    }
+
+    /// The skills `agent` lacks to run `segment`, as words: "skill `x` (action `A`)".
+    pub(super) fn skills_lacked(&self, agent: &str, segment: usize) -> String {
+        let Some(has) = self.agents.get(agent).and_then(|a| a.skills.as_ref()) else { return String::new() };
+        let lacking = crate::dist::skills::lacking(&self.program, &self.layout, segment, has);
+        let words: Vec<String> =
+            lacking.iter().map(|(skill, action, _)| format!("skill `{skill}` (action `{action}`)")).collect();
+        words.join(", ")
+    }
+
+    /// The skills `agent` lacks for the segments its placement would send it, each with the action that binds it
+    /// and the step it runs at: one alarm per skill, raised when it announces itself (before any token is sent it)
+    /// and returned to normal when a process of it announces the skill — not when it goes: what it lacked still
+    /// keeps its steps from running.
+    pub(super) fn check_skills_of(&mut self, agent: &str) {
+        let mut lacking: BTreeMap<String, String> = BTreeMap::new();
+        let has = self.agents.get(agent).and_then(|a| a.skills.clone());
+        if let Some(has) = &has {
+            for (g, seg) in self.layout.segments.iter().enumerate() {
+                if !self.serves(agent, &seg.placement) {
+                    continue;
+                }
+                for (skill, action, step) in crate::dist::skills::lacking(&self.program, &self.layout, g, has) {
+                    lacking.entry(skill.to_string()).or_insert_with(|| format!("action `{action}` of step `{step}`"));
+                }
+            }
+        }
+        let gone: Vec<(String, String)> =
+            self.skill_alarms.keys().filter(|(a, s)| a == agent && !lacking.contains_key(s)).cloned().collect();
+        for key in gone {
+            if let Some(id) = self.skill_alarms.remove(&key) {
+                if has.is_some() {
+                    self.log(Level::Info, format!("agent `{agent}` has skill `{}` now", key.1));
+                }
+                let changes = self.alarms.cause_gone(id);
+                self.alarm_changes(changes);
+            }
+        }
+        let offered = has.map(|h| h.into_iter().collect::<Vec<_>>().join(", ")).unwrap_or_default();
+        for (skill, user) in lacking {
+            let key = (agent.to_string(), skill.clone());
+            if self.skill_alarms.contains_key(&key) {
+                continue;
+            }
+            let names = if offered.is_empty() { "none".to_string() } else { offered.clone() };
+            let text = format!(
+                "agent `{agent}` has no skill `{skill}`, which {user} runs: nothing of that step is sent to it (its \
+                 skills: {names})"
+            );
+            if let Some(id) = self.alarm(agent, text) {
+                self.skill_alarms.insert(key, id);
+            }
         }
     }
 

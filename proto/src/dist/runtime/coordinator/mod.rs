@@ -162,6 +162,10 @@ pub struct Coordinator {
     supervised: BTreeMap<super::alarms::AlarmId, Supervised>,
     /// The alarm of each device an agent cannot reach, by agent and binding: its cause is gone when it is reached.
     device_alarms: BTreeMap<(String, u32), super::alarms::AlarmId>,
+    /// The alarm of each skill an agent lacks for what its placement would send it, by agent and skill
+    /// (`membership::check_skills_of`).
+    #[serde(default)]
+    skill_alarms: BTreeMap<(String, String), super::alarms::AlarmId>,
     /// The transitions agents said wait for a confirmation (step mode).
     agent_waiting: BTreeSet<TransitionId>,
     /// When this coordinator last started again from its journal.
@@ -237,6 +241,7 @@ impl Coordinator {
             partial: PartialHolds::default(),
             supervised: BTreeMap::new(),
             device_alarms: BTreeMap::new(),
+            skill_alarms: BTreeMap::new(),
             agent_waiting: BTreeSet::new(),
             recovered_ms: None,
             cycle_ms: 1,

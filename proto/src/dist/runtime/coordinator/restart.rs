@@ -67,6 +67,7 @@ impl Coordinator {
         next.stats = self.stats;
         next.alarms = std::mem::take(&mut self.alarms);
         next.device_alarms = std::mem::take(&mut self.device_alarms);
+        next.skill_alarms = std::mem::take(&mut self.skill_alarms);
         next.untold = std::mem::take(&mut self.untold);
         next.engine.set_mode(self.engine.mode());
         next.engine.begin_at(next.now_ms);
@@ -77,6 +78,7 @@ impl Coordinator {
             fresh.conflict = a.conflict;
             fresh.devices_down = a.devices_down.clone();
             fresh.devices_seq = a.devices_seq;
+            fresh.skills = a.skills.clone();
             next.agents.insert(name.clone(), fresh);
         }
         next.run_state = State::Resetting;

@@ -29,6 +29,7 @@ fn info(name: &str, n: u128) -> AgentInfo {
         incarnation: uuid::Uuid::from_u128(n),
         held: Vec::new(),
         pending: Vec::new(),
+        skills: None,
     }
 }
 
@@ -179,6 +180,74 @@ fn a_token_waits_for_an_agent_of_its_role_and_goes_to_the_first_that_comes() {
     assert_eq!(sent.len(), 1, "{sent:?}");
     assert_eq!((sent[0].0.as_str(), sent[0].2), ("w1", 1));
     assert_eq!(c.tokens_in_flight(), 1);
+}
+
+/// A step whose action binds skill `grip`, on the role `worker`.
+const GRIP_CHART: &str = "PROGRAM p\nVAR go : BOOL; gripped : BOOL; END_VAR\nINITIAL_STEP A: END_STEP\n\
+    TRANSITION FROM A TO B := go; END_TRANSITION\nSTEP B: {role := 'worker'} Grip(N, gripped); END_STEP\n\
+    TRANSITION FROM B TO C := gripped; END_TRANSITION\nSTEP C: END_STEP\n\
+    ACTION Grip: {skill := 'grip', force := 20} END_ACTION\nEND_PROGRAM\n";
+
+fn offering(name: &str, n: u128, skills: &[&str]) -> AgentInfo {
+    AgentInfo { skills: Some(skills.iter().map(|s| s.to_string()).collect()), ..worker(name, n) }
+}
+
+fn skill_alarms(c: &Coordinator) -> Vec<(String, String, bool)> {
+    c.alarms()
+        .standing()
+        .filter(|a| a.message.contains("has no skill"))
+        .map(|a| (a.source.clone(), a.message.clone(), a.cause))
+        .collect()
+}
+
+#[test]
+fn an_agent_that_lacks_a_skill_of_the_step_is_sent_nothing_and_an_alarm_names_it_before_anything_moves() {
+    let (program, layout) = crate::testing::simulated_cluster::compile(GRIP_CHART);
+    let mut c = coordinator_of(&program, &layout);
+    // The agent announces itself before the chart reaches the step: the alarm comes at once.
+    c.handle_agent_up(0, offering("w1", 1, &["motion"]));
+    let alarms = skill_alarms(&c);
+    assert_eq!(alarms.len(), 1, "{alarms:?}");
+    let (source, message, cause) = &alarms[0];
+    assert_eq!(source, "w1");
+    assert!(*cause);
+    for part in ["agent `w1`", "no skill `grip`", "action `Grip`", "step `B`", "its skills: motion"] {
+        assert!(message.contains(part), "{part} missing from: {message}");
+    }
+    c.handle_set(0, "go", &serde_json::json!(true)).expect("go is an input");
+    c.handle_cycle(10);
+    let out = drain(&mut c);
+    assert!(dispatches(&out).is_empty(), "a step that runs `grip` went to an agent without it: {out:?}");
+    assert_eq!(traced(&out, TraceEvent::Wait), 1, "the token says it waits: {out:?}");
+    let logged: Vec<&String> = out
+        .iter()
+        .filter_map(|o| match o {
+            CoordOutput::Log { message, .. } => Some(message),
+            _ => None,
+        })
+        .collect();
+    assert!(
+        logged.iter().any(|m| m.contains("waits") && m.contains("no live agent with role `worker` has the skills")),
+        "{logged:?}"
+    );
+    // Another agent of the role that has the skill takes the token; the one without never does.
+    c.handle_agent_up(20, offering("w2", 2, &["grip", "motion"]));
+    let sent = dispatches(&drain(&mut c));
+    assert_eq!(sent.iter().map(|s| s.0.as_str()).collect::<Vec<_>>(), ["w2"], "{sent:?}");
+    // w1 comes back restarted with the skill: its alarm's cause is gone.
+    c.handle_agent_up(30, offering("w1", 3, &["grip"]));
+    assert!(skill_alarms(&c).iter().all(|(_, _, cause)| !cause), "{:?}", skill_alarms(&c));
+}
+
+#[test]
+fn an_agent_that_says_nothing_of_its_skills_is_sent_what_its_placement_allows() {
+    let (program, layout) = crate::testing::simulated_cluster::compile(GRIP_CHART);
+    let mut c = coordinator_of(&program, &layout);
+    c.handle_agent_up(0, worker("w1", 1));
+    c.handle_set(0, "go", &serde_json::json!(true)).expect("go is an input");
+    c.handle_cycle(10);
+    assert_eq!(dispatches(&drain(&mut c)).len(), 1);
+    assert!(skill_alarms(&c).is_empty());
 }
 
 /// The coordinator and one worker agent, with the token of `B` on the agent; returns the agent's reports.

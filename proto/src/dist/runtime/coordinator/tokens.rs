@@ -156,21 +156,30 @@ impl Coordinator {
                 self.engine.set_held(self.now_ms, s, true);
             }
         }
-        if let Some(agent) = self.choose_agent(&self.layout.segments[g.index()].placement.clone()) {
+        if let Some(agent) = self.choose_agent(g) {
             self.assign(id, agent);
         }
         id
     }
 
-    pub(super) fn choose_agent(&mut self, placement: &Placement) -> Option<String> {
-        match placement {
+    /// A live agent of the segment's placement that has the skills its steps run: by name, or the least busy of
+    /// the role (round robin among equals).
+    pub(super) fn choose_agent(&mut self, segment: SegmentId) -> Option<String> {
+        let g = segment.index();
+        match &self.layout.segments[g].placement {
             Placement::Coordinator => None,
-            Placement::Agent(name) => self.agents.get(name).filter(|a| a.alive && !a.conflict).map(|_| name.clone()),
+            Placement::Agent(name) => self
+                .agents
+                .get(name)
+                .filter(|a| a.alive && !a.conflict)
+                .filter(|_| self.has_skills_for(name, g))
+                .map(|_| name.clone()),
             Placement::Role(role) => {
                 let able: Vec<(&String, usize)> = self
                     .agents
                     .iter()
                     .filter(|(_, a)| a.alive && !a.conflict && a.roles.iter().any(|r| r == role))
+                    .filter(|(n, _)| self.has_skills_for(n, g))
                     .map(|(n, a)| (n, a.tokens))
                     .collect();
                 let least = able.iter().map(|(_, n)| *n).min()?;
@@ -204,7 +213,7 @@ impl Coordinator {
         let Some(tok) = self.tokens.get(&id) else { return };
         let entry_name = self.program.steps[tok.entry.index()].name.clone();
         let placement = self.layout.segments[tok.segment.index()].placement.clone();
-        let epoch = tok.epoch;
+        let (epoch, segment) = (tok.epoch, tok.segment);
         if tok.agent.is_none() {
             if !self.waiting.contains(&id) {
                 self.waiting.push(id);
@@ -212,8 +221,15 @@ impl Coordinator {
                 rec.token = Some(id.to_string());
                 rec.epoch = Some(epoch);
                 self.trace(rec);
+                let live = |a: &AgentState| a.alive && !a.conflict;
                 let why = match &placement {
+                    Placement::Agent(a) if self.agents.get(a).is_some_and(live) => {
+                        format!("agent `{a}` lacks {}", self.skills_lacked(a, segment.index()))
+                    }
                     Placement::Agent(a) => format!("no live agent named `{a}`"),
+                    Placement::Role(r) if self.agents.values().any(|a| live(a) && a.roles.contains(r)) => {
+                        format!("no live agent with role `{r}` has the skills its steps run")
+                    }
                     Placement::Role(r) => format!("no live agent with role `{r}`"),
                     Placement::Coordinator => "it is placed on the coordinator".to_string(),
                 };
@@ -354,8 +370,9 @@ impl Coordinator {
             let _ = self.engine.handle_remote(now, RemoteInput::Activate(entry));
         }
         self.drain_engine();
-        let placement = self.layout.segments[segment.index()].placement.clone();
-        if let Some(agent) = agent.or_else(|| self.choose_agent(&placement)) {
+        // The agent it came back on, if that process has what the segment runs; else whichever the placement picks.
+        let agent = agent.filter(|a| self.has_skills_for(a, segment.index()));
+        if let Some(agent) = agent.or_else(|| self.choose_agent(segment)) {
             self.assign(id, agent);
         }
         self.emit_dispatch_or_wait(id);
