@@ -6,7 +6,7 @@
 //! another thread holds the state, by that thread before it lets go: the callback only queues it). Handing
 //! each sample through a channel to the main loop instead woke a second thread per message, and on a loaded machine
 //! a wake-up is most of a message's cost: on this project's two-core VM, 30–50 µs of a 280 µs round trip at each
-//! end (`docs/benchmarks.md`, issue 36). The main loop keeps what is not a run's message — queries, timers,
+//! end (`docs/book/src/benchmarks.md`, issue 36). The main loop keeps what is not a run's message — queries, timers,
 //! skills' events, signals — and takes the same lock.
 //!
 //! Rules that come with it:

@@ -1,4 +1,4 @@
-"""Zenoh alone, no Baton: does a put cross a router that was restarted? (docs/benchmarks.md, "Routers in a mesh")
+"""Zenoh alone, no Baton: does a put cross a router that was restarted? (docs/book/src/benchmarks.md, "Routers in a mesh")
 
 zenohd 1.10.2 routers (ROUTERS, default 3; each connects to those started before it, or with REVERSE=1 to those
 after it), a subscriber client on R0, a publisher client on R1 putting every 20 ms. R1 is killed and started

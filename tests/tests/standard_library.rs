@@ -1,4 +1,4 @@
-//! `docs/standard-library.md` is a contract: every name of IEC 61131-3's tables of standard functions and
+//! `docs/book/src/standard-library.md` is a contract: every name of IEC 61131-3's tables of standard functions and
 //! function blocks has a row; a row marked `yes` compiles its example in a chart; a row marked `no` is refused by
 //! the compiler and says why.
 
@@ -156,8 +156,8 @@ struct Row {
 }
 
 fn rows() -> Vec<Row> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/standard-library.md");
-    let text = std::fs::read_to_string(&path).expect("docs/standard-library.md");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/book/src/standard-library.md");
+    let text = std::fs::read_to_string(&path).expect("docs/book/src/standard-library.md");
     let mut rows = Vec::new();
     let mut block = false;
     for line in text.lines() {
@@ -200,7 +200,7 @@ fn chart(example: &str, block: Option<&str>) -> String {
 fn every_name_of_the_standards_tables_has_a_row() {
     let rows = rows();
     let missing: Vec<&&str> = STANDARD.iter().filter(|n| !rows.iter().any(|r| r.name == **n)).collect();
-    assert!(missing.is_empty(), "docs/standard-library.md has no row for {missing:?}");
+    assert!(missing.is_empty(), "docs/book/src/standard-library.md has no row for {missing:?}");
 }
 
 #[test]

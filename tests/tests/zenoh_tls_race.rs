@@ -6,7 +6,7 @@
 //! tickets that follow the handshake, or any record), parks the connection's state as `Err(HandshakeNotComplete)`
 //! while it works, which the writing side's `check_error` then reads. Over TCP the same never happens.
 //!
-//! On demand (it shows a dependency's bug; `docs/benchmarks.md` has the figures):
+//! On demand (it shows a dependency's bug; `docs/book/src/benchmarks.md` has the figures):
 //! `cargo test --release -p baton-tests --test zenoh_tls_race -- --ignored --nocapture`.
 
 use std::time::Duration;

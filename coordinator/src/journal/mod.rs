@@ -22,7 +22,7 @@
 //! that is not whole with a whole one after it is damage, and the journal is refused. `baton replay` reads a journal
 //! without writing to it (`read_only`). `tests.rs` builds the disk of a crash at every write of a real journal,
 //! with every subset of the last commit's pages. (An append-only file replaced redb here: a commit is one write and
-//! one `fdatasync` instead of a B-tree's pages, `docs/benchmarks.md`.)
+//! one `fdatasync` instead of a B-tree's pages, `docs/book/src/benchmarks.md`.)
 
 mod segment;
 #[cfg(test)]
@@ -364,7 +364,7 @@ impl Store {
     /// Allocates the segment's file up to `len` bytes, ahead of its records, and writes zeros there, durably: a
     /// commit then overwrites blocks that are already the file's, and its `fdatasync` flushes the data alone — not
     /// the file's size, nor the inode of extents that `fallocate` left unwritten, each an extra write the commit
-    /// would wait for (`docs/benchmarks.md`). Where that fails (a full disk), the file grows as it is written.
+    /// would wait for (`docs/book/src/benchmarks.md`). Where that fails (a full disk), the file grows as it is written.
     fn allocate(&mut self, len: u64) {
         if len <= self.allocated {
             return;

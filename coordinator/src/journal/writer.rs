@@ -152,7 +152,7 @@ fn writer_loop(
                 counters.records.fetch_add(batches.iter().map(|b| b.len() as u64).sum(), Ordering::Relaxed);
                 batches.clear();
             }
-            // Sent from this thread: a hand-over to another cost more than it saved (`docs/benchmarks.md`).
+            // Sent from this thread: a hand-over to another cost more than it saved (`docs/book/src/benchmarks.md`).
             for (at, messages) in waiting.drain(..) {
                 if let Some(send) = deliver.as_mut() {
                     if let Err(why) = send(messages) {

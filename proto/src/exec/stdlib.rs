@@ -172,7 +172,7 @@ pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
                 cv = m.int(2);
             } else if rising && cv > 0 {
                 // Stops at 0, as matiec, CODESYS and TwinCAT do (the standard's text counts down to the type's
-                // minimum): docs/standard-library.md, Counters.
+                // minimum): docs/book/src/standard-library.md, Counters.
                 cv -= 1;
             }
             m.set_int(4, cv);

@@ -26,7 +26,7 @@
 //! operators (AND, OR, XOR balanced; ADD, SUB, … left to right, at most `NESTING_DEPTH_MAX` arguments); ADD_TIME and
 //! its kin are the operators on the types their names give (`time_function`); SPLIT_DATE and its kin are statements
 //! writing their outputs (`split_call`). What the standard's tables hold and what Baton does with each is
-//! `docs/standard-library.md`, which `tests/tests/standard_library.rs` checks against the compiler.
+//! `docs/book/src/standard-library.md`, which `tests/tests/standard_library.rs` checks against the compiler.
 //!
 //! Depth: every recursive walk over what a user wrote is bounded by `NESTING_DEPTH_MAX` — parentheses, operator chains,
 //! arguments, indices, statements, macro steps, wired logic, function blocks and functions inside one another, nested
