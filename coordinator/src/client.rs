@@ -343,6 +343,47 @@ pub async fn set_on(
     ask(session, key, Some(request)).await
 }
 
+/// The skills the agents live behind a router announce (`baton check --connect`): each agent by name, and a
+/// catalogue of every skill one of them has (a built-in one with its parameters, another with its parameters left
+/// open).
+pub async fn live_skills(
+    connect: &[String],
+    file: Option<&Path>,
+) -> anyhow::Result<(Vec<String>, baton_proto::dist::skills::Catalogue)> {
+    use baton_proto::dist::skills::{Catalogue, SkillSpec};
+    let session = open(connect, file).await?;
+    let tokens = baton_shell::traffic::liveliness_get(&session, keys::alive_any())
+        .timeout(QUERY_TIMEOUT)
+        .await
+        .map_err(|e| anyhow!("{e}"))?;
+    let mut agents = Vec::new();
+    while let Ok(reply) = tokens.recv_async().await {
+        if let Some(name) = reply.result().ok().and_then(|s| keys::agent_of_alive(s.key_expr().as_str())) {
+            agents.push(name.to_string());
+        }
+    }
+    agents.sort();
+    agents.dedup();
+    let builtin = Catalogue::builtin();
+    let mut known = Catalogue::default();
+    for agent in &agents {
+        let infos: Vec<wire::AgentInfo> = ask(&session, keys::agent_info(agent), None).await?;
+        for name in infos.into_iter().filter(|i| i.name == *agent).flat_map(|i| i.skills.unwrap_or_default()) {
+            if known.get(&name).is_none() {
+                let spec = builtin.get(&name).cloned().unwrap_or(SkillSpec {
+                    name,
+                    params: None,
+                    required: Vec::new(),
+                    summary: String::new(),
+                });
+                known.skills.push(spec);
+            }
+        }
+    }
+    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    Ok((agents, known))
+}
+
 pub async fn status(connect: &[String], file: Option<&Path>, json: bool, why: bool) -> anyhow::Result<()> {
     let session = open(connect, file).await?;
     let mut reports: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;

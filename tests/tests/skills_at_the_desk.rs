@@ -1,10 +1,11 @@
 //! A misspelt skill is found at the desk: `baton check` knows the skills `baton-agent` ships and their parameters,
 //! and those a `--skills FILE` lists — as `baton-agent --list-skills` prints them for the options an agent runs
-//! with — and warns of any other name with the nearest known one.
+//! with — or the agents live behind a router announce (`--connect`), and warns of any other name with the
+//! nearest known one.
 
 use std::process::{Command, Output};
 
-use baton_tests::loopback::bin;
+use baton_tests::loopback::{bin, Cluster, TIMEOUT};
 
 fn run(name: &str, args: &[&str]) -> (Output, String, String) {
     let o = Command::new(bin(name)).args(args).output().expect("runs");
@@ -74,4 +75,40 @@ fn check_warns_of_skills_and_parameters_no_agent_has_with_the_nearest_known_name
     let (o, _, err) = run("baton", &["check", chart, "--skills", bad.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("bad.toml") && err.contains("not a skill name"), "{err}");
+}
+
+/// `baton check --connect EP` asks the agents live behind the router which skills they have: a robot program's own
+/// skill (`grip`, which an agent simulating a scenario offers) is then known; the misspelt one is still warned of.
+#[tokio::test(flavor = "multi_thread")]
+async fn check_knows_the_skills_the_live_agents_announce() {
+    let mut cluster = Cluster::with_router().await;
+    let dir = cluster.dir.path().to_path_buf();
+    let grip = "PROGRAM g\nVAR closed : BOOL; END_VAR\nACTION Close: {skill := 'grip', force := 20} END_ACTION\n\
+                INITIAL_STEP Home: END_STEP\nTRANSITION FROM Home TO Work := TRUE; END_TRANSITION\n\
+                STEP Work: {agent := 'robot1'} Close(N, closed); END_STEP\nEND_PROGRAM\n";
+    std::fs::write(dir.join("grip.st"), grip).expect("write");
+    let scenario = "chart = \"grip.st\"\n\n[[agents]]\nname = \"robot1\"\n\n[actions.Close]\nduration = \"1s\"\n\n\
+                    [[expect]]\nreached = \"Work\"\n";
+    std::fs::write(dir.join("grip.test.toml"), scenario).expect("write");
+    std::fs::write(dir.join("cell.st"), CHART).expect("write");
+    let simulate = dir.join("grip.test.toml");
+    cluster.agent("robot1", &[], &["--simulate", simulate.to_str().expect("utf-8")]);
+    let cell = dir.join("cell.st");
+    let check = || run("baton", &["check", cell.to_str().expect("utf-8"), "--connect", &cluster.endpoint]);
+    let deadline = std::time::Instant::now() + TIMEOUT;
+    let (o, err) = loop {
+        let (o, _, err) = check();
+        if err.contains("skills of the live agents (robot1)") {
+            break (o, err);
+        }
+        assert!(std::time::Instant::now() < deadline, "robot1 never answered: {err}");
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    };
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    assert!(err.contains("grip") && !err.contains("action `Close` uses skill `grip`"), "{err}");
+    assert!(err.contains("action `Pick` uses skill `motoin`"), "{err}");
+    // Nothing listens: said in plain words, exit 2.
+    let (o, _, err) = run("baton", &["check", cell.to_str().expect("utf-8"), "--connect", "tcp/127.0.0.1:1"]);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("no router answered at tcp/127.0.0.1:1"), "{err}");
 }

@@ -23,6 +23,12 @@ pub struct Check {
     /// or JSON for a `.json` file): a skill name neither built in nor listed is warned of (repeatable).
     #[arg(long = "skills", value_name = "FILE")]
     pub skills: Vec<PathBuf>,
+    /// Ask the agents live behind this router which skills they have, and know those too (repeatable).
+    #[arg(long, value_name = "ENDPOINT")]
+    pub connect: Vec<String>,
+    /// With --connect: a Zenoh configuration file (a secured router's CA and your certificate).
+    #[arg(long, value_name = "FILE", requires = "connect")]
+    pub zenoh_config: Option<PathBuf>,
 }
 
 impl Check {
@@ -34,6 +40,23 @@ impl Check {
             let json = file.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"));
             let read = Catalogue::parse(&text, json).map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
             known.merge(read);
+        }
+        if !self.connect.is_empty() {
+            let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
+            let (agents, live) =
+                runtime.block_on(crate::client::live_skills(&self.connect, self.zenoh_config.as_deref()))?;
+            if agents.is_empty() {
+                eprintln!(
+                    "warning: no agent is live behind {}: only the built-in skills are known",
+                    self.connect.join(", ")
+                );
+            } else {
+                let names: Vec<&str> = live.names().collect();
+                eprintln!("skills of the live agents ({}): {}", agents.join(", "), names.join(", "));
+            }
+            // What a file or the built-ins say of a skill (its parameters) stands; the agents add the names.
+            let new: Vec<_> = live.skills.into_iter().filter(|s| known.get(&s.name).is_none()).collect();
+            known.skills.extend(new);
         }
         if self.json {
             check_json(&self.chart, &known)
