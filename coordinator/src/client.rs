@@ -350,7 +350,7 @@ pub async fn live_skills(
     connect: &[String],
     file: Option<&Path>,
 ) -> anyhow::Result<(Vec<String>, baton_proto::dist::skills::Catalogue)> {
-    use baton_proto::dist::skills::{Catalogue, SkillSpec};
+    use baton_proto::dist::skills::Catalogue;
     let session = open(connect, file).await?;
     let tokens = baton_shell::traffic::liveliness_get(&session, keys::alive_any())
         .timeout(QUERY_TIMEOUT)
@@ -364,22 +364,12 @@ pub async fn live_skills(
     }
     agents.sort();
     agents.dedup();
-    let builtin = Catalogue::builtin();
-    let mut known = Catalogue::default();
+    let mut names = Vec::new();
     for agent in &agents {
         let infos: Vec<wire::AgentInfo> = ask(&session, keys::agent_info(agent), None).await?;
-        for name in infos.into_iter().filter(|i| i.name == *agent).flat_map(|i| i.skills.unwrap_or_default()) {
-            if known.get(&name).is_none() {
-                let spec = builtin.get(&name).cloned().unwrap_or(SkillSpec {
-                    name,
-                    params: None,
-                    required: Vec::new(),
-                    summary: String::new(),
-                });
-                known.skills.push(spec);
-            }
-        }
+        names.extend(infos.into_iter().filter(|i| i.name == *agent).flat_map(|i| i.skills.unwrap_or_default()));
     }
+    let known = Catalogue::of_names(names);
     session.close().await.map_err(|e| anyhow!("{e}"))?;
     Ok((agents, known))
 }

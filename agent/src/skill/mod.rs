@@ -161,19 +161,6 @@ impl Skills {
     /// What `baton-agent --list-skills` prints and `baton check --skills` reads: each skill by name, with the
     /// parameters of a built-in one (`dist::skills::Catalogue::builtin`); a custom skill's are left open.
     pub fn catalogue(&self) -> baton_proto::dist::skills::Catalogue {
-        let builtin = baton_proto::dist::skills::Catalogue::builtin();
-        let skills = self
-            .names()
-            .into_iter()
-            .map(|name| {
-                builtin.get(&name).cloned().unwrap_or(baton_proto::dist::skills::SkillSpec {
-                    name,
-                    params: None,
-                    required: Vec::new(),
-                    summary: String::new(),
-                })
-            })
-            .collect();
-        baton_proto::dist::skills::Catalogue { skills }
+        baton_proto::dist::skills::Catalogue::of_names(self.names())
     }
 }

@@ -132,6 +132,25 @@ impl Catalogue {
         }
     }
 
+    /// The skills of `names`, as an agent that has them is known: a built-in one with its parameters, any other
+    /// with its parameters left open; each name once, in the order given.
+    pub fn of_names(names: impl IntoIterator<Item = String>) -> Catalogue {
+        let builtin = Catalogue::builtin();
+        let mut out = Catalogue::default();
+        for name in names {
+            if out.get(&name).is_none() {
+                let spec = builtin.get(&name).cloned().unwrap_or(SkillSpec {
+                    name,
+                    params: None,
+                    required: Vec::new(),
+                    summary: String::new(),
+                });
+                out.skills.push(spec);
+            }
+        }
+        out
+    }
+
     pub fn get(&self, name: &str) -> Option<&SkillSpec> {
         self.skills.iter().find(|s| s.name == name)
     }
