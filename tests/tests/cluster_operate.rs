@@ -585,6 +585,7 @@ async fn an_agent_without_the_skill_of_a_step_is_sent_nothing_and_an_alarm_names
     assert_eq!(sent.len(), 1, "{sent:?}");
     let alarm_at = first(&trace, TraceEvent::Alarm, "r1").expect("the alarm is traced");
     assert!(alarm_at < first(&trace, TraceEvent::Dispatch, "Grip").expect("dispatched"), "raised before any dispatch");
+    assert!(first(&trace, TraceEvent::AgentUp, "r1").is_some_and(|up| up < alarm_at), "said once r1 is live");
     check_trace_invariants(&trace, &chart);
 }
 

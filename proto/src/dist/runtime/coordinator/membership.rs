@@ -148,7 +148,6 @@ impl Coordinator {
             self.var_writes.retire(name.clone(), old_incarnation);
         }
         self.refresh_peers();
-        self.check_skills_of(&name);
         if !was_alive {
             let mut rec = TraceRecord::new(self.now_ms, TraceEvent::AgentUp, &name);
             rec.agent = Some(name.clone());
@@ -157,6 +156,8 @@ impl Coordinator {
                 if info.roles.is_empty() { String::new() } else { format!(" (roles: {})", info.roles.join(", ")) };
             self.log(Level::Info, format!("agent `{name}` is live{roles}"));
         }
+        // Said once the agent is live, before anything is sent to it.
+        self.check_skills_of(&name);
         // This agent's paused tokens (it was lost) and unconfirmed ones (this coordinator restarted): if it is the
         // same process and holds the token, it keeps it and sends its unacknowledged reports now; if it lacks
         // it, the dispatch goes again in the same epoch; if it restarted, the segment's progress died with the
