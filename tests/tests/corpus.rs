@@ -233,6 +233,47 @@ fn xml_reader_never_panics_on_mutated_plcopen_files() {
     }
 }
 
+/// The xPPU's scenario 1 (CODESYS) keeps its sequence in function block `PPU`, run from program `MAIN` in ST, and
+/// its blocks' actions in SFC. Baton runs PPU as the chart with MAIN's body around it, and each instance's action
+/// charts apart. Pressing the operator panel's start button (the emergency-stop contact closed, as a healthy cell
+/// has it) reaches PPU only through that body: the panel's body (called by `Stack`'s, which MAIN calls as
+/// `PPU.Stack()`) copies the button to `Stack.StartButton` in the cycle of the press (MAIN runs after PPU's own
+/// actions), PPU's ACT_Start copies it to its own in the next, and the transition out of `Start` sees it in the one
+/// after: 20 ms after the press, and not before. There PPU's ACT_Init chart (a chart's
+/// action in SFC) runs `Crane.ACT_Init` as a step action, a chart of the crane's instance, whose first step moves
+/// on once nothing resets (`NOT InitCompleted AND NOT GVL.IsSFCResetting`).
+fn xppu_scenario_1_starts_through_main_and_runs_its_blocks_charts() {
+    use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
+    let program = program_of("VerifAPS__verifaps-lib__share__xPPU__PLCOpenXML_Scenario_1.xml");
+    let script = "{\"t_ms\": 0, \"set\": {\"Stack.Panel.DI_EmergencyStop\": true}}\n\
+                  {\"t_ms\": 500, \"set\": {\"Stack.Panel.DI_StartButton\": true}}\n\
+                  {\"t_ms\": 520, \"set\": {\"Stack.Panel.DI_StartButton\": false}}\n";
+    let inputs = parse_inputs(script, &program).expect("the panel's located inputs can be set");
+    let step = |name: &str| program.var_by_name(name).unwrap_or_else(|| panic!("no variable {name}"));
+    let watch = [step("Crane.ACT_Init.Crane_ACT_Init.X"), step("Stack.StartButton")];
+    let (mut fired, mut values) = (Vec::new(), Vec::new());
+    simulate_watching(Arc::new(program), &inputs, 10, 1_000, &watch, |out| {
+        if let SimOutput::Trace(r) = out {
+            match r.event {
+                TraceEvent::Fire => fired.push((r.t_ms, r.name)),
+                TraceEvent::Value => values.push((r.t_ms, r.name, r.value.unwrap_or_default())),
+                _ => {}
+            }
+        }
+    })
+    .expect("simulation");
+    let start = fired.iter().find(|(_, n)| n == "Start->Initialisation_2").map(|(t, _)| *t);
+    assert_eq!(start, Some(520), "the press at 500 ms reaches PPU through MAIN's body: {fired:?}");
+    assert!(
+        values.iter().any(|(t, n, v)| *t == 500 && n == "Stack.StartButton" && v == "TRUE"),
+        "Stack's body copies its panel's button in the cycle of the press: {values:?}"
+    );
+    assert!(
+        values.iter().any(|(_, n, v)| n == "Crane.ACT_Init.Crane_ACT_Init.X" && v == "TRUE"),
+        "the crane instance's ACT_Init chart runs: {values:?}"
+    );
+}
+
 baton_tests::harness_main!(
     sync corpus_charts_parse_or_are_rejected_precisely,
     sync valid_corpus_charts_run,
@@ -240,5 +281,6 @@ baton_tests::harness_main!(
     sync beremiz_first_steps_in_xml_and_ironplc_text_are_one_chart,
     sync beremiz_traffic_light_cycles_and_answers_the_pedestrian_button,
     sync beremiz_first_steps_counter_resets_to_the_configurations_global_value,
+    sync xppu_scenario_1_starts_through_main_and_runs_its_blocks_charts,
     sync xml_reader_never_panics_on_mutated_plcopen_files,
 );

@@ -397,8 +397,52 @@ pub fn duration_ms(d: Option<DurationSrc>, env: &impl Env) -> i64 {
     }
 }
 
+/// A nested chart put back before its first scan: every active step goes off (its time kept as `S.T`), and every
+/// action it holds that is on or stored ends with its final run (Q FALSE), in order — a chart it holds resets in
+/// turn.
+fn reset_chart(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Result<(), Fault> {
+    let now = env.now_ms();
+    for s in &chart.steps {
+        if env.var(s.x).as_bool() {
+            let since = env.var(s.since).as_i64();
+            env.set_var(s.x, Value::Bool(false));
+            env.set_var(s.last, Value::Time(now - since));
+        }
+    }
+    env.set_var(chart.started, Value::Bool(false));
+    let mut ending = Vec::new();
+    for a in &chart.actions {
+        let on = env.var(a.q).as_bool();
+        if on || env.var(a.stored).as_bool() {
+            env.set_var(a.stored, Value::Bool(false));
+            env.set_var(a.q, Value::Bool(false));
+            if let Some(v) = a.bool_var.filter(|_| on) {
+                env.set_var(v, Value::Bool(false));
+            }
+            ending.push((a, on));
+        }
+    }
+    for (a, on) in ending {
+        if on {
+            exec(&a.body, env, budget)?;
+        }
+    }
+    Ok(())
+}
+
 /// One scan of a nested chart (see `NestedChart`).
 fn scan(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Result<(), Fault> {
+    if let Some(q) = &chart.q {
+        if !eval(q, env)?.as_bool() {
+            // The action's final run.
+            return reset_chart(chart, env, budget);
+        }
+    }
+    let flag = |env: &mut _, v: Option<VarId>| v.is_some_and(|v| Env::var(env, v).as_bool());
+    let (init, reset) = (flag(env, chart.init), flag(env, chart.reset));
+    if init || reset {
+        reset_chart(chart, env, budget)?;
+    }
     let now = env.now_ms();
     let x = |env: &mut _, s: &NestedStep| Env::var(env, s.x).as_bool();
     let n = chart.steps.len();
@@ -445,6 +489,10 @@ fn scan(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Resul
                 }
             }
         }
+    }
+    if init {
+        // Held at the initial steps, their actions not run, while SFCInit is TRUE.
+        return Ok(());
     }
     // Every controlled action's Q from its associations, before any body runs, so that each sees this scan's.
     let mut runs = Vec::with_capacity(chart.actions.len());

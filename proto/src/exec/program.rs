@@ -341,11 +341,21 @@ pub enum CStmt {
 /// was last active; each controlled action's Q and stored S), so that it lives in the engine's flat array and
 /// travels with the other variables. Each run of the action that holds it is one scan: judge the transitions
 /// (clearing order, a step's token taken once), move the tokens, then compute the controlled actions' Q from
-/// their associations and run the bodies whose Q is TRUE or has just fallen. Between runs it stands still.
+/// their associations and run the bodies whose Q is TRUE or has just fallen. Between runs it stands still; the
+/// action's final run (its Q fell) resets it, as CODESYS does: its steps go off and the actions it holds end with
+/// their final runs, so that the next activation starts at its initial steps.
 #[derive(Clone, Debug)]
 pub struct NestedChart {
     /// FALSE until the first scan, which activates the initial steps (their time counts from it).
     pub started: VarId,
+    /// The Q of the action it is the body of, where it is associated with a step (the chart's, another nested
+    /// chart's): a run with Q FALSE — the action's final run — resets the chart instead of scanning it. `None`
+    /// for an action only called (`A();`, `inst.A();`), which every call scans.
+    pub q: Option<CExpr>,
+    /// CODESYS's SFC flags, where the POU declares and uses them: `SFCInit` TRUE holds the chart reset at its
+    /// initial steps, running nothing; `SFCReset` TRUE resets it to them and runs their actions.
+    pub init: Option<VarId>,
+    pub reset: Option<VarId>,
     pub steps: Vec<NestedStep>,
     /// In clearing order.
     pub transitions: Vec<NestedTransition>,
@@ -483,6 +493,7 @@ fn measure(start: Vec<(Item, usize)>, memo: &mut BTreeMap<*const Vec<CStmt>, usi
                             stack.push((Item::Stmts(body), inner));
                         }
                         CStmt::Chart(chart) => {
+                            stack.extend(chart.q.iter().map(|q| (Item::Expr(q), inner)));
                             for t in &chart.transitions {
                                 stack.push((Item::Stmts(&t.calls), inner));
                                 stack.push((Item::Expr(&t.condition), inner));
@@ -579,6 +590,12 @@ fn walk_body_once(
                 for v in chart.state() {
                     write(v);
                     read(&CExpr::Var(v));
+                }
+                if let Some(q) = &chart.q {
+                    read(q);
+                }
+                for v in chart.init.iter().chain(&chart.reset) {
+                    read(&CExpr::Var(*v));
                 }
                 for t in &chart.transitions {
                     walk_body_once(&t.calls, write, read, seen);

@@ -124,7 +124,7 @@ pub struct FbDef {
     pub vars: Vec<VarDecl>,
     pub body: Vec<Stmt>,
     /// A function block's actions (CODESYS, TwinCAT): bodies an instance runs when called as
-    /// `instance.Action();`, in the instance's scope, with no parameters.
+    /// `instance.Action();` (or as a step's action), in the instance's scope; ST or a nested chart.
     pub actions: Vec<FbAction>,
     pub problems: Vec<crate::front::diag::Diagnostic>,
     pub span: Span,
@@ -134,6 +134,8 @@ pub struct FbDef {
 pub struct FbAction {
     pub name: Ident,
     pub body: Vec<Stmt>,
+    /// An action written in SFC: a nested chart each instance holds the state of.
+    pub sfc: Option<Box<Sfc>>,
 }
 
 /// What a syntax error took out of a chart: the names (keys) of the elements it was in, so that what follows from
@@ -204,6 +206,9 @@ pub struct VarDecl {
     pub array: Option<ArraySpec>,
     /// Pragmas written right after the declaration's `;`, on its line: `door : BOOL; {input := 'zenoh', …}`.
     pub pragmas: Vec<Pragma>,
+    /// Declared at a device address (PLCopen's `address`, `%I*`, `%QX0.1`): one of the device's signals, which a
+    /// test sets and a trace shows even where it is a function block's local.
+    pub located: bool,
 }
 
 /// An array type: its dimensions (inclusive bounds), element type, and initial elements in order, as runs
@@ -359,6 +364,17 @@ pub struct Action {
 pub struct Sfc {
     pub steps: Vec<Step>,
     pub transitions: Vec<Transition>,
+    /// Which of CODESYS's SFC flags the chart uses, where the file says (a CODESYS export's `SFCSettings`);
+    /// `None`: each flag the POU declares as a BOOL (`SFCInit`, `SFCReset`) is used, as CoDeSys V2.3 had it.
+    pub flags: Option<SfcFlags>,
+}
+
+/// CODESYS's SFC flags a nested chart obeys: `SFCInit` (back to the initial step and held there, no action run)
+/// and `SFCReset` (back to the initial step, which then runs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SfcFlags {
+    pub init: bool,
+    pub reset: bool,
 }
 
 #[derive(Clone, Debug, PartialEq)]

@@ -3,16 +3,28 @@
 use super::*;
 
 impl<'a> Compiler<'a> {
-    /// `instance.Action();`: the action of a user block instance, run in the instance's scope (CODESYS, TwinCAT).
+    /// The user instance at a path of instance names from the current scope (`m`, `table.motor`).
+    pub(super) fn user_at(&self, path: &str) -> Option<usize> {
+        let mut parts = path.split('.');
+        let mut u = *self.user_of.get(&parts.next()?.to_ascii_uppercase())?;
+        for part in parts {
+            u = *self.users[u].scope.users.get(&part.to_ascii_uppercase())?;
+        }
+        Some(u)
+    }
+
+    /// `instance.Action(…);`: the action of a user block instance (`table.motor.Stop();` of an instance inside
+    /// one), run in the instance's scope (CODESYS, TwinCAT); inputs given as in a call of the instance are set
+    /// first (`crane.Init(SFCReset := TRUE);`). An action written in SFC runs one scan of its chart.
     pub(super) fn instance_action_call(
         &mut self,
         callee: &Ident,
         instance: &str,
         action: &str,
         args: &[Arg],
+        vars: &[VarInfo],
     ) -> Option<CStmt> {
-        let key = instance.to_ascii_uppercase();
-        if let Some(&u) = self.user_of.get(&key) {
+        if let Some(u) = self.user_at(instance) {
             let def = self.users[u].def;
             let Some(a) = def.actions.iter().find(|a| a.name.name.eq_ignore_ascii_case(action)) else {
                 let has: Vec<&str> = def.actions.iter().map(|a| a.name.name.as_str()).collect();
@@ -24,15 +36,16 @@ impl<'a> Compiler<'a> {
                 self.error(callee.span, message);
                 return None;
             };
-            if let Some(arg) = args.first() {
-                self.error(arg.span, format!("action `{}` of `{}` takes no arguments", a.name.name, def.name.name));
-                return None;
-            }
             let body = self.users[u].actions.get(&a.name.key()).cloned()?;
-            let eno = self.users[u].eno;
-            let call = UserCall { body, en: None, inputs: Vec::new(), inouts: Vec::new(), outputs: Vec::new(), eno };
-            return Some(CStmt::UserFb(Box::new(call)));
+            if args.is_empty() {
+                let eno = self.users[u].eno;
+                let call =
+                    UserCall { body, en: None, inputs: Vec::new(), inouts: Vec::new(), outputs: Vec::new(), eno };
+                return Some(CStmt::UserFb(Box::new(call)));
+            }
+            return self.user_call_of(u, callee, args, vars, body);
         }
+        let key = instance.to_ascii_uppercase();
         let message = match self.instances.get(&key) {
             Some((fb, _)) => {
                 format!("`{instance}` is a {} instance: a standard block has no action `{action}`", fb.name())
@@ -86,8 +99,10 @@ impl<'a> Compiler<'a> {
         }
         let def = self.users[u].def;
         let action = def.actions.iter().find(|a| a.name.key() == key)?;
-        let stack = format!("{}#{key}", def.name.key());
-        let body = self.action_body(&stack, name, &action.body, vars)?;
+        let body = match &action.sfc {
+            Some(sfc) => Arc::new(self.block_chart(u, &action.name, sfc, vars)?),
+            None => self.action_body(&format!("{}#{key}", def.name.key()), name, &action.body, vars)?,
+        };
         self.users[u].actions.insert(key, Arc::clone(&body));
         Some(body)
     }
@@ -173,7 +188,7 @@ impl<'a> Compiler<'a> {
             return self.fb_call(&plain, args, span, vars);
         }
         if let Some((instance, action)) = callee.name.rsplit_once('.') {
-            return self.instance_action_call(callee, instance, action, args);
+            return self.instance_action_call(callee, instance, action, args, vars);
         }
         if let Some((input, parts)) = DatePart::of_split(&callee.key()) {
             return self.split_call(callee, args, Ty::of(&input), parts, vars);
@@ -249,6 +264,19 @@ impl<'a> Compiler<'a> {
     /// A call of a user function block instance: formal or non-formal inputs and in-outs (in declaration
     /// order), outputs with `=>`, EN and ENO.
     pub(super) fn user_call(&mut self, u: usize, callee: &Ident, args: &[Arg], vars: &[VarInfo]) -> Option<CStmt> {
+        let body = Arc::clone(&self.users[u].body);
+        self.user_call_of(u, callee, args, vars, body)
+    }
+
+    /// A call binding instance `u`'s parameters, then running `body` (its own, or one of its actions').
+    pub(super) fn user_call_of(
+        &mut self,
+        u: usize,
+        callee: &Ident,
+        args: &[Arg],
+        vars: &[VarInfo],
+        body: Arc<Vec<CStmt>>,
+    ) -> Option<CStmt> {
         let def_name = self.users[u].def.name.name.clone();
         let user_params = self.users[u].params.clone();
         let eno = self.users[u].eno;
@@ -306,7 +334,6 @@ impl<'a> Compiler<'a> {
             }
         }
         let _ = callee;
-        let body = Arc::clone(&self.users[u].body);
         let en = bound.en;
         ok.then(|| CStmt::UserFb(Box::new(UserCall { body, en, inputs, inouts, outputs, eno })))
     }

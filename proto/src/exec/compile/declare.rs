@@ -34,8 +34,9 @@ impl<'a> Compiler<'a> {
             }
             if let Some(&def) = self.library.get(&decl.type_name.key()).filter(|d| d.returns.is_none()) {
                 if let Some(u) = self.declare_user(decl, def, &decl.name.name, &mut vars) {
-                    for &(ref name, _, id) in &self.users[u].params {
-                        self.vars.insert(format!("{}.{}", decl.name.key(), name.to_ascii_uppercase()), id);
+                    // Its parameters, and (as CODESYS reads them) its locals and its instances' variables.
+                    for (name, &id) in &self.users[u].scope.vars {
+                        self.vars.insert(format!("{}.{name}", decl.name.key()), id);
                     }
                     self.user_inits(u, decl, &mut vars);
                     let eno = self.users[u].eno;
@@ -146,8 +147,8 @@ impl<'a> Compiler<'a> {
             if let Some(&inner_def) = self.library.get(&d.type_name.key()).filter(|d| d.returns.is_none()) {
                 if let Some(u) = self.declare_user(d, inner_def, &inner, vars) {
                     self.user_inits(u, d, vars);
-                    for &(ref name, _, id) in &self.users[u].params {
-                        scope.vars.insert(format!("{}.{}", d.name.key(), name.to_ascii_uppercase()), id);
+                    for (name, &id) in &self.users[u].scope.vars {
+                        scope.vars.insert(format!("{}.{name}", d.name.key()), id);
                     }
                     scope.vars.insert(format!("{}.ENO", d.name.key()), self.users[u].eno);
                     scope.users.insert(d.name.key(), u);
@@ -206,7 +207,17 @@ impl<'a> Compiler<'a> {
             if visible {
                 params.push((d.name.name.clone(), d.section, id));
             }
-            vars.push(VarInfo { name: inner, ty, init, constant: d.constant, section: d.section, hidden: !visible });
+            // A device signal (`%I*`) is seen as the parameters are: a test sets it, a trace shows it.
+            let hidden = !visible && !d.located;
+            vars.push(VarInfo { name: inner, ty, init, constant: d.constant, section: d.section, hidden });
+        }
+        // Its actions written in SFC: their state, this instance's own.
+        let charts: Vec<(&'a Ident, &'a Sfc)> =
+            def.actions.iter().filter_map(|a| Some((&a.name, a.sfc.as_deref()?))).collect();
+        if !charts.is_empty() {
+            let outer = std::mem::take(&mut self.nested);
+            self.declare_nested(&charts, &format!("{path}."), &[], vars);
+            scope.nested = std::mem::replace(&mut self.nested, outer);
         }
         let eno = VarId(vars.len() as u32);
         vars.push(VarInfo {
@@ -275,6 +286,14 @@ impl<'a> Compiler<'a> {
                     }
                 }
             }
+            // The project's global variable lists are seen from every block (CODESYS, TwinCAT): `GVL.x` and `x`.
+            for list in &self.chart.global_lists {
+                for v in &list.vars {
+                    if let Some(&id) = chart_vars.get(&v.key()) {
+                        names.entry(v.key()).or_insert(id);
+                    }
+                }
+            }
             let saved = (
                 std::mem::replace(&mut self.vars, names),
                 std::mem::take(&mut self.instances),
@@ -286,12 +305,14 @@ impl<'a> Compiler<'a> {
             self.user_of = std::mem::take(&mut self.users[u].scope.users);
             let chart_arrays = std::mem::replace(&mut self.arrays, std::mem::take(&mut self.users[u].scope.arrays));
             let chart_structs = std::mem::replace(&mut self.structs, std::mem::take(&mut self.users[u].scope.structs));
+            let chart_nested = std::mem::replace(&mut self.nested, std::mem::take(&mut self.users[u].scope.nested));
             self.current_user = Some(u);
             let body = self.statements(&def.body, vars);
             for a in &def.actions {
                 self.fb_action_body(u, &a.name, vars);
             }
             self.current_user = None;
+            self.users[u].scope.nested = std::mem::replace(&mut self.nested, chart_nested);
             self.users[u].scope.arrays = std::mem::replace(&mut self.arrays, chart_arrays);
             self.users[u].scope.structs = std::mem::replace(&mut self.structs, chart_structs);
             self.users[u].scope.vars = std::mem::replace(&mut self.vars, saved.0);

@@ -218,8 +218,18 @@ impl<'a> Compiler<'a> {
 
     pub(super) fn field(&mut self, base: &Ident, field: &Ident, vars: &[VarInfo]) -> (CExpr, Ty) {
         let step_field = (matches!(field.key().as_str(), "X" | "T")
-            && (self.steps.contains_key(&base.key()) || self.nested_steps.contains_key(&base.key())))
+            && (self.steps.contains_key(&base.key())
+                || self.nested.step(&base.key()).is_some()
+                || self.nested.ambiguous(&base.key()).is_some()))
             || (field.key() == "OVERRUN" && self.steps.contains_key(&base.key()));
+        // A variable of an instance inside an instance, `table.motor.speed`, or a local one (CODESYS reads them).
+        if base.name.contains('.') || self.user_of.contains_key(&base.key()) {
+            if let Some(&id) = self.vars.get(&format!("{}.{}", base.key(), field.key())).filter(|_| !step_field) {
+                if let Some(v) = vars.get(id.index()) {
+                    return (CExpr::Var(id), Ty::of(&v.ty));
+                }
+            }
+        }
         if self.structs.contains_key(&base.key()) && !step_field {
             return match self.vars.get(&format!("{}.{}", base.key(), field.key())) {
                 Some(&id) => match vars.get(id.index()) {
@@ -269,14 +279,26 @@ impl<'a> Compiler<'a> {
                 None => (FALSE, Ty::Err),
             };
         }
-        if let (Some(&v), false) = (self.nested_steps.get(&base.key()), self.steps.contains_key(&base.key())) {
+        if let (Some(v), false) = (self.nested.step(&base.key()), self.steps.contains_key(&base.key())) {
             match field.key().as_str() {
                 "X" => return (CExpr::Var(v[0]), Ty::Bool),
                 "T" => return (CExpr::NestedT(Box::new(v)), Ty::Time),
                 _ => {}
             }
         }
-        if let (Some(&(_, q, _)), "Q") = (self.controlled.get(&base.key()), field.key().as_str()) {
+        if let (Some(owners), "X" | "T") = (self.nested.ambiguous(&base.key()), field.key().as_str()) {
+            let message = format!(
+                "the charts of actions {} each have a step `{}`: write `{}.{}.{}`",
+                owners.iter().map(|o| format!("`{o}`")).collect::<Vec<_>>().join(", "),
+                base.name,
+                owners[0],
+                base.name,
+                field.name
+            );
+            self.error(base.span, message);
+            return (FALSE, Ty::Err);
+        }
+        if let (Some(q), "Q") = (self.nested.q(&base.key()), field.key().as_str()) {
             return (CExpr::Var(q), Ty::Bool);
         }
         if let Some(message) = self.bad_path(base) {

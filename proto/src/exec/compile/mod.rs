@@ -60,6 +60,7 @@ use crate::limits::{NESTING_DEPTH_MAX, SUPERVISION_MS_MAX};
 use crate::types::library::{DateFn, DatePart, Func, MemberKind, StdFb, TextFn};
 use crate::types::{IntKind, Type, Value};
 use binding::*;
+use nested::with_q;
 use typing::*;
 
 /// The result of compiling one chart: a program (with placeholders wherever an error was reported) and whether
@@ -93,9 +94,7 @@ pub fn compile(chart: &Chart, library: &[FbDef], types: &[TypeDef], diags: &mut 
         enums: Vec::new(),
         arrays: HashMap::new(),
         structs: HashMap::new(),
-        nested_steps: HashMap::new(),
-        controlled: HashMap::new(),
-        started: HashMap::new(),
+        nested: nested::Nested::default(),
         ranges: HashMap::new(),
         struct_depth: 0,
         functions_compiling: 0,
@@ -127,6 +126,8 @@ struct Scope {
     users: HashMap<String, usize>,
     arrays: HashMap<String, ArrayInfo>,
     structs: HashMap<String, (String, Vec<String>)>,
+    /// A user instance's nested charts.
+    nested: nested::Nested,
 }
 
 struct Compiler<'a> {
@@ -162,12 +163,8 @@ struct Compiler<'a> {
     arrays: HashMap<String, ArrayInfo>,
     /// The chart's structure variables: their type's name and field names.
     structs: HashMap<String, (String, Vec<String>)>,
-    /// Steps of the nested charts (actions written in SFC): their variables `[x, since, last]`.
-    nested_steps: HashMap<String, [VarId; 3]>,
-    /// Actions a nested chart controls: the action holding that chart, the action's Q and stored S variables.
-    controlled: HashMap<String, (String, VarId, VarId)>,
-    /// Each nested chart's `started` variable, by the key of the action it is the body of.
-    started: HashMap<String, VarId>,
+    /// The nested charts (actions written in SFC) of the POU being compiled: the chart's, or a user instance's.
+    nested: nested::Nested,
     /// The chart's variables of a subrange type: the range and the type's name.
     ranges: HashMap<VarId, (i64, i64, String)>,
     /// Structures being declared inside one another (a structure holding itself is an error).
@@ -273,7 +270,9 @@ impl<'a> Compiler<'a> {
         }
         let mut vars = self.declare_vars();
         self.declare_functions(&mut vars);
-        self.declare_nested(&mut vars);
+        let nested: Vec<(&Ident, &Sfc)> =
+            chart.actions.iter().filter_map(|a| Some((&a.name, a.sfc.as_deref()?))).collect();
+        self.declare_nested(&nested, "", &chart.steps, &mut vars);
         self.declared = vars.len();
         self.compile_user_bodies(&vars);
         let mut net_ok = true;
@@ -335,7 +334,7 @@ impl<'a> Compiler<'a> {
 
     fn warn_unused_actions(&mut self) {
         let chart = self.chart;
-        let mut used: HashMap<String, ()> = self.controlled.keys().map(|k| (k.clone(), ())).collect();
+        let mut used: HashMap<String, ()> = self.nested.controlled_keys().map(|k| (k.clone(), ())).collect();
         // Called as a subroutine by another action (`Reset();`): it runs there.
         used.extend(self.called_actions.keys().map(|k| (k.clone(), ())));
         for step in &chart.steps {

@@ -1,76 +1,163 @@
-//! Charts nested in a chart's function blocks: their steps, transitions and actions, lowered to the program's nested
-//! charts.
+//! Charts nested in a POU's actions (actions written in SFC), the chart's and its function blocks' alike, lowered
+//! to `CStmt::Chart`s.
 //!
 //! Nested charts: an action written in SFC gets its state as variables (`declare_nested`: `started`, each step's `X`,
-//! `since`, `last`, each controlled action's `Q` and `stored`), and its body becomes one `CStmt::Chart(NestedChart)`
-//! (`nested_charts`, the charts it controls first, so that each carries its controlled actions' compiled bodies; a
-//! cycle is an error). `S.X` of a nested step is its variable, `S.T` a `CExpr::NestedT`. `eval::scan` runs one scan;
+//! `since`, `last`, the `Q` and `stored` of each action it controls), one set per POU — per instance for a function
+//! block's, so that two instances of a block run their charts apart. Its body becomes one `CStmt::Chart(NestedChart)`:
+//! the chart's own (`nested_charts`, the charts it controls first, so that each carries its controlled actions'
+//! compiled bodies; a cycle is an error), a block's as the instance's action is first compiled (`block_chart`, where
+//! a cycle is an action calling itself). `S.X` of a nested step is its variable, `S.T` a `CExpr::NestedT`; a name
+//! that charts of several actions have is `Action.S.X` outside them. Where the action is associated with a step,
+//! the chart carries that action's Q (`with_q`), and the action's final run resets it; `eval::scan` runs one scan;
 //! `walk_body` reports every variable it may write, so the layout sees the chart's state as written where its action
 //! runs.
 
 use super::*;
 
+/// The nested charts of one POU (the chart, or one user block instance) as the compiler resolves their names.
+#[derive(Default)]
+pub(super) struct Nested {
+    /// Each nested step's `[x, since, last]`, by `ACTION.STEP` always and by `STEP` where one chart has it.
+    steps: HashMap<String, [VarId; 3]>,
+    /// Step names that the charts of several actions have, with those actions' names.
+    shared: HashMap<String, Vec<String>>,
+    /// The `Q` and `stored` of each action a chart controls, by (chart's action, controlled action), keys.
+    controlled: HashMap<(String, String), (VarId, VarId)>,
+    /// The charts that control each action, by its key, as written.
+    controllers: HashMap<String, Vec<String>>,
+    /// Each chart's `started`, by its action's key.
+    started: HashMap<String, VarId>,
+    /// The chart being compiled (its action's key), whose own steps and actions its names find first.
+    current: Option<String>,
+}
+
+impl Nested {
+    pub(super) fn controlled_keys(&self) -> impl Iterator<Item = &String> {
+        self.controllers.keys()
+    }
+
+    /// The step a name (key) means: the current chart's first, then the one chart that has it.
+    pub(super) fn step(&self, key: &str) -> Option<[VarId; 3]> {
+        if let Some(own) = self.current.as_ref().and_then(|c| self.steps.get(&format!("{c}.{key}"))) {
+            return Some(*own);
+        }
+        self.steps.get(key).copied()
+    }
+
+    /// The actions whose charts all have a step of this name (key), where there are several and none is current.
+    pub(super) fn ambiguous(&self, key: &str) -> Option<&[String]> {
+        if self.current.as_ref().is_some_and(|c| self.steps.contains_key(&format!("{c}.{key}"))) {
+            return None;
+        }
+        self.shared.get(key).map(Vec::as_slice)
+    }
+
+    /// The `Q` of a controlled action (key): the current chart's, or that of the one chart controlling it.
+    pub(super) fn q(&self, key: &str) -> Option<VarId> {
+        if let Some(&(q, _)) = self.current.as_ref().and_then(|c| self.controlled.get(&(c.clone(), key.to_string()))) {
+            return Some(q);
+        }
+        match self.controllers.get(key).map(Vec::as_slice) {
+            Some([one]) => self.controlled.get(&(one.to_ascii_uppercase(), key.to_string())).map(|&(q, _)| q),
+            _ => None,
+        }
+    }
+}
+
+/// A nested chart's body, where its action is associated with a step: the chart's Q is that association's, so that
+/// the action's final run resets it. A body that is a call of an instance's action written in SFC (`inst.A`) gets it
+/// too; any other is as it was.
+pub(super) fn with_q(body: &[CStmt], q: CExpr) -> Vec<CStmt> {
+    match body {
+        [CStmt::Chart(chart)] => {
+            let mut chart = chart.clone();
+            chart.q = Some(q);
+            vec![CStmt::Chart(chart)]
+        }
+        [CStmt::UserFb(call)] if matches!(call.body.as_slice(), [CStmt::Chart(_)]) => {
+            let mut call = call.clone();
+            call.body = Arc::new(with_q(&call.body, q));
+            vec![CStmt::UserFb(call)]
+        }
+        other => other.to_vec(),
+    }
+}
+
+/// What a nested chart's association runs: a boolean action's variable, or a body.
+pub(super) enum Targets<'x> {
+    /// The chart's actions, by id.
+    Chart(&'x mut Vec<ActionInfo>),
+    /// Instance `u`'s block's actions, BOOL variables and its instances' actions.
+    Block(usize),
+}
+
 impl<'a> Compiler<'a> {
-    /// The state of every nested chart (an action written in SFC) as variables: `started`, each step's `X`,
-    /// `since` and `last`, and the `Q` and `stored` of each action it controls (`X` and `Q` can be watched, the rest
-    /// is hidden). A nested step's name is one of the POU's, as CODESYS has it: two steps of one name are an error
-    /// wherever they are.
-    pub(super) fn declare_nested(&mut self, vars: &mut Vec<VarInfo>) {
-        let chart = self.chart;
+    /// The state of every nested chart of a POU as variables, `prefix` before their names (a user instance's
+    /// path and a dot; nothing for the chart's): `started`, each step's `X`, `since` and `last`, and the `Q` and
+    /// `stored` of each action it controls (`X` and `Q` can be watched, the rest is hidden). A nested step may not
+    /// have the name of a step of the POU's own chart, nor two of one chart one name; the charts of two actions
+    /// may (CODESYS), and are then told apart as `Action.S`.
+    pub(super) fn declare_nested(
+        &mut self,
+        charts: &[(&'a Ident, &'a Sfc)],
+        prefix: &str,
+        pou_steps: &[Step],
+        vars: &mut Vec<VarInfo>,
+    ) {
         let add = |vars: &mut Vec<VarInfo>, name: String, ty: Type, hidden: bool| {
             let id = VarId(vars.len() as u32);
             let init = ty.default_value();
             vars.push(VarInfo { name, ty, init, constant: false, section: VarSection::Local, hidden });
             id
         };
-        for action in &chart.actions {
-            let Some(sfc) = &action.sfc else { continue };
-            let parent = action.name.key();
-            if self.started.contains_key(&parent) {
+        let mut bare: HashMap<String, ([VarId; 3], Vec<String>)> = HashMap::new();
+        for &(name, sfc) in charts {
+            let parent = name.key();
+            if self.nested.started.contains_key(&parent) {
                 continue; // an action declared twice, reported with the actions
             }
-            let started = add(vars, format!("{}.started", action.name.name), Type::Bool, true);
-            self.started.insert(parent.clone(), started);
+            let started = add(vars, format!("{prefix}{}.started", name.name), Type::Bool, true);
+            self.nested.started.insert(parent.clone(), started);
             for step in &sfc.steps {
                 let key = step.name.key();
-                if self.nested_steps.contains_key(&key) || chart.steps.iter().any(|s| s.name.key() == key) {
+                let own = format!("{parent}.{key}");
+                if self.nested.steps.contains_key(&own) || pou_steps.iter().any(|s| s.name.key() == key) {
                     self.error(step.name.span, format!("step `{}` is declared twice", step.name.name));
                     continue;
                 }
-                let base = format!("{}.{}", action.name.name, step.name.name);
+                let base = format!("{prefix}{}.{}", name.name, step.name.name);
                 let x = add(vars, format!("{base}.X"), Type::Bool, false);
                 let since = add(vars, format!("{base}.since"), Type::Time, true);
                 let last = add(vars, format!("{base}.last"), Type::Time, true);
-                self.nested_steps.insert(key, [x, since, last]);
+                self.nested.steps.insert(own, [x, since, last]);
+                let entry = bare.entry(key).or_insert(([x, since, last], Vec::new()));
+                entry.1.push(name.name.clone());
             }
             for a in sfc.steps.iter().flat_map(|s| &s.associations) {
                 let key = a.action.key();
-                if key == parent {
-                    continue; // reported when the chart is compiled
+                if key == parent || self.nested.controlled.contains_key(&(parent.clone(), key.clone())) {
+                    continue; // itself: reported when the chart is compiled
                 }
-                match self.controlled.get(&key) {
-                    Some((other, _, _)) if *other != parent => {
-                        let message = format!(
-                            "action `{}` is controlled by the chart of action `{other}` already: an action has one chart",
-                            a.action.name
-                        );
-                        self.error(a.action.span, message);
-                    }
-                    Some(_) => {}
-                    None => {
-                        let base = format!("{}.{}", action.name.name, a.action.name);
-                        let q = add(vars, format!("{base}.Q"), Type::Bool, false);
-                        let stored = add(vars, format!("{base}.stored"), Type::Bool, true);
-                        self.controlled.insert(key, (parent.clone(), q, stored));
-                    }
-                }
+                let base = format!("{prefix}{}.{}", name.name, a.action.name);
+                let q = add(vars, format!("{base}.Q"), Type::Bool, false);
+                let stored = add(vars, format!("{base}.stored"), Type::Bool, true);
+                self.nested.controlled.insert((parent.clone(), key.clone()), (q, stored));
+                self.nested.controllers.entry(key).or_default().push(name.name.clone());
+            }
+        }
+        for (key, (ids, owners)) in bare {
+            if owners.len() == 1 {
+                self.nested.steps.insert(key, ids);
+            } else {
+                self.nested.shared.insert(key, owners);
             }
         }
     }
 
-    /// Compiles every nested chart into its action's body (`CStmt::Chart`), those it controls first, so that a
-    /// chart's controlled actions carry their own compiled bodies; a chart that controls itself, directly or
-    /// through others, is an error.
+    /// Compiles every nested chart of the chart into its action's body (`CStmt::Chart`), those it controls first,
+    /// so that a chart's controlled actions carry their own compiled bodies; a chart that controls itself, directly
+    /// or through others, is an error. An action associated with one of the chart's steps is not also controlled
+    /// by a nested chart: CODESYS refuses one action on two levels.
     pub(super) fn nested_charts(
         &mut self,
         sources: &[&'a Action],
@@ -80,10 +167,10 @@ impl<'a> Compiler<'a> {
     ) {
         for step in parent_steps {
             for a in &step.associations {
-                if let Some((owner, _, _)) = self.controlled.get(&a.action.key()) {
+                if let Some(owner) = self.nested.controllers.get(&a.action.key()).and_then(|o| o.first()) {
                     let message = format!(
                         "action `{}` is controlled by the chart of action `{owner}`, and so cannot be associated with \
-                         step `{}` too: an action has one chart",
+                         step `{}` too: an action runs on one level",
                         a.action.name, step.name.name
                     );
                     self.error(a.action.span, message);
@@ -128,8 +215,12 @@ impl<'a> Compiler<'a> {
                     action.name.name
                 );
                 self.error(action.name.span, message);
-            } else if let Some(chart) = self.nested_chart(action, vars, actions) {
-                actions[id].body = vec![CStmt::Chart(Box::new(chart))];
+            } else if let Some(sfc) = &action.sfc {
+                if let Some(chart) = self.nested_chart(&action.name, sfc, vars, &mut Targets::Chart(actions)) {
+                    // Where a step of the chart runs it, its final run resets it.
+                    let q = CExpr::ActionQ(ActionId(id as u32));
+                    actions[id].body = with_q(&[CStmt::Chart(Box::new(chart))], q);
+                }
             }
             continue_parents(&parents[k], &mut waiting, &mut ready);
         }
@@ -150,31 +241,113 @@ impl<'a> Compiler<'a> {
                 a.name.name
             );
             self.error(a.name.span, message);
-            self.nested_chart(a, vars, actions);
+            if let Some(sfc) = &a.sfc {
+                self.nested_chart(&a.name, sfc, vars, &mut Targets::Chart(actions));
+            }
+        }
+    }
+
+    /// The chart of action `name` of user instance `u` (the current scope), compiled the first time it is needed:
+    /// a call scans it, a step's association gives it its Q. A chart that runs itself, directly or through
+    /// others, is an action calling itself.
+    pub(super) fn block_chart(&mut self, u: usize, name: &Ident, sfc: &Sfc, vars: &[VarInfo]) -> Option<Vec<CStmt>> {
+        let key = format!("{}#{}", self.users[u].def.name.key(), name.key());
+        if self.calling_actions.contains(&key) {
+            self.error(name.span, format!("action `{}` runs itself, directly or through others", name.name));
+            return None;
+        }
+        if self.calling_actions.len() >= NESTING_DEPTH_MAX {
+            self.error(name.span, format!("charts of actions nested more than {NESTING_DEPTH_MAX} levels deep"));
+            return None;
+        }
+        self.calling_actions.push(key);
+        let chart = self.nested_chart(name, sfc, vars, &mut Targets::Block(u));
+        self.calling_actions.pop();
+        Some(vec![CStmt::Chart(Box::new(chart?))])
+    }
+
+    /// What an association in a nested chart runs: (the boolean action's variable, the body).
+    fn target(
+        &mut self,
+        a: &Association,
+        vars: &[VarInfo],
+        targets: &mut Targets,
+    ) -> Option<(Option<VarId>, Arc<Vec<CStmt>>)> {
+        let u = match targets {
+            Targets::Chart(actions) => {
+                let id = self.action_for(a, vars, actions)?;
+                let info = &actions[id.index()];
+                return Some((info.bool_var, Arc::new(info.body.clone())));
+            }
+            Targets::Block(u) => *u,
+        };
+        let def = self.users[u].def;
+        if def.actions.iter().any(|x| x.name.key() == a.action.key()) {
+            return Some((None, self.fb_action_body(u, &a.action, vars)?));
+        }
+        if let Some((instance, action)) = a.action.name.rsplit_once('.') {
+            let call = self.instance_action_call(&a.action, instance, action, &[], vars)?;
+            return Some((None, Arc::new(vec![call])));
+        }
+        match self.vars.get(&a.action.key()) {
+            Some(&v) if vars[v.index()].ty == Type::Bool => Some((Some(v), Arc::new(Vec::new()))),
+            Some(&v) => {
+                let message = format!(
+                    "`{}` is no action of `{}` and is a {} variable: a boolean action needs a BOOL variable",
+                    a.action.name,
+                    def.name.name,
+                    vars[v.index()].ty
+                );
+                self.error(a.action.span, message);
+                None
+            }
+            None => {
+                let names = def.actions.iter().map(|x| x.name.name.as_str());
+                let hint = crate::front::pragma::did_you_mean(&a.action.name, names);
+                let message = format!(
+                    "unknown action `{}`{hint}: function block `{}` has no action or BOOL variable of that name",
+                    a.action.name, def.name.name
+                );
+                self.error(a.action.span, message);
+                None
+            }
         }
     }
 
     pub(super) fn nested_chart(
         &mut self,
-        action: &Action,
+        name: &Ident,
+        sfc: &Sfc,
         vars: &[VarInfo],
-        actions: &mut Vec<ActionInfo>,
+        targets: &mut Targets,
     ) -> Option<NestedChart> {
-        let sfc = action.sfc.as_ref()?;
-        let parent = action.name.key();
-        let started = *self.started.get(&parent)?;
+        let parent = name.key();
+        let started = *self.nested.started.get(&parent)?;
+        let outer = self.nested.current.replace(parent.clone());
+        let chart = self.nested_chart_in(name, sfc, started, vars, targets);
+        self.nested.current = outer;
+        chart
+    }
+
+    fn nested_chart_in(
+        &mut self,
+        name: &Ident,
+        sfc: &Sfc,
+        started: VarId,
+        vars: &[VarInfo],
+        targets: &mut Targets,
+    ) -> Option<NestedChart> {
+        let parent = name.key();
         let index: HashMap<String, usize> = sfc.steps.iter().enumerate().map(|(i, s)| (s.name.key(), i)).collect();
         let mut steps = Vec::with_capacity(sfc.steps.len());
         for s in &sfc.steps {
-            let [x, since, last] = *self.nested_steps.get(&s.name.key())?;
+            let [x, since, last] = *self.nested.steps.get(&format!("{parent}.{}", s.name.key()))?;
             steps.push(NestedStep { initial: s.initial, x, since, last });
         }
         if !sfc.steps.iter().any(|s| s.initial) {
-            let message = format!(
-                "the chart of action `{}` has no initial step: declare one with `INITIAL_STEP`",
-                action.name.name
-            );
-            self.error(action.name.span, message);
+            let message =
+                format!("the chart of action `{}` has no initial step: declare one with `INITIAL_STEP`", name.name);
+            self.error(name.span, message);
         }
         let list = |c: &mut Self, names: &[Ident]| -> Option<Vec<usize>> {
             let mut out = Vec::with_capacity(names.len());
@@ -183,8 +356,7 @@ impl<'a> Compiler<'a> {
                     Some(&i) if !out.contains(&i) => out.push(i),
                     Some(_) => c.error(n.span, format!("step `{}` appears twice in this list", n.name)),
                     None => {
-                        let message =
-                            format!("unknown step `{}` in the chart of action `{}`", n.name, action.name.name);
+                        let message = format!("unknown step `{}` in the chart of action `{}`", n.name, name.name);
                         c.error(n.span, message);
                         return None;
                     }
@@ -213,49 +385,59 @@ impl<'a> Compiler<'a> {
         // Clearing order: explicit priorities first, lower number first, then declaration order.
         transitions.sort_by_key(|(rank, _)| *rank);
         let mut controlled: Vec<NestedAction> = Vec::new();
-        let mut of_action: HashMap<ActionId, usize> = HashMap::new();
+        let mut of_action: HashMap<String, usize> = HashMap::new();
         for (si, s) in sfc.steps.iter().enumerate() {
             for a in &s.associations {
                 if matches!(a.qualifier, Qualifier::SD | Qualifier::DS | Qualifier::SL) {
                     let message = format!(
                         "qualifier {:?} in the chart of action `{}` is not supported: a nested chart takes N, S, R, P, \
                          P0, P1, L and D",
-                        a.qualifier, action.name.name
+                        a.qualifier, name.name
                     );
                     self.error(a.qualifier_span, message);
                     continue;
                 }
                 if let Some(ind) = a.indicators.first() {
                     let message =
-                        format!("indicator variables in the chart of action `{}` are not supported", action.name.name);
+                        format!("indicator variables in the chart of action `{}` are not supported", name.name);
                     self.error(ind.span, message);
                 }
                 if a.action.key() == parent {
-                    self.error(
-                        a.action.span,
-                        format!("the chart of action `{}` cannot control that action itself", action.name.name),
-                    );
+                    let message = format!("the chart of action `{}` cannot control that action itself", name.name);
+                    self.error(a.action.span, message);
                     continue;
                 }
-                let Some(id) = self.action_for(a, vars, actions) else { continue };
+                let key = a.action.key();
+                let k = match of_action.get(&key) {
+                    Some(&k) => k,
+                    None => {
+                        let Some((bool_var, body)) = self.target(a, vars, targets) else { continue };
+                        let Some(&(q, stored)) = self.nested.controlled.get(&(parent.clone(), key.clone())) else {
+                            continue;
+                        };
+                        // A chart it holds is reset by this association's end.
+                        let body = Arc::new(with_q(&body, CExpr::Var(q)));
+                        controlled.push(NestedAction { q, stored, bool_var, body, associations: Vec::new() });
+                        of_action.insert(key, controlled.len() - 1);
+                        controlled.len() - 1
+                    }
+                };
                 let duration = self.duration(a, vars);
-                let Some(&(_, q, stored)) = self.controlled.get(&a.action.key()) else { continue };
-                let k = *of_action.entry(id).or_insert_with(|| {
-                    let info = &actions[id.index()];
-                    controlled.push(NestedAction {
-                        q,
-                        stored,
-                        bool_var: info.bool_var,
-                        body: Arc::new(info.body.clone()),
-                        associations: Vec::new(),
-                    });
-                    controlled.len() - 1
-                });
                 controlled[k].associations.push((si, a.qualifier, duration));
             }
         }
+        // CODESYS's SFC flags, where the POU declares them as BOOLs and the chart uses them.
+        let flags = sfc
+            .flags
+            .unwrap_or(SfcFlags { init: self.vars.contains_key("SFCINIT"), reset: self.vars.contains_key("SFCRESET") });
+        let flag = |c: &Self, used: bool, key: &str| {
+            c.vars.get(key).copied().filter(|v| used && vars.get(v.index()).is_some_and(|v| v.ty == Type::Bool))
+        };
         Some(NestedChart {
             started,
+            q: None,
+            init: flag(self, flags.init, "SFCINIT"),
+            reset: flag(self, flags.reset, "SFCRESET"),
             steps,
             transitions: transitions.into_iter().map(|(_, t)| t).collect(),
             actions: controlled,

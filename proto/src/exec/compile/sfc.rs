@@ -89,6 +89,21 @@ impl<'a> Compiler<'a> {
         if let Some(&id) = self.actions.get(&a.action.key()) {
             return Some(id);
         }
+        // An action of a function block instance (CODESYS's step actions name them, `Crane.Init`): run as a call of
+        // it, under this association's qualifier.
+        if let Some((instance, action)) = a.action.name.rsplit_once('.').filter(|(i, _)| self.user_at(i).is_some()) {
+            let call = self.instance_action_call(&a.action, instance, action, &[], vars)?;
+            let id = ActionId(actions.len() as u32);
+            self.actions.insert(a.action.key(), id);
+            actions.push(ActionInfo {
+                name: a.action.name.clone(),
+                body: with_q(&[call], CExpr::ActionQ(id)),
+                once: None,
+                bool_var: None,
+                pragmas: Vec::new(),
+            });
+            return Some(id);
+        }
         match self.vars.get(&a.action.key()) {
             Some(&v) if vars[v.index()].ty == Type::Bool => {
                 let id = ActionId(actions.len() as u32);

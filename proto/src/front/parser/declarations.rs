@@ -343,15 +343,10 @@ impl Parser<'_> {
         has_sfc.then_some(chart)
     }
 
-    /// `ACTION name: statements END_ACTION` of a function block.
+    /// `ACTION name: … END_ACTION` of a function block: statements, or steps and transitions (a nested chart).
     pub(super) fn fb_action(&mut self) -> PResult<FbAction> {
-        self.bump();
-        let name = self.ident("an action name")?;
-        self.expect(Tok::Colon, "`:`")?;
-        let body = self.statements()?;
-        self.expect(Tok::Kw(Kw::EndAction), "`END_ACTION`")?;
-        self.eat(Tok::Semi);
-        Ok(FbAction { name, body })
+        let action = self.action()?;
+        Ok(FbAction { name: action.name, body: action.body, sfc: action.sfc })
     }
 
     pub(super) fn var_block(&mut self) -> Vec<VarDecl> {
@@ -462,6 +457,7 @@ impl Parser<'_> {
                 members: members.clone(),
                 array: array.clone(),
                 pragmas: Vec::new(),
+                located: false,
             });
         }
         Ok(())

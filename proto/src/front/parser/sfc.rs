@@ -53,7 +53,12 @@ impl Parser<'_> {
     }
 
     pub(super) fn association(&mut self) -> PResult<Association> {
-        let action = self.ident("an action association such as `Fill(N)`, or `END_STEP`")?;
+        let mut action = self.ident("an action association such as `Fill(N)`, or `END_STEP`")?;
+        // An action of a function block instance, `gripper.Close(N)` (CODESYS's step actions name them).
+        while self.eat(Tok::Dot) {
+            let part = self.ident("the name of an action of the instance")?;
+            action = Ident { name: format!("{}.{}", action.name, part.name), span: action.span.to(part.span) };
+        }
         self.expect(Tok::LParen, "`(`")?;
         let mut qualifier = Qualifier::N;
         let mut qualifier_span = action.span;
@@ -192,7 +197,7 @@ impl Parser<'_> {
                 _ => break,
             }
         }
-        Ok(Sfc { steps, transitions })
+        Ok(Sfc { steps, transitions, flags: None })
     }
 
     pub(super) fn fragment(&mut self, kind: FragmentKind) -> PResult<Fragment> {

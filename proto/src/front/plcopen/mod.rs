@@ -39,6 +39,7 @@
 mod net;
 mod order;
 mod pou;
+mod task;
 mod wires;
 mod xml;
 
@@ -70,6 +71,9 @@ const COMPUTE_BLOCKS: &str = "COMPUTE_FUNCTION_BLOCKS";
 pub(crate) const CODESYS_SFC_ELEMENT: &str = "http://www.3s-software.com/plcopenxml/sfc/element";
 
 const CODESYS_ACTIVE_ACTION: &str = "700a583f-b4d4-43e4-8c14-629c7cd3bec8";
+
+/// CODESYS's per-POU (and per-action) SFC settings: which SFC flags its chart declares and uses.
+pub(crate) const CODESYS_SFC_SETTINGS: &str = "http://www.3s-software.com/plcopenxml/sfcsettings";
 
 /// The project-level vendor data in which CODESYS and TwinCAT keep a global variable list (GVL).
 pub(crate) const CODESYS_GLOBAL_VARS: &str = "http://www.3s-software.com/plcopenxml/globalvars";
@@ -114,6 +118,7 @@ pub fn parse(src: &str) -> Parsed {
         macro_depth: 0,
         library: Vec::new(),
         implicit: Vec::new(),
+        programs: Vec::new(),
     };
     let root = doc.root_element();
     if root.tag_name().name() != "project" {
@@ -146,6 +151,10 @@ pub fn parse(src: &str) -> Parsed {
                 Some(GlobalList { name: name.clone()?, vars })
             })
             .collect();
+    }
+    let names: Vec<String> = charts.iter().map(|c| c.name.key()).collect();
+    for chart in &mut charts {
+        task::adopt_caller(chart, &names, &reader.programs, &mut reader.diags);
     }
     for def in &mut reader.library {
         share_globals(&mut def.vars, &globals, false);
@@ -223,6 +232,8 @@ struct Reader<'s> {
     library: Vec<FbDef>,
     /// Variables the POU being read needs that its interface does not declare (edge contacts' instances).
     implicit: Vec<VarDecl>,
+    /// Programs in ST, one of which may run a chart (`task`).
+    programs: Vec<task::CallerProgram>,
 }
 
 impl Reader<'_> {

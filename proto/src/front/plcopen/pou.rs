@@ -6,7 +6,13 @@ use super::*;
 impl Reader<'_> {
     pub(super) fn pou(&mut self, pou: Node) -> Option<Chart> {
         let Some(sfc) = child(pou, "body").and_then(|b| child(b, "SFC")) else {
-            self.function_block(pou);
+            if pou.attribute("pouType") == Some("program") {
+                if let Some(program) = self.caller_program(pou) {
+                    self.programs.push(program);
+                }
+            } else {
+                self.function_block(pou);
+            }
             return None;
         };
         let kind = match pou.attribute("pouType") {
@@ -172,29 +178,40 @@ impl Reader<'_> {
                 None
             }
         };
-        // Its actions (CODESYS, TwinCAT), in ST, which an instance runs when called as `instance.Action();`.
-        let mut actions = Vec::new();
+        // Its actions (CODESYS, TwinCAT), which an instance runs when called as `instance.Action();` or as a step's
+        // action: in ST, LD or FBD, or in SFC (a nested chart, read as a chart's is; the actions drawn inline in it
+        // become the block's).
+        let mut scratch = Chart::empty(name.clone(), PouKind::FunctionBlock, name.span);
+        let named_transitions: HashMap<String, Node> = child(pou, "transitions")
+            .into_iter()
+            .flat_map(|t| children(t, "transition"))
+            .filter_map(|t| Some((t.attribute("name")?.to_ascii_uppercase(), t)))
+            .collect();
+        let (implicit, condition_calls) =
+            (std::mem::take(&mut self.implicit), std::mem::take(&mut self.condition_calls));
+        let names = std::mem::replace(&mut self.names, vars.iter().map(|v| v.name.key()).collect());
         for a in child(pou, "actions").into_iter().flat_map(|x| children(x, "action")) {
-            let Some(action) = self.ident_attr(a, "name") else { continue };
-            match child(a, "body").and_then(|b| b.first_element_child()) {
-                Some(st) if is(&st, "ST") => {
-                    if let Some(Fragment::Statements(body)) = self.fragment(st, FragmentKind::Statements).0 {
-                        actions.push(crate::front::model::FbAction { name: action, body });
-                    }
-                }
-                Some(other) => {
-                    let message = format!(
-                        "action `{}` of function block `{}` has a `<{}>` body: Baton runs function blocks' actions \
-                         written in ST",
-                        action.name,
-                        name.name,
-                        other.tag_name().name()
-                    );
-                    self.error(self.tag_span(other), message);
-                }
-                None => actions.push(crate::front::model::FbAction { name: action, body: Vec::new() }),
-            }
+            self.named_action(a, &named_transitions, &mut scratch);
         }
+        if !self.condition_calls.is_empty() {
+            let at = self.tag_span(pou);
+            let message = format!(
+                "a block wired into a condition of a chart of function block `{}`: Baton runs such blocks in a \
+                 program's chart only; write the condition in ST",
+                name.name
+            );
+            self.error(at, message);
+        }
+        let mut vars = vars;
+        vars.append(&mut self.implicit);
+        self.implicit = implicit;
+        self.condition_calls = condition_calls;
+        self.names = names;
+        let actions: Vec<crate::front::model::FbAction> = scratch
+            .actions
+            .into_iter()
+            .map(|a| crate::front::model::FbAction { name: a.name, body: a.body, sfc: a.sfc })
+            .collect();
         let problems = std::mem::replace(&mut self.diags, outer);
         let range = pou.range();
         let span = Span::new(range.start, range.end);
@@ -289,6 +306,7 @@ impl Reader<'_> {
                 members,
                 array,
                 pragmas: Vec::new(),
+                located: v.attribute("address").is_some_and(|a| !a.trim().is_empty()),
             });
         }
         vars
@@ -313,7 +331,7 @@ impl Reader<'_> {
             }
             chart.actions.append(&mut inner.actions);
             chart.broken.actions.append(&mut inner.broken.actions);
-            let nested = Sfc { steps: inner.steps, transitions: inner.transitions };
+            let nested = Sfc { steps: inner.steps, transitions: inner.transitions, flags: sfc_flags(action) };
             let pragmas = self.documentation_pragmas(action);
             chart.actions.push(Action { name, body: Vec::new(), sfc: Some(Box::new(nested)), pragmas, span });
             return;
@@ -349,4 +367,17 @@ impl Reader<'_> {
             }
         }
     }
+}
+
+/// The SFC flags a CODESYS export says an action's chart uses (`addData/…/sfcsettings`: `Flags/Init@Use`,
+/// `Flags/Reset@Use`); `None` where it says nothing.
+fn sfc_flags(action: Node) -> Option<SfcFlags> {
+    let flags = child(action, "addData")
+        .into_iter()
+        .flat_map(|a| children(a, "data"))
+        .filter(|d| d.attribute("name") == Some(CODESYS_SFC_SETTINGS))
+        .flat_map(|d| children(d, "SFCSettings"))
+        .find_map(|s| child(s, "Flags"))?;
+    let used = |name: &str| child(flags, name).and_then(|f| f.attribute("Use")).is_some_and(|u| u.trim() == "true");
+    Some(SfcFlags { init: used("Init"), reset: used("Reset") })
 }

@@ -270,6 +270,7 @@ impl Reader<'_> {
                                     members: Vec::new(),
                                     array: None,
                                     pragmas: Vec::new(),
+                                    located: false,
                                 });
                                 let clk =
                                     Arg { name: Some(ident("CLK")), output: false, negated: false, value: var, span };
