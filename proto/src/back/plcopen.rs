@@ -152,7 +152,7 @@ pub fn export(
     }
     out.push_str("    </dataTypes>\n    <pous>\n");
     for def in whole_blocks(library) {
-        function_block(&mut out, def);
+        function_block(&mut out, def, library, types);
     }
     for (chart, program) in charts {
         pou(&mut out, chart, program, library, types);
@@ -207,7 +207,8 @@ fn pou(out: &mut String, chart: &Chart, program: &Program, library: &[FbDef], ty
     for a in &program.actions {
         let Some(action) = named.get(&a.name.to_ascii_uppercase()) else { continue };
         if let Some(sfc) = &action.sfc {
-            nested(out, chart, action, sfc, library, types);
+            let pou = Pou { vars: &chart.vars, actions: &chart.actions, kind: chart.kind };
+            nested(out, &pou, &action.name, &action.pragmas, sfc, library, types);
             continue;
         }
         let mut text = pragmas_text(&action.pragmas);
@@ -254,9 +255,14 @@ fn pou(out: &mut String, chart: &Chart, program: &Program, library: &[FbDef], ty
 
 /// Baton's element order (`ORDER_DATA`) as an `addData` block at `indent`.
 fn order_data(out: &mut String, indent: &str, steps: &str, transitions: &str, actions: &str) {
+    order_data_with(out, indent, steps, transitions, actions, "");
+}
+
+/// The same, with more `<data>` (a line, or nothing) in the one `addData` an element may have.
+fn order_data_with(out: &mut String, indent: &str, steps: &str, transitions: &str, actions: &str, more: &str) {
     let _ = writeln!(
         out,
-        "{indent}<addData>\n{indent}  <data name=\"{ORDER_DATA}\" handleUnknown=\"discard\">\n{indent}    <order steps=\"{}\" transitions=\"{transitions}\" actions=\"{}\"/>\n{indent}  </data>\n{indent}</addData>",
+        "{indent}<addData>\n{indent}  <data name=\"{ORDER_DATA}\" handleUnknown=\"discard\">\n{indent}    <order steps=\"{}\" transitions=\"{transitions}\" actions=\"{}\"/>\n{indent}  </data>\n{more}{indent}</addData>",
         esc(steps),
         esc(actions)
     );
@@ -265,33 +271,46 @@ fn order_data(out: &mut String, indent: &str, steps: &str, transitions: &str, ac
 /// An action written in SFC: its chart drawn as the POU's is, with Baton's order in the action's `addData`. The
 /// net comes from compiling the nested chart as a chart of its own with the POU's variables and actions (what
 /// that reports is the real compile's business).
+/// The POU an action written in SFC belongs to: a chart, or a function block.
+struct Pou<'a> {
+    vars: &'a [VarDecl],
+    actions: &'a [Action],
+    kind: PouKind,
+}
+
 fn nested(
     out: &mut String,
-    chart: &Chart,
-    action: &Action,
+    pou: &Pou,
+    name: &Ident,
+    pragmas: &[Pragma],
     sfc: &crate::front::model::Sfc,
     library: &[FbDef],
     types: &[TypeDef],
 ) {
     let shadow = Chart {
-        vars: chart.vars.clone(),
+        vars: pou.vars.to_vec(),
         steps: sfc.steps.clone(),
         transitions: sfc.transitions.clone(),
-        actions: chart.actions.iter().map(|a| Action { body: Vec::new(), sfc: None, ..a.clone() }).collect(),
-        ..Chart::empty(action.name.clone(), chart.kind, action.span)
+        actions: pou.actions.iter().map(|a| Action { body: Vec::new(), sfc: None, ..a.clone() }).collect(),
+        ..Chart::empty(name.clone(), pou.kind, name.span)
     };
     let program = crate::exec::compile::compile(&shadow, library, types, &mut Vec::new()).program;
-    let _ = writeln!(
-        out,
-        "          <action name=\"{}\">\n            <body>\n              <SFC>",
-        esc(&action.name.name)
-    );
+    let _ = writeln!(out, "          <action name=\"{}\">\n            <body>\n              <SFC>", esc(&name.name));
     let order = Sfc::new(&shadow, &program).write(out);
     out.push_str("              </SFC>\n            </body>\n");
-    // Its actions are the POU's, ordered there.
-    order_data(out, "            ", &order.steps, &order.transitions, "");
-    if !action.pragmas.is_empty() {
-        let _ = writeln!(out, "            <documentation>{}</documentation>", xhtml(&pragmas_text(&action.pragmas)));
+    // Its actions are the POU's, ordered there; the SFC flags its chart uses, where the file it was read from said
+    // (CODESYS's settings).
+    let settings = sfc.flags.map_or(String::new(), |flags| {
+        format!(
+            "              <data name=\"{}\" handleUnknown=\"implementation\"><SFCSettings><Flags><Init Declare=\"true\" Use=\"{}\"/><Reset Declare=\"true\" Use=\"{}\"/></Flags></SFCSettings></data>\n",
+            crate::front::plcopen::CODESYS_SFC_SETTINGS,
+            flags.init,
+            flags.reset
+        )
+    });
+    order_data_with(out, "            ", &order.steps, &order.transitions, "", &settings);
+    if !pragmas.is_empty() {
+        let _ = writeln!(out, "            <documentation>{}</documentation>", xhtml(&pragmas_text(pragmas)));
     }
     out.push_str("          </action>\n");
 }
@@ -346,13 +365,24 @@ fn whole_blocks(library: &[FbDef]) -> Vec<&FbDef> {
     library.iter().filter(|d| d.problems.is_empty()).collect()
 }
 
-fn function_block(out: &mut String, def: &FbDef) {
+fn function_block(out: &mut String, def: &FbDef, library: &[FbDef], types: &[TypeDef]) {
     let kind = if def.returns.is_some() { "function" } else { "functionBlock" };
     let _ = writeln!(out, "      <pou name=\"{}\" pouType=\"{kind}\">", esc(&def.name.name));
     interface_returning(out, &def.vars, def.returns.as_ref());
     if !def.actions.is_empty() {
         out.push_str("        <actions>\n");
+        // The block's actions as a chart's, for the nested charts' associations (their bodies do not matter there).
+        let actions: Vec<Action> = def
+            .actions
+            .iter()
+            .map(|a| Action { name: a.name.clone(), body: Vec::new(), sfc: None, pragmas: Vec::new(), span: def.span })
+            .collect();
         for a in &def.actions {
+            if let Some(sfc) = &a.sfc {
+                let pou = Pou { vars: &def.vars, actions: &actions, kind: PouKind::FunctionBlock };
+                nested(out, &pou, &a.name, &[], sfc, library, types);
+                continue;
+            }
             let _ = writeln!(
                 out,
                 "          <action name=\"{}\">\n            <body>\n              <ST>{}</ST>\n            </body>\n          </action>",
@@ -407,7 +437,8 @@ fn variable(out: &mut String, v: &VarDecl) {
         Some(spec) => array_element(spec),
         None => type_element(&v.type_name.name),
     };
-    let _ = write!(out, "            <variable name=\"{}\"><type>{ty}</type>", esc(&v.name.name));
+    let address = v.address.as_ref().map_or(String::new(), |a| format!(" address=\"{}\"", esc(a)));
+    let _ = write!(out, "            <variable name=\"{}\"{address}><type>{ty}</type>", esc(&v.name.name));
     if let Some(spec) = &v.array {
         out.push_str(&array_value(spec));
     } else if let Some(init) = &v.init {
@@ -730,6 +761,7 @@ impl<'a> Sfc<'a> {
                 let guid = match a.qualifier {
                     Qualifier::Entry => crate::front::plcopen::CODESYS_ENTRY_ACTION,
                     Qualifier::Exit => crate::front::plcopen::CODESYS_EXIT_ACTION,
+                    Qualifier::Active => crate::front::plcopen::CODESYS_ACTIVE_ACTION,
                     _ => return None,
                 };
                 Some(format!("<attribute guid=\"{guid}\">{}</attribute>", esc(&a.action.name)))
@@ -748,7 +780,11 @@ impl<'a> Sfc<'a> {
     fn associations(&self, s: usize) -> String {
         let step = &self.chart.steps[s];
         let mut out = String::new();
-        for a in step.associations.iter().filter(|a| !matches!(a.qualifier, Qualifier::Entry | Qualifier::Exit)) {
+        for a in step
+            .associations
+            .iter()
+            .filter(|a| !matches!(a.qualifier, Qualifier::Entry | Qualifier::Exit | Qualifier::Active))
+        {
             let duration = match &a.duration {
                 Some(Duration::Literal { ms, .. }) => format!(" duration=\"T#{ms}ms\""),
                 Some(Duration::Var(v)) => format!(" duration=\"{}\"", esc(&v.name)),

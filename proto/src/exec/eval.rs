@@ -399,7 +399,7 @@ pub fn duration_ms(d: Option<DurationSrc>, env: &impl Env) -> i64 {
 
 /// A nested chart put back before its first scan: every active step goes off (its time kept as `S.T`), and every
 /// action it holds that is on or stored ends with its final run (Q FALSE), in order — a chart it holds resets in
-/// turn.
+/// turn —, but a CODESYS step action, which has none.
 fn reset_chart(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Result<(), Fault> {
     let now = env.now_ms();
     for s in &chart.steps {
@@ -423,7 +423,7 @@ fn reset_chart(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -
         }
     }
     for (a, on) in ending {
-        if on {
+        if on && a.final_run {
             exec(&a.body, env, budget)?;
         }
     }
@@ -507,7 +507,7 @@ fn scan(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Resul
             let elapsed = now - env.var(step.since).as_i64();
             let dur = duration_ms(duration, env);
             match qualifier {
-                Qualifier::N => direct = true,
+                Qualifier::N | Qualifier::Active => direct = true,
                 Qualifier::S => set = true,
                 Qualifier::R => reset = true,
                 Qualifier::L => direct |= elapsed < dur,
@@ -522,10 +522,11 @@ fn scan(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Resul
         let q = direct || stored;
         let before = env.var(a.q).as_bool();
         env.set_var(a.q, Value::Bool(q));
-        if let Some(v) = a.bool_var.filter(|_| q || before) {
+        // A boolean action's variable follows Q where Q is or was on, and an overriding reset (R) writes FALSE.
+        if let Some(v) = a.bool_var.filter(|_| q || before || reset) {
             env.set_var(v, Value::Bool(q));
         }
-        runs.push(q || before);
+        runs.push(q || (before && a.final_run));
     }
     for (a, run) in chart.actions.iter().zip(runs) {
         if run {

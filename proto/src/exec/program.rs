@@ -175,19 +175,22 @@ pub struct TransitionInfo {
     pub pragmas: Vec<Pragma>,
 }
 
-/// An action that runs once when its step is left (`Exit`) or entered (`Entry`), in that order within a cycle.
+/// An action with no final scan: one that runs once when its step is left (`Exit`) or entered (`Entry`), or
+/// every cycle while it is active (`Active`, CODESYS's main step action), in that order within a cycle and before
+/// the others.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Once {
     Exit = 0,
     Entry = 1,
+    Active = 2,
 }
 
 #[derive(Clone, Debug)]
 pub struct ActionInfo {
     pub name: String,
     pub body: Vec<CStmt>,
-    /// An action associated only as a step's entry or exit action (CODESYS vendor data): its body runs once,
-    /// with no final scan, before the other actions of its cycle.
+    /// An action associated only as a step's entry, exit or main action (CODESYS vendor data): its body runs with
+    /// no final scan, before the other actions of its cycle.
     pub once: Option<Once>,
     /// For a boolean action (no body, named after a BOOL variable): the variable its Q drives.
     pub bool_var: Option<VarId>,
@@ -388,6 +391,9 @@ pub struct NestedAction {
     /// A boolean action's variable, which follows Q.
     pub bool_var: Option<VarId>,
     pub body: std::sync::Arc<Vec<CStmt>>,
+    /// Whether its body runs once more when its Q falls: not where every association is a CODESYS step action
+    /// (main, entry or exit), which has no final scan.
+    pub final_run: bool,
     /// (step, qualifier, duration in ms for L and D).
     pub associations: Vec<(usize, crate::front::model::Qualifier, Option<DurationSrc>)>,
 }

@@ -206,9 +206,9 @@ pub struct VarDecl {
     pub array: Option<ArraySpec>,
     /// Pragmas written right after the declaration's `;`, on its line: `door : BOOL; {input := 'zenoh', …}`.
     pub pragmas: Vec<Pragma>,
-    /// Declared at a device address (PLCopen's `address`, `%I*`, `%QX0.1`): one of the device's signals, which a
-    /// test sets and a trace shows even where it is a function block's local.
-    pub located: bool,
+    /// The device address it is declared at (PLCopen's `address`: `%I*`, `%QX0.1`): one of the device's signals,
+    /// which a test sets and a trace shows even where it is a function block's local.
+    pub address: Option<String>,
 }
 
 /// An array type: its dimensions (inclusive bounds), element type, and initial elements in order, as runs
@@ -274,6 +274,10 @@ pub enum Qualifier {
     /// A step's exit action, likewise: its body runs once in the cycle the step is left. In a cycle, exit actions
     /// run before entry actions, and those before every other action, as CODESYS documents.
     Exit,
+    /// A step's main action ("step action"), likewise: its body runs every cycle while the step is active, with
+    /// no final scan (CODESYS and TwinCAT do not run it once more when the step is left), after the entry actions
+    /// and before the IEC actions.
+    Active,
 }
 
 impl Qualifier {

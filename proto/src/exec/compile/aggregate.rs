@@ -53,7 +53,7 @@ impl<'a> Compiler<'a> {
                     members: Vec::new(),
                     array: None,
                     pragmas: Vec::new(),
-                    located: false,
+                    address: None,
                 };
                 self.declare_struct(&sub, inner, &path, hidden, vars);
                 names.push(f.name.name.clone());
@@ -228,7 +228,7 @@ impl<'a> Compiler<'a> {
                 members: Vec::new(),
                 array: None,
                 pragmas: Vec::new(),
-                located: false,
+                address: None,
             };
             self.declare_struct(&decl, fields, &format!("{label}[{idx}]"), hidden, vars);
             if k == 0 {

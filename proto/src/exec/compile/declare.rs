@@ -208,7 +208,7 @@ impl<'a> Compiler<'a> {
                 params.push((d.name.name.clone(), d.section, id));
             }
             // A device signal (`%I*`) is seen as the parameters are: a test sets it, a trace shows it.
-            let hidden = !visible && !d.located;
+            let hidden = !visible && d.address.is_none();
             vars.push(VarInfo { name: inner, ty, init, constant: d.constant, section: d.section, hidden });
         }
         // Its actions written in SFC: their state, this instance's own.

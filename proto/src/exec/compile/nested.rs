@@ -417,7 +417,15 @@ impl<'a> Compiler<'a> {
                         };
                         // A chart it holds is reset by this association's end.
                         let body = Arc::new(with_q(&body, CExpr::Var(q)));
-                        controlled.push(NestedAction { q, stored, bool_var, body, associations: Vec::new() });
+                        let final_run = true;
+                        controlled.push(NestedAction {
+                            q,
+                            stored,
+                            bool_var,
+                            body,
+                            final_run,
+                            associations: Vec::new(),
+                        });
                         of_action.insert(key, controlled.len() - 1);
                         controlled.len() - 1
                     }
@@ -425,6 +433,13 @@ impl<'a> Compiler<'a> {
                 let duration = self.duration(a, vars);
                 controlled[k].associations.push((si, a.qualifier, duration));
             }
+        }
+        // CODESYS's step actions (main, entry, exit) have no final run; an action with any other association has.
+        for a in &mut controlled {
+            let step_action = |&(_, q, _): &(usize, Qualifier, Option<DurationSrc>)| {
+                matches!(q, Qualifier::Active | Qualifier::Entry | Qualifier::Exit)
+            };
+            a.final_run = !a.associations.iter().all(step_action);
         }
         // CODESYS's SFC flags, where the POU declares them as BOOLs and the chart uses them.
         let flags = sfc

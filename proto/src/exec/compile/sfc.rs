@@ -65,6 +65,7 @@ impl<'a> Compiler<'a> {
             let kind = match assoc.qualifier {
                 Qualifier::Entry => Some(Once::Entry),
                 Qualifier::Exit => Some(Once::Exit),
+                Qualifier::Active => Some(Once::Active),
                 _ => None,
             };
             let slot = &mut kinds[assoc.action.index()];

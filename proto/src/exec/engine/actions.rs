@@ -58,7 +58,7 @@ impl Engine {
                 }
                 let d = self.demand(assoc.action);
                 match assoc.qualifier {
-                    Qualifier::N => d.direct = true,
+                    Qualifier::N | Qualifier::Active => d.direct = true,
                     Qualifier::R => d.reset = true,
                     Qualifier::S => d.set_s = true,
                     Qualifier::L => d.direct |= elapsed < dur,
@@ -97,6 +97,8 @@ impl Engine {
         let now = if partial { self.grid_floor(self.now_ms) } else { self.now_ms };
         // (action, Q before, Q now), in action order.
         let mut changes: Vec<(ActionId, bool, bool)> = Vec::with_capacity(judged.len());
+        // Boolean actions an active R association resets this cycle: their variable reads FALSE, on or not before.
+        let mut reset_vars = Vec::new();
         for &a in &judged {
             if partial && self.touched[a.index()] != stamp {
                 continue;
@@ -142,6 +144,9 @@ impl Engine {
             } else if !live {
                 self.live.retain(|&x| x != a);
             }
+            if d.reset && !q {
+                reset_vars.extend(program.actions[a.index()].bool_var);
+            }
             changes.push((a, before, q));
         }
         for &(a, before, q) in &changes {
@@ -155,17 +160,22 @@ impl Engine {
             }
         }
         // A body runs while Q is TRUE, and once more with Q = FALSE in the cycle Q falls; in a reaction only
-        // where Q changed. An entry or exit action runs once, with no final scan; exit actions run first, then
-        // entry actions, then the others (CODESYS's order).
+        // where Q changed. An entry or exit action runs once, and a main step action while its step is active, with
+        // no final scan; exit actions run first, then entry actions, then main step actions, then the others
+        // (CODESYS's order).
         let once = |a: ActionId| program.actions[a.index()].once;
         let runs = |a: ActionId, before: bool, q: bool| {
             let final_scan = before && !q;
             (if partial { q != before } else { q || before }) && !(final_scan && once(a).is_some())
         };
         if changes.iter().any(|&(a, _, _)| once(a).is_some()) {
-            changes.sort_by_key(|&(a, _, _)| (once(a).map_or(2, |o| o as u8), a));
+            changes.sort_by_key(|&(a, _, _)| (once(a).map_or(3, |o| o as u8), a));
         }
-        // Boolean actions' variables follow Q before any body runs, so that every body sees this cycle's Qs.
+        // Boolean actions' variables follow Q before any body runs, so that every body sees this cycle's Qs; an
+        // overriding reset (R) writes FALSE even to one that was off (IEC: the variable is the action's Q).
+        for var in reset_vars {
+            self.store(var, Value::Bool(false));
+        }
         for &(a, before, q) in &changes {
             if let (Some(var), true) = (program.actions[a.index()].bool_var, runs(a, before, q)) {
                 self.store(var, Value::Bool(q));

@@ -457,7 +457,7 @@ impl Parser<'_> {
                 members: members.clone(),
                 array: array.clone(),
                 pragmas: Vec::new(),
-                located: false,
+                address: None,
             });
         }
         Ok(())

@@ -70,7 +70,7 @@ const COMPUTE_BLOCKS: &str = "COMPUTE_FUNCTION_BLOCKS";
 /// CODESYS V3.5's per-element vendor data, and the attribute in it that names a step's active (N) action.
 pub(crate) const CODESYS_SFC_ELEMENT: &str = "http://www.3s-software.com/plcopenxml/sfc/element";
 
-const CODESYS_ACTIVE_ACTION: &str = "700a583f-b4d4-43e4-8c14-629c7cd3bec8";
+pub(crate) const CODESYS_ACTIVE_ACTION: &str = "700a583f-b4d4-43e4-8c14-629c7cd3bec8";
 
 /// CODESYS's per-POU (and per-action) SFC settings: which SFC flags its chart declares and uses.
 pub(crate) const CODESYS_SFC_SETTINGS: &str = "http://www.3s-software.com/plcopenxml/sfcsettings";

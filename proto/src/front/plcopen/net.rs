@@ -250,7 +250,7 @@ impl Reader<'_> {
             .flat_map(|a| children(a, "attribute"));
         for a in attributes {
             let qualifier = match a.attribute("guid") {
-                Some(CODESYS_ACTIVE_ACTION) => Qualifier::N,
+                Some(CODESYS_ACTIVE_ACTION) => Qualifier::Active,
                 Some(CODESYS_ENTRY_ACTION) => Qualifier::Entry,
                 Some(CODESYS_EXIT_ACTION) => Qualifier::Exit,
                 _ => continue,

@@ -306,7 +306,7 @@ impl Reader<'_> {
                 members,
                 array,
                 pragmas: Vec::new(),
-                located: v.attribute("address").is_some_and(|a| !a.trim().is_empty()),
+                address: v.attribute("address").map(str::trim).filter(|a| !a.is_empty()).map(str::to_string),
             });
         }
         vars

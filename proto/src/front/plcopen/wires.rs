@@ -270,7 +270,7 @@ impl Reader<'_> {
                                     members: Vec::new(),
                                     array: None,
                                     pragmas: Vec::new(),
-                                    located: false,
+                                    address: None,
                                 });
                                 let clk =
                                     Arg { name: Some(ident("CLK")), output: false, negated: false, value: var, span };
