@@ -256,9 +256,12 @@ async fn kept_out(router: Router) {
     assert_eq!((calm_status, status), (Some(0), Some(0)), "{attacked:#?}");
     assert_eq!(story(&attacked), story(&calm), "the rogue changed the run");
     assert!(attacked.iter().any(|r| r.event == TraceEvent::Activate && r.name == "Done"));
-    // Nothing the rogue sent reached the coordinator: the router dropped it all.
-    assert_eq!(summary["messages_dropped"], 0, "{summary}\n{}", rogue.log);
-    assert_eq!(calm_summary["messages_dropped"], 0, "{calm_summary}\n{}", calm_got.log);
+    // Nothing the rogue sent reached the coordinator: the router dropped it all. The coordinator says every message it
+    // drops for what it is (another's key, another run, unreadable) in a warning; the count in the summary also holds
+    // the duplicates of robot1's own reports, which robot1 resends when an acknowledgement takes over 200 ms (it
+    // did on a loaded machine: `messages_dropped` 1, no warning), and so says nothing of the rogue.
+    assert_eq!(drop_warnings(&rogue.log), Vec::<String>::new(), "{summary}\n{}", rogue.log);
+    assert_eq!(drop_warnings(&calm_got.log), Vec::<String>::new(), "{calm_summary}\n{}", calm_got.log);
     assert_eq!(rogue.commands_heard, 0, "the rogue heard robot1's commands");
     assert_eq!(rogue.answers, 0, "the rogue's set or ctl was answered");
     let alarm = |r: &&TraceRecord| r.event == TraceEvent::Alarm && !is_loss(r);
@@ -273,10 +276,17 @@ async fn kept_out(router: Router) {
 /// checks drop the forged report, update and device report (on robot1's keys, from a process that is not robot1's)
 /// and the garbage; but the rogue hears robot1's commands, and its `abort` — the coordinator cannot tell who asks —
 /// ends the run: what only the router's access control prevents.
+/// The coordinator's warnings of messages it dropped for what they were (another's key, another run, unreadable).
+fn drop_warnings(log: &str) -> Vec<String> {
+    log.lines().filter(|l| l.contains("dropped")).map(str::to_string).collect()
+}
+
 async fn without_access_control_the_rogue_hears_robot1_and_aborts_the_run() {
     let (status, trace, summary, rogue) = cell(Router::Embedded, false, true).await;
     assert_eq!(status, Some(4), "{trace:#?}");
     assert!(summary["messages_dropped"].as_u64().unwrap_or(0) >= 3, "{summary}");
+    // What `kept_out` looks for: here the rogue's misaddressed messages reach the coordinator, and each is said.
+    assert!(drop_warnings(&rogue.log).len() >= 3, "{}", rogue.log);
     assert!(rogue.commands_heard > 0, "robot1's dispatch reached the rogue too");
     assert!(rogue.answers > 0, "the rogue's set or abort was answered");
     let abort = trace.iter().find(|r| r.event == TraceEvent::Command && r.name == "abort").expect("aborted");
