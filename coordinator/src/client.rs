@@ -165,7 +165,7 @@ async fn ask_one_run<T: serde::de::DeserializeOwned>(
 ) -> anyhow::Result<Vec<T>> {
     let session = open(connect, file).await?;
     let result = async {
-        let runs: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
+        let runs = runs_answering(&session).await?;
         let target = pick_run(&runs, run, connect)?;
         ask(&session, key_of(target, &sender(file)), Some(payload)).await
     }
@@ -273,6 +273,21 @@ pub async fn wait_settled(
             Ok(())
         }
         Err(_) => bail!("the run did not finish what the command began within {} s (--wait)", limit.as_secs()),
+    }
+}
+
+/// The status of every run behind `session`'s router, asked again for up to `SILENCE_GRACE` while none answers: a
+/// run's session to its router may be dropped and made again at any moment (zenoh-link-tls drops a TLS session under
+/// load and reconnects it at once: ARCHITECTURE.md, open points), and a question asked then finds nobody. Only the
+/// question of who is there is asked again, never a command, which a run may have taken before its answer was lost.
+async fn runs_answering(session: &Session) -> anyhow::Result<Vec<StatusReport>> {
+    let since = Instant::now();
+    loop {
+        let runs: Vec<StatusReport> = ask(session, keys::status_any_run(), None).await?;
+        if !runs.is_empty() || since.elapsed() >= SILENCE_GRACE {
+            return Ok(runs);
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
     }
 }
 
