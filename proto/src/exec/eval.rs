@@ -439,8 +439,8 @@ fn scan(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Resul
         }
     }
     let flag = |env: &mut _, v: Option<VarId>| v.is_some_and(|v| Env::var(env, v).as_bool());
-    let (init, reset) = (flag(env, chart.init), flag(env, chart.reset));
-    if init || reset {
+    let (sfc_init, sfc_reset) = (flag(env, chart.init), flag(env, chart.reset));
+    if sfc_init || sfc_reset {
         reset_chart(chart, env, budget)?;
     }
     let now = env.now_ms();
@@ -490,7 +490,7 @@ fn scan(chart: &NestedChart, env: &mut impl EnvMut, budget: &mut usize) -> Resul
             }
         }
     }
-    if init {
+    if sfc_init {
         // Held at the initial steps, their actions not run, while SFCInit is TRUE.
         return Ok(());
     }

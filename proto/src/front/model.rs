@@ -321,6 +321,20 @@ pub struct Association {
     pub span: Span,
 }
 
+impl Association {
+    /// `action(S)`, written nowhere (a reader holds an action it makes so): placed at `at`, a step's span.
+    pub fn stored(action: Ident, at: Span) -> Association {
+        Association {
+            action,
+            qualifier: Qualifier::S,
+            qualifier_span: at,
+            duration: None,
+            indicators: Vec::new(),
+            span: at,
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct Transition {
     pub name: Option<Ident>,

@@ -37,12 +37,6 @@ impl<'a> Compiler<'a> {
                 return None;
             };
             let body = self.users[u].actions.get(&a.name.key()).cloned()?;
-            if args.is_empty() {
-                let eno = self.users[u].eno;
-                let call =
-                    UserCall { body, en: None, inputs: Vec::new(), inouts: Vec::new(), outputs: Vec::new(), eno };
-                return Some(CStmt::UserFb(Box::new(call)));
-            }
             return self.user_call_of(u, callee, args, vars, body);
         }
         let key = instance.to_ascii_uppercase();
@@ -100,7 +94,7 @@ impl<'a> Compiler<'a> {
         let def = self.users[u].def;
         let action = def.actions.iter().find(|a| a.name.key() == key)?;
         let body = match &action.sfc {
-            Some(sfc) => Arc::new(self.block_chart(u, &action.name, sfc, vars)?),
+            Some(sfc) => self.block_chart(u, &action.name, sfc, vars)?,
             None => self.action_body(&format!("{}#{key}", def.name.key()), name, &action.body, vars)?,
         };
         self.users[u].actions.insert(key, Arc::clone(&body));
@@ -130,6 +124,13 @@ impl<'a> Compiler<'a> {
         body: &[Stmt],
         vars: &[VarInfo],
     ) -> Option<Arc<Vec<CStmt>>> {
+        self.within_action(key, name, |c| Arc::new(c.statements(body, vars)))
+    }
+
+    /// `f` compiling the body of action `name` (`key`: unique among the POUs' actions) inside those being compiled
+    /// around it: an action that runs itself, directly or through others (a call, a chart's association), or past
+    /// `NESTING_DEPTH_MAX` of them, is an error and compiles nothing.
+    pub(super) fn within_action<R>(&mut self, key: &str, name: &Ident, f: impl FnOnce(&mut Self) -> R) -> Option<R> {
         if self.calling_actions.iter().any(|k| k == key) {
             self.error(name.span, format!("action `{}` calls itself, directly or through others", name.name));
             return None;
@@ -139,9 +140,9 @@ impl<'a> Compiler<'a> {
             return None;
         }
         self.calling_actions.push(key.to_string());
-        let compiled = self.statements(body, vars);
+        let compiled = f(self);
         self.calling_actions.pop();
-        Some(Arc::new(compiled))
+        Some(compiled)
     }
 
     /// A hidden variable for the ENO of a call of `callee` that has none of its own (an action).

@@ -222,8 +222,9 @@ impl<'a> Compiler<'a> {
                 || self.nested.step(&base.key()).is_some()
                 || self.nested.ambiguous(&base.key()).is_some()))
             || (field.key() == "OVERRUN" && self.steps.contains_key(&base.key()));
-        // A variable of an instance inside an instance, `table.motor.speed`, or a local one (CODESYS reads them).
-        if base.name.contains('.') || self.user_of.contains_key(&base.key()) {
+        // A variable of an instance inside an instance, `table.motor.speed` (an instance's own, `m.speed`, below:
+        // its locals are in `vars` beside its parameters, as CODESYS reads them).
+        if base.name.contains('.') {
             if let Some(&id) = self.vars.get(&format!("{}.{}", base.key(), field.key())).filter(|_| !step_field) {
                 if let Some(v) = vars.get(id.index()) {
                     return (CExpr::Var(id), Ty::of(&v.ty));

@@ -66,20 +66,20 @@ impl Nested {
 
 /// A nested chart's body, where its action is associated with a step: the chart's Q is that association's, so that
 /// the action's final run resets it. A body that is a call of an instance's action written in SFC (`inst.A`) gets it
-/// too; any other is as it was.
-pub(super) fn with_q(body: &[CStmt], q: CExpr) -> Vec<CStmt> {
+/// too; any other is the body itself (`None`), shared where it was.
+pub(super) fn with_q(body: &[CStmt], q: CExpr) -> Option<Vec<CStmt>> {
     match body {
         [CStmt::Chart(chart)] => {
             let mut chart = chart.clone();
             chart.q = Some(q);
-            vec![CStmt::Chart(chart)]
+            Some(vec![CStmt::Chart(chart)])
         }
-        [CStmt::UserFb(call)] if matches!(call.body.as_slice(), [CStmt::Chart(_)]) => {
+        [CStmt::UserFb(call)] => {
             let mut call = call.clone();
-            call.body = Arc::new(with_q(&call.body, q));
-            vec![CStmt::UserFb(call)]
+            call.body = Arc::new(with_q(&call.body, q)?);
+            Some(vec![CStmt::UserFb(call)])
         }
-        other => other.to_vec(),
+        _ => None,
     }
 }
 
@@ -216,10 +216,10 @@ impl<'a> Compiler<'a> {
                 );
                 self.error(action.name.span, message);
             } else if let Some(sfc) = &action.sfc {
-                if let Some(chart) = self.nested_chart(&action.name, sfc, vars, &mut Targets::Chart(actions)) {
+                if let Some(mut chart) = self.nested_chart(&action.name, sfc, vars, &mut Targets::Chart(actions)) {
                     // Where a step of the chart runs it, its final run resets it.
-                    let q = CExpr::ActionQ(ActionId(id as u32));
-                    actions[id].body = with_q(&[CStmt::Chart(Box::new(chart))], q);
+                    chart.q = Some(CExpr::ActionQ(ActionId(id as u32)));
+                    actions[id].body = vec![CStmt::Chart(Box::new(chart))];
                 }
             }
             continue_parents(&parents[k], &mut waiting, &mut ready);
@@ -249,21 +249,17 @@ impl<'a> Compiler<'a> {
 
     /// The chart of action `name` of user instance `u` (the current scope), compiled the first time it is needed:
     /// a call scans it, a step's association gives it its Q. A chart that runs itself, directly or through
-    /// others, is an action calling itself.
-    pub(super) fn block_chart(&mut self, u: usize, name: &Ident, sfc: &Sfc, vars: &[VarInfo]) -> Option<Vec<CStmt>> {
+    /// others, is an action calling itself (`within_action`, as for an action in ST).
+    pub(super) fn block_chart(
+        &mut self,
+        u: usize,
+        name: &Ident,
+        sfc: &Sfc,
+        vars: &[VarInfo],
+    ) -> Option<Arc<Vec<CStmt>>> {
         let key = format!("{}#{}", self.users[u].def.name.key(), name.key());
-        if self.calling_actions.contains(&key) {
-            self.error(name.span, format!("action `{}` runs itself, directly or through others", name.name));
-            return None;
-        }
-        if self.calling_actions.len() >= NESTING_DEPTH_MAX {
-            self.error(name.span, format!("charts of actions nested more than {NESTING_DEPTH_MAX} levels deep"));
-            return None;
-        }
-        self.calling_actions.push(key);
-        let chart = self.nested_chart(name, sfc, vars, &mut Targets::Block(u));
-        self.calling_actions.pop();
-        Some(vec![CStmt::Chart(Box::new(chart?))])
+        let chart = self.within_action(&key, name, |c| c.nested_chart(name, sfc, vars, &mut Targets::Block(u)))??;
+        Some(Arc::new(vec![CStmt::Chart(Box::new(chart))]))
     }
 
     /// What an association in a nested chart runs: (the boolean action's variable, the body).
@@ -416,7 +412,8 @@ impl<'a> Compiler<'a> {
                             continue;
                         };
                         // A chart it holds is reset by this association's end.
-                        let body = Arc::new(with_q(&body, CExpr::Var(q)));
+                        let body = with_q(&body, CExpr::Var(q)).map_or(body, Arc::new);
+                        // Whether it has a final run follows from all its associations, below.
                         let final_run = true;
                         controlled.push(NestedAction {
                             q,

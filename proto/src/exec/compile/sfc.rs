@@ -98,7 +98,7 @@ impl<'a> Compiler<'a> {
             self.actions.insert(a.action.key(), id);
             actions.push(ActionInfo {
                 name: a.action.name.clone(),
-                body: with_q(&[call], CExpr::ActionQ(id)),
+                body: with_q(std::slice::from_ref(&call), CExpr::ActionQ(id)).unwrap_or_else(|| vec![call]),
                 once: None,
                 bool_var: None,
                 pragmas: Vec::new(),

@@ -202,14 +202,7 @@ impl Reader<'_> {
         }
         let Some(step) = chart.steps.iter_mut().find(|s| s.initial) else { return };
         let name = Ident { name: COMPUTE_BLOCKS.to_string(), span: step.span };
-        step.associations.push(Association {
-            action: name.clone(),
-            qualifier: Qualifier::S,
-            qualifier_span: step.span,
-            duration: None,
-            indicators: Vec::new(),
-            span: step.span,
-        });
+        step.associations.push(Association::stored(name.clone(), step.span));
         chart.actions.push(Action { name, body, sfc: None, pragmas: Vec::new(), span: step.span });
     }
 

@@ -89,14 +89,7 @@ pub(super) fn adopt_caller(
     // step left in the first cycle sets nothing: its transitions are judged before actions).
     let name = program.name.clone();
     for step in &mut chart.steps {
-        step.associations.push(Association {
-            action: name.clone(),
-            qualifier: Qualifier::S,
-            qualifier_span: step.span,
-            duration: None,
-            indicators: Vec::new(),
-            span: step.span,
-        });
+        step.associations.push(Association::stored(name.clone(), step.span));
     }
     chart.actions.push(Action { name, body, sfc: None, pragmas: Vec::new(), span: program.name.span });
 }
