@@ -23,6 +23,14 @@ pub fn missing(why: &str) -> ! {
     resume_unwind(Box::new(Skip(why.to_string())))
 }
 
+/// A test's input cannot be had on this machine, CI included: a file that `.ci/run` cannot install, because no
+/// registry CI reaches serves it (a chart from a public repository that is not in the shared corpus). The test
+/// is reported as ignored with `why`, which says how to provide it — under CI too: nothing CI does could make it
+/// run, and what it checks is covered by tests on inputs CI has.
+pub fn unavailable(why: &str) -> ! {
+    resume_unwind(Box::new(Skip(why.to_string())))
+}
+
 /// An optional part of a test cannot be checked here: under CI (`CI` set) the test fails; elsewhere it goes on
 /// without that part, and says so.
 pub fn not_checked(why: &str) {

@@ -18,7 +18,10 @@ fn corpus_files() -> Vec<PathBuf> {
             dir.display()
         ));
     };
+    // Charts beyond the shared corpus (BATON_EXTRA_CORPUS), where given, are held to their expectations too.
+    let extra = baton_tests::extra_corpus_dir().and_then(|d| std::fs::read_dir(d).ok());
     let mut files: Vec<PathBuf> = entries
+        .chain(extra.into_iter().flatten())
         .map(|e| e.expect("directory entry").path())
         .filter(|p| p.extension().is_some_and(|e| e == "st" || e == "txt" || e == "test" || e == "xml"))
         .collect();
@@ -244,7 +247,8 @@ fn xml_reader_never_panics_on_mutated_plcopen_files() {
 /// on once nothing resets (`NOT InitCompleted AND NOT GVL.IsSFCResetting`).
 fn xppu_scenario_1_starts_through_main_and_runs_its_blocks_charts() {
     use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
-    let program = program_of("VerifAPS__verifaps-lib__share__xPPU__PLCOpenXML_Scenario_1.xml");
+    let mut charts = check_source(&baton_tests::xppu_scenario_1()).charts;
+    let program = charts.remove(0).program.expect("the xPPU's scenario 1 is valid");
     let script = "{\"t_ms\": 0, \"set\": {\"Stack.Panel.DI_EmergencyStop\": true}}\n\
                   {\"t_ms\": 500, \"set\": {\"Stack.Panel.DI_StartButton\": true}}\n\
                   {\"t_ms\": 520, \"set\": {\"Stack.Panel.DI_StartButton\": false}}\n";

@@ -1,5 +1,5 @@
-//! The xPPU (TUM's extended Pick-and-Place Unit), scenario 1 as CODESYS exports it (`../shared/corpus/sfc`, see
-//! SOURCES.md), run against a model of its plant: Baton's engine scans the chart every 10 ms (the project's task
+//! The xPPU (TUM's extended Pick-and-Place Unit), scenario 1 as CODESYS exports it (not in the shared corpus:
+//! `baton_tests::xppu_scenario_1` says where to get it), run against a model of its plant: Baton's engine scans the chart every 10 ms (the project's task
 //! cycle), and between scans the model moves the cylinders, the turning table, the vacuum and the workpieces as the
 //! outputs command, and sets the sensors the inputs read. What is expected comes from the machine, not from Baton:
 //! after the start button, a workpiece in the magazine is pushed out by the separator, picked up by the crane at
@@ -12,7 +12,6 @@ use baton_proto::exec::program::{Program, VarId};
 use baton_proto::pipeline::check_source;
 use baton_proto::types::Value;
 
-const FILE: &str = "VerifAPS__verifaps-lib__share__xPPU__PLCOpenXML_Scenario_1.xml";
 /// A cylinder's stroke, the table's turn between the stack and the ramp, and the vacuum's build-up, in ms.
 const STROKE_MS: i64 = 300;
 const TURN_MS: i64 = 1500;
@@ -20,11 +19,7 @@ const VACUUM_MS: i64 = 100;
 const CYCLE_MS: u64 = 10;
 
 fn program() -> Program {
-    let path = baton_tests::shared_dir().join("corpus/sfc").join(FILE);
-    let Ok(src) = std::fs::read_to_string(&path) else {
-        baton_tests::missing(&format!("{} is absent", path.display()));
-    };
-    let mut charts = check_source(&src).charts;
+    let mut charts = check_source(&baton_tests::xppu_scenario_1()).charts;
     assert_eq!(charts.len(), 1, "the file's one chart is PPU");
     charts.remove(0).program.expect("the xPPU's scenario 1 is valid")
 }
