@@ -20,7 +20,7 @@ struct Skip(String);
 /// as ignored, with `why`. (Unwinding with `resume_unwind` does not run the panic hook: nothing is printed.)
 pub fn missing(why: &str) -> ! {
     assert!(std::env::var_os("CI").is_none(), "cannot run under CI: {why}");
-    resume_unwind(Box::new(Skip(why.to_string())))
+    unavailable(why)
 }
 
 /// A test's input cannot be had on this machine, CI included: a file that `.ci/run` cannot install, because no

@@ -48,33 +48,38 @@ pub fn missing(why: &str) -> ! {
     harness::missing(why)
 }
 
-/// The source of a corpus chart that the shared corpus may not hold: looked for in `../shared/corpus/sfc`, then in
-/// the folder `BATON_EXTRA_CORPUS` names. Such a file comes from a public repository no registry serves, so CI
-/// cannot install it; where it is absent the test is ignored (CI included) with `how`, which says where to get it.
-pub fn extra_corpus_source(name: &str, how: &str) -> String {
-    let places = std::iter::once(shared_dir().join("corpus/sfc")).chain(extra_corpus_dir());
-    for place in places {
-        if let Ok(src) = std::fs::read_to_string(place.join(name)) {
-            return src;
-        }
-    }
-    harness::unavailable(&format!("{name} is in neither ../shared/corpus/sfc nor $BATON_EXTRA_CORPUS: {how}"))
+/// The folders of corpus charts: the shared corpus (`../shared/corpus/sfc`), then the folder `BATON_EXTRA_CORPUS`
+/// names, if any, for charts the shared corpus does not hold.
+pub fn corpus_dirs() -> impl Iterator<Item = PathBuf> {
+    std::iter::once(shared_dir().join("corpus/sfc")).chain(extra_corpus_dir())
 }
 
-/// The folder of corpus charts beyond the shared corpus, where `BATON_EXTRA_CORPUS` names one: the corpus tests
-/// and the export round trip read its charts too.
+/// The folder `BATON_EXTRA_CORPUS` names, of corpus charts beyond the shared corpus: the corpus tests and the export
+/// round trip read its charts too.
 pub fn extra_corpus_dir() -> Option<PathBuf> {
     std::env::var_os("BATON_EXTRA_CORPUS").map(PathBuf::from)
 }
 
+/// The source of a corpus chart that the shared corpus may not hold, from the first of [`corpus_dirs`] that has it.
+/// Such a file comes from a public repository no registry serves, so CI cannot install it; where it is absent the
+/// test is ignored (CI included) with `how`, which says where to get it.
+pub fn extra_corpus_source(name: &str, how: &str) -> String {
+    corpus_dirs().find_map(|dir| std::fs::read_to_string(dir.join(name)).ok()).unwrap_or_else(|| {
+        harness::unavailable(&format!("{name} is in neither ../shared/corpus/sfc nor $BATON_EXTRA_CORPUS: {how}"))
+    })
+}
+
 /// The xPPU's scenario 1 as CODESYS exports it (TUM's extended Pick-and-Place Unit, GPL-3.0), which the shared
-/// corpus does not hold: [`extra_corpus_source`].
-pub fn xppu_scenario_1() -> String {
-    extra_corpus_source(
+/// corpus does not hold ([`extra_corpus_source`]): its one chart, `PPU`, checked.
+pub fn xppu_scenario_1() -> baton_proto::exec::program::Program {
+    let src = extra_corpus_source(
         "VerifAPS__verifaps-lib__share__xPPU__PLCOpenXML_Scenario_1.xml",
         "save share/xPPU/PLCOpenXML_Scenario_1.xml of github.com/VerifAPS/verifaps-lib (commit ac57fcd6, sha256 \
          c442958a…) under that name in a folder, and set BATON_EXTRA_CORPUS to it",
-    )
+    );
+    let mut charts = baton_proto::pipeline::check_source(&src).charts;
+    assert_eq!(charts.len(), 1, "the file's one chart is PPU");
+    charts.remove(0).program.expect("the xPPU's scenario 1 is valid")
 }
 
 /// The team's shared folder (`../shared` beside the checkout), where the public SFC corpus lives.

@@ -247,8 +247,7 @@ fn xml_reader_never_panics_on_mutated_plcopen_files() {
 /// on once nothing resets (`NOT InitCompleted AND NOT GVL.IsSFCResetting`).
 fn xppu_scenario_1_starts_through_main_and_runs_its_blocks_charts() {
     use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
-    let mut charts = check_source(&baton_tests::xppu_scenario_1()).charts;
-    let program = charts.remove(0).program.expect("the xPPU's scenario 1 is valid");
+    let program = baton_tests::xppu_scenario_1();
     let script = "{\"t_ms\": 0, \"set\": {\"Stack.Panel.DI_EmergencyStop\": true}}\n\
                   {\"t_ms\": 500, \"set\": {\"Stack.Panel.DI_StartButton\": true}}\n\
                   {\"t_ms\": 520, \"set\": {\"Stack.Panel.DI_StartButton\": false}}\n";

@@ -29,8 +29,7 @@ fn sources() -> Vec<(String, String)> {
     }
     let mut out: Vec<(String, String)> =
         files.into_iter().map(|f| (f.display().to_string(), std::fs::read_to_string(&f).expect("chart"))).collect();
-    let dirs = std::iter::once(baton_tests::shared_dir().join("corpus/sfc")).chain(baton_tests::extra_corpus_dir());
-    for entries in dirs.filter_map(|dir| std::fs::read_dir(dir).ok()) {
+    for entries in baton_tests::corpus_dirs().filter_map(|dir| std::fs::read_dir(dir).ok()) {
         let mut corpus: Vec<PathBuf> = entries.map(|e| e.expect("entry").path()).collect();
         corpus.sort();
         for f in corpus {

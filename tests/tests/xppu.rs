@@ -1,15 +1,15 @@
 //! The xPPU (TUM's extended Pick-and-Place Unit), scenario 1 as CODESYS exports it (not in the shared corpus:
-//! `baton_tests::xppu_scenario_1` says where to get it), run against a model of its plant: Baton's engine scans the chart every 10 ms (the project's task
-//! cycle), and between scans the model moves the cylinders, the turning table, the vacuum and the workpieces as the
-//! outputs command, and sets the sensors the inputs read. What is expected comes from the machine, not from Baton:
-//! after the start button, a workpiece in the magazine is pushed out by the separator, picked up by the crane at
-//! the stack, turned to the ramp and put down there; nothing raises the emergency path.
+//! `baton_tests::xppu_scenario_1` says where to get it), run against a model of its plant: Baton's engine scans
+//! the chart every 10 ms (the project's task cycle), and between scans the model moves the cylinders, the turning
+//! table, the vacuum and the workpieces as the outputs command, and sets the sensors the inputs read. What is
+//! expected comes from the machine, not from Baton: after the start button, a workpiece in the magazine is pushed
+//! out by the separator, picked up by the crane at the stack, turned to the ramp and put down there; nothing raises
+//! the emergency path.
 
 use std::sync::Arc;
 
 use baton_proto::exec::engine::{Engine, EventKind, Input};
 use baton_proto::exec::program::{Program, VarId};
-use baton_proto::pipeline::check_source;
 use baton_proto::types::Value;
 
 /// A cylinder's stroke, the table's turn between the stack and the ramp, and the vacuum's build-up, in ms.
@@ -17,12 +17,6 @@ const STROKE_MS: i64 = 300;
 const TURN_MS: i64 = 1500;
 const VACUUM_MS: i64 = 100;
 const CYCLE_MS: u64 = 10;
-
-fn program() -> Program {
-    let mut charts = check_source(&baton_tests::xppu_scenario_1()).charts;
-    assert_eq!(charts.len(), 1, "the file's one chart is PPU");
-    charts.remove(0).program.expect("the xPPU's scenario 1 is valid")
-}
 
 /// A monostable cylinder: it travels while its valve says, and its end switches tell where it is.
 struct Cylinder {
@@ -151,7 +145,7 @@ const CRANE_CYCLE: [&str; 7] = [
 ];
 
 fn a_piece_goes_from_the_magazine_to_the_ramp() {
-    let program = Arc::new(program());
+    let program = Arc::new(baton_tests::xppu_scenario_1());
     let p = &program;
     let mut plant = Plant::new(p);
     let estop_closed = var(p, "Stack.Panel.DI_EmergencyStop");
