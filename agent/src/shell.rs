@@ -368,15 +368,13 @@ pub async fn run_until(
         if config.roles.is_empty() { String::new() } else { format!(" with role(s) {}", config.roles.join(", ")) };
     let skill_names = shared.lock()?.skills.names().join(", ");
     eprintln!("baton-agent `{name}`{roles} ready on {} (skills: {skill_names})", config.connect.join(", "));
+    let mut deadline = shared.lock()?.settled();
     loop {
         // Asleep until a query, a skill's event or a run's next cycle or resend is due (commands come in Zenoh's
         // callback, which wakes the loop only to move the deadline earlier or to hand it messages that queued
-        // up): an idle agent runs no cycle (only `watch_router` wakes it).
-        let deadline = {
-            let mut shell = shared.lock()?;
-            shell.armed = shell.deadline();
-            shell.armed
-        };
+        // up): an idle agent runs no cycle (only `watch_router` wakes it). The state is held once a wake-up, the
+        // next deadline taken in the same hold: a hold makes the callbacks that come meanwhile queue their
+        // messages. A query changes nothing, so the deadline stands.
         tokio::select! {
             q = info_q.recv_async() => {
                 let Ok(q) = q else { break };
@@ -395,12 +393,19 @@ pub async fn run_until(
                     }
                 }
             }
-            Some(ev) = rx.recv() => shared.lock()?.on_event(ev),
-            () = baton_shell::until(deadline) => shared.lock()?.timeout(),
-            () = shared.rearmed() => {}
+            Some(ev) = rx.recv() => {
+                let mut shell = shared.lock()?;
+                shell.on_event(ev);
+                deadline = shell.settled();
+            }
+            () = baton_shell::until(deadline) => {
+                let mut shell = shared.lock()?;
+                shell.timeout();
+                deadline = shell.settled();
+            }
+            () = shared.rearmed() => deadline = shared.lock()?.settled(),
             () = &mut stop => break,
         }
-        shared.lock()?.carry_out_all();
     }
     let dropped = shared.lock()?.dropped_total();
     eprintln!("baton-agent `{name}` stopping ({dropped} message(s) dropped)");
@@ -735,6 +740,14 @@ impl Shell {
                 r.state.handle_timeout(now);
             }
         }
+    }
+
+    /// What the main loop's wake-up led to carried out, and the deadline it sleeps until next, armed for the
+    /// callbacks to compare with.
+    fn settled(&mut self) -> Option<Instant> {
+        self.carry_out_all();
+        self.armed = self.deadline();
+        self.armed
     }
 
     /// Carries out what every run asks.

@@ -36,9 +36,10 @@ pub struct Shared<S> {
     /// `None` once the main loop took the state back (`take`): callbacks still under way then do nothing.
     state: Mutex<Option<S>>,
     /// Messages not handled yet, in the order they came. A callback queues its message and, if nobody holds the
-    /// state, takes it and handles the queue; if somebody does, it returns at once and the holder (or the main loop,
-    /// woken for it) handles it: a callback never sleeps on the lock while its link has more to read (a sleep and a
-    /// wake-up on every contended message cost the coordinator a fifth of its throughput). At most
+    /// state, takes it and handles the queue; if somebody does, it returns at once and the holder handles it when it
+    /// lets go (the main loop, woken for it, only if the holder spent its budget): a callback never sleeps on the
+    /// lock while its link has more to read (a sleep and a wake-up on every contended message cost the coordinator a
+    /// fifth of its throughput), and the main loop is not woken for messages a callback can handle (issue 36). At most
     /// `RECEIVE_QUEUE_MAX`; a callback that finds it full waits for the state.
     queued: Mutex<VecDeque<Job<S>>>,
     /// The main loop waits for the state: callbacks leave their messages queued for it, and a callback handling the
@@ -73,7 +74,7 @@ impl<S: Send + 'static> Shared<S> {
             anyhow::bail!("the shell's state was taken back");
         }
         let waiting = self.queued_len();
-        if self.run_queued(&mut guard, waiting, false) {
+        if self.run_queued(&mut guard, waiting, false).1 {
             self.rearm.notify_one();
         }
         Ok(Held { shared: self, guard: Some(guard) })
@@ -136,21 +137,38 @@ impl<S: Send + 'static> Shared<S> {
             // thread's earlier ones among them), then its own.
             if let Ok(mut guard) = self.state.lock() {
                 let waiting = self.queued_len();
-                let mut earlier = self.run_queued(&mut guard, waiting, false);
+                let mut earlier = self.run_queued(&mut guard, waiting, false).1;
                 if let Some(state) = guard.as_mut() {
                     earlier |= job(state);
                 }
-                self.let_go(guard, earlier);
+                self.hand_on(guard, earlier);
             }
             return;
         }
-        // The main loop about to take the state handles the queue first.
-        if self.main_waits.load(Ordering::SeqCst) {
-            return;
+        self.combine(COMBINE_MAX);
+    }
+
+    /// Takes the state while it is free and messages wait, and handles them, `budget` at most in all. Whoever
+    /// lets go of the state looks at the queue after, so a message queued while the state was held is handled by
+    /// the holder, or by the next callback to come; the main loop is woken for it only once the budget is spent
+    /// (a callback busy with other links' messages is not reading its own). None is handled once the main loop
+    /// waits for the state: it handles the queue first.
+    fn combine(&self, mut budget: usize) {
+        while budget > 0 && !self.main_waits.load(Ordering::SeqCst) {
+            // Held: its holder looks at the queue when it lets go.
+            let Ok(mut guard) = self.state.try_lock() else { return };
+            let (handled, earlier) = self.run_queued(&mut guard, budget, true);
+            budget -= handled;
+            drop(guard);
+            if earlier {
+                self.rearm.notify_one();
+            }
+            if self.queued_len() == 0 {
+                return;
+            }
         }
-        if let Ok(mut guard) = self.state.try_lock() {
-            let earlier = self.run_queued(&mut guard, COMBINE_MAX, true);
-            self.let_go(guard, earlier);
+        if self.queued_len() > 0 && !self.main_waits.load(Ordering::SeqCst) {
+            self.rearm.notify_one();
         }
     }
 
@@ -159,26 +177,36 @@ impl<S: Send + 'static> Shared<S> {
     }
 
     /// Handles at most `max` queued messages, in order — none more once the main loop waits, if `yielding`;
-    /// whether one made the deadline earlier.
-    fn run_queued(&self, state: &mut Option<S>, max: usize, yielding: bool) -> bool {
+    /// how many it handled, and whether one made the deadline earlier.
+    fn run_queued(&self, state: &mut Option<S>, max: usize, yielding: bool) -> (usize, bool) {
         let mut earlier = false;
-        for _ in 0..max {
+        for handled in 0..max {
             if yielding && self.main_waits.load(Ordering::SeqCst) {
-                break;
+                return (handled, earlier);
             }
             let next = self.queued.lock().ok().and_then(|mut q| q.pop_front());
-            let Some(job) = next else { break };
+            let Some(job) = next else { return (handled, earlier) };
             if let Some(state) = state.as_mut() {
                 earlier |= job(state);
             }
         }
-        earlier
+        (max, earlier)
     }
 
-    /// Lets go of the state. A message still queued (it came while the state was held, or the holder stopped
-    /// short) is the main loop's to handle, woken for it, unless it waits for the state already — or a callback
-    /// that comes meanwhile finds the state free and handles the queue first. Looked at after letting go, so that
-    /// a callback that found the state held has queued its message by then.
+    /// Lets go of the state and handles what came meanwhile (`combine`): a callback that found the state held
+    /// has queued its message by the time the holder looks.
+    fn hand_on(&self, guard: MutexGuard<'_, Option<S>>, earlier: bool) {
+        drop(guard);
+        if earlier {
+            self.rearm.notify_one();
+        }
+        self.combine(COMBINE_MAX);
+    }
+
+    /// Lets go of the state, for a thread that does not handle others' messages (the journal's writer). A message
+    /// still queued (it came while the state was held) is the main loop's to handle, woken for it, unless it waits
+    /// for the state already — or a callback that comes meanwhile finds the state free and handles the queue first.
+    /// Looked at after letting go, so that a callback that found the state held has queued its message by then.
     fn let_go(&self, guard: MutexGuard<'_, Option<S>>, earlier: bool) {
         drop(guard);
         let left = self.queued_len() > 0 && !self.main_waits.load(Ordering::SeqCst);
@@ -194,8 +222,9 @@ impl<S: Send + 'static> Shared<S> {
     }
 }
 
-/// The most queued messages a callback handles before it lets go (then the main loop, or the next callback, goes
-/// on): a callback busy with other links' messages is not reading its own.
+/// The most queued messages a callback handles in all, taking the state again while more came, before it leaves
+/// the rest to the main loop (or the next callback): a callback busy with other links' messages is not reading its
+/// own.
 const COMBINE_MAX: usize = 64;
 
 fn broken() -> anyhow::Error {
@@ -225,8 +254,8 @@ impl<S: Send + 'static> Drop for Held<'_, S> {
     fn drop(&mut self) {
         if let Some(mut guard) = self.guard.take() {
             let waiting = self.shared.queued_len();
-            let earlier = self.shared.run_queued(&mut guard, waiting, false);
-            self.shared.let_go(guard, earlier);
+            let earlier = self.shared.run_queued(&mut guard, waiting, false).1;
+            self.shared.hand_on(guard, earlier);
         }
     }
 }
@@ -311,6 +340,40 @@ mod tests {
         assert!(held.is_empty(), "a message was handled while the main loop held the state");
         drop(held);
         assert_eq!(shared.take().expect("taken"), vec![0, 1, 2]);
+    }
+
+    /// A message that comes while another callback holds the state is handled by that callback when it lets go,
+    /// not left for the main loop: the main loop is not woken for it.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
+    async fn a_message_queued_behind_a_callback_is_handled_by_it_without_waking_the_main_loop() {
+        let shared = Shared::new(Vec::<u32>::new());
+        let (queued_tx, queued_rx) = std::sync::mpsc::channel::<()>();
+        let (holding_tx, holding_rx) = std::sync::mpsc::channel::<()>();
+        let s = Arc::clone(&shared);
+        let holder = std::thread::spawn(move || {
+            s.handle(1, move |v, x| {
+                holding_tx.send(()).expect("the test waits");
+                // Held until the other callback has queued its message.
+                queued_rx.recv().expect("the other callback returned");
+                v.push(x);
+                false
+            })
+        });
+        holding_rx.recv().expect("the first callback holds the state");
+        let s = Arc::clone(&shared);
+        std::thread::spawn(move || {
+            s.handle(2, |v, x| {
+                v.push(x);
+                false
+            })
+        })
+        .join()
+        .expect("the second callback returned while the state was held");
+        queued_tx.send(()).expect("the holder waits");
+        holder.join().expect("the holder's thread");
+        assert_eq!(shared.queued_len(), 0, "the holder left a message queued");
+        assert!(!woken(&shared).await, "the main loop was woken for a message the holder could handle");
+        assert_eq!(shared.take().expect("taken"), vec![1, 2]);
     }
 
     /// The journal writer's "more is durable" (`handle_alone`): with the state free it is handled at once and alone

@@ -448,20 +448,11 @@ async fn serve(
     let mut stop = baton_shell::Stop::new()?;
     let mut interrupts = 0;
     let mut tell_until = None;
+    let mut deadline = match next_wake(&mut *shared.lock()?, &mut tell_until, abort_wait_ms)? {
+        Some(deadline) => deadline,
+        None => return Ok(Ended::Ran),
+    };
     loop {
-        let deadline = {
-            let mut shell = shared.lock()?;
-            if let Some(e) = shell.failed.take() {
-                return Err(e);
-            }
-            if !keeps_serving(&shell, &mut tell_until, abort_wait_ms) {
-                break;
-            }
-            // An idle run does not wake.
-            let deadline = shell.next_cycle().map(|t| shell.instant_of(t)).into_iter().chain(tell_until).min();
-            shell.armed = deadline;
-            deadline
-        };
         let wake = tokio::select! {
             s = inboxes.alive.recv_async() => s.map_or(Wake::Closed, Wake::Alive),
             Some(ev) = rx.recv() => Wake::Identity(ev),
@@ -473,8 +464,9 @@ async fn serve(
             () = shared.rearmed() => Wake::Look,
             signal = stop.recv() => Wake::Stop(signal),
         };
-        // Taken under the lock, with no wait in it; a reset's new inboxes are declared after.
-        let reset = {
+        // Taken under the lock, with no wait in it, and the next deadline with it (one hold a wake-up: a hold
+        // makes the callbacks that come meanwhile queue their messages); a reset's new inboxes are declared after.
+        let (reset, wake_at) = {
             let mut shell = shared.lock()?;
             // Cycles due run first, at their grid times, so that what arrived now comes after them.
             shell.due_cycles()?;
@@ -531,7 +523,7 @@ async fn serve(
                 Wake::Closed => return Ok(Ended::Closed),
             }
             shell.commit(Vec::new())?;
-            if shell.core.core().wants_new_run() {
+            let reset = if shell.core.core().wants_new_run() {
                 // `reset`: the chart starts again as a new run, journaled, with inboxes of its own.
                 let next = RunId(uuid::Uuid::new_v4());
                 let now = shell.now_ms();
@@ -548,7 +540,8 @@ async fn serve(
                 Some(next)
             } else {
                 None
-            }
+            };
+            (reset, next_wake(&mut shell, &mut tell_until, abort_wait_ms)?)
         };
         if let Some(next) = reset {
             inboxes = Inboxes::declare(session, next).await?;
@@ -556,9 +549,31 @@ async fn serve(
             run = next;
             interrupts = 0;
         }
+        match wake_at {
+            Some(at) => deadline = at,
+            None => break,
+        }
     }
     drop(callbacks);
     Ok(Ended::Ran)
+}
+
+/// When the main loop must wake next if nothing comes (`None` inside: never, an idle run), armed for the
+/// callbacks to compare with; `None` once the run is no longer served. A callback's failure ends the loop with it.
+fn next_wake(
+    shell: &mut Shell,
+    tell_until: &mut Option<Instant>,
+    abort_wait_ms: u64,
+) -> anyhow::Result<Option<Option<Instant>>> {
+    if let Some(e) = shell.failed.take() {
+        return Err(e);
+    }
+    if !keeps_serving(shell, tell_until, abort_wait_ms) {
+        return Ok(None);
+    }
+    let deadline = shell.next_cycle().map(|t| shell.instant_of(t)).into_iter().chain(*tell_until).min();
+    shell.armed = deadline;
+    Ok(Some(deadline))
 }
 
 /// An interrupt: the first stops the run (what runs finishes, nothing new starts), the next aborts it. So does
