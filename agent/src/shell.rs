@@ -374,7 +374,7 @@ pub async fn run_until(
         // callback, which wakes the loop only to move the deadline earlier or to hand it messages that queued
         // up): an idle agent runs no cycle (only `watch_router` wakes it). The state is held once a wake-up, the
         // next deadline taken in the same hold: a hold makes the callbacks that come meanwhile queue their
-        // messages. A query changes nothing, so the deadline stands.
+        // messages. An info query changes nothing, so the deadline stands.
         tokio::select! {
             q = info_q.recv_async() => {
                 let Ok(q) = q else { break };
@@ -386,7 +386,13 @@ pub async fn run_until(
             q = why_q.recv_async() => {
                 let Ok(q) = q else { break };
                 // One answer per run this agent takes part in, each its own reply.
-                let reports = shared.lock()?.why();
+                // Cycles due ran for it: what they asked for leaves now, and the deadline moved.
+                let reports = {
+                    let mut shell = shared.lock()?;
+                    let reports = shell.why();
+                    deadline = shell.settled();
+                    reports
+                };
                 for report in reports {
                     if let Err(e) = traffic::reply(&q, q.key_expr().to_string(), wire::encode(&report)) {
                         eprintln!("warning: cannot answer a why query: {e}");
