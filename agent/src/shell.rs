@@ -386,13 +386,11 @@ pub async fn run_until(
             q = why_q.recv_async() => {
                 let Ok(q) = q else { break };
                 // One answer per run this agent takes part in, each its own reply.
-                // Cycles due ran for it: what they asked for leaves now, and the deadline moved.
-                let reports = {
-                    let mut shell = shared.lock()?;
-                    let reports = shell.why();
-                    deadline = shell.settled();
-                    reports
-                };
+                // Cycles due ran for it (`why`): what they asked for leaves now, and the deadline moved.
+                let mut shell = shared.lock()?;
+                let reports = shell.why();
+                deadline = shell.settled();
+                drop(shell);
                 for report in reports {
                     if let Err(e) = traffic::reply(&q, q.key_expr().to_string(), wire::encode(&report)) {
                         eprintln!("warning: cannot answer a why query: {e}");

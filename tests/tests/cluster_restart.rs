@@ -4,6 +4,7 @@ use baton_proto::dist::keys;
 use baton_proto::dist::wire::{self, Report};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::loopback::{self, check_trace_invariants, dispatches, repo, step_id, Cluster, TIMEOUT};
+use zenoh::qos::CongestionControl;
 
 fn journal_args(cluster: &Cluster) -> Vec<String> {
     let journal = cluster.dir.path().join("journal");
@@ -230,7 +231,10 @@ async fn what_the_coordinator_refuses_never_reaches_its_journal() {
             seq,
             vars: vec![big.clone()],
         };
-        rogue.put(keys::vars(run, "ghost"), wire::encode(&update)).await.expect("put");
+        // Blocking puts: a put's default, `Drop`, lets Zenoh drop a megabyte its queue cannot take within a
+        // millisecond, which on a loaded machine it did (79 of the 80 reached the coordinator).
+        let put = |key: String, bytes: Vec<u8>| rogue.put(key, bytes).congestion_control(CongestionControl::Block);
+        put(keys::vars(run, "ghost"), wire::encode(&update)).await.expect("put");
         let report = Report {
             run,
             agent: "ghost".into(),
@@ -243,10 +247,15 @@ async fn what_the_coordinator_refuses_never_reaches_its_journal() {
             vars_seq: 0,
             done: true,
         };
-        rogue.put(keys::report(run, "ghost"), wire::encode(&report)).await.expect("put");
+        put(keys::report(run, "ghost"), wire::encode(&report)).await.expect("put");
     }
-    for _ in 0..FLOOD {
-        coordinator.wait_for_log("variable update from unknown agent `ghost` dropped").await;
+    // Every message of the flood refused before the run goes on.
+    let (mut updates, mut reports) = (0, 0);
+    while updates < FLOOD || reports < FLOOD {
+        for line in coordinator.wait_for_log("`ghost`").await {
+            updates += usize::from(line.contains("variable update from unknown agent `ghost` dropped"));
+            reports += usize::from(line.contains("report from `ghost` for unknown token"));
+        }
     }
     cluster.agent("r1", &[], &[]);
     let go = cluster.baton(&["set", "--connect", &cluster.endpoint, "go=true"]).await;
