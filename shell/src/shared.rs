@@ -360,15 +360,8 @@ mod tests {
             })
         });
         holding_rx.recv().expect("the first callback holds the state");
-        let s = Arc::clone(&shared);
-        std::thread::spawn(move || {
-            s.handle(2, |v, x| {
-                v.push(x);
-                false
-            })
-        })
-        .join()
-        .expect("the second callback returned while the state was held");
+        // It returns while the state is held.
+        callback_on_a_thread(&shared, 2, false);
         queued_tx.send(()).expect("the holder waits");
         holder.join().expect("the holder's thread");
         assert_eq!(shared.queued_len(), 0, "the holder left a message queued");
@@ -402,6 +395,20 @@ mod tests {
         assert_eq!(shared.take().expect("taken"), vec![1, 2]);
     }
 
+    /// A Zenoh callback, on a thread of its own, that pushes `x` and says whether it made the deadline `earlier`;
+    /// returns once the callback did.
+    fn callback_on_a_thread(shared: &Arc<Shared<Vec<u32>>>, x: u32, earlier: bool) {
+        let s = Arc::clone(shared);
+        std::thread::spawn(move || {
+            s.handle(x, move |v, x| {
+                v.push(x);
+                earlier
+            })
+        })
+        .join()
+        .expect("the callback's thread");
+    }
+
     /// Whether the main loop would wake now: the callbacks have all returned, so a wake-up is there already or
     /// never comes.
     async fn woken<S: Send + 'static>(shared: &Shared<S>) -> bool {
@@ -417,26 +424,10 @@ mod tests {
     #[tokio::test(flavor = "multi_thread", worker_threads = 1)]
     async fn a_callback_that_moves_the_deadline_earlier_wakes_the_main_loop() {
         let shared = Shared::new(Vec::<u32>::new());
-        let s = Arc::clone(&shared);
-        std::thread::spawn(move || {
-            s.handle(7, |v, x| {
-                v.push(x);
-                true
-            })
-        })
-        .join()
-        .expect("the callback's thread");
+        callback_on_a_thread(&shared, 7, true);
         assert!(woken(&shared).await, "a callback that moved the deadline earlier did not wake the main loop");
         assert_eq!(*shared.lock().expect("lock"), vec![7]);
-        let s = Arc::clone(&shared);
-        std::thread::spawn(move || {
-            s.handle(8, |v, x| {
-                v.push(x);
-                false
-            })
-        })
-        .join()
-        .expect("the callback's thread");
+        callback_on_a_thread(&shared, 8, false);
         assert!(!woken(&shared).await, "a callback that left the deadline as it was woke the main loop");
         assert_eq!(*shared.lock().expect("lock"), vec![7, 8]);
         // Taken back, the state is no longer the callbacks' to change.
