@@ -222,6 +222,10 @@ async fn what_the_coordinator_refuses_never_reaches_its_journal() {
     let run = RunId(uuid::Uuid::parse_str(key).expect("a run id"));
     let rogue = cluster.watch().await;
     const FLOOD: usize = 40;
+    // Blocking puts: a put's default, `Drop`, lets Zenoh give up on a message its queue cannot take in time (a
+    // fragmented one's fragments within 50 ms by zenoh 1.10.2's defaults); with it, on a loaded machine, the
+    // coordinator counted 79 of the 80 messages.
+    let put = |key: String, bytes: Vec<u8>| rogue.put(key, bytes).congestion_control(CongestionControl::Block);
     let big = VarValue { var: 0, value: wire::WireValue::Str("x".repeat(1_000_000)) };
     for seq in 0..FLOOD as u64 {
         let update = VarUpdate {
@@ -231,9 +235,6 @@ async fn what_the_coordinator_refuses_never_reaches_its_journal() {
             seq,
             vars: vec![big.clone()],
         };
-        // Blocking puts: a put's default, `Drop`, lets Zenoh drop a megabyte its queue cannot take within a
-        // millisecond, which on a loaded machine it did (79 of the 80 reached the coordinator).
-        let put = |key: String, bytes: Vec<u8>| rogue.put(key, bytes).congestion_control(CongestionControl::Block);
         put(keys::vars(run, "ghost"), wire::encode(&update)).await.expect("put");
         let report = Report {
             run,
