@@ -20,8 +20,9 @@
 //!
 //! `many.rs` (`run_many`: several agents in one process, each its own session, for benchmarks and tests — `baton-agent
 //! --instances N`); `scenario_skills.rs` (`--simulate SCENARIO`: every skill the scenario's chart binds does what the scenario says,
-//! with `testing::run::skill_model`, in real time); `shell.rs`, the agent's Zenoh shell (refusal of a taken name,
-//! liveliness token, info queryable, commands on its own process's key, chart fetch, one `AgentRun` per run, a timer at
+//! with `testing::run::skill_model`, in real time); `roles.rs` (whether the router took the role tokens the agent
+//! announces: a role its identity may not serve is refused); `shell.rs`, the agent's Zenoh shell (refusal of a taken
+//! name, liveliness token, info queryable, commands on its own process's key, chart fetch, one `AgentRun` per run, a timer at
 //! the runs' `poll_timeout`, skill tasks (`drive_skill`: a skill's writes pass on in order before its end; a skill is
 //! dropped when its action ends, or told to stop and awaited when it `stops_itself`), the watch on the router for the
 //! lease fence; `ToAgent::Join`, which makes an agent with bound variables take part in a run before any token, and
@@ -54,6 +55,7 @@ pub mod connections;
 pub mod io;
 pub mod many;
 pub mod opcua;
+mod roles;
 pub mod ros2;
 pub mod scenario_skills;
 pub mod shell;

@@ -31,6 +31,7 @@ use zenoh::Session;
 use baton_shell::traffic;
 
 use crate::connections::Connections;
+use crate::roles::{refused_role, LIVELINESS_CHECK_TIMEOUT};
 use crate::skill::{SkillCall, SkillContext, SkillFuture, Skills, STOP_WAIT_MAX};
 use baton_proto::types::Value;
 
@@ -41,14 +42,6 @@ const PENDING_DISPATCHES_MAX: usize = 1024;
 const CHART_FETCH_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long the agent waits for its router before it says that it waits.
 const ROUTER_WAIT_NOTICE: Duration = Duration::from_secs(3);
-/// How long the agent waits for the router to say whether another process holds its name. The router answers at
-/// once from its tables, ending the wait; the bound is for a router too busy to answer (a loaded machine took
-/// more than 2 s once), and a second process under the name must not slip through it.
-const LIVELINESS_CHECK_TIMEOUT: Duration = Duration::from_secs(10);
-/// How often an agent asks the router whether it took its role tokens before a role counts as refused, and the
-/// first pause between two questions (doubling): about a third of a second in all for a refusal.
-const ROLE_CHECK_ATTEMPTS: u32 = 6;
-const ROLE_CHECK_FIRST_PAUSE: Duration = Duration::from_millis(10);
 /// Held tokens listed in the info reply; a coordinator sends the dispatch of any other again, which the agent
 /// recognises as a duplicate.
 const HELD_LISTED_MAX: usize = 4096;
@@ -144,6 +137,8 @@ struct RunningSkill {
 
 struct Run {
     state: AgentRun,
+    /// Where its reports go (`keys::report`), made once: a report is sent per token.
+    report_key: String,
     last_used: Instant,
     /// The connections of its bound variables on this agent, closed when the run is forgotten.
     devices: crate::io::Devices,
@@ -635,7 +630,8 @@ impl Shell {
                 }
                 self.check_skills(&state);
                 let devices = self.start_devices(run, &state);
-                let mut r = Run { state, last_used: Instant::now(), devices };
+                let report_key = keys::report(run, &self.config.name);
+                let mut r = Run { state, report_key, last_used: Instant::now(), devices };
                 for (h, command) in queued {
                     if h != hash {
                         continue;
@@ -772,8 +768,12 @@ impl Shell {
 
     fn carry_out(&mut self, run: RunId, out: AgentOutput) {
         match out {
-            AgentOutput::Report(report) => self.put(keys::report(run, &self.config.name), wire::encode(&report)),
-            AgentOutput::Vars(update) => self.put(keys::vars(run, &self.config.name), wire::encode(&update)),
+            AgentOutput::Report(report) => {
+                let key =
+                    self.runs.get(&run).map_or_else(|| keys::report(run, &self.config.name), |r| r.report_key.clone());
+                self.put(&key, wire::encode(&report));
+            }
+            AgentOutput::Vars(update) => self.put(&keys::vars(run, &self.config.name), wire::encode(&update)),
             AgentOutput::StartSkill { action, name, binding } => {
                 let tx = self.events.clone();
                 self.skill_serial += 1;
@@ -819,7 +819,7 @@ impl Shell {
                 }
             }
             AgentOutput::Devices(report) => {
-                self.put(keys::devices(run, &self.config.name), wire::encode(&report));
+                self.put(&keys::devices(run, &self.config.name), wire::encode(&report));
             }
             AgentOutput::Log { level, message } => {
                 if level >= Level::Warn || self.config.verbose {
@@ -894,43 +894,11 @@ impl Shell {
     }
 
     /// Publishes through the outbox; a failure is logged (the state machines resend what matters).
-    fn put(&mut self, key: String, payload: Vec<u8>) {
+    fn put(&mut self, key: &str, payload: Vec<u8>) {
         if let Err(e) = self.outbox.put(key, payload) {
             eprintln!("warning: {e}");
         }
     }
-}
-
-/// The first of `roles` the router did not take the agent's token of, if any: the router's answer to a liveliness
-/// query lists the tokens it has, and this session answers with its own, so each role taken is answered twice. The
-/// question may overtake the token's declaration on the way (Zenoh sends them in queues of different priorities),
-/// so a role answered once is asked about again, `ROLE_CHECK_ATTEMPTS` times in all, before it counts as refused.
-async fn refused_role(session: &Session, name: &str, roles: &[String]) -> anyhow::Result<Option<String>> {
-    let mut pause = ROLE_CHECK_FIRST_PAUSE;
-    let mut unconfirmed: Vec<&String> = roles.iter().collect();
-    for attempt in 1..=ROLE_CHECK_ATTEMPTS {
-        if unconfirmed.is_empty() {
-            return Ok(None);
-        }
-        let replies = traffic::liveliness_get(session, keys::alive_roles(name))
-            .timeout(LIVELINESS_CHECK_TIMEOUT)
-            .await
-            .map_err(|e| anyhow!("cannot ask the router which roles it took: {e}"))?;
-        let mut answers: HashMap<String, usize> = HashMap::new();
-        while let Ok(reply) = replies.recv_async().await {
-            if let Ok(sample) = reply.result() {
-                if let Some(role) = keys::role_of_alive(sample.key_expr().as_str(), name) {
-                    *answers.entry(role.to_string()).or_default() += 1;
-                }
-            }
-        }
-        unconfirmed.retain(|r| answers.get(r.as_str()).copied().unwrap_or(0) < 2);
-        if attempt < ROLE_CHECK_ATTEMPTS && !unconfirmed.is_empty() {
-            tokio::time::sleep(pause).await;
-            pause *= 2;
-        }
-    }
-    Ok(unconfirmed.first().map(|r| r.to_string()))
 }
 
 /// Watches the link to the router for the lease fence: every `fence_check_ms` the agent asks the router for its

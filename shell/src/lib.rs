@@ -133,13 +133,13 @@ impl Outbox {
     /// the link's queue is full (Zenoh's own asynchronous put resolves at once in the same way). Which step failed is
     /// the caller's to weigh: a put that fails is worth a warning (the state machines resend what matters), a key
     /// that cannot be declared may end the process.
-    pub fn put(&mut self, key: String, payload: Vec<u8>) -> Result<(), Unsent> {
+    pub fn put(&mut self, key: &str, payload: Vec<u8>) -> Result<(), Unsent> {
         use zenoh::Wait;
-        if !self.publishers.contains_key(&key) {
-            let declared = self.declaring(&key).wait();
-            self.keep(key.clone(), declared)?;
+        if !self.publishers.contains_key(key) {
+            let declared = self.declaring(key).wait();
+            self.keep(key.to_string(), declared)?;
         }
-        match self.publishers.get(&key) {
+        match self.publishers.get(key) {
             Some(p) => p.put(payload).wait().map_err(|e| Unsent::Put(format!("cannot publish on {key}: {e}"))),
             None => Ok(()),
         }
@@ -272,10 +272,10 @@ mod tests {
         let session = lone_session().await;
         let mut outbox = Outbox::new(&session);
         for i in 0..PUBLISHERS_MAX + 10 {
-            outbox.put(format!("baton/test/{i}"), vec![1]).expect("a put on a lone session");
+            outbox.put(&format!("baton/test/{i}"), vec![1]).expect("a put on a lone session");
             assert!(outbox.len() <= PUBLISHERS_MAX, "{} publishers after {i} keys", outbox.len());
         }
-        outbox.put("baton/test/0".to_string(), vec![2]).expect("again");
+        outbox.put("baton/test/0", vec![2]).expect("again");
         assert!(outbox.len() <= PUBLISHERS_MAX);
     }
 

@@ -148,6 +148,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         quiet: opts.quiet,
         outbox: baton_shell::Outbox::new(&session),
         vars_key: keys::vars(run, baton_proto::dist::runtime::COORDINATOR),
+        cmd_keys: shell::CmdKeys::default(),
         decode_drops: 0,
         out: Records::new(trace, probe, recorder, cycle_ms),
         cycle_ms,

@@ -1,7 +1,7 @@
 //! The coordinator's Zenoh shell: samples and queries in, the pure `Coordinator`'s inputs out, its outputs held
 //! until the journal has what led to them, then published; agents that go live are asked who they are.
 
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -56,7 +56,7 @@ pub(crate) fn deliver_through(session: &Session) -> crate::journal::Deliver {
     let mut outbox = baton_shell::Outbox::new(session);
     Box::new(move |messages| {
         for Outgoing { key, payload } in messages {
-            weigh(outbox.put(key, payload))?;
+            weigh(outbox.put(&key, payload))?;
         }
         Ok(())
     })
@@ -75,12 +75,36 @@ fn weigh(sent: Result<(), baton_shell::Unsent>) -> Result<(), String> {
     }
 }
 
+/// Command keys kept (`CmdKeys`); all are forgotten when more are needed, as the outbox forgets its publishers.
+const CMD_KEYS_MAX: usize = baton_shell::PUBLISHERS_MAX;
+
+/// Each agent process's command key (`keys::agent_cmd`), made once rather than for every dispatch: by the process's
+/// incarnation, with the agent's name it was made for (a process that announces another's incarnation gets its own).
+#[derive(Default)]
+pub(crate) struct CmdKeys(HashMap<uuid::Uuid, (String, String)>);
+
+impl CmdKeys {
+    fn of(&mut self, agent: &str, incarnation: uuid::Uuid) -> String {
+        if let Some((name, key)) = self.0.get(&incarnation) {
+            if name == agent {
+                return key.clone();
+            }
+        }
+        if self.0.len() >= CMD_KEYS_MAX {
+            self.0.clear();
+        }
+        let key = keys::agent_cmd(agent, incarnation);
+        self.0.insert(incarnation, (agent.to_string(), key.clone()));
+        key
+    }
+}
+
 /// The message an output of the coordinator puts on the wire, with its key (`vars_key` for variable updates);
 /// `None` for an output that stays in this process.
-fn message(vars_key: &str, out: &CoordOutput) -> Option<Outgoing> {
+fn message(vars_key: &str, cmd_keys: &mut CmdKeys, out: &CoordOutput) -> Option<Outgoing> {
     match out {
         CoordOutput::Send { agent, incarnation, msg } => {
-            Some(Outgoing { key: keys::agent_cmd(agent, *incarnation), payload: wire::encode(msg) })
+            Some(Outgoing { key: cmd_keys.of(agent, *incarnation), payload: wire::encode(msg) })
         }
         CoordOutput::Vars(update) => Some(Outgoing { key: vars_key.to_string(), payload: wire::encode(update) }),
         _ => None,
@@ -109,6 +133,7 @@ pub(crate) struct Shell {
     /// One publisher per key, declared on first use.
     pub(crate) outbox: baton_shell::Outbox,
     pub(crate) vars_key: String,
+    pub(crate) cmd_keys: CmdKeys,
     pub(crate) decode_drops: u64,
     pub(crate) out: Records,
     /// The run's cycle period, and the grid time of the last cycle this process ran.
@@ -484,7 +509,7 @@ impl Shell {
         // Messages go with the batch: the writer sends them once it is durable. The rest waits here for it.
         let (mut messages, mut local) = (Vec::new(), Vec::new());
         for out in outputs {
-            match message(&self.vars_key, &out) {
+            match message(&self.vars_key, &mut self.cmd_keys, &out) {
                 Some(m) => messages.push(m),
                 None => local.push(out),
             }
@@ -548,7 +573,7 @@ impl Shell {
         // Messages leave before the trace is written: a token's round trip does not wait for the disk.
         let mut local = Vec::new();
         for out in outputs {
-            match (message(&self.vars_key, &out), out) {
+            match (message(&self.vars_key, &mut self.cmd_keys, &out), out) {
                 (Some(Outgoing { key, payload }), _) => self.send(key, payload)?,
                 (None, CoordOutput::Ask { agent, incarnation }) => self.ask(agent, incarnation),
                 (None, other) => local.push(other),
@@ -576,7 +601,7 @@ impl Shell {
     /// Publishes through the outbox, where the coordinator decided it (without a journal; with one, the journal's
     /// writer sends, `deliver_through`), the outcome weighed by `weigh`.
     pub(crate) fn send(&mut self, key: String, payload: Vec<u8>) -> anyhow::Result<()> {
-        weigh(self.outbox.put(key, payload)).map_err(|why| anyhow!(why))
+        weigh(self.outbox.put(&key, payload)).map_err(|why| anyhow!(why))
     }
 
     /// Whether the main loop must look again after a callback: it failed, the run ended or asks to start again,
