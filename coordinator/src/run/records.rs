@@ -46,14 +46,9 @@ impl Records {
         }
         match rec.event {
             TraceEvent::Activate => {
-                // The step's name is copied only the first time it is active.
-                if !self.steps.contains_key(&rec.name) {
-                    self.steps.insert(rec.name.clone(), Default::default());
-                }
-                if let Some(e) = self.steps.get_mut(&rec.name) {
-                    e.0.activations += 1;
-                    e.1 = Some(rec.t_ms);
-                }
+                let e = self.steps.entry(rec.name.clone()).or_default();
+                e.0.activations += 1;
+                e.1 = Some(rec.t_ms);
             }
             TraceEvent::Deactivate => {
                 if let Some((time, since)) = self.steps.get_mut(&rec.name) {
