@@ -1,5 +1,6 @@
-//! Whether the router took the roles an agent announces: a role another process's identity may not announce is
-//! refused by the router's rules, and the agent says which before it serves anything.
+//! Whether the router took the roles an agent announces: a role the agent's identity may not serve is refused by
+//! the router's rules, and the agent says which before it serves anything. `LIVELINESS_CHECK_TIMEOUT` bounds the
+//! shell's check of the agent's name as well.
 
 use std::collections::HashMap;
 use std::time::Duration;
