@@ -3,7 +3,9 @@
 //! two sizes four times apart (linear work takes four times as long; the quadratic reader took 19 s and 21 s at
 //! the larger); and the cost of one engine cycle on a 1,000-step and a 100,000-step chart with the same 100
 //! active steps, without and with 1,000 TON instances; and a journal's snapshot of a coordinator with 1,024 tokens
-//! out on 256 agents, taken and restored. Run with `cargo bench -p baton-tests --bench core`.
+//! out on 256 agents, taken and restored; and Baton's own work in a token's round trip — the coordinator's and the
+//! agent's state machines and the wire's encoding, with no network between them. Run with
+//! `cargo bench -p baton-tests --bench core`.
 
 use std::hint::black_box;
 use std::sync::Arc;
@@ -111,5 +113,37 @@ fn snapshot(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, parse_and_check, engine_cycle, snapshot);
+/// What a token's round trip costs Baton itself, the network left out: `baton bench`'s phase (2) chart in the
+/// simulated cell (one agent, no faults), where each dispatch and report is encoded, decoded and handled by the same
+/// state machines as in `baton run` and `baton-agent`, and the coordinator's inputs are framed as journal records.
+/// Per round trip: the dispatch's encoding, the agent's decoding and handling of it and encoding of its report, the
+/// coordinator's decoding and handling of the report, its engine's reaction and the next dispatch's encoding.
+fn round_trip(c: &mut Criterion) {
+    use baton_proto::testing::simulated_cluster::{Faults, SimCluster};
+    let chart = |n: u64| {
+        format!(
+            "PROGRAM token_rtt\nVAR\n  n : DINT := {n};\n  i : DINT := 0;\nEND_VAR\nINITIAL_STEP Home: END_STEP\n\
+             TRANSITION Stop FROM Home TO Finished := i >= n; END_TRANSITION\nSTEP Finished: END_STEP\n\
+             ACTION Count: IF Count.Q THEN i := i + 1; END_IF; END_ACTION\n\
+             TRANSITION Go FROM Home TO Remote := i < n; END_TRANSITION\nSTEP Remote: {{agent := 'bench1'}} END_STEP\n\
+             TRANSITION FROM Remote TO Back := TRUE; END_TRANSITION\nSTEP Back: Count(P); END_STEP\n\
+             TRANSITION FROM Back TO Home := TRUE; END_TRANSITION\nEND_PROGRAM\n"
+        )
+    };
+    let mut group = c.benchmark_group("round_trip");
+    group.bench_function("token_in_process", |b| {
+        b.iter_custom(|iters| {
+            let mut sim = SimCluster::new(&chart(iters), &[("bench1", &[])], Faults::default(), 1);
+            sim.snapshot_every = usize::MAX;
+            let t0 = std::time::Instant::now();
+            assert!(sim.run(u64::MAX / 2), "the chart finishes");
+            let took = t0.elapsed();
+            assert_eq!(sim.value("i").map(|v| v.to_string()), Some(iters.to_string()), "every round trip made");
+            took
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, parse_and_check, engine_cycle, snapshot, round_trip);
 criterion_main!(benches);

@@ -596,9 +596,15 @@ pub enum WireError {
     Version(u32),
 }
 
+/// Room a message is encoded into at first: a dispatch or a report of one token takes 300–500 bytes, which
+/// `serde_json::to_vec`'s 128 reached by growing twice, a copy each time.
+const ENCODE_CAPACITY: usize = 512;
+
 pub fn encode<T: Serialize>(msg: &T) -> Vec<u8> {
+    let mut out = Vec::with_capacity(ENCODE_CAPACITY);
     // Serializing these plain structs cannot fail: no maps with non-string keys, no foreign Serialize impls.
-    serde_json::to_vec(&EnvelopeOut { v: PROTOCOL_VERSION, m: msg }).expect("wire types serialize")
+    serde_json::to_writer(&mut out, &EnvelopeOut { v: PROTOCOL_VERSION, m: msg }).expect("wire types serialize");
+    out
 }
 
 pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, WireError> {

@@ -26,7 +26,7 @@ mod timers;
 mod tokens;
 mod variables;
 
-use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
 use std::sync::Arc;
 
 use crate::dist::layout::{Layout, Placement, SegmentId};
@@ -132,8 +132,11 @@ pub struct Coordinator {
     by_segment: Vec<Option<TokenId>>,
     /// Tokens no live agent can take yet, oldest first.
     waiting: Vec<TokenId>,
-    /// Finished tokens and their last report, to answer a late duplicate with the same acknowledgement.
-    finished: BTreeMap<TokenId, (u32, u32, String)>,
+    /// Finished tokens and their last report, to answer a late duplicate with the same acknowledgement. Hashed: up
+    /// to `FINISHED_TOKENS_REMEMBERED` random ids, one in and one out per token, where an ordered map's walk through
+    /// cold nodes was a tenth of a round trip's own work (issue 36); a snapshot lists them in id order all the same.
+    #[serde(serialize_with = "in_id_order")]
+    finished: HashMap<TokenId, (u32, u32, String)>,
     finished_order: VecDeque<TokenId>,
     owned: Vec<VarId>,
     published: Vec<Option<Value>>,
@@ -189,6 +192,17 @@ pub struct Coordinator {
     untold: BTreeMap<String, (RunId, Vec<super::alarms::AlarmId>)>,
 }
 
+/// A map serialized with its entries in key order, as a `BTreeMap` of the same entries is: a snapshot's bytes do not
+/// depend on the hasher's seed.
+fn in_id_order<S: serde::Serializer, V: serde::Serialize>(
+    map: &HashMap<TokenId, V>,
+    serializer: S,
+) -> Result<S::Ok, S::Error> {
+    let mut entries: Vec<(&TokenId, &V)> = map.iter().collect();
+    entries.sort_unstable_by_key(|(id, _)| **id);
+    serializer.collect_map(entries)
+}
+
 impl Coordinator {
     /// `new_token` gives each token its id (`token_ids`: the run id and a counter, so a replay makes the same).
     pub fn new(
@@ -224,7 +238,7 @@ impl Coordinator {
             agents: BTreeMap::new(),
             tokens: BTreeMap::new(),
             waiting: Vec::new(),
-            finished: BTreeMap::new(),
+            finished: HashMap::new(),
             finished_order: VecDeque::new(),
             vars_seq: 0,
             vars_resend: VarsResend::default(),
