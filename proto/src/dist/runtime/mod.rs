@@ -60,6 +60,12 @@ use uuid::Uuid;
 
 use crate::limits::RETIRED_INCARNATIONS_MAX;
 
+/// Finished tokens, by id: up to `FINISHED_TOKENS_REMEMBERED` random ids, one in and one out per token, where an
+/// ordered map's walk down cold nodes was a tenth of a round trip's own work (issue 36). Hashed, so looked up only;
+/// whatever lists them (a snapshot) sorts them first.
+#[allow(clippy::disallowed_types, reason = "looked up only: a snapshot lists the tokens in id order")]
+pub(crate) type FinishedTokens<V> = std::collections::HashMap<crate::dist::wire::TokenId, V>;
+
 /// After its variables changed, a writer (the coordinator, an agent) publishes them again, as of the same update,
 /// after these doubling delays: an update lost on the way (a link that broke and came back within a lease) would
 /// leave a reader waiting for ever for a value. Readers take a value they have already as a duplicate.

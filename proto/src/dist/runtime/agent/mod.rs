@@ -19,7 +19,7 @@ mod timers;
 mod tokens;
 mod variables;
 
-use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 
 use crate::dist::io::{IoBinding, IoDir};
@@ -36,7 +36,7 @@ use crate::limits::{
 };
 use crate::types::Value;
 
-use super::{Level, VarWrites, VarsResend, COORDINATOR};
+use super::{FinishedTokens, Level, VarWrites, VarsResend, COORDINATOR};
 use tokens::*;
 use uuid::Uuid;
 
@@ -143,8 +143,7 @@ pub struct AgentRun {
     tokens: BTreeMap<TokenId, Holding>,
     by_segment: BTreeMap<SegmentId, TokenId>,
     /// Finished or dropped tokens and their last epoch here: a dispatch of that epoch or older is a duplicate.
-    /// Hashed, as the coordinator's are: one in and one out per token, among up to `FINISHED_TOKENS_REMEMBERED`.
-    finished: HashMap<TokenId, u32>,
+    finished: FinishedTokens<u32>,
     finished_order: VecDeque<TokenId>,
     /// Variables this agent may write; `pinned` marks those only it writes (placed on it by name), the others
     /// belong to a role it shares with other agents and follow whichever of them wrote last.
@@ -243,7 +242,7 @@ impl AgentRun {
             grid_set: false,
             tokens: BTreeMap::new(),
             by_segment: BTreeMap::new(),
-            finished: HashMap::new(),
+            finished: FinishedTokens::default(),
             finished_order: VecDeque::new(),
             owned,
             pinned,

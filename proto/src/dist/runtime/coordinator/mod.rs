@@ -26,7 +26,7 @@ mod timers;
 mod tokens;
 mod variables;
 
-use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 
 use crate::dist::layout::{Layout, Placement, SegmentId};
@@ -46,7 +46,7 @@ use crate::types::Value;
 
 use super::alarms::{AlarmChange, Alarms};
 use super::packml::State;
-use super::{Level, VarWrites, VarsResend, COORDINATOR};
+use super::{FinishedTokens, Level, VarWrites, VarsResend, COORDINATOR};
 use membership::*;
 use operate::PartialHolds;
 use supervision::Supervised;
@@ -132,11 +132,10 @@ pub struct Coordinator {
     by_segment: Vec<Option<TokenId>>,
     /// Tokens no live agent can take yet, oldest first.
     waiting: Vec<TokenId>,
-    /// Finished tokens and their last report, to answer a late duplicate with the same acknowledgement. Hashed: up
-    /// to `FINISHED_TOKENS_REMEMBERED` random ids, one in and one out per token, where an ordered map's walk through
-    /// cold nodes was a tenth of a round trip's own work (issue 36); a snapshot lists them in id order all the same.
+    /// Finished tokens and their last report, to answer a late duplicate with the same acknowledgement; a snapshot
+    /// lists them in id order, as it did when they were in an ordered map.
     #[serde(serialize_with = "in_id_order")]
-    finished: HashMap<TokenId, (u32, u32, String)>,
+    finished: FinishedTokens<(u32, u32, String)>,
     finished_order: VecDeque<TokenId>,
     owned: Vec<VarId>,
     published: Vec<Option<Value>>,
@@ -195,7 +194,7 @@ pub struct Coordinator {
 /// A map serialized with its entries in key order, as a `BTreeMap` of the same entries is: a snapshot's bytes do not
 /// depend on the hasher's seed.
 fn in_id_order<S: serde::Serializer, V: serde::Serialize>(
-    map: &HashMap<TokenId, V>,
+    map: &FinishedTokens<V>,
     serializer: S,
 ) -> Result<S::Ok, S::Error> {
     let mut entries: Vec<(&TokenId, &V)> = map.iter().collect();
@@ -238,7 +237,7 @@ impl Coordinator {
             agents: BTreeMap::new(),
             tokens: BTreeMap::new(),
             waiting: Vec::new(),
-            finished: HashMap::new(),
+            finished: FinishedTokens::default(),
             finished_order: VecDeque::new(),
             vars_seq: 0,
             vars_resend: VarsResend::default(),
