@@ -119,21 +119,12 @@ fn snapshot(c: &mut Criterion) {
 /// Per round trip: the dispatch's encoding, the agent's decoding and handling of it and encoding of its report, the
 /// coordinator's decoding and handling of the report, its engine's reaction and the next dispatch's encoding.
 fn round_trip(c: &mut Criterion) {
+    use baton_proto::testing::bench_charts::token_round_trip;
     use baton_proto::testing::simulated_cluster::{Faults, SimCluster};
-    let chart = |n: u64| {
-        format!(
-            "PROGRAM token_rtt\nVAR\n  n : DINT := {n};\n  i : DINT := 0;\nEND_VAR\nINITIAL_STEP Home: END_STEP\n\
-             TRANSITION Stop FROM Home TO Finished := i >= n; END_TRANSITION\nSTEP Finished: END_STEP\n\
-             ACTION Count: IF Count.Q THEN i := i + 1; END_IF; END_ACTION\n\
-             TRANSITION Go FROM Home TO Remote := i < n; END_TRANSITION\nSTEP Remote: {{agent := 'bench1'}} END_STEP\n\
-             TRANSITION FROM Remote TO Back := TRUE; END_TRANSITION\nSTEP Back: Count(P); END_STEP\n\
-             TRANSITION FROM Back TO Home := TRUE; END_TRANSITION\nEND_PROGRAM\n"
-        )
-    };
     let mut group = c.benchmark_group("round_trip");
     group.bench_function("token_in_process", |b| {
         b.iter_custom(|iters| {
-            let mut sim = SimCluster::new(&chart(iters), &[("bench1", &[])], Faults::default(), 1);
+            let mut sim = SimCluster::new(&token_round_trip(iters), &[("bench1", &[])], Faults::default(), 1);
             sim.snapshot_every = usize::MAX;
             let t0 = std::time::Instant::now();
             assert!(sim.run(u64::MAX / 2), "the chart finishes");

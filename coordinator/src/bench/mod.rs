@@ -22,6 +22,7 @@ mod resume;
 mod scale;
 use crate::run::{run_with, Probe, RunOptions};
 use baton_proto::exec::trace::TraceEvent;
+use baton_proto::testing::bench_charts;
 use baton_shell::traffic;
 
 const PING_KEY: &str = "baton/bench/ping";
@@ -582,22 +583,11 @@ fn chart_options(
     Ok((opts, agents))
 }
 
-fn counted_loop_header(name: &str, n: u32) -> String {
-    format!("PROGRAM {name}\nVAR\n  n : DINT := {n};\n  i : DINT := 0;\nEND_VAR\nINITIAL_STEP Home: END_STEP\nTRANSITION Stop FROM Home TO Finished := i >= n; END_TRANSITION\nSTEP Finished: END_STEP\nACTION Count: IF Count.Q THEN i := i + 1; END_IF; END_ACTION\n")
-}
-
 /// Phase 2: a one-step segment whose exit is TRUE at once, dispatched `samples` times (plus a warm-up), from
 /// its dispatch to the activation of the next step on the coordinator.
 async fn token_round_trip(dir: &Path, samples: u32) -> anyhow::Result<Vec<Duration>> {
     let warmup = 200;
-    let mut chart = counted_loop_header("token_rtt", samples + warmup);
-    chart.push_str(concat!(
-        "TRANSITION Go FROM Home TO Remote := i < n; END_TRANSITION\n",
-        "STEP Remote: {agent := 'bench1'} END_STEP\n",
-        "TRANSITION FROM Remote TO Back := TRUE; END_TRANSITION\n",
-        "STEP Back: Count(P); END_STEP\n",
-        "TRANSITION FROM Back TO Home := TRUE; END_TRANSITION\nEND_PROGRAM\n",
-    ));
+    let chart = bench_charts::token_round_trip(u64::from(samples + warmup));
     let (marks, probe) = marks(&[TraceEvent::Dispatch, TraceEvent::Activate]);
     run_chart(dir, "token_rtt.st", chart, Agents::Processes(&["bench1".to_string()]), probe, Extras::default()).await?;
     let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
@@ -621,7 +611,7 @@ async fn token_round_trip(dir: &Path, samples: u32) -> anyhow::Result<Vec<Durati
 /// activation of the convergence's successor.
 async fn convergence(dir: &Path, samples: u32) -> anyhow::Result<Latency> {
     let warmup = 100;
-    let mut chart = counted_loop_header("convergence", samples + warmup);
+    let mut chart = bench_charts::counted_loop_header("convergence", u64::from(samples + warmup));
     chart.push_str("TRANSITION Go FROM Home TO (R1, R2, R3) := i < n; END_TRANSITION\n");
     for k in 1..=3 {
         chart.push_str(&format!(

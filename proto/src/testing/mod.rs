@@ -14,8 +14,9 @@
 //! --cluster` (which feeds it the trace of real processes) judge alike. Also `follow_steps`, where each step is active
 //! (the runner's and coverage's one tracker), `skill_model` (shared with `baton-agent --simulate`) and `runs_twice`,
 //! the once-per-epoch judge; `coverage.rs`, steps, transitions, branches and the steps each fault struck; `junit.rs`,
-//! the JUnit XML report.
+//! the JUnit XML report; `bench_charts.rs`, the charts `baton bench` and the criterion benches both run.
 
+pub mod bench_charts;
 pub mod cond;
 pub mod coverage;
 pub mod fuzz;
