@@ -26,6 +26,7 @@ use anyhow::bail;
 use baton_proto::dist::io::{IoDir, IoKind};
 use baton_proto::dist::keys::is_valid_name;
 use baton_proto::dist::layout::{Layout, Placement};
+use baton_proto::dist::netconfig::TX_QUEUE_DATA;
 use baton_proto::exec::program::Program;
 use serde_json::{json, Value};
 
@@ -275,14 +276,16 @@ pub fn router_config(acl: Value, listen: &[String], tls: Option<(String, String,
         "listen": { "endpoints": listen },
         "scouting": { "multicast": { "enabled": false } },
         "access_control": acl,
+        // The router forwards every message; its links get the batches Baton's own processes ask for.
+        "transport": { "link": { "tx": { "queue": { "size": { "data": TX_QUEUE_DATA } } } } },
     });
     if let Some((ca, cert, key)) = tls {
-        config["transport"] = json!({ "link": { "tls": {
+        config["transport"]["link"]["tls"] = json!({
             "root_ca_certificate": ca,
             "listen_certificate": cert,
             "listen_private_key": key,
             "enable_mtls": true,
-        } } });
+        });
     }
     config
 }
@@ -329,7 +332,15 @@ mod tests {
         let (program, layout) = baton_proto::testing::simulated_cluster::compile(CHART);
         let acl = access_control(&program, &layout, &ids(), By::Cert).expect("rules");
         let config = router_config(acl.clone(), &["tls/127.0.0.1:7447".into()], None);
-        zenoh::Config::from_json5(&config.to_string()).expect("zenoh reads the configuration");
+        let read = zenoh::Config::from_json5(&config.to_string()).expect("zenoh reads the configuration");
+        // The router's links get the batches Baton's processes ask for, with TLS or without.
+        let queue = "transport/link/tx/queue/size/data";
+        assert_eq!(read.get_json(queue).expect("the queue's size"), TX_QUEUE_DATA.to_string());
+        let files = ("ca.pem".to_string(), "router.pem".to_string(), "router.key".to_string());
+        let tls = router_config(acl.clone(), &["tls/127.0.0.1:7447".into()], Some(files));
+        let read = zenoh::Config::from_json5(&tls.to_string()).expect("zenoh reads the TLS configuration");
+        assert_eq!(read.get_json(queue).expect("the queue's size"), TX_QUEUE_DATA.to_string());
+        assert_eq!(read.get_json("transport/link/tls/enable_mtls").expect("mTLS"), "true");
         assert_eq!(acl["default_permission"], "deny");
         let puts = allowed(&acl, "agent-cell1", "ingress", "put");
         assert_eq!(
@@ -383,5 +394,17 @@ mod tests {
         let mut bad = ids();
         bad.viewers.push("wall screen".into());
         assert!(refused(bad).contains("is not a name Baton takes"));
+    }
+
+    /// The router configurations the repository ships, as Zenoh reads them: each gives its links the batches
+    /// Baton's own processes ask for, so that the router in the middle does not bring back the wait they remove.
+    #[test]
+    fn the_shipped_router_configurations_give_links_baton_s_queue() {
+        let deploy = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy");
+        for file in ["zenohd.json5", "acl/zenohd.json5", "tls/router.json5"] {
+            let read = zenoh::Config::from_file(deploy.join(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+            let queue = read.get_json("transport/link/tx/queue/size/data").expect("the queue's size");
+            assert_eq!(queue, TX_QUEUE_DATA.to_string(), "{file}");
+        }
     }
 }
