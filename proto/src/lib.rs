@@ -2,8 +2,10 @@
 //! engine, and the state machines of a distributed run.
 //!
 //! Nothing here does I/O or reads a clock: time comes in as milliseconds, events go out as values. The crate is
-//! grouped by layer: `front` (source text to checked chart), `exec` (compiled program and engine) and `dist`
-//! (placement, wire protocol, journal and the runtimes' state machines).
+//! grouped by layer: `types`, `front` (source text to checked chart), `exec` (compiled program and engine), `back`
+//! (a chart written out), `dist` (placement, wire protocol, journal and the runtimes' state machines) and
+//! `testing` (the simulated cluster, `baton test`'s scenarios, the fuzz targets' bodies), with `limits` under all.
+//! ARCHITECTURE.md's code map is the one map of the crate.
 
 /// Above the layers it calls: parse, compile, analyse and lay out every chart of a source text (`check_source`).
 pub mod pipeline;
@@ -48,8 +50,8 @@ pub mod exec {
 }
 
 /// The distributed part: where each part of a chart runs, the wire protocol and key space, the journal, the
-/// Zenoh settings, the coordinator's and agent's state machines, and the simulated cluster that runs them on
-/// virtual time.
+/// Zenoh settings, and the coordinator's and agent's state machines (the simulated cluster that runs them on
+/// virtual time is `testing`'s).
 pub mod dist {
     pub mod io;
     pub mod journal;

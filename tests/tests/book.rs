@@ -394,6 +394,108 @@ fn the_book_builds_with_the_pinned_mdbook() {
     assert!(dead.is_empty(), "dead links on the built site:\n{}", dead.join("\n"));
 }
 
+/// The paths a code map names, each with the folder its section is about: a `### `crate/`` heading sets the folder
+/// its names are read in, any other heading the repository's root. A name is a path when it ends in `/` or in a
+/// file's extension, or has a `/` in it; identifiers (`Coordinator`, `declarations`) are not paths.
+fn named_paths(map: &str) -> Vec<(String, String)> {
+    let mut folder = String::new();
+    let mut out = Vec::new();
+    for line in map.lines() {
+        if line.starts_with('#') {
+            folder = line.strip_prefix("### `").and_then(|rest| rest.split('`').next()).unwrap_or("").to_string();
+            folder = if folder.ends_with('/') { folder } else { String::new() };
+            continue;
+        }
+        for name in line.split('`').skip(1).step_by(2) {
+            let pathlike = name.chars().all(|c| c.is_ascii_alphanumeric() || "_-./".contains(c))
+                && name.chars().any(|c| c.is_ascii_alphabetic());
+            let has_extension = Path::new(name).extension().is_some_and(|e| {
+                ["rs", "md", "toml", "json", "json5", "st", "py", "sh", "xml", "service"]
+                    .contains(&e.to_str().unwrap_or(""))
+            });
+            if pathlike && (name.contains('/') || has_extension) {
+                out.push((folder.clone(), name.to_string()));
+            }
+        }
+    }
+    out
+}
+
+/// Every file and folder of the repository (folders with a trailing `/`), relative to it, build output left out.
+fn repository_paths(root: &Path) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("cannot list {}: {e}", dir.display())) {
+            let path = entry.expect("a directory entry").path();
+            let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+            if ["target", ".git"].contains(&name) {
+                continue;
+            }
+            let relative = path.strip_prefix(root).expect("inside").to_string_lossy().into_owned();
+            if path.is_dir() {
+                out.push(format!("{relative}/"));
+                stack.push(path);
+            } else {
+                out.push(relative);
+            }
+        }
+    }
+    out
+}
+
+/// The names of a code map that no file or folder has: a name is found at the section's folder or the root, or, in
+/// a crate's section, as the end of a path inside its folder (`source.rs` in `proto/`'s is `proto/src/front/source.rs`).
+fn missing_paths(map: &str, paths: &[String]) -> Vec<String> {
+    let found = |folder: &str, name: &str| {
+        let dir = format!("{}/", name.trim_end_matches('/'));
+        paths.iter().any(|p| {
+            let p = p.as_str();
+            [format!("{folder}{name}"), name.to_string(), format!("{folder}{dir}"), dir.clone()].iter().any(|n| n == p)
+                || (!folder.is_empty()
+                    && p.starts_with(folder)
+                    && (p.ends_with(&format!("/{name}")) || p.ends_with(&format!("/{dir}"))))
+        })
+    };
+    named_paths(map)
+        .into_iter()
+        .filter(|(folder, name)| !found(folder, name))
+        .map(|(folder, name)| format!("`{name}` (in {})", if folder.is_empty() { "the root" } else { &folder }))
+        .collect()
+}
+
+/// ARCHITECTURE.md is the one code map: every file and folder it names exists, so that a move or a rename that
+/// forgets the map fails here.
+fn every_path_the_code_map_names_exists() {
+    let root = book().join("../..");
+    let map = std::fs::read_to_string(root.join("ARCHITECTURE.md")).expect("ARCHITECTURE.md");
+    let named = named_paths(&map);
+    assert!(named.len() > 100, "the code map names {} paths: is the reader still reading it?", named.len());
+    let missing = missing_paths(&map, &repository_paths(&root));
+    assert!(missing.is_empty(), "ARCHITECTURE.md names what does not exist:\n  {}", missing.join("\n  "));
+}
+
+fn the_code_map_reader_finds_paths_and_misses_moved_ones() {
+    let paths: Vec<String> =
+        ["proto/", "proto/src/", "proto/src/front/", "proto/src/front/source.rs", "deploy/", "deploy/zenohd.json5"]
+            .map(String::from)
+            .to_vec();
+    let map = "## Code map\n### `proto/` — the core\n- `front/` — `source.rs`, `lexer.rs`, `Chart`, `scan`\n\
+               ### Elsewhere\n`deploy/zenohd.json5`, `deploy/gone.json5`, `front/`\n";
+    assert_eq!(
+        named_paths(map),
+        [("proto/", "front/"), ("proto/", "source.rs"), ("proto/", "lexer.rs"), ("", "deploy/zenohd.json5")]
+            .into_iter()
+            .chain([("", "deploy/gone.json5"), ("", "front/")])
+            .map(|(f, n)| (f.to_string(), n.to_string()))
+            .collect::<Vec<_>>()
+    );
+    assert_eq!(
+        missing_paths(map, &paths),
+        ["`lexer.rs` (in proto/)", "`deploy/gone.json5` (in the root)", "`front/` (in the root)"]
+    );
+}
+
 baton_tests::harness_main!(
     sync every_chart_in_the_book_checks_without_errors,
     sync the_table_of_contents_lists_every_chapter_and_only_chapters_that_exist,
@@ -402,4 +504,6 @@ baton_tests::harness_main!(
     sync the_commands_the_book_shows_print_what_it_shows,
     sync shown_output_is_matched_by_its_rules,
     sync the_book_builds_with_the_pinned_mdbook,
+    sync every_path_the_code_map_names_exists,
+    sync the_code_map_reader_finds_paths_and_misses_moved_ones,
 );
