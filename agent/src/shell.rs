@@ -28,7 +28,7 @@ use tokio::sync::{mpsc, watch};
 use zenoh::sample::{Locality, Sample};
 use zenoh::Session;
 
-use baton_shell::traffic;
+use baton_shell::{traffic, ZenohResult};
 
 use crate::connections::Connections;
 use crate::roles::{refused_role, LIVELINESS_CHECK_TIMEOUT};
@@ -298,7 +298,7 @@ pub async fn run_until(
         _roles.push(token);
     }
     if let Some(role) = refused_role(&session, &name, &config.roles).await? {
-        session.close().await.map_err(|e| anyhow!("{e}"))?;
+        session.close().await.zenoh()?;
         anyhow::bail!(
             "the router does not let `{name}` serve role `{role}`: its access control lets an identity announce only \
              the roles its deployment gives it (`baton deploy acl … --agent {name}={role}`); run without --role \
@@ -312,7 +312,7 @@ pub async fn run_until(
         .map_err(|e| anyhow!("cannot ask the router which agents are live: {e}"))?;
     if let Ok(reply) = holders.recv_async().await {
         if reply.result().is_ok() {
-            session.close().await.map_err(|e| anyhow!("{e}"))?;
+            session.close().await.zenoh()?;
             anyhow::bail!(
                 "an agent named `{name}` is already live on this router: stop it first, or give this one another --name"
             );
@@ -321,8 +321,8 @@ pub async fn run_until(
     let incarnation = uuid::Uuid::new_v4();
     // Everything a coordinator may use is declared before the liveliness token announces the agent: a
     // coordinator asks for the info as soon as it sees the token, and may dispatch right after.
-    let info_q = traffic::queryable(&session, keys::agent_info(&name)).await.map_err(|e| anyhow!("{e}"))?;
-    let why_q = traffic::queryable(&session, keys::agent_why(&name)).await.map_err(|e| anyhow!("{e}"))?;
+    let info_q = traffic::queryable(&session, keys::agent_info(&name)).await.zenoh()?;
+    let why_q = traffic::queryable(&session, keys::agent_why(&name)).await.zenoh()?;
     let (tx, mut rx) = mpsc::unbounded_channel();
     let shared = baton_shell::Shared::new(Shell {
         config: config.clone(),
@@ -349,12 +349,12 @@ pub async fn run_until(
         .allowed_origin(Locality::Remote)
         .callback(taking(&shared, Shell::on_cmd))
         .await
-        .map_err(|e| anyhow!("{e}"))?;
+        .zenoh()?;
     let _vars_sub = traffic::subscriber(&session, keys::vars_any_run())
         .allowed_origin(Locality::Remote)
         .callback(taking(&shared, Shell::on_vars))
         .await
-        .map_err(|e| anyhow!("{e}"))?;
+        .zenoh()?;
     let _alive = traffic::token(&session, keys::alive(&name))
         .await
         .map_err(|e| anyhow!("cannot declare the liveliness token: {e}"))?;
@@ -410,7 +410,7 @@ pub async fn run_until(
     eprintln!("baton-agent `{name}` stopping ({dropped} message(s) dropped)");
     drop((_cmd_sub, _vars_sub));
     drop(shared);
-    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    session.close().await.zenoh()?;
     Ok(())
 }
 

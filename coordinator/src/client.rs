@@ -7,6 +7,7 @@ use anyhow::{anyhow, bail};
 use baton_proto::dist::keys;
 use baton_proto::dist::netconfig::NetConfig;
 use baton_proto::dist::wire::{self, CtlReply, CtlRequest, RunId, SetReply, SetRequest, StatusReport, WhyReport};
+use baton_shell::ZenohResult;
 use zenoh::Session;
 
 const QUERY_TIMEOUT: Duration = Duration::from_secs(3);
@@ -70,7 +71,7 @@ async fn ask<T: serde::de::DeserializeOwned>(
     if let Some(p) = payload {
         get = get.payload(p);
     }
-    let replies = get.await.map_err(|e| anyhow!("{e}"))?;
+    let replies = get.await.zenoh()?;
     let mut out = Vec::new();
     while let Ok(reply) = replies.recv_async().await {
         match reply.result() {
@@ -170,7 +171,7 @@ async fn ask_one_run<T: serde::de::DeserializeOwned>(
         ask(&session, key_of(target, &sender(file)), Some(payload)).await
     }
     .await;
-    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    session.close().await.zenoh()?;
     let replies = result?;
     if replies.is_empty() {
         bail!(
@@ -266,7 +267,7 @@ pub async fn wait_settled(
         }
     })
     .await;
-    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    session.close().await.zenoh()?;
     match settled {
         Ok(state) => {
             println!("the run is {}", state?.name());
@@ -367,10 +368,8 @@ pub async fn live_skills(
 ) -> anyhow::Result<(Vec<String>, baton_proto::dist::skills::Catalogue)> {
     use baton_proto::dist::skills::Catalogue;
     let session = open(connect, file).await?;
-    let tokens = baton_shell::traffic::liveliness_get(&session, keys::alive_any())
-        .timeout(QUERY_TIMEOUT)
-        .await
-        .map_err(|e| anyhow!("{e}"))?;
+    let tokens =
+        baton_shell::traffic::liveliness_get(&session, keys::alive_any()).timeout(QUERY_TIMEOUT).await.zenoh()?;
     let mut agents = Vec::new();
     while let Ok(reply) = tokens.recv_async().await {
         if let Some(name) = reply.result().ok().and_then(|s| keys::agent_of_alive(s.key_expr().as_str())) {
@@ -385,7 +384,7 @@ pub async fn live_skills(
         names.extend(infos.into_iter().filter(|i| i.name == *agent).flat_map(|i| i.skills.unwrap_or_default()));
     }
     let known = Catalogue::of_names(names);
-    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    session.close().await.zenoh()?;
     Ok((agents, known))
 }
 
@@ -409,7 +408,7 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool, why: bo
     } else {
         reports.iter_mut().for_each(|r| r.why.clear());
     }
-    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    session.close().await.zenoh()?;
     if reports.is_empty() {
         bail!("no running chart answered behind {}", connect.join(", "));
     }

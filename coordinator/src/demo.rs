@@ -14,6 +14,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use tokio::process::{Child, Command};
 
 use crate::demo_chart::cell_chart;
+use baton_shell::ZenohResult;
 
 /// The demo gives up after this long: the default cell finishes in a few seconds.
 const DEMO_TIMEOUT: Duration = Duration::from_secs(300);
@@ -76,7 +77,7 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
 
     // The router: this process.
     let net = NetConfig::router(std::slice::from_ref(&endpoint));
-    let config = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("{e}"))?;
+    let config = zenoh::Config::from_json5(&net.json5()).zenoh()?;
     let router = zenoh::open(config).await.map_err(|e| anyhow!("cannot start the router on {endpoint}: {e}"))?;
     println!("baton demo: router on {endpoint}, {} robot(s), {} part(s)", opts.agents, opts.parts);
 
@@ -161,7 +162,7 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
     for a in &mut agents {
         let _ = a.kill().await;
     }
-    router.close().await.map_err(|e| anyhow!("{e}"))?;
+    router.close().await.zenoh()?;
     // An operator's `baton ctl stop` or `abort` ends the run as asked: its summary says how far it got.
     let by_operator = matches!(status.code(), Some(3 | 4));
     if by_operator {

@@ -28,6 +28,18 @@ pub mod traffic;
 
 pub use shared::{earlier, Shared};
 
+/// Zenoh's errors as anyhow's: Zenoh's boxed error is not a `std::error::Error` that `?` can turn into one, so
+/// every call into Zenoh ends in `.zenoh()?` rather than a `map_err` of its own.
+pub trait ZenohResult<T> {
+    fn zenoh(self) -> anyhow::Result<T>;
+}
+
+impl<T> ZenohResult<T> for zenoh::Result<T> {
+    fn zenoh(self) -> anyhow::Result<T> {
+        self.map_err(|e| anyhow!("{e}"))
+    }
+}
+
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
@@ -49,9 +61,8 @@ pub fn zenoh_config(net: &NetConfig, file: Option<&Path>) -> anyhow::Result<zeno
     let Some(file) = file else {
         return zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("zenoh configuration: {e}"));
     };
-    let mut config = zenoh::Config::from_file(file)
-        .map_err(|e| anyhow!("{e}"))
-        .with_context(|| format!("cannot load {}", file.display()))?;
+    let mut config =
+        zenoh::Config::from_file(file).zenoh().with_context(|| format!("cannot load {}", file.display()))?;
     for (key, value) in net.overrides() {
         config.insert_json5(key, &value).map_err(|e| anyhow!("zenoh configuration `{key}`: {e}"))?;
     }

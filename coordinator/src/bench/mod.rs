@@ -23,7 +23,7 @@ mod scale;
 use crate::run::{run_with, Probe, RunOptions};
 use baton_proto::exec::trace::TraceEvent;
 use baton_proto::testing::bench_charts;
-use baton_shell::traffic;
+use baton_shell::{traffic, ZenohResult};
 
 const PING_KEY: &str = "baton/bench/ping";
 const PONG_KEY: &str = "baton/bench/pong";
@@ -387,37 +387,34 @@ impl BaseReport {
 /// A router listening on `listen` and linked to the routers at `connect`.
 fn router_config(listen: &str, connect: &[String]) -> anyhow::Result<zenoh::Config> {
     let net = NetConfig { connect: connect.to_vec(), ..NetConfig::router(&[listen.to_string()]) };
-    zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("{e}"))
+    zenoh::Config::from_json5(&net.json5()).zenoh()
 }
 
 /// Phase 1: put → the echo process's subscriber → put back → our subscriber, 64-byte payloads.
 async fn raw_round_trip(samples: u32) -> anyhow::Result<Vec<Duration>> {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
-    let session = zenoh::open(router_config(&endpoint, &[])?).await.map_err(|e| anyhow!("{e}"))?;
-    let alive = traffic::liveliness_subscriber(&session, ECHO_ALIVE_KEY.into()).await.map_err(|e| anyhow!("{e}"))?;
-    let pong = traffic::subscriber(&session, PONG_KEY.into()).await.map_err(|e| anyhow!("{e}"))?;
+    let session = zenoh::open(router_config(&endpoint, &[])?).await.zenoh()?;
+    let alive = traffic::liveliness_subscriber(&session, ECHO_ALIVE_KEY.into()).await.zenoh()?;
+    let pong = traffic::subscriber(&session, PONG_KEY.into()).await.zenoh()?;
     let ping = traffic::publisher(&session, PING_KEY.into())
         .congestion_control(CongestionControl::Block)
         .express(true)
         .await
-        .map_err(|e| anyhow!("{e}"))?;
+        .zenoh()?;
     let _echo = spawn_logged(Command::new(std::env::current_exe()?).args(["bench-echo", "--connect", &endpoint]))?;
     tokio::time::timeout(PHASE_TIMEOUT, alive.recv_async())
         .await
         .context("the echo process did not come up")?
-        .map_err(|e| anyhow!("{e}"))?;
+        .zenoh()?;
     let mut rtts = Vec::with_capacity(samples as usize);
     let warmup = 200;
     for i in 0..samples + warmup {
         let mut payload = vec![0u8; 64];
         payload[..4].copy_from_slice(&i.to_le_bytes());
         let t0 = Instant::now();
-        ping.put(payload).await.map_err(|e| anyhow!("{e}"))?;
+        ping.put(payload).await.zenoh()?;
         loop {
-            let s = tokio::time::timeout(PHASE_TIMEOUT, pong.recv_async())
-                .await
-                .context("no pong")?
-                .map_err(|e| anyhow!("{e}"))?;
+            let s = tokio::time::timeout(PHASE_TIMEOUT, pong.recv_async()).await.context("no pong")?.zenoh()?;
             let bytes = s.payload().to_bytes();
             if bytes.len() >= 4 && bytes[..4] == i.to_le_bytes() {
                 break;
@@ -427,24 +424,24 @@ async fn raw_round_trip(samples: u32) -> anyhow::Result<Vec<Duration>> {
             rtts.push(t0.elapsed());
         }
     }
-    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    session.close().await.zenoh()?;
     Ok(rtts)
 }
 
 /// `baton bench-echo`: puts every ping back as a pong.
 pub async fn echo(connect: &[String]) -> anyhow::Result<()> {
     let net = NetConfig::client(connect, false);
-    let config = zenoh::Config::from_json5(&net.json5()).map_err(|e| anyhow!("{e}"))?;
-    let session = zenoh::open(config).await.map_err(|e| anyhow!("{e}"))?;
-    let pings = traffic::subscriber(&session, PING_KEY.into()).await.map_err(|e| anyhow!("{e}"))?;
+    let config = zenoh::Config::from_json5(&net.json5()).zenoh()?;
+    let session = zenoh::open(config).await.zenoh()?;
+    let pings = traffic::subscriber(&session, PING_KEY.into()).await.zenoh()?;
     let pong = traffic::publisher(&session, PONG_KEY.into())
         .congestion_control(CongestionControl::Block)
         .express(true)
         .await
-        .map_err(|e| anyhow!("{e}"))?;
-    let _alive = traffic::token(&session, ECHO_ALIVE_KEY.into()).await.map_err(|e| anyhow!("{e}"))?;
+        .zenoh()?;
+    let _alive = traffic::token(&session, ECHO_ALIVE_KEY.into()).await.zenoh()?;
     while let Ok(s) = pings.recv_async().await {
-        pong.put(s.payload().clone()).await.map_err(|e| anyhow!("{e}"))?;
+        pong.put(s.payload().clone()).await.zenoh()?;
     }
     Ok(())
 }

@@ -17,6 +17,7 @@ use super::{
 };
 use crate::demo::free_port;
 use crate::run::Probe;
+use baton_shell::ZenohResult;
 
 /// The figures of one agent count.
 #[derive(Serialize, Clone)]
@@ -209,7 +210,7 @@ pub async fn concurrent_runs(
     tokens: u32,
 ) -> anyhow::Result<ConcurrentRuns> {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
-    let _router = zenoh::open(router_config(&endpoint, &[])?).await.map_err(|e| anyhow!("{e}"))?;
+    let _router = zenoh::open(router_config(&endpoint, &[])?).await.zenoh()?;
     let _agents = Agents::Hosted { prefix: "c", count: runs * agents_per_run }.spawn(&endpoint)?;
     let mut all = tokio::task::JoinSet::new();
     for r in 0..runs {
@@ -265,11 +266,11 @@ async fn mesh_samples(dir: &Path, samples: u32, mesh: bool) -> anyhow::Result<Ve
     let warmup = 200;
     let ports = [free_port()?, free_port()?, free_port()?];
     let at = |i: usize| format!("tcp/127.0.0.1:{}", ports[i]);
-    let r0 = zenoh::open(router_config(&at(0), &[])?).await.map_err(|e| anyhow!("{e}"))?;
+    let r0 = zenoh::open(router_config(&at(0), &[])?).await.zenoh()?;
     let mut routers = vec![r0];
     if mesh {
-        routers.push(zenoh::open(router_config(&at(1), &[at(0)])?).await.map_err(|e| anyhow!("{e}"))?);
-        routers.push(zenoh::open(router_config(&at(2), &[at(0), at(1)])?).await.map_err(|e| anyhow!("{e}"))?);
+        routers.push(zenoh::open(router_config(&at(1), &[at(0)])?).await.zenoh()?);
+        routers.push(zenoh::open(router_config(&at(2), &[at(0), at(1)])?).await.zenoh()?);
     }
     let chart = round_robin_chart("bench", 1, samples + warmup);
     let (marks, probe) = marks(&[TraceEvent::Dispatch, TraceEvent::Return]);
@@ -277,7 +278,7 @@ async fn mesh_samples(dir: &Path, samples: u32, mesh: bool) -> anyhow::Result<Ve
     let extras = Extras { connect: Some(at(0)), agents_at: Some(agents_at), ..Extras::default() };
     run_chart(dir, "mesh.st", chart, Agents::Hosted { prefix: "bench", count: 1 }, probe, extras).await?;
     for r in routers {
-        r.close().await.map_err(|e| anyhow!("{e}"))?;
+        r.close().await.zenoh()?;
     }
     round_trips(&marks, warmup as usize)
 }

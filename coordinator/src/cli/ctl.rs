@@ -1,6 +1,5 @@
 //! `baton ctl`: an operator's command to a running chart.
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 
 use super::{block_on, EXIT_INVALID};
@@ -8,10 +7,8 @@ use super::{block_on, EXIT_INVALID};
 /// The arguments of `baton ctl`.
 #[derive(clap::Args)]
 pub struct Ctl {
-    /// The router to reach: the coordinator's `--listen` endpoint or the cell's router, such as
-    /// tcp/127.0.0.1:7447 or tls/router.cell4.local:7447 (repeat for several).
-    #[arg(long, value_name = "ENDPOINT", required = true)]
-    pub connect: Vec<String>,
+    #[command(flatten)]
+    pub reach: super::Reach,
     /// The run, by its id as `baton status` lists it (or the start of it).
     #[arg(long, value_name = "ID")]
     pub run: Option<String>,
@@ -42,9 +39,6 @@ pub struct Ctl {
     /// ack: a comment kept with the acknowledgement (the same as --reason).
     #[arg(long, value_name = "TEXT")]
     pub comment: Option<String>,
-    /// A Zenoh configuration file (TLS, credentials…).
-    #[arg(long, value_name = "FILE")]
-    pub zenoh_config: Option<PathBuf>,
     /// Once the command is taken, wait (at most DURATION, 10 minutes if not given) until the run has done what it
     /// leads to — `hold` until the run is held (its running motions finished), `stop` until it is stopped — and
     /// say the state it reached.
@@ -63,9 +57,9 @@ impl Ctl {
             to: self.to,
             reason: self.comment.unwrap_or(self.reason),
             // The coordinator records the name the request's key gives (`client::sender`).
-            by: crate::client::sender(self.zenoh_config.as_deref()),
+            by: crate::client::sender(self.reach.zenoh_config.as_deref()),
         };
-        let (connect, run, file, wait) = (self.connect, self.run, self.zenoh_config, self.wait);
+        let (connect, run, file, wait) = (self.reach.connect, self.run, self.reach.zenoh_config, self.wait);
         block_on(async move {
             let taken = crate::client::ctl(&connect, file.as_deref(), run.as_deref(), request).await?;
             if let (true, Some(limit_ms)) = (taken, wait) {

@@ -111,6 +111,19 @@ pub fn main() -> ExitCode {
 }
 
 /// Zenoh needs the multi-thread runtime (its blocking calls panic inside a current-thread one).
+/// Where a one-shot client (`set`, `status`, `ctl`) reaches a cell: its router, and the Zenoh configuration a
+/// secured one asks for.
+#[derive(clap::Args)]
+pub struct Reach {
+    /// The router to reach: the coordinator's `--listen` endpoint or the cell's router, such as
+    /// tcp/127.0.0.1:7447 or tls/router.cell4.local:7447 (repeat for several).
+    #[arg(long, value_name = "ENDPOINT", required = true)]
+    pub connect: Vec<String>,
+    /// A Zenoh configuration file (TLS, credentials…).
+    #[arg(long, value_name = "FILE")]
+    pub zenoh_config: Option<std::path::PathBuf>,
+}
+
 fn block_on(fut: impl std::future::Future<Output = anyhow::Result<ExitCode>>) -> anyhow::Result<ExitCode> {
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)

@@ -1,6 +1,5 @@
 //! `baton status`: the charts running behind a router, their active steps, tokens and agents.
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 
 use super::block_on;
@@ -8,10 +7,8 @@ use super::block_on;
 /// The arguments of `baton status`.
 #[derive(clap::Args)]
 pub struct Status {
-    /// The router to reach: the coordinator's `--listen` endpoint or the cell's router, such as
-    /// tcp/127.0.0.1:7447 or tls/router.cell4.local:7447 (repeat for several).
-    #[arg(long, value_name = "ENDPOINT", required = true)]
-    pub connect: Vec<String>,
+    #[command(flatten)]
+    pub reach: super::Reach,
     /// One JSON object per running chart.
     #[arg(long)]
     pub json: bool,
@@ -19,16 +16,13 @@ pub struct Status {
     /// branches, a skill still running, a hold, a fault, a minimum time — asked of the agents for their steps.
     #[arg(long)]
     pub why: bool,
-    /// A Zenoh configuration file (TLS, credentials…).
-    #[arg(long, value_name = "FILE")]
-    pub zenoh_config: Option<PathBuf>,
 }
 
 impl Status {
     pub fn run(self) -> anyhow::Result<ExitCode> {
-        let Status { connect, json, why, zenoh_config } = self;
+        let Status { reach, json, why } = self;
         block_on(async move {
-            crate::client::status(&connect, zenoh_config.as_deref(), json, why).await?;
+            crate::client::status(&reach.connect, reach.zenoh_config.as_deref(), json, why).await?;
             Ok(ExitCode::SUCCESS)
         })
     }

@@ -33,6 +33,7 @@ use baton_proto::exec::program::VarId;
 use tokio::sync::mpsc;
 
 use crate::chart_file::{load, Loaded};
+use baton_shell::ZenohResult;
 use resume::*;
 use shell::*;
 
@@ -636,7 +637,7 @@ async fn wind_down(
     summary.left = ended == Ended::Left;
     let tokens_out = shell.core.core().tokens_in_flight();
     drop(shell);
-    session.close().await.map_err(|e| anyhow!("{e}"))?;
+    session.close().await.zenoh()?;
     if ended != Ended::Ran {
         if let Some(dir) = &opts.journal {
             eprintln!(

@@ -12,7 +12,7 @@ use baton_proto::dist::runtime::coordinator::CoordOutput;
 use baton_proto::dist::runtime::Level;
 use baton_proto::dist::wire::{self, AgentInfo, CtlReply, CtlRequest, RunId, SetReply, SetRequest};
 use baton_proto::limits::CATCH_UP_CYCLES_MAX;
-use baton_shell::{traffic, Shared};
+use baton_shell::{traffic, Shared, ZenohResult};
 use tokio::sync::mpsc;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
@@ -163,13 +163,12 @@ pub(crate) struct Inboxes {
 
 impl Inboxes {
     pub(crate) async fn declare(session: &Session, run: RunId) -> anyhow::Result<Inboxes> {
-        let zerr = |e: zenoh::Error| anyhow!("{e}");
         Ok(Inboxes {
-            alive: traffic::liveliness_subscriber(session, keys::alive_any()).history(true).await.map_err(zerr)?,
-            chart: traffic::queryable(session, keys::chart(run)).await.map_err(zerr)?,
-            status: traffic::queryable(session, keys::status(run)).await.map_err(zerr)?,
-            set: traffic::queryable(session, keys::set(run, "*")).await.map_err(zerr)?,
-            ctl: traffic::queryable(session, keys::ctl(run, "*")).await.map_err(zerr)?,
+            alive: traffic::liveliness_subscriber(session, keys::alive_any()).history(true).await.zenoh()?,
+            chart: traffic::queryable(session, keys::chart(run)).await.zenoh()?,
+            status: traffic::queryable(session, keys::status(run)).await.zenoh()?,
+            set: traffic::queryable(session, keys::set(run, "*")).await.zenoh()?,
+            ctl: traffic::queryable(session, keys::ctl(run, "*")).await.zenoh()?,
         })
     }
 }
@@ -187,15 +186,14 @@ impl Callbacks {
         run: RunId,
         shared: &Arc<Shared<Shell>>,
     ) -> anyhow::Result<Callbacks> {
-        let zerr = |e: zenoh::Error| anyhow!("{e}");
         let declare = |key: String, on: fn(&mut Shell, &Sample)| {
             traffic::subscriber(session, key).allowed_origin(Locality::Remote).callback(taking(shared, on))
         };
         Ok(Callbacks {
             _subscribers: [
-                declare(keys::report_any(run), Shell::on_report).await.map_err(zerr)?,
-                declare(keys::vars(run, "*"), Shell::on_vars).await.map_err(zerr)?,
-                declare(keys::devices(run, "*"), Shell::on_devices).await.map_err(zerr)?,
+                declare(keys::report_any(run), Shell::on_report).await.zenoh()?,
+                declare(keys::vars(run, "*"), Shell::on_vars).await.zenoh()?,
+                declare(keys::devices(run, "*"), Shell::on_devices).await.zenoh()?,
             ],
         })
     }
