@@ -6,7 +6,10 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
-use baton_tests::loopback::{check_trace_invariants, Cluster, Coordinator, TIMEOUT};
+use baton_tests::invariants::tokens_out;
+use baton_tests::loopback::{
+    check_trace_invariants, check_trace_invariants_with_tokens_out, Cluster, Coordinator, TIMEOUT,
+};
 
 /// Two robots, each with two shell motions in sequence that write `start NAME` and `end NAME` to `marks`; the
 /// branches meet at `Done`. r1's first motion takes `first_s` seconds.
@@ -198,7 +201,7 @@ async fn abort_cancels_the_running_motion_and_ends_the_run_aborted() {
     // `$$` is how an IEC 61131-3 string writes one `$`: the shell gets `echo $$`, its own pid.
     let motion =
         |dir: &Path| cell_with(dir, &format!("echo $$$$ > {}; exec sleep 100", dir.join("motion.pid").display()));
-    let (cluster, _, coordinator) = running_cell(motion, &[], &["--verbose"]).await;
+    let (cluster, chart, coordinator) = running_cell(motion, &[], &["--verbose"]).await;
     let pid_file = cluster.dir.path().join("motion.pid");
     let dir = cluster.dir.path().to_path_buf();
     wait_for_mark(&dir, "start MoveA1").await;
@@ -209,6 +212,8 @@ async fn abort_cancels_the_running_motion_and_ends_the_run_aborted() {
     assert_eq!(summary["state"], "aborted");
     let states: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
     assert_eq!(states, ["aborting", "aborted"]);
+    // Aborted with r1's motion running: its token is cancelled there, not handed back.
+    check_trace_invariants_with_tokens_out(&trace, &chart, tokens_out(&trace));
     cluster.wait_for_agent_log("r1", "skill of action `MoveA1` cancelled: the run was aborted").await;
     let pid = std::fs::read_to_string(&pid_file).expect("the motion wrote its pid");
     assert!(pid.trim().parse::<u32>().is_ok(), "`{pid}` is not a pid");
@@ -226,7 +231,7 @@ async fn abort_cancels_the_running_motion_and_ends_the_run_aborted() {
 /// exits 3 with its summary.
 #[tokio::test(flavor = "multi_thread")]
 async fn an_interrupt_stops_the_run_after_the_running_motion() {
-    let (cluster, _, coordinator) = running_cell(|dir| cell(dir, 1.0), &[], &[]).await;
+    let (cluster, chart, coordinator) = running_cell(|dir| cell(dir, 1.0), &[], &[]).await;
     let dir = cluster.dir.path().to_path_buf();
     wait_for_mark(&dir, "start MoveA1").await;
     let pid = coordinator.child.id().expect("running").to_string();
@@ -234,6 +239,9 @@ async fn an_interrupt_stops_the_run_after_the_running_motion() {
     let (status, log, trace, summary) = coordinator.finish().await;
     assert_eq!(status.code(), Some(3), "{log}");
     assert_eq!(summary["state"], "stopped");
+    // A stop lets the running motion finish and starts nothing new: the robots' segments end the run where they
+    // stand, their tokens not handed back.
+    check_trace_invariants_with_tokens_out(&trace, &chart, tokens_out(&trace));
     let m = marks(&dir);
     assert!(m.contains(&"end MoveA1".to_string()), "stopped before the running motion ended: {m:?}");
     assert!(!m.contains(&"start MoveA2".to_string()), "a motion started while stopping: {m:?}");
@@ -303,8 +311,10 @@ async fn status_why_gathers_what_each_transition_waits_for_from_the_agents() {
     assert_eq!(checked["transitions"][0]["missing"], serde_json::json!(["Moved"]), "{s}");
     let (ok, said) = ctl(&cluster, &["abort"]).await;
     assert!(ok, "{said}");
-    let (status, log, _, _) = coordinator.finish().await;
+    let (status, log, trace, _) = coordinator.finish().await;
     assert_eq!(status.code(), Some(4), "{log}");
+    // Aborted with r2's motion running: that token is cancelled on r2; r1's came back when Check cleared.
+    check_trace_invariants_with_tokens_out(&trace, &chart, 1);
 }
 
 /// `{hold := 'cancel'}`: a hold cancels the running motion on its agent (its process is killed), so the run is held
@@ -394,6 +404,8 @@ async fn a_restarted_coordinator_comes_back_held_in_its_mode_with_its_alarms() {
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
     assert_eq!(marks(&dir), ["start MoveA", "end MoveA"], "the motion ran once");
+    // The resumed coordinator's trace is the whole run's, the part before the kill replayed from the journal.
+    check_trace_invariants(&trace, &chart);
     let states: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
     assert_eq!(states, ["holding", "held", "unholding", "execute", "completing", "complete"], "the whole run's states");
 }
@@ -401,7 +413,7 @@ async fn a_restarted_coordinator_comes_back_held_in_its_mode_with_its_alarms() {
 /// `baton run --wait-start` waits in Idle, saying `start` is legal, and runs the chart once started.
 #[tokio::test(flavor = "multi_thread")]
 async fn a_run_started_by_an_operator() {
-    let (cluster, _, coordinator) = running_cell(|dir| cell(dir, 0.1), &["--wait-start"], &[]).await;
+    let (cluster, chart, coordinator) = running_cell(|dir| cell(dir, 0.1), &["--wait-start"], &[]).await;
     let s = wait_for_state(&cluster, "idle").await;
     assert_eq!(s["available"], serde_json::json!(["start", "stop", "abort"]), "{s}");
     assert!(marks(cluster.dir.path()).is_empty(), "nothing ran before the start");
@@ -411,6 +423,7 @@ async fn a_run_started_by_an_operator() {
     assert!(status.success(), "{log}");
     let states: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
     assert_eq!(states, ["idle", "starting", "execute", "completing", "complete"]);
+    check_trace_invariants(&trace, &chart);
 }
 
 /// Asks `baton status` until transition `t` waits for a confirmation.
@@ -530,6 +543,8 @@ async fn a_step_past_its_maximum_time_branches_to_the_charts_recovery_and_the_al
     assert!(unshelved.message.as_deref().is_some_and(|m| m.contains("drive being replaced")), "{unshelved:?}");
     assert!(trace.iter().any(|r| r.event == TraceEvent::AlarmClear && r.id == Some(1)));
     assert!(trace.iter().all(|r| r.event != TraceEvent::SkillDone), "the slow motion was cancelled, not finished");
+    // Move's token came back when its step left for the recovery, which is the coordinator's: none is out.
+    check_trace_invariants(&trace, &chart);
 }
 
 /// An agent that lacks a skill a step of its placement runs (r1 without `--allow-shell`, for a `shell` action) is
@@ -673,6 +688,8 @@ async fn a_run_that_stays_is_reset_cleared_and_resumed_as_new_runs_of_its_journa
     assert_eq!((summary["state"].as_str(), summary["run"].as_str()), (Some("complete"), Some(fourth.as_str())));
     let news = trace.iter().filter(|r| r.event == TraceEvent::NewRun).count();
     assert_eq!(news, 3, "three resets: {trace:#?}");
+    // Four runs in one trace; the third's token on r1 was cancelled by its abort, not handed back.
+    check_trace_invariants_with_tokens_out(&trace, &chart, tokens_out(&trace));
 }
 
 /// `abort` with a robot cut off (its cable pulled out, past its lease): the run ends `aborted` at once, its token
@@ -712,6 +729,8 @@ async fn abort_with_a_robot_cut_off_tells_it_once_it_is_back() {
     let told = trace.iter().position(|r| r.event == TraceEvent::Told && r.name == "r1");
     let told = told.unwrap_or_else(|| panic!("r1 was never told: {trace:#?}"));
     assert!(told > aborted);
+    // r1's token was abandoned while it was cut off: it never comes back.
+    check_trace_invariants_with_tokens_out(&trace, &chart, tokens_out(&trace));
     cluster.wait_for_agent_log("r1", "skill of action `MoveA1` cancelled: the run was aborted").await;
     let gone = tokio::time::timeout(TIMEOUT, async {
         while proc.exists() && !std::fs::read_to_string(proc.join("stat")).unwrap_or_default().contains(") Z ") {

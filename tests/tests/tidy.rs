@@ -457,7 +457,7 @@ fn proto_touches_no_clock_file_network_or_process() {
 fn no_source_file_holds_more_than_one_job() {
     let root = root();
     let mut long = Vec::new();
-    for dir in ["proto", "shell", "coordinator", "agent", "tests"] {
+    for dir in ["proto", "shell", "ros2", "coordinator", "agent", "tests", "fuzz"] {
         for path in sources(&root.join(dir)) {
             let rel = path.strip_prefix(&root).expect("in the workspace");
             // The external peers are other projects' code, built apart.

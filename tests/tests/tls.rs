@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::loopback::{bin, deploy_certs as certs, free_port, tls_config, Cluster, TIMEOUT};
+use baton_tests::loopback::{
+    bin, check_trace_invariants, deploy_certs as certs, free_port, tls_config, Cluster, TIMEOUT,
+};
 
 /// A session of the test's own from a configuration file, with Baton's settings for `endpoint` on top.
 async fn open(file: &Path, endpoint: &str, listen: bool) -> zenoh::Result<zenoh::Session> {
@@ -128,6 +130,7 @@ async fn a_cell_runs_over_mutual_tls_and_each_process_is_who_its_certificate_say
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
     assert!(trace.iter().any(|r| r.event == TraceEvent::Activate && r.name == "Done"), "{trace:#?}");
+    check_trace_invariants(&trace, &chart);
     // r1 and r2 came up, nobody else; and none came up again without having been lost first (on a loaded machine
     // zenoh now and then drops a session and takes it back: that is a loss and a return, not a second process).
     let ups: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::AgentUp).map(|r| r.name.as_str()).collect();
@@ -160,6 +163,7 @@ async fn an_operators_command_is_traced_with_the_name_of_its_certificate() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let (status, log, trace, _) = coordinator.finish().await;
     assert_eq!(status.code(), Some(3), "{log}");
+    check_trace_invariants(&trace, &chart);
     let stop = trace.iter().find(|r| r.event == TraceEvent::Command).expect("the stop, traced");
     assert_eq!((stop.name.as_str(), stop.by.as_deref()), ("stop", Some("anna")));
 }
