@@ -28,18 +28,6 @@ pub mod traffic;
 
 pub use shared::{earlier, Shared};
 
-/// Zenoh's errors as anyhow's: Zenoh's boxed error is not a `std::error::Error` that `?` can turn into one, so
-/// every call into Zenoh ends in `.zenoh()?` rather than a `map_err` of its own.
-pub trait ZenohResult<T> {
-    fn zenoh(self) -> anyhow::Result<T>;
-}
-
-impl<T> ZenohResult<T> for zenoh::Result<T> {
-    fn zenoh(self) -> anyhow::Result<T> {
-        self.map_err(|e| anyhow!("{e}"))
-    }
-}
-
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
@@ -51,6 +39,18 @@ use zenoh::handlers::FifoChannel;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::Session;
+
+/// Zenoh's errors as anyhow's: Zenoh's boxed error is not a `std::error::Error` that `?` can turn into one, so
+/// every call into Zenoh ends in `.zenoh()?` rather than a `map_err` of its own.
+pub trait ZenohResult<T> {
+    fn zenoh(self) -> anyhow::Result<T>;
+}
+
+impl<T> ZenohResult<T> for zenoh::Result<T> {
+    fn zenoh(self) -> anyhow::Result<T> {
+        self.map_err(|e| anyhow!("{e}"))
+    }
+}
 
 /// Publishers a shell keeps declared at once.
 pub const PUBLISHERS_MAX: usize = 256;

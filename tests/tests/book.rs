@@ -402,8 +402,10 @@ fn named_paths(map: &str) -> Vec<(String, String)> {
     let mut out = Vec::new();
     for line in map.lines() {
         if line.starts_with('#') {
-            folder = line.strip_prefix("### `").and_then(|rest| rest.split('`').next()).unwrap_or("").to_string();
-            folder = if folder.ends_with('/') { folder } else { String::new() };
+            folder = match line.strip_prefix("### `").and_then(|rest| rest.split('`').next()) {
+                Some(crate_folder) if crate_folder.ends_with('/') => crate_folder.to_string(),
+                _ => String::new(),
+            };
             continue;
         }
         for name in line.split('`').skip(1).step_by(2) {
@@ -484,11 +486,15 @@ fn the_code_map_reader_finds_paths_and_misses_moved_ones() {
                ### Elsewhere\n`deploy/zenohd.json5`, `deploy/gone.json5`, `front/`\n";
     assert_eq!(
         named_paths(map),
-        [("proto/", "front/"), ("proto/", "source.rs"), ("proto/", "lexer.rs"), ("", "deploy/zenohd.json5")]
-            .into_iter()
-            .chain([("", "deploy/gone.json5"), ("", "front/")])
-            .map(|(f, n)| (f.to_string(), n.to_string()))
-            .collect::<Vec<_>>()
+        [
+            ("proto/", "front/"),
+            ("proto/", "source.rs"),
+            ("proto/", "lexer.rs"),
+            ("", "deploy/zenohd.json5"),
+            ("", "deploy/gone.json5"),
+            ("", "front/"),
+        ]
+        .map(|(f, n)| (f.to_string(), n.to_string()))
     );
     assert_eq!(
         missing_paths(map, &paths),

@@ -110,7 +110,6 @@ pub fn main() -> ExitCode {
     }
 }
 
-/// Zenoh needs the multi-thread runtime (its blocking calls panic inside a current-thread one).
 /// Where a one-shot client (`set`, `status`, `ctl`) reaches a cell: its router, and the Zenoh configuration a
 /// secured one asks for.
 #[derive(clap::Args)]
@@ -124,6 +123,7 @@ pub struct Reach {
     pub zenoh_config: Option<std::path::PathBuf>,
 }
 
+/// Zenoh needs the multi-thread runtime (its blocking calls panic inside a current-thread one).
 fn block_on(fut: impl std::future::Future<Output = anyhow::Result<ExitCode>>) -> anyhow::Result<ExitCode> {
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
