@@ -86,3 +86,25 @@ pub fn xppu_scenario_1() -> baton_proto::exec::program::Program {
 pub fn shared_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared")
 }
+
+/// Every file and folder under `dir` (`true` for a folder), sorted, with build output (`target`) and Git's folder
+/// left out: what the tree tests (`tidy`, the book's code map) read.
+pub fn walk(dir: &std::path::Path) -> Vec<(PathBuf, bool)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).unwrap_or_else(|e| panic!("cannot list {}: {e}", d.display())) {
+            let path = entry.expect("a directory entry").path();
+            if path.file_name().is_some_and(|n| n == "target" || n == ".git") {
+                continue;
+            }
+            let is_dir = path.is_dir();
+            if is_dir {
+                stack.push(path.clone());
+            }
+            out.push((path, is_dir));
+        }
+    }
+    out.sort();
+    out
+}

@@ -425,25 +425,17 @@ fn named_paths(map: &str) -> Vec<(String, String)> {
 
 /// Every file and folder of the repository (folders with a trailing `/`), relative to it, build output left out.
 fn repository_paths(root: &Path) -> Vec<String> {
-    let mut out = Vec::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("cannot list {}: {e}", dir.display())) {
-            let path = entry.expect("a directory entry").path();
-            let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
-            if ["target", ".git"].contains(&name) {
-                continue;
-            }
+    baton_tests::walk(root)
+        .into_iter()
+        .map(|(path, is_dir)| {
             let relative = path.strip_prefix(root).expect("inside").to_string_lossy().into_owned();
-            if path.is_dir() {
-                out.push(format!("{relative}/"));
-                stack.push(path);
+            if is_dir {
+                format!("{relative}/")
             } else {
-                out.push(relative);
+                relative
             }
-        }
-    }
-    out
+        })
+        .collect()
 }
 
 /// The names of a code map that no file or folder has: a name is found at the section's folder or the root, or, in

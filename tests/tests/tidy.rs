@@ -41,22 +41,11 @@ fn root() -> PathBuf {
 
 /// Every `.rs` file under `dir`, sorted.
 fn sources(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for entry in std::fs::read_dir(&d).unwrap_or_else(|e| panic!("{}: {e}", d.display())) {
-            let path = entry.expect("a directory entry").path();
-            if path.is_dir() {
-                if path.file_name().is_some_and(|n| n != "target") {
-                    stack.push(path);
-                }
-            } else if path.extension().is_some_and(|e| e == "rs") {
-                out.push(path);
-            }
-        }
-    }
-    out.sort();
-    out
+    baton_tests::walk(dir)
+        .into_iter()
+        .filter(|(path, is_dir)| !is_dir && path.extension().is_some_and(|e| e == "rs"))
+        .map(|(path, _)| path)
+        .collect()
 }
 
 /// The text with comments, string and char literals blanked (lengths kept), so that a path in a doc comment or a
