@@ -22,15 +22,15 @@
 //! does.
 
 pub mod connections;
+pub mod host;
+pub mod instances;
 pub mod io;
-pub mod many;
 pub mod opcua;
 mod roles;
 pub mod ros2;
 pub mod scenario_skills;
-pub mod shell;
 pub mod skill;
 
 pub use connections::Connections;
-pub use shell::{run, run_until, AgentConfig};
+pub use host::{run, run_until, AgentConfig};
 pub use skill::{Skill, SkillCall, SkillFuture, Skills};

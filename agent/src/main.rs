@@ -157,9 +157,11 @@ fn agent_main() -> ExitCode {
         }
     };
     let agents = match args.instances {
-        Some(n) => {
-            runtime.block_on(baton_agent::many::run_many(baton_agent::many::instances(&config, n), skills, connections))
-        }
+        Some(n) => runtime.block_on(baton_agent::instances::run_many(
+            baton_agent::instances::configs(&config, n),
+            skills,
+            connections,
+        )),
         None => runtime.block_on(run(config, skills, connections)),
     };
     match agents {

@@ -1,13 +1,13 @@
 //! Whether the router took the roles an agent announces: a role the agent's identity may not serve is refused by
 //! the router's rules, and the agent says which before it serves anything. `LIVELINESS_CHECK_TIMEOUT` bounds the
-//! shell's check of the agent's name as well.
+//! host's check of the agent's name as well.
 
 use std::collections::HashMap;
 use std::time::Duration;
 
 use anyhow::anyhow;
-use baton_proto::dist::keys;
-use baton_shell::traffic;
+use baton_host::traffic;
+use baton_proto::cluster::keys;
 use zenoh::Session;
 
 /// How long the agent waits for the router to say whether another process holds its name. The router answers at

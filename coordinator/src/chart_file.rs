@@ -5,7 +5,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::{bail, Context};
-use baton_proto::dist::layout::Layout;
+use baton_proto::cluster::layout::Layout;
 use baton_proto::exec::program::Program;
 use baton_proto::front::source::{self, Decoded};
 use baton_proto::pipeline::{check_source, CheckedChart, Report};

@@ -4,10 +4,10 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail};
-use baton_proto::dist::keys;
-use baton_proto::dist::netconfig::NetConfig;
-use baton_proto::dist::wire::{self, CtlReply, CtlRequest, RunId, SetReply, SetRequest, StatusReport, WhyReport};
-use baton_shell::ZenohResult;
+use baton_host::ZenohResult;
+use baton_proto::cluster::keys;
+use baton_proto::cluster::netconfig::NetConfig;
+use baton_proto::cluster::wire::{self, CtlReply, CtlRequest, RunId, SetReply, SetRequest, StatusReport, WhyReport};
 use zenoh::Session;
 
 const QUERY_TIMEOUT: Duration = Duration::from_secs(3);
@@ -17,7 +17,7 @@ const SILENCE_GRACE: Duration = Duration::from_secs(5);
 
 async fn open(connect: &[String], file: Option<&Path>) -> anyhow::Result<Session> {
     let net = NetConfig::client(connect, false);
-    let config = baton_shell::zenoh_config(&net, file)?;
+    let config = baton_host::zenoh_config(&net, file)?;
     match zenoh::open(config).await {
         Ok(session) => Ok(session),
         Err(_) => Err(anyhow!("{}", unreachable(connect, file.is_some()))),
@@ -28,7 +28,7 @@ async fn open(connect: &[String], file: Option<&Path>) -> anyhow::Result<Session
 /// each endpoint, whether anything listens there at all and, if something does over plain TCP, that it may be a TLS
 /// router and what to give then.
 fn unreachable(connect: &[String], has_config: bool) -> String {
-    let within = format!("{:.1} s", baton_proto::dist::netconfig::CLIENT_CONNECT_TIMEOUT_MS as f64 / 1000.0);
+    let within = format!("{:.1} s", baton_proto::cluster::netconfig::CLIENT_CONNECT_TIMEOUT_MS as f64 / 1000.0);
     let mut said = vec![format!("no router answered at {} within {within}", connect.join(", "))];
     for endpoint in connect {
         let (proto, addr) = endpoint.split_once('/').unwrap_or(("", endpoint.as_str()));
@@ -65,7 +65,7 @@ async fn ask<T: serde::de::DeserializeOwned>(
     payload: Option<Vec<u8>>,
 ) -> anyhow::Result<Vec<T>> {
     // Every run's reply, even if two ever came on one key.
-    let mut get = baton_shell::traffic::get(session, key)
+    let mut get = baton_host::traffic::get(session, key)
         .consolidation(zenoh::query::ConsolidationMode::None)
         .timeout(QUERY_TIMEOUT);
     if let Some(p) = payload {
@@ -85,7 +85,7 @@ async fn ask<T: serde::de::DeserializeOwned>(
     Ok(out)
 }
 
-fn print_why(steps: &[baton_proto::dist::wire::StepWhy]) {
+fn print_why(steps: &[baton_proto::cluster::wire::StepWhy]) {
     println!("  why the active steps wait:");
     for w in steps {
         let at = w.agent.as_ref().map_or(String::new(), |a| format!(" on `{a}`"));
@@ -124,7 +124,7 @@ fn print_why(steps: &[baton_proto::dist::wire::StepWhy]) {
 /// identity it authenticates with (its user name, or its certificate's common name), which the router's access
 /// control lets ask only on its own keys; else `user@host`, which nothing checks.
 pub fn sender(file: Option<&Path>) -> String {
-    keys::sender_name(&baton_shell::zenoh_identity(file).unwrap_or_else(who))
+    keys::sender_name(&baton_host::zenoh_identity(file).unwrap_or_else(who))
 }
 
 /// Who this process acts for: `user@host`.
@@ -365,11 +365,11 @@ pub async fn set_on(
 pub async fn live_skills(
     connect: &[String],
     file: Option<&Path>,
-) -> anyhow::Result<(Vec<String>, baton_proto::dist::skills::Catalogue)> {
-    use baton_proto::dist::skills::Catalogue;
+) -> anyhow::Result<(Vec<String>, baton_proto::cluster::skills::Catalogue)> {
+    use baton_proto::cluster::skills::Catalogue;
     let session = open(connect, file).await?;
     let tokens =
-        baton_shell::traffic::liveliness_get(&session, keys::alive_any()).timeout(QUERY_TIMEOUT).await.zenoh()?;
+        baton_host::traffic::liveliness_get(&session, keys::alive_any()).timeout(QUERY_TIMEOUT).await.zenoh()?;
     let mut agents = Vec::new();
     while let Ok(reply) = tokens.recv_async().await {
         if let Some(name) = reply.result().ok().and_then(|s| keys::agent_of_alive(s.key_expr().as_str())) {

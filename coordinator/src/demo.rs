@@ -8,13 +8,13 @@ use std::process::{ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::dist::netconfig::NetConfig;
+use baton_proto::cluster::netconfig::NetConfig;
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use indicatif::{ProgressBar, ProgressStyle};
 use tokio::process::{Child, Command};
 
 use crate::demo_chart::cell_chart;
-use baton_shell::ZenohResult;
+use baton_host::ZenohResult;
 
 /// The demo gives up after this long: the default cell finishes in a few seconds.
 const DEMO_TIMEOUT: Duration = Duration::from_secs(300);

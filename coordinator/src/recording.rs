@@ -1,6 +1,6 @@
 //! `--rerun off | save:PATH.rrd | connect[:URL] | spawn`: a run's timeline in Rerun.
 //!
-//! The coordinator's shell hands every trace record and every change of a variable to a `Recorder`, which
+//! The coordinator's host hands every trace record and every change of a variable to a `Recorder`, which
 //! passes them through a bounded queue to a thread of its own that logs them: the coordinator's cycle never
 //! waits for Rerun. When the queue is full (a slow sink), records are dropped and counted, and the run says so.
 //!
@@ -18,7 +18,7 @@
 //!
 //! # Rules the recording keeps
 //!
-//! - Recording never paces the coordinator: the shell only clones records into a bounded channel (`try_send`; a full
+//! - Recording never paces the coordinator: the host only clones records into a bounded channel (`try_send`; a full
 //!   channel drops and counts); the Rerun SDK runs on the `baton-rerun` thread. The recording is derived from the trace
 //!   and variable values alone, so a replayed journal yields the same recording as the live run. Anything logged
 //!   `static` in Rerun hides every timed value of the same component, so only what never changes (graph nodes and
@@ -33,7 +33,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::anyhow;
-use baton_proto::dist::layout::{Layout, Placement};
+use baton_proto::cluster::layout::{Layout, Placement};
 use baton_proto::exec::program::{Program, StepId, TransitionId, VarId, VarInfo};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_proto::types::{quote_string, Type, Value};

@@ -12,8 +12,8 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::dist::journal::{JournalHeader, Journaled, Replayed, SnapshotMeta, JOURNAL_FORMAT};
-use baton_proto::dist::runtime::packml::State;
+use baton_proto::cluster::journal::{JournalHeader, Journaled, Replayed, SnapshotMeta, JOURNAL_FORMAT};
+use baton_proto::cluster::runtime::packml::State;
 use baton_proto::pipeline::check_source;
 
 use crate::recording::{RecordedRun, Recorder, Sink};

@@ -3,7 +3,7 @@
 //!
 //! Nothing here does I/O or reads a clock: time comes in as milliseconds, events go out as values. The crate is
 //! grouped by layer: `types`, `front` (source text to checked chart), `exec` (compiled program and engine), `back`
-//! (a chart written out), `dist` (placement, wire protocol, journal and the runtimes' state machines) and
+//! (a chart written out), `cluster` (placement, wire protocol, journal and the runtimes' state machines) and
 //! `testing` (the simulated cluster, `baton test`'s scenarios, the fuzz targets' bodies), with `limits` under all.
 //! ARCHITECTURE.md's code map is the one map of the crate.
 
@@ -20,6 +20,7 @@ pub mod types;
 /// From source text to the chart model: lexer, parsers (textual and PLCopen XML), pragmas and diagnostics.
 pub mod front {
     pub mod diag;
+    pub mod json_value;
     pub mod lexer;
     pub mod literal;
     pub mod model;
@@ -52,8 +53,8 @@ pub mod exec {
 /// The distributed part: where each part of a chart runs, the wire protocol and key space, the journal, the
 /// Zenoh settings, and the coordinator's and agent's state machines (the simulated cluster that runs them on
 /// virtual time is `testing`'s).
-pub mod dist {
-    pub mod io;
+pub mod cluster {
+    pub mod bindings;
     pub mod journal;
     pub mod keys;
     pub mod layout;

@@ -14,9 +14,9 @@ pub const CYCLE_MS_MAX: u64 = 3_600_000;
 /// accepts, every thread that compiles or runs a chart (`CHART_STACK_BYTES`) can hold.
 pub const NESTING_DEPTH_MAX: usize = 64;
 
-/// The stack of every thread that compiles or runs a chart (the shells' main loops and runtimes, `baton test`'s
+/// The stack of every thread that compiles or runs a chart (the hosts' main loops and runtimes, `baton test`'s
 /// workers). A chart at `NESTING_DEPTH_MAX` needs about 1 MiB in a debug build (measured by the limit test,
-/// tests/tests/limits.rs); this leaves room for what the shells add around it.
+/// tests/tests/limits.rs); this leaves room for what the hosts add around it.
 pub const CHART_STACK_BYTES: usize = 8 * 1024 * 1024;
 
 /// Nodes (elements, texts, comments) of one XML file: a bound on the memory its tree takes.
@@ -105,7 +105,7 @@ pub const REACTION_ROUNDS_MAX: usize = 64;
 pub const CATCH_UP_CYCLES_MAX: u64 = 10;
 
 /// Samples a subscriber holds before Zenoh's reader waits for the process to take them. Large, so that two
-/// processes publishing to each other from their main loops never both wait (see the shells' `put`).
+/// processes publishing to each other from their main loops never both wait (see the hosts' `put`).
 pub const RECEIVE_QUEUE_MAX: usize = 16_384;
 
 /// Answers to `baton set` and `baton ctl` a journaled coordinator holds until what they answer is durable; a request

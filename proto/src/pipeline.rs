@@ -4,7 +4,7 @@
 //! together (no net analysis after a syntax error: the net is not the one drawn; placement checked beside the
 //! compiler's errors, so that one run reports them all), sorts and dedups the diagnostics.
 
-use crate::dist::layout::{layout, Layout};
+use crate::cluster::layout::{layout, Layout};
 use crate::exec::analysis::{analyse, Finding};
 use crate::exec::compile::compile;
 use crate::exec::program::Program;

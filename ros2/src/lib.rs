@@ -3,7 +3,7 @@
 //! `interfaces/` — and a user's `--ros-interfaces` folders, read with hiroz-codegen's parser and resolver, which
 //! gives the RIHS01 type hashes) and CDR messages of run-time types (`cdr`: an IEC literal encoded field by field
 //! with hiroz-cdr's writer, an answer decoded to a `RosValue`). A crate of its own, apart from the agent's Zenoh
-//! shell, so that its decoder of outside bytes can be fuzzed without instrumenting the network stack (`fuzz/`).
+//! host, so that its decoder of outside bytes can be fuzzed without instrumenting the network stack (`fuzz/`).
 
 pub mod cdr;
 pub mod interfaces;

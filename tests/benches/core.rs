@@ -76,7 +76,7 @@ fn engine_cycle(c: &mut Criterion) {
 /// A coordinator with 1,024 tokens out on 256 agents (a simulated cell, every token parked on a transition that
 /// waits for an input): what a snapshot of it costs the coordinator's main loop, and what restoring it costs a resume.
 fn snapshot(c: &mut Criterion) {
-    use baton_proto::dist::runtime::coordinator::Coordinator;
+    use baton_proto::cluster::runtime::coordinator::Coordinator;
     use baton_proto::testing::simulated_cluster::{Faults, SimCluster};
     let (tokens, agents) = (1024, 256);
     let mut src = String::from("PROGRAM snap\nVAR go : BOOL; END_VAR\nINITIAL_STEP Start: END_STEP\n");

@@ -1,5 +1,5 @@
 //! A router's access control, read from its configuration as Zenoh reads it, and what a cell's processes sent
-//! (`baton_shell::traffic`'s lists), checked against it: each message must be let in from its sender (ingress) and
+//! (`baton_host::traffic`'s lists), checked against it: each message must be let in from its sender (ingress) and
 //! out to every process it reaches (egress) — a put to each subscriber whose key it meets, a query to each
 //! queryable and its reply back, a token to each liveliness subscriber or query, and the declarations a sender
 //! needs to know where its messages go. A message is allowed when an allow rule of its subject's policies, for its
@@ -9,7 +9,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-use baton_shell::traffic::Message;
+use baton_host::traffic::Message;
 use zenoh::key_expr::KeyExpr;
 
 /// One allow rule: its flows, the messages it names, its key expressions.
@@ -78,7 +78,7 @@ impl Rules {
     }
 }
 
-/// What each process of a cell sent, by identity: `baton_shell::traffic`'s lists, one file per process,
+/// What each process of a cell sent, by identity: `baton_host::traffic`'s lists, one file per process,
 /// `IDENTITY.traffic` (several processes of one identity, such as an operator's commands, share one).
 pub fn read_traffic(dir: &Path) -> BTreeMap<String, BTreeSet<(Message, String)>> {
     let mut out: BTreeMap<String, BTreeSet<(Message, String)>> = BTreeMap::new();

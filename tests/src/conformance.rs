@@ -10,7 +10,8 @@ use std::fs;
 use std::path::Path;
 use std::sync::Arc;
 
-use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
+use baton_proto::exec::sim::{parse_inputs, simulate_watching};
+use baton_proto::exec::trace::Output;
 use baton_proto::front::diag::LineIndex;
 use baton_proto::pipeline::check_source;
 
@@ -124,11 +125,11 @@ pub fn run_simulation(dir: &Path) -> Result<String, String> {
     }
     let mut out = String::new();
     simulate_watching(Arc::new(program), &inputs, settings.cycle_ms, settings.until_ms, &watch, |o| match o {
-        SimOutput::Trace(record) => {
+        Output::Trace(record) => {
             out.push_str(&serde_json::to_string(&record).unwrap_or_default());
             out.push('\n');
         }
-        SimOutput::Fault { t_ms, message } => {
+        Output::Fault { t_ms, message } => {
             out.push_str(&serde_json::json!({ "t_ms": t_ms, "fault": message }).to_string());
             out.push('\n');
         }

@@ -121,7 +121,7 @@ impl Cluster {
     /// Coordinators then join it (`coordinator_joining`).
     pub async fn with_router() -> Cluster {
         let mut cluster = Cluster::new();
-        let net = baton_proto::dist::netconfig::NetConfig::router(std::slice::from_ref(&cluster.endpoint));
+        let net = baton_proto::cluster::netconfig::NetConfig::router(std::slice::from_ref(&cluster.endpoint));
         let config = zenoh::Config::from_json5(&net.json5()).expect("router config");
         cluster.router = Some(zenoh::open(config).await.expect("start the test's router"));
         cluster
@@ -129,7 +129,7 @@ impl Cluster {
 
     /// A Zenoh session of the test's own on the cluster's router, to watch the protocol.
     pub async fn watch(&self) -> zenoh::Session {
-        let net = baton_proto::dist::netconfig::NetConfig::client(std::slice::from_ref(&self.endpoint), true);
+        let net = baton_proto::cluster::netconfig::NetConfig::client(std::slice::from_ref(&self.endpoint), true);
         zenoh::open(zenoh::Config::from_json5(&net.json5()).expect("config")).await.expect("session")
     }
 
@@ -139,7 +139,7 @@ impl Cluster {
         self.agent_via(Command::new(bin("baton-agent")), &endpoint, name, roles, extra);
     }
 
-    /// Starts an agent that joins the router through `endpoint` (a `baton_shell::cable::Cable`'s, say).
+    /// Starts an agent that joins the router through `endpoint` (a `baton_host::cable::Cable`'s, say).
     pub fn agent_at(&mut self, endpoint: &str, name: &str, roles: &[&str], extra: &[&str]) {
         self.agent_via(Command::new(bin("baton-agent")), endpoint, name, roles, extra);
     }
@@ -381,7 +381,7 @@ pub type Samples = zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler
 
 /// Waits, on a subscriber of the agents' command keys, for the dispatch entering step `entry` in `epoch`;
 /// returns the agent it went to and the token.
-pub async fn next_dispatch(cmds: &Samples, entry: u32, epoch: u32) -> (String, baton_proto::dist::wire::TokenId) {
+pub async fn next_dispatch(cmds: &Samples, entry: u32, epoch: u32) -> (String, baton_proto::cluster::wire::TokenId) {
     next_dispatch_within(cmds, entry, epoch)
         .await
         .unwrap_or_else(|| panic!("step {entry} was not dispatched in epoch {epoch} within {TIMEOUT:?}"))
@@ -392,8 +392,8 @@ pub async fn next_dispatch_within(
     cmds: &Samples,
     entry: u32,
     epoch: u32,
-) -> Option<(String, baton_proto::dist::wire::TokenId)> {
-    use baton_proto::dist::wire::{self, ToAgent};
+) -> Option<(String, baton_proto::cluster::wire::TokenId)> {
+    use baton_proto::cluster::wire::{self, ToAgent};
     let found = tokio::time::timeout(TIMEOUT, async {
         while let Ok(sample) = cmds.recv_async().await {
             if let Ok(ToAgent::Dispatch { entry: e, epoch: n, token, .. }) = wire::decode(&sample.payload().to_bytes())

@@ -7,7 +7,8 @@ use std::fmt::Write;
 use std::sync::Arc;
 
 use baton_proto::exec::program::{Program, StepId, TransitionId};
-use baton_proto::exec::sim::{parse_inputs, simulate, SimOutput};
+use baton_proto::exec::sim::{parse_inputs, simulate};
+use baton_proto::exec::trace::Output;
 use baton_proto::pipeline::check_source;
 use baton_proto::types::Type;
 
@@ -88,8 +89,8 @@ pub fn trace_with(p: &Program, tail_ms: u64, name: impl Fn(&str) -> String) -> V
     let mut out = Vec::new();
     simulate(Arc::new(p.clone()), &inputs, 10, t + tail_ms, |o| {
         out.push(match o {
-            SimOutput::Trace(r) => format!("{} {} {}", r.t_ms, r.event, name(&r.name)),
-            SimOutput::Fault { t_ms, message } => format!("{t_ms} fault {message}"),
+            Output::Trace(r) => format!("{} {} {}", r.t_ms, r.event, name(&r.name)),
+            Output::Fault { t_ms, message } => format!("{t_ms} fault {message}"),
         })
     })
     .expect("simulation runs");

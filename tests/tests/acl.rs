@@ -9,8 +9,8 @@
 use std::path::Path;
 use std::time::Duration;
 
-use baton_proto::dist::keys;
-use baton_proto::dist::wire::{self, CtlRequest, DeviceReport, Report, RunId, SetRequest, TokenId, VarUpdate};
+use baton_proto::cluster::keys;
+use baton_proto::cluster::wire::{self, CtlRequest, DeviceReport, Report, RunId, SetRequest, TokenId, VarUpdate};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::loopback::{bin, deploy_certs, free_port, start_zenohd, tls_config, zenohd, Cluster, TIMEOUT};
 
@@ -84,7 +84,7 @@ type Heard = zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh
 async fn rogue_joins(endpoint: &str, dir: &Path, pki: &Path) -> RogueSession {
     let config = tls_config(dir, pki, "robot2", false);
     let mut config = zenoh::Config::from_file(&config).expect("config");
-    let net = baton_proto::dist::netconfig::NetConfig::client(&[endpoint.to_string()], false);
+    let net = baton_proto::cluster::netconfig::NetConfig::client(&[endpoint.to_string()], false);
     for (key, value) in net.overrides() {
         config.insert_json5(key, &value).expect("override");
     }

@@ -7,8 +7,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use baton_proto::dist::keys;
-use baton_proto::dist::wire::{self, AgentInfo, CtlRequest, RunId};
+use baton_proto::cluster::keys;
+use baton_proto::cluster::wire::{self, AgentInfo, CtlRequest, RunId};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::loopback::{deploy_certs, free_port, read_trace, tls_config, Cluster, Coordinator, TIMEOUT};
 
@@ -67,7 +67,7 @@ async fn secured(edit: impl Fn(String) -> String) -> (Cluster, PathBuf, PathBuf,
 /// A session of the test's own with `name`'s certificate.
 async fn session(cluster: &Cluster, dir: &Path, pki: &Path, name: &str) -> zenoh::Session {
     let mut config = zenoh::Config::from_file(tls_config(dir, pki, name, false)).expect("config");
-    let net = baton_proto::dist::netconfig::NetConfig::client(std::slice::from_ref(&cluster.endpoint), false);
+    let net = baton_proto::cluster::netconfig::NetConfig::client(std::slice::from_ref(&cluster.endpoint), false);
     for (key, value) in net.overrides() {
         config.insert_json5(key, &value).expect("override");
     }

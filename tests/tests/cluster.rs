@@ -2,9 +2,9 @@
 
 use std::time::Duration;
 
-use baton_proto::dist::keys;
-use baton_proto::dist::netconfig::NetConfig;
-use baton_proto::dist::wire::{self, ChartHash, RunId, StatusReport, ToAgent, TokenId};
+use baton_proto::cluster::keys;
+use baton_proto::cluster::netconfig::NetConfig;
+use baton_proto::cluster::wire::{self, ChartHash, RunId, StatusReport, ToAgent, TokenId};
 use baton_proto::exec::trace::TraceEvent;
 use baton_tests::loopback::{check_trace_invariants, events, repo, Cluster, TIMEOUT};
 use zenoh::sample::Locality;

@@ -1,6 +1,6 @@
 //! Lost agents with real processes: SIGKILL of the agent holding a token, under each `--on-agent-loss` policy.
 
-use baton_proto::dist::keys;
+use baton_proto::cluster::keys;
 use baton_proto::exec::trace::TraceEvent;
 use baton_tests::loopback::{
     self, check_trace_invariants, check_trace_invariants_with_tokens_out, dispatches, repo, step_id, Cluster, Samples,
@@ -111,8 +111,8 @@ async fn a_stopped_agents_late_result_is_rejected_after_a_reassign() {
     let mut told_to_drop = false;
     while let Ok(Some(sample)) = cmds.try_recv() {
         let to_holder = sample.key_expr().as_str().split('/').nth(2) == Some(holder.as_str());
-        if let Ok(baton_proto::dist::wire::ToAgent::Drop { epoch: 1, .. }) =
-            baton_proto::dist::wire::decode(&sample.payload().to_bytes())
+        if let Ok(baton_proto::cluster::wire::ToAgent::Drop { epoch: 1, .. }) =
+            baton_proto::cluster::wire::decode(&sample.payload().to_bytes())
         {
             told_to_drop |= to_holder;
         }

@@ -2,8 +2,8 @@
 //! that hears two processes answer to one name dispatches to neither and raises an alarm, and commands reach
 //! one process only. An agent waiting for its router at start still stops when told.
 
-use baton_proto::dist::keys;
-use baton_proto::dist::wire::{self, AgentInfo};
+use baton_proto::cluster::keys;
+use baton_proto::cluster::wire::{self, AgentInfo};
 use baton_proto::exec::trace::TraceEvent;
 use baton_tests::loopback::{bin, check_trace_invariants, events, free_port, read_trace, repo, Cluster, TIMEOUT};
 use tokio::process::Command;

@@ -704,7 +704,7 @@ async fn abort_with_a_robot_cut_off_tells_it_once_it_is_back() {
     let chart = cell_with(&dir, &format!("echo $$$$ > {}; exec sleep 100", pid_file.display()));
     let mut coordinator = cluster.coordinator_joining(&chart, &["--abort-wait", "60s"]);
     coordinator.wait_for_log("running chart").await;
-    let cable = baton_shell::cable::Cable::lay(cluster.router_addr(), 1).await.expect("lay r1's cable");
+    let cable = baton_host::cable::Cable::lay(cluster.router_addr(), 1).await.expect("lay r1's cable");
     cluster.agent_at(&cable.endpoint(), "r1", &[], &["--allow-shell", "--lease-ms", "1000", "--verbose"]);
     cluster.agent("r2", &[], &["--allow-shell"]);
     wait_for_mark(&dir, "start MoveA1").await;
@@ -747,9 +747,9 @@ async fn abort_with_a_robot_cut_off_tells_it_once_it_is_back() {
 /// the test's router takes the hold, answers `holding`, stops answering for a second, then answers `held`.
 #[tokio::test(flavor = "multi_thread")]
 async fn ctl_wait_asks_again_while_its_run_is_briefly_unreachable() {
-    use baton_proto::dist::keys;
-    use baton_proto::dist::runtime::packml::State;
-    use baton_proto::dist::wire::{self, ChartHash, CtlReply, RunId, StatusReport};
+    use baton_proto::cluster::keys;
+    use baton_proto::cluster::runtime::packml::State;
+    use baton_proto::cluster::wire::{self, ChartHash, CtlReply, RunId, StatusReport};
 
     let cluster = Cluster::with_router().await;
     let run = RunId(uuid::Uuid::from_u128(0x5eed));

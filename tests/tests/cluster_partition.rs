@@ -3,7 +3,7 @@
 
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use baton_proto::dist::keys;
+use baton_proto::cluster::keys;
 use baton_proto::exec::trace::TraceEvent;
 use baton_tests::loopback::{self, check_trace_invariants, dispatches, free_port, repo, step_id, Cluster};
 use baton_tests::netns::Netns;

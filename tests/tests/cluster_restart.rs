@@ -1,7 +1,7 @@
 //! A coordinator killed with SIGKILL and started again from its journal, with real processes on loopback.
 
-use baton_proto::dist::keys;
-use baton_proto::dist::wire::{self, Report};
+use baton_proto::cluster::keys;
+use baton_proto::cluster::wire::{self, Report};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::loopback::{self, check_trace_invariants, dispatches, repo, step_id, Cluster, TIMEOUT};
 use zenoh::qos::CongestionControl;
@@ -212,7 +212,7 @@ async fn a_journal_of_another_chart_version_or_a_finished_run_is_refused() {
 /// reports of a token nobody holds —: none of it is journaled (a resume would replay it all), and the run goes on.
 #[tokio::test(flavor = "multi_thread")]
 async fn what_the_coordinator_refuses_never_reaches_its_journal() {
-    use baton_proto::dist::wire::{RunId, TokenId, VarUpdate, VarValue};
+    use baton_proto::cluster::wire::{RunId, TokenId, VarUpdate, VarValue};
     let chart = repo("tests/charts/selection_segment.st");
     let mut cluster = Cluster::new();
     let journal = cluster.dir.path().join("journal");

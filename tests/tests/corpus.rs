@@ -136,7 +136,8 @@ fn beremiz_first_steps_in_xml_and_ironplc_text_are_one_chart() {
 /// its timers' sum, a pedestrian request during GREEN (latched by the SR, released by the TON's 2 s) ends GREEN
 /// 2 s later instead of at its 20 s, and the request is spent — the next GREEN lasts its full time.
 fn beremiz_traffic_light_cycles_and_answers_the_pedestrian_button() {
-    use baton_proto::exec::sim::{parse_inputs, simulate, SimOutput};
+    use baton_proto::exec::sim::{parse_inputs, simulate};
+    use baton_proto::exec::trace::Output;
     let program = program_of("beremiz__exemples__svghmi_traffic_light__plc.xml");
     let script = "{\"t_ms\": 100, \"set\": {\"SWITCH_BUTTON\": true}}\n\
                   {\"t_ms\": 60000, \"set\": {\"PEDESTRIAN_BUTTON\": true}}\n\
@@ -144,7 +145,7 @@ fn beremiz_traffic_light_cycles_and_answers_the_pedestrian_button() {
     let inputs = parse_inputs(script, &program).expect("the script names the chart's inputs");
     let mut fired = Vec::new();
     simulate(std::sync::Arc::new(program), &inputs, 20, 110_000, |out| {
-        if let SimOutput::Trace(r) = out {
+        if let Output::Trace(r) = out {
             if r.event == TraceEvent::Fire {
                 fired.push((r.t_ms, r.name));
             }
@@ -171,13 +172,14 @@ fn beremiz_traffic_light_cycles_and_answers_the_pedestrian_button() {
 /// value: the configuration's global list gives it 17, and Beremiz (matiec) resets the counter to 17. Baton reads
 /// the project's global lists, so a reset gives 17 here too (it gave 0, the type's default).
 fn beremiz_first_steps_counter_resets_to_the_configurations_global_value() {
-    use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
+    use baton_proto::exec::sim::{parse_inputs, simulate_watching};
+    use baton_proto::exec::trace::Output;
     let program = program_of("beremiz__exemples__first_steps__plc.xml");
     let inputs = parse_inputs("{\"t_ms\": 0, \"set\": {\"Reset\": true}}\n", &program).expect("Reset is an input");
     let watch = [program.var_by_name("OUT").expect("CounterSFC has an output OUT")];
     let mut values = Vec::new();
     simulate_watching(Arc::new(program), &inputs, 10, 50, &watch, |o| {
-        if let SimOutput::Trace(r) = o {
+        if let Output::Trace(r) = o {
             values.extend(r.value);
         }
     })
@@ -246,7 +248,8 @@ fn xml_reader_never_panics_on_mutated_plcopen_files() {
 /// action in SFC) runs `Crane.ACT_Init` as a step action, a chart of the crane's instance, whose first step moves
 /// on once nothing resets (`NOT InitCompleted AND NOT GVL.IsSFCResetting`).
 fn xppu_scenario_1_starts_through_main_and_runs_its_blocks_charts() {
-    use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
+    use baton_proto::exec::sim::{parse_inputs, simulate_watching};
+    use baton_proto::exec::trace::Output;
     let program = baton_tests::xppu_scenario_1();
     let script = "{\"t_ms\": 0, \"set\": {\"Stack.Panel.DI_EmergencyStop\": true}}\n\
                   {\"t_ms\": 500, \"set\": {\"Stack.Panel.DI_StartButton\": true}}\n\
@@ -256,7 +259,7 @@ fn xppu_scenario_1_starts_through_main_and_runs_its_blocks_charts() {
     let watch = [step("Crane.ACT_Init.Crane_ACT_Init.X"), step("Stack.StartButton")];
     let (mut fired, mut values) = (Vec::new(), Vec::new());
     simulate_watching(Arc::new(program), &inputs, 10, 1_000, &watch, |out| {
-        if let SimOutput::Trace(r) = out {
+        if let Output::Trace(r) = out {
             match r.event {
                 TraceEvent::Fire => fired.push((r.t_ms, r.name)),
                 TraceEvent::Value => values.push((r.t_ms, r.name, r.value.unwrap_or_default())),

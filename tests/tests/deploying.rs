@@ -3,7 +3,7 @@
 //! real `zenohd` 1.10.2 and on the router embedded in the coordinator. The cell runs to its end (a 5 s weld among 11
 //! s of motions, under `--on-agent-loss reassign`) with no fence, no alarm and no skill cancelled; the operator's
 //! `set`, `hold` and `unhold` are taken and traced with her name; what the chapter shows refused is refused, with
-//! its reason. And every message each process sent (`BATON_TRAFFIC`, `baton_shell::traffic`) is one the generated
+//! its reason. And every message each process sent (`BATON_TRAFFIC`, `baton_host::traffic`) is one the generated
 //! rules let through, in and out — so that a message added to Baton without its rule fails here.
 
 use std::path::{Path, PathBuf};

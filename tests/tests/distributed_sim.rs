@@ -1,7 +1,7 @@
 //! The distributed runtime's state machines in deterministic simulation: real coordinator and agents, a
 //! simulated network that duplicates, reorders and delays, virtual time.
 
-use baton_proto::dist::runtime::coordinator::LossPolicy;
+use baton_proto::cluster::runtime::coordinator::LossPolicy;
 use baton_proto::exec::trace::TraceEvent;
 use baton_proto::testing::simulated_cluster::{Faults, SimCluster};
 
@@ -679,7 +679,7 @@ END_PROGRAM
 
 #[test]
 fn agents_take_a_value_only_from_its_writer_and_the_coordinators_own_process() {
-    use baton_proto::dist::wire::{VarUpdate, VarValue};
+    use baton_proto::cluster::wire::{VarUpdate, VarValue};
     use baton_proto::types::Value;
     let go = |from: &str, incarnation: u128, seq: u64| {
         let sim = SimCluster::new(WAITING_FOR_GO, &[("r1", &[])], Faults::default(), 0);

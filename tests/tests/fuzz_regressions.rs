@@ -7,7 +7,7 @@
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
 
-use baton_proto::dist::journal;
+use baton_proto::cluster::journal;
 use baton_proto::testing::fuzz::{self, TARGETS};
 use baton_proto::testing::simulated_cluster::{Faults, SimCluster};
 use baton_ros2::cdr::{self, FUZZ_TYPES};

@@ -1,4 +1,4 @@
-//! Chart variables bound to Zenoh keys (`dist::io`), through a real agent: a plain Zenoh publisher of the
+//! Chart variables bound to Zenoh keys (`cluster::bindings`), through a real agent: a plain Zenoh publisher of the
 //! test's own drives the chart's transitions, and the chart's outputs reach the test's subscribers.
 
 use std::time::Duration;

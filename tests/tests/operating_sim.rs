@@ -1,8 +1,8 @@
 //! Operating a cell, in deterministic simulation: an operator's hold, unhold, stop and abort carried out by the real
 //! coordinator and agents over a simulated network, with the run's PackML state following what the agents confirm.
 
-use baton_proto::dist::runtime::packml::State;
-use baton_proto::dist::wire::CtlRequest;
+use baton_proto::cluster::runtime::packml::State;
+use baton_proto::cluster::wire::CtlRequest;
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_proto::testing::simulated_cluster::{Fate, Faults, SimCluster};
 

@@ -5,7 +5,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-use baton_proto::dist::keys;
+use baton_proto::cluster::keys;
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::loopback::{self, read_trace, repo, step_id, Cluster};
 use baton_tests::rrd::{log_lines, read_recording, require_reader};

@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use baton_proto::dist::wire;
+use baton_proto::cluster::wire;
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::loopback::{self, bin, check_trace_invariants, dispatches, repo, Cluster};
 

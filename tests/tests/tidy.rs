@@ -18,9 +18,9 @@ const PROTO_LAYERS: &[(&str, &[&str])] = &[
     ("front", &["limits", "types"]),
     ("exec", &["limits", "types", "front"]),
     ("back", &["limits", "types", "front", "exec"]),
-    ("dist", &["limits", "types", "front", "exec"]),
-    ("pipeline", &["limits", "types", "front", "exec", "dist"]),
-    ("testing", &["limits", "types", "front", "exec", "dist", "back", "pipeline"]),
+    ("cluster", &["limits", "types", "front", "exec"]),
+    ("pipeline", &["limits", "types", "front", "exec", "cluster"]),
+    ("testing", &["limits", "types", "front", "exec", "cluster", "back", "pipeline"]),
 ];
 
 /// Paths that `proto` never names: clocks, files, the network, processes, the environment. (`proto/clippy.toml`
@@ -375,7 +375,7 @@ fn crates() -> Vec<Crate> {
     let root = root();
     vec![
         Crate::read("proto", &root.join("proto/src"), &[]),
-        Crate::read("shell", &root.join("shell/src"), &[]),
+        Crate::read("host", &root.join("host/src"), &[]),
         Crate::read("ros2", &root.join("ros2/src"), &[]),
         Crate::read("coordinator", &root.join("coordinator/src"), &[]),
         Crate::read("agent", &root.join("agent/src"), &["main.rs"]),
@@ -434,9 +434,9 @@ fn proto_touches_no_clock_file_network_or_process() {
     }
     let manifest = std::fs::read_to_string(root().join("proto/Cargo.toml")).expect("proto/Cargo.toml");
     let deps = manifest.split("[dependencies]").nth(1).unwrap_or("").split("\n[").next().unwrap_or("");
-    for shell_only in ["tokio", "zenoh", "rerun", "rand", "crc32fast"] {
-        if deps.lines().any(|l| l.trim_start().starts_with(shell_only)) {
-            found.push(format!("proto/Cargo.toml depends on {shell_only}"));
+    for host_only in ["tokio", "zenoh", "rerun", "rand", "crc32fast"] {
+        if deps.lines().any(|l| l.trim_start().starts_with(host_only)) {
+            found.push(format!("proto/Cargo.toml depends on {host_only}"));
         }
     }
     assert!(found.is_empty(), "proto is the pure core (ARCHITECTURE.md, `pure-core`):\n  {}", found.join("\n  "));
@@ -446,7 +446,7 @@ fn proto_touches_no_clock_file_network_or_process() {
 fn no_source_file_holds_more_than_one_job() {
     let root = root();
     let mut long = Vec::new();
-    for dir in ["proto", "shell", "ros2", "coordinator", "agent", "tests", "fuzz"] {
+    for dir in ["proto", "host", "ros2", "coordinator", "agent", "tests", "fuzz"] {
         for path in sources(&root.join(dir)) {
             let rel = path.strip_prefix(&root).expect("in the workspace");
             // The external peers are other projects' code, built apart.
@@ -487,7 +487,7 @@ fn the_path_reader_expands_use_trees_and_skips_comments_and_strings() {
     assert_eq!(found, ["crate::a"]);
 }
 
-/// Calls that send a Zenoh message without `baton_shell::traffic` listing it.
+/// Calls that send a Zenoh message without `baton_host::traffic` listing it.
 const ZENOH_UNLISTED: &[&str] = &[
     ".declare_subscriber(",
     ".declare_queryable(",
@@ -502,17 +502,17 @@ const ZENOH_UNLISTED: &[&str] = &[
     "session.delete(",
 ];
 
-/// Every Zenoh message a process of Baton's sends is declared through `baton_shell::traffic`, which lists it
+/// Every Zenoh message a process of Baton's sends is declared through `baton_host::traffic`, which lists it
 /// (`BATON_TRAFFIC`): the access control `baton deploy acl` writes is checked against those lists
 /// (`tests/tests/deploying.rs`), so a message sent around it would be one the rules were never checked for.
 #[test]
 fn every_zenoh_message_goes_through_traffic() {
     let root = root();
     let mut found = Vec::new();
-    for dir in ["shell/src", "agent/src", "coordinator/src"] {
+    for dir in ["host/src", "agent/src", "coordinator/src"] {
         for path in sources(&root.join(dir)) {
             let rel = path.strip_prefix(&root).expect("in the workspace");
-            if rel == Path::new("shell/src/traffic.rs") {
+            if rel == Path::new("host/src/traffic.rs") {
                 continue;
             }
             let code = without_tests(&code_only(&std::fs::read_to_string(&path).expect("a source file")));
@@ -523,5 +523,50 @@ fn every_zenoh_message_goes_through_traffic() {
             }
         }
     }
-    assert!(found.is_empty(), "Zenoh messages sent around baton_shell::traffic:\n  {}", found.join("\n  "));
+    assert!(found.is_empty(), "Zenoh messages sent around baton_host::traffic:\n  {}", found.join("\n  "));
+}
+
+/// Folder names that global ignore files and tools drop as build output, caches or vendored code: a folder of
+/// sources under one of them can be left out of a commit without anyone noticing.
+const SKIPPED_FOLDER_NAMES: &[&str] =
+    &["dist", "build", "out", "output", "bin", "obj", "tmp", "temp", "cache", "logs", "node_modules", "vendor"];
+
+/// Names that cannot be mistaken (ARCHITECTURE.md's code map): no source folder is named like build output, and
+/// "shell" names only the skill that runs a command — the process side of a state machine is its host.
+#[test]
+fn no_folder_looks_like_build_output_and_shell_names_only_the_skill() {
+    let root = root();
+    let mut found = Vec::new();
+    for (path, is_dir) in baton_tests::walk(&root) {
+        let rel = path.strip_prefix(&root).expect("in the workspace");
+        // The external peers are other projects' code, built apart; `.ci`'s tools live outside the clone.
+        if rel.starts_with("tests/ros2-peer")
+            || rel.starts_with("tests/ros2dds-bridge")
+            || rel.starts_with("fuzz/target")
+        {
+            continue;
+        }
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or_default().to_ascii_lowercase();
+        if is_dir && SKIPPED_FOLDER_NAMES.contains(&name.as_str()) {
+            found.push(format!("{}: a folder named like build output", rel.display()));
+        }
+        let stem = name.split('.').next().unwrap_or_default();
+        if stem == "shell" || stem == "shells" {
+            found.push(format!(
+                "{}: \"shell\" is the skill's name; a state machine's process side is a host",
+                rel.display()
+            ));
+        }
+    }
+    // The distributed runtimes take what they share with `baton sim` from where it lives, not from `sim`.
+    for path in sources(&root.join("proto/src/cluster")).into_iter().chain(sources(&root.join("proto/src/testing"))) {
+        let code = code_only(&std::fs::read_to_string(&path).expect("a source file"));
+        if code.contains("exec::sim") {
+            found.push(format!(
+                "{}: reaches into `baton sim`'s module",
+                path.strip_prefix(&root).expect("inside").display()
+            ));
+        }
+    }
+    assert!(found.is_empty(), "names that can be mistaken:\n  {}", found.join("\n  "));
 }

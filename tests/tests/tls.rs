@@ -15,9 +15,9 @@ use baton_tests::loopback::{
 async fn open(file: &Path, endpoint: &str, listen: bool) -> zenoh::Result<zenoh::Session> {
     let endpoints = [endpoint.to_string()];
     let net = if listen {
-        baton_proto::dist::netconfig::NetConfig::router(&endpoints)
+        baton_proto::cluster::netconfig::NetConfig::router(&endpoints)
     } else {
-        baton_proto::dist::netconfig::NetConfig::client(&endpoints, false)
+        baton_proto::cluster::netconfig::NetConfig::client(&endpoints, false)
     };
     let mut config = zenoh::Config::from_file(file)?;
     for (key, value) in net.overrides() {

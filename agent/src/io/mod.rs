@@ -1,4 +1,4 @@
-//! The agent's end of chart variables bound to devices (`baton_proto::dist::io`): for each run, one task per
+//! The agent's end of chart variables bound to devices (`baton_proto::cluster::bindings`): for each run, one task per
 //! connection — a Zenoh key (`keys`), a ROS 2 topic (`topics`), the OPC UA server of an endpoint (`nodes`) —
 //! that turns the device's samples into values of the chart, sends the chart's outputs to the device, and says
 //! whether the device can be reached.
@@ -15,7 +15,7 @@ pub mod zenoh_keys;
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 
-use baton_proto::dist::io::{IoBinding, IoDir, IoKind};
+use baton_proto::cluster::bindings::{IoBinding, IoDir, IoKind};
 use baton_proto::types::Value;
 use tokio::sync::Notify;
 use tokio::task::JoinHandle;

@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use baton_proto::dist::io::{IoBinding, IoDir};
+use baton_proto::cluster::bindings::{IoBinding, IoDir};
 use baton_proto::front::literal::Literal;
 use baton_proto::front::pragma::Param;
 use baton_proto::types::Value;

@@ -11,7 +11,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 use std::time::Duration;
 
-use baton_proto::dist::io::IoBinding;
+use baton_proto::cluster::bindings::IoBinding;
 use baton_proto::front::literal::{Literal, PathPart};
 use baton_proto::types::Value;
 use zenoh::sample::SampleKind;
@@ -44,7 +44,7 @@ async fn follow(ros2: &Ros2, session: &Session, binding: usize, b: &IoBinding, s
     let (topic, ty, path) = resolve(ros2, b, false)?;
     let node = ros2.node(session).await?;
     let (_endpoint, subscriber) = node.subscription(&topic, &ty.wire).await?;
-    let graph = baton_shell::traffic::liveliness_subscriber(
+    let graph = baton_host::traffic::liveliness_subscriber(
         session,
         keys::servers(node.via(), node.domain(), Kind::Publisher, &topic),
     )

@@ -8,7 +8,7 @@
 
 use std::sync::Arc;
 
-use baton_proto::dist::io::IoBinding;
+use baton_proto::cluster::bindings::IoBinding;
 use baton_proto::front::literal::{self, Literal};
 use baton_proto::types::Value;
 use zenoh::qos::CongestionControl;
@@ -54,7 +54,7 @@ pub fn payload_of(value: &Value) -> String {
 /// Subscribes to an input's key expression and hands every sample's value to the run.
 pub async fn input(session: Session, binding: usize, b: IoBinding, sink: Sink) {
     let key = b.key().unwrap_or_default().to_string();
-    let subscriber = match baton_shell::traffic::subscriber(&session, key.clone()).await {
+    let subscriber = match baton_host::traffic::subscriber(&session, key.clone()).await {
         Ok(s) => s,
         Err(e) => return sink.state(binding, Err(format!("cannot subscribe to {key}: {e}"))),
     };
@@ -66,12 +66,13 @@ pub async fn input(session: Session, binding: usize, b: IoBinding, sink: Sink) {
 /// Puts an output's values on its key, the latest when the last put is done.
 pub async fn output(session: Session, binding: usize, b: IoBinding, latest: Arc<Latest>, sink: Sink) {
     let key = b.key().unwrap_or_default().to_string();
-    let publisher =
-        match baton_shell::traffic::publisher(&session, key.clone()).congestion_control(CongestionControl::Block).await
-        {
-            Ok(p) => p,
-            Err(e) => return sink.state(binding, Err(format!("cannot publish on {key}: {e}"))),
-        };
+    let publisher = match baton_host::traffic::publisher(&session, key.clone())
+        .congestion_control(CongestionControl::Block)
+        .await
+    {
+        Ok(p) => p,
+        Err(e) => return sink.state(binding, Err(format!("cannot publish on {key}: {e}"))),
+    };
     let mut down = false;
     let mut resend = Resend::new(binding, b.period_ms());
     loop {

@@ -114,7 +114,7 @@ pub struct Endpoint {
 
 /// Declares a liveliness token; `what` says what it announces, for the error.
 async fn announce(session: &Session, key: String, what: &str) -> Result<LivelinessToken, String> {
-    baton_shell::traffic::token(session, key).await.map_err(|e| format!("cannot announce {what}: {e}"))
+    baton_host::traffic::token(session, key).await.map_err(|e| format!("cannot announce {what}: {e}"))
 }
 
 /// Whether `name` is one of an action's services or topics (`<action>/_action/send_goal`…), which a bridge
@@ -177,7 +177,7 @@ impl Node {
         deadline: Instant,
     ) -> Result<WireType, String> {
         let pattern = keys::servers(self.via, self.id.domain, kind, name);
-        let sub = baton_shell::traffic::liveliness_subscriber(&self.session, pattern)
+        let sub = baton_host::traffic::liveliness_subscriber(&self.session, pattern)
             .history(true)
             .await
             .map_err(|e| format!("cannot watch the ROS graph: {e}"))?;
@@ -258,7 +258,7 @@ impl Node {
     pub async fn subscription(&self, topic: &str, wire: &WireType) -> Result<(Endpoint, Subscription), String> {
         let endpoint = self.endpoint(Kind::Subscription, topic, wire, keys::TOPIC_QOS).await?;
         let subscriber =
-            baton_shell::traffic::subscriber(&self.session, keys::data(self.via, self.id.domain, topic, wire))
+            baton_host::traffic::subscriber(&self.session, keys::data(self.via, self.id.domain, topic, wire))
                 .await
                 .map_err(|e| format!("cannot subscribe to {topic}: {e}"))?;
         Ok((endpoint, subscriber))
@@ -268,7 +268,7 @@ impl Node {
     pub async fn publisher(&self, topic: &str, ty: &TopicType) -> Result<TopicPublisher, String> {
         let endpoint = self.endpoint(Kind::Publisher, topic, &ty.wire, keys::TOPIC_QOS).await?;
         let publisher =
-            baton_shell::traffic::publisher(&self.session, keys::data(self.via, self.id.domain, topic, &ty.wire))
+            baton_host::traffic::publisher(&self.session, keys::data(self.via, self.id.domain, topic, &ty.wire))
                 .congestion_control(CongestionControl::Block)
                 .await
                 .map_err(|e| format!("cannot publish on {topic}: {e}"))?;
@@ -296,7 +296,7 @@ impl Node {
             let sequence = self.next_sequence.fetch_add(1, Ordering::Relaxed);
             let sent = Instant::now();
             let left = limit.saturating_sub(sent - started);
-            let replies = baton_shell::traffic::get(&self.session, key.clone())
+            let replies = baton_host::traffic::get(&self.session, key.clone())
                 .payload(request.clone())
                 .attachment(keys::attachment(sequence, now_ns(), &client.gid))
                 .target(match self.via {
@@ -314,7 +314,7 @@ impl Node {
                 break answer;
             }
             if pause == FIRST_PAUSE {
-                // The agent's log (stderr), as the shell writes it: a server seen in the graph that takes no call.
+                // The agent's log (stderr), as the host writes it: a server seen in the graph that takes no call.
                 eprintln!(
                     "warning: no server took the call of {name} yet, though one is in the graph: sending it again"
                 );

@@ -159,8 +159,8 @@ impl Skills {
     }
 
     /// What `baton-agent --list-skills` prints and `baton check --skills` reads: each skill by name, with the
-    /// parameters of a built-in one (`dist::skills::Catalogue::builtin`); a custom skill's are left open.
-    pub fn catalogue(&self) -> baton_proto::dist::skills::Catalogue {
-        baton_proto::dist::skills::Catalogue::of_names(self.names())
+    /// parameters of a built-in one (`cluster::skills::Catalogue::builtin`); a custom skill's are left open.
+    pub fn catalogue(&self) -> baton_proto::cluster::skills::Catalogue {
+        baton_proto::cluster::skills::Catalogue::of_names(self.names())
     }
 }

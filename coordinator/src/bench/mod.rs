@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::dist::netconfig::NetConfig;
+use baton_proto::cluster::netconfig::NetConfig;
 use serde::Serialize;
 use tokio::process::{Child, Command};
 use zenoh::qos::CongestionControl;
@@ -21,9 +21,9 @@ use crate::demo::{agent_binary, free_port};
 mod resume;
 mod scale;
 use crate::run::{run_with, Probe, RunOptions};
+use baton_host::{traffic, ZenohResult};
 use baton_proto::exec::trace::TraceEvent;
 use baton_proto::testing::bench_charts;
-use baton_shell::{traffic, ZenohResult};
 
 const PING_KEY: &str = "baton/bench/ping";
 const PONG_KEY: &str = "baton/bench/pong";
@@ -568,7 +568,7 @@ fn chart_options(
         multicast_scouting: false,
         quiet: true,
         zenoh_config: None,
-        loss_policy: baton_proto::dist::runtime::coordinator::LossPolicy::Pause,
+        loss_policy: baton_proto::cluster::runtime::coordinator::LossPolicy::Pause,
         journal: extras.journal.map(Path::to_path_buf),
         journal_settings: extras.journal_settings.unwrap_or_default(),
         rerun: extras.rerun.map_or(crate::recording::Sink::Off, crate::recording::Sink::Save),

@@ -17,7 +17,7 @@ use super::{
 };
 use crate::demo::free_port;
 use crate::run::Probe;
-use baton_shell::ZenohResult;
+use baton_host::ZenohResult;
 
 /// The figures of one agent count.
 #[derive(Serialize, Clone)]

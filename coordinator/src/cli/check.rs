@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use baton_proto::dist::skills::Catalogue;
+use baton_proto::cluster::skills::Catalogue;
 use baton_proto::front::diag::LineIndex;
 use baton_proto::front::source;
 use baton_proto::pipeline::{check_source, Report};
@@ -66,13 +66,13 @@ impl Check {
     }
 }
 
-/// `check_source`, and what the skills `known` say of the charts' skill bindings (`dist::skills::check`).
+/// `check_source`, and what the skills `known` say of the charts' skill bindings (`cluster::skills::check`).
 fn checked(src: &str, known: &Catalogue) -> Report {
     let mut report = check_source(src);
     let more: Vec<_> = report
         .charts
         .iter()
-        .filter_map(|c| Some(baton_proto::dist::skills::check(c.program.as_ref()?, c.layout.as_ref()?, known)))
+        .filter_map(|c| Some(baton_proto::cluster::skills::check(c.program.as_ref()?, c.layout.as_ref()?, known)))
         .flatten()
         .collect();
     report.diagnostics.extend(more);

@@ -13,8 +13,8 @@ pub struct Ctl {
     #[arg(long, value_name = "ID")]
     pub run: Option<String>,
     /// start (a run begun with --wait-start), hold, unhold, suspend, unsuspend, stop, abort, clear, reset
-    /// (PackML's commands; clear and reset for a run begun with --stay); mode auto|step|manual; confirm
-    /// [TRANSITION] (step mode); force TRANSITION, activate STEP, deactivate STEP, move FROM TO (manual mode); ack
+    /// (PackML's commands; clear and reset for a run begun with --stay); mode auto|step|manual; confirm or
+    /// confirm TRANSITION (step mode); force TRANSITION, activate STEP, deactivate STEP, move FROM TO (manual mode); ack
     /// ALARM_ID|all; shelve ALARM_ID --for DURATION [--reason TEXT]; unshelve ALARM_ID.
     #[arg(value_name = "COMMAND")]
     pub command: String,
@@ -48,7 +48,7 @@ pub struct Ctl {
 
 impl Ctl {
     pub fn run(self) -> anyhow::Result<ExitCode> {
-        let request = baton_proto::dist::wire::CtlRequest {
+        let request = baton_proto::cluster::wire::CtlRequest {
             command: self.command.to_ascii_lowercase(),
             target: self.target,
             agent: self.agent,

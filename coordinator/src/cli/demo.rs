@@ -17,7 +17,7 @@ pub struct Demo {
     /// Keep the chart, trace, summary and logs in this folder.
     #[arg(long, value_name = "DIR")]
     pub keep: Option<PathBuf>,
-    /// Record the run for the Rerun viewer: save:PATH.rrd, connect[:URL], spawn, or off.
+    /// Record the run for the Rerun viewer: save:PATH.rrd, connect or connect:URL, spawn, or off.
     #[arg(long, value_name = "SINK", default_value = "save:baton-demo.rrd")]
     pub rerun: crate::recording::Sink,
 }

@@ -73,7 +73,7 @@ enum Command {
     /// Print the active steps, tokens in flight and live agents of the charts running behind a router.
     Status(status::Status),
     /// Operate a running chart: hold, unhold, suspend, unsuspend, stop, abort; ack or shelve an alarm.
-    /// baton ctl --connect EP [--run ID] COMMAND [TARGET] [--agent NAME] [--step S] [--reason TEXT]
+    /// baton ctl --connect EP [--run ID] COMMAND [TARGET …] [--agent NAME] [--step S] [--reason TEXT]
     Ctl(ctl::Ctl),
     /// Prepare a cell's deployment: `certs` makes a CA and a certificate per process (the name as its common
     /// name); `acl` writes the router's access control from the chart's placement and the identities.

@@ -9,7 +9,7 @@ pub struct Replay {
     /// The folder given to `baton run --journal`.
     #[arg(long, value_name = "DIR")]
     pub journal: PathBuf,
-    /// Where the recording goes: save:PATH.rrd, connect[:URL], spawn, or off.
+    /// Where the recording goes: save:PATH.rrd, connect or connect:URL, spawn, or off.
     #[arg(long, value_name = "SINK", default_value = "off")]
     pub rerun: crate::recording::Sink,
     /// Write the run's trace as JSON Lines.

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use super::{EXIT_ABORTED, EXIT_LEFT, EXIT_STOPPED};
 
-use baton_proto::dist::runtime::coordinator::LossPolicy;
+use baton_proto::cluster::runtime::coordinator::LossPolicy;
 
 use super::block_on;
 
@@ -69,7 +69,7 @@ pub struct Run {
     /// rebuilds the whole run). Older segments are deleted when a snapshot starts a new one.
     #[arg(long, value_name = "N|all", default_value = "2", requires = "journal")]
     pub journal_keep: crate::journal::Keep,
-    /// Record the run for the Rerun viewer: off, save:PATH.rrd, connect[:URL] (a running viewer), or spawn
+    /// Record the run for the Rerun viewer: off, save:PATH.rrd, connect or connect:URL (a running viewer), or spawn
     /// (start one).
     #[arg(long, value_name = "SINK", default_value = "off")]
     pub rerun: crate::recording::Sink,

@@ -6,7 +6,8 @@ use std::process::ExitCode;
 use std::sync::Arc;
 
 use anyhow::Context;
-use baton_proto::exec::sim::{parse_inputs, simulate_watching, SimOutput};
+use baton_proto::exec::sim::{parse_inputs, simulate_watching};
+use baton_proto::exec::trace::Output;
 use baton_proto::pipeline::check_source;
 
 use super::{print_diagnostics, EXIT_INVALID};
@@ -82,7 +83,7 @@ fn sim(
     let mut write_error = None;
     let layout = chosen.layout.clone();
     let end = simulate_watching(Arc::clone(&program), &records, cycle_ms, until_ms, &watched, |output| match output {
-        SimOutput::Trace(record) => {
+        Output::Trace(record) => {
             if write_error.is_none() {
                 let line = serde_json::to_string(&record).map_err(std::io::Error::other);
                 if let Err(e) = line.and_then(|l| writeln!(out, "{l}")) {
@@ -90,7 +91,7 @@ fn sim(
                 }
             }
         }
-        SimOutput::Fault { t_ms, message } => eprintln!("warning: t_ms={t_ms}: {message}"),
+        Output::Fault { t_ms, message } => eprintln!("warning: t_ms={t_ms}: {message}"),
     })?;
     if let Some(layout) = &layout {
         for line in waiting_on_skills(&program, layout, &end, until_ms) {
@@ -110,7 +111,7 @@ fn sim(
 /// that sets the indicator (or output) the step waits for, or `baton test`, whose simulated cell runs skills.
 fn waiting_on_skills(
     program: &baton_proto::exec::program::Program,
-    layout: &baton_proto::dist::layout::Layout,
+    layout: &baton_proto::cluster::layout::Layout,
     active: &[baton_proto::exec::program::StepId],
     until_ms: u64,
 ) -> Vec<String> {

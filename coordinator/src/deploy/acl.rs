@@ -12,7 +12,7 @@
 //! - each operator alone `set`s and `ctl`s on its own keys (`baton/run/*/set/O`, `…/ctl/O`), whose name the
 //!   coordinator records as who asked (and reads `status` and `why`); viewers only read `status` and `why`.
 //!
-//! What each Baton process sends is what `baton_shell::traffic` lists; `tests/tests/deploying.rs` runs a cell
+//! What each Baton process sends is what `baton_host::traffic` lists; `tests/tests/deploying.rs` runs a cell
 //! behind these rules with every process listing it, and checks each message against them.
 //!
 //! Rules name keys per flow: `ingress` is what a process sends into the router, `egress` what the router lets reach
@@ -23,10 +23,10 @@
 use std::collections::BTreeMap;
 
 use anyhow::bail;
-use baton_proto::dist::io::{IoDir, IoKind};
-use baton_proto::dist::keys::is_valid_name;
-use baton_proto::dist::layout::{Layout, Placement};
-use baton_proto::dist::netconfig::TX_QUEUE_DATA;
+use baton_proto::cluster::bindings::{IoDir, IoKind};
+use baton_proto::cluster::keys::is_valid_name;
+use baton_proto::cluster::layout::{Layout, Placement};
+use baton_proto::cluster::netconfig::TX_QUEUE_DATA;
 use baton_proto::exec::program::Program;
 use serde_json::{json, Value};
 

@@ -54,7 +54,7 @@ pub fn certs(dir: &Path, names: &[String], sans: &[String], renew: bool) -> anyh
         bail!("name at least one process: baton deploy certs --ca DIR NAME…");
     }
     for n in names {
-        if !baton_proto::dist::keys::is_valid_name(n) {
+        if !baton_proto::cluster::keys::is_valid_name(n) {
             bail!("`{n}` is not a name Baton takes: letters, digits, `_` and `-`, at most 64");
         }
         if n == "ca" {
@@ -207,7 +207,7 @@ mod tests {
             assert_eq!(mode, 0o600, "{}", i.key.display());
             // Its process's configuration: Zenoh reads it, and it connects with this certificate.
             zenoh::Config::from_file(&i.config).expect("zenoh reads the configuration");
-            let (cert, cn) = baton_shell::certificate_identity(&i.config).expect("it connects with a certificate");
+            let (cert, cn) = baton_host::certificate_identity(&i.config).expect("it connects with a certificate");
             assert_eq!((cert, cn.as_str()), (i.cert.clone(), i.name.as_str()));
         }
         // Again, with one name more: the CA and robot1's certificate are kept, operator1's is signed by that CA.

@@ -1,17 +1,17 @@
-//! `baton run --journal DIR`: the coordinator's records (`baton_proto::dist::journal`) appended to segment files by
+//! `baton run --journal DIR`: the coordinator's records (`baton_proto::cluster::journal`) appended to segment files by
 //! a thread of their own with group commit (`writer`), and the coordinator's snapshots that begin each segment after
 //! the first.
 //!
-//! The shell hands each batch of records to the writer with the messages the coordinator asked to send (its
+//! The host hands each batch of records to the writer with the messages the coordinator asked to send (its
 //! dispatches, its variable updates) and holds back the rest of what it asked for. The writer sends the messages
-//! itself the moment the batch is durable (written and `fdatasync`'d), then says so, and the shell carries out
+//! itself the moment the batch is durable (written and `fdatasync`'d), then says so, and the host carries out
 //! the rest: a round trip waits for the commit, not for the main loop's turn as well. While one commit is on its
 //! way to the disk, the batches that arrive meanwhile wait and go together in the next one, so a slow disk makes
 //! batches larger, not the chart slower: durability costs latency (one commit), not throughput.
 //!
 //! A segment file is a run of commits, each what one `fdatasync` made durable, with a head of its own (`segment`,
 //! which says how a segment is read back). The first segment is `journal.log`: the header, then records. Every
-//! `snapshot_every` records the shell hands the writer a snapshot of the coordinator (`Journaled::snapshot`); the
+//! `snapshot_every` records the host hands the writer a snapshot of the coordinator (`Journaled::snapshot`); the
 //! writer starts segment `journal-NNNNNN.log` with the header and the snapshot (written apart, `fdatasync`'d, then
 //! renamed into place, so a segment is never seen without its snapshot), the records after it go there, and the
 //! segments beyond `keep` are deleted: the journal is compacted behind its snapshots. A resume reads only the last
@@ -36,7 +36,7 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::dist::journal::{JournalHeader, JOURNAL_FORMAT};
+use baton_proto::cluster::journal::{JournalHeader, JOURNAL_FORMAT};
 use segment::{Tail, KIND_HEADER, KIND_RECORD, KIND_SNAPSHOT, MAGIC};
 
 /// The first segment of a journal, which holds the run from its start.

@@ -1,5 +1,5 @@
 use super::*;
-use baton_proto::dist::wire::{ChartHash, RunId};
+use baton_proto::cluster::wire::{ChartHash, RunId};
 use std::sync::Arc;
 
 fn header() -> JournalHeader {

@@ -1,5 +1,5 @@
-//! The journal's writer thread: group commit of the shell's batches, the messages each batch led to sent the moment
-//! it is durable, and the snapshots that start new segments; and `Writer`, the shell's side of it.
+//! The journal's writer thread: group commit of the host's batches, the messages each batch led to sent the moment
+//! it is durable, and the snapshots that start new segments; and `Writer`, the host's side of it.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc as std_mpsc;
@@ -32,7 +32,7 @@ impl Store {
                     }
                 };
                 writer_loop(self, rx, &done_tx, &counters, deliver, &tell);
-                // Whatever ended the writer (a failure, or the shell's closing it), the shell is told.
+                // Whatever ended the writer (a failure, or the host's closing it), the host is told.
                 tell();
             })
             .expect("start the journal writer thread");
@@ -68,7 +68,7 @@ pub struct JournalStats {
     pub snapshots: u64,
     /// What a commit (its write and `fdatasync`) took on average, in µs: what a round trip waits for at least.
     pub commit_us: f64,
-    /// From the shell's handing a batch to the writer to the writer's having sent what the batch led to, on
+    /// From the host's handing a batch to the writer to the writer's having sent what the batch led to, on
     /// average, in µs: the wait for the commit under way when the batch came, its own commit, the messages of the
     /// batches before it in that commit, and the wake-up.
     pub held_us: f64,
@@ -84,11 +84,11 @@ pub struct Outgoing {
 /// and with it the run.
 pub type Deliver = Box<dyn FnMut(Vec<Outgoing>) -> Result<(), String> + Send>;
 
-/// Called on the writer thread when more batches are durable, and when the writer fails: the shell releases what
+/// Called on the writer thread when more batches are durable, and when the writer fails: the host releases what
 /// they held (`Writer::on_durable`).
 pub type OnDurable = Arc<dyn Fn() + Send + Sync>;
 
-/// What the shell hands the writer.
+/// What the host hands the writer.
 enum Job {
     /// Records, and the messages they led to, handed at that instant.
     Batch(Vec<Vec<u8>>, Vec<Outgoing>, Instant),
@@ -162,7 +162,7 @@ fn writer_loop(
                 counters.held.fetch_add(1, Ordering::Relaxed);
                 counters.held_ns.fetch_add(at.elapsed().as_nanos() as u64, Ordering::Relaxed);
             }
-            // The shell is told only when more is durable.
+            // The host is told only when more is durable.
             let more = done.send_if_modified(|d| {
                 let was = std::mem::replace(d, Durable::Upto(committed));
                 was != *d
@@ -189,7 +189,7 @@ fn writer_loop(
     store.trim();
 }
 
-/// The shell's side of the writer thread.
+/// The host's side of the writer thread.
 pub struct Writer {
     tx: Option<std_mpsc::Sender<Job>>,
     durable: watch::Receiver<Durable>,
@@ -229,7 +229,7 @@ impl Writer {
     }
 
     /// Calls `f` on the writer thread each time more batches are durable, and when the writer fails or stops:
-    /// the shell releases what they held there, with no wake-up of its main loop per commit.
+    /// the host releases what they held there, with no wake-up of its main loop per commit.
     pub fn on_durable(&self, f: OnDurable) {
         if let Ok(mut hook) = self.hook.lock() {
             *hook = Some(f);

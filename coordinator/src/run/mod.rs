@@ -1,14 +1,14 @@
-//! `baton run`: the coordinator's Zenoh shell. It turns samples into inputs of the pure `Coordinator`, runs its
+//! `baton run`: the coordinator's Zenoh host. It turns samples into inputs of the pure `Coordinator`, runs its
 //! cycles, publishes what it asks for, writes the trace and answers the chart, status and set queries. It
-//! decides nothing about charts: every rule lives in `baton_proto::dist::runtime::coordinator`.
+//! decides nothing about charts: every rule lives in `baton_proto::cluster::runtime::coordinator`.
 //!
-//! With `--journal DIR`, every input is recorded (`baton_proto::dist::journal::Journaled`) and what the coordinator
+//! With `--journal DIR`, every input is recorded (`baton_proto::cluster::journal::Journaled`) and what the coordinator
 //! asks for is held back until the records that led to it are durable (`crate::journal`, group commit). A
 //! journal of a run that did not end is resumed: replayed, then reconciled with the agents.
 
+mod host;
 mod records;
 mod resume;
-mod shell;
 mod summary;
 
 pub use records::Probe;
@@ -24,18 +24,18 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context};
-use baton_proto::dist::journal::{self, JournalHeader, Journaled, JOURNAL_FORMAT};
-use baton_proto::dist::keys;
-use baton_proto::dist::netconfig::NetConfig;
-use baton_proto::dist::runtime::coordinator::LossPolicy;
-use baton_proto::dist::wire::{self, ChartHash, ChartSource, RunId};
+use baton_proto::cluster::journal::{self, JournalHeader, Journaled, JOURNAL_FORMAT};
+use baton_proto::cluster::keys;
+use baton_proto::cluster::netconfig::NetConfig;
+use baton_proto::cluster::runtime::coordinator::LossPolicy;
+use baton_proto::cluster::wire::{self, ChartHash, ChartSource, RunId};
 use baton_proto::exec::program::VarId;
 use tokio::sync::mpsc;
 
 use crate::chart_file::{load, Loaded};
-use baton_shell::ZenohResult;
+use baton_host::ZenohResult;
+use host::*;
 use resume::*;
-use shell::*;
 
 pub struct RunOptions {
     pub chart: PathBuf,
@@ -83,9 +83,9 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let net =
         if opts.listen.is_empty() { NetConfig::client(&opts.connect, true) } else { NetConfig::router(&opts.listen) };
     let net = NetConfig { multicast_scouting: opts.multicast_scouting, ..net };
-    let zconfig = baton_shell::zenoh_config(&net, opts.zenoh_config.as_deref())?;
+    let zconfig = baton_host::zenoh_config(&net, opts.zenoh_config.as_deref())?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
-    let writer = store.map(|store| store.start_writer(Some(shell::deliver_through(&session))));
+    let writer = store.map(|store| store.start_writer(Some(host::deliver_through(&session))));
     // A resumed run keeps the period it started with.
     let cycle_ms = match &resume {
         Some(Resume { header, .. }) => {
@@ -136,7 +136,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
             started_unix_ms,
         },
     )?;
-    let mut shell = Shell {
+    let mut host = Host {
         session: session.clone(),
         core,
         started: Instant::now(),
@@ -147,9 +147,9 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         held: VecDeque::new(),
         held_replies: VecDeque::new(),
         quiet: opts.quiet,
-        outbox: baton_shell::Outbox::new(&session),
-        vars_key: keys::vars(run, baton_proto::dist::runtime::COORDINATOR),
-        cmd_keys: shell::CmdKeys::default(),
+        outbox: baton_host::Outbox::new(&session),
+        vars_key: keys::vars(run, baton_proto::cluster::runtime::COORDINATOR),
+        cmd_keys: host::CmdKeys::default(),
         decode_drops: 0,
         out: Records::new(trace, probe, recorder, cycle_ms),
         cycle_ms,
@@ -160,9 +160,9 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         armed: None,
         failed: None,
     };
-    shell.core.watch(watch);
-    begin(&mut shell, resume, &opts, &loaded, run, &where_)?;
-    let shared = baton_shell::Shared::new(shell);
+    host.core.watch(watch);
+    begin(&mut host, resume, &opts, &loaded, run, &where_)?;
+    let shared = baton_host::Shared::new(host);
     let ended = serve(&shared, &session, chart_reply, opts.abort_wait_ms).await?;
     wind_down(shared.take()?, session, &opts, &loaded, ended).await
 }
@@ -196,7 +196,7 @@ pub fn resume_offline(opts: &RunOptions) -> anyhow::Result<u64> {
 /// Starts the run afresh (with `--set`'s values), or resumes it: the past replayed from the journal (its trace
 /// written again, so that the file holds the whole run), nothing sent, the clock going on from wall-clock time.
 fn begin(
-    shell: &mut Shell,
+    host: &mut Host,
     resume: Option<Resume<journal::SnapshotMeta>>,
     opts: &RunOptions,
     loaded: &Loaded,
@@ -210,23 +210,23 @@ fn begin(
             // from wall-clock time, downtime included.
             let from = match &snapshot {
                 Some(meta) => {
-                    shell.out.steps = serde_json::from_value(meta.shell.clone()).unwrap_or_default();
+                    host.out.steps = serde_json::from_value(meta.host.clone()).unwrap_or_default();
                     format!("its snapshot at record {} and ", meta.records)
                 }
                 None => String::new(),
             };
-            shell.snapshot_due = shell.core.records_counted() + shell.snapshot_every;
+            host.snapshot_due = host.core.records_counted() + host.snapshot_every;
             let path = opts.journal.as_ref().map_or(String::new(), |d| d.display().to_string());
-            let replayed = replay_segments(&mut shell.core, &segments, &mut shell.out, &path)?;
+            let replayed = replay_segments(&mut host.core, &segments, &mut host.out, &path)?;
             let wall = unix_ms().saturating_sub(header.started_unix_ms);
             let last_ms = snapshot.as_ref().map_or(0, |m| m.last_ms);
-            shell.base_ms = replayed.last_ms.max(last_ms).max(wall);
+            host.base_ms = replayed.last_ms.max(last_ms).max(wall);
             if !opts.sets.is_empty() {
                 eprintln!("warning: --set ignored: the run resumes from its journal with the values it had");
             }
-            let now = shell.now_ms();
-            shell.core.set_loss_policy(now, opts.loss_policy);
-            shell.core.recover(now);
+            let now = host.now_ms();
+            host.core.set_loss_policy(now, opts.loss_policy);
+            host.core.recover(now);
             if !opts.quiet {
                 eprintln!(
                     "baton: resuming run {} of chart `{}` from its journal ({from}{} records, {} token(s) out; \
@@ -234,20 +234,20 @@ fn begin(
                     run.key(),
                     loaded.pou,
                     replayed.records,
-                    shell.core.core().tokens_in_flight()
+                    host.core.core().tokens_in_flight()
                 );
             }
         }
         None => {
-            shell.core.set_loss_policy(0, opts.loss_policy);
+            host.core.set_loss_policy(0, opts.loss_policy);
             if opts.stay {
-                shell.core.stay(0);
+                host.core.stay(0);
             }
             if opts.wait_start {
-                shell.core.wait_start(0);
+                host.core.wait_start(0);
             }
             for (name, value) in &opts.sets {
-                shell.core.set(0, name, value).map_err(|e| anyhow!("--set {name}: {e}"))?;
+                host.core.set(0, name, value).map_err(|e| anyhow!("--set {name}: {e}"))?;
             }
             if !opts.quiet {
                 eprintln!("baton: running chart `{}` as run {} ({where_})", loaded.pou, run.key());
@@ -396,8 +396,8 @@ fn signal_sender(signal: &str) -> String {
 
 /// Whether the main loop goes on: until the run is over — unless it stays at its end (`--stay`), or an abort left
 /// agents that could not be told, which are waited for until `tell_until` (set here when that wait begins).
-fn keeps_serving(shell: &Shell, tell_until: &mut Option<Instant>, abort_wait_ms: u64) -> bool {
-    let core = shell.core.core();
+fn keeps_serving(host: &Host, tell_until: &mut Option<Instant>, abort_wait_ms: u64) -> bool {
+    let core = host.core.core();
     if !core.is_over() || (core.stays() && core.failure().is_none()) {
         return true;
     }
@@ -406,7 +406,7 @@ fn keeps_serving(shell: &Shell, tell_until: &mut Option<Instant>, abort_wait_ms:
         return false;
     }
     let until = *tell_until.get_or_insert_with(|| {
-        if !shell.quiet {
+        if !host.quiet {
             eprintln!(
                 "baton: the run is {}; waiting up to {abort_wait_ms} ms to tell {} of it (interrupt to leave now)",
                 core.run_state().name(),
@@ -428,7 +428,7 @@ fn keeps_serving(shell: &Shell, tell_until: &mut Option<Instant>, abort_wait_ms:
 /// The main loop: asleep until a query comes, a callback has something for it, or the next cycle is due. A run's
 /// messages from agents are handled in Zenoh's callbacks (`Callbacks`), under the same lock.
 async fn serve(
-    shared: &Arc<baton_shell::Shared<Shell>>,
+    shared: &Arc<baton_host::Shared<Host>>,
     session: &zenoh::Session,
     chart_reply: Vec<u8>,
     abort_wait_ms: u64,
@@ -438,16 +438,16 @@ async fn serve(
     let mut inboxes = Inboxes::declare(session, run).await?;
     let (tx, mut rx) = mpsc::unbounded_channel::<Identity>();
     {
-        let mut shell = shared.lock()?;
-        shell.vars_key = keys::vars(run, baton_proto::dist::runtime::COORDINATOR);
-        shell.answers = Some(tx.clone());
-        shell.due_cycles()?;
-        if let Some(journal) = &shell.journal {
+        let mut host = shared.lock()?;
+        host.vars_key = keys::vars(run, baton_proto::cluster::runtime::COORDINATOR);
+        host.answers = Some(tx.clone());
+        host.due_cycles()?;
+        if let Some(journal) = &host.journal {
             journal.on_durable(releasing(shared));
         }
     }
     let mut callbacks = Callbacks::declare(session, run, shared).await?;
-    let mut stop = baton_shell::Stop::new()?;
+    let mut stop = baton_host::Stop::new()?;
     let mut interrupts = 0;
     let mut tell_until = None;
     let mut deadline = match next_wake(&mut *shared.lock()?, &mut tell_until, abort_wait_ms)? {
@@ -462,80 +462,80 @@ async fn serve(
             q = inboxes.status.recv_async() => q.map_or(Wake::Closed, Wake::Status),
             q = inboxes.set.recv_async() => q.map_or(Wake::Closed, Wake::Set),
             q = inboxes.ctl.recv_async() => q.map_or(Wake::Closed, Wake::Ctl),
-            () = baton_shell::until(deadline) => Wake::Timer,
+            () = baton_host::until(deadline) => Wake::Timer,
             () = shared.rearmed() => Wake::Look,
             signal = stop.recv() => Wake::Stop(signal),
         };
         // Taken under the lock, with no wait in it, and the next deadline with it (one hold a wake-up: a hold
         // makes the callbacks that come meanwhile queue their messages); a reset's new inboxes are declared after.
         let (reset, wake_at) = {
-            let mut shell = shared.lock()?;
+            let mut host = shared.lock()?;
             // Cycles due run first, at their grid times, so that what arrived now comes after them.
-            shell.due_cycles()?;
+            host.due_cycles()?;
             match wake {
-                Wake::Alive(s) => shell.on_alive(&s, &tx),
-                Wake::Identity(ev) => shell.on_identity(ev, &tx),
+                Wake::Alive(s) => host.on_alive(&s, &tx),
+                Wake::Identity(ev) => host.on_identity(ev, &tx),
                 Wake::Chart(q) => reply(&q, keys::chart(run), chart_reply.clone()),
                 Wake::Status(q) => {
                     // The run's clock now, not the time of its last input: an idle run's time goes on.
-                    let mut status = shell.core.core().status();
-                    status.t_ms = shell.now_ms();
+                    let mut status = host.core.core().status();
+                    status.t_ms = host.now_ms();
                     reply(&q, keys::status(run), wire::encode(&status))
                 }
                 Wake::Set(q) => {
                     // Taken only from a sender the key names, answered on the run's own key with that name.
                     match request_sender(&q).map(str::to_string) {
-                        Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&shell.set_refused(why))),
-                        Ok(sender) if shell.replies_full() => {
-                            let answer = wire::encode(&shell.set_refused(shell.busy()));
+                        Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&host.set_refused(why))),
+                        Ok(sender) if host.replies_full() => {
+                            let answer = wire::encode(&host.set_refused(host.busy()));
                             reply(&q, keys::set(run, &sender), answer);
                         }
                         Ok(sender) => {
-                            let answer = wire::encode(&shell.on_set(&q, &sender));
-                            shell.answer(q, keys::set(run, &sender), answer);
+                            let answer = wire::encode(&host.on_set(&q, &sender));
+                            host.answer(q, keys::set(run, &sender), answer);
                         }
                     }
                 }
                 Wake::Ctl(q) => match request_sender(&q).map(str::to_string) {
-                    Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&shell.ctl_reply(Err(why)))),
-                    Ok(sender) if shell.replies_full() => {
-                        let answer = wire::encode(&shell.ctl_reply(Err(shell.busy())));
+                    Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&host.ctl_reply(Err(why)))),
+                    Ok(sender) if host.replies_full() => {
+                        let answer = wire::encode(&host.ctl_reply(Err(host.busy())));
                         reply(&q, keys::ctl(run, &sender), answer);
                     }
                     Ok(sender) => {
-                        let answer = wire::encode(&shell.on_ctl(&q, &sender));
-                        shell.answer(q, keys::ctl(run, &sender), answer);
+                        let answer = wire::encode(&host.on_ctl(&q, &sender));
+                        host.answer(q, keys::ctl(run, &sender), answer);
                     }
                 },
                 Wake::Timer | Wake::Look => {}
-                Wake::Stop(baton_shell::Signal::Terminate) if shell.journal.is_some() => {
-                    if !shell.quiet {
+                Wake::Stop(baton_host::Signal::Terminate) if host.journal.is_some() => {
+                    if !host.quiet {
                         eprintln!("baton: SIGTERM: leaving the run as it stands, for its journal to resume");
                     }
                     return Ok(Ended::Left);
                 }
-                Wake::Stop(_) if shell.core.core().is_over() => {
+                Wake::Stop(_) if host.core.core().is_over() => {
                     // At the end of a run that stays, or waiting for agents to tell: the process leaves.
                     return Ok(Ended::Ran);
                 }
                 Wake::Stop(signal) => {
                     interrupts += 1;
-                    interrupted(&mut shell, signal, interrupts);
+                    interrupted(&mut host, signal, interrupts);
                 }
                 Wake::Closed => return Ok(Ended::Closed),
             }
-            shell.commit(Vec::new())?;
-            let reset = if shell.core.core().wants_new_run() {
+            host.commit(Vec::new())?;
+            let reset = if host.core.core().wants_new_run() {
                 // `reset`: the chart starts again as a new run, journaled, with inboxes of its own.
                 let next = RunId(uuid::Uuid::new_v4());
-                let now = shell.now_ms();
-                shell.core.new_run(now, next);
-                shell.commit(Vec::new())?;
-                shell.vars_key = keys::vars(next, baton_proto::dist::runtime::COORDINATOR);
-                if !shell.quiet {
+                let now = host.now_ms();
+                host.core.new_run(now, next);
+                host.commit(Vec::new())?;
+                host.vars_key = keys::vars(next, baton_proto::cluster::runtime::COORDINATOR);
+                if !host.quiet {
                     eprintln!(
                         "baton: reset: chart `{}` starts again as run {} (after `baton ctl start`)",
-                        shell.core.core().program().name,
+                        host.core.core().program().name,
                         next.key()
                     );
                 }
@@ -543,7 +543,7 @@ async fn serve(
             } else {
                 None
             };
-            (reset, next_wake(&mut shell, &mut tell_until, abort_wait_ms)?)
+            (reset, next_wake(&mut host, &mut tell_until, abort_wait_ms)?)
         };
         if let Some(next) = reset {
             inboxes = Inboxes::declare(session, next).await?;
@@ -563,26 +563,26 @@ async fn serve(
 /// When the main loop must wake next if nothing comes (`None` inside: never, an idle run), armed for the
 /// callbacks to compare with; `None` once the run is no longer served. A callback's failure ends the loop with it.
 fn next_wake(
-    shell: &mut Shell,
+    host: &mut Host,
     tell_until: &mut Option<Instant>,
     abort_wait_ms: u64,
 ) -> anyhow::Result<Option<Option<Instant>>> {
-    if let Some(e) = shell.failed.take() {
+    if let Some(e) = host.failed.take() {
         return Err(e);
     }
-    if !keeps_serving(shell, tell_until, abort_wait_ms) {
+    if !keeps_serving(host, tell_until, abort_wait_ms) {
         return Ok(None);
     }
-    let deadline = shell.next_cycle().map(|t| shell.instant_of(t)).into_iter().chain(*tell_until).min();
-    shell.armed = deadline;
+    let deadline = host.next_cycle().map(|t| host.instant_of(t)).into_iter().chain(*tell_until).min();
+    host.armed = deadline;
     Ok(Some(deadline))
 }
 
 /// An interrupt: the first stops the run (what runs finishes, nothing new starts), the next aborts it. So does
 /// SIGTERM without a journal: no coordinator could take the run up again.
-fn interrupted(shell: &mut Shell, signal: baton_shell::Signal, interrupts: u32) {
+fn interrupted(host: &mut Host, signal: baton_host::Signal, interrupts: u32) {
     let command = if interrupts == 1 { "stop" } else { "abort" };
-    let request = baton_proto::dist::wire::CtlRequest {
+    let request = baton_proto::cluster::wire::CtlRequest {
         command: command.into(),
         target: None,
         agent: None,
@@ -591,11 +591,11 @@ fn interrupted(shell: &mut Shell, signal: baton_shell::Signal, interrupts: u32) 
         to: None,
         reason: "interrupted".into(),
         by: signal_sender(match signal {
-            baton_shell::Signal::Interrupt => "SIGINT",
-            baton_shell::Signal::Terminate => "SIGTERM",
+            baton_host::Signal::Interrupt => "SIGINT",
+            baton_host::Signal::Terminate => "SIGTERM",
         }),
     };
-    if !shell.quiet {
+    if !host.quiet {
         let what = if interrupts == 1 {
             "stopping: running skills finish, nothing new starts (interrupt again to abort)"
         } else {
@@ -603,14 +603,14 @@ fn interrupted(shell: &mut Shell, signal: baton_shell::Signal, interrupts: u32) 
         };
         eprintln!("baton: interrupted, {what}");
     }
-    if let Err(why) = shell.command(request) {
+    if let Err(why) = host.command(request) {
         eprintln!("baton: {command} refused: {why}");
     }
 }
 
 /// Ends the run (unless interrupted), makes durable and carries out whatever was taken in, and says how it went.
 async fn wind_down(
-    mut shell: Shell,
+    mut host: Host,
     session: zenoh::Session,
     opts: &RunOptions,
     loaded: &Loaded,
@@ -618,25 +618,25 @@ async fn wind_down(
 ) -> anyhow::Result<Summary> {
     if ended == Ended::Ran {
         // The run's end is its journal's last record: no snapshot after it.
-        shell.snapshot_every = 0;
-        let now = shell.now_ms();
-        shell.core.end(now);
-        shell.commit(Vec::new())?;
+        host.snapshot_every = 0;
+        let now = host.now_ms();
+        host.core.end(now);
+        host.commit(Vec::new())?;
     }
     // Whatever was taken in is made durable and carried out before the process leaves.
-    if let Some(w) = &mut shell.journal {
+    if let Some(w) = &mut host.journal {
         w.sync().await?;
     }
-    shell.release()?;
-    if let Some(w) = &mut shell.journal {
+    host.release()?;
+    if let Some(w) = &mut host.journal {
         w.close();
     }
-    shell.out.finish()?;
-    let failure = shell.core.core().failure().map(str::to_string);
-    let mut summary = shell.summary(loaded);
+    host.out.finish()?;
+    let failure = host.core.core().failure().map(str::to_string);
+    let mut summary = host.summary(loaded);
     summary.left = ended == Ended::Left;
-    let tokens_out = shell.core.core().tokens_in_flight();
-    drop(shell);
+    let tokens_out = host.core.core().tokens_in_flight();
+    drop(host);
     session.close().await.zenoh()?;
     if ended != Ended::Ran {
         if let Some(dir) = &opts.journal {

@@ -6,8 +6,8 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 
 use anyhow::{anyhow, Context};
-use baton_proto::dist::journal::{self, Journaled};
-use baton_proto::dist::runtime::coordinator::{CoordOutput, Coordinator};
+use baton_proto::cluster::journal::{self, Journaled};
+use baton_proto::cluster::runtime::coordinator::{CoordOutput, Coordinator};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 
 use super::summary::StepTime;

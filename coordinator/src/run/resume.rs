@@ -1,9 +1,9 @@
 //! Whether a journal may be resumed by this chart and this build, and the wall clock a run starts on.
 
 use anyhow::{anyhow, bail};
-use baton_proto::dist::journal::{self, JournalHeader, Journaled, Record, Replayed, JOURNAL_FORMAT};
-use baton_proto::dist::layout::Layout;
-use baton_proto::dist::wire::ChartHash;
+use baton_proto::cluster::journal::{self, JournalHeader, Journaled, Record, Replayed, JOURNAL_FORMAT};
+use baton_proto::cluster::layout::Layout;
+use baton_proto::cluster::wire::ChartHash;
 use baton_proto::exec::program::Program;
 
 use crate::chart_file::Loaded;
@@ -56,8 +56,8 @@ pub(crate) fn end_of(records: &[Vec<u8>]) -> Option<Option<String>> {
 }
 
 /// How a run ended, in words: `state` its PackML state at the end, `failure` why it failed.
-pub fn how_it_ended(state: baton_proto::dist::runtime::packml::State, failure: Option<&str>) -> String {
-    use baton_proto::dist::runtime::packml::State;
+pub fn how_it_ended(state: baton_proto::cluster::runtime::packml::State, failure: Option<&str>) -> String {
+    use baton_proto::cluster::runtime::packml::State;
     match (failure, state) {
         (Some(why), _) => format!("failed: {why}"),
         (None, State::Complete) => "completed".to_string(),

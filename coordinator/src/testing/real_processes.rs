@@ -1,6 +1,6 @@
 //! `baton test --cluster`: a scenario on real processes on loopback, in real time. The runner embeds a Zenoh
 //! router, starts `baton run` against it and one `baton-agent --simulate SCENARIO` per agent, each behind a
-//! cable it can pull out (`baton_shell::cable`). Inputs go in as `baton set` sends them; faults are signals (kill,
+//! cable it can pull out (`baton_host::cable`). Inputs go in as `baton set` sends them; faults are signals (kill,
 //! restart), pulled cables (cut, heal), slow cables (link delays) and a coordinator killed and started again on
 //! its journal. What the runner knows of the run is what `baton run --trace` writes (with `--watch` for every
 //! variable); it follows that file as it grows and judges it with the simulation's own observer
@@ -17,21 +17,21 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context};
-use baton_proto::dist::keys;
-use baton_proto::dist::netconfig::NetConfig;
-use baton_proto::dist::runtime::coordinator::LossPolicy;
+use baton_host::traffic;
+use baton_proto::cluster::keys;
+use baton_proto::cluster::netconfig::NetConfig;
+use baton_proto::cluster::runtime::coordinator::LossPolicy;
 use baton_proto::exec::program::VarId;
-use baton_proto::exec::sim::parse_value;
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
+use baton_proto::front::json_value;
 use baton_proto::testing::run::{fault_rng, jitter, CaseResult, Observer, Outcome};
 use baton_proto::testing::scenario::{show_ms, FaultKind, NetFaults, RunState, Scenario, Trigger};
 use baton_proto::testing::simulated_cluster::{Rng, LEASE_MS};
 use baton_proto::types::{Type, Value};
-use baton_shell::traffic;
 use tokio::process::{Child, Command};
 use zenoh::Session;
 
-use baton_shell::cable::Cable;
+use baton_host::cable::Cable;
 
 /// How often the runner looks at the trace and the clock.
 const POLL: Duration = Duration::from_millis(5);
@@ -265,7 +265,7 @@ fn from_shown(ty: &Type, text: &str) -> Option<Value> {
         Type::Int(_) => serde_json::from_str(text).ok()?,
         _ => serde_json::Value::String(text.to_string()),
     };
-    parse_value(ty, &json)
+    json_value::parse(ty, &json)
 }
 
 struct World<'a> {
@@ -304,7 +304,7 @@ impl<'a> World<'a> {
         for _ in 0..5 {
             let port = crate::demo::free_port()?;
             let endpoint = format!("tcp/127.0.0.1:{port}");
-            let config = baton_shell::zenoh_config(&NetConfig::router(std::slice::from_ref(&endpoint)), None)?;
+            let config = baton_host::zenoh_config(&NetConfig::router(std::slice::from_ref(&endpoint)), None)?;
             if let Ok(session) = zenoh::open(config).await {
                 opened = Some((session, endpoint, port));
                 break;

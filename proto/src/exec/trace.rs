@@ -5,6 +5,10 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::exec::engine::{Event, EventKind, FaultSource};
+use crate::exec::eval::Fault;
+use crate::exec::program::{Program, StepId};
+
 /// What a trace record says happened. Engine events (`activate` … `value`) come from `baton sim` and every
 /// engine of a run; the rest from the coordinator of a distributed run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -181,7 +185,7 @@ pub struct TraceRecord {
     /// A watched variable's new value, for `value` records (`T#10ms`, `TRUE`, `42`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub value: Option<String>,
-    /// An alarm's occurrence, for `alarm` records (`dist::runtime::alarms::AlarmId`, a number).
+    /// An alarm's occurrence, for `alarm` records (`cluster::runtime::alarms::AlarmId`, a number).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub id: Option<u64>,
     /// Who sent a `command` (or `command_refused`), acknowledged (`ack`) or shelved (`shelve`).
@@ -202,6 +206,83 @@ impl TraceRecord {
             value: None,
             id: None,
             by: None,
+        }
+    }
+}
+
+/// What an engine event comes to: a trace record, or a run-time fault (which `baton sim` prints apart and a
+/// distributed run records as a `fault` record).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Output {
+    Trace(TraceRecord),
+    Fault { t_ms: u64, message: String },
+}
+
+/// An engine event as a trace record (or, for a fault, a message), with the program's names.
+pub fn of_event(program: &Program, ev: Event) -> Output {
+    let (event, name) = match ev.kind {
+        EventKind::Activate(s) => (TraceEvent::Activate, &program.steps[s.index()].name),
+        EventKind::Deactivate(s) => (TraceEvent::Deactivate, &program.steps[s.index()].name),
+        EventKind::Fire(t) => (TraceEvent::Fire, &program.transitions[t.index()].name),
+        EventKind::ActionOn(a) => (TraceEvent::ActionOn, &program.actions[a.index()].name),
+        EventKind::ActionOff(a) => (TraceEvent::ActionOff, &program.actions[a.index()].name),
+        EventKind::Fault(source, fault) => {
+            return Output::Fault { t_ms: ev.t_ms, message: fault_message(program, source, fault) }
+        }
+        EventKind::Overrun(s) => {
+            let mut rec = TraceRecord::new(ev.t_ms, TraceEvent::Alarm, &program.steps[s.index()].name);
+            rec.message = Some(overrun_message(program, s));
+            return Output::Trace(rec);
+        }
+    };
+    Output::Trace(TraceRecord::new(ev.t_ms, event, name))
+}
+
+/// What a step's supervision alarm says.
+pub fn overrun_message(program: &Program, s: StepId) -> String {
+    let step = &program.steps[s.index()];
+    format!("step `{}` has been active longer than its maximum time of {} ms", step.name, step.max_ms)
+}
+
+/// What a run-time fault says, naming where it happened.
+pub fn fault_message(program: &Program, source: FaultSource, fault: Fault) -> String {
+    let what = match fault {
+        Fault::DivisionByZero => "division by zero",
+        Fault::MuxSelector => "a MUX selector past its inputs",
+        Fault::IndexOutOfRange => "an array index outside its bounds",
+        Fault::NoSuchDate => "a date or time of day that is not on the calendar (CONCAT_DATE, CONCAT_TOD, CONCAT_DT)",
+        Fault::LoopLimit => {
+            let FaultSource::Action(a) = source else { return "a loop past its limit".to_string() };
+            return format!(
+                "a loop in action `{}` ran more than {} iterations in one cycle: the rest of its body was skipped",
+                program.actions[a.index()].name,
+                crate::limits::LOOP_ITERATIONS_MAX
+            );
+        }
+        Fault::CallLimit => {
+            let FaultSource::Action(a) = source else { return "calls past their limit".to_string() };
+            return format!(
+                "action `{}` ran more than {} loop passes and calls of blocks and functions in one cycle: the rest \
+                 of its body was skipped",
+                program.actions[a.index()].name,
+                crate::limits::LOOP_ITERATIONS_MAX
+            );
+        }
+        Fault::SecondToken(s) => {
+            let FaultSource::Transition(t) = source else { return "a second token".to_string() };
+            return format!(
+                "transition `{}` gave step `{}` a second token while it held one (the chart is not safe): the tokens merged",
+                program.transitions[t.index()].name,
+                program.steps[s.index()].name
+            );
+        }
+    };
+    match source {
+        FaultSource::Transition(t) => {
+            format!("{what} in the condition of transition `{}` (taken as FALSE)", program.transitions[t.index()].name)
+        }
+        FaultSource::Action(a) => {
+            format!("{what} in action `{}` (the rest of its body was skipped)", program.actions[a.index()].name)
         }
     }
 }

@@ -20,7 +20,7 @@ pub enum Cond {
     /// A step is active (on this agent, if given).
     Step(usize, Option<String>),
     /// The run is in this PackML state.
-    State(crate::dist::runtime::packml::State),
+    State(crate::cluster::runtime::packml::State),
     Var(VarId),
     Not(Box<Cond>),
     Neg(Box<Cond>),
@@ -33,7 +33,7 @@ pub trait View {
     fn step(&self, index: usize) -> Option<Option<&str>>;
     fn value(&self, var: VarId) -> Value;
     /// The run's PackML state, if known.
-    fn state(&self) -> Option<crate::dist::runtime::packml::State> {
+    fn state(&self) -> Option<crate::cluster::runtime::packml::State> {
         None
     }
 }
@@ -72,7 +72,7 @@ impl Cond {
     pub fn parse(text: &str, program: &Program, agents: &[String]) -> Result<Cond, String> {
         let words: Vec<&str> = text.split_whitespace().collect();
         if let ["state" | "STATE" | "State", name] = words[..] {
-            use crate::dist::runtime::packml::State;
+            use crate::cluster::runtime::packml::State;
             return State::ALL.into_iter().find(|s| s.name().eq_ignore_ascii_case(name)).map(Cond::State).ok_or_else(
                 || {
                     let names: Vec<&str> = State::ALL.iter().map(|s| s.name()).collect();

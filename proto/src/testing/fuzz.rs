@@ -5,8 +5,8 @@
 
 use std::path::Path;
 
-use crate::dist::journal;
-use crate::dist::wire::{
+use crate::cluster::journal;
+use crate::cluster::wire::{
     self, AgentInfo, ChartSource, CtlRequest, DeviceReport, Report, SetRequest, StatusReport, ToAgent, VarUpdate,
     WhyReport,
 };

@@ -105,7 +105,7 @@ pub fn follow_steps(active: &mut BTreeMap<usize, Option<String>>, step: usize, r
 struct Now<'a> {
     active: &'a BTreeMap<usize, Option<String>>,
     value: &'a dyn Fn(VarId) -> Value,
-    state: crate::dist::runtime::packml::State,
+    state: crate::cluster::runtime::packml::State,
 }
 
 impl View for Now<'_> {
@@ -117,7 +117,7 @@ impl View for Now<'_> {
         (self.value)(var)
     }
 
-    fn state(&self) -> Option<crate::dist::runtime::packml::State> {
+    fn state(&self) -> Option<crate::cluster::runtime::packml::State> {
         Some(self.state)
     }
 }
@@ -146,7 +146,7 @@ pub struct Observer<'a> {
     input_fired: Vec<bool>,
     command_fired: Vec<bool>,
     /// The run's PackML state, as its last `state` record said (Execute before any).
-    state: crate::dist::runtime::packml::State,
+    state: crate::cluster::runtime::packml::State,
 }
 
 impl<'a> Observer<'a> {
@@ -162,13 +162,13 @@ impl<'a> Observer<'a> {
             fault_fired: sc.faults.iter().map(|f| matches!(f.trigger, Trigger::At(_))).collect(),
             input_fired: sc.inputs.iter().map(|i| matches!(i.trigger, Trigger::At(_))).collect(),
             command_fired: sc.commands.iter().map(|c| matches!(c.trigger, Trigger::At(_))).collect(),
-            state: crate::dist::runtime::packml::State::Execute,
+            state: crate::cluster::runtime::packml::State::Execute,
         }
     }
 
     /// Follows the steps through new trace records (an agent's steps come with its reports).
     pub fn follow(&mut self, records: &[TraceRecord]) {
-        use crate::dist::runtime::packml::State;
+        use crate::cluster::runtime::packml::State;
         for r in records {
             match r.event {
                 TraceEvent::State => {
@@ -633,8 +633,8 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
         sim.skip_idle(limit);
     };
     let by_operator = match sim.coordinator.core().run_state() {
-        crate::dist::runtime::packml::State::Stopped => Some(RunState::Stopped),
-        crate::dist::runtime::packml::State::Aborted => Some(RunState::Aborted),
+        crate::cluster::runtime::packml::State::Stopped => Some(RunState::Stopped),
+        crate::cluster::runtime::packml::State::Aborted => Some(RunState::Aborted),
         _ => None,
     };
     let state = match ended {

@@ -381,7 +381,7 @@ impl Engine {
         engine
     }
 
-    /// An engine read back from a snapshot (`dist::snapshot`) meets its program again. A snapshot whose sizes or
+    /// An engine read back from a snapshot (`cluster::snapshot`) meets its program again. A snapshot whose sizes or
     /// ids do not fit the program is refused, so that nothing indexes past what the program has.
     pub fn attach(&mut self, program: Arc<Program>) -> Result<(), String> {
         let (n_vars, n_steps, n_actions) = (program.vars.len(), program.steps.len(), program.actions.len());

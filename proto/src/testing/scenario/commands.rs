@@ -8,7 +8,7 @@ use toml::Spanned;
 
 use super::raw::RawCommand;
 use super::{Command, Ctx, Trigger, COMMANDS};
-use crate::dist::wire::CtlRequest;
+use crate::cluster::wire::CtlRequest;
 use crate::exec::program::Program;
 
 /// Who sends a scenario's commands, unless it says (`by`).

@@ -13,9 +13,9 @@ use std::sync::Arc;
 use toml::Spanned;
 
 use super::cond::Cond;
-use crate::dist::layout::Layout;
-use crate::dist::runtime::coordinator::LossPolicy;
-use crate::dist::wire::ChartHash;
+use crate::cluster::layout::Layout;
+use crate::cluster::runtime::coordinator::LossPolicy;
+use crate::cluster::wire::ChartHash;
 use crate::exec::program::Program;
 use crate::front::diag::LineIndex;
 use crate::pipeline::check_source;
@@ -160,7 +160,7 @@ pub enum RunState {
 #[derive(Clone, Debug)]
 pub struct Command {
     pub trigger: Trigger,
-    pub request: crate::dist::wire::CtlRequest,
+    pub request: crate::cluster::wire::CtlRequest,
     pub line: usize,
 }
 
@@ -426,7 +426,7 @@ fn one_of<'a>(what: &str, present: &[(&'a str, bool)]) -> Result<&'a str, String
     }
 }
 
-/// How a shell reads a file for the loader: proto never touches one itself.
+/// How a host reads a file for the loader: proto never touches one itself.
 pub type ReadFile<'r> = &'r dyn Fn(&Path) -> std::io::Result<String>;
 
 /// Reads (with `read`) and checks the scenario at `path`.
@@ -557,7 +557,7 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
     }
     let agent_names: Vec<String> = agents.iter().map(|a| a.name.clone()).collect();
     let scenario_span = 0..0;
-    if agents.is_empty() && layout.placement.iter().any(|p| *p != crate::dist::layout::Placement::Coordinator) {
+    if agents.is_empty() && layout.placement.iter().any(|p| *p != crate::cluster::layout::Placement::Coordinator) {
         // Nothing to run the distributed steps on: said once, at the top.
         cx.error(&scenario_span, "the chart places steps on agents, and the scenario declares none: add `[[agents]]`");
     }
@@ -652,7 +652,7 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
     // A skill the chart binds must be built in or simulated here, or a misspelt name would pass and wait on a robot.
     let listed = |skill: &str| agents.iter().any(|a| a.skills.as_ref().is_some_and(|s| s.contains(skill)));
     let simulated = |i: usize, skill: &str| behaviours.contains_key(&i) || listed(skill);
-    for message in crate::dist::skills::not_built_in(&program, &layout, simulated) {
+    for message in crate::cluster::skills::not_built_in(&program, &layout, simulated) {
         cx.error(&raw.chart.span(), message);
     }
 
@@ -895,12 +895,12 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
             "states" => {
                 let mut names = Vec::new();
                 for s in r.states.iter().flatten() {
-                    let known = crate::dist::runtime::packml::State::ALL.iter().any(|st| st.name() == s.get_ref());
+                    let known = crate::cluster::runtime::packml::State::ALL.iter().any(|st| st.name() == s.get_ref());
                     if known {
                         names.push(s.get_ref().clone());
                     } else {
                         let all: Vec<&str> =
-                            crate::dist::runtime::packml::State::ALL.iter().map(|s| s.name()).collect();
+                            crate::cluster::runtime::packml::State::ALL.iter().map(|s| s.name()).collect();
                         cx.error(
                             &s.span(),
                             format!("`{}` is no run state (they are: {})", s.get_ref(), all.join(", ")),

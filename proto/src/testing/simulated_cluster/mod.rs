@@ -1,10 +1,10 @@
 //! Deterministic simulation of a distributed run: the real coordinator and agent state machines from
-//! `crate::dist::runtime`, a simulated network and simulated skills, one thread, one seed, virtual time.
+//! `crate::cluster::runtime`, a simulated network and simulated skills, one thread, one seed, virtual time.
 //!
 //! Every message goes through the real wire encoding. The network can lose, duplicate, reorder and delay
 //! messages; a cut link goes silent, and the coordinator hears of it only when the agent's lease runs out (the
 //! agent fences itself first, as a real one does). The coordinator journals every input
-//! (`crate::dist::journal`), and can be crashed — before its latest records are durable, or after they are but
+//! (`crate::cluster::journal`), and can be crashed — before its latest records are durable, or after they are but
 //! before what they led to was sent — and started again from its journal. What the agents do is watched too:
 //! no segment starts twice in one epoch on any agent, and no engine ever gives a step a second token
 //! (`violations`).
@@ -23,11 +23,11 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use crate::dist::journal::Journaled;
-use crate::dist::layout::Layout;
-use crate::dist::runtime::agent::{AgentOutput, AgentRun, Dispatch, Join};
-use crate::dist::runtime::coordinator::{CoordOutput, LossPolicy};
-use crate::dist::wire::{self, AgentInfo, ChartHash, CtlRequest, RunId, ToAgent, VarUpdate};
+use crate::cluster::journal::Journaled;
+use crate::cluster::layout::Layout;
+use crate::cluster::runtime::agent::{AgentOutput, AgentRun, Dispatch, Join};
+use crate::cluster::runtime::coordinator::{CoordOutput, LossPolicy};
+use crate::cluster::wire::{self, AgentInfo, ChartHash, CtlRequest, RunId, ToAgent, VarUpdate};
 use crate::exec::program::{ActionId, Program};
 use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::pipeline::check_source;
@@ -150,7 +150,7 @@ pub struct SimCluster {
     /// Crashes right after records became durable, before what they led to was sent.
     crashes_after_journal: Vec<(u64, u64)>,
     /// Every (token, epoch) that started on an agent.
-    started: std::collections::BTreeSet<(crate::dist::wire::TokenId, u32)>,
+    started: std::collections::BTreeSet<(crate::cluster::wire::TokenId, u32)>,
     /// What went wrong on the agents' side, with the time.
     pub violations: Vec<String>,
     /// The coordinator died after its journal but before it sent (or wrote) what that led to.
@@ -586,7 +586,7 @@ impl SimCluster {
         !self.commands.is_empty()
     }
 
-    /// After a `reset`: the chart starts again as a new run (numbered on from the first), as the shell does; every
+    /// After a `reset`: the chart starts again as a new run (numbered on from the first), as the host does; every
     /// agent process forgets the old run's part and takes the new run's.
     fn new_run(&mut self) {
         let run = RunId(Uuid::from_u128(self.coordinator.core().run().0.as_u128() + 1));
@@ -644,7 +644,7 @@ impl SimCluster {
                 let (_, down_ms) = self.crashes.remove(0);
                 self.crash_coordinator(down_ms);
             }
-            // As the shells do: what is due by now runs first, then what arrived now (an agent's process dying or
+            // As the hosts do: what is due by now runs first, then what arrived now (an agent's process dying or
             // coming back, a lease running out, a message).
             let up = self.down_until.is_none();
             if up {
@@ -722,7 +722,7 @@ impl SimCluster {
             if up && core.stays() && core.failure().is_none() {
                 // `baton run --stay`: the run waits at its end for `clear` and `reset`; the simulation ends there
                 // once no command is left to send (and what was said on the way has arrived, or had its time).
-                use crate::dist::runtime::packml::State;
+                use crate::cluster::runtime::packml::State;
                 if matches!(core.run_state(), State::Complete | State::Stopped | State::Aborted) {
                     let since = *self.operator_end_ms.get_or_insert(self.now_ms);
                     if self.commands.is_empty() && (self.net.is_empty() || self.now_ms >= since + 2_000) {

@@ -1,6 +1,6 @@
 //! The simulated network between the coordinator and its agents: what each process sends goes out as packets, each
 //! meeting the faults of its link (lost, duplicated, delayed, reordered), and what arrives is given to its process
-//! — the coordinator's records made durable first, as the shell does.
+//! — the coordinator's records made durable first, as the host does.
 
 use super::*;
 

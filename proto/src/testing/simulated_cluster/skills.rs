@@ -1,7 +1,7 @@
 //! The simulated skills: what a skill that starts does (`SkillModel`, by default the `motion` skill's parameters),
 //! and the simulation's randomness.
 
-use crate::dist::layout::SkillBinding;
+use crate::cluster::layout::SkillBinding;
 use crate::front::pragma::Param;
 use crate::types::Value;
 
