@@ -150,9 +150,11 @@ fn is_raw_start(b: &[u8], i: usize) -> bool {
     b.get(j) == Some(&b'"')
 }
 
-/// Every path the code names that starts with `crate::` or `super::`, with `use` trees expanded
-/// (`use crate::a::{b, c::d}` gives `crate::a::b` and `crate::a::c::d`).
-fn paths(code: &str) -> Vec<Vec<String>> {
+/// Every path the code names that starts with `crate::`, `super::`, `self::` or one of `children` (the file's own
+/// child modules, named relative to it: `tokens::X` in `coordinator/mod.rs`), with `use` trees expanded (`use
+/// crate::a::{b, c::d}` gives `crate::a::b` and `crate::a::c::d`) and a glob naming its module (`use super::*`
+/// gives `super`).
+fn paths(code: &str, children: &[String]) -> Vec<Vec<String>> {
     let mut out = Vec::new();
     let b = code.as_bytes();
     let ident = |c: u8| c.is_ascii_alphanumeric() || c == b'_';
@@ -160,7 +162,11 @@ fn paths(code: &str) -> Vec<Vec<String>> {
     while i < b.len() {
         let at_word = i == 0 || !ident(b[i - 1]) && b[i - 1] != b':';
         let rest = &code[i..];
-        if at_word && (rest.starts_with("crate::") || rest.starts_with("super::")) {
+        let relative = || {
+            let word: String = rest.bytes().take_while(|c| ident(*c)).map(char::from).collect();
+            rest[word.len()..].starts_with("::") && (word == "self" || children.contains(&word))
+        };
+        if at_word && (rest.starts_with("crate::") || rest.starts_with("super::") || relative()) {
             let (found, used) = tree(rest);
             out.extend(found);
             i += used.max(1);
@@ -274,30 +280,40 @@ impl Crate {
                 m.extend(rest.iter().cloned());
                 return (0..=m.len()).rev().map(|n| m[..n].to_vec()).find(|p| self.files.contains_key(p));
             }
-            _ => return None,
+            Some("self") => from.to_vec(),
+            // A child module named relative to the file (`paths` takes only those).
+            Some(_) => {
+                let mut m = from.to_vec();
+                m.extend(path.iter().cloned());
+                return (0..=m.len()).rev().map(|n| m[..n].to_vec()).find(|p| self.files.contains_key(p));
+            }
+            None => return None,
         };
         full.extend(path[1..].iter().cloned());
         (0..=full.len()).rev().map(|n| full[..n].to_vec()).find(|p| self.files.contains_key(p))
     }
 
-    /// Each file's imports of other files of the crate, leaving out a file's own ancestors (a child may name
-    /// what its parent declares; the parent declaring the child is not an import).
+    /// Each file's imports of other files of the crate, its parent's and its children's among them (the parent
+    /// declaring a child with `mod` is not an import; naming what the child holds is).
     fn edges(&self) -> BTreeMap<Vec<String>, BTreeSet<Vec<String>>> {
         let mut out: BTreeMap<Vec<String>, BTreeSet<Vec<String>>> = BTreeMap::new();
         for (module, text) in &self.files {
             if self.tests.contains(module) {
                 continue;
             }
+            let children: Vec<String> = self
+                .files
+                .keys()
+                .filter(|k| k.len() == module.len() + 1 && k.starts_with(module))
+                .filter_map(|k| k.last().cloned())
+                .collect();
             let code = without_tests(&code_only(text));
             let entry = out.entry(module.clone()).or_default();
-            // `super` inside a file is relative to the file's module; in `mod.rs` and in a nested `mod tests`
-            // alike it reaches the file's parent at most, which is an ancestor and so left out below.
-            for p in paths(&code) {
+            for p in paths(&code, &children) {
                 let Some(target) = self.resolve(module, &p) else { continue };
-                if target.len() <= module.len() && module[..target.len()] == target[..] {
-                    continue;
+                if target != *module {
+                    entry.insert(target);
                 }
-                entry.insert(target);
             }
         }
         out
@@ -471,8 +487,32 @@ fn the_path_reader_expands_use_trees_and_skips_comments_and_strings() {
     let code = code_only(
         "use crate::a::{b, c::{d, e}};\n// crate::x::y\nlet s = \"crate::z\";\nlet t = r#\"crate::q\"#;\nsuper::f::g();",
     );
-    let found: Vec<String> = paths(&code).iter().map(|p| p.join("::")).collect();
+    let found: Vec<String> = paths(&code, &[]).iter().map(|p| p.join("::")).collect();
     assert_eq!(found, ["crate::a::b", "crate::a::c::d", "crate::a::c::e", "super::f::g"]);
+    // Relative paths and globs: a child module by its name, `self::`, and `*` naming the module it is in.
+    let code = code_only(
+        "mod tokens;
+use tokens::*;
+use self::tokens::Ids;
+use super::*;
+let x = other::f();",
+    );
+    let found: Vec<String> = paths(&code, &["tokens".to_string()]).iter().map(|p| p.join("::")).collect();
+    assert_eq!(found, ["tokens", "self::tokens::Ids", "super"]);
+    // In a crate, those make the circle `a` ↔ `a::b` that the old reader (ancestors skipped) missed.
+    let krate = Crate {
+        name: "t",
+        files: BTreeMap::from([
+            (vec![], "mod a;".to_string()),
+            (vec!["a".to_string()], "mod b;\nuse b::Helper;\npub struct A;".to_string()),
+            (vec!["a".to_string(), "b".to_string()], "use super::*;\npub struct Helper(A);".to_string()),
+        ]),
+        tests: BTreeSet::new(),
+    };
+    let (a, ab) = (vec!["a".to_string()], vec!["a".to_string(), "b".to_string()]);
+    assert_eq!(circles(&krate.edges()), vec![vec![a.clone(), ab.clone()]]);
+    assert_eq!(krate.resolve(&a, &["b".to_string(), "Helper".to_string()]), Some(ab.clone()));
+    assert_eq!(krate.resolve(&ab, &["super".to_string()]), Some(a));
     let mut edges = BTreeMap::new();
     let m = |s: &str| vec![s.to_string()];
     edges.insert(m("a"), BTreeSet::from([m("b")]));
@@ -483,7 +523,7 @@ fn the_path_reader_expands_use_trees_and_skips_comments_and_strings() {
     let kept = without_tests(
         "use crate::a;\n#[cfg(test)]\nuse crate::b;\n#[cfg(test)]\nmod tests { fn f() { crate::c::d(); } }\n",
     );
-    let found: Vec<String> = paths(&kept).iter().map(|p| p.join("::")).collect();
+    let found: Vec<String> = paths(&kept, &[]).iter().map(|p| p.join("::")).collect();
     assert_eq!(found, ["crate::a"]);
 }
 

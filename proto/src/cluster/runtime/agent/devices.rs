@@ -1,6 +1,14 @@
 //! Devices: bound inputs written into the chart, outputs sent to their devices, and which devices cannot be reached.
 
-use super::*;
+use super::AgentOutput;
+use super::AgentRun;
+use crate::cluster::bindings::IoDir;
+use crate::cluster::runtime::Level;
+use crate::cluster::wire::DeviceDown;
+use crate::cluster::wire::DeviceReport;
+use crate::exec::engine::Input;
+use crate::exec::program::VarId;
+use crate::types::Value;
 
 impl AgentRun {
     /// Writes what a device gave (a skill's answer, a bound input) to `var`, converted to its type as `*_TO_*`

@@ -25,19 +25,13 @@ use std::sync::Arc;
 use crate::cluster::bindings::{IoBinding, IoDir};
 use crate::cluster::layout::{Layout, Placement, SegmentId, SkillBinding};
 use crate::cluster::wire::{
-    AgentEvent, AgentEventKind, ChartHash, DeviceDown, DeviceReport, HeldToken, Peers, Report, RunId, TokenId,
-    VarUpdate, VarValue,
+    AgentEvent, ChartHash, DeviceReport, HeldToken, Peers, Report, RunId, TokenId, VarUpdate, VarValue,
 };
-use crate::exec::engine::{Engine, EventKind, Input, RemoteInput};
+use crate::exec::engine::Engine;
 use crate::exec::program::{ActionId, Program, StepId, VarId};
-use crate::exec::trace::fault_message;
-use crate::limits::{
-    CATCH_UP_CYCLES_MAX, FINISHED_TOKENS_REMEMBERED, PARKED_UPDATE_BYTES_MAX, REPORTS_UNACKED_MAX, REPORT_EVENTS_MAX,
-};
 use crate::types::Value;
 
-use super::{FinishedTokens, Level, VarWrites, VarsResend, COORDINATOR};
-use tokens::*;
+use super::{FinishedTokens, Level, VarWrites, VarsResend};
 use uuid::Uuid;
 
 /// Processes whose refused variable updates an agent remembers having logged.

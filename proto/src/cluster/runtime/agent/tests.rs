@@ -4,6 +4,8 @@
 //! the rule that broke.
 
 use super::*;
+use crate::cluster::runtime::COORDINATOR;
+use crate::cluster::wire::AgentEventKind;
 use crate::testing::simulated_cluster::compile;
 
 const CHART: &str = "

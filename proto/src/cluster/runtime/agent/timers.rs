@@ -1,7 +1,16 @@
 //! Time: the agent's cycles on the run's grid, caught up after a stall, what is sent again, and the lease fence — no
 //! contact with the router for too long, and the tokens that may go elsewhere are stopped.
 
-use super::*;
+use super::AgentOutput;
+use super::AgentRun;
+use super::RESEND_FIRST_MS;
+use super::RESEND_MAX_MS;
+use crate::cluster::runtime::agent::tokens::action_token;
+use crate::cluster::runtime::Level;
+use crate::cluster::wire::AgentEventKind;
+use crate::cluster::wire::TokenId;
+use crate::exec::program::ActionId;
+use crate::limits::CATCH_UP_CYCLES_MAX;
 
 impl AgentRun {
     /// Runs the cycles due by `now_ms`, each at its grid time, before anything that arrived at `now_ms` is

@@ -1,53 +1,20 @@
 //! Membership: agents that come up (with who they are and which process), go down, collide on a name, and the peers
 //! table every agent is told.
 
-use super::*;
-
-#[derive(serde::Serialize, serde::Deserialize)]
-pub(super) struct AgentState {
-    pub(super) roles: Vec<String>,
-    pub(super) alive: bool,
-    pub(super) tokens: usize,
-    pub(super) incarnation: uuid::Uuid,
-    /// This coordinator started again from its journal and has not heard from the agent since.
-    pub(super) recovering: bool,
-    /// How long the agent may stay silent before it counts as lost (its own setting).
-    pub(super) lease_ms: u64,
-    /// More than one process answers to the name: nothing is dispatched to it until one answers alone.
-    pub(super) conflict: bool,
-    /// Its bound devices it cannot reach (`Layout::io` index → why), as of its device report `devices_seq`.
-    pub(super) devices_down: BTreeMap<u32, String>,
-    pub(super) devices_seq: u64,
-    /// Its current process was sent a dispatch or a join: it takes part in the run, and hears when the writers
-    /// it may take values from change (`ToAgent::Peers`).
-    pub(super) joined: bool,
-    /// When its liveliness token went, while it may still come back (`limits::loss_grace_ms`): it is lost only if
-    /// it has not by then.
-    pub(super) gone_at_ms: Option<u64>,
-    /// The skills its current process announced; `None`: it did not say (it is sent whatever its placement allows).
-    #[serde(default)]
-    pub(super) skills: Option<BTreeSet<String>>,
-}
-
-impl AgentState {
-    /// An agent first heard of: not live until it announces itself.
-    pub(super) fn new(incarnation: uuid::Uuid, lease_ms: u64) -> AgentState {
-        AgentState {
-            roles: Vec::new(),
-            alive: false,
-            tokens: 0,
-            incarnation,
-            recovering: false,
-            lease_ms,
-            conflict: false,
-            devices_down: BTreeMap::new(),
-            devices_seq: 0,
-            joined: false,
-            gone_at_ms: None,
-            skills: None,
-        }
-    }
-}
+use super::state::AgentState;
+use super::Coordinator;
+use super::LossPolicy;
+use crate::cluster::layout::Placement;
+use crate::cluster::runtime::Level;
+use crate::cluster::runtime::COORDINATOR;
+use crate::cluster::wire::AgentInfo;
+use crate::cluster::wire::Peer;
+use crate::cluster::wire::ToAgent;
+use crate::cluster::wire::TokenId;
+use crate::exec::trace::TraceEvent;
+use crate::exec::trace::TraceRecord;
+use crate::limits::AGENTS_MAX;
+use std::collections::BTreeMap;
 
 impl Coordinator {
     /// The writers agents may take variable updates from, as the agents tracked now say; when that changed, every

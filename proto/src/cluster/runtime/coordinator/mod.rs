@@ -21,6 +21,7 @@ mod operate;
 mod reports;
 mod restart;
 mod snapshot;
+mod state;
 mod supervision;
 mod timers;
 mod tokens;
@@ -29,30 +30,18 @@ mod variables;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 
-use crate::cluster::layout::{Layout, Placement, SegmentId};
-use crate::cluster::wire::{
-    AckEntry, AgentEventKind, AgentInfo, ChartHash, DeviceReport, Peer, Peers, Report, RunId, StatusAgent, StatusAlarm,
-    StatusDevice, StatusReport, StatusStep, StatusToken, ToAgent, TokenId, VarUpdate, VarValue,
-};
-use crate::exec::engine::{Engine, Event, EventKind, Input, RemoteInput};
-use crate::exec::program::{Program, StepId, TransitionId, VarId};
-use crate::exec::trace::{self, Output};
+use crate::cluster::layout::{Layout, Placement};
+use crate::cluster::wire::{AckEntry, ChartHash, Peers, RunId, ToAgent, TokenId, VarUpdate};
+use crate::exec::engine::Engine;
+use crate::exec::program::{Program, TransitionId, VarId};
 use crate::exec::trace::{TraceEvent, TraceRecord};
-use crate::front::json_value;
-use crate::limits::{
-    ACK_DELAY_MS, AGENTS_MAX, FINISHED_TOKENS_REMEMBERED, REPORTS_AHEAD_BYTES_MAX, REPORTS_AHEAD_MAX,
-    STALE_EPOCHS_TRACED,
-};
 use crate::types::Value;
 
 use super::alarms::{AlarmChange, Alarms};
 use super::packml::State;
-use super::{FinishedTokens, Level, VarWrites, VarsResend, COORDINATOR};
-use membership::*;
-use operate::PartialHolds;
-use supervision::Supervised;
-use tokens::*;
-pub use tokens::{token_ids, TokenIds};
+use super::{FinishedTokens, Level, VarWrites, VarsResend};
+pub use state::{token_ids, TokenIds};
+use state::{AgentState, PartialHolds, Supervised, TokenState};
 
 /// First and largest delay before a dispatch that no report answered is sent again (the agent drops the
 /// duplicate if it has the token).

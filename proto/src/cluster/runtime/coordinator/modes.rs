@@ -7,22 +7,20 @@
 //! A manual change of the active steps is made only if the chart could reach the situation it leaves by itself
 //! (`analysis::is_reachable`): never two tokens on a step, half a simultaneous branch, or a token stranded.
 
-use super::*;
+use super::Coordinator;
+use crate::cluster::runtime::packml::State;
+use crate::cluster::wire::ToAgent;
+use crate::cluster::wire::TokenId;
 use crate::exec::analysis;
-use crate::exec::engine::Mode;
+use crate::exec::engine::{Mode, RemoteInput};
+use crate::exec::program::StepId;
+use crate::exec::program::TransitionId;
+use crate::exec::trace::TraceEvent;
+use crate::exec::trace::TraceRecord;
+use std::sync::Arc;
 
 const GATE_RESEND_FIRST_MS: u64 = 200;
 const GATE_RESEND_MAX_MS: u64 = 2_000;
-
-/// What a token's agent was told of the mode and permits, and what it said back.
-#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
-pub(super) struct TokenGate {
-    pub(super) seq: u64,
-    pub(super) confirmed: u64,
-    pub(super) permit: Option<u32>,
-    pub(super) resend_at_ms: u64,
-    pub(super) backoff_ms: u64,
-}
 
 impl Coordinator {
     /// The run's mode.

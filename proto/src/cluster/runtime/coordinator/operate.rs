@@ -9,22 +9,25 @@
 //! stays in Execute. An `abort` ends the run at once: every agent is told, every token is abandoned (with an alarm
 //! for each one whose agent cannot be reached), and the actions get their final scan.
 
-use super::*;
+use super::state::TokenState;
+use super::CoordOutput;
+use super::Coordinator;
+use crate::cluster::layout::Placement;
+use crate::cluster::runtime::alarms::AlarmChange;
 use crate::cluster::runtime::alarms::{AlarmId, AlarmRefusal};
 use crate::cluster::runtime::packml::Command;
-use crate::cluster::wire::CtlRequest;
+use crate::cluster::runtime::packml::State;
+use crate::cluster::runtime::Level;
+use crate::cluster::wire::{CtlRequest, ToAgent, TokenId};
+use crate::exec::program::StepId;
+use crate::exec::trace::TraceEvent;
+use crate::exec::trace::TraceRecord;
+use std::collections::BTreeSet;
 
 /// First and largest delay before a hold or release that no confirmation answered is sent again.
 const HOLD_RESEND_FIRST_MS: u64 = 200;
 
 const HOLD_RESEND_MAX_MS: u64 = 2_000;
-
-/// Parts of a run held while the rest goes on (`hold --agent`, `hold --step`).
-#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
-pub(super) struct PartialHolds {
-    pub(super) agents: BTreeSet<String>,
-    pub(super) steps: BTreeSet<StepId>,
-}
 
 impl Coordinator {
     /// An operator's command. Accepted or refused, it is traced (`command` or `command_refused`, with `by` and the

@@ -7,7 +7,11 @@
 //! outputs, and its own snapshot is the same bytes. CBOR (`ciborium`): self-describing, so the wire types' optional
 //! fields read back, and binary, so a REAL value comes back to the bit.
 
-use super::*;
+use super::state::TokenState;
+use super::Coordinator;
+use crate::cluster::layout::Layout;
+use crate::exec::program::Program;
+use std::sync::Arc;
 
 /// A snapshot that cannot be restored: malformed, or made from another chart.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -67,6 +71,8 @@ impl Coordinator {
 mod tests {
     use super::*;
     use crate::cluster::journal::token_ids;
+    use crate::cluster::wire::ChartHash;
+    use crate::cluster::wire::RunId;
 
     #[test]
     fn garbage_and_another_charts_snapshot_are_refused() {

@@ -4,24 +4,21 @@
 //! An acknowledgement of an agent's step is carried to the agent (`ToAgent::AckOverrun`) and sent again until it
 //! says it applied it. The alarm's cause is gone when the step is left; acknowledged and gone, it is back to normal.
 
-use super::*;
+use super::state::Supervised;
+use super::Coordinator;
+use crate::cluster::runtime::alarms::AlarmChange;
 use crate::cluster::runtime::alarms::AlarmId;
+use crate::cluster::runtime::Level;
+use crate::cluster::wire::ToAgent;
+use crate::cluster::wire::TokenId;
+use crate::exec::program::StepId;
 use crate::exec::trace::overrun_message;
+use crate::exec::trace::TraceEvent;
+use crate::exec::trace::TraceRecord;
 use crate::limits::ALARMS_STANDING_MAX;
 
 const ACK_RESEND_FIRST_MS: u64 = 200;
 const ACK_RESEND_MAX_MS: u64 = 2_000;
-
-/// A supervision alarm: whose step, on which token (none: the coordinator's own step), and the acknowledgement
-/// on its way to the agent.
-#[derive(serde::Serialize, serde::Deserialize)]
-pub(super) struct Supervised {
-    pub(super) step: StepId,
-    pub(super) token: Option<(TokenId, u32)>,
-    /// Acknowledged by an operator and not yet applied by the agent: when it is sent again, and the delay after.
-    pub(super) ack_resend_at_ms: Option<u64>,
-    pub(super) ack_backoff_ms: u64,
-}
 
 impl Coordinator {
     /// A step passed its maximum time: a latched alarm, kept with the step (and the token on an agent).

@@ -4,6 +4,8 @@
 //! answer is needed.
 
 use super::*;
+use crate::cluster::wire::AgentInfo;
+use crate::cluster::wire::Report;
 use crate::limits::AGENTS_MAX;
 
 const RUN: RunId = RunId(uuid::Uuid::from_u128(7));

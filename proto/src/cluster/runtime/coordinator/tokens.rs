@@ -1,43 +1,33 @@
 //! Tokens: made when the engine enters a placed segment, dispatched to an agent (or left waiting), sent again,
 //! acknowledged, finished when they come back, and restarted on another agent.
 
-use super::*;
-
-#[derive(serde::Serialize, serde::Deserialize)]
-pub(super) struct TokenState {
-    pub(super) segment: SegmentId,
-    pub(super) entry: StepId,
-    pub(super) epoch: u32,
-    pub(super) agent: Option<String>,
-    pub(super) next_seq: u32,
-    pub(super) ahead: BTreeMap<u32, Report>,
-    /// What the reports held ahead weigh (`Report::weight`), bounded by `REPORTS_AHEAD_BYTES_MAX`.
-    pub(super) ahead_bytes: usize,
-    /// The older epochs whose reports were traced as stale (`reject_stale`, once each): later ones are only
-    /// answered with a `Drop`.
-    pub(super) stale_traced: Vec<u32>,
-    pub(super) dispatched_ms: u64,
-    /// Its agent was lost under `LossPolicy::Pause`.
-    pub(super) paused: bool,
-    /// False from a restart from the journal until the agent says it holds the token (or reports on it).
-    pub(super) confirmed: bool,
-    /// When the dispatch is sent again if no report came, and the delay after that.
-    pub(super) resend_at_ms: u64,
-    pub(super) resend_backoff_ms: u64,
-    /// The process of its agent it was given to: a token goes back in the same epoch only to that process.
-    pub(super) incarnation: uuid::Uuid,
-    /// Its agent was lost under `LossPolicy::Reassign`: when the token goes to another agent, unless the lost one
-    /// comes back first. Not before the agent has stopped its skills (`limits::fence_margin_ms`).
-    pub(super) reassign_at_ms: Option<u64>,
-    /// Held by an operator (`operate`); whether its agent confirmed that (or its release); when the hold or release
-    /// is sent again if not, and the delay after that.
-    pub(super) hold: bool,
-    pub(super) hold_ok: bool,
-    pub(super) hold_resend_at_ms: u64,
-    pub(super) hold_backoff_ms: u64,
-    /// The mode and permits its agent was told (`modes`).
-    pub(super) gate: super::modes::TokenGate,
-}
+use super::state::AgentState;
+use super::state::TokenState;
+use super::CoordOutput;
+use super::Coordinator;
+use super::LossPolicy;
+use super::DISPATCH_RESEND_FIRST_MS;
+use crate::cluster::layout::Placement;
+use crate::cluster::layout::SegmentId;
+use crate::cluster::runtime::Level;
+use crate::cluster::runtime::COORDINATOR;
+use crate::cluster::wire::AckEntry;
+use crate::cluster::wire::ToAgent;
+use crate::cluster::wire::TokenId;
+use crate::cluster::wire::VarValue;
+use crate::exec::engine::Event;
+use crate::exec::engine::EventKind;
+use crate::exec::engine::RemoteInput;
+use crate::exec::program::StepId;
+use crate::exec::program::VarId;
+use crate::exec::trace;
+use crate::exec::trace::Output;
+use crate::exec::trace::TraceEvent;
+use crate::exec::trace::TraceRecord;
+use crate::limits::ACK_DELAY_MS;
+use crate::limits::FINISHED_TOKENS_REMEMBERED;
+use std::collections::BTreeMap;
+use std::sync::Arc;
 
 impl Coordinator {
     /// The agent that holds the token of a placed step's segment, if it is out.
@@ -417,34 +407,4 @@ impl Coordinator {
         }
         self.acks.entry(agent).or_default().push(entry);
     }
-}
-
-/// The ids of a run's tokens: the run id mixed with a counter, so that a replay makes the same ones.
-pub fn token_ids(run: RunId) -> TokenIds {
-    TokenIds { base: run.0.as_u128(), made: 0 }
-}
-
-/// A run's token ids, one after the other (`token_ids`): a counter, kept in a snapshot with the rest.
-#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub struct TokenIds {
-    base: u128,
-    made: u64,
-}
-
-impl TokenIds {
-    pub fn next_id(&mut self) -> TokenId {
-        self.made += 1;
-        let n = self.made;
-        let hi = u128::from(splitmix64(n));
-        let lo = u128::from(splitmix64(n ^ 0x5bd1_e995_5bd1_e995));
-        TokenId(uuid::Uuid::from_u128(self.base ^ (hi << 64 | lo)))
-    }
-}
-
-/// SplitMix64's finalizer: a bijection of u64, so distinct counters give distinct ids.
-fn splitmix64(x: u64) -> u64 {
-    let mut z = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
 }
