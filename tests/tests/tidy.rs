@@ -610,3 +610,60 @@ fn no_folder_looks_like_build_output_and_shell_names_only_the_skill() {
     }
     assert!(found.is_empty(), "names that can be mistaken:\n  {}", found.join("\n  "));
 }
+
+/// A file names what it takes from the crate's other files (ARCHITECTURE.md, [layers]): a glob import of one of
+/// them (`use super::*;`, `use tokens::*;`) hides which items cross, and a circle through it. Test modules may
+/// glob their parent, which they test; a glob of an enum's variants inside a function stays local.
+#[test]
+fn no_file_glob_imports_another_file_of_its_crate() {
+    let found: Vec<String> = crates().iter().flat_map(own_globs).collect();
+    assert!(found.is_empty(), "glob imports of the crate's own files (name what crosses):\n  {}", found.join("\n  "));
+}
+
+/// The glob imports of `krate`'s own files outside its tests, as `crate: module: line`.
+fn own_globs(krate: &Crate) -> Vec<String> {
+    let mut found = Vec::new();
+    for (module, text) in &krate.files {
+        if krate.tests.contains(module) {
+            continue;
+        }
+        let children: Vec<String> = krate
+            .files
+            .keys()
+            .filter(|k| k.len() == module.len() + 1 && k.starts_with(module))
+            .filter_map(|k| k.last().cloned())
+            .collect();
+        let code = without_tests(&code_only(text));
+        for line in code.lines() {
+            let Some(path) = ["use ", "pub use ", "pub(crate) use ", "pub(super) use "]
+                .iter()
+                .find_map(|kw| line.strip_prefix(kw))
+                .and_then(|rest| rest.trim_end().strip_suffix("::*;"))
+            else {
+                continue;
+            };
+            let first = path.split("::").next().unwrap_or_default();
+            if ["crate", "super", "self"].contains(&first) || children.iter().any(|c| c == first) {
+                found.push(format!("{}: {}: {}", krate.name, show(module), line.trim()));
+            }
+        }
+    }
+    found
+}
+
+#[test]
+fn the_glob_reader_finds_own_files_and_leaves_variants_preludes_and_tests() {
+    let a = vec!["a".to_string()];
+    let krate = Crate {
+        name: "t",
+        files: BTreeMap::from([
+            (vec![], "mod a;\nuse a::*;\nuse serde::prelude::*;".to_string()),
+            (
+                a.clone(),
+                "use super::*;\nfn f() {\n    use Kind::*;\n}\n#[cfg(test)]\nmod tests {\nuse super::*;\n}".to_string(),
+            ),
+        ]),
+        tests: BTreeSet::new(),
+    };
+    assert_eq!(own_globs(&krate), ["t: <root>: use a::*;", "t: a: use super::*;"]);
+}

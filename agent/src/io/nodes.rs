@@ -25,9 +25,10 @@ use opcua::types::{
 };
 use tokio::sync::mpsc;
 
-use super::{Latest, Sink, RETRY_FIRST, RETRY_MAX};
 use crate::opcua::convert::{self, DataType};
 use crate::opcua::{parse_node, status, Endpoint, Link, OpcUa};
+
+use super::shared::{Latest, Sink, RETRY_FIRST, RETRY_MAX};
 
 /// How long one attempt to open a session may take.
 const CONNECT_ATTEMPT: Duration = Duration::from_secs(3);

@@ -17,10 +17,11 @@ use baton_proto::types::Value;
 use zenoh::sample::SampleKind;
 use zenoh::Session;
 
-use super::{Latest, Resend, Sink};
 use crate::ros2::interfaces::{TopicType, WireType};
 use crate::ros2::rmw_keys::{self as keys, Kind};
 use crate::ros2::{cdr, Ros2};
+
+use super::shared::{Latest, Resend, Sink};
 
 /// How long an input waits for the ROS graph to show a publisher before it says there is none: the graph's
 /// tokens arrive within milliseconds of the subscription on a live router.

@@ -14,7 +14,7 @@ use baton_proto::types::Value;
 use zenoh::qos::CongestionControl;
 use zenoh::Session;
 
-use super::{Latest, Resend, Sink};
+use super::shared::{Latest, Resend, Sink};
 
 /// The value a payload holds, before the run converts it to its variable's type.
 pub fn parse_payload(bytes: &[u8]) -> Value {

@@ -7,6 +7,7 @@ use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use baton_ros2::interfaces::{ActionType, Interfaces, ServiceType, TopicType, WireType};
 use tokio::sync::Mutex;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::qos::CongestionControl;
@@ -14,7 +15,6 @@ use zenoh::query::{ConsolidationMode, QueryTarget};
 use zenoh::sample::SampleKind;
 use zenoh::Session;
 
-use super::interfaces::{ActionType, Interfaces, ServiceType, TopicType, WireType};
 use super::rmw_keys::{self as keys, Kind, NodeId, Via};
 
 /// A call whose server takes this long to answer is given up: a service answers at once, and an action's

@@ -8,7 +8,7 @@
 //!   space, `@/<zid>/@ros2_lv/<kind>/<name>/<ROS type>[/<qos>]`, `/` written `§` in the name and the type.
 //!   Neither the domain (the bridge's own setting) nor a type hash appears, and no attachment is needed.
 
-use super::interfaces::WireType;
+use baton_ros2::interfaces::WireType;
 
 const ADMIN_SPACE: &str = "@ros2_lv";
 /// QoS of a service or a client as rmw_zenoh encodes it: reliable, volatile, keep last 10.

@@ -18,12 +18,13 @@ use std::time::{Duration, Instant};
 use baton_proto::front::literal::{self, Literal};
 use baton_proto::front::pragma::Param;
 use baton_proto::types::Value;
+use baton_ros2::cdr::{self, RosValue};
+use baton_ros2::interfaces::{ActionType, Interfaces, ServiceType};
 
-use super::cdr::{self, RosValue};
-use super::client::{Node, Ros2};
-use super::interfaces::{ActionType, Interfaces, ServiceType};
-use super::rmw_keys::{self as keys, Kind};
 use crate::skill::{outputs_of, Skill, SkillCall, SkillFuture};
+
+use super::client::{Node, Ros2};
+use super::rmw_keys::{self as keys, Kind};
 
 const TIMEOUT_MS_DEFAULT: f64 = 5000.0;
 

@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use super::{Skill, SkillCall, SkillFuture};
+use super::call::{Skill, SkillCall, SkillFuture};
 
 /// A uniform random number in [0, 1), from the operating system's generator (through `uuid`).
 fn uniform() -> f64 {

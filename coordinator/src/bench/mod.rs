@@ -6,32 +6,30 @@
 //! coordinator and router in this process; times are taken with `Instant` where the events happen.
 
 use std::path::{Path, PathBuf};
-use std::process::Stdio;
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
 use baton_proto::cluster::netconfig::NetConfig;
 use serde::Serialize;
-use tokio::process::{Child, Command};
+use tokio::process::Command;
 use zenoh::qos::CongestionControl;
 
-use crate::demo::{agent_binary, free_port};
+use crate::demo::free_port;
 
+mod harness;
 mod resume;
 mod scale;
-use crate::run::{run_with, Probe, RunOptions};
 use baton_host::{traffic, ZenohResult};
 use baton_proto::exec::trace::TraceEvent;
 use baton_proto::testing::bench_charts;
+use harness::{
+    marks, router_config, run_chart, spawn_logged, steady_returns, throughput_chart, Agents, Extras, Latency,
+    PHASE_TIMEOUT, ROUNDS,
+};
 
 const PING_KEY: &str = "baton/bench/ping";
 const PONG_KEY: &str = "baton/bench/pong";
 const ECHO_ALIVE_KEY: &str = "baton/bench/echo";
-const PHASE_TIMEOUT: Duration = Duration::from_secs(300);
-/// Rounds of alternating (1) and (2).
-const ROUNDS: u32 = 3;
-
 pub struct BenchOptions {
     /// Round trips measured in phases 1 and 2, and convergences in phase 3.
     pub samples: u32,
@@ -51,28 +49,6 @@ pub struct BenchOptions {
     /// Run phase 11 (a journaled run of `resume_tokens` tokens, resumed).
     pub resume: bool,
     pub resume_tokens: u64,
-}
-
-#[derive(Serialize, Clone, Copy)]
-pub struct Latency {
-    pub samples: usize,
-    pub median_us: f64,
-    pub p99_us: f64,
-}
-
-impl Latency {
-    fn of(mut v: Vec<Duration>) -> anyhow::Result<Latency> {
-        if v.is_empty() {
-            bail!("no samples");
-        }
-        v.sort();
-        let us = |d: Duration| d.as_secs_f64() * 1e6;
-        Ok(Latency {
-            samples: v.len(),
-            median_us: us(v[v.len() / 2]),
-            p99_us: us(v[(v.len() * 99 / 100).min(v.len() - 1)]),
-        })
-    }
 }
 
 #[derive(Serialize)]
@@ -130,23 +106,6 @@ pub struct BaseReport {
     pub demo_recorded_ratio: f64,
     pub demo_parts: u32,
     pub demo_recording_bytes: u64,
-}
-
-type Marks = Arc<Mutex<Vec<(Instant, TraceEvent, String)>>>;
-
-/// A probe that keeps the instants of the events the bench measures.
-fn marks(keep: &'static [TraceEvent]) -> (Marks, Probe) {
-    let marks: Marks = Arc::new(Mutex::new(Vec::new()));
-    let m = Arc::clone(&marks);
-    let probe: Probe = Box::new(move |rec| {
-        if keep.contains(&rec.event) {
-            let now = Instant::now();
-            if let Ok(mut v) = m.lock() {
-                v.push((now, rec.event, rec.name.clone()));
-            }
-        }
-    });
-    (marks, probe)
 }
 
 pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
@@ -384,12 +343,6 @@ impl BaseReport {
     }
 }
 
-/// A router listening on `listen` and linked to the routers at `connect`.
-fn router_config(listen: &str, connect: &[String]) -> anyhow::Result<zenoh::Config> {
-    let net = NetConfig { connect: connect.to_vec(), ..NetConfig::router(&[listen.to_string()]) };
-    zenoh::Config::from_json5(&net.json5()).zenoh()
-}
-
 /// Phase 1: put → the echo process's subscriber → put back → our subscriber, 64-byte payloads.
 async fn raw_round_trip(samples: u32) -> anyhow::Result<Vec<Duration>> {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
@@ -444,140 +397,6 @@ pub async fn echo(connect: &[String]) -> anyhow::Result<()> {
         pong.put(s.payload().clone()).await.zenoh()?;
     }
     Ok(())
-}
-
-fn spawn_logged(cmd: &mut Command) -> anyhow::Result<Child> {
-    // What the bench's processes say goes to `$BATON_BENCH_LOGS` when it is set, for a phase that did not finish.
-    let stderr = match std::env::var_os("BATON_BENCH_LOGS") {
-        Some(path) => Stdio::from(std::fs::OpenOptions::new().create(true).append(true).open(path)?),
-        None => Stdio::null(),
-    };
-    cmd.stdout(Stdio::null()).stderr(stderr).kill_on_drop(true).spawn().context("cannot start a bench process")
-}
-
-/// Agents named `names`, each also in role `assembler` (which only the demo chart uses).
-fn spawn_agents(endpoint: &str, names: &[String]) -> anyhow::Result<Vec<Child>> {
-    let bin = agent_binary()?;
-    names
-        .iter()
-        .map(|n| spawn_logged(Command::new(&bin).args(["--connect", endpoint, "--name", n, "--role", "assembler"])))
-        .collect()
-}
-
-/// The agents of a bench chart.
-enum Agents<'a> {
-    /// One process each.
-    Processes(&'a [String]),
-    /// `count` agents named `PREFIX1` … in one process (`baton-agent --instances`).
-    Hosted { prefix: &'a str, count: u32 },
-}
-
-impl Agents<'_> {
-    fn spawn(&self, endpoint: &str) -> anyhow::Result<Vec<Child>> {
-        match self {
-            Agents::Processes(names) => spawn_agents(endpoint, names),
-            Agents::Hosted { prefix, count } => {
-                let n = count.to_string();
-                let args = ["--connect", endpoint, "--name", prefix, "--instances", &n];
-                Ok(vec![spawn_logged(Command::new(agent_binary()?).args(args))?])
-            }
-        }
-    }
-}
-
-/// How a bench chart runs besides its chart and agents.
-#[derive(Default)]
-struct Extras<'a> {
-    journal: Option<&'a Path>,
-    rerun: Option<PathBuf>,
-    sets: Vec<(String, serde_json::Value)>,
-    /// The coordinator joins this router rather than embedding its own.
-    connect: Option<String>,
-    /// The agents join this router rather than the coordinator's.
-    agents_at: Option<String>,
-    /// Snapshots and retention of the journal, if not the defaults.
-    journal_settings: Option<crate::journal::Settings>,
-}
-
-async fn run_chart(
-    dir: &Path,
-    file: &str,
-    chart: String,
-    agents: Agents<'_>,
-    probe: Probe,
-    extras: Extras<'_>,
-) -> anyhow::Result<crate::run::Summary> {
-    let (opts, _agents) = chart_options(dir, file, chart, &agents, extras)?;
-    tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe))).await.context("the bench chart did not finish")?
-}
-
-/// Runs a chart until `stop` turns true, then drops the run where it stands — its coordinator gone, as if killed,
-/// with what it handed its journal written — or until it ends.
-async fn run_chart_until(
-    dir: &Path,
-    file: &str,
-    chart: String,
-    agents: Agents<'_>,
-    probe: Probe,
-    extras: Extras<'_>,
-    mut stop: tokio::sync::watch::Receiver<bool>,
-) -> anyhow::Result<()> {
-    let (opts, _agents) = chart_options(dir, file, chart, &agents, extras)?;
-    let run = run_with(opts, Some(probe));
-    let stopped = async {
-        let _ = stop.wait_for(|s| *s).await;
-    };
-    tokio::time::timeout(resume::RESUME_TIMEOUT, async {
-        tokio::select! {
-            ended = run => ended.map(|_| ()),
-            () = stopped => Ok(()),
-        }
-    })
-    .await
-    .context("the bench chart did not finish")?
-}
-
-/// The options of a bench chart's run, with its agents started.
-fn chart_options(
-    dir: &Path,
-    file: &str,
-    chart: String,
-    agents: &Agents<'_>,
-    extras: Extras<'_>,
-) -> anyhow::Result<(RunOptions, Vec<Child>)> {
-    let path = dir.join(file);
-    if !chart.is_empty() {
-        std::fs::write(&path, chart)?;
-    }
-    let (listen, connect) = match extras.connect {
-        Some(router) => (Vec::new(), vec![router]),
-        None => (vec![format!("tcp/127.0.0.1:{}", free_port()?)], Vec::new()),
-    };
-    let agents_at =
-        extras.agents_at.clone().unwrap_or_else(|| listen.iter().chain(&connect).next().cloned().unwrap_or_default());
-    let agents = agents.spawn(&agents_at)?;
-    let opts = RunOptions {
-        chart: path,
-        pou: None,
-        listen,
-        connect,
-        trace: None,
-        summary: None,
-        cycle_ms: 10,
-        sets: extras.sets,
-        multicast_scouting: false,
-        quiet: true,
-        zenoh_config: None,
-        loss_policy: baton_proto::cluster::runtime::coordinator::LossPolicy::Pause,
-        journal: extras.journal.map(Path::to_path_buf),
-        journal_settings: extras.journal_settings.unwrap_or_default(),
-        rerun: extras.rerun.map_or(crate::recording::Sink::Off, crate::recording::Sink::Save),
-        watch: Vec::new(),
-        wait_start: false,
-        stay: false,
-        abort_wait_ms: 0,
-    };
-    Ok((opts, agents))
 }
 
 /// Phase 2: a one-step segment whose exit is TRUE at once, dispatched `samples` times (plus a warm-up), from
@@ -663,48 +482,6 @@ async fn throughput(
     .await?;
     let (counted, secs) = steady_returns(&marks)?;
     Ok((counted, secs, summary.journal))
-}
-
-/// `agents × lanes` independent loops, lane `j` dispatching a one-step segment to agent `PREFIXk` over and over
-/// (k from `first + 1` to `first + agents`), `tokens` in all; the chart ends when every lane has made its share.
-fn throughput_chart(prefix: &str, first: u32, agents: u32, lanes_per_agent: u32, tokens: u32) -> String {
-    let lanes = agents * lanes_per_agent;
-    let per_lane = tokens.div_ceil(lanes).max(1);
-    let mut chart = String::from("PROGRAM throughput\nVAR\n");
-    for j in 1..=lanes {
-        chart.push_str(&format!("  c{j} : DINT := 0;\n"));
-    }
-    chart.push_str(&format!("  n : DINT := {per_lane};\nEND_VAR\nINITIAL_STEP Start: END_STEP\n"));
-    let list = |p: &str| (1..=lanes).map(|j| format!("{p}{j}")).collect::<Vec<_>>().join(", ");
-    chart.push_str(&format!("TRANSITION FROM Start TO ({}) := TRUE; END_TRANSITION\n", list("H")));
-    for j in 1..=lanes {
-        let agent = first + (j - 1) % agents + 1;
-        chart.push_str(&format!(
-            "STEP H{j}: END_STEP\nTRANSITION FROM H{j} TO R{j} := c{j} < n; END_TRANSITION\nTRANSITION FROM H{j} TO D{j} := c{j} >= n; END_TRANSITION\nSTEP R{j}: {{agent := '{prefix}{agent}'}} END_STEP\nTRANSITION FROM R{j} TO B{j} := TRUE; END_TRANSITION\nSTEP B{j}: Count{j}(P); END_STEP\nTRANSITION FROM B{j} TO H{j} := TRUE; END_TRANSITION\nSTEP D{j}: END_STEP\nACTION Count{j}: IF Count{j}.Q THEN c{j} := c{j} + 1; END_IF; END_ACTION\n"
-        ));
-    }
-    chart.push_str(&format!(
-        "TRANSITION FROM ({}) TO Finished := TRUE; END_TRANSITION\nSTEP Finished: END_STEP\nEND_PROGRAM\n",
-        list("D")
-    ));
-    chart
-}
-
-/// The returns of the first 1/`STEADY_SKIP` of a run (agents starting, caches warming) are left out of its rate.
-const STEADY_SKIP: usize = 10;
-
-/// Of the instants tokens came back at, in order: how many came back in steady state, and in how many seconds.
-fn steady(returns: &[Instant]) -> Option<(u64, f64)> {
-    let skip = returns.len() / STEADY_SKIP;
-    let (first, last) = (returns.get(skip)?, returns.last()?);
-    Some(((returns.len() - skip - 1) as u64, (*last - *first).as_secs_f64().max(1e-9)))
-}
-
-/// Tokens returned in steady state and the seconds they took.
-fn steady_returns(marks: &Marks) -> anyhow::Result<(u64, f64)> {
-    let marks = marks.lock().map_err(|_| anyhow!("poisoned"))?;
-    let returns: Vec<Instant> = marks.iter().filter(|m| m.1 == TraceEvent::Return).map(|m| m.0).collect();
-    steady(&returns).ok_or_else(|| anyhow!("no token came back"))
 }
 
 /// Phase 6: the demo's cell chart (two robots) with its motions taking no time and no inspection faults, `parts`

@@ -4,14 +4,15 @@
 
 use std::path::Path;
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context};
 use baton_proto::exec::trace::TraceEvent;
 use serde::Serialize;
 
-use super::{chart_options, run_chart_until, throughput_chart, Agents, Extras};
 use crate::run::Probe;
+
+use super::harness::{chart_options, run_chart_until, throughput_chart, Agents, Extras};
 
 #[derive(Serialize, Clone)]
 pub struct Resume {
@@ -145,6 +146,3 @@ fn journal_size(dir: &Path) -> anyhow::Result<(u64, u64)> {
     }
     Ok((n, bytes))
 }
-
-/// How long phase 11's run may take (a million tokens at a few thousand per second, and its resume).
-pub const RESUME_TIMEOUT: Duration = Duration::from_secs(1800);

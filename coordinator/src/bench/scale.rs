@@ -8,16 +8,17 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail};
+use baton_host::ZenohResult;
 use baton_proto::exec::trace::TraceEvent;
 use serde::Serialize;
 
-use super::{
+use crate::demo::free_port;
+use crate::run::Probe;
+
+use super::harness::{
     marks, router_config, run_chart, steady, steady_returns, throughput_chart, Agents, Extras, Latency, Marks,
     STEADY_SKIP,
 };
-use crate::demo::free_port;
-use crate::run::Probe;
-use baton_host::ZenohResult;
 
 /// The figures of one agent count.
 #[derive(Serialize, Clone)]
@@ -250,7 +251,7 @@ pub async fn concurrent_runs(
 /// three (each router linked to those started before it), alternating.
 pub async fn mesh_round_trip(dir: &Path, samples: u32) -> anyhow::Result<MeshRoundTrip> {
     let (mut one, mut three) = (Vec::new(), Vec::new());
-    let rounds = super::ROUNDS;
+    let rounds = super::harness::ROUNDS;
     let per_round = samples.div_ceil(rounds).max(1);
     for round in 1..=rounds {
         eprintln!("   mesh round trip, round {round}/{rounds}: one router");

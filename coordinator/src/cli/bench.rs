@@ -4,7 +4,7 @@ use std::process::ExitCode;
 
 use anyhow::bail;
 
-use super::block_on;
+use super::common::block_on;
 
 /// The arguments of `baton bench`.
 #[derive(clap::Args)]

@@ -8,8 +8,9 @@ use baton_proto::front::diag::LineIndex;
 use baton_proto::front::source;
 use baton_proto::pipeline::{check_source, Report};
 
-use super::{print_diagnostics, EXIT_INVALID, EXIT_USAGE};
 use crate::chart_file::read_chart;
+
+use super::common::{print_diagnostics, EXIT_INVALID, EXIT_USAGE};
 
 /// The arguments of `baton check`.
 #[derive(clap::Args)]

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use super::block_on;
+use super::common::block_on;
 
 /// The arguments of `baton demo`.
 #[derive(clap::Args)]

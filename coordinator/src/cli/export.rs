@@ -7,8 +7,9 @@ use std::process::ExitCode;
 use anyhow::Context;
 use baton_proto::pipeline::{check_source, CheckedChart};
 
-use super::{print_diagnostics, EXIT_INVALID};
 use crate::chart_file::{pick, read_chart};
+
+use super::common::{print_diagnostics, EXIT_INVALID};
 
 /// The arguments of `baton export`.
 #[derive(clap::Args)]

@@ -3,11 +3,9 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use super::{EXIT_ABORTED, EXIT_LEFT, EXIT_STOPPED};
-
 use baton_proto::cluster::runtime::coordinator::LossPolicy;
 
-use super::block_on;
+use super::common::{block_on, EXIT_ABORTED, EXIT_LEFT, EXIT_STOPPED};
 
 #[derive(Clone, Copy, clap::ValueEnum)]
 pub enum OnAgentLoss {

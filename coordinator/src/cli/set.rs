@@ -2,13 +2,13 @@
 
 use std::process::ExitCode;
 
-use super::{block_on, EXIT_INVALID};
+use super::common::{block_on, EXIT_INVALID};
 
 /// The arguments of `baton set`.
 #[derive(clap::Args)]
 pub struct Set {
     #[command(flatten)]
-    pub reach: super::Reach,
+    pub reach: super::common::Reach,
     /// The run, by its id as `baton status` lists it (or the start of it).
     #[arg(long, value_name = "ID")]
     pub run: Option<String>,

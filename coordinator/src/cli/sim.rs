@@ -10,8 +10,9 @@ use baton_proto::exec::sim::{parse_inputs, simulate_watching};
 use baton_proto::exec::trace::Output;
 use baton_proto::pipeline::check_source;
 
-use super::{print_diagnostics, EXIT_INVALID};
 use crate::chart_file::{pick, read, read_chart};
+
+use super::common::{print_diagnostics, EXIT_INVALID};
 
 /// The arguments of `baton sim`.
 #[derive(clap::Args)]

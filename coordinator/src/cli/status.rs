@@ -2,13 +2,13 @@
 
 use std::process::ExitCode;
 
-use super::block_on;
+use super::common::block_on;
 
 /// The arguments of `baton status`.
 #[derive(clap::Args)]
 pub struct Status {
     #[command(flatten)]
-    pub reach: super::Reach,
+    pub reach: super::common::Reach,
     /// One JSON object per running chart.
     #[arg(long)]
     pub json: bool,

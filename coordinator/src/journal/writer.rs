@@ -2,14 +2,13 @@
 //! it is durable, and the snapshots that start new segments; and `Writer`, the host's side of it.
 
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc as std_mpsc;
-use std::sync::{Arc, Mutex};
+use std::sync::{mpsc as std_mpsc, Arc, Mutex};
 use std::time::Instant;
 
 use anyhow::anyhow;
 use tokio::sync::watch;
 
-use super::Store;
+use super::store::Store;
 
 impl Store {
     /// Starts the writer thread; batches are numbered from 1 in the order given. `deliver` sends the messages

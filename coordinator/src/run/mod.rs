@@ -11,11 +11,6 @@ mod records;
 mod resume;
 mod summary;
 
-pub use records::Probe;
-pub use records::{replay_records, Records};
-pub use resume::{check_pin, how_it_ended, replay_segments};
-pub use summary::Summary;
-
 use std::collections::VecDeque;
 use std::fs::File;
 use std::io::BufWriter;
@@ -24,6 +19,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context};
+use baton_host::ZenohResult;
 use baton_proto::cluster::journal::{self, JournalHeader, Journaled, JOURNAL_FORMAT};
 use baton_proto::cluster::keys;
 use baton_proto::cluster::netconfig::NetConfig;
@@ -33,9 +29,13 @@ use baton_proto::exec::program::VarId;
 use tokio::sync::mpsc;
 
 use crate::chart_file::{load, Loaded};
-use baton_host::ZenohResult;
-use host::*;
-use resume::*;
+
+use host::{releasing, reply, request_sender, Callbacks, Host, Identity, Inboxes, Wake};
+use resume::{check_resumable, end_of, resume_segments, trace_lines, unix_ms};
+
+pub use records::{Probe, Records};
+pub use resume::{check_pin, how_it_ended, replay_segments};
+pub use summary::Summary;
 
 pub struct RunOptions {
     pub chart: PathBuf,

@@ -89,7 +89,7 @@ pub fn check_pin(header: &JournalHeader, program: &Program, layout: &Layout, pat
 pub fn replay_segments(
     core: &mut Journaled,
     segments: &[crate::journal::Segment],
-    out: &mut super::Records,
+    out: &mut super::records::Records,
     path: &str,
 ) -> anyhow::Result<Replayed> {
     let mut replayed = Replayed::default();
@@ -107,7 +107,7 @@ pub fn replay_segments(
                 );
             }
         }
-        let part = super::replay_records(core, &segment.records, out)?;
+        let part = super::records::replay_records(core, &segment.records, out)?;
         replayed.records += part.records;
         replayed.cycles += part.cycles;
         replayed.last_ms = replayed.last_ms.max(part.last_ms);

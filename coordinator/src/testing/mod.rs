@@ -121,18 +121,13 @@ fn thousands(n: f64) -> String {
     out
 }
 
-/// The scenario's name as a file name.
-fn file_stem(sc: &Scenario) -> String {
-    sc.name.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_")
-}
-
 /// A run's trace (JSON Lines) and Rerun recording, under `out`: every failing run's, and with `--keep` every
 /// run's.
 fn keep_run(opts: &TestOptions, sc: &Scenario, o: &Outcome) -> (Option<PathBuf>, Option<PathBuf>) {
     if std::fs::create_dir_all(&opts.out).is_err() {
         return (None, None);
     }
-    let stem = format!("{}-seed{}", file_stem(sc), o.seed);
+    let stem = format!("{}-seed{}", sc.file_stem(), o.seed);
     let trace_path = opts.out.join(format!("{stem}.trace.jsonl"));
     let trace = std::fs::File::create(&trace_path).ok().and_then(|mut f| {
         for r in &o.trace {

@@ -17,6 +17,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context};
+use baton_host::cable::Cable;
 use baton_host::traffic;
 use baton_proto::cluster::keys;
 use baton_proto::cluster::netconfig::NetConfig;
@@ -30,8 +31,6 @@ use baton_proto::testing::simulated_cluster::{Rng, LEASE_MS};
 use baton_proto::types::{Type, Value};
 use tokio::process::{Child, Command};
 use zenoh::Session;
-
-use baton_host::cable::Cable;
 
 /// How often the runner looks at the trace and the clock.
 const POLL: Duration = Duration::from_millis(5);
@@ -106,7 +105,7 @@ pub fn claim_run_dir(out: &Path, sc: &Scenario, seed: u64) -> anyhow::Result<(Pa
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     for k in 1..=RUN_DIRS_MAX {
         let suffix = if k == 1 { String::new() } else { format!(".{k}") };
-        let dir = out.join(format!("{}-seed{seed}{suffix}.cluster", super::file_stem(sc)));
+        let dir = out.join(format!("{}-seed{seed}{suffix}.cluster", sc.file_stem()));
         match std::fs::create_dir(&dir) {
             Ok(()) => {}
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}

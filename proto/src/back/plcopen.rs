@@ -24,7 +24,10 @@ use std::fmt::Write;
 
 use crate::back::st;
 use crate::exec::program::{Program, TransitionId};
-use crate::front::model::*;
+use crate::front::model::{
+    Action, ArraySpec, Chart, Duration, FbDef, Ident, PouKind, Pragma, Qualifier, TypeDef, TypeKind, VarDecl,
+    VarSection,
+};
 use crate::front::plcopen::ORDER_DATA;
 
 /// Where a chart's parts are drawn.

@@ -6,7 +6,7 @@
 
 use std::fmt::Write;
 
-use crate::front::model::*;
+use crate::front::model::{Arg, BinOp, CaseLabel, Expr, ExprKind, Ident, Stmt, UnOp};
 use crate::types::{quote_string, Type, Value};
 
 /// The binding strength of a binary operator, as the parser's (higher binds tighter).

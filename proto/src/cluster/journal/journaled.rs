@@ -3,15 +3,16 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{apply, decode, encode, frame, token_ids, Entry, JournalError, Record, DEVICES, REPORT, VARS};
 use crate::cluster::layout::Layout;
-use crate::cluster::runtime::coordinator::{CoordOutput, Coordinator, LossPolicy};
+use crate::cluster::runtime::coordinator::{token_ids, CoordOutput, Coordinator, LossPolicy};
 use crate::cluster::wire::{
     self, AgentInfo, ChartHash, CtlRequest, DeviceReport, Report, RunId, SetRequest, VarUpdate, WireError,
 };
 use crate::exec::program::{Program, VarId};
 use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::types::Value;
+
+use super::records::{apply, decode, encode, frame, Entry, JournalError, Record, DEVICES, REPORT, VARS};
 
 /// A coordinator whose every input is recorded first.
 pub struct Journaled {

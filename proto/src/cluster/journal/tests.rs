@@ -1,3 +1,11 @@
+use uuid::Uuid;
+
+use crate::cluster::journal::records::{frame, NEW_RUN, POLICY, REPORT};
+use crate::cluster::runtime::coordinator::{Coordinator, LossPolicy};
+use crate::cluster::wire::{
+    self, AgentInfo, ChartHash, CtlRequest, DeviceReport, Report, RunId, SetRequest, VarUpdate,
+};
+
 use super::journaled::{encode_snapshot, split_snapshot};
 use super::*;
 

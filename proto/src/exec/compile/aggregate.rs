@@ -1,6 +1,15 @@
 //! Arrays and structures: their elements laid out as runs of variables, and element and field access.
 
-use super::*;
+use std::collections::HashMap;
+
+use crate::exec::compile::typing::Ty;
+use crate::exec::eval::{eval, is_constant, NoEnv};
+use crate::exec::program::{CExpr, IndexExpr, VarId, VarInfo};
+use crate::front::model::{ArraySpec, Expr, Ident, TypeKind, VarDecl};
+use crate::types::library::StdFb;
+use crate::types::{Type, Value};
+
+use super::{ArrayInfo, Compiler, Storage};
 
 impl<'a> Compiler<'a> {
     /// A structure variable: one variable per field, `s.field`, with the field's initial value or the one the

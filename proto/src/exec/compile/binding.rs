@@ -4,7 +4,12 @@
 //! every kind of callee; the caller then types each bound argument against its parameter and builds its
 //! statement.
 
-use super::*;
+use crate::exec::compile::typing::{assignable, bool_literal, Ty};
+use crate::exec::program::{CExpr, VarId, VarInfo};
+use crate::front::model::{Arg, Ident};
+use crate::types::Type;
+
+use super::Compiler;
 
 /// Which way a parameter passes its value.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -1,6 +1,17 @@
 //! Calls of function block instances (standard and user), their members, and actions called as subroutines.
 
-use super::*;
+use std::sync::Arc;
+
+use crate::exec::compile::binding::{Dir, Params};
+use crate::exec::compile::typing::Ty;
+use crate::exec::program::{CStmt, FbOutput, UserCall, VarId, VarInfo};
+use crate::front::diag::Span;
+use crate::front::model::{Arg, Ident, Stmt, VarSection};
+use crate::limits::NESTING_DEPTH_MAX;
+use crate::types::library::{DatePart, Func, MemberKind, StdFb};
+use crate::types::{Type, Value};
+
+use super::Compiler;
 
 impl<'a> Compiler<'a> {
     /// The user instance at a path of instance names from the current scope (`m`, `table.motor`).

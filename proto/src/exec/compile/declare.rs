@@ -1,6 +1,17 @@
 //! Declarations: a chart's variables, instances of standard and user blocks (with their bodies and initial values).
 
-use super::*;
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use crate::exec::compile::typing::{assignable, Ty};
+use crate::exec::eval::{eval, is_constant, NoEnv};
+use crate::exec::program::{VarId, VarInfo};
+use crate::front::model::{Expr, FbDef, Ident, Sfc, TypeKind, VarDecl, VarSection};
+use crate::limits::NESTING_DEPTH_MAX;
+use crate::types::library::{MemberKind, StdFb};
+use crate::types::{Type, Value};
+
+use super::{Compiler, Scope, Storage, UserInstance};
 
 impl<'a> Compiler<'a> {
     /// Whether a variable, instance, structure or array of this name (key) is declared in the current scope.

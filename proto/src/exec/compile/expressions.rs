@@ -1,6 +1,13 @@
 //! ST expressions: operators, names and dotted paths (members, globals, step flags).
 
-use super::*;
+use crate::exec::compile::typing::{binary_type, bool_literal, Ty};
+use crate::exec::program::{ArithOp, CExpr, CmpOp, LogicOp, VarInfo};
+use crate::front::diag::Span;
+use crate::front::model::{BinOp, Expr, ExprKind, Ident, UnOp};
+use crate::types::library::Func;
+use crate::types::{Type, Value};
+
+use super::{Compiler, FALSE};
 
 impl<'a> Compiler<'a> {
     pub(super) fn expr(&mut self, e: &Expr, vars: &[VarInfo]) -> (CExpr, Ty) {

@@ -1,6 +1,17 @@
 //! Function calls: user functions and the standard library's functions, typed, and their arguments bound.
 
-use super::*;
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use crate::exec::compile::binding::{Dir, Params};
+use crate::exec::compile::typing::{assignable, bool_literal, join, time_function, Ty};
+use crate::exec::program::{CExpr, CStmt, FbOutput, UserCall, VarId, VarInfo};
+use crate::front::model::{Arg, BinOp, Expr, ExprKind, FbDef, Ident, TypeKind, VarSection};
+use crate::limits::NESTING_DEPTH_MAX;
+use crate::types::library::{DateFn, DatePart, Func, StdFb, TextFn};
+use crate::types::{IntKind, Type, Value};
+
+use super::{Compiler, Function, Storage, FALSE};
 
 impl<'a> Compiler<'a> {
     /// Every user function's frame: a hidden VAR_TEMP variable per input and local, and its result. Frames are

@@ -45,6 +45,7 @@ mod declare;
 mod expressions;
 mod functions;
 mod nested;
+mod nested_names;
 mod sfc;
 mod statements;
 mod typing;
@@ -52,16 +53,12 @@ mod typing;
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use crate::exec::eval::{eval, is_constant, NoEnv};
-use crate::exec::program::*;
+use crate::exec::program::{ActionId, CExpr, CStmt, Program, StepId, StepInfo, StepParts, VarId, VarInfo};
 use crate::front::diag::{Diagnostic, Span};
-use crate::front::model::*;
-use crate::limits::{NESTING_DEPTH_MAX, SUPERVISION_MS_MAX};
-use crate::types::library::{DateFn, DatePart, Func, MemberKind, StdFb, TextFn};
-use crate::types::{IntKind, Type, Value};
-use binding::*;
-use nested::with_q;
-use typing::*;
+use crate::front::model::{Chart, FbDef, Ident, Sfc, TypeDef, VarDecl, VarSection};
+use crate::limits::NESTING_DEPTH_MAX;
+use crate::types::library::StdFb;
+use crate::types::{Type, Value};
 
 /// The result of compiling one chart: a program (with placeholders wherever an error was reported) and whether
 /// its net of steps and transitions resolved well enough to be analysed.
@@ -94,7 +91,7 @@ pub fn compile(chart: &Chart, library: &[FbDef], types: &[TypeDef], diags: &mut 
         enums: Vec::new(),
         arrays: HashMap::new(),
         structs: HashMap::new(),
-        nested: nested::Nested::default(),
+        nested: nested_names::Nested::default(),
         ranges: HashMap::new(),
         struct_depth: 0,
         functions_compiling: 0,
@@ -127,7 +124,7 @@ struct Scope {
     arrays: HashMap<String, ArrayInfo>,
     structs: HashMap<String, (String, Vec<String>)>,
     /// A user instance's nested charts.
-    nested: nested::Nested,
+    nested: nested_names::Nested,
 }
 
 struct Compiler<'a> {
@@ -164,7 +161,7 @@ struct Compiler<'a> {
     /// The chart's structure variables: their type's name and field names.
     structs: HashMap<String, (String, Vec<String>)>,
     /// The nested charts (actions written in SFC) of the POU being compiled: the chart's, or a user instance's.
-    nested: nested::Nested,
+    nested: nested_names::Nested,
     /// The chart's variables of a subrange type: the range and the type's name.
     ranges: HashMap<VarId, (i64, i64, String)>,
     /// Structures being declared inside one another (a structure holding itself is an error).

@@ -1,6 +1,19 @@
 //! The SFC itself: actions and their associations with steps (qualifiers, durations, indicators), and transitions.
 
-use super::*;
+use std::collections::HashMap;
+
+use crate::exec::compile::nested::with_q;
+use crate::exec::compile::typing::{bool_literal, Ty};
+use crate::exec::eval::{eval, is_constant, NoEnv};
+use crate::exec::program::{
+    ActionId, ActionInfo, Assoc, CExpr, DurationSrc, Once, StepId, StepParts, TransitionInfo, TransitionParts, VarInfo,
+};
+use crate::front::diag::{Diagnostic, Span};
+use crate::front::model::{Action, Association, Duration, Ident, Qualifier, Step};
+use crate::limits::{NESTING_DEPTH_MAX, SUPERVISION_MS_MAX};
+use crate::types::{Type, Value};
+
+use super::Compiler;
 
 impl<'a> Compiler<'a> {
     /// Declared actions, and the chart element behind each.

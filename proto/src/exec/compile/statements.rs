@@ -1,6 +1,13 @@
 //! ST statements: assignments, IF, CASE, loops, and the places an assignment writes.
 
-use super::*;
+use crate::exec::compile::typing::{assignable, bool_literal, Ty};
+use crate::exec::eval::{eval, is_constant, NoEnv};
+use crate::exec::program::{CExpr, CStmt, VarId, VarInfo};
+use crate::front::model::{CaseLabel, Expr, ExprKind, Stmt, VarSection};
+use crate::types::library::MemberKind;
+use crate::types::Value;
+
+use super::Compiler;
 
 impl<'a> Compiler<'a> {
     pub(super) fn statements(&mut self, body: &[Stmt], vars: &[VarInfo]) -> Vec<CStmt> {

@@ -13,7 +13,12 @@
 //! indices are literals), which is how those variables are named; only `pts[i].x` with a run-time index is an
 //! `ExprKind::IndexField`.
 
-use super::*;
+use crate::exec::program::CExpr;
+use crate::front::diag::Span;
+use crate::front::model::{BinOp, Ident, TypeKind};
+use crate::types::{IntKind, Type, Value};
+
+use super::{Compiler, FALSE};
 
 /// The static type of an expression. `IntLit` is an integer literal, which fits any numeric type; `Err` follows
 /// an expression whose error is already reported, so that one mistake yields one message.

@@ -1,7 +1,14 @@
 //! The engine's actions: each cycle, what every active step's associations ask of each action (its qualifiers,
 //! IEC 61131-3 Table 56), the action's Q and its body run — and a skill's start resets its indicators.
 
-use super::*;
+use std::sync::Arc;
+
+use crate::exec::eval;
+use crate::exec::program::ActionId;
+use crate::front::model::Qualifier;
+use crate::types::Value;
+
+use super::{Demand, Engine, EventKind, FaultSource};
 
 impl Engine {
     /// A skill starts: the indicators of the action's associations on active steps go FALSE, so that no

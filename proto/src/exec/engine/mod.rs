@@ -50,9 +50,10 @@ use crate::limits::REACTION_ROUNDS_MAX;
 use crate::types::{Type, Value};
 
 mod actions;
+mod mode;
 mod operator;
 
-pub use operator::Mode;
+pub use mode::Mode;
 
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Event {

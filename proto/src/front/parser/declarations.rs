@@ -1,6 +1,12 @@
 //! Declarations: a file's TYPE blocks, FUNCTIONs, PROGRAMs and FUNCTION_BLOCKs, and their VAR blocks.
 
-use super::*;
+use crate::front::diag::{Diagnostic, Span};
+use crate::front::lexer::{Kw, Tok};
+use crate::front::model::{
+    ArraySpec, Broken, Chart, FbAction, FbDef, Ident, InitRun, PouKind, TypeDef, TypeKind, VarDecl, VarSection,
+};
+
+use super::{is_element_start, is_top_level, is_var_block, Failed, PResult, Parser};
 
 impl Parser<'_> {
     pub(super) fn file(&mut self) -> Vec<Chart> {

@@ -1,6 +1,11 @@
 //! ST expressions by precedence climbing; AND, OR and XOR chains are built balanced (`model::fold_balanced`).
 
-use super::*;
+use crate::front::diag::{Diagnostic, Span};
+use crate::front::lexer::{Kw, Tok};
+use crate::front::model::{BinOp, Expr, ExprKind, Ident, UnOp};
+use crate::limits::NESTING_DEPTH_MAX;
+
+use super::{Failed, PResult, Parser};
 
 impl Parser<'_> {
     pub fn expr(&mut self) -> PResult<Expr> {

@@ -19,8 +19,8 @@ mod statements;
 
 use crate::front::diag::{Diagnostic, Span};
 use crate::front::lexer::{lex, Kw, RawPragma, Tok, Token};
-use crate::front::model::*;
-use crate::limits::{BRANCHES_MAX, NESTING_DEPTH_MAX};
+use crate::front::model::{Broken, Chart, Expr, FbDef, Ident, Pragma, Stmt, TypeDef, VarDecl};
+use crate::limits::NESTING_DEPTH_MAX;
 
 pub struct Parsed {
     pub charts: Vec<Chart>,
@@ -330,6 +330,7 @@ impl Parser<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::front::model::PouKind;
 
     #[test]
     fn pragmas_attach_to_the_element_they_stand_in_or_follow() {

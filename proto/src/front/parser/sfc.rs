@@ -1,7 +1,12 @@
 //! SFC elements: steps with their action associations, transitions, actions, nested charts, and fragments (a PLCopen
 //! file's ST in pieces).
 
-use super::*;
+use crate::front::diag::Diagnostic;
+use crate::front::lexer::{Kw, Tok};
+use crate::front::model::{Action, Association, Chart, Duration, Ident, Qualifier, Sfc, Step, Transition};
+use crate::limits::BRANCHES_MAX;
+
+use super::{is_element_start, Failed, Fragment, FragmentKind, PResult, Parser};
 
 impl Parser<'_> {
     pub(super) fn element(&mut self, chart: &mut Chart) {

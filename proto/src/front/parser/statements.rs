@@ -1,6 +1,9 @@
 //! ST statements: assignments, calls with their arguments, IF, CASE, FOR, WHILE, REPEAT, and the places they write.
 
-use super::*;
+use crate::front::lexer::{Kw, Tok, Token};
+use crate::front::model::{Arg, CaseArm, CaseLabel, Expr, ExprKind, Ident, Stmt};
+
+use super::{PResult, Parser};
 
 impl Parser<'_> {
     pub(super) fn statements(&mut self) -> PResult<Vec<Stmt>> {

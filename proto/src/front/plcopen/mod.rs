@@ -45,14 +45,14 @@ mod xml;
 
 use std::collections::{HashMap, HashSet};
 
-use roxmltree::{Document, Node, ParsingOptions, TextPos};
+use roxmltree::{Document, Node, ParsingOptions};
 
 use crate::front::diag::{Diagnostic, Span};
-use crate::front::model::*;
+use crate::front::model::{Chart, Expr, FbDef, GlobalList, Ident, Pragma, Stmt, Transition, VarDecl, VarSection};
 use crate::front::parser::{parse_fragment, Fragment, FragmentKind, Parsed};
-use crate::limits::{NESTING_DEPTH_MAX, XML_CONNECTIONS_WALKED_MAX, XML_NODES_MAX};
-use order::*;
-use xml::*;
+use crate::limits::XML_NODES_MAX;
+
+use xml::{blank_markup, child, is, offset_of, strip_position, BodyText};
 
 /// The `addData/data@name` under which Baton keeps its element order.
 pub const ORDER_DATA: &str = "https://baton.dev/plcopen/element-order";
@@ -154,7 +154,7 @@ pub fn parse(src: &str) -> Parsed {
     }
     let names: Vec<String> = charts.iter().map(|c| c.name.key()).collect();
     for chart in &mut charts {
-        task::adopt_caller(chart, &names, &reader.programs, &mut reader.diags);
+        reader.adopt_caller(chart, &names);
     }
     for def in &mut reader.library {
         share_globals(&mut def.vars, &globals, false);
@@ -233,7 +233,15 @@ struct Reader<'s> {
     /// Variables the POU being read needs that its interface does not declare (edge contacts' instances).
     implicit: Vec<VarDecl>,
     /// Programs in ST, one of which may run a chart (`task`).
-    programs: Vec<task::CallerProgram>,
+    programs: Vec<CallerProgram>,
+}
+
+/// A program with an ST body and no chart, kept in case it runs one of the file's charts.
+pub(super) struct CallerProgram {
+    pub name: Ident,
+    pub vars: Vec<VarDecl>,
+    pub body: Vec<Stmt>,
+    pub problems: Vec<Diagnostic>,
 }
 
 impl Reader<'_> {
@@ -349,6 +357,8 @@ impl Reader<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::front::model::BinOp;
+    use crate::front::model::ExprKind;
 
     #[test]
     fn markup_is_blanked_in_place_and_entities_are_mapped_back() {

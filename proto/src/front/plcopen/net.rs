@@ -1,7 +1,21 @@
 //! The net's reconstruction: an SFC body's elements, and each transition's source and target steps, walked back and
 //! forward through divergences, convergences, macro steps and jumps.
 
-use super::*;
+use std::collections::{HashMap, HashSet};
+
+use roxmltree::Node;
+
+use crate::front::diag::Span;
+use crate::front::model::{
+    Action, Association, Broken, Chart, Expr, ExprKind, Ident, Qualifier, Step, Stmt, Transition,
+};
+use crate::front::plcopen::xml::{child, children, flag, is, local_id};
+use crate::limits::{NESTING_DEPTH_MAX, XML_CONNECTIONS_WALKED_MAX};
+
+use super::{
+    Elements, ReadTransition, Reader, CODESYS_ACTIVE_ACTION, CODESYS_ENTRY_ACTION, CODESYS_EXIT_ACTION,
+    CODESYS_SFC_ELEMENT, COMPUTE_BLOCKS,
+};
 
 impl Reader<'_> {
     /// A body's elements by `localId`; `structural` names the kinds whose inputs are SFC arcs, for `consumers`.

@@ -1,7 +1,14 @@
 //! Baton's element order (`ORDER_DATA`): an export's steps, transitions and actions read back in the order they were
 //! written.
 
-use super::*;
+use std::collections::HashMap;
+
+use roxmltree::Node;
+
+use crate::front::model::Chart;
+use crate::front::plcopen::xml::{child, is};
+
+use super::ORDER_DATA;
 
 /// Baton's element order from a POU's `addData` (see `ORDER_DATA`): step names, transition
 /// `localId`s and action names.

@@ -1,7 +1,20 @@
 //! POUs and types: programs and function blocks with their interfaces, data types, global variable lists, and named
 //! actions and their bodies.
 
-use super::*;
+use std::collections::HashMap;
+
+use roxmltree::Node;
+
+use crate::front::diag::Span;
+use crate::front::model::{
+    Action, ArraySpec, Chart, FbDef, Ident, PouKind, Pragma, Sfc, SfcFlags, Stmt, TypeDef, TypeKind, VarDecl,
+    VarSection,
+};
+use crate::front::parser::{Fragment, FragmentKind};
+use crate::front::plcopen::order::{apply_order, baton_order, walk_order};
+use crate::front::plcopen::xml::{child, children, flag, is, type_name};
+
+use super::{Reader, CODESYS_SFC_SETTINGS};
 
 impl Reader<'_> {
     pub(super) fn pou(&mut self, pou: Node) -> Option<Chart> {

@@ -6,15 +6,14 @@
 //! globals, read as `MAIN.x` (a global list of the program's name), and the program's instance name stands for the
 //! chart itself (`PPU.Crane` is the chart's `Crane`).
 
-use super::*;
+use roxmltree::Node;
 
-/// A program with an ST body and no chart, kept in case it runs one of the file's charts.
-pub(super) struct CallerProgram {
-    pub name: Ident,
-    pub vars: Vec<VarDecl>,
-    pub body: Vec<Stmt>,
-    pub problems: Vec<Diagnostic>,
-}
+use crate::front::diag::Diagnostic;
+use crate::front::model::{Action, Association, Chart, GlobalList, Ident, Stmt, VarDecl, VarSection};
+use crate::front::parser::{Fragment, FragmentKind};
+use crate::front::plcopen::xml::{child, is};
+
+use super::{CallerProgram, Reader};
 
 impl Reader<'_> {
     /// Keeps a program whose body is ST (`None` where it has another).
@@ -31,16 +30,16 @@ impl Reader<'_> {
         let problems = std::mem::replace(&mut self.diags, outer);
         Some(CallerProgram { name, vars, body, problems })
     }
+
+    /// Gives `chart` the program that runs it, of those kept (`adopt_caller`).
+    pub(super) fn adopt_caller(&mut self, chart: &mut Chart, charts: &[String]) {
+        adopt_caller(chart, charts, &self.programs, &mut self.diags);
+    }
 }
 
 /// Gives `chart` the program that runs it, as the module says: the first whose variables hold one instance of it
 /// and of no other chart of the file (a program running several charts is not one chart's task, and is left out).
-pub(super) fn adopt_caller(
-    chart: &mut Chart,
-    charts: &[String],
-    programs: &[CallerProgram],
-    diags: &mut Vec<Diagnostic>,
-) {
+fn adopt_caller(chart: &mut Chart, charts: &[String], programs: &[CallerProgram], diags: &mut Vec<Diagnostic>) {
     let is_instance = |v: &VarDecl| v.type_name.key() == chart.name.key() && v.array.is_none();
     let only_this = |p: &&CallerProgram| {
         p.vars.iter().filter(|v| is_instance(v)).count() == 1

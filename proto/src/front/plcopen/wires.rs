@@ -1,7 +1,20 @@
 //! LD and FBD networks as expressions and assignments: contacts, coils, blocks and their wires, for conditions and
 //! action bodies.
 
-use super::*;
+use std::collections::HashMap;
+
+use roxmltree::Node;
+
+use crate::front::diag::{Diagnostic, Span};
+use crate::front::model::{
+    Action, Arg, Association, BinOp, Chart, Duration, Expr, ExprKind, Ident, Pragma, Qualifier, Stmt, UnOp, VarDecl,
+    VarSection,
+};
+use crate::front::parser::{Fragment, FragmentKind};
+use crate::front::plcopen::xml::{child, children, flag, is, local_id};
+use crate::limits::NESTING_DEPTH_MAX;
+
+use super::{Elements, Reader};
 
 pub(super) fn not(e: Expr) -> Expr {
     let span = e.span;

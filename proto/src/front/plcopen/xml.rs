@@ -1,7 +1,7 @@
 //! XML helpers: elements by local name in any TC6 namespace, ids and flags, positions, and the markup of a body blanked
 //! in place so that ST in it keeps its offsets in the file.
 
-use super::*;
+use roxmltree::{Node, TextPos};
 
 /// roxmltree ends its messages with ` at LINE:COL`, which the diagnostic header already says.
 pub(super) fn strip_position(message: &str) -> &str {

@@ -12,14 +12,15 @@ use std::sync::Arc;
 
 use toml::Spanned;
 
-use super::cond::Cond;
 use crate::cluster::layout::Layout;
 use crate::cluster::runtime::coordinator::LossPolicy;
 use crate::cluster::wire::ChartHash;
 use crate::exec::program::Program;
 use crate::front::diag::LineIndex;
 use crate::pipeline::check_source;
-use raw::*;
+
+use super::cond::Cond;
+use raw::RawScenario;
 
 mod commands;
 mod raw;
@@ -268,6 +269,13 @@ pub struct Scenario {
     pub faults: Vec<Fault>,
     pub commands: Vec<Command>,
     pub expects: Vec<Expect>,
+}
+
+impl Scenario {
+    /// Its name as a file name: letters, digits and `-` kept, everything else `_`.
+    pub fn file_stem(&self) -> String {
+        self.name.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_")
+    }
 }
 
 pub fn show_ms(ms: u64) -> String {
@@ -770,7 +778,7 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
         faults.push(Fault { kind: fault_kind, trigger, jitter_ms, line });
     }
 
-    let commands = commands::check(&mut cx, &raw.commands, &program, &agent_names, &trigger, stay);
+    let commands = cx.commands(&raw.commands, &program, &agent_names, &trigger, stay);
 
     // Expectations.
     let step_known = |cx: &mut Ctx, span: &Range<usize>, name: &str| -> Option<String> {

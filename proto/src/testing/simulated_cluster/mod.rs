@@ -23,20 +23,21 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
+use uuid::Uuid;
+
 use crate::cluster::journal::Journaled;
 use crate::cluster::layout::Layout;
-use crate::cluster::runtime::agent::{AgentOutput, AgentRun, Dispatch, Join};
+use crate::cluster::runtime::agent::AgentRun;
 use crate::cluster::runtime::coordinator::{CoordOutput, LossPolicy};
-use crate::cluster::wire::{self, AgentInfo, ChartHash, CtlRequest, RunId, ToAgent, VarUpdate};
+use crate::cluster::wire::{self, AgentInfo, ChartHash, CtlRequest, RunId, VarUpdate};
 use crate::exec::program::{ActionId, Program};
 use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::pipeline::check_source;
 use crate::types::Value;
-use uuid::Uuid;
 
 mod network;
 mod skills;
-pub use skills::*;
+pub use skills::{motion, motion_ms, motion_result, Rng, SimSkill, SkillModel, SkillStart, NETWORK_MIX};
 
 /// The simulated run's cycle period, unless told otherwise (`SimCluster::with_program`).
 pub const CYCLE_MS: u64 = 10;

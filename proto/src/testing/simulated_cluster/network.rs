@@ -2,7 +2,17 @@
 //! meeting the faults of its link (lost, duplicated, delayed, reordered), and what arrives is given to its process
 //! — the coordinator's records made durable first, as the host does.
 
-use super::*;
+use std::sync::Arc;
+
+use uuid::Uuid;
+
+use crate::cluster::journal::Journaled;
+use crate::cluster::runtime::agent::{AgentOutput, Dispatch, Join};
+use crate::cluster::runtime::coordinator::CoordOutput;
+use crate::cluster::wire::{self, ToAgent, VarUpdate};
+use crate::testing::simulated_cluster::skills::{motion, SimSkill, SkillStart};
+
+use super::{Faults, Packet, SimCluster};
 
 impl SimCluster {
     /// The faults a packet meets now: its agent's link's, while they last, else the run's.

@@ -1,14 +1,13 @@
 //! Devices: bound inputs written into the chart, outputs sent to their devices, and which devices cannot be reached.
 
-use super::AgentOutput;
-use super::AgentRun;
 use crate::cluster::bindings::IoDir;
 use crate::cluster::runtime::Level;
-use crate::cluster::wire::DeviceDown;
-use crate::cluster::wire::DeviceReport;
+use crate::cluster::wire::{DeviceDown, DeviceReport};
 use crate::exec::engine::Input;
 use crate::exec::program::VarId;
 use crate::types::Value;
+
+use super::{AgentOutput, AgentRun};
 
 impl AgentRun {
     /// Writes what a device gave (a skill's answer, a bound input) to `var`, converted to its type as `*_TO_*`

@@ -22,6 +22,8 @@ mod variables;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 
+use uuid::Uuid;
+
 use crate::cluster::bindings::{IoBinding, IoDir};
 use crate::cluster::layout::{Layout, Placement, SegmentId, SkillBinding};
 use crate::cluster::wire::{
@@ -32,7 +34,6 @@ use crate::exec::program::{ActionId, Program, StepId, VarId};
 use crate::types::Value;
 
 use super::{FinishedTokens, Level, VarWrites, VarsResend};
-use uuid::Uuid;
 
 /// Processes whose refused variable updates an agent remembers having logged.
 const REFUSALS_SAID_MAX: usize = 64;

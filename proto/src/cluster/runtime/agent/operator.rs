@@ -4,18 +4,16 @@
 //! supervision fault acknowledged; and a run aborted (every skill cancelled, every action's final scan, every token
 //! forgotten).
 
-use super::AgentOutput;
-use super::AgentRun;
-use crate::cluster::layout::SegmentId;
-use crate::cluster::runtime::Level;
-use crate::cluster::wire::AgentEventKind;
-use crate::cluster::wire::RunId;
-use crate::cluster::wire::TokenId;
-use crate::exec::engine::RemoteInput;
-use crate::exec::program::ActionId;
-use crate::exec::program::StepId;
 use std::collections::BTreeSet;
 use std::sync::Arc;
+
+use crate::cluster::layout::SegmentId;
+use crate::cluster::runtime::Level;
+use crate::cluster::wire::{AgentEventKind, RunId, TokenId};
+use crate::exec::engine::RemoteInput;
+use crate::exec::program::{ActionId, StepId};
+
+use super::{AgentOutput, AgentRun};
 
 impl AgentRun {
     /// `ToAgent::Hold`: holds the token (`held`) or releases it. A repeat changes nothing but says again what

@@ -1,15 +1,16 @@
 //! Skills: what a skill that an action started says back — done, failed, an output value, stopped — set on the
 //! association's indicators.
 
-use super::AgentRun;
+use std::sync::Arc;
+
 use crate::cluster::runtime::agent::tokens::action_token;
 use crate::cluster::runtime::Level;
 use crate::cluster::wire::AgentEventKind;
 use crate::exec::engine::Input;
-use crate::exec::program::ActionId;
-use crate::exec::program::VarId;
+use crate::exec::program::{ActionId, VarId};
 use crate::types::Value;
-use std::sync::Arc;
+
+use super::AgentRun;
 
 impl AgentRun {
     /// A skill finished: its action's indicator variables say so (first: done, second: fault).

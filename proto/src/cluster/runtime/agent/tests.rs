@@ -3,10 +3,11 @@
 //! deterministic simulation (`testing::simulated_cluster`) runs the same state machine among many; these name
 //! the rule that broke.
 
-use super::*;
 use crate::cluster::runtime::COORDINATOR;
 use crate::cluster::wire::AgentEventKind;
 use crate::testing::simulated_cluster::compile;
+
+use super::*;
 
 const CHART: &str = "
 PROGRAM Cell

@@ -1,16 +1,13 @@
 //! Time: the agent's cycles on the run's grid, caught up after a stall, what is sent again, and the lease fence — no
 //! contact with the router for too long, and the tokens that may go elsewhere are stopped.
 
-use super::AgentOutput;
-use super::AgentRun;
-use super::RESEND_FIRST_MS;
-use super::RESEND_MAX_MS;
 use crate::cluster::runtime::agent::tokens::action_token;
 use crate::cluster::runtime::Level;
-use crate::cluster::wire::AgentEventKind;
-use crate::cluster::wire::TokenId;
+use crate::cluster::wire::{AgentEventKind, TokenId};
 use crate::exec::program::ActionId;
 use crate::limits::CATCH_UP_CYCLES_MAX;
+
+use super::{AgentOutput, AgentRun, RESEND_FIRST_MS, RESEND_MAX_MS};
 
 impl AgentRun {
     /// Runs the cycles due by `now_ms`, each at its grid time, before anything that arrived at `now_ms` is

@@ -1,32 +1,18 @@
 //! Tokens: a dispatch taken once per epoch, its segment run by the agent's engine, what happened reported (and sent
 //! again until acknowledged), a join, a drop, and what finished.
 
-use super::AgentOutput;
-use super::AgentRun;
-use super::Dispatch;
-use super::Holding;
-use super::Join;
-use super::Unacked;
-use super::RESEND_FIRST_MS;
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::Arc;
+
 use crate::cluster::layout::SegmentId;
 use crate::cluster::runtime::Level;
-use crate::cluster::wire::AgentEvent;
-use crate::cluster::wire::AgentEventKind;
-use crate::cluster::wire::Report;
-use crate::cluster::wire::TokenId;
-use crate::cluster::wire::VarValue;
-use crate::exec::engine::EventKind;
-use crate::exec::engine::RemoteInput;
-use crate::exec::program::ActionId;
-use crate::exec::program::StepId;
-use crate::exec::program::VarId;
+use crate::cluster::wire::{AgentEvent, AgentEventKind, Report, TokenId, VarValue};
+use crate::exec::engine::{EventKind, RemoteInput};
+use crate::exec::program::{ActionId, StepId, VarId};
 use crate::exec::trace::fault_message;
-use crate::limits::FINISHED_TOKENS_REMEMBERED;
-use crate::limits::REPORTS_UNACKED_MAX;
-use crate::limits::REPORT_EVENTS_MAX;
-use std::collections::BTreeMap;
-use std::collections::VecDeque;
-use std::sync::Arc;
+use crate::limits::{FINISHED_TOKENS_REMEMBERED, REPORTS_UNACKED_MAX, REPORT_EVENTS_MAX};
+
+use super::{AgentOutput, AgentRun, Dispatch, Holding, Join, Unacked, RESEND_FIRST_MS};
 
 /// The token an action's event belongs to: that of the first segment using the action that has a token here.
 pub(super) fn action_token(

@@ -1,19 +1,16 @@
 //! Variables: the values this agent writes, published with an update number; the values it reads, taken only from their
 //! writer's current process or the coordinator, in order.
 
-use super::AgentOutput;
-use super::AgentRun;
-use super::REFUSALS_SAID_MAX;
+use uuid::Uuid;
+
 use crate::cluster::layout::Placement;
-use crate::cluster::runtime::Level;
-use crate::cluster::runtime::COORDINATOR;
-use crate::cluster::wire::Peers;
-use crate::cluster::wire::VarUpdate;
-use crate::cluster::wire::VarValue;
+use crate::cluster::runtime::{Level, COORDINATOR};
+use crate::cluster::wire::{Peers, VarUpdate, VarValue};
 use crate::exec::engine::Input;
 use crate::exec::program::VarId;
 use crate::limits::PARKED_UPDATE_BYTES_MAX;
-use uuid::Uuid;
+
+use super::{AgentOutput, AgentRun, REFUSALS_SAID_MAX};
 
 impl AgentRun {
     /// The coordinator's values in a dispatch or a join: the variables this agent writes only while it has not

@@ -1,21 +1,17 @@
 //! Control from outside: `baton set` (an input, checked and applied) and `baton status`.
 
-use super::Coordinator;
+use std::sync::Arc;
+
 use crate::cluster::layout::Placement;
 use crate::cluster::runtime::packml::State;
-use crate::cluster::wire::StatusAgent;
-use crate::cluster::wire::StatusAlarm;
-use crate::cluster::wire::StatusDevice;
-use crate::cluster::wire::StatusReport;
-use crate::cluster::wire::StatusStep;
-use crate::cluster::wire::StatusToken;
+use crate::cluster::wire::{StatusAgent, StatusAlarm, StatusDevice, StatusReport, StatusStep, StatusToken};
 use crate::exec::engine::Input;
 use crate::exec::program::VarId;
-use crate::exec::trace::TraceEvent;
-use crate::exec::trace::TraceRecord;
+use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::front::json_value;
 use crate::types::Value;
-use std::sync::Arc;
+
+use super::Coordinator;
 
 impl Coordinator {
     /// `baton set NAME=VALUE`: sets an input (a variable no action writes) before the next cycle.

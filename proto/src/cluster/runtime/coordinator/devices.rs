@@ -1,11 +1,12 @@
 //! Devices: which bound devices an agent cannot reach, traced as `device_down` and `device_up`.
 
-use super::Coordinator;
+use std::collections::BTreeMap;
+
 use crate::cluster::runtime::Level;
 use crate::cluster::wire::DeviceReport;
-use crate::exec::trace::TraceEvent;
-use crate::exec::trace::TraceRecord;
-use std::collections::BTreeMap;
+use crate::exec::trace::{TraceEvent, TraceRecord};
+
+use super::Coordinator;
 
 impl Coordinator {
     /// A device report as it would apply (its messages cut to `DEVICE_MESSAGE_CHARS_MAX`, each binding once, as

@@ -1,20 +1,16 @@
 //! Membership: agents that come up (with who they are and which process), go down, collide on a name, and the peers
 //! table every agent is told.
 
-use super::state::AgentState;
-use super::Coordinator;
-use super::LossPolicy;
-use crate::cluster::layout::Placement;
-use crate::cluster::runtime::Level;
-use crate::cluster::runtime::COORDINATOR;
-use crate::cluster::wire::AgentInfo;
-use crate::cluster::wire::Peer;
-use crate::cluster::wire::ToAgent;
-use crate::cluster::wire::TokenId;
-use crate::exec::trace::TraceEvent;
-use crate::exec::trace::TraceRecord;
-use crate::limits::AGENTS_MAX;
 use std::collections::BTreeMap;
+
+use crate::cluster::layout::Placement;
+use crate::cluster::runtime::{Level, COORDINATOR};
+use crate::cluster::wire::{AgentInfo, Peer, ToAgent, TokenId};
+use crate::exec::trace::{TraceEvent, TraceRecord};
+use crate::limits::AGENTS_MAX;
+
+use super::state::AgentState;
+use super::{Coordinator, LossPolicy};
 
 impl Coordinator {
     /// The writers agents may take variable updates from, as the agents tracked now say; when that changed, every

@@ -40,8 +40,9 @@ use crate::types::Value;
 use super::alarms::{AlarmChange, Alarms};
 use super::packml::State;
 use super::{FinishedTokens, Level, VarWrites, VarsResend};
-pub use state::{token_ids, TokenIds};
 use state::{AgentState, PartialHolds, Supervised, TokenState};
+
+pub use state::{token_ids, TokenIds};
 
 /// First and largest delay before a dispatch that no report answered is sent again (the agent drops the
 /// duplicate if it has the token).

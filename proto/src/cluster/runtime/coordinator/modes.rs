@@ -7,17 +7,16 @@
 //! A manual change of the active steps is made only if the chart could reach the situation it leaves by itself
 //! (`analysis::is_reachable`): never two tokens on a step, half a simultaneous branch, or a token stranded.
 
-use super::Coordinator;
+use std::sync::Arc;
+
 use crate::cluster::runtime::packml::State;
-use crate::cluster::wire::ToAgent;
-use crate::cluster::wire::TokenId;
+use crate::cluster::wire::{ToAgent, TokenId};
 use crate::exec::analysis;
 use crate::exec::engine::{Mode, RemoteInput};
-use crate::exec::program::StepId;
-use crate::exec::program::TransitionId;
-use crate::exec::trace::TraceEvent;
-use crate::exec::trace::TraceRecord;
-use std::sync::Arc;
+use crate::exec::program::{StepId, TransitionId};
+use crate::exec::trace::{TraceEvent, TraceRecord};
+
+use super::Coordinator;
 
 const GATE_RESEND_FIRST_MS: u64 = 200;
 const GATE_RESEND_MAX_MS: u64 = 2_000;

@@ -9,20 +9,18 @@
 //! stays in Execute. An `abort` ends the run at once: every agent is told, every token is abandoned (with an alarm
 //! for each one whose agent cannot be reached), and the actions get their final scan.
 
-use super::state::TokenState;
-use super::CoordOutput;
-use super::Coordinator;
+use std::collections::BTreeSet;
+
 use crate::cluster::layout::Placement;
-use crate::cluster::runtime::alarms::AlarmChange;
-use crate::cluster::runtime::alarms::{AlarmId, AlarmRefusal};
-use crate::cluster::runtime::packml::Command;
-use crate::cluster::runtime::packml::State;
+use crate::cluster::runtime::alarms::{AlarmChange, AlarmId, AlarmRefusal};
+use crate::cluster::runtime::packml::{Command, State};
 use crate::cluster::runtime::Level;
 use crate::cluster::wire::{CtlRequest, ToAgent, TokenId};
 use crate::exec::program::StepId;
-use crate::exec::trace::TraceEvent;
-use crate::exec::trace::TraceRecord;
-use std::collections::BTreeSet;
+use crate::exec::trace::{TraceEvent, TraceRecord};
+
+use super::state::TokenState;
+use super::{CoordOutput, Coordinator};
 
 /// First and largest delay before a hold or release that no confirmation answered is sent again.
 const HOLD_RESEND_FIRST_MS: u64 = 200;

@@ -1,23 +1,16 @@
 //! Reports: what an agent says it did with a token, admitted once and in order per token, mirrored in the coordinator's
 //! engine, or refused as stale.
 
-use super::CoordOutput;
-use super::Coordinator;
-use super::ASK_FIRST_MS;
-use crate::cluster::runtime::Level;
-use crate::cluster::wire::AckEntry;
-use crate::cluster::wire::AgentEventKind;
-use crate::cluster::wire::Report;
-use crate::cluster::wire::ToAgent;
-use crate::exec::engine::RemoteInput;
-use crate::exec::program::StepId;
-use crate::exec::program::TransitionId;
-use crate::exec::trace::TraceEvent;
-use crate::exec::trace::TraceRecord;
-use crate::limits::REPORTS_AHEAD_BYTES_MAX;
-use crate::limits::REPORTS_AHEAD_MAX;
-use crate::limits::STALE_EPOCHS_TRACED;
 use std::sync::Arc;
+
+use crate::cluster::runtime::Level;
+use crate::cluster::wire::{AckEntry, AgentEventKind, Report, ToAgent};
+use crate::exec::engine::RemoteInput;
+use crate::exec::program::{StepId, TransitionId};
+use crate::exec::trace::{TraceEvent, TraceRecord};
+use crate::limits::{REPORTS_AHEAD_BYTES_MAX, REPORTS_AHEAD_MAX, STALE_EPOCHS_TRACED};
+
+use super::{CoordOutput, Coordinator, ASK_FIRST_MS};
 
 /// What a report from an agent would do (`Coordinator::classify_report`).
 pub(super) enum ReportFate {

@@ -3,16 +3,15 @@
 //! (a new run id, so that no agent mistakes it for the one that ended) in the same journal. And agents that could
 //! not be told of an abort: each is told when it is heard from again.
 
-use super::state::AgentState;
-use super::state::TokenIds;
-use super::Coordinator;
+use std::sync::Arc;
+
 use crate::cluster::runtime::packml::State;
 use crate::cluster::runtime::Level;
-use crate::cluster::wire::RunId;
-use crate::cluster::wire::ToAgent;
-use crate::exec::trace::TraceEvent;
-use crate::exec::trace::TraceRecord;
-use std::sync::Arc;
+use crate::cluster::wire::{RunId, ToAgent};
+use crate::exec::trace::{TraceEvent, TraceRecord};
+
+use super::state::{AgentState, TokenIds};
+use super::Coordinator;
 
 impl Coordinator {
     /// The run stays at its end for `clear` and `reset` (a journal record, so that a replay stays too).

@@ -7,11 +7,13 @@
 //! outputs, and its own snapshot is the same bytes. CBOR (`ciborium`): self-describing, so the wire types' optional
 //! fields read back, and binary, so a REAL value comes back to the bit.
 
-use super::state::TokenState;
-use super::Coordinator;
+use std::sync::Arc;
+
 use crate::cluster::layout::Layout;
 use crate::exec::program::Program;
-use std::sync::Arc;
+
+use super::state::TokenState;
+use super::Coordinator;
 
 /// A snapshot that cannot be restored: malformed, or made from another chart.
 #[derive(Debug, thiserror::Error, PartialEq)]

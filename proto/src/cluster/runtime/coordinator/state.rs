@@ -1,13 +1,11 @@
 //! What the coordinator keeps per token, per agent, per supervised step and per partial hold, and the ids of a
 //! run's tokens: the records every part of the coordinator reads, which import none of those parts in turn.
 
+use std::collections::{BTreeMap, BTreeSet};
+
 use crate::cluster::layout::SegmentId;
-use crate::cluster::wire::Report;
-use crate::cluster::wire::RunId;
-use crate::cluster::wire::TokenId;
+use crate::cluster::wire::{Report, RunId, TokenId};
 use crate::exec::program::StepId;
-use std::collections::BTreeMap;
-use std::collections::BTreeSet;
 #[derive(serde::Serialize, serde::Deserialize)]
 pub(super) struct TokenState {
     pub(super) segment: SegmentId,

@@ -4,18 +4,15 @@
 //! An acknowledgement of an agent's step is carried to the agent (`ToAgent::AckOverrun`) and sent again until it
 //! says it applied it. The alarm's cause is gone when the step is left; acknowledged and gone, it is back to normal.
 
+use crate::cluster::runtime::alarms::{AlarmChange, AlarmId};
+use crate::cluster::runtime::Level;
+use crate::cluster::wire::{ToAgent, TokenId};
+use crate::exec::program::StepId;
+use crate::exec::trace::{overrun_message, TraceEvent, TraceRecord};
+use crate::limits::ALARMS_STANDING_MAX;
+
 use super::state::Supervised;
 use super::Coordinator;
-use crate::cluster::runtime::alarms::AlarmChange;
-use crate::cluster::runtime::alarms::AlarmId;
-use crate::cluster::runtime::Level;
-use crate::cluster::wire::ToAgent;
-use crate::cluster::wire::TokenId;
-use crate::exec::program::StepId;
-use crate::exec::trace::overrun_message;
-use crate::exec::trace::TraceEvent;
-use crate::exec::trace::TraceRecord;
-use crate::limits::ALARMS_STANDING_MAX;
 
 const ACK_RESEND_FIRST_MS: u64 = 200;
 const ACK_RESEND_MAX_MS: u64 = 2_000;

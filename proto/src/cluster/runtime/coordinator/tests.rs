@@ -3,10 +3,10 @@
 //! told to drop), and control (what `baton set` may set). Agents are played by `AgentRun`s where a real
 //! answer is needed.
 
-use super::*;
-use crate::cluster::wire::AgentInfo;
-use crate::cluster::wire::Report;
+use crate::cluster::wire::{AgentInfo, Report};
 use crate::limits::AGENTS_MAX;
+
+use super::*;
 
 const RUN: RunId = RunId(uuid::Uuid::from_u128(7));
 

@@ -1,16 +1,14 @@
 //! Time: the run's cycles on their grid, the next deadline (`poll_timeout`), and what falls due — dispatches sent
 //! again, silent agents given up on, reassignments.
 
-use super::CoordOutput;
-use super::Coordinator;
-use super::ASK_FIRST_MS;
-use super::ASK_MAX_MS;
-use super::DISPATCH_RESEND_MAX_MS;
+use std::collections::BTreeSet;
+
 use crate::cluster::runtime::packml::State;
 use crate::cluster::runtime::Level;
 use crate::cluster::wire::TokenId;
 use crate::limits::ACK_DELAY_MS;
-use std::collections::BTreeSet;
+
+use super::{CoordOutput, Coordinator, ASK_FIRST_MS, ASK_MAX_MS, DISPATCH_RESEND_MAX_MS};
 
 impl Coordinator {
     /// The run's cycle period: the grid the host runs cycles on, and from which steps made active between

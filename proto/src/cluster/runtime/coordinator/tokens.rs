@@ -1,33 +1,19 @@
 //! Tokens: made when the engine enters a placed segment, dispatched to an agent (or left waiting), sent again,
 //! acknowledged, finished when they come back, and restarted on another agent.
 
-use super::state::AgentState;
-use super::state::TokenState;
-use super::CoordOutput;
-use super::Coordinator;
-use super::LossPolicy;
-use super::DISPATCH_RESEND_FIRST_MS;
-use crate::cluster::layout::Placement;
-use crate::cluster::layout::SegmentId;
-use crate::cluster::runtime::Level;
-use crate::cluster::runtime::COORDINATOR;
-use crate::cluster::wire::AckEntry;
-use crate::cluster::wire::ToAgent;
-use crate::cluster::wire::TokenId;
-use crate::cluster::wire::VarValue;
-use crate::exec::engine::Event;
-use crate::exec::engine::EventKind;
-use crate::exec::engine::RemoteInput;
-use crate::exec::program::StepId;
-use crate::exec::program::VarId;
-use crate::exec::trace;
-use crate::exec::trace::Output;
-use crate::exec::trace::TraceEvent;
-use crate::exec::trace::TraceRecord;
-use crate::limits::ACK_DELAY_MS;
-use crate::limits::FINISHED_TOKENS_REMEMBERED;
 use std::collections::BTreeMap;
 use std::sync::Arc;
+
+use crate::cluster::layout::{Placement, SegmentId};
+use crate::cluster::runtime::{Level, COORDINATOR};
+use crate::cluster::wire::{AckEntry, ToAgent, TokenId, VarValue};
+use crate::exec::engine::{Event, EventKind, RemoteInput};
+use crate::exec::program::{StepId, VarId};
+use crate::exec::trace::{self, Output, TraceEvent, TraceRecord};
+use crate::limits::{ACK_DELAY_MS, FINISHED_TOKENS_REMEMBERED};
+
+use super::state::{AgentState, TokenState};
+use super::{CoordOutput, Coordinator, LossPolicy, DISPATCH_RESEND_FIRST_MS};
 
 impl Coordinator {
     /// The agent that holds the token of a placed step's segment, if it is out.

@@ -1,14 +1,13 @@
 //! Variables: the values an agent writes, taken from the writer's current process only, and the coordinator's own
 //! values published to the agents that read them.
 
-use super::CoordOutput;
-use super::Coordinator;
-use crate::cluster::runtime::Level;
-use crate::cluster::runtime::COORDINATOR;
-use crate::cluster::wire::VarUpdate;
-use crate::cluster::wire::VarValue;
-use crate::exec::engine::Input;
 use std::collections::BTreeSet;
+
+use crate::cluster::runtime::{Level, COORDINATOR};
+use crate::cluster::wire::{VarUpdate, VarValue};
+use crate::exec::engine::Input;
+
+use super::{CoordOutput, Coordinator};
 
 impl Coordinator {
     pub(super) fn publish_vars(&mut self) {

@@ -1,6 +1,10 @@
-use super::*;
-use baton_proto::cluster::wire::{ChartHash, RunId};
 use std::sync::Arc;
+
+use baton_proto::cluster::wire::{ChartHash, RunId};
+
+use crate::journal::{Deliver, Outgoing};
+
+use super::*;
 
 fn header() -> JournalHeader {
     JournalHeader {
