@@ -18,7 +18,7 @@ use baton_proto::cluster::keys;
 use baton_proto::cluster::keys::is_valid_name;
 use baton_proto::cluster::layout::Layout;
 use baton_proto::cluster::netconfig::NetConfig;
-use baton_proto::cluster::runtime::agent::{AgentOutput, AgentRun, Dispatch, Join};
+use baton_proto::cluster::runtime::agent::{AgentOutput, AgentRun, NotTaken};
 use baton_proto::cluster::runtime::Level;
 use baton_proto::cluster::wire::{self, AgentInfo, ChartHash, ChartSource, HeldToken, RunId, ToAgent, VarUpdate};
 use baton_proto::exec::program::{ActionId, Program};
@@ -109,13 +109,6 @@ enum Event {
     Devices(RunId),
 }
 
-/// A command kept until its run's chart arrives.
-enum Pending {
-    Dispatch(Dispatch),
-    Join(Join),
-    Peers(baton_proto::cluster::wire::Peers),
-}
-
 /// A start of a skill, ready to go once the action's previous start has ended.
 struct Deferred {
     serial: u64,
@@ -151,7 +144,7 @@ struct Host {
     session: Session,
     started: Instant,
     runs: HashMap<RunId, Run>,
-    pending: HashMap<RunId, VecDeque<(ChartHash, Pending)>>,
+    pending: HashMap<RunId, VecDeque<(ChartHash, ToAgent)>>,
     running: HashMap<(RunId, ActionId), RunningSkill>,
     /// Skills told to stop that end by themselves (a goal being cancelled), by serial.
     stopping: HashMap<u64, (RunId, ActionId)>,
@@ -481,101 +474,45 @@ impl Host {
             Err(e) => return self.drop_msg(format!("on {}: {e}", sample.key_expr())),
         };
         let now = self.now_ms();
+        let run = msg.run();
+        if let Some(r) = self.runs.get_mut(&run) {
+            if matches!(msg, ToAgent::Dispatch { .. }) {
+                r.last_used = Instant::now();
+            }
+            let what = if matches!(msg, ToAgent::Join { .. }) { "join" } else { "dispatch" };
+            if let Err(NotTaken::OtherChart) = r.state.handle_message(now, msg) {
+                self.drop_msg(format!("{what} for run {} with another chart version", run.key()));
+            }
+            return;
+        }
         match msg {
-            ToAgent::Dispatch {
-                run,
-                chart,
-                token,
-                epoch,
-                segment,
-                entry,
-                vars,
-                vars_seq,
-                acks,
-                fence,
-                peers,
-                held,
-                mode,
-            } => {
-                let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held, mode };
-                match self.runs.get_mut(&run) {
-                    Some(r) if *r.state.hash() == chart => {
-                        r.last_used = Instant::now();
-                        for a in acks {
-                            r.state.handle_ack(a.token, a.epoch, a.seq, a.done);
-                        }
-                        r.state.handle_dispatch(now, d);
-                    }
-                    Some(_) => self.drop_msg(format!("dispatch for run {} with another chart version", run.key())),
-                    None => self.queue_for_chart(run, chart, Pending::Dispatch(d)),
-                }
+            // The first dispatch or join of a run starts the fetch of its chart; they wait for it.
+            ToAgent::Dispatch { ref chart, .. } | ToAgent::Join { ref chart, .. } => {
+                let chart = chart.clone();
+                self.queue_for_chart(run, chart, msg);
             }
-            ToAgent::Drop { run, token, epoch } => {
-                if let Some(r) = self.runs.get_mut(&run) {
-                    r.state.handle_drop(now, token, epoch);
-                }
-            }
-            ToAgent::Ack { run, acks } => {
-                if let Some(r) = self.runs.get_mut(&run) {
-                    for a in acks {
-                        r.state.handle_ack(a.token, a.epoch, a.seq, a.done);
-                    }
-                }
-            }
-            ToAgent::Join { run, chart, vars, vars_seq, peers } => {
-                let join = Join { vars, vars_seq, peers };
-                match self.runs.get_mut(&run) {
-                    Some(r) if *r.state.hash() == chart => r.state.handle_join(now, join),
-                    Some(_) => self.drop_msg(format!("join of run {} with another chart version", run.key())),
-                    None => self.queue_for_chart(run, chart, Pending::Join(join)),
-                }
-            }
-            ToAgent::Peers { run, peers } => match self.runs.get_mut(&run) {
-                Some(r) => r.state.handle_peers(now, peers),
-                // Only a run whose chart is on its way: the dispatch or join that started the fetch names them.
-                None => {
-                    if let Some(queue) = self.pending.get_mut(&run) {
-                        if queue.len() < PENDING_DISPATCHES_MAX {
-                            let hash = queue.front().map(|(h, _)| h.clone());
-                            if let Some(hash) = hash {
-                                queue.push_back((hash, Pending::Peers(peers)));
-                            }
+            // Only a run whose chart is on its way: the dispatch or join that started the fetch names them.
+            ToAgent::Peers { .. } => {
+                if let Some(queue) = self.pending.get_mut(&run) {
+                    if queue.len() < PENDING_DISPATCHES_MAX {
+                        let hash = queue.front().map(|(h, _)| h.clone());
+                        if let Some(hash) = hash {
+                            queue.push_back((hash, msg));
                         }
                     }
                 }
-            },
-            ToAgent::Sync { run } => {
-                if let Some(r) = self.runs.get_mut(&run) {
-                    r.state.handle_sync(now);
-                }
             }
-            ToAgent::Hold { run, token, epoch, held } => {
-                if let Some(r) = self.runs.get_mut(&run) {
-                    r.state.handle_hold(now, token, epoch, held);
-                }
-            }
-            ToAgent::Gate { run, token, epoch, mode, permit, seq } => {
-                if let Some(r) = self.runs.get_mut(&run) {
-                    r.state.handle_gate(now, token, epoch, mode, permit, seq);
-                }
-            }
-            ToAgent::AckOverrun { run, token, epoch, step } => {
-                if let Some(r) = self.runs.get_mut(&run) {
-                    r.state.handle_ack_overrun(now, token, epoch, step);
-                }
-            }
-            ToAgent::Abort { run } => {
-                if let Some(r) = self.runs.get_mut(&run) {
-                    r.state.handle_abort(now);
-                }
-                // A dispatch of this run still waiting for its chart never runs.
+            // A dispatch of this run still waiting for its chart never runs.
+            ToAgent::Abort { .. } => {
                 self.pending.remove(&run);
             }
+            // Of a run this agent does not take part in (any more): nothing to act on.
+            _ => {}
         }
     }
 
     /// Keeps a dispatch or a join until its run's chart arrives; the first one starts the fetch.
-    fn queue_for_chart(&mut self, run: RunId, hash: ChartHash, d: Pending) {
+    fn queue_for_chart(&mut self, run: RunId, hash: ChartHash, d: ToAgent) {
         let first = !self.pending.contains_key(&run);
         if first && self.pending.len() >= RUNS_MAX {
             return self
@@ -637,13 +574,10 @@ impl Host {
                 let report_key = keys::report(run, &self.config.name);
                 let mut r = Run { state, report_key, last_used: Instant::now(), devices };
                 for (h, command) in queued {
-                    if h != hash {
-                        continue;
-                    }
-                    match command {
-                        Pending::Dispatch(d) => r.state.handle_dispatch(now, d),
-                        Pending::Join(j) => r.state.handle_join(now, j),
-                        Pending::Peers(p) => r.state.handle_peers(now, p),
+                    // Queued under the chart fetched, so of this run and this version: taken. (Queued under
+                    // another version, it is not this run's.)
+                    if h == hash {
+                        let _taken = r.state.handle_message(now, command);
                     }
                 }
                 eprintln!("joined run {} of chart `{}`", run.key(), r.state.program().name);

@@ -272,15 +272,15 @@ async fn kept_out(router: Router) {
     assert!(b - a >= 600 - 20, "A lasted {} ms", b - a);
 }
 
-/// The control: the same router with its access control off. The rogue's messages reach the coordinator, whose own
-/// checks drop the forged report, update and device report (on robot1's keys, from a process that is not robot1's)
-/// and the garbage; but the rogue hears robot1's commands, and its `abort` — the coordinator cannot tell who asks —
-/// ends the run: what only the router's access control prevents.
 /// The coordinator's warnings of messages it dropped for what they were (another's key, another run, unreadable).
 fn drop_warnings(log: &str) -> Vec<String> {
     log.lines().filter(|l| l.contains("dropped")).map(str::to_string).collect()
 }
 
+/// The control: the same router with its access control off. The rogue's messages reach the coordinator, whose own
+/// checks drop the forged report, update and device report (on robot1's keys, from a process that is not robot1's)
+/// and the garbage; but the rogue hears robot1's commands, and its `abort` — the coordinator cannot tell who asks —
+/// ends the run: what only the router's access control prevents.
 async fn without_access_control_the_rogue_hears_robot1_and_aborts_the_run() {
     let (status, trace, summary, rogue) = cell(Router::Embedded, false, true).await;
     assert_eq!(status, Some(4), "{trace:#?}");

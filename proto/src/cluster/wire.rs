@@ -311,6 +311,43 @@ pub struct DeviceReport {
     pub down: Vec<DeviceDown>,
 }
 
+/// A message an agent sent the coordinator, decoded.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FromAgent {
+    Report(Report),
+    Vars(VarUpdate),
+    Devices(DeviceReport),
+}
+
+impl FromAgent {
+    /// What it is, for an operator's words.
+    pub fn what(&self) -> &'static str {
+        match self {
+            FromAgent::Report(_) => "report",
+            FromAgent::Vars(_) => "variable update",
+            FromAgent::Devices(_) => "device report",
+        }
+    }
+
+    /// Its bytes on the wire.
+    pub fn encode(&self) -> Vec<u8> {
+        match self {
+            FromAgent::Report(r) => encode(r),
+            FromAgent::Vars(u) => encode(u),
+            FromAgent::Devices(d) => encode(d),
+        }
+    }
+
+    /// The agent it says it is from.
+    pub fn claimed(&self) -> &str {
+        match self {
+            FromAgent::Report(r) => &r.agent,
+            FromAgent::Vars(u) => &u.from,
+            FromAgent::Devices(d) => &d.agent,
+        }
+    }
+}
+
 /// A binding (`Layout::io` index) whose device the agent cannot reach, and why.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DeviceDown {

@@ -4,10 +4,8 @@
 use serde::{Deserialize, Serialize};
 
 use crate::cluster::layout::Layout;
-use crate::cluster::runtime::coordinator::{token_ids, CoordOutput, Coordinator, LossPolicy};
-use crate::cluster::wire::{
-    self, AgentInfo, ChartHash, CtlRequest, DeviceReport, Report, RunId, SetRequest, VarUpdate, WireError,
-};
+use crate::cluster::runtime::coordinator::{token_ids, Admitted, CoordOutput, Coordinator, LossPolicy};
+use crate::cluster::wire::{self, AgentInfo, ChartHash, CtlRequest, FromAgent, RunId, SetRequest, WireError};
 use crate::exec::program::{Program, VarId};
 use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::types::Value;
@@ -297,50 +295,44 @@ impl Journaled {
         }
     }
 
-    /// A report as it arrived from `sender` (the agent its key names): one that claims another agent is dropped.
+    /// A report as it arrived from `sender` (the agent its key names).
     pub fn report(&mut self, now_ms: u64, sender: &str, bytes: &[u8]) -> Result<(), WireError> {
-        let report: Report = wire::decode(bytes)?;
-        if report.agent != sender {
-            self.core.refuse_misaddressed(now_ms, "report", sender, &report.agent);
-            return Ok(());
-        }
-        let record = self.core.admit_report(&report).then(|| frame(REPORT, now_ms, bytes));
-        self.arrived(now_ms, record, Record::Report(report));
+        self.take_from_agent(now_ms, sender, bytes, FromAgent::Report(wire::decode(bytes)?));
         Ok(())
     }
 
-    /// A variable update: only its values that apply are recorded (the bytes as they came when all do).
+    /// A variable update as it arrived from `sender`.
     pub fn vars(&mut self, now_ms: u64, sender: &str, bytes: &[u8]) -> Result<(), WireError> {
-        let update: VarUpdate = wire::decode(bytes)?;
-        if update.from != sender {
-            self.core.refuse_misaddressed(now_ms, "variable update", sender, &update.from);
-            return Ok(());
-        }
-        let record = self.core.admit_vars(&update).map(|kept| {
-            if kept.len() == update.vars.len() {
-                frame(VARS, now_ms, bytes)
-            } else {
-                frame(VARS, now_ms, &wire::encode(&VarUpdate { vars: kept, ..update.clone() }))
-            }
-        });
-        self.arrived(now_ms, record, Record::Vars(update));
+        self.take_from_agent(now_ms, sender, bytes, FromAgent::Vars(wire::decode(bytes)?));
         Ok(())
     }
 
-    /// A device report: recorded as it applies (messages cut, each binding once).
+    /// A device report as it arrived from `sender`.
     pub fn devices(&mut self, now_ms: u64, sender: &str, bytes: &[u8]) -> Result<(), WireError> {
-        let report: DeviceReport = wire::decode(bytes)?;
-        if report.agent != sender {
-            self.core.refuse_misaddressed(now_ms, "device report", sender, &report.agent);
-            return Ok(());
-        }
-        let Some(kept) = self.core.admit_devices(&report) else {
-            self.arrived(now_ms, None, Record::Devices(report));
-            return Ok(());
-        };
-        let record = frame(DEVICES, now_ms, &wire::encode(&kept));
-        self.arrived(now_ms, Some(record), Record::Devices(kept));
+        self.take_from_agent(now_ms, sender, bytes, FromAgent::Devices(wire::decode(bytes)?));
         Ok(())
+    }
+
+    /// What an agent sent, decoded from `bytes`: the coordinator judges it (`Coordinator::admit`), what it admits
+    /// is recorded (the bytes as they came when it is whole), and then applied.
+    fn take_from_agent(&mut self, now_ms: u64, sender: &str, bytes: &[u8], msg: FromAgent) {
+        let tag = match msg {
+            FromAgent::Report(_) => REPORT,
+            FromAgent::Vars(_) => VARS,
+            FromAgent::Devices(_) => DEVICES,
+        };
+        let (record, applied) = match self.core.admit(now_ms, sender, &msg) {
+            Admitted::Refused => return,
+            Admitted::Unrecorded => (None, msg),
+            Admitted::Whole => (Some(frame(tag, now_ms, bytes)), msg),
+            // A device report applies as it is kept; an update's values that do not apply are refused as the
+            // whole is applied.
+            Admitted::Part(kept) => {
+                let bytes = frame(tag, now_ms, &kept.encode());
+                (Some(bytes), if matches!(kept, FromAgent::Devices(_)) { kept } else { msg })
+            }
+        };
+        self.arrived(now_ms, record, Record::from(applied));
     }
 
     pub fn agent_up(&mut self, now_ms: u64, info: AgentInfo) {

@@ -7,7 +7,7 @@ use uuid::Uuid;
 use crate::cluster::layout::Layout;
 use crate::cluster::runtime::coordinator::{token_ids, Coordinator, LossPolicy};
 use crate::cluster::wire::{
-    self, AgentInfo, ChartHash, CtlRequest, DeviceReport, Report, RunId, SetRequest, VarUpdate, WireError,
+    self, AgentInfo, ChartHash, CtlRequest, DeviceReport, FromAgent, Report, RunId, SetRequest, VarUpdate, WireError,
 };
 use crate::exec::program::{Program, TransitionId};
 
@@ -100,6 +100,16 @@ pub enum Record {
     End {
         failure: Option<String>,
     },
+}
+
+impl From<FromAgent> for Record {
+    fn from(msg: FromAgent) -> Record {
+        match msg {
+            FromAgent::Report(r) => Record::Report(r),
+            FromAgent::Vars(u) => Record::Vars(u),
+            FromAgent::Devices(d) => Record::Devices(d),
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -231,14 +241,14 @@ pub fn apply(core: &mut Coordinator, entry: &Entry) -> Option<Result<String, Str
         Record::Cycle => {
             core.handle_cycle(now);
         }
-        Record::Report(r) => core.handle_report(now, r.clone()),
-        Record::Vars(u) => core.handle_vars(now, u.clone()),
+        Record::Report(r) => core.handle_agent_message(now, FromAgent::Report(r.clone())),
+        Record::Vars(u) => core.handle_agent_message(now, FromAgent::Vars(u.clone())),
         Record::AgentUp(i) => core.handle_agent_up(now, i.clone()),
         Record::AgentDown(name) => core.handle_agent_down(now, name),
         Record::AgentConflict(name, n) => core.handle_agent_conflict(now, name, *n as usize),
         Record::Set(s) => return Some(core.handle_set_by(now, &s.name, &s.value, &s.by)),
         Record::Command(c) => return Some(core.handle_command(now, c)),
-        Record::Devices(d) => core.handle_devices(now, d.clone()),
+        Record::Devices(d) => core.handle_agent_message(now, FromAgent::Devices(d.clone())),
         Record::Policy(p) => core.set_loss_policy(*p),
         Record::Recover => core.handle_recover(now),
         Record::WaitStart => core.handle_wait_start(),

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use uuid::Uuid;
 
 use crate::cluster::journal::Journaled;
-use crate::cluster::runtime::agent::{AgentOutput, Dispatch, Join};
+use crate::cluster::runtime::agent::AgentOutput;
 use crate::cluster::runtime::coordinator::CoordOutput;
 use crate::cluster::wire::{self, ToAgent, VarUpdate};
 use crate::testing::simulated_cluster::skills::{motion, SimSkill, SkillStart};
@@ -71,63 +71,21 @@ impl SimCluster {
                 Packet::ToAgent(i, incarnation, _) if incarnation != Uuid::from_u128(self.agents[i].restarts) => {}
                 Packet::ToAgent(i, _, bytes) => {
                     let msg = wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages");
-                    // Of a run the agent no longer runs (one before a `reset`): it forgot that run.
-                    if msg.run() != self.agents[i].run.run() {
+                    let before = self.agents[i].run.held();
+                    // Of a run the agent no longer runs (one before a `reset`): it forgot that run. The chart is
+                    // the one every agent was given, so no dispatch is of another version.
+                    if self.agents[i].run.handle_message(self.now_ms, msg).is_err() {
                         continue;
                     }
-                    match msg {
-                        ToAgent::Dispatch {
-                            token,
-                            epoch,
-                            segment,
-                            entry,
-                            vars,
-                            vars_seq,
-                            acks,
-                            fence,
-                            peers,
-                            held,
-                            mode,
-                            ..
-                        } => {
-                            for a in acks {
-                                self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
-                            }
-                            let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held, mode };
-                            let before = self.agents[i].run.held();
-                            self.agents[i].run.handle_dispatch(self.now_ms, d);
-                            // A segment started here: never twice in one epoch, on any agent.
-                            for h in self.agents[i].run.held() {
-                                if !before.contains(&h) && !self.started.insert((h.token, h.epoch)) {
-                                    let (now, name) = (self.now_ms, self.agents[i].name.clone());
-                                    self.violations.push(format!(
-                                        "at {now} ms token {} started a second time in epoch {} (on `{name}`)",
-                                        h.token, h.epoch
-                                    ));
-                                }
-                            }
+                    // A segment started here: never twice in one epoch, on any agent.
+                    for h in self.agents[i].run.held() {
+                        if !before.contains(&h) && !self.started.insert((h.token, h.epoch)) {
+                            let (now, name) = (self.now_ms, self.agents[i].name.clone());
+                            self.violations.push(format!(
+                                "at {now} ms token {} started a second time in epoch {} (on `{name}`)",
+                                h.token, h.epoch
+                            ));
                         }
-                        ToAgent::Drop { token, epoch, .. } => self.agents[i].run.handle_drop(self.now_ms, token, epoch),
-                        ToAgent::Ack { acks, .. } => {
-                            for a in acks {
-                                self.agents[i].run.handle_ack(a.token, a.epoch, a.seq, a.done);
-                            }
-                        }
-                        ToAgent::Sync { .. } => self.agents[i].run.handle_sync(self.now_ms),
-                        ToAgent::Hold { token, epoch, held, .. } => {
-                            self.agents[i].run.handle_hold(self.now_ms, token, epoch, held)
-                        }
-                        ToAgent::Abort { .. } => self.agents[i].run.handle_abort(self.now_ms),
-                        ToAgent::Gate { token, epoch, mode, permit, seq, .. } => {
-                            self.agents[i].run.handle_gate(self.now_ms, token, epoch, mode, permit, seq)
-                        }
-                        ToAgent::AckOverrun { token, epoch, step, .. } => {
-                            self.agents[i].run.handle_ack_overrun(self.now_ms, token, epoch, step)
-                        }
-                        ToAgent::Join { vars, vars_seq, peers, .. } => {
-                            self.agents[i].run.handle_join(self.now_ms, Join { vars, vars_seq, peers })
-                        }
-                        ToAgent::Peers { peers, .. } => self.agents[i].run.handle_peers(self.now_ms, peers),
                     }
                 }
                 // A coordinator that is down hears nothing.

@@ -27,7 +27,7 @@ use uuid::Uuid;
 use crate::cluster::bindings::{IoBinding, IoDir};
 use crate::cluster::layout::{Layout, Placement, SegmentId, SkillBinding};
 use crate::cluster::wire::{
-    AgentEvent, ChartHash, DeviceReport, HeldToken, Peers, Report, RunId, TokenId, VarUpdate, VarValue,
+    AgentEvent, ChartHash, DeviceReport, HeldToken, Peers, Report, RunId, ToAgent, TokenId, VarUpdate, VarValue,
 };
 use crate::exec::engine::Engine;
 use crate::exec::program::{ActionId, Program, StepId, VarId};
@@ -69,6 +69,15 @@ pub enum AgentOutput {
         level: Level,
         message: String,
     },
+}
+
+/// Why `AgentRun::handle_message` did not take a message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NotTaken {
+    /// It is for another run.
+    OtherRun,
+    /// A dispatch or join made with another version of the chart than this run's.
+    OtherChart,
 }
 
 /// A dispatch, decoded: run `segment` from `entry`.
@@ -339,6 +348,63 @@ impl AgentRun {
 
     pub fn poll_output(&mut self) -> Option<AgentOutput> {
         self.outbox.pop_front()
+    }
+
+    /// A command of the coordinator's, decoded: the one way the agent's host and the simulated cluster alike hand
+    /// one over. The acknowledgements a dispatch carries apply before the dispatch (the reports they answer are
+    /// done with before the new token starts). A message of another run, or a dispatch or join of another
+    /// version of the chart, is not taken: the caller says why it dropped it.
+    pub fn handle_message(&mut self, now_ms: u64, msg: ToAgent) -> Result<(), NotTaken> {
+        if msg.run() != self.run {
+            return Err(NotTaken::OtherRun);
+        }
+        match msg {
+            ToAgent::Dispatch {
+                chart,
+                token,
+                epoch,
+                segment,
+                entry,
+                vars,
+                vars_seq,
+                acks,
+                fence,
+                peers,
+                held,
+                mode,
+                ..
+            } => {
+                if chart != self.hash {
+                    return Err(NotTaken::OtherChart);
+                }
+                for a in acks {
+                    self.handle_ack(a.token, a.epoch, a.seq, a.done);
+                }
+                let d = Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held, mode };
+                self.handle_dispatch(now_ms, d);
+            }
+            ToAgent::Join { chart, vars, vars_seq, peers, .. } => {
+                if chart != self.hash {
+                    return Err(NotTaken::OtherChart);
+                }
+                self.handle_join(now_ms, Join { vars, vars_seq, peers });
+            }
+            ToAgent::Drop { token, epoch, .. } => self.handle_drop(now_ms, token, epoch),
+            ToAgent::Ack { acks, .. } => {
+                for a in acks {
+                    self.handle_ack(a.token, a.epoch, a.seq, a.done);
+                }
+            }
+            ToAgent::Peers { peers, .. } => self.handle_peers(now_ms, peers),
+            ToAgent::Sync { .. } => self.handle_sync(now_ms),
+            ToAgent::Hold { token, epoch, held, .. } => self.handle_hold(now_ms, token, epoch, held),
+            ToAgent::Gate { token, epoch, mode, permit, seq, .. } => {
+                self.handle_gate(now_ms, token, epoch, mode, permit, seq)
+            }
+            ToAgent::AckOverrun { token, epoch, step, .. } => self.handle_ack_overrun(now_ms, token, epoch, step),
+            ToAgent::Abort { .. } => self.handle_abort(now_ms),
+        }
+        Ok(())
     }
 
     fn log(&mut self, level: Level, message: String) {

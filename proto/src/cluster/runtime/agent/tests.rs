@@ -4,7 +4,7 @@
 //! the rule that broke.
 
 use crate::cluster::runtime::COORDINATOR;
-use crate::cluster::wire::AgentEventKind;
+use crate::cluster::wire::{AckEntry, AgentEventKind};
 use crate::testing::simulated_cluster::compile;
 
 use super::*;
@@ -163,6 +163,41 @@ fn a_report_goes_again_until_it_is_acknowledged_and_not_after() {
     a.handle_ack(token, 1, *sent.iter().max().expect("a report"), false);
     assert_eq!(a.oldest_unacked_ms(), None);
     assert!(reports(&run_until(&mut a, 60_000)).is_empty());
+}
+
+/// `d` as the coordinator sends it, with `acks`, for the run `run` of the chart with `hash`.
+fn dispatch_message(d: Dispatch, run: RunId, chart: ChartHash, acks: Vec<AckEntry>) -> ToAgent {
+    let Dispatch { token, epoch, segment, entry, vars, vars_seq, fence, peers, held, mode } = d;
+    ToAgent::Dispatch { run, chart, token, epoch, segment, entry, vars, vars_seq, acks, fence, peers, held, mode }
+}
+
+#[test]
+fn a_message_is_taken_whole_acknowledgements_first_and_only_for_this_run_and_chart() {
+    let f = Fixture::new();
+    let mut a = f.agent("a1");
+    let (run, hash) = (a.run(), a.hash().clone());
+    // Token 1 runs and comes back: its last report, `done`, waits for its acknowledgement.
+    a.handle_message(0, dispatch_message(f.dispatch(1, 1, false), run, hash.clone(), Vec::new())).expect("taken");
+    run_until(&mut a, 30);
+    a.handle_skill_result(35, f.action("Move"), Ok(()));
+    let out = run_until(&mut a, 60);
+    let last = *reports(&out).last().expect("a report");
+    assert!(last.done && a.oldest_unacked_ms().is_some(), "{out:?}");
+    // Another run's message, and a dispatch of another version of the chart, change nothing here.
+    let other_run = RunId(Uuid::from_u128(99));
+    let stray = dispatch_message(f.dispatch(2, 1, false), other_run, hash.clone(), Vec::new());
+    assert_eq!(a.handle_message(70, stray), Err(NotTaken::OtherRun));
+    let other_chart = dispatch_message(f.dispatch(2, 1, false), run, ChartHash("another".into()), Vec::new());
+    assert_eq!(a.handle_message(70, other_chart), Err(NotTaken::OtherChart));
+    assert!(started(&run_until(&mut a, 90)).is_empty() && a.tokens_held() == 0);
+    // Token 2's dispatch carries the acknowledgement of token 1's `done`: both are taken, the acknowledgement
+    // first, so nothing of token 1 is sent again while token 2 runs.
+    let ack = AckEntry { token: last.token, epoch: last.epoch, seq: last.seq, done: true };
+    a.handle_message(100, dispatch_message(f.dispatch(2, 1, false), run, hash, vec![ack])).expect("taken");
+    assert!(a.pending_reports(usize::MAX).iter().all(|r| r.token != last.token));
+    let out = run_until(&mut a, 5_000);
+    assert_eq!(started(&out), vec![f.action("Move")], "{out:?}");
+    assert!(reports(&out).iter().all(|r| r.token != last.token), "{out:?}");
 }
 
 #[test]

@@ -11,7 +11,7 @@ use super::Coordinator;
 impl Coordinator {
     /// A device report as it would apply (its messages cut to `DEVICE_MESSAGE_CHARS_MAX`, each binding once, as
     /// `handle_devices` keeps them); `None` when it would not apply, and then it is not journaled.
-    pub fn admit_devices(&self, report: &DeviceReport) -> Option<DeviceReport> {
+    pub(super) fn admit_devices(&self, report: &DeviceReport) -> Option<DeviceReport> {
         if report.run != self.run {
             return None;
         }
@@ -33,7 +33,7 @@ impl Coordinator {
 
     /// Which of its bound devices an agent cannot reach. Each change is a trace record, `device_down` or
     /// `device_up`, named after the variable, and a log line; the variable keeps its value meanwhile.
-    pub fn handle_devices(&mut self, now_ms: u64, report: DeviceReport) {
+    pub(super) fn handle_devices(&mut self, now_ms: u64, report: DeviceReport) {
         self.advance(now_ms);
         if report.run != self.run {
             return self.drop_msg(format!("device report from `{}` for another run dropped", report.agent));

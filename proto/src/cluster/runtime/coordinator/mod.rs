@@ -15,6 +15,7 @@
 
 mod control;
 mod devices;
+mod inbound;
 mod membership;
 mod modes;
 mod operate;
@@ -31,7 +32,7 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 
 use crate::cluster::layout::{Layout, Placement};
-use crate::cluster::wire::{AckEntry, ChartHash, Peers, RunId, ToAgent, TokenId, VarUpdate};
+use crate::cluster::wire::{AckEntry, ChartHash, FromAgent, Peers, RunId, ToAgent, TokenId, VarUpdate};
 use crate::exec::engine::Engine;
 use crate::exec::program::{Program, TransitionId, VarId};
 use crate::exec::trace::{TraceEvent, TraceRecord};
@@ -56,6 +57,20 @@ const DISPATCH_RESEND_MAX_MS: u64 = 5_000;
 const ASK_FIRST_MS: u64 = 1_000;
 
 const ASK_MAX_MS: u64 = 8_000;
+
+/// What the coordinator takes of a message (`Coordinator::admit`).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Admitted {
+    /// Nothing: it claims to be from another agent than its sender. Dropped and counted, never journaled.
+    Refused,
+    /// Applied, and nothing of it is journaled (a duplicate acknowledged again, a stale update).
+    Unrecorded,
+    /// Applied and journaled as it came.
+    Whole,
+    /// Journaled as this part of it, which is what applies (the values of an update that apply, a device report's
+    /// messages cut).
+    Part(FromAgent),
+}
 
 /// What the coordinator asks its host to do.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]

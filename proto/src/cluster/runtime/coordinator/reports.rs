@@ -78,7 +78,7 @@ impl Coordinator {
     /// Whether a report changes what the coordinator knows (it applies, waits ahead of a gap, or is the first
     /// stale one of its epoch, which the trace shows): only those are journaled. The others are answered, counted
     /// and dropped, and change nothing a replay needs — so a peer's garbage costs no disk.
-    pub fn admit_report(&self, report: &Report) -> bool {
+    pub(super) fn admit_report(&self, report: &Report) -> bool {
         match self.classify_report(report) {
             ReportFate::Next | ReportFate::Ahead { room: true } | ReportFate::Stale { first: true } => true,
             // The first word from an agent that could not be told of the abort: it is told now (`tell_of_end`).
@@ -87,16 +87,8 @@ impl Coordinator {
         }
     }
 
-    /// A message on the key of `sender` that says it is from `claimed`: dropped and counted, never journaled. (With
-    /// access control on the router, a process can publish only on its own keys; without it, this keeps one
-    /// agent from speaking for another by the name it writes.)
-    pub fn refuse_misaddressed(&mut self, now_ms: u64, what: &str, sender: &str, claimed: &str) {
-        self.advance(now_ms);
-        self.drop_msg(format!("{what} on `{sender}`'s key claiming to be from `{claimed}` dropped"));
-    }
-
     /// A report from an agent, decoded. Reports of a token apply once each, in sequence order.
-    pub fn handle_report(&mut self, now_ms: u64, report: Report) {
+    pub(super) fn handle_report(&mut self, now_ms: u64, report: Report) {
         self.advance(now_ms);
         match self.classify_report(&report) {
             ReportFate::OtherRun => self.drop_msg(format!("report from `{}` for another run dropped", report.agent)),

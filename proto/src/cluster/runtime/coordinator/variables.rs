@@ -89,7 +89,7 @@ impl Coordinator {
     /// The part of an agent's variable update that would apply: its values of variables it writes, that fit
     /// their types and are newer than those applied, each variable once (its first value, as `handle_vars` takes
     /// it). `None` when nothing would: then nothing is journaled, whatever the update weighs.
-    pub fn admit_vars(&self, update: &VarUpdate) -> Option<Vec<VarValue>> {
+    pub(super) fn admit_vars(&self, update: &VarUpdate) -> Option<Vec<VarValue>> {
         if update.from == COORDINATOR || update.run != self.run {
             return None;
         }
@@ -114,7 +114,7 @@ impl Coordinator {
     }
 
     /// A variable update published by an agent (also sent to agents that read it).
-    pub fn handle_vars(&mut self, now_ms: u64, update: VarUpdate) {
+    pub(super) fn handle_vars(&mut self, now_ms: u64, update: VarUpdate) {
         self.advance(now_ms);
         if update.from == COORDINATOR {
             return;
