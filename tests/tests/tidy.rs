@@ -667,3 +667,95 @@ fn the_glob_reader_finds_own_files_and_leaves_variants_preludes_and_tests() {
     };
     assert_eq!(own_globs(&krate), ["t: <root>: use a::*;", "t: a: use super::*;"]);
 }
+
+/// The longest function a reader holds at once (ARCHITECTURE.md, [short-functions]): about two screens. Past it, a
+/// function is split along the seams its comments mark — a section of a file read, a phase of a run.
+const FUNCTION_LINES_MAX: usize = 120;
+
+/// Functions over the limit that stay, each with its reason.
+const LONG_FUNCTIONS: &[(&str, &str, &str)] = &[];
+
+/// Each function of `code` (comments and strings blanked) as its name, first line (1-based) and length in lines,
+/// from `fn` to its body's closing brace. Declarations without a body (trait methods) are left out.
+fn functions(code: &str) -> Vec<(String, usize, usize)> {
+    let b = code.as_bytes();
+    let ident = |c: u8| c.is_ascii_alphanumeric() || c == b'_';
+    let mut out = Vec::new();
+    let mut i = 0;
+    while let Some(at) = code[i..].find("fn ").map(|k| k + i) {
+        i = at + 3;
+        if at > 0 && ident(b[at - 1]) {
+            continue;
+        }
+        let name: String = code[i..].trim_start().bytes().take_while(|c| ident(*c)).map(char::from).collect();
+        if name.is_empty() {
+            continue;
+        }
+        // The body's `{`: the first outside the signature's parentheses and brackets, unless a `;` ends it first.
+        let (mut j, mut depth) = (i, 0i32);
+        while j < b.len() {
+            match b[j] {
+                b'(' | b'[' => depth += 1,
+                b')' | b']' => depth -= 1,
+                b';' if depth == 0 => break,
+                b'{' if depth == 0 => break,
+                _ => {}
+            }
+            j += 1;
+        }
+        if j >= b.len() || b[j] != b'{' {
+            continue;
+        }
+        let mut braces = 0;
+        let mut k = j;
+        while k < b.len() {
+            match b[k] {
+                b'{' => braces += 1,
+                b'}' => {
+                    braces -= 1;
+                    if braces == 0 {
+                        break;
+                    }
+                }
+                _ => {}
+            }
+            k += 1;
+        }
+        let first = code[..at].matches('\n').count() + 1;
+        let last = code[..k.min(b.len())].matches('\n').count() + 1;
+        out.push((name, first, last - first + 1));
+    }
+    out
+}
+
+#[test]
+fn no_function_is_longer_than_a_reader_holds() {
+    let root = root();
+    let mut long = Vec::new();
+    for dir in ["proto/src", "host/src", "ros2/src", "coordinator/src", "agent/src", "tests/src", "tests/tests", "fuzz"]
+    {
+        for path in sources(&root.join(dir)) {
+            let rel = path.strip_prefix(&root).expect("in the workspace").to_string_lossy().into_owned();
+            let code = code_only(&std::fs::read_to_string(&path).expect("a source file"));
+            for (name, line, lines) in functions(&code) {
+                let allowed = LONG_FUNCTIONS.iter().any(|(file, f, _)| *file == rel && *f == name);
+                if lines > FUNCTION_LINES_MAX && !allowed {
+                    long.push(format!("{rel}:{line}: `{name}` has {lines} lines"));
+                }
+            }
+        }
+    }
+    assert!(
+        long.is_empty(),
+        "functions over {FUNCTION_LINES_MAX} lines (split each along its seams, or allow it in LONG_FUNCTIONS with why):\n  {}",
+        long.join("\n  ")
+    );
+}
+
+#[test]
+fn the_function_reader_measures_from_fn_to_the_closing_brace() {
+    let code = code_only(
+        "trait T {\n    fn decl(&self);\n}\nfn short() {}\n/// fn in a comment\nfn long(a: [u8; 2]) -> u8 {\n    let s = \"}\";\n    { a[0] }\n}\n",
+    );
+    assert_eq!(functions(&code), vec![("short".to_string(), 4, 1), ("long".to_string(), 6, 4)]);
+}

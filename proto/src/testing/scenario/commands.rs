@@ -10,32 +10,17 @@ use crate::cluster::wire::CtlRequest;
 use crate::exec::program::Program;
 
 use super::raw::RawCommand;
-use super::{Command, Ctx, Trigger, COMMANDS};
+use super::{Against, Command, Ctx, COMMANDS};
 
 /// Who sends a scenario's commands, unless it says (`by`).
 pub const SCENARIO_OPERATOR: &str = "baton test";
 
-type TriggerOf<'a> = &'a dyn Fn(
-    &mut Ctx,
-    &str,
-    &Range<usize>,
-    &Option<Spanned<String>>,
-    &Option<Spanned<String>>,
-    &Option<Spanned<String>>,
-) -> Option<Trigger>;
-
 impl Ctx<'_> {
     /// The scenario's operator commands, each checked against the chart and the cell; what is wrong is an error
     /// of the scenario's.
-    pub(super) fn commands(
-        &mut self,
-        raw: &[Spanned<RawCommand>],
-        program: &Program,
-        agents: &[String],
-        trigger: TriggerOf<'_>,
-        stay: bool,
-    ) -> Vec<Command> {
+    pub(super) fn commands(&mut self, against: &Against, raw: &[Spanned<RawCommand>], stay: bool) -> Vec<Command> {
         let cx = self;
+        let program = against.program;
         let mut out = Vec::new();
         for c in raw {
             let span = c.span();
@@ -55,63 +40,7 @@ impl Ctx<'_> {
                 );
                 continue;
             }
-            let target = match (&r.target, name.as_str()) {
-                (None, _) => None,
-                (Some(t), "ack" | "shelve" | "unshelve") => match t.get_ref() {
-                    toml::Value::Integer(i) if *i > 0 => Some(i.to_string()),
-                    toml::Value::String(s) if s == "all" && name == "ack" => Some(s.clone()),
-                    _ => {
-                        cx.error(
-                            &t.span(),
-                            "`target` is an alarm's number (1, 2, …), or \"all\" to acknowledge every one",
-                        );
-                        continue;
-                    }
-                },
-                (Some(t), _) => match t.get_ref() {
-                    toml::Value::String(s) => Some(s.clone()),
-                    _ => {
-                        cx.error(&t.span(), format!("`target` of `{name}` is a name: `target = \"…\"`"));
-                        continue;
-                    }
-                },
-            };
-            let needs_target = matches!(
-                name.as_str(),
-                "ack" | "shelve" | "unshelve" | "mode" | "force" | "activate" | "deactivate" | "move"
-            );
-            let takes_target = needs_target || name == "confirm";
-            if (needs_target && target.is_none()) || (!takes_target && target.is_some()) {
-                let message = match name.as_str() {
-                    "ack" | "shelve" | "unshelve" => {
-                        format!("`{name}` names its alarm: `target = 1` (or \"all\" to acknowledge every one)")
-                    }
-                    "mode" => "`mode` names the mode: `target = \"step\"` (auto, step or manual)".to_string(),
-                    "force" => "`force` names its transition: `target = \"Load->Weld\"`".to_string(),
-                    "activate" | "deactivate" => format!("`{name}` names its step: `target = \"Weld\"`"),
-                    "move" => "`move` names the step the token leaves and the one it goes to: `target = \"Load\"`, \
-                               `to = \"Weld\"`"
-                        .to_string(),
-                    _ => format!("`{name}` takes no `target`"),
-                };
-                cx.error(&span, message);
-                continue;
-            }
-            match (name.as_str(), target.as_deref()) {
-                ("mode", Some(m)) if crate::exec::engine::Mode::from_name(m).is_none() => {
-                    cx.error(&span, format!("`{m}` is no mode: auto, step or manual"));
-                    continue;
-                }
-                ("force" | "confirm", Some(t)) if program.transition_by_name(t).is_none() => {
-                    cx.error(&span, format!("the chart has no transition `{t}`"));
-                    continue;
-                }
-                ("activate" | "deactivate" | "move", Some(st)) if program.step_by_name(st).is_none() => {
-                    cx.error(&span, super::super::cond::no_step(program, st));
-                    continue;
-                }
-                _ => {}
-            }
+            let Some(target) = cx.command_target(program, r, &span, &name) else { continue };
             let to = r.to.as_ref().map(|t| (t.span(), t.get_ref().clone()));
             match (&to, name.as_str()) {
                 (None, "move") => {
@@ -133,9 +62,7 @@ impl Ctx<'_> {
                 continue;
             }
             if let Some(a) = &r.agent {
-                if !agents.iter().any(|x| x == a) {
-                    cx.error(&span, format!("no agent named `{a}` in the scenario (it has: {})", agents.join(", ")));
-                }
+                cx.agent_known(against, &span, a);
             }
             if let Some(s) = &r.step {
                 if program.step_by_name(s).is_none() {
@@ -147,7 +74,7 @@ impl Ctx<'_> {
                 cx.error(&span, "`for` goes with shelve, which needs it: `for = \"10min\"`");
                 continue;
             }
-            let Some(trigger) = trigger(cx, "a command", &span, &r.at, &r.when, &r.after) else { continue };
+            let Some(trigger) = cx.trigger(against, "a command", &span, &r.at, &r.when, &r.after) else { continue };
             let (line, _) = cx.at(&span);
             let request = CtlRequest {
                 command: name,
@@ -162,5 +89,72 @@ impl Ctx<'_> {
             out.push(Command { trigger, request, line });
         }
         out
+    }
+
+    /// A command's `target`, checked against what the command takes and the chart; `None` after an error.
+    fn command_target(
+        &mut self,
+        program: &Program,
+        r: &RawCommand,
+        span: &Range<usize>,
+        name: &str,
+    ) -> Option<Option<String>> {
+        let span = span.clone();
+        let target = match (&r.target, name) {
+            (None, _) => None,
+            (Some(t), "ack" | "shelve" | "unshelve") => match t.get_ref() {
+                toml::Value::Integer(i) if *i > 0 => Some(i.to_string()),
+                toml::Value::String(s) if s == "all" && name == "ack" => Some(s.clone()),
+                _ => {
+                    self.error(
+                        &t.span(),
+                        "`target` is an alarm's number (1, 2, …), or \"all\" to acknowledge every one",
+                    );
+                    return None;
+                }
+            },
+            (Some(t), _) => match t.get_ref() {
+                toml::Value::String(s) => Some(s.clone()),
+                _ => {
+                    self.error(&t.span(), format!("`target` of `{name}` is a name: `target = \"…\"`"));
+                    return None;
+                }
+            },
+        };
+        let needs_target =
+            matches!(name, "ack" | "shelve" | "unshelve" | "mode" | "force" | "activate" | "deactivate" | "move");
+        let takes_target = needs_target || name == "confirm";
+        if (needs_target && target.is_none()) || (!takes_target && target.is_some()) {
+            let message = match name {
+                "ack" | "shelve" | "unshelve" => {
+                    format!("`{name}` names its alarm: `target = 1` (or \"all\" to acknowledge every one)")
+                }
+                "mode" => "`mode` names the mode: `target = \"step\"` (auto, step or manual)".to_string(),
+                "force" => "`force` names its transition: `target = \"Load->Weld\"`".to_string(),
+                "activate" | "deactivate" => format!("`{name}` names its step: `target = \"Weld\"`"),
+                "move" => "`move` names the step the token leaves and the one it goes to: `target = \"Load\"`, \
+                           `to = \"Weld\"`"
+                    .to_string(),
+                _ => format!("`{name}` takes no `target`"),
+            };
+            self.error(&span, message);
+            return None;
+        }
+        match (name, target.as_deref()) {
+            ("mode", Some(m)) if crate::exec::engine::Mode::from_name(m).is_none() => {
+                self.error(&span, format!("`{m}` is no mode: auto, step or manual"));
+                return None;
+            }
+            ("force" | "confirm", Some(t)) if program.transition_by_name(t).is_none() => {
+                self.error(&span, format!("the chart has no transition `{t}`"));
+                return None;
+            }
+            ("activate" | "deactivate" | "move", Some(st)) if program.step_by_name(st).is_none() => {
+                self.error(&span, super::super::cond::no_step(program, st));
+                return None;
+            }
+            _ => {}
+        }
+        Some(target)
     }
 }

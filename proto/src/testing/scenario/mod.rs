@@ -24,6 +24,7 @@ use raw::RawScenario;
 
 mod commands;
 mod raw;
+mod sections;
 
 /// How long a scenario may run in chart time unless it says (`until`).
 pub const UNTIL_DEFAULT_MS: u64 = 600_000;
@@ -314,6 +315,13 @@ pub fn parse_duration(text: &str) -> Result<u64, String> {
     Ok(ms.round() as u64)
 }
 
+/// What a scenario's sections are checked against: the chart, and the names of the scenario's agents.
+pub(super) struct Against<'a> {
+    pub(super) program: &'a Program,
+    pub(super) layout: &'a Layout,
+    pub(super) agents: Vec<String>,
+}
+
 pub(super) struct Ctx<'a> {
     lines: LineIndex<'a>,
     errors: Vec<ScenarioError>,
@@ -443,18 +451,14 @@ pub fn load(path: &Path, read: ReadFile) -> Result<Scenario, LoadError> {
     parse(path, &text, read)
 }
 
-/// Checks the scenario `text`, read from `path`; its chart, relative to it, is read with `read`.
-pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadError> {
-    let mut cx = Ctx { lines: LineIndex::new(text), errors: Vec::new() };
-    let raw: RawScenario = match toml::from_str(text) {
-        Ok(r) => r,
-        Err(e) => {
-            let span = e.span().unwrap_or(0..0);
-            cx.error(&span, e.message().trim().to_string());
-            return Err(LoadError::Malformed(cx.errors));
-        }
-    };
-    // The chart: relative to the scenario, so that a folder of both can go anywhere.
+/// The scenario's chart, read relative to it (so that a folder of both can go anywhere), checked, and the one it
+/// names (`pou`) picked: its path, program, layout and hash.
+fn chart(
+    cx: &mut Ctx,
+    path: &Path,
+    raw: &RawScenario,
+    read: ReadFile,
+) -> Result<(PathBuf, Arc<Program>, Arc<Layout>, ChartHash), LoadError> {
     let base = path.parent().unwrap_or(Path::new("."));
     let chart_path = base.join(raw.chart.get_ref());
     let source = match read(&chart_path) {
@@ -490,7 +494,7 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
                         names.join(", ")
                     ),
                 );
-                return Err(LoadError::Malformed(cx.errors));
+                return Err(LoadError::Malformed(std::mem::take(&mut cx.errors)));
             }
         },
         None if names.len() == 1 => 0,
@@ -502,7 +506,7 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
                 &raw.chart.span(),
                 format!("{} holds several charts ({}): choose one with `pou`", chart_path.display(), names.join(", ")),
             );
-            return Err(LoadError::Malformed(cx.errors));
+            return Err(LoadError::Malformed(std::mem::take(&mut cx.errors)));
         }
     };
     let checked = report.charts.remove(pick);
@@ -516,6 +520,21 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
     let program = Arc::new(program);
     let layout = Arc::new(layout);
     let hash = ChartHash::of(&source, &program.name);
+    Ok((chart_path, program, layout, hash))
+}
+
+/// Checks the scenario `text`, read from `path`; its chart, relative to it, is read with `read`.
+pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadError> {
+    let mut cx = Ctx { lines: LineIndex::new(text), errors: Vec::new() };
+    let raw: RawScenario = match toml::from_str(text) {
+        Ok(r) => r,
+        Err(e) => {
+            let span = e.span().unwrap_or(0..0);
+            cx.error(&span, e.message().trim().to_string());
+            return Err(LoadError::Malformed(cx.errors));
+        }
+    };
+    let (chart_path, program, layout, hash) = chart(&mut cx, path, &raw, read)?;
 
     let until_ms = match &raw.until {
         Some(u) => cx.duration(u).max(1),
@@ -543,120 +562,16 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
     let n = &raw.network;
     let network = cx.net_faults(&n.delay, &n.drop, &n.duplicate, n.reorder);
 
-    // Agents.
-    let mut agents: Vec<Agent> = Vec::new();
-    for a in &raw.agents {
-        let span = a.span();
-        let a = a.get_ref();
-        if agents.iter().any(|b| b.name == a.name) {
-            cx.error(&span, format!("agent `{}` is declared twice", a.name));
-            continue;
-        }
-        if a.name.is_empty() || !a.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
-            cx.error(&span, format!("agent name `{}` must be letters, digits, `_` or `-`", a.name));
-        }
-        let start_ms = cx.opt_duration(&a.start).unwrap_or(0);
-        agents.push(Agent {
-            name: a.name.clone(),
-            roles: a.roles.clone(),
-            start_ms,
-            skills: a.skills.as_ref().map(|s| s.iter().cloned().collect()),
-        });
-    }
+    let agents = cx.agents(&raw.agents);
     let agent_names: Vec<String> = agents.iter().map(|a| a.name.clone()).collect();
     let scenario_span = 0..0;
     if agents.is_empty() && layout.placement.iter().any(|p| *p != crate::cluster::layout::Placement::Coordinator) {
         // Nothing to run the distributed steps on: said once, at the top.
         cx.error(&scenario_span, "the chart places steps on agents, and the scenario declares none: add `[[agents]]`");
     }
-    let agent_known = |cx: &mut Ctx, span: &Range<usize>, name: &str| {
-        if !agent_names.iter().any(|a| a == name) {
-            cx.error(span, format!("no agent named `{name}` in the scenario (it has: {})", agent_names.join(", ")));
-        }
-    };
+    let against = Against { program: &program, layout: &layout, agents: agent_names };
 
-    // Actions' behaviour.
-    let mut behaviours = BTreeMap::new();
-    for (name, b) in &raw.actions {
-        let span = b.span();
-        let Some(index) = program.actions.iter().position(|a| a.name.eq_ignore_ascii_case(name)) else {
-            let all: Vec<&str> = program.actions.iter().map(|a| a.name.as_str()).collect();
-            cx.error(&span, format!("the chart has no action `{name}` (it has: {})", all.join(", ")));
-            continue;
-        };
-        let Some(binding) = layout.skills[index].as_ref() else {
-            cx.error(
-                &span,
-                format!("action `{name}` binds no skill: only skills are simulated (its body runs as written)"),
-            );
-            continue;
-        };
-        let b = b.get_ref();
-        let duration = match &b.duration {
-            None => None,
-            Some(d) => match d.get_ref() {
-                toml::Value::String(s) => match parse_duration(s) {
-                    Ok(ms) => Some((ms, ms)),
-                    Err(e) => {
-                        cx.error(&d.span(), e);
-                        None
-                    }
-                },
-                toml::Value::Array(range) if range.len() == 2 => {
-                    let ends: Vec<Result<u64, String>> = range
-                        .iter()
-                        .map(|v| {
-                            v.as_str().ok_or("a duration is a string: `\"2s\"`".to_string()).and_then(parse_duration)
-                        })
-                        .collect();
-                    match (&ends[0], &ends[1]) {
-                        (Ok(lo), Ok(hi)) if lo <= hi => Some((*lo, *hi)),
-                        (Ok(_), Ok(_)) => {
-                            cx.error(&d.span(), "a duration range is [shortest, longest]");
-                            None
-                        }
-                        (Err(e), _) | (_, Err(e)) => {
-                            cx.error(&d.span(), e.clone());
-                            None
-                        }
-                    }
-                }
-                _ => {
-                    cx.error(&d.span(), "`duration` is a duration (`\"2s\"`) or a range (`[\"1s\", \"3s\"]`)");
-                    None
-                }
-            },
-        };
-        let mut outcomes = Vec::new();
-        for o in b.outcomes.iter().flatten() {
-            match o.get_ref().as_str() {
-                "done" => outcomes.push(true),
-                "fault" => outcomes.push(false),
-                other => cx.error(&o.span(), format!("an outcome is \"done\" or \"fault\", not \"{other}\"")),
-            }
-        }
-        let mut writes = Vec::new();
-        for (var, value) in &b.writes {
-            let outputs = &binding.outputs;
-            let Some(k) = outputs.iter().position(|o| program.vars[o.var.index()].name.eq_ignore_ascii_case(var))
-            else {
-                let mapped: Vec<&str> = outputs.iter().map(|o| program.vars[o.var.index()].name.as_str()).collect();
-                cx.error(
-                    &span,
-                    format!(
-                        "the skill of `{name}` maps no variable `{var}` (its mappings write: {}): a skill writes only what its action maps",
-                        if mapped.is_empty() { "none".to_string() } else { mapped.join(", ") }
-                    ),
-                );
-                continue;
-            };
-            match chart_value(value, &program.vars[outputs[k].var.index()].ty) {
-                Ok(v) => writes.push((k, v)),
-                Err(e) => cx.error(&span, format!("`{var}`: {e}")),
-            }
-        }
-        behaviours.insert(index, Behaviour { duration, outcomes, hang: b.hang, message: b.message.clone(), writes });
-    }
+    let behaviours = cx.behaviours(&against, &raw.actions);
     // A skill the chart binds must be built in or simulated here, or a misspelt name would pass and wait on a robot.
     let listed = |skill: &str| agents.iter().any(|a| a.skills.as_ref().is_some_and(|s| s.contains(skill)));
     let simulated = |i: usize, skill: &str| behaviours.contains_key(&i) || listed(skill);
@@ -664,299 +579,11 @@ pub fn parse(path: &Path, text: &str, read: ReadFile) -> Result<Scenario, LoadEr
         cx.error(&raw.chart.span(), message);
     }
 
-    // Inputs.
-    let trigger = |cx: &mut Ctx,
-                   what: &str,
-                   span: &Range<usize>,
-                   at: &Option<Spanned<String>>,
-                   when: &Option<Spanned<String>>,
-                   after: &Option<Spanned<String>>|
-     -> Option<Trigger> {
-        match (at, when) {
-            (Some(at), None) => {
-                if after.is_some() {
-                    cx.error(span, format!("{what}: `after` goes with `when`"));
-                }
-                Some(Trigger::At(cx.duration(at)))
-            }
-            (None, Some(w)) => {
-                let cond = cx.cond(w, &program, &agent_names)?;
-                Some(Trigger::When { cond, text: w.get_ref().clone(), after_ms: cx.opt_duration(after).unwrap_or(0) })
-            }
-            (None, None) => {
-                cx.error(span, format!("{what} needs `at = \"2s\"` or `when = \"step Load active\"`"));
-                None
-            }
-            (Some(_), Some(_)) => {
-                cx.error(span, format!("{what} takes `at` or `when`, not both"));
-                None
-            }
-        }
-    };
-    let mut inputs = Vec::new();
-    for i in &raw.inputs {
-        let span = i.span();
-        let raw_input = i.get_ref();
-        let Some(trigger) = trigger(&mut cx, "an input", &span, &raw_input.at, &raw_input.when, &raw_input.after)
-        else {
-            continue;
-        };
-        let mut set = Vec::new();
-        for (name, value) in &raw_input.set {
-            let Some(var) = program.var_by_name(name) else {
-                cx.error(&span, format!("the chart has no variable `{name}`"));
-                continue;
-            };
-            if !layout.settable[var.index()] {
-                cx.error(&span, format!("`{name}` is written by the chart: only inputs are set, as `baton set` does"));
-                continue;
-            }
-            match to_json(value) {
-                Some(v) => set.push((program.vars[var.index()].name.clone(), v)),
-                None => cx.error(&span, format!("`{name}`: {} is not a value an input takes", show_toml(value))),
-            }
-        }
-        if set.is_empty() && raw_input.set.is_empty() {
-            cx.error(&span, "an input sets something: `set = { start = true }`");
-        }
-        inputs.push(Input { trigger, set });
-    }
+    let inputs = cx.inputs(&against, &raw.inputs);
+    let faults = cx.faults(&against, &raw.faults, journal);
+    let commands = cx.commands(&against, &raw.commands, stay);
 
-    // Faults.
-    let mut faults = Vec::new();
-    for f in &raw.faults {
-        let span = f.span();
-        let r = f.get_ref();
-        let kind = match one_of(
-            "a fault",
-            &[
-                ("kill", r.kill.is_some()),
-                ("restart", r.restart.is_some()),
-                ("cut", r.cut.is_some()),
-                ("heal", r.heal.is_some()),
-                ("link", r.link.is_some()),
-                ("crash_coordinator", r.crash_coordinator == Some(true)),
-            ],
-        ) {
-            Ok(k) => k,
-            Err(e) => {
-                cx.error(&span, e);
-                continue;
-            }
-        };
-        let agent = r.kill.as_ref().or(r.restart.as_ref()).or(r.cut.as_ref()).or(r.heal.as_ref()).or(r.link.as_ref());
-        if let Some(a) = agent {
-            agent_known(&mut cx, &span, a);
-        }
-        let agent = agent.cloned().unwrap_or_default();
-        let fault_kind = match kind {
-            "kill" => FaultKind::Kill(agent),
-            "restart" => FaultKind::Restart(agent),
-            "cut" => FaultKind::Cut(agent, cx.opt_duration(&r.heal_after)),
-            "heal" => FaultKind::Heal(agent),
-            "link" => {
-                let nf = cx.net_faults(&r.delay, &r.drop, &r.duplicate, r.reorder);
-                let Some(lasting) = cx.opt_duration(&r.lasting) else {
-                    cx.error(&span, "a link's faults last a while: `for = \"5s\"`");
-                    continue;
-                };
-                FaultKind::Link(agent, nf, lasting)
-            }
-            _ => {
-                if !journal {
-                    cx.error(
-                        &span,
-                        "the coordinator resumes from its journal: crashing it needs `journal = true` in [run]",
-                    );
-                }
-                FaultKind::CrashCoordinator(cx.opt_duration(&r.down).unwrap_or(500))
-            }
-        };
-        let Some(trigger) = trigger(&mut cx, "a fault", &span, &r.at, &r.when, &r.after) else { continue };
-        let jitter_ms = cx.opt_duration(&r.jitter).unwrap_or(0);
-        let (line, _) = cx.at(&span);
-        faults.push(Fault { kind: fault_kind, trigger, jitter_ms, line });
-    }
-
-    let commands = cx.commands(&raw.commands, &program, &agent_names, &trigger, stay);
-
-    // Expectations.
-    let step_known = |cx: &mut Ctx, span: &Range<usize>, name: &str| -> Option<String> {
-        match program.steps.iter().find(|s| s.name.eq_ignore_ascii_case(name)) {
-            Some(s) => Some(s.name.clone()),
-            None => {
-                cx.error(span, super::cond::no_step(&program, name));
-                None
-            }
-        }
-    };
-    let mut expects = Vec::new();
-    for e in &raw.expect {
-        let span = e.span();
-        let (line, _) = cx.at(&span);
-        let r = e.get_ref();
-        let kind = match one_of(
-            "an expectation",
-            &[
-                ("reached", r.reached.is_some()),
-                ("order", r.order.is_some()),
-                ("value", r.value.is_some()),
-                ("always", r.always.is_some()),
-                ("never", r.never.is_some()),
-                ("ends_by", r.ends_by.is_some()),
-                ("alarms", r.alarms.is_some()),
-                ("state", r.state.is_some()),
-                ("states", r.states.is_some()),
-                ("modes", r.modes.is_some()),
-                ("once_per_epoch", r.once_per_epoch.is_some()),
-            ],
-        ) {
-            Ok(k) => k,
-            Err(msg) => {
-                cx.error(&span, msg);
-                continue;
-            }
-        };
-        let stray = |cx: &mut Ctx, key: &str, present: bool, goes: &str| {
-            if present {
-                cx.error(&span, format!("`{key}` goes with {goes}, not with `{kind}`"));
-            }
-        };
-        if kind != "reached" {
-            stray(&mut cx, "on", r.on.is_some(), "`reached`");
-            stray(&mut cx, "by", r.by.is_some(), "`reached`");
-        }
-        if kind != "value" {
-            stray(&mut cx, "at", r.at.is_some(), "`value`");
-        }
-        let kind = match kind {
-            "reached" => {
-                let Some(step) = step_known(&mut cx, &span, r.reached.as_deref().unwrap_or_default()) else { continue };
-                if let Some(a) = &r.on {
-                    agent_known(&mut cx, &span, a);
-                }
-                ExpectKind::Reached { step, on: r.on.clone(), by_ms: cx.opt_duration(&r.by) }
-            }
-            "order" => {
-                let steps: Vec<Option<String>> =
-                    r.order.iter().flatten().map(|s| step_known(&mut cx, &span, s)).collect();
-                if steps.len() < 2 {
-                    cx.error(&span, "`order` names two steps or more");
-                }
-                ExpectKind::Order(steps.into_iter().flatten().collect())
-            }
-            "value" => {
-                if r.value.as_ref().is_some_and(|v| v.is_empty()) {
-                    cx.error(&span, "`value` names no variable, so it could never fail: name one or more");
-                    continue;
-                }
-                let mut vars = Vec::new();
-                for (name, v) in r.value.iter().flatten() {
-                    match program.var_by_name(name) {
-                        Some(var) if !program.vars[var.index()].hidden => {
-                            vars.push((program.vars[var.index()].name.clone(), v.clone()))
-                        }
-                        _ => cx.error(&span, format!("the chart has no variable `{name}`")),
-                    }
-                }
-                ExpectKind::Value { vars, at_ms: cx.opt_duration(&r.at) }
-            }
-            "always" | "never" => {
-                let text = r.always.as_ref().or(r.never.as_ref()).expect("one of them");
-                let Some(cond) = cx.cond(text, &program, &agent_names) else { continue };
-                // A condition that reads nothing of the run holds at every moment or at none: `always` of one
-                // that holds, `never` of one that does not, could never fail.
-                if cond.constant() == Some(kind == "always") {
-                    let what = if kind == "always" { "always holds" } else { "never holds" };
-                    let message = format!(
-                        "`{}` reads no step and no variable and {what}: this expectation could never fail",
-                        text.get_ref()
-                    );
-                    cx.error(&text.span(), message);
-                    continue;
-                }
-                if kind == "always" {
-                    ExpectKind::Always(cond, text.get_ref().clone())
-                } else {
-                    ExpectKind::Never(cond, text.get_ref().clone())
-                }
-            }
-            "ends_by" => ExpectKind::EndsBy(cx.opt_duration(&r.ends_by).unwrap_or(0)),
-            "alarms" => ExpectKind::Alarms(r.alarms.clone().unwrap_or_default()),
-            "state" => {
-                let s = r.state.as_ref().expect("state");
-                match s.get_ref().as_str() {
-                    "finished" => ExpectKind::State(RunState::Finished),
-                    "failed" => ExpectKind::State(RunState::Failed),
-                    "running" => ExpectKind::State(RunState::Running),
-                    "stopped" => ExpectKind::State(RunState::Stopped),
-                    "aborted" => ExpectKind::State(RunState::Aborted),
-                    other => {
-                        cx.error(
-                            &s.span(),
-                            format!("`state` is finished, failed, running, stopped or aborted, not `{other}`"),
-                        );
-                        continue;
-                    }
-                }
-            }
-            "states" => {
-                let mut names = Vec::new();
-                for s in r.states.iter().flatten() {
-                    let known = crate::cluster::runtime::packml::State::ALL.iter().any(|st| st.name() == s.get_ref());
-                    if known {
-                        names.push(s.get_ref().clone());
-                    } else {
-                        let all: Vec<&str> =
-                            crate::cluster::runtime::packml::State::ALL.iter().map(|s| s.name()).collect();
-                        cx.error(
-                            &s.span(),
-                            format!("`{}` is no run state (they are: {})", s.get_ref(), all.join(", ")),
-                        );
-                    }
-                }
-                if names.is_empty() {
-                    cx.error(&span, "`states` names one run state or more, such as [\"held\", \"execute\"]");
-                    continue;
-                }
-                ExpectKind::States(names)
-            }
-            "modes" => {
-                let mut names = Vec::new();
-                for m in r.modes.iter().flatten() {
-                    match crate::exec::engine::Mode::from_name(m.get_ref()) {
-                        Some(mode) => names.push(mode.name().to_string()),
-                        None => cx.error(&m.span(), format!("`{}` is no mode: auto, step or manual", m.get_ref())),
-                    }
-                }
-                if names.is_empty() {
-                    cx.error(&span, "`modes` names one mode or more, such as [\"step\", \"auto\"]");
-                    continue;
-                }
-                ExpectKind::Modes(names)
-            }
-            _ => {
-                let name = r.once_per_epoch.as_deref().unwrap_or_default();
-                match program.actions.iter().position(|a| a.name.eq_ignore_ascii_case(name)) {
-                    Some(i) if layout.skills[i].is_none() => {
-                        let message = format!(
-                            "action `{}` starts no skill, so `once_per_epoch` could never fail: name an action bound \
-                             to a skill (`{{skill := …}}`)",
-                            program.actions[i].name
-                        );
-                        cx.error(&span, message);
-                        continue;
-                    }
-                    Some(i) => ExpectKind::OncePerEpoch(program.actions[i].name.clone()),
-                    None => {
-                        cx.error(&span, format!("the chart has no action `{name}`"));
-                        continue;
-                    }
-                }
-            }
-        };
-        expects.push(Expect { kind, line });
-    }
+    let expects = cx.expects(&against, &raw.expect);
     if expects.is_empty() && cx.errors.is_empty() {
         cx.error(&(0..0), "the scenario expects nothing: add `[[expect]]` tables");
     }
