@@ -217,12 +217,36 @@ fn state_word(s: &RunState) -> &'static str {
 }
 
 pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
+    let files = match find(opts)? {
+        Ok(files) => files,
+        Err(code) => return Ok(code),
+    };
+    // Read every file first: a malformed one is said before anything runs.
+    let (mut verdicts, runnable) = load(opts, &files);
+    let bins = if opts.cluster {
+        match real_processes::Binaries::find() {
+            Ok(b) => Some(b),
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                return Ok(ExitCode::from(EXIT_CANNOT_RUN));
+            }
+        }
+    } else {
+        None
+    };
+    let ran = run(opts, &verdicts, &runnable, bins.as_ref());
+    report(opts, &mut verdicts, ran)
+}
+
+/// The scenario files the paths name (a folder: its `*.test.toml`, recursively), or the exit status when there are
+/// none.
+fn find(opts: &TestOptions) -> anyhow::Result<Result<Vec<PathBuf>, ExitCode>> {
     let mut files = Vec::new();
     let paths = if opts.paths.is_empty() { vec![PathBuf::from(".")] } else { opts.paths.clone() };
     for p in &paths {
         if !p.exists() {
             eprintln!("error: {} does not exist", p.display());
-            return Ok(ExitCode::from(EXIT_CANNOT_RUN));
+            return Ok(Err(ExitCode::from(EXIT_CANNOT_RUN)));
         }
         collect(p, &mut files).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", p.display()))?;
     }
@@ -231,13 +255,18 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
             "error: no scenario (*.test.toml) in {}",
             paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
         );
-        return Ok(ExitCode::from(EXIT_CANNOT_RUN));
+        return Ok(Err(ExitCode::from(EXIT_CANNOT_RUN)));
     }
-    // Read every file first: a malformed one is said before anything runs.
+    Ok(Ok(files))
+}
+
+/// Every file read and checked: a verdict each (refused ones decided already), and the scenarios that run, with
+/// their first seed.
+fn load(opts: &TestOptions, files: &[PathBuf]) -> (Vec<Verdict>, Vec<(usize, u64)>) {
     let mut verdicts: Vec<Verdict> = Vec::new();
     // The scenarios that run, with their first seed.
     let mut runnable: Vec<(usize, u64)> = Vec::new();
-    for path in &files {
+    for path in files {
         let v = match scenario::load(path, &|p| std::fs::read_to_string(p)) {
             Ok(sc) => match opts.cluster.then(|| real_processes::unsupported(&sc)).flatten() {
                 Some(why) => Verdict::refused(path, EXIT_CANNOT_RUN, format!("{}: {why}", path.display())),
@@ -267,6 +296,26 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
         }
         verdicts.push(v);
     }
+    (verdicts, runnable)
+}
+
+/// What the runs gave: each scenario's outcomes with their run times, its internal errors, its coverage, and what
+/// stopped the runs early, if anything did.
+struct Ran {
+    results: BTreeMap<usize, Vec<(Outcome, Duration)>>,
+    panics: BTreeMap<usize, String>,
+    coverages: BTreeMap<usize, Coverage>,
+    interrupted: Option<String>,
+    timed_out: bool,
+}
+
+/// Runs every (scenario, seed) on a pool of `--jobs` threads, until done, interrupted or out of time.
+fn run(
+    opts: &TestOptions,
+    verdicts: &[Verdict],
+    runnable: &[(usize, u64)],
+    bins: Option<&real_processes::Binaries>,
+) -> Ran {
     // Job k is the (k / scenarios)-th seed of scenario k % scenarios: every scenario's first seed, then every
     // second one…, so that stopped early each scenario has had its share; nothing is listed in advance.
     let per = if opts.seed.is_some() { 1 } else { opts.seeds.unwrap_or(1).max(1) };
@@ -286,18 +335,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
     let stop = AtomicBool::new(false);
     let finished = AtomicUsize::new(0);
     let timed_out = AtomicBool::new(false);
-    let bins = if opts.cluster {
-        match real_processes::Binaries::find() {
-            Ok(b) => Some(b),
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                return Ok(ExitCode::from(EXIT_CANNOT_RUN));
-            }
-        }
-    } else {
-        None
-    };
-    let run_one = |sc: &Scenario, seed: u64, stop: &AtomicBool| match &bins {
+    let run_one = |sc: &Scenario, seed: u64, stop: &AtomicBool| match bins {
         Some(b) => real_processes::run_until(sc, seed, stop, b, &opts.out),
         None => run_until(sc, seed, stop),
     };
@@ -317,20 +355,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
     let jobs = (opts.jobs.max(1) as u64).min(total.max(1)) as usize;
     std::thread::scope(|scope| {
         // The watchdog: an interrupt or the time limit stops every run where it is.
-        scope.spawn(|| {
-            while finished.load(Ordering::Relaxed) < jobs {
-                if INTERRUPTED.load(Ordering::Relaxed) {
-                    stop.store(true, Ordering::Relaxed);
-                    return;
-                }
-                if opts.timeout.is_some_and(|t| started_all.elapsed() >= t) {
-                    timed_out.store(true, Ordering::Relaxed);
-                    stop.store(true, Ordering::Relaxed);
-                    return;
-                }
-                std::thread::sleep(Duration::from_millis(20));
-            }
-        });
+        scope.spawn(|| watch(opts, started_all, jobs, &finished, &stop, &timed_out));
         for _ in 0..jobs {
             // Each on the stack a chart may need: whatever `baton check` accepts runs here.
             let worker = std::thread::Builder::new().stack_size(baton_proto::limits::CHART_STACK_BYTES);
@@ -385,113 +410,56 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
     } else {
         None
     };
-    let mut results = results.into_inner().expect("results");
-    let panics = panics.into_inner().expect("panics");
+    Ran {
+        results: results.into_inner().expect("results"),
+        panics: panics.into_inner().expect("panics"),
+        coverages: coverages.into_inner().expect("coverage"),
+        interrupted,
+        timed_out: timed_out.load(Ordering::Relaxed),
+    }
+}
+
+/// Until every worker has finished: stops the runs on an interrupt, or once the time limit is up.
+fn watch(
+    opts: &TestOptions,
+    started_all: Instant,
+    jobs: usize,
+    finished: &AtomicUsize,
+    stop: &AtomicBool,
+    timed_out: &AtomicBool,
+) {
+    while finished.load(Ordering::Relaxed) < jobs {
+        if INTERRUPTED.load(Ordering::Relaxed) {
+            stop.store(true, Ordering::Relaxed);
+            return;
+        }
+        if opts.timeout.is_some_and(|t| started_all.elapsed() >= t) {
+            timed_out.store(true, Ordering::Relaxed);
+            stop.store(true, Ordering::Relaxed);
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Says each scenario's verdict (and writes the JUnit file): the exit status is the worst of them.
+fn report(opts: &TestOptions, verdicts: &mut [Verdict], ran: Ran) -> anyhow::Result<ExitCode> {
+    let Ran { mut results, panics, coverages, interrupted, timed_out } = ran;
     let mut code = 0u8;
     let mut suites = Vec::new();
     let (mut passed_n, mut failed_n) = (0usize, 0usize);
     for (i, v) in verdicts.iter_mut().enumerate() {
-        let file = v.path.display().to_string();
-        if let Some((c, text)) = &v.problem {
-            code = code.max(*c);
-            suites.push(junit::Suite::error(&file, &file, 0.0, text));
-            continue;
+        let (c, suite, passed) = verdict(opts, v, results.remove(&i).unwrap_or_default(), panics.get(&i), &interrupted);
+        code = code.max(c);
+        suites.push(suite);
+        match passed {
+            Some(true) => passed_n += 1,
+            Some(false) => failed_n += 1,
+            None => {}
         }
-        let sc = v.scenario.clone().expect("loaded");
-        let mut runs = results.remove(&i).unwrap_or_default();
-        if let (Some(why), true) = (&interrupted, runs.is_empty()) {
-            code = code.max(EXIT_CANNOT_RUN);
-            let text = format!("not run: stopped by {why}");
-            println!("ERROR {} ({file}): {text}", sc.name);
-            suites.push(junit::Suite::error(&sc.name, &file, 0.0, &text));
-            continue;
-        }
-        runs.sort_by_key(|(o, _)| o.seed);
-        // The runs' own times, summed (they run side by side on `--jobs` threads): "run time", not wall time.
-        v.wall = runs.iter().map(|(_, w)| *w).sum();
-        v.outcomes = runs.into_iter().map(|(o, _)| o).collect();
-        if let Some(why) = panics.get(&i) {
-            code = code.max(EXIT_CANNOT_RUN);
-            println!("ERROR {} ({file}): could not run: {why}", sc.name);
-            suites.push(junit::Suite::error(&sc.name, &file, v.wall.as_secs_f64(), why));
-            continue;
-        }
-        let failing: Vec<&Outcome> = v.outcomes.iter().filter(|o| !o.passed()).collect();
-        let chart_ms: u64 = v.outcomes.iter().map(|o| o.chart_ms).sum();
-        let wall_ms = v.wall.as_secs_f64() * 1000.0;
-        let speed = if opts.cluster {
-            "real time".to_string()
-        } else if wall_ms > 0.0 {
-            format!("{}× faster", thousands(chart_ms as f64 / wall_ms))
-        } else {
-            "∞× faster".into()
-        };
-        let seeds = v.outcomes.len();
-        let seeds_text = if seeds == 1 { format!("seed {}", v.outcomes[0].seed) } else { format!("{seeds} seeds") };
-        let chart_text = if seeds == 1 {
-            format!("chart {} ({})", show_ms(chart_ms), state_word(&v.outcomes[0].state))
-        } else {
-            let lo = v.outcomes.iter().map(|o| o.chart_ms).min().unwrap_or(0);
-            let hi = v.outcomes.iter().map(|o| o.chart_ms).max().unwrap_or(0);
-            format!("chart {}–{} each", show_ms(lo), show_ms(hi))
-        };
-        let cases = sc.expects.len();
-        let mut system_out = String::new();
-        if failing.is_empty() {
-            passed_n += 1;
-            if !opts.quiet {
-                println!(
-                    "PASS {} ({file}): {cases} expectation(s), {seeds_text}, {chart_text} in {:.0} ms of run time ({speed})",
-                    sc.name, wall_ms
-                );
-            }
-        } else {
-            failed_n += 1;
-            let errors = failing.iter().any(|o| !o.errors.is_empty());
-            code = code.max(if errors { EXIT_CANNOT_RUN } else { EXIT_FAILED });
-            let seeds_failing: Vec<String> = failing.iter().take(10).map(|o| o.seed.to_string()).collect();
-            println!(
-                "FAIL {} ({file}): {} of {seeds} run(s) failed (seed {}{}), {chart_text} in {:.0} ms of run time",
-                sc.name,
-                failing.len(),
-                seeds_failing.join(", "),
-                if failing.len() > 10 { ", …" } else { "" },
-                wall_ms
-            );
-            let first = failing[0];
-            let report = failure_report(opts, &sc, first);
-            print!("{report}");
-            system_out = format!("seed {}\n{report}\ntimeline:\n", first.seed);
-            for r in &first.trace {
-                system_out.push_str(&describe_record(r));
-                system_out.push('\n');
-            }
-        }
-        // One test case per expectation: failed when it failed under any seed (the first such seed's message).
-        let cases: Vec<junit::Case> = sc
-            .expects
-            .iter()
-            .enumerate()
-            .map(|(k, e)| {
-                let failure = v
-                    .outcomes
-                    .iter()
-                    .find_map(|o| o.cases[k].failure.as_ref().map(|f| format!("seed {}: {f}", o.seed)));
-                junit::Case { name: e.title(), line: e.line, failure }
-            })
-            .collect();
-        let error = failing.iter().find(|o| !o.errors.is_empty()).map(|o| o.errors.join("\n"));
-        suites.push(junit::Suite {
-            name: sc.name.clone(),
-            file,
-            time_s: v.wall.as_secs_f64(),
-            error,
-            cases,
-            system_out,
-        });
     }
     if opts.coverage {
-        print!("{}", coverage_report(&verdicts, &coverages.into_inner().expect("coverage")));
+        print!("{}", coverage_report(verdicts, &coverages));
     }
     let count = |c: u8| verdicts.iter().filter(|v| v.problem.as_ref().is_some_and(|p| p.0 == c)).count();
     let (malformed, cannot) = (count(EXIT_MALFORMED), count(EXIT_CANNOT_RUN) + panics.len());
@@ -504,7 +472,7 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
     }
     if let Some(why) = &interrupted {
         total.push_str(&format!(" — stopped by {why}: runs not made are not counted"));
-        code = code.max(if timed_out.load(Ordering::Relaxed) { EXIT_CANNOT_RUN } else { EXIT_INTERRUPTED });
+        code = code.max(if timed_out { EXIT_CANNOT_RUN } else { EXIT_INTERRUPTED });
     }
     println!("{total}");
     if let Some(path) = &opts.junit {
@@ -512,6 +480,102 @@ pub fn test(opts: &TestOptions) -> anyhow::Result<ExitCode> {
             .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
     }
     Ok(ExitCode::from(code))
+}
+
+/// One scenario's verdict from its runs: the exit status it asks for, its JUnit suite, and whether it passed
+/// (`None`: it did not run, or could not).
+fn verdict(
+    opts: &TestOptions,
+    v: &mut Verdict,
+    mut runs: Vec<(Outcome, Duration)>,
+    panic: Option<&String>,
+    interrupted: &Option<String>,
+) -> (u8, junit::Suite, Option<bool>) {
+    let mut code = 0u8;
+    let file = v.path.display().to_string();
+    if let Some((c, text)) = &v.problem {
+        code = code.max(*c);
+        return (code, junit::Suite::error(&file, &file, 0.0, text), None);
+    }
+    let sc = v.scenario.clone().expect("loaded");
+    if let (Some(why), true) = (interrupted, runs.is_empty()) {
+        code = code.max(EXIT_CANNOT_RUN);
+        let text = format!("not run: stopped by {why}");
+        println!("ERROR {} ({file}): {text}", sc.name);
+        return (code, junit::Suite::error(&sc.name, &file, 0.0, &text), None);
+    }
+    runs.sort_by_key(|(o, _)| o.seed);
+    // The runs' own times, summed (they run side by side on `--jobs` threads): "run time", not wall time.
+    v.wall = runs.iter().map(|(_, w)| *w).sum();
+    v.outcomes = runs.into_iter().map(|(o, _)| o).collect();
+    if let Some(why) = panic {
+        code = code.max(EXIT_CANNOT_RUN);
+        println!("ERROR {} ({file}): could not run: {why}", sc.name);
+        return (code, junit::Suite::error(&sc.name, &file, v.wall.as_secs_f64(), why), None);
+    }
+    let failing: Vec<&Outcome> = v.outcomes.iter().filter(|o| !o.passed()).collect();
+    let chart_ms: u64 = v.outcomes.iter().map(|o| o.chart_ms).sum();
+    let wall_ms = v.wall.as_secs_f64() * 1000.0;
+    let speed = if opts.cluster {
+        "real time".to_string()
+    } else if wall_ms > 0.0 {
+        format!("{}× faster", thousands(chart_ms as f64 / wall_ms))
+    } else {
+        "∞× faster".into()
+    };
+    let seeds = v.outcomes.len();
+    let seeds_text = if seeds == 1 { format!("seed {}", v.outcomes[0].seed) } else { format!("{seeds} seeds") };
+    let chart_text = if seeds == 1 {
+        format!("chart {} ({})", show_ms(chart_ms), state_word(&v.outcomes[0].state))
+    } else {
+        let lo = v.outcomes.iter().map(|o| o.chart_ms).min().unwrap_or(0);
+        let hi = v.outcomes.iter().map(|o| o.chart_ms).max().unwrap_or(0);
+        format!("chart {}–{} each", show_ms(lo), show_ms(hi))
+    };
+    let cases = sc.expects.len();
+    let mut system_out = String::new();
+    if failing.is_empty() {
+        if !opts.quiet {
+            println!(
+                "PASS {} ({file}): {cases} expectation(s), {seeds_text}, {chart_text} in {:.0} ms of run time ({speed})",
+                sc.name, wall_ms
+            );
+        }
+    } else {
+        let errors = failing.iter().any(|o| !o.errors.is_empty());
+        code = code.max(if errors { EXIT_CANNOT_RUN } else { EXIT_FAILED });
+        let seeds_failing: Vec<String> = failing.iter().take(10).map(|o| o.seed.to_string()).collect();
+        println!(
+            "FAIL {} ({file}): {} of {seeds} run(s) failed (seed {}{}), {chart_text} in {:.0} ms of run time",
+            sc.name,
+            failing.len(),
+            seeds_failing.join(", "),
+            if failing.len() > 10 { ", …" } else { "" },
+            wall_ms
+        );
+        let first = failing[0];
+        let report = failure_report(opts, &sc, first);
+        print!("{report}");
+        system_out = format!("seed {}\n{report}\ntimeline:\n", first.seed);
+        for r in &first.trace {
+            system_out.push_str(&describe_record(r));
+            system_out.push('\n');
+        }
+    }
+    // One test case per expectation: failed when it failed under any seed (the first such seed's message).
+    let cases: Vec<junit::Case> = sc
+        .expects
+        .iter()
+        .enumerate()
+        .map(|(k, e)| {
+            let failure =
+                v.outcomes.iter().find_map(|o| o.cases[k].failure.as_ref().map(|f| format!("seed {}: {f}", o.seed)));
+            junit::Case { name: e.title(), line: e.line, failure }
+        })
+        .collect();
+    let error = failing.iter().find(|o| !o.errors.is_empty()).map(|o| o.errors.join("\n"));
+    let suite = junit::Suite { name: sc.name.clone(), file, time_s: v.wall.as_secs_f64(), error, cases, system_out };
+    (code, suite, Some(failing.is_empty()))
 }
 
 /// Per chart: what each scenario of it exercised (over all its seeds), what they all did together, and which
