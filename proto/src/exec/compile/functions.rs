@@ -255,23 +255,7 @@ impl<'a> Compiler<'a> {
         if self.functions.contains_key(&key) {
             return self.function_call(&key, callee, args, vars);
         }
-        if let Some(&u) = self.user_of.get(&key) {
-            let message = format!(
-                "`{}` is a `{}` instance: call it as a statement in an action (`{}(…);`) and read its outputs here",
-                callee.name, self.users[u].def.name.name, callee.name
-            );
-            self.error(callee.span, message);
-            return (FALSE, Ty::Err);
-        }
-        if let Some((fb, _)) = self.instances.get(&key) {
-            let message = format!(
-                "`{}` is a {} instance: call it as a statement in an action (`{}(…);`) and read its outputs here (`{}.Q`)",
-                callee.name,
-                fb.name(),
-                callee.name,
-                callee.name
-            );
-            self.error(callee.span, message);
+        if self.instance_called(callee, &key) {
             return (FALSE, Ty::Err);
         }
         // ADD, SUB, …, GT, EQ, …, AND, OR, XOR: the operators, folded over the arguments.
@@ -293,64 +277,121 @@ impl<'a> Compiler<'a> {
             _ => None,
         };
         if let Some((op, extensible)) = op {
-            let Some(values) = self.positional(callee, args, &["IN1", "IN2"], extensible) else {
-                return (FALSE, Ty::Err);
-            };
-            let comparison = matches!(op, BinOp::Gt | BinOp::Ge | BinOp::Eq | BinOp::Le | BinOp::Lt | BinOp::Ne);
-            let mut folded = if comparison {
-                // GT(a, b, c) is a > b AND b > c.
-                let pairs: Vec<Expr> = values
-                    .windows(2)
-                    .map(|w| Expr {
-                        kind: ExprKind::Binary(op, Box::new(w[0].clone()), Box::new(w[1].clone())),
-                        span: e.span,
-                    })
-                    .collect();
-                Expr::balanced(BinOp::And, pairs)
-            } else if op.associative() {
-                Expr::balanced(op, values)
-            } else if values.len() > NESTING_DEPTH_MAX {
-                // ADD(a, b, c) is (a + b) + c, in that order (REAL sums and the widths of mixed integers depend
-                // on it): its arguments nest as deep as they are many.
-                let message = format!(
-                    "{key} with {} arguments nests them {} levels deep, more than {NESTING_DEPTH_MAX}: add them in \
-                     parts, each with a name of its own",
-                    values.len(),
-                    values.len() - 1
-                );
-                self.error(callee.span, message);
-                return (FALSE, Ty::Err);
-            } else {
-                let mut it = values.into_iter();
-                let first = it.next().expect("two arguments at least");
-                it.fold(first, |acc, v| Expr { kind: ExprKind::Binary(op, Box::new(acc), Box::new(v)), span: e.span })
-            };
-            folded.span = e.span;
-            return self.expr(&folded, vars);
+            return self.operator_call(e, callee, &key, op, extensible, args, vars);
         }
         // ADD_TIME, SUB_DT_DT, MUL_TIME and their kin: the operators on the types their names give.
         if let Some((op, wanted)) = time_function(&key) {
-            let Some(values) = self.positional(callee, args, &["IN1", "IN2"], false) else {
-                return (FALSE, Ty::Err);
-            };
-            let operands = [self.expr(&values[0], vars), self.expr(&values[1], vars)];
-            for (i, ((_, t), want)) in operands.iter().zip(wanted).enumerate() {
-                let fits = match want {
-                    Some(w) => *t == w,
-                    None => t.is_num(),
-                };
-                if !fits && *t != Ty::Err {
-                    let name = want.map_or_else(|| "a number".to_string(), |w| w.name());
-                    let message = format!("argument {} of {key} must be {name}, found {}", i + 1, t.name());
-                    self.error(values[i].span, message);
-                    return (FALSE, Ty::Err);
-                }
-            }
-            let [a, b] = operands;
-            return self.binary_node(op, a, b, e.span);
+            return self.time_call(e, callee, &key, (op, wanted), args, vars);
         }
-        let Some((func, params)) = Func::from_name(&key) else {
-            let message = if StdFb::from_name(&key).is_some() {
+        self.standard_call(callee, &key, args, vars)
+    }
+
+    /// A block instance called in an expression, which is an error (said here): whether `callee` is one.
+    fn instance_called(&mut self, callee: &Ident, key: &str) -> bool {
+        if let Some(&u) = self.user_of.get(key) {
+            let message = format!(
+                "`{}` is a `{}` instance: call it as a statement in an action (`{}(…);`) and read its outputs here",
+                callee.name, self.users[u].def.name.name, callee.name
+            );
+            self.error(callee.span, message);
+            return true;
+        }
+        if let Some((fb, _)) = self.instances.get(key) {
+            let message = format!(
+                "`{}` is a {} instance: call it as a statement in an action (`{}(…);`) and read its outputs here (`{}.Q`)",
+                callee.name,
+                fb.name(),
+                callee.name,
+                callee.name
+            );
+            self.error(callee.span, message);
+            return true;
+        }
+        false
+    }
+
+    /// ADD, GT and the other operators written as functions, folded over their arguments.
+    #[allow(clippy::too_many_arguments)]
+    fn operator_call(
+        &mut self,
+        e: &Expr,
+        callee: &Ident,
+        key: &str,
+        op: BinOp,
+        extensible: bool,
+        args: &[Arg],
+        vars: &[VarInfo],
+    ) -> (CExpr, Ty) {
+        let Some(values) = self.positional(callee, args, &["IN1", "IN2"], extensible) else {
+            return (FALSE, Ty::Err);
+        };
+        let comparison = matches!(op, BinOp::Gt | BinOp::Ge | BinOp::Eq | BinOp::Le | BinOp::Lt | BinOp::Ne);
+        let mut folded = if comparison {
+            // GT(a, b, c) is a > b AND b > c.
+            let pairs: Vec<Expr> = values
+                .windows(2)
+                .map(|w| Expr {
+                    kind: ExprKind::Binary(op, Box::new(w[0].clone()), Box::new(w[1].clone())),
+                    span: e.span,
+                })
+                .collect();
+            Expr::balanced(BinOp::And, pairs)
+        } else if op.associative() {
+            Expr::balanced(op, values)
+        } else if values.len() > NESTING_DEPTH_MAX {
+            // ADD(a, b, c) is (a + b) + c, in that order (REAL sums and the widths of mixed integers depend
+            // on it): its arguments nest as deep as they are many.
+            let message = format!(
+                "{key} with {} arguments nests them {} levels deep, more than {NESTING_DEPTH_MAX}: add them in \
+                 parts, each with a name of its own",
+                values.len(),
+                values.len() - 1
+            );
+            self.error(callee.span, message);
+            return (FALSE, Ty::Err);
+        } else {
+            let mut it = values.into_iter();
+            let first = it.next().expect("two arguments at least");
+            it.fold(first, |acc, v| Expr { kind: ExprKind::Binary(op, Box::new(acc), Box::new(v)), span: e.span })
+        };
+        folded.span = e.span;
+        self.expr(&folded, vars)
+    }
+
+    /// ADD_TIME and its kin: `op` on operands of the types `wanted` (`None`: any number).
+    fn time_call(
+        &mut self,
+        e: &Expr,
+        callee: &Ident,
+        key: &str,
+        (op, wanted): (BinOp, [Option<Ty>; 2]),
+        args: &[Arg],
+        vars: &[VarInfo],
+    ) -> (CExpr, Ty) {
+        let Some(values) = self.positional(callee, args, &["IN1", "IN2"], false) else {
+            return (FALSE, Ty::Err);
+        };
+        let operands = [self.expr(&values[0], vars), self.expr(&values[1], vars)];
+        for (i, ((_, t), want)) in operands.iter().zip(wanted).enumerate() {
+            let fits = match want {
+                Some(w) => *t == w,
+                None => t.is_num(),
+            };
+            if !fits && *t != Ty::Err {
+                let name = want.map_or_else(|| "a number".to_string(), |w| w.name());
+                let message = format!("argument {} of {key} must be {name}, found {}", i + 1, t.name());
+                self.error(values[i].span, message);
+                return (FALSE, Ty::Err);
+            }
+        }
+        let [a, b] = operands;
+        self.binary_node(op, a, b, e.span)
+    }
+
+    /// A function of the standard library (`Func`): its arguments compiled and its result's type checked.
+    fn standard_call(&mut self, callee: &Ident, key: &str, args: &[Arg], vars: &[VarInfo]) -> (CExpr, Ty) {
+        let Some((func, params)) = Func::from_name(key) else {
+            let message = if StdFb::from_name(key).is_some() {
                 format!("`{0}` is a function block type: declare an instance (`t1 : {0};`), call it in an action and read `t1.Q`", key)
             } else {
                 format!("unknown function `{}`", callee.name)
@@ -358,29 +399,13 @@ impl<'a> Compiler<'a> {
             self.error(callee.span, message);
             return (FALSE, Ty::Err);
         };
-        let Some(values) = self.positional(callee, args, params, func.extensible()) else {
+        let Some((values, cargs, tys)) = self.standard_args(&func, callee, args, params, vars) else {
             return (FALSE, Ty::Err);
         };
-        let mut cargs = Vec::with_capacity(values.len());
-        let mut tys = Vec::with_capacity(values.len());
-        for (i, v) in values.iter().enumerate() {
-            let (c, t) = self.expr(v, vars);
-            // SEL's selector is a BOOL, which may be written 0 or 1.
-            let (c, t) = if i == 0 && func == Func::Sel { bool_literal((c, t)) } else { (c, t) };
-            if t == Ty::Err {
-                return (FALSE, Ty::Err);
-            }
-            cargs.push(c);
-            tys.push(t);
-        }
         let bad = |c: &mut Self, i: usize, want: &str| {
             let message = format!("argument {} of {} must be {want}, found {}", i + 1, key, tys[i].name());
             c.error(values[i].span, message);
             (FALSE, Ty::Err)
-        };
-        let real_of = |t: Ty| match t {
-            Ty::Real { long } => Ty::Real { long },
-            _ => Ty::Real { long: false },
         };
         // The common type of some arguments: all numbers, or all of one other type.
         let common = |c: &mut Self, from: usize| -> Option<Ty> {
@@ -419,23 +444,10 @@ impl<'a> Compiler<'a> {
                 Ty::IntLit => Ty::Int(IntKind::Dword),
                 t => t,
             },
-            Func::Date(f) => {
-                let (wanted, result): (&[Ty], Ty) = match f {
-                    DateFn::ConcatDateTod => (&[Ty::Date, Ty::Tod], Ty::Dt),
-                    DateFn::DayOfWeek => (&[Ty::Date], Ty::Int(IntKind::Usint)),
-                    DateFn::ConcatDate => (&[], Ty::Date),
-                    DateFn::ConcatTod => (&[], Ty::Tod),
-                    DateFn::ConcatDt | DateFn::Part(_) => (&[], Ty::Dt),
-                };
-                for (i, t) in tys.iter().enumerate() {
-                    match wanted.get(i) {
-                        Some(w) if t != w => return bad(self, i, w.name().as_str()),
-                        None if !t.is_int() => return bad(self, i, "an integer"),
-                        _ => {}
-                    }
-                }
-                result
-            }
+            Func::Date(f) => match date_type(*f, &tys) {
+                Ok(t) => t,
+                Err((i, want)) => return bad(self, i, &want),
+            },
             Func::Expt if !tys[0].is_num() => return bad(self, 0, "a number"),
             Func::Expt if !tys[1].is_num() => return bad(self, 1, "a number"),
             Func::Expt => join(tys[0], tys[1]),
@@ -462,27 +474,10 @@ impl<'a> Compiler<'a> {
                 Ty::IntLit => Ty::Int(IntKind::Dword),
                 t => t,
             },
-            Func::Text(f) => {
-                // Which arguments are strings; the others are lengths or positions.
-                let strings: &[usize] = match f {
-                    TextFn::Len | TextFn::Left | TextFn::Right | TextFn::Mid | TextFn::Delete => &[0],
-                    TextFn::Insert | TextFn::Replace | TextFn::Find => &[0, 1],
-                    TextFn::Concat => &[],
-                };
-                for (i, t) in tys.iter().enumerate() {
-                    let string = strings.contains(&i) || *f == TextFn::Concat;
-                    if string && *t != Ty::Str {
-                        return bad(self, i, "a STRING");
-                    }
-                    if !string && !t.is_int() {
-                        return bad(self, i, "an integer");
-                    }
-                }
-                match f {
-                    TextFn::Len | TextFn::Find => Ty::Int(IntKind::Int),
-                    _ => Ty::Str,
-                }
-            }
+            Func::Text(f) => match text_type(*f, &tys) {
+                Ok(t) => t,
+                Err((i, want)) => return bad(self, i, want),
+            },
             Func::ToString(_) => unreachable!("from_name gives Convert"),
             Func::Convert(to) => {
                 if let Some((from, _)) = key.split_once("_TO_") {
@@ -509,6 +504,32 @@ impl<'a> Compiler<'a> {
             Func::BitAnd | Func::BitOr | Func::BitXor | Func::BitNot => tys[0],
         };
         (CExpr::call(func, cargs, ty.repr()), ty)
+    }
+
+    /// A standard function's arguments in parameter order, as written and compiled, with their types; `None` once
+    /// one is wrong (said).
+    fn standard_args(
+        &mut self,
+        func: &Func,
+        callee: &Ident,
+        args: &[Arg],
+        params: &[&str],
+        vars: &[VarInfo],
+    ) -> Option<(Vec<Expr>, Vec<CExpr>, Vec<Ty>)> {
+        let values = self.positional(callee, args, params, func.extensible())?;
+        let mut cargs = Vec::with_capacity(values.len());
+        let mut tys = Vec::with_capacity(values.len());
+        for (i, v) in values.iter().enumerate() {
+            let (c, t) = self.expr(v, vars);
+            // SEL's selector is a BOOL, which may be written 0 or 1.
+            let (c, t) = if i == 0 && *func == Func::Sel { bool_literal((c, t)) } else { (c, t) };
+            if t == Ty::Err {
+                return None;
+            }
+            cargs.push(c);
+            tys.push(t);
+        }
+        Some((values, cargs, tys))
     }
 
     /// A call's arguments in parameter order: non-formal as written, or formal matched to the parameter names
@@ -576,4 +597,54 @@ impl<'a> Compiler<'a> {
         }
         Some(values)
     }
+}
+
+/// A REAL of `t`'s width: LREAL stays LREAL, anything else is REAL.
+fn real_of(t: Ty) -> Ty {
+    match t {
+        Ty::Real { long } => Ty::Real { long },
+        _ => Ty::Real { long: false },
+    }
+}
+
+/// The result of a date function on arguments of types `tys`, or the argument that does not fit and what it must be.
+fn date_type(f: DateFn, tys: &[Ty]) -> Result<Ty, (usize, String)> {
+    let (wanted, result): (&[Ty], Ty) = match f {
+        DateFn::ConcatDateTod => (&[Ty::Date, Ty::Tod], Ty::Dt),
+        DateFn::DayOfWeek => (&[Ty::Date], Ty::Int(IntKind::Usint)),
+        DateFn::ConcatDate => (&[], Ty::Date),
+        DateFn::ConcatTod => (&[], Ty::Tod),
+        DateFn::ConcatDt | DateFn::Part(_) => (&[], Ty::Dt),
+    };
+    for (i, t) in tys.iter().enumerate() {
+        match wanted.get(i) {
+            Some(w) if t != w => return Err((i, w.name())),
+            None if !t.is_int() => return Err((i, "an integer".to_string())),
+            _ => {}
+        }
+    }
+    Ok(result)
+}
+
+/// The result of a text function on arguments of types `tys`, or the argument that does not fit and what it must be.
+fn text_type(f: TextFn, tys: &[Ty]) -> Result<Ty, (usize, &'static str)> {
+    // Which arguments are strings; the others are lengths or positions.
+    let strings: &[usize] = match f {
+        TextFn::Len | TextFn::Left | TextFn::Right | TextFn::Mid | TextFn::Delete => &[0],
+        TextFn::Insert | TextFn::Replace | TextFn::Find => &[0, 1],
+        TextFn::Concat => &[],
+    };
+    for (i, t) in tys.iter().enumerate() {
+        let string = strings.contains(&i) || f == TextFn::Concat;
+        if string && *t != Ty::Str {
+            return Err((i, "a STRING"));
+        }
+        if !string && !t.is_int() {
+            return Err((i, "an integer"));
+        }
+    }
+    Ok(match f {
+        TextFn::Len | TextFn::Find => Ty::Int(IntKind::Int),
+        _ => Ty::Str,
+    })
 }
