@@ -544,7 +544,7 @@ impl<'a> Sfc<'a> {
         let n = p.steps.len();
         let step_id: Vec<u64> = (0..n).map(|_| self.id()).collect();
         let transition_id: Vec<u64> = (0..p.transitions.len()).map(|_| self.id()).collect();
-        // Where a transition's input comes from for each of its sources, and where its targets' inputs come from.
+        // Where a transition's input comes from for each of its sources: the step, or its selection divergence.
         let leaves = |s: usize| p.outgoing(crate::exec::program::StepId(s as u32)).len();
         let mut selection_div: HashMap<usize, u64> = HashMap::new();
         for s in 0..n {
@@ -553,195 +553,21 @@ impl<'a> Sfc<'a> {
                 selection_div.insert(s, id);
             }
         }
-        let from_step = |s: usize| selection_div.get(&s).copied().unwrap_or(step_id[s]);
+        let from_step: Vec<u64> = (0..n).map(|s| selection_div.get(&s).copied().unwrap_or(step_id[s])).collect();
         let mut elements = String::new();
         // Steps (each with its input left as a mark, filled in once the transitions are laid out), their actions
         // and their selection divergences.
-        let mut steps_text: Vec<String> = Vec::with_capacity(n);
-        for (s, info) in p.steps.iter().enumerate() {
-            let mut elements = String::new();
-            let (x, y) = self.xy(s);
-            let _ = writeln!(
-                elements,
-                "            <step localId=\"{}\" name=\"{}\" initialStep=\"{}\" height=\"{STEP_H}\" width=\"{STEP_W}\">",
-                step_id[s],
-                esc(&info.name),
-                info.initial
-            );
-            let _ = writeln!(elements, "              <position x=\"{x}\" y=\"{y}\"/>");
-            // The step's input: filled in below, once the transitions' ids are known.
-            let _ = writeln!(elements, "              @@IN{s}@@");
-            let _ = writeln!(
-                elements,
-                "              <connectionPointOut formalParameter=\"\"><relPosition x=\"{}\" y=\"{STEP_H}\"/></connectionPointOut>",
-                STEP_W / 2
-            );
-            let associations = self.associations(s);
-            if !associations.is_empty() {
-                let _ = writeln!(
-                    elements,
-                    "              <connectionPointOutAction formalParameter=\"\"><relPosition x=\"{STEP_W}\" y=\"{}\"/></connectionPointOutAction>",
-                    STEP_H / 2
-                );
-            }
-            elements.push_str(&self.entry_exit(s));
-            if !info.pragmas.is_empty() {
-                let _ = writeln!(
-                    elements,
-                    "              <documentation>{}</documentation>",
-                    xhtml(&pragmas_text(&info.pragmas))
-                );
-            }
-            elements.push_str("            </step>\n");
-            if !associations.is_empty() {
-                let block = self.id();
-                let _ = writeln!(
-                    elements,
-                    "            <actionBlock localId=\"{block}\" width=\"200\" height=\"{}\">\n              <position x=\"{}\" y=\"{y}\"/>\n              <connectionPointIn><relPosition x=\"0\" y=\"{}\"/><connection refLocalId=\"{}\"/></connectionPointIn>",
-                    20 * associations.len().max(1),
-                    x + STEP_W + 30,
-                    STEP_H / 2,
-                    step_id[s]
-                );
-                elements.push_str(&associations);
-                elements.push_str("            </actionBlock>\n");
-            }
-            if let Some(&div) = selection_div.get(&s) {
-                let branches = leaves(s);
-                let _ = writeln!(
-                    elements,
-                    "            <selectionDivergence localId=\"{div}\" height=\"1\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>\n              <connectionPointIn><relPosition x=\"{}\" y=\"0\"/><connection refLocalId=\"{}\"/></connectionPointIn>",
-                    (branches as i64 - 1) * 60,
-                    y + STEP_H + 20,
-                    STEP_W / 2,
-                    step_id[s]
-                );
-                for b in 0..branches {
-                    let _ = writeln!(
-                        elements,
-                        "              <connectionPointOut formalParameter=\"\"><relPosition x=\"{}\" y=\"1\"/></connectionPointOut>",
-                        b as i64 * 60
-                    );
-                }
-                elements.push_str("            </selectionDivergence>\n");
-            }
-            steps_text.push(elements);
-        }
-        // Transitions, with the simultaneous convergences before and divergences after them.
+        let steps_text: Vec<String> =
+            (0..n).map(|s| self.step_element(s, step_id[s], selection_div.get(&s).map(|&d| (d, leaves(s))))).collect();
+        // Transitions, with the simultaneous convergences before and divergences after them; where each step's
+        // inputs come from.
         let mut step_inputs: Vec<Vec<u64>> = vec![Vec::new(); n];
-        let rank_within = |t: usize| -> usize {
-            let sources = p.sources(TransitionId(t as u32));
-            sources.first().map_or(0, |s| p.outgoing(*s).iter().position(|&u| u.index() == t).unwrap_or(0))
-        };
         for (t, &tid) in transition_id.iter().enumerate() {
-            let tr = TransitionId(t as u32);
-            let sources = p.sources(tr);
-            let targets = p.targets(tr);
-            let row = sources.iter().map(|s| self.at[s.index()].0).max().unwrap_or(0);
-            let (sx, sy) = sources.first().map_or((40, 40), |s| self.xy(s.index()));
-            let x = sx + rank_within(t) as i64 * 60;
-            let y = sy + STEP_H + 70;
-            let input = if sources.len() > 1 {
-                let conv = self.id();
-                let _ = writeln!(
-                    elements,
-                    "            <simultaneousConvergence localId=\"{conv}\" height=\"3\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>",
-                    (sources.len() as i64 - 1) * COLUMN,
-                    y - 30
-                );
-                for s in sources {
-                    let _ = writeln!(
-                        elements,
-                        "              <connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn>",
-                        from_step(s.index())
-                    );
-                }
-                elements.push_str("              <connectionPointOut/>\n            </simultaneousConvergence>\n");
-                conv
-            } else {
-                sources.first().map_or(0, |s| from_step(s.index()))
-            };
-            // The clearing order over the whole chart (which also orders a cycle's events), so that every
-            // transition has one: within a divergence it orders the branches for any tool.
-            let priority = format!(" priority=\"{}\"", p.rank(tr) + 1);
-            let tr = &self.chart.transitions[t];
-            let condition = match &tr.name {
-                Some(name) => format!("<reference name=\"{}\"/>", esc(&name.name)),
-                None => {
-                    let mut text = pragmas_text(&tr.pragmas);
-                    if !text.is_empty() {
-                        text.push(' ');
-                    }
-                    text.push_str(&st::expr(&tr.condition));
-                    format!("<inline name=\"\"><ST>{}</ST></inline>", xhtml(&text))
-                }
-            };
-            let _ = writeln!(
-                elements,
-                "            <transition localId=\"{tid}\" height=\"2\" width=\"20\"{priority}>\n              <position x=\"{}\" y=\"{y}\"/>\n              <connectionPointIn><relPosition x=\"10\" y=\"0\"/><connection refLocalId=\"{input}\"/></connectionPointIn>\n              <connectionPointOut><relPosition x=\"10\" y=\"2\"/></connectionPointOut>\n              <condition>{condition}</condition>\n            </transition>",
-                x + STEP_W / 2 - 10
-            );
-            let out_from = if targets.len() > 1 {
-                let div = self.id();
-                let _ = writeln!(
-                    elements,
-                    "            <simultaneousDivergence localId=\"{div}\" height=\"3\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>\n              <connectionPointIn><connection refLocalId=\"{tid}\"/></connectionPointIn>",
-                    (targets.len() as i64 - 1) * COLUMN,
-                    y + 30
-                );
-                for _ in targets {
-                    elements.push_str("              <connectionPointOut formalParameter=\"\"/>\n");
-                }
-                elements.push_str("            </simultaneousDivergence>\n");
-                div
-            } else {
-                tid
-            };
-            for u in targets {
-                if self.at[u.index()].0 > row {
-                    step_inputs[u.index()].push(out_from);
-                } else {
-                    let jump = self.id();
-                    let _ = writeln!(
-                        elements,
-                        "            <jumpStep localId=\"{jump}\" targetName=\"{}\" height=\"13\" width=\"12\">\n              <position x=\"{}\" y=\"{}\"/>\n              <connectionPointIn><relPosition x=\"6\" y=\"0\"/><connection refLocalId=\"{out_from}\"/></connectionPointIn>\n            </jumpStep>",
-                        esc(&p.steps[u.index()].name),
-                        x + STEP_W / 2 - 6,
-                        y + 60
-                    );
-                }
-            }
+            self.transition_element(t, tid, &from_step, &mut step_inputs, &mut elements);
         }
         // Steps' inputs: one connection, or a selection convergence of several.
         for (s, inputs) in step_inputs.iter().enumerate() {
-            let text = match inputs.as_slice() {
-                [] => String::new(),
-                [one] => format!(
-                    "<connectionPointIn><relPosition x=\"{}\" y=\"0\"/><connection refLocalId=\"{one}\"/></connectionPointIn>",
-                    STEP_W / 2
-                ),
-                many => {
-                    let conv = self.id();
-                    let (x, y) = self.xy(s);
-                    let _ = writeln!(
-                        elements,
-                        "            <selectionConvergence localId=\"{conv}\" height=\"1\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>",
-                        (many.len() as i64 - 1) * 60,
-                        y - 30
-                    );
-                    for i in many {
-                        let _ = writeln!(
-                            elements,
-                            "              <connectionPointIn><connection refLocalId=\"{i}\"/></connectionPointIn>"
-                        );
-                    }
-                    elements.push_str("              <connectionPointOut/>\n            </selectionConvergence>\n");
-                    format!(
-                        "<connectionPointIn><relPosition x=\"{}\" y=\"0\"/><connection refLocalId=\"{conv}\"/></connectionPointIn>",
-                        STEP_W / 2
-                    )
-                }
-            };
+            let text = self.step_input(s, inputs, &mut elements);
             let mark = format!("              @@IN{s}@@\n");
             let filled = if text.is_empty() { String::new() } else { format!("              {text}\n") };
             out.push_str(&steps_text[s].replacen(&mark, &filled, 1));
@@ -751,6 +577,205 @@ impl<'a> Sfc<'a> {
             steps: p.steps.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join(" "),
             transitions: transition_id.iter().map(|id| id.to_string()).collect::<Vec<_>>().join(" "),
             actions: p.actions.iter().map(|a| a.name.as_str()).collect::<Vec<_>>().join(" "),
+        }
+    }
+
+    /// Step `s` (its input a mark `@@INs@@`), its action block, and its selection divergence (`(id, branches)`).
+    fn step_element(&mut self, s: usize, id: u64, selection_div: Option<(u64, usize)>) -> String {
+        let info = &self.program.steps[s];
+        let mut elements = String::new();
+        let (x, y) = self.xy(s);
+        let _ = writeln!(
+            elements,
+            "            <step localId=\"{}\" name=\"{}\" initialStep=\"{}\" height=\"{STEP_H}\" width=\"{STEP_W}\">",
+            id,
+            esc(&info.name),
+            info.initial
+        );
+        let _ = writeln!(elements, "              <position x=\"{x}\" y=\"{y}\"/>");
+        // The step's input: filled in below, once the transitions' ids are known.
+        let _ = writeln!(elements, "              @@IN{s}@@");
+        let _ = writeln!(
+            elements,
+            "              <connectionPointOut formalParameter=\"\"><relPosition x=\"{}\" y=\"{STEP_H}\"/></connectionPointOut>",
+            STEP_W / 2
+        );
+        let associations = self.associations(s);
+        if !associations.is_empty() {
+            let _ = writeln!(
+                elements,
+                "              <connectionPointOutAction formalParameter=\"\"><relPosition x=\"{STEP_W}\" y=\"{}\"/></connectionPointOutAction>",
+                STEP_H / 2
+            );
+        }
+        elements.push_str(&self.entry_exit(s));
+        if !info.pragmas.is_empty() {
+            let _ = writeln!(
+                elements,
+                "              <documentation>{}</documentation>",
+                xhtml(&pragmas_text(&info.pragmas))
+            );
+        }
+        elements.push_str("            </step>\n");
+        if !associations.is_empty() {
+            let block = self.id();
+            let _ = writeln!(
+                elements,
+                "            <actionBlock localId=\"{block}\" width=\"200\" height=\"{}\">\n              <position x=\"{}\" y=\"{y}\"/>\n              <connectionPointIn><relPosition x=\"0\" y=\"{}\"/><connection refLocalId=\"{}\"/></connectionPointIn>",
+                20 * associations.len().max(1),
+                x + STEP_W + 30,
+                STEP_H / 2,
+                id
+            );
+            elements.push_str(&associations);
+            elements.push_str("            </actionBlock>\n");
+        }
+        if let Some((div, branches)) = selection_div {
+            let _ = writeln!(
+                elements,
+                "            <selectionDivergence localId=\"{div}\" height=\"1\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>\n              <connectionPointIn><relPosition x=\"{}\" y=\"0\"/><connection refLocalId=\"{}\"/></connectionPointIn>",
+                (branches as i64 - 1) * 60,
+                y + STEP_H + 20,
+                STEP_W / 2,
+                id
+            );
+            for b in 0..branches {
+                let _ = writeln!(
+                    elements,
+                    "              <connectionPointOut formalParameter=\"\"><relPosition x=\"{}\" y=\"1\"/></connectionPointOut>",
+                    b as i64 * 60
+                );
+            }
+            elements.push_str("            </selectionDivergence>\n");
+        }
+        elements
+    }
+
+    /// Transition `t` (`tid`) into `elements`, with a simultaneous convergence before it and a divergence after
+    /// it where it has several sources or targets; the ids its targets take their input from go to `step_inputs`
+    /// (a target above it is reached by a jump).
+    fn transition_element(
+        &mut self,
+        t: usize,
+        tid: u64,
+        from_step: &[u64],
+        step_inputs: &mut [Vec<u64>],
+        elements: &mut String,
+    ) {
+        let p = self.program;
+        let rank_within = |t: usize| -> usize {
+            let sources = p.sources(TransitionId(t as u32));
+            sources.first().map_or(0, |s| p.outgoing(*s).iter().position(|&u| u.index() == t).unwrap_or(0))
+        };
+        let tr = TransitionId(t as u32);
+        let sources = p.sources(tr);
+        let targets = p.targets(tr);
+        let row = sources.iter().map(|s| self.at[s.index()].0).max().unwrap_or(0);
+        let (sx, sy) = sources.first().map_or((40, 40), |s| self.xy(s.index()));
+        let x = sx + rank_within(t) as i64 * 60;
+        let y = sy + STEP_H + 70;
+        let input = if sources.len() > 1 {
+            let conv = self.id();
+            let _ = writeln!(
+                elements,
+                "            <simultaneousConvergence localId=\"{conv}\" height=\"3\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>",
+                (sources.len() as i64 - 1) * COLUMN,
+                y - 30
+            );
+            for s in sources {
+                let _ = writeln!(
+                    elements,
+                    "              <connectionPointIn><connection refLocalId=\"{}\"/></connectionPointIn>",
+                    from_step[s.index()]
+                );
+            }
+            elements.push_str("              <connectionPointOut/>\n            </simultaneousConvergence>\n");
+            conv
+        } else {
+            sources.first().map_or(0, |s| from_step[s.index()])
+        };
+        // The clearing order over the whole chart (which also orders a cycle's events), so that every
+        // transition has one: within a divergence it orders the branches for any tool.
+        let priority = format!(" priority=\"{}\"", p.rank(tr) + 1);
+        let tr = &self.chart.transitions[t];
+        let condition = match &tr.name {
+            Some(name) => format!("<reference name=\"{}\"/>", esc(&name.name)),
+            None => {
+                let mut text = pragmas_text(&tr.pragmas);
+                if !text.is_empty() {
+                    text.push(' ');
+                }
+                text.push_str(&st::expr(&tr.condition));
+                format!("<inline name=\"\"><ST>{}</ST></inline>", xhtml(&text))
+            }
+        };
+        let _ = writeln!(
+            elements,
+            "            <transition localId=\"{tid}\" height=\"2\" width=\"20\"{priority}>\n              <position x=\"{}\" y=\"{y}\"/>\n              <connectionPointIn><relPosition x=\"10\" y=\"0\"/><connection refLocalId=\"{input}\"/></connectionPointIn>\n              <connectionPointOut><relPosition x=\"10\" y=\"2\"/></connectionPointOut>\n              <condition>{condition}</condition>\n            </transition>",
+            x + STEP_W / 2 - 10
+        );
+        let out_from = if targets.len() > 1 {
+            let div = self.id();
+            let _ = writeln!(
+                elements,
+                "            <simultaneousDivergence localId=\"{div}\" height=\"3\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>\n              <connectionPointIn><connection refLocalId=\"{tid}\"/></connectionPointIn>",
+                (targets.len() as i64 - 1) * COLUMN,
+                y + 30
+            );
+            for _ in targets {
+                elements.push_str("              <connectionPointOut formalParameter=\"\"/>\n");
+            }
+            elements.push_str("            </simultaneousDivergence>\n");
+            div
+        } else {
+            tid
+        };
+        for u in targets {
+            if self.at[u.index()].0 > row {
+                step_inputs[u.index()].push(out_from);
+            } else {
+                let jump = self.id();
+                let _ = writeln!(
+                    elements,
+                    "            <jumpStep localId=\"{jump}\" targetName=\"{}\" height=\"13\" width=\"12\">\n              <position x=\"{}\" y=\"{}\"/>\n              <connectionPointIn><relPosition x=\"6\" y=\"0\"/><connection refLocalId=\"{out_from}\"/></connectionPointIn>\n            </jumpStep>",
+                    esc(&p.steps[u.index()].name),
+                    x + STEP_W / 2 - 6,
+                    y + 60
+                );
+            }
+        }
+    }
+
+    /// The input of step `s` from `inputs`: one connection, or a selection convergence of several (written into
+    /// `elements`); empty for none.
+    fn step_input(&mut self, s: usize, inputs: &[u64], elements: &mut String) -> String {
+        match inputs {
+            [] => String::new(),
+            [one] => format!(
+                "<connectionPointIn><relPosition x=\"{}\" y=\"0\"/><connection refLocalId=\"{one}\"/></connectionPointIn>",
+                STEP_W / 2
+            ),
+            many => {
+                let conv = self.id();
+                let (x, y) = self.xy(s);
+                let _ = writeln!(
+                    elements,
+                    "            <selectionConvergence localId=\"{conv}\" height=\"1\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>",
+                    (many.len() as i64 - 1) * 60,
+                    y - 30
+                );
+                for i in many {
+                    let _ = writeln!(
+                        elements,
+                        "              <connectionPointIn><connection refLocalId=\"{i}\"/></connectionPointIn>"
+                    );
+                }
+                elements.push_str("              <connectionPointOut/>\n            </selectionConvergence>\n");
+                format!(
+                    "<connectionPointIn><relPosition x=\"{}\" y=\"0\"/><connection refLocalId=\"{conv}\"/></connectionPointIn>",
+                    STEP_W / 2
+                )
+            }
         }
     }
 
