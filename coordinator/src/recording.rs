@@ -533,54 +533,10 @@ impl Logger {
         let epoch = rec.epoch.map(|e| format!(", epoch {e}")).unwrap_or_default();
         let message = rec.message.as_deref().unwrap_or("");
         match rec.event {
-            TraceEvent::Activate => {
-                // The last step of a simultaneous branch waits at the convergence for the others. A placed step
-                // whose token has no agent yet waits for one (its dispatch says where it went).
-                let s = self.steps.get(&rec.name).copied();
-                let waiting = s.is_some_and(|s| self.converging[s.index()]);
-                let placed = s.is_some_and(|s| self.run.layout.placement[s.index()] != Placement::Coordinator);
-                if let Some(a) = agent {
-                    self.progress_log(a, Some(&rec.name), "INFO", format!("at step {} on {a}", rec.name));
-                }
-                match agent {
-                    _ if waiting => self.step_state(&rec.name, StepState::Waiting, "waiting"),
-                    Some(a) => self.step_state(&rec.name, StepState::OnAgent, &format!("on {a}")),
-                    None if placed => self.step_state(&rec.name, StepState::Waiting, "no agent yet"),
-                    None => self.step_state(&rec.name, StepState::Active, "active"),
-                }
-            }
+            TraceEvent::Activate => self.activated(rec),
             TraceEvent::Deactivate => self.step_state(&rec.name, StepState::Inactive, "inactive"),
-            TraceEvent::Dispatch | TraceEvent::Resume => {
-                let a = agent.unwrap_or("?");
-                let extra = if message.is_empty() { String::new() } else { format!(": {message}") };
-                // A dispatch in a later epoch restarts the segment: reassigned, or its agent restarted.
-                let (level, what) = match (rec.event, rec.epoch) {
-                    (TraceEvent::Dispatch, Some(e)) if e > 1 => ("WARN", "dispatched again, the segment restarting,"),
-                    (TraceEvent::Dispatch, _) => ("INFO", "dispatched"),
-                    _ => ("INFO", "resumed"),
-                };
-                self.token_log(rec, level, format!("{what} to {a}: step {}{epoch}{extra}", rec.name));
-                if let (Some(a), Some(t)) = (agent, &rec.token) {
-                    self.agents.entry(a.to_string()).or_default().insert(t.clone(), rec.name.clone());
-                    self.agent_state(a);
-                    if self.steps.get(&rec.name).is_some_and(|&s| self.state[s.index()] != StepState::Inactive) {
-                        self.step_state(&rec.name, StepState::OnAgent, &format!("on {a}"));
-                    }
-                }
-            }
-            TraceEvent::Return => {
-                self.token_log(
-                    rec,
-                    "INFO",
-                    format!("returned from {}: step {}{epoch}", agent.unwrap_or("?"), rec.name),
-                );
-                if let (Some(a), Some(t)) = (agent, &rec.token) {
-                    if let Some(held) = self.agents.get_mut(a) {
-                        held.remove(t);
-                    }
-                    self.agent_state(a);
-                }
-            }
+            TraceEvent::Dispatch | TraceEvent::Resume => self.dispatched(rec),
+            TraceEvent::Return => self.returned(rec),
             TraceEvent::Wait => self.token_log(rec, "WARN", format!("waits for an agent: step {}{epoch}", rec.name)),
             TraceEvent::Withdraw => {
                 self.token_log(rec, "WARN", format!("taken back by the operator: step {}{epoch}", rec.name))
@@ -648,28 +604,7 @@ impl Logger {
                 self.log(level, text);
             }
             TraceEvent::Recover => self.log("WARN", format!("coordinator restarted: {message}")),
-            TraceEvent::State => {
-                self.log("INFO", format!("run state: {}", rec.name));
-                // Held (or suspended, or stopped), every active step is marked so; back to executing, as it was.
-                let held = matches!(rec.name.as_str(), "held" | "suspended");
-                if held && self.before_hold.is_none() {
-                    self.before_hold = Some(self.state.clone());
-                    for s in self.state.iter_mut().filter(|s| !matches!(s, StepState::Inactive | StepState::Faulted)) {
-                        *s = StepState::Held;
-                    }
-                    self.graph_dirty = true;
-                } else if !held {
-                    if let Some(before) = self.before_hold.take() {
-                        // What changed while held (a step left, a fault) stands; the rest is as it was.
-                        for (now, was) in self.state.iter_mut().zip(before) {
-                            if *now == StepState::Held {
-                                *now = was;
-                            }
-                        }
-                        self.graph_dirty = true;
-                    }
-                }
-            }
+            TraceEvent::State => self.run_state(&rec.name),
             TraceEvent::SkillFault | TraceEvent::Fault => {
                 let on = agent.map(|a| format!(" on {a}")).unwrap_or_default();
                 let level = if rec.event == TraceEvent::Fault { "ERROR" } else { "WARN" };
@@ -701,6 +636,85 @@ impl Logger {
                 }
             }
             _ => {}
+        }
+    }
+
+    /// A step became active: where it runs (on an agent, waiting at a convergence or for an agent, here).
+    fn activated(&mut self, rec: &TraceRecord) {
+        let agent = rec.agent.as_deref();
+        // The last step of a simultaneous branch waits at the convergence for the others. A placed step
+        // whose token has no agent yet waits for one (its dispatch says where it went).
+        let s = self.steps.get(&rec.name).copied();
+        let waiting = s.is_some_and(|s| self.converging[s.index()]);
+        let placed = s.is_some_and(|s| self.run.layout.placement[s.index()] != Placement::Coordinator);
+        if let Some(a) = agent {
+            self.progress_log(a, Some(&rec.name), "INFO", format!("at step {} on {a}", rec.name));
+        }
+        match agent {
+            _ if waiting => self.step_state(&rec.name, StepState::Waiting, "waiting"),
+            Some(a) => self.step_state(&rec.name, StepState::OnAgent, &format!("on {a}")),
+            None if placed => self.step_state(&rec.name, StepState::Waiting, "no agent yet"),
+            None => self.step_state(&rec.name, StepState::Active, "active"),
+        }
+    }
+
+    /// A token went to an agent (or resumed there): its log, and what the agent holds.
+    fn dispatched(&mut self, rec: &TraceRecord) {
+        let agent = rec.agent.as_deref();
+        let epoch = rec.epoch.map(|e| format!(", epoch {e}")).unwrap_or_default();
+        let message = rec.message.as_deref().unwrap_or("");
+        let a = agent.unwrap_or("?");
+        let extra = if message.is_empty() { String::new() } else { format!(": {message}") };
+        // A dispatch in a later epoch restarts the segment: reassigned, or its agent restarted.
+        let (level, what) = match (rec.event, rec.epoch) {
+            (TraceEvent::Dispatch, Some(e)) if e > 1 => ("WARN", "dispatched again, the segment restarting,"),
+            (TraceEvent::Dispatch, _) => ("INFO", "dispatched"),
+            _ => ("INFO", "resumed"),
+        };
+        self.token_log(rec, level, format!("{what} to {a}: step {}{epoch}{extra}", rec.name));
+        if let (Some(a), Some(t)) = (agent, &rec.token) {
+            self.agents.entry(a.to_string()).or_default().insert(t.clone(), rec.name.clone());
+            self.agent_state(a);
+            if self.steps.get(&rec.name).is_some_and(|&s| self.state[s.index()] != StepState::Inactive) {
+                self.step_state(&rec.name, StepState::OnAgent, &format!("on {a}"));
+            }
+        }
+    }
+
+    /// The run's PackML state changed.
+    fn run_state(&mut self, name: &str) {
+        self.log("INFO", format!("run state: {name}"));
+        // Held (or suspended, or stopped), every active step is marked so; back to executing, as it was.
+        let held = matches!(name, "held" | "suspended");
+        if held && self.before_hold.is_none() {
+            self.before_hold = Some(self.state.clone());
+            for s in self.state.iter_mut().filter(|s| !matches!(s, StepState::Inactive | StepState::Faulted)) {
+                *s = StepState::Held;
+            }
+            self.graph_dirty = true;
+        } else if !held {
+            if let Some(before) = self.before_hold.take() {
+                // What changed while held (a step left, a fault) stands; the rest is as it was.
+                for (now, was) in self.state.iter_mut().zip(before) {
+                    if *now == StepState::Held {
+                        *now = was;
+                    }
+                }
+                self.graph_dirty = true;
+            }
+        }
+    }
+
+    /// A token came back from its agent.
+    fn returned(&mut self, rec: &TraceRecord) {
+        let agent = rec.agent.as_deref();
+        let epoch = rec.epoch.map(|e| format!(", epoch {e}")).unwrap_or_default();
+        self.token_log(rec, "INFO", format!("returned from {}: step {}{epoch}", agent.unwrap_or("?"), rec.name));
+        if let (Some(a), Some(t)) = (agent, &rec.token) {
+            if let Some(held) = self.agents.get_mut(a) {
+                held.remove(t);
+            }
+            self.agent_state(a);
         }
     }
 
