@@ -244,73 +244,14 @@ pub async fn run_until(
     let net = NetConfig { lease_ms: Some(config.lease_ms), ..NetConfig::client(&config.connect, true) };
     let zconfig = baton_host::zenoh_config(&net, config.zenoh_config.as_deref())?;
     let name = config.name.clone();
-    // The agent waits for its router as long as it takes (a robot may boot before the cell's network), but says
-    // that it waits: a silent agent behind a wrong address or a cut cable is a puzzle. And it stops when asked
-    // while it waits. zenoh::open holds the thread that awaits it while it retries (the runtime's only worker, for
-    // one agent), so it opens on a thread of its own, and the notice and the stop are awaited here.
-    let (opened_tx, opened) = tokio::sync::oneshot::channel();
-    std::thread::Builder::new()
-        .name(format!("open {name}"))
-        .spawn(move || {
-            use zenoh::Wait;
-            let _ = opened_tx.send(zenoh::open(zconfig).wait());
-        })
-        .map_err(|e| anyhow!("cannot start a thread to open the Zenoh session: {e}"))?;
     let mut stop = std::pin::pin!(stop);
-    let notice = tokio::time::sleep(ROUTER_WAIT_NOTICE);
-    let mut notice = std::pin::pin!(notice);
-    let mut opened = std::pin::pin!(opened);
-    let mut noticed = false;
-    let opened = loop {
-        tokio::select! {
-            opened = &mut opened => break opened.map_err(|_| anyhow!("the thread opening the Zenoh session ended"))?,
-            () = &mut notice, if !noticed => {
-                noticed = true;
-                eprintln!(
-                    "baton-agent `{name}`: no router answers at {} yet; still trying (Ctrl-C to stop)",
-                    config.connect.join(", ")
-                );
-            }
-            () = &mut stop => {
-                // Nothing was joined, nothing is held: the session that may still open is never used.
-                eprintln!("baton-agent `{name}`: stopped before a router answered");
-                return Ok(());
-            }
-        }
+    let Some(opened) = open(&config, zconfig, stop.as_mut()).await? else {
+        // Nothing was joined, nothing is held: the session that may still open is never used.
+        eprintln!("baton-agent `{name}`: stopped before a router answered");
+        return Ok(());
     };
     let session = opened.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
-    // Its roles, each a liveliness token the router's access control lets only the identities deployed with that
-    // role announce: refused, the agent says so and does not run (a coordinator would not give it the role's
-    // steps either). Before the name check, so that the reason a process is refused is its own; the tokens of a
-    // second process under a taken name give the first no role it does not claim (`announced_roles`).
-    let mut _roles = Vec::with_capacity(config.roles.len());
-    for role in &config.roles {
-        let token = traffic::token(&session, keys::alive_role(&name, role))
-            .await
-            .map_err(|e| anyhow!("cannot announce role `{role}`: {e}"))?;
-        _roles.push(token);
-    }
-    if let Some(role) = refused_role(&session, &name, &config.roles).await? {
-        session.close().await.zenoh()?;
-        anyhow::bail!(
-            "the router does not let `{name}` serve role `{role}`: its access control lets an identity announce only \
-             the roles its deployment gives it (`baton deploy acl … --agent {name}={role}`); run without --role \
-             {role}, or deploy it"
-        );
-    }
-    // A name is held by one live process: two would both run what is sent to it.
-    let holders = traffic::liveliness_get(&session, keys::alive(&name))
-        .timeout(LIVELINESS_CHECK_TIMEOUT)
-        .await
-        .map_err(|e| anyhow!("cannot ask the router which agents are live: {e}"))?;
-    if let Ok(reply) = holders.recv_async().await {
-        if reply.result().is_ok() {
-            session.close().await.zenoh()?;
-            anyhow::bail!(
-                "an agent named `{name}` is already live on this router: stop it first, or give this one another --name"
-            );
-        }
-    }
+    let _roles = claim(&session, &name, &config.roles).await?;
     let incarnation = uuid::Uuid::new_v4();
     // Everything a coordinator may use is declared before the liveliness token announces the agent: a
     // coordinator asks for the info as soon as it sees the token, and may dispatch right after.
@@ -405,6 +346,86 @@ pub async fn run_until(
     drop(shared);
     session.close().await.zenoh()?;
     Ok(())
+}
+
+/// Opens the agent's Zenoh session, waiting for its router as long as it takes; `None` when `stop` came first.
+async fn open(
+    config: &AgentConfig,
+    zconfig: zenoh::Config,
+    mut stop: std::pin::Pin<&mut impl std::future::Future<Output = ()>>,
+) -> anyhow::Result<Option<zenoh::Result<Session>>> {
+    let name = &config.name;
+    // The agent waits for its router as long as it takes (a robot may boot before the cell's network), but says
+    // that it waits: a silent agent behind a wrong address or a cut cable is a puzzle. And it stops when asked
+    // while it waits. zenoh::open holds the thread that awaits it while it retries (the runtime's only worker, for
+    // one agent), so it opens on a thread of its own, and the notice and the stop are awaited here.
+    let (opened_tx, opened) = tokio::sync::oneshot::channel();
+    std::thread::Builder::new()
+        .name(format!("open {name}"))
+        .spawn(move || {
+            use zenoh::Wait;
+            let _ = opened_tx.send(zenoh::open(zconfig).wait());
+        })
+        .map_err(|e| anyhow!("cannot start a thread to open the Zenoh session: {e}"))?;
+    let notice = tokio::time::sleep(ROUTER_WAIT_NOTICE);
+    let mut notice = std::pin::pin!(notice);
+    let mut opened = std::pin::pin!(opened);
+    let mut noticed = false;
+    let opened = loop {
+        tokio::select! {
+            opened = &mut opened => break opened.map_err(|_| anyhow!("the thread opening the Zenoh session ended"))?,
+            () = &mut notice, if !noticed => {
+                noticed = true;
+                eprintln!(
+                    "baton-agent `{name}`: no router answers at {} yet; still trying (Ctrl-C to stop)",
+                    config.connect.join(", ")
+                );
+            }
+            () = &mut stop => return Ok(None),
+        }
+    };
+    Ok(Some(opened))
+}
+
+/// Announces the agent's roles and checks that its name is free: the role tokens, held while the agent runs.
+async fn claim(
+    session: &Session,
+    name: &str,
+    roles: &[String],
+) -> anyhow::Result<Vec<zenoh::liveliness::LivelinessToken>> {
+    // Its roles, each a liveliness token the router's access control lets only the identities deployed with that
+    // role announce: refused, the agent says so and does not run (a coordinator would not give it the role's
+    // steps either). Before the name check, so that the reason a process is refused is its own; the tokens of a
+    // second process under a taken name give the first no role it does not claim (`announced_roles`).
+    let mut tokens = Vec::with_capacity(roles.len());
+    for role in roles {
+        let token = traffic::token(session, keys::alive_role(name, role))
+            .await
+            .map_err(|e| anyhow!("cannot announce role `{role}`: {e}"))?;
+        tokens.push(token);
+    }
+    if let Some(role) = refused_role(session, name, roles).await? {
+        session.close().await.zenoh()?;
+        anyhow::bail!(
+            "the router does not let `{name}` serve role `{role}`: its access control lets an identity announce only \
+             the roles its deployment gives it (`baton deploy acl … --agent {name}={role}`); run without --role \
+             {role}, or deploy it"
+        );
+    }
+    // A name is held by one live process: two would both run what is sent to it.
+    let holders = traffic::liveliness_get(session, keys::alive(name))
+        .timeout(LIVELINESS_CHECK_TIMEOUT)
+        .await
+        .map_err(|e| anyhow!("cannot ask the router which agents are live: {e}"))?;
+    if let Ok(reply) = holders.recv_async().await {
+        if reply.result().is_ok() {
+            session.close().await.zenoh()?;
+            anyhow::bail!(
+                "an agent named `{name}` is already live on this router: stop it first, or give this one another --name"
+            );
+        }
+    }
+    Ok(tokens)
 }
 
 impl Host {
