@@ -297,34 +297,9 @@ impl<'a> Observer<'a> {
         let mut at_ms = None;
         let failure = match &e.kind {
             ExpectKind::Reached { step, on, by_ms } => {
-                // Where a step ran: where it was activated, or dispatched to once an agent could take it.
-                let hits: Vec<&TraceRecord> = trace
-                    .iter()
-                    .filter(|r| {
-                        &r.name == step
-                            && (r.event == TraceEvent::Activate
-                                || (r.event == TraceEvent::Dispatch && r.agent.is_some()))
-                    })
-                    .collect();
-                let fits = |r: &&TraceRecord| {
-                    on.as_ref().is_none_or(|a| r.agent.as_ref() == Some(a)) && by_ms.is_none_or(|t| r.t_ms <= t)
-                };
-                if hits.iter().any(fits) {
-                    None
-                } else if let Some(first) = hits.first() {
-                    let mut wheres: Vec<String> = hits
-                        .iter()
-                        .map(|r| {
-                            format!("at {} on {}", show_ms(r.t_ms), r.agent.as_deref().unwrap_or("the coordinator"))
-                        })
-                        .collect();
-                    wheres.dedup();
-                    wheres.truncate(5);
-                    at_ms = Some(first.t_ms);
-                    Some(format!("expected {}; it was reached {}", e.title(), wheres.join(", ")))
-                } else {
-                    Some(format!("expected {}; it was never active", e.title()))
-                }
+                let (failure, at) = reached(e, trace, step, on.as_deref(), *by_ms);
+                at_ms = at;
+                failure
             }
             ExpectKind::Order(order) => {
                 let mut next = 0;
@@ -391,30 +366,7 @@ impl<'a> Observer<'a> {
                     Some(format!("the run was {} at {}", format!("{state:?}").to_lowercase(), show_ms(chart_ms)))
                 }
             },
-            ExpectKind::Alarms(expected) => {
-                let alarms: Vec<String> = trace
-                    .iter()
-                    .filter(|r| r.event == TraceEvent::Alarm)
-                    .map(|r| r.message.clone().unwrap_or_default())
-                    .collect();
-                let missing: Vec<&String> =
-                    expected.iter().filter(|x| !alarms.iter().any(|a| a.contains(x.as_str()))).collect();
-                let extra: Vec<&String> =
-                    alarms.iter().filter(|a| !expected.iter().any(|x| a.contains(x.as_str()))).collect();
-                match (missing.is_empty(), extra.is_empty()) {
-                    (true, true) => None,
-                    _ => {
-                        let mut parts = Vec::new();
-                        if !missing.is_empty() {
-                            parts.push(format!("never raised: {}", quoted(&missing)));
-                        }
-                        if !extra.is_empty() {
-                            parts.push(format!("raised but not expected: {}", quoted(&extra)));
-                        }
-                        Some(parts.join("; "))
-                    }
-                }
-            }
+            ExpectKind::Alarms(expected) => alarms_failure(expected, trace),
             ExpectKind::State(expected) => (expected != state).then(|| {
                 format!(
                     "expected the run to end {}; it {}",
@@ -667,6 +619,60 @@ pub fn run_until(sc: &Scenario, seed: u64, stop: &AtomicBool) -> Outcome {
 
 fn quoted(items: &[&String]) -> String {
     items.iter().map(|s| format!("`{s}`")).collect::<Vec<_>>().join(", ")
+}
+
+/// `reached`: where the step ran — where it was activated, or dispatched to once an agent could take it — against
+/// where and by when it was expected; the failure, and when the step was first reached.
+fn reached(
+    e: &super::scenario::Expect,
+    trace: &[TraceRecord],
+    step: &str,
+    on: Option<&str>,
+    by_ms: Option<u64>,
+) -> (Option<String>, Option<u64>) {
+    // Where a step ran: where it was activated, or dispatched to once an agent could take it.
+    let hits: Vec<&TraceRecord> = trace
+        .iter()
+        .filter(|r| {
+            r.name == step
+                && (r.event == TraceEvent::Activate || (r.event == TraceEvent::Dispatch && r.agent.is_some()))
+        })
+        .collect();
+    let fits = |r: &&TraceRecord| on.is_none_or(|a| r.agent.as_deref() == Some(a)) && by_ms.is_none_or(|t| r.t_ms <= t);
+    if hits.iter().any(fits) {
+        (None, None)
+    } else if let Some(first) = hits.first() {
+        let mut wheres: Vec<String> = hits
+            .iter()
+            .map(|r| format!("at {} on {}", show_ms(r.t_ms), r.agent.as_deref().unwrap_or("the coordinator")))
+            .collect();
+        wheres.dedup();
+        wheres.truncate(5);
+        (Some(format!("expected {}; it was reached {}", e.title(), wheres.join(", "))), Some(first.t_ms))
+    } else {
+        (Some(format!("expected {}; it was never active", e.title())), None)
+    }
+}
+
+/// `alarms`: every alarm expected raised (a part of its message), and none other.
+fn alarms_failure(expected: &[String], trace: &[TraceRecord]) -> Option<String> {
+    let alarms: Vec<String> =
+        trace.iter().filter(|r| r.event == TraceEvent::Alarm).map(|r| r.message.clone().unwrap_or_default()).collect();
+    let missing: Vec<&String> = expected.iter().filter(|x| !alarms.iter().any(|a| a.contains(x.as_str()))).collect();
+    let extra: Vec<&String> = alarms.iter().filter(|a| !expected.iter().any(|x| a.contains(x.as_str()))).collect();
+    match (missing.is_empty(), extra.is_empty()) {
+        (true, true) => None,
+        _ => {
+            let mut parts = Vec::new();
+            if !missing.is_empty() {
+                parts.push(format!("never raised: {}", quoted(&missing)));
+            }
+            if !extra.is_empty() {
+                parts.push(format!("raised but not expected: {}", quoted(&extra)));
+            }
+            Some(parts.join("; "))
+        }
+    }
 }
 
 /// The first time the skill of `action` ran twice in one run of its segment (one token's epoch): on two agents,
