@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use crate::exec::eval;
-use crate::exec::program::ActionId;
+use crate::exec::program::{ActionId, Program, VarId};
 use crate::front::model::Qualifier;
 use crate::types::Value;
 
@@ -50,6 +50,22 @@ impl Engine {
             }
         }
         let stamp = self.cycle;
+        self.demand_actions(&program, stamp);
+        let mut judged = std::mem::take(&mut self.judged);
+        judged.sort_unstable();
+        if !partial {
+            self.live.clear();
+        }
+        // Stored qualifiers started between cycles count from the last cycle, like the steps' times.
+        let now = if partial { self.grid_floor(self.now_ms) } else { self.now_ms };
+        let (changes, reset_vars) = self.judge_actions(&program, &judged, partial, stamp, now);
+        self.run_actions(&program, changes, reset_vars, partial);
+        self.judged = judged;
+    }
+
+    /// What the associations of the active steps, the steps just left and the actions still live (stored, or
+    /// timing) ask of each action this cycle (`demand`), marking those a step touched now with `stamp`.
+    fn demand_actions(&mut self, program: &Program, stamp: u64) {
         for i in 0..self.active.len() {
             let s = self.active[i];
             if !self.scope.runs_actions[s.index()] {
@@ -95,18 +111,24 @@ impl Engine {
             let a = self.live[i];
             self.demand(a);
         }
-        let mut judged = std::mem::take(&mut self.judged);
-        judged.sort_unstable();
-        if !partial {
-            self.live.clear();
-        }
-        // Stored qualifiers started between cycles count from the last cycle, like the steps' times.
-        let now = if partial { self.grid_floor(self.now_ms) } else { self.now_ms };
+    }
+
+    /// Each judged action's Q from what is asked of it and what it stored: (action, Q before, Q now) in action
+    /// order, and the Boolean actions an active R association resets (their variable reads FALSE, on or not
+    /// before). In a reaction (`partial`), only the actions a step touched now (`stamp`).
+    fn judge_actions(
+        &mut self,
+        program: &Program,
+        judged: &[ActionId],
+        partial: bool,
+        stamp: u64,
+        now: u64,
+    ) -> (Vec<(ActionId, bool, bool)>, Vec<VarId>) {
         // (action, Q before, Q now), in action order.
         let mut changes: Vec<(ActionId, bool, bool)> = Vec::with_capacity(judged.len());
         // Boolean actions an active R association resets this cycle: their variable reads FALSE, on or not before.
         let mut reset_vars = Vec::new();
-        for &a in &judged {
+        for &a in judged {
             if partial && self.touched[a.index()] != stamp {
                 continue;
             }
@@ -156,6 +178,17 @@ impl Engine {
             }
             changes.push((a, before, q));
         }
+        (changes, reset_vars)
+    }
+
+    /// Tells the changes of Q, sets the Boolean actions' variables, and runs the bodies that run this cycle.
+    fn run_actions(
+        &mut self,
+        program: &Program,
+        mut changes: Vec<(ActionId, bool, bool)>,
+        reset_vars: Vec<VarId>,
+        partial: bool,
+    ) {
         for &(a, before, q) in &changes {
             if q && !before {
                 self.push(EventKind::ActionOn(a));
@@ -200,6 +233,5 @@ impl Engine {
                 self.push(EventKind::Fault(FaultSource::Action(a), fault));
             }
         }
-        self.judged = judged;
     }
 }
