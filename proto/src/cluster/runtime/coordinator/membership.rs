@@ -121,10 +121,29 @@ impl Coordinator {
         }
         // Said once the agent is live, before anything is sent to it.
         self.check_skills_of(&name);
-        // This agent's paused tokens (it was lost) and unconfirmed ones (this coordinator restarted): if it is the
-        // same process and holds the token, it keeps it and sends its unacknowledged reports now; if it lacks
-        // it, the dispatch goes again in the same epoch; if it restarted, the segment's progress died with the
-        // old process and it runs again from its first step, in a new epoch.
+        let sync = self.settle_tokens_of(&name, &info, recovering);
+        if sync {
+            self.send(name.clone(), ToAgent::Sync { run: self.run });
+        }
+        // An agent that connects bound variables takes part in the run from the start, tokens or not.
+        if (!was_alive || restarted) && self.layout.io.iter().any(|b| b.agent == name) {
+            let msg = self.join_msg(&name);
+            self.send(name.clone(), msg);
+        }
+        // Back after an abort it could not be told of: it is told now.
+        self.tell_of_end(&name);
+        self.drop_stale_of(&name, &info);
+        self.dispatch_waiting();
+        self.settle();
+    }
+
+    /// The tokens of agent `name` that were paused (it was lost) or unconfirmed (this coordinator restarted), now
+    /// that it announced itself (`info`): if it is the same process and holds the token, it keeps it and sends its
+    /// unacknowledged reports now; if it lacks it, the dispatch goes again in the same epoch; if it restarted, the
+    /// segment's progress died with the old process and it runs again from its first step, in a new epoch.
+    /// Whether the agent is to be asked for its reports and values (`ToAgent::Sync`).
+    fn settle_tokens_of(&mut self, name: &str, info: &AgentInfo, recovering: bool) -> bool {
+        let name = name.to_string();
         let mut settle: Vec<TokenId> = self
             .tokens
             .iter()
@@ -176,34 +195,33 @@ impl Coordinator {
                 self.send_token(id, TraceEvent::Resume);
             }
         }
-        if sync {
-            self.send(name.clone(), ToAgent::Sync { run });
-        }
-        // An agent that connects bound variables takes part in the run from the start, tokens or not.
-        if (!was_alive || restarted) && self.layout.io.iter().any(|b| b.agent == name) {
-            let msg = self.join_msg(&name);
-            self.send(name.clone(), msg);
-        }
-        // Back after an abort it could not be told of: it is told now.
-        self.tell_of_end(&name);
-        // What the agent still holds of an older epoch (its segment moved on while it was away) or of a token
-        // that is over: it must not run it a moment longer.
+        sync
+    }
+
+    /// What agent `name` still holds (`info`) of an older epoch (its segment moved on while it was away) or of a
+    /// token that is over: it must not run it a moment longer.
+    fn drop_stale_of(&mut self, name: &str, info: &AgentInfo) {
+        let run = self.run;
         let mut stale: Vec<(TokenId, u32)> = info
             .held
             .iter()
             .filter(|h| h.run == run)
             .filter(|h| match self.tokens.get(&h.token) {
-                Some(t) => t.epoch != h.epoch || t.agent.as_deref() != Some(name.as_str()),
+                Some(t) => t.epoch != h.epoch || t.agent.as_deref() != Some(name),
                 None => {
-                    !self.finished.get(&h.token).is_some_and(|(epoch, _, agent)| *epoch == h.epoch && *agent == name)
+                    !self.finished.get(&h.token).is_some_and(|(epoch, _, agent)| *epoch == h.epoch && agent == name)
                 }
             })
             .map(|h| (h.token, h.epoch))
             .collect();
         stale.sort_unstable();
         for (token, epoch) in stale {
-            self.send(name.clone(), ToAgent::Drop { run, token, epoch });
+            self.send(name.to_string(), ToAgent::Drop { run, token, epoch });
         }
+    }
+
+    /// The tokens that waited for an agent go to one now, if one can take them.
+    fn dispatch_waiting(&mut self) {
         let waiting = std::mem::take(&mut self.waiting);
         for id in waiting {
             let Some(tok) = self.tokens.get(&id) else { continue };
@@ -215,7 +233,6 @@ impl Coordinator {
                 None => self.waiting.push(id),
             }
         }
-        self.settle();
     }
 
     /// More than one process answered to agent `name` (a copied service file, an old process that lingers):
