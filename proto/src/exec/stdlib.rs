@@ -62,80 +62,7 @@ pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
     let now = env.now_ms();
     let mut m = Instance { base: base.0, env };
     match fb {
-        StdFb::Ton | StdFb::Tof | StdFb::Tp => {
-            const IN: u32 = 0;
-            const PT: u32 = 1;
-            const Q: u32 = 2;
-            const ET: u32 = 3;
-            const STATE: u32 = 5;
-            const PREV: u32 = 6;
-            const START: u32 = 7;
-            let input = m.bool(IN);
-            let pt = m.int(PT).max(0);
-            let prev = m.bool(PREV);
-            let mut state = m.int(STATE);
-            // A running timer: ET counts from START; once it reaches PT the timer is DONE, Q takes `q_done` and
-            // ET stays at PT. (A TON's Q is FALSE while it runs, a TOF's and a TP's TRUE.)
-            let run = |m: &mut Instance<'_, _>, q_done: bool| {
-                let et = now - m.int(START);
-                if et >= pt {
-                    m.set_bool(Q, q_done);
-                    m.set_time(ET, pt);
-                    DONE
-                } else {
-                    m.set_time(ET, et);
-                    RUNNING
-                }
-            };
-            match fb {
-                StdFb::Ton => {
-                    if !input {
-                        state = IDLE;
-                        m.set_bool(Q, false);
-                        m.set_time(ET, 0);
-                    } else {
-                        if !prev && state == IDLE {
-                            state = RUNNING;
-                            m.set_time(START, now);
-                        }
-                        if state == RUNNING {
-                            state = run(&mut m, true);
-                        }
-                    }
-                }
-                StdFb::Tof => {
-                    if input {
-                        state = IDLE;
-                        m.set_bool(Q, true);
-                        m.set_time(ET, 0);
-                    } else {
-                        if prev && state == IDLE {
-                            state = RUNNING;
-                            m.set_time(START, now);
-                        }
-                        if state == RUNNING {
-                            state = run(&mut m, false);
-                        }
-                    }
-                }
-                _ => {
-                    if state == IDLE && input && !prev {
-                        state = RUNNING;
-                        m.set_bool(Q, true);
-                        m.set_time(START, now);
-                    }
-                    if state == RUNNING {
-                        state = run(&mut m, false);
-                    }
-                    if state == DONE && !input {
-                        state = IDLE;
-                        m.set_time(ET, 0);
-                    }
-                }
-            }
-            m.set_int(STATE, state);
-            m.set_bool(PREV, input);
-        }
+        StdFb::Ton | StdFb::Tof | StdFb::Tp => timer(fb, now, &mut m),
         StdFb::RTrig => {
             let clk = m.bool(0);
             let q = clk && !m.bool(3);
@@ -178,29 +105,7 @@ pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
             m.set_int(4, cv);
             m.set_bool(3, cv <= 0);
         }
-        StdFb::Ctud(k) => {
-            let (cu, cd) = (m.bool(0), m.bool(1));
-            let cu_rising = cu && !m.bool(9);
-            let cd_rising = cd && !m.bool(10);
-            m.set_bool(9, cu);
-            m.set_bool(10, cd);
-            let mut cv = m.int(7);
-            if m.bool(2) {
-                cv = 0;
-            } else if m.bool(3) {
-                cv = m.int(4);
-            } else if !(cu_rising && cd_rising) {
-                if cu_rising && cv < k.max_value() {
-                    cv += 1;
-                } else if cd_rising && cv > 0 {
-                    cv -= 1;
-                }
-            }
-            m.set_int(7, cv);
-            let qu = cv >= m.int(4);
-            m.set_bool(5, qu);
-            m.set_bool(6, cv <= 0);
-        }
+        StdFb::Ctud(k) => up_down_counter(k, &mut m),
         StdFb::Sr => {
             let q = m.bool(0) || (!m.bool(1) && m.bool(2));
             m.set_bool(2, q);
@@ -210,6 +115,107 @@ pub fn run_fb(fb: StdFb, base: VarId, env: &mut impl EnvMut) {
             m.set_bool(2, q);
         }
     }
+}
+
+/// TON, TOF and TP, on their members as `types::library` lays them out (IN, PT, Q, ET, then the state kept).
+fn timer<E: EnvMut>(fb: StdFb, now: i64, m: &mut Instance<'_, E>) {
+    const IN: u32 = 0;
+    const PT: u32 = 1;
+    const Q: u32 = 2;
+    const ET: u32 = 3;
+    const STATE: u32 = 5;
+    const PREV: u32 = 6;
+    const START: u32 = 7;
+    let input = m.bool(IN);
+    let pt = m.int(PT).max(0);
+    let prev = m.bool(PREV);
+    let mut state = m.int(STATE);
+    // A running timer: ET counts from START; once it reaches PT the timer is DONE, Q takes `q_done` and
+    // ET stays at PT. (A TON's Q is FALSE while it runs, a TOF's and a TP's TRUE.)
+    let run = |m: &mut Instance<'_, E>, q_done: bool| {
+        let et = now - m.int(START);
+        if et >= pt {
+            m.set_bool(Q, q_done);
+            m.set_time(ET, pt);
+            DONE
+        } else {
+            m.set_time(ET, et);
+            RUNNING
+        }
+    };
+    match fb {
+        StdFb::Ton => {
+            if !input {
+                state = IDLE;
+                m.set_bool(Q, false);
+                m.set_time(ET, 0);
+            } else {
+                if !prev && state == IDLE {
+                    state = RUNNING;
+                    m.set_time(START, now);
+                }
+                if state == RUNNING {
+                    state = run(m, true);
+                }
+            }
+        }
+        StdFb::Tof => {
+            if input {
+                state = IDLE;
+                m.set_bool(Q, true);
+                m.set_time(ET, 0);
+            } else {
+                if prev && state == IDLE {
+                    state = RUNNING;
+                    m.set_time(START, now);
+                }
+                if state == RUNNING {
+                    state = run(m, false);
+                }
+            }
+        }
+        _ => {
+            if state == IDLE && input && !prev {
+                state = RUNNING;
+                m.set_bool(Q, true);
+                m.set_time(START, now);
+            }
+            if state == RUNNING {
+                state = run(m, false);
+            }
+            if state == DONE && !input {
+                state = IDLE;
+                m.set_time(ET, 0);
+            }
+        }
+    }
+    m.set_int(STATE, state);
+    m.set_bool(PREV, input);
+}
+
+/// CTUD, on its members as `types::library` lays them out (the inputs, QU, QD, CV, then the previous CU and CD).
+fn up_down_counter<E: EnvMut>(k: IntKind, m: &mut Instance<'_, E>) {
+    let (cu, cd) = (m.bool(0), m.bool(1));
+    let cu_rising = cu && !m.bool(9);
+    let cd_rising = cd && !m.bool(10);
+    m.set_bool(9, cu);
+    m.set_bool(10, cd);
+    let mut cv = m.int(7);
+    if m.bool(2) {
+        cv = 0;
+    } else if m.bool(3) {
+        cv = m.int(4);
+    } else if !(cu_rising && cd_rising) {
+        if cu_rising && cv < k.max_value() {
+            cv += 1;
+        } else if cd_rising && cv > 0 {
+            cv -= 1;
+        }
+    }
+    m.set_int(7, cv);
+    let qu = cv >= m.int(4);
+    m.set_bool(5, qu);
+    m.set_bool(6, cv <= 0);
 }
 
 const DAY_MS: i64 = 86_400_000;
