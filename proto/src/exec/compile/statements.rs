@@ -25,62 +25,7 @@ impl<'a> Compiler<'a> {
 
     pub(super) fn statement(&mut self, stmt: &Stmt, vars: &[VarInfo]) -> Option<CStmt> {
         Some(match stmt {
-            Stmt::Assign { target, value, .. } => {
-                let plain = self.unqualified(target);
-                let target = plain.as_ref().unwrap_or(target);
-                let (mut cvalue, mut vty) = self.expr(value, vars);
-                let indexed = match &target.kind {
-                    ExprKind::Index(name, indices) => Some((name, self.element(name, indices, vars))),
-                    ExprKind::IndexField(name, indices, field) => {
-                        Some((name, self.element_field(name, indices, field, vars)))
-                    }
-                    _ => None,
-                };
-                if let Some((name, element)) = indexed {
-                    let (element, ety) = element?;
-                    if !assignable(ety, vty) {
-                        self.error(
-                            value.span,
-                            format!(
-                                "cannot assign {} to an element of `{}`, which holds {}",
-                                vty.name(),
-                                name.name,
-                                ety.name()
-                            ),
-                        );
-                        return None;
-                    }
-                    let base = self.arrays.get(&name.key()).map(|a| a.base.index());
-                    if base.and_then(|b| vars.get(b)).is_some_and(|v| v.constant) {
-                        self.error(target.span, format!("`{}` is a CONSTANT and cannot be assigned", name.name));
-                        return None;
-                    }
-                    return Some(match element {
-                        CExpr::Var(var) => CStmt::Assign { var, value: cvalue },
-                        CExpr::Index(ix) => CStmt::AssignIndex { target: ix, value: cvalue },
-                        _ => return None,
-                    });
-                }
-                let id = self.place(target, vars)?;
-                let var = &vars[id.index()];
-                // IEC 61131-3 writes BOOL literals as 0 and 1 too (`ORANGE_LIGHT := 1;` in Beremiz's examples).
-                if Ty::of(&var.ty) == Ty::Bool {
-                    if let ExprKind::Int(v @ (0 | 1)) = value.kind {
-                        (cvalue, vty) = (CExpr::Const(Value::Bool(v == 1)), Ty::Bool);
-                    }
-                }
-                if !assignable(Ty::of(&var.ty), vty) {
-                    let message = format!("cannot assign {} to `{}`, which is {}", vty.name(), var.name, var.ty);
-                    self.error(value.span, message);
-                    return None;
-                }
-                if let Some(r) = self.ranges.get(&id).cloned() {
-                    if let (true, Ok(v)) = (is_constant(&cvalue), eval(&cvalue, &NoEnv)) {
-                        self.check_range(value.span, &v, &r);
-                    }
-                }
-                CStmt::Assign { var: id, value: cvalue }
-            }
+            Stmt::Assign { target, value, .. } => return self.assign(target, value, vars),
             Stmt::If { branches, otherwise, .. } => {
                 let mut cbranches = Vec::with_capacity(branches.len());
                 for (cond, stmts) in branches {
@@ -172,6 +117,62 @@ impl<'a> Compiler<'a> {
             }
             Stmt::Return { .. } => CStmt::Return,
         })
+    }
+
+    /// `target := value;`: to a variable, an array's element or a structure's field, of a type it takes.
+    fn assign(&mut self, target: &Expr, value: &Expr, vars: &[VarInfo]) -> Option<CStmt> {
+        let plain = self.unqualified(target);
+        let target = plain.as_ref().unwrap_or(target);
+        let (mut cvalue, mut vty) = self.expr(value, vars);
+        let indexed = match &target.kind {
+            ExprKind::Index(name, indices) => Some((name, self.element(name, indices, vars))),
+            ExprKind::IndexField(name, indices, field) => Some((name, self.element_field(name, indices, field, vars))),
+            _ => None,
+        };
+        if let Some((name, element)) = indexed {
+            let (element, ety) = element?;
+            if !assignable(ety, vty) {
+                self.error(
+                    value.span,
+                    format!(
+                        "cannot assign {} to an element of `{}`, which holds {}",
+                        vty.name(),
+                        name.name,
+                        ety.name()
+                    ),
+                );
+                return None;
+            }
+            let base = self.arrays.get(&name.key()).map(|a| a.base.index());
+            if base.and_then(|b| vars.get(b)).is_some_and(|v| v.constant) {
+                self.error(target.span, format!("`{}` is a CONSTANT and cannot be assigned", name.name));
+                return None;
+            }
+            return Some(match element {
+                CExpr::Var(var) => CStmt::Assign { var, value: cvalue },
+                CExpr::Index(ix) => CStmt::AssignIndex { target: ix, value: cvalue },
+                _ => return None,
+            });
+        }
+        let id = self.place(target, vars)?;
+        let var = &vars[id.index()];
+        // IEC 61131-3 writes BOOL literals as 0 and 1 too (`ORANGE_LIGHT := 1;` in Beremiz's examples).
+        if Ty::of(&var.ty) == Ty::Bool {
+            if let ExprKind::Int(v @ (0 | 1)) = value.kind {
+                (cvalue, vty) = (CExpr::Const(Value::Bool(v == 1)), Ty::Bool);
+            }
+        }
+        if !assignable(Ty::of(&var.ty), vty) {
+            let message = format!("cannot assign {} to `{}`, which is {}", vty.name(), var.name, var.ty);
+            self.error(value.span, message);
+            return None;
+        }
+        if let Some(r) = self.ranges.get(&id).cloned() {
+            if let (true, Ok(v)) = (is_constant(&cvalue), eval(&cvalue, &NoEnv)) {
+                self.check_range(value.span, &v, &r);
+            }
+        }
+        Some(CStmt::Assign { var: id, value: cvalue })
     }
 
     pub(super) fn loop_body(&mut self, body: &[Stmt], vars: &[VarInfo]) -> Vec<CStmt> {
