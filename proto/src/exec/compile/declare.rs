@@ -122,105 +122,7 @@ impl<'a> Compiler<'a> {
         let mut scope = Scope::default();
         let mut params = Vec::new();
         for d in &def.vars {
-            let inner = format!("{path}.{}", d.name.name);
-            if let Some(fb) = StdFb::from_name(&d.type_name.key()) {
-                let base = VarId(vars.len() as u32);
-                for m in fb.members() {
-                    let id = VarId(vars.len() as u32);
-                    if m.kind != MemberKind::State {
-                        scope.vars.insert(format!("{}.{}", d.name.key(), m.name), id);
-                    }
-                    vars.push(VarInfo {
-                        name: format!("{inner}.{}", m.name),
-                        init: m.ty.default_value(),
-                        ty: m.ty,
-                        constant: false,
-                        section: VarSection::Local,
-                        hidden: true,
-                    });
-                }
-                for (name, value) in &d.members {
-                    match fb
-                        .members()
-                        .iter()
-                        .position(|m| m.kind == MemberKind::Input && m.name.eq_ignore_ascii_case(&name.name))
-                    {
-                        Some(i) => {
-                            let ty = vars[base.index() + i].ty.clone();
-                            vars[base.index() + i].init = self.initial_value(value, &ty);
-                        }
-                        None => self.error(name.span, format!("{} has no input `{}`", fb.name(), name.name)),
-                    }
-                }
-                scope.instances.insert(d.name.key(), (fb, base));
-                continue;
-            }
-            if let Some(&inner_def) = self.library.get(&d.type_name.key()).filter(|d| d.returns.is_none()) {
-                if let Some(u) = self.declare_user(d, inner_def, &inner, vars) {
-                    self.user_inits(u, d, vars);
-                    for (name, &id) in &self.users[u].scope.vars {
-                        scope.vars.insert(format!("{}.{name}", d.name.key()), id);
-                    }
-                    scope.vars.insert(format!("{}.ENO", d.name.key()), self.users[u].eno);
-                    scope.users.insert(d.name.key(), u);
-                }
-                continue;
-            }
-            if d.section == VarSection::External {
-                // Resolved to the chart's variable of that name when the body is compiled.
-                continue;
-            }
-            let visible = matches!(d.section, VarSection::Input | VarSection::Output | VarSection::InOut);
-            let structure = match self.types.get(&d.type_name.key()).copied().map(|t| &t.kind) {
-                Some(TypeKind::Struct(fields)) => Some(fields),
-                _ => None,
-            };
-            if let Some(fields) = structure {
-                if visible {
-                    let message = format!(
-                        "`{}` of function block `{}` is a structure parameter, which Baton does not support yet: \
-                         declare it in VAR",
-                        d.name.name, def.name.name
-                    );
-                    self.error(d.name.span, message);
-                    continue;
-                }
-                // Declared in the instance's scope: its fields are `d.f` there.
-                self.in_scope(&mut scope, |c| c.declare_struct(d, fields, &inner, true, vars));
-                continue;
-            }
-            if let Some(spec) = self.array_spec_of(d) {
-                if visible {
-                    let message = format!(
-                        "`{}` of function block `{}` is an array parameter, which Baton does not support yet: \
-                         declare it in VAR",
-                        d.name.name, def.name.name
-                    );
-                    self.error(d.name.span, message);
-                } else {
-                    // In the instance's scope, where the fields of structure elements are named too.
-                    self.in_scope(&mut scope, |c| {
-                        if let Some(info) = c.array_elements((&inner, &d.name.name), &spec, Storage::of(d, true), vars)
-                        {
-                            c.arrays.insert(d.name.key(), info);
-                        }
-                    });
-                }
-                continue;
-            }
-            let ty = self.resolve_type(&d.type_name);
-            let init = match &d.init {
-                Some(e) => self.initial_value(e, &ty),
-                None => self.default_of(&ty),
-            };
-            let id = VarId(vars.len() as u32);
-            scope.vars.insert(d.name.key(), id);
-            if visible {
-                params.push((d.name.name.clone(), d.section, id));
-            }
-            // A device signal (`%I*`) is seen as the parameters are: a test sets it, a trace shows it.
-            let hidden = !visible && d.address.is_none();
-            vars.push(VarInfo { name: inner, ty, init, constant: d.constant, section: d.section, hidden });
+            self.declare_member(def, d, path, &mut scope, &mut params, vars);
         }
         // Its actions written in SFC: their state, this instance's own.
         let charts: Vec<(&'a Ident, &'a Sfc)> =
@@ -242,6 +144,117 @@ impl<'a> Compiler<'a> {
         self.declaring.pop();
         self.users.push(UserInstance { def, params, eno, scope, body: Arc::new(Vec::new()), actions: HashMap::new() });
         Some(self.users.len() - 1)
+    }
+
+    /// Declaration `d` of user block `def`, in the instance at `path`: a standard block's members, a nested user
+    /// instance, a structure's or an array's elements, or a variable (a parameter where `d` is one).
+    fn declare_member(
+        &mut self,
+        def: &'a FbDef,
+        d: &'a VarDecl,
+        path: &str,
+        scope: &mut Scope,
+        params: &mut Vec<(String, VarSection, VarId)>,
+        vars: &mut Vec<VarInfo>,
+    ) {
+        let inner = format!("{path}.{}", d.name.name);
+        if let Some(fb) = StdFb::from_name(&d.type_name.key()) {
+            let base = VarId(vars.len() as u32);
+            for m in fb.members() {
+                let id = VarId(vars.len() as u32);
+                if m.kind != MemberKind::State {
+                    scope.vars.insert(format!("{}.{}", d.name.key(), m.name), id);
+                }
+                vars.push(VarInfo {
+                    name: format!("{inner}.{}", m.name),
+                    init: m.ty.default_value(),
+                    ty: m.ty,
+                    constant: false,
+                    section: VarSection::Local,
+                    hidden: true,
+                });
+            }
+            for (name, value) in &d.members {
+                match fb
+                    .members()
+                    .iter()
+                    .position(|m| m.kind == MemberKind::Input && m.name.eq_ignore_ascii_case(&name.name))
+                {
+                    Some(i) => {
+                        let ty = vars[base.index() + i].ty.clone();
+                        vars[base.index() + i].init = self.initial_value(value, &ty);
+                    }
+                    None => self.error(name.span, format!("{} has no input `{}`", fb.name(), name.name)),
+                }
+            }
+            scope.instances.insert(d.name.key(), (fb, base));
+            return;
+        }
+        if let Some(&inner_def) = self.library.get(&d.type_name.key()).filter(|d| d.returns.is_none()) {
+            if let Some(u) = self.declare_user(d, inner_def, &inner, vars) {
+                self.user_inits(u, d, vars);
+                for (name, &id) in &self.users[u].scope.vars {
+                    scope.vars.insert(format!("{}.{name}", d.name.key()), id);
+                }
+                scope.vars.insert(format!("{}.ENO", d.name.key()), self.users[u].eno);
+                scope.users.insert(d.name.key(), u);
+            }
+            return;
+        }
+        if d.section == VarSection::External {
+            // Resolved to the chart's variable of that name when the body is compiled.
+            return;
+        }
+        let visible = matches!(d.section, VarSection::Input | VarSection::Output | VarSection::InOut);
+        let structure = match self.types.get(&d.type_name.key()).copied().map(|t| &t.kind) {
+            Some(TypeKind::Struct(fields)) => Some(fields),
+            _ => None,
+        };
+        if let Some(fields) = structure {
+            if visible {
+                let message = format!(
+                    "`{}` of function block `{}` is a structure parameter, which Baton does not support yet: \
+                     declare it in VAR",
+                    d.name.name, def.name.name
+                );
+                self.error(d.name.span, message);
+                return;
+            }
+            // Declared in the instance's scope: its fields are `d.f` there.
+            self.in_scope(scope, |c| c.declare_struct(d, fields, &inner, true, vars));
+            return;
+        }
+        if let Some(spec) = self.array_spec_of(d) {
+            if visible {
+                let message = format!(
+                    "`{}` of function block `{}` is an array parameter, which Baton does not support yet: \
+                     declare it in VAR",
+                    d.name.name, def.name.name
+                );
+                self.error(d.name.span, message);
+            } else {
+                // In the instance's scope, where the fields of structure elements are named too.
+                self.in_scope(scope, |c| {
+                    if let Some(info) = c.array_elements((&inner, &d.name.name), &spec, Storage::of(d, true), vars) {
+                        c.arrays.insert(d.name.key(), info);
+                    }
+                });
+            }
+            return;
+        }
+        let ty = self.resolve_type(&d.type_name);
+        let init = match &d.init {
+            Some(e) => self.initial_value(e, &ty),
+            None => self.default_of(&ty),
+        };
+        let id = VarId(vars.len() as u32);
+        scope.vars.insert(d.name.key(), id);
+        if visible {
+            params.push((d.name.name.clone(), d.section, id));
+        }
+        // A device signal (`%I*`) is seen as the parameters are: a test sets it, a trace shows it.
+        let hidden = !visible && d.address.is_none();
+        vars.push(VarInfo { name: inner, ty, init, constant: d.constant, section: d.section, hidden });
     }
 
     /// Runs `f` with an instance's names (variables, structures, arrays) in place of the chart's.
