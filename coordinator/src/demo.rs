@@ -81,35 +81,9 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
     let router = zenoh::open(config).await.map_err(|e| anyhow!("cannot start the router on {endpoint}: {e}"))?;
     println!("baton demo: router on {endpoint}, {} robot(s), {} part(s)", opts.agents, opts.parts);
 
-    let mut agents: Vec<Child> = Vec::new();
-    for k in 1..=opts.agents {
-        let name = format!("robot{k}");
-        let log = std::fs::File::create(dir.join(format!("{name}.log")))?;
-        let mut cmd = Command::new(&agent_bin);
-        cmd.args(["--connect", &endpoint, "--name", &name, "--lease-ms", "2000"]);
-        // Two robots share the assembler role (one if the cell has one): the coordinator picks the less busy.
-        if k <= 2 {
-            cmd.args(["--role", "assembler"]);
-        }
-        cmd.stdout(Stdio::null()).stderr(log).kill_on_drop(true);
-        agents.push(cmd.spawn().with_context(|| format!("cannot start {}", agent_bin.display()))?);
-    }
+    let mut agents = start_robots(&agent_bin, &endpoint, dir, opts.agents)?;
     let coord_log = dir.join("coordinator.log");
-    // The coordinator runs in this folder's child process: a relative recording path is made absolute here.
-    let rerun = match &opts.rerun {
-        crate::recording::Sink::Save(p) => crate::recording::Sink::Save(std::path::absolute(p)?),
-        other => other.clone(),
-    };
-    if let crate::recording::Sink::Connect(url) = &rerun {
-        crate::recording::reachable(url.as_deref().unwrap_or(crate::recording::DEFAULT_VIEWER_URL))?;
-    }
-    let rerun_arg = match &rerun {
-        crate::recording::Sink::Off => "off".to_string(),
-        crate::recording::Sink::Save(p) => format!("save:{}", p.display()),
-        crate::recording::Sink::Connect(None) => "connect".to_string(),
-        crate::recording::Sink::Connect(Some(url)) => format!("connect:{url}"),
-        crate::recording::Sink::Spawn => "spawn".to_string(),
-    };
+    let (rerun, rerun_arg) = rerun_sink(&opts)?;
     let mut coordinator = Command::new(&exe)
         .arg("run")
         .arg(&chart)
@@ -188,6 +162,44 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The demo's robots: `count` agents on `endpoint`, the first two with the assembler role, each logging to the folder.
+fn start_robots(agent_bin: &Path, endpoint: &str, dir: &Path, count: usize) -> anyhow::Result<Vec<Child>> {
+    let mut agents: Vec<Child> = Vec::new();
+    for k in 1..=count {
+        let name = format!("robot{k}");
+        let log = std::fs::File::create(dir.join(format!("{name}.log")))?;
+        let mut cmd = Command::new(agent_bin);
+        cmd.args(["--connect", endpoint, "--name", &name, "--lease-ms", "2000"]);
+        // Two robots share the assembler role (one if the cell has one): the coordinator picks the less busy.
+        if k <= 2 {
+            cmd.args(["--role", "assembler"]);
+        }
+        cmd.stdout(Stdio::null()).stderr(log).kill_on_drop(true);
+        agents.push(cmd.spawn().with_context(|| format!("cannot start {}", agent_bin.display()))?);
+    }
+    Ok(agents)
+}
+
+/// Where the coordinator records the run, and its `--rerun` argument.
+fn rerun_sink(opts: &DemoOptions) -> anyhow::Result<(crate::recording::Sink, String)> {
+    // The coordinator runs in this folder's child process: a relative recording path is made absolute here.
+    let rerun = match &opts.rerun {
+        crate::recording::Sink::Save(p) => crate::recording::Sink::Save(std::path::absolute(p)?),
+        other => other.clone(),
+    };
+    if let crate::recording::Sink::Connect(url) = &rerun {
+        crate::recording::reachable(url.as_deref().unwrap_or(crate::recording::DEFAULT_VIEWER_URL))?;
+    }
+    let rerun_arg = match &rerun {
+        crate::recording::Sink::Off => "off".to_string(),
+        crate::recording::Sink::Save(p) => format!("save:{}", p.display()),
+        crate::recording::Sink::Connect(None) => "connect".to_string(),
+        crate::recording::Sink::Connect(Some(url)) => format!("connect:{url}"),
+        crate::recording::Sink::Spawn => "spawn".to_string(),
+    };
+    Ok((rerun, rerun_arg))
 }
 
 /// Follows the trace file as the coordinator writes it.
