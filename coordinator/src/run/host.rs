@@ -253,7 +253,7 @@ pub(crate) enum Wake {
 }
 
 /// Who a `set` or `ctl` query's key says sent it; why it names nobody, if not.
-pub(crate) fn request_sender(q: &Query) -> Result<&str, String> {
+fn request_sender(q: &Query) -> Result<&str, String> {
     keys::sender_of_request(q.key_expr().as_str()).ok_or_else(|| {
         format!("the request on {} names no sender: ask on baton/run/<run>/ctl/<your name>", q.key_expr())
     })
@@ -268,6 +268,60 @@ pub(crate) fn reply(q: &Query, key: String, payload: Vec<u8>) {
 }
 
 impl Host {
+    /// `baton set`: taken only from a sender the key names, answered on the run's own key with that name.
+    pub(crate) fn on_set_query(&mut self, q: Query, run: RunId) {
+        // Taken only from a sender the key names, answered on the run's own key with that name.
+        match request_sender(&q).map(str::to_string) {
+            Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&self.set_refused(why))),
+            Ok(sender) if self.replies_full() => {
+                let answer = wire::encode(&self.set_refused(self.busy()));
+                reply(&q, keys::set(run, &sender), answer);
+            }
+            Ok(sender) => {
+                let answer = wire::encode(&self.on_set(&q, &sender));
+                self.answer(q, keys::set(run, &sender), answer);
+            }
+        }
+    }
+
+    /// `baton ctl`: taken only from a sender the key names, answered on the run's own key with that name.
+    pub(crate) fn on_ctl_query(&mut self, q: Query, run: RunId) {
+        match request_sender(&q).map(str::to_string) {
+            Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&self.ctl_reply(Err(why)))),
+            Ok(sender) if self.replies_full() => {
+                let answer = wire::encode(&self.ctl_reply(Err(self.busy())));
+                reply(&q, keys::ctl(run, &sender), answer);
+            }
+            Ok(sender) => {
+                let answer = wire::encode(&self.on_ctl(&q, &sender));
+                self.answer(q, keys::ctl(run, &sender), answer);
+            }
+        }
+    }
+
+    /// After a `reset`, the chart starts again as a new run, journaled: its id, for the inboxes of its own the
+    /// main loop declares.
+    pub(crate) fn new_run_if_reset(&mut self) -> anyhow::Result<Option<RunId>> {
+        Ok(if self.core.core().wants_new_run() {
+            // `reset`: the chart starts again as a new run, journaled, with inboxes of its own.
+            let next = RunId(uuid::Uuid::new_v4());
+            let now = self.now_ms();
+            self.core.new_run(now, next);
+            self.commit(Vec::new())?;
+            self.vars_key = keys::vars(next, baton_proto::cluster::runtime::COORDINATOR);
+            if !self.quiet {
+                eprintln!(
+                    "baton: reset: chart `{}` starts again as run {} (after `baton ctl start`)",
+                    self.core.core().program().name,
+                    next.key()
+                );
+            }
+            Some(next)
+        } else {
+            None
+        })
+    }
+
     pub(crate) fn now_ms(&self) -> u64 {
         self.base_ms + self.started.elapsed().as_millis() as u64
     }

@@ -30,7 +30,7 @@ use tokio::sync::mpsc;
 
 use crate::chart_file::{load, Loaded};
 
-use host::{releasing, reply, request_sender, Callbacks, Host, Identity, Inboxes, Wake};
+use host::{releasing, reply, Callbacks, Host, Identity, Inboxes, Wake};
 use resume::{check_resumable, end_of, resume_segments, trace_lines, unix_ms};
 
 pub use records::{Probe, Records};
@@ -482,31 +482,8 @@ async fn serve(
                     status.t_ms = host.now_ms();
                     reply(&q, keys::status(run), wire::encode(&status))
                 }
-                Wake::Set(q) => {
-                    // Taken only from a sender the key names, answered on the run's own key with that name.
-                    match request_sender(&q).map(str::to_string) {
-                        Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&host.set_refused(why))),
-                        Ok(sender) if host.replies_full() => {
-                            let answer = wire::encode(&host.set_refused(host.busy()));
-                            reply(&q, keys::set(run, &sender), answer);
-                        }
-                        Ok(sender) => {
-                            let answer = wire::encode(&host.on_set(&q, &sender));
-                            host.answer(q, keys::set(run, &sender), answer);
-                        }
-                    }
-                }
-                Wake::Ctl(q) => match request_sender(&q).map(str::to_string) {
-                    Err(why) => reply(&q, q.key_expr().to_string(), wire::encode(&host.ctl_reply(Err(why)))),
-                    Ok(sender) if host.replies_full() => {
-                        let answer = wire::encode(&host.ctl_reply(Err(host.busy())));
-                        reply(&q, keys::ctl(run, &sender), answer);
-                    }
-                    Ok(sender) => {
-                        let answer = wire::encode(&host.on_ctl(&q, &sender));
-                        host.answer(q, keys::ctl(run, &sender), answer);
-                    }
-                },
+                Wake::Set(q) => host.on_set_query(q, run),
+                Wake::Ctl(q) => host.on_ctl_query(q, run),
                 Wake::Timer | Wake::Look => {}
                 Wake::Stop(baton_host::Signal::Terminate) if host.journal.is_some() => {
                     if !host.quiet {
@@ -525,24 +502,7 @@ async fn serve(
                 Wake::Closed => return Ok(Ended::Closed),
             }
             host.commit(Vec::new())?;
-            let reset = if host.core.core().wants_new_run() {
-                // `reset`: the chart starts again as a new run, journaled, with inboxes of its own.
-                let next = RunId(uuid::Uuid::new_v4());
-                let now = host.now_ms();
-                host.core.new_run(now, next);
-                host.commit(Vec::new())?;
-                host.vars_key = keys::vars(next, baton_proto::cluster::runtime::COORDINATOR);
-                if !host.quiet {
-                    eprintln!(
-                        "baton: reset: chart `{}` starts again as run {} (after `baton ctl start`)",
-                        host.core.core().program().name,
-                        next.key()
-                    );
-                }
-                Some(next)
-            } else {
-                None
-            };
+            let reset = host.new_run_if_reset()?;
             (reset, next_wake(&mut host, &mut tell_until, abort_wait_ms)?)
         };
         if let Some(next) = reset {
