@@ -5,7 +5,9 @@
 //! EXIT and RETURN are control flow (`Flow`), not faults.
 
 pub use crate::exec::env::{Env, EnvMut, Fault, NoEnv};
-use crate::exec::program::{ArithOp, CExpr, CStmt, CmpOp, DurationSrc, LogicOp, NestedChart, NestedStep, VarId};
+use crate::exec::program::{
+    ArithOp, CExpr, CStmt, CmpOp, DurationSrc, LogicOp, NestedChart, NestedStep, UserCall, VarId,
+};
 use crate::exec::stdlib;
 use crate::front::model::Qualifier;
 use crate::limits::LOOP_ITERATIONS_MAX;
@@ -298,62 +300,13 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
                 copy_outputs(outputs, env);
                 Flow::Next
             }
-            CStmt::UserFb(call) => {
-                for (member, value) in &call.inputs {
-                    let v = eval(value, env)?;
-                    env.set_var(*member, v);
-                }
-                for &(member, caller) in &call.inouts {
-                    let v = env.var(caller);
-                    env.set_var(member, v);
-                }
-                let enabled = match &call.en {
-                    Some(e) => eval(e, env)?.as_bool(),
-                    None => true,
-                };
-                if enabled {
-                    // A call costs from the same budget as a loop's pass: blocks that each call the next twice
-                    // would otherwise run 2^depth bodies in one scan.
-                    *budget = budget.checked_sub(1).ok_or(Fault::CallLimit)?;
-                    // RETURN ends the block's body, not the caller's.
-                    exec(&call.body, env, budget)?;
-                }
-                env.set_var(call.eno, Value::Bool(enabled));
-                for &(member, caller) in &call.inouts {
-                    let v = env.var(member);
-                    env.set_var(caller, v);
-                }
-                copy_outputs(&call.outputs, env);
-                Flow::Next
-            }
+            CStmt::UserFb(call) => call_user(call, env, budget)?,
             CStmt::Case { selector, arms, otherwise } => {
                 let k = eval(selector, env)?.as_i64();
                 let arm = arms.iter().find(|(labels, _)| labels.iter().any(|&(lo, hi)| lo <= k && k <= hi));
                 exec(arm.map_or(otherwise, |(_, b)| b), env, budget)?
             }
-            CStmt::For { var, from, to, by, body } => {
-                let start = eval(from, env)?;
-                env.set_var(*var, start);
-                let (to, by) = (eval(to, env)?.as_i64(), eval(by, env)?.as_i64());
-                loop {
-                    let i = env.var(*var).as_i64();
-                    let go_on = if by >= 0 { i <= to } else { i >= to };
-                    if !go_on {
-                        break Flow::Next;
-                    }
-                    tick(budget)?;
-                    if let Some(end) = iteration(body, env, budget)? {
-                        break end;
-                    }
-                    let i = env.var(*var).as_i64();
-                    // A step that would overflow the variable's type ends the loop, as the bound was reached.
-                    let Some(next) = i.checked_add(by) else { break Flow::Next };
-                    env.set_var(*var, Value::Int(next));
-                    if env.var(*var).as_i64() != next {
-                        break Flow::Next;
-                    }
-                }
-            }
+            CStmt::For { var, from, to, by, body } => for_loop(*var, (from, to, by), body, env, budget)?,
             CStmt::While { pre, condition, body } => loop {
                 exec(pre, env, budget)?;
                 if !eval(condition, env)?.as_bool() {
@@ -386,6 +339,68 @@ fn exec(body: &[CStmt], env: &mut impl EnvMut, budget: &mut usize) -> Result<Flo
         }
     }
     Ok(Flow::Next)
+}
+
+/// A user block's call: its inputs and in-outs in, its body run (from the same budget as a loop's pass), ENO,
+/// the in-outs and the outputs back.
+fn call_user(call: &UserCall, env: &mut impl EnvMut, budget: &mut usize) -> Result<Flow, Fault> {
+    for (member, value) in &call.inputs {
+        let v = eval(value, env)?;
+        env.set_var(*member, v);
+    }
+    for &(member, caller) in &call.inouts {
+        let v = env.var(caller);
+        env.set_var(member, v);
+    }
+    let enabled = match &call.en {
+        Some(e) => eval(e, env)?.as_bool(),
+        None => true,
+    };
+    if enabled {
+        // A call costs from the same budget as a loop's pass: blocks that each call the next twice
+        // would otherwise run 2^depth bodies in one scan.
+        *budget = budget.checked_sub(1).ok_or(Fault::CallLimit)?;
+        // RETURN ends the block's body, not the caller's.
+        exec(&call.body, env, budget)?;
+    }
+    env.set_var(call.eno, Value::Bool(enabled));
+    for &(member, caller) in &call.inouts {
+        let v = env.var(member);
+        env.set_var(caller, v);
+    }
+    copy_outputs(&call.outputs, env);
+    Ok(Flow::Next)
+}
+
+/// `FOR var := from TO to BY by DO body END_FOR`.
+fn for_loop(
+    var: VarId,
+    (from, to, by): (&CExpr, &CExpr, &CExpr),
+    body: &[CStmt],
+    env: &mut impl EnvMut,
+    budget: &mut usize,
+) -> Result<Flow, Fault> {
+    let start = eval(from, env)?;
+    env.set_var(var, start);
+    let (to, by) = (eval(to, env)?.as_i64(), eval(by, env)?.as_i64());
+    Ok(loop {
+        let i = env.var(var).as_i64();
+        let go_on = if by >= 0 { i <= to } else { i >= to };
+        if !go_on {
+            break Flow::Next;
+        }
+        tick(budget)?;
+        if let Some(end) = iteration(body, env, budget)? {
+            break end;
+        }
+        let i = env.var(var).as_i64();
+        // A step that would overflow the variable's type ends the loop, as the bound was reached.
+        let Some(next) = i.checked_add(by) else { break Flow::Next };
+        env.set_var(var, Value::Int(next));
+        if env.var(var).as_i64() != next {
+            break Flow::Next;
+        }
+    })
 }
 
 /// A qualifier's duration in milliseconds: a literal, or a TIME variable's value (a negative one as 0).
