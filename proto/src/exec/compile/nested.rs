@@ -342,6 +342,35 @@ impl<'a> Compiler<'a> {
         }
         // Clearing order: explicit priorities first, lower number first, then declaration order.
         transitions.sort_by_key(|(rank, _)| *rank);
+        let controlled = self.nested_actions(name, sfc, vars, targets);
+        // CODESYS's SFC flags, where the POU declares them as BOOLs and the chart uses them.
+        let flags = sfc
+            .flags
+            .unwrap_or(SfcFlags { init: self.vars.contains_key("SFCINIT"), reset: self.vars.contains_key("SFCRESET") });
+        let flag = |c: &Self, used: bool, key: &str| {
+            c.vars.get(key).copied().filter(|v| used && vars.get(v.index()).is_some_and(|v| v.ty == Type::Bool))
+        };
+        Some(NestedChart {
+            started,
+            q: None,
+            init: flag(self, flags.init, "SFCINIT"),
+            reset: flag(self, flags.reset, "SFCRESET"),
+            steps,
+            transitions: transitions.into_iter().map(|(_, t)| t).collect(),
+            actions: controlled,
+        })
+    }
+
+    /// The actions a nested chart's steps control, with their associations, checked (SD, DS and SL, indicators
+    /// and the chart's own action refused).
+    fn nested_actions(
+        &mut self,
+        name: &Ident,
+        sfc: &Sfc,
+        vars: &[VarInfo],
+        targets: &mut Targets,
+    ) -> Vec<NestedAction> {
+        let parent = name.key();
         let mut controlled: Vec<NestedAction> = Vec::new();
         let mut of_action: HashMap<String, usize> = HashMap::new();
         for (si, s) in sfc.steps.iter().enumerate() {
@@ -400,21 +429,6 @@ impl<'a> Compiler<'a> {
             };
             a.final_run = !a.associations.iter().all(step_action);
         }
-        // CODESYS's SFC flags, where the POU declares them as BOOLs and the chart uses them.
-        let flags = sfc
-            .flags
-            .unwrap_or(SfcFlags { init: self.vars.contains_key("SFCINIT"), reset: self.vars.contains_key("SFCRESET") });
-        let flag = |c: &Self, used: bool, key: &str| {
-            c.vars.get(key).copied().filter(|v| used && vars.get(v.index()).is_some_and(|v| v.ty == Type::Bool))
-        };
-        Some(NestedChart {
-            started,
-            q: None,
-            init: flag(self, flags.init, "SFCINIT"),
-            reset: flag(self, flags.reset, "SFCRESET"),
-            steps,
-            transitions: transitions.into_iter().map(|(_, t)| t).collect(),
-            actions: controlled,
-        })
+        controlled
     }
 }
