@@ -255,28 +255,7 @@ impl<'a> Compiler<'a> {
             };
         }
         if let Some(&u) = self.user_of.get(&base.key()).filter(|_| !step_field) {
-            return match self.vars.get(&format!("{}.{}", base.key(), field.key())) {
-                Some(&id) => match vars.get(id.index()) {
-                    Some(v) => (CExpr::Var(id), Ty::of(&v.ty)),
-                    None => {
-                        self.error(base.span, format!("`{}` is an instance, and a constant is needed here", base.name));
-                        (FALSE, Ty::Err)
-                    }
-                },
-                None => {
-                    let def = self.users[u].def;
-                    let names: Vec<String> = self.users[u].params.iter().map(|p| p.0.clone()).collect();
-                    let message = format!(
-                        "function block `{}` has no parameter `{}`: `{}` has {} and ENO",
-                        def.name.name,
-                        field.name,
-                        base.name,
-                        names.join(", ")
-                    );
-                    self.error(field.span, message);
-                    (FALSE, Ty::Err)
-                }
-            };
+            return self.user_member(u, base, field, vars);
         }
         if let Some(&(fb, inst)) = self.instances.get(&base.key()).filter(|_| !step_field) {
             return match self.member(fb, inst, base, field) {
@@ -345,6 +324,32 @@ impl<'a> Compiler<'a> {
                 let message = format!(
                     "unknown field `.{}`: a step has `.X`, `.T` and `.overrun`, an action has `.Q`, a function block instance its outputs",
                     field.name
+                );
+                self.error(field.span, message);
+                (FALSE, Ty::Err)
+            }
+        }
+    }
+
+    /// `m.NAME` of user block instance `u`: a parameter (or ENO) it has.
+    fn user_member(&mut self, u: usize, base: &Ident, field: &Ident, vars: &[VarInfo]) -> (CExpr, Ty) {
+        match self.vars.get(&format!("{}.{}", base.key(), field.key())) {
+            Some(&id) => match vars.get(id.index()) {
+                Some(v) => (CExpr::Var(id), Ty::of(&v.ty)),
+                None => {
+                    self.error(base.span, format!("`{}` is an instance, and a constant is needed here", base.name));
+                    (FALSE, Ty::Err)
+                }
+            },
+            None => {
+                let def = self.users[u].def;
+                let names: Vec<String> = self.users[u].params.iter().map(|p| p.0.clone()).collect();
+                let message = format!(
+                    "function block `{}` has no parameter `{}`: `{}` has {} and ENO",
+                    def.name.name,
+                    field.name,
+                    base.name,
+                    names.join(", ")
                 );
                 self.error(field.span, message);
                 (FALSE, Ty::Err)
