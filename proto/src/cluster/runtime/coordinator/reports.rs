@@ -3,6 +3,9 @@
 
 use std::sync::Arc;
 
+use crate::cluster::layout::{Placement, SegmentId};
+use crate::exec::program::Program;
+
 use crate::cluster::runtime::Level;
 use crate::cluster::wire::{AckEntry, AgentEventKind, Report, ToAgent};
 use crate::exec::engine::RemoteInput;
@@ -199,103 +202,7 @@ impl Coordinator {
             // what the coordinator already recorded and never after now.
             let t_ms = dispatched_ms.saturating_add(ev.dt_ms).clamp(floor, self.now_ms.max(floor));
             floor = t_ms;
-            // Which run of its segment it happened in: a test can tell a segment run twice in one epoch.
-            let rec = |event: TraceEvent, name: &str, message: Option<String>| {
-                let mut rec = TraceRecord::new(t_ms, event, name);
-                rec.agent = Some(r.agent.clone());
-                rec.token = Some(r.token.to_string());
-                rec.epoch = Some(epoch);
-                rec.message = message;
-                rec
-            };
-            match &ev.kind {
-                AgentEventKind::Fire { transition } => {
-                    let t = TransitionId(*transition);
-                    let ok = (*transition as usize) < program.transitions.len()
-                        && self.layout.agent_judges(&program, t) == Some(segment);
-                    if !ok {
-                        self.drop_msg(format!(
-                            "`{}` reported transition {transition}, which is not its to clear",
-                            r.agent
-                        ));
-                        continue;
-                    }
-                    if let Err(e) = self.engine.handle_remote(t_ms, RemoteInput::Fire(t)) {
-                        self.drop_msg(format!("`{}` reported a clearing this coordinator cannot mirror: {e}", r.agent));
-                        continue;
-                    }
-                    self.drain_engine();
-                }
-                AgentEventKind::ActionOn { action } | AgentEventKind::ActionOff { action } => {
-                    let Some(info) = program.actions.get(*action as usize) else {
-                        self.drop_msg(format!("`{}` reported unknown action {action}", r.agent));
-                        continue;
-                    };
-                    if self.layout.action_placement[*action as usize] != placement {
-                        self.drop_msg(format!(
-                            "`{}` reported action `{}`, which does not run there",
-                            r.agent, info.name
-                        ));
-                        continue;
-                    }
-                    let on = matches!(ev.kind, AgentEventKind::ActionOn { .. });
-                    let rec = rec(if on { TraceEvent::ActionOn } else { TraceEvent::ActionOff }, &info.name, None);
-                    self.trace(rec);
-                }
-                AgentEventKind::SkillDone { action } => {
-                    let Some(info) = program.actions.get(*action as usize) else { continue };
-                    let rec = rec(TraceEvent::SkillDone, &info.name, None);
-                    self.trace(rec);
-                }
-                AgentEventKind::SkillFault { action, message } => {
-                    let Some(info) = program.actions.get(*action as usize) else { continue };
-                    let rec = rec(TraceEvent::SkillFault, &info.name, Some(message.clone()));
-                    self.trace(rec);
-                    let text = format!("skill of action `{}` on `{}` failed: {message}", info.name, r.agent);
-                    // A fault the chart reads (the association's second indicator) is the chart's to handle, as
-                    // the cell's rework loop does; one it cannot see needs a person.
-                    if self.chart_reads_fault(*action) {
-                        self.log(Level::Warn, text);
-                    } else {
-                        self.event_alarm(t_ms, &r.agent, text);
-                    }
-                }
-                AgentEventKind::Overrun { step, .. } | AgentEventKind::OverrunAcknowledged { step } => {
-                    let s = StepId(*step);
-                    if !self.layout.segments[segment.index()].steps.contains(&s) {
-                        self.drop_msg(format!("`{}` reported step {step}, which is not of its segment", r.agent));
-                        continue;
-                    }
-                    if let AgentEventKind::Overrun { why, .. } = &ev.kind {
-                        let why: String = why.chars().take(crate::limits::ALARM_TEXT_CHARS_MAX).collect();
-                        self.on_overrun(t_ms, s, Some((r.token, epoch)), Some(&r.agent), &why);
-                    } else {
-                        self.overrun_acknowledged(r.token, s);
-                    }
-                }
-                AgentEventKind::Gated { seq } => self.gated(r.token, *seq),
-                AgentEventKind::Waiting { transition, waiting } => {
-                    let t = TransitionId(*transition);
-                    if self.layout.agent_judges(&program, t) != Some(segment) {
-                        self.drop_msg(format!("`{}` reported transition {transition}, which is not its", r.agent));
-                        continue;
-                    }
-                    if *waiting {
-                        self.agent_waiting.insert(t);
-                    } else {
-                        self.agent_waiting.remove(&t);
-                    }
-                }
-                AgentEventKind::Held | AgentEventKind::Released => {
-                    let held = matches!(ev.kind, AgentEventKind::Held);
-                    self.hold_confirmed(r.token, held);
-                }
-                AgentEventKind::Fault { message } => {
-                    let rec = rec(TraceEvent::Fault, &program.name, Some(message.clone()));
-                    self.trace(rec);
-                    self.event_alarm(t_ms, &r.agent, format!("run-time fault on `{}`: {message}", r.agent));
-                }
-            }
+            self.apply_event(&r, &ev.kind, t_ms, (segment, epoch), &placement, &program);
         }
         let agent = r.agent.clone();
         self.ack(agent.clone(), AckEntry { token: r.token, epoch, seq: r.seq, done: r.done });
@@ -307,6 +214,110 @@ impl Coordinator {
         }
         if r.done {
             self.finish(r.token, epoch, r.seq, agent);
+        }
+    }
+
+    /// One event of report `r`, at `t_ms` on this clock, of the token's `segment` in `epoch` (whose steps run at
+    /// `placement`): mirrored in the engine, traced, or refused as not the agent's to report.
+    fn apply_event(
+        &mut self,
+        r: &Report,
+        kind: &AgentEventKind,
+        t_ms: u64,
+        (segment, epoch): (SegmentId, u32),
+        placement: &Placement,
+        program: &Program,
+    ) {
+        // Which run of its segment it happened in: a test can tell a segment run twice in one epoch.
+        let rec = |event: TraceEvent, name: &str, message: Option<String>| {
+            let mut rec = TraceRecord::new(t_ms, event, name);
+            rec.agent = Some(r.agent.clone());
+            rec.token = Some(r.token.to_string());
+            rec.epoch = Some(epoch);
+            rec.message = message;
+            rec
+        };
+        match kind {
+            AgentEventKind::Fire { transition } => {
+                let t = TransitionId(*transition);
+                let ok = (*transition as usize) < program.transitions.len()
+                    && self.layout.agent_judges(program, t) == Some(segment);
+                if !ok {
+                    self.drop_msg(format!("`{}` reported transition {transition}, which is not its to clear", r.agent));
+                    return;
+                }
+                if let Err(e) = self.engine.handle_remote(t_ms, RemoteInput::Fire(t)) {
+                    self.drop_msg(format!("`{}` reported a clearing this coordinator cannot mirror: {e}", r.agent));
+                    return;
+                }
+                self.drain_engine();
+            }
+            AgentEventKind::ActionOn { action } | AgentEventKind::ActionOff { action } => {
+                let Some(info) = program.actions.get(*action as usize) else {
+                    self.drop_msg(format!("`{}` reported unknown action {action}", r.agent));
+                    return;
+                };
+                if self.layout.action_placement[*action as usize] != *placement {
+                    self.drop_msg(format!("`{}` reported action `{}`, which does not run there", r.agent, info.name));
+                    return;
+                }
+                let on = matches!(kind, AgentEventKind::ActionOn { .. });
+                let rec = rec(if on { TraceEvent::ActionOn } else { TraceEvent::ActionOff }, &info.name, None);
+                self.trace(rec);
+            }
+            AgentEventKind::SkillDone { action } => {
+                let Some(info) = program.actions.get(*action as usize) else { return };
+                let rec = rec(TraceEvent::SkillDone, &info.name, None);
+                self.trace(rec);
+            }
+            AgentEventKind::SkillFault { action, message } => {
+                let Some(info) = program.actions.get(*action as usize) else { return };
+                let rec = rec(TraceEvent::SkillFault, &info.name, Some(message.clone()));
+                self.trace(rec);
+                let text = format!("skill of action `{}` on `{}` failed: {message}", info.name, r.agent);
+                // A fault the chart reads (the association's second indicator) is the chart's to handle, as
+                // the cell's rework loop does; one it cannot see needs a person.
+                if self.chart_reads_fault(*action) {
+                    self.log(Level::Warn, text);
+                } else {
+                    self.event_alarm(t_ms, &r.agent, text);
+                }
+            }
+            AgentEventKind::Overrun { step, .. } | AgentEventKind::OverrunAcknowledged { step } => {
+                let s = StepId(*step);
+                if !self.layout.segments[segment.index()].steps.contains(&s) {
+                    self.drop_msg(format!("`{}` reported step {step}, which is not of its segment", r.agent));
+                    return;
+                }
+                if let AgentEventKind::Overrun { why, .. } = kind {
+                    let why: String = why.chars().take(crate::limits::ALARM_TEXT_CHARS_MAX).collect();
+                    self.on_overrun(t_ms, s, Some((r.token, epoch)), Some(&r.agent), &why);
+                } else {
+                    self.overrun_acknowledged(r.token, s);
+                }
+            }
+            AgentEventKind::Gated { seq } => self.gated(r.token, *seq),
+            AgentEventKind::Waiting { transition, waiting } => {
+                let t = TransitionId(*transition);
+                if self.layout.agent_judges(program, t) != Some(segment) {
+                    self.drop_msg(format!("`{}` reported transition {transition}, which is not its", r.agent));
+                    return;
+                }
+                if *waiting {
+                    self.agent_waiting.insert(t);
+                } else {
+                    self.agent_waiting.remove(&t);
+                }
+            }
+            AgentEventKind::Held | AgentEventKind::Released => {
+                let held = matches!(kind, AgentEventKind::Held);
+                self.hold_confirmed(r.token, held);
+            }
+            AgentEventKind::Fault { message } => {
+                let rec = rec(TraceEvent::Fault, &program.name, Some(message.clone()));
+                self.trace(rec);
+                self.event_alarm(t_ms, &r.agent, format!("run-time fault on `{}`: {message}", r.agent));
+            }
         }
     }
 
