@@ -94,6 +94,62 @@ async fn rogue_joins(endpoint: &str, dir: &Path, pki: &Path) -> RogueSession {
     (Some((s, token)), Some(heard))
 }
 
+/// While robot1 works, the rogue's session `s` tries every forgery on robot1's keys and the coordinator's:
+/// a report, updates, a device report and garbage put, a set and an abort asked. Returns how many of its queries
+/// were answered.
+async fn forge(s: &zenoh::Session, cluster: &Cluster, anna: &str) -> usize {
+    let mut answers = 0;
+    // While robot1 works: every forgery, on robot1's keys and the coordinator's.
+    let status = cluster.baton(&["status", "--connect", &cluster.endpoint, "--zenoh-config", anna, "--json"]).await;
+    let status: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&status.stdout).lines().next().unwrap_or("null")).expect("json");
+    let run: RunId = serde_json::from_value(status["run"].clone()).expect("the run's id");
+    let report = Report {
+        run,
+        agent: "robot1".into(),
+        incarnation: uuid::Uuid::from_u128(1),
+        token: TokenId(uuid::Uuid::from_u128(2)),
+        epoch: 1,
+        seq: 1,
+        events: Vec::new(),
+        vars: Vec::new(),
+        vars_seq: 0,
+        done: true,
+    };
+    let update = |from: &str| VarUpdate {
+        run,
+        from: from.into(),
+        incarnation: uuid::Uuid::from_u128(1),
+        seq: 99,
+        vars: Vec::new(),
+    };
+    let device =
+        DeviceReport { run, agent: "robot1".into(), incarnation: uuid::Uuid::from_u128(1), seq: 9, down: Vec::new() };
+    for (key, payload) in [
+        (keys::report(run, "robot1"), wire::encode(&report)),
+        (keys::vars(run, "robot1"), wire::encode(&update("robot1"))),
+        (keys::vars(run, "coordinator"), wire::encode(&update("coordinator"))),
+        (keys::devices(run, "robot1"), wire::encode(&device)),
+        (keys::report(run, "robot1"), b"garbage".to_vec()),
+    ] {
+        s.put(key, payload).await.expect("a put is accepted locally");
+    }
+    let set = SetRequest { name: "go".into(), value: serde_json::json!(false), by: "robot1".into() };
+    let abort =
+        CtlRequest { command: "abort".into(), reason: "rogue".into(), by: "robot1".into(), ..Default::default() };
+    for (key, payload) in
+        [(keys::set(run, "robot1"), wire::encode(&set)), (keys::ctl(run, "robot1"), wire::encode(&abort))]
+    {
+        let replies = s.get(key).payload(payload).timeout(Duration::from_secs(2)).await.expect("a query goes out");
+        while let Ok(r) = replies.recv_async().await {
+            if r.result().is_ok() {
+                answers += 1;
+            }
+        }
+    }
+    answers
+}
+
 /// Runs the cell: with `acl`, the router enforces the generated rules (else it is plain TLS, everyone let in);
 /// with `rogue`, a process with robot2's certificate tries every forgery while robot1 works. Returns the trace,
 /// the summary and what the rogue got.
@@ -168,60 +224,7 @@ async fn cell(
     let set = cluster.baton(&["set", "--connect", &cluster.endpoint, "--zenoh-config", anna, "go=true"]).await;
     assert!(set.status.success(), "the operator sets: {}", String::from_utf8_lossy(&set.stderr));
     if let Some((s, _)) = &rogue_session {
-        // While robot1 works: every forgery, on robot1's keys and the coordinator's.
-        let status = cluster.baton(&["status", "--connect", &cluster.endpoint, "--zenoh-config", anna, "--json"]).await;
-        let status: serde_json::Value =
-            serde_json::from_str(String::from_utf8_lossy(&status.stdout).lines().next().unwrap_or("null"))
-                .expect("json");
-        let run: RunId = serde_json::from_value(status["run"].clone()).expect("the run's id");
-        let report = Report {
-            run,
-            agent: "robot1".into(),
-            incarnation: uuid::Uuid::from_u128(1),
-            token: TokenId(uuid::Uuid::from_u128(2)),
-            epoch: 1,
-            seq: 1,
-            events: Vec::new(),
-            vars: Vec::new(),
-            vars_seq: 0,
-            done: true,
-        };
-        let update = |from: &str| VarUpdate {
-            run,
-            from: from.into(),
-            incarnation: uuid::Uuid::from_u128(1),
-            seq: 99,
-            vars: Vec::new(),
-        };
-        let device = DeviceReport {
-            run,
-            agent: "robot1".into(),
-            incarnation: uuid::Uuid::from_u128(1),
-            seq: 9,
-            down: Vec::new(),
-        };
-        for (key, payload) in [
-            (keys::report(run, "robot1"), wire::encode(&report)),
-            (keys::vars(run, "robot1"), wire::encode(&update("robot1"))),
-            (keys::vars(run, "coordinator"), wire::encode(&update("coordinator"))),
-            (keys::devices(run, "robot1"), wire::encode(&device)),
-            (keys::report(run, "robot1"), b"garbage".to_vec()),
-        ] {
-            s.put(key, payload).await.expect("a put is accepted locally");
-        }
-        let set = SetRequest { name: "go".into(), value: serde_json::json!(false), by: "robot1".into() };
-        let abort =
-            CtlRequest { command: "abort".into(), reason: "rogue".into(), by: "robot1".into(), ..Default::default() };
-        for (key, payload) in
-            [(keys::set(run, "robot1"), wire::encode(&set)), (keys::ctl(run, "robot1"), wire::encode(&abort))]
-        {
-            let replies = s.get(key).payload(payload).timeout(Duration::from_secs(2)).await.expect("a query goes out");
-            while let Ok(r) = replies.recv_async().await {
-                if r.result().is_ok() {
-                    got.answers += 1;
-                }
-            }
-        }
+        got.answers = forge(s, &cluster, anna).await;
     }
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.code().is_some(), "{log}");

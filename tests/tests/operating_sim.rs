@@ -639,6 +639,78 @@ fn random_commands_on_a_cell_that_stays_keep_every_promise_across_resets() {
     assert!(new_runs >= seeds as usize, "{new_runs} resets in {seeds} seeds: the plan should reset most runs");
 }
 
+/// A command, and what an operator does next: confirmations follow step mode, a force follows manual mode.
+type Cmd = (&'static str, Option<&'static str>, Option<&'static str>);
+const MENU: [&[Cmd]; 9] = [
+    &[("hold", None, None)],
+    &[("unhold", None, None)],
+    &[("suspend", None, None), ("unsuspend", None, None)],
+    &[("hold", None, Some("robot1"))],
+    &[("unhold", None, Some("robot1"))],
+    &[
+        ("mode", Some("step"), None),
+        ("confirm", Some("Pick1->Picked1"), None),
+        ("confirm", Some("Pick2->Picked2"), None),
+        ("confirm", None, None),
+    ],
+    &[("mode", Some("manual"), None), ("force", Some("Pick1->Picked1"), None), ("force", Some("Pick2->Picked2"), None)],
+    &[("force", Some("(Picked1,Picked2)->Assemble"), None)],
+    &[("mode", Some("auto"), None)],
+];
+
+/// The commands (from `MENU`), the robot's restart and the coordinator's crash a seed's run gets, scheduled on
+/// `sim`; the plan, as text for a failure's message.
+fn random_plan(sim: &mut SimCluster, rng: &mut baton_proto::testing::simulated_cluster::Rng, seed: u64) -> String {
+    let mut plan = Vec::new();
+    let mut t = 0;
+    for _ in 0..8 {
+        t += 150 + rng.next_u64() % 700;
+        for &(command, target, agent) in MENU[(rng.next_u64() % MENU.len() as u64) as usize] {
+            let request =
+                CtlRequest { target: target.map(str::to_string), agent: agent.map(str::to_string), ..ctl(command) };
+            plan.push(format!("{t} {command} {target:?} {agent:?}"));
+            sim.command_at(t, request);
+            t += 100 + rng.next_u64() % 500;
+        }
+    }
+    // Then the cell is let go on, again and again (a hold takes a motion's time to be held).
+    for k in 0..6 {
+        let at = t + 400 + k * 900;
+        for (command, target, agent) in [
+            ("unhold", None, None),
+            ("unsuspend", None, None),
+            ("unhold", None, Some("robot1")),
+            ("mode", Some("auto"), None),
+        ] {
+            sim.command_at(
+                at,
+                CtlRequest { target: target.map(str::to_string), agent: agent.map(str::to_string), ..ctl(command) },
+            );
+        }
+    }
+    let end = match seed % 5 {
+        0 => Some("stop"),
+        1 => Some("abort"),
+        _ => None,
+    };
+    if let Some(e) = end {
+        let at = 300 + rng.next_u64() % 3_000;
+        plan.push(format!("{at} {e}"));
+        sim.command_at(at, ctl(e));
+    }
+    if seed.is_multiple_of(3) {
+        let at = 200 + rng.next_u64() % 4_000;
+        plan.push(format!("{at} restart robot2"));
+        sim.fate_at(at, "robot2", Fate::Restart);
+    }
+    if seed % 4 == 1 {
+        let at = 300 + rng.next_u64() % 4_000;
+        plan.push(format!("{at} coordinator crash"));
+        sim.crash_coordinator_at(at, 400);
+    }
+    plan.join("\n")
+}
+
 /// Operators' commands at random moments — hold, unhold, suspend, partial holds, modes, confirmations, a stop or
 /// an abort — on a network that loses, duplicates and reorders, with a robot restarted and the coordinator crashed:
 /// no skill starts while its branch is held, no segment runs twice in an epoch, every token is accounted for, the
@@ -651,83 +723,14 @@ fn random_commands_on_a_faulty_cell_keep_every_promise() {
         .expect("examples/cell.st");
     let agents: &[(&str, &[&str])] = &[("robot1", &["assembler"]), ("robot2", &["assembler"])];
     let seeds: u64 = std::env::var("BATON_SIM_SEEDS").ok().and_then(|s| s.parse().ok()).unwrap_or(24);
-    // A command, and what an operator does next: confirmations follow step mode, a force follows manual mode.
-    type Cmd = (&'static str, Option<&'static str>, Option<&'static str>);
-    let menu: [&[Cmd]; 9] = [
-        &[("hold", None, None)],
-        &[("unhold", None, None)],
-        &[("suspend", None, None), ("unsuspend", None, None)],
-        &[("hold", None, Some("robot1"))],
-        &[("unhold", None, Some("robot1"))],
-        &[
-            ("mode", Some("step"), None),
-            ("confirm", Some("Pick1->Picked1"), None),
-            ("confirm", Some("Pick2->Picked2"), None),
-            ("confirm", None, None),
-        ],
-        &[
-            ("mode", Some("manual"), None),
-            ("force", Some("Pick1->Picked1"), None),
-            ("force", Some("Pick2->Picked2"), None),
-        ],
-        &[("force", Some("(Picked1,Picked2)->Assemble"), None)],
-        &[("mode", Some("auto"), None)],
-    ];
     // What the seeds exercised, together: each kind of command must have had its effect in some run.
     let mut seen = std::collections::BTreeSet::new();
     for seed in 0..seeds {
         let mut rng = Rng::new(seed, 0x5851_F42D_4C95_7F2D);
         let faults = Faults { duplicate: 0.1, reorder: true, delay_ms_max: 5, loss: 0.03 };
         let mut sim = SimCluster::new(&cell, agents, faults, seed);
-        let mut plan = Vec::new();
-        let mut t = 0;
-        for _ in 0..8 {
-            t += 150 + rng.next_u64() % 700;
-            for &(command, target, agent) in menu[(rng.next_u64() % menu.len() as u64) as usize] {
-                let request =
-                    CtlRequest { target: target.map(str::to_string), agent: agent.map(str::to_string), ..ctl(command) };
-                plan.push(format!("{t} {command} {target:?} {agent:?}"));
-                sim.command_at(t, request);
-                t += 100 + rng.next_u64() % 500;
-            }
-        }
-        // Then the cell is let go on, again and again (a hold takes a motion's time to be held).
-        for k in 0..6 {
-            let at = t + 400 + k * 900;
-            for (command, target, agent) in [
-                ("unhold", None, None),
-                ("unsuspend", None, None),
-                ("unhold", None, Some("robot1")),
-                ("mode", Some("auto"), None),
-            ] {
-                sim.command_at(
-                    at,
-                    CtlRequest { target: target.map(str::to_string), agent: agent.map(str::to_string), ..ctl(command) },
-                );
-            }
-        }
-        let end = match seed % 5 {
-            0 => Some("stop"),
-            1 => Some("abort"),
-            _ => None,
-        };
-        if let Some(e) = end {
-            let at = 300 + rng.next_u64() % 3_000;
-            plan.push(format!("{at} {e}"));
-            sim.command_at(at, ctl(e));
-        }
-        if seed % 3 == 0 {
-            let at = 200 + rng.next_u64() % 4_000;
-            plan.push(format!("{at} restart robot2"));
-            sim.fate_at(at, "robot2", Fate::Restart);
-        }
-        if seed % 4 == 1 {
-            let at = 300 + rng.next_u64() % 4_000;
-            plan.push(format!("{at} coordinator crash"));
-            sim.crash_coordinator_at(at, 400);
-        }
+        let plan = random_plan(&mut sim, &mut rng, seed);
         let finished = sim.run(120_000);
-        let plan = plan.join("\n");
         assert!(
             finished,
             "seed {seed}: the cell did not end\n{plan}\n{:#?}",
