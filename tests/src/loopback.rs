@@ -7,7 +7,7 @@ use std::process::{ExitStatus, Stdio};
 use std::time::Duration;
 
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
-use tokio::io::{AsyncBufReadExt, BufReader, Lines};
+use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, ChildStderr, Command};
 
 /// Long enough for a debug build on a loaded 2-core CI machine; a healthy test finishes far earlier.
@@ -96,9 +96,44 @@ pub struct Cluster {
 /// A coordinator process, with its stderr readable line by line.
 pub struct Coordinator {
     pub child: Child,
-    pub stderr: Lines<BufReader<ChildStderr>>,
+    /// Its log, read as it comes by a task of its own (so that a coordinator never waits on a full pipe), and
+    /// how far the waits have read it.
+    log: Log,
+    read: usize,
     pub trace: PathBuf,
     pub summary: PathBuf,
+    /// The trace's records when the process started: a resumed run's trace holds its earlier ones.
+    trace_before: usize,
+}
+
+/// A child's log lines as they come, and a wake-up for each.
+#[derive(Clone, Default)]
+struct Log {
+    lines: std::sync::Arc<std::sync::Mutex<Vec<String>>>,
+    more: std::sync::Arc<tokio::sync::Notify>,
+    ended: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl Log {
+    /// Reads `stderr` to its end in a task of its own.
+    fn follow(stderr: ChildStderr) -> Log {
+        let log = Log::default();
+        let out = log.clone();
+        tokio::spawn(async move {
+            let mut lines = BufReader::new(stderr).lines();
+            while let Ok(Some(line)) = lines.next_line().await {
+                out.lines.lock().expect("log").push(line);
+                out.more.notify_waiters();
+            }
+            out.ended.store(true, std::sync::atomic::Ordering::SeqCst);
+            out.more.notify_waiters();
+        });
+        log
+    }
+
+    fn since(&self, from: usize) -> Vec<String> {
+        self.lines.lock().expect("log").get(from..).map(<[String]>::to_vec).unwrap_or_default()
+    }
 }
 
 impl Default for Cluster {
@@ -202,19 +237,26 @@ impl Cluster {
         std::fs::read_to_string(self.dir.path().join(format!("{name}.log"))).unwrap_or_default()
     }
 
-    /// The agent's log once it holds `needle` (the file is read again every 20 ms, under the timeout).
+    /// The agent's log once it holds `needle`, read again each time the file system says its folder changed.
     pub async fn wait_for_agent_log(&self, name: &str, needle: &str) -> String {
+        let changed = watch(self.dir.path());
         let found = tokio::time::timeout(TIMEOUT, async {
+            let mut changed = changed;
             loop {
                 let log = self.agent_log(name);
                 if log.contains(needle) {
                     return log;
                 }
-                tokio::time::sleep(Duration::from_millis(20)).await;
+                if changed.1.recv().await.is_none() {
+                    return self.agent_log(name);
+                }
             }
         })
         .await;
-        found.unwrap_or_else(|_| panic!("agent `{name}` never logged `{needle}`; it logged:\n{}", self.agent_log(name)))
+        found
+            .ok()
+            .filter(|log| log.contains(needle))
+            .unwrap_or_else(|| panic!("agent `{name}` never logged `{needle}`; it logged:\n{}", self.agent_log(name)))
     }
 
     /// Starts `baton run CHART --listen EP --trace … --summary …` (the coordinator embeds the router).
@@ -247,7 +289,7 @@ impl Cluster {
     fn start_coordinator_as(&self, name: &str, chart: &Path, how: &str, extra: &[&str]) -> Coordinator {
         let trace = self.dir.path().join(format!("trace{name}.jsonl"));
         let summary = self.dir.path().join(format!("summary{name}.json"));
-        let mut child = Command::new(bin("baton"))
+        let child = Command::new(bin("baton"))
             .arg("run")
             .arg(chart)
             .args([how, &self.endpoint])
@@ -261,8 +303,7 @@ impl Cluster {
             .kill_on_drop(true)
             .spawn()
             .expect("start baton run");
-        let stderr = BufReader::new(child.stderr.take().expect("stderr")).lines();
-        Coordinator { child, stderr, trace, summary }
+        Coordinator::following(child, trace, summary)
     }
 
     /// Runs `baton ARGS…` to completion, under the timeout.
@@ -273,53 +314,109 @@ impl Cluster {
 }
 
 impl Coordinator {
+    /// A coordinator started with its log piped (`stderr`), its trace written to `trace` and its summary to
+    /// `summary`.
+    pub fn following(mut child: Child, trace: PathBuf, summary: PathBuf) -> Coordinator {
+        let log = Log::follow(child.stderr.take().expect("the coordinator's log is piped"));
+        let trace_before = read_trace(&trace).len();
+        Coordinator { child, log, read: 0, trace, summary, trace_before }
+    }
+
     /// SIGKILLs the coordinator and waits for it to be gone.
     pub async fn kill(mut self) {
         self.child.start_kill().expect("kill the coordinator");
         tokio::time::timeout(TIMEOUT, self.child.wait()).await.expect("coordinator died in time").expect("wait");
     }
 
-    /// Reads the coordinator's log until a line containing `needle`; returns the lines read.
+    /// Reads the coordinator's log until a line containing `needle`; returns the lines read. (For what a test
+    /// checks the log itself for; to wait for something the run did, `wait_for_trace`.)
     pub async fn wait_for_log(&mut self, needle: &str) -> Vec<String> {
-        let mut seen = Vec::new();
+        let start = self.read;
         let found = tokio::time::timeout(TIMEOUT, async {
-            while let Ok(Some(line)) = self.stderr.next_line().await {
-                let hit = line.contains(needle);
-                seen.push(line);
-                if hit {
+            loop {
+                let more = self.log.more.notified();
+                let lines = self.log.since(self.read);
+                if let Some(k) = lines.iter().position(|l| l.contains(needle)) {
+                    self.read += k + 1;
                     return true;
                 }
+                self.read += lines.len();
+                if self.log.ended.load(std::sync::atomic::Ordering::SeqCst) {
+                    return false;
+                }
+                more.await;
             }
-            false
         })
         .await;
+        let seen: Vec<String> = self.log.lines.lock().expect("log")[start..self.read].to_vec();
         assert!(matches!(found, Ok(true)), "the coordinator never logged `{needle}`; it logged:\n{}", seen.join("\n"));
         seen
     }
 
-    /// What the coordinator logged that nobody read yet, for a failure message (reads for at most a second).
+    /// What the coordinator logged that no wait read yet, for a failure message.
     pub async fn unread_log(&mut self) -> String {
-        let mut lines = Vec::new();
-        let _ = tokio::time::timeout(Duration::from_secs(1), async {
-            while let Ok(Some(line)) = self.stderr.next_line().await {
-                lines.push(line);
+        let lines = self.log.since(self.read);
+        self.read += lines.len();
+        lines.join("\n")
+    }
+
+    /// Waits until this process is serving its run: its first trace record (the chart's initial steps, or the
+    /// run waiting for its start), or, resuming a run whose trace had records, its `recover` record. Returns the
+    /// trace so far.
+    pub async fn wait_ready(&mut self) -> Vec<TraceRecord> {
+        let resumed = self.trace_before > 0;
+        self.wait_for_trace("to serve its run", |r| !resumed || r.event == TraceEvent::Recover).await
+    }
+
+    /// Waits until the trace has a record this process wrote that `matches` (`what` says it, for the failure
+    /// message); returns the trace so far. Woken by the file system each time the trace changes.
+    pub async fn wait_for_trace(&mut self, what: &str, matches: impl Fn(&TraceRecord) -> bool) -> Vec<TraceRecord> {
+        let (_watcher, mut changed) = watch(self.trace.parent().expect("the trace's folder"));
+        let before = self.trace_before;
+        let found = tokio::time::timeout(TIMEOUT, async {
+            loop {
+                let trace = read_trace_so_far(&self.trace);
+                // A resumed run's trace is cut back to its snapshot and replayed: what it adds is after the
+                // records it had, or, cut shorter, any `recover` record.
+                let fresh = |i: usize, r: &TraceRecord| i >= before || r.event == TraceEvent::Recover;
+                if trace.iter().enumerate().any(|(i, r)| fresh(i, r) && matches(r)) {
+                    return Some(trace);
+                }
+                if self.log.ended.load(std::sync::atomic::Ordering::SeqCst) {
+                    return None;
+                }
+                tokio::select! {
+                    _ = changed.recv() => {}
+                    () = self.log.more.notified() => {}
+                }
             }
         })
         .await;
-        lines.join("\n")
+        match found {
+            Ok(Some(trace)) => trace,
+            _ => panic!(
+                "the coordinator's trace never showed it {what}; its trace:\n{:#?}\nits log:\n{}",
+                read_trace_so_far(&self.trace),
+                self.log.since(0).join("\n")
+            ),
+        }
     }
 
     /// Waits for the coordinator to exit, draining its log; returns its status and the whole log.
     pub async fn finish(mut self) -> (ExitStatus, String, Vec<TraceRecord>, serde_json::Value) {
-        let mut log = Vec::new();
         let done = tokio::time::timeout(TIMEOUT, async {
-            while let Ok(Some(line)) = self.stderr.next_line().await {
-                log.push(line);
+            let status = self.child.wait().await;
+            while !self.log.ended.load(std::sync::atomic::Ordering::SeqCst) {
+                let more = self.log.more.notified();
+                if self.log.ended.load(std::sync::atomic::Ordering::SeqCst) {
+                    break;
+                }
+                more.await;
             }
-            self.child.wait().await
+            status
         })
         .await;
-        let log = log.join("\n");
+        let log = self.log.since(0).join("\n");
         let status = match done {
             Ok(s) => s.expect("wait for baton run"),
             Err(_) => panic!("the coordinator did not finish within {TIMEOUT:?}; its log:\n{log}"),
@@ -331,6 +428,24 @@ impl Coordinator {
             .unwrap_or(serde_json::Value::Null);
         (status, log, trace, summary)
     }
+}
+
+/// A wake-up each time something in `dir` changes (a file written, made or removed), while the watcher lives.
+pub fn watch(dir: &Path) -> (notify::RecommendedWatcher, tokio::sync::mpsc::UnboundedReceiver<()>) {
+    let (tx, changed) = tokio::sync::mpsc::unbounded_channel();
+    let mut watcher = notify::recommended_watcher(move |_: notify::Result<notify::Event>| {
+        let _ = tx.send(());
+    })
+    .expect("a file watcher");
+    notify::Watcher::watch(&mut watcher, dir, notify::RecursiveMode::NonRecursive).expect("watch the folder");
+    (watcher, changed)
+}
+
+/// The trace's whole lines so far (a line being written is left for later).
+pub fn read_trace_so_far(path: &Path) -> Vec<TraceRecord> {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    let whole = text.rfind('\n').map_or("", |end| &text[..end]);
+    whole.lines().filter_map(|l| serde_json::from_str(l).ok()).collect()
 }
 
 pub fn read_trace(path: &Path) -> Vec<TraceRecord> {

@@ -189,7 +189,7 @@ async fn cell(
         }
         None => cluster.coordinator(&chart, &["--zenoh-config", router.to_str().expect("utf-8")]),
     };
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     let mut got = Rogue::default();
     // With access control, the rogue comes first, announcing robot1 before robot1 boots; without, after the
     // robots (else the coordinator would see robot1 twice and never run).
@@ -345,7 +345,7 @@ async fn the_user_password_example_lets_only_operators_set_and_operate() {
     )
     .expect("write the chart");
     let mut coordinator = cluster.coordinator_connecting(&chart, &["--zenoh-config", cell]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("r1", &[], &["--zenoh-config", cell]);
     cluster.wait_for_agent_log("r1", " ready on ").await;
     let ep = cluster.endpoint.clone();

@@ -60,7 +60,7 @@ async fn secured(edit: impl Fn(String) -> String) -> (Cluster, PathBuf, PathBuf,
     std::fs::write(&router, edit(text)).expect("write the rules");
     let args = ["--zenoh-config", router.to_str().expect("utf-8"), "--on-agent-loss", "reassign"];
     let mut coordinator = cluster.coordinator(&chart, &args);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     (cluster, dir, pki, coordinator)
 }
 

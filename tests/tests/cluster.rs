@@ -61,7 +61,7 @@ async fn a_selection_inside_a_segment_follows_an_input_set_at_run_time() {
     let mut cluster = Cluster::new();
     cluster.agent("r1", &[], &[]);
     let mut coordinator = cluster.coordinator(&chart("selection_segment.st"), &[]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     let ep = cluster.endpoint.clone();
 
     let status = cluster.baton(&["status", "--connect", &ep]).await;
@@ -130,7 +130,7 @@ async fn skill_indicators_drive_transitions() {
 async fn tokens_wait_for_agents_that_start_later() {
     let mut cluster = Cluster::new();
     let mut coordinator = cluster.coordinator(&chart("three_branches.st"), &[]);
-    coordinator.wait_for_log("waits: no live agent named").await;
+    coordinator.wait_for_trace("a token waiting for an agent", |r| r.event == TraceEvent::Wait).await;
     for name in ["r1", "r2", "r3"] {
         cluster.agent(name, &[], &[]);
     }
@@ -172,7 +172,7 @@ async fn echo_chaos(
 async fn duplicated_and_reordered_messages_change_nothing() {
     let mut cluster = Cluster::new();
     let mut coordinator = cluster.coordinator(&repo("examples/cell.st"), &["--set", "parts=3"]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     let session = client(&cluster.endpoint).await;
     // Declared before any agent exists, so that it sees every message of the run.
     let sub = session.declare_subscriber(keys::everything()).await.expect("chaos subscriber");
@@ -193,10 +193,10 @@ async fn duplicated_and_reordered_messages_change_nothing() {
 async fn garbage_on_batons_keys_changes_nothing() {
     let mut cluster = Cluster::new();
     let mut coordinator = cluster.coordinator(&chart("selection_segment.st"), &[]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("r1", &[], &[]);
     // The agent must be listening before the garbage goes out.
-    coordinator.wait_for_log("agent `r1` is live").await;
+    coordinator.wait_for_trace("r1 live", |r| r.event == TraceEvent::AgentUp && r.name == "r1").await;
     let session = client(&cluster.endpoint).await;
     let replies = session.get(keys::status_any_run()).timeout(TIMEOUT).await.expect("status query");
     let reply = replies.recv_async().await.expect("a status reply");
@@ -377,7 +377,7 @@ async fn agents_of_a_run_that_ended_normally_report_no_fault() {
     let mut cluster = Cluster::new();
     let chart = repo("tests/charts/one_step.st");
     let mut coordinator = cluster.coordinator(&chart, &[]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     // A short lease, so that the agent notices the router gone within a second or two.
     cluster.agent("r1", &[], &["--lease-ms", "1000"]);
     let (status, log, trace, _) = coordinator.finish().await;

@@ -32,7 +32,7 @@ async fn an_idle_run_with_a_journal_commits_only_what_changed() {
     let journal = cluster.dir.path().join("journal");
     let journal_arg = journal.to_str().expect("utf-8 path").to_string();
     let mut coordinator = cluster.coordinator(&path, &["--journal", &journal_arg, "--cycle-ms", "10"]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     let ep = cluster.endpoint.clone();
     // A second of waiting for the input, measured on the run's own clock: 100 cycles at 10 ms.
     let waited = tokio::time::timeout(TIMEOUT, async {

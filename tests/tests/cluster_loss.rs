@@ -23,7 +23,7 @@ async fn assembling_with(
     let mut cluster = Cluster::new();
     let parts = format!("parts={parts}");
     let mut coordinator = cluster.coordinator(&repo("examples/cell.st"), &["--set", &parts, "--on-agent-loss", policy]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     let session = cluster.watch().await;
     let cmds = session.declare_subscriber(keys::agent_cmd_any("*")).await.expect("subscriber");
     cluster.agent("robot1", &["assembler"], agent_args);

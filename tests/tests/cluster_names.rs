@@ -26,9 +26,9 @@ async fn a_second_agent_under_a_taken_name_is_refused_at_start() {
     )
     .expect("write the chart");
     let mut coordinator = cluster.coordinator(&chart, &[]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("r1", &[], &[]);
-    coordinator.wait_for_log("agent `r1` is live").await;
+    coordinator.wait_for_trace("r1 live", |r| r.event == TraceEvent::AgentUp && r.name == "r1").await;
     let second = Command::new(bin("baton-agent"))
         .args(["--connect", &cluster.endpoint, "--name", "r1"])
         .kill_on_drop(true)
@@ -49,7 +49,7 @@ async fn a_second_agent_under_a_taken_name_is_refused_at_start() {
 async fn two_processes_answering_to_one_name_get_nothing_until_one_is_left() {
     let mut cluster = Cluster::new();
     let mut coordinator = cluster.coordinator(&chart(), &[]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     // A process that answers as r1 besides the real one (started at the same moment, both passed the check).
     let session = cluster.watch().await;
     let impostor = session.declare_queryable(keys::agent_info("r1")).await.expect("queryable");
@@ -68,7 +68,9 @@ async fn two_processes_answering_to_one_name_get_nothing_until_one_is_left() {
         }
     });
     cluster.agent("r1", &[], &[]);
-    coordinator.wait_for_log("2 processes answer as agent `r1`").await;
+    coordinator
+        .wait_for_trace("an alarm for two processes named r1", |r| r.event == TraceEvent::Alarm && r.name == "r1")
+        .await;
     let so_far = read_trace(&coordinator.trace);
     assert!(
         events(&so_far, TraceEvent::Dispatch).is_empty(),
@@ -101,7 +103,7 @@ async fn agents_hosted_in_one_process_each_take_their_own_steps() {
     )
     .expect("write the chart");
     let mut coordinator = cluster.coordinator(&chart, &[]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("h", &[], &["--instances", "3"]);
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
@@ -118,10 +120,10 @@ async fn agents_hosted_in_one_process_each_take_their_own_steps() {
 async fn a_hosted_agent_whose_name_is_taken_stops_its_process() {
     let mut cluster = Cluster::new();
     let mut coordinator = cluster.coordinator(&chart(), &[]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     // x2 is taken; the chart needs none of the x's, so that a hosted x1 that came up first is given nothing.
     cluster.agent("x2", &[], &[]);
-    coordinator.wait_for_log("agent `x2` is live").await;
+    coordinator.wait_for_trace("x2 live", |r| r.event == TraceEvent::AgentUp && r.name == "x2").await;
     let hosted = Command::new(bin("baton-agent"))
         .args(["--connect", &cluster.endpoint, "--name", "x", "--instances", "3"])
         .kill_on_drop(true)

@@ -29,7 +29,7 @@ async fn running_cell(
     let mut cluster = Cluster::new();
     let chart = chart(cluster.dir.path());
     let mut coordinator = cluster.coordinator(&chart, args);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     let r1: Vec<&str> = ["--allow-shell"].into_iter().chain(r1_extra.iter().copied()).collect();
     cluster.agent("r1", &[], &r1);
     cluster.agent("r2", &[], &["--allow-shell"]);
@@ -279,7 +279,7 @@ async fn status_why_gathers_what_each_transition_waits_for_from_the_agents() {
     )
     .expect("write the chart");
     let mut coordinator = cluster.coordinator(&chart, &[]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("r1", &[], &[]);
     cluster.agent("r2", &[], &[]);
     let step = |s: &serde_json::Value, name: &str| {
@@ -341,7 +341,7 @@ async fn a_hold_cancels_a_motion_that_says_so_and_unhold_runs_it_again() {
     )
     .expect("write the chart");
     let mut coordinator = cluster.coordinator(&chart, &[]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("r1", &[], &["--allow-shell", "--verbose"]);
     wait_for_mark(&dir, "start MoveA").await;
     let (ok, said) = ctl(&cluster, &["hold"]).await;
@@ -382,9 +382,9 @@ async fn a_restarted_coordinator_comes_back_held_in_its_mode_with_its_alarms() {
     let journal = dir.join("journal");
     let args = ["--journal", journal.to_str().expect("utf-8 path")];
     let mut coordinator = cluster.coordinator_joining(&chart, &args);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("r1", &[], &["--allow-shell"]);
-    coordinator.wait_for_log("has been active longer than its maximum time").await;
+    coordinator.wait_for_trace("A's supervision alarm", |r| r.event == TraceEvent::Alarm && r.name == "A").await;
     for command in [&["mode", "step"][..], &["hold", "--reason", "check the drive"][..]] {
         let (ok, said) = ctl(&cluster, command).await;
         assert!(ok, "{said}");
@@ -392,7 +392,7 @@ async fn a_restarted_coordinator_comes_back_held_in_its_mode_with_its_alarms() {
     wait_for_state(&cluster, "held").await;
     coordinator.kill().await;
     let mut coordinator = cluster.coordinator_joining(&chart, &args);
-    coordinator.wait_for_log("resuming run").await;
+    coordinator.wait_ready().await;
     let s = wait_for_state(&cluster, "held").await;
     assert_eq!(s["mode"], "step", "{s}");
     assert_eq!(s["alarms"][0]["id"], 1, "{s}");
@@ -408,6 +408,25 @@ async fn a_restarted_coordinator_comes_back_held_in_its_mode_with_its_alarms() {
     check_trace_invariants(&trace, &chart);
     let states: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::State).map(|r| r.name.as_str()).collect();
     assert_eq!(states, ["holding", "held", "unholding", "execute", "completing", "complete"], "the whole run's states");
+}
+
+/// A run begun with `--wait-start` and killed before anyone started it comes back from its journal still waiting:
+/// its `idle` state was journaled and traced as it began, not with whatever came next.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_waiting_run_killed_before_its_start_comes_back_waiting() {
+    let cluster = Cluster::new();
+    let chart = cell(cluster.dir.path(), 0.1);
+    let journal = cluster.dir.path().join("journal");
+    let journal = journal.to_str().expect("utf-8 path");
+    let mut coordinator = cluster.coordinator(&chart, &["--journal", journal, "--wait-start"]);
+    let trace = coordinator.wait_ready().await;
+    assert!(trace.iter().any(|r| r.event == TraceEvent::State && r.name == "idle"), "{trace:#?}");
+    coordinator.kill().await;
+    let mut coordinator = cluster.coordinator(&chart, &["--journal", journal]);
+    coordinator.wait_ready().await;
+    let s = wait_for_state(&cluster, "idle").await;
+    assert_eq!(s["available"], serde_json::json!(["start", "stop", "abort"]), "{s}");
+    coordinator.kill().await;
 }
 
 /// `baton run --wait-start` waits in Idle, saying `start` is legal, and runs the chart once started.
@@ -503,9 +522,9 @@ async fn a_step_past_its_maximum_time_branches_to_the_charts_recovery_and_the_al
     )
     .expect("write the chart");
     let mut coordinator = cluster.coordinator(&chart, &[]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("r1", &[], &[]);
-    coordinator.wait_for_log("has been active longer than its maximum time").await;
+    coordinator.wait_for_trace("Move's supervision alarm", |r| r.event == TraceEvent::Alarm && r.name == "Move").await;
     let s = wait_for_status(&cluster, "the chart's recovery", |s| {
         s["active_steps"].as_array().is_some_and(|a| a.iter().any(|x| x["name"] == "Recover"))
     })
@@ -570,9 +589,11 @@ async fn an_agent_without_the_skill_of_a_step_is_sent_nothing_and_an_alarm_names
     )
     .expect("write the chart");
     let mut coordinator = cluster.coordinator(&chart, &[]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("r1", &[], &[]);
-    coordinator.wait_for_log("has no skill `shell`").await;
+    coordinator
+        .wait_for_trace("an alarm for r1's missing skill", |r| r.event == TraceEvent::Alarm && r.name == "r1")
+        .await;
     let s = wait_for_status(&cluster, "the skill's alarm", |s| {
         s["alarms"].as_array().is_some_and(|a| a.iter().any(|x| x["source"] == "r1"))
     })
@@ -616,7 +637,7 @@ async fn a_run_that_stays_is_reset_cleared_and_resumed_as_new_runs_of_its_journa
     let journal = dir.join("journal");
     let args = ["--stay", "--journal", journal.to_str().expect("utf-8 path")];
     let mut coordinator = cluster.coordinator_joining(&chart, &args);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("r1", &[], &["--allow-shell"]);
     cluster.agent("r2", &[], &["--allow-shell"]);
     let s = wait_for_state(&cluster, "complete").await;
@@ -662,7 +683,7 @@ async fn a_run_that_stays_is_reset_cleared_and_resumed_as_new_runs_of_its_journa
     let third = s["run"].clone();
     coordinator.kill().await;
     let mut coordinator = cluster.coordinator_joining(&chart, &args);
-    coordinator.wait_for_log("resuming run").await;
+    coordinator.wait_ready().await;
     let s = wait_for_state(&cluster, "stopped").await;
     assert_eq!(s["run"], third, "the journal's latest run, where it stood");
     assert_eq!(marks(&dir), at_abort, "nothing ran after the abort, nor on the resumed coordinator");
@@ -703,13 +724,13 @@ async fn abort_with_a_robot_cut_off_tells_it_once_it_is_back() {
     let pid_file = dir.join("motion.pid");
     let chart = cell_with(&dir, &format!("echo $$$$ > {}; exec sleep 100", pid_file.display()));
     let mut coordinator = cluster.coordinator_joining(&chart, &["--abort-wait", "60s"]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     let cable = baton_host::cable::Cable::lay(cluster.router_addr(), 1).await.expect("lay r1's cable");
     cluster.agent_at(&cable.endpoint(), "r1", &[], &["--allow-shell", "--lease-ms", "1000", "--verbose"]);
     cluster.agent("r2", &[], &["--allow-shell"]);
     wait_for_mark(&dir, "start MoveA1").await;
     cable.cut();
-    coordinator.wait_for_log("agent `r1` lost holding the token").await;
+    coordinator.wait_for_trace("r1 lost", |r| r.event == TraceEvent::AgentLost && r.name == "r1").await;
     let (ok, said) = ctl(&cluster, &["abort", "--reason", "r1 unreachable"]).await;
     assert!(ok, "{said}");
     coordinator.wait_for_log("waiting up to 60000 ms to tell r1").await;

@@ -32,7 +32,7 @@ async fn behind_a_cable(
     let mut args = extra.to_vec();
     args.extend(["--listen", &far]);
     let mut coordinator = cluster.coordinator(chart, &args);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     let watch = cluster.watch().await;
     let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
     cluster.agent_in(netns, &far, "robot1", roles, &["--lease-ms", "1000"]);
@@ -58,7 +58,7 @@ async fn a_cut_off_agent_stops_before_its_token_moves_under_reassign() {
     };
     assert_eq!(holder, "robot1");
     cluster.agent("robot2", &["worker"], &[]);
-    coordinator.wait_for_log("agent `robot2` is live").await;
+    coordinator.wait_for_trace("robot2 live", |r| r.event == TraceEvent::AgentUp && r.name == "robot2").await;
     netns.cut();
     let cut_ms = unix_ms();
     let Some((moved_to, _)) = loopback::next_dispatch_within(&cmds, work, 2).await else {
@@ -108,7 +108,7 @@ async fn a_partitioned_agent_is_paused_and_resumes_when_the_link_is_back() {
     };
     assert_eq!(holder, "robot1");
     netns.cut();
-    coordinator.wait_for_log("agent `robot1` lost holding the token of step `Assemble`").await;
+    coordinator.wait_for_trace("robot1 lost", |r| r.event == TraceEvent::AgentLost && r.name == "robot1").await;
     netns.heal();
     let (status, log, trace, summary) = coordinator.finish().await;
     assert!(status.success(), "{log}\nrobot1:\n{}", cluster.agent_log("robot1"));

@@ -24,7 +24,7 @@ async fn a_coordinator_killed_mid_segment_resumes_from_its_journal() {
     let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
     let reports = watch.declare_subscriber("baton/run/*/report/*").await.expect("report subscriber");
     let mut coordinator = cluster.coordinator_joining(&cell, &args);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("robot1", &["assembler"], &[]);
     cluster.agent("robot2", &["assembler"], &[]);
     let (holder, token) = loopback::next_dispatch(&cmds, step_id(&cell, "Assemble"), 1).await;
@@ -78,7 +78,7 @@ async fn a_coordinator_resumes_from_its_last_snapshot_and_its_trace_goes_on_as_t
     let watch = cluster.watch().await;
     let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
     let mut coordinator = cluster.coordinator_joining(&cell, &args);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("robot1", &["assembler"], &[]);
     cluster.agent("robot2", &["assembler"], &[]);
     loopback::next_dispatch(&cmds, step_id(&cell, "Assemble"), 1).await;
@@ -134,7 +134,7 @@ async fn agents_reconnect_to_a_coordinator_restarted_with_its_router() {
     let args = journal_args(&cluster);
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let mut coordinator = cluster.coordinator(&cell, &args);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     let watch = cluster.watch().await;
     let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
     cluster.agent("robot1", &["assembler"], &[]);
@@ -162,7 +162,7 @@ async fn a_journal_of_another_chart_version_or_a_finished_run_is_refused() {
     // A run that waits for agents that never come, killed outright (SIGKILL, a power cut): its journal stays
     // resumable.
     let mut coordinator = cluster.coordinator(&cell, &["--journal", journal]);
-    coordinator.wait_for_log("waits: no live agent").await;
+    coordinator.wait_for_trace("a token waiting for an agent", |r| r.event == TraceEvent::Wait).await;
     coordinator.kill().await;
     // The same chart with one value changed is another version.
     let source = std::fs::read_to_string(&cell).expect("cell chart");
@@ -191,7 +191,7 @@ async fn a_journal_of_another_chart_version_or_a_finished_run_is_refused() {
     let stopped_journal = cluster.dir.path().join("stopped_journal");
     let stopped_journal = stopped_journal.to_str().unwrap();
     let mut coordinator = cluster.coordinator(&cell, &["--journal", stopped_journal]);
-    coordinator.wait_for_log("waits: no live agent").await;
+    coordinator.wait_for_trace("a token waiting for an agent", |r| r.event == TraceEvent::Wait).await;
     let pid = coordinator.child.id().expect("running").to_string();
     assert!(std::process::Command::new("kill").args(["-INT", &pid]).status().expect("kill").success());
     let (status, log, trace, _) = coordinator.finish().await;
@@ -290,7 +290,7 @@ async fn a_damaged_commit_is_refused_where_it_is_and_never_cut_off() {
     let journal = cluster.dir.path().join("journal");
     let journal_arg = journal.to_str().expect("utf-8 path");
     let mut coordinator = cluster.coordinator(&chart, &["--journal", journal_arg, "--wait-start"]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     for n in 1..=8 {
         let out = cluster.baton(&["set", "--connect", &cluster.endpoint, &format!("x={n}")]).await;
         assert!(out.status.success(), "set x={n}: {}", String::from_utf8_lossy(&out.stderr));
@@ -322,7 +322,7 @@ async fn a_damaged_commit_is_refused_where_it_is_and_never_cut_off() {
     // Undamaged, it resumes with all eight values, and the chart goes on with x = 8.
     std::fs::write(&path, &good).expect("repair the journal");
     let mut coordinator = cluster.coordinator(&chart, &["--journal", journal_arg]);
-    coordinator.wait_for_log("resuming run").await;
+    coordinator.wait_ready().await;
     cluster.agent("nobody-needed", &[], &[]);
     let start = cluster.baton(&["ctl", "--connect", &endpoint, "start"]).await;
     assert!(start.status.success(), "{}", String::from_utf8_lossy(&start.stderr));
@@ -347,7 +347,7 @@ async fn refusals_are_answered_at_once_with_or_without_a_journal() {
             args.extend(["--journal", journal.to_str().expect("utf-8 path")]);
         }
         let mut coordinator = cluster.coordinator(&chart, &args);
-        coordinator.wait_for_log("running chart").await;
+        coordinator.wait_ready().await;
         let ep = cluster.endpoint.clone();
         let refused = |out: std::process::Output, why: &str| {
             let err = String::from_utf8_lossy(&out.stderr).to_string();

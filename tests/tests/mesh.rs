@@ -72,7 +72,7 @@ async fn a_run_across_three_routers_survives_one_of_them_restarting() {
     .expect("write the chart");
     cluster.endpoint = format!("tcp/127.0.0.1:{}", ports[0]);
     let mut coordinator = cluster.coordinator_connecting(&chart, &["--watch", "n"]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     let fallback = format!("tcp/127.0.0.1:{}", ports[2]);
     let mut r1_args = vec!["--allow-shell", "--lease-ms", "1000", "--verbose"];
     if std::env::var_os("MESH_FALLBACK").is_some() {

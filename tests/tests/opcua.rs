@@ -120,12 +120,12 @@ async fn bound_nodes_drive_a_transition_take_the_outputs_and_a_server_away_is_re
     let chart = chart_for(&cluster, "opcua_io.st", port);
     let mut coordinator = start(&mut cluster, &chart);
     // No server yet: the agent says so, through the coordinator, and keeps trying.
-    coordinator.wait_for_log("cannot reach the device of `door`").await;
+    coordinator.wait_for_trace("door down", |r| r.event == TraceEvent::DeviceDown && r.name == "door").await;
     let mut server = opcua_server_on(port).await;
     // Once the session is up, the outputs' values are written, and the inputs are watched.
     server.wait_for("WRITE Lamp False").await;
     server.wait_for("WRITE Setpoint 0").await;
-    coordinator.wait_for_log("reaches the device of `door` again").await;
+    coordinator.wait_for_trace("door back", |r| r.event == TraceEvent::DeviceUp && r.name == "door").await;
     server.send("SET Count 2").await;
     server.send("SET Door true").await;
     // The transition cleared on the machine's values; the action's outputs reach the machine, converted to
@@ -140,7 +140,7 @@ async fn bound_nodes_drive_a_transition_take_the_outputs_and_a_server_away_is_re
     let mut again = opcua_server_on(port).await;
     again.wait_for("WRITE Lamp True").await;
     again.wait_for("WRITE Setpoint 20").await;
-    coordinator.wait_for_log("reaches the device of `door` again").await;
+    coordinator.wait_for_trace("door back", |r| r.event == TraceEvent::DeviceUp && r.name == "door").await;
     // Its count reads 0 now, and the action, still running, follows it.
     again.wait_for("WRITE Setpoint 0").await;
     let ep = cluster.endpoint.clone();

@@ -125,7 +125,7 @@ async fn run_two_parts(cluster: &mut Cluster, extra: &[&str]) -> Vec<TraceRecord
     let mut args = vec!["--set", "parts=2"];
     args.extend_from_slice(extra);
     let mut coordinator = cluster.coordinator(&repo("examples/cell.st"), &args);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("robot1", &["assembler"], &[]);
     cluster.agent("robot2", &["assembler"], &[]);
     let (status, log, trace, _) = coordinator.finish().await;
@@ -181,7 +181,7 @@ async fn a_lost_agent_and_the_reassignment_are_on_the_timeline() {
     let sink = format!("save:{}", rrd.display());
     let mut coordinator =
         cluster.coordinator(&cell, &["--set", "parts=1", "--on-agent-loss", "reassign", "--rerun", &sink]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     let session = cluster.watch().await;
     let cmds = session.declare_subscriber(keys::agent_cmd_any("*")).await.expect("subscriber");
     cluster.agent("robot1", &["assembler"], &[]);
@@ -247,9 +247,9 @@ async fn commands_states_and_alarms_are_in_the_log() {
     let rrd = cluster.dir.path().join("operate.rrd");
     let sink = format!("save:{}", rrd.display());
     let mut coordinator = cluster.coordinator(&chart, &["--rerun", &sink]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     cluster.agent("r1", &[], &[]);
-    coordinator.wait_for_log("has been active longer than its maximum time").await;
+    coordinator.wait_for_trace("Move's supervision alarm", |r| r.event == TraceEvent::Alarm && r.name == "Move").await;
     let ctl = |args: &[&str]| {
         let mut all = vec!["ctl".to_string(), "--connect".to_string(), cluster.endpoint.clone()];
         all.extend(args.iter().map(|a| a.to_string()));

@@ -252,7 +252,7 @@ async fn topic_fields_drive_a_transition_outputs_are_published_and_a_sensor_gone
         "{said:?}"
     );
     let mut sensors = topics(&cluster).await;
-    coordinator.wait_for_log("reaches the device of `door` again").await;
+    coordinator.wait_for_trace("door back", |r| r.event == TraceEvent::DeviceUp && r.name == "door").await;
     // The lamp's value, published again every 100 ms, reaches a subscriber that came after it was set; the
     // beacon is published on change only.
     sensors.wait_for("LAMP false").await;

@@ -47,16 +47,14 @@ fn unit_command(unit: &str, dir: &Path, instance: &str, router: &str, run_args: 
 
 /// Starts the unit's command (its stderr read line by line), as `loopback::Coordinator`.
 fn start(command: &[String], trace: &Path, summary: &Path) -> loopback::Coordinator {
-    use tokio::io::AsyncBufReadExt;
-    let mut child = tokio::process::Command::new(&command[0])
+    let child = tokio::process::Command::new(&command[0])
         .args(&command[1..])
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::piped())
         .kill_on_drop(true)
         .spawn()
         .expect("start the unit's command");
-    let stderr = tokio::io::BufReader::new(child.stderr.take().expect("stderr")).lines();
-    loopback::Coordinator { child, stderr, trace: trace.to_path_buf(), summary: summary.to_path_buf() }
+    loopback::Coordinator::following(child, trace.to_path_buf(), summary.to_path_buf())
 }
 
 /// Per step, how often it was active; and the variables' final values — what a run's outcome is.

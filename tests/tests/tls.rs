@@ -107,7 +107,7 @@ async fn a_cell_runs_over_mutual_tls_and_each_process_is_who_its_certificate_say
     let router_config = tls_config(&dir, &pki, "coordinator", true);
     let args = ["--zenoh-config", router_config.to_str().expect("utf-8")];
     let mut coordinator = cluster.coordinator(&chart, &args);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     for name in ["r1", "r2"] {
         let config = tls_config(&dir, &pki, name, false);
         cluster.agent(name, &[], &["--zenoh-config", config.to_str().expect("utf-8")]);
@@ -155,7 +155,7 @@ async fn an_operators_command_is_traced_with_the_name_of_its_certificate() {
     .expect("write the chart");
     let router_config = tls_config(&dir, &pki, "coordinator", true);
     let mut coordinator = cluster.coordinator(&chart, &["--zenoh-config", router_config.to_str().expect("utf-8")]);
-    coordinator.wait_for_log("running chart").await;
+    coordinator.wait_ready().await;
     let anna = tls_config(&dir, &pki, "anna", false);
     let anna = anna.to_str().expect("utf-8");
     let ctl = ["ctl", "--connect", &cluster.endpoint, "--zenoh-config", anna, "stop", "--reason", "end of shift"];

@@ -445,6 +445,9 @@ async fn serve(
         if let Some(journal) = &host.journal {
             journal.on_durable(releasing(shared));
         }
+        // What beginning the run made (a run waiting for its start: its `idle` state and the journal's record of
+        // it) is written now, not with whatever happens next.
+        host.commit(Vec::new())?;
     }
     let mut callbacks = Callbacks::declare(session, run, shared).await?;
     let mut stop = baton_host::Stop::new()?;
