@@ -318,13 +318,7 @@ impl<'a> Compiler<'a> {
                     }
                 }
             }
-            let saved = (
-                std::mem::replace(&mut self.vars, names),
-                std::mem::take(&mut self.instances),
-                std::mem::take(&mut self.user_of),
-                std::mem::take(&mut self.steps),
-                std::mem::take(&mut self.actions),
-            );
+            let chart = self.set_names_aside(names);
             self.instances = std::mem::take(&mut self.users[u].scope.instances);
             self.user_of = std::mem::take(&mut self.users[u].scope.users);
             let chart_arrays = std::mem::replace(&mut self.arrays, std::mem::take(&mut self.users[u].scope.arrays));
@@ -339,11 +333,9 @@ impl<'a> Compiler<'a> {
             self.users[u].scope.nested = std::mem::replace(&mut self.nested, chart_nested);
             self.users[u].scope.arrays = std::mem::replace(&mut self.arrays, chart_arrays);
             self.users[u].scope.structs = std::mem::replace(&mut self.structs, chart_structs);
-            self.users[u].scope.vars = std::mem::replace(&mut self.vars, saved.0);
-            self.users[u].scope.instances = std::mem::replace(&mut self.instances, saved.1);
-            self.users[u].scope.users = std::mem::replace(&mut self.user_of, saved.2);
-            self.steps = saved.3;
-            self.actions = saved.4;
+            let own = self.restore_names(chart);
+            (self.users[u].scope.vars, self.users[u].scope.instances, self.users[u].scope.users) =
+                (own.vars, own.instances, own.user_of);
             self.users[u].body = Arc::new(body);
         }
     }

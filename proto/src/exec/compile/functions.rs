@@ -124,19 +124,15 @@ impl<'a> Compiler<'a> {
         }
         self.functions.get_mut(key).expect("declared").compiling = true;
         self.functions_compiling += 1;
+        let chart = self.set_names_aside(names);
         let saved = (
-            std::mem::replace(&mut self.vars, names),
-            std::mem::take(&mut self.instances),
-            std::mem::take(&mut self.user_of),
-            std::mem::take(&mut self.steps),
-            std::mem::take(&mut self.actions),
             std::mem::take(&mut self.hoisted),
             std::mem::take(&mut self.loops),
             std::mem::replace(&mut self.arrays, arrays),
         );
         let body = Arc::new(self.statements(&def.body, vars));
-        (self.vars, self.instances, self.user_of, self.steps, self.actions, self.hoisted, self.loops, self.arrays) =
-            saved;
+        (self.hoisted, self.loops, self.arrays) = saved;
+        self.restore_names(chart);
         self.functions_compiling -= 1;
         let f = self.functions.get_mut(key).expect("declared");
         f.compiling = false;

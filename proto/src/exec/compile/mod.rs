@@ -127,6 +127,23 @@ struct Scope {
     nested: nested_names::Nested,
 }
 
+/// The chart's names, set aside while a POU's body is compiled against names of its own
+/// (`Compiler::set_names_aside`).
+struct ChartNames {
+    vars: HashMap<String, VarId>,
+    instances: HashMap<String, (StdFb, VarId)>,
+    user_of: HashMap<String, usize>,
+    steps: HashMap<String, StepId>,
+    actions: HashMap<String, ActionId>,
+}
+
+/// A POU's own names as its body left them (`Compiler::restore_names`).
+struct OwnNames {
+    vars: HashMap<String, VarId>,
+    instances: HashMap<String, (StdFb, VarId)>,
+    user_of: HashMap<String, usize>,
+}
+
 struct Compiler<'a> {
     chart: &'a Chart,
     diags: &'a mut Vec<Diagnostic>,
@@ -227,6 +244,29 @@ struct Function<'a> {
 const FALSE: CExpr = CExpr::Const(Value::Bool(false));
 
 impl<'a> Compiler<'a> {
+    /// Sets the chart's names aside for a POU's body (a function's, a block's): `vars` are the POU's variables,
+    /// and it sees no instance, step or action of the chart's (a block's own instances are set after).
+    fn set_names_aside(&mut self, vars: HashMap<String, VarId>) -> ChartNames {
+        ChartNames {
+            vars: std::mem::replace(&mut self.vars, vars),
+            instances: std::mem::take(&mut self.instances),
+            user_of: std::mem::take(&mut self.user_of),
+            steps: std::mem::take(&mut self.steps),
+            actions: std::mem::take(&mut self.actions),
+        }
+    }
+
+    /// Puts the chart's names back after a POU's body; returns the POU's own, as its body left them.
+    fn restore_names(&mut self, chart: ChartNames) -> OwnNames {
+        self.steps = chart.steps;
+        self.actions = chart.actions;
+        OwnNames {
+            vars: std::mem::replace(&mut self.vars, chart.vars),
+            instances: std::mem::replace(&mut self.instances, chart.instances),
+            user_of: std::mem::replace(&mut self.user_of, chart.user_of),
+        }
+    }
+
     fn error(&mut self, span: Span, message: impl Into<String>) {
         self.diags.push(Diagnostic::error(span, message));
     }
