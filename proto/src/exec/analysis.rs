@@ -18,6 +18,7 @@
 )]
 
 use std::collections::{HashMap, HashSet, VecDeque};
+use std::ops::ControlFlow;
 
 use crate::exec::program::{Program, StepId, TransitionId};
 use crate::limits::ANALYSIS_SITUATIONS_MAX;
@@ -141,55 +142,38 @@ pub fn exhaustive(program: &Program) -> Vec<Finding> {
     let mut reached = vec![false; program.steps.len()];
     let mut enabled = vec![false; program.transitions.len()];
     let mut unsafe_pairs: HashSet<(TransitionId, StepId)> = HashSet::new();
-    let mut initial: Vec<StepId> = program.initial_steps.clone();
-    initial.sort();
-    let mut seen: HashSet<Vec<StepId>> = HashSet::new();
-    let mut queue = VecDeque::new();
-    seen.insert(initial.clone());
-    queue.push_back(initial);
-    let mut complete = true;
-    let mut candidates = Vec::new();
-    while let Some(situation) = queue.pop_front() {
-        candidates.clear();
-        for s in &situation {
-            reached[s.index()] = true;
-            candidates.extend_from_slice(program.outgoing(*s));
-        }
-        candidates.sort();
-        candidates.dedup();
-        for &t in &candidates {
-            let Some(next) = clear(program, &situation, t, |target| {
-                unsafe_pairs.insert((t, target));
-            }) else {
-                continue;
-            };
-            enabled[t.index()] = true;
-            if seen.len() >= ANALYSIS_SITUATIONS_MAX {
-                complete = false;
-                continue;
+    let explored = explore(
+        program,
+        |situation| {
+            for s in situation {
+                reached[s.index()] = true;
             }
-            if seen.insert(next.clone()) {
-                queue.push_back(next);
-            }
-        }
-    }
+            ControlFlow::Continue(())
+        },
+        |t| enabled[t.index()] = true,
+        |t, target| {
+            unsafe_pairs.insert((t, target));
+        },
+    );
     findings.extend(unsafe_pairs.into_iter().map(|(transition, step)| Finding::Unsafe { transition, step }));
-    if complete {
-        for (i, &was_enabled) in enabled.iter().enumerate() {
-            let sources = program.sources(TransitionId(i as u32));
-            if !was_enabled && sources.len() > 1 && sources.iter().all(|s| reached[s.index()]) {
-                findings.push(Finding::DeadConvergence { transition: TransitionId(i as u32) });
+    match explored {
+        Explored::All => {
+            for (i, &was_enabled) in enabled.iter().enumerate() {
+                let sources = program.sources(TransitionId(i as u32));
+                if !was_enabled && sources.len() > 1 && sources.iter().all(|s| reached[s.index()]) {
+                    findings.push(Finding::DeadConvergence { transition: TransitionId(i as u32) });
+                }
             }
+            findings.extend(
+                reached
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, r)| !**r)
+                    .map(|(i, _)| Finding::UnreachableStep { step: StepId(i as u32) }),
+            );
         }
-        findings.extend(
-            reached
-                .iter()
-                .enumerate()
-                .filter(|(_, r)| !**r)
-                .map(|(i, _)| Finding::UnreachableStep { step: StepId(i as u32) }),
-        );
-    } else {
-        findings.push(Finding::Incomplete { situations: seen.len() });
+        Explored::Capped { situations } => findings.push(Finding::Incomplete { situations }),
+        Explored::Stopped => unreachable!("exhaustive never stops the exploration"),
     }
     findings.sort();
     findings
@@ -198,21 +182,51 @@ pub fn exhaustive(program: &Program) -> Vec<Finding> {
 /// Whether `situation` (the set of active steps) is one the chart can reach by itself from its initial steps, with
 /// every condition taken as free: a manual change to it keeps the chart's promises (one token per step, whole
 /// simultaneous branches, no stranded token). `None` when the exploration stopped at `ANALYSIS_SITUATIONS_MAX`
-/// before finding it.
+/// without finding it.
 pub fn is_reachable(program: &Program, situation: &[StepId]) -> Option<bool> {
     let mut wanted: Vec<StepId> = situation.to_vec();
     wanted.sort();
     wanted.dedup();
+    let found = |here: &[StepId]| if here == wanted { ControlFlow::Break(()) } else { ControlFlow::Continue(()) };
+    match explore(program, found, |_| {}, |_, _| {}) {
+        Explored::Stopped => Some(true),
+        Explored::All => Some(false),
+        Explored::Capped { .. } => None,
+    }
+}
+
+/// How an exploration ended (`explore`).
+enum Explored {
+    /// Every reachable situation was seen.
+    All,
+    /// At `ANALYSIS_SITUATIONS_MAX` situations: those queued were seen, no more were queued.
+    Capped { situations: usize },
+    /// Its `situation` visitor ended it.
+    Stopped,
+}
+
+/// Breadth first through the situations reachable from the initial steps, every condition taken as free, one
+/// transition at a time: `situation` is shown each one as it is taken from the queue (and may end the walk),
+/// `enabled` each transition that clears in it, and `second_token` each target a clearing would give a second
+/// token (the net is not safe there). The one walk of the chart's situations that `exhaustive` and `is_reachable`
+/// share.
+fn explore(
+    program: &Program,
+    mut situation: impl FnMut(&[StepId]) -> ControlFlow<()>,
+    mut enabled: impl FnMut(TransitionId),
+    mut second_token: impl FnMut(TransitionId, StepId),
+) -> Explored {
     let mut initial: Vec<StepId> = program.initial_steps.clone();
     initial.sort();
     let mut seen: HashSet<Vec<StepId>> = HashSet::new();
     let mut queue = VecDeque::new();
     seen.insert(initial.clone());
     queue.push_back(initial);
+    let mut capped = false;
     let mut candidates = Vec::new();
     while let Some(here) = queue.pop_front() {
-        if here == wanted {
-            return Some(true);
+        if situation(&here).is_break() {
+            return Explored::Stopped;
         }
         candidates.clear();
         for s in &here {
@@ -221,16 +235,22 @@ pub fn is_reachable(program: &Program, situation: &[StepId]) -> Option<bool> {
         candidates.sort();
         candidates.dedup();
         for &t in &candidates {
-            let Some(next) = clear(program, &here, t, |_| {}) else { continue };
+            let Some(next) = clear(program, &here, t, |target| second_token(t, target)) else { continue };
+            enabled(t);
             if seen.len() >= ANALYSIS_SITUATIONS_MAX {
-                return None;
+                capped = true;
+                continue;
             }
             if seen.insert(next.clone()) {
                 queue.push_back(next);
             }
         }
     }
-    Some(false)
+    if capped {
+        Explored::Capped { situations: seen.len() }
+    } else {
+        Explored::All
+    }
 }
 
 /// The situation (sorted active steps) after `t` clears in `situation`, or `None` if it is not enabled there. A
