@@ -293,6 +293,15 @@ impl Crate {
         (0..=full.len()).rev().map(|n| full[..n].to_vec()).find(|p| self.files.contains_key(p))
     }
 
+    /// The names of `module`'s child modules that are files of the crate.
+    fn children(&self, module: &[String]) -> Vec<String> {
+        self.files
+            .keys()
+            .filter(|k| k.len() == module.len() + 1 && k.starts_with(module))
+            .filter_map(|k| k.last().cloned())
+            .collect()
+    }
+
     /// Each file's imports of other files of the crate, its parent's and its children's among them (the parent
     /// declaring a child with `mod` is not an import; naming what the child holds is).
     fn edges(&self) -> BTreeMap<Vec<String>, BTreeSet<Vec<String>>> {
@@ -301,12 +310,7 @@ impl Crate {
             if self.tests.contains(module) {
                 continue;
             }
-            let children: Vec<String> = self
-                .files
-                .keys()
-                .filter(|k| k.len() == module.len() + 1 && k.starts_with(module))
-                .filter_map(|k| k.last().cloned())
-                .collect();
+            let children = self.children(module);
             let code = without_tests(&code_only(text));
             let entry = out.entry(module.clone()).or_default();
             for p in paths(&code, &children) {
@@ -627,12 +631,7 @@ fn own_globs(krate: &Crate) -> Vec<String> {
         if krate.tests.contains(module) {
             continue;
         }
-        let children: Vec<String> = krate
-            .files
-            .keys()
-            .filter(|k| k.len() == module.len() + 1 && k.starts_with(module))
-            .filter_map(|k| k.last().cloned())
-            .collect();
+        let children = krate.children(module);
         let code = without_tests(&code_only(text));
         for line in code.lines() {
             let Some(path) = ["use ", "pub use ", "pub(crate) use ", "pub(super) use "]
