@@ -289,6 +289,7 @@ impl Cluster {
     fn start_coordinator_as(&self, name: &str, chart: &Path, how: &str, extra: &[&str]) -> Coordinator {
         let trace = self.dir.path().join(format!("trace{name}.jsonl"));
         let summary = self.dir.path().join(format!("summary{name}.json"));
+        fresh_trace(&trace, extra);
         let child = Command::new(bin("baton"))
             .arg("run")
             .arg(chart)
@@ -427,6 +428,17 @@ impl Coordinator {
             .and_then(|t| serde_json::from_str(&t).ok())
             .unwrap_or(serde_json::Value::Null);
         (status, log, trace, summary)
+    }
+}
+
+/// Before a coordinator with `args` starts: unless it resumes a journal (`--journal` of a folder with something in
+/// it), its run starts a trace of its own, so the one an earlier process left at `trace` goes first — the waits on
+/// the trace (`Coordinator::wait_for_trace`) then see this run's records only.
+pub fn fresh_trace(trace: &Path, args: &[&str]) {
+    let journal = args.iter().position(|a| *a == "--journal").and_then(|i| args.get(i + 1));
+    let resumes = journal.is_some_and(|j| std::fs::read_dir(j).is_ok_and(|mut d| d.next().is_some()));
+    if !resumes {
+        let _ = std::fs::remove_file(trace);
     }
 }
 

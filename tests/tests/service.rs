@@ -47,6 +47,7 @@ fn unit_command(unit: &str, dir: &Path, instance: &str, router: &str, run_args: 
 
 /// Starts the unit's command (its stderr read line by line), as `loopback::Coordinator`.
 fn start(command: &[String], trace: &Path, summary: &Path) -> loopback::Coordinator {
+    loopback::fresh_trace(trace, &command.iter().map(String::as_str).collect::<Vec<_>>());
     let child = tokio::process::Command::new(&command[0])
         .args(&command[1..])
         .stdout(std::process::Stdio::null())
