@@ -99,7 +99,6 @@ impl Ctx<'_> {
         span: &Range<usize>,
         name: &str,
     ) -> Option<Option<String>> {
-        let span = span.clone();
         let target = match (&r.target, name) {
             (None, _) => None,
             (Some(t), "ack" | "shelve" | "unshelve") => match t.get_ref() {
@@ -137,20 +136,20 @@ impl Ctx<'_> {
                     .to_string(),
                 _ => format!("`{name}` takes no `target`"),
             };
-            self.error(&span, message);
+            self.error(span, message);
             return None;
         }
         match (name, target.as_deref()) {
             ("mode", Some(m)) if crate::exec::engine::Mode::from_name(m).is_none() => {
-                self.error(&span, format!("`{m}` is no mode: auto, step or manual"));
+                self.error(span, format!("`{m}` is no mode: auto, step or manual"));
                 return None;
             }
             ("force" | "confirm", Some(t)) if program.transition_by_name(t).is_none() => {
-                self.error(&span, format!("the chart has no transition `{t}`"));
+                self.error(span, format!("the chart has no transition `{t}`"));
                 return None;
             }
             ("activate" | "deactivate" | "move", Some(st)) if program.step_by_name(st).is_none() => {
-                self.error(&span, super::super::cond::no_step(program, st));
+                self.error(span, super::super::cond::no_step(program, st));
                 return None;
             }
             _ => {}

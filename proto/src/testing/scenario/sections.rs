@@ -336,26 +336,25 @@ impl Ctx<'_> {
 
     /// One expectation of `kind` (which `one_of` found in `r`), checked against the chart.
     fn expectation(&mut self, against: &Against, r: &RawExpect, span: &Range<usize>, kind: &str) -> Option<ExpectKind> {
-        let span = span.clone();
         Some(match kind {
             "reached" => {
-                let step = self.step_known(against, &span, r.reached.as_deref().unwrap_or_default())?;
+                let step = self.step_known(against, span, r.reached.as_deref().unwrap_or_default())?;
                 if let Some(a) = &r.on {
-                    self.agent_known(against, &span, a);
+                    self.agent_known(against, span, a);
                 }
                 ExpectKind::Reached { step, on: r.on.clone(), by_ms: self.opt_duration(&r.by) }
             }
             "order" => {
                 let steps: Vec<Option<String>> =
-                    r.order.iter().flatten().map(|s| self.step_known(against, &span, s)).collect();
+                    r.order.iter().flatten().map(|s| self.step_known(against, span, s)).collect();
                 if steps.len() < 2 {
-                    self.error(&span, "`order` names two steps or more");
+                    self.error(span, "`order` names two steps or more");
                 }
                 ExpectKind::Order(steps.into_iter().flatten().collect())
             }
             "value" => {
                 if r.value.as_ref().is_some_and(|v| v.is_empty()) {
-                    self.error(&span, "`value` names no variable, so it could never fail: name one or more");
+                    self.error(span, "`value` names no variable, so it could never fail: name one or more");
                     return None;
                 }
                 let mut vars = Vec::new();
@@ -364,7 +363,7 @@ impl Ctx<'_> {
                         Some(var) if !against.program.vars[var.index()].hidden => {
                             vars.push((against.program.vars[var.index()].name.clone(), v.clone()))
                         }
-                        _ => self.error(&span, format!("the chart has no variable `{name}`")),
+                        _ => self.error(span, format!("the chart has no variable `{name}`")),
                     }
                 }
                 ExpectKind::Value { vars, at_ms: self.opt_duration(&r.at) }
@@ -408,8 +407,8 @@ impl Ctx<'_> {
                     }
                 }
             }
-            "states" => return self.run_states(r, &span),
-            "modes" => return self.modes(r, &span),
+            "states" => return self.run_states(r, span),
+            "modes" => return self.modes(r, span),
             _ => {
                 let name = r.once_per_epoch.as_deref().unwrap_or_default();
                 match against.program.actions.iter().position(|a| a.name.eq_ignore_ascii_case(name)) {
@@ -419,12 +418,12 @@ impl Ctx<'_> {
                              to a skill (`{{skill := …}}`)",
                             against.program.actions[i].name
                         );
-                        self.error(&span, message);
+                        self.error(span, message);
                         return None;
                     }
                     Some(i) => ExpectKind::OncePerEpoch(against.program.actions[i].name.clone()),
                     None => {
-                        self.error(&span, format!("the chart has no action `{name}`"));
+                        self.error(span, format!("the chart has no action `{name}`"));
                         return None;
                     }
                 }
@@ -434,7 +433,6 @@ impl Ctx<'_> {
 
     /// `states = ["held", "execute"]`: the run states, in order, the run is to pass through.
     fn run_states(&mut self, r: &RawExpect, span: &Range<usize>) -> Option<ExpectKind> {
-        let span = span.clone();
         let mut names = Vec::new();
         for s in r.states.iter().flatten() {
             let known = crate::cluster::runtime::packml::State::ALL.iter().any(|st| st.name() == s.get_ref());
@@ -446,7 +444,7 @@ impl Ctx<'_> {
             }
         }
         if names.is_empty() {
-            self.error(&span, "`states` names one run state or more, such as [\"held\", \"execute\"]");
+            self.error(span, "`states` names one run state or more, such as [\"held\", \"execute\"]");
             return None;
         }
         Some(ExpectKind::States(names))
@@ -454,7 +452,6 @@ impl Ctx<'_> {
 
     /// `modes = ["step", "auto"]`: the modes, in order, the run is to pass through.
     fn modes(&mut self, r: &RawExpect, span: &Range<usize>) -> Option<ExpectKind> {
-        let span = span.clone();
         let mut names = Vec::new();
         for m in r.modes.iter().flatten() {
             match crate::exec::engine::Mode::from_name(m.get_ref()) {
@@ -463,7 +460,7 @@ impl Ctx<'_> {
             }
         }
         if names.is_empty() {
-            self.error(&span, "`modes` names one mode or more, such as [\"step\", \"auto\"]");
+            self.error(span, "`modes` names one mode or more, such as [\"step\", \"auto\"]");
             return None;
         }
         Some(ExpectKind::Modes(names))
