@@ -71,20 +71,23 @@ impl SimCluster {
                 Packet::ToAgent(i, incarnation, _) if incarnation != Uuid::from_u128(self.agents[i].restarts) => {}
                 Packet::ToAgent(i, _, bytes) => {
                     let msg = wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages");
-                    let before = self.agents[i].run.held();
+                    // Only a dispatch starts a segment: what the agent held before it, to see what it started.
+                    let before = matches!(msg, ToAgent::Dispatch { .. }).then(|| self.agents[i].run.held());
                     // Of a run the agent no longer runs (one before a `reset`): it forgot that run. The chart is
                     // the one every agent was given, so no dispatch is of another version.
                     if self.agents[i].run.handle_message(self.now_ms, msg).is_err() {
                         continue;
                     }
-                    // A segment started here: never twice in one epoch, on any agent.
-                    for h in self.agents[i].run.held() {
-                        if !before.contains(&h) && !self.started.insert((h.token, h.epoch)) {
-                            let (now, name) = (self.now_ms, self.agents[i].name.clone());
-                            self.violations.push(format!(
-                                "at {now} ms token {} started a second time in epoch {} (on `{name}`)",
-                                h.token, h.epoch
-                            ));
+                    if let Some(before) = before {
+                        // A segment started here: never twice in one epoch, on any agent.
+                        for h in self.agents[i].run.held() {
+                            if !before.contains(&h) && !self.started.insert((h.token, h.epoch)) {
+                                let (now, name) = (self.now_ms, self.agents[i].name.clone());
+                                self.violations.push(format!(
+                                    "at {now} ms token {} started a second time in epoch {} (on `{name}`)",
+                                    h.token, h.epoch
+                                ));
+                            }
                         }
                     }
                 }
