@@ -289,7 +289,7 @@ impl Cluster {
     fn start_coordinator_as(&self, name: &str, chart: &Path, how: &str, extra: &[&str]) -> Coordinator {
         let trace = self.dir.path().join(format!("trace{name}.jsonl"));
         let summary = self.dir.path().join(format!("summary{name}.json"));
-        fresh_trace(&trace, extra);
+        let trace_before = fresh_trace(&trace, extra);
         let child = Command::new(bin("baton"))
             .arg("run")
             .arg(chart)
@@ -304,7 +304,7 @@ impl Cluster {
             .kill_on_drop(true)
             .spawn()
             .expect("start baton run");
-        Coordinator::following(child, trace, summary)
+        Coordinator::following(child, trace, summary, trace_before)
     }
 
     /// Runs `baton ARGS…` to completion, under the timeout.
@@ -315,11 +315,10 @@ impl Cluster {
 }
 
 impl Coordinator {
-    /// A coordinator started with its log piped (`stderr`), its trace written to `trace` and its summary to
-    /// `summary`.
-    pub fn following(mut child: Child, trace: PathBuf, summary: PathBuf) -> Coordinator {
+    /// A coordinator started with its log piped (`stderr`), its trace written to `trace` (which held
+    /// `trace_before` records before it started: `fresh_trace`'s count) and its summary to `summary`.
+    pub fn following(mut child: Child, trace: PathBuf, summary: PathBuf, trace_before: usize) -> Coordinator {
         let log = Log::follow(child.stderr.take().expect("the coordinator's log is piped"));
-        let trace_before = read_trace(&trace).len();
         Coordinator { child, log, read: 0, trace, summary, trace_before }
     }
 
@@ -433,13 +432,15 @@ impl Coordinator {
 
 /// Before a coordinator with `args` starts: unless it resumes a journal (`--journal` of a folder with something in
 /// it), its run starts a trace of its own, so the one an earlier process left at `trace` goes first — the waits on
-/// the trace (`Coordinator::wait_for_trace`) then see this run's records only.
-pub fn fresh_trace(trace: &Path, args: &[&str]) {
+/// the trace (`Coordinator::wait_for_trace`) then see this run's records only. Returns the records the trace holds
+/// as the process starts (counted before it can write one).
+pub fn fresh_trace(trace: &Path, args: &[&str]) -> usize {
     let journal = args.iter().position(|a| *a == "--journal").and_then(|i| args.get(i + 1));
     let resumes = journal.is_some_and(|j| std::fs::read_dir(j).is_ok_and(|mut d| d.next().is_some()));
     if !resumes {
         let _ = std::fs::remove_file(trace);
     }
+    read_trace(trace).len()
 }
 
 /// A wake-up each time something in `dir` changes (a file written, made or removed), while the watcher lives.

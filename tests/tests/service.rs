@@ -47,7 +47,7 @@ fn unit_command(unit: &str, dir: &Path, instance: &str, router: &str, run_args: 
 
 /// Starts the unit's command (its stderr read line by line), as `loopback::Coordinator`.
 fn start(command: &[String], trace: &Path, summary: &Path) -> loopback::Coordinator {
-    loopback::fresh_trace(trace, &command.iter().map(String::as_str).collect::<Vec<_>>());
+    let trace_before = loopback::fresh_trace(trace, &command.iter().map(String::as_str).collect::<Vec<_>>());
     let child = tokio::process::Command::new(&command[0])
         .args(&command[1..])
         .stdout(std::process::Stdio::null())
@@ -55,7 +55,7 @@ fn start(command: &[String], trace: &Path, summary: &Path) -> loopback::Coordina
         .kill_on_drop(true)
         .spawn()
         .expect("start the unit's command");
-    loopback::Coordinator::following(child, trace.to_path_buf(), summary.to_path_buf())
+    loopback::Coordinator::following(child, trace.to_path_buf(), summary.to_path_buf(), trace_before)
 }
 
 /// Per step, how often it was active; and the variables' final values — what a run's outcome is.
