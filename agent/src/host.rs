@@ -22,6 +22,7 @@ use baton_proto::cluster::runtime::agent::{AgentOutput, AgentRun, NotTaken};
 use baton_proto::cluster::runtime::Level;
 use baton_proto::cluster::wire::{self, AgentInfo, ChartHash, ChartSource, HeldToken, RunId, ToAgent, VarUpdate};
 use baton_proto::exec::program::{ActionId, Program};
+use baton_proto::exec::trace::TraceEvent;
 use baton_proto::limits::{fence_after_ms, fence_check_ms, CHART_SOURCE_BYTES_MAX};
 use baton_proto::pipeline::check_source;
 use tokio::sync::{mpsc, watch};
@@ -297,6 +298,7 @@ pub async fn run_until(
         if config.roles.is_empty() { String::new() } else { format!(" with role(s) {}", config.roles.join(", ")) };
     let skill_names = shared.lock()?.skills.names().join(", ");
     eprintln!("baton-agent `{name}`{roles} ready on {} (skills: {skill_names})", config.connect.join(", "));
+    crate::trace::event(&name, TraceEvent::AgentUp, &name, Some(format!("ready on {}", config.connect.join(", "))));
     let mut deadline = shared.lock()?.settled();
     loop {
         // Asleep until a query, a skill's event or a run's next cycle or resend is due (commands come in Zenoh's
@@ -376,10 +378,9 @@ async fn open(
             opened = &mut opened => break opened.map_err(|_| anyhow!("the thread opening the Zenoh session ended"))?,
             () = &mut notice, if !noticed => {
                 noticed = true;
-                eprintln!(
-                    "baton-agent `{name}`: no router answers at {} yet; still trying (Ctrl-C to stop)",
-                    config.connect.join(", ")
-                );
+                let said = format!("no router answers at {} yet", config.connect.join(", "));
+                eprintln!("baton-agent `{name}`: {said}; still trying (Ctrl-C to stop)");
+                crate::trace::event(name, TraceEvent::ContactLost, name, Some(said));
             }
             () = &mut stop => return Ok(None),
         }
@@ -611,19 +612,27 @@ impl Host {
             }
             Event::Contact(lost) => {
                 let holding = self.runs.values().map(|r| r.state.tokens_held()).sum::<usize>();
+                let name = &self.config.name;
                 match lost {
                     // Nothing held, nothing to stop: the usual end of a run whose coordinator hosted the router.
-                    Some(ms) if holding == 0 => eprintln!(
-                        "baton-agent `{}`: no contact with the router for {ms} ms; no token is held here, nothing to \
-                         stop; still trying",
-                        self.config.name
-                    ),
-                    Some(ms) => eprintln!(
-                        "warning: no contact with the router for {ms} ms: the skills of the {holding} token(s) held \
-                         here that may go to another agent are stopped (lease fence, at unix ms {})",
-                        unix_ms()
-                    ),
-                    None => eprintln!("the router is back"),
+                    Some(ms) if holding == 0 => {
+                        let said =
+                            format!("no contact with the router for {ms} ms; no token is held here, nothing to stop");
+                        eprintln!("baton-agent `{name}`: {said}; still trying");
+                        crate::trace::event(name, TraceEvent::ContactLost, name, Some(said));
+                    }
+                    Some(ms) => {
+                        let said = format!(
+                            "no contact with the router for {ms} ms: the skills of the {holding} token(s) held here \
+                             that may go to another agent are stopped (lease fence)"
+                        );
+                        eprintln!("warning: {said} at unix ms {}", crate::trace::unix_ms());
+                        crate::trace::event(name, TraceEvent::ContactLost, name, Some(said));
+                    }
+                    None => {
+                        eprintln!("the router is back");
+                        crate::trace::event(name, TraceEvent::ContactBack, name, None);
+                    }
                 }
                 self.contact_lost = lost;
                 for r in self.runs.values_mut() {
@@ -634,6 +643,12 @@ impl Host {
                 if self.running.get(&(run, action)).is_some_and(|r| r.serial == serial) {
                     self.running.remove(&(run, action));
                     if let Some(r) = self.runs.get_mut(&run) {
+                        let name = &r.state.program().actions[action.index()].name;
+                        let (event, message) = match &result {
+                            Ok(()) => (TraceEvent::SkillDone, None),
+                            Err(why) => (TraceEvent::SkillFault, Some(why.clone())),
+                        };
+                        crate::trace::event(&self.config.name, event, name, message);
                         r.state.handle_skill_result(now, action, result);
                     }
                 } else if let Some((run, action)) = self.stopping.remove(&serial) {
@@ -780,6 +795,7 @@ impl Host {
             AgentOutput::Devices(report) => {
                 self.put(&keys::devices(run, &self.config.name), wire::encode(&report));
             }
+            AgentOutput::Trace(record) => crate::trace::write(&self.config.name, record),
             AgentOutput::Log { level, message } => {
                 if level >= Level::Warn || self.config.verbose {
                     let tag = match level {
@@ -822,6 +838,7 @@ impl Host {
         if ctx.is_stopped() && !stops_itself {
             return;
         }
+        crate::trace::event(&self.config.name, TraceEvent::SkillStart, &call.action, None);
         tokio::spawn(drive_skill(skill.start(call), ctx, written, stops_itself, move |e| match e {
             SkillEvent::Output(i, v) => {
                 let _ = tx.send(Event::SkillOutput(run, action, serial, i, v));
@@ -891,10 +908,6 @@ async fn watch_router(session: Session, name: String, lease_ms: u64, tx: mpsc::U
             }
         }
     }
-}
-
-fn unix_ms() -> u128 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis())
 }
 
 /// Asks the coordinator of `run` for its chart and compiles it; the chart must hash to `hash`.

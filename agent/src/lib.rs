@@ -30,6 +30,7 @@ mod roles;
 pub mod ros2;
 pub mod scenario_skills;
 pub mod skill;
+pub mod trace;
 
 pub use connections::Connections;
 pub use host::{run, run_until, AgentConfig};

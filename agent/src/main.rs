@@ -63,6 +63,11 @@ struct Args {
     /// Default: $XDG_STATE_HOME/baton-agent/pki, else ~/.local/state/baton-agent/pki.
     #[arg(long, value_name = "DIR")]
     opcua_pki: Option<std::path::PathBuf>,
+    /// Write this agent's trace to FILE (appended to), one JSON record per line, as programs read it: its start,
+    /// its contact with the router, each skill's start, end, cancel and stop, an input refused (`t_ms` is Unix
+    /// time).
+    #[arg(long, value_name = "FILE")]
+    trace: Option<std::path::PathBuf>,
     /// For benchmarks and tests: host N agents in this process, named NAME1 … NAMEN, each its own session.
     #[arg(long, hide = true, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=4096))]
     instances: Option<u32>,
@@ -143,6 +148,12 @@ fn agent_main() -> ExitCode {
     if args.list_skills {
         print!("{}", connections.skills(skills).catalogue().to_toml());
         return ExitCode::SUCCESS;
+    }
+    if let Some(path) = &args.trace {
+        if let Err(e) = baton_agent::trace::open(path) {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
     }
     let runtime = match tokio::runtime::Builder::new_multi_thread()
         .worker_threads(if args.instances.is_some() { 2 } else { 1 })

@@ -491,6 +491,9 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool, why: bo
                 );
             }
         }
+        if r.messages_dropped > 0 {
+            println!("  messages refused: {} (see the coordinator's log for what and from whom)", r.messages_dropped);
+        }
     }
     Ok(())
 }

@@ -3,6 +3,7 @@
 //! services (a query with the CDR request and the attachment), and subscribes to topics. A ROS 2 action is built
 //! from these, as rmw_zenoh and the bridge build it: three services and a feedback topic (see `skills`).
 
+use baton_proto::exec::trace::TraceEvent;
 use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -31,12 +32,14 @@ pub struct Ros2 {
     pub domain: u32,
     pub via: Via,
     node_name: String,
+    agent: String,
     node: Mutex<Option<Arc<Node>>>,
 }
 
 impl Ros2 {
     pub fn new(lib: Arc<Interfaces>, domain: u32, via: Via, agent: &str) -> Ros2 {
-        Ros2 { lib, domain, via, node_name: format!("baton_{}", agent.replace('-', "_")), node: Mutex::new(None) }
+        let node_name = format!("baton_{}", agent.replace('-', "_"));
+        Ros2 { lib, domain, via, node_name, agent: agent.to_string(), node: Mutex::new(None) }
     }
 
     /// The agent's node on `session`, announced in the ROS graph the first time it is needed.
@@ -62,6 +65,7 @@ impl Ros2 {
             session: session.clone(),
             id,
             via: self.via,
+            agent: self.agent.clone(),
             next_entity: AtomicU32::new(1),
             next_sequence: AtomicI64::new(1),
             _token: token,
@@ -75,6 +79,8 @@ pub struct Node {
     session: Session,
     id: NodeId,
     via: Via,
+    /// The agent's name, for its trace.
+    agent: String,
     next_entity: AtomicU32,
     next_sequence: AtomicI64,
     _token: Option<LivelinessToken>,
@@ -314,10 +320,11 @@ impl Node {
                 break answer;
             }
             if pause == FIRST_PAUSE {
-                // The agent's log (stderr), as the host writes it: a server seen in the graph that takes no call.
-                eprintln!(
-                    "warning: no server took the call of {name} yet, though one is in the graph: sending it again"
-                );
+                // The agent's log (stderr), as the host writes it, and its trace: a server seen in the graph that
+                // takes no call.
+                let said = "no server took the call yet, though one is in the graph: sending it again";
+                eprintln!("warning: {said} ({name})");
+                crate::trace::event(&self.agent, TraceEvent::SkillWait, name, Some(said.to_string()));
             }
             tokio::time::sleep(pause).await;
             pause = (pause * 2).min(Duration::from_millis(200));

@@ -483,6 +483,7 @@ async fn serve(
                     // The run's clock now, not the time of its last input: an idle run's time goes on.
                     let mut status = host.core.core().status();
                     status.t_ms = host.now_ms();
+                    status.messages_dropped += host.decode_drops;
                     reply(&q, keys::status(run), wire::encode(&status))
                 }
                 Wake::Set(q) => host.on_set_query(q, run),

@@ -530,6 +530,10 @@ pub struct StatusReport {
     /// Why the coordinator's own active steps wait (`baton status --why` adds the agents' from them).
     #[serde(default)]
     pub why: Vec<StepWhy>,
+    /// Messages the coordinator refused so far (corrupt, of an unknown sender, stale), as the summary counts
+    /// them at the end: a number that climbs says a peer is misbehaving.
+    #[serde(default)]
+    pub messages_dropped: u64,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

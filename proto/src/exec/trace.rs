@@ -81,11 +81,31 @@ pub enum TraceEvent {
     /// An operator took a token back (manual mode: `deactivate` or `move` of the step it held): its agent drops it
     /// (`name` is that step, with `agent`, `token`, `epoch`). It does not come back.
     Withdraw,
+    // What follows is written by an agent, in its own trace (`baton-agent --trace`), where `t_ms` is Unix time
+    // and `agent` names the agent; `agent_up`, `skill_done` and `skill_fault` are written there too.
+    /// The agent has not heard its router for a while, or, starting, no router answers yet (`name` is the agent;
+    /// `message` says what it stopped, if anything).
+    ContactLost,
+    /// The agent hears its router again (`name` is the agent).
+    ContactBack,
+    /// The agent started the skill of an action (`name` is the action, with `token`).
+    SkillStart,
+    /// The agent cancelled a running skill (`name` is the action; `message` says why: the run was aborted, its
+    /// token is held, the lease fence).
+    SkillCancel,
+    /// A cancelled skill has ended (`name` is the action; `message` says how, or why it did not stop cleanly).
+    SkillStopped,
+    /// A skill waits for something outside the agent (`name` is what it waits for, `message` why: no server took
+    /// a call yet).
+    SkillWait,
+    /// A device's value for an input was refused (`name` is the variable, `message` why); the input keeps its
+    /// value.
+    InputRefused,
 }
 
 impl TraceEvent {
     /// Every event, in the order above.
-    pub const ALL: [TraceEvent; 32] = [
+    pub const ALL: [TraceEvent; 39] = [
         TraceEvent::Activate,
         TraceEvent::Deactivate,
         TraceEvent::Fire,
@@ -118,6 +138,13 @@ impl TraceEvent {
         TraceEvent::Told,
         TraceEvent::NewRun,
         TraceEvent::Withdraw,
+        TraceEvent::ContactLost,
+        TraceEvent::ContactBack,
+        TraceEvent::SkillStart,
+        TraceEvent::SkillCancel,
+        TraceEvent::SkillStopped,
+        TraceEvent::SkillWait,
+        TraceEvent::InputRefused,
     ];
 
     /// The event's name in the JSON (`action_on`). Not public: code outside matches on the event itself, and
@@ -156,6 +183,13 @@ impl TraceEvent {
             TraceEvent::Told => "told",
             TraceEvent::NewRun => "new_run",
             TraceEvent::Withdraw => "withdraw",
+            TraceEvent::ContactLost => "contact_lost",
+            TraceEvent::ContactBack => "contact_back",
+            TraceEvent::SkillStart => "skill_start",
+            TraceEvent::SkillCancel => "skill_cancel",
+            TraceEvent::SkillStopped => "skill_stopped",
+            TraceEvent::SkillWait => "skill_wait",
+            TraceEvent::InputRefused => "input_refused",
         }
     }
 }

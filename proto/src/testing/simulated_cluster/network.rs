@@ -197,7 +197,10 @@ impl SimCluster {
                     self.agents[i].skills.remove(&action);
                 }
                 // The simulated cells have no devices.
-                AgentOutput::Log { .. } | AgentOutput::Output { .. } | AgentOutput::Devices(_) => {}
+                AgentOutput::Log { .. }
+                | AgentOutput::Trace(_)
+                | AgentOutput::Output { .. }
+                | AgentOutput::Devices(_) => {}
             }
         }
     }

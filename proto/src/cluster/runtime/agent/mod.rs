@@ -31,6 +31,7 @@ use crate::cluster::wire::{
 };
 use crate::exec::engine::Engine;
 use crate::exec::program::{ActionId, Program, StepId, VarId};
+use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::types::Value;
 
 use super::{FinishedTokens, Level, VarWrites, VarsResend};
@@ -69,6 +70,9 @@ pub enum AgentOutput {
         level: Level,
         message: String,
     },
+    /// A record for the agent's own trace (`baton-agent --trace`): what befell a skill or an input here. Its
+    /// `t_ms` is the run's clock; the host stamps it with its own and names the agent.
+    Trace(TraceRecord),
 }
 
 /// Why `AgentRun::handle_message` did not take a message.
@@ -411,6 +415,14 @@ impl AgentRun {
         self.outbox.push_back(AgentOutput::Log { level, message });
     }
 
+    /// A record for the agent's trace: `event` of `name` (an action or a variable), of `token` if any.
+    fn note(&mut self, event: TraceEvent, name: &str, token: Option<TokenId>, message: Option<String>) {
+        let mut record = TraceRecord::new(self.now_ms, event, name);
+        record.token = token.map(|t| t.to_string());
+        record.message = message;
+        self.outbox.push_back(AgentOutput::Trace(record));
+    }
+
     fn drop_msg(&mut self, message: String) {
         self.dropped += 1;
         self.log(Level::Warn, message);
@@ -433,9 +445,10 @@ impl AgentRun {
         let ty = &self.program.vars[var.index()].ty;
         if matches!(value, Value::Str(_)) && !matches!(ty, crate::types::Type::Str { .. }) {
             self.dropped += 1;
-            let message =
-                format!("input `{name}`: `{value}` is not a {ty}; the value stays {}", self.engine.value(var));
-            self.log(Level::Warn, message);
+            let why = format!("`{value}` is not a {ty}; the value stays {}", self.engine.value(var));
+            self.log(Level::Warn, format!("input `{name}`: {why}"));
+            let var_name = self.program.vars[var.index()].name.clone();
+            self.note(TraceEvent::InputRefused, &var_name, None, Some(why));
             return;
         }
         self.write_from_device(var, value, format!("input `{name}`"));

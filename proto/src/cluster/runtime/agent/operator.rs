@@ -65,8 +65,7 @@ impl AgentRun {
         for a in cancel {
             self.running_skills.remove(&a);
             self.outbox.push_back(AgentOutput::StopSkill { action: a });
-            let name = self.program.actions[a.index()].name.clone();
-            self.log(Level::Info, format!("skill of action `{name}` cancelled: its token is held"));
+            self.say_cancelled(Level::Info, a, "its token is held");
             self.cancelled_on_hold.insert(a);
         }
     }
@@ -134,8 +133,7 @@ impl AgentRun {
         }
         for a in std::mem::take(&mut self.running_skills) {
             self.outbox.push_back(AgentOutput::StopSkill { action: a });
-            let name = self.program.actions[a.index()].name.clone();
-            self.log(Level::Warn, format!("skill of action `{name}` cancelled: the run was aborted"));
+            self.say_cancelled(Level::Warn, a, "the run was aborted");
         }
         if let Err(e) = self.engine.abort(self.now_ms) {
             self.log(Level::Error, format!("abort refused: {e}"));

@@ -8,6 +8,7 @@ use crate::cluster::runtime::Level;
 use crate::cluster::wire::AgentEventKind;
 use crate::exec::engine::Input;
 use crate::exec::program::{ActionId, VarId};
+use crate::exec::trace::TraceEvent;
 use crate::types::Value;
 
 use super::AgentRun;
@@ -49,12 +50,27 @@ impl AgentRun {
     /// method called): said in the log, since the chart no longer waits for it.
     /// `result` says how: `Ok` with what the device answered, or `Err` with why the stop failed.
     pub fn handle_skill_stopped(&mut self, action: ActionId, result: Result<String, String>) {
-        let name = &self.program.actions[action.index()].name;
-        let (level, message) = match result {
+        let name = self.program.actions[action.index()].name.clone();
+        let (level, message) = match &result {
             Ok(how) => (Level::Info, format!("skill of action `{name}` stopped: {how}")),
             Err(why) => (Level::Warn, format!("skill of action `{name}` did not stop cleanly: {why}")),
         };
         self.log(level, message);
+        let token = action_token(&self.action_segments, &self.by_segment, action);
+        let said = match result {
+            Ok(how) => how,
+            Err(why) => format!("it did not stop cleanly: {why}"),
+        };
+        self.note(TraceEvent::SkillStopped, &name, token, Some(said));
+    }
+
+    /// Says that the skill of `action` is cancelled, and why (`the run was aborted`), in the log at `level` and
+    /// in the trace. The caller has removed it from the running skills and asked the host to stop it.
+    pub(super) fn say_cancelled(&mut self, level: Level, action: ActionId, why: &str) {
+        let name = self.program.actions[action.index()].name.clone();
+        self.log(level, format!("skill of action `{name}` cancelled: {why}"));
+        let token = action_token(&self.action_segments, &self.by_segment, action);
+        self.note(TraceEvent::SkillCancel, &name, token, Some(why.to_string()));
     }
 
     /// Sets the indicators of `action`'s associations on the active steps: the first to `done`, the second

@@ -242,6 +242,9 @@ fn the_lease_fence_stops_the_skills_of_a_token_that_may_move_and_only_those() {
         let out = run_until(&mut a, 40);
         let stopped = out.iter().any(|o| matches!(o, AgentOutput::StopSkill { .. }));
         assert_eq!(stopped, fence, "fence {fence}: {out:?}");
+        // Each cancel is in the agent's trace, with its action and token, and only a cancel.
+        let expected = if fence { vec![("Move".to_string(), Some(token_text(1)))] } else { Vec::new() };
+        assert_eq!(cancels(&out), expected, "fence {fence}: {out:?}");
     }
 }
 
@@ -324,10 +327,28 @@ fn an_abort_cancels_the_running_skill_and_forgets_the_run() {
     a.handle_abort(20);
     let out = drain(&mut a);
     assert_eq!(stopped(&out), [f.action("Move")], "{out:?}");
+    assert_eq!(cancels(&out), [("Move".to_string(), Some(token_text(1)))], "{out:?}");
     assert_eq!(a.tokens_held(), 0);
     assert!(a.poll_timeout().is_none_or(|t| t > 20), "nothing due at once");
     a.handle_dispatch(30, f.dispatch(2, 1, false));
     assert!(started(&drain(&mut a)).is_empty() && a.tokens_held() == 0, "a dispatch after the abort runs nothing");
+}
+
+/// The skills the agent's trace says were cancelled: (action, token).
+fn cancels(out: &[AgentOutput]) -> Vec<(String, Option<String>)> {
+    out.iter()
+        .filter_map(|o| match o {
+            AgentOutput::Trace(r) if r.event == crate::exec::trace::TraceEvent::SkillCancel => {
+                Some((r.name.clone(), r.token.clone()))
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+/// Token `n` of `Fixture::dispatch`, as a trace writes it.
+fn token_text(n: u128) -> String {
+    TokenId(Uuid::from_u128(n)).to_string()
 }
 
 fn logs(out: &[AgentOutput]) -> Vec<(Level, String)> {

@@ -141,10 +141,7 @@ impl AgentRun {
             self.running_skills.remove(&a);
             self.outbox.push_back(AgentOutput::StopSkill { action: a });
             self.set_indicators(a, Some(false), Some(true));
-            self.log(
-                Level::Warn,
-                format!("skill of action `{}` cancelled: {why}", self.program.actions[a.index()].name),
-            );
+            self.say_cancelled(Level::Warn, a, &why);
             self.record(token, AgentEventKind::SkillFault { action: a.0, message: format!("cancelled: {why}") });
         }
         self.settle();

@@ -129,6 +129,7 @@ impl Coordinator {
                 .map(|t| self.program.transitions[t.index()].name.clone())
                 .collect(),
             why: self.why(),
+            messages_dropped: self.stats.dropped,
         }
     }
 
