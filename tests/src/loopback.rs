@@ -200,7 +200,8 @@ impl Cluster {
 
     fn agent_via(&mut self, mut cmd: Command, endpoint: &str, name: &str, roles: &[&str], extra: &[&str]) {
         let log = std::fs::File::create(self.dir.path().join(format!("{name}.log"))).expect("agent log");
-        cmd.args(["--connect", endpoint, "--name", name]);
+        let trace = self.agent_trace_path(name, self.agents.iter().filter(|(n, _)| n == name).count());
+        cmd.args(["--connect", endpoint, "--name", name]).arg("--trace").arg(trace);
         for r in roles {
             cmd.args(["--role", r]);
         }
@@ -233,30 +234,48 @@ impl Cluster {
         assert!(status.success(), "kill -{signal} {pid}");
     }
 
-    pub fn agent_log(&self, name: &str) -> String {
-        std::fs::read_to_string(self.dir.path().join(format!("{name}.log"))).unwrap_or_default()
+    /// The trace of the `nth` process started under `name` (from 0): each has its own.
+    fn agent_trace_path(&self, name: &str, nth: usize) -> PathBuf {
+        self.dir.path().join(format!("{name}-{nth}.trace.jsonl"))
     }
 
-    /// The agent's log once it holds `needle`, read again each time the file system says its folder changed.
-    pub async fn wait_for_agent_log(&self, name: &str, needle: &str) -> String {
-        let changed = watch(self.dir.path());
+    /// The trace of the agent's most recent process (`baton-agent --trace`), as far as it is written.
+    pub fn agent_trace(&self, name: &str) -> Vec<TraceRecord> {
+        let started = self.agents.iter().filter(|(n, _)| n == name).count();
+        assert!(started > 0, "agent `{name}` was never started");
+        read_trace_so_far(&self.agent_trace_path(name, started - 1))
+    }
+
+    /// Waits until the trace of the agent's most recent process has a record that `matches` (`what` says it, for
+    /// the failure message); returns that trace so far. Woken by the file system each time its folder changes.
+    pub async fn wait_for_agent_trace(
+        &self,
+        name: &str,
+        what: &str,
+        matches: impl Fn(&TraceRecord) -> bool,
+    ) -> Vec<TraceRecord> {
+        let (_watcher, mut changed) = watch(self.dir.path());
         let found = tokio::time::timeout(TIMEOUT, async {
-            let mut changed = changed;
             loop {
-                let log = self.agent_log(name);
-                if log.contains(needle) {
-                    return log;
-                }
-                if changed.1.recv().await.is_none() {
-                    return self.agent_log(name);
+                let trace = self.agent_trace(name);
+                if trace.iter().any(&matches) || changed.recv().await.is_none() {
+                    return trace;
                 }
             }
         })
         .await;
-        found
-            .ok()
-            .filter(|log| log.contains(needle))
-            .unwrap_or_else(|| panic!("agent `{name}` never logged `{needle}`; it logged:\n{}", self.agent_log(name)))
+        match found {
+            Ok(trace) if trace.iter().any(&matches) => trace,
+            _ => panic!(
+                "agent `{name}`'s trace never showed {what}; its trace:\n{:#?}\nits log:\n{}",
+                self.agent_trace(name),
+                self.agent_log(name)
+            ),
+        }
+    }
+
+    pub fn agent_log(&self, name: &str) -> String {
+        std::fs::read_to_string(self.dir.path().join(format!("{name}.log"))).unwrap_or_default()
     }
 
     /// Starts `baton run CHART --listen EP --trace … --summary …` (the coordinator embeds the router).
@@ -328,31 +347,6 @@ impl Coordinator {
         tokio::time::timeout(TIMEOUT, self.child.wait()).await.expect("coordinator died in time").expect("wait");
     }
 
-    /// Reads the coordinator's log until a line containing `needle`; returns the lines read. (For what a test
-    /// checks the log itself for; to wait for something the run did, `wait_for_trace`.)
-    pub async fn wait_for_log(&mut self, needle: &str) -> Vec<String> {
-        let start = self.read;
-        let found = tokio::time::timeout(TIMEOUT, async {
-            loop {
-                let more = self.log.more.notified();
-                let lines = self.log.since(self.read);
-                if let Some(k) = lines.iter().position(|l| l.contains(needle)) {
-                    self.read += k + 1;
-                    return true;
-                }
-                self.read += lines.len();
-                if self.log.ended.load(std::sync::atomic::Ordering::SeqCst) {
-                    return false;
-                }
-                more.await;
-            }
-        })
-        .await;
-        let seen: Vec<String> = self.log.lines.lock().expect("log")[start..self.read].to_vec();
-        assert!(matches!(found, Ok(true)), "the coordinator never logged `{needle}`; it logged:\n{}", seen.join("\n"));
-        seen
-    }
-
     /// What the coordinator logged that no wait read yet, for a failure message.
     pub async fn unread_log(&mut self) -> String {
         let lines = self.log.since(self.read);
@@ -371,8 +365,33 @@ impl Coordinator {
     /// Waits until the trace has a record this process wrote that `matches` (`what` says it, for the failure
     /// message); returns the trace so far. Woken by the file system each time the trace changes.
     pub async fn wait_for_trace(&mut self, what: &str, matches: impl Fn(&TraceRecord) -> bool) -> Vec<TraceRecord> {
-        let (_watcher, mut changed) = watch(self.trace.parent().expect("the trace's folder"));
         let before = self.trace_before;
+        self.wait_for_trace_from(before, what, matches).await
+    }
+
+    /// How many whole records the trace holds now: a mark for `wait_for_trace_after`, taken before the deed
+    /// whose record is awaited.
+    pub fn trace_mark(&self) -> usize {
+        read_trace_so_far(&self.trace).len().max(self.trace_before)
+    }
+
+    /// As `wait_for_trace`, for a record written after `mark` (`trace_mark`).
+    pub async fn wait_for_trace_after(
+        &mut self,
+        mark: usize,
+        what: &str,
+        matches: impl Fn(&TraceRecord) -> bool,
+    ) -> Vec<TraceRecord> {
+        self.wait_for_trace_from(mark, what, matches).await
+    }
+
+    async fn wait_for_trace_from(
+        &mut self,
+        before: usize,
+        what: &str,
+        matches: impl Fn(&TraceRecord) -> bool,
+    ) -> Vec<TraceRecord> {
+        let (_watcher, mut changed) = watch(self.trace.parent().expect("the trace's folder"));
         let found = tokio::time::timeout(TIMEOUT, async {
             loop {
                 let trace = read_trace_so_far(&self.trace);
@@ -452,6 +471,22 @@ pub fn watch(dir: &Path) -> (notify::RecommendedWatcher, tokio::sync::mpsc::Unbo
     .expect("a file watcher");
     notify::Watcher::watch(&mut watcher, dir, notify::RecursiveMode::NonRecursive).expect("watch the folder");
     (watcher, changed)
+}
+
+/// Waits until `ready` gives a value, asking it again each time the file system says something in `dir` changed,
+/// under the timeout; `what` names what was waited for, if it never came.
+pub async fn when_changed<T>(dir: &Path, what: &str, mut ready: impl FnMut() -> Option<T>) -> T {
+    let (_watcher, mut changed) = watch(dir);
+    let found = tokio::time::timeout(TIMEOUT, async {
+        loop {
+            if let Some(value) = ready() {
+                return Some(value);
+            }
+            changed.recv().await?;
+        }
+    })
+    .await;
+    found.ok().flatten().unwrap_or_else(|| panic!("{what} never came"))
 }
 
 /// The trace's whole lines so far (a line being written is left for later).

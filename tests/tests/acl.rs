@@ -347,7 +347,7 @@ async fn the_user_password_example_lets_only_operators_set_and_operate() {
     let mut coordinator = cluster.coordinator_connecting(&chart, &["--zenoh-config", cell]);
     coordinator.wait_ready().await;
     cluster.agent("r1", &[], &["--zenoh-config", cell]);
-    cluster.wait_for_agent_log("r1", " ready on ").await;
+    cluster.wait_for_agent_trace("r1", "its start", |r| r.event == TraceEvent::AgentUp).await;
     let ep = cluster.endpoint.clone();
     let refused = cluster.baton(&["set", "--connect", &ep, "--zenoh-config", cell, "go=true"]).await;
     assert!(!refused.status.success(), "the cell user set an input");

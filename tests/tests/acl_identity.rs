@@ -85,23 +85,15 @@ async fn run_id(cluster: &Cluster, dir: &Path, pki: &Path) -> RunId {
     serde_json::from_value(status["run"].clone()).expect("the run's id")
 }
 
-/// The trace once it holds a record `found` accepts (the file is read again every 20 ms, under the timeout).
+/// The trace once it holds a record `found` accepts (read again each time its folder changes).
 async fn trace_once(path: &Path, found: impl Fn(&TraceRecord) -> bool) -> Vec<TraceRecord> {
-    let got = tokio::time::timeout(TIMEOUT, async {
-        loop {
-            let text = std::fs::read_to_string(path).unwrap_or_default();
-            let whole = &text[..text.rfind('\n').map_or(0, |i| i + 1)];
-            let trace: Vec<TraceRecord> = whole.lines().filter_map(|l| serde_json::from_str(l).ok()).collect();
-            if trace.iter().any(&found) {
-                return trace;
-            }
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
+    let dir = path.parent().expect("the trace's folder");
+    let what = format!("a record the test waits for in {}", path.display());
+    baton_tests::loopback::when_changed(dir, &what, || {
+        let trace = baton_tests::loopback::read_trace_so_far(path);
+        trace.iter().any(&found).then_some(trace)
     })
-    .await;
-    got.unwrap_or_else(|_| {
-        panic!("the trace never held what was waited for:\n{}", std::fs::read_to_string(path).unwrap_or_default())
-    })
+    .await
 }
 
 /// robot1, deployed without a role, started with `--role welder`: refused before it runs, saying why. A process on
@@ -163,7 +155,7 @@ async fn an_identity_serves_only_the_roles_its_deployment_gives_it() {
     for (name, roles) in [("robot1", vec![]), ("w1", vec!["welder"])] {
         let config = tls_config(&dir, &pki, name, false);
         cluster.agent(name, &roles, &["--zenoh-config", config.to_str().expect("utf-8")]);
-        cluster.wait_for_agent_log(name, " ready on ").await;
+        cluster.wait_for_agent_trace(name, "its start", |r| r.event == TraceEvent::AgentUp).await;
     }
     let set = cluster.baton(&["set", "--connect", &cluster.endpoint, "--zenoh-config", anna, "go=true"]).await;
     assert!(set.status.success(), "{}", String::from_utf8_lossy(&set.stderr));
@@ -243,7 +235,7 @@ async fn a_run_joined_while_fenced_starts_its_skills_fenced() {
     let (mut cluster, dir, pki, coordinator) = secured(old_rules).await;
     let robot1 = tls_config(&dir, &pki, "robot1", false);
     cluster.agent("robot1", &[], &["--zenoh-config", robot1.to_str().expect("utf-8"), "--lease-ms", "2000"]);
-    cluster.wait_for_agent_log("robot1", "no contact with the router").await;
+    cluster.wait_for_agent_trace("robot1", "no contact", |r| r.event == TraceEvent::ContactLost).await;
     let anna = tls_config(&dir, &pki, "anna", false);
     let set = cluster
         .baton(&["set", "--connect", &cluster.endpoint, "--zenoh-config", anna.to_str().expect("utf-8"), "go=true"])

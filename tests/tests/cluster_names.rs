@@ -80,7 +80,7 @@ async fn two_processes_answering_to_one_name_get_nothing_until_one_is_left() {
     // The impostor goes: the real r1 answers alone, and gets the token.
     answering.abort();
     let _ = answering.await;
-    coordinator.wait_for_log("agent `r1` answers alone again").await;
+    coordinator.wait_for_trace("the token sent to r1", |r| r.event == TraceEvent::Dispatch).await;
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
     check_trace_invariants(&trace, &chart());
@@ -148,7 +148,7 @@ async fn an_agent_waiting_for_its_router_stops_when_told() {
     let nowhere = format!("tcp/127.0.0.1:{}", free_port());
     for (name, signal) in [("waiting_int", "INT"), ("waiting_term", "TERM")] {
         cluster.agent_at(&nowhere, name, &[], &[]);
-        cluster.wait_for_agent_log(name, "no router answers").await;
+        cluster.wait_for_agent_trace(name, "no router yet", |r| r.event == TraceEvent::ContactLost).await;
         cluster.signal_agent(name, signal);
         let status = cluster.wait_agent(name).await;
         assert!(status.success(), "SIG{signal}: {status}; {}", cluster.agent_log(name));

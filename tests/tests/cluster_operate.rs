@@ -8,7 +8,7 @@ use std::time::Duration;
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::invariants::tokens_out;
 use baton_tests::loopback::{
-    check_trace_invariants, check_trace_invariants_with_tokens_out, Cluster, Coordinator, TIMEOUT,
+    self, check_trace_invariants, check_trace_invariants_with_tokens_out, Cluster, Coordinator, TIMEOUT,
 };
 
 /// Two robots, each with two shell motions in sequence that write `start NAME` and `end NAME` to `marks`; the
@@ -68,15 +68,10 @@ fn marks(dir: &Path) -> Vec<String> {
     std::fs::read_to_string(dir.join("marks")).unwrap_or_default().lines().map(str::to_string).collect()
 }
 
-/// Waits until `marks` holds `line` (the file is read again every 20 ms, under the timeout).
+/// Waits until `marks` holds `line` (read again each time the folder changes).
 async fn wait_for_mark(dir: &Path, line: &str) {
-    let found = tokio::time::timeout(TIMEOUT, async {
-        while !marks(dir).iter().any(|l| l == line) {
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-    })
-    .await;
-    assert!(found.is_ok(), "never marked `{line}`: {:?}", marks(dir));
+    let what = format!("the mark `{line}`");
+    loopback::when_changed(dir, &what, || marks(dir).iter().any(|l| l == line).then_some(())).await;
 }
 
 /// `baton ctl ARGS…` on the cluster: its exit status and what it printed.
@@ -214,7 +209,9 @@ async fn abort_cancels_the_running_motion_and_ends_the_run_aborted() {
     assert_eq!(states, ["aborting", "aborted"]);
     // Aborted with r1's motion running: its token is cancelled there, not handed back.
     check_trace_invariants_with_tokens_out(&trace, &chart, tokens_out(&trace));
-    cluster.wait_for_agent_log("r1", "skill of action `MoveA1` cancelled: the run was aborted").await;
+    cluster
+        .wait_for_agent_trace("r1", "MoveA1 cancelled", |r| r.event == TraceEvent::SkillCancel && r.name == "MoveA1")
+        .await;
     let pid = std::fs::read_to_string(&pid_file).expect("the motion wrote its pid");
     assert!(pid.trim().parse::<u32>().is_ok(), "`{pid}` is not a pid");
     let proc = PathBuf::from(format!("/proc/{}", pid.trim()));
@@ -348,7 +345,9 @@ async fn a_hold_cancels_a_motion_that_says_so_and_unhold_runs_it_again() {
     assert!(ok, "{said}");
     // Held well before the 100 s motion could have ended: it was cancelled.
     wait_for_state(&cluster, "held").await;
-    cluster.wait_for_agent_log("r1", "skill of action `MoveA` cancelled: its token is held").await;
+    cluster
+        .wait_for_agent_trace("r1", "MoveA cancelled", |r| r.event == TraceEvent::SkillCancel && r.name == "MoveA")
+        .await;
     assert_eq!(marks(&dir), ["start MoveA"], "nothing ran while held");
     let (ok, said) = ctl(&cluster, &["unhold"]).await;
     assert!(ok, "{said}");
@@ -613,7 +612,7 @@ async fn an_agent_without_the_skill_of_a_step_is_sent_nothing_and_an_alarm_names
     // Started again with the skill: the alarm's cause is gone, the step is sent, and the chart reaches its end.
     cluster.kill_agent("r1").await;
     cluster.agent("r1", &[], &["--allow-shell"]);
-    coordinator.wait_for_log("agent `r1` has skill `shell` now").await;
+    coordinator.wait_for_trace("Grip sent to r1", |r| r.event == TraceEvent::Dispatch && r.name == "Grip").await;
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
     assert_eq!(marks(&dir), ["closed"], "the command ran once, on the process that has the skill");
@@ -733,7 +732,6 @@ async fn abort_with_a_robot_cut_off_tells_it_once_it_is_back() {
     coordinator.wait_for_trace("r1 lost", |r| r.event == TraceEvent::AgentLost && r.name == "r1").await;
     let (ok, said) = ctl(&cluster, &["abort", "--reason", "r1 unreachable"]).await;
     assert!(ok, "{said}");
-    coordinator.wait_for_log("waiting up to 60000 ms to tell r1").await;
     let s = wait_for_state(&cluster, "aborted").await;
     let abandoned = s["alarms"].as_array().and_then(|a| {
         a.iter().find(|x| x["message"].as_str().is_some_and(|m| m.contains("abandoned: `r1` could not be told")))
@@ -752,7 +750,9 @@ async fn abort_with_a_robot_cut_off_tells_it_once_it_is_back() {
     assert!(told > aborted);
     // r1's token was abandoned while it was cut off: it never comes back.
     check_trace_invariants_with_tokens_out(&trace, &chart, tokens_out(&trace));
-    cluster.wait_for_agent_log("r1", "skill of action `MoveA1` cancelled: the run was aborted").await;
+    cluster
+        .wait_for_agent_trace("r1", "MoveA1 cancelled", |r| r.event == TraceEvent::SkillCancel && r.name == "MoveA1")
+        .await;
     let gone = tokio::time::timeout(TIMEOUT, async {
         while proc.exists() && !std::fs::read_to_string(proc.join("stat")).unwrap_or_default().contains(") Z ") {
             tokio::time::sleep(Duration::from_millis(20)).await;
@@ -791,6 +791,7 @@ async fn ctl_wait_asks_again_while_its_run_is_briefly_unreachable() {
         mode: Default::default(),
         waiting: Vec::new(),
         why: Vec::new(),
+        messages_dropped: 0,
     };
     let session = cluster.watch().await;
     let ctl = session.declare_queryable(format!("baton/run/{}/ctl/*", run.key())).await.expect("ctl queryable");

@@ -4,7 +4,7 @@
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use baton_proto::cluster::keys;
-use baton_proto::exec::trace::TraceEvent;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::loopback::{self, check_trace_invariants, dispatches, free_port, repo, step_id, Cluster};
 use baton_tests::netns::Netns;
 
@@ -66,13 +66,14 @@ async fn a_cut_off_agent_stops_before_its_token_moves_under_reassign() {
     };
     let reassigned_ms = unix_ms();
     assert_eq!(moved_to, "robot2");
-    // robot1 says when it fenced itself, on its own clock (the same machine's).
-    let log = cluster.wait_for_agent_log("robot1", "lease fence, at unix ms").await;
-    let fenced_ms: u128 = log
-        .lines()
-        .find_map(|l| l.split("lease fence, at unix ms ").nth(1)?.trim_end_matches(')').parse().ok())
-        .unwrap_or_else(|| panic!("robot1 did not fence itself before its token moved:\n{log}"));
-    assert!(log.contains("skill of action `Motion` cancelled"), "{log}");
+    // robot1's trace says when it fenced itself, on its own clock (the same machine's, in Unix time): it cancelled
+    // its motion, having lost the router.
+    let fenced = |r: &TraceRecord| r.event == TraceEvent::SkillCancel && r.name == "Motion";
+    let trace = cluster.wait_for_agent_trace("robot1", "its motion cancelled", fenced).await;
+    let fence = trace.iter().find(|r| fenced(r)).expect("found");
+    let lost = trace.iter().position(|r| r.event == TraceEvent::ContactLost);
+    assert!(lost.is_some_and(|i| trace[i].t_ms <= fence.t_ms), "cancelled before it lost the router: {trace:#?}");
+    let fenced_ms = u128::from(fence.t_ms);
     eprintln!("cut → robot1 stopped: {} ms; cut → token moved: {} ms", fenced_ms - cut_ms, reassigned_ms - cut_ms);
     assert!(
         cut_ms <= fenced_ms && fenced_ms < reassigned_ms,

@@ -41,7 +41,9 @@ async fn a_zenoh_publisher_drives_a_transition_and_outputs_reach_a_subscriber() 
     speed.put("1.5").await.expect("put");
     // A sample that is not a BOOL is refused, and the door stays shut.
     door.put("ajar").await.expect("put");
-    cluster.wait_for_agent_log("cell1", "input `door`: `'ajar'` is not a BOOL; the value stays FALSE").await;
+    cluster
+        .wait_for_agent_trace("cell1", "`ajar` refused", |r| r.event == TraceEvent::InputRefused && r.name == "door")
+        .await;
     door.put("true").await.expect("put");
     assert_eq!(next(&lamp).await, "true");
     assert_eq!(next(&shown).await, "3");

@@ -80,7 +80,9 @@ async fn a_job_whose_step_is_left_is_cancelled_on_the_server_and_never_reported_
     let (trace, summary) = run(&mut cluster, &chart).await;
     assert!(reached(&trace, "Left"));
     server.wait_for("CANCELLED").await;
-    cluster.wait_for_agent_log("cell1", "skill of action `PickSlowly` stopped: it confirmed the stop").await;
+    let stopped = |r: &TraceRecord| r.event == TraceEvent::SkillStopped && r.name == "PickSlowly";
+    let agent_trace = cluster.wait_for_agent_trace("cell1", "PickSlowly stopped", stopped).await;
+    assert!(!agent_trace.iter().any(|r| r.event == TraceEvent::SkillDone), "{agent_trace:#?}");
     assert!(events(&trace, TraceEvent::SkillDone).is_empty() && faults(&trace).is_empty(), "{trace:?}");
     assert_eq!((var(&summary, "picked"), var(&summary, "pick_fault")), ("FALSE".into(), "FALSE".into()));
     let said = server.finish().await;
@@ -133,9 +135,11 @@ async fn bound_nodes_drive_a_transition_take_the_outputs_and_a_server_away_is_re
     server.wait_for("WRITE Lamp True").await;
     server.wait_for("WRITE Setpoint 20").await;
     // The machine goes away: reported, and the inputs keep their values.
+    let mark = coordinator.trace_mark();
     server.kill().await;
-    let said = coordinator.wait_for_log("`door` keeps its value TRUE").await;
-    assert!(said.last().is_some_and(|l| l.contains("cannot reach the device of `door`")), "{said:?}");
+    coordinator
+        .wait_for_trace_after(mark, "door down", |r| r.event == TraceEvent::DeviceDown && r.name == "door")
+        .await;
     // It comes back (restarted, its nodes at their initial values): the chart's outputs are written again.
     let mut again = opcua_server_on(port).await;
     again.wait_for("WRITE Lamp True").await;

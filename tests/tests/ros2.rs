@@ -5,7 +5,7 @@
 
 use std::path::PathBuf;
 
-use baton_proto::exec::trace::TraceEvent;
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::loopback::{events, repo, Cluster};
 use baton_tests::peer::{opcua_server, with_opcua_port, Server};
 use tokio::process::Command;
@@ -109,7 +109,9 @@ async fn leaving_the_step_early_cancels_the_goal_on_the_server() {
     server.wait_for("CANCEL REQUESTED").await;
     server.wait_for("CANCELED").await;
     // The agent reports the stop once the server answered, and nothing is done.
-    cluster.wait_for_agent_log("arm1", "skill of action `MoveArm` stopped: it confirmed the stop").await;
+    let stopped = |r: &TraceRecord| r.event == TraceEvent::SkillStopped && r.name == "MoveArm";
+    let agent_trace = cluster.wait_for_agent_trace("arm1", "MoveArm stopped", stopped).await;
+    assert!(!agent_trace.iter().any(|r| r.event == TraceEvent::SkillDone), "{agent_trace:#?}");
     assert!(
         events(&trace, TraceEvent::SkillDone).is_empty() && events(&trace, TraceEvent::SkillFault).is_empty(),
         "{trace:?}"
@@ -132,7 +134,11 @@ async fn an_abort_mid_goal_cancels_it_on_the_server() {
     assert_eq!(status.code(), Some(4), "{log}");
     server.wait_for("CANCEL REQUESTED").await;
     server.wait_for("CANCELED").await;
-    cluster.wait_for_agent_log("arm1", "skill of action `MoveArm` cancelled: the run was aborted").await;
+    cluster
+        .wait_for_agent_trace("arm1", "MoveArm cancelled", |r| {
+            r.event == TraceEvent::SkillCancel && r.name == "MoveArm"
+        })
+        .await;
     assert!(events(&trace, TraceEvent::SkillDone).is_empty(), "{trace:?}");
 }
 
@@ -246,11 +252,11 @@ async fn topic_fields_drive_a_transition_outputs_are_published_and_a_sensor_gone
     let sink = format!("save:{}", rrd.display());
     let mut coordinator = cluster.coordinator_joining(&chart("ros2_topics.st"), &["--rerun", &sink]);
     // No publisher of the door sensor in the ROS graph: reported.
-    let said = coordinator.wait_for_log("cannot reach the device of `door`").await;
-    assert!(
-        said.last().is_some_and(|l| l.contains("no publisher of /door (std_msgs/msg/Bool) on ROS domain 0")),
-        "{said:?}"
-    );
+    let door_down = |r: &TraceRecord| r.event == TraceEvent::DeviceDown && r.name == "door";
+    let said = coordinator.wait_for_trace("door down", door_down).await;
+    let down = said.iter().rev().find(|r| door_down(r)).expect("found");
+    let why = down.message.as_deref().unwrap_or_default();
+    assert!(why.contains("/door") && why.contains("std_msgs/msg/Bool") && why.contains("domain 0"), "{down:?}");
     let mut sensors = topics(&cluster).await;
     coordinator.wait_for_trace("door back", |r| r.event == TraceEvent::DeviceUp && r.name == "door").await;
     // The lamp's value, published again every 100 ms, reaches a subscriber that came after it was set; the
@@ -262,9 +268,9 @@ async fn topic_fields_drive_a_transition_outputs_are_published_and_a_sensor_gone
     // first.)
     sensors.wait_for_all(&["LAMP true", "BEACON 0 0.7 0 0"]).await;
     // The sensors' process dies: its publishers leave the graph, and the door keeps its value.
+    let mark = coordinator.trace_mark();
     sensors.kill().await;
-    let said = coordinator.wait_for_log("cannot reach the device of `door`").await;
-    assert!(said.last().is_some_and(|l| l.contains("`door` keeps its value TRUE")), "{said:?}");
+    coordinator.wait_for_trace_after(mark, "door down again", door_down).await;
     // Back, publishing a closed door: the chart goes on.
     let sensors = topics(&cluster).await;
     let (status, log, trace, summary) = coordinator.finish().await;
@@ -355,7 +361,8 @@ async fn a_goal_whose_step_was_left_before_its_server_appeared_is_never_sent() {
     assert!(ends_in(&trace, "Left"), "{trace:?}");
     // The skill, still waiting for its server, ends as soon as its step is left: nothing was sent, so nothing is
     // left to cancel (it used to wait for the server, send the goal, then cancel it).
-    cluster.wait_for_agent_log("arm1", "skill of action `MoveArm` stopped: it confirmed the stop").await;
+    let stopped = |r: &TraceRecord| r.event == TraceEvent::SkillStopped && r.name == "MoveArm";
+    cluster.wait_for_agent_trace("arm1", "MoveArm stopped", stopped).await;
     // The server appears; a goal of a run that wants it gets there, the old one never.
     let mut server = action_server(&cluster, "succeed");
     server.wait_for("READY").await;
@@ -381,7 +388,8 @@ async fn a_call_that_no_server_took_yet_is_sent_again() {
     server.wait_for("TOKEN ONLY").await;
     cluster.agent("cell1", &[], &["--ros-domain-id", "7"]);
     let coordinator = cluster.coordinator_joining(&chart("ros2_service.st"), &[]);
-    cluster.wait_for_agent_log("cell1", "no server took the call of /gripper/close yet").await;
+    let waits = |r: &TraceRecord| r.event == TraceEvent::SkillWait && r.name == "/gripper/close";
+    cluster.wait_for_agent_trace("cell1", "the call of /gripper/close sent again", waits).await;
     server.send("SERVE").await;
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}\n{}", cluster.agent_log("cell1"));
