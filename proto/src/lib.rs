@@ -32,8 +32,10 @@ pub mod front {
 
 /// Back ends: a checked chart written out in other formats (Structured Text, PLCopen TC6 XML).
 pub mod back {
+    pub mod diagram;
     pub mod plcopen;
     pub mod st;
+    pub mod svg;
 }
 
 /// Execution: the compiled program, values and types, evaluation, the engine, the net analysis and `sim`.

