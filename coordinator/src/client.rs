@@ -15,7 +15,7 @@ const QUERY_TIMEOUT: Duration = Duration::from_secs(3);
 /// within it.
 const SILENCE_GRACE: Duration = Duration::from_secs(5);
 
-async fn open(connect: &[String], file: Option<&Path>) -> anyhow::Result<Session> {
+pub async fn open(connect: &[String], file: Option<&Path>) -> anyhow::Result<Session> {
     let net = NetConfig::client(connect, false);
     let config = baton_host::zenoh_config(&net, file)?;
     match zenoh::open(config).await {

@@ -9,6 +9,7 @@ mod bench;
 mod chart_file;
 mod cli;
 mod client;
+mod console;
 mod demo;
 mod demo_chart;
 mod deploy;

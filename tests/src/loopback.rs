@@ -597,3 +597,11 @@ pub fn tls_config(dir: &Path, pki: &Path, name: &str, listen: bool) -> PathBuf {
     std::fs::write(&path, text).expect("write the configuration");
     path
 }
+
+/// Who a client without a certificate or a user name sends commands as, as the book says: `user@host` (the login
+/// name, the machine's host name), made a key's word by `keys::sender_name`.
+pub fn who_sends() -> String {
+    let user = std::env::var("USER").or_else(|_| std::env::var("LOGNAME")).unwrap_or_else(|_| "unknown".into());
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
+    baton_proto::cluster::keys::sender_name(&format!("{user}@{}", host.trim()))
+}

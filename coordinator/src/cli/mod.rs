@@ -5,6 +5,7 @@
 mod bench;
 mod check;
 mod common;
+mod console;
 mod ctl;
 mod demo;
 mod deploy;
@@ -61,6 +62,9 @@ enum Command {
     /// Operate a running chart: hold, unhold, suspend, unsuspend, stop, abort; ack or shelve an alarm.
     /// baton ctl --connect EP [--run ID] COMMAND [TARGET …] [--agent NAME] [--step S] [--reason TEXT]
     Ctl(ctl::Ctl),
+    /// The operator console in a browser: each run's chart with its active steps, its state and legal commands,
+    /// its alarms and agents. baton console --connect EP [--listen 127.0.0.1:8080]
+    Console(console::Console),
     /// Prepare a cell's deployment: `certs` makes a CA and a certificate per process (the name as its common
     /// name); `acl` writes the router's access control from the chart's placement and the identities.
     #[command(subcommand)]
@@ -85,6 +89,7 @@ pub fn main() -> ExitCode {
         Command::BenchEcho(c) => c.run(),
         Command::Status(c) => c.run(),
         Command::Ctl(c) => c.run(),
+        Command::Console(c) => c.run(),
         Command::Deploy(c) => c.run(),
     };
     match result {

@@ -1,0 +1,196 @@
+//! `baton console`: the operator console, a web page served by a Zenoh client of the cell (as `baton ctl` is one).
+//! The page shows each run behind the router — its chart drawn in IEC 61131-3 notation (`back::svg`) with the active
+//! steps lit and the agent holding each, its PackML state and the commands legal in it as buttons, its alarms and
+//! agents — and sends an operator's commands through the same query `baton ctl` sends. Everything the page needs is
+//! in this binary: no CDN, nothing fetched at run time, so it works on a plant network without internet.
+//!
+//! The page follows the cell by server-sent events: the console asks the runs for their status every
+//! `STATUS_EVERY` and sends the page what changed (`GET /api/events`); `GET /api/state` is the same once.
+//! `GET /api/runs/{run}/chart.svg` is a run's chart, drawn once per chart version; `POST /api/runs/{run}/ctl`
+//! takes a `CtlRequest` as JSON and answers with the coordinator's `CtlReply` (a refusal says why and what is
+//! legal now).
+
+use std::collections::BTreeMap;
+use std::convert::Infallible;
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use anyhow::Context;
+use axum::extract::{Path as UrlPath, State};
+use axum::http::{header, StatusCode};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use baton_host::traffic;
+use baton_proto::cluster::keys;
+use baton_proto::cluster::wire::{self, ChartSource, CtlRequest, RunId, StatusReport};
+use baton_proto::limits::CHART_SOURCE_BYTES_MAX;
+use tokio_stream::wrappers::WatchStream;
+use tokio_stream::StreamExt;
+use zenoh::Session;
+
+/// How often the console asks the runs behind its router for their status.
+const STATUS_EVERY: Duration = Duration::from_millis(200);
+/// How long a run has to send its chart.
+const CHART_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// The page: its markup, style and script in one file.
+const PAGE: &str = include_str!("page.html");
+
+/// What the page is told each time it changes: the runs behind the router, and whether the router answers.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+struct Snapshot {
+    /// The console hears its router (a `false` makes the page mark everything stale).
+    connected: bool,
+    runs: Vec<StatusReport>,
+}
+
+struct Console {
+    session: Session,
+    /// Who the console sends commands as: the identity it authenticates with, as `baton ctl` does.
+    sender: String,
+    latest: tokio::sync::watch::Sender<String>,
+    /// Each chart version's drawing, made once.
+    drawings: Mutex<BTreeMap<String, Arc<String>>>,
+}
+
+/// Serves the console on `listen` (a loopback address) for the cell behind `connect`, until interrupted.
+pub async fn serve(connect: &[String], file: Option<&std::path::Path>, listen: SocketAddr) -> anyhow::Result<()> {
+    if !listen.ip().is_loopback() {
+        anyhow::bail!(
+            "--listen {listen}: the console listens on loopback only (127.0.0.1, ::1) until it has TLS and users; \
+             reach it from elsewhere through an SSH tunnel (ssh -L 8080:127.0.0.1:8080 HOST)"
+        );
+    }
+    let session = crate::client::open(connect, file).await?;
+    let (latest, _) = tokio::sync::watch::channel(String::new());
+    let console = Arc::new(Console {
+        session,
+        sender: crate::client::sender(file),
+        latest,
+        drawings: Mutex::new(BTreeMap::new()),
+    });
+    tokio::spawn(follow(Arc::clone(&console)));
+    let app = Router::new()
+        .route("/", get(page))
+        .route("/api/state", get(state))
+        .route("/api/events", get(events))
+        .route("/api/runs/{run}/chart.svg", get(chart))
+        .route("/api/runs/{run}/ctl", post(ctl))
+        .with_state(Arc::clone(&console));
+    let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("cannot listen on {listen}"))?;
+    let bound = listener.local_addr().context("the address listened on")?;
+    println!("baton console on http://{bound}/ for {}", connect.join(", "));
+    axum::serve(listener, app)
+        .with_graceful_shutdown(async {
+            let _ = tokio::signal::ctrl_c().await;
+        })
+        .await
+        .context("the console's server")?;
+    Ok(())
+}
+
+/// Asks the runs for their status every `STATUS_EVERY`, and publishes what the page is told when it changed.
+async fn follow(console: Arc<Console>) {
+    let mut tick = tokio::time::interval(STATUS_EVERY);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut last = Snapshot { connected: false, runs: Vec::new() };
+    let mut first = true;
+    loop {
+        tick.tick().await;
+        let connected = console.session.info().routers_zid().await.next().is_some();
+        let mut runs =
+            if connected { crate::client::status_on(&console.session).await.unwrap_or_default() } else { Vec::new() };
+        runs.sort_by(|a, b| (a.chart.as_str(), a.run).cmp(&(b.chart.as_str(), b.run)));
+        let snapshot = Snapshot { connected, runs };
+        // A run's clock alone moving is no change to tell the page of.
+        let mut still = snapshot.clone();
+        still.runs.iter_mut().for_each(|r| r.t_ms = 0);
+        if still != last || first {
+            (last, first) = (still, false);
+            console.latest.send_replace(serde_json::to_string(&snapshot).unwrap_or_default());
+        }
+    }
+}
+
+async fn page() -> impl IntoResponse {
+    ([(header::CONTENT_TYPE, "text/html; charset=utf-8"), (header::CACHE_CONTROL, "no-cache")], PAGE)
+}
+
+async fn state(State(console): State<Arc<Console>>) -> impl IntoResponse {
+    let text = console.latest.borrow().clone();
+    ([(header::CONTENT_TYPE, "application/json")], text)
+}
+
+/// Server-sent events: a `state` event now (once there is one) and each time it changes.
+async fn events(
+    State(console): State<Arc<Console>>,
+) -> Sse<impl tokio_stream::Stream<Item = Result<Event, Infallible>>> {
+    let stream = WatchStream::new(console.latest.subscribe())
+        .filter(|text| !text.is_empty())
+        .map(|text| Ok(Event::default().event("state").data(text)));
+    Sse::new(stream).keep_alive(KeepAlive::default())
+}
+
+/// A run's id as the URL writes it: 32 hex digits (as `baton status` prints it) or the hyphenated form; else a
+/// 400 answer saying so.
+fn run_id(text: &str) -> Result<RunId, (StatusCode, String)> {
+    uuid::Uuid::parse_str(text).map(RunId).map_err(|_| (StatusCode::BAD_REQUEST, format!("`{text}` is not a run id")))
+}
+
+/// The run's chart drawn (`baton export --svg` of the chart the run coordinates).
+async fn chart(State(console): State<Arc<Console>>, UrlPath(run): UrlPath<String>) -> Response {
+    let run = match run_id(&run) {
+        Ok(r) => r,
+        Err(refused) => return refused.into_response(),
+    };
+    match drawing(&console, run).await {
+        Ok(svg) => ([(header::CONTENT_TYPE, "image/svg+xml")], svg.as_str().to_owned()).into_response(),
+        Err(why) => (StatusCode::BAD_GATEWAY, why).into_response(),
+    }
+}
+
+/// Asks run `run` for its chart and draws it, or takes the drawing of that chart version made before.
+async fn drawing(console: &Console, run: RunId) -> Result<Arc<String>, String> {
+    let replies = traffic::get(&console.session, keys::chart(run))
+        .timeout(CHART_TIMEOUT)
+        .await
+        .map_err(|e| format!("cannot ask run {} for its chart: {e}", run.key()))?;
+    let reply = replies.recv_async().await.map_err(|_| format!("run {} did not send its chart", run.key()))?;
+    let sample = reply.result().map_err(|e| format!("run {} refused its chart: {e:?}", run.key()))?;
+    let src: ChartSource = wire::decode_with_limit(&sample.payload().to_bytes(), CHART_SOURCE_BYTES_MAX)
+        .map_err(|e| format!("run {}'s chart: {e}", run.key()))?;
+    if let Some(svg) = console.drawings.lock().map_err(|_| "poisoned".to_string())?.get(&src.hash.0) {
+        return Ok(Arc::clone(svg));
+    }
+    let report = baton_proto::pipeline::check_source(&src.source);
+    let checked = report.charts.iter().find(|c| c.chart.name.name == src.pou);
+    let Some((chart, Some(program))) = checked.map(|c| (&c.chart, c.program.as_ref())) else {
+        return Err(format!("run {}'s chart `{}` does not compile here", run.key(), src.pou));
+    };
+    let svg = Arc::new(baton_proto::back::svg::chart(chart, program));
+    console.drawings.lock().map_err(|_| "poisoned".to_string())?.insert(src.hash.0, Arc::clone(&svg));
+    Ok(svg)
+}
+
+/// An operator's command to run `run`, sent as `baton ctl` sends it, under the console's identity.
+async fn ctl(
+    State(console): State<Arc<Console>>,
+    UrlPath(run): UrlPath<String>,
+    Json(mut request): Json<CtlRequest>,
+) -> Response {
+    let run = match run_id(&run) {
+        Ok(r) => r,
+        Err(refused) => return refused.into_response(),
+    };
+    request.by.clone_from(&console.sender);
+    match crate::client::ctl_on(&console.session, Some(run), &request).await {
+        Ok(replies) => match replies.into_iter().next() {
+            Some(reply) => Json(reply).into_response(),
+            None => (StatusCode::BAD_GATEWAY, format!("run {} did not answer", run.key())).into_response(),
+        },
+        Err(e) => (StatusCode::BAD_GATEWAY, format!("{e:#}")).into_response(),
+    }
+}

@@ -1,0 +1,63 @@
+"""Drives Debian's Chromium through its WebDriver (chromedriver, with Selenium's Python bindings) on the page of
+`baton console`, as an operator would: reads the chart and the run's state off the page, and clicks a command.
+
+Usage: console_browser.py URL STEP COMMAND STATE SCREENSHOT
+  waits until the chart shows step STEP active, prints what the page shows (one JSON line `shown`), clicks the
+  button of COMMAND, waits until the page shows the run in STATE, prints it again (`after`), and saves a screenshot.
+Each wait is Selenium's explicit wait on the page's DOM (woken by polling the DOM, not by a fixed sleep).
+"""
+
+import json
+import os
+import sys
+
+from selenium import webdriver
+from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support.ui import WebDriverWait
+
+os.environ["SE_OFFLINE"] = "true"  # never download a driver or a browser: use the machine's
+
+
+def shown(driver):
+    """What an operator reads: the run's state, the lit steps, which buttons are enabled (read in one go in the
+    page, so that an update between two reads cannot mix two states)."""
+    return driver.execute_script("""
+        const steps = [...document.querySelectorAll("#chart svg g.step")];
+        const buttons = [...document.querySelectorAll("#commands button")];
+        return {
+            state: document.getElementById("state").dataset.state,
+            active: steps.filter(g => g.classList.contains("active")).map(g => g.dataset.step).sort(),
+            agents: steps.filter(g => g.dataset.agent).map(g => g.dataset.step + "@" + g.dataset.agent).sort(),
+            all_steps: steps.map(g => g.dataset.step).sort(),
+            enabled: buttons.filter(b => !b.disabled).map(b => b.dataset.command).sort(),
+            disabled: buttons.filter(b => b.disabled).map(b => b.dataset.command).sort(),
+            stale: document.body.classList.contains("stale"),
+        };
+    """)
+
+
+def main():
+    url, step, command, state, screenshot = sys.argv[1:6]
+    options = webdriver.ChromeOptions()
+    options.binary_location = "/usr/bin/chromium"
+    for flag in ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--window-size=1400,1000"]:
+        options.add_argument(flag)
+    driver = webdriver.Chrome(service=Service(executable_path="/usr/bin/chromedriver"), options=options)
+    try:
+        driver.get(url)
+        wait = WebDriverWait(driver, 30, poll_frequency=0.05)
+        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, f'#chart svg g.step.active[data-step="{step}"]'))
+        print(json.dumps({"shown": shown(driver)}), flush=True)
+        driver.find_element(By.CSS_SELECTOR, f'#commands button[data-command="{command}"]').click()
+        wait.until(lambda d: d.find_element(By.ID, "state").get_attribute("data-state") == state)
+        print(json.dumps({"after": shown(driver), "reply": driver.find_element(By.ID, "reply").text}), flush=True)
+        driver.save_screenshot(screenshot)
+    finally:
+        driver.quit()
+
+
+if __name__ == "__main__":
+    main()
