@@ -26,6 +26,8 @@ pub struct DemoOptions {
     pub keep: Option<PathBuf>,
     /// Where the recording goes (default: `baton-demo.rrd` in the current folder).
     pub rerun: crate::recording::Sink,
+    /// Serve the operator console on this loopback address while the cell runs.
+    pub console: Option<std::net::SocketAddr>,
 }
 
 /// `baton-agent`, next to this executable (as cargo builds them) or on the PATH.
@@ -69,6 +71,11 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
             tmp.path()
         }
     };
+    // The console's port first: taken, the demo does not start.
+    let console = match opts.console {
+        Some(addr) => Some(crate::console::bind(addr).await?),
+        None => None,
+    };
     let chart = dir.join("cell.st");
     std::fs::write(&chart, cell_chart(opts.agents))?;
     let trace = dir.join("trace.jsonl");
@@ -80,6 +87,14 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
     let config = zenoh::Config::from_json5(&net.json5()).zenoh()?;
     let router = zenoh::open(config).await.map_err(|e| anyhow!("cannot start the router on {endpoint}: {e}"))?;
     println!("baton demo: router on {endpoint}, {} robot(s), {} part(s)", opts.agents, opts.parts);
+    if let Some(listener) = console {
+        let endpoints = vec![endpoint.clone()];
+        tokio::spawn(async move {
+            if let Err(e) = crate::console::serve(listener, &endpoints, None).await {
+                eprintln!("error: the console stopped: {e:#}");
+            }
+        });
+    }
 
     let mut agents = start_robots(&agent_bin, &endpoint, dir, opts.agents)?;
     let coord_log = dir.join("coordinator.log");

@@ -161,6 +161,25 @@ async fn the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_c
     );
 }
 
+/// `baton run --console ADDR` serves the same page for its own cell (here the router it embeds): the run is
+/// there, and a command sent through it is taken.
+async fn a_run_serves_the_console_of_its_own_cell() {
+    let cluster = Cluster::new();
+    let chart = cluster.dir.path().join("part.st");
+    std::fs::write(&chart, CHART).expect("write the chart");
+    let addr = format!("127.0.0.1:{}", baton_tests::loopback::free_port());
+    let mut coordinator = cluster.coordinator(&chart, &["--console", &addr]);
+    coordinator.wait_ready().await;
+    let state = event_until(&addr, |s| s["runs"].as_array().is_some_and(|r| r.len() == 1)).await;
+    assert_eq!(state["runs"][0]["chart"], "part");
+    let run = state["runs"][0]["run"].as_str().expect("a run id").to_string();
+    let (_, reply) = http(&addr, "POST", &format!("/api/runs/{run}/ctl"), Some(r#"{"command": "stop"}"#)).await;
+    assert!(reply.contains("\"ok\":true"), "{reply}");
+    let (status, log, _, summary) = coordinator.finish().await;
+    assert_eq!(status.code(), Some(3), "stopped: {log}");
+    assert_eq!(summary["state"], "stopped");
+}
+
 /// Beyond loopback the console would need TLS and users, which it does not have yet: it refuses, saying how to
 /// reach it instead.
 async fn the_console_listens_on_loopback_only() {
@@ -230,5 +249,6 @@ async fn in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_ru
 baton_tests::harness_main!(
     tokio the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_ctl_does,
     tokio the_console_listens_on_loopback_only,
+    tokio a_run_serves_the_console_of_its_own_cell,
     tokio in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_run,
 );

@@ -194,6 +194,7 @@ pub(super) fn chart_options(
         wait_start: false,
         stay: false,
         abort_wait_ms: 0,
+        console: None,
     };
     Ok((opts, agents))
 }

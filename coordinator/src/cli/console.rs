@@ -19,7 +19,8 @@ impl Console {
     pub fn run(self) -> anyhow::Result<ExitCode> {
         let Console { reach, listen } = self;
         block_on(async move {
-            crate::console::serve(&reach.connect, reach.zenoh_config.as_deref(), listen).await?;
+            let listener = crate::console::bind(listen).await?;
+            crate::console::serve(listener, &reach.connect, reach.zenoh_config.as_deref()).await?;
             Ok(ExitCode::SUCCESS)
         })
     }

@@ -67,6 +67,10 @@ pub struct Run {
     /// rebuilds the whole run). Older segments are deleted when a snapshot starts a new one.
     #[arg(long, value_name = "N|all", default_value = "2", requires = "journal")]
     pub journal_keep: crate::journal::Keep,
+    /// Serve the operator console for this run's cell on ADDR (a loopback address such as 127.0.0.1:8080), as
+    /// `baton console` does.
+    #[arg(long, value_name = "ADDR")]
+    pub console: Option<std::net::SocketAddr>,
     /// Record the run for the Rerun viewer: off, save:PATH.rrd, connect or connect:URL (a running viewer), or spawn
     /// (start one).
     #[arg(long, value_name = "SINK", default_value = "off")]
@@ -117,6 +121,7 @@ impl Run {
             wait_start: self.wait_start,
             stay: self.stay,
             abort_wait_ms: self.abort_wait,
+            console: self.console,
         };
         block_on(async move {
             let summary = crate::run::run(opts).await?;

@@ -56,14 +56,24 @@ struct Console {
     drawings: Mutex<BTreeMap<String, Arc<String>>>,
 }
 
-/// Serves the console on `listen` (a loopback address) for the cell behind `connect`, until interrupted.
-pub async fn serve(connect: &[String], file: Option<&std::path::Path>, listen: SocketAddr) -> anyhow::Result<()> {
+/// The console's listening socket on `listen`, which must be a loopback address (until the console has TLS and
+/// users): bound before anything else starts, so that a port taken is said at once.
+pub async fn bind(listen: SocketAddr) -> anyhow::Result<tokio::net::TcpListener> {
     if !listen.ip().is_loopback() {
         anyhow::bail!(
             "--listen {listen}: the console listens on loopback only (127.0.0.1, ::1) until it has TLS and users; \
              reach it from elsewhere through an SSH tunnel (ssh -L 8080:127.0.0.1:8080 HOST)"
         );
     }
+    tokio::net::TcpListener::bind(listen).await.with_context(|| format!("cannot listen on {listen} for the console"))
+}
+
+/// Serves the console on `listener` for the cell behind `connect`, until interrupted; says where on stdout.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    connect: &[String],
+    file: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
     let session = crate::client::open(connect, file).await?;
     let (latest, _) = tokio::sync::watch::channel(String::new());
     let console = Arc::new(Console {
@@ -80,7 +90,6 @@ pub async fn serve(connect: &[String], file: Option<&std::path::Path>, listen: S
         .route("/api/runs/{run}/chart.svg", get(chart))
         .route("/api/runs/{run}/ctl", post(ctl))
         .with_state(Arc::clone(&console));
-    let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("cannot listen on {listen}"))?;
     let bound = listener.local_addr().context("the address listened on")?;
     println!("baton console on http://{bound}/ for {}", connect.join(", "));
     axum::serve(listener, app)
@@ -90,6 +99,15 @@ pub async fn serve(connect: &[String], file: Option<&std::path::Path>, listen: S
         .await
         .context("the console's server")?;
     Ok(())
+}
+
+/// Where a console in the process of a run or a demo reaches its cell: the router it joined, or the one it
+/// embeds, on loopback where it listens on every address.
+pub fn endpoints_of(listen: &[String], connect: &[String]) -> Vec<String> {
+    if !connect.is_empty() {
+        return connect.to_vec();
+    }
+    listen.iter().map(|e| e.replace("/0.0.0.0:", "/127.0.0.1:").replace("/[::]:", "/[::1]:")).collect()
 }
 
 /// Asks the runs for their status every `STATUS_EVERY`, and publishes what the page is told when it changed.

@@ -65,6 +65,8 @@ pub struct RunOptions {
     pub stay: bool,
     /// After an abort, how long to wait for agents that could not be told of it.
     pub abort_wait_ms: u64,
+    /// Serve the operator console on this loopback address (`--console`).
+    pub console: Option<std::net::SocketAddr>,
 }
 
 pub async fn run(opts: RunOptions) -> anyhow::Result<Summary> {
@@ -78,6 +80,11 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     }
     let hash = ChartHash::of(&loaded.source, &loaded.pou);
     let watch = watched(&loaded.program, &opts.watch)?;
+    // The console's port next: taken, the run does not start.
+    let console = match opts.console {
+        Some(addr) => Some(crate::console::bind(addr).await?),
+        None => None,
+    };
     // The journal first: a refused one costs nothing, not even a Zenoh session.
     let Opened { run, started_unix_ms, resume, store } = open_journal(&opts, &loaded, &hash)?;
     let net =
@@ -86,6 +93,14 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let zconfig = baton_host::zenoh_config(&net, opts.zenoh_config.as_deref())?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     let writer = store.map(|store| store.start_writer(Some(host::deliver_through(&session))));
+    if let Some(listener) = console {
+        let (endpoints, file) = (crate::console::endpoints_of(&opts.listen, &opts.connect), opts.zenoh_config.clone());
+        tokio::spawn(async move {
+            if let Err(e) = crate::console::serve(listener, &endpoints, file.as_deref()).await {
+                eprintln!("error: the console stopped: {e:#}");
+            }
+        });
+    }
     // A resumed run keeps the period it started with.
     let cycle_ms = match &resume {
         Some(Resume { header, .. }) => {
@@ -652,6 +667,7 @@ mod tests {
             wait_start: false,
             stay: false,
             abort_wait_ms: 0,
+            console: None,
         }
     }
 
