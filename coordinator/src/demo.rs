@@ -72,10 +72,7 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
         }
     };
     // The console's port first: taken, the demo does not start.
-    let console = match opts.console {
-        Some(addr) => Some(crate::console::bind(addr).await?),
-        None => None,
-    };
+    let console = if let Some(addr) = opts.console { Some(crate::console::bind(addr).await?) } else { None };
     let chart = dir.join("cell.st");
     std::fs::write(&chart, cell_chart(opts.agents))?;
     let trace = dir.join("trace.jsonl");
@@ -88,12 +85,7 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
     let router = zenoh::open(config).await.map_err(|e| anyhow!("cannot start the router on {endpoint}: {e}"))?;
     println!("baton demo: router on {endpoint}, {} robot(s), {} part(s)", opts.agents, opts.parts);
     if let Some(listener) = console {
-        let endpoints = vec![endpoint.clone()];
-        tokio::spawn(async move {
-            if let Err(e) = crate::console::serve(listener, &endpoints, None).await {
-                eprintln!("error: the console stopped: {e:#}");
-            }
-        });
+        crate::console::spawn(listener, vec![endpoint.clone()], None);
     }
 
     let mut agents = start_robots(&agent_bin, &endpoint, dir, opts.agents)?;

@@ -101,6 +101,16 @@ pub async fn serve(
     Ok(())
 }
 
+/// Serves the console in the background of a run or a demo, for the cell behind `endpoints`; a console that
+/// stops says why and leaves the run alone.
+pub fn spawn(listener: tokio::net::TcpListener, endpoints: Vec<String>, file: Option<std::path::PathBuf>) {
+    tokio::spawn(async move {
+        if let Err(e) = serve(listener, &endpoints, file.as_deref()).await {
+            eprintln!("error: the console stopped: {e:#}");
+        }
+    });
+}
+
 /// Where a console in the process of a run or a demo reaches its cell: the router it joined, or the one it
 /// embeds, on loopback where it listens on every address.
 pub fn endpoints_of(listen: &[String], connect: &[String]) -> Vec<String> {

@@ -94,12 +94,8 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     let writer = store.map(|store| store.start_writer(Some(host::deliver_through(&session))));
     if let Some(listener) = console {
-        let (endpoints, file) = (crate::console::endpoints_of(&opts.listen, &opts.connect), opts.zenoh_config.clone());
-        tokio::spawn(async move {
-            if let Err(e) = crate::console::serve(listener, &endpoints, file.as_deref()).await {
-                eprintln!("error: the console stopped: {e:#}");
-            }
-        });
+        let endpoints = crate::console::endpoints_of(&opts.listen, &opts.connect);
+        crate::console::spawn(listener, endpoints, opts.zenoh_config.clone());
     }
     // A resumed run keeps the period it started with.
     let cycle_ms = match &resume {
