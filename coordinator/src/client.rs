@@ -388,23 +388,29 @@ pub async fn live_skills(
     Ok((agents, known))
 }
 
+/// Adds to each report's `why` what its agents say of their own steps: each agent is asked once, for every run it
+/// takes part in.
+pub async fn add_agents_why(session: &Session, reports: &mut [StatusReport]) -> anyhow::Result<()> {
+    let mut agents: Vec<String> = reports.iter().flat_map(|r| r.agents.iter().map(|a| a.name.clone())).collect();
+    agents.sort();
+    agents.dedup();
+    for agent in agents {
+        let answers: Vec<WhyReport> = ask(session, keys::agent_why(&agent), None).await?;
+        for answer in answers.into_iter().filter(|w| w.agent == agent) {
+            if let Some(r) = reports.iter_mut().find(|r| r.run == answer.run) {
+                r.why.extend(answer.steps);
+                r.why.sort_by(|a, b| a.step.cmp(&b.step));
+            }
+        }
+    }
+    Ok(())
+}
+
 pub async fn status(connect: &[String], file: Option<&Path>, json: bool, why: bool) -> anyhow::Result<()> {
     let session = open(connect, file).await?;
     let mut reports: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
     if why {
-        // The agents say why their own steps wait: each is asked once, for every run it takes part in.
-        let mut agents: Vec<String> = reports.iter().flat_map(|r| r.agents.iter().map(|a| a.name.clone())).collect();
-        agents.sort();
-        agents.dedup();
-        for agent in agents {
-            let answers: Vec<WhyReport> = ask(&session, keys::agent_why(&agent), None).await?;
-            for answer in answers.into_iter().filter(|w| w.agent == agent) {
-                if let Some(r) = reports.iter_mut().find(|r| r.run == answer.run) {
-                    r.why.extend(answer.steps);
-                    r.why.sort_by(|a, b| a.step.cmp(&b.step));
-                }
-            }
-        }
+        add_agents_why(&session, &mut reports).await?;
     } else {
         reports.iter_mut().for_each(|r| r.why.clear());
     }

@@ -3,7 +3,7 @@
 
 Usage: console_browser.py URL STEP COMMAND STATE SCREENSHOT
   waits until the chart shows step STEP active, prints what the page shows (one JSON line `shown`), clicks the
-  button of COMMAND, waits until the page shows the run in STATE, prints it again (`after`), and saves a screenshot.
+  step and prints why it waits (`why`, `where`), clicks the button of COMMAND, waits until the page shows the run in STATE, prints it again (`after`), and saves a screenshot.
 Each wait is Selenium's explicit wait on the page's DOM (woken by polling the DOM, not by a fixed sleep).
 """
 
@@ -51,6 +51,11 @@ def main():
         wait = WebDriverWait(driver, 30, poll_frequency=0.05)
         wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, f'#chart svg g.step.active[data-step="{step}"]'))
         print(json.dumps({"shown": shown(driver)}), flush=True)
+        # The operator clicks the step: the panel says why it waits, as `baton status --why` does.
+        driver.find_element(By.CSS_SELECTOR, f'#chart svg g.step[data-step="{step}"]').click()
+        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#why li.why"))
+        why = [li.text for li in driver.find_elements(By.CSS_SELECTOR, "#why li.why")]
+        print(json.dumps({"why": why, "where": driver.find_element(By.ID, "step-where").text}), flush=True)
         driver.find_element(By.CSS_SELECTOR, f'#commands button[data-command="{command}"]').click()
         wait.until(lambda d: d.find_element(By.ID, "state").get_attribute("data-state") == state)
         print(json.dumps({"after": shown(driver), "reply": driver.find_element(By.ID, "reply").text}), flush=True)

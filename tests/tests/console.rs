@@ -129,8 +129,31 @@ async fn the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_c
             .is_some_and(|a| a.iter().any(|x| x["name"] == "Move" && x["agent"] == "r1"))
     };
     event_until(&addr, moving).await;
-    // A command that is not legal now is refused, saying what is; a legal one is taken, with its reason.
+    // Why Move waits, as `baton status --why --json` says it (the agent asked for its step).
+    let (code, why) = http(&addr, "GET", &format!("/api/runs/{run}/why"), None).await;
+    assert_eq!(code, 200, "{why}");
+    let why: serde_json::Value = serde_json::from_str(&why).expect("why JSON");
+    let status_why = cluster.baton(&["status", "--connect", &cluster.endpoint, "--why", "--json"]).await;
+    let status_why: serde_json::Value = serde_json::from_slice(&status_why.stdout).expect("status JSON");
+    let steps = |w: &serde_json::Value| -> Vec<(String, String)> {
+        w.as_array()
+            .expect("a list")
+            .iter()
+            .map(|s| (s["step"].as_str().unwrap_or_default().into(), s["agent"].as_str().unwrap_or_default().into()))
+            .collect()
+    };
+    assert_eq!(steps(&why), steps(&status_why["why"]), "{why}");
+    assert!(why[0]["summary"].as_str().is_some_and(|s| s.contains("moved")), "{why}");
+    // The step alone held, then released, as `baton ctl hold --step Move` does.
     let ctl_path = format!("/api/runs/{run}/ctl");
+    let (_, held) = http(&addr, "POST", &ctl_path, Some(r#"{"command": "hold", "step": "Move"}"#)).await;
+    assert!(held.contains("\"ok\":true"), "{held}");
+    let step_held = event_until(&addr, |s| s["runs"][0]["held"].as_array().is_some_and(|h| !h.is_empty())).await;
+    assert!(step_held["runs"][0]["held"][0].as_str().is_some_and(|h| h.contains("Move")), "{step_held}");
+    let (_, released) = http(&addr, "POST", &ctl_path, Some(r#"{"command": "unhold", "step": "Move"}"#)).await;
+    assert!(released.contains("\"ok\":true"), "{released}");
+    event_until(&addr, |s| s["runs"][0]["held"].as_array().is_some_and(|h| h.is_empty())).await;
+    // A command that is not legal now is refused, saying what is; a legal one is taken, with its reason.
     let ctl = |body: &'static str| http(&addr, "POST", &ctl_path, Some(body));
     let (code, refused) = ctl(r#"{"command": "unhold"}"#).await;
     assert_eq!(code, 200, "{refused}");
@@ -156,7 +179,12 @@ async fn the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_c
     let me = baton_tests::loopback::who_sends();
     assert_eq!(
         commands,
-        [("hold", Some(me.as_str()), Some("material late")), ("unhold", Some(me.as_str()), Some("material here"))],
+        [
+            ("hold", Some(me.as_str()), None),
+            ("unhold", Some(me.as_str()), None),
+            ("hold", Some(me.as_str()), Some("material late")),
+            ("unhold", Some(me.as_str()), Some("material here"))
+        ],
         "{trace:#?}"
     );
 }
@@ -235,7 +263,16 @@ async fn in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_ru
     assert_eq!(shown["enabled"], serde_json::json!(legal_sorted), "{shown}");
     assert_eq!(shown["all_steps"], serde_json::json!(["Done", "Move", "Ready"]));
     assert_eq!(shown["stale"], false);
-    let after = &lines[1]["after"];
+    // Clicked, the step says where it runs and why it waits: its motion, on r1, as `baton status --why` says.
+    let why = cluster.baton(&["status", "--connect", &cluster.endpoint, "--why", "--json"]).await;
+    let why: serde_json::Value = serde_json::from_slice(&why.stdout).expect("status JSON");
+    let move_why = why["why"].as_array().and_then(|w| w.iter().find(|w| w["step"] == "Move")).expect("Move's why");
+    assert_eq!(move_why["agent"], "r1");
+    assert!(lines[1]["where"].as_str().is_some_and(|w| w.contains("r1")), "{}", lines[1]);
+    let shown_why = lines[1]["why"].as_array().expect("why lines");
+    assert_eq!(shown_why.len(), 1, "{}", lines[1]);
+    assert!(shown_why[0].as_str().is_some_and(|l| l.contains("Move->Done") && l.contains("moved")), "{}", lines[1]);
+    let after = &lines[2]["after"];
     assert_eq!(after["state"], "held", "{after}");
     assert!(after["enabled"].as_array().is_some_and(|e| e.contains(&"unhold".into())), "{after}");
     let png = std::fs::read(&shot).expect("the screenshot");

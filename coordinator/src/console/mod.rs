@@ -6,7 +6,8 @@
 //!
 //! The page follows the cell by server-sent events: the console asks the runs for their status every
 //! `STATUS_EVERY` and sends the page what changed (`GET /api/events`); `GET /api/state` is the same once.
-//! `GET /api/runs/{run}/chart.svg` is a run's chart, drawn once per chart version; `POST /api/runs/{run}/ctl`
+//! `GET /api/runs/{run}/chart.svg` is a run's chart, drawn once per chart version; `GET /api/runs/{run}/why` why
+//! each active step waits (as `baton status --why`); `POST /api/runs/{run}/ctl`
 //! takes a `CtlRequest` as JSON and answers with the coordinator's `CtlReply` (a refusal says why and what is
 //! legal now).
 
@@ -89,6 +90,7 @@ pub async fn serve(
         .route("/api/events", get(events))
         .route("/api/runs/{run}/chart.svg", get(chart))
         .route("/api/runs/{run}/ctl", post(ctl))
+        .route("/api/runs/{run}/why", get(why))
         .with_state(Arc::clone(&console));
     let bound = listener.local_addr().context("the address listened on")?;
     println!("baton console on http://{bound}/ for {}", connect.join(", "));
@@ -201,6 +203,40 @@ async fn drawing(console: &Console, run: RunId) -> Result<Arc<String>, String> {
     let svg = Arc::new(baton_proto::back::svg::chart(chart, program));
     console.drawings.lock().map_err(|_| "poisoned".to_string())?.insert(src.hash.0, Arc::clone(&svg));
     Ok(svg)
+}
+
+/// Why each active step of run `run` waits, as `baton status --why` says it: the coordinator's own steps and, asked
+/// of them, the agents'.
+async fn why(State(console): State<Arc<Console>>, UrlPath(run): UrlPath<String>) -> Response {
+    let run = match run_id(&run) {
+        Ok(r) => r,
+        Err(refused) => return refused.into_response(),
+    };
+    let asked = async {
+        let mut reports = crate::client::status_on(&console.session).await?;
+        reports.retain(|r| r.run == run);
+        crate::client::add_agents_why(&console.session, &mut reports).await?;
+        anyhow::Ok(reports)
+    };
+    match asked.await {
+        Ok(reports) => match reports.into_iter().next() {
+            Some(report) => {
+                // Each step's reasons, and the one line `baton status --why` prints of them.
+                let steps: Vec<serde_json::Value> = report
+                    .why
+                    .iter()
+                    .map(|w| {
+                        let mut v = serde_json::to_value(w).unwrap_or_default();
+                        v["summary"] = serde_json::Value::String(w.summary());
+                        v
+                    })
+                    .collect();
+                Json(steps).into_response()
+            }
+            None => (StatusCode::NOT_FOUND, format!("run {} does not answer", run.key())).into_response(),
+        },
+        Err(e) => (StatusCode::BAD_GATEWAY, format!("{e:#}")).into_response(),
+    }
 }
 
 /// An operator's command to run `run`, sent as `baton ctl` sends it, under the console's identity.
