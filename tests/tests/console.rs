@@ -208,6 +208,29 @@ async fn a_run_serves_the_console_of_its_own_cell() {
     assert_eq!(summary["state"], "stopped");
 }
 
+/// An agent that goes is kept on the page, greyed, with since when; back, it is live again.
+async fn a_lost_agent_stays_listed_as_lost_until_it_is_back() {
+    let (mut cluster, _chart, _coordinator, _console, addr) = cell_with_console().await;
+    let listed =
+        |s: &serde_json::Value| s["runs"][0]["agents"].as_array().is_some_and(|a| a.iter().any(|x| x["name"] == "r1"));
+    event_until(&addr, listed).await;
+    let before = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("clock").as_millis();
+    cluster.kill_agent("r1").await;
+    let lost = event_until(&addr, |s| s["lost_agents"].as_array().is_some_and(|l| !l.is_empty())).await;
+    let entry = &lost["lost_agents"][0];
+    assert_eq!(
+        (entry["name"].as_str(), entry["run"].as_str()),
+        (Some("r1"), lost["runs"][0]["run"].as_str()),
+        "{lost}"
+    );
+    let since = u128::from(entry["since_unix_ms"].as_u64().expect("since"));
+    assert!(since >= before, "lost at {since}, before it was killed at {before}");
+    assert!(!listed(&lost), "{lost}");
+    cluster.agent("r1", &[], &[]);
+    let back = event_until(&addr, listed).await;
+    assert_eq!(back["lost_agents"], serde_json::json!([]), "{back}");
+}
+
 /// Beyond loopback the console would need TLS and users, which it does not have yet: it refuses, saying how to
 /// reach it instead.
 async fn the_console_listens_on_loopback_only() {
@@ -287,5 +310,6 @@ baton_tests::harness_main!(
     tokio the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_ctl_does,
     tokio the_console_listens_on_loopback_only,
     tokio a_run_serves_the_console_of_its_own_cell,
+    tokio a_lost_agent_stays_listed_as_lost_until_it_is_back,
     tokio in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_run,
 );

@@ -46,6 +46,52 @@ struct Snapshot {
     /// The console hears its router (a `false` makes the page mark everything stale).
     connected: bool,
     runs: Vec<StatusReport>,
+    /// Agents a run listed and no longer does, kept on screen, greyed, with since when (rmf-web keeps a robot that
+    /// disconnects on the map as stale rather than dropping it).
+    lost_agents: Vec<LostAgent>,
+}
+
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+struct LostAgent {
+    run: RunId,
+    name: String,
+    /// When the console last saw it listed, in Unix milliseconds.
+    since_unix_ms: u64,
+}
+
+/// Which agents each run listed: live, or lost since when (Unix ms).
+#[derive(Default)]
+struct Agents {
+    seen: BTreeMap<(RunId, String), Option<u64>>,
+}
+
+impl Agents {
+    /// Takes the runs' lists as they are now; returns the agents lost, oldest loss first.
+    fn update(&mut self, runs: &[StatusReport], now_unix_ms: u64) -> Vec<LostAgent> {
+        let live: std::collections::BTreeSet<(RunId, String)> =
+            runs.iter().flat_map(|r| r.agents.iter().map(move |a| (r.run, a.name.clone()))).collect();
+        // A run that no longer answers takes its agents with it.
+        self.seen.retain(|(run, _), _| runs.iter().any(|r| r.run == *run));
+        for (key, lost) in self.seen.iter_mut() {
+            if live.contains(key) {
+                *lost = None;
+            } else if lost.is_none() {
+                *lost = Some(now_unix_ms);
+            }
+        }
+        for key in live {
+            self.seen.entry(key).or_insert(None);
+        }
+        let mut lost: Vec<LostAgent> = self
+            .seen
+            .iter()
+            .filter_map(|((run, name), lost)| {
+                lost.map(|since| LostAgent { run: *run, name: name.clone(), since_unix_ms: since })
+            })
+            .collect();
+        lost.sort_by_key(|l| l.since_unix_ms);
+        lost
+    }
 }
 
 struct Console {
@@ -126,7 +172,8 @@ pub fn endpoints_of(listen: &[String], connect: &[String]) -> Vec<String> {
 async fn follow(console: Arc<Console>) {
     let mut tick = tokio::time::interval(STATUS_EVERY);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut last = Snapshot { connected: false, runs: Vec::new() };
+    let mut last = Snapshot { connected: false, runs: Vec::new(), lost_agents: Vec::new() };
+    let mut agents = Agents::default();
     let mut first = true;
     loop {
         tick.tick().await;
@@ -134,7 +181,11 @@ async fn follow(console: Arc<Console>) {
         let mut runs =
             if connected { crate::client::status_on(&console.session).await.unwrap_or_default() } else { Vec::new() };
         runs.sort_by(|a, b| (a.chart.as_str(), a.run).cmp(&(b.chart.as_str(), b.run)));
-        let snapshot = Snapshot { connected, runs };
+        let now =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64);
+        // Without the router nothing is known of the agents: their list stays as it was, marked stale.
+        let lost_agents = if connected { agents.update(&runs, now) } else { last.lost_agents.clone() };
+        let snapshot = Snapshot { connected, runs, lost_agents };
         // A run's clock alone moving is no change to tell the page of.
         let mut still = snapshot.clone();
         still.runs.iter_mut().for_each(|r| r.t_ms = 0);
