@@ -1,9 +1,13 @@
 """Drives Debian's Chromium through its WebDriver (chromedriver, with Selenium's Python bindings) on the page of
 `baton console`, as an operator would: reads the chart and the run's state off the page, and clicks a command.
 
-Usage: console_browser.py URL STEP COMMAND STATE SCREENSHOT
+Usage: console_browser.py URL hold STEP COMMAND STATE SCREENSHOT
   waits until the chart shows step STEP active, prints what the page shows (one JSON line `shown`), clicks the
-  step and prints why it waits (`why`, `where`), clicks the button of COMMAND, waits until the page shows the run in STATE, prints it again (`after`), and saves a screenshot.
+  step and prints why it waits (`why`, `where`), clicks the button of COMMAND, waits until the page shows the
+  run in STATE, prints it again (`after`), and saves a screenshot.
+Usage: console_browser.py URL ack COMMENT
+  waits for an unacknowledged alarm, prints it (`alarm`, `shown_state`), writes COMMENT as the reason, clicks its
+  ack and waits until the page shows it acknowledged (`reply`).
 Each wait is Selenium's explicit wait on the page's DOM (woken by polling the DOM, not by a fixed sleep).
 """
 
@@ -37,29 +41,54 @@ def shown(driver):
     """)
 
 
-def main():
-    url, step, command, state, screenshot = sys.argv[1:6]
+def browser():
     options = webdriver.ChromeOptions()
     options.binary_location = "/usr/bin/chromium"
     for flag in ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
                  "--window-size=1400,1000"]:
         options.add_argument(flag)
-    driver = webdriver.Chrome(service=Service(executable_path="/usr/bin/chromedriver"), options=options)
+    return webdriver.Chrome(service=Service(executable_path="/usr/bin/chromedriver"), options=options)
+
+
+def hold(driver, wait, step, command, state, screenshot):
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, f'#chart svg g.step.active[data-step="{step}"]'))
+    print(json.dumps({"shown": shown(driver)}), flush=True)
+    # The operator clicks the step: the panel says why it waits, as `baton status --why` does.
+    driver.find_element(By.CSS_SELECTOR, f'#chart svg g.step[data-step="{step}"]').click()
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#why li.why"))
+    why = [li.text for li in driver.find_elements(By.CSS_SELECTOR, "#why li.why")]
+    print(json.dumps({"why": why, "where": driver.find_element(By.ID, "step-where").text}), flush=True)
+    driver.find_element(By.CSS_SELECTOR, f'#commands button[data-command="{command}"]').click()
+    wait.until(lambda d: d.find_element(By.ID, "state").get_attribute("data-state") == state)
+    print(json.dumps({"after": shown(driver), "reply": driver.find_element(By.ID, "reply").text}), flush=True)
+    driver.save_screenshot(screenshot)
+
+
+def ack(driver, wait, comment):
+    """Waits for an unacknowledged alarm, writes the comment, clicks its ack, and waits until it is acknowledged."""
+    row = '#alarms tr[data-state="active_unacknowledged"]'
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, row))
+    alarm = driver.find_element(By.CSS_SELECTOR, row).get_attribute("data-alarm")
+    state = driver.find_element(By.CSS_SELECTOR, row + " .alarm-state").text
+    print(json.dumps({"alarm": alarm, "shown_state": state}), flush=True)
+    driver.find_element(By.ID, "reason").send_keys(comment)
+    driver.find_element(By.CSS_SELECTOR, row + ' button[data-alarm-command="ack"]').click()
+    acked = f'#alarms tr[data-alarm="{alarm}"]'
+    wait.until(lambda d: all(r.get_attribute("data-state") != "active_unacknowledged" for r in d.find_elements(By.CSS_SELECTOR, acked)))
+    print(json.dumps({"reply": driver.find_element(By.ID, "reply").text}), flush=True)
+
+
+def main():
+    url, mode = sys.argv[1:3]
+    driver = browser()
     try:
         driver.get(url)
         wait = WebDriverWait(driver, 30, poll_frequency=0.05)
-        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, f'#chart svg g.step.active[data-step="{step}"]'))
-        print(json.dumps({"shown": shown(driver)}), flush=True)
-        # The operator clicks the step: the panel says why it waits, as `baton status --why` does.
-        driver.find_element(By.CSS_SELECTOR, f'#chart svg g.step[data-step="{step}"]').click()
-        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#why li.why"))
-        why = [li.text for li in driver.find_elements(By.CSS_SELECTOR, "#why li.why")]
-        print(json.dumps({"why": why, "where": driver.find_element(By.ID, "step-where").text}), flush=True)
-        driver.find_element(By.CSS_SELECTOR, f'#commands button[data-command="{command}"]').click()
-        wait.until(lambda d: d.find_element(By.ID, "state").get_attribute("data-state") == state)
-        print(json.dumps({"after": shown(driver), "reply": driver.find_element(By.ID, "reply").text}), flush=True)
-        driver.save_screenshot(screenshot)
+        if mode == "hold":
+            hold(driver, wait, *sys.argv[3:7])
+        else:
+            ack(driver, wait, sys.argv[3])
     finally:
         driver.quit()
 

@@ -19,10 +19,10 @@ const CHART: &str = "PROGRAM part\nVAR go : BOOL; moved : BOOL; END_VAR\nINITIAL
 
 /// A cell running CHART with r1, and a console on a free loopback port: (cluster, chart file, coordinator, the
 /// console's process, its address).
-async fn cell_with_console() -> (Cluster, PathBuf, Coordinator, tokio::process::Child, String) {
+async fn cell_with_console(text: &str) -> (Cluster, PathBuf, Coordinator, tokio::process::Child, String) {
     let mut cluster = Cluster::with_router().await;
     let chart = cluster.dir.path().join("part.st");
-    std::fs::write(&chart, CHART).expect("write the chart");
+    std::fs::write(&chart, text).expect("write the chart");
     let mut coordinator = cluster.coordinator_joining(&chart, &[]);
     coordinator.wait_ready().await;
     cluster.agent("r1", &[], &[]);
@@ -98,7 +98,7 @@ fn run_state(state: &serde_json::Value) -> &str {
 }
 
 async fn the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_ctl_does() {
-    let (cluster, chart, coordinator, _console, addr) = cell_with_console().await;
+    let (cluster, chart, coordinator, _console, addr) = cell_with_console(CHART).await;
     // The page: one document with everything it needs, nothing fetched from elsewhere.
     let (status, page) = http(&addr, "GET", "/", None).await;
     assert_eq!(status, 200);
@@ -210,7 +210,7 @@ async fn a_run_serves_the_console_of_its_own_cell() {
 
 /// An agent that goes is kept on the page, greyed, with since when; back, it is live again.
 async fn a_lost_agent_stays_listed_as_lost_until_it_is_back() {
-    let (mut cluster, _chart, _coordinator, _console, addr) = cell_with_console().await;
+    let (mut cluster, _chart, _coordinator, _console, addr) = cell_with_console(CHART).await;
     let listed =
         |s: &serde_json::Value| s["runs"][0]["agents"].as_array().is_some_and(|a| a.iter().any(|x| x["name"] == "r1"));
     event_until(&addr, listed).await;
@@ -255,7 +255,11 @@ fn require_browser() {
 
 async fn in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_run() {
     require_browser();
-    let (cluster, _chart, coordinator, _console, addr) = cell_with_console().await;
+    // Move stays active until the test releases it, however slowly the browser starts.
+    let waits = CHART
+        .replace("go : BOOL;", "go : BOOL; release : BOOL;")
+        .replace("Done := moved;", "Done := moved AND release;");
+    let (cluster, _chart, coordinator, _console, addr) = cell_with_console(&waits).await;
     let go = cluster.baton(&["set", "--connect", &cluster.endpoint, "go=true"]).await;
     assert!(go.status.success(), "{}", String::from_utf8_lossy(&go.stderr));
     event_until(&addr, |s| {
@@ -267,7 +271,7 @@ async fn in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_ru
     let shot = cluster.dir.path().join("console.png");
     let out = Command::new("python3")
         .arg(baton_tests::loopback::repo("tests/scripts/console_browser.py"))
-        .args([&format!("http://{addr}/"), "Move", "hold", "held", shot.to_str().expect("utf-8")])
+        .args([&format!("http://{addr}/"), "hold", "Move", "hold", "held", shot.to_str().expect("utf-8")])
         .output();
     let out =
         tokio::time::timeout(TIMEOUT * 2, out).await.expect("the browser finished in time").expect("python3 runs");
@@ -294,16 +298,58 @@ async fn in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_ru
     assert!(lines[1]["where"].as_str().is_some_and(|w| w.contains("r1")), "{}", lines[1]);
     let shown_why = lines[1]["why"].as_array().expect("why lines");
     assert_eq!(shown_why.len(), 1, "{}", lines[1]);
-    assert!(shown_why[0].as_str().is_some_and(|l| l.contains("Move->Done") && l.contains("moved")), "{}", lines[1]);
+    assert!(shown_why[0].as_str().is_some_and(|l| l.contains("Move->Done") && l.contains("release")), "{}", lines[1]);
     let after = &lines[2]["after"];
     assert_eq!(after["state"], "held", "{after}");
     assert!(after["enabled"].as_array().is_some_and(|e| e.contains(&"unhold".into())), "{after}");
     let png = std::fs::read(&shot).expect("the screenshot");
     assert!(png.starts_with(b"\x89PNG"), "not a PNG");
+    let release = cluster.baton(&["set", "--connect", &cluster.endpoint, "release=true"]).await;
+    assert!(release.status.success(), "{}", String::from_utf8_lossy(&release.stderr));
     let unhold = cluster.baton(&["ctl", "--connect", &cluster.endpoint, "unhold"]).await;
     assert!(unhold.status.success(), "{}", String::from_utf8_lossy(&unhold.stderr));
     let (status, log, _, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
+}
+
+/// A step past its maximum time raises an alarm; in the browser the operator acknowledges it with a comment: the
+/// trace records the acknowledgement with the comment and the console's identity, and the run goes on to its end.
+async fn in_a_browser_an_alarm_is_acknowledged_with_a_comment() {
+    require_browser();
+    let mut cluster = Cluster::with_router().await;
+    let chart = cluster.dir.path().join("part.st");
+    std::fs::write(&chart, CHART.replace("{agent := 'r1'}", "{agent := 'r1', max_ms := T#500ms}")).expect("write");
+    let mut coordinator = cluster.coordinator_joining(&chart, &[]);
+    coordinator.wait_ready().await;
+    cluster.agent("r1", &[], &[]);
+    let addr = format!("127.0.0.1:{}", baton_tests::loopback::free_port());
+    let _console = Command::new(bin("baton"))
+        .args(["console", "--connect", &cluster.endpoint, "--listen", &addr])
+        .stdout(std::process::Stdio::null())
+        .kill_on_drop(true)
+        .spawn()
+        .expect("start baton console");
+    let go = cluster.baton(&["set", "--connect", &cluster.endpoint, "go=true"]).await;
+    assert!(go.status.success(), "{}", String::from_utf8_lossy(&go.stderr));
+    let out = Command::new("python3")
+        .arg(baton_tests::loopback::repo("tests/scripts/console_browser.py"))
+        .args([&format!("http://{addr}/"), "ack", "checked the axis"])
+        .output();
+    let out =
+        tokio::time::timeout(TIMEOUT * 2, out).await.expect("the browser finished in time").expect("python3 runs");
+    let said = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(out.status.success(), "{said}\n{}", String::from_utf8_lossy(&out.stderr));
+    let lines: Vec<serde_json::Value> = said.lines().map(|l| serde_json::from_str(l).expect("JSON")).collect();
+    assert_eq!(lines[0]["shown_state"], "active, unacknowledged", "{said}");
+    let alarm: u64 = lines[0]["alarm"].as_str().and_then(|a| a.parse().ok()).expect("an alarm id");
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    let raised =
+        trace.iter().find(|r| r.event == TraceEvent::Alarm && r.id == Some(alarm)).expect("the alarm is traced");
+    assert_eq!(raised.name, "Move", "{raised:?}");
+    let acked = trace.iter().find(|r| r.event == TraceEvent::Ack && r.id == Some(alarm)).expect("acknowledged");
+    let me = baton_tests::loopback::who_sends();
+    assert_eq!((acked.by.as_deref(), acked.message.as_deref()), (Some(me.as_str()), Some("checked the axis")));
 }
 
 baton_tests::harness_main!(
@@ -312,4 +358,5 @@ baton_tests::harness_main!(
     tokio a_run_serves_the_console_of_its_own_cell,
     tokio a_lost_agent_stays_listed_as_lost_until_it_is_back,
     tokio in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_run,
+    tokio in_a_browser_an_alarm_is_acknowledged_with_a_comment,
 );
