@@ -8,6 +8,9 @@ Usage: console_browser.py URL hold STEP COMMAND STATE SCREENSHOT
 Usage: console_browser.py URL ack COMMENT
   waits for an unacknowledged alarm, prints it (`alarm`, `shown_state`), writes COMMENT as the reason, clicks its
   ack and waits until the page shows it acknowledged (`reply`).
+Usage: console_browser.py URL confirm TRANSITION STEP
+  clicks the mode `step` and waits for it (`mode`), waits until TRANSITION waits for a confirmation and prints the
+  transitions the chart marks waiting (`waiting`), clicks its confirm and waits until STEP is active (`after`).
 Each wait is Selenium's explicit wait on the page's DOM (woken by polling the DOM, not by a fixed sleep).
 """
 
@@ -79,6 +82,22 @@ def ack(driver, wait, comment):
     print(json.dumps({"reply": driver.find_element(By.ID, "reply").text}), flush=True)
 
 
+def confirm(driver, wait, transition, step):
+    """Switches the run to step mode, waits until TRANSITION waits for a confirmation (marked on the chart and
+    offered as a button), confirms it, and waits until STEP is active."""
+    driver.find_element(By.CSS_SELECTOR, '#modes button[data-mode="step"]').click()
+    wait.until(lambda d: d.find_element(By.ID, "mode").get_attribute("data-mode") == "step")
+    print(json.dumps({"mode": "step"}), flush=True)
+    button = f'#waiting button[data-confirm="{transition}"]'
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, button))
+    marked = driver.execute_script(
+        "return [...document.querySelectorAll('#chart svg g.transition.waiting')].map(g => g.dataset.transition)")
+    print(json.dumps({"waiting": marked}), flush=True)
+    driver.find_element(By.CSS_SELECTOR, button).click()
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, f'#chart svg g.step.active[data-step="{step}"]'))
+    print(json.dumps({"after": shown(driver)}), flush=True)
+
+
 def main():
     url, mode = sys.argv[1:3]
     driver = browser()
@@ -87,6 +106,8 @@ def main():
         wait = WebDriverWait(driver, 30, poll_frequency=0.05)
         if mode == "hold":
             hold(driver, wait, *sys.argv[3:7])
+        elif mode == "confirm":
+            confirm(driver, wait, *sys.argv[3:5])
         else:
             ack(driver, wait, sys.argv[3])
     finally:

@@ -208,12 +208,22 @@ async fn a_run_serves_the_console_of_its_own_cell() {
     assert_eq!(summary["state"], "stopped");
 }
 
-/// An agent that goes is kept on the page, greyed, with since when; back, it is live again.
+/// An agent's branches are held and released from the page; an agent that goes is kept on the page, greyed, with
+/// since when; back, it is live again.
 async fn a_lost_agent_stays_listed_as_lost_until_it_is_back() {
     let (mut cluster, _chart, _coordinator, _console, addr) = cell_with_console(CHART).await;
     let listed =
         |s: &serde_json::Value| s["runs"][0]["agents"].as_array().is_some_and(|a| a.iter().any(|x| x["name"] == "r1"));
-    event_until(&addr, listed).await;
+    let state = event_until(&addr, listed).await;
+    // Its branches held and released, as `baton ctl hold --agent r1` does (the page's buttons by each agent).
+    let ctl_path = format!("/api/runs/{}/ctl", state["runs"][0]["run"].as_str().expect("a run id"));
+    let (_, held) = http(&addr, "POST", &ctl_path, Some(r#"{"command": "hold", "agent": "r1"}"#)).await;
+    assert!(held.contains("\"ok\":true"), "{held}");
+    let held = event_until(&addr, |s| s["runs"][0]["held"].as_array().is_some_and(|h| !h.is_empty())).await;
+    assert!(held["runs"][0]["held"][0].as_str().is_some_and(|h| h.contains("r1")), "{held}");
+    let (_, released) = http(&addr, "POST", &ctl_path, Some(r#"{"command": "unhold", "agent": "r1"}"#)).await;
+    assert!(released.contains("\"ok\":true"), "{released}");
+    event_until(&addr, |s| s["runs"][0]["held"].as_array().is_some_and(|h| h.is_empty())).await;
     let before = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("clock").as_millis();
     cluster.kill_agent("r1").await;
     let lost = event_until(&addr, |s| s["lost_agents"].as_array().is_some_and(|l| !l.is_empty())).await;
@@ -352,6 +362,39 @@ async fn in_a_browser_an_alarm_is_acknowledged_with_a_comment() {
     assert_eq!((acked.by.as_deref(), acked.message.as_deref()), (Some(me.as_str()), Some("checked the axis")));
 }
 
+/// Step mode in the browser: the operator clicks `step`; once `go` is set the transition waits, marked on the
+/// chart and offered as a button; a click on it lets it clear, and the run goes on.
+async fn in_a_browser_step_mode_waits_for_a_confirm_clicked() {
+    require_browser();
+    let (cluster, _chart, coordinator, _console, addr) = cell_with_console(CHART).await;
+    let script = Command::new("python3")
+        .arg(baton_tests::loopback::repo("tests/scripts/console_browser.py"))
+        .args([&format!("http://{addr}/"), "confirm", "Ready->Move", "Move"])
+        .kill_on_drop(true)
+        .output();
+    let browser = tokio::spawn(script);
+    // Once the run is in step mode (clicked in the browser), the part goes.
+    event_until(&addr, |s| s["runs"][0]["mode"] == "step").await;
+    let go = cluster.baton(&["set", "--connect", &cluster.endpoint, "go=true"]).await;
+    assert!(go.status.success(), "{}", String::from_utf8_lossy(&go.stderr));
+    let out =
+        tokio::time::timeout(TIMEOUT * 2, browser).await.expect("in time").expect("joined").expect("python3 runs");
+    let said = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(out.status.success(), "{said}\n{}", String::from_utf8_lossy(&out.stderr));
+    let lines: Vec<serde_json::Value> = said.lines().map(|l| serde_json::from_str(l).expect("JSON")).collect();
+    assert_eq!(lines[1]["waiting"], serde_json::json!(["Ready->Move"]), "{said}");
+    assert_eq!(lines[2]["after"]["active"], serde_json::json!(["Move"]), "{said}");
+    // The rest of the chart, confirmed by hand as well.
+    let mode = cluster.baton(&["ctl", "--connect", &cluster.endpoint, "mode", "auto"]).await;
+    assert!(mode.status.success(), "{}", String::from_utf8_lossy(&mode.stderr));
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert!(status.success(), "{log}");
+    let modes: Vec<&str> = trace.iter().filter(|r| r.event == TraceEvent::Mode).map(|r| r.name.as_str()).collect();
+    assert_eq!(modes, ["step", "auto"]);
+    let confirmed = trace.iter().any(|r| r.event == TraceEvent::Command && r.name == "confirm");
+    assert!(confirmed, "{trace:#?}");
+}
+
 baton_tests::harness_main!(
     tokio the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_ctl_does,
     tokio the_console_listens_on_loopback_only,
@@ -359,4 +402,5 @@ baton_tests::harness_main!(
     tokio a_lost_agent_stays_listed_as_lost_until_it_is_back,
     tokio in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_run,
     tokio in_a_browser_an_alarm_is_acknowledged_with_a_comment,
+    tokio in_a_browser_step_mode_waits_for_a_confirm_clicked,
 );
