@@ -353,9 +353,19 @@ pub async fn set_on(
     name: &str,
     value: serde_json::Value,
 ) -> anyhow::Result<Vec<SetReply>> {
-    let by = sender(None);
-    let request = wire::encode(&SetRequest { name: name.to_string(), value, by: by.clone() });
-    let key = run.map_or_else(|| keys::set_any_run(&by), |r| keys::set(r, &by));
+    set_as(session, run, name, value, &sender(None)).await
+}
+
+/// Sets input `name` of run `run` (or of every chart behind the router) as `by`, on the key that names `by`.
+pub async fn set_as(
+    session: &Session,
+    run: Option<RunId>,
+    name: &str,
+    value: serde_json::Value,
+    by: &str,
+) -> anyhow::Result<Vec<SetReply>> {
+    let request = wire::encode(&SetRequest { name: name.to_string(), value, by: by.to_string() });
+    let key = run.map_or_else(|| keys::set_any_run(by), |r| keys::set(r, by));
     ask(session, key, Some(request)).await
 }
 

@@ -9,7 +9,8 @@ Usage: console_browser.py URL ack COMMENT
   waits for an unacknowledged alarm, prints it (`alarm`, `shown_state`), writes COMMENT as the reason, clicks its
   ack and waits until the page shows it acknowledged (`reply`).
 Usage: console_browser.py URL confirm TRANSITION STEP
-  clicks the mode `step` and waits for it (`mode`), waits until TRANSITION waits for a confirmation and prints the
+  clicks the mode `step` and waits for it (`mode`), sets the input `go` to TRUE in the inputs form, waits until
+  TRANSITION waits for a confirmation and prints the
   transitions the chart marks waiting (`waiting`), clicks its confirm and waits until STEP is active (`after`).
 Each wait is Selenium's explicit wait on the page's DOM (woken by polling the DOM, not by a fixed sleep).
 """
@@ -21,7 +22,7 @@ import sys
 from selenium import webdriver
 from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
-from selenium.webdriver.support.ui import WebDriverWait
+from selenium.webdriver.support.ui import Select, WebDriverWait
 
 os.environ["SE_OFFLINE"] = "true"  # never download a driver or a browser: use the machine's
 
@@ -51,6 +52,7 @@ def browser():
                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
                  "--window-size=1400,1000"]:
         options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     return webdriver.Chrome(service=Service(executable_path="/usr/bin/chromedriver"), options=options)
 
 
@@ -77,17 +79,24 @@ def ack(driver, wait, comment):
     print(json.dumps({"alarm": alarm, "shown_state": state}), flush=True)
     driver.find_element(By.ID, "reason").send_keys(comment)
     driver.find_element(By.CSS_SELECTOR, row + ' button[data-alarm-command="ack"]').click()
-    acked = f'#alarms tr[data-alarm="{alarm}"]'
-    wait.until(lambda d: all(r.get_attribute("data-state") != "active_unacknowledged" for r in d.find_elements(By.CSS_SELECTOR, acked)))
+    states = f"return [...document.querySelectorAll('#alarms tr[data-alarm=\"{alarm}\"]')].map(r => r.dataset.state)"
+    wait.until(lambda d: "active_unacknowledged" not in d.execute_script(states))
     print(json.dumps({"reply": driver.find_element(By.ID, "reply").text}), flush=True)
 
 
 def confirm(driver, wait, transition, step):
     """Switches the run to step mode, waits until TRANSITION waits for a confirmation (marked on the chart and
     offered as a button), confirms it, and waits until STEP is active."""
-    driver.find_element(By.CSS_SELECTOR, '#modes button[data-mode="step"]').click()
+    step_mode = '#modes button[data-mode="step"]'
+    wait.until(lambda d: any(b.is_enabled() for b in d.find_elements(By.CSS_SELECTOR, step_mode)))
+    driver.find_element(By.CSS_SELECTOR, step_mode).click()
     wait.until(lambda d: d.find_element(By.ID, "mode").get_attribute("data-mode") == "step")
     print(json.dumps({"mode": "step"}), flush=True)
+    # The part goes: the operator sets the input `go` in the inputs form.
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, '#input-name option[value="go"]'))
+    Select(driver.find_element(By.ID, "input-name")).select_by_value("go")
+    driver.find_element(By.ID, "input-value").send_keys("TRUE")
+    driver.find_element(By.ID, "input-set").click()
     button = f'#waiting button[data-confirm="{transition}"]'
     wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, button))
     marked = driver.execute_script(
@@ -110,6 +119,10 @@ def main():
             confirm(driver, wait, *sys.argv[3:5])
         else:
             ack(driver, wait, sys.argv[3])
+        # The page's script raised nothing meanwhile.
+        errors = [e["message"] for e in driver.get_log("browser") if e.get("source") == "javascript"]
+        if errors:
+            sys.exit("the page's script failed: " + "; ".join(errors))
     finally:
         driver.quit()
 

@@ -190,7 +190,7 @@ async fn the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_c
 }
 
 /// `baton run --console ADDR` serves the same page for its own cell (here the router it embeds): the run is
-/// there, and a command sent through it is taken.
+/// there, its input set through it moves the part on, and a command sent through it is taken.
 async fn a_run_serves_the_console_of_its_own_cell() {
     let cluster = Cluster::new();
     let chart = cluster.dir.path().join("part.st");
@@ -201,6 +201,23 @@ async fn a_run_serves_the_console_of_its_own_cell() {
     let state = event_until(&addr, |s| s["runs"].as_array().is_some_and(|r| r.len() == 1)).await;
     assert_eq!(state["runs"][0]["chart"], "part");
     let run = state["runs"][0]["run"].as_str().expect("a run id").to_string();
+    // Its inputs, as the chart declares them (`moved` is the motion's indicator: an action writes it), set as
+    // `baton set` sets them; a refusal says why.
+    let (code, inputs) = http(&addr, "GET", &format!("/api/runs/{run}/inputs"), None).await;
+    assert_eq!(code, 200, "{inputs}");
+    assert_eq!(
+        serde_json::from_str::<serde_json::Value>(&inputs).expect("JSON"),
+        serde_json::json!([{"name": "go", "type": "BOOL"}])
+    );
+    let set_path = format!("/api/runs/{run}/set");
+    let (_, refused) = http(&addr, "POST", &set_path, Some(r#"{"name": "moved", "value": true}"#)).await;
+    assert!(refused.contains("\"ok\":false"), "{refused}");
+    let (_, taken) = http(&addr, "POST", &set_path, Some(r#"{"name": "go", "value": true}"#)).await;
+    assert!(taken.contains("\"ok\":true"), "{taken}");
+    event_until(&addr, |s| {
+        s["runs"][0]["active_steps"].as_array().is_some_and(|a| a.iter().any(|x| x["name"] == "Move"))
+    })
+    .await;
     let (_, reply) = http(&addr, "POST", &format!("/api/runs/{run}/ctl"), Some(r#"{"command": "stop"}"#)).await;
     assert!(reply.contains("\"ok\":true"), "{reply}");
     let (status, log, _, summary) = coordinator.finish().await;
@@ -362,8 +379,8 @@ async fn in_a_browser_an_alarm_is_acknowledged_with_a_comment() {
     assert_eq!((acked.by.as_deref(), acked.message.as_deref()), (Some(me.as_str()), Some("checked the axis")));
 }
 
-/// Step mode in the browser: the operator clicks `step`; once `go` is set the transition waits, marked on the
-/// chart and offered as a button; a click on it lets it clear, and the run goes on.
+/// Step mode in the browser: the operator clicks `step` and sets the input `go` in the page's form; the transition
+/// then waits, marked on the chart and offered as a button; a click on it lets it clear, and the run goes on.
 async fn in_a_browser_step_mode_waits_for_a_confirm_clicked() {
     require_browser();
     let (cluster, _chart, coordinator, _console, addr) = cell_with_console(CHART).await;
@@ -372,13 +389,7 @@ async fn in_a_browser_step_mode_waits_for_a_confirm_clicked() {
         .args([&format!("http://{addr}/"), "confirm", "Ready->Move", "Move"])
         .kill_on_drop(true)
         .output();
-    let browser = tokio::spawn(script);
-    // Once the run is in step mode (clicked in the browser), the part goes.
-    event_until(&addr, |s| s["runs"][0]["mode"] == "step").await;
-    let go = cluster.baton(&["set", "--connect", &cluster.endpoint, "go=true"]).await;
-    assert!(go.status.success(), "{}", String::from_utf8_lossy(&go.stderr));
-    let out =
-        tokio::time::timeout(TIMEOUT * 2, browser).await.expect("in time").expect("joined").expect("python3 runs");
+    let out = tokio::time::timeout(TIMEOUT * 2, script).await.expect("in time").expect("python3 runs");
     let said = String::from_utf8_lossy(&out.stdout).to_string();
     assert!(out.status.success(), "{said}\n{}", String::from_utf8_lossy(&out.stderr));
     let lines: Vec<serde_json::Value> = said.lines().map(|l| serde_json::from_str(l).expect("JSON")).collect();
@@ -393,6 +404,9 @@ async fn in_a_browser_step_mode_waits_for_a_confirm_clicked() {
     assert_eq!(modes, ["step", "auto"]);
     let confirmed = trace.iter().any(|r| r.event == TraceEvent::Command && r.name == "confirm");
     assert!(confirmed, "{trace:#?}");
+    let set = trace.iter().find(|r| r.event == TraceEvent::Set && r.name == "go").expect("go set");
+    let me = baton_tests::loopback::who_sends();
+    assert_eq!((set.message.as_deref(), set.by.as_deref()), (Some("TRUE"), Some(me.as_str())), "{set:?}");
 }
 
 baton_tests::harness_main!(

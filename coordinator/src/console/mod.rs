@@ -99,8 +99,22 @@ struct Console {
     /// Who the console sends commands as: the identity it authenticates with, as `baton ctl` does.
     sender: String,
     latest: tokio::sync::watch::Sender<String>,
-    /// Each chart version's drawing, made once.
-    drawings: Mutex<BTreeMap<String, Arc<String>>>,
+    /// Each chart version's drawing and inputs, made once.
+    charts: Mutex<BTreeMap<String, Arc<ChartView>>>,
+}
+
+/// What the page shows of a chart version: its drawing, and the inputs an operator may set (`baton set`'s: the
+/// variables no action writes).
+struct ChartView {
+    svg: String,
+    inputs: Vec<InputVar>,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+struct InputVar {
+    name: String,
+    #[serde(rename = "type")]
+    ty: String,
 }
 
 /// The console's listening socket on `listen`, which must be a loopback address (until the console has TLS and
@@ -123,12 +137,8 @@ pub async fn serve(
 ) -> anyhow::Result<()> {
     let session = crate::client::open(connect, file).await?;
     let (latest, _) = tokio::sync::watch::channel(String::new());
-    let console = Arc::new(Console {
-        session,
-        sender: crate::client::sender(file),
-        latest,
-        drawings: Mutex::new(BTreeMap::new()),
-    });
+    let console =
+        Arc::new(Console { session, sender: crate::client::sender(file), latest, charts: Mutex::new(BTreeMap::new()) });
     tokio::spawn(follow(Arc::clone(&console)));
     let app = Router::new()
         .route("/", get(page))
@@ -137,6 +147,8 @@ pub async fn serve(
         .route("/api/runs/{run}/chart.svg", get(chart))
         .route("/api/runs/{run}/ctl", post(ctl))
         .route("/api/runs/{run}/why", get(why))
+        .route("/api/runs/{run}/inputs", get(inputs))
+        .route("/api/runs/{run}/set", post(set))
         .with_state(Arc::clone(&console));
     let bound = listener.local_addr().context("the address listened on")?;
     println!("baton console on http://{bound}/ for {}", connect.join(", "));
@@ -227,14 +239,51 @@ async fn chart(State(console): State<Arc<Console>>, UrlPath(run): UrlPath<String
         Ok(r) => r,
         Err(refused) => return refused.into_response(),
     };
-    match drawing(&console, run).await {
-        Ok(svg) => ([(header::CONTENT_TYPE, "image/svg+xml")], svg.as_str().to_owned()).into_response(),
+    match chart_view(&console, run).await {
+        Ok(view) => ([(header::CONTENT_TYPE, "image/svg+xml")], view.svg.clone()).into_response(),
         Err(why) => (StatusCode::BAD_GATEWAY, why).into_response(),
     }
 }
 
-/// Asks run `run` for its chart and draws it, or takes the drawing of that chart version made before.
-async fn drawing(console: &Console, run: RunId) -> Result<Arc<String>, String> {
+/// The inputs of run `run`'s chart an operator may set, with their types.
+async fn inputs(State(console): State<Arc<Console>>, UrlPath(run): UrlPath<String>) -> Response {
+    let run = match run_id(&run) {
+        Ok(r) => r,
+        Err(refused) => return refused.into_response(),
+    };
+    match chart_view(&console, run).await {
+        Ok(view) => Json(view.inputs.clone()).into_response(),
+        Err(why) => (StatusCode::BAD_GATEWAY, why).into_response(),
+    }
+}
+
+/// `{"name": NAME, "value": JSON}`: sets an input of run `run` as `baton set` does, under the console's identity.
+#[derive(serde::Deserialize)]
+struct SetBody {
+    name: String,
+    value: serde_json::Value,
+}
+
+async fn set(
+    State(console): State<Arc<Console>>,
+    UrlPath(run): UrlPath<String>,
+    Json(body): Json<SetBody>,
+) -> Response {
+    let run = match run_id(&run) {
+        Ok(r) => r,
+        Err(refused) => return refused.into_response(),
+    };
+    match crate::client::set_as(&console.session, Some(run), &body.name, body.value, &console.sender).await {
+        Ok(replies) => match replies.into_iter().next() {
+            Some(reply) => Json(reply).into_response(),
+            None => (StatusCode::BAD_GATEWAY, format!("run {} did not answer", run.key())).into_response(),
+        },
+        Err(e) => (StatusCode::BAD_GATEWAY, format!("{e:#}")).into_response(),
+    }
+}
+
+/// Asks run `run` for its chart and draws it, or takes what was made of that chart version before.
+async fn chart_view(console: &Console, run: RunId) -> Result<Arc<ChartView>, String> {
     let replies = traffic::get(&console.session, keys::chart(run))
         .timeout(CHART_TIMEOUT)
         .await
@@ -243,17 +292,25 @@ async fn drawing(console: &Console, run: RunId) -> Result<Arc<String>, String> {
     let sample = reply.result().map_err(|e| format!("run {} refused its chart: {e:?}", run.key()))?;
     let src: ChartSource = wire::decode_with_limit(&sample.payload().to_bytes(), CHART_SOURCE_BYTES_MAX)
         .map_err(|e| format!("run {}'s chart: {e}", run.key()))?;
-    if let Some(svg) = console.drawings.lock().map_err(|_| "poisoned".to_string())?.get(&src.hash.0) {
-        return Ok(Arc::clone(svg));
+    if let Some(view) = console.charts.lock().map_err(|_| "poisoned".to_string())?.get(&src.hash.0) {
+        return Ok(Arc::clone(view));
     }
     let report = baton_proto::pipeline::check_source(&src.source);
     let checked = report.charts.iter().find(|c| c.chart.name.name == src.pou);
-    let Some((chart, Some(program))) = checked.map(|c| (&c.chart, c.program.as_ref())) else {
+    let Some((chart, Some(program), Some(layout))) = checked.map(|c| (&c.chart, c.program.as_ref(), c.layout.as_ref()))
+    else {
         return Err(format!("run {}'s chart `{}` does not compile here", run.key(), src.pou));
     };
-    let svg = Arc::new(baton_proto::back::svg::chart(chart, program));
-    console.drawings.lock().map_err(|_| "poisoned".to_string())?.insert(src.hash.0, Arc::clone(&svg));
-    Ok(svg)
+    let inputs = program
+        .vars
+        .iter()
+        .zip(&layout.settable)
+        .filter(|(v, &settable)| settable && !v.hidden && !v.constant)
+        .map(|(v, _)| InputVar { name: v.name.clone(), ty: v.ty.to_string() })
+        .collect();
+    let view = Arc::new(ChartView { svg: baton_proto::back::svg::chart(chart, program), inputs });
+    console.charts.lock().map_err(|_| "poisoned".to_string())?.insert(src.hash.0, Arc::clone(&view));
+    Ok(view)
 }
 
 /// Why each active step of run `run` waits, as `baton status --why` says it: the coordinator's own steps and, asked
