@@ -626,7 +626,7 @@ impl Host {
                             "no contact with the router for {ms} ms: the skills of the {holding} token(s) held here \
                              that may go to another agent are stopped (lease fence)"
                         );
-                        eprintln!("warning: {said} at unix ms {}", crate::trace::unix_ms());
+                        eprintln!("warning: {said} at unix ms {}", baton_host::unix_ms());
                         crate::trace::event(name, TraceEvent::ContactLost, name, Some(said));
                     }
                     None => {

@@ -28,7 +28,7 @@ pub fn open(path: &Path) -> anyhow::Result<()> {
 /// written is said once on stderr, and the agent goes on: its trace is a witness, not its state.
 pub fn write(agent: &str, mut record: TraceRecord) {
     let Some(sink) = SINK.get() else { return };
-    record.t_ms = unix_ms();
+    record.t_ms = baton_host::unix_ms();
     record.agent = Some(agent.to_string());
     let Ok(mut line) = serde_json::to_string(&record) else { return };
     line.push('\n');
@@ -44,9 +44,4 @@ pub fn event(agent: &str, event: TraceEvent, name: &str, message: Option<String>
     let mut record = TraceRecord::new(0, event, name);
     record.message = message;
     write(agent, record);
-}
-
-/// Milliseconds since the Unix epoch, by this machine's clock.
-pub fn unix_ms() -> u64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64)
 }

@@ -106,6 +106,12 @@ pub fn certificate_name(pem_file: &Path) -> Option<String> {
     (!name.is_empty() && !name.chars().any(char::is_control)).then_some(name)
 }
 
+/// Milliseconds since the Unix epoch by this machine's clock: what a journal's header, an agent's trace and the
+/// console's "lost since" record.
+pub fn unix_ms() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64)
+}
+
 /// The inbox of a subscriber or queryable: `RECEIVE_QUEUE_MAX` samples, filled by Zenoh's reader without waiting
 /// for the main loop.
 pub fn inbox() -> FifoChannel {

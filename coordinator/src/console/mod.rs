@@ -193,8 +193,7 @@ async fn follow(console: Arc<Console>) {
         let mut runs =
             if connected { crate::client::status_on(&console.session).await.unwrap_or_default() } else { Vec::new() };
         runs.sort_by(|a, b| (a.chart.as_str(), a.run).cmp(&(b.chart.as_str(), b.run)));
-        let now =
-            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64);
+        let now = baton_host::unix_ms();
         // Without the router nothing is known of the agents: their list stays as it was, marked stale.
         let lost_agents = if connected { agents.update(&runs, now) } else { last.lost_agents.clone() };
         let snapshot = Snapshot { connected, runs, lost_agents };

@@ -30,8 +30,9 @@ use tokio::sync::mpsc;
 
 use crate::chart_file::{load, Loaded};
 
+use baton_host::unix_ms;
 use host::{releasing, reply, Callbacks, Host, Identity, Inboxes, Wake};
-use resume::{check_resumable, end_of, resume_segments, trace_lines, unix_ms};
+use resume::{check_resumable, end_of, resume_segments, trace_lines};
 
 pub use records::{Probe, Records};
 pub use resume::{check_pin, how_it_ended, replay_segments};

@@ -8,10 +8,6 @@ use baton_proto::exec::program::Program;
 
 use crate::chart_file::Loaded;
 
-pub(crate) fn unix_ms() -> u64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64)
-}
-
 /// A journal is resumed only by the same chart version and only in a format this build reads (whether its run
 /// ended is `end_of`'s to say).
 pub(crate) fn check_resumable(
