@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
-use baton_proto::pipeline::{check_source, CheckedChart};
+use baton_proto::pipeline::{check_source, CheckedChart, Report};
 
 use crate::chart_file::{pick, read_chart};
 
@@ -40,15 +40,22 @@ impl Export {
     }
 }
 
-/// `baton export --svg`: one chart of the file, drawn; a chart with errors draws nothing.
-fn export_svg(path: &Path, pou: Option<&str>, output: Option<&Path>) -> anyhow::Result<ExitCode> {
+/// The file's charts checked, their diagnostics printed; `None`, having said that nothing was `done`, when the
+/// file has errors or no chart.
+fn checked(path: &Path, done: &str) -> anyhow::Result<Option<Report>> {
     let src = read_chart(path)?.text;
     let report = check_source(&src);
     print_diagnostics(path, &src, &report, |_| true);
     if report.error_count() > 0 || report.charts.is_empty() {
-        eprintln!("{}: nothing was drawn: the file has errors or no chart", path.display());
-        return Ok(ExitCode::from(EXIT_INVALID));
+        eprintln!("{}: nothing was {done}: the file has errors or no chart", path.display());
+        return Ok(None);
     }
+    Ok(Some(report))
+}
+
+/// `baton export --svg`: one chart of the file, drawn; a chart with errors draws nothing.
+fn export_svg(path: &Path, pou: Option<&str>, output: Option<&Path>) -> anyhow::Result<ExitCode> {
+    let Some(report) = checked(path, "drawn")? else { return Ok(ExitCode::from(EXIT_INVALID)) };
     let chosen = pick(&report, pou)?;
     let Some(program) = chosen.program.as_ref() else {
         eprintln!("{}: nothing was drawn: chart `{}` did not compile", path.display(), chosen.chart.name.name);
@@ -75,13 +82,7 @@ fn write_out(output: Option<&Path>, text: &str) -> anyhow::Result<()> {
 
 /// `baton export --plcopen`: the file's charts as PLCopen XML; a chart with errors exports nothing.
 fn export(path: &Path, pou: Option<&str>, output: Option<&Path>) -> anyhow::Result<ExitCode> {
-    let src = read_chart(path)?.text;
-    let report = check_source(&src);
-    print_diagnostics(path, &src, &report, |_| true);
-    if report.error_count() > 0 || report.charts.is_empty() {
-        eprintln!("{}: nothing was exported: the file has errors or no chart", path.display());
-        return Ok(ExitCode::from(EXIT_INVALID));
-    }
+    let Some(report) = checked(path, "exported")? else { return Ok(ExitCode::from(EXIT_INVALID)) };
     let chosen: Vec<&CheckedChart> = match pou {
         Some(_) => vec![pick(&report, pou)?],
         None => report.charts.iter().collect(),
