@@ -201,13 +201,7 @@ fn transition(out: &mut String, chart: &Chart, program: &Program, diagram: &Diag
     if sources.len() > 1 {
         let join = y - 30;
         let xs: Vec<i64> = sources.iter().map(|&s| from(s).0).chain([bx]).collect();
-        double(
-            out,
-            "simultaneous convergence",
-            xs.iter().min().copied().unwrap_or(bx),
-            xs.iter().max().copied().unwrap_or(bx),
-            join,
-        );
+        double(out, "simultaneous convergence", &xs, join);
         for &s in sources {
             let (fx, fy) = from(s);
             path(out, &[(fx, fy), (fx, join - 2)]);
@@ -239,13 +233,7 @@ fn transition(out: &mut String, chart: &Chart, program: &Program, diagram: &Diag
             .chain([bx])
             .collect();
         path(out, &[(bx, y), (bx, split - 2)]);
-        double(
-            out,
-            "simultaneous divergence",
-            xs.iter().min().copied().unwrap_or(bx),
-            xs.iter().max().copied().unwrap_or(bx),
-            split,
-        );
+        double(out, "simultaneous divergence", &xs, split);
         split + 2
     } else {
         y
@@ -295,8 +283,10 @@ fn transition(out: &mut String, chart: &Chart, program: &Program, diagram: &Diag
     out.push_str("</g>\n");
 }
 
-/// A double line across `x1`…`x2` at `y`: a simultaneous divergence or convergence.
-fn double(out: &mut String, class: &str, x1: i64, x2: i64, y: i64) {
+/// A double line across every x of `xs` (never empty: the bar's is among them) at `y`: a simultaneous divergence
+/// or convergence.
+fn double(out: &mut String, class: &str, xs: &[i64], y: i64) {
+    let (x1, x2) = (xs.iter().min().copied().unwrap_or(0), xs.iter().max().copied().unwrap_or(0));
     let _ = writeln!(
         out,
         "<g class=\"{class}\"><line x1=\"{0}\" y1=\"{2}\" x2=\"{1}\" y2=\"{2}\" stroke=\"black\"/>\
