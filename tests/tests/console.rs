@@ -93,6 +93,19 @@ async fn event_until(addr: &str, holds: impl Fn(&serde_json::Value) -> bool) -> 
     found.ok().flatten().expect("the console never showed the state waited for")
 }
 
+/// Holds the part of the run that `{field: name}` names (`step` or `agent`), as `baton ctl hold --step/--agent`
+/// does, through the console at `ctl_path`: the run's held list names it; then releases it, and the list is empty.
+async fn hold_and_release(addr: &str, ctl_path: &str, field: &str, name: &str) {
+    let body = |command: &str| serde_json::json!({"command": command, field: name}).to_string();
+    let (_, held) = http(addr, "POST", ctl_path, Some(&body("hold"))).await;
+    assert!(held.contains("\"ok\":true"), "{held}");
+    let state = event_until(addr, |s| s["runs"][0]["held"].as_array().is_some_and(|h| !h.is_empty())).await;
+    assert!(state["runs"][0]["held"][0].as_str().is_some_and(|h| h.contains(name)), "{state}");
+    let (_, released) = http(addr, "POST", ctl_path, Some(&body("unhold"))).await;
+    assert!(released.contains("\"ok\":true"), "{released}");
+    event_until(addr, |s| s["runs"][0]["held"].as_array().is_some_and(|h| h.is_empty())).await;
+}
+
 fn run_state(state: &serde_json::Value) -> &str {
     state["runs"][0]["state"].as_str().unwrap_or_default()
 }
@@ -146,13 +159,7 @@ async fn the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_c
     assert!(why[0]["summary"].as_str().is_some_and(|s| s.contains("moved")), "{why}");
     // The step alone held, then released, as `baton ctl hold --step Move` does.
     let ctl_path = format!("/api/runs/{run}/ctl");
-    let (_, held) = http(&addr, "POST", &ctl_path, Some(r#"{"command": "hold", "step": "Move"}"#)).await;
-    assert!(held.contains("\"ok\":true"), "{held}");
-    let step_held = event_until(&addr, |s| s["runs"][0]["held"].as_array().is_some_and(|h| !h.is_empty())).await;
-    assert!(step_held["runs"][0]["held"][0].as_str().is_some_and(|h| h.contains("Move")), "{step_held}");
-    let (_, released) = http(&addr, "POST", &ctl_path, Some(r#"{"command": "unhold", "step": "Move"}"#)).await;
-    assert!(released.contains("\"ok\":true"), "{released}");
-    event_until(&addr, |s| s["runs"][0]["held"].as_array().is_some_and(|h| h.is_empty())).await;
+    hold_and_release(&addr, &ctl_path, "step", "Move").await;
     // A command that is not legal now is refused, saying what is; a legal one is taken, with its reason.
     let ctl = |body: &'static str| http(&addr, "POST", &ctl_path, Some(body));
     let (code, refused) = ctl(r#"{"command": "unhold"}"#).await;
@@ -234,13 +241,7 @@ async fn a_lost_agent_stays_listed_as_lost_until_it_is_back() {
     let state = event_until(&addr, listed).await;
     // Its branches held and released, as `baton ctl hold --agent r1` does (the page's buttons by each agent).
     let ctl_path = format!("/api/runs/{}/ctl", state["runs"][0]["run"].as_str().expect("a run id"));
-    let (_, held) = http(&addr, "POST", &ctl_path, Some(r#"{"command": "hold", "agent": "r1"}"#)).await;
-    assert!(held.contains("\"ok\":true"), "{held}");
-    let held = event_until(&addr, |s| s["runs"][0]["held"].as_array().is_some_and(|h| !h.is_empty())).await;
-    assert!(held["runs"][0]["held"][0].as_str().is_some_and(|h| h.contains("r1")), "{held}");
-    let (_, released) = http(&addr, "POST", &ctl_path, Some(r#"{"command": "unhold", "agent": "r1"}"#)).await;
-    assert!(released.contains("\"ok\":true"), "{released}");
-    event_until(&addr, |s| s["runs"][0]["held"].as_array().is_some_and(|h| h.is_empty())).await;
+    hold_and_release(&addr, &ctl_path, "agent", "r1").await;
     let before = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("clock").as_millis();
     cluster.kill_agent("r1").await;
     let lost = event_until(&addr, |s| s["lost_agents"].as_array().is_some_and(|l| !l.is_empty())).await;

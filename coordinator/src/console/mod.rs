@@ -272,7 +272,12 @@ async fn set(
         Ok(r) => r,
         Err(refused) => return refused.into_response(),
     };
-    match crate::client::set_as(&console.session, Some(run), &body.name, body.value, &console.sender).await {
+    reply_of(run, crate::client::set_as(&console.session, Some(run), &body.name, body.value, &console.sender).await)
+}
+
+/// The run's answer to a query sent to it alone, as JSON; 502 when it did not answer or the query failed.
+fn reply_of<T: serde::Serialize>(run: RunId, replies: anyhow::Result<Vec<T>>) -> Response {
+    match replies {
         Ok(replies) => match replies.into_iter().next() {
             Some(reply) => Json(reply).into_response(),
             None => (StatusCode::BAD_GATEWAY, format!("run {} did not answer", run.key())).into_response(),
@@ -357,11 +362,5 @@ async fn ctl(
         Err(refused) => return refused.into_response(),
     };
     request.by.clone_from(&console.sender);
-    match crate::client::ctl_on(&console.session, Some(run), &request).await {
-        Ok(replies) => match replies.into_iter().next() {
-            Some(reply) => Json(reply).into_response(),
-            None => (StatusCode::BAD_GATEWAY, format!("run {} did not answer", run.key())).into_response(),
-        },
-        Err(e) => (StatusCode::BAD_GATEWAY, format!("{e:#}")).into_response(),
-    }
+    reply_of(run, crate::client::ctl_on(&console.session, Some(run), &request).await)
 }
