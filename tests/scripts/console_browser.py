@@ -12,6 +12,11 @@ Usage: console_browser.py URL confirm TRANSITION STEP
   clicks the mode `step` and waits for it (`mode`), sets the input `go` to TRUE in the inputs form, waits until
   TRANSITION waits for a confirmation and prints the
   transitions the chart marks waiting (`waiting`), clicks its confirm and waits until STEP is active (`after`).
+Usage: console_browser.py URL manual TRANSITION FIND TO REASON
+  clicks the mode `manual`, picks TRANSITION and clicks force with no reason (`refused`: what the page says), writes
+  REASON and forces it; finds the step FIND by a part of its name in the search box (`found`, and whether the view
+  zoomed to it), moves its token to step TO, waits until TO is active, and prints the commands the history lists
+  (`history`).
 Each wait is Selenium's explicit wait on the page's DOM (woken by polling the DOM, not by a fixed sleep).
 """
 
@@ -107,24 +112,68 @@ def confirm(driver, wait, transition, step):
     print(json.dumps({"after": shown(driver)}), flush=True)
 
 
+def manual(driver, wait, transition, find, to, reason):
+    """Manual mode: force a transition, find a step by name and move its token, each with a reason."""
+    manual_mode = '#modes button[data-mode="manual"]'
+    wait.until(lambda d: any(b.is_enabled() for b in d.find_elements(By.CSS_SELECTOR, manual_mode)))
+    driver.find_element(By.CSS_SELECTOR, manual_mode).click()
+    wait.until(lambda d: d.find_element(By.ID, "mode").get_attribute("data-mode") == "manual")
+    force = 'button[data-manual="force"]'
+    wait.until(lambda d: d.find_element(By.CSS_SELECTOR, force).is_enabled())
+    Select(driver.find_element(By.ID, "force-transition")).select_by_value(transition)
+    driver.find_element(By.CSS_SELECTOR, force).click()
+    print(json.dumps({"refused": driver.find_element(By.ID, "reply").text}), flush=True)
+    driver.find_element(By.ID, "reason").send_keys(reason)
+    driver.find_element(By.CSS_SELECTOR, force).click()
+    search = driver.find_element(By.ID, "search")
+    search.send_keys(find + "\n")
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#chart svg g.step.active.found"))
+    view = driver.execute_script("""
+        const svg = document.querySelector("#chart svg");
+        return { width: svg.viewBox.baseVal.width, full: +svg.getAttribute("width") };
+    """)
+    found = driver.find_element(By.ID, "step-name").text
+    print(json.dumps({"found": found, "zoomed": view["width"] < view["full"]}), flush=True)
+    Select(driver.find_element(By.ID, "move-to")).select_by_value(to)
+    driver.find_element(By.CSS_SELECTOR, 'button[data-manual="move"]').click()
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, f'#chart svg g.step.active[data-step="{to}"]'))
+    Select(driver.find_element(By.ID, "history-kind")).select_by_value("command")
+    rows = "#history tr[data-event='command']"
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, rows)) >= 3)
+    history = [[td.text for td in r.find_elements(By.TAG_NAME, "td")] for r in driver.find_elements(By.CSS_SELECTOR, rows)]
+    print(json.dumps({"history": history, "after": shown(driver)}), flush=True)
+
+
 def main():
     url, mode = sys.argv[1:3]
     driver = browser()
     try:
-        driver.get(url)
-        wait = WebDriverWait(driver, 30, poll_frequency=0.05)
-        if mode == "hold":
-            hold(driver, wait, *sys.argv[3:7])
-        elif mode == "confirm":
-            confirm(driver, wait, *sys.argv[3:5])
-        else:
-            ack(driver, wait, sys.argv[3])
-        # The page's script raised nothing meanwhile.
-        errors = [e["message"] for e in driver.get_log("browser") if e.get("source") == "javascript"]
-        if errors:
-            sys.exit("the page's script failed: " + "; ".join(errors))
+        run(driver, url, mode)
+    except Exception:
+        # What the page's script said, for the failure's message.
+        for e in driver.get_log("browser"):
+            print("browser:", e.get("message"), file=sys.stderr)
+        print("the page said:", driver.find_element(By.ID, "reply").text, file=sys.stderr)
+        raise
     finally:
         driver.quit()
+
+
+def run(driver, url, mode):
+    driver.get(url)
+    wait = WebDriverWait(driver, 30, poll_frequency=0.05)
+    if mode == "hold":
+        hold(driver, wait, *sys.argv[3:7])
+    elif mode == "confirm":
+        confirm(driver, wait, *sys.argv[3:5])
+    elif mode == "manual":
+        manual(driver, wait, *sys.argv[3:7])
+    else:
+        ack(driver, wait, sys.argv[3])
+    # The page's script raised nothing meanwhile.
+    errors = [e["message"] for e in driver.get_log("browser") if e.get("source") == "javascript"]
+    if errors:
+        sys.exit("the page's script failed: " + "; ".join(errors))
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@
 //! tests (what it says on stdout, line by line); `ros2-peer/`, a ROS 2 action server written with hiroz, in a workspace
 //! of its own (`.ci/run` builds it) so that hiroz's zenoh features stay out of Baton's binaries; `ros2dds-bridge/`,
 //! Eclipse Zenoh's zenoh-plugin-ros2dds in a zenoh runtime (zenoh-bridge-ros2dds for the tests; its own workspace too:
-//! it builds Cyclone DDS from C and needs zenoh's internal API); `src/loopback.rs`, the loopback cluster kit (real
+//! it builds Cyclone DDS from C and needs zenoh's internal API); `src/http.rs`, one HTTP request to `baton console`; `src/loopback.rs`, the loopback cluster kit (real
 //! processes, free ports, timeouts, cleanup, a router of the test's own); `src/netns.rs`, a network namespace and veth
 //! pair for partitions; `charts/`, charts of the distributed tests; `conformance/traces/` (chart + inputs + expected
 //! trace), `conformance/diagnostics/` (chart + expected `baton check` output), `corpus_expected/` (our verdicts on
@@ -31,6 +31,7 @@ pub mod access;
 pub mod conformance;
 pub mod gen;
 pub mod harness;
+pub mod http;
 pub mod invariants;
 pub mod loopback;
 pub mod netns;

@@ -7,8 +7,9 @@
 use std::path::{Path, PathBuf};
 
 use baton_proto::exec::trace::TraceEvent;
+use baton_tests::http::{http, Events};
 use baton_tests::loopback::{bin, Cluster, Coordinator, TIMEOUT};
-use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
+use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::Command;
 
 /// A part waits for `go`; robot r1 moves it for 3 s; then it is done.
@@ -26,6 +27,12 @@ async fn cell_with_console(text: &str) -> (Cluster, PathBuf, Coordinator, tokio:
     let mut coordinator = cluster.coordinator_joining(&chart, &[]);
     coordinator.wait_ready().await;
     cluster.agent("r1", &[], &[]);
+    let (console, addr) = start_console(&cluster).await;
+    (cluster, chart, coordinator, console, addr)
+}
+
+/// `baton console` for the cell of `cluster`, on a free loopback port: its process and its address.
+async fn start_console(cluster: &Cluster) -> (tokio::process::Child, String) {
     let mut console = Command::new(bin("baton"))
         .args(["console", "--connect", &cluster.endpoint, "--listen", "127.0.0.1:0"])
         .stdout(std::process::Stdio::piped())
@@ -36,61 +43,44 @@ async fn cell_with_console(text: &str) -> (Cluster, PathBuf, Coordinator, tokio:
     let line = tokio::time::timeout(TIMEOUT, said.next_line()).await.expect("the console says where").expect("read");
     let line = line.expect("a line");
     let addr = line.split("http://").nth(1).and_then(|r| r.split('/').next()).expect("an address").to_string();
-    (cluster, chart, coordinator, console, addr)
+    (console, addr)
 }
 
-/// One HTTP/1.1 exchange with the console: (status, body).
-async fn http(addr: &str, method: &str, path: &str, body: Option<&str>) -> (u16, String) {
-    let mut stream = tokio::net::TcpStream::connect(addr).await.expect("connect to the console");
-    let body = body.unwrap_or("");
-    let request = format!(
-        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Type: application/json\r\n\
-         Content-Length: {}\r\n\r\n{body}",
-        body.len()
-    );
-    stream.write_all(request.as_bytes()).await.expect("send");
-    let mut answer = Vec::new();
-    tokio::time::timeout(TIMEOUT, stream.read_to_end(&mut answer)).await.expect("an answer in time").expect("read");
-    let answer = String::from_utf8_lossy(&answer).to_string();
-    let (head, rest) = answer.split_once("\r\n\r\n").expect("a head and a body");
-    let status = head.split(' ').nth(1).and_then(|s| s.parse().ok()).expect("a status");
-    // Chunked bodies (axum's for some answers): their chunks joined.
-    let body =
-        if head.to_ascii_lowercase().contains("transfer-encoding: chunked") { unchunk(rest) } else { rest.to_string() };
-    (status, body)
-}
-
-fn unchunk(mut rest: &str) -> String {
-    let mut out = String::new();
-    while let Some((size, after)) = rest.split_once("\r\n") {
-        let Ok(n) = usize::from_str_radix(size.trim(), 16) else { break };
-        if n == 0 {
-            break;
+/// Run `run`'s history on the console at `addr`, once `enough` of it is there: (event, name, by, message) each.
+async fn history_until(
+    addr: &str,
+    run: &str,
+    enough: impl Fn(&[(String, String, String, String)]) -> bool,
+) -> Vec<(String, String, String, String)> {
+    let mut events = Events::open(addr).await;
+    loop {
+        let (_, history) = http(addr, "GET", &format!("/api/runs/{run}/history"), None).await;
+        let history: Vec<serde_json::Value> = serde_json::from_str(&history).expect("a history is JSON");
+        let field = |e: &serde_json::Value, f: &str| e[f].as_str().unwrap_or_default().to_string();
+        let entries: Vec<_> = history
+            .iter()
+            .map(|e| (field(e, "event"), field(e, "name"), field(e, "by"), field(e, "message")))
+            .collect();
+        if enough(&entries) {
+            return entries;
         }
-        out.push_str(&after[..n]);
-        rest = &after[n + 2..];
+        while events.next().await.unwrap_or_else(|| panic!("the history stopped short: {entries:?}")).0 != "history" {}
     }
-    out
 }
 
 /// Follows the console's server-sent events until a state `holds`: returns it.
 async fn event_until(addr: &str, holds: impl Fn(&serde_json::Value) -> bool) -> serde_json::Value {
-    let mut stream = tokio::net::TcpStream::connect(addr).await.expect("connect to the console");
-    let request = format!("GET /api/events HTTP/1.1\r\nHost: {addr}\r\nAccept: text/event-stream\r\n\r\n");
-    stream.write_all(request.as_bytes()).await.expect("send");
-    let mut lines = BufReader::new(stream).lines();
-    let found = tokio::time::timeout(TIMEOUT, async {
-        while let Ok(Some(line)) = lines.next_line().await {
-            let Some(data) = line.strip_prefix("data: ") else { continue };
-            let state: serde_json::Value = serde_json::from_str(data).expect("a state is JSON");
-            if holds(&state) {
-                return Some(state);
-            }
+    let mut events = Events::open(addr).await;
+    while let Some((name, data)) = events.next().await {
+        if name != "state" {
+            continue;
         }
-        None
-    })
-    .await;
-    found.ok().flatten().expect("the console never showed the state waited for")
+        let state: serde_json::Value = serde_json::from_str(&data).expect("a state is JSON");
+        if holds(&state) {
+            return state;
+        }
+    }
+    panic!("the console never showed the state waited for")
 }
 
 /// Holds the part of the run that `{field: name}` names (`step` or `agent`), as `baton ctl hold --step/--agent`
@@ -194,6 +184,37 @@ async fn the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_c
         ],
         "{trace:#?}"
     );
+}
+
+/// The run's history — each command with who sent it and why, the states it led to — as the console heard it
+/// live, and as a console that joins the run later gets it from the coordinator.
+async fn the_history_lists_commands_with_who_and_why_for_a_console_that_joins_late_too() {
+    let (cluster, _chart, _coordinator, _console, addr) = cell_with_console(CHART).await;
+    let state = event_until(&addr, |s| s["runs"].as_array().is_some_and(|r| r.len() == 1)).await;
+    let run = state["runs"][0]["run"].as_str().expect("a run id").to_string();
+    let ctl_path = format!("/api/runs/{run}/ctl");
+    let (_, taken) = http(&addr, "POST", &ctl_path, Some(r#"{"command": "hold", "reason": "shift change"}"#)).await;
+    assert!(taken.contains("\"ok\":true"), "{taken}");
+    event_until(&addr, |s| run_state(s) == "held").await;
+    let (_, taken) = http(&addr, "POST", &ctl_path, Some(r#"{"command": "unhold", "reason": "crew in"}"#)).await;
+    assert!(taken.contains("\"ok\":true"), "{taken}");
+    let me = baton_tests::loopback::who_sends();
+    let commands = |h: &[(String, String, String, String)]| -> Vec<(String, String, String)> {
+        h.iter().filter(|e| e.0 == "command").map(|e| (e.1.clone(), e.2.clone(), e.3.clone())).collect()
+    };
+    let expected = vec![
+        ("hold".to_string(), me.clone(), "shift change".to_string()),
+        ("unhold".to_string(), me.clone(), "crew in".to_string()),
+    ];
+    let live = history_until(&addr, &run, |h| commands(h).len() >= 2).await;
+    assert_eq!(commands(&live), expected, "{live:?}");
+    // The states the hold went through, in order, between the two commands.
+    let states: Vec<&str> = live.iter().filter(|e| e.0 == "state").map(|e| e.1.as_str()).collect();
+    assert!(states.windows(2).any(|w| w == ["holding", "held"]), "{live:?}");
+    // A console that starts now was not there: it asks the coordinator, and lists the same.
+    let (_late, late_addr) = start_console(&cluster).await;
+    let late = history_until(&late_addr, &run, |h| commands(h).len() >= 2).await;
+    assert_eq!(commands(&late), expected, "{late:?}");
 }
 
 /// `baton run --console ADDR` serves the same page for its own cell (here the router it embeds): the run is
@@ -410,7 +431,48 @@ async fn in_a_browser_step_mode_waits_for_a_confirm_clicked() {
     assert_eq!((set.message.as_deref(), set.by.as_deref()), (Some("TRUE"), Some(me.as_str())), "{set:?}");
 }
 
+/// Manual mode in the browser: the operator switches to manual, is asked for a reason before forcing a
+/// transition, forces it with one, finds the running step by a part of its name (the view zooms to it) and moves
+/// its token on; the page's history lists each command with the reason, and the trace has them as the console's.
+async fn in_a_browser_manual_mode_forces_and_moves_with_a_reason() {
+    require_browser();
+    // Done leads back to Ready: the run stays for the page to show Done active.
+    let looping = CHART
+        .replace("go : BOOL;", "go : BOOL; again : BOOL;")
+        .replace("STEP Done: END_STEP", "STEP Done: END_STEP\nTRANSITION FROM Done TO Ready := again; END_TRANSITION");
+    let (cluster, _chart, coordinator, _console, addr) = cell_with_console(&looping).await;
+    let script = Command::new("python3")
+        .arg(baton_tests::loopback::repo("tests/scripts/console_browser.py"))
+        .args([&format!("http://{addr}/"), "manual", "Ready->Move", "mov", "Done", "jog after a jam"])
+        .kill_on_drop(true)
+        .output();
+    let out = tokio::time::timeout(TIMEOUT * 2, script).await.expect("in time").expect("python3 runs");
+    let said = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(out.status.success(), "{said}\n{}", String::from_utf8_lossy(&out.stderr));
+    let lines: Vec<serde_json::Value> = said.lines().map(|l| serde_json::from_str(l).expect("JSON")).collect();
+    assert!(lines[0]["refused"].as_str().is_some_and(|r| r.contains("reason")), "{said}");
+    assert_eq!((lines[1]["found"].as_str(), lines[1]["zoomed"].as_bool()), (Some("Move"), Some(true)), "{said}");
+    let history = lines[2]["history"].as_array().expect("rows");
+    let listed = |what: &str| history.iter().any(|r| r[1].as_str() == Some(what) && r[3] == "jog after a jam");
+    assert!(listed("command force") && listed("command move"), "{said}");
+    assert_eq!(lines[2]["after"]["active"], serde_json::json!(["Done"]), "{said}");
+    let stop = cluster.baton(&["ctl", "--connect", &cluster.endpoint, "stop"]).await;
+    assert!(stop.status.success(), "{}", String::from_utf8_lossy(&stop.stderr));
+    let (status, log, trace, _) = coordinator.finish().await;
+    assert_eq!(status.code(), Some(3), "stopped: {log}");
+    let me = baton_tests::loopback::who_sends();
+    let manual: Vec<(&str, Option<&str>, Option<&str>)> = trace
+        .iter()
+        .filter(|r| r.event == TraceEvent::Command && matches!(r.name.as_str(), "force" | "move"))
+        .map(|r| (r.name.as_str(), r.by.as_deref(), r.message.as_deref()))
+        .collect();
+    let why = Some("jog after a jam");
+    assert_eq!(manual, [("force", Some(me.as_str()), why), ("move", Some(me.as_str()), why)], "{trace:#?}");
+    assert!(trace.iter().any(|r| r.event == TraceEvent::Withdraw && r.name == "Move"), "{trace:#?}");
+}
+
 baton_tests::harness_main!(
+    tokio the_history_lists_commands_with_who_and_why_for_a_console_that_joins_late_too,
     tokio the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_ctl_does,
     tokio the_console_listens_on_loopback_only,
     tokio a_run_serves_the_console_of_its_own_cell,
@@ -418,4 +480,5 @@ baton_tests::harness_main!(
     tokio in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_run,
     tokio in_a_browser_an_alarm_is_acknowledged_with_a_comment,
     tokio in_a_browser_step_mode_waits_for_a_confirm_clicked,
+    tokio in_a_browser_manual_mode_forces_and_moves_with_a_reason,
 );

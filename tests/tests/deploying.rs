@@ -11,6 +11,7 @@ use std::time::Duration;
 
 use baton_proto::exec::trace::TraceEvent;
 use baton_tests::access::{read_traffic, unmet, Rules};
+use baton_tests::http::{http, Events};
 use baton_tests::loopback::{bin, free_port, read_trace, repo, zenohd, TIMEOUT};
 use tokio::process::{Child, Command};
 
@@ -67,11 +68,19 @@ fn chapter() -> Vec<(String, Vec<String>)> {
     blocks
 }
 
-/// A command of the chapter put to this machine: the router's host and port to a loopback port.
-fn here(command: &str, port: u16) -> String {
+/// A command of the chapter put to this machine: the router's host and port to a loopback port, the console's
+/// to another.
+fn here(command: &str, ports: Ports) -> String {
     command
-        .replace("router.cell4.local:7447", &format!("127.0.0.1:{port}"))
-        .replace("0.0.0.0:7447", &format!("127.0.0.1:{port}"))
+        .replace("router.cell4.local:7447", &format!("127.0.0.1:{}", ports.router))
+        .replace("0.0.0.0:7447", &format!("127.0.0.1:{}", ports.router))
+        .replace("127.0.0.1:8080", &format!("127.0.0.1:{}", ports.console))
+}
+
+#[derive(Clone, Copy)]
+struct Ports {
+    router: u16,
+    console: u16,
 }
 
 /// Who a command's process is, as the router knows it: the certificate its `--zenoh-config` names (the
@@ -126,8 +135,8 @@ impl Shell {
     }
 
     /// Starts a command that keeps running (`… &`), its output in `LOG.log`, and waits until it is ready: a router
-    /// listening on `port`, a coordinator running its chart, an agent ready.
-    async fn start(&mut self, command: &str, port: u16, traffic: Option<&str>) {
+    /// or a console listening on its port, a coordinator running its chart, an agent ready.
+    async fn start(&mut self, command: &str, ports: Ports, traffic: Option<&str>) {
         let name = format!("process-{}", self.running.len());
         let log = std::fs::File::create(self.dir.path().join(format!("{name}.log"))).expect("a log");
         let child = self
@@ -141,7 +150,9 @@ impl Shell {
             loop {
                 let said = self.log(&name);
                 let up = if command.starts_with("zenohd") {
-                    tokio::net::TcpStream::connect(("127.0.0.1", port)).await.is_ok()
+                    tokio::net::TcpStream::connect(("127.0.0.1", ports.router)).await.is_ok()
+                } else if command.starts_with("baton console") {
+                    tokio::net::TcpStream::connect(("127.0.0.1", ports.console)).await.is_ok()
                 } else if command.starts_with("baton run") {
                     said.contains("running chart")
                 } else {
@@ -168,7 +179,7 @@ impl Shell {
 }
 
 async fn cell(variant: Variant) {
-    let port = free_port();
+    let ports = Ports { router: free_port(), console: free_port() };
     let mut sh = Shell::new(variant);
     std::fs::create_dir_all(sh.dir.path().join("traffic")).expect("traffic");
     let blocks = chapter();
@@ -176,8 +187,9 @@ async fn cell(variant: Variant) {
     let mut coordinator = None;
     for (_, commands) in blocks.iter().filter(|(t, _)| t == "both" || t == variant.tag()) {
         for command in commands {
-            let command = here(command, port);
+            let command = here(command, ports);
             let processes = command.starts_with("baton run")
+                || command.starts_with("baton console")
                 || command.starts_with("baton-agent")
                 || command.starts_with("baton s")
                 || command.starts_with("baton ctl");
@@ -187,10 +199,10 @@ async fn cell(variant: Variant) {
                     if background.starts_with("baton run") {
                         coordinator = Some(sh.running.len());
                     }
-                    sh.start(background, port, who.as_deref()).await;
+                    sh.start(background, ports, who.as_deref()).await;
                     // Once both robots are ready, and before the operator starts the cell: what is refused.
                     if background.contains("--name robot2") {
-                        check_refused(&sh, &refused, port).await;
+                        check_refused(&sh, &refused, ports).await;
                     }
                 }
                 None => {
@@ -200,6 +212,7 @@ async fn cell(variant: Variant) {
             }
         }
     }
+    console_follows(&sh, ports.console).await;
     // The run goes to its end.
     let at = coordinator.expect("the chapter starts a coordinator");
     let (name, child) = &mut sh.running[at];
@@ -245,16 +258,47 @@ async fn cell(variant: Variant) {
 }
 
 /// The chapter's refusals: each `$ command` it shows, run, says each line the chapter shows after it, and fails.
-async fn check_refused(sh: &Shell, block: &[String], port: u16) {
+async fn check_refused(sh: &Shell, block: &[String], ports: Ports) {
     let mut i = 0;
     while i < block.len() {
         let command = block[i].strip_prefix("$ ").expect("a `$ command` line");
         let expected: Vec<&String> = block[i + 1..].iter().take_while(|l| !l.starts_with("$ ")).collect();
         i += 1 + expected.len();
-        let (code, said) = sh.run(&here(command, port), None).await;
+        let (code, said) = sh.run(&here(command, ports), None).await;
         assert_ne!(code, Some(0), "`{command}` was not refused: {said}");
         for line in expected {
-            assert!(said.contains(&here(line, port)), "`{command}` said:\n{said}\nnot:\n{line}");
+            assert!(said.contains(&here(line, ports)), "`{command}` said:\n{said}\nnot:\n{line}");
         }
     }
+}
+
+/// anna's console, behind the rules, as her page reads it: the run, its chart drawn, and her commands in the run's
+/// history with her name.
+async fn console_follows(sh: &Shell, port: u16) {
+    let addr = format!("127.0.0.1:{port}");
+    let (status, state) = http(&addr, "GET", "/api/state", None).await;
+    assert_eq!(status, 200, "{state}\n{}", sh.logs());
+    let state: serde_json::Value = serde_json::from_str(&state).expect("the state is JSON");
+    let run = state["runs"][0]["run"].as_str().unwrap_or_else(|| panic!("no run on the console: {state}"));
+    let (status, svg) = http(&addr, "GET", &format!("/api/runs/{run}/chart.svg"), None).await;
+    assert_eq!(status, 200, "the chart behind the rules: {svg}\n{}", sh.logs());
+    assert!(svg.contains("data-step=\"Weld\""), "{svg}");
+    // The history, as the console heard it or asked the coordinator for it: read again each time it grows.
+    let mut events = Events::open(&addr).await;
+    let commands = loop {
+        let (_, history) = http(&addr, "GET", &format!("/api/runs/{run}/history"), None).await;
+        let history: Vec<serde_json::Value> = serde_json::from_str(&history).expect("a history is JSON");
+        let by_anna: Vec<String> = history
+            .iter()
+            .filter(|e| e["event"] == "command" && e["by"] == "anna")
+            .filter_map(|e| e["name"].as_str().map(str::to_string))
+            .collect();
+        if by_anna.len() >= 2 {
+            break by_anna;
+        }
+        while events.next().await.unwrap_or_else(|| panic!("no history of anna's on the console: {history:?}")).0
+            != "history"
+        {}
+    };
+    assert_eq!(commands, ["hold", "unhold"]);
 }

@@ -4,12 +4,16 @@
 //! agents — and sends an operator's commands through the same query `baton ctl` sends. Everything the page needs is
 //! in this binary: no CDN, nothing fetched at run time, so it works on a plant network without internet.
 //!
-//! The page follows the cell by server-sent events: the console asks the runs for their status every
-//! `STATUS_EVERY` and sends the page what changed (`GET /api/events`); `GET /api/state` is the same once.
+//! The page follows the cell by server-sent events (`GET /api/events`): the console asks the runs for their status
+//! as soon as a run publishes a trace record (`keys::trace`), and every `STATUS_EVERY` besides, and sends the page
+//! what changed (a `state` event); `GET /api/state` is the same once. A `history` event says the runs' history
+//! grew (`history.rs`): the page asks `GET /api/runs/{run}/history?after=N` for what is new.
 //! `GET /api/runs/{run}/chart.svg` is a run's chart, drawn once per chart version; `GET /api/runs/{run}/why` why
 //! each active step waits (as `baton status --why`); `POST /api/runs/{run}/ctl`
 //! takes a `CtlRequest` as JSON and answers with the coordinator's `CtlReply` (a refusal says why and what is
 //! legal now).
+
+mod history;
 
 use std::collections::BTreeMap;
 use std::convert::Infallible;
@@ -27,13 +31,15 @@ use axum::{Json, Router};
 use baton_host::traffic;
 use baton_proto::cluster::keys;
 use baton_proto::cluster::wire::{self, ChartSource, CtlRequest, RunId, StatusReport};
+use baton_proto::exec::trace::TraceRecord;
 use baton_proto::limits::CHART_SOURCE_BYTES_MAX;
 use tokio_stream::wrappers::WatchStream;
 use tokio_stream::StreamExt;
 use zenoh::Session;
 
-/// How often the console asks the runs behind its router for their status.
-const STATUS_EVERY: Duration = Duration::from_millis(200);
+/// How often the console asks the runs behind its router for their status when none of them said anything: runs
+/// that appear or end, agents whose tokens move.
+const STATUS_EVERY: Duration = Duration::from_millis(500);
 /// How long a run has to send its chart.
 const CHART_TIMEOUT: Duration = Duration::from_secs(5);
 
@@ -99,6 +105,11 @@ struct Console {
     /// Who the console sends commands as: the identity it authenticates with, as `baton ctl` does.
     sender: String,
     latest: tokio::sync::watch::Sender<String>,
+    /// A run published a trace record: time to ask for the status again.
+    poke: tokio::sync::Notify,
+    histories: Mutex<history::Histories>,
+    /// The number of the newest history entry, for the pages' `history` events.
+    history_seq: tokio::sync::watch::Sender<u64>,
     /// Each chart version's drawing and inputs, made once.
     charts: Mutex<BTreeMap<String, Arc<ChartView>>>,
 }
@@ -137,8 +148,17 @@ pub async fn serve(
 ) -> anyhow::Result<()> {
     let session = crate::client::open(connect, file).await?;
     let (latest, _) = tokio::sync::watch::channel(String::new());
-    let console =
-        Arc::new(Console { session, sender: crate::client::sender(file), latest, charts: Mutex::new(BTreeMap::new()) });
+    let (history_seq, _) = tokio::sync::watch::channel(0);
+    let console = Arc::new(Console {
+        session,
+        sender: crate::client::sender(file),
+        latest,
+        poke: tokio::sync::Notify::new(),
+        histories: Mutex::default(),
+        history_seq,
+        charts: Mutex::new(BTreeMap::new()),
+    });
+    let _trace = listen_to_traces(&console).await?;
     tokio::spawn(follow(Arc::clone(&console)));
     let app = Router::new()
         .route("/", get(page))
@@ -149,6 +169,7 @@ pub async fn serve(
         .route("/api/runs/{run}/why", get(why))
         .route("/api/runs/{run}/inputs", get(inputs))
         .route("/api/runs/{run}/set", post(set))
+        .route("/api/runs/{run}/history", get(history_after))
         .with_state(Arc::clone(&console));
     let bound = listener.local_addr().context("the address listened on")?;
     println!("baton console on http://{bound}/ for {}", connect.join(", "));
@@ -188,7 +209,10 @@ async fn follow(console: Arc<Console>) {
     let mut agents = Agents::default();
     let mut first = true;
     loop {
-        tick.tick().await;
+        tokio::select! {
+            _ = tick.tick() => {}
+            _ = console.poke.notified() => {}
+        }
         let connected = console.session.info().routers_zid().await.next().is_some();
         let mut runs =
             if connected { crate::client::status_on(&console.session).await.unwrap_or_default() } else { Vec::new() };
@@ -196,6 +220,7 @@ async fn follow(console: Arc<Console>) {
         let now = baton_host::unix_ms();
         // Without the router nothing is known of the agents: their list stays as it was, marked stale.
         let lost_agents = if connected { agents.update(&runs, now) } else { last.lost_agents.clone() };
+        ask_histories(&console, &runs, now);
         let snapshot = Snapshot { connected, runs, lost_agents };
         // A run's clock alone moving is no change to tell the page of.
         let mut still = snapshot.clone();
@@ -216,14 +241,91 @@ async fn state(State(console): State<Arc<Console>>) -> impl IntoResponse {
     ([(header::CONTENT_TYPE, "application/json")], text)
 }
 
-/// Server-sent events: a `state` event now (once there is one) and each time it changes.
+/// Server-sent events: a `state` event now (once there is one) and each time it changes; a `history` event (the
+/// newest entry's number) each time a run's history grows.
 async fn events(
     State(console): State<Arc<Console>>,
 ) -> Sse<impl tokio_stream::Stream<Item = Result<Event, Infallible>>> {
-    let stream = WatchStream::new(console.latest.subscribe())
+    let states = WatchStream::new(console.latest.subscribe())
         .filter(|text| !text.is_empty())
         .map(|text| Ok(Event::default().event("state").data(text)));
-    Sse::new(stream).keep_alive(KeepAlive::default())
+    let histories = WatchStream::new(console.history_seq.subscribe())
+        .map(|seq| Ok(Event::default().event("history").data(seq.to_string())));
+    Sse::new(states.merge(histories)).keep_alive(KeepAlive::default())
+}
+
+/// Hears every run's trace records: history is kept, and any record has the status asked for again.
+async fn listen_to_traces(console: &Arc<Console>) -> anyhow::Result<zenoh::pubsub::Subscriber<()>> {
+    use baton_host::ZenohResult;
+    let weak = Arc::downgrade(console);
+    traffic::subscriber(&console.session, keys::trace_any_run())
+        .callback(move |sample| {
+            let Some(console) = weak.upgrade() else { return };
+            let run = keys::run_of_trace(sample.key_expr().as_str()).and_then(|r| uuid::Uuid::parse_str(r).ok());
+            let record = wire::decode::<baton_proto::exec::trace::TraceRecord>(&sample.payload().to_bytes());
+            if let (Some(run), Ok(record)) = (run, record) {
+                let now = baton_host::unix_ms();
+                console.keep_history(RunId(run), vec![record], |_| now);
+            }
+            console.poke.notify_one();
+        })
+        .await
+        .zenoh()
+}
+
+impl Console {
+    fn keep_history(&self, run: RunId, records: Vec<TraceRecord>, unix_ms: impl Fn(&TraceRecord) -> u64) {
+        let Ok(mut histories) = self.histories.lock() else { return };
+        if histories.add(run, records, unix_ms) {
+            self.history_seq.send_replace(histories.last_seq());
+        }
+    }
+}
+
+/// Asks each run the console had not heard of before for the history its coordinator kept, in the background;
+/// forgets runs gone. `now` is when `runs` answered, on the console's clock.
+fn ask_histories(console: &Arc<Console>, runs: &[StatusReport], now: u64) {
+    let Ok(mut histories) = console.histories.lock() else { return };
+    histories.forget_beyond(&runs.iter().map(|r| r.run).collect());
+    for report in runs.iter().filter(|r| histories.first_sight(r.run)) {
+        let (console, run, t_ms) = (Arc::clone(console), report.run, report.t_ms);
+        tokio::spawn(async move {
+            match ask_history(&console.session, run).await {
+                // The run's clock read `t_ms` at `now`.
+                Ok(records) => console.keep_history(run, records, |r| now.saturating_sub(t_ms.saturating_sub(r.t_ms))),
+                Err(why) => eprintln!("warning: the console has no history of run {} before now: {why}", run.key()),
+            }
+        });
+    }
+}
+
+async fn ask_history(session: &Session, run: RunId) -> Result<Vec<TraceRecord>, String> {
+    let replies = traffic::get(session, keys::history(run)).timeout(CHART_TIMEOUT).await.map_err(|e| e.to_string())?;
+    let reply = replies.recv_async().await.map_err(|_| "its coordinator did not answer".to_string())?;
+    let sample = reply.result().map_err(|e| format!("refused: {e:?}"))?;
+    history::decode_answer(&sample.payload().to_bytes())
+}
+
+#[derive(serde::Deserialize)]
+struct After {
+    #[serde(default)]
+    after: u64,
+}
+
+/// Run `run`'s history entries numbered after `?after=N` (all without it), oldest first.
+async fn history_after(
+    State(console): State<Arc<Console>>,
+    UrlPath(run): UrlPath<String>,
+    axum::extract::Query(after): axum::extract::Query<After>,
+) -> Response {
+    let run = match run_id(&run) {
+        Ok(r) => r,
+        Err(refused) => return refused.into_response(),
+    };
+    match console.histories.lock() {
+        Ok(histories) => Json(histories.after(run, after.after)).into_response(),
+        Err(_) => (StatusCode::INTERNAL_SERVER_ERROR, "poisoned").into_response(),
+    }
 }
 
 /// A run's id as the URL writes it: 32 hex digits (as `baton status` prints it) or the hyphenated form; else a

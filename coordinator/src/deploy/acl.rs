@@ -7,10 +7,11 @@
 //!   commands (`baton/agent/A/*/cmd`) and to variable updates, publishes reports, variable updates and device
 //!   reports only on its own keys (`…/report/A`, `…/vars/A`, `…/devices/A`), fetches charts, and uses the Zenoh keys
 //!   its bindings in the chart name;
-//! - a coordinator alone commands agents, publishes the coordinator's variables, and answers `chart`, `status`,
-//!   `set` and `ctl`;
+//! - a coordinator alone commands agents, publishes the coordinator's variables and its runs' live trace, and
+//!   answers `chart`, `status`, `history`, `set` and `ctl`;
 //! - each operator alone `set`s and `ctl`s on its own keys (`baton/run/*/set/O`, `…/ctl/O`), whose name the
-//!   coordinator records as who asked (and reads `status` and `why`); viewers only read `status` and `why`.
+//!   coordinator records as who asked; operators and viewers read `status`, `chart`, `history` and `why`, and
+//!   hear the runs' live trace (`baton console` runs as one of them).
 //!
 //! What each Baton process sends is what `baton_host::traffic` lists; `tests/tests/deploying.rs` runs a cell
 //! behind these rules with every process listing it, and checks each message against them.
@@ -89,10 +90,11 @@ fn agent_rules(a: &str, roles: &[String], inputs: &[String], outputs: &[String])
 }
 
 fn coordinator_rules() -> Vec<Allow> {
-    let queryables = ["baton/run/*/chart", "baton/run/*/status", "baton/run/*/set/*", "baton/run/*/ctl/*"];
+    let queryables =
+        ["baton/run/*/chart", "baton/run/*/status", "baton/run/*/set/*", "baton/run/*/ctl/*", "baton/run/*/history"];
     let from_agents = ["baton/run/*/report/*", "baton/run/*/vars/*", "baton/run/*/devices/*"];
     vec![
-        allow("ingress", &["put"], &["baton/agent/*/*/cmd", "baton/run/*/vars/coordinator"]),
+        allow("ingress", &["put"], &["baton/agent/*/*/cmd", "baton/run/*/vars/coordinator", "baton/run/*/trace"]),
         allow("ingress", &["declare_subscriber"], &from_agents),
         allow("ingress", &["declare_liveliness_subscriber"], &["baton/alive/*"]),
         allow("ingress", &["liveliness_query"], &["baton/alive/*", "baton/alive/*/role/*"]),
@@ -105,15 +107,20 @@ fn coordinator_rules() -> Vec<Allow> {
     ]
 }
 
-/// What a viewer may ask; an operator `o` may also `set` and `ctl`, on the keys that name it.
+/// What a viewer may ask, and hear: a run's status, chart and history, an agent's why, and a run's live trace (what
+/// `baton console` follows); an operator `o` may also `set` and `ctl`, on the keys that name it.
 fn operator_rules(o: Option<&str>) -> Vec<Allow> {
-    let mut asks = vec!["baton/run/*/status".to_string(), "baton/agent/*/why".to_string()];
+    let mut asks: Vec<String> = ["baton/run/*/status", "baton/run/*/chart", "baton/run/*/history", "baton/agent/*/why"]
+        .map(str::to_string)
+        .to_vec();
     if let Some(o) = o {
         asks.extend([format!("baton/run/*/set/{o}"), format!("baton/run/*/ctl/{o}")]);
     }
     vec![
         Allow { flow: "ingress", messages: &["query"], keys: asks.clone() },
         Allow { flow: "egress", messages: &["reply"], keys: asks },
+        allow("ingress", &["declare_subscriber"], &["baton/run/*/trace"]),
+        allow("egress", &["put"], &["baton/run/*/trace"]),
     ]
 }
 
@@ -360,7 +367,11 @@ mod tests {
         );
         assert!(allowed(&acl, "agent-robot1", "ingress", "query").iter().all(|k| k == "baton/run/*/chart"));
         let coordinator_puts = allowed(&acl, "coordinators", "ingress", "put");
-        assert_eq!(coordinator_puts, ["baton/agent/*/*/cmd", "baton/run/*/vars/coordinator"]);
+        assert_eq!(coordinator_puts, ["baton/agent/*/*/cmd", "baton/run/*/vars/coordinator", "baton/run/*/trace"]);
+        // A console, viewer or operator, hears the runs' live trace and publishes nothing.
+        assert_eq!(allowed(&acl, "viewers", "ingress", "declare_subscriber"), ["baton/run/*/trace"]);
+        assert!(allowed(&acl, "viewers", "ingress", "put").is_empty());
+        assert!(allowed(&acl, "operator-anna", "ingress", "put").is_empty());
         // An operator asks only on the keys that name it.
         let asks = allowed(&acl, "operator-anna", "ingress", "query");
         assert!(

@@ -6,6 +6,7 @@
 //! asks for is held back until the records that led to it are durable (`crate::journal`, group commit). A
 //! journal of a run that did not end is resumed: replayed, then reconciled with the agents.
 
+pub(crate) mod feed;
 mod host;
 mod records;
 mod resume;
@@ -148,6 +149,8 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
             started_unix_ms,
         },
     )?;
+    let mut out = Records::new(trace, probe, recorder, cycle_ms);
+    out.feed = Some(feed::Feed::declare(&session, run).await?);
     let mut host = Host {
         session: session.clone(),
         core,
@@ -163,7 +166,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         vars_key: keys::vars(run, baton_proto::cluster::runtime::COORDINATOR),
         cmd_keys: host::CmdKeys::default(),
         decode_drops: 0,
-        out: Records::new(trace, probe, recorder, cycle_ms),
+        out,
         cycle_ms,
         last_cycle_ms: None,
         live: std::collections::HashSet::new(),

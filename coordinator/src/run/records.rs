@@ -24,6 +24,8 @@ pub struct Records {
     pub(super) steps: BTreeMap<String, (StepTime, Option<u64>)>,
     probe: Option<Probe>,
     pub recorder: Option<crate::recording::Recorder>,
+    /// The live trace and history for consoles (none offline).
+    pub feed: Option<super::feed::Feed>,
 }
 
 impl Records {
@@ -33,7 +35,15 @@ impl Records {
         recorder: Option<crate::recording::Recorder>,
         cycle_ms: u64,
     ) -> Records {
-        Records { cycle_ms: cycle_ms.max(1), trace, trace_error: false, steps: BTreeMap::new(), probe, recorder }
+        Records {
+            cycle_ms: cycle_ms.max(1),
+            trace,
+            trace_error: false,
+            steps: BTreeMap::new(),
+            probe,
+            recorder,
+            feed: None,
+        }
     }
 
     pub fn record(&mut self, rec: TraceRecord) {
@@ -43,6 +53,9 @@ impl Records {
         }
         if let Some(r) = &mut self.recorder {
             r.trace(cycle, &rec);
+        }
+        if let Some(f) = &self.feed {
+            f.record(&rec);
         }
         match rec.event {
             TraceEvent::Activate => {

@@ -168,6 +168,26 @@ pub fn chart(run: RunId) -> String {
     format!("{ROOT}/run/{}/chart", run.key())
 }
 
+/// The run's trace records, live, as the coordinator makes them (for consoles; dropped rather than waited for).
+pub fn trace(run: RunId) -> String {
+    format!("{ROOT}/run/{}/trace", run.key())
+}
+
+pub fn trace_any_run() -> String {
+    format!("{ROOT}/run/*/trace")
+}
+
+/// The run of a `trace` key (`baton/run/<run>/trace`), by its key as `RunId::key` writes it.
+pub fn run_of_trace(key: &str) -> Option<&str> {
+    key.strip_prefix(ROOT)?.strip_prefix("/run/")?.strip_suffix("/trace").filter(|r| !r.contains('/'))
+}
+
+/// The run's history — commands, state and mode changes, alarms, agents lost and back — as far back as the
+/// coordinator keeps it: a queryable of the coordinator, for a console that joins a run under way.
+pub fn history(run: RunId) -> String {
+    format!("{ROOT}/run/{}/history", run.key())
+}
+
 pub fn status(run: RunId) -> String {
     format!("{ROOT}/run/{}/status", run.key())
 }
@@ -218,6 +238,15 @@ mod tests {
         assert_eq!(agent_of_alive("baton/alive/"), None);
         assert_eq!(agent_of_alive("baton/alive/a/b"), None);
         assert_eq!(agent_of_alive("other/alive/a"), None);
+    }
+
+    #[test]
+    fn trace_keys_name_their_run() {
+        let run = RunId(Uuid::from_u128(7));
+        assert_eq!(run_of_trace(&trace(run)), Some(run.key().as_str()));
+        assert_eq!(run_of_trace(&status(run)), None);
+        assert_eq!(run_of_trace("baton/run/a/b/trace"), None);
+        assert_eq!(run_of_trace("other/run/a/trace"), None);
     }
 
     #[test]
