@@ -17,6 +17,11 @@ Usage: console_browser.py URL manual TRANSITION FIND TO REASON
   REASON and forces it; finds the step FIND by a part of its name in the search box (`found`, and whether the view
   zoomed to it), moves its token to step TO, waits until TO is active, and prints the commands the history lists
   (`history`).
+Usage: console_browser.py URL demo SCREENSHOT COMMENT
+  on the demo cell: waits until both picks are active and prints what the page shows (`shown`); clicks hold and
+  prints each state the page showed until held (`states`) and the buttons then (`held`); clicks unhold; waits for
+  the overrun alarm, acknowledges it with COMMENT (`alarm`); saves SCREENSHOT; prints `kill robot1` and waits until
+  the page shows robot1 lost (`lost`).
 Each wait is Selenium's explicit wait on the page's DOM (woken by polling the DOM, not by a fixed sleep).
 """
 
@@ -144,6 +149,45 @@ def manual(driver, wait, transition, find, to, reason):
     print(json.dumps({"history": history, "after": shown(driver)}), flush=True)
 
 
+def demo(driver, wait, screenshot, comment):
+    """The demo cell operated from the page, as the issue's operator does it."""
+    active = lambda step: f'#chart svg g.step.active[data-step="{step}"]'
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, active("Pick1")) and d.find_elements(By.CSS_SELECTOR, active("Pick2")))
+    print(json.dumps({"shown": shown(driver)}), flush=True)
+    # Every state the page shows from the click on, in order.
+    driver.execute_script("""
+        window.seenStates = [];
+        const state = document.getElementById("state");
+        new MutationObserver(() => {
+            const s = state.dataset.state;
+            if (window.seenStates[window.seenStates.length - 1] !== s) window.seenStates.push(s);
+        }).observe(state, { attributes: true, attributeFilter: ["data-state"] });
+    """)
+    driver.find_element(By.CSS_SELECTOR, '#commands button[data-command="hold"]').click()
+    wait.until(lambda d: d.find_element(By.ID, "state").get_attribute("data-state") == "held")
+    print(json.dumps({"states": driver.execute_script("return window.seenStates"), "held": shown(driver)}), flush=True)
+    driver.find_element(By.CSS_SELECTOR, '#commands button[data-command="unhold"]').click()
+    wait.until(lambda d: d.find_element(By.ID, "state").get_attribute("data-state") == "execute")
+    row = '#alarms tr[data-state="active_unacknowledged"]'
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, row))
+    alarm = driver.find_element(By.CSS_SELECTOR, row)
+    seen = [alarm.get_attribute("data-alarm"), alarm.get_attribute("data-source"),
+            alarm.find_element(By.CSS_SELECTOR, ".alarm-state").text]
+    alarm_id = alarm.get_attribute("data-alarm")
+    driver.find_element(By.ID, "reason").send_keys(comment)
+    alarm.find_element(By.CSS_SELECTOR, 'button[data-alarm-command="ack"]').click()
+    states = f"return [...document.querySelectorAll('#alarms tr[data-alarm=\"{alarm_id}\"]')].map(r => r.dataset.state)"
+    wait.until(lambda d: "active_unacknowledged" not in d.execute_script(states))
+    print(json.dumps({"alarm": seen}), flush=True)
+    rows = "#history tr[data-event='ack']"
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, rows))
+    driver.save_screenshot(screenshot)
+    print(json.dumps({"kill": "robot1"}), flush=True)
+    lost = '#agents tr.lost[data-agent="robot1"]'
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, lost))
+    print(json.dumps({"lost": driver.find_element(By.CSS_SELECTOR, lost).text}), flush=True)
+
+
 def main():
     url, mode = sys.argv[1:3]
     driver = browser()
@@ -168,6 +212,8 @@ def run(driver, url, mode):
         confirm(driver, wait, *sys.argv[3:5])
     elif mode == "manual":
         manual(driver, wait, *sys.argv[3:7])
+    elif mode == "demo":
+        demo(driver, wait, *sys.argv[3:5])
     else:
         ack(driver, wait, sys.argv[3])
     # The page's script raised nothing meanwhile.

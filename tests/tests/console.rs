@@ -471,6 +471,111 @@ async fn in_a_browser_manual_mode_forces_and_moves_with_a_reason() {
     assert!(trace.iter().any(|r| r.event == TraceEvent::Withdraw && r.name == "Move"), "{trace:#?}");
 }
 
+/// The demo cell's chart (`examples/cell.st`) with motions of seconds — each pick, assembly, inspection and rework
+/// ten times as long — and robot2's pick supervised at 4.5 s of its 5 s motion, so that it overruns.
+fn demo_cell_of_seconds() -> String {
+    let text = std::fs::read_to_string(baton_tests::loopback::repo("examples/cell.st")).expect("the demo chart");
+    let slow = ["ms := 400", "ms := 500", "ms := 300", "ms := 100", "ms := 200"]
+        .iter()
+        .fold(text, |t, ms| t.replace(ms, &format!("{ms}0")))
+        .replace("{agent := 'robot2'}", "{agent := 'robot2', max_ms := T#4500ms}");
+    assert!(slow.contains("ms := 5000") && slow.contains("max_ms := T#4500ms"), "the demo chart changed: {slow}");
+    slow
+}
+
+/// The next line the browser script printed, as JSON.
+async fn said_next(lines: &mut tokio::io::Lines<BufReader<tokio::process::ChildStdout>>) -> serde_json::Value {
+    let line = tokio::time::timeout(TIMEOUT * 2, lines.next_line()).await.expect("the browser said on in time");
+    let line = line.expect("read").expect("the browser script stopped early (its error is above)");
+    serde_json::from_str(&line).expect("JSON")
+}
+
+/// The demo cell, operated in the browser as an operator does: the page lights the two picks with their robots as
+/// `baton status` has them and enables exactly the legal commands; a click on hold shows holding, then held once the
+/// picks' motions have finished; unhold; robot2's pick overruns and the alarm is acknowledged with a comment; robot1
+/// is killed and shows as lost. The screenshot is the book's (`BATON_SCREENSHOTS=1` writes it there).
+async fn in_a_browser_the_demo_cell_is_held_its_alarm_acknowledged_and_a_lost_robot_shown() {
+    require_browser();
+    let mut cluster = Cluster::with_router().await;
+    let chart = cluster.dir.path().join("cell.st");
+    std::fs::write(&chart, demo_cell_of_seconds()).expect("write the chart");
+    let mut coordinator = cluster.coordinator_joining(&chart, &[]);
+    coordinator.wait_ready().await;
+    cluster.agent("robot1", &[], &[]);
+    cluster.agent("robot2", &["assembler"], &[]);
+    let (_console, addr) = start_console(&cluster).await;
+    let shot = cluster.dir.path().join("console.png");
+    let comment = "gripper checked, cycle time ok";
+    let mut script = Command::new("python3")
+        .arg(baton_tests::loopback::repo("tests/scripts/console_browser.py"))
+        .args([&format!("http://{addr}/"), "demo", shot.to_str().expect("utf-8"), comment])
+        .stdout(std::process::Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()
+        .expect("python3 runs");
+    let mut lines = BufReader::new(script.stdout.take().expect("piped")).lines();
+    // What the page shows while both robots pick is what `baton status` says (each pick takes seconds).
+    let shown = said_next(&mut lines).await["shown"].clone();
+    let status = cluster.baton(&["status", "--connect", &cluster.endpoint, "--json"]).await;
+    let status: serde_json::Value = serde_json::from_slice(&status.stdout).expect("status JSON");
+    let steps = status["active_steps"].as_array().expect("active steps");
+    let mut names: Vec<&str> = steps.iter().filter_map(|s| s["name"].as_str()).collect();
+    names.sort();
+    let mut agents: Vec<String> =
+        steps.iter().filter_map(|s| Some(format!("{}@{}", s["name"].as_str()?, s["agent"].as_str()?))).collect();
+    agents.sort();
+    assert_eq!(names, ["Pick1", "Pick2"], "{status}");
+    assert_eq!(shown["active"], serde_json::json!(names), "{shown}");
+    assert_eq!(shown["agents"], serde_json::json!(agents), "{shown}");
+    let mut legal: Vec<&str> =
+        status["available"].as_array().expect("legal").iter().filter_map(|c| c.as_str()).collect();
+    legal.sort();
+    assert_eq!(shown["enabled"], serde_json::json!(legal), "{shown}");
+    assert!(shown["disabled"].as_array().is_some_and(|d| d.contains(&"unhold".into())), "{shown}");
+    // Held: holding first, held once the motions finished; then unhold is legal and hold is not.
+    let held = said_next(&mut lines).await;
+    let states: Vec<&str> = held["states"].as_array().expect("states").iter().filter_map(|s| s.as_str()).collect();
+    assert_eq!(states.first().copied(), Some("holding"), "{held}");
+    assert_eq!(states.last().copied(), Some("held"), "{held}");
+    assert!(held["held"]["enabled"].as_array().is_some_and(|e| e.contains(&"unhold".into())), "{held}");
+    assert!(held["held"]["disabled"].as_array().is_some_and(|d| d.contains(&"hold".into())), "{held}");
+    let alarm = said_next(&mut lines).await;
+    assert_eq!(alarm["alarm"][1], "Pick2", "the overrun's source: {alarm}");
+    assert_eq!(alarm["alarm"][2], "active, unacknowledged", "{alarm}");
+    assert_eq!(said_next(&mut lines).await["kill"], "robot1");
+    cluster.kill_agent("robot1").await;
+    let lost = said_next(&mut lines).await;
+    assert!(lost["lost"].as_str().is_some_and(|l| l.contains("robot1") && l.contains("lost")), "{lost}");
+    let ended = tokio::time::timeout(TIMEOUT, script.wait()).await.expect("the browser closed").expect("wait");
+    assert!(ended.success(), "the browser script failed (its error is above)");
+    // The trace: the hold waited for the motions, and the
+    // acknowledgement carries the comment and the console's identity.
+    let me = baton_tests::loopback::who_sends();
+    let trace = coordinator.wait_for_trace("the acknowledgement", |r| r.event == TraceEvent::Ack).await;
+    let at = |e: TraceEvent, name: &str| trace.iter().find(|r| r.event == e && r.name == name).map(|r| r.t_ms);
+    let (holding, held) =
+        (at(TraceEvent::State, "holding").expect("holding"), at(TraceEvent::State, "held").expect("held"));
+    // Both picks' motions ran to their end while holding, and only then was the run held.
+    let done_while_holding = |action: &str| {
+        trace.iter().any(|r| r.event == TraceEvent::SkillDone && r.name == action && (holding..=held).contains(&r.t_ms))
+    };
+    assert!(
+        done_while_holding("PickPart1") && done_while_holding("PickPart2"),
+        "holding {holding}, held {held}: {trace:#?}"
+    );
+    let ack = trace.iter().find(|r| r.event == TraceEvent::Ack).expect("acknowledged");
+    assert_eq!(
+        (ack.by.as_deref(), ack.message.as_deref(), ack.name.as_str()),
+        (Some(me.as_str()), Some(comment), "Pick2")
+    );
+    let png = std::fs::read(&shot).expect("the screenshot");
+    assert!(png.starts_with(b"\x89PNG"), "not a PNG");
+    if std::env::var_os("BATON_SCREENSHOTS").is_some() {
+        std::fs::write(baton_tests::loopback::repo("docs/book/src/console.png"), &png).expect("the book's picture");
+    }
+    coordinator.kill().await;
+}
+
 baton_tests::harness_main!(
     tokio the_history_lists_commands_with_who_and_why_for_a_console_that_joins_late_too,
     tokio the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_ctl_does,
@@ -481,4 +586,5 @@ baton_tests::harness_main!(
     tokio in_a_browser_an_alarm_is_acknowledged_with_a_comment,
     tokio in_a_browser_step_mode_waits_for_a_confirm_clicked,
     tokio in_a_browser_manual_mode_forces_and_moves_with_a_reason,
+    tokio in_a_browser_the_demo_cell_is_held_its_alarm_acknowledged_and_a_lost_robot_shown,
 );
