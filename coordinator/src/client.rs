@@ -190,7 +190,7 @@ pub async fn set(
     name: &str,
     value: serde_json::Value,
 ) -> anyhow::Result<bool> {
-    let request = wire::encode(&SetRequest { name: name.to_string(), value, by: sender(file) });
+    let request = wire::encode(&SetRequest { name: name.to_string(), value, by: sender(file), user: None });
     let replies: Vec<SetReply> = ask_one_run(connect, file, run, keys::set, request).await?;
     for r in &replies {
         if r.ok {
@@ -353,18 +353,20 @@ pub async fn set_on(
     name: &str,
     value: serde_json::Value,
 ) -> anyhow::Result<Vec<SetReply>> {
-    set_as(session, run, name, value, &sender(None)).await
+    set_as(session, run, name, value, (&sender(None), None)).await
 }
 
-/// Sets input `name` of run `run` (or of every chart behind the router) as `by`, on the key that names `by`.
+/// Sets input `name` of run `run` (or of every chart behind the router) as `by` (for `user`, a console's), on the
+/// key that names `by`.
 pub async fn set_as(
     session: &Session,
     run: Option<RunId>,
     name: &str,
     value: serde_json::Value,
-    by: &str,
+    (by, user): (&str, Option<&str>),
 ) -> anyhow::Result<Vec<SetReply>> {
-    let request = wire::encode(&SetRequest { name: name.to_string(), value, by: by.to_string() });
+    let request =
+        wire::encode(&SetRequest { name: name.to_string(), value, by: by.to_string(), user: user.map(str::to_string) });
     let key = run.map_or_else(|| keys::set_any_run(by), |r| keys::set(r, by));
     ask(session, key, Some(request)).await
 }

@@ -72,7 +72,7 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
         }
     };
     // The console's port first: taken, the demo does not start.
-    let console = if let Some(addr) = opts.console { Some(crate::console::bind(addr).await?) } else { None };
+    let console = if let Some(addr) = opts.console { Some(crate::console::bind_local(addr).await?) } else { None };
     let chart = dir.join("cell.st");
     std::fs::write(&chart, cell_chart(opts.agents))?;
     let trace = dir.join("trace.jsonl");

@@ -22,6 +22,9 @@ Usage: console_browser.py URL demo SCREENSHOT COMMENT
   prints each state the page showed until held (`states`) and the buttons then (`held`); clicks unhold; waits for
   the overrun alarm, acknowledges it with COMMENT (`alarm`); saves SCREENSHOT; prints `kill robot1` and waits until
   the page shows robot1 lost (`lost`).
+Usage: console_browser.py URL login USER PASSWORD
+  logs in through the page's form, waits until the run is shown, and prints the command buttons the user sees
+  (`visible`), the header's name (`who`) and the manual mode button's state (`manual`).
 Each wait is Selenium's explicit wait on the page's DOM (woken by polling the DOM, not by a fixed sleep).
 """
 
@@ -188,6 +191,28 @@ def demo(driver, wait, screenshot, comment):
     print(json.dumps({"lost": driver.find_element(By.CSS_SELECTOR, lost).text}), flush=True)
 
 
+def login(driver, wait, user, password):
+    """Logs in as USER and says which command buttons the page then shows."""
+    wait.until(lambda d: d.find_element(By.ID, "login-user").is_displayed())
+    driver.find_element(By.ID, "login-user").send_keys(user)
+    driver.find_element(By.ID, "login-password").send_keys(password)
+    driver.find_element(By.ID, "login-submit").click()
+    wait.until(lambda d: d.find_element(By.ID, "state").get_attribute("data-state"))
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#chart svg g.step"))
+    seen = driver.execute_script("""
+        const kinds = ["command", "mode", "confirm", "stepCommand", "manual", "alarmCommand", "agentCommand"];
+        const commands = [...document.querySelectorAll("button")]
+            .filter(b => kinds.some(k => b.dataset[k] !== undefined) || b.id === "input-set");
+        const manual = document.querySelector('#modes button[data-mode="manual"]');
+        return {
+            visible: commands.filter(b => b.offsetParent !== null).map(b => b.textContent.trim()).sort(),
+            who: document.getElementById("who").textContent,
+            manual: manual ? { disabled: manual.disabled, title: manual.title } : null,
+        };
+    """)
+    print(json.dumps(seen), flush=True)
+
+
 def main():
     url, mode = sys.argv[1:3]
     driver = browser()
@@ -214,6 +239,8 @@ def run(driver, url, mode):
         manual(driver, wait, *sys.argv[3:7])
     elif mode == "demo":
         demo(driver, wait, *sys.argv[3:5])
+    elif mode == "login":
+        login(driver, wait, *sys.argv[3:5])
     else:
         ack(driver, wait, sys.argv[3])
     # The page's script raised nothing meanwhile.

@@ -1,4 +1,5 @@
-//! The little of HTTP/1.1 the tests speak to `baton console`: one request, its status and body (chunked or not).
+//! The little of HTTP/1.1 the tests speak to `baton console` — one request, its status and body (chunked or not),
+//! over TLS too, keeping a login's cookie — its server-sent events, and the browser its page is tested in.
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
@@ -6,23 +7,88 @@ use crate::loopback::TIMEOUT;
 
 /// One HTTP/1.1 exchange with a server at `addr` (`127.0.0.1:PORT`): (status, body).
 pub async fn http(addr: &str, method: &str, path: &str, body: Option<&str>) -> (u16, String) {
-    let mut stream = tokio::net::TcpStream::connect(addr).await.expect("connect to the console");
+    Client::plain(addr).send(method, path, body).await
+}
+
+/// A client of one console, over plain HTTP or HTTPS trusting a CA, which keeps the session cookie a login set.
+pub struct Client {
+    addr: String,
+    tls: Option<tokio_rustls::TlsConnector>,
+    cookie: Option<String>,
+}
+
+impl Client {
+    pub fn plain(addr: &str) -> Client {
+        Client { addr: addr.to_string(), tls: None, cookie: None }
+    }
+
+    /// HTTPS, trusting only the certificates `ca` (PEM) signed, the server's name checked against its address.
+    pub fn tls(addr: &str, ca: &std::path::Path) -> Client {
+        use rustls_pki_types::pem::PemObject;
+        let mut roots = tokio_rustls::rustls::RootCertStore::empty();
+        for cert in rustls_pki_types::CertificateDer::pem_file_iter(ca).expect("the CA") {
+            roots.add(cert.expect("a certificate")).expect("a CA certificate");
+        }
+        let provider = std::sync::Arc::new(tokio_rustls::rustls::crypto::ring::default_provider());
+        let config = tokio_rustls::rustls::ClientConfig::builder_with_provider(provider)
+            .with_safe_default_protocol_versions()
+            .expect("TLS versions")
+            .with_root_certificates(roots)
+            .with_no_client_auth();
+        Client { addr: addr.to_string(), tls: Some(std::sync::Arc::new(config).into()), cookie: None }
+    }
+
+    /// One request: (status, body). A `Set-Cookie` in the answer is kept and sent from then on.
+    pub async fn send(&mut self, method: &str, path: &str, body: Option<&str>) -> (u16, String) {
+        let tcp = tokio::net::TcpStream::connect(&self.addr).await.expect("connect to the console");
+        let (status, cookie, body) = match &self.tls {
+            Some(connector) => {
+                let host = self.addr.rsplit_once(':').map_or(self.addr.as_str(), |(h, _)| h).to_string();
+                let name = rustls_pki_types::ServerName::try_from(host).expect("a server name");
+                let tls = connector.connect(name, tcp).await.expect("a TLS handshake the CA vouches for");
+                exchange(tls, &self.addr, method, path, body, self.cookie.as_deref()).await
+            }
+            None => exchange(tcp, &self.addr, method, path, body, self.cookie.as_deref()).await,
+        };
+        if let Some(c) = cookie {
+            self.cookie = Some(c);
+        }
+        (status, body)
+    }
+}
+
+/// One exchange on `stream`: (status, the cookie a `Set-Cookie` sets, body).
+async fn exchange<S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin>(
+    mut stream: S,
+    addr: &str,
+    method: &str,
+    path: &str,
+    body: Option<&str>,
+    cookie: Option<&str>,
+) -> (u16, Option<String>, String) {
     let body = body.unwrap_or("");
+    let cookie = cookie.map(|c| format!("Cookie: {c}\r\n")).unwrap_or_default();
     let request = format!(
         "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Type: application/json\r\n\
-         Content-Length: {}\r\n\r\n{body}",
+         {cookie}Content-Length: {}\r\n\r\n{body}",
         body.len()
     );
     stream.write_all(request.as_bytes()).await.expect("send");
     let mut answer = Vec::new();
-    tokio::time::timeout(TIMEOUT, stream.read_to_end(&mut answer)).await.expect("an answer in time").expect("read");
+    // A TLS peer may close without its close_notify once the answer is whole: what was read is the answer.
+    let _ = tokio::time::timeout(TIMEOUT, stream.read_to_end(&mut answer)).await.expect("an answer in time");
     let answer = String::from_utf8_lossy(&answer).to_string();
     let (head, rest) = answer.split_once("\r\n\r\n").expect("a head and a body");
     let status = head.split(' ').nth(1).and_then(|s| s.parse().ok()).expect("a status");
+    let set = head
+        .lines()
+        .filter_map(|l| l.split_once(':'))
+        .find(|(k, _)| k.eq_ignore_ascii_case("set-cookie"))
+        .and_then(|(_, v)| v.trim().split(';').next().map(str::to_string));
     // Chunked bodies (axum's for some answers): their chunks joined.
     let body =
         if head.to_ascii_lowercase().contains("transfer-encoding: chunked") { unchunk(rest) } else { rest.to_string() };
-    (status, body)
+    (status, set, body)
 }
 
 fn unchunk(mut rest: &str) -> String {
@@ -67,4 +133,14 @@ impl Events {
         };
         tokio::time::timeout(TIMEOUT, next).await.ok().flatten()
     }
+}
+
+/// The browser, its WebDriver and Selenium's bindings, or why the test cannot run here.
+pub fn require_browser() {
+    for file in ["/usr/bin/chromium", "/usr/bin/chromedriver"] {
+        if !std::path::Path::new(file).is_file() {
+            crate::missing(&format!("{file} is absent: .ci/run installs Debian's chromium and chromium-driver"));
+        }
+    }
+    crate::peer::require_python("selenium", "selenium");
 }

@@ -134,7 +134,7 @@ async fn forge(s: &zenoh::Session, cluster: &Cluster, anna: &str) -> usize {
     ] {
         s.put(key, payload).await.expect("a put is accepted locally");
     }
-    let set = SetRequest { name: "go".into(), value: serde_json::json!(false), by: "robot1".into() };
+    let set = SetRequest { name: "go".into(), value: serde_json::json!(false), by: "robot1".into(), user: None };
     let abort =
         CtlRequest { command: "abort".into(), reason: "rogue".into(), by: "robot1".into(), ..Default::default() };
     for (key, payload) in

@@ -4,10 +4,10 @@
 //! the console's identity — and the page in a real browser (Debian's Chromium through its WebDriver), which shows
 //! the active step and its robot, enables exactly the legal commands, and follows a `hold` to `held`.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::http::{http, Events};
+use baton_tests::http::{http, require_browser, Events};
 use baton_tests::loopback::{bin, Cluster, Coordinator, TIMEOUT};
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::Command;
@@ -278,28 +278,6 @@ async fn a_lost_agent_stays_listed_as_lost_until_it_is_back() {
     cluster.agent("r1", &[], &[]);
     let back = event_until(&addr, listed).await;
     assert_eq!(back["lost_agents"], serde_json::json!([]), "{back}");
-}
-
-/// Beyond loopback the console would need TLS and users, which it does not have yet: it refuses, saying how to
-/// reach it instead.
-async fn the_console_listens_on_loopback_only() {
-    let out = Command::new(bin("baton"))
-        .args(["console", "--connect", "tcp/127.0.0.1:1", "--listen", "0.0.0.0:0"])
-        .output()
-        .await
-        .expect("baton runs");
-    assert_eq!(out.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("loopback only"), "{}", String::from_utf8_lossy(&out.stderr));
-}
-
-/// The browser, its WebDriver and Selenium's bindings, or why the test cannot run here.
-fn require_browser() {
-    for file in ["/usr/bin/chromium", "/usr/bin/chromedriver"] {
-        if !Path::new(file).is_file() {
-            baton_tests::missing(&format!("{file} is absent: .ci/run installs Debian's chromium and chromium-driver"));
-        }
-    }
-    baton_tests::peer::require_python("selenium", "selenium");
 }
 
 async fn in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_run() {
@@ -579,7 +557,6 @@ async fn in_a_browser_the_demo_cell_is_held_its_alarm_acknowledged_and_a_lost_ro
 baton_tests::harness_main!(
     tokio the_history_lists_commands_with_who_and_why_for_a_console_that_joins_late_too,
     tokio the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_ctl_does,
-    tokio the_console_listens_on_loopback_only,
     tokio a_run_serves_the_console_of_its_own_cell,
     tokio a_lost_agent_stays_listed_as_lost_until_it_is_back,
     tokio in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_run,

@@ -58,6 +58,7 @@ impl Ctl {
             reason: self.comment.unwrap_or(self.reason),
             // The coordinator records the name the request's key gives (`client::sender`).
             by: crate::client::sender(self.reach.zenoh_config.as_deref()),
+            user: None,
         };
         let (connect, run, file, wait) = (self.reach.connect, self.run, self.reach.zenoh_config, self.wait);
         block_on(async move {

@@ -15,6 +15,31 @@ pub enum Deploy {
     /// part needs (an agent its own keys and the chart's bindings on it; a coordinator the coordinator's keys;
     /// operators set and ctl). Works with `zenohd` and with `baton run --listen … --zenoh-config`.
     Acl(Acl),
+    /// Write the users of `baton console --users FILE`: each NAME=ROLE (viewer, operator or maintenance) gets a new
+    /// password, printed once — the file keeps only its Argon2id hash, readable by its owner alone. Users already in
+    /// the file and not named stay as they are.
+    Users(UsersArgs),
+}
+
+#[derive(clap::Args)]
+pub struct UsersArgs {
+    /// The users' file (made if missing).
+    #[arg(value_name = "FILE")]
+    pub file: PathBuf,
+    /// Users to add, or to give a new password and role: anna=operator bob=viewer carl=maintenance.
+    #[arg(value_name = "NAME=ROLE", value_parser = parse_user)]
+    pub users: Vec<(String, crate::console::users::Role)>,
+    /// Users to remove (repeatable).
+    #[arg(long, value_name = "NAME")]
+    pub remove: Vec<String>,
+}
+
+fn parse_user(text: &str) -> Result<(String, crate::console::users::Role), String> {
+    use clap::ValueEnum;
+    let (name, role) = text.split_once('=').ok_or_else(|| format!("`{text}`: give NAME=ROLE (anna=operator)"))?;
+    let role = crate::console::users::Role::from_str(role.trim(), true)
+        .map_err(|_| format!("`{role}`: a role is viewer, operator or maintenance"))?;
+    Ok((name.trim().to_string(), role))
 }
 
 #[derive(clap::Args)]
@@ -36,9 +61,12 @@ pub struct Acl {
     /// An operator's identity: may set inputs and operate runs (repeatable).
     #[arg(long = "operator", visible_alias = "operators", value_name = "NAME", num_args = 1..)]
     pub operators: Vec<String>,
-    /// A viewer's identity: may read status and why (repeatable).
+    /// A viewer's identity: may read status, charts, history and why, and hear runs' live trace (repeatable).
     #[arg(long = "viewer", visible_alias = "viewers", value_name = "NAME", num_args = 1..)]
     pub viewers: Vec<String>,
+    /// A `baton console`'s identity: operates as an operator does, for the users logged in to it (repeatable).
+    #[arg(long = "console", visible_alias = "consoles", value_name = "NAME", num_args = 1..)]
+    pub consoles: Vec<String>,
     /// How the router knows a process: its certificate's common name, or its Zenoh user name.
     #[arg(long, value_enum, default_value_t = crate::deploy::acl::By::Cert)]
     pub by: crate::deploy::acl::By,
@@ -105,6 +133,7 @@ impl Deploy {
                     agents: a.agents,
                     operators: a.operators,
                     viewers: a.viewers,
+                    consoles: a.consoles,
                 };
                 let acl = crate::deploy::acl::access_control(&loaded.program, &loaded.layout, &ids, a.by)?;
                 let tls = a.pki.map(|dir| {
@@ -123,6 +152,19 @@ impl Deploy {
                     }
                     None => print!("{text}"),
                 }
+                Ok(ExitCode::SUCCESS)
+            }
+            Deploy::Users(u) => {
+                if u.users.is_empty() && u.remove.is_empty() {
+                    anyhow::bail!("name the users: baton deploy users FILE anna=operator bob=viewer");
+                }
+                for (name, role, password) in crate::console::users::write(&u.file, &u.users, &u.remove)? {
+                    println!("{name} ({}): {password}", role.name());
+                }
+                for name in &u.remove {
+                    println!("{name}: removed");
+                }
+                println!("users: {} (hand each password over once: the file keeps only its hash)", u.file.display());
                 Ok(ExitCode::SUCCESS)
             }
         }

@@ -13,11 +13,15 @@
 //! takes a `CtlRequest` as JSON and answers with the coordinator's `CtlReply` (a refusal says why and what is
 //! legal now).
 
+mod auth;
 mod history;
+mod tls;
+pub mod users;
 
 use std::collections::BTreeMap;
 use std::convert::Infallible;
 use std::net::SocketAddr;
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -27,6 +31,7 @@ use axum::http::{header, StatusCode};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
+use axum::Extension;
 use axum::{Json, Router};
 use baton_host::traffic;
 use baton_proto::cluster::keys;
@@ -112,6 +117,8 @@ struct Console {
     history_seq: tokio::sync::watch::Sender<u64>,
     /// Each chart version's drawing and inputs, made once.
     charts: Mutex<BTreeMap<String, Arc<ChartView>>>,
+    /// Who may do what, and the console's own trace.
+    auth: Arc<auth::Auth>,
 }
 
 /// What the page shows of a chart version: its drawing, and the inputs an operator may set (`baton set`'s: the
@@ -128,16 +135,31 @@ struct InputVar {
     ty: String,
 }
 
-/// The console's listening socket on `listen`, which must be a loopback address (until the console has TLS and
-/// users): bound before anything else starts, so that a port taken is said at once.
-pub async fn bind(listen: SocketAddr) -> anyhow::Result<tokio::net::TcpListener> {
-    if !listen.ip().is_loopback() {
+/// Who may reach a console and how: HTTPS with a certificate and its key, the users who log in, and the console's
+/// own trace (logins and refusals). None of it is needed on loopback.
+#[derive(Clone, Debug, Default)]
+pub struct Access {
+    pub tls: Option<(PathBuf, PathBuf)>,
+    pub users: Option<PathBuf>,
+    pub trace: Option<PathBuf>,
+}
+
+/// The console's listening socket on `listen`: bound before anything else starts, so that a port taken is said at
+/// once. Beyond loopback it needs TLS and users.
+pub async fn bind(listen: SocketAddr, access: &Access) -> anyhow::Result<tokio::net::TcpListener> {
+    if !listen.ip().is_loopback() && (access.tls.is_none() || access.users.is_none()) {
         anyhow::bail!(
-            "--listen {listen}: the console listens on loopback only (127.0.0.1, ::1) until it has TLS and users; \
-             reach it from elsewhere through an SSH tunnel (ssh -L 8080:127.0.0.1:8080 HOST)"
+            "--listen {listen}: beyond loopback the console needs TLS and users: --tls-cert FILE --tls-key FILE \
+             (baton deploy certs) and --users FILE (baton deploy users); or listen on 127.0.0.1 and reach it \
+             through an SSH tunnel (ssh -L 8080:127.0.0.1:8080 HOST)"
         );
     }
     tokio::net::TcpListener::bind(listen).await.with_context(|| format!("cannot listen on {listen} for the console"))
+}
+
+/// A console of a run or a demo: on loopback, where nobody logs in.
+pub async fn bind_local(listen: SocketAddr) -> anyhow::Result<tokio::net::TcpListener> {
+    bind(listen, &Access::default()).await
 }
 
 /// Serves the console on `listener` for the cell behind `connect`, until interrupted; says where on stdout.
@@ -145,7 +167,11 @@ pub async fn serve(
     listener: tokio::net::TcpListener,
     connect: &[String],
     file: Option<&std::path::Path>,
+    access: Access,
 ) -> anyhow::Result<()> {
+    let users = access.users.as_deref().map(users::Users::load).transpose()?;
+    let acceptor = access.tls.as_ref().map(|(cert, key)| tls::acceptor(cert, key)).transpose()?;
+    let auth = Arc::new(auth::Auth::new(users, acceptor.is_some(), access.trace.as_deref())?);
     let session = crate::client::open(connect, file).await?;
     let (latest, _) = tokio::sync::watch::channel(String::new());
     let (history_seq, _) = tokio::sync::watch::channel(0);
@@ -157,11 +183,12 @@ pub async fn serve(
         histories: Mutex::default(),
         history_seq,
         charts: Mutex::new(BTreeMap::new()),
+        auth,
     });
     let _trace = listen_to_traces(&console).await?;
     tokio::spawn(follow(Arc::clone(&console)));
-    let app = Router::new()
-        .route("/", get(page))
+    // Everything but the page and logging in needs a session where users log in.
+    let guarded = Router::new()
         .route("/api/state", get(state))
         .route("/api/events", get(events))
         .route("/api/runs/{run}/chart.svg", get(chart))
@@ -170,23 +197,41 @@ pub async fn serve(
         .route("/api/runs/{run}/inputs", get(inputs))
         .route("/api/runs/{run}/set", post(set))
         .route("/api/runs/{run}/history", get(history_after))
-        .with_state(Arc::clone(&console));
+        .route_layer(axum::middleware::from_fn_with_state(Arc::clone(&console.auth), auth::require));
+    // Logging in and out sees only who may do what.
+    let logins = Router::new()
+        .route("/api/login", post(auth::login))
+        .route("/api/logout", post(auth::logout))
+        .route("/api/me", get(auth::me))
+        .with_state(Arc::clone(&console.auth));
+    let app = Router::new().route("/", get(page)).merge(guarded).with_state(Arc::clone(&console)).merge(logins);
     let bound = listener.local_addr().context("the address listened on")?;
-    println!("baton console on http://{bound}/ for {}", connect.join(", "));
+    let scheme = if acceptor.is_some() { "https" } else { "http" };
+    println!("baton console on {scheme}://{bound}/ for {}", connect.join(", "));
+    match acceptor {
+        Some(acceptor) => until_interrupted(tls::TlsListener::new(listener, acceptor)?, app).await,
+        None => until_interrupted(listener, app).await,
+    }
+}
+
+async fn until_interrupted<L>(listener: L, app: Router) -> anyhow::Result<()>
+where
+    L: axum::serve::Listener,
+    L::Addr: std::fmt::Debug,
+{
     axum::serve(listener, app)
         .with_graceful_shutdown(async {
             let _ = tokio::signal::ctrl_c().await;
         })
         .await
-        .context("the console's server")?;
-    Ok(())
+        .context("the console's server")
 }
 
 /// Serves the console in the background of a run or a demo, for the cell behind `endpoints`; a console that
 /// stops says why and leaves the run alone.
 pub fn spawn(listener: tokio::net::TcpListener, endpoints: Vec<String>, file: Option<std::path::PathBuf>) {
     tokio::spawn(async move {
-        if let Err(e) = serve(listener, &endpoints, file.as_deref()).await {
+        if let Err(e) = serve(listener, &endpoints, file.as_deref(), Access::default()).await {
             eprintln!("error: the console stopped: {e:#}");
         }
     });
@@ -367,6 +412,7 @@ struct SetBody {
 
 async fn set(
     State(console): State<Arc<Console>>,
+    Extension(who): Extension<auth::Who>,
     UrlPath(run): UrlPath<String>,
     Json(body): Json<SetBody>,
 ) -> Response {
@@ -374,7 +420,25 @@ async fn set(
         Ok(r) => r,
         Err(refused) => return refused.into_response(),
     };
-    reply_of(run, crate::client::set_as(&console.session, Some(run), &body.name, body.value, &console.sender).await)
+    if let Err(forbidden) = console.allowed(&who, users::Role::Operator, "set") {
+        return forbidden.into_response();
+    }
+    let by = (console.sender.as_str(), who.user.as_deref());
+    reply_of(run, crate::client::set_as(&console.session, Some(run), &body.name, body.value, by).await)
+}
+
+impl Console {
+    /// Whether `who` may do `what`, which needs `needed`; else the 403 answer, the refusal traced.
+    fn allowed(&self, who: &auth::Who, needed: users::Role, what: &str) -> Result<(), (StatusCode, String)> {
+        if who.role >= needed {
+            return Ok(());
+        }
+        let user = who.user.as_deref().unwrap_or("this page");
+        let why = format!("{user} is {}: `{what}` needs {}", who.role.name(), needed.name());
+        let by = keys::by_whom(&self.sender, who.user.as_deref());
+        self.auth.trace(baton_proto::exec::trace::TraceEvent::CommandRefused, what, Some(by), why.clone());
+        Err((StatusCode::FORBIDDEN, why))
+    }
 }
 
 /// The run's answer to a query sent to it alone, as JSON; 502 when it did not answer or the query failed.
@@ -453,9 +517,11 @@ async fn why(State(console): State<Arc<Console>>, UrlPath(run): UrlPath<String>)
     }
 }
 
-/// An operator's command to run `run`, sent as `baton ctl` sends it, under the console's identity.
+/// An operator's command to run `run`, sent as `baton ctl` sends it, under the console's identity and for the user
+/// logged in — if their role allows it (`users::needed`), else 403.
 async fn ctl(
     State(console): State<Arc<Console>>,
+    Extension(who): Extension<auth::Who>,
     UrlPath(run): UrlPath<String>,
     Json(mut request): Json<CtlRequest>,
 ) -> Response {
@@ -463,6 +529,10 @@ async fn ctl(
         Ok(r) => r,
         Err(refused) => return refused.into_response(),
     };
+    if let Err(forbidden) = console.allowed(&who, users::needed(&request), &request.command.to_ascii_lowercase()) {
+        return forbidden.into_response();
+    }
     request.by.clone_from(&console.sender);
+    request.user.clone_from(&who.user);
     reply_of(run, crate::client::ctl_on(&console.session, Some(run), &request).await)
 }

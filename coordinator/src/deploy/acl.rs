@@ -46,6 +46,9 @@ pub struct Identities {
     pub agents: Vec<(String, Vec<String>)>,
     pub operators: Vec<String>,
     pub viewers: Vec<String>,
+    /// `baton console` processes: each sends the commands of the users logged in to it under its own name, as an
+    /// operator does.
+    pub consoles: Vec<String>,
 }
 
 const DECLARATIONS: [&str; 3] = ["declare_subscriber", "declare_queryable", "liveliness_token"];
@@ -153,6 +156,7 @@ pub fn access_control(program: &Program, layout: &Layout, ids: &Identities, by: 
         .chain(ids.agents.iter().map(|(n, _)| n))
         .chain(&ids.operators)
         .chain(&ids.viewers)
+        .chain(&ids.consoles)
         .cloned()
         .collect();
     add(
@@ -185,6 +189,10 @@ pub fn access_control(program: &Program, layout: &Layout, ids: &Identities, by: 
     for o in &ids.operators {
         add(format!("operator-{o}"), std::slice::from_ref(o), operator_rules(Some(o)));
     }
+    // A console asks as an operator does, on its own keys; which of its users may do what is the console's.
+    for c in &ids.consoles {
+        add(format!("console-{c}"), std::slice::from_ref(c), operator_rules(Some(c)));
+    }
     if !ids.viewers.is_empty() {
         add("viewers".to_string(), &ids.viewers, operator_rules(None));
     }
@@ -216,7 +224,8 @@ fn check(program: &Program, layout: &Layout, ids: &Identities) -> anyhow::Result
         .map(|n| (n, "coordinator"))
         .chain(ids.agents.iter().map(|(n, _)| (n, "agent")))
         .chain(ids.operators.iter().map(|n| (n, "operator")))
-        .chain(ids.viewers.iter().map(|n| (n, "viewer")));
+        .chain(ids.viewers.iter().map(|n| (n, "viewer")))
+        .chain(ids.consoles.iter().map(|n| (n, "console")));
     for (name, what) in all {
         if !is_valid_name(name) {
             bail!("`{name}` is not a name Baton takes: letters, digits, `_` and `-`, at most 64");
@@ -313,6 +322,7 @@ mod tests {
             agents: vec![("robot1".into(), vec![]), ("cell1".into(), vec![]), ("w1".into(), vec!["welder".into()])],
             operators: vec!["anna".into()],
             viewers: vec!["screen".into()],
+            consoles: vec!["console".into()],
         }
     }
 
@@ -372,6 +382,10 @@ mod tests {
         assert_eq!(allowed(&acl, "viewers", "ingress", "declare_subscriber"), ["baton/run/*/trace"]);
         assert!(allowed(&acl, "viewers", "ingress", "put").is_empty());
         assert!(allowed(&acl, "operator-anna", "ingress", "put").is_empty());
+        // A console operates on the keys that name it, as an operator does.
+        let console = allowed(&acl, "console-console", "ingress", "query");
+        assert!(console.contains(&"baton/run/*/ctl/console".to_string()), "{console:?}");
+        assert!(!console.iter().any(|k| k.ends_with("/ctl/*") || k.ends_with("/ctl/anna")), "{console:?}");
         // An operator asks only on the keys that name it.
         let asks = allowed(&acl, "operator-anna", "ingress", "query");
         assert!(

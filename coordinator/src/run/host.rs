@@ -460,7 +460,7 @@ impl Host {
         };
         let now = self.now_ms();
         match request {
-            Ok(r) => match self.core.set_by(now, SetRequest { by: sender.to_string(), ..r }) {
+            Ok(r) => match self.core.set_by(now, SetRequest { by: keys::by_whom(sender, r.user.as_deref()), ..r }) {
                 Ok(message) => SetReply { chart, ok: true, message },
                 Err(message) => SetReply { chart, ok: false, message },
             },
@@ -503,7 +503,7 @@ impl Host {
             None => Err("the request carries no command".into()),
         };
         let result = match request {
-            Ok(r) => self.command(CtlRequest { by: sender.to_string(), ..r }),
+            Ok(r) => self.command(CtlRequest { by: keys::by_whom(sender, r.user.as_deref()), ..r }),
             Err(why) => Err(why),
         };
         self.ctl_reply(result)

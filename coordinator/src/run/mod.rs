@@ -84,7 +84,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let watch = watched(&loaded.program, &opts.watch)?;
     // The console's port next: taken, the run does not start.
     let console = match opts.console {
-        Some(addr) => Some(crate::console::bind(addr).await?),
+        Some(addr) => Some(crate::console::bind_local(addr).await?),
         None => None,
     };
     // The journal first: a refused one costs nothing, not even a Zenoh session.
@@ -573,6 +573,7 @@ fn interrupted(host: &mut Host, signal: baton_host::Signal, interrupts: u32) {
             baton_host::Signal::Interrupt => "SIGINT",
             baton_host::Signal::Terminate => "SIGTERM",
         }),
+        user: None,
     };
     if !host.quiet {
         let what = if interrupts == 1 {

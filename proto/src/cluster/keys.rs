@@ -215,6 +215,16 @@ pub fn ctl_any_run(sender: &str) -> String {
     format!("{ROOT}/run/*/ctl/{sender}")
 }
 
+/// Who a request is recorded as sent by: the `sender` its key names (which a router's access control checked),
+/// and, for a console, the person it was sent for — `anna via console`. The person's name is the console's word,
+/// and the record says whose word it is.
+pub fn by_whom(sender: &str, user: Option<&str>) -> String {
+    match user.filter(|u| !u.trim().is_empty()).map(sender_name) {
+        Some(user) if !user.is_empty() => format!("{user} via {sender}"),
+        _ => sender.to_string(),
+    }
+}
+
 /// Who a `set` or `ctl` query's key says sent it (`baton/run/<run>/set/<sender>`, `…/ctl/<sender>`).
 pub fn sender_of_request(key: &str) -> Option<&str> {
     let rest = key.strip_prefix(ROOT)?.strip_prefix("/run/")?;
@@ -238,6 +248,15 @@ mod tests {
         assert_eq!(agent_of_alive("baton/alive/"), None);
         assert_eq!(agent_of_alive("baton/alive/a/b"), None);
         assert_eq!(agent_of_alive("other/alive/a"), None);
+    }
+
+    #[test]
+    fn a_console_request_is_recorded_as_its_user_via_the_sender() {
+        assert_eq!(by_whom("console", Some("anna")), "anna via console");
+        assert_eq!(by_whom("console", None), "console");
+        assert_eq!(by_whom("console", Some("")), "console");
+        // A user's name cannot pose as another sender's: it is made a sender's name first.
+        assert_eq!(by_whom("console", Some("x/y*")), "x_y_ via console");
     }
 
     #[test]

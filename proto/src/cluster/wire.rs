@@ -445,6 +445,10 @@ pub struct SetRequest {
     /// Who set it, as the coordinator records it: the name the request's key gives (`keys::sender_of_request`).
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub by: String,
+    /// The person a console sends it for (the user logged in to `baton console`): recorded with the sender, as
+    /// `anna via console` (`keys::by_whom`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub user: Option<String>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -482,6 +486,9 @@ pub struct CtlRequest {
     /// which a router's access control checks; what a client writes here is replaced by it.
     #[serde(default)]
     pub by: String,
+    /// The person a console sends it for, as `SetRequest::user`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub user: Option<String>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

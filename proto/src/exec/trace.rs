@@ -101,11 +101,16 @@ pub enum TraceEvent {
     /// A device's value for an input was refused (`name` is the variable, `message` why); the input keeps its
     /// value.
     InputRefused,
+    // What follows is written by `baton console`, in its own trace (`--trace`), where `t_ms` is Unix time.
+    /// A user logged in to the console (`name` is the user, `message` the role).
+    Login,
+    /// A login was refused (`name` is the user name given, `message` why).
+    LoginRefused,
 }
 
 impl TraceEvent {
     /// Every event, in the order above.
-    pub const ALL: [TraceEvent; 39] = [
+    pub const ALL: [TraceEvent; 41] = [
         TraceEvent::Activate,
         TraceEvent::Deactivate,
         TraceEvent::Fire,
@@ -145,6 +150,8 @@ impl TraceEvent {
         TraceEvent::SkillStopped,
         TraceEvent::SkillWait,
         TraceEvent::InputRefused,
+        TraceEvent::Login,
+        TraceEvent::LoginRefused,
     ];
 
     /// The event's name in the JSON (`action_on`). Not public: code outside matches on the event itself, and
@@ -190,6 +197,8 @@ impl TraceEvent {
             TraceEvent::SkillStopped => "skill_stopped",
             TraceEvent::SkillWait => "skill_wait",
             TraceEvent::InputRefused => "input_refused",
+            TraceEvent::Login => "login",
+            TraceEvent::LoginRefused => "login_refused",
         }
     }
 }

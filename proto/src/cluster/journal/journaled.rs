@@ -349,7 +349,7 @@ impl Journaled {
 
     /// `baton set`: recorded only if it applies.
     pub fn set(&mut self, now_ms: u64, name: &str, value: &serde_json::Value) -> Result<String, String> {
-        self.set_by(now_ms, SetRequest { name: name.to_string(), value: value.clone(), by: String::new() })
+        self.set_by(now_ms, SetRequest { name: name.to_string(), value: value.clone(), by: String::new(), user: None })
     }
 
     /// `baton set` of `request.by`: recorded only if it applies.

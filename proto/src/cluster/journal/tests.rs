@@ -23,6 +23,7 @@ fn records_round_trip_and_garbage_is_an_error() {
                 name: "go".into(),
                 value: serde_json::Value::Bool(true),
                 by: "anna".into(),
+                user: None,
             }),
         },
         Entry {

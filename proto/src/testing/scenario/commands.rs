@@ -85,6 +85,7 @@ impl Ctx<'_> {
                 to: to.map(|(_, t)| t),
                 reason: r.reason.clone().unwrap_or_default(),
                 by: r.by.clone().unwrap_or_else(|| SCENARIO_OPERATOR.to_string()),
+                user: None,
             };
             out.push(Command { trigger, request, line });
         }
