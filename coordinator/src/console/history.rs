@@ -70,6 +70,12 @@ impl Histories {
         !std::mem::replace(&mut history.asked, true)
     }
 
+    /// Every run's coordinator is to be asked for its history again: records may have gone by unheard while the
+    /// console had no router (what it heard already is kept once).
+    pub fn ask_again(&mut self) {
+        self.runs.values_mut().for_each(|h| h.asked = false);
+    }
+
     /// Run `run`'s entries numbered after `after`, oldest first by the run's clock.
     pub fn after(&self, run: RunId, after: u64) -> Vec<Entry> {
         let mut entries: Vec<Entry> = self

@@ -23,7 +23,7 @@ use std::convert::Infallible;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use axum::extract::{Path as UrlPath, State};
@@ -102,6 +102,37 @@ impl Agents {
             .collect();
         lost.sort_by_key(|l| l.since_unix_ms);
         lost
+    }
+}
+
+/// How long the console keeps showing what it last heard of its router and of a run that fell silent:
+/// zenoh-link-tls 1.10.2 drops a TLS session now and then and takes it back within milliseconds
+/// (`tests/tests/zenoh_tls_race.rs`), which is no loss to show an operator.
+const SILENCE_GRACE: Duration = Duration::from_millis(1500);
+
+/// The runs as last heard, and when the router was: what the page is shown through a short silence.
+#[derive(Default)]
+struct Heard {
+    router: Option<Instant>,
+    runs: BTreeMap<RunId, (StatusReport, Instant)>,
+}
+
+impl Heard {
+    /// Takes what was heard at `now` — the runs' status, if the router was there to ask and answered — and returns
+    /// whether the router counts as there, and the runs to show, each as last heard. Without the router the runs
+    /// stay as they were (the page marks them stale); with it, a run silent past the grace has ended.
+    fn update(&mut self, answered: Option<Vec<StatusReport>>, now: Instant) -> (bool, Vec<StatusReport>) {
+        if let Some(runs) = answered {
+            self.router = Some(now);
+            for r in runs {
+                self.runs.insert(r.run, (r, now));
+            }
+            self.runs.retain(|_, (_, at)| now.duration_since(*at) < SILENCE_GRACE);
+        }
+        let connected = self.router.is_some_and(|at| now.duration_since(at) < SILENCE_GRACE);
+        let mut runs: Vec<StatusReport> = self.runs.values().map(|(r, _)| r.clone()).collect();
+        runs.sort_by(|a, b| (a.chart.as_str(), a.run).cmp(&(b.chart.as_str(), b.run)));
+        (connected, runs)
     }
 }
 
@@ -252,19 +283,27 @@ async fn follow(console: Arc<Console>) {
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut last = Snapshot { connected: false, runs: Vec::new(), lost_agents: Vec::new() };
     let mut agents = Agents::default();
+    let mut heard = Heard::default();
     let mut first = true;
     loop {
         tokio::select! {
             _ = tick.tick() => {}
             _ = console.poke.notified() => {}
         }
-        let connected = console.session.info().routers_zid().await.next().is_some();
-        let mut runs =
-            if connected { crate::client::status_on(&console.session).await.unwrap_or_default() } else { Vec::new() };
-        runs.sort_by(|a, b| (a.chart.as_str(), a.run).cmp(&(b.chart.as_str(), b.run)));
+        let answered = match console.session.info().routers_zid().await.next() {
+            Some(_) => crate::client::status_on(&console.session).await.ok(),
+            None => None,
+        };
+        let asked = answered.is_some();
+        if !asked {
+            if let Ok(mut histories) = console.histories.lock() {
+                histories.ask_again();
+            }
+        }
+        let (connected, runs) = heard.update(answered, Instant::now());
         let now = baton_host::unix_ms();
-        // Without the router nothing is known of the agents: their list stays as it was, marked stale.
-        let lost_agents = if connected { agents.update(&runs, now) } else { last.lost_agents.clone() };
+        // Without an answer nothing new is known of the agents: their list stays as it was.
+        let lost_agents = if asked { agents.update(&runs, now) } else { last.lost_agents.clone() };
         ask_histories(&console, &runs, now);
         let snapshot = Snapshot { connected, runs, lost_agents };
         // A run's clock alone moving is no change to tell the page of.
@@ -338,7 +377,13 @@ fn ask_histories(console: &Arc<Console>, runs: &[StatusReport], now: u64) {
             match ask_history(&console.session, run).await {
                 // The run's clock read `t_ms` at `now`.
                 Ok(records) => console.keep_history(run, records, |r| now.saturating_sub(t_ms.saturating_sub(r.t_ms))),
-                Err(why) => eprintln!("warning: the console has no history of run {} before now: {why}", run.key()),
+                Err(why) => {
+                    eprintln!("warning: the console has no history of run {} before now: {why}", run.key());
+                    // Asked again at the next look.
+                    if let Ok(mut histories) = console.histories.lock() {
+                        histories.ask_again();
+                    }
+                }
             }
         });
     }
@@ -452,13 +497,28 @@ fn reply_of<T: serde::Serialize>(run: RunId, replies: anyhow::Result<Vec<T>>) ->
     }
 }
 
+/// Run `run`'s answer with its chart. A query that ends with no answer at all is asked again, for up to
+/// `CHART_TIMEOUT`: a session that zenoh-link-tls drops is back within milliseconds (`SILENCE_GRACE`).
+async fn ask_chart(session: &Session, run: RunId) -> Result<zenoh::query::Reply, String> {
+    let began = Instant::now();
+    loop {
+        let replies = traffic::get(session, keys::chart(run))
+            .timeout(CHART_TIMEOUT)
+            .await
+            .map_err(|e| format!("cannot ask run {} for its chart: {e}", run.key()))?;
+        if let Ok(reply) = replies.recv_async().await {
+            return Ok(reply);
+        }
+        if began.elapsed() >= CHART_TIMEOUT {
+            return Err(format!("run {} did not send its chart", run.key()));
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
 /// Asks run `run` for its chart and draws it, or takes what was made of that chart version before.
 async fn chart_view(console: &Console, run: RunId) -> Result<Arc<ChartView>, String> {
-    let replies = traffic::get(&console.session, keys::chart(run))
-        .timeout(CHART_TIMEOUT)
-        .await
-        .map_err(|e| format!("cannot ask run {} for its chart: {e}", run.key()))?;
-    let reply = replies.recv_async().await.map_err(|_| format!("run {} did not send its chart", run.key()))?;
+    let reply = ask_chart(&console.session, run).await?;
     let sample = reply.result().map_err(|e| format!("run {} refused its chart: {e:?}", run.key()))?;
     let src: ChartSource = wire::decode_with_limit(&sample.payload().to_bytes(), CHART_SOURCE_BYTES_MAX)
         .map_err(|e| format!("run {}'s chart: {e}", run.key()))?;
@@ -535,4 +595,35 @@ async fn ctl(
     request.by.clone_from(&console.sender);
     request.user.clone_from(&who.user);
     reply_of(run, crate::client::ctl_on(&console.session, Some(run), &request).await)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn report(run: u128) -> StatusReport {
+        let text = format!(
+            r#"{{"run": "{}", "chart": "c", "hash": "h", "t_ms": 0, "active_steps": [], "tokens": [], "agents": []}}"#,
+            uuid::Uuid::from_u128(run)
+        );
+        serde_json::from_str(&text).expect("a status report")
+    }
+
+    #[test]
+    fn a_short_silence_shows_what_was_heard_and_a_long_one_says_so() {
+        let mut heard = Heard::default();
+        let t0 = Instant::now();
+        let (connected, runs) = heard.update(Some(vec![report(1), report(2)]), t0);
+        assert!(connected && runs.len() == 2);
+        // The router gone for a moment: as it was.
+        let (connected, runs) = heard.update(None, t0 + SILENCE_GRACE / 2);
+        assert!(connected && runs.len() == 2);
+        // Run 2 silent for a moment while the router answers: still shown; past the grace, it has ended.
+        assert_eq!(heard.update(Some(vec![report(1)]), t0 + SILENCE_GRACE / 2).1.len(), 2);
+        let (_, runs) = heard.update(Some(vec![report(1)]), t0 + SILENCE_GRACE * 2);
+        assert_eq!(runs.iter().map(|r| r.run.0.as_u128()).collect::<Vec<_>>(), [1]);
+        // The router gone past the grace: not connected, and the runs stay as last heard, to be shown stale.
+        let (connected, runs) = heard.update(None, t0 + SILENCE_GRACE * 4);
+        assert!(!connected && runs.len() == 1);
+    }
 }
