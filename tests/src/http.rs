@@ -144,3 +144,21 @@ pub fn require_browser() {
     }
     crate::peer::require_python("selenium", "selenium");
 }
+
+/// `baton console --connect ENDPOINT` with `args`, on a free loopback port: its process and the address it said it
+/// serves on (`127.0.0.1:PORT`).
+pub async fn console(endpoint: &str, args: &[&str]) -> (tokio::process::Child, String) {
+    use tokio::io::AsyncBufReadExt;
+    let mut console = tokio::process::Command::new(crate::loopback::bin("baton"))
+        .args(["console", "--connect", endpoint, "--listen", "127.0.0.1:0"])
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()
+        .expect("start baton console");
+    let mut said = tokio::io::BufReader::new(console.stdout.take().expect("piped")).lines();
+    let line = tokio::time::timeout(TIMEOUT, said.next_line()).await.expect("the console says where").expect("read");
+    let line = line.expect("a line");
+    let addr = line.split("://").nth(1).and_then(|r| r.split('/').next()).expect("an address").to_string();
+    (console, addr)
+}

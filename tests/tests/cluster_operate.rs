@@ -780,6 +780,7 @@ async fn ctl_wait_asks_again_while_its_run_is_briefly_unreachable() {
         hash: ChartHash("1".into()),
         t_ms: 0,
         started_ms: 0,
+        unix_ms: 0,
         active_steps: Vec::new(),
         tokens: Vec::new(),
         agents: Vec::new(),

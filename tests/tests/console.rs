@@ -33,17 +33,7 @@ async fn cell_with_console(text: &str) -> (Cluster, PathBuf, Coordinator, tokio:
 
 /// `baton console` for the cell of `cluster`, on a free loopback port: its process and its address.
 async fn start_console(cluster: &Cluster) -> (tokio::process::Child, String) {
-    let mut console = Command::new(bin("baton"))
-        .args(["console", "--connect", &cluster.endpoint, "--listen", "127.0.0.1:0"])
-        .stdout(std::process::Stdio::piped())
-        .kill_on_drop(true)
-        .spawn()
-        .expect("start baton console");
-    let mut said = BufReader::new(console.stdout.take().expect("piped")).lines();
-    let line = tokio::time::timeout(TIMEOUT, said.next_line()).await.expect("the console says where").expect("read");
-    let line = line.expect("a line");
-    let addr = line.split("http://").nth(1).and_then(|r| r.split('/').next()).expect("an address").to_string();
-    (console, addr)
+    baton_tests::http::console(&cluster.endpoint, &[]).await
 }
 
 /// Run `run`'s history on the console at `addr`, once `enough` of it is there: (event, name, by, message) each.

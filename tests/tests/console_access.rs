@@ -9,7 +9,7 @@ use std::path::Path;
 use baton_proto::exec::trace::TraceEvent;
 use baton_tests::http::{require_browser, Client};
 use baton_tests::loopback::{bin, read_trace, Cluster, TIMEOUT};
-use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::process::Command;
 
 /// A gate opens when `open` is set; the run stays, for the users to operate.
@@ -34,18 +34,7 @@ async fn deploy_users(cluster: &Cluster, file: &Path) -> std::collections::BTree
 
 /// `baton console` with `args` for the cell of `cluster`, on a free loopback port: its process and its address.
 async fn console(cluster: &Cluster, args: &[&str]) -> (tokio::process::Child, String) {
-    let mut console = Command::new(bin("baton"))
-        .args(["console", "--connect", &cluster.endpoint, "--listen", "127.0.0.1:0"])
-        .args(args)
-        .stdout(std::process::Stdio::piped())
-        .kill_on_drop(true)
-        .spawn()
-        .expect("start baton console");
-    let mut said = BufReader::new(console.stdout.take().expect("piped")).lines();
-    let line = tokio::time::timeout(TIMEOUT, said.next_line()).await.expect("the console says where").expect("read");
-    let line = line.expect("a line");
-    let addr = line.split("://").nth(1).and_then(|r| r.split('/').next()).expect("an address").to_string();
-    (console, addr)
+    baton_tests::http::console(&cluster.endpoint, args).await
 }
 
 async fn login(client: &mut Client, user: &str, password: &str) -> (u16, String) {

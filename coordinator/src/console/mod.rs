@@ -306,9 +306,9 @@ async fn follow(console: Arc<Console>) {
         let lost_agents = if asked { agents.update(&runs, now) } else { last.lost_agents.clone() };
         ask_histories(&console, &runs, now);
         let snapshot = Snapshot { connected, runs, lost_agents };
-        // A run's clock alone moving is no change to tell the page of.
+        // A run's clocks alone moving is no change to tell the page of.
         let mut still = snapshot.clone();
-        still.runs.iter_mut().for_each(|r| r.t_ms = 0);
+        still.runs.iter_mut().for_each(|r| (r.t_ms, r.unix_ms) = (0, 0));
         if still != last || first {
             (last, first) = (still, false);
             console.latest.send_replace(serde_json::to_string(&snapshot).unwrap_or_default());

@@ -498,6 +498,7 @@ async fn serve(
                     // The run's clock now, not the time of its last input: an idle run's time goes on.
                     let mut status = host.core.core().status();
                     status.t_ms = host.now_ms();
+                    status.unix_ms = baton_host::unix_ms();
                     status.messages_dropped += host.decode_drops;
                     reply(&q, keys::status(run), wire::encode(&status))
                 }

@@ -511,6 +511,10 @@ pub struct StatusReport {
     pub t_ms: u64,
     #[serde(default)]
     pub started_ms: u64,
+    /// The wall clock (Unix ms) when the coordinator read `t_ms`: a record at `t_ms = T` happened at about
+    /// `unix_ms - (t_ms - T)`. 0 from a coordinator before it.
+    #[serde(default)]
+    pub unix_ms: u64,
     pub active_steps: Vec<StatusStep>,
     pub tokens: Vec<StatusToken>,
     pub agents: Vec<StatusAgent>,

@@ -114,6 +114,8 @@ impl Coordinator {
             hash: self.hash.clone(),
             t_ms: self.now_ms,
             started_ms: self.started_ms,
+            // The host reads the wall clock (the core has none).
+            unix_ms: 0,
             active_steps,
             tokens,
             agents,
