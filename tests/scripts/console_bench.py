@@ -9,14 +9,12 @@ Usage: console_bench.py URL STEPS COUNT
 """
 
 import json
-import os
 import sys
 
-from selenium import webdriver
-from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.support.ui import WebDriverWait
 
-os.environ["SE_OFFLINE"] = "true"
+# The same Chromium, flags and driver as the console's browser tests (this folder is on the path).
+from console_browser import browser
 
 WATCH = """
 window.__seen = {};
@@ -37,13 +35,7 @@ new MutationObserver(() => {
 
 def main():
     url, steps, count = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
-    options = webdriver.ChromeOptions()
-    options.binary_location = "/usr/bin/chromium"
-    for flag in ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                 "--window-size=1400,1000"]:
-        options.add_argument(flag)
-    driver = webdriver.Chrome(service=Service(executable_path="/usr/bin/chromedriver"), options=options)
+    driver = browser()
     try:
         driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": WATCH % steps})
         driver.get(url)

@@ -7,7 +7,7 @@
 use std::path::PathBuf;
 
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::http::{http, require_browser, Events};
+use baton_tests::http::{browse, http, require_browser, Events};
 use baton_tests::loopback::{bin, Cluster, Coordinator, TIMEOUT};
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::Command;
@@ -286,15 +286,7 @@ async fn in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_ru
     let status = cluster.baton(&["status", "--connect", &cluster.endpoint, "--json"]).await;
     let status: serde_json::Value = serde_json::from_slice(&status.stdout).expect("status JSON");
     let shot = cluster.dir.path().join("console.png");
-    let out = Command::new("python3")
-        .arg(baton_tests::loopback::repo("tests/scripts/console_browser.py"))
-        .args([&format!("http://{addr}/"), "hold", "Move", "hold", "held", shot.to_str().expect("utf-8")])
-        .output();
-    let out =
-        tokio::time::timeout(TIMEOUT * 2, out).await.expect("the browser finished in time").expect("python3 runs");
-    let said = String::from_utf8_lossy(&out.stdout).to_string();
-    assert!(out.status.success(), "{said}\n{}", String::from_utf8_lossy(&out.stderr));
-    let lines: Vec<serde_json::Value> = said.lines().map(|l| serde_json::from_str(l).expect("JSON")).collect();
+    let lines = browse(&addr, &["hold", "Move", "hold", "held", shot.to_str().expect("utf-8")]).await;
     let shown = &lines[0]["shown"];
     // What the page shows is what `baton status` says: the active step (Move, on r1), the legal commands enabled,
     // every other one disabled, and every step of the chart drawn.
@@ -348,16 +340,8 @@ async fn in_a_browser_an_alarm_is_acknowledged_with_a_comment() {
         .expect("start baton console");
     let go = cluster.baton(&["set", "--connect", &cluster.endpoint, "go=true"]).await;
     assert!(go.status.success(), "{}", String::from_utf8_lossy(&go.stderr));
-    let out = Command::new("python3")
-        .arg(baton_tests::loopback::repo("tests/scripts/console_browser.py"))
-        .args([&format!("http://{addr}/"), "ack", "checked the axis"])
-        .output();
-    let out =
-        tokio::time::timeout(TIMEOUT * 2, out).await.expect("the browser finished in time").expect("python3 runs");
-    let said = String::from_utf8_lossy(&out.stdout).to_string();
-    assert!(out.status.success(), "{said}\n{}", String::from_utf8_lossy(&out.stderr));
-    let lines: Vec<serde_json::Value> = said.lines().map(|l| serde_json::from_str(l).expect("JSON")).collect();
-    assert_eq!(lines[0]["shown_state"], "active, unacknowledged", "{said}");
+    let lines = browse(&addr, &["ack", "checked the axis"]).await;
+    assert_eq!(lines[0]["shown_state"], "active, unacknowledged", "{lines:?}");
     let alarm: u64 = lines[0]["alarm"].as_str().and_then(|a| a.parse().ok()).expect("an alarm id");
     let (status, log, trace, _) = coordinator.finish().await;
     assert!(status.success(), "{log}");
@@ -374,17 +358,9 @@ async fn in_a_browser_an_alarm_is_acknowledged_with_a_comment() {
 async fn in_a_browser_step_mode_waits_for_a_confirm_clicked() {
     require_browser();
     let (cluster, _chart, coordinator, _console, addr) = cell_with_console(CHART).await;
-    let script = Command::new("python3")
-        .arg(baton_tests::loopback::repo("tests/scripts/console_browser.py"))
-        .args([&format!("http://{addr}/"), "confirm", "Ready->Move", "Move"])
-        .kill_on_drop(true)
-        .output();
-    let out = tokio::time::timeout(TIMEOUT * 2, script).await.expect("in time").expect("python3 runs");
-    let said = String::from_utf8_lossy(&out.stdout).to_string();
-    assert!(out.status.success(), "{said}\n{}", String::from_utf8_lossy(&out.stderr));
-    let lines: Vec<serde_json::Value> = said.lines().map(|l| serde_json::from_str(l).expect("JSON")).collect();
-    assert_eq!(lines[1]["waiting"], serde_json::json!(["Ready->Move"]), "{said}");
-    assert_eq!(lines[2]["after"]["active"], serde_json::json!(["Move"]), "{said}");
+    let lines = browse(&addr, &["confirm", "Ready->Move", "Move"]).await;
+    assert_eq!(lines[1]["waiting"], serde_json::json!(["Ready->Move"]), "{lines:?}");
+    assert_eq!(lines[2]["after"]["active"], serde_json::json!(["Move"]), "{lines:?}");
     // The rest of the chart, confirmed by hand as well.
     let mode = cluster.baton(&["ctl", "--connect", &cluster.endpoint, "mode", "auto"]).await;
     assert!(mode.status.success(), "{}", String::from_utf8_lossy(&mode.stderr));
@@ -409,21 +385,13 @@ async fn in_a_browser_manual_mode_forces_and_moves_with_a_reason() {
         .replace("go : BOOL;", "go : BOOL; again : BOOL;")
         .replace("STEP Done: END_STEP", "STEP Done: END_STEP\nTRANSITION FROM Done TO Ready := again; END_TRANSITION");
     let (cluster, _chart, coordinator, _console, addr) = cell_with_console(&looping).await;
-    let script = Command::new("python3")
-        .arg(baton_tests::loopback::repo("tests/scripts/console_browser.py"))
-        .args([&format!("http://{addr}/"), "manual", "Ready->Move", "mov", "Done", "jog after a jam"])
-        .kill_on_drop(true)
-        .output();
-    let out = tokio::time::timeout(TIMEOUT * 2, script).await.expect("in time").expect("python3 runs");
-    let said = String::from_utf8_lossy(&out.stdout).to_string();
-    assert!(out.status.success(), "{said}\n{}", String::from_utf8_lossy(&out.stderr));
-    let lines: Vec<serde_json::Value> = said.lines().map(|l| serde_json::from_str(l).expect("JSON")).collect();
-    assert!(lines[0]["refused"].as_str().is_some_and(|r| r.contains("reason")), "{said}");
-    assert_eq!((lines[1]["found"].as_str(), lines[1]["zoomed"].as_bool()), (Some("Move"), Some(true)), "{said}");
+    let lines = browse(&addr, &["manual", "Ready->Move", "mov", "Done", "jog after a jam"]).await;
+    assert!(lines[0]["refused"].as_str().is_some_and(|r| r.contains("reason")), "{lines:?}");
+    assert_eq!((lines[1]["found"].as_str(), lines[1]["zoomed"].as_bool()), (Some("Move"), Some(true)), "{lines:?}");
     let history = lines[2]["history"].as_array().expect("rows");
     let listed = |what: &str| history.iter().any(|r| r[1].as_str() == Some(what) && r[3] == "jog after a jam");
-    assert!(listed("command force") && listed("command move"), "{said}");
-    assert_eq!(lines[2]["after"]["active"], serde_json::json!(["Done"]), "{said}");
+    assert!(listed("command force") && listed("command move"), "{lines:?}");
+    assert_eq!(lines[2]["after"]["active"], serde_json::json!(["Done"]), "{lines:?}");
     let stop = cluster.baton(&["ctl", "--connect", &cluster.endpoint, "stop"]).await;
     assert!(stop.status.success(), "{}", String::from_utf8_lossy(&stop.stderr));
     let (status, log, trace, _) = coordinator.finish().await;

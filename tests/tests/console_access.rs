@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::http::{require_browser, Client};
+use baton_tests::http::{browse, require_browser, Client};
 use baton_tests::loopback::{bin, read_trace, Cluster, TIMEOUT};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::process::Command;
@@ -181,19 +181,8 @@ async fn in_a_browser_a_viewer_finds_no_command_button() {
     // On loopback without TLS, users may still be asked to log in.
     let (_console, addr) = console(&cluster, &["--users", users.to_str().expect("utf-8")]).await;
     let seen_as = |user: &'static str| {
-        let password = passwords[user].clone();
-        let addr = addr.clone();
-        async move {
-            let out = Command::new("python3")
-                .arg(baton_tests::loopback::repo("tests/scripts/console_browser.py"))
-                .args([&format!("http://{addr}/"), "login", user, &password])
-                .kill_on_drop(true)
-                .output();
-            let out = tokio::time::timeout(TIMEOUT * 2, out).await.expect("in time").expect("python3 runs");
-            let said = String::from_utf8_lossy(&out.stdout).to_string();
-            assert!(out.status.success(), "{said}\n{}", String::from_utf8_lossy(&out.stderr));
-            serde_json::from_str::<serde_json::Value>(said.trim()).expect("JSON")
-        }
+        let (addr, password) = (addr.clone(), passwords[user].clone());
+        async move { browse(&addr, &["login", user, &password]).await.remove(0) }
     };
     let bob = seen_as("bob").await;
     assert_eq!(bob["visible"], serde_json::json!([]), "{bob}");
