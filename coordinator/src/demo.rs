@@ -24,7 +24,7 @@ pub struct DemoOptions {
     pub parts: u32,
     /// Keep the run's files (chart, trace, summary, agent logs) here instead of a temporary folder.
     pub keep: Option<PathBuf>,
-    /// Where the recording goes (default: `baton-demo.rrd` in the current folder).
+    /// Where the recording goes (`baton-demo.rrd` in the current folder unless told; served with the console).
     pub rerun: crate::recording::Sink,
     /// Serve the operator console on this loopback address while the cell runs.
     pub console: Option<std::net::SocketAddr>,
@@ -205,6 +205,8 @@ fn rerun_sink(opts: &DemoOptions) -> anyhow::Result<(crate::recording::Sink, Str
         crate::recording::Sink::Connect(None) => "connect".to_string(),
         crate::recording::Sink::Connect(Some(url)) => format!("connect:{url}"),
         crate::recording::Sink::Spawn => "spawn".to_string(),
+        // The console the demo serves is on loopback, which Rerun's server allows.
+        crate::recording::Sink::Serve { addr, .. } => format!("serve:{addr}"),
     };
     Ok((rerun, rerun_arg))
 }

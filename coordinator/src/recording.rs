@@ -1,4 +1,4 @@
-//! `--rerun off | save:PATH.rrd | connect[:URL] | spawn`: a run's timeline in Rerun.
+//! `--rerun off | save:PATH.rrd | connect[:URL] | spawn | serve[:ADDR]`: a run's timeline in Rerun.
 //!
 //! The coordinator's host hands every trace record and every change of a variable to a `Recorder`, which
 //! passes them through a bounded queue to a thread of its own that logs them: the coordinator's cycle never
@@ -92,7 +92,17 @@ pub enum Sink {
     Connect(Option<String>),
     /// Start a viewer (the `rerun` command must be on the PATH) and stream to it.
     Spawn,
+    /// Serve the recording on ADDR (Rerun's gRPC server, which keeps it for viewers that come later): the
+    /// operator console's page shows it live. A browser page may read it only from the origins allowed (Rerun
+    /// allows loopback pages; `--rerun-origin` adds a console's).
+    Serve {
+        addr: SocketAddr,
+        origins: Vec<String>,
+    },
 }
+
+/// Where `--rerun serve` listens unless told.
+pub const DEFAULT_SERVE_ADDR: &str = "127.0.0.1:9876";
 
 impl std::str::FromStr for Sink {
     type Err = String;
@@ -102,6 +112,7 @@ impl std::str::FromStr for Sink {
             "off" => Ok(Sink::Off),
             "spawn" => Ok(Sink::Spawn),
             "connect" => Ok(Sink::Connect(None)),
+            "serve" => format!("serve:{DEFAULT_SERVE_ADDR}").parse(),
             _ => {
                 if let Some(path) = s.strip_prefix("save:") {
                     if path.is_empty() {
@@ -110,12 +121,41 @@ impl std::str::FromStr for Sink {
                     Ok(Sink::Save(PathBuf::from(path)))
                 } else if let Some(url) = s.strip_prefix("connect:") {
                     Ok(Sink::Connect(Some(url.to_string())))
+                } else if let Some(addr) = s.strip_prefix("serve:") {
+                    let addr =
+                        addr.parse().map_err(|_| format!("`{addr}` is not an address to serve on (HOST:PORT)"))?;
+                    Ok(Sink::Serve { addr, origins: Vec::new() })
                 } else {
-                    Err(format!("`{s}` is not a Rerun sink: use off, save:PATH.rrd, connect[:URL] or spawn"))
+                    Err(format!(
+                        "`{s}` is not a Rerun sink: use off, save:PATH.rrd, connect[:URL], spawn or serve[:ADDR]"
+                    ))
                 }
             }
         }
     }
+}
+
+/// Rerun's gRPC server on `addr`, which keeps the recording (up to a quarter of the memory, as Rerun's own
+/// `serve_grpc`) for viewers that connect later. Rerun's server would only log that it cannot bind, and the run
+/// would record for nobody: the address is tried first, so that a taken port is the user's error at once.
+fn serve(
+    builder: rerun::RecordingStreamBuilder,
+    addr: SocketAddr,
+    origins: &[String],
+) -> anyhow::Result<RecordingStream> {
+    drop(
+        std::net::TcpListener::bind(addr).map_err(|e| {
+            anyhow!("cannot serve the recording on {addr}: {e} (choose another with --rerun serve:ADDR)")
+        })?,
+    );
+    let options = rerun::ServerOptions {
+        memory_limit: rerun::MemoryLimit::from_fraction_of_total(0.25),
+        cors_allowed_origins: origins.to_vec(),
+        ..Default::default()
+    };
+    builder
+        .serve_grpc_opts(addr.ip().to_string(), addr.port(), options)
+        .map_err(|e| anyhow!("cannot serve the recording on {addr}: {e}"))
 }
 
 /// What a recording is of.
@@ -139,8 +179,10 @@ pub struct Recorder {
     thread: Option<std::thread::JoinHandle<()>>,
     /// Signalled by the logging thread when the recording is flushed and closed.
     done: Receiver<()>,
-    /// A viewer (connect, spawn), not a file.
+    /// A viewer (connect, spawn, serve), not a file.
     live: bool,
+    /// Where viewers read the recording (`serve`): `rerun+http://ADDR/proxy`.
+    served: Option<String>,
     /// The last value sent of each recorded variable.
     last: Vec<Option<Value>>,
     program: Arc<Program>,
@@ -170,6 +212,7 @@ impl Recorder {
             Sink::Spawn => {
                 builder.spawn().map_err(|e| anyhow!("cannot start the Rerun viewer (is `rerun` on the PATH?): {e}"))?
             }
+            Sink::Serve { addr, origins } => serve(builder, *addr, origins)?,
         };
         let (tx, rx) = sync_channel(QUEUE_MAX);
         let (done_tx, done) = sync_channel(1);
@@ -186,7 +229,12 @@ impl Recorder {
             .map_err(|e| anyhow!("cannot start the recording thread: {e}"))?;
         let last = vec![None; program.vars.len()];
         let live = !matches!(sink, Sink::Save(_));
+        let served = match sink {
+            Sink::Serve { addr, .. } => Some(format!("rerun+http://{addr}/proxy")),
+            _ => None,
+        };
         Ok(Some(Recorder {
+            served,
             tx: Some(tx),
             dropped: Arc::new(AtomicU64::new(0)),
             thread: Some(thread),
@@ -195,6 +243,11 @@ impl Recorder {
             last,
             program,
         }))
+    }
+
+    /// Where a viewer reads this run's recording live, when it is served.
+    pub fn served(&self) -> Option<&str> {
+        self.served.as_deref()
     }
 
     fn send(&mut self, item: Item) {
@@ -831,5 +884,18 @@ mod tests {
         assert_eq!("save:run.rrd".parse(), Ok(Sink::Save(PathBuf::from("run.rrd"))));
         assert!("save:".parse::<Sink>().is_err());
         assert!("file.rrd".parse::<Sink>().unwrap_err().contains("save:PATH.rrd"));
+        let served = |addr: &str| Ok(Sink::Serve { addr: addr.parse().expect("an address"), origins: Vec::new() });
+        assert_eq!("serve".parse(), served("127.0.0.1:9876"));
+        assert_eq!("serve:0.0.0.0:9000".parse(), served("0.0.0.0:9000"));
+        assert!("serve:somewhere".parse::<Sink>().unwrap_err().contains("HOST:PORT"));
+    }
+
+    #[test]
+    fn a_taken_port_is_said_before_the_run_starts() {
+        let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("a port");
+        let addr = taken.local_addr().expect("its address");
+        let builder = rerun::RecordingStreamBuilder::new("baton");
+        let err = serve(builder, addr, &[]).err().expect("refused");
+        assert!(err.to_string().contains(&format!("cannot serve the recording on {addr}")), "{err}");
     }
 }

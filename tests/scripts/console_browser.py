@@ -25,6 +25,14 @@ Usage: console_browser.py URL demo SCREENSHOT COMMENT
 Usage: console_browser.py URL login USER PASSWORD
   logs in through the page's form, waits until the run is shown, and prints the command buttons the user sees
   (`visible`), the header's name (`who`) and the manual mode button's state (`manual`).
+Usage: console_browser.py URL timeline RUN STEP GRAPH_STEP [RECORDING]
+  in a browser with WebGL (SwiftShader): waits until the page's Rerun timeline is ready with a recording open
+  (`viewer`: backend, recording id, active timeline, time range), clicks the oldest history entry and waits until
+  the viewer's time cursor is at its time (`sought`); tells the viewer's frame the selection Rerun's viewer reports
+  when STEP's own timeline (`/sfc/steps/STEP`) and when the chart graph's node of GRAPH_STEP are selected, and
+  prints what the chart then selected (`selected`); with RECORDING, opens it from the page's recordings list and
+  waits until the viewer has it open (`recording`); prints every origin the page and its frame fetched from
+  (`origins`).
 Each wait is Selenium's explicit wait on the page's DOM (woken by polling the DOM, not by a fixed sleep).
 """
 
@@ -58,12 +66,15 @@ def shown(driver):
     """)
 
 
-def browser():
+def browser(gl=False):
+    """Headless Chromium; with `gl`, WebGL 2 drawn in software (SwiftShader), as Rerun's viewer needs it; without,
+    no GPU at all, as on a machine without graphics: the console's timeline then says so."""
     options = webdriver.ChromeOptions()
     options.binary_location = "/usr/bin/chromium"
-    for flag in ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    graphics = ["--enable-unsafe-swiftshader", "--use-angle=swiftshader"] if gl else ["--disable-gpu"]
+    for flag in ["--headless", "--no-sandbox", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                 "--window-size=1400,1000"]:
+                 "--window-size=1400,1000"] + graphics:
         options.add_argument(flag)
     options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     return webdriver.Chrome(service=Service(executable_path="/usr/bin/chromedriver"), options=options)
@@ -156,7 +167,25 @@ def demo(driver, wait, screenshot, comment):
     """The demo cell operated from the page, as the issue's operator does it."""
     active = lambda step: f'#chart svg g.step.active[data-step="{step}"]'
     wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, active("Pick1")) and d.find_elements(By.CSS_SELECTOR, active("Pick2")))
-    print(json.dumps({"shown": shown(driver)}), flush=True)
+    # What the steps' times below their boxes show, sampled from now on: the most each reached, and whether it was
+    # marked past its limit.
+    driver.execute_script("""
+        window.seenTimes = {};
+        setInterval(() => {
+            for (const t of document.querySelectorAll("#chart svg g.step text.time[data-active-ms]")) {
+                const step = t.parentNode.dataset.step;
+                const seen = window.seenTimes[step] || { max_ms: 0, over: false, text: "" };
+                if (+t.dataset.activeMs >= seen.max_ms) { seen.max_ms = +t.dataset.activeMs; seen.text = t.textContent; }
+                seen.over = seen.over || t.classList.contains("over");
+                window.seenTimes[step] = seen;
+            }
+        }, 20);
+    """)
+    wait.until(lambda d: d.execute_script("return document.body.dataset.timeline") in ("ready", "unavailable"))
+    print(json.dumps({"shown": shown(driver), "values": driver.execute_script(
+        "return Object.fromEntries([...document.querySelectorAll('#values tr')].map(r => [r.dataset.var, r.cells[1].textContent]))"),
+        "timeline": [driver.execute_script("return document.body.dataset.timeline"),
+                     driver.find_element(By.ID, "timeline-said").text]}), flush=True)
     # Every state the page shows from the click on, in order.
     driver.execute_script("""
         window.seenStates = [];
@@ -181,7 +210,7 @@ def demo(driver, wait, screenshot, comment):
     alarm.find_element(By.CSS_SELECTOR, 'button[data-alarm-command="ack"]').click()
     states = f"return [...document.querySelectorAll('#alarms tr[data-alarm=\"{alarm_id}\"]')].map(r => r.dataset.state)"
     wait.until(lambda d: "active_unacknowledged" not in d.execute_script(states))
-    print(json.dumps({"alarm": seen}), flush=True)
+    print(json.dumps({"alarm": seen, "times": driver.execute_script("return window.seenTimes")}), flush=True)
     rows = "#history tr[data-event='ack']"
     wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, rows))
     driver.save_screenshot(screenshot)
@@ -189,6 +218,57 @@ def demo(driver, wait, screenshot, comment):
     lost = '#agents tr.lost[data-agent="robot1"]'
     wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, lost))
     print(json.dumps({"lost": driver.find_element(By.CSS_SELECTOR, lost).text}), flush=True)
+
+
+VIEWER = "const frame = document.querySelector('#timeline-frame iframe'); const api = frame.contentWindow.batonViewer;"
+
+
+def timeline(driver, run, step, graph_step, recording=None):
+    """The Rerun timeline in the page: live, driven from the history, and telling the chart what is selected."""
+    wait = WebDriverWait(driver, 150, poll_frequency=0.1)  # 40 MB of wasm, compiled and drawn in software
+    wait.until(lambda d: d.execute_script("return document.body.dataset.timeline") in ("ready", "unavailable"))
+    said = driver.find_element(By.ID, "timeline-said").text
+    if driver.execute_script("return document.body.dataset.timeline") != "ready":
+        raise AssertionError("the timeline did not start: " + said)
+    wait.until(lambda d: d.execute_script(VIEWER + "return api.time()") is not None)
+    viewer = driver.execute_script(VIEWER + "return api.describe();")
+    print(json.dumps({"viewer": viewer}), flush=True)
+    # The oldest history entry: a click moves the viewer's cursor to its time.
+    rows = "#history tr"
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, rows))
+    row = driver.find_elements(By.CSS_SELECTOR, rows)[-1]
+    target = float(row.get_attribute("data-unix-ms"))
+    row.click()
+    wait.until(lambda d: abs(d.execute_script(VIEWER + "return api.time()") - target) < 1)
+    print(json.dumps({"sought": {"entry": target, "event": row.get_attribute("data-event"),
+                                 "row": "sought" in row.get_attribute("class"),
+                                 "viewer": driver.execute_script(VIEWER + "return api.describe();")}}), flush=True)
+    # What Rerun's viewer reports when a step's timeline, then a node of the chart graph, is selected in it.
+    selected = []
+    index = driver.execute_script(
+        "return [...document.querySelectorAll('#chart svg g.step')].map(g => g.dataset.step).indexOf(arguments[0])",
+        graph_step)
+    for item in [{"type": "entity", "entity_path": "/sfc/steps/" + step},
+                 {"type": "entity", "entity_path": "/sfc/graph", "instance_id": index, "view_name": "chart"}]:
+        event = {"type": "selection_change", "application_id": "baton", "recording_id": run, "items": [item]}
+        driver.execute_script(VIEWER + "api.event(arguments[0]);", json.dumps(event))
+        want = item["entity_path"].split("/")[-1] if "instance_id" not in item else graph_step
+        wait.until(lambda d: d.find_element(By.ID, "step-name").text == want)
+        selected.append(driver.execute_script(
+            "return [...document.querySelectorAll('#chart svg g.step.selected')].map(g => g.dataset.step)"))
+    print(json.dumps({"selected": selected}), flush=True)
+    if recording:
+        item = f'#recordings li[data-recording="{recording}"]'
+        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, item))
+        driver.find_element(By.CSS_SELECTOR, item).click()
+        wait.until(lambda d: d.execute_script("return document.body.dataset.timeline") == "ready"
+                   and d.execute_script(VIEWER + "return api.time()") is not None)
+        print(json.dumps({"recording": driver.execute_script(VIEWER + "return api.describe();")}), flush=True)
+    # Every origin fetched from, by the page and by the viewer's frame.
+    origins = driver.execute_script(VIEWER + """
+        const of = w => w.performance.getEntriesByType("resource").map(e => new URL(e.name).origin);
+        return [...new Set(of(window).concat(of(frame.contentWindow)).concat([location.origin]))].sort();""")
+    print(json.dumps({"origins": origins}), flush=True)
 
 
 def login(driver, wait, user, password):
@@ -215,7 +295,7 @@ def login(driver, wait, user, password):
 
 def main():
     url, mode = sys.argv[1:3]
-    driver = browser()
+    driver = browser(gl=mode == "timeline")
     try:
         run(driver, url, mode)
     except Exception:
@@ -241,6 +321,8 @@ def run(driver, url, mode):
         demo(driver, wait, *sys.argv[3:5])
     elif mode == "login":
         login(driver, wait, *sys.argv[3:5])
+    elif mode == "timeline":
+        timeline(driver, *sys.argv[3:7])
     else:
         ack(driver, wait, sys.argv[3])
     # The page's script raised nothing meanwhile.

@@ -166,13 +166,18 @@ pub async fn console(endpoint: &str, args: &[&str]) -> (tokio::process::Child, S
 /// Drives the page of the console at `addr` in the browser (`tests/scripts/console_browser.py http://ADDR/ ARGS…`)
 /// to the script's end: each line it printed, as JSON. A script that fails fails the test, with what it said.
 pub async fn browse(addr: &str, args: &[&str]) -> Vec<serde_json::Value> {
+    browse_for(addr, args, TIMEOUT * 2).await
+}
+
+/// `browse`, for a script that may take up to `limit` (Rerun's viewer, drawn in software, takes its time).
+pub async fn browse_for(addr: &str, args: &[&str], limit: std::time::Duration) -> Vec<serde_json::Value> {
     let out = tokio::process::Command::new("python3")
         .arg(crate::loopback::repo("tests/scripts/console_browser.py"))
         .arg(format!("http://{addr}/"))
         .args(args)
         .kill_on_drop(true)
         .output();
-    let out = tokio::time::timeout(TIMEOUT * 2, out).await.expect("the browser finished in time").expect("python3");
+    let out = tokio::time::timeout(limit, out).await.expect("the browser finished in time").expect("python3");
     let said = String::from_utf8_lossy(&out.stdout).to_string();
     assert!(out.status.success(), "{said}\n{}", String::from_utf8_lossy(&out.stderr));
     said.lines().map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("`{l}`: {e}"))).collect()

@@ -793,6 +793,8 @@ async fn ctl_wait_asks_again_while_its_run_is_briefly_unreachable() {
         waiting: Vec::new(),
         why: Vec::new(),
         messages_dropped: 0,
+        values: Vec::new(),
+        rerun: None,
     };
     let session = cluster.watch().await;
     let ctl = session.declare_queryable(format!("baton/run/{}/ctl/*", run.key())).await.expect("ctl queryable");

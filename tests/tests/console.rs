@@ -435,7 +435,8 @@ async fn in_a_browser_the_demo_cell_is_held_its_alarm_acknowledged_and_a_lost_ro
     let mut cluster = Cluster::with_router().await;
     let chart = cluster.dir.path().join("cell.st");
     std::fs::write(&chart, demo_cell_of_seconds()).expect("write the chart");
-    let mut coordinator = cluster.coordinator_joining(&chart, &[]);
+    let serve = format!("serve:127.0.0.1:{}", baton_tests::loopback::free_port());
+    let mut coordinator = cluster.coordinator_joining(&chart, &["--rerun", &serve]);
     coordinator.wait_ready().await;
     cluster.agent("robot1", &[], &[]);
     cluster.agent("robot2", &["assembler"], &[]);
@@ -451,9 +452,25 @@ async fn in_a_browser_the_demo_cell_is_held_its_alarm_acknowledged_and_a_lost_ro
         .expect("python3 runs");
     let mut lines = BufReader::new(script.stdout.take().expect("piped")).lines();
     // What the page shows while both robots pick is what `baton status` says (each pick takes seconds).
-    let shown = said_next(&mut lines).await["shown"].clone();
+    let first = said_next(&mut lines).await;
+    let shown = first["shown"].clone();
     let status = cluster.baton(&["status", "--connect", &cluster.endpoint, "--json"]).await;
     let status: serde_json::Value = serde_json::from_slice(&status.stdout).expect("status JSON");
+    // The chart's variables as `baton status` has them (those that cannot change while both robots pick compared).
+    let values = status["values"].as_array().expect("values");
+    let page = first["values"].as_object().expect("the page's values");
+    assert_eq!(page.keys().collect::<Vec<_>>().len(), values.len(), "{first} {status}");
+    for v in values {
+        let name = v["name"].as_str().expect("a name");
+        assert!(page.contains_key(name), "{name}: {first}");
+        if ["parts", "done"].contains(&name) {
+            assert_eq!(page[name], v["value"], "{name}: {first} {status}");
+        }
+    }
+    // A browser without WebGL (this one has no GPU at all) is told so where the Rerun timeline would be; the rest of
+    // the page works on, as the rest of this test shows.
+    assert_eq!(first["timeline"][0], "unavailable", "{first}");
+    assert!(first["timeline"][1].as_str().is_some_and(|t| t.contains("WebGL")), "{first}");
     let steps = status["active_steps"].as_array().expect("active steps");
     let mut names: Vec<&str> = steps.iter().filter_map(|s| s["name"].as_str()).collect();
     names.sort();
@@ -478,6 +495,12 @@ async fn in_a_browser_the_demo_cell_is_held_its_alarm_acknowledged_and_a_lost_ro
     let alarm = said_next(&mut lines).await;
     assert_eq!(alarm["alarm"][1], "Pick2", "the overrun's source: {alarm}");
     assert_eq!(alarm["alarm"][2], "active, unacknowledged", "{alarm}");
+    // Pick2's time ran past its 4.5 s limit below its box, marked; Pick1, unsupervised, was never marked.
+    let times = &alarm["times"];
+    assert_eq!(times["Pick2"]["over"], true, "{alarm}");
+    assert!(times["Pick2"]["max_ms"].as_u64().is_some_and(|ms| ms > 4500), "{alarm}");
+    assert!(times["Pick2"]["text"].as_str().is_some_and(|t| t.ends_with("≤ 4.5 s")), "{alarm}");
+    assert_eq!(times["Pick1"]["over"], false, "{alarm}");
     assert_eq!(said_next(&mut lines).await["kill"], "robot1");
     cluster.kill_agent("robot1").await;
     let lost = said_next(&mut lines).await;

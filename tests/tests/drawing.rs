@@ -56,7 +56,16 @@ fn check(what: &str, chart: &Chart, program: &Program, svg: &str) -> BTreeMap<St
             let (o, i) = (rect(outer), rect(inner));
             assert!(o.0 < i.0 && o.1 < i.1 && i.0 + i.2 < o.0 + o.2 && i.1 + i.3 < o.1 + o.3, "{what}: {name} doubled");
         }
-        assert!(boxes.insert(name.clone(), rect(rects[0])).is_none(), "{what}: step {name} drawn twice");
+        // Its time below the box: the supervision limits the chart gives it, which the console marks against S.T.
+        let time = g.children().find(|n| has_class(*n, "time")).unwrap_or_else(|| panic!("{what}: {name} has no time"));
+        let ms = |attr: &str| time.attribute(attr).and_then(|v| v.parse::<u64>().ok());
+        assert_eq!((ms("data-min-ms"), ms("data-max-ms")), (Some(info.min_ms), Some(info.max_ms)), "{what}: {name}");
+        let text = time.text().unwrap_or("");
+        assert_eq!(text.contains('≤'), info.max_ms > 0, "{what}: {name}'s limit shown: {text:?}");
+        assert_eq!(text.contains('≥'), info.min_ms > 0, "{what}: {name}'s minimum shown: {text:?}");
+        let b = rect(rects[0]);
+        assert!(number(time, "y") > b.1 + b.3 && (b.0..b.0 + b.2).contains(&number(time, "x")), "{what}: {name}");
+        assert!(boxes.insert(name.clone(), b).is_none(), "{what}: step {name} drawn twice");
     }
     assert_eq!(boxes.len(), program.steps.len(), "{what}: a box per step");
     // Action blocks: a row per association, with its qualifier, right of its step; nothing overlaps a box.
@@ -148,7 +157,7 @@ fn plcopen_positions(xml: &str, pou: &str) -> BTreeMap<String, (f64, f64)> {
 }
 
 fn every_chart_is_drawn_in_the_notation_where_the_plcopen_export_puts_it() {
-    let mut drawn = 0;
+    let (mut drawn, mut supervised) = (0, 0);
     for (what, src) in baton_tests::chart_sources() {
         let report = baton_proto::pipeline::check_source(&src);
         if report.error_count() > 0 {
@@ -169,9 +178,11 @@ fn every_chart_is_drawn_in_the_notation_where_the_plcopen_export_puts_it() {
             let boxes: BTreeMap<String, (f64, f64)> = boxes.into_iter().map(|(n, r)| (n, (r.0, r.1))).collect();
             assert_eq!(boxes, plcopen_positions(&xml, &chart.name.name), "{what}: not where the export puts it");
             drawn += 1;
+            supervised += usize::from(program.steps.iter().any(|s| s.max_ms > 0));
         }
     }
     assert!(drawn >= 40, "only {drawn} charts drawn");
+    assert!(supervised >= 1, "no chart with a supervised step was drawn (examples/motion.st has one)");
 }
 
 /// The command as a user runs it: a file, a chart picked from several, and a chart with errors drawing nothing.

@@ -28,12 +28,19 @@ pub struct Console {
     /// Write the console's own trace here: logins, refused logins, commands refused for a user's role.
     #[arg(long, value_name = "FILE")]
     pub trace: Option<PathBuf>,
+    /// Finished runs' Rerun recordings (`.rrd`, as `baton run --rerun save:PATH` writes them) in this folder: the
+    /// page lists them and opens each in its timeline.
+    #[arg(long, value_name = "DIR")]
+    pub recordings: Option<PathBuf>,
 }
 
 impl Console {
     pub fn run(self) -> anyhow::Result<ExitCode> {
-        let Console { reach, listen, tls_cert, tls_key, users, trace } = self;
-        let access = crate::console::Access { tls: tls_cert.zip(tls_key), users, trace };
+        let Console { reach, listen, tls_cert, tls_key, users, trace, recordings } = self;
+        if let Some(dir) = &recordings {
+            anyhow::ensure!(dir.is_dir(), "--recordings {}: not a folder", dir.display());
+        }
+        let access = crate::console::Access { tls: tls_cert.zip(tls_key), users, trace, recordings };
         block_on(async move {
             let listener = crate::console::bind(listen, &access).await?;
             crate::console::serve(listener, &reach.connect, reach.zenoh_config.as_deref(), access).await?;

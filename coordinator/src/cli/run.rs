@@ -71,10 +71,15 @@ pub struct Run {
     /// `baton console` does.
     #[arg(long, value_name = "ADDR")]
     pub console: Option<std::net::SocketAddr>,
-    /// Record the run for the Rerun viewer: off, save:PATH.rrd, connect or connect:URL (a running viewer), or spawn
-    /// (start one).
+    /// Record the run for the Rerun viewer: off, save:PATH.rrd, connect or connect:URL (a running viewer), spawn
+    /// (start one), or serve or serve:ADDR (serve it, by default on 127.0.0.1:9876, for viewers and the operator
+    /// console's timeline, live).
     #[arg(long, value_name = "SINK", default_value = "off")]
     pub rerun: crate::recording::Sink,
+    /// With --rerun serve: a web page origin (https://console.plant:8443) allowed to read the served recording, as
+    /// a console beyond loopback is; loopback pages are allowed without it. Repeat for more.
+    #[arg(long, value_name = "ORIGIN")]
+    pub rerun_origin: Vec<String>,
     /// Trace this variable's value, as `baton sim --watch` does: a `value` record after the first cycle and
     /// after every change. Repeat for more.
     #[arg(long, value_name = "VARIABLE")]
@@ -116,7 +121,7 @@ impl Run {
             loss_policy,
             journal: self.journal,
             journal_settings: crate::journal::Settings { snapshot_every: self.snapshot_every, keep: self.journal_keep },
-            rerun: self.rerun,
+            rerun: with_origins(self.rerun, self.rerun_origin)?,
             watch: self.watch,
             wait_start: self.wait_start,
             stay: self.stay,
@@ -133,5 +138,19 @@ impl Run {
                 _ => ExitCode::SUCCESS,
             })
         })
+    }
+}
+
+/// `--rerun-origin` belongs to `--rerun serve`.
+fn with_origins(sink: crate::recording::Sink, more: Vec<String>) -> anyhow::Result<crate::recording::Sink> {
+    match sink {
+        crate::recording::Sink::Serve { addr, mut origins } => {
+            origins.extend(more);
+            Ok(crate::recording::Sink::Serve { addr, origins })
+        }
+        _ if more.is_empty() => Ok(sink),
+        _ => Err(anyhow::anyhow!(
+            "--rerun-origin is for --rerun serve: it says which pages may read the served recording"
+        )),
     }
 }

@@ -15,6 +15,8 @@
 
 mod auth;
 mod history;
+mod recordings;
+mod timeline;
 mod tls;
 pub mod users;
 
@@ -150,6 +152,8 @@ struct Console {
     charts: Mutex<BTreeMap<String, Arc<ChartView>>>,
     /// Who may do what, and the console's own trace.
     auth: Arc<auth::Auth>,
+    /// Where finished runs' recordings are (`--recordings`).
+    recordings: Option<PathBuf>,
 }
 
 /// What the page shows of a chart version: its drawing, and the inputs an operator may set (`baton set`'s: the
@@ -173,6 +177,8 @@ pub struct Access {
     pub tls: Option<(PathBuf, PathBuf)>,
     pub users: Option<PathBuf>,
     pub trace: Option<PathBuf>,
+    /// Finished runs' recordings (`.rrd`), which the page opens in its timeline.
+    pub recordings: Option<PathBuf>,
 }
 
 /// The console's listening socket on `listen`: bound before anything else starts, so that a port taken is said at
@@ -215,6 +221,7 @@ pub async fn serve(
         history_seq,
         charts: Mutex::new(BTreeMap::new()),
         auth,
+        recordings: access.recordings.clone(),
     });
     let _trace = listen_to_traces(&console).await?;
     tokio::spawn(follow(Arc::clone(&console)));
@@ -228,6 +235,11 @@ pub async fn serve(
         .route("/api/runs/{run}/inputs", get(inputs))
         .route("/api/runs/{run}/set", post(set))
         .route("/api/runs/{run}/history", get(history_after))
+        .route("/api/recordings", get(recordings::list))
+        .route("/recordings/{name}", get(recordings::file))
+        .route(timeline::VIEWER_PAGE, get(timeline::page))
+        .route(timeline::VIEWER_JS, get(timeline::script))
+        .route(timeline::VIEWER_WASM, get(timeline::wasm))
         .route_layer(axum::middleware::from_fn_with_state(Arc::clone(&console.auth), auth::require));
     // Logging in and out sees only who may do what.
     let logins = Router::new()
@@ -306,9 +318,12 @@ async fn follow(console: Arc<Console>) {
         let lost_agents = if asked { agents.update(&runs, now) } else { last.lost_agents.clone() };
         ask_histories(&console, &runs, now);
         let snapshot = Snapshot { connected, runs, lost_agents };
-        // A run's clocks alone moving is no change to tell the page of.
         let mut still = snapshot.clone();
-        still.runs.iter_mut().for_each(|r| (r.t_ms, r.unix_ms) = (0, 0));
+        // A run's clocks alone moving is no change to tell the page of (it counts the steps' times on itself).
+        for r in &mut still.runs {
+            (r.t_ms, r.unix_ms) = (0, 0);
+            r.active_steps.iter_mut().for_each(|s| s.active_ms = 0);
+        }
         if still != last || first {
             (last, first) = (still, false);
             console.latest.send_replace(serde_json::to_string(&snapshot).unwrap_or_default());

@@ -499,6 +499,7 @@ async fn serve(
                     let mut status = host.core.core().status();
                     status.t_ms = host.now_ms();
                     status.unix_ms = baton_host::unix_ms();
+                    status.rerun = host.out.recorder.as_ref().and_then(|r| r.served()).map(str::to_string);
                     status.messages_dropped += host.decode_drops;
                     reply(&q, keys::status(run), wire::encode(&status))
                 }

@@ -101,6 +101,7 @@ fn step(out: &mut String, chart: &Chart, program: &Program, diagram: &Diagram, s
         y + STEP_H / 2 + BASELINE,
         esc(&info.name)
     );
+    step_time(out, program, s, x, y);
     actions(out, chart, s, x, y);
     // Down to what follows: one bar, or a selection divergence across the branches.
     let leaving = program.outgoing(s);
@@ -122,6 +123,42 @@ fn step(out: &mut String, chart: &Chart, program: &Program, diagram: &Diagram, s
         }
     }
     out.push_str("</g>\n");
+}
+
+/// Below step `s`'s box, left of the arc: its time while active (`S.T`, the page writes it) and its supervision
+/// times (`{min_ms}`, `{max_ms}`), as S7-GRAPH shows them beside a step. The element carries the limits in ms
+/// (`data-min-ms`, `data-max-ms`) so that a page can mark a step past its limit.
+fn step_time(out: &mut String, program: &Program, s: StepId, x: i64, y: i64) {
+    let info = &program.steps[s.index()];
+    let mut limits = Vec::new();
+    if info.min_ms > 0 {
+        limits.push(format!("≥ {}", short_ms(info.min_ms)));
+    }
+    if info.max_ms > 0 {
+        limits.push(format!("≤ {}", short_ms(info.max_ms)));
+    }
+    let _ = writeln!(
+        out,
+        "<text class=\"time\" x=\"{}\" y=\"{}\" font-size=\"10\" fill=\"#555\" data-min-ms=\"{}\" data-max-ms=\"{}\">{}</text>",
+        x + 2,
+        y + STEP_H + 13,
+        info.min_ms,
+        info.max_ms,
+        esc(&limits.join(" "))
+    );
+}
+
+/// A time as people read it at a glance: `200 ms`, `5 s`, `1.5 s`, `2 min`.
+pub fn short_ms(ms: u64) -> String {
+    if ms < 1000 {
+        format!("{ms} ms")
+    } else if ms.is_multiple_of(60_000) {
+        format!("{} min", ms / 60_000)
+    } else if ms.is_multiple_of(1000) {
+        format!("{} s", ms / 1000)
+    } else {
+        format!("{:.1} s", ms as f64 / 1000.0)
+    }
 }
 
 /// Step `s`'s action block, right of its box: a row per association, its qualifier (and time) and its action.

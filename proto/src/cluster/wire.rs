@@ -545,6 +545,20 @@ pub struct StatusReport {
     /// them at the end: a number that climbs says a peer is misbehaving.
     #[serde(default)]
     pub messages_dropped: u64,
+    /// The chart's variables as the coordinator holds them now (constants and hidden ones left out), in the
+    /// chart's order: what the console shows live beside the chart.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub values: Vec<StatusValue>,
+    /// Where a viewer reads the run's Rerun recording live (`rerun+http://ADDR/proxy`), when it is served.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rerun: Option<String>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StatusValue {
+    pub name: String,
+    /// As IEC 61131-3 writes it (`TRUE`, `42`, `'text'`, `T#1s500ms`).
+    pub value: String,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -570,6 +584,9 @@ pub struct StatusStep {
     pub name: String,
     pub placement: String,
     pub agent: Option<String>,
+    /// The step's time (`S.T`) as the coordinator's engine counts it, in ms.
+    #[serde(default)]
+    pub active_ms: u64,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

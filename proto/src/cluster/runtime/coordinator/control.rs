@@ -4,7 +4,9 @@ use std::sync::Arc;
 
 use crate::cluster::layout::Placement;
 use crate::cluster::runtime::packml::State;
-use crate::cluster::wire::{StatusAgent, StatusAlarm, StatusDevice, StatusReport, StatusStep, StatusToken};
+use crate::cluster::wire::{
+    StatusAgent, StatusAlarm, StatusDevice, StatusReport, StatusStep, StatusToken, StatusValue,
+};
 use crate::exec::engine::Input;
 use crate::exec::program::VarId;
 use crate::exec::trace::{TraceEvent, TraceRecord};
@@ -70,6 +72,7 @@ impl Coordinator {
                 name: self.program.steps[s.index()].name.clone(),
                 placement: self.layout.placement[s.index()].to_string(),
                 agent: self.holder(s).map(str::to_string),
+                active_ms: crate::exec::env::Env::step_t(&self.engine, s).max(0) as u64,
             })
             .collect();
         active_steps.sort_by(|a, b| a.name.cmp(&b.name));
@@ -132,6 +135,16 @@ impl Coordinator {
                 .collect(),
             why: self.why(),
             messages_dropped: self.stats.dropped,
+            values: self
+                .program
+                .vars
+                .iter()
+                .enumerate()
+                .filter(|(_, v)| !v.constant && !v.hidden)
+                .map(|(i, v)| StatusValue { name: v.name.clone(), value: self.value(VarId(i as u32)).to_string() })
+                .collect(),
+            // The host says where its recording is served (the core knows nothing of Rerun).
+            rerun: None,
         }
     }
 
