@@ -895,7 +895,7 @@ mod tests {
         let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("a port");
         let addr = taken.local_addr().expect("its address");
         let builder = rerun::RecordingStreamBuilder::new("baton");
-        let err = serve(builder, addr, &[]).err().expect("refused");
+        let Err(err) = serve(builder, addr, &[]) else { panic!("a taken port was taken") };
         assert!(err.to_string().contains(&format!("cannot serve the recording on {addr}")), "{err}");
     }
 }

@@ -33,6 +33,9 @@ Usage: console_browser.py URL timeline RUN STEP GRAPH_STEP [RECORDING]
   prints what the chart then selected (`selected`); with RECORDING, opens it from the page's recordings list and
   waits until the viewer has it open (`recording`); prints every origin the page and its frame fetched from
   (`origins`).
+Usage: console_browser.py URL nested ACTION
+  clicks the block of ACTION (an action written in SFC) on the chart, and prints the steps of the chart it opens
+  (`steps`) and each set of them lit seen until every step was lit at least once (`lit`).
 Each wait is Selenium's explicit wait on the page's DOM (woken by polling the DOM, not by a fixed sleep).
 """
 
@@ -271,6 +274,27 @@ def timeline(driver, run, step, graph_step, recording=None):
     print(json.dumps({"origins": origins}), flush=True)
 
 
+def nested(driver, wait, action):
+    """An action written in SFC, opened as a chart of its own, its token moving."""
+    block = f'#chart svg g.action.nested[data-nested="{action}"]'
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, block))
+    driver.find_element(By.CSS_SELECTOR, block).click()
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#nested-chart svg g.step"))
+    driver.execute_script("""
+        window.litSeen = [];
+        setInterval(() => {
+            const lit = [...document.querySelectorAll("#nested-chart svg g.step.active")].map(g => g.dataset.step).sort();
+            const key = JSON.stringify(lit);
+            if (!window.litSeen.some(l => JSON.stringify(l) === key)) window.litSeen.push(lit);
+        }, 10);
+    """)
+    steps = driver.execute_script("return [...document.querySelectorAll('#nested-chart svg g.step')].map(g => g.dataset.step)")
+    every = lambda d: set(steps) <= {s for lit in d.execute_script("return window.litSeen") for s in lit}
+    wait.until(every)
+    print(json.dumps({"steps": steps, "lit": driver.execute_script("return window.litSeen"),
+                      "title": driver.find_element(By.ID, "nested-name").text}), flush=True)
+
+
 def login(driver, wait, user, password):
     """Logs in as USER and says which command buttons the page then shows."""
     wait.until(lambda d: d.find_element(By.ID, "login-user").is_displayed())
@@ -321,6 +345,8 @@ def run(driver, url, mode):
         demo(driver, wait, *sys.argv[3:5])
     elif mode == "login":
         login(driver, wait, *sys.argv[3:5])
+    elif mode == "nested":
+        nested(driver, wait, sys.argv[3])
     elif mode == "timeline":
         timeline(driver, *sys.argv[3:7])
     else:

@@ -407,6 +407,30 @@ async fn in_a_browser_manual_mode_forces_and_moves_with_a_reason() {
     assert!(trace.iter().any(|r| r.event == TraceEvent::Withdraw && r.name == "Move"), "{trace:#?}");
 }
 
+/// A mixer whose batch is an action written in SFC, which fills and mixes in turn until `stop` (nobody sets it).
+const MIXER: &str = "PROGRAM mixer\nVAR fills : INT; valve : BOOL; stop : BOOL; END_VAR\n\
+    INITIAL_STEP Work: Batch(N); END_STEP\nTRANSITION FROM Work TO Stopped := stop; END_TRANSITION\n\
+    STEP Stopped: END_STEP\n\
+    ACTION Batch:\n  INITIAL_STEP Fill: CountFill(N); valve(S); END_STEP\n\
+    TRANSITION FROM Fill TO Mix := Fill.T >= T#400ms; END_TRANSITION\n  STEP Mix: valve(R); END_STEP\n\
+    TRANSITION FROM Mix TO Fill := Mix.T >= T#400ms; END_TRANSITION\nEND_ACTION\n\
+    ACTION CountFill: fills := fills + 1; END_ACTION\nEND_PROGRAM\n";
+
+/// An action written in SFC opens from its block on the chart as a chart of its own, in the same notation, with
+/// the step its token is at lit as the run goes: one step at a time, each in turn.
+async fn in_a_browser_an_action_written_in_sfc_opens_as_a_chart_with_its_token_moving() {
+    require_browser();
+    let (_cluster, _chart, coordinator, _console, addr) = cell_with_console(MIXER).await;
+    let said = browse(&addr, &["nested", "Batch"]).await;
+    let seen = &said[0];
+    assert_eq!(seen["title"], "Batch", "{seen}");
+    assert_eq!(seen["steps"], serde_json::json!(["Fill", "Mix"]), "{seen}");
+    // The token at one step at a time (or, between two states of the page, none yet): never both.
+    let lit = seen["lit"].as_array().expect("lit");
+    assert!(lit.iter().all(|l| l.as_array().is_some_and(|l| l.len() <= 1)), "{seen}");
+    coordinator.kill().await;
+}
+
 /// The demo cell's chart (`examples/cell.st`) with motions of seconds — each pick, assembly, inspection and rework
 /// ten times as long — and robot2's pick supervised at 4.5 s of its 5 s motion, so that it overruns.
 fn demo_cell_of_seconds() -> String {
@@ -545,4 +569,5 @@ baton_tests::harness_main!(
     tokio in_a_browser_step_mode_waits_for_a_confirm_clicked,
     tokio in_a_browser_manual_mode_forces_and_moves_with_a_reason,
     tokio in_a_browser_the_demo_cell_is_held_its_alarm_acknowledged_and_a_lost_robot_shown,
+    tokio in_a_browser_an_action_written_in_sfc_opens_as_a_chart_with_its_token_moving,
 );

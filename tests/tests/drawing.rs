@@ -157,7 +157,7 @@ fn plcopen_positions(xml: &str, pou: &str) -> BTreeMap<String, (f64, f64)> {
 }
 
 fn every_chart_is_drawn_in_the_notation_where_the_plcopen_export_puts_it() {
-    let (mut drawn, mut supervised) = (0, 0);
+    let (mut drawn, mut supervised, mut nested) = (0, 0, 0);
     for (what, src) in baton_tests::chart_sources() {
         let report = baton_proto::pipeline::check_source(&src);
         if report.error_count() > 0 {
@@ -178,11 +178,29 @@ fn every_chart_is_drawn_in_the_notation_where_the_plcopen_export_puts_it() {
             let boxes: BTreeMap<String, (f64, f64)> = boxes.into_iter().map(|(n, r)| (n, (r.0, r.1))).collect();
             assert_eq!(boxes, plcopen_positions(&xml, &chart.name.name), "{what}: not where the export puts it");
             drawn += 1;
+            // Each action written in SFC: marked openable on the chart, and drawn as a chart of its own, in the same
+            // notation, its steps those the action holds.
+            for action in chart.actions.iter().filter(|a| a.sfc.is_some()) {
+                let marked = format!("data-nested=\"{}\"", action.name.name);
+                assert!(svg.contains(&marked), "{what}: {} is not marked openable", action.name.name);
+                let (inner, inner_program) =
+                    baton_proto::back::svg::nested(chart, &report.library, &report.types, &action.name.name)
+                        .unwrap_or_else(|| panic!("{what}: {} is not drawn", action.name.name));
+                let inner_svg = baton_proto::back::svg::chart(&inner, &inner_program);
+                let inner_boxes = check(&format!("{what} ({})", inner.name.name), &inner, &inner_program, &inner_svg);
+                let held: BTreeSet<&str> = action
+                    .sfc
+                    .as_ref()
+                    .map_or(BTreeSet::new(), |f| f.steps.iter().map(|s| s.name.name.as_str()).collect());
+                assert_eq!(inner_boxes.keys().map(String::as_str).collect::<BTreeSet<_>>(), held, "{what}");
+                nested += 1;
+            }
             supervised += usize::from(program.steps.iter().any(|s| s.max_ms > 0));
         }
     }
     assert!(drawn >= 40, "only {drawn} charts drawn");
     assert!(supervised >= 1, "no chart with a supervised step was drawn (examples/motion.st has one)");
+    assert!(nested >= 1, "no action written in SFC was drawn (the conformance chart nested_action_chart has one)");
 }
 
 /// The command as a user runs it: a file, a chart picked from several, and a chart with errors drawing nothing.

@@ -161,6 +161,8 @@ struct Console {
 struct ChartView {
     svg: String,
     inputs: Vec<InputVar>,
+    /// The chart's actions written in SFC, each drawn as a chart of its own, by name.
+    nested: BTreeMap<String, String>,
 }
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -230,6 +232,7 @@ pub async fn serve(
         .route("/api/state", get(state))
         .route("/api/events", get(events))
         .route("/api/runs/{run}/chart.svg", get(chart))
+        .route("/api/runs/{run}/nested/{action}", get(nested))
         .route("/api/runs/{run}/ctl", post(ctl))
         .route("/api/runs/{run}/why", get(why))
         .route("/api/runs/{run}/inputs", get(inputs))
@@ -451,6 +454,23 @@ async fn chart(State(console): State<Arc<Console>>, UrlPath(run): UrlPath<String
     }
 }
 
+/// The chart of run `run`'s action `action`, an action written in SFC, drawn as a chart of its own.
+async fn nested(State(console): State<Arc<Console>>, UrlPath((run, action)): UrlPath<(String, String)>) -> Response {
+    let run = match run_id(&run) {
+        Ok(r) => r,
+        Err(refused) => return refused.into_response(),
+    };
+    match chart_view(&console, run).await {
+        Ok(view) => match view.nested.get(&action) {
+            Some(svg) => ([(header::CONTENT_TYPE, "image/svg+xml")], svg.clone()).into_response(),
+            None => {
+                (StatusCode::NOT_FOUND, format!("`{action}` is no action of this chart written in SFC")).into_response()
+            }
+        },
+        Err(why) => (StatusCode::BAD_GATEWAY, why).into_response(),
+    }
+}
+
 /// The inputs of run `run`'s chart an operator may set, with their types.
 async fn inputs(State(console): State<Arc<Console>>, UrlPath(run): UrlPath<String>) -> Response {
     let run = match run_id(&run) {
@@ -553,7 +573,16 @@ async fn chart_view(console: &Console, run: RunId) -> Result<Arc<ChartView>, Str
         .filter(|(v, &settable)| settable && !v.hidden && !v.constant)
         .map(|(v, _)| InputVar { name: v.name.clone(), ty: v.ty.to_string() })
         .collect();
-    let view = Arc::new(ChartView { svg: baton_proto::back::svg::chart(chart, program), inputs });
+    let nested = chart
+        .actions
+        .iter()
+        .filter(|a| a.sfc.is_some())
+        .filter_map(|a| {
+            let (inner, program) = baton_proto::back::svg::nested(chart, &report.library, &report.types, &a.name.name)?;
+            Some((a.name.name.clone(), baton_proto::back::svg::chart(&inner, &program)))
+        })
+        .collect();
+    let view = Arc::new(ChartView { svg: baton_proto::back::svg::chart(chart, program), inputs, nested });
     console.charts.lock().map_err(|_| "poisoned".to_string())?.insert(src.hash.0, Arc::clone(&view));
     Ok(view)
 }

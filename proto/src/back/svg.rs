@@ -14,7 +14,7 @@ use crate::back::diagram::{Diagram, MARGIN, STEP_H, STEP_W};
 use crate::back::plcopen::esc;
 use crate::back::st;
 use crate::exec::program::{Program, StepId, TransitionId};
-use crate::front::model::{Chart, Duration};
+use crate::front::model::{Chart, Duration, FbDef, TypeDef};
 
 /// The action block's cells.
 const QUALIFIER_W: i64 = 36;
@@ -49,6 +49,24 @@ pub fn chart(chart: &Chart, program: &Program) -> String {
     out.push_str(&body);
     out.push_str("</svg>\n");
     out
+}
+
+/// The chart of `action`, an action of `chart` written in SFC (IEC 61131-3 lets an action be a chart), as a chart
+/// of its own, for `chart` to draw: its steps named as the trace names them (`Action.Step.X` is each one's
+/// variable). `None` for an action that is not a chart. Its conditions may read the POU's own steps, which the nested
+/// chart lacks: what does not resolve is still drawn as written.
+pub fn nested(chart: &Chart, library: &[FbDef], types: &[TypeDef], action: &str) -> Option<(Chart, Program)> {
+    let found = chart.actions.iter().find(|a| a.name.name == action)?;
+    let sfc = found.sfc.as_deref()?;
+    let mut inner = chart.clone();
+    inner.name.name = format!("{}.{}", chart.name.name, found.name.name);
+    inner.steps.clone_from(&sfc.steps);
+    inner.transitions.clone_from(&sfc.transitions);
+    // Its steps are now the chart's: the action that held them is no chart to compile beside them.
+    inner.actions.retain(|a| a.name.key() != found.name.key());
+    let mut diagnostics = Vec::new();
+    let compiled = crate::exec::compile::compile(&inner, library, types, &mut diagnostics);
+    compiled.net_ok.then_some((inner, compiled.program))
 }
 
 /// The drawing's width and height: past the rightmost action block and below the lowest bar and its jumps.
@@ -189,7 +207,15 @@ fn actions(out: &mut String, chart: &Chart, s: StepId, x: i64, y: i64) {
     );
     for (i, (a, qualifier)) in associations.iter().zip(qualifiers).enumerate() {
         let ry = y + i as i64 * ACTION_H;
-        let _ = writeln!(out, "<g class=\"action\" data-action=\"{}\">", esc(&a.action.name));
+        // An action written in SFC is a chart of its own, which a page opens (`nested`).
+        let nested = chart.actions.iter().any(|x| x.name.key() == a.action.key() && x.sfc.is_some());
+        if nested {
+            let name = esc(&a.action.name);
+            let _ = writeln!(out, "<g class=\"action nested\" data-action=\"{name}\" data-nested=\"{name}\">");
+            let _ = writeln!(out, "<title>{name}: a chart of its own (SFC)</title>");
+        } else {
+            let _ = writeln!(out, "<g class=\"action\" data-action=\"{}\">", esc(&a.action.name));
+        }
         let _ = writeln!(
             out,
             "<rect x=\"{bx}\" y=\"{ry}\" width=\"{qw}\" height=\"{ACTION_H}\" fill=\"white\" stroke=\"black\"/>\
