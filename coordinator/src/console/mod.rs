@@ -11,7 +11,9 @@
 //! `GET /api/runs/{run}/chart.svg` is a run's chart, drawn once per chart version; `GET /api/runs/{run}/why` why
 //! each active step waits (as `baton status --why`); `POST /api/runs/{run}/ctl`
 //! takes a `CtlRequest` as JSON and answers with the coordinator's `CtlReply` (a refusal says why and what is
-//! legal now).
+//! legal now). `GET /api/runs/{run}/nested/{action}` draws an action written in SFC as a chart of its own. The
+//! page's timeline is Rerun's web viewer (`timeline.rs`, under `/rerun/`), reading a run's recording where its
+//! coordinator serves it (the status's `rerun`) or a finished one of `--recordings` (`recordings.rs`).
 
 mod auth;
 mod history;
@@ -238,8 +240,8 @@ pub async fn serve(
         .route("/api/runs/{run}/inputs", get(inputs))
         .route("/api/runs/{run}/set", post(set))
         .route("/api/runs/{run}/history", get(history_after))
-        .route("/api/recordings", get(recordings::list))
-        .route("/recordings/{name}", get(recordings::file))
+        .route("/api/recordings", get(recording_list))
+        .route("/recordings/{name}", get(recording_file))
         .route(timeline::VIEWER_PAGE, get(timeline::page))
         .route(timeline::VIEWER_JS, get(timeline::script))
         .route(timeline::VIEWER_WASM, get(timeline::wasm))
@@ -469,6 +471,15 @@ async fn nested(State(console): State<Arc<Console>>, UrlPath((run, action)): Url
         },
         Err(why) => (StatusCode::BAD_GATEWAY, why).into_response(),
     }
+}
+
+/// The finished runs' recordings of `--recordings`.
+async fn recording_list(State(console): State<Arc<Console>>) -> Response {
+    recordings::list(console.recordings.clone()).await
+}
+
+async fn recording_file(State(console): State<Arc<Console>>, UrlPath(name): UrlPath<String>) -> Response {
+    recordings::file(console.recordings.as_deref(), &name).await
 }
 
 /// The inputs of run `run`'s chart an operator may set, with their types.

@@ -2,15 +2,12 @@
 //! (`GET /api/recordings`) and streamed to its Rerun timeline (`GET /recordings/{name}`). Only a plain file name
 //! ending in `.rrd` is served: nothing else of the folder, nothing outside it.
 
-use std::sync::Arc;
+use std::path::{Path, PathBuf};
 
 use axum::body::Body;
-use axum::extract::{Path as UrlPath, State};
 use axum::http::{header, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
-
-use super::Console;
 
 #[derive(serde::Serialize)]
 pub struct Recording {
@@ -20,9 +17,9 @@ pub struct Recording {
     modified_unix_ms: u64,
 }
 
-/// The folder's recordings, newest first (none without `--recordings`).
-pub async fn list(State(console): State<Arc<Console>>) -> Response {
-    let Some(dir) = console.recordings.clone() else { return Json(Vec::<Recording>::new()).into_response() };
+/// The recordings of folder `dir`, newest first (none without `--recordings`).
+pub async fn list(dir: Option<PathBuf>) -> Response {
+    let Some(dir) = dir else { return Json(Vec::<Recording>::new()).into_response() };
     let found = tokio::task::spawn_blocking(move || -> std::io::Result<Vec<Recording>> {
         let mut out = Vec::new();
         for entry in std::fs::read_dir(&dir)? {
@@ -50,16 +47,16 @@ pub async fn list(State(console): State<Arc<Console>>) -> Response {
     }
 }
 
-/// One recording, streamed.
-pub async fn file(State(console): State<Arc<Console>>, UrlPath(name): UrlPath<String>) -> Response {
-    let Some(dir) = console.recordings.as_ref() else {
+/// Recording `name` of folder `dir`, streamed.
+pub async fn file(dir: Option<&Path>, name: &str) -> Response {
+    let Some(dir) = dir else {
         return (StatusCode::NOT_FOUND, "this console serves no recordings (baton console --recordings DIR)")
             .into_response();
     };
-    if !servable(&name) {
+    if !servable(name) {
         return (StatusCode::NOT_FOUND, format!("`{name}` is not a recording")).into_response();
     }
-    match tokio::fs::File::open(dir.join(&name)).await {
+    match tokio::fs::File::open(dir.join(name)).await {
         Ok(f) => {
             let length = f.metadata().await.map(|m| m.len()).ok();
             let body = Body::from_stream(tokio_util::io::ReaderStream::new(f));
