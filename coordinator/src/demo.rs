@@ -84,9 +84,7 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
     let config = zenoh::Config::from_json5(&net.json5()).zenoh()?;
     let router = zenoh::open(config).await.map_err(|e| anyhow!("cannot start the router on {endpoint}: {e}"))?;
     println!("baton demo: router on {endpoint}, {} robot(s), {} part(s)", opts.agents, opts.parts);
-    if let Some(listener) = console {
-        crate::console::spawn(listener, vec![endpoint.clone()], None);
-    }
+    let console = console.map(|listener| crate::console::spawn(listener, vec![endpoint.clone()], None));
 
     let mut agents = start_robots(&agent_bin, &endpoint, dir, opts.agents)?;
     let coord_log = dir.join("coordinator.log");
@@ -142,6 +140,10 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
     progress.finish();
     for a in &mut agents {
         let _ = a.kill().await;
+    }
+    // The console is a client of this router: it goes first.
+    if let Some(console) = console {
+        console.stop().await;
     }
     router.close().await.zenoh()?;
     // An operator's `baton ctl stop` or `abort` ends the run as asked: its summary says how far it got.

@@ -43,7 +43,9 @@ impl Console {
         let access = crate::console::Access { tls: tls_cert.zip(tls_key), users, trace, recordings };
         block_on(async move {
             let listener = crate::console::bind(listen, &access).await?;
-            crate::console::serve(listener, &reach.connect, reach.zenoh_config.as_deref(), access).await?;
+            // Only an interrupt ends it.
+            let (_never, stop) = tokio::sync::watch::channel(false);
+            crate::console::serve(listener, &reach.connect, reach.zenoh_config.as_deref(), access, stop).await?;
             Ok(ExitCode::SUCCESS)
         })
     }

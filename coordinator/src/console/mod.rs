@@ -203,12 +203,14 @@ pub async fn bind_local(listen: SocketAddr) -> anyhow::Result<tokio::net::TcpLis
     bind(listen, &Access::default()).await
 }
 
-/// Serves the console on `listener` for the cell behind `connect`, until interrupted; says where on stdout.
+/// Serves the console on `listener` for the cell behind `connect`, until interrupted or told to `stop`; says where
+/// on stdout. Its Zenoh session is closed before it returns.
 pub async fn serve(
     listener: tokio::net::TcpListener,
     connect: &[String],
     file: Option<&std::path::Path>,
     access: Access,
+    stop: tokio::sync::watch::Receiver<bool>,
 ) -> anyhow::Result<()> {
     let users = access.users.as_deref().map(users::Users::load).transpose()?;
     let acceptor = access.tls.as_ref().map(|(cert, key)| tls::acceptor(cert, key)).transpose()?;
@@ -256,33 +258,75 @@ pub async fn serve(
     let bound = listener.local_addr().context("the address listened on")?;
     let scheme = if acceptor.is_some() { "https" } else { "http" };
     println!("baton console on {scheme}://{bound}/ for {}", connect.join(", "));
-    match acceptor {
-        Some(acceptor) => until_interrupted(tls::TlsListener::new(listener, acceptor)?, app).await,
-        None => until_interrupted(listener, app).await,
-    }
+    let mut told = stop.clone();
+    let server = async {
+        match acceptor {
+            Some(acceptor) => until_stopped(tls::TlsListener::new(listener, acceptor)?, app, stop).await,
+            None => until_stopped(listener, app, stop).await,
+        }
+    };
+    // Told to stop, the requests under way get `STOP_GRACE` to be answered (a command's reply on its way); a
+    // page's event stream would hold a graceful end open forever, so past it the server goes.
+    let served = tokio::select! {
+        served = server => served,
+        _ = async {
+            let _ = told.wait_for(|stop| *stop).await;
+            tokio::time::sleep(STOP_GRACE).await;
+        } => Ok(()),
+    };
+    // Closed here, not at the process's exit: a run's embedded router must not be torn down under it.
+    let _ = console.session.close().await;
+    served
 }
 
-async fn until_interrupted<L>(listener: L, app: Router) -> anyhow::Result<()>
+async fn until_stopped<L>(listener: L, app: Router, mut stop: tokio::sync::watch::Receiver<bool>) -> anyhow::Result<()>
 where
     L: axum::serve::Listener,
     L::Addr: std::fmt::Debug,
 {
     axum::serve(listener, app)
-        .with_graceful_shutdown(async {
-            let _ = tokio::signal::ctrl_c().await;
+        .with_graceful_shutdown(async move {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = stop.wait_for(|stop| *stop) => {}
+            }
         })
         .await
         .context("the console's server")
 }
 
+/// A console serving in the background of a run or a demo.
+pub struct Background {
+    stop: tokio::sync::watch::Sender<bool>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl Background {
+    /// Stops the console and waits until its session is closed: before the run's own session, whose embedded
+    /// router the console is a client of, so that the router is never torn down under it.
+    pub async fn stop(self) {
+        self.stop.send_replace(true);
+        let _ = tokio::time::timeout(STOP_GRACE * 4, self.task).await;
+    }
+}
+
+/// How long a console told to stop gives the requests under way.
+const STOP_GRACE: Duration = Duration::from_millis(500);
+
 /// Serves the console in the background of a run or a demo, for the cell behind `endpoints`; a console that
 /// stops says why and leaves the run alone.
-pub fn spawn(listener: tokio::net::TcpListener, endpoints: Vec<String>, file: Option<std::path::PathBuf>) {
-    tokio::spawn(async move {
-        if let Err(e) = serve(listener, &endpoints, file.as_deref(), Access::default()).await {
+pub fn spawn(
+    listener: tokio::net::TcpListener,
+    endpoints: Vec<String>,
+    file: Option<std::path::PathBuf>,
+) -> Background {
+    let (stop, told) = tokio::sync::watch::channel(false);
+    let task = tokio::spawn(async move {
+        if let Err(e) = serve(listener, &endpoints, file.as_deref(), Access::default(), told).await {
             eprintln!("error: the console stopped: {e:#}");
         }
     });
+    Background { stop, task }
 }
 
 /// Where a console in the process of a run or a demo reaches its cell: the router it joined, or the one it

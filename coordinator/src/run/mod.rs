@@ -95,10 +95,10 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let zconfig = baton_host::zenoh_config(&net, opts.zenoh_config.as_deref())?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     let writer = store.map(|store| store.start_writer(Some(host::deliver_through(&session))));
-    if let Some(listener) = console {
+    let console = console.map(|listener| {
         let endpoints = crate::console::endpoints_of(&opts.listen, &opts.connect);
-        crate::console::spawn(listener, endpoints, opts.zenoh_config.clone());
-    }
+        crate::console::spawn(listener, endpoints, opts.zenoh_config.clone())
+    });
     // A resumed run keeps the period it started with.
     let cycle_ms = match &resume {
         Some(Resume { header, .. }) => {
@@ -179,7 +179,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     begin(&mut host, resume, &opts, &loaded, run, &where_)?;
     let shared = baton_host::Shared::new(host);
     let ended = serve(&shared, &session, chart_reply, opts.abort_wait_ms).await?;
-    wind_down(shared.take()?, session, &opts, &loaded, ended).await
+    wind_down(shared.take()?, session, console, &opts, &loaded, ended).await
 }
 
 /// The variables `--watch` names, each a variable of `program`.
@@ -594,6 +594,7 @@ fn interrupted(host: &mut Host, signal: baton_host::Signal, interrupts: u32) {
 async fn wind_down(
     mut host: Host,
     session: zenoh::Session,
+    console: Option<crate::console::Background>,
     opts: &RunOptions,
     loaded: &Loaded,
     ended: Ended,
@@ -619,6 +620,11 @@ async fn wind_down(
     summary.left = ended == Ended::Left;
     let tokens_out = host.core.core().tokens_in_flight();
     drop(host);
+    // The console is a client of this session's router: it goes first, once the replies released above had
+    // their moment to reach it.
+    if let Some(console) = console {
+        console.stop().await;
+    }
     session.close().await.zenoh()?;
     if ended != Ended::Ran {
         if let Some(dir) = &opts.journal {
