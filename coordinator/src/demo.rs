@@ -146,6 +146,22 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
         console.stop().await;
     }
     router.close().await.zenoh()?;
+    report_end(&opts, status, &coord_log, &summary, &progress, started.elapsed(), &rerun, dir)
+}
+
+/// How the demo's run ended, told to the user: by an operator, failed (with the coordinator's log), or its summary
+/// and where its files and recording are.
+#[allow(clippy::too_many_arguments)]
+fn report_end(
+    opts: &DemoOptions,
+    status: std::process::ExitStatus,
+    coord_log: &Path,
+    summary: &Path,
+    progress: &Progress,
+    elapsed: Duration,
+    rerun: &crate::recording::Sink,
+    dir: &Path,
+) -> anyhow::Result<ExitCode> {
     // An operator's `baton ctl stop` or `abort` ends the run as asked: its summary says how far it got.
     let by_operator = matches!(status.code(), Some(3 | 4));
     if by_operator {
@@ -153,17 +169,17 @@ pub async fn demo(opts: DemoOptions) -> anyhow::Result<ExitCode> {
         println!("baton demo: the run was {how} by an operator (baton ctl)");
     }
     if !status.success() && !by_operator {
-        let log = std::fs::read_to_string(&coord_log).unwrap_or_default();
+        let log = std::fs::read_to_string(coord_log).unwrap_or_default();
         eprintln!("{log}");
         bail!("the coordinator failed ({status}); its log is above");
     }
-    let text = std::fs::read_to_string(&summary).context("the coordinator wrote no summary")?;
+    let text = std::fs::read_to_string(summary).context("the coordinator wrote no summary")?;
     let s: serde_json::Value = serde_json::from_str(&text)?;
-    print_summary(&s, &progress, started.elapsed());
+    print_summary(&s, progress, elapsed);
     if opts.keep.is_some() {
         println!("files (chart, trace, summary, logs): {}", dir.display());
     }
-    if let crate::recording::Sink::Save(p) = &rerun {
+    if let crate::recording::Sink::Save(p) = rerun {
         let shown = opts.rerun_path_as_given().unwrap_or(p);
         println!("recording: {} — open it with: rerun {}", p.display(), shown.display());
         if on_path("rerun").is_none() {

@@ -25,14 +25,14 @@ Usage: console_browser.py URL demo SCREENSHOT COMMENT
 Usage: console_browser.py URL login USER PASSWORD
   logs in through the page's form, waits until the run is shown, and prints the command buttons the user sees
   (`visible`), the header's name (`who`) and the manual mode button's state (`manual`).
-Usage: console_browser.py URL timeline RUN STEP GRAPH_STEP [RECORDING]
+Usage: console_browser.py URL timeline RUN STEP GRAPH_STEP RECORDING SCREENSHOT
   in a browser with WebGL (SwiftShader): waits until the page's Rerun timeline is ready with a recording open
   (`viewer`: backend, recording id, active timeline, time range), clicks the oldest history entry and waits until
   the viewer's time cursor is at its time (`sought`); tells the viewer's frame the selection Rerun's viewer reports
   when STEP's own timeline (`/sfc/steps/STEP`) and when the chart graph's node of GRAPH_STEP are selected, and
-  prints what the chart then selected (`selected`); with RECORDING, opens it from the page's recordings list and
-  waits until the viewer has it open (`recording`); prints every origin the page and its frame fetched from
-  (`origins`).
+  prints what the chart then selected (`selected`); saves SCREENSHOT of the timeline; opens RECORDING from the
+  page's recordings list and waits until the viewer has it open (`recording`); prints every origin the page and its
+  frame fetched from (`origins`).
 Usage: console_browser.py URL nested ACTION
   clicks the block of ACTION (an action written in SFC) on the chart, and prints the steps of the chart it opens
   (`steps`) and each set of them lit seen until every step was lit at least once (`lit`).
@@ -226,7 +226,7 @@ def demo(driver, wait, screenshot, comment):
 VIEWER = "const frame = document.querySelector('#timeline-frame iframe'); const api = frame.contentWindow.batonViewer;"
 
 
-def timeline(driver, run, step, graph_step, recording=None):
+def timeline(driver, run, step, graph_step, recording, screenshot):
     """The Rerun timeline in the page: live, driven from the history, and telling the chart what is selected."""
     wait = WebDriverWait(driver, 150, poll_frequency=0.1)  # 40 MB of wasm, compiled and drawn in software
     wait.until(lambda d: d.execute_script("return document.body.dataset.timeline") in ("ready", "unavailable"))
@@ -260,6 +260,8 @@ def timeline(driver, run, step, graph_step, recording=None):
         selected.append(driver.execute_script(
             "return [...document.querySelectorAll('#chart svg g.step.selected')].map(g => g.dataset.step)"))
     print(json.dumps({"selected": selected}), flush=True)
+    driver.execute_script("document.getElementById('timeline').scrollIntoView({block: 'end'})")
+    driver.save_screenshot(screenshot)
     if recording:
         item = f'#recordings li[data-recording="{recording}"]'
         wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, item))
@@ -348,7 +350,7 @@ def run(driver, url, mode):
     elif mode == "nested":
         nested(driver, wait, sys.argv[3])
     elif mode == "timeline":
-        timeline(driver, *sys.argv[3:7])
+        timeline(driver, *sys.argv[3:8])
     else:
         ack(driver, wait, sys.argv[3])
     # The page's script raised nothing meanwhile.

@@ -2,7 +2,8 @@
 //! web viewer (the 0.36.3 wasm the console serves from its origin) opens the run's recording live from the
 //! coordinator (`--rerun serve`), a click on a history entry moves its time cursor to that entry's time, what the
 //! viewer reports selected selects the step on the chart, a finished run's recording opens from the console's
-//! folder (`--recordings`), and nothing is fetched from beyond the cell.
+//! folder (`--recordings`), and nothing is fetched from beyond the cell. The book's picture of the timeline is made
+//! here (`BATON_SCREENSHOTS=1` writes it).
 
 use baton_tests::http::{browse_for, require_browser};
 use baton_tests::loopback::{free_port, Cluster, TIMEOUT};
@@ -55,7 +56,9 @@ async fn the_timeline_follows_the_run_live_moves_to_a_history_entry_and_selects_
     let folder = recordings.to_str().expect("utf-8");
     let (_console, addr) = baton_tests::http::console(&cluster.endpoint, &["--recordings", folder]).await;
 
-    let said = browse_for(&addr, &["timeline", &run, "Waiting", "Move", "counted.rrd"], TIMEOUT * 8).await;
+    let shot = cluster.dir.path().join("timeline.png");
+    let shot_path = shot.to_str().expect("utf-8");
+    let said = browse_for(&addr, &["timeline", &run, "Waiting", "Move", "counted.rrd", shot_path], TIMEOUT * 8).await;
     let said =
         |key: &str| said.iter().find_map(|l| l.get(key).cloned()).unwrap_or_else(|| panic!("no {key}: {said:?}"));
     // Rerun's viewer has this run's recording open, live, on the wall-clock timeline, from the run's start on.
@@ -81,6 +84,11 @@ async fn the_timeline_follows_the_run_live_moves_to_a_history_entry_and_selects_
     let origins = said("origins");
     let origins: Vec<&str> = origins.as_array().expect("origins").iter().filter_map(|o| o.as_str()).collect();
     assert!(!origins.is_empty() && origins.iter().all(|o| o.starts_with("http://127.0.0.1:")), "{origins:?}");
+    let png = std::fs::read(&shot).expect("the screenshot");
+    assert!(png.starts_with(b"\x89PNG"), "not a PNG");
+    if std::env::var_os("BATON_SCREENSHOTS").is_some() {
+        std::fs::write(baton_tests::loopback::repo("docs/book/src/console-timeline.png"), &png).expect("the picture");
+    }
     coordinator.kill().await;
 }
 
