@@ -145,7 +145,7 @@ struct Host {
     session: Session,
     started: Instant,
     runs: HashMap<RunId, Run>,
-    pending: HashMap<RunId, VecDeque<(ChartHash, ToAgent)>>,
+    pending: HashMap<RunId, VecDeque<(ChartHash, u64, ToAgent)>>,
     running: HashMap<(RunId, ActionId), RunningSkill>,
     /// Skills told to stop that end by themselves (a goal being cancelled), by serial.
     stopping: HashMap<u64, (RunId, ActionId)>,
@@ -491,7 +491,7 @@ impl Host {
     }
 
     fn on_cmd(&mut self, sample: Sample) {
-        let msg: ToAgent = match wire::decode(&sample.payload().to_bytes()) {
+        let (term, msg): (u64, ToAgent) = match wire::decode_termed(&sample.payload().to_bytes()) {
             Ok(m) => m,
             Err(e) => return self.drop_msg(format!("on {}: {e}", sample.key_expr())),
         };
@@ -502,7 +502,8 @@ impl Host {
                 r.last_used = Instant::now();
             }
             let what = if matches!(msg, ToAgent::Join { .. }) { "join" } else { "dispatch" };
-            if let Err(NotTaken::OtherChart) = r.state.handle_message(now, msg) {
+            // A command of a deposed coordinator's term is logged and traced by the run itself.
+            if let Err(NotTaken::OtherChart) = r.state.handle_message(now, term, msg) {
                 self.drop_msg(format!("{what} for run {} with another chart version", run.key()));
             }
             return;
@@ -511,15 +512,15 @@ impl Host {
             // The first dispatch or join of a run starts the fetch of its chart; they wait for it.
             ToAgent::Dispatch { ref chart, .. } | ToAgent::Join { ref chart, .. } => {
                 let chart = chart.clone();
-                self.queue_for_chart(run, chart, msg);
+                self.queue_for_chart(run, chart, term, msg);
             }
             // Only a run whose chart is on its way: the dispatch or join that started the fetch names them.
             ToAgent::Peers { .. } => {
                 if let Some(queue) = self.pending.get_mut(&run) {
                     if queue.len() < PENDING_DISPATCHES_MAX {
-                        let hash = queue.front().map(|(h, _)| h.clone());
+                        let hash = queue.front().map(|(h, _, _)| h.clone());
                         if let Some(hash) = hash {
-                            queue.push_back((hash, msg));
+                            queue.push_back((hash, term, msg));
                         }
                     }
                 }
@@ -534,7 +535,7 @@ impl Host {
     }
 
     /// Keeps a dispatch or a join until its run's chart arrives; the first one starts the fetch.
-    fn queue_for_chart(&mut self, run: RunId, hash: ChartHash, d: ToAgent) {
+    fn queue_for_chart(&mut self, run: RunId, hash: ChartHash, term: u64, d: ToAgent) {
         let first = !self.pending.contains_key(&run);
         if first && self.pending.len() >= RUNS_MAX {
             return self
@@ -544,7 +545,7 @@ impl Host {
         if queue.len() >= PENDING_DISPATCHES_MAX {
             return self.drop_msg(format!("too many dispatches waiting for the chart of run {}", run.key()));
         }
-        queue.push_back((hash.clone(), d));
+        queue.push_back((hash.clone(), term, d));
         if first {
             self.fetch_for(run, hash);
         }
@@ -565,7 +566,7 @@ impl Host {
     }
 
     fn on_vars(&mut self, sample: Sample) {
-        let update: VarUpdate = match wire::decode(&sample.payload().to_bytes()) {
+        let (term, update): (u64, VarUpdate) = match wire::decode_termed(&sample.payload().to_bytes()) {
             Ok(u) => u,
             Err(e) => return self.drop_msg(format!("on {}: {e}", sample.key_expr())),
         };
@@ -575,7 +576,7 @@ impl Host {
         }
         let now = self.now_ms();
         if let Some(r) = self.runs.get_mut(&update.run) {
-            r.state.handle_vars(now, &update);
+            r.state.handle_vars(now, term, &update);
         }
     }
 
@@ -595,11 +596,11 @@ impl Host {
                 let devices = self.start_devices(run, &state);
                 let report_key = keys::report(run, &self.config.name);
                 let mut r = Run { state, report_key, last_used: Instant::now(), devices };
-                for (h, command) in queued {
+                for (h, term, command) in queued {
                     // Queued under the chart fetched, so of this run and this version: taken. (Queued under
                     // another version, it is not this run's.)
                     if h == hash {
-                        let _taken = r.state.handle_message(now, command);
+                        let _taken = r.state.handle_message(now, term, command);
                     }
                 }
                 eprintln!("joined run {} of chart `{}`", run.key(), r.state.program().name);

@@ -430,3 +430,65 @@ async fn agents_of_a_run_that_ended_normally_report_no_fault() {
     let faults = [TraceEvent::SkillCancel, TraceEvent::SkillFault, TraceEvent::InputRefused];
     assert!(!said.iter().any(|r| faults.contains(&r.event)), "{said:#?}");
 }
+
+/// Fencing by term, in the agent's own process: once a command of a higher coordinator term reached it (as from a
+/// standby that won the run's election), the agent refuses what the coordinator of the lower term sends — its
+/// values (a `baton set` through it changes nothing on the agent) and its commands (its abort) — and traces each
+/// refusal; the token stays where the deposed coordinator could not move it.
+#[tokio::test(flavor = "multi_thread")]
+async fn an_agent_that_heard_a_higher_term_refuses_the_deposed_coordinators_values_and_commands() {
+    let mut cluster = Cluster::new();
+    let chart = cluster.dir.path().join("fenced.st");
+    std::fs::write(
+        &chart,
+        "PROGRAM fenced\nVAR go : BOOL; END_VAR\nINITIAL_STEP Start: END_STEP\n\
+         TRANSITION FROM Start TO Work := TRUE; END_TRANSITION\nSTEP Work: {agent := 'r1'} END_STEP\n\
+         TRANSITION FROM Work TO Done := go; END_TRANSITION\nSTEP Done: END_STEP\nEND_PROGRAM\n",
+    )
+    .expect("write the chart");
+    let mut coordinator = cluster.coordinator(&chart, &[]);
+    coordinator.wait_ready().await;
+    cluster.agent("r1", &[], &[]);
+    coordinator.wait_for_trace("Work dispatched", |r| r.event == TraceEvent::Dispatch && r.name == "Work").await;
+    let session = client(&cluster.endpoint).await;
+    let replies = session.get(keys::status_any_run()).timeout(TIMEOUT).await.expect("status query");
+    let reply = replies.recv_async().await.expect("a status reply");
+    let status: StatusReport = wire::decode(&reply.result().expect("ok").payload().to_bytes()).expect("status");
+    let run = status.run;
+    let info = session.get(keys::agent_info("r1")).timeout(TIMEOUT).await.expect("info query");
+    let info = info.recv_async().await.expect("r1 answers");
+    let info: wire::AgentInfo = wire::decode(&info.result().expect("ok").payload().to_bytes()).expect("info");
+    // The coordinator runs at term 0 (it stands in no election); a command of term 9 reaches r1.
+    let sync = wire::encode_termed(&ToAgent::Sync { run }, 9);
+    session.put(keys::agent_cmd("r1", info.incarnation), sync).await.expect("put");
+    cluster.wait_for_agent_trace("r1", "term 9", |r| r.event == TraceEvent::Term && message_has(r, "term 9")).await;
+
+    // Through the deposed coordinator, `go` is set: the coordinator takes it, r1 refuses its update.
+    let go = cluster.baton(&["set", "--connect", &cluster.endpoint, "go=true"]).await;
+    assert!(go.status.success(), "{}", String::from_utf8_lossy(&go.stderr));
+    let refused = |what: &'static str| {
+        move |r: &baton_proto::exec::trace::TraceRecord| r.event == TraceEvent::StaleTerm && r.name == what
+    };
+    let trace = cluster.wait_for_agent_trace("r1", "the refused update", refused("variable update")).await;
+    let said = trace.iter().find(|r| refused("variable update")(r)).and_then(|r| r.message.clone());
+    assert!(said.as_deref().is_some_and(|m| m.contains("term 0") && m.contains("term 9")), "{said:?}");
+    // The update was refused, so Work's transition cannot clear on r1: the token is still there.
+    let replies = session.get(keys::status(run)).timeout(TIMEOUT).await.expect("status query");
+    let reply = replies.recv_async().await.expect("a status reply");
+    let status: StatusReport = wire::decode(&reply.result().expect("ok").payload().to_bytes()).expect("status");
+    assert!(status.active_steps.iter().any(|s| s.name == "Work"), "{status:?}");
+    assert!(!cluster.agent_trace("r1").iter().any(|r| r.event == TraceEvent::Fire), "r1 fired nothing");
+
+    // Its abort is refused too.
+    let abort = cluster.baton(&["ctl", "--connect", &cluster.endpoint, "abort"]).await;
+    assert!(abort.status.success(), "{}", String::from_utf8_lossy(&abort.stderr));
+    cluster.wait_for_agent_trace("r1", "the refused abort", refused("abort")).await;
+    let log = cluster.agent_log("r1");
+    assert!(log.contains("refused: this run has seen term 9"), "{log}");
+    coordinator.kill().await;
+    tokio::time::timeout(Duration::from_secs(5), session.close()).await.ok();
+}
+
+fn message_has(r: &baton_proto::exec::trace::TraceRecord, text: &str) -> bool {
+    r.message.as_deref().is_some_and(|m| m.contains(text))
+}

@@ -99,14 +99,16 @@ impl CmdKeys {
     }
 }
 
-/// The message an output of the coordinator puts on the wire, with its key (`vars_key` for variable updates);
-/// `None` for an output that stays in this process.
-fn message(vars_key: &str, cmd_keys: &mut CmdKeys, out: &CoordOutput) -> Option<Outgoing> {
+/// The message an output of the coordinator puts on the wire, with its key (`vars_key` for variable updates),
+/// stamped with the coordinator's `term`; `None` for an output that stays in this process.
+fn message(vars_key: &str, cmd_keys: &mut CmdKeys, term: u64, out: &CoordOutput) -> Option<Outgoing> {
     match out {
         CoordOutput::Send { agent, incarnation, msg } => {
-            Some(Outgoing { key: cmd_keys.of(agent, *incarnation), payload: wire::encode(msg) })
+            Some(Outgoing { key: cmd_keys.of(agent, *incarnation), payload: wire::encode_termed(msg, term) })
         }
-        CoordOutput::Vars(update) => Some(Outgoing { key: vars_key.to_string(), payload: wire::encode(update) }),
+        CoordOutput::Vars(update) => {
+            Some(Outgoing { key: vars_key.to_string(), payload: wire::encode_termed(update, term) })
+        }
         _ => None,
     }
 }
@@ -130,6 +132,9 @@ pub(crate) struct Host {
     /// before it, at most `HELD_REPLIES_MAX` of them.
     pub(crate) held_replies: VecDeque<(Option<u64>, Query, String, Vec<u8>)>,
     pub(crate) quiet: bool,
+    /// The coordinator's term, on every command and variable update it sends (`wire::encode_termed`): the
+    /// revision at which it won the run's election, 0 for a coordinator that stands in none.
+    pub(crate) term: u64,
     /// One publisher per key, declared on first use.
     pub(crate) outbox: baton_host::Outbox,
     pub(crate) vars_key: String,
@@ -561,7 +566,7 @@ impl Host {
         // Messages go with the batch: the writer sends them once it is durable. The rest waits here for it.
         let (mut messages, mut local) = (Vec::new(), Vec::new());
         for out in outputs {
-            match message(&self.vars_key, &mut self.cmd_keys, &out) {
+            match message(&self.vars_key, &mut self.cmd_keys, self.term, &out) {
                 Some(m) => messages.push(m),
                 None => local.push(out),
             }
@@ -625,7 +630,7 @@ impl Host {
         // Messages leave before the trace is written: a token's round trip does not wait for the disk.
         let mut local = Vec::new();
         for out in outputs {
-            match (message(&self.vars_key, &mut self.cmd_keys, &out), out) {
+            match (message(&self.vars_key, &mut self.cmd_keys, self.term, &out), out) {
                 (Some(Outgoing { key, payload }), _) => self.send(key, payload)?,
                 (None, CoordOutput::Ask { agent, incarnation }) => self.ask(agent, incarnation),
                 (None, other) => local.push(other),

@@ -162,6 +162,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         held: VecDeque::new(),
         held_replies: VecDeque::new(),
         quiet: opts.quiet,
+        term: 0,
         outbox: baton_host::Outbox::new(&session),
         vars_key: keys::vars(run, baton_proto::cluster::runtime::COORDINATOR),
         cmd_keys: host::CmdKeys::default(),

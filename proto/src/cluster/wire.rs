@@ -28,7 +28,7 @@ use crate::types::Value;
 /// name theirs; `CtlRequest::to` (`move`). 6: `set` and `ctl` on keys that name their sender (`keys::set`,
 /// `keys::ctl`), whose name the coordinator records as who asked; an agent's roles as liveliness tokens of their
 /// own (`keys::alive_role`).
-pub const PROTOCOL_VERSION: u32 = 6;
+pub const PROTOCOL_VERSION: u32 = 7;
 
 /// One run of a chart by one coordinator.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -641,17 +641,26 @@ pub struct WhyReport {
     pub steps: Vec<StepWhy>,
 }
 
-/// `{"v": 1, "m": MESSAGE}`. Enums are externally tagged (`{"dispatch": {…}}`) and nothing is flattened, so
-/// decoding never buffers a message to look for its tag.
+/// `{"v": 7, "t": TERM, "m": MESSAGE}`. Enums are externally tagged (`{"dispatch": {…}}`) and nothing is
+/// flattened, so decoding never buffers a message to look for its tag. `t` is the coordinator's term (`encode_termed`),
+/// left out where it is 0: a coordinator that stands in no election, and every message not a coordinator's.
 #[derive(Serialize)]
 struct EnvelopeOut<'a, T> {
     v: u32,
+    #[serde(skip_serializing_if = "is_zero")]
+    t: u64,
     m: &'a T,
+}
+
+fn is_zero(t: &u64) -> bool {
+    *t == 0
 }
 
 #[derive(Deserialize)]
 struct EnvelopeIn<T> {
     v: u32,
+    #[serde(default)]
+    t: u64,
     m: T,
 }
 
@@ -670,9 +679,17 @@ pub enum WireError {
 const ENCODE_CAPACITY: usize = 512;
 
 pub fn encode<T: Serialize>(msg: &T) -> Vec<u8> {
+    encode_termed(msg, 0)
+}
+
+/// A coordinator's message, stamped with its term: the revision at which it won the run's election (0 when it
+/// stands in none). An agent takes no command, and no variable update of the coordinator's, of a lower term than
+/// the highest it has seen of the run — a deposed coordinator that has not noticed yet is refused.
+pub fn encode_termed<T: Serialize>(msg: &T, term: u64) -> Vec<u8> {
     let mut out = Vec::with_capacity(ENCODE_CAPACITY);
     // Serializing these plain structs cannot fail: no maps with non-string keys, no foreign Serialize impls.
-    serde_json::to_writer(&mut out, &EnvelopeOut { v: PROTOCOL_VERSION, m: msg }).expect("wire types serialize");
+    serde_json::to_writer(&mut out, &EnvelopeOut { v: PROTOCOL_VERSION, t: term, m: msg })
+        .expect("wire types serialize");
     out
 }
 
@@ -680,13 +697,22 @@ pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, WireError> {
     decode_with_limit(bytes, MESSAGE_BYTES_MAX)
 }
 
+/// A message and the term it was stamped with (0 if none).
+pub fn decode_termed<T: DeserializeOwned>(bytes: &[u8]) -> Result<(u64, T), WireError> {
+    decode_envelope(bytes, MESSAGE_BYTES_MAX)
+}
+
 /// `decode` with another size limit, for the few replies that may be larger (a chart's source).
 pub fn decode_with_limit<T: DeserializeOwned>(bytes: &[u8], limit: usize) -> Result<T, WireError> {
+    decode_envelope(bytes, limit).map(|(_, m)| m)
+}
+
+fn decode_envelope<T: DeserializeOwned>(bytes: &[u8], limit: usize) -> Result<(u64, T), WireError> {
     if bytes.len() > limit {
         return Err(WireError::TooLarge(bytes.len(), limit));
     }
     match serde_json::from_slice::<EnvelopeIn<T>>(bytes) {
-        Ok(env) if env.v == PROTOCOL_VERSION => Ok(env.m),
+        Ok(env) if env.v == PROTOCOL_VERSION => Ok((env.t, env.m)),
         Ok(env) => Err(WireError::Version(env.v)),
         Err(e) => {
             // A message of another version may not fit this version's types: say which it was.
@@ -726,6 +752,19 @@ mod tests {
             done: true,
         };
         assert_eq!(decode::<Report>(&encode(&report)), Ok(report));
+    }
+
+    #[test]
+    fn a_coordinators_term_rides_with_its_message_and_is_0_where_none_was_given() {
+        let msg = ToAgent::Sync { run: RunId(Uuid::from_u128(7)) };
+        assert_eq!(decode_termed::<ToAgent>(&encode_termed(&msg, 41)), Ok((41, msg.clone())));
+        assert!(std::str::from_utf8(&encode_termed(&msg, 41)).unwrap().contains("\"t\":41"));
+        // Untermed, the field is not written, and a message without it is of term 0.
+        let plain = encode(&msg);
+        assert!(!std::str::from_utf8(&plain).unwrap().contains("\"t\""));
+        assert_eq!(decode_termed::<ToAgent>(&plain), Ok((0, msg.clone())));
+        // `decode` takes a termed message as its message.
+        assert_eq!(decode::<ToAgent>(&encode_termed(&msg, 3)), Ok(msg));
     }
 
     #[test]

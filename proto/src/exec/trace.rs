@@ -46,6 +46,12 @@ pub enum TraceEvent {
     Recover,
     /// A report of an older epoch of a token arrived; the agent was told to drop it.
     RejectStale,
+    /// An agent refused a command or a variable update of a coordinator whose term is lower than the highest it
+    /// has seen of the run: a deposed coordinator's (`name` says what was refused, `message` both terms).
+    StaleTerm,
+    /// An agent heard a coordinator of a higher term than before in the run (one that won its election, or the
+    /// first it heard): from then on lower terms are refused (`message` says both).
+    Term,
     /// A skill finished.
     SkillDone,
     /// A skill failed (with `message`).
@@ -110,7 +116,7 @@ pub enum TraceEvent {
 
 impl TraceEvent {
     /// Every event, in the order above.
-    pub const ALL: [TraceEvent; 41] = [
+    pub const ALL: [TraceEvent; 43] = [
         TraceEvent::Activate,
         TraceEvent::Deactivate,
         TraceEvent::Fire,
@@ -127,6 +133,8 @@ impl TraceEvent {
         TraceEvent::Resume,
         TraceEvent::Recover,
         TraceEvent::RejectStale,
+        TraceEvent::StaleTerm,
+        TraceEvent::Term,
         TraceEvent::SkillDone,
         TraceEvent::SkillFault,
         TraceEvent::Set,
@@ -174,6 +182,8 @@ impl TraceEvent {
             TraceEvent::Resume => "resume",
             TraceEvent::Recover => "recover",
             TraceEvent::RejectStale => "reject_stale",
+            TraceEvent::StaleTerm => "stale_term",
+            TraceEvent::Term => "term",
             TraceEvent::SkillDone => "skill_done",
             TraceEvent::SkillFault => "skill_fault",
             TraceEvent::Set => "set",

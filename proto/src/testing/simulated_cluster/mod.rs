@@ -35,6 +35,7 @@ use crate::exec::trace::{TraceEvent, TraceRecord};
 use crate::pipeline::check_source;
 use crate::types::Value;
 
+mod election;
 mod network;
 mod skills;
 pub use skills::{motion, motion_ms, motion_result, Rng, SimSkill, SkillModel, SkillStart, NETWORK_MIX};
@@ -135,6 +136,36 @@ struct SimAgent {
     announced: bool,
 }
 
+/// The run's election.
+struct Election {
+    /// How long a coordinator's lease lasts: a paused or dead one is replaced this long after it stopped.
+    lease_ms: u64,
+    /// The active coordinator's term (the revision at which it won).
+    term: u64,
+    /// Pauses of the active coordinator to come: (from when, how long), in order.
+    pauses: Vec<(u64, u64)>,
+    /// Deposed coordinators that have not noticed yet: when each wakes, and what it sends then (at its term).
+    zombies: Vec<(u64, Vec<Packet>)>,
+    /// Per agent process (the agent's index, its restarts): the highest term of a message it took.
+    taken: BTreeMap<(usize, u128), u64>,
+    /// Messages of a deposed coordinator that agents refused.
+    refused: u64,
+    /// Takeovers so far, and the messages deposed coordinators sent as they woke.
+    takeovers: u64,
+    late_messages: u64,
+}
+
+/// What the election did in a run, for a test to see that its faults happened.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ElectionStats {
+    pub term: u64,
+    pub takeovers: u64,
+    /// Deposed coordinators' messages sent after a takeover (as they woke).
+    pub late_messages: u64,
+    /// Those refused by the agents that had heard a higher term.
+    pub refused: u64,
+}
+
 pub struct SimCluster {
     pub coordinator: Journaled,
     /// The coordinator's durable records: everything it took before its outputs left.
@@ -156,6 +187,8 @@ pub struct SimCluster {
     pub violations: Vec<String>,
     /// The coordinator died after its journal but before it sent (or wrote) what that led to.
     outputs_lost: bool,
+    /// Standby coordinators and their election (`stand_by`); `None`: one coordinator, at term 0.
+    election: Option<Election>,
     calm_from_ms: Option<u64>,
     fates: Vec<(u64, String, Fate)>,
     program: Arc<Program>,
@@ -305,6 +338,7 @@ impl SimCluster {
             started: std::collections::BTreeSet::new(),
             violations: Vec::new(),
             outputs_lost: false,
+            election: None,
             calm_from_ms: None,
             fates,
             program: Arc::clone(&program),
@@ -404,6 +438,8 @@ impl SimCluster {
     /// and reconciles with the agents that answer.
     fn restart_coordinator(&mut self) {
         self.down_until = None;
+        // With standbys, the process that goes on is one that won a new election.
+        self.new_term();
         // The journal begins with the first run (a `reset` goes on to others in it).
         let run = FIRST_RUN;
         let (program, layout) = (Arc::clone(&self.program), Arc::clone(&self.layout));
@@ -641,6 +677,7 @@ impl SimCluster {
             if self.down_until.is_some_and(|t| t <= self.now_ms) {
                 self.restart_coordinator();
             }
+            self.wake_zombies();
             while self.crashes.first().is_some_and(|c| c.0 <= self.now_ms) {
                 let (_, down_ms) = self.crashes.remove(0);
                 self.crash_coordinator(down_ms);
@@ -688,7 +725,7 @@ impl SimCluster {
                     self.coordinator.vars(now, &update.from, &wire::encode(&update)).expect("a forged update encodes");
                 }
                 for a in self.agents.iter_mut().filter(|a| a.alive && a.reachable) {
-                    a.run.handle_vars(now, &update);
+                    a.run.handle_vars(now, 0, &update);
                 }
                 for i in 0..self.agents.len() {
                     self.flush_agent(i);
@@ -762,6 +799,7 @@ impl SimCluster {
         due.extend(self.down_until);
         due.extend(self.crashes.first().map(|c| c.0));
         due.extend(self.crashes_after_journal.first().map(|c| c.0));
+        due.extend(self.election_due_ms());
         due.extend(self.fates.first().map(|f| f.0));
         due.extend(self.inputs.first().map(|i| i.0));
         due.extend(self.commands.first().map(|c| c.0));

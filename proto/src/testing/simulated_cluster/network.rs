@@ -70,13 +70,18 @@ impl SimCluster {
                 // A command for a process that is gone reaches nobody.
                 Packet::ToAgent(i, incarnation, _) if incarnation != Uuid::from_u128(self.agents[i].restarts) => {}
                 Packet::ToAgent(i, _, bytes) => {
-                    let msg = wire::decode::<ToAgent>(&bytes).expect("coordinator sends valid messages");
+                    let (term, msg) = wire::decode_termed::<ToAgent>(&bytes).expect("coordinator sends valid messages");
                     // Only a dispatch starts a segment: what the agent held before it, to see what it started.
                     let before = matches!(msg, ToAgent::Dispatch { .. }).then(|| self.agents[i].run.held());
                     // Of a run the agent no longer runs (one before a `reset`): it forgot that run. The chart is
                     // the one every agent was given, so no dispatch is of another version.
-                    if self.agents[i].run.handle_message(self.now_ms, msg).is_err() {
-                        continue;
+                    match self.agents[i].run.handle_message(self.now_ms, term, msg) {
+                        Ok(()) => self.note_term(i, term, true),
+                        Err(crate::cluster::runtime::agent::NotTaken::StaleTerm) => {
+                            self.note_term(i, term, false);
+                            continue;
+                        }
+                        Err(_) => continue,
                     }
                     if let Some(before) = before {
                         // A segment started here: never twice in one epoch, on any agent.
@@ -98,11 +103,20 @@ impl SimCluster {
                     self.coordinator.report(self.now_ms, &sender, &bytes).expect("agents send valid reports");
                 }
                 Packet::Vars(_, bytes) => {
-                    let update: VarUpdate = wire::decode(&bytes).expect("valid update");
+                    let (term, update): (u64, VarUpdate) = wire::decode_termed(&bytes).expect("valid update");
                     self.coordinator.vars(self.now_ms, &update.from, &bytes).expect("valid update");
                     let now = self.now_ms;
-                    for a in self.agents.iter_mut().filter(|a| a.reachable) {
-                        a.run.handle_vars(now, &update);
+                    let from_coordinator = update.from == crate::cluster::runtime::COORDINATOR;
+                    for i in 0..self.agents.len() {
+                        if !self.agents[i].reachable {
+                            continue;
+                        }
+                        let (_, refused_before) = self.agents[i].run.term();
+                        self.agents[i].run.handle_vars(now, term, &update);
+                        let (_, refused_after) = self.agents[i].run.term();
+                        if from_coordinator && self.agents[i].run.run() == update.run {
+                            self.note_term(i, term, refused_after == refused_before);
+                        }
                     }
                 }
             }
@@ -114,6 +128,9 @@ impl SimCluster {
     pub(super) fn flush_coordinator(&mut self) {
         let records = self.coordinator.take_records();
         self.journal.extend(records);
+        if self.pause_if_due() {
+            return;
+        }
         let due = self.crashes_after_journal.first().is_some_and(|c| c.0 <= self.now_ms);
         if due && self.down_until.is_none() && self.coordinator.has_output() {
             let (_, down_ms) = self.crashes_after_journal.remove(0);
@@ -122,13 +139,13 @@ impl SimCluster {
             self.down_until = Some(self.now_ms + down_ms);
             return;
         }
+        let term = self.term();
         while let Some(out) = self.coordinator.poll_output() {
             match out {
-                CoordOutput::Send { agent, incarnation, msg } => {
-                    let i = self.agents.iter().position(|a| a.name == agent).expect("known agent");
-                    self.send(Packet::ToAgent(i, incarnation, wire::encode(&msg)));
+                out @ (CoordOutput::Send { .. } | CoordOutput::Vars(_)) => {
+                    let packet = self.packet(out, term).expect("a command or a value is a message");
+                    self.send(packet);
                 }
-                CoordOutput::Vars(update) => self.send(Packet::Vars(None, wire::encode(&update))),
                 CoordOutput::Ask { agent, incarnation } => {
                     // The question and its answer cross the network as the reports would: the answer's reports
                     // arrive as reports (with the faults of the agent's link).

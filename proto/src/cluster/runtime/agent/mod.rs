@@ -82,6 +82,24 @@ pub enum NotTaken {
     OtherRun,
     /// A dispatch or join made with another version of the chart than this run's.
     OtherChart,
+    /// A command of a coordinator whose term is lower than the highest this run has seen.
+    StaleTerm,
+}
+
+/// What a command is, for the log and the trace.
+fn command_name(msg: &ToAgent) -> &'static str {
+    match msg {
+        ToAgent::Dispatch { .. } => "dispatch",
+        ToAgent::Gate { .. } => "gate",
+        ToAgent::Hold { .. } => "hold",
+        ToAgent::Abort { .. } => "abort",
+        ToAgent::AckOverrun { .. } => "ack_overrun",
+        ToAgent::Drop { .. } => "drop",
+        ToAgent::Ack { .. } => "ack",
+        ToAgent::Sync { .. } => "sync",
+        ToAgent::Join { .. } => "join",
+        ToAgent::Peers { .. } => "peers",
+    }
 }
 
 /// A dispatch, decoded: run `segment` from `entry`.
@@ -203,6 +221,11 @@ pub struct AgentRun {
     skill_started: BTreeMap<ActionId, u64>,
     /// Skills started while their branch was held: a broken promise, counted for the simulation to find.
     started_while_held: u64,
+    /// The highest coordinator term seen of this run (`wire::encode_termed`); commands and the coordinator's
+    /// variable updates of a lower one are refused (`stale_terms` counts them).
+    term: u64,
+    stale_terms: u64,
+    stale_said: BTreeSet<u64>,
 }
 
 impl AgentRun {
@@ -278,6 +301,9 @@ impl AgentRun {
             waiting_said: BTreeSet::new(),
             skill_started: BTreeMap::new(),
             started_while_held: 0,
+            term: 0,
+            stale_terms: 0,
+            stale_said: BTreeSet::new(),
         };
         run.send_outputs();
         run
@@ -354,13 +380,18 @@ impl AgentRun {
         self.outbox.pop_front()
     }
 
-    /// A command of the coordinator's, decoded: the one way the agent's host and the simulated cluster alike hand
-    /// one over. The acknowledgements a dispatch carries apply before the dispatch (the reports they answer are
-    /// done with before the new token starts). A message of another run, or a dispatch or join of another
-    /// version of the chart, is not taken: the caller says why it dropped it.
-    pub fn handle_message(&mut self, now_ms: u64, msg: ToAgent) -> Result<(), NotTaken> {
+    /// A command of the coordinator's, decoded, with the coordinator's term it came with: the one way the agent's
+    /// host and the simulated cluster alike hand one over. The acknowledgements a dispatch carries apply before
+    /// the dispatch (the reports they answer are done with before the new token starts). A message of another
+    /// run, a dispatch or join of another version of the chart, or a command of a lower term than the highest
+    /// this run has seen (a coordinator deposed that has not noticed yet) is not taken: the caller says why it
+    /// dropped the first two, and this run logs and traces the third.
+    pub fn handle_message(&mut self, now_ms: u64, term: u64, msg: ToAgent) -> Result<(), NotTaken> {
         if msg.run() != self.run {
             return Err(NotTaken::OtherRun);
+        }
+        if !self.take_term(now_ms, term, command_name(&msg)) {
+            return Err(NotTaken::StaleTerm);
         }
         match msg {
             ToAgent::Dispatch {
@@ -409,6 +440,40 @@ impl AgentRun {
             ToAgent::Abort { .. } => self.handle_abort(now_ms),
         }
         Ok(())
+    }
+
+    /// Whether a coordinator's message of `term` may be taken: of the highest term seen or a higher one, which
+    /// becomes the highest. A refusal is counted, logged and traced (`stale_term`, named by what was refused).
+    pub(super) fn take_term(&mut self, now_ms: u64, term: u64, what: &str) -> bool {
+        if term >= self.term {
+            if term > self.term {
+                let message =
+                    format!("coordinator term {term} (was {}): lower terms are refused from now on", self.term);
+                self.log(Level::Info, format!("run {}: {message}", self.run.key()));
+                self.advance(now_ms);
+                self.note(TraceEvent::Term, "coordinator", None, Some(message));
+            }
+            self.term = term;
+            return true;
+        }
+        self.advance(now_ms);
+        self.stale_terms += 1;
+        self.dropped += 1;
+        let message = format!(
+            "{what} of coordinator term {term} refused: this run has seen term {}, whose coordinator replaced it",
+            self.term
+        );
+        // Said once per stale term: a deposed coordinator that keeps sending is not a log flood.
+        if self.stale_said.insert(term) {
+            self.log(Level::Warn, format!("run {}: {message}", self.run.key()));
+        }
+        self.note(TraceEvent::StaleTerm, what, None, Some(message));
+        false
+    }
+
+    /// The highest coordinator term seen of this run, and how many messages of lower ones were refused.
+    pub fn term(&self) -> (u64, u64) {
+        (self.term, self.stale_terms)
     }
 
     fn log(&mut self, level: Level, message: String) {

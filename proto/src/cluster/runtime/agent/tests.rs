@@ -177,7 +177,7 @@ fn a_message_is_taken_whole_acknowledgements_first_and_only_for_this_run_and_cha
     let mut a = f.agent("a1");
     let (run, hash) = (a.run(), a.hash().clone());
     // Token 1 runs and comes back: its last report, `done`, waits for its acknowledgement.
-    a.handle_message(0, dispatch_message(f.dispatch(1, 1, false), run, hash.clone(), Vec::new())).expect("taken");
+    a.handle_message(0, 0, dispatch_message(f.dispatch(1, 1, false), run, hash.clone(), Vec::new())).expect("taken");
     run_until(&mut a, 30);
     a.handle_skill_result(35, f.action("Move"), Ok(()));
     let out = run_until(&mut a, 60);
@@ -186,14 +186,14 @@ fn a_message_is_taken_whole_acknowledgements_first_and_only_for_this_run_and_cha
     // Another run's message, and a dispatch of another version of the chart, change nothing here.
     let other_run = RunId(Uuid::from_u128(99));
     let stray = dispatch_message(f.dispatch(2, 1, false), other_run, hash.clone(), Vec::new());
-    assert_eq!(a.handle_message(70, stray), Err(NotTaken::OtherRun));
+    assert_eq!(a.handle_message(70, 0, stray), Err(NotTaken::OtherRun));
     let other_chart = dispatch_message(f.dispatch(2, 1, false), run, ChartHash("another".into()), Vec::new());
-    assert_eq!(a.handle_message(70, other_chart), Err(NotTaken::OtherChart));
+    assert_eq!(a.handle_message(70, 0, other_chart), Err(NotTaken::OtherChart));
     assert!(started(&run_until(&mut a, 90)).is_empty() && a.tokens_held() == 0);
     // Token 2's dispatch carries the acknowledgement of token 1's `done`: both are taken, the acknowledgement
     // first, so nothing of token 1 is sent again while token 2 runs.
     let ack = AckEntry { token: last.token, epoch: last.epoch, seq: last.seq, done: true };
-    a.handle_message(100, dispatch_message(f.dispatch(2, 1, false), run, hash, vec![ack])).expect("taken");
+    a.handle_message(100, 0, dispatch_message(f.dispatch(2, 1, false), run, hash, vec![ack])).expect("taken");
     assert!(a.pending_reports(usize::MAX).iter().all(|r| r.token != last.token));
     let out = run_until(&mut a, 5_000);
     assert_eq!(started(&out), vec![f.action("Move")], "{out:?}");
@@ -262,10 +262,10 @@ fn a_value_claiming_the_coordinators_name_from_another_process_is_refused() {
         seq: 99,
         vars: vec![VarValue::new(go, Value::Bool(true))],
     };
-    a.handle_vars(6, &forged);
+    a.handle_vars(6, 0, &forged);
     assert_eq!(a.engine.value(go), Value::Bool(false), "a forged update changed nothing");
     let genuine = VarUpdate { incarnation: COORDINATOR_PROCESS, seq: 2, ..forged };
-    a.handle_vars(7, &genuine);
+    a.handle_vars(7, 0, &genuine);
     assert_eq!(a.engine.value(go), Value::Bool(true), "the coordinator's own process is heard");
 }
 
@@ -377,4 +377,76 @@ fn the_end_of_a_run_is_a_warning_only_where_it_cancels_a_skill() {
     busy.handle_abort(20);
     let said = logs(&drain(&mut busy));
     assert!(said.iter().any(|(l, m)| *l == Level::Warn && m.contains("1 skill(s) cancelled")), "{said:?}");
+}
+
+/// Fencing by term: once a run has seen a coordinator's term, nothing of a lower one is taken — no command, not
+/// even a drop or an abort, and no value of the coordinator's — while the same or a higher term is; each refusal
+/// is traced with what it refused.
+#[test]
+fn a_deposed_coordinators_commands_and_values_are_refused_once_a_newer_term_is_seen() {
+    let f = Fixture::new();
+    let mut a = f.agent("a1");
+    let (run, hash) = (a.run(), a.hash().clone());
+    let token = TokenId(Uuid::from_u128(1));
+    a.handle_message(0, 5, dispatch_message(f.dispatch(1, 1, false), run, hash.clone(), Vec::new())).expect("taken");
+    assert_eq!(started(&run_until(&mut a, 20)), vec![f.action("Move")]);
+    assert_eq!(a.term(), (5, 0));
+
+    // The old coordinator (term 4) drops the token and aborts the run: neither is taken.
+    assert_eq!(a.handle_message(25, 4, ToAgent::Drop { run, token, epoch: 1 }), Err(NotTaken::StaleTerm));
+    assert_eq!(a.handle_message(26, 4, ToAgent::Abort { run }), Err(NotTaken::StaleTerm));
+    let out = run_until(&mut a, 40);
+    assert_eq!(a.tokens_held(), 1, "the token runs on: {out:?}");
+    assert!(stopped(&out).is_empty(), "no skill was stopped: {out:?}");
+    let refused: Vec<String> = out
+        .iter()
+        .filter_map(|o| match o {
+            AgentOutput::Trace(r) if r.event == crate::exec::trace::TraceEvent::StaleTerm => Some(r.name.clone()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(refused, vec!["drop".to_string(), "abort".to_string()], "{out:?}");
+    let warned = out
+        .iter()
+        .filter(|o| matches!(o, AgentOutput::Log { level: Level::Warn, message } if message.contains("term 4")))
+        .count();
+    assert_eq!(warned, 1, "said once per stale term: {out:?}");
+
+    // Its value is refused too; the same value from term 5 is taken.
+    let go = f.var("go");
+    let update = VarUpdate {
+        run,
+        from: COORDINATOR.to_string(),
+        incarnation: COORDINATOR_PROCESS,
+        seq: 2,
+        vars: vec![VarValue::new(go, Value::Bool(true))],
+    };
+    a.handle_vars(41, 4, &update);
+    assert_eq!(a.engine.value(go), Value::Bool(false), "a deposed coordinator's value changed nothing");
+    a.handle_vars(42, 5, &update);
+    assert_eq!(a.engine.value(go), Value::Bool(true), "the current coordinator's value is taken");
+    assert_eq!(a.term(), (5, 3));
+
+    // A newer coordinator (term 7) takes over; term 5 is now the stale one, and 7 is heard.
+    a.handle_message(50, 7, ToAgent::Sync { run }).expect("a higher term is taken");
+    assert_eq!(a.handle_message(51, 5, ToAgent::Drop { run, token, epoch: 1 }), Err(NotTaken::StaleTerm));
+    assert_eq!(a.tokens_held(), 1);
+    a.handle_message(52, 7, ToAgent::Drop { run, token, epoch: 1 }).expect("the current term is heard");
+    run_until(&mut a, 70);
+    assert_eq!(a.tokens_held(), 0);
+    assert_eq!(a.term(), (7, 4));
+}
+
+/// A coordinator that stands in no election sends term 0, before and after it restarts from its journal: every
+/// message of it is taken, as before terms existed.
+#[test]
+fn without_an_election_every_message_is_of_term_0_and_taken() {
+    let f = Fixture::new();
+    let mut a = f.agent("a1");
+    let (run, hash) = (a.run(), a.hash().clone());
+    a.handle_message(0, 0, dispatch_message(f.dispatch(1, 1, false), run, hash, Vec::new())).expect("taken");
+    a.handle_message(5, 0, ToAgent::Sync { run }).expect("taken");
+    a.handle_message(6, 0, ToAgent::Drop { run, token: TokenId(Uuid::from_u128(1)), epoch: 1 }).expect("taken");
+    run_until(&mut a, 20);
+    assert_eq!((a.tokens_held(), a.term()), (0, (0, 0)));
 }

@@ -97,9 +97,13 @@ impl AgentRun {
     /// applies the coordinator's rules: a value is taken only from the variable's one writer (the coordinator,
     /// its agent, or an agent of its role), and only from the process of that writer the coordinator named
     /// (`Peers`). An update of a known writer's process not named yet waits for the coordinator's word; anything
-    /// else is counted and dropped.
-    pub fn handle_vars(&mut self, now_ms: u64, update: &VarUpdate) {
+    /// else is counted and dropped. `term` is the coordinator term the update came with: the coordinator's own of
+    /// a lower term than the highest seen are refused, as its commands are (`take_term`); an agent's carry none.
+    pub fn handle_vars(&mut self, now_ms: u64, term: u64, update: &VarUpdate) {
         if update.from == self.name || update.run != self.run {
+            return;
+        }
+        if update.from == COORDINATOR && !self.take_term(now_ms, term, "variable update") {
             return;
         }
         if update.from != COORDINATOR && !crate::cluster::keys::is_valid_name(&update.from) {

@@ -555,7 +555,7 @@ fn the_agent_of_a_token_gone_quiet_is_asked_for_its_pending_reports() {
                         agent.handle_ack(a.token, a.epoch, a.seq, a.done);
                     }
                 }
-                CoordOutput::Vars(u) => agent.handle_vars(now, &u),
+                CoordOutput::Vars(u) => agent.handle_vars(now, 0, &u),
                 CoordOutput::Ask { agent, incarnation } => asks.push((agent, incarnation)),
                 _ => {}
             }
