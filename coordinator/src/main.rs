@@ -13,6 +13,7 @@ mod console;
 mod demo;
 mod demo_chart;
 mod deploy;
+mod election;
 mod journal;
 mod recording;
 mod replay;

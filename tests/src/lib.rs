@@ -29,6 +29,7 @@
 
 pub mod access;
 pub mod conformance;
+pub mod etcd;
 pub mod gen;
 pub mod harness;
 pub mod http;

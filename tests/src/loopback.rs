@@ -354,6 +354,28 @@ impl Coordinator {
         lines.join("\n")
     }
 
+    /// Waits until the coordinator logs a line holding `text`, and returns that line.
+    pub async fn wait_for_log(&mut self, text: &str) -> String {
+        let log = self.log.clone();
+        let found = tokio::time::timeout(TIMEOUT, async {
+            loop {
+                let more = log.more.notified();
+                if let Some(line) = log.since(0).into_iter().find(|l| l.contains(text)) {
+                    return Some(line);
+                }
+                if log.ended.load(std::sync::atomic::Ordering::SeqCst) {
+                    return None;
+                }
+                more.await;
+            }
+        })
+        .await;
+        match found {
+            Ok(Some(line)) => line,
+            _ => panic!("the coordinator never logged `{text}`; its log:\n{}", log.since(0).join("\n")),
+        }
+    }
+
     /// Waits until this process is serving its run: its first trace record (the chart's initial steps, or the
     /// run waiting for its start), or, resuming a run whose trace had records, its `recover` record. Returns the
     /// trace so far.
@@ -414,7 +436,8 @@ impl Coordinator {
         match found {
             Ok(Some(trace)) => trace,
             _ => panic!(
-                "the coordinator's trace never showed it {what}; its trace:\n{:#?}\nits log:\n{}",
+                "the coordinator's trace never showed it {what} (its process: {:?}); its trace:\n{:#?}\nits log:\n{}",
+                self.child.try_wait(),
                 read_trace_so_far(&self.trace),
                 self.log.since(0).join("\n")
             ),

@@ -195,6 +195,7 @@ pub(super) fn chart_options(
         stay: false,
         abort_wait_ms: 0,
         console: None,
+        election: None,
     };
     Ok((opts, agents))
 }

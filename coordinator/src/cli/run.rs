@@ -97,6 +97,15 @@ pub struct Run {
     /// abort, if they come back meanwhile: one told stops what it still runs of the run.
     #[arg(long, value_name = "DURATION", default_value = "30s", value_parser = super::ctl::parse_duration_ms)]
     pub abort_wait: u64,
+    /// Stand in an election on etcd with the other coordinators of this run (the same chart, journal and PREFIX),
+    /// and coordinate only while winning it: etcd://HOST:PORT[,HOST:PORT…]/PREFIX. A standby waits, then takes the
+    /// run over from the journal when the active coordinator's lease ends.
+    #[arg(long, value_name = "etcd://…/PREFIX", requires = "journal")]
+    pub election: Option<crate::election::Election>,
+    /// With --election: the lease's time to live, in seconds. A standby takes over about this long after the active
+    /// coordinator died or was cut off from etcd; one cut off stops acting a third of it earlier.
+    #[arg(long, value_name = "SECONDS", default_value_t = 2, requires = "election", value_parser = clap::value_parser!(u64).range(2..=60))]
+    pub lease: u64,
 }
 
 impl Run {
@@ -127,6 +136,7 @@ impl Run {
             stay: self.stay,
             abort_wait_ms: self.abort_wait,
             console: self.console,
+            election: self.election.map(|e| (e, self.lease)),
         };
         block_on(async move {
             let summary = crate::run::run(opts).await?;

@@ -62,6 +62,15 @@ pub(crate) fn deliver_through(session: &Session) -> crate::journal::Deliver {
     })
 }
 
+/// `deliver`, while `acting`: once a coordinator stopped acting (its election lost), what its journal still makes
+/// durable is sent to nobody — a standby that won goes on from the same records.
+pub(crate) fn deliver_while(
+    mut deliver: crate::journal::Deliver,
+    acting: std::sync::Arc<std::sync::atomic::AtomicBool>,
+) -> crate::journal::Deliver {
+    Box::new(move |messages| if acting.load(std::sync::atomic::Ordering::SeqCst) { deliver(messages) } else { Ok(()) })
+}
+
 /// What a put that did not go means for the run: a key that cannot be declared ends it (the reason returned), a
 /// failed put is a warning (the state machines resend what matters).
 fn weigh(sent: Result<(), baton_host::Unsent>) -> Result<(), String> {

@@ -27,7 +27,7 @@ use baton_proto::cluster::netconfig::NetConfig;
 use baton_proto::cluster::runtime::coordinator::LossPolicy;
 use baton_proto::cluster::wire::{self, ChartHash, ChartSource, RunId};
 use baton_proto::exec::program::VarId;
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 
 use crate::chart_file::{load, Loaded};
 
@@ -69,6 +69,8 @@ pub struct RunOptions {
     pub abort_wait_ms: u64,
     /// Serve the operator console on this loopback address (`--console`).
     pub console: Option<std::net::SocketAddr>,
+    /// Stand in this election on etcd, with a lease of this many seconds, and coordinate only while winning it.
+    pub election: Option<(crate::election::Election, u64)>,
 }
 
 pub async fn run(opts: RunOptions) -> anyhow::Result<Summary> {
@@ -87,6 +89,8 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         Some(addr) => Some(crate::console::bind_local(addr).await?),
         None => None,
     };
+    // A standby waits here, before it touches the journal, until it wins.
+    let won = elected(&opts).await?;
     // The journal first: a refused one costs nothing, not even a Zenoh session.
     let Opened { run, started_unix_ms, resume, store } = open_journal(&opts, &loaded, &hash)?;
     let net =
@@ -94,7 +98,10 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let net = NetConfig { multicast_scouting: opts.multicast_scouting, ..net };
     let zconfig = baton_host::zenoh_config(&net, opts.zenoh_config.as_deref())?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
-    let writer = store.map(|store| store.start_writer(Some(host::deliver_through(&session))));
+    // Once the election is lost, nothing the journal made durable is sent any more.
+    let acting = Arc::new(std::sync::atomic::AtomicBool::new(true));
+    let deliver = host::deliver_while(host::deliver_through(&session), Arc::clone(&acting));
+    let writer = store.map(|store| store.start_writer(Some(deliver)));
     let console = console.map(|listener| {
         let endpoints = crate::console::endpoints_of(&opts.listen, &opts.connect);
         crate::console::spawn(listener, endpoints, opts.zenoh_config.clone())
@@ -162,7 +169,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
         held: VecDeque::new(),
         held_replies: VecDeque::new(),
         quiet: opts.quiet,
-        term: 0,
+        term: won.as_ref().map_or(0, |w| w.term),
         outbox: baton_host::Outbox::new(&session),
         vars_key: keys::vars(run, baton_proto::cluster::runtime::COORDINATOR),
         cmd_keys: host::CmdKeys::default(),
@@ -179,8 +186,20 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     host.core.watch(watch);
     begin(&mut host, resume, &opts, &loaded, run, &where_)?;
     let shared = baton_host::Shared::new(host);
-    let ended = serve(&shared, &session, chart_reply, opts.abort_wait_ms).await?;
+    let lost = won.as_ref().map(|w| deposing(w.lost.clone(), acting));
+    let ended = serve(&shared, &session, chart_reply, opts.abort_wait_ms, lost).await?;
     wind_down(shared.take()?, session, console, &opts, &loaded, ended).await
+}
+
+/// With `--election`: waits, standing by, until this coordinator wins the run's election.
+async fn elected(opts: &RunOptions) -> anyhow::Result<Option<crate::election::Won>> {
+    let Some((election, lease_s)) = &opts.election else { return Ok(None) };
+    let candidate = format!("{} (pid {})", crate::client::who(), std::process::id());
+    let won = crate::election::win(election, *lease_s, &candidate, opts.quiet).await?;
+    if !opts.quiet {
+        eprintln!("baton: won the election on etcd: coordinating at term {}", won.term);
+    }
+    Ok(Some(won))
 }
 
 /// The variables `--watch` names, each a variable of `program`.
@@ -403,6 +422,33 @@ enum Ended {
     /// as it stands, for the coordinator that starts on its journal next — as after a crash, the agents keep their
     /// tokens, and nothing is ended.
     Left,
+    /// The coordinator's election was lost (or about to be): it stops acting at once, sends nothing more, and
+    /// leaves the run to the standby that wins.
+    Deposed,
+}
+
+/// Watches the election won: once it is lost, `acting` turns false at that moment — the journal's writer sends
+/// nothing more — and the returned receiver tells the main loop why.
+fn deposing(
+    mut lost: watch::Receiver<Option<String>>,
+    acting: Arc<std::sync::atomic::AtomicBool>,
+) -> watch::Receiver<Option<String>> {
+    let seen = lost.clone();
+    tokio::spawn(async move {
+        if lost.wait_for(Option::is_some).await.is_ok() {
+            acting.store(false, std::sync::atomic::Ordering::SeqCst);
+        }
+    });
+    seen
+}
+
+/// Why the election was lost, once it is; never without one.
+async fn deposed(lost: &mut Option<watch::Receiver<Option<String>>>) -> String {
+    let Some(lost) = lost else { return std::future::pending().await };
+    match lost.wait_for(Option::is_some).await {
+        Ok(why) => why.clone().unwrap_or_default(),
+        Err(_) => "the election's watch ended".to_string(),
+    }
 }
 
 /// Who an interrupt comes from, in the trace: the user and host of this process.
@@ -448,6 +494,7 @@ async fn serve(
     session: &zenoh::Session,
     chart_reply: Vec<u8>,
     abort_wait_ms: u64,
+    mut lost: Option<watch::Receiver<Option<String>>>,
 ) -> anyhow::Result<Ended> {
     // A resumed journal may have gone on to a later run than its header's (a `reset`).
     let mut run = shared.lock()?.core.core().run();
@@ -484,6 +531,10 @@ async fn serve(
             () = baton_host::until(deadline) => Wake::Timer,
             () = shared.rearmed() => Wake::Look,
             signal = stop.recv() => Wake::Stop(signal),
+            why = deposed(&mut lost) => {
+                eprintln!("baton: stopped coordinating: {why}");
+                return Ok(Ended::Deposed);
+            }
         };
         // Taken under the lock, with no wait in it, and the next deadline with it (one hold a wake-up: a hold
         // makes the callbacks that come meanwhile queue their messages); a reset's new inboxes are declared after.
@@ -607,18 +658,21 @@ async fn wind_down(
         host.core.end(now);
         host.commit(Vec::new())?;
     }
-    // Whatever was taken in is made durable and carried out before the process leaves.
-    if let Some(w) = &mut host.journal {
-        w.sync().await?;
+    // Whatever was taken in is made durable and carried out before the process leaves — unless another coordinator
+    // may be acting already.
+    if ended != Ended::Deposed {
+        if let Some(w) = &mut host.journal {
+            w.sync().await?;
+        }
+        host.release()?;
     }
-    host.release()?;
     if let Some(w) = &mut host.journal {
         w.close();
     }
     host.out.finish()?;
     let failure = host.core.core().failure().map(str::to_string);
     let mut summary = host.summary(loaded);
-    summary.left = ended == Ended::Left;
+    summary.left = matches!(ended, Ended::Left | Ended::Deposed);
     let tokens_out = host.core.core().tokens_in_flight();
     drop(host);
     // The console is a client of this session's router: it goes first, once the replies released above had
@@ -678,6 +732,7 @@ mod tests {
             stay: false,
             abort_wait_ms: 0,
             console: None,
+            election: None,
         }
     }
 

@@ -1,0 +1,250 @@
+//! `baton run --election etcd://HOST:PORT[,HOST:PORT…]/PREFIX`: coordinators of one run stand in an election on
+//! etcd, and only its winner coordinates. The others stand by — each waits in etcd's election (its campaign) — and
+//! the first of them wins when the active one's lease ends: it died, it was cut off from etcd, it was stopped.
+//!
+//! Each coordinator holds a lease of `--lease` seconds, renewed a few times in each TTL. The winner's term is the
+//! revision at which etcd created its leadership key: a later winner's is always higher, and every command and
+//! coordinator value it sends carries it (`wire::encode_termed`), so that an agent that heard it refuses the
+//! deposed one's (`AgentRun::take_term`). A lease that cannot be renewed does not stop a process by itself (a
+//! paused or cut-off coordinator does not know it was replaced): so a coordinator stops acting on its own deadline,
+//! a third of the TTL before the lease could end in etcd for the standbys — counted from when it sent the last
+//! renewal etcd granted, which etcd received later still.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, bail, Context};
+use tokio::sync::watch;
+
+/// Where the election is held: etcd's client endpoints, and the prefix of the run's keys.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Election {
+    pub endpoints: Vec<String>,
+    pub prefix: String,
+}
+
+impl std::str::FromStr for Election {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Election, String> {
+        let form = "etcd://HOST:PORT[,HOST:PORT…]/PREFIX";
+        let rest = s.strip_prefix("etcd://").ok_or_else(|| format!("`{s}` is not of the form {form}"))?;
+        let (hosts, prefix) = rest.split_once('/').ok_or_else(|| format!("`{s}` names no PREFIX: {form}"))?;
+        let prefix = prefix.trim_end_matches('/');
+        if prefix.is_empty() {
+            return Err(format!("`{s}` names no PREFIX: {form}"));
+        }
+        let mut endpoints = Vec::new();
+        for host in hosts.split(',') {
+            let Some((name, port)) = host.rsplit_once(':') else {
+                return Err(format!("`{host}` in `{s}` is not HOST:PORT"));
+            };
+            if name.is_empty() || port.parse::<u16>().is_err() {
+                return Err(format!("`{host}` in `{s}` is not HOST:PORT"));
+            }
+            endpoints.push(format!("http://{host}"));
+        }
+        Ok(Election { endpoints, prefix: prefix.to_string() })
+    }
+}
+
+impl Election {
+    /// The election's name in etcd (its candidates' keys are under it).
+    fn name(&self) -> String {
+        format!("{}/coordinator", self.prefix)
+    }
+}
+
+/// An election won: the term, and the reason the coordinator must stop acting, once it must.
+pub struct Won {
+    pub term: u64,
+    /// `Some(why)` once the lease is lost, or about to be for the standbys.
+    pub lost: watch::Receiver<Option<String>>,
+    renewing: tokio::task::JoinHandle<()>,
+}
+
+impl Drop for Won {
+    fn drop(&mut self) {
+        self.renewing.abort();
+    }
+}
+
+/// Joins the election as `candidate` with a lease of `lease_s` seconds and waits until it wins: standing by,
+/// meanwhile, behind the coordinator that holds it (said once, unless `quiet`).
+pub async fn win(election: &Election, lease_s: u64, candidate: &str, quiet: bool) -> anyhow::Result<Won> {
+    let shown = election.endpoints.join(",");
+    let options = etcd_client::ConnectOptions::new()
+        .with_connect_timeout(Duration::from_secs(lease_s))
+        .with_keep_alive(Duration::from_millis(lease_s * 1000 / 3), Duration::from_millis(lease_s * 1000 / 3))
+        .with_require_leader(true);
+    let mut client = etcd_client::Client::connect(&election.endpoints, Some(options.clone()))
+        .await
+        .with_context(|| format!("cannot reach etcd at {shown}"))?;
+    loop {
+        let (lease, mut lost, renewing) = stand(&mut client, &options, election, lease_s).await?;
+        if !quiet {
+            if let Ok(now) = client.leader(election.name()).await {
+                if let Some(kv) = now.kv() {
+                    eprintln!(
+                        "baton: standing by: {} coordinates (term {}); taking over when its lease of etcd ends",
+                        String::from_utf8_lossy(kv.value()),
+                        kv.create_revision()
+                    );
+                }
+            }
+        }
+        // Campaigning again with the same lease is the same candidacy (etcd keys it by the lease).
+        let won = loop {
+            let campaign = client.campaign(election.name(), candidate, lease);
+            tokio::select! {
+                won = campaign => match won {
+                    Ok(won) => break Some(won),
+                    Err(e) if !refused(&e) => tokio::time::sleep(RETRY).await,
+                    Err(e) => return Err(e).with_context(|| format!("the election on etcd at {shown} failed")),
+                },
+                why = async { lost.wait_for(Option::is_some).await.map(|w| w.clone()) } => {
+                    // A standby acts on nothing: its candidacy lapsed (etcd unreachable, or electing a leader of
+                    // its own), and it stands again.
+                    let why = why.ok().flatten().unwrap_or_default();
+                    eprintln!("baton: warning: standing by, its candidacy lapsed ({why}): standing again");
+                    renewing.abort();
+                    break None;
+                }
+            }
+        };
+        let Some(won) = won else { continue };
+        let key = won.leader().ok_or_else(|| anyhow!("etcd at {shown} named no leadership key"))?;
+        let term = u64::try_from(key.rev()).map_err(|_| anyhow!("etcd gave a negative revision"))?;
+        return Ok(Won { term, lost, renewing });
+    }
+}
+
+/// A candidacy: a lease of `lease_s` seconds granted, and renewed from now on by a task of its own.
+async fn stand(
+    client: &mut etcd_client::Client,
+    options: &etcd_client::ConnectOptions,
+    election: &Election,
+    lease_s: u64,
+) -> anyhow::Result<(i64, watch::Receiver<Option<String>>, tokio::task::JoinHandle<()>)> {
+    let shown = election.endpoints.join(",");
+    // A request may go to a member that is down (the client balances over all of them): it is asked again.
+    let grant = tokio::time::timeout(Duration::from_secs(lease_s), async {
+        loop {
+            match client.lease_grant(lease_s as i64, None).await {
+                Ok(grant) => return Ok(grant),
+                Err(e) if !refused(&e) => tokio::time::sleep(RETRY).await,
+                Err(e) => return Err(e),
+            }
+        }
+    })
+    .await
+    .map_err(|_| anyhow!("etcd at {shown} granted no lease within {lease_s} s (has it a quorum?)"))?
+    .with_context(|| format!("etcd at {shown} granted no lease"))?;
+    let (lease, granted) = (grant.id(), grant.ttl());
+    if granted as u64 != lease_s {
+        bail!("etcd at {shown} granted a lease of {granted} s, not the {lease_s} s asked for: give --lease {granted}");
+    }
+    let (tell, lost) = watch::channel(None);
+    let renewing = tokio::spawn(renew(election.endpoints.clone(), options.clone(), lease, lease_s, tell));
+    Ok((lease, lost, renewing))
+}
+
+/// How long to wait before asking etcd again after a member did not answer.
+const RETRY: Duration = Duration::from_millis(100);
+
+/// Whether etcd refused a request for what it is (bad arguments, no permission), rather than a member being out
+/// of reach (down, cut off, reset), so that another member may answer the same request.
+fn refused(e: &etcd_client::Error) -> bool {
+    use tonic::Code;
+    match e {
+        etcd_client::Error::GRpcStatus(s) => matches!(
+            s.code(),
+            Code::InvalidArgument | Code::PermissionDenied | Code::Unauthenticated | Code::NotFound | Code::OutOfRange
+        ),
+        etcd_client::Error::InvalidArgs(_) | etcd_client::Error::InvalidUri(_) => true,
+        _ => false,
+    }
+}
+
+/// Renews `lease` several times in each TTL until it is lost: etcd says it expired, or no renewal was granted in
+/// time for this process to stop acting before it can expire for others. Says why on `tell`, once. Renewals go to
+/// one member at a time; one that does not answer in a sixth of the TTL is left for the next.
+async fn renew(
+    endpoints: Vec<String>,
+    options: etcd_client::ConnectOptions,
+    lease: i64,
+    lease_s: u64,
+    tell: watch::Sender<Option<String>>,
+) {
+    let ttl = Duration::from_secs(lease_s);
+    let every = ttl / 6;
+    // The lease is this process's until a third of the TTL before it could end: etcd counts the TTL from when it
+    // received the renewal, later than it was sent.
+    let mut own_until = Instant::now() + ttl - ttl / 3;
+    let mut last_error = String::from("no answer");
+    let mut member = 0;
+    let mut stream = None;
+    loop {
+        let sent = Instant::now();
+        let attempt = async {
+            if stream.is_none() {
+                let endpoint = [endpoints[member].as_str()];
+                let mut client = etcd_client::Client::connect(endpoint, Some(options.clone())).await?;
+                stream = Some(client.lease_keep_alive(lease).await?);
+            }
+            let (keeper, answers) = stream.as_mut().expect("opened above");
+            keeper.keep_alive().await?;
+            answers.message().await
+        };
+        // One try may hang on a member that lost its quorum: the next goes again, perhaps to another member.
+        let answered = tokio::time::timeout_at(own_until.min(sent + every).into(), attempt).await;
+        if !matches!(answered, Ok(Ok(Some(_)))) {
+            member = (member + 1) % endpoints.len();
+        }
+        match answered {
+            Ok(Ok(Some(answer))) if answer.ttl() > 0 => {
+                own_until = sent + Duration::from_secs(answer.ttl() as u64) - ttl / 3;
+            }
+            Ok(Ok(Some(_))) => {
+                let _ = tell.send(Some("etcd says its lease expired: a standby may have taken over".into()));
+                return;
+            }
+            Ok(Ok(None)) => {
+                last_error = "etcd closed the renewal stream".into();
+                stream = None;
+            }
+            Ok(Err(e)) => {
+                last_error = e.to_string();
+                stream = None;
+            }
+            Err(_) => {
+                last_error = format!("no answer within {} ms", every.as_millis());
+                stream = None;
+            }
+        }
+        if Instant::now() >= own_until {
+            let _ = tell.send(Some(format!(
+                "no renewal of its lease was granted by etcd in time ({last_error}): stopping {} ms before the lease \
+                 of {lease_s} s can end for the standbys",
+                (ttl / 3).as_millis()
+            )));
+            return;
+        }
+        tokio::time::sleep_until((sent + every).min(own_until).into()).await;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Election;
+
+    #[test]
+    fn an_election_is_named_by_etcds_endpoints_and_a_prefix() {
+        let e: Election = "etcd://127.0.0.1:2379,10.0.0.2:2379/cell1".parse().expect("valid");
+        assert_eq!(e.endpoints, ["http://127.0.0.1:2379", "http://10.0.0.2:2379"]);
+        assert_eq!(e.prefix, "cell1");
+        assert_eq!(e.name(), "cell1/coordinator");
+        for bad in ["127.0.0.1:2379/cell1", "etcd://127.0.0.1:2379", "etcd://127.0.0.1:2379/", "etcd://host/cell1"] {
+            assert!(bad.parse::<Election>().is_err(), "{bad} taken");
+        }
+    }
+}

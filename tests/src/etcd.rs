@@ -1,0 +1,156 @@
+//! A real etcd cluster on loopback for the tests of standby coordinators: Debian's `etcd-server` (3.4.23, which
+//! `.ci/run` installs), members started by the test on free ports with their data in a temp folder, killed and
+//! started again at will, and every one of them killed when the cluster is dropped.
+
+use std::path::PathBuf;
+use std::process::Stdio;
+use std::time::Duration;
+
+use tokio::process::{Child, Command};
+
+use crate::loopback::{free_port, TIMEOUT};
+
+/// The etcd release the tests are pinned to (Debian bookworm's `etcd-server`).
+pub const VERSION: &str = "3.4.23";
+
+pub struct Etcd {
+    members: Vec<Member>,
+    /// The members' data folders and logs.
+    pub dir: tempfile::TempDir,
+}
+
+struct Member {
+    client: u16,
+    args: Vec<String>,
+    child: Option<Child>,
+}
+
+/// The `etcd` binary of the pinned version, or the test is missing its peer.
+fn etcd() -> PathBuf {
+    let path = PathBuf::from("/usr/bin/etcd");
+    let version = std::process::Command::new(&path).arg("--version").output();
+    match version {
+        Ok(out) if String::from_utf8_lossy(&out.stdout).contains(&format!("etcd Version: {VERSION}")) => path,
+        Ok(out) => crate::harness::missing(&format!(
+            "/usr/bin/etcd is not etcd {VERSION} ({}): apt-get install etcd-server=3.4.23-4+b4",
+            String::from_utf8_lossy(&out.stdout).lines().next().unwrap_or("")
+        )),
+        Err(_) => crate::harness::missing("etcd is not installed: apt-get install etcd-server=3.4.23-4+b4"),
+    }
+}
+
+impl Etcd {
+    /// Starts a cluster of `n` members and returns once it has a leader.
+    pub async fn start(n: usize) -> Etcd {
+        let binary = etcd();
+        let dir = tempfile::tempdir().expect("temp dir");
+        let ports: Vec<(u16, u16)> = (0..n).map(|_| (free_port(), free_port())).collect();
+        let cluster: Vec<String> =
+            ports.iter().enumerate().map(|(i, (_, peer))| format!("m{i}=http://127.0.0.1:{peer}")).collect();
+        let members = ports
+            .iter()
+            .enumerate()
+            .map(|(i, &(client, peer))| {
+                let args = [
+                    "--name".to_string(),
+                    format!("m{i}"),
+                    "--data-dir".into(),
+                    dir.path().join(format!("m{i}")).display().to_string(),
+                    "--listen-client-urls".into(),
+                    format!("http://127.0.0.1:{client}"),
+                    "--advertise-client-urls".into(),
+                    format!("http://127.0.0.1:{client}"),
+                    "--listen-peer-urls".into(),
+                    format!("http://127.0.0.1:{peer}"),
+                    "--initial-advertise-peer-urls".into(),
+                    format!("http://127.0.0.1:{peer}"),
+                    "--initial-cluster".into(),
+                    cluster.join(","),
+                    "--initial-cluster-token".into(),
+                    "baton-test".into(),
+                    "--initial-cluster-state".into(),
+                    "new".into(),
+                    "--logger".into(),
+                    "zap".into(),
+                    "--log-level".into(),
+                    "warn".into(),
+                    // As deploy/etcd/ advises for a cell: a leader lost is replaced well within a coordinator's
+                    // lease (the coordinator stops acting two thirds into it without a renewal).
+                    "--heartbeat-interval".into(),
+                    "50".into(),
+                    "--election-timeout".into(),
+                    "500".into(),
+                ]
+                .to_vec();
+                Member { client, args, child: None }
+            })
+            .collect();
+        let mut etcd = Etcd { members, dir };
+        for i in 0..n {
+            etcd.spawn(&binary, i);
+        }
+        for i in 0..n {
+            etcd.wait_healthy(i).await;
+        }
+        etcd
+    }
+
+    fn spawn(&mut self, binary: &PathBuf, i: usize) {
+        let log = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(self.dir.path().join(format!("m{i}.log")))
+            .expect("etcd's log");
+        let member = &mut self.members[i];
+        let child = Command::new(binary)
+            .args(&member.args)
+            .stdout(Stdio::null())
+            .stderr(log)
+            .kill_on_drop(true)
+            .spawn()
+            .expect("start etcd");
+        member.child = Some(child);
+    }
+
+    /// Waits until member `i` answers its health check with a leader in its cluster.
+    async fn wait_healthy(&self, i: usize) {
+        let addr = format!("127.0.0.1:{}", self.members[i].client);
+        let up = tokio::time::timeout(TIMEOUT, async {
+            loop {
+                if tokio::net::TcpStream::connect(&addr).await.is_ok() {
+                    let (status, body) = crate::http::http(&addr, "GET", "/health", None).await;
+                    if status == 200 && body.contains("\"true\"") {
+                        return;
+                    }
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+        })
+        .await;
+        assert!(up.is_ok(), "etcd member m{i} never became healthy: {}", self.log(i));
+    }
+
+    /// Member `i`'s log, for a failure message.
+    pub fn log(&self, i: usize) -> String {
+        std::fs::read_to_string(self.dir.path().join(format!("m{i}.log"))).unwrap_or_default()
+    }
+
+    /// The client endpoints, as `--election etcd://…` names them: `127.0.0.1:P1,127.0.0.1:P2,…`.
+    pub fn endpoints(&self) -> String {
+        self.members.iter().map(|m| format!("127.0.0.1:{}", m.client)).collect::<Vec<_>>().join(",")
+    }
+
+    /// SIGKILLs member `i` and waits for it to be gone.
+    pub async fn kill(&mut self, i: usize) {
+        if let Some(mut child) = self.members[i].child.take() {
+            child.start_kill().expect("kill etcd");
+            tokio::time::timeout(TIMEOUT, child.wait()).await.expect("etcd died in time").expect("wait");
+        }
+    }
+
+    /// Starts member `i` again on its data (its cluster had it), and returns once it is healthy.
+    pub async fn restart(&mut self, i: usize) {
+        self.spawn(&etcd(), i);
+        self.wait_healthy(i).await;
+    }
+}

@@ -1,0 +1,140 @@
+//! Standby coordinators on a real etcd (Debian's etcd-server 3.4.23, three members on loopback started by the
+//! test): two coordinators of one run stand in its election (`baton run --election etcd://…`), one coordinates
+//! and the other stands by; the active one killed with SIGKILL mid-branch, the standby wins and goes on from the
+//! journal, and the run completes as one run — every part once, the trace's invariants holding — while an agent
+//! refuses what the deposed coordinator sends. Without etcd's quorum a coordinator stops acting and says so; with
+//! the quorum back, a coordinator started again wins and completes the run.
+
+use baton_proto::cluster::keys;
+use baton_proto::cluster::wire::{self, AgentInfo, StatusReport, ToAgent};
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
+use baton_tests::etcd::Etcd;
+use baton_tests::loopback::{check_trace_invariants, dispatches, next_dispatch, repo, step_id, Cluster, TIMEOUT};
+
+baton_tests::harness_main!(
+    tokio a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_commands_are_refused,
+    tokio without_etcds_quorum_the_coordinator_stops_acting_and_the_run_goes_on_when_it_is_back,
+);
+
+const PARTS: &str = "2";
+
+fn args(cluster: &Cluster, etcd: &Etcd) -> Vec<String> {
+    let journal = cluster.dir.path().join("journal");
+    let election = format!("etcd://{}/baton-test", etcd.endpoints());
+    let journal = journal.to_str().expect("utf-8 path").to_string();
+    ["--set", &format!("parts={PARTS}"), "--journal", &journal, "--election", &election, "--lease", "2"]
+        .map(String::from)
+        .to_vec()
+}
+
+/// The term a coordinator said it won at ("coordinating at term N").
+fn term_in(log: &str) -> u64 {
+    let at = log.find("coordinating at term ").unwrap_or_else(|| panic!("no term in the log:\n{log}"));
+    let digits: String = log[at + 21..].chars().take_while(char::is_ascii_digit).collect();
+    digits.parse().expect("a term")
+}
+
+fn terms_heard(trace: &[TraceRecord]) -> Vec<String> {
+    trace.iter().filter(|r| r.event == TraceEvent::Term).filter_map(|r| r.message.clone()).collect()
+}
+
+async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_commands_are_refused() {
+    let mut etcd = Etcd::start(3).await;
+    let chart = repo("tests/charts/standby_cell.st");
+    let mut cluster = Cluster::with_router().await;
+    let args = args(&cluster, &etcd);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let watch = cluster.watch().await;
+    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
+    let mut active = cluster.coordinator_joining(&chart, &args);
+    active.wait_ready().await;
+    let mut standby = cluster.coordinator_joining_as("-standby", &chart, &args);
+    standby.wait_for_log("standing by").await;
+    // One member of three lost: the cluster keeps its quorum, and nothing changes.
+    etcd.kill(2).await;
+    for robot in ["robot1", "robot2", "robot3"] {
+        cluster.agent(robot, &[], &[]);
+    }
+    // Mid-branch: the three picks of the first part are under way (motions of 2 to 3 s).
+    next_dispatch(&cmds, step_id(&chart, "Pick3"), 1).await;
+    let old_term = term_in(&active.wait_for_log("coordinating at term").await);
+    active.kill().await;
+    standby.wait_ready().await;
+    let new_term = term_in(&standby.wait_for_log("coordinating at term").await);
+    assert!(new_term > old_term, "the standby won at term {new_term}, after term {old_term}");
+    // The deposed coordinator's abort, as it would send it had it been paused rather than killed: each robot that
+    // heard the new term refuses it.
+    let said = format!("term {new_term}");
+    let heard =
+        |r: &TraceRecord| r.event == TraceEvent::Term && r.message.as_deref().is_some_and(|m| m.contains(&said));
+    cluster.wait_for_agent_trace("robot1", "the new term", heard).await;
+    let session = watch.clone();
+    let replies = session.get(keys::status_any_run()).timeout(TIMEOUT).await.expect("status query");
+    let reply = replies.recv_async().await.expect("a status reply");
+    let status: StatusReport = wire::decode(&reply.result().expect("ok").payload().to_bytes()).expect("status");
+    let info = session.get(keys::agent_info("robot1")).timeout(TIMEOUT).await.expect("info query");
+    let info = info.recv_async().await.expect("robot1 answers");
+    let info: AgentInfo = wire::decode(&info.result().expect("ok").payload().to_bytes()).expect("info");
+    let abort = wire::encode_termed(&ToAgent::Abort { run: status.run }, old_term);
+    session.put(keys::agent_cmd("robot1", info.incarnation), abort).await.expect("put");
+    let refused = |r: &TraceRecord| r.event == TraceEvent::StaleTerm && r.name == "abort";
+    cluster.wait_for_agent_trace("robot1", "the deposed coordinator's abort refused", refused).await;
+
+    let (status, log, trace, summary) = standby.finish().await;
+    assert!(status.success(), "{log}");
+    assert!(log.contains("resuming run"), "{log}");
+    check_trace_invariants(&trace, &chart);
+    assert_eq!(summary["vars"]["done"], PARTS, "{log}");
+    assert_eq!(summary["state"], "complete", "{log}");
+    // Every pick and assembly sent once per part, the picks the killed coordinator sent included.
+    for step in ["Pick1", "Pick2", "Pick3", "Assemble"] {
+        assert_eq!(dispatches(&trace, step).len(), 2, "{step}: {:?}\n{log}", dispatches(&trace, step));
+    }
+    // Each robot heard the coordinators' terms in order, the new one last: from the killed one's (if a message of
+    // it reached the robot before the kill) to the standby's. And no motion ran twice: one pick per part.
+    for robot in ["robot1", "robot2", "robot3"] {
+        let heard = terms_heard(&cluster.agent_trace(robot));
+        let expected: [&[String]; 2] = [
+            &[format!("coordinator term {new_term} (was 0)")],
+            &[format!("coordinator term {old_term} (was 0)"), format!("coordinator term {new_term} (was {old_term})")],
+        ];
+        let said: Vec<String> = heard.iter().map(|m| m.split(':').next().unwrap_or("").to_string()).collect();
+        assert!(expected.contains(&said.as_slice()), "{robot} heard {heard:?}");
+        let picks = cluster.agent_trace(robot).iter().filter(|r| r.event == TraceEvent::SkillStart).count();
+        let expected = if robot == "robot1" { 4 } else { 2 };
+        assert_eq!(picks, expected, "{robot}'s skills started, a pick (and for robot1 an assembly) per part");
+    }
+}
+
+async fn without_etcds_quorum_the_coordinator_stops_acting_and_the_run_goes_on_when_it_is_back() {
+    let mut etcd = Etcd::start(3).await;
+    let chart = repo("tests/charts/standby_cell.st");
+    let mut cluster = Cluster::with_router().await;
+    let args = args(&cluster, &etcd);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let watch = cluster.watch().await;
+    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
+    let mut active = cluster.coordinator_joining(&chart, &args);
+    active.wait_ready().await;
+    for robot in ["robot1", "robot2", "robot3"] {
+        cluster.agent(robot, &[], &[]);
+    }
+    next_dispatch(&cmds, step_id(&chart, "Pick3"), 1).await;
+    etcd.kill(1).await;
+    etcd.kill(2).await;
+    let (status, log, _, _) = active.finish().await;
+    assert_eq!(status.code(), Some(5), "the run is left as it stands (exit 5); log:\n{log}");
+    assert!(log.contains("stopped coordinating: no renewal of its lease was granted by etcd in time"), "{log}");
+    assert!(log.contains("is kept in its journal"), "{log}");
+    // A quorum again: the coordinator started again (as its service manager would) wins and completes the run.
+    etcd.restart(1).await;
+    let again = cluster.coordinator_joining(&chart, &args);
+    let (status, log, trace, summary) = again.finish().await;
+    assert!(status.success(), "{log}");
+    assert!(log.contains("resuming run"), "{log}");
+    check_trace_invariants(&trace, &chart);
+    assert_eq!(summary["vars"]["done"], PARTS, "{log}");
+    for step in ["Pick1", "Pick2", "Pick3", "Assemble"] {
+        assert_eq!(dispatches(&trace, step).len(), 2, "{step}: {:?}\n{log}", dispatches(&trace, step));
+    }
+}
