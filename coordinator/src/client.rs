@@ -293,6 +293,29 @@ async fn runs_answering(session: &Session) -> anyhow::Result<Vec<StatusReport>> 
 }
 
 /// The status of every run behind `session`'s router.
+/// The election as `baton status --json` shows it: `{"active": {name, term, since_unix_ms} | null, "standbys": […]}`.
+fn election_json(candidates: &[crate::election::Candidate]) -> serde_json::Value {
+    serde_json::json!({ "active": candidates.first(), "standbys": candidates.get(1..).unwrap_or_default() })
+}
+
+fn print_election(candidates: &[crate::election::Candidate]) {
+    let ago = |since: u64| baton_host::unix_ms().saturating_sub(since) / 1000;
+    match candidates.split_first() {
+        None => println!("  coordinators: nobody stands in the election"),
+        Some((active, standbys)) => {
+            println!(
+                "  coordinator: {} (term {}), active for {} s",
+                active.name,
+                active.term,
+                ago(active.since_unix_ms)
+            );
+            for s in standbys {
+                println!("    standing by: {} for {} s", s.name, ago(s.since_unix_ms));
+            }
+        }
+    }
+}
+
 pub async fn status_on(session: &Session) -> anyhow::Result<Vec<StatusReport>> {
     ask(session, keys::status_any_run(), None).await
 }
@@ -418,7 +441,14 @@ pub async fn add_agents_why(session: &Session, reports: &mut [StatusReport]) -> 
     Ok(())
 }
 
-pub async fn status(connect: &[String], file: Option<&Path>, json: bool, why: bool) -> anyhow::Result<()> {
+/// `coordinators`: the run's election (`--election`), the active coordinator first; shown with each chart.
+pub async fn status(
+    connect: &[String],
+    file: Option<&Path>,
+    json: bool,
+    why: bool,
+    coordinators: Option<Vec<crate::election::Candidate>>,
+) -> anyhow::Result<()> {
     let session = open(connect, file).await?;
     let mut reports: Vec<StatusReport> = ask(&session, keys::status_any_run(), None).await?;
     if why {
@@ -433,13 +463,20 @@ pub async fn status(connect: &[String], file: Option<&Path>, json: bool, why: bo
     reports.sort_by(|a, b| a.chart.cmp(&b.chart));
     if json {
         for r in &reports {
-            println!("{}", serde_json::to_string(r)?);
+            let mut line = serde_json::to_value(r)?;
+            if let (Some(c), Some(fields)) = (&coordinators, line.as_object_mut()) {
+                fields.insert("coordinators".into(), election_json(c));
+            }
+            println!("{line}");
         }
         return Ok(());
     }
     for r in &reports {
         let running = r.t_ms.saturating_sub(r.started_ms);
         println!("chart `{}` (run {}, version {}), running for {running} ms", r.chart, r.run.key(), r.hash.0);
+        if let Some(c) = &coordinators {
+            print_election(c);
+        }
         let legal: Vec<&str> = r.available.iter().map(|c| c.name()).collect();
         println!("  state: {} (legal commands: {})", r.state, legal.join(", "));
         if r.mode != baton_proto::exec::engine::Mode::Auto {

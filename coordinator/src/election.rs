@@ -13,6 +13,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
+use baton_host::unix_ms;
 use tokio::sync::watch;
 
 /// Where the election is held: etcd's client endpoints, and the prefix of the run's keys.
@@ -54,6 +55,55 @@ impl Election {
     }
 }
 
+/// A coordinator in the election, as its candidacy's value in etcd says it, and its term (the revision of its
+/// candidacy: the lowest is the active coordinator's).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Candidate {
+    pub name: String,
+    #[serde(default)]
+    pub term: u64,
+    /// Since when it stands by, or, once it won, since when it is active (Unix ms).
+    pub since_unix_ms: u64,
+}
+
+/// Who stands in the election now, for `baton status`: the active coordinator, then the standbys in the order they
+/// would win. Empty if nobody stands.
+pub async fn candidates(election: &Election) -> anyhow::Result<Vec<Candidate>> {
+    let shown = election.endpoints.join(",");
+    let options = etcd_client::ConnectOptions::new().with_connect_timeout(Duration::from_secs(2));
+    let mut client = etcd_client::Client::connect(&election.endpoints, Some(options))
+        .await
+        .with_context(|| format!("cannot reach etcd at {shown}"))?;
+    let prefix = format!("{}/", election.name());
+    let get = etcd_client::GetOptions::new().with_prefix();
+    // A member that is down is skipped by asking again (the client balances over all of them).
+    let found = tokio::time::timeout(Duration::from_secs(5), async {
+        loop {
+            match client.get(prefix.as_str(), Some(get.clone())).await {
+                Err(e) if !refused(&e) => tokio::time::sleep(RETRY).await,
+                answer => return answer,
+            }
+        }
+    })
+    .await
+    .map_err(|_| anyhow!("etcd at {shown} did not answer within 5 s"))?
+    .with_context(|| format!("cannot read the election from etcd at {shown}"))?;
+    let mut kvs: Vec<&etcd_client::KeyValue> = found.kvs().iter().collect();
+    kvs.sort_by_key(|kv| kv.create_revision());
+    Ok(kvs
+        .into_iter()
+        .map(|kv| {
+            let mut c = serde_json::from_slice::<Candidate>(kv.value()).unwrap_or_else(|_| Candidate {
+                name: String::from_utf8_lossy(kv.value()).into_owned(),
+                term: 0,
+                since_unix_ms: 0,
+            });
+            c.term = kv.create_revision().max(0) as u64;
+            c
+        })
+        .collect())
+}
+
 /// An election won: the term, and the reason the coordinator must stop acting, once it must.
 pub struct Won {
     pub term: u64,
@@ -84,17 +134,19 @@ pub async fn win(election: &Election, lease_s: u64, candidate: &str, quiet: bool
         if !quiet {
             if let Ok(now) = client.leader(election.name()).await {
                 if let Some(kv) = now.kv() {
+                    let who = serde_json::from_slice::<Candidate>(kv.value()).map(|c| c.name);
                     eprintln!(
                         "baton: standing by: {} coordinates (term {}); taking over when its lease of etcd ends",
-                        String::from_utf8_lossy(kv.value()),
+                        who.unwrap_or_else(|_| String::from_utf8_lossy(kv.value()).into_owned()),
                         kv.create_revision()
                     );
                 }
             }
         }
+        let standing = serde_json::to_string(&Candidate { name: candidate.into(), term: 0, since_unix_ms: unix_ms() })?;
         // Campaigning again with the same lease is the same candidacy (etcd keys it by the lease).
         let won = loop {
-            let campaign = client.campaign(election.name(), candidate, lease);
+            let campaign = client.campaign(election.name(), standing.as_str(), lease);
             tokio::select! {
                 won = campaign => match won {
                     Ok(won) => break Some(won),
@@ -114,6 +166,12 @@ pub async fn win(election: &Election, lease_s: u64, candidate: &str, quiet: bool
         let Some(won) = won else { continue };
         let key = won.leader().ok_or_else(|| anyhow!("etcd at {shown} named no leadership key"))?;
         let term = u64::try_from(key.rev()).map_err(|_| anyhow!("etcd gave a negative revision"))?;
+        // The candidacy now says since when it is active (`baton status --election`).
+        let active = serde_json::to_string(&Candidate { name: candidate.into(), term, since_unix_ms: unix_ms() })?;
+        let proclaim = etcd_client::ProclaimOptions::new().with_leader(key.clone());
+        if let Err(e) = client.proclaim(active, Some(proclaim)).await {
+            eprintln!("baton: warning: could not tell etcd since when this coordinator is active: {e}");
+        }
         return Ok(Won { term, lost, renewing });
     }
 }

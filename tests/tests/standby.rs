@@ -18,9 +18,13 @@ baton_tests::harness_main!(
 
 const PARTS: &str = "2";
 
+fn election(etcd: &Etcd) -> String {
+    format!("etcd://{}/baton-test", etcd.endpoints())
+}
+
 fn args(cluster: &Cluster, etcd: &Etcd) -> Vec<String> {
     let journal = cluster.dir.path().join("journal");
-    let election = format!("etcd://{}/baton-test", etcd.endpoints());
+    let election = election(etcd);
     let journal = journal.to_str().expect("utf-8 path").to_string();
     ["--set", &format!("parts={PARTS}"), "--journal", &journal, "--election", &election, "--lease", "2"]
         .map(String::from)
@@ -32,6 +36,15 @@ fn term_in(log: &str) -> u64 {
     let at = log.find("coordinating at term ").unwrap_or_else(|| panic!("no term in the log:\n{log}"));
     let digits: String = log[at + 21..].chars().take_while(char::is_ascii_digit).collect();
     digits.parse().expect("a term")
+}
+
+/// The run's election as `baton status --election … --json` shows it with the run.
+async fn coordinators(cluster: &Cluster, etcd: &Etcd) -> serde_json::Value {
+    let out = cluster.baton(&["status", "--connect", &cluster.endpoint, "--election", &election(etcd), "--json"]).await;
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line: serde_json::Value = serde_json::from_str(text.lines().next().unwrap_or("")).expect("a JSON line");
+    line["coordinators"].clone()
 }
 
 fn terms_heard(trace: &[TraceRecord]) -> Vec<String> {
@@ -50,6 +63,10 @@ async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_com
     active.wait_ready().await;
     let mut standby = cluster.coordinator_joining_as("-standby", &chart, &args);
     standby.wait_for_log("standing by").await;
+    let old_term = term_in(&active.wait_for_log("coordinating at term").await);
+    let seen = coordinators(&cluster, &etcd).await;
+    assert_eq!(seen["active"]["term"], old_term, "{seen}");
+    assert_eq!(seen["standbys"].as_array().map(Vec::len), Some(1), "{seen}");
     // One member of three lost: the cluster keeps its quorum, and nothing changes.
     etcd.kill(2).await;
     for robot in ["robot1", "robot2", "robot3"] {
@@ -57,11 +74,14 @@ async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_com
     }
     // Mid-branch: the three picks of the first part are under way (motions of 2 to 3 s).
     next_dispatch(&cmds, step_id(&chart, "Pick3"), 1).await;
-    let old_term = term_in(&active.wait_for_log("coordinating at term").await);
     active.kill().await;
     standby.wait_ready().await;
     let new_term = term_in(&standby.wait_for_log("coordinating at term").await);
     assert!(new_term > old_term, "the standby won at term {new_term}, after term {old_term}");
+    // The killed coordinator's candidacy ended with its lease: the standby is the active one, and nobody stands by.
+    let seen = coordinators(&cluster, &etcd).await;
+    assert_eq!(seen["active"]["term"], new_term, "{seen}");
+    assert_eq!(seen["standbys"], serde_json::json!([]), "{seen}");
     // The deposed coordinator's abort, as it would send it had it been paused rather than killed: each robot that
     // heard the new term refuses it.
     let said = format!("term {new_term}");
