@@ -40,6 +40,7 @@ pub mod peer;
 pub mod reference;
 pub mod roundtrip;
 pub mod rrd;
+pub mod unit;
 
 use std::path::{Path, PathBuf};
 

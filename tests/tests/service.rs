@@ -3,11 +3,10 @@
 //! the coordinator leaves the run as it stands, the agents keep their tokens, and the unit started again resumes it
 //! from its journal — the run's outcome is that of a run without the restart.
 
-use std::path::Path;
-
 use baton_proto::cluster::wire;
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
-use baton_tests::loopback::{self, bin, check_trace_invariants, dispatches, repo, Cluster};
+use baton_tests::loopback::{self, check_trace_invariants, dispatches, repo, Cluster};
+use baton_tests::unit;
 
 /// Two robots move at once for seconds, then one moves again and counts: a run of about 4.5 s.
 const CHART: &str = "PROGRAM line\nVAR a, b, c : BOOL; n : INT; END_VAR\nINITIAL_STEP Idle: END_STEP\n\
@@ -23,40 +22,6 @@ const CHART: &str = "PROGRAM line\nVAR a, b, c : BOOL; n : INT; END_VAR\nINITIAL
     ACTION MoveB: {skill := 'motion', ms := 2000} END_ACTION\n\
     ACTION MoveC: {skill := 'motion', ms := 2000} END_ACTION\n\
     ACTION Count: n := n + 1; END_ACTION\nEND_PROGRAM\n";
-
-/// A line of the unit file: the value of its `KEY=`.
-fn unit_setting(unit: &str, key: &str) -> String {
-    let prefix = format!("{key}=");
-    let line = unit.lines().find(|l| l.starts_with(&prefix)).unwrap_or_else(|| panic!("the unit has no {key}"));
-    line[prefix.len()..].to_string()
-}
-
-/// The unit's `ExecStart` for `instance`, as systemd runs it: `/etc/baton/` and `/var/lib/baton/` put in the test's
-/// folder, the binary the build's, `BATON_ROUTER` and `BATON_RUN_ARGS` (its environment file) given.
-fn unit_command(unit: &str, dir: &Path, instance: &str, router: &str, run_args: &str) -> Vec<String> {
-    let line = unit_setting(unit, "ExecStart")
-        .replace("%i", instance)
-        .replace("/usr/local/bin/baton", bin("baton").to_str().expect("utf-8"))
-        .replace("/etc/baton/", &format!("{}/etc/", dir.display()))
-        .replace("/var/lib/baton/", &format!("{}/var/", dir.display()))
-        .replace("${BATON_ROUTER}", router)
-        .replace("$BATON_RUN_ARGS", run_args);
-    assert!(!line.contains(['$', '%']), "the unit's command line has more to fill in: {line}");
-    line.split_whitespace().map(str::to_string).collect()
-}
-
-/// Starts the unit's command (its stderr read line by line), as `loopback::Coordinator`.
-fn start(command: &[String], trace: &Path, summary: &Path) -> loopback::Coordinator {
-    let trace_before = loopback::fresh_trace(trace, &command.iter().map(String::as_str).collect::<Vec<_>>());
-    let child = tokio::process::Command::new(&command[0])
-        .args(&command[1..])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .kill_on_drop(true)
-        .spawn()
-        .expect("start the unit's command");
-    loopback::Coordinator::following(child, trace.to_path_buf(), summary.to_path_buf(), trace_before)
-}
 
 /// Per step, how often it was active; and the variables' final values — what a run's outcome is.
 fn outcome(summary: &serde_json::Value) -> (serde_json::Value, serde_json::Value) {
@@ -90,18 +55,18 @@ async fn a_service_restart_resumes_the_run_and_changes_nothing_of_its_outcome() 
     let command = |instance: &str| {
         let (trace, summary) = files(instance);
         let args = format!("--on-agent-loss reassign --trace {} --summary {}", trace.display(), summary.display());
-        unit_command(&unit, &dir, instance, &cluster.endpoint, &args)
+        unit::command(&unit, &dir, instance, &[("BATON_ROUTER", &cluster.endpoint), ("BATON_RUN_ARGS", &args)])
     };
     // The run without a restart: an instance of its own.
     let (calm_trace, calm_summary) = files("calm");
-    let (status, log, calm, calm_summary) = start(&command("calm"), &calm_trace, &calm_summary).finish().await;
+    let (status, log, calm, calm_summary) = unit::start(&command("calm"), &calm_trace, &calm_summary).finish().await;
     assert!(status.success(), "{log}");
     // The same, restarted while A and B move.
     let watch = cluster.watch().await;
     let reports = watch.declare_subscriber("baton/run/*/report/*").await.expect("report subscriber");
     let (trace, summary) = files("cell");
     let command = command("cell");
-    let first = start(&command, &trace, &summary);
+    let first = unit::start(&command, &trace, &summary);
     // Both robots moving: each has reported what its segment did so far (its step active, its skill started).
     let mut moving = vec!["robot1".to_string(), "robot2".to_string()];
     let both = tokio::time::timeout(loopback::TIMEOUT, async {
@@ -122,9 +87,9 @@ async fn a_service_restart_resumes_the_run_and_changes_nothing_of_its_outcome() 
     // It left the run as it stands, with an exit status that the unit counts a clean stop.
     let code = status.code().expect("an exit status, not a signal");
     assert_eq!(code, 5, "{log}");
-    assert!(unit_setting(&unit, "SuccessExitStatus").split_whitespace().any(|s| s == code.to_string()));
+    assert!(unit::setting(&unit, "SuccessExitStatus").split_whitespace().any(|s| s == code.to_string()));
     assert!(log.contains("is kept in its journal"), "{log}");
-    let (status, log, restarted, restarted_summary) = start(&command, &trace, &summary).finish().await;
+    let (status, log, restarted, restarted_summary) = unit::start(&command, &trace, &summary).finish().await;
     assert!(status.success(), "{log}");
     assert!(log.contains("resuming run"), "{log}");
     check_trace_invariants(&restarted, &chart);

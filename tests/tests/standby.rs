@@ -1,5 +1,6 @@
 //! Standby coordinators on a real etcd (Debian's etcd-server 3.4.23, three members on loopback started by the
-//! test): two coordinators of one run stand in its election (`baton run --election etcd://…`), one coordinates
+//! test): two coordinators of one run stand in its election (`baton run --election etcd://…`, as
+//! `deploy/systemd/baton-standby@.service` runs it), one coordinates
 //! and the other stands by; the active one killed with SIGKILL mid-branch, the standby wins and goes on from the
 //! journal, and the run completes as one run — every part once, the trace's invariants holding — while an agent
 //! refuses what the deposed coordinator sends. Without etcd's quorum a coordinator stops acting and says so; with
@@ -10,6 +11,7 @@ use baton_proto::cluster::wire::{self, AgentInfo, StatusReport, ToAgent};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::etcd::Etcd;
 use baton_tests::loopback::{check_trace_invariants, dispatches, next_dispatch, repo, step_id, Cluster, TIMEOUT};
+use baton_tests::unit;
 
 baton_tests::harness_main!(
     tokio a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_commands_are_refused,
@@ -55,13 +57,25 @@ async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_com
     let mut etcd = Etcd::start(3).await;
     let chart = repo("tests/charts/standby_cell.st");
     let mut cluster = Cluster::with_router().await;
-    let args = args(&cluster, &etcd);
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let watch = cluster.watch().await;
     let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
-    let mut active = cluster.coordinator_joining(&chart, &args);
+    // The pair as deploy/systemd/baton-standby@.service runs it, each with its own trace.
+    let unit = std::fs::read_to_string(repo("deploy/systemd/baton-standby@.service")).expect("the unit");
+    let dir = cluster.dir.path();
+    std::fs::create_dir_all(dir.join("etc")).expect("the test's /etc/baton");
+    std::fs::copy(&chart, dir.join("etc/standby_cell.st")).expect("the chart in the test's /etc/baton");
+    let election = election(&etcd);
+    let coordinator = |name: &str| {
+        let (trace, summary) = (dir.join(format!("trace-{name}.jsonl")), dir.join(format!("summary-{name}.json")));
+        let run_args =
+            format!("--lease 2 --set parts={PARTS} --trace {} --summary {}", trace.display(), summary.display());
+        let env =
+            [("BATON_ROUTER", cluster.endpoint.as_str()), ("BATON_ELECTION", &election), ("BATON_RUN_ARGS", &run_args)];
+        unit::start(&unit::command(&unit, dir, "standby_cell", &env), &trace, &summary)
+    };
+    let mut active = coordinator("a");
     active.wait_ready().await;
-    let mut standby = cluster.coordinator_joining_as("-standby", &chart, &args);
+    let mut standby = coordinator("b");
     standby.wait_for_log("standing by").await;
     let old_term = term_in(&active.wait_for_log("coordinating at term").await);
     let seen = coordinators(&cluster, &etcd).await;

@@ -16,6 +16,7 @@ use zenoh::qos::CongestionControl;
 
 use crate::demo::free_port;
 
+mod failover;
 mod harness;
 mod resume;
 mod scale;
@@ -49,6 +50,8 @@ pub struct BenchOptions {
     /// Run phase 11 (a journaled run of `resume_tokens` tokens, resumed).
     pub resume: bool,
     pub resume_tokens: u64,
+    /// Run phase 12 (standby coordinators on this etcd: kills, and the lease in seconds).
+    pub failover: Option<(crate::election::Election, u32, u64)>,
 }
 
 #[derive(Serialize)]
@@ -60,6 +63,9 @@ pub struct BenchReport {
     /// (11)
     #[serde(skip_serializing_if = "Option::is_none")]
     pub resume: Option<resume::Resume>,
+    /// (12)
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub failover: Option<failover::Failover>,
 }
 
 /// Phases 7–10.
@@ -118,7 +124,14 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
     } else {
         None
     };
-    Ok(BenchReport { base, scale, resume })
+    let failover = match &opts.failover {
+        Some((etcd, kills, lease_s)) => {
+            eprintln!("12 standby coordinators on etcd: {kills} kills of the active one, a lease of {lease_s} s");
+            Some(failover::failover(dir.path(), etcd, *kills, *lease_s).await?)
+        }
+        None => None,
+    };
+    Ok(BenchReport { base, scale, resume, failover })
 }
 
 /// In-flight tokens of phase 7 at every agent count (one per agent at the largest).
@@ -244,6 +257,13 @@ impl BenchReport {
         }
         if let Some(scale) = &self.scale {
             scale.print();
+        }
+        if let Some(f) = &self.failover {
+            println!(
+                "(12) failover, from the SIGKILL of the active coordinator to its standby's first dispatch, over {} \
+                 kills with a lease of {} s: median {:.0} ms, max {:.0} ms",
+                f.kills, f.lease_s, f.median_ms, f.max_ms
+            );
         }
         if let Some(r) = &self.resume {
             println!(

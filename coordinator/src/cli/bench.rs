@@ -34,8 +34,21 @@ pub struct Bench {
     #[arg(long, conflicts_with = "resume_only")]
     pub scale_only: bool,
     /// Only phase 11: a long journaled run, its coordinator gone, resumed from its last snapshot.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "failover_only")]
     pub resume_only: bool,
+    /// Only phase 12: standby coordinators on the etcd of --etcd, the active one killed --kills times; the time from
+    /// each SIGKILL to the standby's first dispatch.
+    #[arg(long, requires = "etcd", conflicts_with_all = ["base_only", "scale_only"])]
+    pub failover_only: bool,
+    /// The etcd of phase 12, and a prefix for its keys: etcd://HOST:PORT[,HOST:PORT…]/PREFIX.
+    #[arg(long, value_name = "etcd://…/PREFIX")]
+    pub etcd: Option<crate::election::Election>,
+    /// Kills of phase 12.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub kills: u32,
+    /// The coordinators' lease in phase 12, in seconds.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u64).range(2..=60))]
+    pub lease: u64,
     /// Tokens of phase 11's run.
     #[arg(long, default_value_t = 1_000_000)]
     pub resume_tokens: u64,
@@ -67,6 +80,10 @@ impl Bench {
             resume_only,
             resume_tokens,
             scale_agents,
+            failover_only,
+            etcd,
+            kills,
+            lease,
         } = self;
         block_on(async move {
             if samples == 0 || tokens == 0 || agents == 0 || lanes_per_agent == 0 || parts == 0 {
@@ -81,11 +98,12 @@ impl Bench {
                 agents,
                 lanes_per_agent,
                 parts,
-                base: !scale_only && !resume_only,
-                scale: !base_only && !resume_only,
+                base: !scale_only && !resume_only && !failover_only,
+                scale: !base_only && !resume_only && !failover_only,
                 scale_agents,
-                resume: !base_only && !scale_only,
+                resume: !base_only && !scale_only && !failover_only,
                 resume_tokens: resume_tokens.max(1),
+                failover: if failover_only { etcd.map(|e| (e, kills, lease)) } else { None },
             };
             let report = crate::bench::bench(options).await?;
             if json {

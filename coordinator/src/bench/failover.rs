@@ -1,0 +1,123 @@
+//! `baton bench --failover-only --etcd etcd://…/PREFIX`: standby coordinators on a real etcd (the user's), and the
+//! time from the SIGKILL of the active coordinator to the first dispatch of the standby that takes over, over a
+//! chain of kills: each round kills the active coordinator, waits for its standby's first dispatch, and starts a
+//! new standby for the next round.
+//!
+//! The coordinators are `baton run` processes of a chart that loops a short motion on one agent (a `baton-agent`
+//! process), so that a dispatch is always due; they share a journal folder (one machine) and stand in an election
+//! under a prefix of their own. The dispatches are seen on the wire by a session of the bench's router, with the
+//! term each carries (`wire::decode_termed`): a failover ends at the first dispatch of a term above the killed one.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::anyhow;
+use baton_host::traffic;
+use baton_proto::cluster::keys;
+use baton_proto::cluster::wire::{self, ToAgent};
+use serde::Serialize;
+use tokio::process::{Child, Command};
+
+use crate::election::{candidates, Election};
+
+use super::harness::{router_config, spawn_agents, spawn_logged, PHASE_TIMEOUT};
+
+#[derive(Serialize, Clone)]
+pub struct Failover {
+    pub kills: u32,
+    pub lease_s: u64,
+    /// From the SIGKILL to the standby's first dispatch, in ms: median, max, and each.
+    pub median_ms: f64,
+    pub max_ms: f64,
+    pub samples_ms: Vec<f64>,
+}
+
+const CHART: &str = "PROGRAM failover\nVAR moved : BOOL; END_VAR\nINITIAL_STEP Start: END_STEP\n\
+    TRANSITION FROM Start TO Move := TRUE; END_TRANSITION\n\
+    STEP Move: {agent := 'f1'} Go(N, moved); END_STEP\nTRANSITION FROM Move TO Start := moved; END_TRANSITION\n\
+    ACTION Go: {skill := 'motion', ms := 20} END_ACTION\nEND_PROGRAM\n";
+
+pub async fn failover(dir: &Path, etcd: &Election, kills: u32, lease_s: u64) -> anyhow::Result<Failover> {
+    let endpoint = format!("tcp/127.0.0.1:{}", crate::demo::free_port()?);
+    let router = zenoh::open(router_config(&endpoint, &[])?).await.map_err(|e| anyhow!("router: {e}"))?;
+    let chart = dir.join("failover.st");
+    std::fs::write(&chart, CHART)?;
+    let journal = dir.join("failover-journal");
+    let _ = std::fs::remove_dir_all(&journal);
+    let election = Election {
+        endpoints: etcd.endpoints.clone(),
+        prefix: format!("{}/bench-{}", etcd.prefix, uuid::Uuid::new_v4()),
+    };
+    let shown = format!("etcd://{}/{}", etcd.endpoints.join(",").replace("http://", ""), election.prefix);
+    let (tx, mut dispatches) = tokio::sync::mpsc::unbounded_channel::<(Instant, u64)>();
+    let _seen = traffic::subscriber(&router, keys::agent_cmd_any("*"))
+        .callback(move |sample| {
+            if let Ok((term, ToAgent::Dispatch { .. })) = wire::decode_termed::<ToAgent>(&sample.payload().to_bytes()) {
+                let _ = tx.send((Instant::now(), term));
+            }
+        })
+        .await
+        .map_err(|e| anyhow!("subscriber: {e}"))?;
+    let start = || -> anyhow::Result<Child> {
+        let exe = std::env::current_exe()?;
+        let lease = lease_s.to_string();
+        let journal = journal.to_string_lossy().into_owned();
+        spawn_logged(Command::new(exe).arg("run").arg(&chart).args(["--connect", &endpoint, "--quiet"]).args([
+            "--journal",
+            &journal,
+            "--election",
+            &shown,
+            "--lease",
+            &lease,
+        ]))
+    };
+    let _agent = spawn_agents(&endpoint, &["f1".to_string()])?;
+    let mut active = start()?;
+    let mut samples = Vec::new();
+    tokio::time::timeout(PHASE_TIMEOUT, async {
+        let mut term = standing(&election, 1).await?[0].term;
+        for round in 0..kills {
+            let standby = start()?;
+            standing(&election, 2).await?;
+            // A dispatch of the active coordinator after the standby stands: the run goes on as it should.
+            while dispatches.recv().await.ok_or_else(|| anyhow!("the subscriber closed"))?.1 != term {}
+            active.start_kill()?;
+            let killed = Instant::now();
+            active.wait().await?;
+            let (at, new) = loop {
+                let (at, t) = dispatches.recv().await.ok_or_else(|| anyhow!("the subscriber closed"))?;
+                if t > term {
+                    break (at, t);
+                }
+            };
+            samples.push((at - killed).as_secs_f64() * 1e3);
+            eprintln!(
+                "  kill {}: the standby dispatched {:.0} ms after it (term {term} → {new})",
+                round + 1,
+                samples[samples.len() - 1]
+            );
+            (active, term) = (standby, new);
+        }
+        anyhow::Ok(())
+    })
+    .await
+    .map_err(|_| anyhow!("the failover phase did not finish within {PHASE_TIMEOUT:?}"))??;
+    let _ = active.start_kill();
+    let _ = std::fs::remove_dir_all(&journal);
+    let mut sorted = samples.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median_ms = sorted.get(sorted.len() / 2).copied().unwrap_or(f64::NAN);
+    let max_ms = sorted.last().copied().unwrap_or(f64::NAN);
+    Ok(Failover { kills, lease_s, median_ms, max_ms, samples_ms: samples })
+}
+
+/// Waits until `n` coordinators stand in the election (the active one first); returns them.
+async fn standing(election: &Election, n: usize) -> anyhow::Result<Vec<crate::election::Candidate>> {
+    loop {
+        let now = candidates(election).await?;
+        if now.len() >= n {
+            return Ok(now);
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
