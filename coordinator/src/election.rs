@@ -110,6 +110,20 @@ pub struct Won {
     /// `Some(why)` once the lease is lost, or about to be for the standbys.
     pub lost: watch::Receiver<Option<String>>,
     renewing: tokio::task::JoinHandle<()>,
+    client: etcd_client::Client,
+    lease: i64,
+}
+
+impl Won {
+    /// Gives the election up at once (the lease revoked), for a standby to win without waiting for the lease to
+    /// end: the run is over, or left as it stands by a SIGTERM. Best effort, within a second.
+    pub async fn resign(mut self) {
+        self.renewing.abort();
+        let revoke = self.client.lease_revoke(self.lease);
+        if let Ok(Err(e)) = tokio::time::timeout(Duration::from_secs(1), revoke).await {
+            eprintln!("baton: warning: could not give the election up (its lease ends by itself): {e}");
+        }
+    }
 }
 
 impl Drop for Won {
@@ -172,7 +186,7 @@ pub async fn win(election: &Election, lease_s: u64, candidate: &str, quiet: bool
         if let Err(e) = client.proclaim(active, Some(proclaim)).await {
             eprintln!("baton: warning: could not tell etcd since when this coordinator is active: {e}");
         }
-        return Ok(Won { term, lost, renewing });
+        return Ok(Won { term, lost, renewing, client, lease });
     }
 }
 

@@ -140,6 +140,11 @@ impl Etcd {
         self.members.iter().map(|m| format!("127.0.0.1:{}", m.client)).collect::<Vec<_>>().join(",")
     }
 
+    /// The members' client addresses (for a `Cable` to each).
+    pub fn client_addrs(&self) -> Vec<std::net::SocketAddr> {
+        self.members.iter().map(|m| std::net::SocketAddr::from(([127, 0, 0, 1], m.client))).collect()
+    }
+
     /// SIGKILLs member `i` and waits for it to be gone.
     pub async fn kill(&mut self, i: usize) {
         if let Some(mut child) = self.members[i].child.take() {

@@ -16,6 +16,7 @@ use baton_tests::unit;
 baton_tests::harness_main!(
     tokio a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_commands_are_refused,
     tokio without_etcds_quorum_the_coordinator_stops_acting_and_the_run_goes_on_when_it_is_back,
+    tokio a_coordinator_cut_off_from_etcd_stops_acting_before_its_standby_takes_over_and_then_stands_by,
 );
 
 const PARTS: &str = "2";
@@ -25,10 +26,13 @@ fn election(etcd: &Etcd) -> String {
 }
 
 fn args(cluster: &Cluster, etcd: &Etcd) -> Vec<String> {
+    args_with(cluster, &election(etcd))
+}
+
+fn args_with(cluster: &Cluster, election: &str) -> Vec<String> {
     let journal = cluster.dir.path().join("journal");
-    let election = election(etcd);
     let journal = journal.to_str().expect("utf-8 path").to_string();
-    ["--set", &format!("parts={PARTS}"), "--journal", &journal, "--election", &election, "--lease", "2"]
+    ["--set", &format!("parts={PARTS}"), "--journal", &journal, "--election", election, "--lease", "2"]
         .map(String::from)
         .to_vec()
 }
@@ -171,4 +175,61 @@ async fn without_etcds_quorum_the_coordinator_stops_acting_and_the_run_goes_on_w
     for step in ["Pick1", "Pick2", "Pick3", "Assemble"] {
         assert_eq!(dispatches(&trace, step).len(), 2, "{step}: {:?}\n{log}", dispatches(&trace, step));
     }
+}
+
+async fn a_coordinator_cut_off_from_etcd_stops_acting_before_its_standby_takes_over_and_then_stands_by() {
+    let etcd = Etcd::start(3).await;
+    let chart = repo("tests/charts/standby_cell.st");
+    let mut cluster = Cluster::with_router().await;
+    // The first coordinator reaches every etcd member through a cable of its own; the standby reaches them directly.
+    let mut cables = Vec::new();
+    for addr in etcd.client_addrs() {
+        cables.push(baton_host::cable::Cable::lay(addr, 7).await.expect("lay a cable to etcd"));
+    }
+    let through: Vec<String> = cables.iter().map(|c| c.endpoint().replace("tcp/", "")).collect();
+    let cut_off = args_with(&cluster, &format!("etcd://{}/baton-test", through.join(",")));
+    let cut_off: Vec<&str> = cut_off.iter().map(String::as_str).collect();
+    let direct = args(&cluster, &etcd);
+    let direct: Vec<&str> = direct.iter().map(String::as_str).collect();
+    let watch = cluster.watch().await;
+    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
+    let mut active = cluster.coordinator_joining(&chart, &cut_off);
+    active.wait_ready().await;
+    let old_term = term_in(&active.wait_for_log("coordinating at term").await);
+    let mut standby = cluster.coordinator_joining_as("-standby", &chart, &direct);
+    standby.wait_for_log("standing by").await;
+    for robot in ["robot1", "robot2", "robot3"] {
+        cluster.agent(robot, &[], &[]);
+    }
+    next_dispatch(&cmds, step_id(&chart, "Pick3"), 1).await;
+    cables.iter().for_each(|c| c.cut());
+    // It stops on its own deadline, a third of the lease before etcd can end the lease for the standby: when it has
+    // gone, the standby has not yet won.
+    let (status, log, _, _) = active.finish().await;
+    assert_eq!(status.code(), Some(5), "the run is left as it stands (exit 5); log:\n{log}");
+    assert!(log.contains("stopped coordinating: no renewal of its lease was granted by etcd in time"), "{log}");
+    let standby_so_far = standby.unread_log().await;
+    assert!(
+        !standby_so_far.contains("won the election"),
+        "the standby won before the cut-off one stopped:\n{standby_so_far}"
+    );
+    let new_term = term_in(&standby.wait_for_log("coordinating at term").await);
+    assert!(new_term > old_term, "the standby won at term {new_term}, after term {old_term}");
+    // Reconnected and started again (as its unit restarts it), the first coordinator stands by behind the standby.
+    cables.iter().for_each(|c| c.heal());
+    let mut again = cluster.coordinator_joining_as("-again", &chart, &cut_off);
+    let line = again.wait_for_log("standing by").await;
+    assert!(line.contains(&format!("(term {new_term})")), "{line}");
+    let (status, log, trace, summary) = standby.finish().await;
+    assert!(status.success(), "{log}");
+    check_trace_invariants(&trace, &chart);
+    assert_eq!(summary["vars"]["done"], PARTS, "{log}");
+    for step in ["Pick1", "Pick2", "Pick3", "Assemble"] {
+        assert_eq!(dispatches(&trace, step).len(), 2, "{step}: {:?}\n{log}", dispatches(&trace, step));
+    }
+    // The run over, the active coordinator gave the election up: the one standing by wins at once, finds nothing
+    // to take over, and leaves (status 0: its unit does not start it again).
+    let (status, log, _, _) = again.finish().await;
+    assert!(status.success(), "{log}");
+    assert!(log.contains("is over (it completed): there is nothing to take over"), "{log}");
 }

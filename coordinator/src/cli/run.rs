@@ -138,8 +138,16 @@ impl Run {
             console: self.console,
             election: self.election.map(|e| (e, self.lease)),
         };
+        let standing = opts.election.is_some();
         block_on(async move {
-            let summary = crate::run::run(opts).await?;
+            let summary = match crate::run::run(opts).await {
+                Err(e) if standing && e.downcast_ref::<crate::run::RunOver>().is_some() => {
+                    let over = e.downcast_ref::<crate::run::RunOver>().map(|o| o.0.clone()).unwrap_or_default();
+                    eprintln!("baton: won the election, but {over}: there is nothing to take over");
+                    return Ok(ExitCode::SUCCESS);
+                }
+                ran => ran?,
+            };
             summary.print();
             Ok(match summary.state.as_str() {
                 _ if summary.left => ExitCode::from(EXIT_LEFT),

@@ -188,7 +188,12 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let shared = baton_host::Shared::new(host);
     let lost = won.as_ref().map(|w| deposing(w.lost.clone(), acting));
     let ended = serve(&shared, &session, chart_reply, opts.abort_wait_ms, lost).await?;
-    wind_down(shared.take()?, session, console, &opts, &loaded, ended).await
+    let summary = wind_down(shared.take()?, session, console, &opts, &loaded, ended).await;
+    // Over, or left by a SIGTERM: a standby need not wait for the lease to end. (Deposed: it is not ours to give.)
+    if let (Some(won), false) = (won, ended == Ended::Deposed) {
+        won.resign().await;
+    }
+    summary
 }
 
 /// With `--election`: waits, standing by, until this coordinator wins the run's election.
@@ -399,17 +404,31 @@ fn open_journal(opts: &RunOptions, loaded: &Loaded, hash: &ChartHash) -> anyhow:
                 };
                 let mut out = Records::new(None, None, None, header.cycle_ms);
                 replay_segments(&mut core, &segments, &mut out, &path)?;
-                bail!(
-                    "the run {} in the journal {path} is over (it {}); give another --journal folder for a new run",
+                return Err(RunOver(format!(
+                    "the run {} in the journal {path} is over (it {})",
                     header.run.key(),
                     how_it_ended(core.core().run_state(), failure.as_deref())
-                );
+                ))
+                .into());
             }
             (run, started, Some(Resume { header, snapshot, segments }))
         }
     };
     Ok(Opened { run, started_unix_ms, resume, store: Some(opened.store) })
 }
+
+/// The journal's run is over: `baton run` refuses to start on it — unless it stood in an election, where a standby
+/// that wins after the run ended has nothing to take over, and leaves.
+#[derive(Debug)]
+pub struct RunOver(pub String);
+
+impl std::fmt::Display for RunOver {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}; give another --journal folder for a new run", self.0)
+    }
+}
+
+impl std::error::Error for RunOver {}
 
 /// How the main loop ended.
 #[derive(Clone, Copy, PartialEq, Eq)]
