@@ -57,7 +57,7 @@ impl Election {
 
 /// A coordinator in the election, as its candidacy's value in etcd says it, and its term (the revision of its
 /// candidacy: the lowest is the active coordinator's).
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Candidate {
     pub name: String,
     #[serde(default)]
@@ -69,39 +69,68 @@ pub struct Candidate {
 /// Who stands in the election now, for `baton status`: the active coordinator, then the standbys in the order they
 /// would win. Empty if nobody stands.
 pub async fn candidates(election: &Election) -> anyhow::Result<Vec<Candidate>> {
-    let shown = election.endpoints.join(",");
-    let options = etcd_client::ConnectOptions::new().with_connect_timeout(Duration::from_secs(2));
-    let mut client = etcd_client::Client::connect(&election.endpoints, Some(options))
-        .await
-        .with_context(|| format!("cannot reach etcd at {shown}"))?;
-    let prefix = format!("{}/", election.name());
-    let get = etcd_client::GetOptions::new().with_prefix();
-    // A member that is down is skipped by asking again (the client balances over all of them).
-    let found = tokio::time::timeout(Duration::from_secs(5), async {
+    Follower::new(election.clone()).read().await
+}
+
+/// Reads an election's candidates again and again (the console's), on one connection to etcd while it serves.
+pub struct Follower {
+    election: Election,
+    client: Option<etcd_client::Client>,
+}
+
+impl Follower {
+    pub fn new(election: Election) -> Follower {
+        Follower { election, client: None }
+    }
+
+    /// The candidates now: the active coordinator first, then the standbys in the order they would win.
+    pub async fn read(&mut self) -> anyhow::Result<Vec<Candidate>> {
+        let shown = self.election.endpoints.join(",");
+        let read = tokio::time::timeout(Duration::from_secs(5), self.ask()).await;
+        let found = match read {
+            Ok(Ok(found)) => found,
+            Ok(Err(e)) => {
+                self.client = None;
+                return Err(e).with_context(|| format!("cannot read the election from etcd at {shown}"));
+            }
+            Err(_) => {
+                self.client = None;
+                bail!("etcd at {shown} did not answer within 5 s");
+            }
+        };
+        let mut kvs: Vec<&etcd_client::KeyValue> = found.kvs().iter().collect();
+        kvs.sort_by_key(|kv| kv.create_revision());
+        Ok(kvs
+            .into_iter()
+            .map(|kv| {
+                let mut c = serde_json::from_slice::<Candidate>(kv.value()).unwrap_or_else(|_| Candidate {
+                    name: String::from_utf8_lossy(kv.value()).into_owned(),
+                    term: 0,
+                    since_unix_ms: 0,
+                });
+                c.term = kv.create_revision().max(0) as u64;
+                c
+            })
+            .collect())
+    }
+
+    /// The candidacies' keys, asked again past a member that is down (the client balances over all of them).
+    async fn ask(&mut self) -> Result<etcd_client::GetResponse, etcd_client::Error> {
+        let client = match &mut self.client {
+            Some(client) => client,
+            None => {
+                let options = etcd_client::ConnectOptions::new().with_connect_timeout(Duration::from_secs(2));
+                self.client.insert(etcd_client::Client::connect(&self.election.endpoints, Some(options)).await?)
+            }
+        };
+        let prefix = format!("{}/", self.election.name());
         loop {
-            match client.get(prefix.as_str(), Some(get.clone())).await {
+            match client.get(prefix.as_str(), Some(etcd_client::GetOptions::new().with_prefix())).await {
                 Err(e) if !refused(&e) => tokio::time::sleep(RETRY).await,
                 answer => return answer,
             }
         }
-    })
-    .await
-    .map_err(|_| anyhow!("etcd at {shown} did not answer within 5 s"))?
-    .with_context(|| format!("cannot read the election from etcd at {shown}"))?;
-    let mut kvs: Vec<&etcd_client::KeyValue> = found.kvs().iter().collect();
-    kvs.sort_by_key(|kv| kv.create_revision());
-    Ok(kvs
-        .into_iter()
-        .map(|kv| {
-            let mut c = serde_json::from_slice::<Candidate>(kv.value()).unwrap_or_else(|_| Candidate {
-                name: String::from_utf8_lossy(kv.value()).into_owned(),
-                term: 0,
-                since_unix_ms: 0,
-            });
-            c.term = kv.create_revision().max(0) as u64;
-            c
-        })
-        .collect())
+    }
 }
 
 /// An election won: the term, and the reason the coordinator must stop acting, once it must.

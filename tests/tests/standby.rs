@@ -11,7 +11,7 @@ use baton_proto::cluster::wire::{self, AgentInfo, StatusReport, ToAgent};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::etcd::Etcd;
 use baton_tests::loopback::{check_trace_invariants, dispatches, next_dispatch, repo, step_id, Cluster, TIMEOUT};
-use baton_tests::unit;
+use baton_tests::{http, unit};
 
 baton_tests::harness_main!(
     tokio a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_commands_are_refused,
@@ -53,6 +53,26 @@ async fn coordinators(cluster: &Cluster, etcd: &Etcd) -> serde_json::Value {
     line["coordinators"].clone()
 }
 
+/// Waits for the console's page to be told of coordinators whose terms (the active one's first) satisfy `done`;
+/// returns them.
+async fn console_terms(page: &mut http::Events, done: impl Fn(&[u64]) -> bool) -> Vec<u64> {
+    let mut last = serde_json::Value::Null;
+    while let Some((event, data)) = page.next().await {
+        if event != "state" {
+            continue;
+        }
+        last = serde_json::from_str(&data).expect("a state");
+        let terms: Vec<u64> = last["coordinators"]
+            .as_array()
+            .map(|c| c.iter().filter_map(|c| c["term"].as_u64()).collect())
+            .unwrap_or_default();
+        if done(&terms) {
+            return terms;
+        }
+    }
+    panic!("the console never showed the coordinators awaited; its last state's: {}", last["coordinators"]);
+}
+
 fn terms_heard(trace: &[TraceRecord]) -> Vec<String> {
     trace.iter().filter(|r| r.event == TraceEvent::Term).filter_map(|r| r.message.clone()).collect()
 }
@@ -85,6 +105,11 @@ async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_com
     let seen = coordinators(&cluster, &etcd).await;
     assert_eq!(seen["active"]["term"], old_term, "{seen}");
     assert_eq!(seen["standbys"].as_array().map(Vec::len), Some(1), "{seen}");
+    // The operator console names them too, and follows the takeover.
+    let (_console, addr) = http::console(&cluster.endpoint, &["--election", &election]).await;
+    let mut page = http::Events::open(&addr).await;
+    let terms = console_terms(&mut page, |terms| terms.len() == 2).await;
+    assert_eq!(terms[0], old_term, "the active coordinator first: {terms:?}");
     // One member of three lost: the cluster keeps its quorum, and nothing changes.
     etcd.kill(2).await;
     for robot in ["robot1", "robot2", "robot3"] {
@@ -100,6 +125,7 @@ async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_com
     let seen = coordinators(&cluster, &etcd).await;
     assert_eq!(seen["active"]["term"], new_term, "{seen}");
     assert_eq!(seen["standbys"], serde_json::json!([]), "{seen}");
+    console_terms(&mut page, |terms| terms == [new_term]).await;
     // The deposed coordinator's abort, as it would send it had it been paused rather than killed: each robot that
     // heard the new term refuses it.
     let said = format!("term {new_term}");

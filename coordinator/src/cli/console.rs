@@ -32,15 +32,19 @@ pub struct Console {
     /// page lists them and opens each in its timeline.
     #[arg(long, value_name = "DIR")]
     pub recordings: Option<PathBuf>,
+    /// Name the run's coordinators in the page — the active one, its term, and those standing by — read from its
+    /// election on etcd (as `baton run --election` names it).
+    #[arg(long, value_name = "etcd://…/PREFIX")]
+    pub election: Option<crate::election::Election>,
 }
 
 impl Console {
     pub fn run(self) -> anyhow::Result<ExitCode> {
-        let Console { reach, listen, tls_cert, tls_key, users, trace, recordings } = self;
+        let Console { reach, listen, tls_cert, tls_key, users, trace, recordings, election } = self;
         if let Some(dir) = &recordings {
             anyhow::ensure!(dir.is_dir(), "--recordings {}: not a folder", dir.display());
         }
-        let access = crate::console::Access { tls: tls_cert.zip(tls_key), users, trace, recordings };
+        let access = crate::console::Access { tls: tls_cert.zip(tls_key), users, trace, recordings, election };
         block_on(async move {
             let listener = crate::console::bind(listen, &access).await?;
             // Only an interrupt ends it.

@@ -64,6 +64,10 @@ struct Snapshot {
     /// Agents a run listed and no longer does, kept on screen, greyed, with since when (rmf-web keeps a robot that
     /// disconnects on the map as stale rather than dropping it).
     lost_agents: Vec<LostAgent>,
+    /// With `--election`: the run's coordinators as etcd has them, the active one first (empty: nobody stands;
+    /// `null`: etcd did not answer).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    coordinators: Option<Option<Vec<crate::election::Candidate>>>,
 }
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -156,6 +160,8 @@ struct Console {
     auth: Arc<auth::Auth>,
     /// Where finished runs' recordings are (`--recordings`).
     recordings: Option<PathBuf>,
+    /// The run's election on etcd (`--election`).
+    election: Option<crate::election::Election>,
 }
 
 /// What the page shows of a chart version: its drawing, and the inputs an operator may set (`baton set`'s: the
@@ -183,6 +189,8 @@ pub struct Access {
     pub trace: Option<PathBuf>,
     /// Finished runs' recordings (`.rrd`), which the page opens in its timeline.
     pub recordings: Option<PathBuf>,
+    /// The run's election on etcd, whose coordinators the page names (`--election`).
+    pub election: Option<crate::election::Election>,
 }
 
 /// The console's listening socket on `listen`: bound before anything else starts, so that a port taken is said at
@@ -228,9 +236,11 @@ pub async fn serve(
         charts: Mutex::new(BTreeMap::new()),
         auth,
         recordings: access.recordings.clone(),
+        election: access.election.clone(),
     });
     let _trace = listen_to_traces(&console).await?;
-    tokio::spawn(follow(Arc::clone(&console)));
+    // Ended with the server: left running, it would poll its timer while a run's runtime shuts down (a panic).
+    let following = tokio::spawn(follow(Arc::clone(&console)));
     // Everything but the page and logging in needs a session where users log in.
     let guarded = Router::new()
         .route("/api/state", get(state))
@@ -274,6 +284,8 @@ pub async fn serve(
             tokio::time::sleep(STOP_GRACE).await;
         } => Ok(()),
     };
+    following.abort();
+    let _ = following.await;
     // Closed here, not at the process's exit: a run's embedded router must not be torn down under it.
     let _ = console.session.close().await;
     served
@@ -342,7 +354,8 @@ pub fn endpoints_of(listen: &[String], connect: &[String]) -> Vec<String> {
 async fn follow(console: Arc<Console>) {
     let mut tick = tokio::time::interval(STATUS_EVERY);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut last = Snapshot { connected: false, runs: Vec::new(), lost_agents: Vec::new() };
+    let mut last = Snapshot { connected: false, runs: Vec::new(), lost_agents: Vec::new(), coordinators: None };
+    let mut election = console.election.clone().map(crate::election::Follower::new);
     let mut agents = Agents::default();
     let mut heard = Heard::default();
     let mut first = true;
@@ -366,7 +379,11 @@ async fn follow(console: Arc<Console>) {
         // Without an answer nothing new is known of the agents: their list stays as it was.
         let lost_agents = if asked { agents.update(&runs, now) } else { last.lost_agents.clone() };
         ask_histories(&console, &runs, now);
-        let snapshot = Snapshot { connected, runs, lost_agents };
+        let coordinators = match &mut election {
+            Some(follower) => Some(follower.read().await.ok()),
+            None => None,
+        };
+        let snapshot = Snapshot { connected, runs, lost_agents, coordinators };
         let mut still = snapshot.clone();
         // A run's clocks alone moving is no change to tell the page of (it counts the steps' times on itself).
         for r in &mut still.runs {
