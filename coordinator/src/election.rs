@@ -228,18 +228,27 @@ async fn stand(
 ) -> anyhow::Result<(i64, watch::Receiver<Option<String>>, tokio::task::JoinHandle<()>)> {
     let shown = election.endpoints.join(",");
     // A request may go to a member that is down (the client balances over all of them): it is asked again.
-    let grant = tokio::time::timeout(Duration::from_secs(lease_s), async {
-        loop {
-            match client.lease_grant(lease_s as i64, None).await {
-                Ok(grant) => return Ok(grant),
-                Err(e) if !refused(&e) => tokio::time::sleep(RETRY).await,
-                Err(e) => return Err(e),
+    // Without a quorum etcd grants nothing: a candidate waits for it (and says so once).
+    let mut said = false;
+    let grant = loop {
+        let asked = tokio::time::timeout(Duration::from_secs(lease_s), async {
+            loop {
+                match client.lease_grant(lease_s as i64, None).await {
+                    Ok(grant) => return Ok(grant),
+                    Err(e) if !refused(&e) => tokio::time::sleep(RETRY).await,
+                    Err(e) => return Err(e),
+                }
             }
+        });
+        match asked.await {
+            Ok(granted) => break granted.with_context(|| format!("etcd at {shown} granted no lease"))?,
+            Err(_) if !said => {
+                eprintln!("baton: etcd at {shown} grants no lease (has it a quorum?): waiting for it");
+                said = true;
+            }
+            Err(_) => {}
         }
-    })
-    .await
-    .map_err(|_| anyhow!("etcd at {shown} granted no lease within {lease_s} s (has it a quorum?)"))?
-    .with_context(|| format!("etcd at {shown} granted no lease"))?;
+    };
     let (lease, granted) = (grant.id(), grant.ttl());
     if granted as u64 != lease_s {
         bail!("etcd at {shown} granted a lease of {granted} s, not the {lease_s} s asked for: give --lease {granted}");

@@ -140,13 +140,20 @@ impl Run {
         };
         let standing = opts.election.is_some();
         block_on(async move {
-            let summary = match crate::run::run(opts).await {
-                Err(e) if standing && e.downcast_ref::<crate::run::RunOver>().is_some() => {
-                    let over = e.downcast_ref::<crate::run::RunOver>().map(|o| o.0.clone()).unwrap_or_default();
-                    eprintln!("baton: won the election, but {over}: there is nothing to take over");
-                    return Ok(ExitCode::SUCCESS);
+            let summary = loop {
+                let summary = match crate::run::run(opts.clone()).await {
+                    Err(e) if standing && e.downcast_ref::<crate::run::RunOver>().is_some() => {
+                        let over = e.downcast_ref::<crate::run::RunOver>().map(|o| o.0.clone()).unwrap_or_default();
+                        eprintln!("baton: won the election, but {over}: there is nothing to take over");
+                        return Ok(ExitCode::SUCCESS);
+                    }
+                    ran => ran?,
+                };
+                // Deposed, it acts on nothing any more: it stands again, and takes the run up if it wins again.
+                if !summary.deposed {
+                    break summary;
                 }
-                ran => ran?,
+                eprintln!("baton: standing in the election again");
             };
             summary.print();
             Ok(match summary.state.as_str() {

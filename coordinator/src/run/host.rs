@@ -714,6 +714,7 @@ impl Host {
             tokens_returned: stats.returned,
             messages_dropped: stats.dropped + self.decode_drops,
             left: false,
+            deposed: false,
             steps,
             vars,
             journal: self.journal.as_ref().map(crate::journal::Writer::stats),

@@ -39,6 +39,7 @@ pub use records::{Probe, Records};
 pub use resume::{check_pin, how_it_ended, replay_segments};
 pub use summary::Summary;
 
+#[derive(Clone)]
 pub struct RunOptions {
     pub chart: PathBuf,
     pub pou: Option<String>,
@@ -692,6 +693,7 @@ async fn wind_down(
     let failure = host.core.core().failure().map(str::to_string);
     let mut summary = host.summary(loaded);
     summary.left = matches!(ended, Ended::Left | Ended::Deposed);
+    summary.deposed = ended == Ended::Deposed;
     let tokens_out = host.core.core().tokens_in_flight();
     drop(host);
     // The console is a client of this session's router: it goes first, once the replies released above had

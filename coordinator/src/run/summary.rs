@@ -23,6 +23,9 @@ pub struct Summary {
     /// The process went away (SIGTERM with a journal) and left the run as it stands, for its journal to resume:
     /// `state` is where it stood.
     pub left: bool,
+    /// The coordinator lost its election (`--election`) and stopped acting: it may stand again.
+    #[serde(skip)]
+    pub deposed: bool,
     /// With `--journal`: records written and transactions committed by this process.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub journal: Option<crate::journal::JournalStats>,
