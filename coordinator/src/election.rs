@@ -229,13 +229,16 @@ async fn stand(
     let shown = election.endpoints.join(",");
     // A request may go to a member that is down (the client balances over all of them): it is asked again.
     // Without a quorum etcd grants nothing: a candidate waits for it (and says so once).
-    let mut said = false;
+    let (mut said, mut last) = (false, String::from("no answer"));
     let grant = loop {
         let asked = tokio::time::timeout(Duration::from_secs(lease_s), async {
             loop {
                 match client.lease_grant(lease_s as i64, None).await {
                     Ok(grant) => return Ok(grant),
-                    Err(e) if !refused(&e) => tokio::time::sleep(RETRY).await,
+                    Err(e) if !refused(&e) => {
+                        last = e.to_string();
+                        tokio::time::sleep(RETRY).await;
+                    }
                     Err(e) => return Err(e),
                 }
             }
@@ -243,7 +246,9 @@ async fn stand(
         match asked.await {
             Ok(granted) => break granted.with_context(|| format!("etcd at {shown} granted no lease"))?,
             Err(_) if !said => {
-                eprintln!("baton: etcd at {shown} grants no lease (has it a quorum?): waiting for it");
+                eprintln!(
+                    "baton: etcd at {shown} grants no lease (unreachable, or without a quorum: {last}): waiting for it"
+                );
                 said = true;
             }
             Err(_) => {}
