@@ -10,6 +10,8 @@
 //! a third of the TTL before the lease could end in etcd for the standbys — counted from when it sent the last
 //! renewal etcd granted, which etcd received later still.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
@@ -48,6 +50,14 @@ impl std::str::FromStr for Election {
     }
 }
 
+impl std::fmt::Display for Election {
+    /// As `--election` takes it: `etcd://HOST:PORT[,HOST:PORT…]/PREFIX`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let hosts: Vec<&str> = self.endpoints.iter().map(|e| e.trim_start_matches("http://")).collect();
+        write!(f, "etcd://{}/{}", hosts.join(","), self.prefix)
+    }
+}
+
 impl Election {
     /// The election's name in etcd (its candidates' keys are under it).
     fn name(&self) -> String {
@@ -64,6 +74,20 @@ pub struct Candidate {
     pub term: u64,
     /// Since when it stands by, or, once it won, since when it is active (Unix ms).
     pub since_unix_ms: u64,
+}
+
+impl Candidate {
+    /// The candidacy a key of the election holds; its term is the key's creation revision. A value that is not a
+    /// candidacy's (written by another tool) is shown as it is.
+    fn of(kv: &etcd_client::KeyValue) -> Candidate {
+        let mut c = serde_json::from_slice::<Candidate>(kv.value()).unwrap_or_else(|_| Candidate {
+            name: String::from_utf8_lossy(kv.value()).into_owned(),
+            term: 0,
+            since_unix_ms: 0,
+        });
+        c.term = kv.create_revision().max(0) as u64;
+        c
+    }
 }
 
 /// Who stands in the election now, for `baton status`: the active coordinator, then the standbys in the order they
@@ -100,18 +124,7 @@ impl Follower {
         };
         let mut kvs: Vec<&etcd_client::KeyValue> = found.kvs().iter().collect();
         kvs.sort_by_key(|kv| kv.create_revision());
-        Ok(kvs
-            .into_iter()
-            .map(|kv| {
-                let mut c = serde_json::from_slice::<Candidate>(kv.value()).unwrap_or_else(|_| Candidate {
-                    name: String::from_utf8_lossy(kv.value()).into_owned(),
-                    term: 0,
-                    since_unix_ms: 0,
-                });
-                c.term = kv.create_revision().max(0) as u64;
-                c
-            })
-            .collect())
+        Ok(kvs.into_iter().map(Candidate::of).collect())
     }
 
     /// The candidacies' keys, asked again past a member that is down (the client balances over all of them).
@@ -138,6 +151,9 @@ pub struct Won {
     pub term: u64,
     /// `Some(why)` once the lease is lost, or about to be for the standbys.
     pub lost: watch::Receiver<Option<String>>,
+    /// True until then: turned false by the renewing task at the moment it finds the lease lost, for the journal's
+    /// writer to send nothing more without waiting for the main loop.
+    pub acting: Arc<AtomicBool>,
     renewing: tokio::task::JoinHandle<()>,
     client: etcd_client::Client,
     lease: i64,
@@ -173,15 +189,13 @@ pub async fn win(election: &Election, lease_s: u64, candidate: &str, quiet: bool
         .await
         .with_context(|| format!("cannot reach etcd at {shown}"))?;
     loop {
-        let (lease, mut lost, renewing) = stand(&mut client, &options, election, lease_s).await?;
+        let Candidacy { lease, mut lost, acting, renewing } = stand(&mut client, &options, election, lease_s).await?;
         if !quiet {
             if let Ok(now) = client.leader(election.name()).await {
-                if let Some(kv) = now.kv() {
-                    let who = serde_json::from_slice::<Candidate>(kv.value()).map(|c| c.name);
+                if let Some(active) = now.kv().map(Candidate::of) {
                     eprintln!(
                         "baton: standing by: {} coordinates (term {}); taking over when its lease of etcd ends",
-                        who.unwrap_or_else(|_| String::from_utf8_lossy(kv.value()).into_owned()),
-                        kv.create_revision()
+                        active.name, active.term
                     );
                 }
             }
@@ -215,8 +229,16 @@ pub async fn win(election: &Election, lease_s: u64, candidate: &str, quiet: bool
         if let Err(e) = client.proclaim(active, Some(proclaim)).await {
             eprintln!("baton: warning: could not tell etcd since when this coordinator is active: {e}");
         }
-        return Ok(Won { term, lost, renewing, client, lease });
+        return Ok(Won { term, lost, acting, renewing, client, lease });
     }
+}
+
+/// A lease granted, and renewed by a task of its own until it is lost (`lost`, `acting`).
+struct Candidacy {
+    lease: i64,
+    lost: watch::Receiver<Option<String>>,
+    acting: Arc<AtomicBool>,
+    renewing: tokio::task::JoinHandle<()>,
 }
 
 /// A candidacy: a lease of `lease_s` seconds granted, and renewed from now on by a task of its own.
@@ -225,7 +247,7 @@ async fn stand(
     options: &etcd_client::ConnectOptions,
     election: &Election,
     lease_s: u64,
-) -> anyhow::Result<(i64, watch::Receiver<Option<String>>, tokio::task::JoinHandle<()>)> {
+) -> anyhow::Result<Candidacy> {
     let shown = election.endpoints.join(",");
     // A request may go to a member that is down (the client balances over all of them): it is asked again.
     // Without a quorum etcd grants nothing: a candidate waits for it (and says so once).
@@ -259,8 +281,23 @@ async fn stand(
         bail!("etcd at {shown} granted a lease of {granted} s, not the {lease_s} s asked for: give --lease {granted}");
     }
     let (tell, lost) = watch::channel(None);
-    let renewing = tokio::spawn(renew(election.endpoints.clone(), options.clone(), lease, lease_s, tell));
-    Ok((lease, lost, renewing))
+    let acting = Arc::new(AtomicBool::new(true));
+    let lose = Lose { acting: Arc::clone(&acting), tell };
+    let renewing = tokio::spawn(renew(election.endpoints.clone(), options.clone(), lease, lease_s, lose));
+    Ok(Candidacy { lease, lost, acting, renewing })
+}
+
+/// How a candidacy is lost: `acting` turns false first, then the reason is told.
+struct Lose {
+    acting: Arc<AtomicBool>,
+    tell: watch::Sender<Option<String>>,
+}
+
+impl Lose {
+    fn because(&self, why: String) {
+        self.acting.store(false, Ordering::SeqCst);
+        let _ = self.tell.send(Some(why));
+    }
 }
 
 /// How long to wait before asking etcd again after a member did not answer.
@@ -283,13 +320,7 @@ fn refused(e: &etcd_client::Error) -> bool {
 /// Renews `lease` several times in each TTL until it is lost: etcd says it expired, or no renewal was granted in
 /// time for this process to stop acting before it can expire for others. Says why on `tell`, once. Renewals go to
 /// one member at a time; one that does not answer in a sixth of the TTL is left for the next.
-async fn renew(
-    endpoints: Vec<String>,
-    options: etcd_client::ConnectOptions,
-    lease: i64,
-    lease_s: u64,
-    tell: watch::Sender<Option<String>>,
-) {
+async fn renew(endpoints: Vec<String>, options: etcd_client::ConnectOptions, lease: i64, lease_s: u64, lose: Lose) {
     let ttl = Duration::from_secs(lease_s);
     let every = ttl / 6;
     // The lease is this process's until a third of the TTL before it could end: etcd counts the TTL from when it
@@ -320,7 +351,7 @@ async fn renew(
                 own_until = sent + Duration::from_secs(answer.ttl() as u64) - ttl / 3;
             }
             Ok(Ok(Some(_))) => {
-                let _ = tell.send(Some("etcd says its lease expired: a standby may have taken over".into()));
+                lose.because("etcd says its lease expired: a standby may have taken over".into());
                 return;
             }
             Ok(Ok(None)) => {
@@ -337,11 +368,11 @@ async fn renew(
             }
         }
         if Instant::now() >= own_until {
-            let _ = tell.send(Some(format!(
+            lose.because(format!(
                 "no renewal of its lease was granted by etcd in time ({last_error}): stopping {} ms before the lease \
                  of {lease_s} s can end for the standbys",
                 (ttl / 3).as_millis()
-            )));
+            ));
             return;
         }
         tokio::time::sleep_until((sent + every).min(own_until).into()).await;
@@ -356,6 +387,7 @@ mod tests {
     fn an_election_is_named_by_etcds_endpoints_and_a_prefix() {
         let e: Election = "etcd://127.0.0.1:2379,10.0.0.2:2379/cell1".parse().expect("valid");
         assert_eq!(e.endpoints, ["http://127.0.0.1:2379", "http://10.0.0.2:2379"]);
+        assert_eq!(e.to_string(), "etcd://127.0.0.1:2379,10.0.0.2:2379/cell1", "written as it is given");
         assert_eq!(e.prefix, "cell1");
         assert_eq!(e.name(), "cell1/coordinator");
         for bad in ["127.0.0.1:2379/cell1", "etcd://127.0.0.1:2379", "etcd://127.0.0.1:2379/", "etcd://host/cell1"] {

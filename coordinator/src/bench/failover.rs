@@ -48,7 +48,7 @@ pub async fn failover(dir: &Path, etcd: &Election, kills: u32, lease_s: u64) -> 
         endpoints: etcd.endpoints.clone(),
         prefix: format!("{}/bench-{}", etcd.prefix, uuid::Uuid::new_v4()),
     };
-    let shown = format!("etcd://{}/{}", etcd.endpoints.join(",").replace("http://", ""), election.prefix);
+    let shown = election.to_string();
     let (tx, mut dispatches) = tokio::sync::mpsc::unbounded_channel::<(Instant, u64)>();
     let _seen = traffic::subscriber(&router, keys::agent_cmd_any("*"))
         .callback(move |sample| {

@@ -100,8 +100,10 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     let zconfig = baton_host::zenoh_config(&net, opts.zenoh_config.as_deref())?;
     let session = zenoh::open(zconfig).await.map_err(|e| anyhow!("cannot open a Zenoh session: {e}"))?;
     // Once the election is lost, nothing the journal made durable is sent any more.
-    let acting = Arc::new(std::sync::atomic::AtomicBool::new(true));
-    let deliver = host::deliver_while(host::deliver_through(&session), Arc::clone(&acting));
+    let deliver = match &won {
+        Some(won) => host::deliver_while(host::deliver_through(&session), Arc::clone(&won.acting)),
+        None => host::deliver_through(&session),
+    };
     let writer = store.map(|store| store.start_writer(Some(deliver)));
     let console = console.map(|listener| {
         let endpoints = crate::console::endpoints_of(&opts.listen, &opts.connect);
@@ -187,7 +189,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     host.core.watch(watch);
     begin(&mut host, resume, &opts, &loaded, run, &where_)?;
     let shared = baton_host::Shared::new(host);
-    let lost = won.as_ref().map(|w| deposing(w.lost.clone(), acting));
+    let lost = won.as_ref().map(|w| w.lost.clone());
     let ended = serve(&shared, &session, chart_reply, opts.abort_wait_ms, lost).await?;
     let summary = wind_down(shared.take()?, session, console, &opts, &loaded, ended).await;
     // Over, or left by a SIGTERM: a standby need not wait for the lease to end. (Deposed: it is not ours to give.)
@@ -445,21 +447,6 @@ enum Ended {
     /// The coordinator's election was lost (or about to be): it stops acting at once, sends nothing more, and
     /// leaves the run to the standby that wins.
     Deposed,
-}
-
-/// Watches the election won: once it is lost, `acting` turns false at that moment — the journal's writer sends
-/// nothing more — and the returned receiver tells the main loop why.
-fn deposing(
-    mut lost: watch::Receiver<Option<String>>,
-    acting: Arc<std::sync::atomic::AtomicBool>,
-) -> watch::Receiver<Option<String>> {
-    let seen = lost.clone();
-    tokio::spawn(async move {
-        if lost.wait_for(Option::is_some).await.is_ok() {
-            acting.store(false, std::sync::atomic::Ordering::SeqCst);
-        }
-    });
-    seen
 }
 
 /// Why the election was lost, once it is; never without one.
