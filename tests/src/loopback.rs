@@ -565,6 +565,25 @@ pub fn step_id(chart: &Path, name: &str) -> u32 {
 
 pub type Samples = zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>;
 
+/// The status of a run behind `session`'s router, asked as `baton status` asks it: of `key` (`keys::status(run)`),
+/// or of any run (`keys::status_any_run()`), the first to answer.
+pub async fn status_of(session: &zenoh::Session, key: String) -> baton_proto::cluster::wire::StatusReport {
+    use baton_proto::cluster::wire;
+    let replies = session.get(key).timeout(TIMEOUT).await.expect("status query");
+    let reply = replies.recv_async().await.expect("a status reply");
+    wire::decode(&reply.result().expect("ok").payload().to_bytes()).expect("a status")
+}
+
+/// Where commands reach the one process of agent `name` now: its command key, found as a coordinator finds it
+/// (the incarnation its info answers with).
+pub async fn cmd_key_of(session: &zenoh::Session, name: &str) -> String {
+    use baton_proto::cluster::{keys, wire};
+    let info = session.get(keys::agent_info(name)).timeout(TIMEOUT).await.expect("info query");
+    let info = info.recv_async().await.unwrap_or_else(|_| panic!("{name} answers"));
+    let info: wire::AgentInfo = wire::decode(&info.result().expect("ok").payload().to_bytes()).expect("info");
+    keys::agent_cmd(name, info.incarnation)
+}
+
 /// Waits, on a subscriber of the agents' command keys, for the dispatch entering step `entry` in `epoch`;
 /// returns the agent it went to and the token.
 pub async fn next_dispatch(cmds: &Samples, entry: u32, epoch: u32) -> (String, baton_proto::cluster::wire::TokenId) {

@@ -4,9 +4,9 @@ use std::time::Duration;
 
 use baton_proto::cluster::keys;
 use baton_proto::cluster::netconfig::NetConfig;
-use baton_proto::cluster::wire::{self, ChartHash, RunId, StatusReport, ToAgent, TokenId};
+use baton_proto::cluster::wire::{self, ChartHash, RunId, ToAgent, TokenId};
 use baton_proto::exec::trace::TraceEvent;
-use baton_tests::loopback::{check_trace_invariants, events, repo, Cluster, TIMEOUT};
+use baton_tests::loopback::{check_trace_invariants, cmd_key_of, events, repo, status_of, Cluster, TIMEOUT};
 use zenoh::sample::Locality;
 
 fn chart(name: &str) -> std::path::PathBuf {
@@ -219,10 +219,7 @@ async fn garbage_on_batons_keys_changes_nothing() {
     // The agent must be listening before the garbage goes out.
     coordinator.wait_for_trace("r1 live", |r| r.event == TraceEvent::AgentUp && r.name == "r1").await;
     let session = client(&cluster.endpoint).await;
-    let replies = session.get(keys::status_any_run()).timeout(TIMEOUT).await.expect("status query");
-    let reply = replies.recv_async().await.expect("a status reply");
-    let status: StatusReport = wire::decode(&reply.result().expect("ok").payload().to_bytes()).expect("status");
-    let run = status.run;
+    let run = status_of(&session, keys::status_any_run()).await.run;
     let rogue_report = wire::Report {
         run,
         agent: "r1".into(),
@@ -256,10 +253,7 @@ async fn garbage_on_batons_keys_changes_nothing() {
         async move { s.put(key, payload).congestion_control(zenoh::qos::CongestionControl::Block).await.expect("put") }
     };
     // Commands reach one process of a name: r1's, found as a coordinator finds it.
-    let info = session.get(keys::agent_info("r1")).timeout(TIMEOUT).await.expect("info query");
-    let info = info.recv_async().await.expect("r1 answers");
-    let info: wire::AgentInfo = wire::decode(&info.result().expect("ok").payload().to_bytes()).expect("info");
-    let r1_cmd = keys::agent_cmd("r1", info.incarnation);
+    let r1_cmd = cmd_key_of(&session, "r1").await;
     for g in &garbage {
         put(keys::report(run, "r1"), g.clone()).await;
         put(keys::vars(run, "intruder"), g.clone()).await;
@@ -451,16 +445,10 @@ async fn an_agent_that_heard_a_higher_term_refuses_the_deposed_coordinators_valu
     cluster.agent("r1", &[], &[]);
     coordinator.wait_for_trace("Work dispatched", |r| r.event == TraceEvent::Dispatch && r.name == "Work").await;
     let session = client(&cluster.endpoint).await;
-    let replies = session.get(keys::status_any_run()).timeout(TIMEOUT).await.expect("status query");
-    let reply = replies.recv_async().await.expect("a status reply");
-    let status: StatusReport = wire::decode(&reply.result().expect("ok").payload().to_bytes()).expect("status");
-    let run = status.run;
-    let info = session.get(keys::agent_info("r1")).timeout(TIMEOUT).await.expect("info query");
-    let info = info.recv_async().await.expect("r1 answers");
-    let info: wire::AgentInfo = wire::decode(&info.result().expect("ok").payload().to_bytes()).expect("info");
+    let run = status_of(&session, keys::status_any_run()).await.run;
     // The coordinator runs at term 0 (it stands in no election); a command of term 9 reaches r1.
     let sync = wire::encode_termed(&ToAgent::Sync { run }, 9);
-    session.put(keys::agent_cmd("r1", info.incarnation), sync).await.expect("put");
+    session.put(cmd_key_of(&session, "r1").await, sync).await.expect("put");
     cluster.wait_for_agent_trace("r1", "term 9", |r| r.event == TraceEvent::Term && message_has(r, "term 9")).await;
 
     // Through the deposed coordinator, `go` is set: the coordinator takes it, r1 refuses its update.
@@ -473,9 +461,7 @@ async fn an_agent_that_heard_a_higher_term_refuses_the_deposed_coordinators_valu
     let said = trace.iter().find(|r| refused("variable update")(r)).and_then(|r| r.message.clone());
     assert!(said.as_deref().is_some_and(|m| m.contains("term 0") && m.contains("term 9")), "{said:?}");
     // The update was refused, so Work's transition cannot clear on r1: the token is still there.
-    let replies = session.get(keys::status(run)).timeout(TIMEOUT).await.expect("status query");
-    let reply = replies.recv_async().await.expect("a status reply");
-    let status: StatusReport = wire::decode(&reply.result().expect("ok").payload().to_bytes()).expect("status");
+    let status = status_of(&session, keys::status(run)).await;
     assert!(status.active_steps.iter().any(|s| s.name == "Work"), "{status:?}");
     assert!(!cluster.agent_trace("r1").iter().any(|r| r.event == TraceEvent::Fire), "r1 fired nothing");
 

@@ -7,10 +7,12 @@
 //! the quorum back, it wins again and completes the run.
 
 use baton_proto::cluster::keys;
-use baton_proto::cluster::wire::{self, AgentInfo, StatusReport, ToAgent};
+use baton_proto::cluster::wire::{self, ToAgent};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::etcd::Etcd;
-use baton_tests::loopback::{check_trace_invariants, dispatches, next_dispatch, repo, step_id, Cluster, TIMEOUT};
+use baton_tests::loopback::{
+    check_trace_invariants, cmd_key_of, dispatches, next_dispatch, repo, status_of, step_id, Cluster, Samples,
+};
 use baton_tests::{http, unit};
 
 baton_tests::harness_main!(
@@ -73,6 +75,24 @@ async fn console_terms(page: &mut http::Events, done: impl Fn(&[u64]) -> bool) -
     panic!("the console never showed the coordinators awaited; its last state's: {}", last["coordinators"]);
 }
 
+/// Starts the three robots, and returns once the first part's picks are under way (Pick3 dispatched).
+async fn robots_picking(cluster: &mut Cluster, cmds: &Samples, chart: &std::path::Path) {
+    for robot in ["robot1", "robot2", "robot3"] {
+        cluster.agent(robot, &[], &[]);
+    }
+    next_dispatch(cmds, step_id(chart, "Pick3"), 1).await;
+}
+
+/// The run made its parts as one run makes them: the trace's invariants hold, every part is counted, and every
+/// pick and assembly was sent once per part — however many coordinators the run had.
+fn made_every_part_once(trace: &[TraceRecord], summary: &serde_json::Value, log: &str, chart: &std::path::Path) {
+    check_trace_invariants(trace, chart);
+    assert_eq!(summary["vars"]["done"], PARTS, "{log}");
+    for step in ["Pick1", "Pick2", "Pick3", "Assemble"] {
+        assert_eq!(dispatches(trace, step).len(), 2, "{step}: {:?}\n{log}", dispatches(trace, step));
+    }
+}
+
 fn terms_heard(trace: &[TraceRecord]) -> Vec<String> {
     trace.iter().filter(|r| r.event == TraceEvent::Term).filter_map(|r| r.message.clone()).collect()
 }
@@ -112,11 +132,8 @@ async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_com
     assert_eq!(terms[0], old_term, "the active coordinator first: {terms:?}");
     // One member of three lost: the cluster keeps its quorum, and nothing changes.
     etcd.kill(2).await;
-    for robot in ["robot1", "robot2", "robot3"] {
-        cluster.agent(robot, &[], &[]);
-    }
     // Mid-branch: the three picks of the first part are under way (motions of 2 to 3 s).
-    next_dispatch(&cmds, step_id(&chart, "Pick3"), 1).await;
+    robots_picking(&mut cluster, &cmds, &chart).await;
     active.kill().await;
     standby.wait_ready().await;
     let new_term = term_in(&standby.wait_for_log("coordinating at term").await);
@@ -132,28 +149,18 @@ async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_com
     let heard =
         |r: &TraceRecord| r.event == TraceEvent::Term && r.message.as_deref().is_some_and(|m| m.contains(&said));
     cluster.wait_for_agent_trace("robot1", "the new term", heard).await;
-    let session = watch.clone();
-    let replies = session.get(keys::status_any_run()).timeout(TIMEOUT).await.expect("status query");
-    let reply = replies.recv_async().await.expect("a status reply");
-    let status: StatusReport = wire::decode(&reply.result().expect("ok").payload().to_bytes()).expect("status");
-    let info = session.get(keys::agent_info("robot1")).timeout(TIMEOUT).await.expect("info query");
-    let info = info.recv_async().await.expect("robot1 answers");
-    let info: AgentInfo = wire::decode(&info.result().expect("ok").payload().to_bytes()).expect("info");
-    let abort = wire::encode_termed(&ToAgent::Abort { run: status.run }, old_term);
-    session.put(keys::agent_cmd("robot1", info.incarnation), abort).await.expect("put");
+    let run = status_of(&watch, keys::status_any_run()).await.run;
+    let abort = wire::encode_termed(&ToAgent::Abort { run }, old_term);
+    watch.put(cmd_key_of(&watch, "robot1").await, abort).await.expect("put");
     let refused = |r: &TraceRecord| r.event == TraceEvent::StaleTerm && r.name == "abort";
     cluster.wait_for_agent_trace("robot1", "the deposed coordinator's abort refused", refused).await;
 
     let (status, log, trace, summary) = standby.finish().await;
     assert!(status.success(), "{log}");
     assert!(log.contains("resuming run"), "{log}");
-    check_trace_invariants(&trace, &chart);
-    assert_eq!(summary["vars"]["done"], PARTS, "{log}");
-    assert_eq!(summary["state"], "complete", "{log}");
     // Every pick and assembly sent once per part, the picks the killed coordinator sent included.
-    for step in ["Pick1", "Pick2", "Pick3", "Assemble"] {
-        assert_eq!(dispatches(&trace, step).len(), 2, "{step}: {:?}\n{log}", dispatches(&trace, step));
-    }
+    made_every_part_once(&trace, &summary, &log, &chart);
+    assert_eq!(summary["state"], "complete", "{log}");
     // Each robot heard the coordinators' terms in order, the new one last: from the killed one's (if a message of
     // it reached the robot before the kill) to the standby's. And no motion ran twice: one pick per part.
     for robot in ["robot1", "robot2", "robot3"] {
@@ -180,10 +187,7 @@ async fn without_etcds_quorum_the_coordinator_stops_acting_and_the_run_goes_on_w
     let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
     let mut active = cluster.coordinator_joining(&chart, &args);
     active.wait_ready().await;
-    for robot in ["robot1", "robot2", "robot3"] {
-        cluster.agent(robot, &[], &[]);
-    }
-    next_dispatch(&cmds, step_id(&chart, "Pick3"), 1).await;
+    robots_picking(&mut cluster, &cmds, &chart).await;
     etcd.kill(1).await;
     etcd.kill(2).await;
     active.wait_for_log("stopped coordinating: no renewal of its lease was granted by etcd in time").await;
@@ -197,11 +201,7 @@ async fn without_etcds_quorum_the_coordinator_stops_acting_and_the_run_goes_on_w
     assert!(log.contains("resuming run"), "{log}");
     let terms: Vec<u64> = log.match_indices("coordinating at term ").map(|(at, _)| term_in(&log[at..])).collect();
     assert!(terms.len() == 2 && terms[1] > terms[0], "won twice, the second time at a higher term: {terms:?}");
-    check_trace_invariants(&trace, &chart);
-    assert_eq!(summary["vars"]["done"], PARTS, "{log}");
-    for step in ["Pick1", "Pick2", "Pick3", "Assemble"] {
-        assert_eq!(dispatches(&trace, step).len(), 2, "{step}: {:?}\n{log}", dispatches(&trace, step));
-    }
+    made_every_part_once(&trace, &summary, &log, &chart);
 }
 
 async fn a_coordinator_cut_off_from_etcd_stops_acting_before_its_standby_takes_over_and_then_stands_by() {
@@ -225,10 +225,7 @@ async fn a_coordinator_cut_off_from_etcd_stops_acting_before_its_standby_takes_o
     let old_term = term_in(&active.wait_for_log("coordinating at term").await);
     let mut standby = cluster.coordinator_joining_as("-standby", &chart, &direct);
     standby.wait_for_log("standing by").await;
-    for robot in ["robot1", "robot2", "robot3"] {
-        cluster.agent(robot, &[], &[]);
-    }
-    next_dispatch(&cmds, step_id(&chart, "Pick3"), 1).await;
+    robots_picking(&mut cluster, &cmds, &chart).await;
     cables.iter().for_each(|c| c.cut());
     // It stops on its own deadline, a third of the lease before etcd can end the lease for the standby: when it says
     // so, the standby has not won yet.
@@ -244,11 +241,7 @@ async fn a_coordinator_cut_off_from_etcd_stops_acting_before_its_standby_takes_o
     assert!(line.contains("standing by"), "{line}");
     let (status, log, trace, summary) = standby.finish().await;
     assert!(status.success(), "{log}");
-    check_trace_invariants(&trace, &chart);
-    assert_eq!(summary["vars"]["done"], PARTS, "{log}");
-    for step in ["Pick1", "Pick2", "Pick3", "Assemble"] {
-        assert_eq!(dispatches(&trace, step).len(), 2, "{step}: {:?}\n{log}", dispatches(&trace, step));
-    }
+    made_every_part_once(&trace, &summary, &log, &chart);
     // The run over, the active coordinator gave the election up: the one standing by wins at once, finds nothing
     // to take over, and leaves (status 0: its unit does not start it again).
     let (status, log, _, _) = active.finish().await;
