@@ -164,9 +164,21 @@ impl Won {
     /// end: the run is over, or left as it stands by a SIGTERM. Best effort, within a second.
     pub async fn resign(mut self) {
         self.renewing.abort();
-        let revoke = self.client.lease_revoke(self.lease);
-        if let Ok(Err(e)) = tokio::time::timeout(Duration::from_secs(1), revoke).await {
-            eprintln!("baton: warning: could not give the election up (its lease ends by itself): {e}");
+        // Asked again past a member that is down, as every request is.
+        let revoke = async {
+            loop {
+                match self.client.lease_revoke(self.lease).await {
+                    Err(e) if !refused(&e) => tokio::time::sleep(RETRY).await,
+                    done => return done.map(drop),
+                }
+            }
+        };
+        match tokio::time::timeout(Duration::from_secs(1), revoke).await {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => eprintln!("baton: warning: could not give the election up (its lease ends by itself): {e}"),
+            Err(_) => {
+                eprintln!("baton: warning: etcd did not take the election back within 1 s (its lease ends by itself)")
+            }
         }
     }
 }

@@ -326,6 +326,16 @@ impl Cluster {
         Coordinator::following(child, trace, summary, trace_before)
     }
 
+    /// The run's status as `baton status --json EXTRA…` prints it (its first line: the run behind the router), once
+    /// a run answers; `None` while none does.
+    pub async fn status_json(&self, extra: &[&str]) -> Option<serde_json::Value> {
+        let mut args = vec!["status", "--connect", &self.endpoint, "--json"];
+        args.extend(extra);
+        let out = self.baton(&args).await;
+        let first = out.stdout.split(|b| *b == b'\n').next().unwrap_or_default();
+        serde_json::from_slice::<serde_json::Value>(first).ok().filter(|s| s["run"].is_string())
+    }
+
     /// Runs `baton ARGS…` to completion, under the timeout.
     pub async fn baton(&self, args: &[&str]) -> std::process::Output {
         let out = Command::new(bin("baton")).args(args).kill_on_drop(true).output();
@@ -352,28 +362,6 @@ impl Coordinator {
         let lines = self.log.since(self.read);
         self.read += lines.len();
         lines.join("\n")
-    }
-
-    /// Waits until the coordinator logs a line holding `text`, and returns that line.
-    pub async fn wait_for_log(&mut self, text: &str) -> String {
-        let log = self.log.clone();
-        let found = tokio::time::timeout(TIMEOUT, async {
-            loop {
-                let more = log.more.notified();
-                if let Some(line) = log.since(0).into_iter().find(|l| l.contains(text)) {
-                    return Some(line);
-                }
-                if log.ended.load(std::sync::atomic::Ordering::SeqCst) {
-                    return None;
-                }
-                more.await;
-            }
-        })
-        .await;
-        match found {
-            Ok(Some(line)) => line,
-            _ => panic!("the coordinator never logged `{text}`; its log:\n{}", log.since(0).join("\n")),
-        }
     }
 
     /// Waits until this process is serving its run: its first trace record (the chart's initial steps, or the

@@ -208,12 +208,6 @@ async fn a_journal_of_another_chart_version_or_a_finished_run_is_refused() {
     assert!(replay.status.success() && said.contains("it was stopped"), "{said}");
 }
 
-/// The run's status as `baton status --json` prints it, once a run answers.
-async fn status_json(cluster: &Cluster) -> Option<serde_json::Value> {
-    let out = cluster.baton(&["status", "--connect", &cluster.endpoint, "--json"]).await;
-    serde_json::from_slice::<serde_json::Value>(&out.stdout).ok().filter(|s| s["run"].is_string())
-}
-
 /// A peer floods the run with what the coordinator refuses — a megabyte at a time from an agent it does not know,
 /// reports of a token nobody holds —: none of it is journaled (a resume would replay it all), and the run goes on.
 #[tokio::test(flavor = "multi_thread")]
@@ -227,7 +221,7 @@ async fn what_the_coordinator_refuses_never_reaches_its_journal() {
     // The run's queryables reach the router a moment after its first trace record.
     let first = tokio::time::timeout(TIMEOUT, async {
         loop {
-            if let Some(s) = status_json(&cluster).await {
+            if let Some(s) = cluster.status_json(&[]).await {
                 return s;
             }
         }
@@ -268,7 +262,7 @@ async fn what_the_coordinator_refuses_never_reaches_its_journal() {
     // Every message of the flood refused before the run goes on, as `baton status` counts them.
     let refused = tokio::time::timeout(TIMEOUT, async {
         loop {
-            let dropped = status_json(&cluster).await.and_then(|s| s["messages_dropped"].as_u64()).unwrap_or(0);
+            let dropped = cluster.status_json(&[]).await.and_then(|s| s["messages_dropped"].as_u64()).unwrap_or(0);
             if dropped >= 2 * FLOOD as u64 {
                 return dropped;
             }

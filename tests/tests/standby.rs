@@ -11,7 +11,8 @@ use baton_proto::cluster::wire::{self, ToAgent};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::etcd::Etcd;
 use baton_tests::loopback::{
-    check_trace_invariants, cmd_key_of, dispatches, next_dispatch, repo, status_of, step_id, Cluster, Samples,
+    check_trace_invariants, cmd_key_of, dispatches, next_dispatch, repo, status_of, step_id, Cluster, Coordinator,
+    Samples, TIMEOUT,
 };
 use baton_tests::{http, unit};
 
@@ -39,20 +40,50 @@ fn args_with(cluster: &Cluster, election: &str) -> Vec<String> {
         .to_vec()
 }
 
-/// The term a coordinator said it won at ("coordinating at term N").
+/// The term a coordinator said it won at, in its finished log ("coordinating at term N").
 fn term_in(log: &str) -> u64 {
     let at = log.find("coordinating at term ").unwrap_or_else(|| panic!("no term in the log:\n{log}"));
     let digits: String = log[at + 21..].chars().take_while(char::is_ascii_digit).collect();
     digits.parse().expect("a term")
 }
 
-/// The run's election as `baton status --election … --json` shows it with the run.
-async fn coordinators(cluster: &Cluster, etcd: &Etcd) -> serde_json::Value {
-    let out = cluster.baton(&["status", "--connect", &cluster.endpoint, "--election", &election(etcd), "--json"]).await;
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let text = String::from_utf8_lossy(&out.stdout);
-    let line: serde_json::Value = serde_json::from_str(text.lines().next().unwrap_or("")).expect("a JSON line");
-    line["coordinators"].clone()
+/// Asks `baton status --election … --json` until a run answers with coordinators that satisfy `done`; returns them.
+async fn coordinators_once(
+    cluster: &Cluster,
+    etcd: &Etcd,
+    done: impl Fn(&serde_json::Value) -> bool,
+) -> serde_json::Value {
+    let election = election(etcd);
+    let mut last = serde_json::Value::Null;
+    let found = tokio::time::timeout(TIMEOUT, async {
+        loop {
+            if let Some(status) = cluster.status_json(&["--election", &election]).await {
+                last = status["coordinators"].clone();
+                if done(&last) {
+                    return last.clone();
+                }
+            }
+        }
+    })
+    .await;
+    found.unwrap_or_else(|_| panic!("the coordinators never became what the test awaits; last seen: {last}"))
+}
+
+/// Whether a candidate of the election is `coordinator`'s process (`… (pid N)`).
+fn name_of(candidate: &serde_json::Value, coordinator: &Coordinator) -> bool {
+    let pid = coordinator.child.id().expect("a live process");
+    candidate["name"].as_str().is_some_and(|n| n.ends_with(&format!("(pid {pid})")))
+}
+
+/// Asks `baton status` until no run answers, calling `meanwhile` after each answer.
+async fn until_no_run_answers(cluster: &Cluster, mut meanwhile: impl FnMut()) {
+    let gone = tokio::time::timeout(TIMEOUT, async {
+        while cluster.status_json(&[]).await.is_some() {
+            meanwhile();
+        }
+    })
+    .await;
+    assert!(gone.is_ok(), "the run still answers after {TIMEOUT:?}");
 }
 
 /// Waits for the console's page to be told of coordinators whose terms (the active one's first) satisfy `done`;
@@ -120,11 +151,11 @@ async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_com
     let mut active = coordinator("a");
     active.wait_ready().await;
     let mut standby = coordinator("b");
-    standby.wait_for_log("standing by").await;
-    let old_term = term_in(&active.wait_for_log("coordinating at term").await);
-    let seen = coordinators(&cluster, &etcd).await;
-    assert_eq!(seen["active"]["term"], old_term, "{seen}");
-    assert_eq!(seen["standbys"].as_array().map(Vec::len), Some(1), "{seen}");
+    // Until the standby stands: `baton status --election` names the active coordinator and its standby.
+    let seen = coordinators_once(&cluster, &etcd, |c| c["standbys"].as_array().is_some_and(|s| s.len() == 1)).await;
+    let old_term = seen["active"]["term"].as_u64().expect("the active coordinator's term");
+    assert!(name_of(&seen["active"], &active), "{seen}");
+    assert!(name_of(&seen["standbys"][0], &standby), "{seen}");
     // The operator console names them too, and follows the takeover.
     let (_console, addr) = http::console(&cluster.endpoint, &["--election", &election]).await;
     let mut page = http::Events::open(&addr).await;
@@ -136,11 +167,12 @@ async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_com
     robots_picking(&mut cluster, &cmds, &chart).await;
     active.kill().await;
     standby.wait_ready().await;
-    let new_term = term_in(&standby.wait_for_log("coordinating at term").await);
+    // The killed coordinator's candidacy ended with its lease: the standby is the active one, at a higher term, and
+    // nobody stands by.
+    let seen = coordinators_once(&cluster, &etcd, |c| c["active"]["term"] != old_term).await;
+    let new_term = seen["active"]["term"].as_u64().expect("the active coordinator's term");
     assert!(new_term > old_term, "the standby won at term {new_term}, after term {old_term}");
-    // The killed coordinator's candidacy ended with its lease: the standby is the active one, and nobody stands by.
-    let seen = coordinators(&cluster, &etcd).await;
-    assert_eq!(seen["active"]["term"], new_term, "{seen}");
+    assert!(name_of(&seen["active"], &standby), "{seen}");
     assert_eq!(seen["standbys"], serde_json::json!([]), "{seen}");
     console_terms(&mut page, |terms| terms == [new_term]).await;
     // The deposed coordinator's abort, as it would send it had it been paused rather than killed: each robot that
@@ -190,13 +222,15 @@ async fn without_etcds_quorum_the_coordinator_stops_acting_and_the_run_goes_on_w
     robots_picking(&mut cluster, &cmds, &chart).await;
     etcd.kill(1).await;
     etcd.kill(2).await;
-    active.wait_for_log("stopped coordinating: no renewal of its lease was granted by etcd in time").await;
-    active.wait_for_log("standing in the election again").await;
-    active.wait_for_log("grants no lease (unreachable, or without a quorum").await;
+    // Without a renewal it stops acting: its run no longer answers (the process lives on, waiting for etcd).
+    until_no_run_answers(&cluster, || {}).await;
+    assert!(active.child.try_wait().expect("the process's state").is_none(), "it stands again, in the same process");
     // A quorum again: the same process wins again, at a higher term, and completes the run from its journal.
     etcd.restart(1).await;
     let (status, log, trace, summary) = active.finish().await;
     assert!(status.success(), "{log}");
+    assert!(log.contains("stopped coordinating: no renewal of its lease was granted by etcd in time"), "{log}");
+    assert!(log.contains("standing in the election again"), "{log}");
     assert!(log.contains("is kept in its journal"), "{log}");
     assert!(log.contains("resuming run"), "{log}");
     let terms: Vec<u64> = log.match_indices("coordinating at term ").map(|(at, _)| term_in(&log[at..])).collect();
@@ -222,23 +256,26 @@ async fn a_coordinator_cut_off_from_etcd_stops_acting_before_its_standby_takes_o
     let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
     let mut active = cluster.coordinator_joining(&chart, &cut_off);
     active.wait_ready().await;
-    let old_term = term_in(&active.wait_for_log("coordinating at term").await);
     let mut standby = cluster.coordinator_joining_as("-standby", &chart, &direct);
-    standby.wait_for_log("standing by").await;
+    let seen = coordinators_once(&cluster, &etcd, |c| c["standbys"].as_array().is_some_and(|s| s.len() == 1)).await;
+    let old_term = seen["active"]["term"].as_u64().expect("the active coordinator's term");
     robots_picking(&mut cluster, &cmds, &chart).await;
     cables.iter().for_each(|c| c.cut());
-    // It stops on its own deadline, a third of the lease before etcd can end the lease for the standby: when it says
-    // so, the standby has not won yet.
-    active.wait_for_log("stopped coordinating: no renewal of its lease was granted by etcd in time").await;
-    let standby_so_far = standby.unread_log().await;
-    assert!(!standby_so_far.contains("won the election"), "the standby won first:\n{standby_so_far}");
-    let new_term = term_in(&standby.wait_for_log("coordinating at term").await);
+    // It stops on its own deadline, a third of the lease before etcd can end the lease for the standby: once its run
+    // no longer answers, the standby has not begun its own (its trace is still empty).
+    until_no_run_answers(&cluster, || {
+        assert_eq!(standby.trace_mark(), 0, "the standby acted while the cut-off coordinator still answered");
+    })
+    .await;
+    assert_eq!(standby.trace_mark(), 0, "the standby acted before the cut-off coordinator stopped");
+    standby.wait_ready().await;
+    let seen = coordinators_once(&cluster, &etcd, |c| c["active"]["term"] != old_term).await;
+    let new_term = seen["active"]["term"].as_u64().expect("the active coordinator's term");
     assert!(new_term > old_term, "the standby won at term {new_term}, after term {old_term}");
     // Reconnected, the first coordinator (the same process) stands by behind the standby.
-    active.wait_for_log("standing in the election again").await;
     cables.iter().for_each(|c| c.heal());
-    let line = active.wait_for_log(&format!("(term {new_term}); taking over")).await;
-    assert!(line.contains("standing by"), "{line}");
+    let seen = coordinators_once(&cluster, &etcd, |c| c["standbys"].as_array().is_some_and(|s| s.len() == 1)).await;
+    assert!(name_of(&seen["active"], &standby) && name_of(&seen["standbys"][0], &active), "{seen}");
     let (status, log, trace, summary) = standby.finish().await;
     assert!(status.success(), "{log}");
     made_every_part_once(&trace, &summary, &log, &chart);
@@ -246,5 +283,7 @@ async fn a_coordinator_cut_off_from_etcd_stops_acting_before_its_standby_takes_o
     // to take over, and leaves (status 0: its unit does not start it again).
     let (status, log, _, _) = active.finish().await;
     assert!(status.success(), "{log}");
+    assert!(log.contains("stopped coordinating: no renewal of its lease was granted by etcd in time"), "{log}");
+    assert!(log.contains(&format!("(term {new_term}); taking over")), "it stood by behind the standby: {log}");
     assert!(log.contains("is over (it completed): there is nothing to take over"), "{log}");
 }
