@@ -310,7 +310,9 @@ fn random_cells_keep_their_promises() {
 /// Standby coordinators, on the random cells: each cell's coordinator stands in an election (a lease of 200–500
 /// ms), is paused once or twice past its lease — at a moment when it has durable records whose messages it has not
 /// sent, the GC pause that fools every lease — and its crashes become takeovers too. The paused coordinator wakes
-/// and sends what it held at its old term. Over the seeds (64, or `BATON_SIM_SEEDS`: the book runs 1,000): every
+/// and sends what it held at its old term. It is also cut from the store (etcd) up to twice, for up to its lease:
+/// a cut that heals before its deadline lets its writes through; one it outlasts stops it, what waited never
+/// durable nor sent, and a standby takes over from the store. Over the seeds (64, or `BATON_SIM_SEEDS`: the book runs 1,000): every
 /// promise of `random_cells_keep_their_promises` holds, with the journal the standby resumed from — nothing
 /// acknowledged is lost — and no agent process ever takes a message of a lower term after one of a higher
 /// (`violations`); the deposed coordinators' late messages were sent and agents refused some of them.
@@ -330,6 +332,10 @@ fn standby_coordinators_never_both_command_an_agent() {
         for _ in 0..1 + rng.below(2) {
             cell.sim.pause_coordinator_at(rng.below(CHAOS_MS - 400), lease + 1 + rng.below(400));
         }
+        // Cut from the store (etcd) for up to the lease: some heal before the coordinator's deadline, some not.
+        for _ in 0..rng.below(3) {
+            cell.sim.cut_coordinator_from_store_at(rng.below(CHAOS_MS - 400), 1 + rng.below(lease));
+        }
         if let Err(why) = cell.run() {
             panic!(
                 "seed {seed}: {why}\n{}\nreplay exactly this run: BATON_SIM_SEED={seed} cargo test -p baton-tests --test distributed_sim standby_coordinators_never_both_command_an_agent",
@@ -340,6 +346,8 @@ fn standby_coordinators_never_both_command_an_agent() {
         total.takeovers += e.takeovers;
         total.late_messages += e.late_messages;
         total.refused += e.refused;
+        total.cuts_healed += e.cuts_healed;
+        total.cuts_outlasted += e.cuts_outlasted;
     }
     eprintln!("standby coordinators: {} seeds, {accepted} accepted, {total:?}", seeds.len());
     if seeds.len() > 1 {
@@ -348,6 +356,7 @@ fn standby_coordinators_never_both_command_an_agent() {
             total.late_messages > 0 && total.refused > 0,
             "no deposed coordinator was heard and refused: {total:?}"
         );
+        assert!(total.cuts_healed > 0 && total.cuts_outlasted > 0, "cuts from the store of both kinds: {total:?}");
     }
 }
 

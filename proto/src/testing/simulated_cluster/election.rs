@@ -5,13 +5,19 @@
 //! was about to send (its records were durable, so the journal has them) and sends it when it wakes, at its old
 //! term, not knowing it was replaced: each agent that heard the new term must refuse it. Watched: no agent process
 //! ever takes a message of a lower term after one of a higher term (`violations`), and the refusals are counted.
+//!
+//! The active coordinator can also be cut from the store (`cut_coordinator_from_store_at`: etcd unreachable, or
+//! without a quorum): its writes wait, and with them everything they led to (write-ahead). A cut that heals before
+//! the coordinator's own deadline — two thirds into its lease — lets the writes through at its term, and the run goes
+//! on. One that outlasts it: the coordinator stops acting, what waited is never durable and never sent, and a
+//! standby takes over from the store when the lease ends — the last third of the lease with nobody acting.
 
 use std::collections::BTreeMap;
 
 use crate::cluster::runtime::coordinator::CoordOutput;
 use crate::cluster::wire;
 
-use super::{Election, ElectionStats, Packet, SimCluster};
+use super::{Cut, Election, ElectionStats, Packet, SimCluster};
 
 impl SimCluster {
     /// Coordinators stand by for this run: the first wins the election at term 1, and each takeover (a crash, or a
@@ -26,7 +32,70 @@ impl SimCluster {
             refused: 0,
             takeovers: 0,
             late_messages: 0,
+            cuts: Vec::new(),
+            cut: None,
+            cuts_healed: 0,
+            cuts_outlasted: 0,
         });
+    }
+
+    /// The active coordinator is cut from the store at the first moment from `t_ms` on when it has something to
+    /// write or send, for `cut_ms`. Needs `stand_by`.
+    pub fn cut_coordinator_from_store_at(&mut self, t_ms: u64, cut_ms: u64) {
+        let e = self.election.as_mut().expect("a cut from the store is of a coordinator that has standbys: stand_by");
+        e.cuts.push((t_ms, cut_ms));
+        e.cuts.sort_unstable();
+    }
+
+    /// Whether a cut from the store holds `records` and what the coordinator asked for — one under way, or one that
+    /// begins now. (Not durable, nothing of it leaves.)
+    pub(super) fn held_by_store(&mut self, records: &mut Vec<Vec<u8>>) -> bool {
+        let now = self.now_ms;
+        let has_output = self.coordinator.has_output();
+        let Some(e) = self.election.as_mut() else { return false };
+        if e.cut.is_none() {
+            let due = e.cuts.first().is_some_and(|c| c.0 <= now);
+            if !due || self.down_until.is_some() || (records.is_empty() && !has_output) {
+                return false;
+            }
+            let (_, cut_ms) = e.cuts.remove(0);
+            let deadline = now + e.lease_ms * 2 / 3;
+            e.cut = Some(Cut { heals: now + cut_ms, deadline, records: Vec::new(), outputs: Vec::new() });
+        }
+        let cut = e.cut.as_mut().expect("one under way");
+        cut.records.append(records);
+        while let Some(out) = self.coordinator.poll_output() {
+            cut.outputs.push(out);
+        }
+        true
+    }
+
+    /// The cut under way heals (the writes go through, at the term the coordinator still holds, and what they led
+    /// to leaves), or the coordinator's deadline comes first (it stops acting; a standby wins when the lease ends).
+    pub(super) fn store_due(&mut self) {
+        let now = self.now_ms;
+        let Some(e) = self.election.as_mut() else { return };
+        let Some(cut) = e.cut.as_ref() else { return };
+        if cut.heals <= now && cut.heals < cut.deadline {
+            let cut = e.cut.take().expect("checked");
+            e.cuts_healed += 1;
+            self.journal.extend(cut.records);
+            let term = self.term();
+            for out in cut.outputs {
+                self.emit(out, term);
+            }
+            // What the coordinator took meanwhile, and anything since, goes the usual way.
+            self.flush_coordinator();
+        } else if cut.deadline <= now {
+            // Stopped acting: what waited for the store was never acknowledged, and dies with the coordinator's
+            // acting; the standby resumes from the store.
+            e.cut = None;
+            e.cuts_outlasted += 1;
+            let rest = e.lease_ms - e.lease_ms * 2 / 3;
+            self.coordinator.take_records();
+            while self.coordinator.poll_output().is_some() {}
+            self.down_until = Some(now + rest);
+        }
     }
 
     /// The active coordinator pauses (a GC pause, a frozen VM) at the first moment from `t_ms` on when it has
@@ -46,6 +115,8 @@ impl SimCluster {
             takeovers: e.takeovers,
             late_messages: e.late_messages,
             refused: e.refused,
+            cuts_healed: e.cuts_healed,
+            cuts_outlasted: e.cuts_outlasted,
         })
     }
 
@@ -116,10 +187,14 @@ impl SimCluster {
         }
     }
 
-    /// When the next pause or wake-up is due.
+    /// When the next pause, wake-up, cut, heal or deadline is due.
     pub(super) fn election_due_ms(&self) -> Option<u64> {
         let e = self.election.as_ref()?;
-        [e.pauses.first().map(|p| p.0), e.zombies.first().map(|z| z.0)].into_iter().flatten().min()
+        let cut = e.cut.as_ref().map(|c| c.heals.min(c.deadline));
+        [e.pauses.first().map(|p| p.0), e.zombies.first().map(|z| z.0), e.cuts.first().map(|c| c.0), cut]
+            .into_iter()
+            .flatten()
+            .min()
     }
 
     /// Agent `i`'s process took (`taken`) or refused a message of `term`: a taken one of a lower term than one it

@@ -153,6 +153,22 @@ struct Election {
     /// Takeovers so far, and the messages deposed coordinators sent as they woke.
     takeovers: u64,
     late_messages: u64,
+    /// Cuts of the active coordinator from the store to come: (from when, how long), in order; the one under way.
+    cuts: Vec<(u64, u64)>,
+    cut: Option<Cut>,
+    /// Cuts that healed before the coordinator's deadline (its writes went through), and cuts it outlasted (it
+    /// stopped acting, its writes never durable).
+    cuts_healed: u64,
+    cuts_outlasted: u64,
+}
+
+/// A cut of the active coordinator from the store under way: when it heals, when the coordinator's own deadline
+/// comes, and what waits for the store meanwhile.
+struct Cut {
+    heals: u64,
+    deadline: u64,
+    records: Vec<Vec<u8>>,
+    outputs: Vec<CoordOutput>,
 }
 
 /// What the election did in a run, for a test to see that its faults happened.
@@ -164,6 +180,9 @@ pub struct ElectionStats {
     pub late_messages: u64,
     /// Those refused by the agents that had heard a higher term.
     pub refused: u64,
+    /// Cuts from the store that healed in time, and cuts the coordinator outlasted (it stopped acting).
+    pub cuts_healed: u64,
+    pub cuts_outlasted: u64,
 }
 
 pub struct SimCluster {
@@ -427,9 +446,13 @@ impl SimCluster {
             // Already down: nothing more to lose.
             return;
         }
-        // Records not yet durable die with the process, and so do the outputs they led to.
+        // Records not yet durable die with the process, and so do the outputs they led to — those a cut from the
+        // store held too.
         self.coordinator.take_records();
         while self.coordinator.poll_output().is_some() {}
+        if let Some(e) = self.election.as_mut() {
+            e.cut = None;
+        }
         self.down_until = Some(self.now_ms + down_ms);
     }
 
@@ -678,6 +701,7 @@ impl SimCluster {
                 self.restart_coordinator();
             }
             self.wake_zombies();
+            self.store_due();
             while self.crashes.first().is_some_and(|c| c.0 <= self.now_ms) {
                 let (_, down_ms) = self.crashes.remove(0);
                 self.crash_coordinator(down_ms);

@@ -126,7 +126,10 @@ impl SimCluster {
 
     /// Makes the coordinator's records durable, then carries out what it asked for — unless it dies in between.
     pub(super) fn flush_coordinator(&mut self) {
-        let records = self.coordinator.take_records();
+        let mut records = self.coordinator.take_records();
+        if self.held_by_store(&mut records) {
+            return;
+        }
         self.journal.extend(records);
         if self.pause_if_due() {
             return;
@@ -141,25 +144,7 @@ impl SimCluster {
         }
         let term = self.term();
         while let Some(out) = self.coordinator.poll_output() {
-            match out {
-                out @ (CoordOutput::Send { .. } | CoordOutput::Vars(_)) => {
-                    let packet = self.packet(out, term).expect("a command or a value is a message");
-                    self.send(packet);
-                }
-                CoordOutput::Ask { agent, incarnation } => {
-                    // The question and its answer cross the network as the reports would: the answer's reports
-                    // arrive as reports (with the faults of the agent's link).
-                    let i = self.agents.iter().position(|a| a.name == agent).expect("known agent");
-                    let a = &self.agents[i];
-                    if a.alive && a.reachable && incarnation == Uuid::from_u128(a.restarts) {
-                        for r in a.run.pending_reports(crate::limits::PENDING_LISTED_MAX) {
-                            self.send(Packet::Report(i, wire::encode(&r)));
-                        }
-                    }
-                }
-                CoordOutput::Trace(rec) => self.trace.push(rec),
-                CoordOutput::Log { .. } => {}
-            }
+            self.emit(out, term);
         }
         let since = self.snapshots.last().map_or(0, |(at, _)| *at);
         if self.down_until.is_none() && self.journal.len() >= since.saturating_add(self.snapshot_every) {
@@ -177,6 +162,30 @@ impl SimCluster {
                 self.coordinator = restored;
                 self.snapshots.push((self.journal.len(), bytes));
             }
+        }
+    }
+
+    /// Carries out what the coordinator asked for, at `term`: a message onto the network, a question to an agent, a
+    /// trace record into the trace.
+    pub(super) fn emit(&mut self, out: CoordOutput, term: u64) {
+        match out {
+            out @ (CoordOutput::Send { .. } | CoordOutput::Vars(_)) => {
+                let packet = self.packet(out, term).expect("a command or a value is a message");
+                self.send(packet);
+            }
+            CoordOutput::Ask { agent, incarnation } => {
+                // The question and its answer cross the network as the reports would: the answer's reports
+                // arrive as reports (with the faults of the agent's link).
+                let i = self.agents.iter().position(|a| a.name == agent).expect("known agent");
+                let a = &self.agents[i];
+                if a.alive && a.reachable && incarnation == Uuid::from_u128(a.restarts) {
+                    for r in a.run.pending_reports(crate::limits::PENDING_LISTED_MAX) {
+                        self.send(Packet::Report(i, wire::encode(&r)));
+                    }
+                }
+            }
+            CoordOutput::Trace(rec) => self.trace.push(rec),
+            CoordOutput::Log { .. } => {}
         }
     }
 
