@@ -4,9 +4,13 @@
 //! new standby for the next round.
 //!
 //! The coordinators are `baton run` processes of a chart that loops a short motion on one agent (a `baton-agent`
-//! process), so that a dispatch is always due; they share a journal folder (one machine) and stand in an election
-//! under a prefix of their own. The dispatches are seen on the wire by a session of the bench's router, with the
+//! process), so that a dispatch is always due; they keep the run's journal in etcd (`--journal etcd://…`), under a
+//! prefix of their own, and stand in its election there. The dispatches are seen on the wire by a session of the bench's router, with the
 //! term each carries (`wire::decode_termed`): a failover ends at the first dispatch of a term above the killed one.
+//!
+//! Then the throughput of phase 5 (the same chart, agents and tokens in flight) with the journal in etcd against
+//! the journal in a folder, alternating, `ROUNDS` rounds each: what a commit to etcd (a transaction through its Raft
+//! log, its members' `fdatasync`s included) costs a cell against one `fdatasync` of a local file.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -20,7 +24,8 @@ use tokio::process::{Child, Command};
 
 use crate::election::{candidates, Election};
 
-use super::harness::{router_config, spawn_agents, spawn_logged, PHASE_TIMEOUT};
+use super::harness::{router_config, spawn_agents, spawn_logged, throughput, PHASE_TIMEOUT, ROUNDS};
+use crate::journal::Place;
 
 #[derive(Serialize, Clone)]
 pub struct Failover {
@@ -30,6 +35,21 @@ pub struct Failover {
     pub median_ms: f64,
     pub max_ms: f64,
     pub samples_ms: Vec<f64>,
+    /// Tokens returned per second with the journal in a folder and in etcd (medians of `ROUNDS` rounds each), the
+    /// tokens in flight, and a commit's time and records per commit with etcd.
+    pub throughput_file_tokens_per_s: f64,
+    pub throughput_etcd_tokens_per_s: f64,
+    pub throughput_in_flight: u32,
+    pub etcd_commit_us: f64,
+    pub file_commit_us: f64,
+    pub etcd_records_per_commit: f64,
+}
+
+/// Phase 5's shape for the throughput with each journal: agents, tokens in flight per agent, tokens.
+pub struct Shape {
+    pub agents: u32,
+    pub lanes_per_agent: u32,
+    pub tokens: u32,
 }
 
 const CHART: &str = "PROGRAM failover\nVAR moved : BOOL; END_VAR\nINITIAL_STEP Start: END_STEP\n\
@@ -37,13 +57,60 @@ const CHART: &str = "PROGRAM failover\nVAR moved : BOOL; END_VAR\nINITIAL_STEP S
     STEP Move: {agent := 'f1'} Go(N, moved); END_STEP\nTRANSITION FROM Move TO Start := moved; END_TRANSITION\n\
     ACTION Go: {skill := 'motion', ms := 20} END_ACTION\nEND_PROGRAM\n";
 
-pub async fn failover(dir: &Path, etcd: &Election, kills: u32, lease_s: u64) -> anyhow::Result<Failover> {
+pub async fn failover(dir: &Path, etcd: &Election, kills: u32, lease_s: u64, shape: Shape) -> anyhow::Result<Failover> {
+    let (median_ms, max_ms, samples) = kill_rounds(dir, etcd, kills, lease_s).await?;
+    let mut file = (Vec::new(), Vec::new(), Vec::new());
+    let mut in_etcd = (Vec::new(), Vec::new(), Vec::new());
+    for round in 1..=ROUNDS {
+        for journal in ["a folder", "etcd"] {
+            eprintln!(
+                "  throughput with the journal in {journal}, round {round}/{ROUNDS}: {} agents, {} tokens in flight, \
+                 {} tokens",
+                shape.agents,
+                shape.agents * shape.lanes_per_agent,
+                shape.tokens
+            );
+            let (place, into) = if journal == "etcd" {
+                let prefix = format!("{}/bench-{}", etcd.prefix, uuid::Uuid::new_v4());
+                (Place::Etcd(Election { endpoints: etcd.endpoints.clone(), prefix }), &mut in_etcd)
+            } else {
+                let _ = std::fs::remove_dir_all(dir.join("throughput-journal"));
+                (Place::Dir(dir.join("throughput-journal")), &mut file)
+            };
+            let (n, secs, stats) =
+                throughput(dir, shape.agents, shape.lanes_per_agent, shape.tokens, Some(place)).await?;
+            let stats = stats.ok_or_else(|| anyhow!("a journaled run without its journal's figures"))?;
+            into.0.push(n as f64 / secs);
+            into.1.push(stats.commit_us);
+            into.2.push(stats.records as f64 / stats.commits.max(1) as f64);
+        }
+    }
+    Ok(Failover {
+        kills,
+        lease_s,
+        median_ms,
+        max_ms,
+        samples_ms: samples,
+        throughput_file_tokens_per_s: median(file.0),
+        throughput_etcd_tokens_per_s: median(in_etcd.0),
+        throughput_in_flight: shape.agents * shape.lanes_per_agent,
+        etcd_commit_us: median(in_etcd.1),
+        file_commit_us: median(file.1),
+        etcd_records_per_commit: median(in_etcd.2),
+    })
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+/// The kills: the median and max from a SIGKILL to the standby's first dispatch, in ms, and each.
+async fn kill_rounds(dir: &Path, etcd: &Election, kills: u32, lease_s: u64) -> anyhow::Result<(f64, f64, Vec<f64>)> {
     let endpoint = format!("tcp/127.0.0.1:{}", crate::demo::free_port()?);
     let router = zenoh::open(router_config(&endpoint, &[])?).await.map_err(|e| anyhow!("router: {e}"))?;
     let chart = dir.join("failover.st");
     std::fs::write(&chart, CHART)?;
-    let journal = dir.join("failover-journal");
-    let _ = std::fs::remove_dir_all(&journal);
     let election = Election {
         endpoints: etcd.endpoints.clone(),
         prefix: format!("{}/bench-{}", etcd.prefix, uuid::Uuid::new_v4()),
@@ -61,11 +128,8 @@ pub async fn failover(dir: &Path, etcd: &Election, kills: u32, lease_s: u64) -> 
     let start = || -> anyhow::Result<Child> {
         let exe = std::env::current_exe()?;
         let lease = lease_s.to_string();
-        let journal = journal.to_string_lossy().into_owned();
         spawn_logged(Command::new(exe).arg("run").arg(&chart).args(["--connect", &endpoint, "--quiet"]).args([
             "--journal",
-            &journal,
-            "--election",
             &shown,
             "--lease",
             &lease,
@@ -103,12 +167,8 @@ pub async fn failover(dir: &Path, etcd: &Election, kills: u32, lease_s: u64) -> 
     .await
     .map_err(|_| anyhow!("the failover phase did not finish within {PHASE_TIMEOUT:?}"))??;
     let _ = active.start_kill();
-    let _ = std::fs::remove_dir_all(&journal);
-    let mut sorted = samples.clone();
-    sorted.sort_by(f64::total_cmp);
-    let median_ms = sorted.get(sorted.len() / 2).copied().unwrap_or(f64::NAN);
-    let max_ms = sorted.last().copied().unwrap_or(f64::NAN);
-    Ok(Failover { kills, lease_s, median_ms, max_ms, samples_ms: samples })
+    let max_ms = samples.iter().copied().fold(f64::NAN, f64::max);
+    Ok((median(samples.clone()), max_ms, samples))
 }
 
 /// Waits until `n` coordinators stand in the election (the active one first); returns them.

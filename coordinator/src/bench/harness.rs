@@ -105,8 +105,8 @@ impl Agents<'_> {
 
 /// How a bench chart runs besides its chart and agents.
 #[derive(Default)]
-pub(super) struct Extras<'a> {
-    pub(super) journal: Option<&'a Path>,
+pub(super) struct Extras {
+    pub(super) journal: Option<crate::journal::Place>,
     pub(super) rerun: Option<PathBuf>,
     pub(super) sets: Vec<(String, serde_json::Value)>,
     /// The coordinator joins this router rather than embedding its own.
@@ -123,7 +123,7 @@ pub(super) async fn run_chart(
     chart: String,
     agents: Agents<'_>,
     probe: Probe,
-    extras: Extras<'_>,
+    extras: Extras,
 ) -> anyhow::Result<crate::run::Summary> {
     let (opts, _agents) = chart_options(dir, file, chart, &agents, extras)?;
     tokio::time::timeout(PHASE_TIMEOUT, run_with(opts, Some(probe))).await.context("the bench chart did not finish")?
@@ -137,7 +137,7 @@ pub(super) async fn run_chart_until(
     chart: String,
     agents: Agents<'_>,
     probe: Probe,
-    extras: Extras<'_>,
+    extras: Extras,
     mut stop: tokio::sync::watch::Receiver<bool>,
 ) -> anyhow::Result<()> {
     let (opts, _agents) = chart_options(dir, file, chart, &agents, extras)?;
@@ -161,7 +161,7 @@ pub(super) fn chart_options(
     file: &str,
     chart: String,
     agents: &Agents<'_>,
-    extras: Extras<'_>,
+    extras: Extras,
 ) -> anyhow::Result<(RunOptions, Vec<Child>)> {
     let path = dir.join(file);
     if !chart.is_empty() {
@@ -187,7 +187,12 @@ pub(super) fn chart_options(
         quiet: true,
         zenoh_config: None,
         loss_policy: baton_proto::cluster::runtime::coordinator::LossPolicy::Pause,
-        journal: extras.journal.map(Path::to_path_buf),
+        // A journal in etcd is written under the run's election, at its place.
+        election: match &extras.journal {
+            Some(crate::journal::Place::Etcd(e)) => Some((e.clone(), 2)),
+            _ => None,
+        },
+        journal: extras.journal,
         journal_settings: extras.journal_settings.unwrap_or_default(),
         rerun: extras.rerun.map_or(crate::recording::Sink::Off, crate::recording::Sink::Save),
         watch: Vec::new(),
@@ -195,7 +200,6 @@ pub(super) fn chart_options(
         stay: false,
         abort_wait_ms: 0,
         console: None,
-        election: None,
     };
     Ok((opts, agents))
 }
@@ -246,3 +250,28 @@ pub(super) fn steady_returns(marks: &Marks) -> anyhow::Result<(u64, f64)> {
 pub const RESUME_TIMEOUT: Duration = Duration::from_secs(1800);
 
 pub(super) const PHASE_TIMEOUT: Duration = Duration::from_secs(300);
+
+/// Phases 4 and 5: tokens returned per second in steady state by `agents` agent processes, `lanes_per_agent`
+/// tokens in flight on each, with `journal` or none; and the journal's figures.
+pub(super) async fn throughput(
+    dir: &Path,
+    agents: u32,
+    lanes_per_agent: u32,
+    tokens: u32,
+    journal: Option<crate::journal::Place>,
+) -> anyhow::Result<(u64, f64, Option<crate::journal::JournalStats>)> {
+    let chart = throughput_chart("bench", 0, agents, lanes_per_agent, tokens);
+    let (marks, probe) = marks(&[TraceEvent::Return]);
+    let names: Vec<String> = (1..=agents).map(|k| format!("bench{k}")).collect();
+    let summary = run_chart(
+        dir,
+        "throughput.st",
+        chart,
+        Agents::Processes(&names),
+        probe,
+        Extras { journal, ..Extras::default() },
+    )
+    .await?;
+    let (counted, secs) = steady_returns(&marks)?;
+    Ok((counted, secs, summary.journal))
+}

@@ -24,8 +24,7 @@ use baton_host::{traffic, ZenohResult};
 use baton_proto::exec::trace::TraceEvent;
 use baton_proto::testing::bench_charts;
 use harness::{
-    marks, router_config, run_chart, spawn_logged, steady_returns, throughput_chart, Agents, Extras, Latency,
-    PHASE_TIMEOUT, ROUNDS,
+    marks, router_config, run_chart, spawn_logged, steady_returns, Agents, Extras, Latency, PHASE_TIMEOUT, ROUNDS,
 };
 
 const PING_KEY: &str = "baton/bench/ping";
@@ -127,7 +126,9 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
     let failover = match &opts.failover {
         Some((etcd, kills, lease_s)) => {
             eprintln!("12 standby coordinators on etcd: {kills} kills of the active one, a lease of {lease_s} s");
-            Some(failover::failover(dir.path(), etcd, *kills, *lease_s).await?)
+            let shape =
+                failover::Shape { agents: opts.agents, lanes_per_agent: opts.lanes_per_agent, tokens: opts.tokens };
+            Some(failover::failover(dir.path(), etcd, *kills, *lease_s, shape).await?)
         }
         None => None,
     };
@@ -193,16 +194,17 @@ async fn base(dir: &Path, opts: &BenchOptions) -> anyhow::Result<BaseReport> {
                 "4/5 throughput, {with}, round {round}/{ROUNDS}: {} agents, {lanes} tokens in flight, {} tokens",
                 opts.agents, opts.tokens
             );
-            let journal = journal.then(|| dir.join(format!("journal-{round}")));
+            let journal = journal.then(|| crate::journal::Place::Dir(dir.join(format!("journal-{round}"))));
+            let journaled = journal.is_some();
             let (n, secs, stats) =
-                throughput(dir, opts.agents, opts.lanes_per_agent, opts.tokens, journal.as_deref()).await?;
+                harness::throughput(dir, opts.agents, opts.lanes_per_agent, opts.tokens, journal).await?;
             tokens = n;
             if let Some(j) = stats {
                 records_per_commit.push(j.records as f64 / j.commits.max(1) as f64);
                 commit_us.push(j.commit_us);
                 held_us.push(j.held_us);
             }
-            if journal.is_some() { &mut on } else { &mut off }.push(n as f64 / secs);
+            if journaled { &mut on } else { &mut off }.push(n as f64 / secs);
         }
     }
     let median = |mut v: Vec<f64>| {
@@ -261,8 +263,18 @@ impl BenchReport {
         if let Some(f) = &self.failover {
             println!(
                 "(12) failover, from the SIGKILL of the active coordinator to its standby's first dispatch, over {} \
-                 kills with a lease of {} s: median {:.0} ms, max {:.0} ms",
+                 kills with a lease of {} s, the journal in etcd: median {:.0} ms, max {:.0} ms",
                 f.kills, f.lease_s, f.median_ms, f.max_ms
+            );
+            println!(
+                "(12) throughput at {} tokens in flight with the journal in etcd: {:.0} tokens/s ({:.0} µs a commit, \
+                 {:.1} records each); in a folder: {:.0} tokens/s ({:.0} µs a commit)",
+                f.throughput_in_flight,
+                f.throughput_etcd_tokens_per_s,
+                f.etcd_commit_us,
+                f.etcd_records_per_commit,
+                f.throughput_file_tokens_per_s,
+                f.file_commit_us
             );
         }
         if let Some(r) = &self.resume {
@@ -477,31 +489,6 @@ async fn convergence(dir: &Path, samples: u32) -> anyhow::Result<Latency> {
         }
     }
     Latency::of(lat.split_off((warmup as usize).min(lat.len())))
-}
-
-/// Phase 4: `agents × lanes` independent loops, each dispatching a one-step segment to its agent over and over;
-/// tokens returned per second in steady state.
-async fn throughput(
-    dir: &Path,
-    agents: u32,
-    lanes_per_agent: u32,
-    tokens: u32,
-    journal: Option<&Path>,
-) -> anyhow::Result<(u64, f64, Option<crate::journal::JournalStats>)> {
-    let chart = throughput_chart("bench", 0, agents, lanes_per_agent, tokens);
-    let (marks, probe) = marks(&[TraceEvent::Return]);
-    let names: Vec<String> = (1..=agents).map(|k| format!("bench{k}")).collect();
-    let summary = run_chart(
-        dir,
-        "throughput.st",
-        chart,
-        Agents::Processes(&names),
-        probe,
-        Extras { journal, ..Extras::default() },
-    )
-    .await?;
-    let (counted, secs) = steady_returns(&marks)?;
-    Ok((counted, secs, summary.journal))
 }
 
 /// Phase 6: the demo's cell chart (two robots) with its motions taking no time and no inspection faults, `parts`

@@ -88,7 +88,11 @@ pub async fn resume(dir: &Path, tokens: u64) -> anyhow::Result<Resume> {
     let chart = throughput_chart("resume", 0, AGENTS, LANES_PER_AGENT, i32::MAX as u32);
     let settings = crate::journal::Settings { keep: crate::journal::Keep::All, ..Default::default() };
     let agents = || Agents::Hosted { prefix: "resume", count: AGENTS };
-    let extras = || Extras { journal: Some(&journal), journal_settings: Some(settings), ..Extras::default() };
+    let extras = || Extras {
+        journal: Some(crate::journal::Place::Dir(journal.clone())),
+        journal_settings: Some(settings),
+        ..Extras::default()
+    };
     let (counted, stop, probe) = counter(tokens);
     run_chart_until(dir, "resume.st", chart.clone(), agents(), probe, extras(), stop).await?;
     let (returned, tokens_per_s) = {
