@@ -157,9 +157,44 @@ pub struct Won {
     renewing: tokio::task::JoinHandle<()>,
     client: etcd_client::Client,
     lease: i64,
+    /// The leadership key etcd made for this win, and how the win is lost (`fence`).
+    key: Vec<u8>,
+    lose: Arc<Lose>,
+    lease_s: u64,
+}
+
+/// What a store written by the winner needs to write only while it holds the election (`Won::fence`): its
+/// leadership key, which exists with that creation revision (the term) only as long as the lease does.
+#[derive(Clone)]
+pub struct Fence {
+    pub key: Vec<u8>,
+    pub term: u64,
+    /// How long one request to etcd may take before it is asked again (of another member): a sixth of the lease.
+    pub patience: Duration,
+    pub lease_s: u64,
+    lose: Arc<Lose>,
+}
+
+impl Fence {
+    /// Whether this coordinator still acts (its lease not lost, nor about to be).
+    pub fn acting(&self) -> bool {
+        self.lose.acting.load(Ordering::SeqCst)
+    }
+
+    /// Stops this coordinator's acting at once, for `why` (etcd refused a write: another coordinator holds the
+    /// election): as a lost lease does.
+    pub fn lose(&self, why: String) {
+        self.lose.because(why);
+    }
 }
 
 impl Won {
+    /// The fence of this win, for the journal in etcd.
+    pub fn fence(&self) -> Fence {
+        let patience = Duration::from_millis(self.lease_s * 1000 / 6);
+        Fence { key: self.key.clone(), term: self.term, patience, lease_s: self.lease_s, lose: Arc::clone(&self.lose) }
+    }
+
     /// Gives the election up at once (the lease revoked), for a standby to win without waiting for the lease to
     /// end: the run is over, or left as it stands by a SIGTERM. Best effort, within a second.
     pub async fn resign(mut self) {
@@ -189,19 +224,26 @@ impl Drop for Won {
     }
 }
 
+/// How a coordinator with a lease of `lease_s` seconds talks to etcd: a member without a leader refuses (its answer
+/// could be stale), and a connection that stops answering is found within a third of the lease.
+pub(crate) fn connect_options(lease_s: u64) -> etcd_client::ConnectOptions {
+    etcd_client::ConnectOptions::new()
+        .with_connect_timeout(Duration::from_secs(lease_s))
+        .with_keep_alive(Duration::from_millis(lease_s * 1000 / 3), Duration::from_millis(lease_s * 1000 / 3))
+        .with_require_leader(true)
+}
+
 /// Joins the election as `candidate` with a lease of `lease_s` seconds and waits until it wins: standing by,
 /// meanwhile, behind the coordinator that holds it (said once, unless `quiet`).
 pub async fn win(election: &Election, lease_s: u64, candidate: &str, quiet: bool) -> anyhow::Result<Won> {
     let shown = election.endpoints.join(",");
-    let options = etcd_client::ConnectOptions::new()
-        .with_connect_timeout(Duration::from_secs(lease_s))
-        .with_keep_alive(Duration::from_millis(lease_s * 1000 / 3), Duration::from_millis(lease_s * 1000 / 3))
-        .with_require_leader(true);
+    let options = connect_options(lease_s);
     let mut client = etcd_client::Client::connect(&election.endpoints, Some(options.clone()))
         .await
         .with_context(|| format!("cannot reach etcd at {shown}"))?;
     loop {
-        let Candidacy { lease, mut lost, acting, renewing } = stand(&mut client, &options, election, lease_s).await?;
+        let Candidacy { lease, mut lost, acting, renewing, lose } =
+            stand(&mut client, &options, election, lease_s).await?;
         if !quiet {
             if let Ok(now) = client.leader(election.name()).await {
                 if let Some(active) = now.kv().map(Candidate::of) {
@@ -241,7 +283,8 @@ pub async fn win(election: &Election, lease_s: u64, candidate: &str, quiet: bool
         if let Err(e) = client.proclaim(active, Some(proclaim)).await {
             eprintln!("baton: warning: could not tell etcd since when this coordinator is active: {e}");
         }
-        return Ok(Won { term, lost, acting, renewing, client, lease });
+        let key = key.key().to_vec();
+        return Ok(Won { term, lost, acting, renewing, client, lease, key, lose, lease_s });
     }
 }
 
@@ -251,6 +294,7 @@ struct Candidacy {
     lost: watch::Receiver<Option<String>>,
     acting: Arc<AtomicBool>,
     renewing: tokio::task::JoinHandle<()>,
+    lose: Arc<Lose>,
 }
 
 /// A candidacy: a lease of `lease_s` seconds granted, and renewed from now on by a task of its own.
@@ -294,9 +338,9 @@ async fn stand(
     }
     let (tell, lost) = watch::channel(None);
     let acting = Arc::new(AtomicBool::new(true));
-    let lose = Lose { acting: Arc::clone(&acting), tell };
-    let renewing = tokio::spawn(renew(election.endpoints.clone(), options.clone(), lease, lease_s, lose));
-    Ok(Candidacy { lease, lost, acting, renewing })
+    let lose = Arc::new(Lose { acting: Arc::clone(&acting), tell });
+    let renewing = tokio::spawn(renew(election.endpoints.clone(), options.clone(), lease, lease_s, Arc::clone(&lose)));
+    Ok(Candidacy { lease, lost, acting, renewing, lose })
 }
 
 /// How a candidacy is lost: `acting` turns false first, then the reason is told.
@@ -313,11 +357,11 @@ impl Lose {
 }
 
 /// How long to wait before asking etcd again after a member did not answer.
-const RETRY: Duration = Duration::from_millis(100);
+pub(crate) const RETRY: Duration = Duration::from_millis(100);
 
 /// Whether etcd refused a request for what it is (bad arguments, no permission), rather than a member being out
 /// of reach (down, cut off, reset), so that another member may answer the same request.
-fn refused(e: &etcd_client::Error) -> bool {
+pub(crate) fn refused(e: &etcd_client::Error) -> bool {
     use tonic::Code;
     match e {
         etcd_client::Error::GRpcStatus(s) => matches!(
@@ -332,7 +376,13 @@ fn refused(e: &etcd_client::Error) -> bool {
 /// Renews `lease` several times in each TTL until it is lost: etcd says it expired, or no renewal was granted in
 /// time for this process to stop acting before it can expire for others. Says why on `tell`, once. Renewals go to
 /// one member at a time; one that does not answer in a sixth of the TTL is left for the next.
-async fn renew(endpoints: Vec<String>, options: etcd_client::ConnectOptions, lease: i64, lease_s: u64, lose: Lose) {
+async fn renew(
+    endpoints: Vec<String>,
+    options: etcd_client::ConnectOptions,
+    lease: i64,
+    lease_s: u64,
+    lose: Arc<Lose>,
+) {
     let ttl = Duration::from_secs(lease_s);
     let every = ttl / 6;
     // The lease is this process's until a third of the TTL before it could end: etcd counts the TTL from when it

@@ -20,7 +20,7 @@ use crate::recording::{RecordedRun, Recorder, Sink};
 use crate::run::{replay_segments, Records};
 
 pub struct ReplayOptions {
-    pub journal: PathBuf,
+    pub journal: crate::journal::Place,
     pub rerun: Sink,
     pub trace: Option<PathBuf>,
     /// The variables the run watched (`baton run --watch`), traced as it traced them.
@@ -56,7 +56,12 @@ pub fn replay(opts: &ReplayOptions) -> anyhow::Result<()> {
 
 /// Replays a journal with no recording and no trace (`baton bench`): the records replayed.
 pub fn replay_quietly(journal: &std::path::Path) -> anyhow::Result<u64> {
-    let opts = ReplayOptions { journal: journal.to_path_buf(), rerun: Sink::Off, trace: None, watch: Vec::new() };
+    let opts = ReplayOptions {
+        journal: crate::journal::Place::Dir(journal.to_path_buf()),
+        rerun: Sink::Off,
+        trace: None,
+        watch: Vec::new(),
+    };
     rebuild(&opts).map(|(_, replayed, _, _)| replayed.records)
 }
 
@@ -64,13 +69,15 @@ pub fn replay_quietly(journal: &std::path::Path) -> anyhow::Result<u64> {
 /// what was replayed, the snapshot it began from (if the journal no longer holds the run's start), and the state
 /// it was left in.
 fn rebuild(opts: &ReplayOptions) -> anyhow::Result<(JournalHeader, Replayed, Option<SnapshotMeta>, State)> {
-    if !crate::journal::exists(&opts.journal) {
-        bail!("{} holds no journal (no {} in it)", opts.journal.display(), crate::journal::FILE_NAME);
-    }
     // Read as it stands: a replay never writes to the journal, not even to cut off a torn last commit.
     let (header, segments) = crate::journal::read_only(&opts.journal)?;
-    let path = opts.journal.display().to_string();
-    let header = header.ok_or_else(|| anyhow!("{} holds no journal of a run", opts.journal.display()))?;
+    let path = opts.journal.to_string();
+    let header = header.ok_or_else(|| match &opts.journal {
+        crate::journal::Place::Dir(dir) => {
+            anyhow!("{} holds no journal (no {} in it)", dir.display(), crate::journal::FILE_NAME)
+        }
+        etcd => anyhow!("{etcd} holds no journal of a run"),
+    })?;
     if header.format != JOURNAL_FORMAT {
         bail!("the journal {path} is in format {}; this baton reads format {JOURNAL_FORMAT}", header.format);
     }

@@ -145,6 +145,40 @@ impl Etcd {
         self.members.iter().map(|m| std::net::SocketAddr::from(([127, 0, 0, 1], m.client))).collect()
     }
 
+    /// The keys under `prefix`, each with the revision that created it, through etcd's JSON gateway (member 0).
+    pub async fn keys_under(&self, prefix: &str) -> Vec<(String, u64)> {
+        use base64::Engine;
+        let b64 = base64::engine::general_purpose::STANDARD;
+        let mut end = prefix.as_bytes().to_vec();
+        *end.last_mut().expect("a prefix") += 1;
+        let body = serde_json::json!({"key": b64.encode(prefix), "range_end": b64.encode(end), "keys_only": true});
+        let (status, answer) = self.gateway("/v3/kv/range", &body).await;
+        assert_eq!(status, 200, "{answer}");
+        let answer: serde_json::Value = serde_json::from_str(&answer).expect("JSON from etcd");
+        let kvs = answer["kvs"].as_array().cloned().unwrap_or_default();
+        kvs.iter()
+            .map(|kv| {
+                let key = b64.decode(kv["key"].as_str().expect("a key")).expect("base64");
+                let created = kv["create_revision"].as_str().and_then(|r| r.parse().ok()).expect("a revision");
+                (String::from_utf8(key).expect("utf-8 key"), created)
+            })
+            .collect()
+    }
+
+    /// Deletes `key`, as an operator with etcdctl would.
+    pub async fn delete(&self, key: &str) {
+        use base64::Engine;
+        let body = serde_json::json!({"key": base64::engine::general_purpose::STANDARD.encode(key)});
+        let (status, answer) = self.gateway("/v3/kv/deleterange", &body).await;
+        assert_eq!(status, 200, "{answer}");
+        assert!(answer.contains("\"deleted\":\"1\""), "{key} deleted: {answer}");
+    }
+
+    async fn gateway(&self, path: &str, body: &serde_json::Value) -> (u16, String) {
+        let addr = format!("127.0.0.1:{}", self.members[0].client);
+        crate::http::http(&addr, "POST", path, Some(&body.to_string())).await
+    }
+
     /// SIGKILLs member `i` and waits for it to be gone.
     pub async fn kill(&mut self, i: usize) {
         if let Some(mut child) = self.members[i].child.take() {

@@ -1,18 +1,20 @@
 //! Standby coordinators on a real etcd (Debian's etcd-server 3.4.23, three members on loopback started by the
-//! test): two coordinators of one run stand in its election (`baton run --election etcd://…`, as
-//! `deploy/systemd/baton-standby@.service` runs it), one coordinates
+//! test): two coordinators of one run, each in a folder of its own, keep its journal in etcd and stand in its
+//! election (`baton run --journal etcd://…`, as `deploy/systemd/baton-standby@.service` runs it); one coordinates
 //! and the other stands by; the active one killed with SIGKILL mid-branch, the standby wins and goes on from the
-//! journal, and the run completes as one run — every part once, the trace's invariants holding — while an agent
-//! refuses what the deposed coordinator sends. Without etcd's quorum a coordinator stops acting and says so; with
-//! the quorum back, it wins again and completes the run.
+//! journal in etcd, and the run completes as one run — every part once, the trace's invariants holding, `baton
+//! replay` rebuilding its trace from etcd — while an agent refuses what the deposed coordinator sends. Without
+//! etcd's quorum a coordinator stops acting and says so; with the quorum back, it wins again and completes the run.
+//! A coordinator cut off from etcd (a journal folder the pair shares, `--election`) stops acting before its standby
+//! takes over. And a deposed coordinator's write to the journal in etcd is refused.
 
 use baton_proto::cluster::keys;
 use baton_proto::cluster::wire::{self, ToAgent};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_tests::etcd::Etcd;
 use baton_tests::loopback::{
-    check_trace_invariants, cmd_key_of, dispatches, next_dispatch, repo, status_of, step_id, Cluster, Coordinator,
-    Samples, TIMEOUT,
+    check_trace_invariants, cmd_key_of, dispatches, next_dispatch, read_trace, repo, status_of, step_id, Cluster,
+    Coordinator, Samples, TIMEOUT,
 };
 use baton_tests::{http, unit};
 
@@ -20,6 +22,8 @@ baton_tests::harness_main!(
     tokio a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_commands_are_refused,
     tokio without_etcds_quorum_the_coordinator_stops_acting_and_the_run_goes_on_when_it_is_back,
     tokio a_coordinator_cut_off_from_etcd_stops_acting_before_its_standby_takes_over_and_then_stands_by,
+    tokio a_coordinator_paused_past_its_lease_adds_nothing_to_the_journal_in_etcd_once_it_wakes,
+    tokio a_coordinator_whose_leadership_key_is_gone_is_refused_its_next_write_and_stops_acting,
 );
 
 const PARTS: &str = "2";
@@ -28,10 +32,17 @@ fn election(etcd: &Etcd) -> String {
     format!("etcd://{}/baton-test", etcd.endpoints())
 }
 
+/// A coordinator's arguments with the journal in etcd (and the election at the same place).
+fn in_etcd(etcd: &Etcd) -> Vec<String> {
+    let journal = election(etcd);
+    ["--set", &format!("parts={PARTS}"), "--journal", &journal, "--lease", "2"].map(String::from).to_vec()
+}
+
 fn args(cluster: &Cluster, etcd: &Etcd) -> Vec<String> {
     args_with(cluster, &election(etcd))
 }
 
+/// A coordinator's arguments with the journal in the cluster's folder and the election on etcd.
 fn args_with(cluster: &Cluster, election: &str) -> Vec<String> {
     let journal = cluster.dir.path().join("journal");
     let journal = journal.to_str().expect("utf-8 path").to_string();
@@ -134,19 +145,20 @@ async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_com
     let mut cluster = Cluster::with_router().await;
     let watch = cluster.watch().await;
     let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
-    // The pair as deploy/systemd/baton-standby@.service runs it, each with its own trace.
+    // The pair as deploy/systemd/baton-standby@.service runs it, each in a folder of its own as on two machines:
+    // nothing of the run is shared but etcd.
     let unit = std::fs::read_to_string(repo("deploy/systemd/baton-standby@.service")).expect("the unit");
-    let dir = cluster.dir.path();
-    std::fs::create_dir_all(dir.join("etc")).expect("the test's /etc/baton");
-    std::fs::copy(&chart, dir.join("etc/standby_cell.st")).expect("the chart in the test's /etc/baton");
     let election = election(&etcd);
     let coordinator = |name: &str| {
-        let (trace, summary) = (dir.join(format!("trace-{name}.jsonl")), dir.join(format!("summary-{name}.json")));
+        let dir = cluster.dir.path().join(name);
+        std::fs::create_dir_all(dir.join("etc")).expect("the test's /etc/baton");
+        std::fs::copy(&chart, dir.join("etc/standby_cell.st")).expect("the chart in the test's /etc/baton");
+        let (trace, summary) = (dir.join("trace.jsonl"), dir.join("summary.json"));
         let run_args =
             format!("--lease 2 --set parts={PARTS} --trace {} --summary {}", trace.display(), summary.display());
         let env =
-            [("BATON_ROUTER", cluster.endpoint.as_str()), ("BATON_ELECTION", &election), ("BATON_RUN_ARGS", &run_args)];
-        unit::start(&unit::command(&unit, dir, "standby_cell", &env), &trace, &summary)
+            [("BATON_ROUTER", cluster.endpoint.as_str()), ("BATON_JOURNAL", &election), ("BATON_RUN_ARGS", &run_args)];
+        unit::start(&unit::command(&unit, &dir, "standby_cell", &env), &trace, &summary)
     };
     let mut active = coordinator("a");
     active.wait_ready().await;
@@ -193,6 +205,13 @@ async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_com
     // Every pick and assembly sent once per part, the picks the killed coordinator sent included.
     made_every_part_once(&trace, &summary, &log, &chart);
     assert_eq!(summary["state"], "complete", "{log}");
+    // The journal in etcd holds the whole run: replayed, it gives the trace the standby wrote (which begins with
+    // the killed coordinator's part, replayed from etcd when it took over).
+    let replayed = cluster.dir.path().join("replayed.jsonl");
+    let out = cluster.baton(&["replay", "--journal", &election, "--trace", replayed.to_str().expect("utf-8")]).await;
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("it completed"), "{}", String::from_utf8_lossy(&out.stdout));
+    assert_eq!(read_trace(&replayed), trace, "the replay from etcd rebuilds the trace the run wrote");
     // Each robot heard the coordinators' terms in order, the new one last: from the killed one's (if a message of
     // it reached the robot before the kill) to the standby's. And no motion ran twice: one pick per part.
     for robot in ["robot1", "robot2", "robot3"] {
@@ -213,7 +232,7 @@ async fn without_etcds_quorum_the_coordinator_stops_acting_and_the_run_goes_on_w
     let mut etcd = Etcd::start(3).await;
     let chart = repo("tests/charts/standby_cell.st");
     let mut cluster = Cluster::with_router().await;
-    let args = args(&cluster, &etcd);
+    let args = in_etcd(&etcd);
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let watch = cluster.watch().await;
     let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
@@ -285,5 +304,95 @@ async fn a_coordinator_cut_off_from_etcd_stops_acting_before_its_standby_takes_o
     assert!(status.success(), "{log}");
     assert!(log.contains("stopped coordinating: no renewal of its lease was granted by etcd in time"), "{log}");
     assert!(log.contains(&format!("(term {new_term}); taking over")), "it stood by behind the standby: {log}");
+    assert!(log.contains("is over (it completed): there is nothing to take over"), "{log}");
+}
+
+/// Sends `signal` (`STOP`, `CONT`) to a coordinator's process.
+fn signal(coordinator: &Coordinator, signal: &str) {
+    let pid = coordinator.child.id().expect("the coordinator runs").to_string();
+    let status = std::process::Command::new("kill").args([&format!("-{signal}"), &pid]).status().expect("kill runs");
+    assert!(status.success(), "kill -{signal} {pid}");
+}
+
+/// The pause that fools every lease (a GC pause, a VM frozen): the active coordinator stopped with SIGSTOP mid-branch
+/// for longer than its lease, the standby takes over from the journal in etcd, then the paused one wakes — with its
+/// timers due and a commit perhaps under way — and whatever it tries to write is refused: the journal in etcd, replayed,
+/// is the trace the standby wrote, and each part was made once.
+async fn a_coordinator_paused_past_its_lease_adds_nothing_to_the_journal_in_etcd_once_it_wakes() {
+    let etcd = Etcd::start(3).await;
+    let chart = repo("tests/charts/standby_cell.st");
+    let mut cluster = Cluster::with_router().await;
+    let args = in_etcd(&etcd);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let watch = cluster.watch().await;
+    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
+    let mut active = cluster.coordinator_joining(&chart, &args);
+    active.wait_ready().await;
+    let mut standby = cluster.coordinator_joining_as("-standby", &chart, &args);
+    let seen = coordinators_once(&cluster, &etcd, |c| c["standbys"].as_array().is_some_and(|s| s.len() == 1)).await;
+    let old_term = seen["active"]["term"].as_u64().expect("the active coordinator's term");
+    robots_picking(&mut cluster, &cmds, &chart).await;
+    signal(&active, "STOP");
+    let seen = coordinators_once(&cluster, &etcd, |c| c["active"]["term"] != old_term).await;
+    assert!(name_of(&seen["active"], &standby), "the standby won: {seen}");
+    standby.wait_ready().await;
+    signal(&active, "CONT");
+    let (status, log, trace, summary) = standby.finish().await;
+    assert!(status.success(), "{log}");
+    made_every_part_once(&trace, &summary, &log, &chart);
+    let replayed = cluster.dir.path().join("replayed.jsonl");
+    let election = election(&etcd);
+    let out = cluster.baton(&["replay", "--journal", &election, "--trace", replayed.to_str().expect("utf-8")]).await;
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(
+        read_trace(&replayed),
+        trace,
+        "the journal in etcd holds the standby's run, nothing of the paused one's"
+    );
+    // Woken, the paused coordinator stopped acting (its deadline had passed, or etcd refused its write), stood
+    // by, and found the run over once the standby gave the election up.
+    let (status, log, _, _) = active.finish().await;
+    assert!(status.success(), "{log}");
+    assert!(log.contains("stopped coordinating"), "{log}");
+    assert!(log.contains("is over (it completed): there is nothing to take over"), "{log}");
+}
+
+/// The fence of the journal itself: the active coordinator's leadership key deleted in etcd (as an operator with
+/// etcdctl, or a bug, could) while its lease goes on being renewed — its own deadline never comes, and the standby
+/// wins at once. Its next write to the journal is refused by etcd (the transaction compares the key's creation
+/// revision with its term), and it stops acting; the standby's run completes with every part made once, and the
+/// journal in etcd is the standby's run.
+async fn a_coordinator_whose_leadership_key_is_gone_is_refused_its_next_write_and_stops_acting() {
+    let etcd = Etcd::start(3).await;
+    let chart = repo("tests/charts/standby_cell.st");
+    let mut cluster = Cluster::with_router().await;
+    let args = in_etcd(&etcd);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let watch = cluster.watch().await;
+    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
+    let mut active = cluster.coordinator_joining(&chart, &args);
+    active.wait_ready().await;
+    let mut standby = cluster.coordinator_joining_as("-standby", &chart, &args);
+    let seen = coordinators_once(&cluster, &etcd, |c| c["standbys"].as_array().is_some_and(|s| s.len() == 1)).await;
+    let old_term = seen["active"]["term"].as_u64().expect("the active coordinator's term");
+    robots_picking(&mut cluster, &cmds, &chart).await;
+    let candidates = etcd.keys_under("baton-test/coordinator/").await;
+    let (key, _) = candidates.iter().find(|(_, created)| *created == old_term).expect("the active one's key");
+    etcd.delete(key).await;
+    standby.wait_ready().await;
+    let (status, log, trace, summary) = standby.finish().await;
+    assert!(status.success(), "{log}");
+    made_every_part_once(&trace, &summary, &log, &chart);
+    let replayed = cluster.dir.path().join("replayed.jsonl");
+    let election = election(&etcd);
+    let out = cluster.baton(&["replay", "--journal", &election, "--trace", replayed.to_str().expect("utf-8")]).await;
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(read_trace(&replayed), trace, "the journal in etcd holds the standby's run");
+    let (status, log, _, _) = active.finish().await;
+    assert!(status.success(), "{log}");
+    let refused = format!(
+        "stopped coordinating: etcd refused a commit of the journal: this coordinator's term {old_term} is over"
+    );
+    assert!(log.contains(&refused), "{log}");
     assert!(log.contains("is over (it completed): there is nothing to take over"), "{log}");
 }

@@ -41,7 +41,7 @@ enum Command {
     Export(export::Export),
     /// Coordinate a chart across agents over Zenoh; exit 0 when it reaches a terminal situation, 3 when an
     /// operator stopped it (an interrupt stops it too), 4 when one aborted it (a second interrupt).
-    Run(run::Run),
+    Run(Box<run::Run>),
     /// Rebuild a past run from its journal: its Rerun recording and its trace (no network, no agents).
     Replay(replay::Replay),
     /// Set an input of a chart running behind a router: baton set --connect EP [--run ID] NAME=VALUE. With several

@@ -6,9 +6,9 @@ use std::process::ExitCode;
 /// The arguments of `baton replay`.
 #[derive(clap::Args)]
 pub struct Replay {
-    /// The folder given to `baton run --journal`.
-    #[arg(long, value_name = "DIR")]
-    pub journal: PathBuf,
+    /// The folder, or etcd://HOST:PORT[,…]/PREFIX, given to `baton run --journal`.
+    #[arg(long, value_name = "DIR|etcd://…/PREFIX")]
+    pub journal: crate::journal::Place,
     /// Where the recording goes: save:PATH.rrd, connect or connect:URL, spawn, or off.
     #[arg(long, value_name = "SINK", default_value = "off")]
     pub rerun: crate::recording::Sink,

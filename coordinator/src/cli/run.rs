@@ -55,9 +55,11 @@ pub struct Run {
     pub on_agent_loss: OnAgentLoss,
     /// Record every change of the run in a journal in this folder, durably, before acting on it. If the
     /// folder holds the journal of a run that did not end (the coordinator crashed or was stopped), that
-    /// run resumes where it was, with the tokens still out reconciled with their agents.
-    #[arg(long, value_name = "DIR")]
-    pub journal: Option<PathBuf>,
+    /// run resumes where it was, with the tokens still out reconciled with their agents. etcd://HOST:PORT[,…]/PREFIX
+    /// keeps it in etcd instead, for standby coordinators on other machines: it implies --election at the same
+    /// place, and each write holds only while this coordinator holds the election.
+    #[arg(long, value_name = "DIR|etcd://…/PREFIX")]
+    pub journal: Option<crate::journal::Place>,
     /// With --journal: snapshot the coordinator's state after this many records since the last snapshot, and
     /// start a new journal segment with it; a resume then replays only the records after the last snapshot
     /// (0: never).
@@ -102,10 +104,11 @@ pub struct Run {
     /// run over from the journal when the active coordinator's lease ends.
     #[arg(long, value_name = "etcd://…/PREFIX", requires = "journal")]
     pub election: Option<crate::election::Election>,
-    /// With --election: the lease's time to live, in seconds. A standby takes over about this long after the active
-    /// coordinator died or was cut off from etcd; one cut off stops acting a third of it earlier.
-    #[arg(long, value_name = "SECONDS", default_value_t = 2, requires = "election", value_parser = clap::value_parser!(u64).range(2..=60))]
-    pub lease: u64,
+    /// With --election (or a journal in etcd): the lease's time to live, in seconds (default 2). A standby takes
+    /// over about this long after the active coordinator died or was cut off from etcd; one cut off stops acting a
+    /// third of it earlier.
+    #[arg(long, value_name = "SECONDS", value_parser = clap::value_parser!(u64).range(2..=60))]
+    pub lease: Option<u64>,
 }
 
 impl Run {
@@ -128,6 +131,7 @@ impl Run {
             quiet: self.quiet,
             zenoh_config: self.zenoh_config,
             loss_policy,
+            election: election_of(self.journal.as_ref(), self.election, self.lease)?,
             journal: self.journal,
             journal_settings: crate::journal::Settings { snapshot_every: self.snapshot_every, keep: self.journal_keep },
             rerun: with_origins(self.rerun, self.rerun_origin)?,
@@ -136,7 +140,6 @@ impl Run {
             stay: self.stay,
             abort_wait_ms: self.abort_wait,
             console: self.console,
-            election: self.election.map(|e| (e, self.lease)),
         };
         let standing = opts.election.is_some();
         block_on(async move {
@@ -164,6 +167,26 @@ impl Run {
             })
         })
     }
+}
+
+/// The election a run stands in: `--election`, or the place of a journal in etcd (which only the election's winner
+/// may write). Both given, they must agree.
+fn election_of(
+    journal: Option<&crate::journal::Place>,
+    election: Option<crate::election::Election>,
+    lease: Option<u64>,
+) -> anyhow::Result<Option<(crate::election::Election, u64)>> {
+    let election = match (journal, election) {
+        (Some(crate::journal::Place::Etcd(place)), Some(e)) if *place != e => anyhow::bail!(
+            "--journal {place} and --election {e} name different places: a journal in etcd is written under the              election at its own place (leave --election out)"
+        ),
+        (Some(crate::journal::Place::Etcd(place)), _) => Some(place.clone()),
+        (_, e) => e,
+    };
+    if election.is_none() && lease.is_some() {
+        anyhow::bail!("--lease is the lease of an election: give --election, or --journal etcd://…");
+    }
+    Ok(election.map(|e| (e, lease.unwrap_or(2))))
 }
 
 /// `--rerun-origin` belongs to `--rerun serve`.

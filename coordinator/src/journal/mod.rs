@@ -1,4 +1,6 @@
-//! `baton run --journal DIR`: the coordinator's records (`baton_proto::cluster::journal`) appended to segment files by
+//! `baton run --journal DIR` (or `--journal etcd://…/PREFIX`, `etcd`: the same segments as keys in etcd, each write
+//! a transaction fenced by the run's election — see that module; `place` says which store a journal is in): the
+//! coordinator's records (`baton_proto::cluster::journal`) appended to segment files by
 //! a thread of their own with group commit (`writer`), and the coordinator's snapshots that begin each segment after
 //! the first.
 //!
@@ -24,9 +26,15 @@
 //! with every subset of the last commit's pages. (An append-only file replaced redb here: a commit is one write and
 //! one `fdatasync` instead of a B-tree's pages, `docs/book/src/benchmarks.md`.)
 
+mod contents;
+mod etcd;
+mod place;
 mod segment;
 mod store;
 mod writer;
 
-pub use store::{exists, open, read_only, Keep, Segment, Settings, Store, FILE_NAME, SNAPSHOT_EVERY};
+pub use contents::{Keep, Segment, Settings, SNAPSHOT_EVERY};
+pub use etcd::Fenced;
+pub use place::{open, read_only, Place, Store};
+pub use store::FILE_NAME;
 pub use writer::{Deliver, JournalStats, OnDurable, Outgoing, Writer};

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Context};
 use baton_proto::cluster::journal::{JournalHeader, JOURNAL_FORMAT};
 
+use super::contents::{Keep, Opened, Segment};
 use super::segment::{self, Tail, KIND_HEADER, KIND_RECORD, KIND_SNAPSHOT, MAGIC};
 
 /// The first segment of a journal, which holds the run from its start.
@@ -37,68 +38,8 @@ fn segment_number(name: &str) -> Option<u64> {
     digits.bytes().all(|b| b.is_ascii_digit()).then(|| digits.parse().ok()).flatten().filter(|n| *n > 0)
 }
 
-/// When the coordinator snapshots itself, and how much of the journal is kept (`baton run --snapshot-every`,
-/// `--journal-keep`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Settings {
-    /// A snapshot after this many records since the last (0: never).
-    pub snapshot_every: u64,
-    pub keep: Keep,
-}
-
-/// A snapshot every 50 000 records: a resume replays at most that many (a quarter of a second at the 200 000
-/// records a second `baton bench` measures), and a snapshot costs the coordinator a few milliseconds at most
-/// that often.
-pub const SNAPSHOT_EVERY: u64 = 50_000;
-
-/// The last segment and the one before it: the run from the last snapshot but one.
-pub const KEEP: Keep = Keep::Last(2);
-
-impl Default for Settings {
-    fn default() -> Settings {
-        Settings { snapshot_every: SNAPSHOT_EVERY, keep: KEEP }
-    }
-}
-
-/// How many segments a journal keeps: all of them (a replay rebuilds the whole run), or the last `n` (a replay
-/// rebuilds the run from the oldest kept snapshot on).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Keep {
-    All,
-    Last(u32),
-}
-
-impl std::str::FromStr for Keep {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Keep, String> {
-        match s {
-            "all" => Ok(Keep::All),
-            n => match n.parse::<u32>() {
-                Ok(n) if n >= 1 => Ok(Keep::Last(n)),
-                _ => Err(format!("`{s}` is neither `all` nor a number of segments of at least 1")),
-            },
-        }
-    }
-}
-
-/// An opened journal: a fresh one, or the header, the latest snapshot and the records after it of a run to resume.
-pub struct Opened {
-    pub store: Store,
-    /// `None` for a journal without a run yet.
-    pub header: Option<JournalHeader>,
-    /// The snapshot that begins the last segment (none in the first segment).
-    pub snapshot: Option<Vec<u8>>,
-    pub records: Vec<Vec<u8>>,
-}
-
-/// One segment, read whole (`Store::segments`).
-pub struct Segment {
-    pub number: u64,
-    pub snapshot: Option<Vec<u8>>,
-    pub records: Vec<Vec<u8>>,
-}
-
-pub struct Store {
+/// A journal in segment files of a folder (`baton run --journal DIR`).
+pub struct Files {
     pub(super) dir: PathBuf,
     /// The last segment, which records are appended to, and its number.
     file: File,
@@ -116,7 +57,7 @@ pub struct Store {
 
 /// Opens (or creates) the journal in `dir` for a coordinator. Another process using it is refused. The last
 /// commit of its last segment, if a crash cut it short, is cut off: nobody was told it was durable.
-pub fn open(dir: &Path) -> anyhow::Result<Opened> {
+pub fn open(dir: &Path) -> anyhow::Result<Opened<Files>> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create the journal folder {}", dir.display()))?;
     let numbers = segment_numbers(dir)?;
     refuse_redb(dir, &numbers)?;
@@ -179,7 +120,7 @@ pub fn open(dir: &Path) -> anyhow::Result<Opened> {
         Some(h) => serde_json::to_vec(h)?,
         None => Vec::new(),
     };
-    let store = Store {
+    let store = Files {
         dir: dir.to_path_buf(),
         file,
         path,
@@ -291,7 +232,7 @@ fn contents(bytes: &[u8], number: u64) -> anyhow::Result<Contents> {
     Ok(out)
 }
 
-impl Store {
+impl Files {
     /// The last segment's file.
     pub fn path(&self) -> &Path {
         &self.path

@@ -8,7 +8,8 @@ use std::time::Instant;
 use anyhow::anyhow;
 use tokio::sync::watch;
 
-use super::store::Store;
+use super::etcd::Fenced;
+use super::place::Store;
 
 impl Store {
     /// Starts the writer thread; batches are numbered from 1 in the order given. `deliver` sends the messages
@@ -45,6 +46,9 @@ pub enum Durable {
     Upto(u64),
     /// The journal cannot be written: the run must stop (acting without the journal would break its promise).
     Failed(String),
+    /// Every batch up to this number is durable, and no more will be: etcd refused a write because another
+    /// coordinator holds the election (why).
+    Fenced(u64, String),
 }
 
 /// What the writer did, for the run's summary.
@@ -143,7 +147,12 @@ fn writer_loop(
             if !batches.is_empty() {
                 let started = Instant::now();
                 if let Err(e) = store.append(&batches, &mut buffer) {
-                    return fail(format!("cannot write the journal {}: {e}", store.path.display()));
+                    if e.is::<Fenced>() {
+                        // Deposed: nothing of it is durable, nor sent; the host stops acting (`Fence::lose`).
+                        let _ = done.send(Durable::Fenced(committed, e.to_string()));
+                        return ignore_the_rest(&rx);
+                    }
+                    return fail(format!("cannot write the journal {}: {e}", store.shown()));
                 }
                 committed += batches.len() as u64;
                 counters.commits.fetch_add(1, Ordering::Relaxed);
@@ -175,10 +184,13 @@ fn writer_loop(
                         counters.snapshots.fetch_add(1, Ordering::Relaxed);
                     }
                     // The records stay durable in the segment they were in; the next snapshot tries again.
+                    Err(e) if e.is::<Fenced>() => {
+                        let _ = done.send(Durable::Fenced(committed, e.to_string()));
+                        return ignore_the_rest(&rx);
+                    }
                     Err(e) => eprintln!(
-                        "warning: cannot start the journal's next segment in {}: {e}; it goes on in {}",
-                        store.dir.display(),
-                        store.path.display()
+                        "warning: cannot start the journal's next segment after {}: {e}; it goes on there",
+                        store.shown()
                     ),
                 }
             }
@@ -186,6 +198,11 @@ fn writer_loop(
         store.allocate_ahead();
     }
     store.trim();
+}
+
+/// A deposed writer's end: what the host hands it is dropped, never durable, until the host closes it.
+fn ignore_the_rest(rx: &std_mpsc::Receiver<Job>) {
+    while rx.recv().is_ok() {}
 }
 
 /// The host's side of the writer thread.
@@ -257,14 +274,14 @@ impl Writer {
     fn failure(&self) -> Option<String> {
         match &*self.durable.borrow() {
             Durable::Failed(why) => Some(why.clone()),
-            Durable::Upto(_) => None,
+            Durable::Upto(_) | Durable::Fenced(..) => None,
         }
     }
 
     /// The number of the last durable batch.
     pub fn durable(&self) -> anyhow::Result<u64> {
         match &*self.durable.borrow() {
-            Durable::Upto(n) => Ok(*n),
+            Durable::Upto(n) | Durable::Fenced(n, _) => Ok(*n),
             Durable::Failed(why) => Err(anyhow!("{why}")),
         }
     }
@@ -277,9 +294,12 @@ impl Writer {
         self.durable()
     }
 
-    /// Waits until every batch written so far is durable.
+    /// Waits until every batch written so far is durable. A deposed writer's (`Fenced`) never will be.
     pub async fn sync(&mut self) -> anyhow::Result<()> {
         while self.durable()? < self.sent {
+            if let Durable::Fenced(_, why) = &*self.durable.borrow() {
+                return Err(Fenced(why.clone()).into());
+            }
             self.changed().await?;
         }
         Ok(())

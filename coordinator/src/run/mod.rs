@@ -54,8 +54,8 @@ pub struct RunOptions {
     /// The user's own Zenoh configuration (TLS, credentials), under Baton's settings.
     pub zenoh_config: Option<PathBuf>,
     pub loss_policy: LossPolicy,
-    /// Record every input in this folder before acting on it; resume the run found there.
-    pub journal: Option<PathBuf>,
+    /// Record every input in this folder (or in etcd) before acting on it; resume the run found there.
+    pub journal: Option<crate::journal::Place>,
     /// When the journal gets a snapshot, and how many of its segments are kept.
     pub journal_settings: crate::journal::Settings,
     /// Where the run's Rerun recording goes.
@@ -93,7 +93,7 @@ pub async fn run_with(opts: RunOptions, probe: Option<Probe>) -> anyhow::Result<
     // A standby waits here, before it touches the journal, until it wins.
     let won = elected(&opts).await?;
     // The journal first: a refused one costs nothing, not even a Zenoh session.
-    let Opened { run, started_unix_ms, resume, store } = open_journal(&opts, &loaded, &hash)?;
+    let Opened { run, started_unix_ms, resume, store } = open_journal(&opts, &loaded, &hash, won.as_ref())?;
     let net =
         if opts.listen.is_empty() { NetConfig::client(&opts.connect, true) } else { NetConfig::router(&opts.listen) };
     let net = NetConfig { multicast_scouting: opts.multicast_scouting, ..net };
@@ -225,7 +225,8 @@ pub fn watched(program: &baton_proto::exec::program::Program, names: &[String]) 
 pub fn resume_offline(opts: &RunOptions) -> anyhow::Result<u64> {
     let loaded = load(&opts.chart, opts.pou.as_deref())?;
     let hash = ChartHash::of(&loaded.source, &loaded.pou);
-    let Opened { resume: Some(Resume { header, snapshot, segments }), .. } = open_journal(opts, &loaded, &hash)? else {
+    let Opened { resume: Some(Resume { header, snapshot, segments }), .. } = open_journal(opts, &loaded, &hash, None)?
+    else {
         bail!("no run to resume");
     };
     let mut core = match snapshot {
@@ -259,7 +260,7 @@ fn begin(
                 None => String::new(),
             };
             host.snapshot_due = host.core.records_counted() + host.snapshot_every;
-            let path = opts.journal.as_ref().map_or(String::new(), |d| d.display().to_string());
+            let path = opts.journal.as_ref().map_or(String::new(), ToString::to_string);
             let replayed = replay_segments(&mut host.core, &segments, &mut host.out, &path)?;
             let wall = unix_ms().saturating_sub(header.started_unix_ms);
             let last_ms = snapshot.as_ref().map_or(0, |m| m.last_ms);
@@ -347,14 +348,20 @@ fn open_trace(path: &std::path::Path, kept: Option<u64>) -> anyhow::Result<BufWr
     Ok(BufWriter::new(file))
 }
 
-/// Opens `--journal DIR`, if given: a new journal gets its header, an old one is checked and its records read.
-fn open_journal(opts: &RunOptions, loaded: &Loaded, hash: &ChartHash) -> anyhow::Result<Opened> {
-    let Some(dir) = &opts.journal else {
+/// Opens `--journal`, if given: a new journal gets its header, an old one is checked and its records read. One in
+/// etcd is written under the fence of the election `won`.
+fn open_journal(
+    opts: &RunOptions,
+    loaded: &Loaded,
+    hash: &ChartHash,
+    won: Option<&crate::election::Won>,
+) -> anyhow::Result<Opened> {
+    let Some(place) = &opts.journal else {
         return Ok(Opened { run: RunId(uuid::Uuid::new_v4()), started_unix_ms: unix_ms(), resume: None, store: None });
     };
-    let mut opened = crate::journal::open(dir)?;
+    let mut opened = crate::journal::open(place, won.map(crate::election::Won::fence))?;
     opened.store.keep(opts.journal_settings.keep);
-    let path = opened.store.path().display().to_string();
+    let path = opened.store.shown();
     let (run, started_unix_ms, resume) = match opened.header.take() {
         None => {
             let header = JournalHeader {
@@ -667,10 +674,20 @@ async fn wind_down(
     }
     // Whatever was taken in is made durable and carried out before the process leaves — unless another coordinator
     // may be acting already.
+    let mut ended = ended;
     if ended != Ended::Deposed {
         if let Some(w) = &mut host.journal {
-            w.sync().await?;
+            match w.sync().await {
+                // etcd refused the last commits: another coordinator holds the election, and goes on from it.
+                Err(e) if e.is::<crate::journal::Fenced>() => {
+                    eprintln!("baton: stopped coordinating: {e}");
+                    ended = Ended::Deposed;
+                }
+                synced => synced?,
+            }
         }
+    }
+    if ended != Ended::Deposed {
         host.release()?;
     }
     if let Some(w) = &mut host.journal {
@@ -697,7 +714,7 @@ async fn wind_down(
                 summary.run,
                 tokens_out,
                 opts.chart.display(),
-                dir.display()
+                dir
             );
         }
     }
@@ -732,7 +749,7 @@ mod tests {
             quiet: true,
             zenoh_config: None,
             loss_policy: LossPolicy::Pause,
-            journal: Some(journal),
+            journal: Some(crate::journal::Place::Dir(journal)),
             journal_settings: Default::default(),
             rerun: crate::recording::Sink::Off,
             watch: Vec::new(),
@@ -767,7 +784,8 @@ mod tests {
             program: other.clone(),
         };
         let journal_dir = dir.path().join("journal");
-        let mut opened = crate::journal::open(&journal_dir).expect("a new journal");
+        let place = crate::journal::Place::Dir(journal_dir.clone());
+        let mut opened = crate::journal::open(&place, None).expect("a new journal");
         opened.store.write_header(&header).expect("header");
         drop(opened);
         let err = run(options(chart, journal_dir.clone())).await.err().expect("refused").to_string();
@@ -775,7 +793,7 @@ mod tests {
         assert!(err.contains(&pin), "the message names both programs: {err}");
         // baton replay refuses it as well.
         let replay = crate::replay::ReplayOptions {
-            journal: journal_dir,
+            journal: place,
             rerun: crate::recording::Sink::Off,
             trace: None,
             watch: Vec::new(),

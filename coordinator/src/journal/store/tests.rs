@@ -5,6 +5,7 @@ use baton_proto::cluster::wire::{ChartHash, RunId};
 use crate::journal::{Deliver, Outgoing};
 
 use super::*;
+use crate::journal::{Keep, Store};
 
 fn header() -> JournalHeader {
     JournalHeader {
@@ -41,7 +42,7 @@ async fn messages_leave_once_the_records_that_led_to_them_are_written_and_in_ord
         }
         Ok(())
     });
-    let mut writer = opened.store.start_writer(Some(deliver));
+    let mut writer = Store::from(opened.store).start_writer(Some(deliver));
     let mut expected = Vec::new();
     for k in 0..60u8 {
         let key = format!("m{k}");
@@ -66,7 +67,7 @@ async fn a_message_that_cannot_be_sent_stops_the_journal() {
     let mut opened = open(dir.path()).unwrap();
     opened.store.write_header(&header()).unwrap();
     let deliver: Deliver = Box::new(|_| Err("cannot publish on baton/x: refused".into()));
-    let mut writer = opened.store.start_writer(Some(deliver));
+    let mut writer = Store::from(opened.store).start_writer(Some(deliver));
     writer.write(vec![vec![1]], vec![Outgoing { key: "baton/x".into(), payload: vec![1] }]).unwrap();
     let err = writer.sync().await.unwrap_err().to_string();
     assert!(err.contains("cannot publish on baton/x: refused"), "{err}");
@@ -79,7 +80,7 @@ async fn records_written_in_batches_are_read_back_in_order() {
     let mut opened = open(dir.path()).unwrap();
     assert!(opened.header.is_none() && opened.records.is_empty());
     opened.store.write_header(&header()).unwrap();
-    let mut writer = opened.store.start_writer(None);
+    let mut writer = Store::from(opened.store).start_writer(None);
     let mut expected = Vec::new();
     for b in 0..50u8 {
         let batch: Vec<Vec<u8>> = (0..b % 7).map(|i| vec![b, i]).collect();
@@ -118,7 +119,7 @@ async fn a_snapshot_starts_a_segment_and_a_resume_reads_only_the_last() {
     let dir = tempfile::tempdir().unwrap();
     let mut opened = open(dir.path()).unwrap();
     opened.store.write_header(&header()).unwrap();
-    let mut writer = opened.store.start_writer(None);
+    let mut writer = Store::from(opened.store).start_writer(None);
     let record = |k: u8| vec![k; 4];
     for part in 0..3u8 {
         for k in 0..5u8 {
@@ -150,7 +151,7 @@ async fn segments_beyond_what_is_kept_are_deleted_and_a_half_made_one_is_ignored
     let mut opened = open(dir.path()).unwrap();
     opened.store.write_header(&header()).unwrap();
     opened.store.keep(Keep::Last(2));
-    let mut writer = opened.store.start_writer(None);
+    let mut writer = Store::from(opened.store).start_writer(None);
     for k in 0..4u8 {
         writer.write(vec![vec![k]], Vec::new()).unwrap();
         writer.snapshot(vec![k]).unwrap();
@@ -196,7 +197,7 @@ async fn a_torn_last_commit_is_cut_off_and_the_journal_goes_on() {
     assert_eq!(again.records, (0..5u8).map(|b| vec![b; 3]).collect::<Vec<_>>());
     assert_eq!(std::fs::metadata(dir.path().join(FILE_NAME)).unwrap().len(), whole.len() as u64);
     // What comes next follows the five, and reads back.
-    let mut writer = again.store.start_writer(None);
+    let mut writer = Store::from(again.store).start_writer(None);
     writer.write(vec![vec![7]], Vec::new()).unwrap();
     writer.sync().await.unwrap();
     drop(writer);
@@ -212,7 +213,7 @@ async fn space_allocated_ahead_and_a_torn_commit_in_it_end_the_records() {
     let path = dir.path().join(FILE_NAME);
     let mut opened = open(dir.path()).unwrap();
     opened.store.write_header(&header()).unwrap();
-    let mut writer = opened.store.start_writer(None);
+    let mut writer = Store::from(opened.store).start_writer(None);
     for b in 0..5u8 {
         writer.write(vec![vec![b; 3]], Vec::new()).unwrap();
     }
@@ -337,7 +338,7 @@ fn a_crash_at_any_write_keeps_every_acknowledged_record_and_nothing_torn() {
         vec![vec![0; 2 * PAGE]],
     ];
     batches.extend((0..6u8).map(|k| vec![vec![k; 7 + 50 * k as usize]]));
-    let segment_path = |store: &Store| store.path().to_path_buf();
+    let segment_path = |store: &Files| store.path().to_path_buf();
     let mut acknowledged: Vec<Vec<u8>> = Vec::new();
     let (mut checked, mut total) = (0, 0);
     for (k, batch) in batches.iter().enumerate() {
