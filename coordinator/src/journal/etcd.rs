@@ -41,8 +41,10 @@ use crate::election::{refused, Election, Fence, RETRY};
 /// The largest value the journal puts in etcd: a chunk of records or of a snapshot (etcd takes 1.5 MiB in one
 /// request by default; the key and the transaction's framing fit in the rest).
 pub const CHUNK: usize = 1 << 20;
-/// How many keys one read asks for: at most `CHUNK` bytes each.
-const PAGE: i64 = 16;
+/// How many keys one read asks for. A commit is usually a few hundred bytes to a few kB, so a resume reads a
+/// segment of 50,000 records in a few hundred reads; a page of commits of `CHUNK` bytes each (a burst larger than
+/// etcd takes in one request) is the most one answer may hold.
+const PAGE: i64 = 256;
 /// How long a reader with no election (`baton replay`) asks etcd again before it gives up.
 const READ_PATIENCE: Duration = Duration::from_secs(10);
 
@@ -213,19 +215,7 @@ impl Etcd {
 
     /// Appends the records of `batches`, in values of at most `CHUNK` bytes, each a transaction of its own.
     pub(super) fn append(&mut self, batches: &[Vec<Vec<u8>>]) -> anyhow::Result<()> {
-        let mut values = vec![Vec::new()];
-        for record in batches.iter().flatten() {
-            if record.len() + 4 > CHUNK {
-                bail!("a record of {} bytes is more than etcd takes in one request ({CHUNK} bytes)", record.len());
-            }
-            if values.last().is_some_and(|v| v.len() + 4 + record.len() > CHUNK) {
-                values.push(Vec::new());
-            }
-            let value = values.last_mut().expect("one at least");
-            value.extend_from_slice(&(record.len() as u32).to_le_bytes());
-            value.extend_from_slice(record);
-        }
-        for value in values.into_iter().filter(|v| !v.is_empty()) {
+        for value in commit_values(batches)? {
             let key = self.keys.commit(self.number, self.seq);
             let f = self.fence.clone();
             self.link.call(move |client| async move {
@@ -264,6 +254,23 @@ impl Etcd {
         self.seq = 0;
         Ok(())
     }
+}
+
+/// The values a commit of `batches` puts in etcd, in order: its records framed, at most `CHUNK` bytes each.
+fn commit_values(batches: &[Vec<Vec<u8>>]) -> anyhow::Result<Vec<Vec<u8>>> {
+    let mut values: Vec<Vec<u8>> = Vec::new();
+    for record in batches.iter().flatten() {
+        if record.len() + 4 > CHUNK {
+            bail!("a record of {} bytes is more than etcd takes in one request ({CHUNK} bytes)", record.len());
+        }
+        if values.last().is_none_or(|v| v.len() + 4 + record.len() > CHUNK) {
+            values.push(Vec::new());
+        }
+        let value = values.last_mut().expect("one at least");
+        value.extend_from_slice(&(record.len() as u32).to_le_bytes());
+        value.extend_from_slice(record);
+    }
+    Ok(values)
 }
 
 /// Asks etcd with `request` until it answers: a member that is down, or does not answer within the fence's
@@ -470,7 +477,7 @@ impl Drop for Link {
 
 #[cfg(test)]
 mod tests {
-    use super::{after, framed};
+    use super::{after, commit_values, framed, CHUNK};
 
     #[test]
     fn a_prefixs_range_ends_after_every_key_that_begins_with_it() {
@@ -488,5 +495,19 @@ mod tests {
         assert_eq!(framed(&value).unwrap(), vec![b"one".to_vec(), Vec::new(), b"three".to_vec()]);
         assert!(framed(&value[..value.len() - 1]).is_err());
         assert!(framed(&value[..2]).is_err());
+    }
+
+    #[test]
+    fn a_commit_larger_than_one_request_goes_in_values_of_at_most_a_chunk_in_order() {
+        let records: Vec<Vec<u8>> = (0..40u8).map(|i| vec![i; 64 * 1024 + usize::from(i)]).collect();
+        let batches = vec![records[..25].to_vec(), Vec::new(), records[25..].to_vec()];
+        let values = commit_values(&batches).unwrap();
+        assert!(values.len() >= 3, "{} values for {} bytes", values.len(), records.iter().map(Vec::len).sum::<usize>());
+        assert!(values.iter().all(|v| !v.is_empty() && v.len() <= CHUNK));
+        let back: Vec<Vec<u8>> = values.iter().flat_map(|v| framed(v).unwrap()).collect();
+        assert_eq!(back, records);
+        assert!(commit_values(&[]).unwrap().is_empty());
+        let err = commit_values(&[vec![vec![0; CHUNK]]]).unwrap_err().to_string();
+        assert!(err.contains("more than etcd takes in one request"), "{err}");
     }
 }

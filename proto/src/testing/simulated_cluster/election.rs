@@ -70,6 +70,11 @@ impl SimCluster {
         true
     }
 
+    /// Whether a cut from the store holds what the coordinator did: nothing of it is durable, nor done, yet.
+    pub(super) fn cut_under_way(&self) -> bool {
+        self.election.as_ref().is_some_and(|e| e.cut.is_some())
+    }
+
     /// The cut under way heals (the writes go through, at the term the coordinator still holds, and what they led
     /// to leaves), or the coordinator's deadline comes first (it stops acting; a standby wins when the lease ends).
     pub(super) fn store_due(&mut self) {

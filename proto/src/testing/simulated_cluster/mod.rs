@@ -777,8 +777,9 @@ impl SimCluster {
                 }
                 self.flush_agent(i);
             }
-            // Up now: it may have died since the start of this millisecond, with the end in its journal only.
-            let up = self.down_until.is_none();
+            // Up now: it may have died since the start of this millisecond, with the end in its journal only. Cut
+            // from the store, its end waits for the store, as `baton run` waits for its journal before it leaves.
+            let up = self.down_until.is_none() && !self.cut_under_way();
             let core = self.coordinator.core();
             let by_operator = core.is_ended_by_operator();
             if up && core.stays() && core.failure().is_none() {
