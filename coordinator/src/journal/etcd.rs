@@ -143,23 +143,33 @@ pub fn read_only(election: &Election) -> anyhow::Result<(Option<JournalHeader>, 
     link.call(move |client| async move {
         let header = read_header(&client, &keys, None).await?;
         let head = read_head(&client, &keys, None).await?;
-        let first = ask(None, "the journal's oldest segment", || {
-            let mut kv = client.kv_client();
-            let options = GetOptions::new().with_range(after(&keys.segments())).with_limit(1).with_keys_only();
-            let from = keys.segments();
-            async move { kv.get(from, Some(options)).await }
-        })
-        .await?;
-        let oldest = match first.kvs().first() {
-            Some(kv) => segment_of(&keys, kv.key())?,
-            None => head,
-        };
-        let mut segments = Vec::new();
-        for n in oldest.min(head)..=head {
-            segments.push(read_segment(&client, &keys, n, None).await?.0);
-        }
-        Ok((header, segments))
+        Ok((header, kept_segments(&client, &keys, head, None).await?))
     })
+}
+
+/// Every segment the journal keeps, from the oldest to `head`, read whole. One missing between them, or one after
+/// the first without its snapshot, is damage.
+async fn kept_segments(client: &Client, keys: &Keys, head: u64, fence: Option<&Fence>) -> anyhow::Result<Vec<Segment>> {
+    let first = ask(fence, "the journal's oldest segment", || {
+        let mut kv = client.kv_client();
+        let options = GetOptions::new().with_range(after(&keys.segments())).with_limit(1).with_keys_only();
+        let from = keys.segments();
+        async move { kv.get(from, Some(options)).await }
+    })
+    .await?;
+    let oldest = match first.kvs().first() {
+        Some(kv) => segment_of(keys, kv.key())?.min(head),
+        None => head,
+    };
+    let mut segments = Vec::new();
+    for n in oldest..=head {
+        let (segment, commits) = read_segment(client, keys, n, fence).await?;
+        if n > 0 && segment.snapshot.is_none() {
+            bail!("the journal's segment {n} is missing or has no snapshot ({commits} commits), and segment {head} is its last");
+        }
+        segments.push(segment);
+    }
+    Ok(segments)
 }
 
 /// The number of the segment a key under `s/` belongs to.
@@ -198,19 +208,7 @@ impl Etcd {
     /// Every segment the journal keeps, oldest first, read whole.
     pub fn segments(&self) -> anyhow::Result<Vec<Segment>> {
         let (k, f, last) = (self.keys.clone(), self.fence.clone(), self.number);
-        self.link.call(move |client| async move {
-            let mut out = Vec::new();
-            for n in (0..=last).rev() {
-                let (segment, commits) = read_segment(&client, &k, n, Some(&f)).await?;
-                let begun = segment.snapshot.is_some() || commits > 0;
-                if n < last && !begun {
-                    break;
-                }
-                out.push(segment);
-            }
-            out.reverse();
-            Ok(out)
-        })
+        self.link.call(move |client| async move { kept_segments(&client, &k, last, Some(&f)).await })
     }
 
     /// Appends the records of `batches`, in values of at most `CHUNK` bytes, each a transaction of its own.
