@@ -657,6 +657,7 @@ impl Logger {
                 self.log(level, text);
             }
             TraceEvent::Recover => self.log("WARN", format!("coordinator restarted: {message}")),
+            TraceEvent::Deposed => self.log("WARN", format!("coordinator stopped acting: {message}")),
             TraceEvent::State => self.run_state(&rec.name),
             TraceEvent::SkillFault | TraceEvent::Fault => {
                 let on = agent.map(|a| format!(" on {a}")).unwrap_or_default();

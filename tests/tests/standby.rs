@@ -306,11 +306,20 @@ async fn a_coordinator_cut_off_from_etcd_stops_acting_before_its_standby_takes_o
     made_every_part_once(&trace, &summary, &log, &chart);
     // The run over, the active coordinator gave the election up: the one standing by wins at once, finds nothing
     // to take over, and leaves (status 0: its unit does not start it again).
-    let (status, log, _, _) = active.finish().await;
+    let (status, log, trace, _) = active.finish().await;
     assert!(status.success(), "{log}");
     assert!(log.contains("stopped coordinating: no renewal of its lease was granted by etcd in time"), "{log}");
+    assert!(
+        deposed_because(&trace, "no renewal of its lease was granted by etcd in time"),
+        "its trace says why: {trace:?}"
+    );
     assert!(log.contains(&format!("(term {new_term}); taking over")), "it stood by behind the standby: {log}");
     assert!(log.contains("is over (it completed): there is nothing to take over"), "{log}");
+}
+
+/// Whether a coordinator's trace says it stopped acting, for a reason that says `why`.
+fn deposed_because(trace: &[TraceRecord], why: &str) -> bool {
+    trace.iter().any(|r| r.event == TraceEvent::Deposed && r.message.as_deref().is_some_and(|m| m.contains(why)))
 }
 
 /// Sends `signal` (`STOP`, `CONT`) to a coordinator's process.
@@ -394,10 +403,11 @@ async fn a_coordinator_whose_leadership_key_is_gone_is_refused_its_next_write_an
     let out = cluster.baton(&["replay", "--journal", &election, "--trace", replayed.to_str().expect("utf-8")]).await;
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(read_trace(&replayed), trace, "the journal in etcd holds the standby's run");
-    let (status, log, _, _) = active.finish().await;
+    let (status, log, trace, _) = active.finish().await;
     assert!(status.success(), "{log}");
     // Refused whatever it wrote next: a commit, or a snapshot's chunk or head.
     let refused = format!("this coordinator's term {old_term} is over (its leadership key is gone or another's)");
     assert!(log.contains("stopped coordinating: etcd refused") && log.contains(&refused), "{log}");
+    assert!(deposed_because(&trace, &refused), "its trace says why: {trace:?}");
     assert!(log.contains("is over (it completed): there is nothing to take over"), "{log}");
 }

@@ -12,6 +12,7 @@ use baton_proto::cluster::keys;
 use baton_proto::cluster::runtime::coordinator::CoordOutput;
 use baton_proto::cluster::runtime::Level;
 use baton_proto::cluster::wire::{self, AgentInfo, CtlReply, CtlRequest, RunId, SetReply, SetRequest};
+use baton_proto::exec::trace::{TraceEvent, TraceRecord};
 use baton_proto::limits::CATCH_UP_CYCLES_MAX;
 use tokio::sync::mpsc;
 use zenoh::handlers::FifoChannelHandler;
@@ -282,6 +283,16 @@ pub(crate) fn reply(q: &Query, key: String, payload: Vec<u8>) {
 }
 
 impl Host {
+    /// The coordinator stops acting (`why`): said in its log and its trace. Nothing is sent any more.
+    pub(crate) fn stopped_acting(&mut self, why: &str) {
+        eprintln!("baton: stopped coordinating: {why}");
+        let rec = TraceRecord {
+            message: Some(why.to_string()),
+            ..TraceRecord::new(self.now_ms(), TraceEvent::Deposed, "coordinator")
+        };
+        self.out.record(rec);
+    }
+
     /// `baton set`: taken only from a sender the key names, answered on the run's own key with that name.
     pub(crate) fn on_set_query(&mut self, q: Query, run: RunId) {
         // Taken only from a sender the key names, answered on the run's own key with that name.

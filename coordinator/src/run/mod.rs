@@ -546,7 +546,7 @@ async fn serve(
             () = shared.rearmed() => Wake::Look,
             signal = stop.recv() => Wake::Stop(signal),
             why = deposed(&mut lost) => {
-                eprintln!("baton: stopped coordinating: {why}");
+                shared.lock()?.stopped_acting(&why);
                 return Ok(Ended::Deposed);
             }
         };
@@ -680,7 +680,7 @@ async fn wind_down(
             match w.sync().await {
                 // etcd refused the last commits: another coordinator holds the election, and goes on from it.
                 Err(e) if e.is::<crate::journal::Fenced>() => {
-                    eprintln!("baton: stopped coordinating: {e}");
+                    host.stopped_acting(&e.to_string());
                     ended = Ended::Deposed;
                 }
                 synced => synced?,

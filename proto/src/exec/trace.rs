@@ -52,6 +52,9 @@ pub enum TraceEvent {
     /// An agent heard a coordinator of a higher term than before in the run (one that won its election, or the
     /// first it heard): from then on lower terms are refused (`message` says both).
     Term,
+    /// The coordinator stopped acting: it lost its election, or was about to (`message` says why — no renewal of
+    /// its lease in time, or etcd refused its journal's write); the run is left to the coordinator that wins next.
+    Deposed,
     /// A skill finished.
     SkillDone,
     /// A skill failed (with `message`).
@@ -116,7 +119,7 @@ pub enum TraceEvent {
 
 impl TraceEvent {
     /// Every event, in the order above.
-    pub const ALL: [TraceEvent; 43] = [
+    pub const ALL: [TraceEvent; 44] = [
         TraceEvent::Activate,
         TraceEvent::Deactivate,
         TraceEvent::Fire,
@@ -135,6 +138,7 @@ impl TraceEvent {
         TraceEvent::RejectStale,
         TraceEvent::StaleTerm,
         TraceEvent::Term,
+        TraceEvent::Deposed,
         TraceEvent::SkillDone,
         TraceEvent::SkillFault,
         TraceEvent::Set,
@@ -184,6 +188,7 @@ impl TraceEvent {
             TraceEvent::RejectStale => "reject_stale",
             TraceEvent::StaleTerm => "stale_term",
             TraceEvent::Term => "term",
+            TraceEvent::Deposed => "deposed",
             TraceEvent::SkillDone => "skill_done",
             TraceEvent::SkillFault => "skill_fault",
             TraceEvent::Set => "set",
