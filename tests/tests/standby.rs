@@ -11,6 +11,7 @@
 use baton_proto::cluster::keys;
 use baton_proto::cluster::wire::{self, ToAgent};
 use baton_proto::exec::trace::{TraceEvent, TraceRecord};
+use baton_proto::testing::simulated_cluster::{Faults, SimCluster};
 use baton_tests::etcd::Etcd;
 use baton_tests::loopback::{
     check_trace_invariants, cmd_key_of, dispatches, next_dispatch, read_trace, repo, status_of, step_id, Cluster,
@@ -135,6 +136,17 @@ async fn robots_picking(cluster: &mut Cluster, cmds: &Samples, chart: &std::path
 fn made_every_part_once(trace: &[TraceRecord], summary: &serde_json::Value, log: &str, chart: &std::path::Path) {
     check_trace_invariants(trace, chart);
     assert_eq!(summary["vars"]["done"], PARTS, "{log}");
+    // The same final values as the cell `baton test` simulates (`baton sim` runs no skills), the takeover
+    // notwithstanding.
+    let source = std::fs::read_to_string(chart).expect("the chart");
+    let source = source.replace("parts : INT := 2", &format!("parts : INT := {PARTS}"));
+    let robots: [(&str, &[&str]); 3] = [("robot1", &[]), ("robot2", &[]), ("robot3", &[])];
+    let mut sim = SimCluster::new(&source, &robots, Faults::default(), 1);
+    assert!(sim.run(120_000), "the simulated cell ends");
+    for name in ["done", "picked1", "picked2", "picked3", "assembled"] {
+        let expected = sim.shown(name).expect("a variable of the chart");
+        assert_eq!(summary["vars"][name], expected.as_str(), "{name} as the simulated cell ends it\n{log}");
+    }
     for step in ["Pick1", "Pick2", "Pick3", "Assemble"] {
         assert_eq!(dispatches(trace, step).len(), 2, "{step}: {:?}\n{log}", dispatches(trace, step));
     }
