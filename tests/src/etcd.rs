@@ -40,8 +40,19 @@ fn etcd() -> PathBuf {
 }
 
 impl Etcd {
-    /// Starts a cluster of `n` members and returns once it has a leader.
+    /// Starts a cluster of `n` members and returns once it has a leader. A port found free and taken by another
+    /// process before a member could bind it (the tests run side by side) is a start on other ports, not a failure.
     pub async fn start(n: usize) -> Etcd {
+        for _ in 0..4 {
+            if let Some(etcd) = Etcd::try_start(n).await {
+                return etcd;
+            }
+        }
+        panic!("etcd could not bind free ports in four tries");
+    }
+
+    /// A cluster on free ports, or `None` when a member found one of them taken.
+    async fn try_start(n: usize) -> Option<Etcd> {
         let binary = etcd();
         let dir = tempfile::tempdir().expect("temp dir");
         let ports: Vec<(u16, u16)> = (0..n).map(|_| (free_port(), free_port())).collect();
@@ -90,9 +101,11 @@ impl Etcd {
             etcd.spawn(&binary, i);
         }
         for i in 0..n {
-            etcd.wait_healthy(i).await;
+            if !etcd.wait_healthy(i).await {
+                return None;
+            }
         }
-        etcd
+        Some(etcd)
     }
 
     fn spawn(&mut self, binary: &PathBuf, i: usize) {
@@ -112,22 +125,30 @@ impl Etcd {
         member.child = Some(child);
     }
 
-    /// Waits until member `i` answers its health check with a leader in its cluster.
-    async fn wait_healthy(&self, i: usize) {
+    /// Waits until member `i` answers its health check with a leader in its cluster; `false` if it could not bind
+    /// its ports (it exits saying so).
+    async fn wait_healthy(&mut self, i: usize) -> bool {
         let addr = format!("127.0.0.1:{}", self.members[i].client);
         let up = tokio::time::timeout(TIMEOUT, async {
             loop {
                 if tokio::net::TcpStream::connect(&addr).await.is_ok() {
                     let (status, body) = crate::http::http(&addr, "GET", "/health", None).await;
                     if status == 200 && body.contains("\"true\"") {
-                        return;
+                        return true;
                     }
+                }
+                let exited = self.members[i].child.as_mut().is_some_and(|c| c.try_wait().ok().flatten().is_some());
+                if exited && self.log(i).contains("address already in use") {
+                    return false;
                 }
                 tokio::time::sleep(Duration::from_millis(50)).await;
             }
         })
         .await;
-        assert!(up.is_ok(), "etcd member m{i} never became healthy: {}", self.log(i));
+        match up {
+            Ok(bound) => bound,
+            Err(_) => panic!("etcd member m{i} never became healthy: {}", self.log(i)),
+        }
     }
 
     /// Member `i`'s log, for a failure message.
@@ -190,6 +211,6 @@ impl Etcd {
     /// Starts member `i` again on its data (its cluster had it), and returns once it is healthy.
     pub async fn restart(&mut self, i: usize) {
         self.spawn(&etcd(), i);
-        self.wait_healthy(i).await;
+        assert!(self.wait_healthy(i).await, "etcd member m{i} could not bind its ports again: {}", self.log(i));
     }
 }
