@@ -23,11 +23,18 @@ mod testing;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
-    // Like any Unix tool, end quietly when the reader of our output goes away (`baton check … | head`): Rust
-    // ignores SIGPIPE, which turns every later print into a panic.
-    // SAFETY: setting a signal's disposition to its default before any thread starts has no other effect.
-    unsafe {
-        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    // Like any Unix tool, the commands that only print end quietly when the reader of their output goes away
+    // (`baton check … | head`): Rust ignores SIGPIPE, which turns every later print into a panic. Not the commands
+    // with sockets of their own: a peer that closes its end (an etcd member killed, a router gone) would kill
+    // `baton run` with SIGPIPE on its next write, where Rust's default turns it into an error handled there.
+    let offline = std::env::args_os()
+        .nth(1)
+        .is_some_and(|c| ["check", "sim", "export", "deploy"].contains(&c.to_str().unwrap_or("")));
+    if offline {
+        // SAFETY: setting a signal's disposition to its default before any thread starts has no other effect.
+        unsafe {
+            libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        }
     }
     // Everything runs on a thread of the stack a chart may need (`limits::CHART_STACK_BYTES`): whatever `baton
     // check` accepts, `baton run`, `sim` and `test` hold.
