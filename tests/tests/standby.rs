@@ -224,11 +224,9 @@ async fn a_standby_takes_over_from_a_killed_coordinator_and_the_deposed_ones_com
     assert_eq!(summary["state"], "complete", "{log}");
     // The journal in etcd holds the whole run: replayed, it gives the trace the standby wrote (which begins with
     // the killed coordinator's part, replayed from etcd when it took over).
-    let replayed = cluster.dir.path().join("replayed.jsonl");
-    let out = cluster.baton(&["replay", "--journal", &election, "--trace", replayed.to_str().expect("utf-8")]).await;
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert!(String::from_utf8_lossy(&out.stdout).contains("it completed"), "{}", String::from_utf8_lossy(&out.stdout));
-    assert_eq!(read_trace(&replayed), trace, "the replay from etcd rebuilds the trace the run wrote");
+    let (said, replayed) = replayed_from_etcd(&cluster, &etcd).await;
+    assert!(said.contains("it completed"), "{said}");
+    assert_eq!(replayed, trace, "the replay from etcd rebuilds the trace the run wrote");
     // Each robot heard the coordinators' terms in order, the new one last: from the killed one's (if a message of
     // it reached the robot before the kill) to the standby's. And no motion ran twice: one pick per part.
     for robot in ["robot1", "robot2", "robot3"] {
@@ -340,6 +338,15 @@ fn deposed_because(trace: &[TraceRecord], why: &str) -> bool {
     trace.iter().any(|r| r.event == TraceEvent::Deposed && r.message.as_deref().is_some_and(|m| m.contains(why)))
 }
 
+/// `baton replay --journal etcd://…` of the run's journal, which must succeed: what it says, and the trace it rebuilds.
+async fn replayed_from_etcd(cluster: &Cluster, etcd: &Etcd) -> (String, Vec<TraceRecord>) {
+    let replayed = cluster.dir.path().join("replayed.jsonl");
+    let journal = election(etcd);
+    let out = cluster.baton(&["replay", "--journal", &journal, "--trace", replayed.to_str().expect("utf-8")]).await;
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    (String::from_utf8_lossy(&out.stdout).into_owned(), read_trace(&replayed))
+}
+
 /// Sends `signal` (`STOP`, `CONT`) to a coordinator's process.
 fn signal(coordinator: &Coordinator, signal: &str) {
     let pid = coordinator.child.id().expect("the coordinator runs").to_string();
@@ -373,15 +380,8 @@ async fn a_coordinator_paused_past_its_lease_adds_nothing_to_the_journal_in_etcd
     let (status, log, trace, summary) = standby.finish().await;
     assert!(status.success(), "{log}");
     made_every_part_once(&trace, &summary, &log, &chart);
-    let replayed = cluster.dir.path().join("replayed.jsonl");
-    let election = election(&etcd);
-    let out = cluster.baton(&["replay", "--journal", &election, "--trace", replayed.to_str().expect("utf-8")]).await;
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert_eq!(
-        read_trace(&replayed),
-        trace,
-        "the journal in etcd holds the standby's run, nothing of the paused one's"
-    );
+    let (_, replayed) = replayed_from_etcd(&cluster, &etcd).await;
+    assert_eq!(replayed, trace, "the journal in etcd holds the standby's run, nothing of the paused one's");
     // Woken, the paused coordinator stopped acting (its deadline had passed, or etcd refused its write), stood
     // by, and found the run over once the standby gave the election up.
     let (status, log, _, _) = active.finish().await;
@@ -416,11 +416,8 @@ async fn a_coordinator_whose_leadership_key_is_gone_is_refused_its_next_write_an
     let (status, log, trace, summary) = standby.finish().await;
     assert!(status.success(), "{log}");
     made_every_part_once(&trace, &summary, &log, &chart);
-    let replayed = cluster.dir.path().join("replayed.jsonl");
-    let election = election(&etcd);
-    let out = cluster.baton(&["replay", "--journal", &election, "--trace", replayed.to_str().expect("utf-8")]).await;
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert_eq!(read_trace(&replayed), trace, "the journal in etcd holds the standby's run");
+    let (_, replayed) = replayed_from_etcd(&cluster, &etcd).await;
+    assert_eq!(replayed, trace, "the journal in etcd holds the standby's run");
     let (status, log, trace, _) = active.finish().await;
     assert!(status.success(), "{log}");
     // Refused whatever it wrote next: a commit, or a snapshot's chunk or head.
