@@ -25,14 +25,14 @@ Usage: console_browser.py URL demo SCREENSHOT COMMENT
 Usage: console_browser.py URL login USER PASSWORD
   logs in through the page's form, waits until the run is shown, and prints the command buttons the user sees
   (`visible`), the header's name (`who`) and the manual mode button's state (`manual`).
-Usage: console_browser.py URL timeline RUN STEP GRAPH_STEP RECORDING SCREENSHOT
+Usage: console_browser.py URL timeline STEPS RECORDING SCREENSHOT
   in a browser with WebGL (SwiftShader): waits until the page's Rerun timeline is ready with a recording open
   (`viewer`: backend, recording id, active timeline, time range), clicks the oldest history entry and waits until
-  the viewer's time cursor is at its time (`sought`); tells the viewer's frame the selection Rerun's viewer reports
-  when STEP's own timeline (`/sfc/steps/STEP`) and when the chart graph's node of GRAPH_STEP are selected, and
-  prints what the chart then selected (`selected`); saves SCREENSHOT of the timeline; opens RECORDING from the
-  page's recordings list and waits until the viewer has it open (`recording`); prints every origin the page and its
-  frame fetched from (`origins`).
+  the viewer's time cursor is at its time (`sought`); clicks Rerun's viewer down its chart view and across its
+  steps view, and prints each event the viewer sent and what the chart then selected (`clicked`; STEPS: the
+  chart's steps in its order, comma-separated); saves SCREENSHOT of the timeline; opens RECORDING from the page's
+  recordings list and waits until the viewer has it open (`recording`); prints every origin the page and its frame
+  fetched from (`origins`).
 Usage: console_browser.py URL nested ACTION
   clicks the block of ACTION (an action written in SFC) on the chart, and prints the steps of the chart it opens
   (`steps`) and each set of them lit seen until every step was lit at least once (`lit`).
@@ -44,7 +44,9 @@ import os
 import sys
 
 from selenium import webdriver
+from selenium.common.exceptions import TimeoutException
 from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import Select, WebDriverWait
 
@@ -226,7 +228,7 @@ def demo(driver, wait, screenshot, comment):
 VIEWER = "const frame = document.querySelector('#timeline-frame iframe'); const api = frame.contentWindow.batonViewer;"
 
 
-def timeline(driver, run, step, graph_step, recording, screenshot):
+def timeline(driver, steps, recording, screenshot):
     """The Rerun timeline in the page: live, driven from the history, and telling the chart what is selected."""
     wait = WebDriverWait(driver, 150, poll_frequency=0.1)  # 40 MB of wasm, compiled and drawn in software
     wait.until(lambda d: d.execute_script("return document.body.dataset.timeline") in ("ready", "unavailable"))
@@ -246,20 +248,7 @@ def timeline(driver, run, step, graph_step, recording, screenshot):
     print(json.dumps({"sought": {"entry": target, "event": row.get_attribute("data-event"),
                                  "row": "sought" in row.get_attribute("class"),
                                  "viewer": driver.execute_script(VIEWER + "return api.describe();")}}), flush=True)
-    # What Rerun's viewer reports when a step's timeline, then a node of the chart graph, is selected in it.
-    selected = []
-    index = driver.execute_script(
-        "return [...document.querySelectorAll('#chart svg g.step')].map(g => g.dataset.step).indexOf(arguments[0])",
-        graph_step)
-    for item in [{"type": "entity", "entity_path": "/sfc/steps/" + step},
-                 {"type": "entity", "entity_path": "/sfc/graph", "instance_id": index, "view_name": "chart"}]:
-        event = {"type": "selection_change", "application_id": "baton", "recording_id": run, "items": [item]}
-        driver.execute_script(VIEWER + "api.event(arguments[0]);", json.dumps(event))
-        want = item["entity_path"].split("/")[-1] if "instance_id" not in item else graph_step
-        wait.until(lambda d: d.find_element(By.ID, "step-name").text == want)
-        selected.append(driver.execute_script(
-            "return [...document.querySelectorAll('#chart svg g.step.selected')].map(g => g.dataset.step)"))
-    print(json.dumps({"selected": selected}), flush=True)
+    print(json.dumps({"clicked": clicked_in_viewer(driver, steps.split(","))}), flush=True)
     driver.execute_script("document.getElementById('timeline').scrollIntoView({block: 'end'})")
     driver.save_screenshot(screenshot)
     if recording:
@@ -274,6 +263,66 @@ def timeline(driver, run, step, graph_step, recording, screenshot):
         const of = w => w.performance.getEntriesByType("resource").map(e => new URL(e.name).origin);
         return [...new Set(of(window).concat(of(frame.contentWindow)).concat([location.origin]))].sort();""")
     print(json.dumps({"origins": origins}), flush=True)
+
+
+def clicked_in_viewer(driver, steps):
+    """Real clicks on Rerun's viewer (its canvas, in the console's frame), as an operator's mouse makes them: down
+    the middle of the chart view (the left two fifths of Baton's blueprint, its upper three quarters), then across
+    the rows of the steps view (the right three fifths, its upper half), every 2% of the frame's height (a node
+    of the graph is about twice that). Before each click another view is clicked, so that every click changes the
+    selection and Rerun reports it once. For each click: the event Rerun's viewer sent, and what the page's chart
+    selected after it — once it shows the step the event names (a step's timeline `/sfc/steps/STEP`, or a node of
+    the chart graph, whose first instances are STEPS in the chart's order), or, if it never does, what it shows
+    then."""
+    frame = driver.find_element(By.CSS_SELECTOR, "#timeline-frame iframe")
+    driver.execute_script("arguments[0].scrollIntoView({block: 'center'})", frame)
+    width, height = driver.execute_script(
+        "const r = arguments[0].getBoundingClientRect(); return [r.width, r.height]", frame)
+    driver.execute_script(VIEWER + """
+        window.viewerEvents = [];
+        const handle = api.event;
+        api.event = json => { window.viewerEvents.push(json); handle(json); };""")
+    count = lambda: driver.execute_script("return window.viewerEvents.length")
+    quick = WebDriverWait(driver, 10, poll_frequency=0.05)  # a frame or two drawn in software
+    page = WebDriverWait(driver, 5, poll_frequency=0.05)  # a message between two frames of one page
+
+    def click(fx, fy):
+        """The event Rerun's viewer sent for a click at (fx, fy) of its frame, or None if the click changed
+        nothing it reports (a bare part of a bar or a header)."""
+        before = count()
+        ActionChains(driver).move_to_element_with_offset(frame, int((fx - 0.5) * width), int((fy - 0.5) * height)) \
+            .click().perform()
+        try:
+            quick.until(lambda d: count() > before)
+        except TimeoutException:
+            return None
+        return json.loads(driver.execute_script("return window.viewerEvents[window.viewerEvents.length - 1]"))
+
+    def named(event):
+        item = event["items"][0] if event.get("items") else {}
+        path = item.get("entity_path", "")
+        if path.startswith("/sfc/steps/"):
+            return path[len("/sfc/steps/"):]
+        if path == "/sfc/graph" and item.get("instance_id", len(steps)) < len(steps):
+            return steps[item["instance_id"]]
+        return None
+
+    chart_views = lambda: driver.execute_script(
+        "return [...document.querySelectorAll('#chart svg g.step.selected')].map(g => g.dataset.step)")
+    clicks = []
+    scans = [[(0.2, y / 100) for y in range(10, 73, 2)], [(0.85, y / 100) for y in range(10, 39, 2)]]
+    for scan, elsewhere in zip(scans, [(0.7, 0.45), (0.03, 0.5)]):
+        for (fx, fy) in scan:
+            click(*elsewhere)
+            event = click(fx, fy)
+            step = named(event) if event else None
+            if step is not None:
+                try:
+                    page.until(lambda d: chart_views() == [step])
+                except TimeoutException:
+                    pass
+            clicks.append({"at": [fx, fy], "event": event, "selected": chart_views()})
+    return clicks
 
 
 def nested(driver, wait, action):
@@ -350,7 +399,7 @@ def run(driver, url, mode):
     elif mode == "nested":
         nested(driver, wait, sys.argv[3])
     elif mode == "timeline":
-        timeline(driver, *sys.argv[3:8])
+        timeline(driver, *sys.argv[3:6])
     else:
         ack(driver, wait, sys.argv[3])
     # The page's script raised nothing meanwhile.

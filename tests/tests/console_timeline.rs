@@ -1,7 +1,7 @@
 //! The Rerun timeline in the operator console's page, in a real browser with WebGL drawn in software: Rerun's own
 //! web viewer (the 0.36.3 wasm the console serves from its origin) opens the run's recording live from the
-//! coordinator (`--rerun serve`), a click on a history entry moves its time cursor to that entry's time, what the
-//! viewer reports selected selects the step on the chart, a finished run's recording opens from the console's
+//! coordinator (`--rerun serve`), a click on a history entry moves its time cursor to that entry's time, a click on
+//! a step in the viewer (its node in the chart graph, or its row of the steps view) selects it on the chart, a finished run's recording opens from the console's
 //! folder (`--recordings`), and nothing is fetched from beyond the cell. The book's picture of the timeline is made
 //! here (`BATON_SCREENSHOTS=1` writes it).
 
@@ -15,6 +15,9 @@ const CHART: &str = "PROGRAM part\nVAR go : BOOL; moved : BOOL; END_VAR\nINITIAL
     TRANSITION FROM Move TO Waiting := moved; END_TRANSITION\nSTEP Waiting: END_STEP\n\
     TRANSITION FROM Waiting TO Done := go; END_TRANSITION\nSTEP Done: END_STEP\n\
     ACTION Motion: {skill := 'motion', ms := 1000} END_ACTION\nEND_PROGRAM\n";
+
+/// CHART's steps, in its order.
+const STEPS: [&str; 4] = ["Start", "Move", "Waiting", "Done"];
 
 /// A chart the coordinator runs alone, to its end in a few cycles: a finished run's recording.
 const FINISHED: &str = "PROGRAM counted\nVAR n : INT; END_VAR\nINITIAL_STEP Count: Add(N); END_STEP\n\
@@ -58,7 +61,7 @@ async fn the_timeline_follows_the_run_live_moves_to_a_history_entry_and_selects_
 
     let shot = cluster.dir.path().join("timeline.png");
     let shot_path = shot.to_str().expect("utf-8");
-    let said = browse_for(&addr, &["timeline", &run, "Waiting", "Move", "counted.rrd", shot_path], TIMEOUT * 8).await;
+    let said = browse_for(&addr, &["timeline", &STEPS.join(","), "counted.rrd", shot_path], TIMEOUT * 8).await;
     let said =
         |key: &str| said.iter().find_map(|l| l.get(key).cloned()).unwrap_or_else(|| panic!("no {key}: {said:?}"));
     // Rerun's viewer has this run's recording open, live, on the wall-clock timeline, from the run's start on.
@@ -75,8 +78,39 @@ async fn the_timeline_follows_the_run_live_moves_to_a_history_entry_and_selects_
     let range = &sought["viewer"]["range"];
     assert!(range["min"].as_f64() <= Some(entry) && Some(entry) <= range["max"].as_f64(), "{sought}");
     assert_eq!(sought["row"], true, "the entry is marked: {sought}");
-    // The viewer's selection of a step's timeline, and of the step's node in the chart graph, selects it alone.
-    assert_eq!(said("selected"), serde_json::json!([["Waiting"], ["Move"]]));
+    // Real clicks on the viewer, and the events Rerun's viewer itself sent for them.
+    let clicked = said("clicked");
+    let clicked = clicked.as_array().expect("clicks");
+    let item = |click: &serde_json::Value| click["event"]["items"][0].clone();
+    // Down the chart view: the graph's nodes, one after the other as the chart draws them from top to bottom
+    // (the recording logs the steps in the chart's order, then the transitions: t0 Start→Move is node 4).
+    let mut nodes: Vec<u64> = clicked
+        .iter()
+        .filter(|c| item(c)["entity_path"] == "/sfc/graph")
+        .filter_map(|c| item(c)["instance_id"].as_u64())
+        .collect();
+    nodes.dedup();
+    assert_eq!(nodes, [0, 4, 1, 5, 2, 6, 3], "Start, t0, Move, t1, Waiting, t2, Done: {clicked:?}");
+    // Every click that selected a step — its node in the graph or its own timeline — selected it alone on the
+    // chart.
+    let mut timelines = std::collections::BTreeSet::new();
+    for click in clicked {
+        let item = item(click);
+        let path = item["entity_path"].as_str().unwrap_or_default();
+        let step = match (path.strip_prefix("/sfc/steps/"), item["instance_id"].as_u64()) {
+            (Some(step), _) => {
+                timelines.insert(step.to_string());
+                Some(step)
+            }
+            (None, Some(node)) if path == "/sfc/graph" => STEPS.get(node as usize).copied(),
+            _ => None,
+        };
+        if let Some(step) = step {
+            assert_eq!(click["selected"], serde_json::json!([step]), "{click}");
+        }
+    }
+    // Across the steps view: the timelines of the steps the run went through.
+    assert!(["Start", "Move", "Waiting"].iter().all(|s| timelines.contains(*s)), "{timelines:?}");
     // The finished run's recording, opened from the console's folder.
     let recording = said("recording");
     assert!(recording["recording"].as_str().is_some_and(|r| r.contains(&finished_run)), "{recording}");
