@@ -578,6 +578,34 @@ async fn in_a_browser_the_demo_cell_is_held_its_alarm_acknowledged_and_a_lost_ro
     coordinator.kill().await;
 }
 
+/// `baton bench --console-only` as the benchmarks chapter runs it (with 4 agents here): it starts the console and
+/// Chromium itself and reports every figure it promises. What the figures are is measured, not judged, here: the
+/// chapter has them, from a release build.
+async fn baton_bench_times_the_console_in_chromium() {
+    require_browser();
+    let bench = Command::new(bin("baton"))
+        .args(["bench", "--console-only", "--console-agents", "4", "--json"])
+        .kill_on_drop(true)
+        .output();
+    let out = tokio::time::timeout(TIMEOUT * 12, bench).await.expect("the bench in time").expect("baton runs");
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{said}");
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let console = &report["console"];
+    assert_eq!(console["steps"], 1000, "{report}");
+    let point = &console["latency"][0];
+    assert_eq!(point["agents"], 4, "{report}");
+    // Half the measured steps at least: those lit before the page showed the chart are left out.
+    assert!(point["samples"].as_u64().is_some_and(|n| (75..=150).contains(&n)), "{report}");
+    let (median, p99) = (point["event_to_dom_median_ms"].as_f64(), point["event_to_dom_p99_ms"].as_f64());
+    assert!(median.zip(p99).is_some_and(|(m, p)| 0.0 <= m && m <= p), "{report}");
+    assert!(point["first_render_ms"].as_f64().is_some_and(|t| t > 0.0), "{report}");
+    assert_eq!(console["runs"], 16, "{report}");
+    assert!(console["memory_mib"].as_f64().is_some_and(|m| m > 1.0), "{report}");
+    // Only phase 13 ran.
+    assert!(report.get("token_round_trip").is_none() && report.get("scale").is_none(), "{report}");
+}
+
 baton_tests::harness_main!(
     tokio the_history_lists_commands_with_who_and_why_for_a_console_that_joins_late_too,
     tokio the_page_and_its_api_show_the_run_as_status_does_and_send_commands_as_ctl_does,
@@ -590,4 +618,5 @@ baton_tests::harness_main!(
     tokio in_a_browser_manual_mode_forces_and_moves_with_a_reason,
     tokio in_a_browser_the_demo_cell_is_held_its_alarm_acknowledged_and_a_lost_robot_shown,
     tokio in_a_browser_an_action_written_in_sfc_opens_as_a_chart_with_its_token_moving,
+    tokio baton_bench_times_the_console_in_chromium,
 );

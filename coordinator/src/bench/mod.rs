@@ -16,6 +16,7 @@ use zenoh::qos::CongestionControl;
 
 use crate::demo::free_port;
 
+mod console;
 mod failover;
 mod harness;
 mod resume;
@@ -51,7 +52,11 @@ pub struct BenchOptions {
     pub resume_tokens: u64,
     /// Run phase 12 (standby coordinators on this etcd: kills, and the lease in seconds).
     pub failover: Option<(crate::election::Election, u32, u64)>,
+    /// Run phase 13 (the operator console in this browser, at these agent counts).
+    pub console: Option<(console::Browser, Vec<u32>)>,
 }
+
+pub use console::Browser;
 
 #[derive(Serialize)]
 pub struct BenchReport {
@@ -65,6 +70,9 @@ pub struct BenchReport {
     /// (12)
     #[serde(skip_serializing_if = "Option::is_none")]
     pub failover: Option<failover::Failover>,
+    /// (13)
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub console: Option<console::ConsoleReport>,
 }
 
 /// Phases 7–10.
@@ -132,7 +140,11 @@ pub async fn bench(opts: BenchOptions) -> anyhow::Result<BenchReport> {
         }
         None => None,
     };
-    Ok(BenchReport { base, scale, resume, failover })
+    let console = match &opts.console {
+        Some((browser, agents)) => Some(console::console(dir.path(), browser, agents).await?),
+        None => None,
+    };
+    Ok(BenchReport { base, scale, resume, failover, console })
 }
 
 /// In-flight tokens of phase 7 at every agent count (one per agent at the largest).
@@ -276,6 +288,9 @@ impl BenchReport {
                 f.throughput_file_tokens_per_s,
                 f.file_commit_us
             );
+        }
+        if let Some(c) = &self.console {
+            c.print();
         }
         if let Some(r) = &self.resume {
             println!(

@@ -40,6 +40,20 @@ pub struct Bench {
     /// each SIGKILL to the standby's first dispatch.
     #[arg(long, requires = "etcd", conflicts_with_all = ["base_only", "scale_only"])]
     pub failover_only: bool,
+    /// Only phase 13: the operator console in Chromium (through chromedriver), with a 1,000-step chart and the agents
+    /// of --console-agents: from a step's activation to the page showing it, the first render, and the console's
+    /// memory following 16 runs.
+    #[arg(long, conflicts_with_all = ["base_only", "scale_only", "resume_only", "failover_only"])]
+    pub console_only: bool,
+    /// The agent counts of phase 13.
+    #[arg(long, value_delimiter = ',', default_value = "8,256", value_name = "N,N,…")]
+    pub console_agents: Vec<u32>,
+    /// Chromium, for phase 13.
+    #[arg(long, default_value = "chromium", value_name = "PATH")]
+    pub chromium: String,
+    /// Chromium's WebDriver, for phase 13.
+    #[arg(long, default_value = "chromedriver", value_name = "PATH")]
+    pub chromedriver: String,
     /// The etcd of phase 12, and a prefix for its keys: etcd://HOST:PORT[,HOST:PORT…]/PREFIX.
     #[arg(long, value_name = "etcd://…/PREFIX")]
     pub etcd: Option<crate::election::Election>,
@@ -84,10 +98,17 @@ impl Bench {
             etcd,
             kills,
             lease,
+            console_only,
+            console_agents,
+            chromium,
+            chromedriver,
         } = self;
         block_on(async move {
             if samples == 0 || tokens == 0 || agents == 0 || lanes_per_agent == 0 || parts == 0 {
                 bail!("--samples, --tokens, --agents, --lanes-per-agent and --parts must be at least 1");
+            }
+            if console_agents.is_empty() || console_agents.iter().any(|n| !(1..=4096).contains(n)) {
+                bail!("--console-agents takes counts from 1 to 4096, such as 8,256");
             }
             if scale_agents.is_empty() || scale_agents.iter().any(|n| !(1..=4096).contains(n)) {
                 bail!("--scale-agents takes counts from 1 to 4096, such as 8,64,256");
@@ -98,12 +119,14 @@ impl Bench {
                 agents,
                 lanes_per_agent,
                 parts,
-                base: !scale_only && !resume_only && !failover_only,
-                scale: !base_only && !resume_only && !failover_only,
+                base: !scale_only && !resume_only && !failover_only && !console_only,
+                scale: !base_only && !resume_only && !failover_only && !console_only,
                 scale_agents,
-                resume: !base_only && !scale_only && !failover_only,
+                resume: !base_only && !scale_only && !failover_only && !console_only,
                 resume_tokens: resume_tokens.max(1),
                 failover: if failover_only { etcd.map(|e| (e, kills, lease)) } else { None },
+                console: console_only
+                    .then(|| (crate::bench::Browser { chromium: which(&chromium), chromedriver }, console_agents)),
             };
             let report = crate::bench::bench(options).await?;
             if json {
@@ -114,6 +137,19 @@ impl Bench {
             Ok(ExitCode::SUCCESS)
         })
     }
+}
+
+/// Chromium's path: chromedriver takes the browser by its path, not by a name on `PATH`.
+fn which(program: &str) -> String {
+    if program.contains('/') {
+        return program.to_string();
+    }
+    std::env::var_os("PATH")
+        .iter()
+        .flat_map(std::env::split_paths)
+        .map(|dir| dir.join(program))
+        .find(|path| path.is_file())
+        .map_or_else(|| program.to_string(), |path| path.display().to_string())
 }
 
 impl BenchEcho {
