@@ -5,9 +5,10 @@ Usage: console_browser.py URL hold STEP COMMAND STATE SCREENSHOT
   waits until the chart shows step STEP active, prints what the page shows (one JSON line `shown`), clicks the
   step and prints why it waits (`why`, `where`), clicks the button of COMMAND, waits until the page shows the
   run in STATE, prints it again (`after`), and saves a screenshot.
-Usage: console_browser.py URL ack COMMENT
-  waits for an unacknowledged alarm, prints it (`alarm`, `shown_state`), writes COMMENT as the reason, clicks its
-  ack and waits until the page shows it acknowledged (`reply`).
+Usage: console_browser.py URL ack COMMENT SHELVE_REASON
+  waits for an unacknowledged alarm, prints it (`alarm`, `shown_state`); shelves it for 10 minutes with
+  SHELVE_REASON as the reason and prints where the page lists it then (`shelved`); unshelves it; writes COMMENT as
+  the reason, clicks its ack and waits until the page shows it acknowledged (`reply`).
 Usage: console_browser.py URL confirm TRANSITION STEP
   clicks the mode `step` and waits for it (`mode`), sets the input `go` to TRUE in the inputs form, waits until
   TRANSITION waits for a confirmation and prints the
@@ -99,14 +100,28 @@ def hold(driver, wait, step, command, state, screenshot):
     driver.save_screenshot(screenshot)
 
 
-def ack(driver, wait, comment):
-    """Waits for an unacknowledged alarm, writes the comment, clicks its ack, and waits until it is acknowledged."""
+def ack(driver, wait, comment, shelve_reason):
+    """Waits for an unacknowledged alarm; shelves it for 10 minutes with SHELVE_REASON and waits until it is listed
+    shelved; unshelves it and waits until it is back in the active list; then writes the comment, clicks its ack,
+    and waits until it is acknowledged."""
     row = '#alarms tr[data-state="active_unacknowledged"]'
     wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, row))
     alarm = driver.find_element(By.CSS_SELECTOR, row).get_attribute("data-alarm")
     state = driver.find_element(By.CSS_SELECTOR, row + " .alarm-state").text
     print(json.dumps({"alarm": alarm, "shown_state": state}), flush=True)
-    driver.find_element(By.ID, "reason").send_keys(comment)
+    kinds = f"return [...document.querySelectorAll('#alarms tr[data-alarm=\"{alarm}\"]')].map(r => r.dataset.key)"
+    reason = driver.find_element(By.ID, "reason")
+    reason.send_keys(shelve_reason)
+    minutes = driver.find_element(By.ID, "shelve-minutes")
+    minutes.clear()
+    minutes.send_keys("10")
+    driver.find_element(By.CSS_SELECTOR, row + ' button[data-alarm-command="shelve"]').click()
+    wait.until(lambda d: d.execute_script(kinds) == [f"shelved:{alarm}"])
+    print(json.dumps({"shelved": driver.execute_script(kinds)}), flush=True)
+    driver.find_element(By.CSS_SELECTOR, f'#alarms tr[data-key="shelved:{alarm}"] button[data-alarm-command="unshelve"]').click()
+    wait.until(lambda d: d.execute_script(kinds) == [f"active:{alarm}"])
+    reason.clear()
+    reason.send_keys(comment)
     driver.find_element(By.CSS_SELECTOR, row + ' button[data-alarm-command="ack"]').click()
     states = f"return [...document.querySelectorAll('#alarms tr[data-alarm=\"{alarm}\"]')].map(r => r.dataset.state)"
     wait.until(lambda d: "active_unacknowledged" not in d.execute_script(states))
@@ -401,7 +416,7 @@ def run(driver, url, mode):
     elif mode == "timeline":
         timeline(driver, *sys.argv[3:6])
     else:
-        ack(driver, wait, sys.argv[3])
+        ack(driver, wait, sys.argv[3], sys.argv[4])
     # The page's script raised nothing meanwhile.
     errors = [e["message"] for e in driver.get_log("browser") if e.get("source") == "javascript"]
     if errors:

@@ -340,13 +340,18 @@ async fn in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_ru
     assert!(status.success(), "{log}");
 }
 
-/// A step past its maximum time raises an alarm; in the browser the operator acknowledges it with a comment: the
-/// trace records the acknowledgement with the comment and the console's identity, and the run goes on to its end.
-async fn in_a_browser_an_alarm_is_acknowledged_with_a_comment() {
+/// A step past its maximum time raises an alarm; in the browser the operator shelves it with a reason, unshelves it
+/// and acknowledges it with a comment: the page lists it shelved, then active again, and the trace records each
+/// with the console's identity (the shelve with its reason, the acknowledgement with its comment); the run goes on
+/// to its end.
+async fn in_a_browser_an_alarm_is_shelved_unshelved_and_acknowledged_with_a_comment() {
     require_browser();
     let mut cluster = Cluster::with_router().await;
     let chart = cluster.dir.path().join("part.st");
-    std::fs::write(&chart, CHART.replace("{agent := 'r1'}", "{agent := 'r1', max_ms := T#500ms}")).expect("write");
+    // A motion of 8 s under a limit of 0.5 s: the alarm stands while the operator shelves, unshelves and acks it.
+    let text =
+        CHART.replace("{agent := 'r1'}", "{agent := 'r1', max_ms := T#500ms}").replace("ms := 3000", "ms := 8000");
+    std::fs::write(&chart, text).expect("write");
     let mut coordinator = cluster.coordinator_joining(&chart, &[]);
     coordinator.wait_ready().await;
     cluster.agent("r1", &[], &[]);
@@ -359,7 +364,7 @@ async fn in_a_browser_an_alarm_is_acknowledged_with_a_comment() {
         .expect("start baton console");
     let go = cluster.baton(&["set", "--connect", &cluster.endpoint, "go=true"]).await;
     assert!(go.status.success(), "{}", String::from_utf8_lossy(&go.stderr));
-    let lines = browse(&addr, &["ack", "checked the axis"]).await;
+    let lines = browse(&addr, &["ack", "checked the axis", "drive being replaced"]).await;
     assert_eq!(lines[0]["shown_state"], "active, unacknowledged", "{lines:?}");
     let alarm: u64 = lines[0]["alarm"].as_str().and_then(|a| a.parse().ok()).expect("an alarm id");
     let (status, log, trace, _) = coordinator.finish().await;
@@ -367,8 +372,18 @@ async fn in_a_browser_an_alarm_is_acknowledged_with_a_comment() {
     let raised =
         trace.iter().find(|r| r.event == TraceEvent::Alarm && r.id == Some(alarm)).expect("the alarm is traced");
     assert_eq!(raised.name, "Move", "{raised:?}");
-    let acked = trace.iter().find(|r| r.event == TraceEvent::Ack && r.id == Some(alarm)).expect("acknowledged");
     let me = baton_tests::loopback::who_sends();
+    // Shelved, then unshelved, then acknowledged, each traced with who did it (and the shelve with its reason).
+    let at = |event: TraceEvent| {
+        trace.iter().position(|r| r.event == event && r.id == Some(alarm)).unwrap_or_else(|| panic!("no {event:?}"))
+    };
+    let (shelved, unshelved, acked) = (at(TraceEvent::Shelve), at(TraceEvent::Unshelve), at(TraceEvent::Ack));
+    assert!(shelved < unshelved && unshelved < acked, "{trace:?}");
+    let shelve = &trace[shelved];
+    assert_eq!(shelve.by.as_deref(), Some(me.as_str()), "{shelve:?}");
+    assert!(shelve.message.as_deref().is_some_and(|m| m.contains("drive being replaced")), "{shelve:?}");
+    assert_eq!(trace[unshelved].by.as_deref(), Some(me.as_str()), "{:?}", trace[unshelved]);
+    let acked = &trace[acked];
     assert_eq!((acked.by.as_deref(), acked.message.as_deref()), (Some(me.as_str()), Some("checked the axis")));
 }
 
@@ -613,7 +628,7 @@ baton_tests::harness_main!(
     tokio a_run_with_its_console_ends_without_a_panic,
     tokio a_lost_agent_stays_listed_as_lost_until_it_is_back,
     tokio in_a_browser_the_chart_lights_the_running_step_and_a_click_holds_the_run,
-    tokio in_a_browser_an_alarm_is_acknowledged_with_a_comment,
+    tokio in_a_browser_an_alarm_is_shelved_unshelved_and_acknowledged_with_a_comment,
     tokio in_a_browser_step_mode_waits_for_a_confirm_clicked,
     tokio in_a_browser_manual_mode_forces_and_moves_with_a_reason,
     tokio in_a_browser_the_demo_cell_is_held_its_alarm_acknowledged_and_a_lost_robot_shown,
