@@ -23,6 +23,10 @@ Usage: console_browser.py URL demo SCREENSHOT COMMENT
   prints each state the page showed until held (`states`) and the buttons then (`held`); clicks unhold; waits for
   the overrun alarm, acknowledges it with COMMENT (`alarm`); saves SCREENSHOT; prints `kill robot1` and waits until
   the page shows robot1 lost (`lost`).
+Usage: console_browser.py URL macro NAME INNER
+  waits until the chart's macro step NAME is lit, prints the chart's steps and the lit ones (`chart`, with the
+  macro step's agent), clicks it, and prints the steps of its body and the lit ones there (`body`, with the panel's
+  title); then clicks the macro step INNER in that body and prints its body (`body`) the same way.
 Usage: console_browser.py URL login USER PASSWORD
   logs in through the page's form, waits until the run is shown, and prints the command buttons the user sees
   (`visible`), the header's name (`who`) and the manual mode button's state (`manual`).
@@ -361,6 +365,27 @@ def nested(driver, wait, action):
                       "title": driver.find_element(By.ID, "nested-name").text}), flush=True)
 
 
+def macro(driver, wait, name, inner):
+    """A macro step of the chart: waits until it is lit, prints the chart's steps and those lit (`chart`), clicks it,
+    and prints the steps of the body it opens and those lit there (`body`), with the panel's title; then clicks the
+    macro step INNER in that body and prints its body the same way."""
+    box = f'#chart svg g.step.macro[data-step="{name}"]'
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, box + ".active"))
+    steps = "return [...document.querySelectorAll(arguments[0] + ' svg g.step')].map(g => g.dataset.step).sort()"
+    lit = "return [...document.querySelectorAll(arguments[0] + ' svg g.step.active')].map(g => g.dataset.step).sort()"
+    print(json.dumps({"chart": {"steps": driver.execute_script(steps, "#chart"),
+                                "lit": driver.execute_script(lit, "#chart"),
+                                "agent": driver.find_element(By.CSS_SELECTOR, box).get_attribute("data-agent")}}), flush=True)
+    for click, opened in [(box, name), (f'#nested-chart svg g.step.macro[data-step="{inner}"]', inner)]:
+        driver.find_element(By.CSS_SELECTOR, click).click()
+        wait.until(lambda d: d.find_element(By.ID, "nested-name").text == opened
+                   and d.execute_script(lit, "#nested-chart"))
+        print(json.dumps({"body": {"steps": driver.execute_script(steps, "#nested-chart"),
+                                   "lit": driver.execute_script(lit, "#nested-chart"),
+                                   "title": driver.find_element(By.ID, "nested-kind").text + " "
+                                   + driver.find_element(By.ID, "nested-name").text}}), flush=True)
+
+
 def login(driver, wait, user, password):
     """Logs in as USER and says which command buttons the page then shows."""
     wait.until(lambda d: d.find_element(By.ID, "login-user").is_displayed())
@@ -413,6 +438,8 @@ def run(driver, url, mode):
         login(driver, wait, *sys.argv[3:5])
     elif mode == "nested":
         nested(driver, wait, sys.argv[3])
+    elif mode == "macro":
+        macro(driver, wait, *sys.argv[3:5])
     elif mode == "timeline":
         timeline(driver, *sys.argv[3:6])
     else:

@@ -465,6 +465,108 @@ async fn in_a_browser_an_action_written_in_sfc_opens_as_a_chart_with_its_token_m
     coordinator.kill().await;
 }
 
+/// A PLCopen chart with macro steps (TC6 `macroStep`): Start, then Dose — Heat, then Settle: Calm, then Hold, held
+/// by r1 — then Done once `go` is set.
+const DOSING: &str = r#"<?xml version="1.0" encoding="utf-8"?>
+<project xmlns="http://www.plcopen.org/xml/tc6_0201" xmlns:xhtml="http://www.w3.org/1999/xhtml">
+  <fileHeader companyName="Baton tests" productName="hand-written" productVersion="1" creationDateTime="2026-12-07T12:00:00"/>
+  <contentHeader name="dosing" modificationDateTime="2026-12-07T12:00:00">
+    <coordinateInfo><fbd><scaling x="0" y="0"/></fbd><ld><scaling x="0" y="0"/></ld><sfc><scaling x="0" y="0"/></sfc></coordinateInfo>
+  </contentHeader>
+  <types><dataTypes/><pous>
+    <pou name="Dosing" pouType="program">
+      <interface><localVars>
+        <variable name="go"><type><BOOL/></type></variable>
+        <variable name="held"><type><BOOL/></type></variable>
+      </localVars></interface>
+      <actions>
+        <action name="Hold_part"><body><ST><xhtml:p><![CDATA[{skill := 'motion', ms := 60000}]]></xhtml:p></ST></body></action>
+      </actions>
+      <body><SFC>
+        <step localId="1" name="Start" initialStep="true"><position x="100" y="20"/><connectionPointOut formalParameter="sfc"/></step>
+        <transition localId="2"><position x="100" y="60"/>
+          <connectionPointIn><connection refLocalId="1"/></connectionPointIn><connectionPointOut/>
+          <condition><inline name=""><ST><xhtml:p><![CDATA[TRUE]]></xhtml:p></ST></inline></condition>
+        </transition>
+        <macroStep localId="3" name="Dose"><position x="100" y="100"/>
+          <connectionPointIn><connection refLocalId="2"/></connectionPointIn><connectionPointOut/>
+          <body><SFC>
+            <step localId="1" name="Heat" initialStep="true"><position x="10" y="10"/><connectionPointOut formalParameter="sfc"/></step>
+            <transition localId="2"><position x="10" y="40"/>
+              <connectionPointIn><connection refLocalId="1"/></connectionPointIn><connectionPointOut/>
+              <condition><inline name=""><ST><xhtml:p><![CDATA[Heat.T >= T#20ms]]></xhtml:p></ST></inline></condition>
+            </transition>
+            <macroStep localId="3" name="Settle"><position x="10" y="70"/>
+              <connectionPointIn><connection refLocalId="2"/></connectionPointIn><connectionPointOut/>
+              <body><SFC>
+                <step localId="1" name="Calm" initialStep="true"><position x="10" y="10"/><connectionPointOut formalParameter="sfc"/></step>
+                <transition localId="2"><position x="10" y="40"/>
+                  <connectionPointIn><connection refLocalId="1"/></connectionPointIn><connectionPointOut/>
+                  <condition><inline name=""><ST><xhtml:p><![CDATA[Calm.T >= T#20ms]]></xhtml:p></ST></inline></condition>
+                </transition>
+                <step localId="3" name="Hold"><position x="10" y="70"/>
+                  <documentation><xhtml:p>{agent := 'r1'}</xhtml:p></documentation>
+                  <connectionPointIn><connection refLocalId="2"/></connectionPointIn>
+                  <connectionPointOut formalParameter="sfc"/><connectionPointOutAction formalParameter=""/>
+                </step>
+                <actionBlock localId="4"><position x="80" y="70"/>
+                  <connectionPointIn><connection refLocalId="3"/></connectionPointIn>
+                  <action localId="0" qualifier="N"><relPosition x="0" y="0"/><reference name="Hold_part"/></action>
+                </actionBlock>
+              </SFC></body>
+            </macroStep>
+          </SFC></body>
+        </macroStep>
+        <transition localId="4"><position x="100" y="140"/>
+          <connectionPointIn><connection refLocalId="3"/></connectionPointIn><connectionPointOut/>
+          <condition><inline name=""><ST><xhtml:p><![CDATA[go]]></xhtml:p></ST></inline></condition>
+        </transition>
+        <step localId="5" name="Done"><position x="100" y="180"/><connectionPointIn><connection refLocalId="4"/></connectionPointIn></step>
+      </SFC></body>
+    </pou>
+  </pous></types>
+  <instances><configurations/></instances>
+</project>
+"#;
+
+/// A macro step is drawn as one step (IEC 60848's box with a line across its top and bottom), lit while a step of
+/// its body is, with the agent holding that step's token; a click opens its body as a chart of its own, with the
+/// running step lit there, and a macro step nested in it opens the same way.
+async fn in_a_browser_a_macro_step_is_one_step_that_opens_on_its_body() {
+    require_browser();
+    let mut cluster = Cluster::with_router().await;
+    let chart = cluster.dir.path().join("dosing.xml");
+    std::fs::write(&chart, DOSING).expect("write the chart");
+    let mut coordinator = cluster.coordinator_joining(&chart, &[]);
+    coordinator.wait_ready().await;
+    cluster.agent("r1", &[], &[]);
+    coordinator
+        .wait_for_trace("r1 holding the part in Hold", |r| r.event == TraceEvent::Dispatch && r.name == "Hold")
+        .await;
+    let (_console, addr) = start_console(&cluster).await;
+    let said = browse(&addr, &["macro", "Dose", "Settle"]).await;
+    let (drawn, body, inner) = (&said[0]["chart"], &said[1]["body"], &said[2]["body"]);
+    assert_eq!(drawn["steps"], serde_json::json!(["Done", "Dose", "Start"]), "{said:?}");
+    assert_eq!(drawn["lit"], serde_json::json!(["Dose"]), "{said:?}");
+    assert_eq!(drawn["agent"], "r1", "{said:?}");
+    // Dose's body, Settle in it one step; then Settle's body, opened from there.
+    assert_eq!(body["steps"], serde_json::json!(["Heat", "Settle"]), "{said:?}");
+    assert_eq!(body["lit"], serde_json::json!(["Settle"]), "{said:?}");
+    assert_eq!(body["title"], "Macro step Dose", "{said:?}");
+    assert_eq!(inner["steps"], serde_json::json!(["Calm", "Hold"]), "{said:?}");
+    assert_eq!(inner["lit"], serde_json::json!(["Hold"]), "{said:?}");
+    assert_eq!(inner["title"], "Macro step Settle", "{said:?}");
+    // The API: the body of a macro step, and no body for a name that is none.
+    let status = cluster.baton(&["status", "--connect", &cluster.endpoint, "--json"]).await;
+    let status: serde_json::Value = serde_json::from_slice(&status.stdout).expect("status JSON");
+    let run = status["run"].as_str().expect("the run's id");
+    let (code, svg) = http(&addr, "GET", &format!("/api/runs/{run}/macro/Dose"), None).await;
+    assert_eq!(code, 200, "{svg}");
+    assert!(svg.contains("data-step=\"Settle\"") && !svg.contains("data-step=\"Done\""), "{svg}");
+    assert_eq!(http(&addr, "GET", &format!("/api/runs/{run}/macro/Heat"), None).await.0, 404);
+    coordinator.kill().await;
+}
+
 /// The demo cell's chart (`examples/cell.st`) with motions of seconds — each pick, assembly, inspection and rework
 /// ten times as long — and robot2's pick supervised at 4.5 s of its 5 s motion, so that it overruns.
 fn demo_cell_of_seconds() -> String {
@@ -633,5 +735,6 @@ baton_tests::harness_main!(
     tokio in_a_browser_manual_mode_forces_and_moves_with_a_reason,
     tokio in_a_browser_the_demo_cell_is_held_its_alarm_acknowledged_and_a_lost_robot_shown,
     tokio in_a_browser_an_action_written_in_sfc_opens_as_a_chart_with_its_token_moving,
+    tokio in_a_browser_a_macro_step_is_one_step_that_opens_on_its_body,
     tokio baton_bench_times_the_console_in_chromium,
 );

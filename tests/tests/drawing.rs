@@ -156,8 +156,54 @@ fn plcopen_positions(xml: &str, pou: &str) -> BTreeMap<String, (f64, f64)> {
         .collect()
 }
 
+/// A chart's macro steps drawn as the console draws them, each held to the notation: the chart with each one as a
+/// single step (marked, and naming the steps of its body), and each one's body as a chart of its own, whose steps are
+/// its body's but for those of a macro step nested in it, drawn as that one step. The macro steps drawn.
+fn macro_steps_drawn(what: &str, chart: &Chart, report: &baton_proto::pipeline::Report) -> usize {
+    if chart.macros.is_empty() {
+        return 0;
+    }
+    let (library, types) = (&report.library, &report.types);
+    let (drawn, program) = baton_proto::back::svg::collapsed(chart, library, types, None)
+        .unwrap_or_else(|| panic!("{what}: its macro steps are not drawn"));
+    let svg = baton_proto::back::svg::chart(&drawn, &program);
+    let boxes = check(&format!("{what} (macro steps as one step)"), &drawn, &program, &svg);
+    // Nested in no other, a macro step is one box; the steps of its body are none.
+    let top: Vec<_> = chart
+        .macros
+        .iter()
+        .filter(|m| !chart.macros.iter().any(|o| o.name != m.name && o.steps.contains(&m.entry)))
+        .collect();
+    for m in &top {
+        assert!(boxes.contains_key(&m.name.name), "{what}: macro step {} is not drawn", m.name.name);
+        let steps: Vec<&str> = m.steps.iter().map(|s| s.name.as_str()).collect();
+        let marked = format!("data-macro-steps=\"{}\"", steps.join(","));
+        assert!(svg.contains(&marked), "{what}: {} does not name its body's steps", m.name.name);
+        assert!(steps.iter().all(|s| !boxes.contains_key(*s)), "{what}: a step of {}'s body is drawn", m.name.name);
+    }
+    for m in &chart.macros {
+        let (body, body_program) = baton_proto::back::svg::collapsed(chart, library, types, Some(&m.name.name))
+            .unwrap_or_else(|| panic!("{what}: the body of {} is not drawn", m.name.name));
+        let body_svg = baton_proto::back::svg::chart(&body, &body_program);
+        let body_boxes = check(&format!("{what} (macro step {})", m.name.name), &body, &body_program, &body_svg);
+        let nested: Vec<_> = chart.macros.iter().filter(|n| n.name != m.name && m.steps.contains(&n.entry)).collect();
+        let hidden: BTreeSet<&str> = nested.iter().flat_map(|n| n.steps.iter().map(|s| s.name.as_str())).collect();
+        let mut expected: BTreeSet<&str> =
+            m.steps.iter().map(|s| s.name.as_str()).filter(|s| !hidden.contains(s)).collect();
+        // Only the outermost of the nested ones: one nested deeper is inside another.
+        expected.extend(
+            nested
+                .iter()
+                .filter(|n| !nested.iter().any(|o| o.name != n.name && o.steps.contains(&n.entry)))
+                .map(|n| n.name.name.as_str()),
+        );
+        assert_eq!(body_boxes.keys().map(String::as_str).collect::<BTreeSet<_>>(), expected, "{what}: {}", m.name.name);
+    }
+    top.len()
+}
+
 fn every_chart_is_drawn_in_the_notation_where_the_plcopen_export_puts_it() {
-    let (mut drawn, mut supervised, mut nested) = (0, 0, 0);
+    let (mut drawn, mut supervised, mut nested, mut macros) = (0, 0, 0, 0);
     for (what, src) in baton_tests::chart_sources() {
         let report = baton_proto::pipeline::check_source(&src);
         if report.error_count() > 0 {
@@ -196,9 +242,11 @@ fn every_chart_is_drawn_in_the_notation_where_the_plcopen_export_puts_it() {
                 nested += 1;
             }
             supervised += usize::from(program.steps.iter().any(|s| s.max_ms > 0));
+            macros += macro_steps_drawn(&what, chart, &report);
         }
     }
     assert!(drawn >= 40, "only {drawn} charts drawn");
+    assert!(macros >= 1, "no macro step was drawn (the conformance chart plcopen_macro_step has one)");
     assert!(supervised >= 1, "no chart with a supervised step was drawn (examples/motion.st has one)");
     assert!(nested >= 1, "no action written in SFC was drawn (the conformance chart nested_action_chart has one)");
 }

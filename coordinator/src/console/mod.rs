@@ -171,6 +171,9 @@ struct ChartView {
     inputs: Vec<InputVar>,
     /// The chart's actions written in SFC, each drawn as a chart of its own, by name.
     nested: BTreeMap<String, String>,
+    /// The bodies of its macro steps (a PLCopen chart's), each drawn as a chart of its own, by name: the chart
+    /// shows each macro step as one step.
+    macros: BTreeMap<String, String>,
 }
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -247,6 +250,7 @@ pub async fn serve(
         .route("/api/events", get(events))
         .route("/api/runs/{run}/chart.svg", get(chart))
         .route("/api/runs/{run}/nested/{action}", get(nested))
+        .route("/api/runs/{run}/macro/{name}", get(macro_body))
         .route("/api/runs/{run}/ctl", post(ctl))
         .route("/api/runs/{run}/why", get(why))
         .route("/api/runs/{run}/inputs", get(inputs))
@@ -534,6 +538,21 @@ async fn nested(State(console): State<Arc<Console>>, UrlPath((run, action)): Url
     }
 }
 
+/// The body of run `run`'s macro step `name`, drawn as a chart of its own.
+async fn macro_body(State(console): State<Arc<Console>>, UrlPath((run, name)): UrlPath<(String, String)>) -> Response {
+    let run = match run_id(&run) {
+        Ok(r) => r,
+        Err(refused) => return refused.into_response(),
+    };
+    match chart_view(&console, run).await {
+        Ok(view) => match view.macros.get(&name) {
+            Some(svg) => ([(header::CONTENT_TYPE, "image/svg+xml")], svg.clone()).into_response(),
+            None => (StatusCode::NOT_FOUND, format!("`{name}` is no macro step of this chart")).into_response(),
+        },
+        Err(why) => (StatusCode::BAD_GATEWAY, why).into_response(),
+    }
+}
+
 /// The finished runs' recordings of `--recordings`.
 async fn recording_list(State(console): State<Arc<Console>>) -> Response {
     recordings::list(console.recordings.clone()).await
@@ -654,7 +673,20 @@ async fn chart_view(console: &Console, run: RunId) -> Result<Arc<ChartView>, Str
             Some((a.name.name.clone(), baton_proto::back::svg::chart(&inner, &program)))
         })
         .collect();
-    let view = Arc::new(ChartView { svg: baton_proto::back::svg::chart(chart, program), inputs, nested });
+    let svg = baton_proto::back::svg::collapsed(chart, &report.library, &report.types, None).map_or_else(
+        || baton_proto::back::svg::chart(chart, program),
+        |(drawn, p)| baton_proto::back::svg::chart(&drawn, &p),
+    );
+    let macros = chart
+        .macros
+        .iter()
+        .filter_map(|m| {
+            let name = m.name.name.as_str();
+            let (body, program) = baton_proto::back::svg::collapsed(chart, &report.library, &report.types, Some(name))?;
+            Some((name.to_string(), baton_proto::back::svg::chart(&body, &program)))
+        })
+        .collect();
+    let view = Arc::new(ChartView { svg, inputs, nested, macros });
     console.charts.lock().map_err(|_| "poisoned".to_string())?.insert(src.hash.0, Arc::clone(&view));
     Ok(view)
 }

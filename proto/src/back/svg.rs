@@ -14,7 +14,9 @@ use crate::back::diagram::{Diagram, MARGIN, STEP_H, STEP_W};
 use crate::back::plcopen::esc;
 use crate::back::st;
 use crate::exec::program::{Program, StepId, TransitionId};
-use crate::front::model::{Chart, Duration, FbDef, TypeDef};
+use std::collections::{BTreeMap, BTreeSet};
+
+use crate::front::model::{Chart, Duration, FbDef, Ident, MacroStep, Step, Transition, TypeDef};
 
 /// The action block's cells.
 const QUALIFIER_W: i64 = 36;
@@ -69,6 +71,93 @@ pub fn nested(chart: &Chart, library: &[FbDef], types: &[TypeDef], action: &str)
     compiled.net_ok.then_some((inner, compiled.program))
 }
 
+/// The chart as it is drawn, each macro step as one step in place of its body (IEC 60848's macro-step): of the whole
+/// chart (`within` None), or of the body of macro step `within` (its entry step initial, for the drawing), whose own
+/// nested macro steps are drawn as one step each too. `None` for a chart without macro steps, or a name that is
+/// none of them. The transitions keep the names the trace gives them (`Start->Heat` for the one drawn from Start
+/// to macro step Dose).
+pub fn collapsed(
+    chart: &Chart,
+    library: &[FbDef],
+    types: &[TypeDef],
+    within: Option<&str>,
+) -> Option<(Chart, Program)> {
+    if chart.macros.is_empty() {
+        return None;
+    }
+    let body = match within {
+        Some(name) => Some(chart.macros.iter().find(|m| m.name.name == name)?),
+        None => None,
+    };
+    let scope: BTreeSet<String> = match body {
+        Some(m) => m.steps.iter().map(Ident::key).collect(),
+        None => chart.steps.iter().map(|s| s.name.key()).collect(),
+    };
+    // The macro steps drawn as one step: in scope, and in no other such macro step.
+    let inside = |m: &MacroStep| body.is_none_or(|b| b.name.key() != m.name.key()) && scope.contains(&m.entry.key());
+    let candidates: Vec<&MacroStep> = chart.macros.iter().filter(|m| inside(m)).collect();
+    let outermost: Vec<&MacroStep> = candidates
+        .iter()
+        .filter(|m| {
+            !candidates.iter().any(|o| o.name.key() != m.name.key() && o.steps.iter().any(|s| s.key() == m.entry.key()))
+        })
+        .copied()
+        .collect();
+    let mut of_step: BTreeMap<String, &MacroStep> = BTreeMap::new();
+    for m in &outermost {
+        for s in &m.steps {
+            of_step.insert(s.key(), m);
+        }
+    }
+    let mut drawn = chart.clone();
+    drawn.steps = chart
+        .steps
+        .iter()
+        .filter(|s| scope.contains(&s.name.key()))
+        .filter_map(|s| match of_step.get(&s.name.key()) {
+            Some(m) if m.entry.key() == s.name.key() => {
+                Some(Step { name: m.name.clone(), associations: Vec::new(), pragmas: Vec::new(), ..s.clone() })
+            }
+            Some(_) => None,
+            None => {
+                Some(Step { initial: s.initial || body.is_some_and(|b| b.entry.key() == s.name.key()), ..s.clone() })
+            }
+        })
+        .collect();
+    let shown = |step: &Ident| of_step.get(&step.key()).map_or_else(|| step.clone(), |m| m.name.clone());
+    let kept: Vec<&Transition> = chart
+        .transitions
+        .iter()
+        .filter(|t| t.from.iter().chain(&t.to).all(|s| scope.contains(&s.key())))
+        // A macro step's own transitions are inside it.
+        .filter(|t| {
+            let of = |s: &Ident| of_step.get(&s.key()).map(|m| m.name.key());
+            let within_one = t.from.iter().chain(&t.to).map(of).collect::<BTreeSet<_>>();
+            !(within_one.len() == 1 && within_one.iter().all(Option::is_some))
+        })
+        .collect();
+    // Named as the trace names them: from the steps of the bodies, not the macro steps drawn in their place.
+    let names: Vec<String> = kept.iter().map(|t| t.display_name()).collect();
+    drawn.transitions = kept
+        .into_iter()
+        .map(|t| Transition {
+            from: t.from.iter().map(shown).collect(),
+            to: t.to.iter().map(shown).collect(),
+            ..t.clone()
+        })
+        .collect();
+    drawn.macros = outermost.into_iter().cloned().collect();
+    if let Some(b) = body {
+        drawn.name.name = format!("{}.{}", chart.name.name, b.name.name);
+    }
+    let mut diagnostics = Vec::new();
+    let mut compiled = crate::exec::compile::compile(&drawn, library, types, &mut diagnostics);
+    for (info, name) in compiled.program.transitions.iter_mut().zip(names) {
+        info.name = name;
+    }
+    compiled.net_ok.then_some((drawn, compiled.program))
+}
+
 /// The drawing's width and height: past the rightmost action block and below the lowest bar and its jumps.
 fn extent(program: &Program, diagram: &Diagram) -> (i64, i64) {
     let steps = (0..program.steps.len()).map(|s| diagram.step_xy(StepId(s as u32)));
@@ -96,7 +185,22 @@ fn step(out: &mut String, chart: &Chart, program: &Program, diagram: &Diagram, s
     let info = &program.steps[s.index()];
     let (x, y) = diagram.step_xy(s);
     let class = if info.initial { "step initial" } else { "step" };
-    let _ = writeln!(out, "<g class=\"{class}\" data-step=\"{}\">", esc(&info.name));
+    let macro_step = chart.macros.iter().find(|m| m.name.name == info.name);
+    match macro_step {
+        // What it stands for: its body's steps, which the trace and the run's status name.
+        Some(m) => {
+            let steps: Vec<&str> = m.steps.iter().map(|s| s.name.as_str()).collect();
+            let _ = writeln!(
+                out,
+                "<g class=\"{class} macro\" data-step=\"{}\" data-macro-steps=\"{}\">",
+                esc(&info.name),
+                esc(&steps.join(","))
+            );
+        }
+        None => {
+            let _ = writeln!(out, "<g class=\"{class}\" data-step=\"{}\">", esc(&info.name));
+        }
+    }
     let pragmas: Vec<&str> = info.pragmas.iter().map(|p| p.text.as_str()).collect();
     let title =
         if pragmas.is_empty() { info.name.clone() } else { format!("{} {{{}}}", info.name, pragmas.join("} {")) };
@@ -111,6 +215,16 @@ fn step(out: &mut String, chart: &Chart, program: &Program, diagram: &Diagram, s
             STEP_W - 6,
             STEP_H - 6
         );
+    }
+    if macro_step.is_some() {
+        // IEC 60848's macro-step: the box with a line across its top and its bottom.
+        for ly in [y + 4, y + STEP_H - 4] {
+            let _ = writeln!(
+                out,
+                "<line class=\"macro-mark\" x1=\"{x}\" y1=\"{ly}\" x2=\"{}\" y2=\"{ly}\" stroke=\"black\"/>",
+                x + STEP_W
+            );
+        }
     }
     let _ = writeln!(
         out,

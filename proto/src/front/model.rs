@@ -56,6 +56,20 @@ pub struct Chart {
     /// The project's named global variable lists (CODESYS's and TwinCAT's GVLs) whose variables the chart holds
     /// as VAR_GLOBAL: `GVL.x` names `x` of list `GVL`.
     pub global_lists: Vec<GlobalList>,
+    /// The macro steps of a PLCopen chart (`macroStep`), whose bodies' steps the chart holds in their place:
+    /// kept so that a drawing can show each as one step that opens on its body.
+    pub macros: Vec<MacroStep>,
+}
+
+/// A macro step (`macroStep` in PLCopen TC6, outside the IEC 61131-3 scope but in IEC 60848, GRAFCET): its body's
+/// steps joined the chart, a transition to the macro step leading to `entry` and one leaving it leaving `exit`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MacroStep {
+    pub name: Ident,
+    /// Its body's steps, with those of the macro steps nested in it.
+    pub steps: Vec<Ident>,
+    pub entry: Ident,
+    pub exit: Ident,
 }
 
 /// A named global variable list: its name, and the names of its variables.
@@ -78,6 +92,7 @@ impl Chart {
             pragmas: Vec::new(),
             span,
             broken: Broken::default(),
+            macros: Vec::new(),
             global_lists: Vec::new(),
         }
     }

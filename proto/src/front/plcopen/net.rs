@@ -7,7 +7,7 @@ use roxmltree::Node;
 
 use crate::front::diag::Span;
 use crate::front::model::{
-    Action, Association, Broken, Chart, Expr, ExprKind, Ident, Qualifier, Step, Stmt, Transition,
+    Action, Association, Broken, Chart, Expr, ExprKind, Ident, MacroStep, Qualifier, Step, Stmt, Transition,
 };
 use crate::front::plcopen::xml::{child, children, flag, is, local_id};
 use crate::limits::{NESTING_DEPTH_MAX, XML_CONNECTIONS_WALKED_MAX};
@@ -136,11 +136,15 @@ impl Reader<'_> {
             self.references = references;
             let Some((entry, exit)) = self.macro_ends(&mut inner, span) else { continue };
             if let Some(id) = local_id(el) {
-                macros.insert(id, (entry.clone(), exit));
+                macros.insert(id, (entry.clone(), exit.clone()));
             }
             if let Some(name) = el.attribute("name").map(str::trim).filter(|n| !n.is_empty()) {
-                macro_names.insert(name.to_ascii_uppercase(), entry);
+                macro_names.insert(name.to_ascii_uppercase(), entry.clone());
+                let steps = inner.steps.iter().map(|s| s.name.clone()).collect();
+                let name = Ident { name: name.to_string(), span };
+                chart.macros.push(MacroStep { name, steps, entry, exit });
             }
+            chart.macros.append(&mut inner.macros);
             chart.steps.append(&mut inner.steps);
             chart.actions.append(&mut inner.actions);
             chart.broken.steps.append(&mut inner.broken.steps);
