@@ -26,7 +26,8 @@ Usage: console_browser.py URL demo SCREENSHOT COMMENT
 Usage: console_browser.py URL macro NAME INNER
   waits until the chart's macro step NAME is lit, prints the chart's steps and the lit ones (`chart`, with the
   macro step's agent), clicks it, and prints the steps of its body and the lit ones there (`body`, with the panel's
-  title); then clicks the macro step INNER in that body and prints its body (`body`) the same way.
+  title, and where the step panel says the clicked macro step is); then clicks the macro step INNER in that body and
+  prints its body (`body`) the same way.
 Usage: console_browser.py URL login USER PASSWORD
   logs in through the page's form, waits until the run is shown, and prints the command buttons the user sees
   (`visible`), the header's name (`who`) and the manual mode button's state (`manual`).
@@ -383,7 +384,8 @@ def macro(driver, wait, name, inner):
         print(json.dumps({"body": {"steps": driver.execute_script(steps, "#nested-chart"),
                                    "lit": driver.execute_script(lit, "#nested-chart"),
                                    "title": driver.find_element(By.ID, "nested-kind").text + " "
-                                   + driver.find_element(By.ID, "nested-name").text}}), flush=True)
+                                   + driver.find_element(By.ID, "nested-name").text,
+                                   "where": driver.find_element(By.ID, "step-where").text}}), flush=True)
 
 
 def login(driver, wait, user, password):

@@ -553,6 +553,8 @@ async fn in_a_browser_a_macro_step_is_one_step_that_opens_on_its_body() {
     assert_eq!(body["steps"], serde_json::json!(["Heat", "Settle"]), "{said:?}");
     assert_eq!(body["lit"], serde_json::json!(["Settle"]), "{said:?}");
     assert_eq!(body["title"], "Macro step Dose", "{said:?}");
+    // Selected, the macro step is where the step of its body that is active is.
+    assert!(body["where"].as_str().is_some_and(|w| w.starts_with("active, on r1")), "{said:?}");
     assert_eq!(inner["steps"], serde_json::json!(["Calm", "Hold"]), "{said:?}");
     assert_eq!(inner["lit"], serde_json::json!(["Hold"]), "{said:?}");
     assert_eq!(inner["title"], "Macro step Settle", "{said:?}");
