@@ -365,7 +365,7 @@ impl DemoOptions {
 }
 
 /// The executable `name` in the first of the PATH's folders that has it.
-fn on_path(name: &str) -> Option<PathBuf> {
+pub(crate) fn on_path(name: &str) -> Option<PathBuf> {
     let paths = std::env::var_os("PATH")?;
     std::env::split_paths(&paths).map(|dir| dir.join(name)).find(|c| c.is_file())
 }

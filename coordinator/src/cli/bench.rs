@@ -144,12 +144,7 @@ fn which(program: &str) -> String {
     if program.contains('/') {
         return program.to_string();
     }
-    std::env::var_os("PATH")
-        .iter()
-        .flat_map(std::env::split_paths)
-        .map(|dir| dir.join(program))
-        .find(|path| path.is_file())
-        .map_or_else(|| program.to_string(), |path| path.display().to_string())
+    crate::demo::on_path(program).map_or_else(|| program.to_string(), |path| path.display().to_string())
 }
 
 impl BenchEcho {

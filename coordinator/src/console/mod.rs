@@ -511,43 +511,37 @@ fn run_id(text: &str) -> Result<RunId, (StatusCode, String)> {
 
 /// The run's chart drawn (`baton export --svg` of the chart the run coordinates).
 async fn chart(State(console): State<Arc<Console>>, UrlPath(run): UrlPath<String>) -> Response {
-    let run = match run_id(&run) {
-        Ok(r) => r,
-        Err(refused) => return refused.into_response(),
-    };
-    match chart_view(&console, run).await {
-        Ok(view) => ([(header::CONTENT_TYPE, "image/svg+xml")], view.svg.clone()).into_response(),
-        Err(why) => (StatusCode::BAD_GATEWAY, why).into_response(),
-    }
+    drawing(&console, &run, |view| Some(&view.svg), String::new).await
 }
 
 /// The chart of run `run`'s action `action`, an action written in SFC, drawn as a chart of its own.
 async fn nested(State(console): State<Arc<Console>>, UrlPath((run, action)): UrlPath<(String, String)>) -> Response {
-    let run = match run_id(&run) {
-        Ok(r) => r,
-        Err(refused) => return refused.into_response(),
-    };
-    match chart_view(&console, run).await {
-        Ok(view) => match view.nested.get(&action) {
-            Some(svg) => ([(header::CONTENT_TYPE, "image/svg+xml")], svg.clone()).into_response(),
-            None => {
-                (StatusCode::NOT_FOUND, format!("`{action}` is no action of this chart written in SFC")).into_response()
-            }
-        },
-        Err(why) => (StatusCode::BAD_GATEWAY, why).into_response(),
-    }
+    let missing = || format!("`{action}` is no action of this chart written in SFC");
+    drawing(&console, &run, |view| view.nested.get(&action), missing).await
 }
 
 /// The body of run `run`'s macro step `name`, drawn as a chart of its own.
 async fn macro_body(State(console): State<Arc<Console>>, UrlPath((run, name)): UrlPath<(String, String)>) -> Response {
-    let run = match run_id(&run) {
+    let missing = || format!("`{name}` is no macro step of this chart");
+    drawing(&console, &run, |view| view.macros.get(&name), missing).await
+}
+
+/// One of the drawings of run `run`'s chart, as `pick` finds it in the chart's view: an SVG answer, or 404 with
+/// `missing` where there is none.
+async fn drawing(
+    console: &Console,
+    run: &str,
+    pick: impl FnOnce(&ChartView) -> Option<&String>,
+    missing: impl FnOnce() -> String,
+) -> Response {
+    let run = match run_id(run) {
         Ok(r) => r,
         Err(refused) => return refused.into_response(),
     };
-    match chart_view(&console, run).await {
-        Ok(view) => match view.macros.get(&name) {
+    match chart_view(console, run).await {
+        Ok(view) => match pick(&view) {
             Some(svg) => ([(header::CONTENT_TYPE, "image/svg+xml")], svg.clone()).into_response(),
-            None => (StatusCode::NOT_FOUND, format!("`{name}` is no macro step of this chart")).into_response(),
+            None => (StatusCode::NOT_FOUND, missing()).into_response(),
         },
         Err(why) => (StatusCode::BAD_GATEWAY, why).into_response(),
     }

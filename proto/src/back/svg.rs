@@ -8,14 +8,13 @@
 //! `data-step`, `data-transition` (the names the trace uses), `data-action` — and marks the live ones with a
 //! class (`active`, `held`, …), which the drawing leaves to the page's style sheet.
 
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write;
 
 use crate::back::diagram::{Diagram, MARGIN, STEP_H, STEP_W};
 use crate::back::plcopen::esc;
 use crate::back::st;
 use crate::exec::program::{Program, StepId, TransitionId};
-use std::collections::{BTreeMap, BTreeSet};
-
 use crate::front::model::{Chart, Duration, FbDef, Ident, MacroStep, Step, Transition, TypeDef};
 
 /// The action block's cells.
@@ -186,21 +185,15 @@ fn step(out: &mut String, chart: &Chart, program: &Program, diagram: &Diagram, s
     let (x, y) = diagram.step_xy(s);
     let class = if info.initial { "step initial" } else { "step" };
     let macro_step = chart.macros.iter().find(|m| m.name.name == info.name);
-    match macro_step {
-        // What it stands for: its body's steps, which the trace and the run's status name.
+    // A macro step is marked, with what it stands for: its body's steps, which the trace and the run's status name.
+    let (marked, stands_for) = match macro_step {
         Some(m) => {
             let steps: Vec<&str> = m.steps.iter().map(|s| s.name.as_str()).collect();
-            let _ = writeln!(
-                out,
-                "<g class=\"{class} macro\" data-step=\"{}\" data-macro-steps=\"{}\">",
-                esc(&info.name),
-                esc(&steps.join(","))
-            );
+            (" macro", format!(" data-macro-steps=\"{}\"", esc(&steps.join(","))))
         }
-        None => {
-            let _ = writeln!(out, "<g class=\"{class}\" data-step=\"{}\">", esc(&info.name));
-        }
-    }
+        None => ("", String::new()),
+    };
+    let _ = writeln!(out, "<g class=\"{class}{marked}\" data-step=\"{}\"{stands_for}>", esc(&info.name));
     let pragmas: Vec<&str> = info.pragmas.iter().map(|p| p.text.as_str()).collect();
     let title =
         if pragmas.is_empty() { info.name.clone() } else { format!("{} {{{}}}", info.name, pragmas.join("} {")) };

@@ -62,14 +62,14 @@ pub struct Chart {
 }
 
 /// A macro step (`macroStep` in PLCopen TC6, outside the IEC 61131-3 scope but in IEC 60848, GRAFCET): its body's
-/// steps joined the chart, a transition to the macro step leading to `entry` and one leaving it leaving `exit`.
+/// steps joined the chart, a transition to the macro step leading to `entry` (and one leaving it leaving the body's
+/// exit step).
 #[derive(Clone, Debug, PartialEq)]
 pub struct MacroStep {
     pub name: Ident,
     /// Its body's steps, with those of the macro steps nested in it.
     pub steps: Vec<Ident>,
     pub entry: Ident,
-    pub exit: Ident,
 }
 
 /// A named global variable list: its name, and the names of its variables.

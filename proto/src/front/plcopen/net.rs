@@ -136,13 +136,13 @@ impl Reader<'_> {
             self.references = references;
             let Some((entry, exit)) = self.macro_ends(&mut inner, span) else { continue };
             if let Some(id) = local_id(el) {
-                macros.insert(id, (entry.clone(), exit.clone()));
+                macros.insert(id, (entry.clone(), exit));
             }
             if let Some(name) = el.attribute("name").map(str::trim).filter(|n| !n.is_empty()) {
                 macro_names.insert(name.to_ascii_uppercase(), entry.clone());
                 let steps = inner.steps.iter().map(|s| s.name.clone()).collect();
                 let name = Ident { name: name.to_string(), span };
-                chart.macros.push(MacroStep { name, steps, entry, exit });
+                chart.macros.push(MacroStep { name, steps, entry });
             }
             chart.macros.append(&mut inner.macros);
             chart.steps.append(&mut inner.steps);
