@@ -21,8 +21,16 @@ const CHART: &str = "PROGRAM part\nVAR go : BOOL; moved : BOOL; END_VAR\nINITIAL
 /// A cell running CHART with r1, and a console on a free loopback port: (cluster, chart file, coordinator, the
 /// console's process, its address).
 async fn cell_with_console(text: &str) -> (Cluster, PathBuf, Coordinator, tokio::process::Child, String) {
+    cell_with_console_of("part.st", text).await
+}
+
+/// `cell_with_console` with the chart in a file named `file` (`.xml` for PLCopen).
+async fn cell_with_console_of(
+    file: &str,
+    text: &str,
+) -> (Cluster, PathBuf, Coordinator, tokio::process::Child, String) {
     let mut cluster = Cluster::with_router().await;
-    let chart = cluster.dir.path().join("part.st");
+    let chart = cluster.dir.path().join(file);
     std::fs::write(&chart, text).expect("write the chart");
     let mut coordinator = cluster.coordinator_joining(&chart, &[]);
     coordinator.wait_ready().await;
@@ -534,16 +542,11 @@ const DOSING: &str = r#"<?xml version="1.0" encoding="utf-8"?>
 /// running step lit there, and a macro step nested in it opens the same way.
 async fn in_a_browser_a_macro_step_is_one_step_that_opens_on_its_body() {
     require_browser();
-    let mut cluster = Cluster::with_router().await;
-    let chart = cluster.dir.path().join("dosing.xml");
-    std::fs::write(&chart, DOSING).expect("write the chart");
-    let mut coordinator = cluster.coordinator_joining(&chart, &[]);
-    coordinator.wait_ready().await;
-    cluster.agent("r1", &[], &[]);
+    let (cluster, _chart, mut coordinator, _console, addr) = cell_with_console_of("dosing.xml", DOSING).await;
+    // The page is opened once the run is in Hold, r1's (before it, Heat and Calm are the coordinator's own).
     coordinator
         .wait_for_trace("r1 holding the part in Hold", |r| r.event == TraceEvent::Dispatch && r.name == "Hold")
         .await;
-    let (_console, addr) = start_console(&cluster).await;
     let said = browse(&addr, &["macro", "Dose", "Settle"]).await;
     let (drawn, body, inner) = (&said[0]["chart"], &said[1]["body"], &said[2]["body"]);
     assert_eq!(drawn["steps"], serde_json::json!(["Done", "Dose", "Start"]), "{said:?}");
@@ -559,8 +562,7 @@ async fn in_a_browser_a_macro_step_is_one_step_that_opens_on_its_body() {
     assert_eq!(inner["lit"], serde_json::json!(["Hold"]), "{said:?}");
     assert_eq!(inner["title"], "Macro step Settle", "{said:?}");
     // The API: the body of a macro step, and no body for a name that is none.
-    let status = cluster.baton(&["status", "--connect", &cluster.endpoint, "--json"]).await;
-    let status: serde_json::Value = serde_json::from_slice(&status.stdout).expect("status JSON");
+    let status = cluster.status_json(&[]).await.expect("the run's status");
     let run = status["run"].as_str().expect("the run's id");
     let (code, svg) = http(&addr, "GET", &format!("/api/runs/{run}/macro/Dose"), None).await;
     assert_eq!(code, 200, "{svg}");
