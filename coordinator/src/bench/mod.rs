@@ -39,6 +39,8 @@ pub struct BenchOptions {
     pub agents: u32,
     /// Tokens circulating at once per agent in the throughput phase.
     pub lanes_per_agent: u32,
+    /// The same at the cell's capacity (phase 5b).
+    pub capacity_lanes_per_agent: u32,
     /// Parts the demo chart makes in the recording phase.
     pub parts: u32,
     /// Run phases 1–6 (latency, throughput, journal, demo chart).
@@ -113,6 +115,13 @@ pub struct BaseReport {
     pub throughput_agents: u32,
     pub throughput_tokens: u64,
     pub throughput_in_flight: u32,
+    /// (5b) (4) and (5) again with `capacity_in_flight` tokens in flight, where the run without the journal is
+    /// bound by the CPU rather than by a round trip: what the journal costs the cell's capacity, where (5) shows
+    /// what its commits add to each round trip.
+    pub capacity_in_flight: u32,
+    pub capacity_tokens_per_s: f64,
+    pub capacity_journal_tokens_per_s: f64,
+    pub capacity_journal_ratio: f64,
     /// (6) the demo chart without a recording, and with `--rerun save:…`.
     pub demo_tokens_per_s: f64,
     pub demo_recorded_tokens_per_s: f64,
@@ -194,37 +203,8 @@ async fn base(dir: &Path, opts: &BenchOptions) -> anyhow::Result<BaseReport> {
     let (zenoh_round_trip, token_round_trip) = (Latency::of(raw)?, Latency::of(token)?);
     eprintln!("3/5 convergence latency, 3 branches, {} samples", opts.samples.min(2000));
     let convergence = convergence(dir, opts.samples.min(2000)).await?;
-    let lanes = opts.agents * opts.lanes_per_agent;
-    // Off and on alternate too, for the same reason; each figure is the median of its rounds.
-    let (mut off, mut on, mut records_per_commit, mut commit_us, mut held_us) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let mut tokens = 0;
-    for round in 1..=ROUNDS {
-        for journal in [false, true] {
-            let with = if journal { "journal on" } else { "journal off" };
-            eprintln!(
-                "4/5 throughput, {with}, round {round}/{ROUNDS}: {} agents, {lanes} tokens in flight, {} tokens",
-                opts.agents, opts.tokens
-            );
-            let journal = journal.then(|| crate::journal::Place::Dir(dir.join(format!("journal-{round}"))));
-            let journaled = journal.is_some();
-            let (n, secs, stats) =
-                harness::throughput(dir, opts.agents, opts.lanes_per_agent, opts.tokens, journal).await?;
-            tokens = n;
-            if let Some(j) = stats {
-                records_per_commit.push(j.records as f64 / j.commits.max(1) as f64);
-                commit_us.push(j.commit_us);
-                held_us.push(j.held_us);
-            }
-            if journaled { &mut on } else { &mut off }.push(n as f64 / secs);
-        }
-    }
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let (off, on, records_per_commit) = (median(off), median(on), median(records_per_commit));
-    let (commit_us, held_us) = (median(commit_us), median(held_us));
+    let at_32 = journal_rounds(dir, opts, "4/5", opts.lanes_per_agent).await?;
+    let at_capacity = journal_rounds(dir, opts, "5b/5", opts.capacity_lanes_per_agent).await?;
     // (6) The demo chart recorded to a file against not recorded, alternating as well.
     let (mut plain, mut recorded, mut rrd_bytes) = (Vec::new(), Vec::new(), 0);
     for round in 1..=ROUNDS {
@@ -252,15 +232,76 @@ async fn base(dir: &Path, opts: &BenchOptions) -> anyhow::Result<BaseReport> {
         zenoh_round_trip,
         token_round_trip,
         convergence,
-        throughput_tokens_per_s: off,
-        throughput_journal_tokens_per_s: on,
-        throughput_journal_ratio: on / off,
-        throughput_journal_records_per_commit: records_per_commit,
-        throughput_journal_commit_us: commit_us,
-        throughput_journal_held_us: held_us,
+        throughput_tokens_per_s: at_32.off,
+        throughput_journal_tokens_per_s: at_32.on,
+        throughput_journal_ratio: at_32.on / at_32.off,
+        throughput_journal_records_per_commit: at_32.records_per_commit,
+        throughput_journal_commit_us: at_32.commit_us,
+        throughput_journal_held_us: at_32.held_us,
         throughput_agents: opts.agents,
-        throughput_tokens: tokens,
-        throughput_in_flight: lanes,
+        throughput_tokens: at_32.tokens,
+        throughput_in_flight: at_32.in_flight,
+        capacity_in_flight: at_capacity.in_flight,
+        capacity_tokens_per_s: at_capacity.off,
+        capacity_journal_tokens_per_s: at_capacity.on,
+        capacity_journal_ratio: at_capacity.on / at_capacity.off,
+    })
+}
+
+/// Phases 4 and 5 (or 5b) at one number of tokens in flight: each figure the median of its rounds.
+struct JournalRounds {
+    in_flight: u32,
+    tokens: u64,
+    off: f64,
+    on: f64,
+    records_per_commit: f64,
+    commit_us: f64,
+    held_us: f64,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+/// The throughput chart without and with `--journal`, alternating in rounds as (1) and (2) do, for the same reason.
+async fn journal_rounds(
+    dir: &Path,
+    opts: &BenchOptions,
+    phase: &str,
+    lanes_per_agent: u32,
+) -> anyhow::Result<JournalRounds> {
+    let in_flight = opts.agents * lanes_per_agent;
+    let (mut off, mut on, mut records_per_commit, mut commit_us, mut held_us) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut tokens = 0;
+    for round in 1..=ROUNDS {
+        for journal in [false, true] {
+            let with = if journal { "journal on" } else { "journal off" };
+            eprintln!(
+                "{phase} throughput, {with}, round {round}/{ROUNDS}: {} agents, {in_flight} tokens in flight, {} tokens",
+                opts.agents, opts.tokens
+            );
+            let journal = journal.then(|| crate::journal::Place::Dir(dir.join(format!("journal-{phase}-{round}"))));
+            let journaled = journal.is_some();
+            let (n, secs, stats) = harness::throughput(dir, opts.agents, lanes_per_agent, opts.tokens, journal).await?;
+            tokens = n;
+            if let Some(j) = stats {
+                records_per_commit.push(j.records as f64 / j.commits.max(1) as f64);
+                commit_us.push(j.commit_us);
+                held_us.push(j.held_us);
+            }
+            if journaled { &mut on } else { &mut off }.push(n as f64 / secs);
+        }
+    }
+    Ok(JournalRounds {
+        in_flight,
+        tokens,
+        off: median(off),
+        on: median(on),
+        records_per_commit: median(records_per_commit),
+        commit_us: median(commit_us),
+        held_us: median(held_us),
     })
 }
 
@@ -378,6 +419,13 @@ impl BaseReport {
             self.throughput_journal_commit_us,
             self.throughput_journal_held_us,
             self.throughput_in_flight as f64 / self.throughput_tokens_per_s * 1e6
+        );
+        println!(
+            "(5b) at capacity, {} in flight: {:.0} tokens/s; with --journal {:.0} tokens/s, {:.2} of it",
+            self.capacity_in_flight,
+            self.capacity_tokens_per_s,
+            self.capacity_journal_tokens_per_s,
+            self.capacity_journal_ratio
         );
         println!(
             "(6) demo chart: {:.0} tokens/s; with --rerun save: {:.0} tokens/s, {:.2} of it (target ≥ 0.9; {} parts, {:.1} MB recorded)",

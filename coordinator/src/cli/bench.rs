@@ -21,6 +21,10 @@ pub struct Bench {
     /// Tokens in flight per agent in the throughput phase.
     #[arg(long, default_value_t = 4)]
     pub lanes_per_agent: u32,
+    /// Tokens in flight per agent when the throughput phase is repeated at the cell's capacity (phase 5b): enough
+    /// that the run without the journal is bound by the CPU, not by a token's round trip.
+    #[arg(long, default_value_t = 16)]
+    pub capacity_lanes_per_agent: u32,
     /// Parts of the demo chart in the recording phase.
     #[arg(long, default_value_t = 400)]
     pub parts: u32,
@@ -87,6 +91,7 @@ impl Bench {
             tokens,
             agents,
             lanes_per_agent,
+            capacity_lanes_per_agent,
             parts,
             json,
             base_only,
@@ -104,8 +109,11 @@ impl Bench {
             chromedriver,
         } = self;
         block_on(async move {
-            if samples == 0 || tokens == 0 || agents == 0 || lanes_per_agent == 0 || parts == 0 {
-                bail!("--samples, --tokens, --agents, --lanes-per-agent and --parts must be at least 1");
+            if [samples, tokens, agents, lanes_per_agent, capacity_lanes_per_agent, parts].contains(&0) {
+                bail!(
+                    "--samples, --tokens, --agents, --lanes-per-agent, --capacity-lanes-per-agent and --parts must be \
+                     at least 1"
+                );
             }
             if console_agents.is_empty() || console_agents.iter().any(|n| !(1..=4096).contains(n)) {
                 bail!("--console-agents takes counts from 1 to 4096, such as 8,256");
@@ -118,6 +126,7 @@ impl Bench {
                 tokens,
                 agents,
                 lanes_per_agent,
+                capacity_lanes_per_agent,
                 parts,
                 base: !scale_only && !resume_only && !failover_only && !console_only,
                 scale: !base_only && !resume_only && !failover_only && !console_only,
