@@ -18,24 +18,45 @@ use anyhow::{anyhow, bail, Context};
 use baton_host::unix_ms;
 use tokio::sync::watch;
 
-/// Where the election is held: etcd's client endpoints, and the prefix of the run's keys.
+/// Where the election is held: etcd's client endpoints, the prefix of the run's keys, and for `etcds://` the
+/// TLS that etcd's client port asks for.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Election {
     pub endpoints: Vec<String>,
     pub prefix: String,
+    pub tls: Option<EtcdTls>,
 }
+
+/// etcd's client TLS, as etcdctl's `--cacert`, `--cert` and `--key` give it: the CA that signed etcd's server
+/// certificate, and this process's own certificate and key where etcd asks for one (`--client-cert-auth`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct EtcdTls {
+    pub cacert: std::path::PathBuf,
+    pub identity: Option<(std::path::PathBuf, std::path::PathBuf)>,
+}
+
+const FORM: &str =
+    "etcd://HOST:PORT[,HOST:PORT…]/PREFIX or etcds://HOST:PORT[,…]/PREFIX?cacert=FILE[&cert=FILE&key=FILE]";
 
 impl std::str::FromStr for Election {
     type Err = String;
 
     fn from_str(s: &str) -> Result<Election, String> {
-        let form = "etcd://HOST:PORT[,HOST:PORT…]/PREFIX";
-        let rest = s.strip_prefix("etcd://").ok_or_else(|| format!("`{s}` is not of the form {form}"))?;
-        let (hosts, prefix) = rest.split_once('/').ok_or_else(|| format!("`{s}` names no PREFIX: {form}"))?;
+        let (secure, rest) = match (s.strip_prefix("etcd://"), s.strip_prefix("etcds://")) {
+            (Some(rest), _) => (false, rest),
+            (_, Some(rest)) => (true, rest),
+            _ => return Err(format!("`{s}` is not of the form {FORM}")),
+        };
+        let (rest, query) = match rest.split_once('?') {
+            Some((rest, query)) => (rest, Some(query)),
+            None => (rest, None),
+        };
+        let (hosts, prefix) = rest.split_once('/').ok_or_else(|| format!("`{s}` names no PREFIX: {FORM}"))?;
         let prefix = prefix.trim_end_matches('/');
         if prefix.is_empty() {
-            return Err(format!("`{s}` names no PREFIX: {form}"));
+            return Err(format!("`{s}` names no PREFIX: {FORM}"));
         }
+        let scheme = if secure { "https://" } else { "http://" };
         let mut endpoints = Vec::new();
         for host in hosts.split(',') {
             let Some((name, port)) = host.rsplit_once(':') else {
@@ -44,17 +65,74 @@ impl std::str::FromStr for Election {
             if name.is_empty() || port.parse::<u16>().is_err() {
                 return Err(format!("`{host}` in `{s}` is not HOST:PORT"));
             }
-            endpoints.push(format!("http://{host}"));
+            endpoints.push(format!("{scheme}{host}"));
         }
-        Ok(Election { endpoints, prefix: prefix.to_string() })
+        let tls = match (secure, query) {
+            (false, None) => None,
+            (false, Some(_)) => return Err(format!("`{s}`: TLS files are for etcds://, not etcd://")),
+            (true, query) => Some(EtcdTls::of(s, query.unwrap_or(""))?),
+        };
+        Ok(Election { endpoints, prefix: prefix.to_string(), tls })
+    }
+}
+
+impl EtcdTls {
+    fn of(s: &str, query: &str) -> Result<EtcdTls, String> {
+        let (mut cacert, mut cert, mut key) = (None, None, None);
+        for pair in query.split('&').filter(|p| !p.is_empty()) {
+            let (name, value) = pair.split_once('=').unwrap_or((pair, ""));
+            let slot = match name {
+                "cacert" => &mut cacert,
+                "cert" => &mut cert,
+                "key" => &mut key,
+                _ => return Err(format!("`{s}`: `{name}` is not one of cacert, cert and key")),
+            };
+            if value.is_empty() || slot.replace(std::path::PathBuf::from(value)).is_some() {
+                return Err(format!("`{s}`: `{name}` takes one FILE"));
+            }
+        }
+        let cacert =
+            cacert.ok_or_else(|| format!("`{s}` names no cacert=FILE, the CA that signed etcd's certificate"))?;
+        let identity = match (cert, key) {
+            (Some(cert), Some(key)) => Some((cert, key)),
+            (None, None) => None,
+            _ => return Err(format!("`{s}`: cert=FILE and key=FILE go together")),
+        };
+        Ok(EtcdTls { cacert, identity })
+    }
+
+    /// etcd-client's TLS options, from the files as they are now (a certificate renewed since the last connection
+    /// is the one used).
+    fn options(&self) -> anyhow::Result<etcd_client::TlsOptions> {
+        let read = |path: &std::path::Path, what: &str| {
+            std::fs::read(path).with_context(|| format!("cannot read {what} {}", path.display()))
+        };
+        let ca = etcd_client::Certificate::from_pem(read(&self.cacert, "etcd's CA certificate")?);
+        let mut tls = etcd_client::TlsOptions::new().ca_certificate(ca);
+        if let Some((cert, key)) = &self.identity {
+            let identity =
+                etcd_client::Identity::from_pem(read(cert, "the certificate for etcd")?, read(key, "its key")?);
+            tls = tls.identity(identity);
+        }
+        Ok(tls)
     }
 }
 
 impl std::fmt::Display for Election {
-    /// As `--election` takes it: `etcd://HOST:PORT[,HOST:PORT…]/PREFIX`.
+    /// As `--election` takes it: `etcd://HOST:PORT[,HOST:PORT…]/PREFIX`, or `etcds://…` with its TLS files.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let hosts: Vec<&str> = self.endpoints.iter().map(|e| e.trim_start_matches("http://")).collect();
-        write!(f, "etcd://{}/{}", hosts.join(","), self.prefix)
+        let hosts: Vec<&str> =
+            self.endpoints.iter().map(|e| e.trim_start_matches("http://").trim_start_matches("https://")).collect();
+        match &self.tls {
+            None => write!(f, "etcd://{}/{}", hosts.join(","), self.prefix),
+            Some(tls) => {
+                write!(f, "etcds://{}/{}?cacert={}", hosts.join(","), self.prefix, tls.cacert.display())?;
+                if let Some((cert, key)) = &tls.identity {
+                    write!(f, "&cert={}&key={}", cert.display(), key.display())?;
+                }
+                Ok(())
+            }
+        }
     }
 }
 
@@ -133,6 +211,8 @@ impl Follower {
             Some(client) => client,
             None => {
                 let options = etcd_client::ConnectOptions::new().with_connect_timeout(Duration::from_secs(2));
+                let options =
+                    with_tls(&self.election, options).map_err(|e| etcd_client::Error::InvalidArgs(format!("{e:#}")))?;
                 self.client.insert(etcd_client::Client::connect(&self.election.endpoints, Some(options)).await?)
             }
         };
@@ -226,18 +306,27 @@ impl Drop for Won {
 
 /// How a coordinator with a lease of `lease_s` seconds talks to etcd: a member without a leader refuses (its answer
 /// could be stale), and a connection that stops answering is found within a third of the lease.
-pub(crate) fn connect_options(lease_s: u64) -> etcd_client::ConnectOptions {
-    etcd_client::ConnectOptions::new()
+pub(crate) fn connect_options(election: &Election, lease_s: u64) -> anyhow::Result<etcd_client::ConnectOptions> {
+    let options = etcd_client::ConnectOptions::new()
         .with_connect_timeout(Duration::from_secs(lease_s))
         .with_keep_alive(Duration::from_millis(lease_s * 1000 / 3), Duration::from_millis(lease_s * 1000 / 3))
-        .with_require_leader(true)
+        .with_require_leader(true);
+    with_tls(election, options)
+}
+
+/// `options` with the election's TLS, for `etcds://`.
+fn with_tls(election: &Election, options: etcd_client::ConnectOptions) -> anyhow::Result<etcd_client::ConnectOptions> {
+    Ok(match &election.tls {
+        Some(tls) => options.with_tls(tls.options()?),
+        None => options,
+    })
 }
 
 /// Joins the election as `candidate` with a lease of `lease_s` seconds and waits until it wins: standing by,
 /// meanwhile, behind the coordinator that holds it (said once, unless `quiet`).
 pub async fn win(election: &Election, lease_s: u64, candidate: &str, quiet: bool) -> anyhow::Result<Won> {
     let shown = election.endpoints.join(",");
-    let options = connect_options(lease_s);
+    let options = connect_options(election, lease_s)?;
     let mut client = etcd_client::Client::connect(&election.endpoints, Some(options.clone()))
         .await
         .with_context(|| format!("cannot reach etcd at {shown}"))?;
@@ -324,8 +413,17 @@ async fn stand(
         match asked.await {
             Ok(granted) => break granted.with_context(|| format!("etcd at {shown} granted no lease"))?,
             Err(_) if !said => {
+                // Over TLS, a handshake etcd refused looks the same as a member down: say where else to look.
+                let tls = match &election.tls {
+                    Some(tls) if tls.identity.is_none() => {
+                        "; over etcds://, does etcd require a client certificate (cert=FILE&key=FILE)?"
+                    }
+                    Some(_) => "; over etcds://, did etcd's CA sign this certificate, and cacert sign etcd's?",
+                    None => "",
+                };
                 eprintln!(
-                    "baton: etcd at {shown} grants no lease (unreachable, or without a quorum: {last}): waiting for it"
+                    "baton: etcd at {shown} grants no lease (unreachable, or without a quorum: {last}{tls}): waiting \
+                     for it"
                 );
                 said = true;
             }
@@ -454,6 +552,33 @@ mod tests {
         assert_eq!(e.name(), "cell1/coordinator");
         for bad in ["127.0.0.1:2379/cell1", "etcd://127.0.0.1:2379", "etcd://127.0.0.1:2379/", "etcd://host/cell1"] {
             assert!(bad.parse::<Election>().is_err(), "{bad} taken");
+        }
+    }
+
+    #[test]
+    fn etcds_names_the_tls_files_as_etcdctl_does() {
+        let given = "etcds://10.0.0.1:2379,10.0.0.2:2379/cell1?cacert=/etc/baton/ca.pem&cert=/etc/baton/c1.pem&key=/k";
+        let e: Election = given.parse().expect("valid");
+        assert_eq!(e.endpoints, ["https://10.0.0.1:2379", "https://10.0.0.2:2379"], "etcd's client port over TLS");
+        let tls = e.tls.as_ref().expect("TLS");
+        assert_eq!(tls.cacert, std::path::Path::new("/etc/baton/ca.pem"));
+        assert_eq!(
+            tls.identity.as_ref().map(|(c, k)| (c.to_str(), k.to_str())),
+            Some((Some("/etc/baton/c1.pem"), Some("/k")))
+        );
+        assert_eq!(e.to_string(), given, "written as it is given, so that a journal's place compares equal");
+        let ca_only: Election =
+            "etcds://h:2379/cell1?cacert=/ca.pem".parse().expect("a CA alone: no client certificate");
+        assert_eq!(ca_only.tls.and_then(|t| t.identity), None);
+        for (bad, says) in [
+            ("etcds://h:2379/cell1", "cacert"),
+            ("etcds://h:2379/cell1?cacert=/ca.pem&cert=/c.pem", "go together"),
+            ("etcds://h:2379/cell1?cacert=/ca.pem&user=anna", "not one of"),
+            ("etcds://h:2379/cell1?cacert=", "one FILE"),
+            ("etcd://h:2379/cell1?cacert=/ca.pem", "etcds://"),
+        ] {
+            let e = bad.parse::<Election>().expect_err(bad);
+            assert!(e.contains(says), "{bad}: {e}");
         }
     }
 }

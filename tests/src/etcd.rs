@@ -21,6 +21,8 @@ pub struct Etcd {
 
 struct Member {
     client: u16,
+    /// The client port over TLS, when the cluster has one.
+    tls_client: Option<u16>,
     args: Vec<String>,
     child: Option<Child>,
 }
@@ -43,8 +45,20 @@ impl Etcd {
     /// Starts a cluster of `n` members and returns once it has a leader. A port found free and taken by another
     /// process before a member could bind it (the tests run side by side) is a start on other ports, not a failure.
     pub async fn start(n: usize) -> Etcd {
+        Etcd::start_with(n, None).await
+    }
+
+    /// One member whose client port speaks TLS as a plant's etcd does: its server certificate `certs/etcd.pem`
+    /// (with `ca.pem` beside it, as `baton deploy certs --ca CERTS etcd --san 127.0.0.1` makes them), and a client
+    /// certificate that CA signed required of every client (`--client-cert-auth`). A second client port without TLS
+    /// serves the test's own health checks and JSON gateway.
+    pub async fn start_tls(certs: &std::path::Path) -> Etcd {
+        Etcd::start_with(1, Some(certs)).await
+    }
+
+    async fn start_with(n: usize, tls: Option<&std::path::Path>) -> Etcd {
         for _ in 0..4 {
-            if let Some(etcd) = Etcd::try_start(n).await {
+            if let Some(etcd) = Etcd::try_start(n, tls).await {
                 return etcd;
             }
         }
@@ -52,7 +66,7 @@ impl Etcd {
     }
 
     /// A cluster on free ports, or `None` when a member found one of them taken.
-    async fn try_start(n: usize) -> Option<Etcd> {
+    async fn try_start(n: usize, tls: Option<&std::path::Path>) -> Option<Etcd> {
         let binary = etcd();
         let dir = tempfile::tempdir().expect("temp dir");
         let ports: Vec<(u16, u16)> = (0..n).map(|_| (free_port(), free_port())).collect();
@@ -62,15 +76,20 @@ impl Etcd {
             .iter()
             .enumerate()
             .map(|(i, &(client, peer))| {
-                let args = [
+                let tls_client = tls.map(|_| free_port());
+                let clients = match tls_client {
+                    Some(port) => format!("http://127.0.0.1:{client},https://127.0.0.1:{port}"),
+                    None => format!("http://127.0.0.1:{client}"),
+                };
+                let mut args = [
                     "--name".to_string(),
                     format!("m{i}"),
                     "--data-dir".into(),
                     dir.path().join(format!("m{i}")).display().to_string(),
                     "--listen-client-urls".into(),
-                    format!("http://127.0.0.1:{client}"),
+                    clients.clone(),
                     "--advertise-client-urls".into(),
-                    format!("http://127.0.0.1:{client}"),
+                    clients,
                     "--listen-peer-urls".into(),
                     format!("http://127.0.0.1:{peer}"),
                     "--initial-advertise-peer-urls".into(),
@@ -93,7 +112,12 @@ impl Etcd {
                     "500".into(),
                 ]
                 .to_vec();
-                Member { client, args, child: None }
+                if let Some(certs) = tls {
+                    let file = |name: &str| certs.join(name).display().to_string();
+                    args.extend(["--cert-file".into(), file("etcd.pem"), "--key-file".into(), file("etcd.key")]);
+                    args.extend(["--trusted-ca-file".into(), file("ca.pem"), "--client-cert-auth".into()]);
+                }
+                Member { client, tls_client, args, child: None }
             })
             .collect();
         let mut etcd = Etcd { members, dir };
@@ -159,6 +183,12 @@ impl Etcd {
     /// The client endpoints, as `--election etcd://…` names them: `127.0.0.1:P1,127.0.0.1:P2,…`.
     pub fn endpoints(&self) -> String {
         self.members.iter().map(|m| format!("127.0.0.1:{}", m.client)).collect::<Vec<_>>().join(",")
+    }
+
+    /// The client endpoints over TLS, as `--election etcds://…` names them.
+    pub fn tls_endpoints(&self) -> String {
+        let tls = self.members.iter().map(|m| format!("127.0.0.1:{}", m.tls_client.expect("started with TLS")));
+        tls.collect::<Vec<_>>().join(",")
     }
 
     /// The members' client addresses (for a `Cable` to each).

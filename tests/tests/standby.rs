@@ -25,6 +25,7 @@ baton_tests::harness_main!(
     tokio a_coordinator_cut_off_from_etcd_stops_acting_before_its_standby_takes_over_and_then_stands_by,
     tokio a_coordinator_paused_past_its_lease_adds_nothing_to_the_journal_in_etcd_once_it_wakes,
     tokio a_coordinator_whose_leadership_key_is_gone_is_refused_its_next_write_and_stops_acting,
+    tokio over_etcds_tls_the_journal_and_the_election_hold_and_without_a_client_certificate_etcd_answers_nothing,
 );
 
 const PARTS: &str = "2";
@@ -425,4 +426,53 @@ async fn a_coordinator_whose_leadership_key_is_gone_is_refused_its_next_write_an
     assert!(log.contains("stopped coordinating: etcd refused") && log.contains(&refused), "{log}");
     assert!(deposed_because(&trace, &refused), "its trace says why: {trace:?}");
     assert!(log.contains("is over (it completed): there is nothing to take over"), "{log}");
+}
+
+/// etcd as a plant runs it: its client port over TLS, and a client certificate its CA signed required of every
+/// client (`--client-cert-auth`), the certificates made by `baton deploy certs` as the deploying chapter makes a
+/// cell's. A coordinator given them (`--journal etcds://…?cacert=…&cert=…&key=…`) keeps its journal and stands in
+/// its election there, and its run completes as the open one does; `baton status` reads the election and `baton
+/// replay` the journal back over TLS. Without a client certificate, etcd answers nothing.
+async fn over_etcds_tls_the_journal_and_the_election_hold_and_without_a_client_certificate_etcd_answers_nothing() {
+    let chart = repo("tests/charts/standby_cell.st");
+    let mut cluster = Cluster::with_router().await;
+    let certs = cluster.dir.path().join("certs");
+    let certs_arg = certs.to_str().expect("utf-8 path");
+    let made =
+        cluster.baton(&["deploy", "certs", "--ca", certs_arg, "etcd", "coordinator", "--san", "127.0.0.1"]).await;
+    assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    let etcd = Etcd::start_tls(&certs).await;
+    let file = |name: &str| certs.join(name).display().to_string();
+    let at = format!("{}/baton-test", etcd.tls_endpoints());
+    let parts = format!("parts={PARTS}");
+    // Without a client certificate etcd refuses the connection: reading the election fails, and says where.
+    let no_cert = format!("etcds://{at}?cacert={}", file("ca.pem"));
+    let out = cluster.baton(&["status", "--connect", &cluster.endpoint, "--election", &no_cert, "--json"]).await;
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "the election read without a client certificate");
+    assert!(said.contains(&format!("etcd at https://{}", etcd.tls_endpoints())), "{said}");
+    let journal = format!(
+        "etcds://{at}?cacert={}&cert={}&key={}",
+        file("ca.pem"),
+        file("coordinator.pem"),
+        file("coordinator.key")
+    );
+    let args = ["--set", &parts, "--journal", &journal, "--lease", "2", "--journal-keep", "all"];
+    let watch = cluster.watch().await;
+    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
+    let mut active = cluster.coordinator_joining(&chart, &args);
+    active.wait_ready().await;
+    robots_picking(&mut cluster, &cmds, &chart).await;
+    let read = cluster.status_json(&["--election", &journal]).await.expect("the run answers");
+    let term = read["coordinators"]["active"]["term"].as_u64();
+    assert!(name_of(&read["coordinators"]["active"], &active), "read over TLS, the active one is it: {read}");
+    let (status, log, trace, summary) = active.finish().await;
+    assert!(status.success(), "{log}");
+    assert_eq!(term, Some(term_in(&log)), "the term it won in etcd over TLS, as `baton status` read it:\n{log}");
+    made_every_part_once(&trace, &summary, &log, &chart);
+    assert!(!etcd.keys_under("baton-test/").await.is_empty(), "the journal is in etcd");
+    let replayed = cluster.dir.path().join("replayed.jsonl");
+    let out = cluster.baton(&["replay", "--journal", &journal, "--trace", replayed.to_str().expect("utf-8")]).await;
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(read_trace(&replayed), trace, "the journal read back over TLS is the run");
 }

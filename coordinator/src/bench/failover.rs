@@ -72,7 +72,7 @@ pub async fn failover(dir: &Path, etcd: &Election, kills: u32, lease_s: u64, sha
             );
             let (place, into) = if journal == "etcd" {
                 let prefix = format!("{}/bench-{}", etcd.prefix, uuid::Uuid::new_v4());
-                (Place::Etcd(Election { endpoints: etcd.endpoints.clone(), prefix }), &mut in_etcd)
+                (Place::Etcd(Election { prefix, ..etcd.clone() }), &mut in_etcd)
             } else {
                 let _ = std::fs::remove_dir_all(dir.join("throughput-journal"));
                 (Place::Dir(dir.join("throughput-journal")), &mut file)
@@ -111,10 +111,7 @@ async fn kill_rounds(dir: &Path, etcd: &Election, kills: u32, lease_s: u64) -> a
     let router = zenoh::open(router_config(&endpoint, &[])?).await.map_err(|e| anyhow!("router: {e}"))?;
     let chart = dir.join("failover.st");
     std::fs::write(&chart, CHART)?;
-    let election = Election {
-        endpoints: etcd.endpoints.clone(),
-        prefix: format!("{}/bench-{}", etcd.prefix, uuid::Uuid::new_v4()),
-    };
+    let election = Election { prefix: format!("{}/bench-{}", etcd.prefix, uuid::Uuid::new_v4()), ..etcd.clone() };
     let shown = election.to_string();
     let (tx, mut dispatches) = tokio::sync::mpsc::unbounded_channel::<(Instant, u64)>();
     let _seen = traffic::subscriber(&router, keys::agent_cmd_any("*"))

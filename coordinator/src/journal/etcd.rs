@@ -417,7 +417,7 @@ struct Link {
 
 impl Link {
     fn start(election: &Election, lease_s: u64) -> anyhow::Result<Link> {
-        let (endpoints, options) = (election.endpoints.clone(), crate::election::connect_options(lease_s));
+        let (endpoints, options) = (election.endpoints.clone(), crate::election::connect_options(election, lease_s)?);
         let shown = election.to_string();
         let (calls, mut asked) = tokio::sync::mpsc::unbounded_channel::<Call>();
         let (ready, connected) = std_mpsc::sync_channel::<Result<(), String>>(1);

@@ -20,7 +20,7 @@ pub enum Place {
 impl std::str::FromStr for Place {
     type Err = String;
     fn from_str(s: &str) -> Result<Place, String> {
-        if s.starts_with("etcd://") {
+        if s.starts_with("etcd://") || s.starts_with("etcds://") {
             return s.parse().map(Place::Etcd);
         }
         if s.is_empty() {
