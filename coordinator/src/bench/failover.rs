@@ -24,7 +24,7 @@ use tokio::process::{Child, Command};
 
 use crate::election::{candidates, Election};
 
-use super::harness::{router_config, spawn_agents, spawn_logged, throughput, PHASE_TIMEOUT, ROUNDS};
+use super::harness::{median, router_config, spawn_agents, spawn_logged, throughput, PHASE_TIMEOUT, ROUNDS};
 use crate::journal::Place;
 
 #[derive(Serialize, Clone)]
@@ -98,11 +98,6 @@ pub async fn failover(dir: &Path, etcd: &Election, kills: u32, lease_s: u64, sha
         file_commit_us: median(file.1),
         etcd_records_per_commit: median(in_etcd.2),
     })
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 /// The kills: the median and max from a SIGKILL to the standby's first dispatch, in ms, and each.

@@ -41,6 +41,12 @@ impl Latency {
     }
 }
 
+/// The median of a phase's rounds (NaN for none).
+pub(super) fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
 pub(super) type Marks = Arc<Mutex<Vec<(Instant, TraceEvent, String)>>>;
 
 /// A probe that keeps the instants of the events the bench measures.

@@ -25,7 +25,8 @@ use baton_host::{traffic, ZenohResult};
 use baton_proto::exec::trace::TraceEvent;
 use baton_proto::testing::bench_charts;
 use harness::{
-    marks, router_config, run_chart, spawn_logged, steady_returns, Agents, Extras, Latency, PHASE_TIMEOUT, ROUNDS,
+    marks, median, router_config, run_chart, spawn_logged, steady_returns, Agents, Extras, Latency, PHASE_TIMEOUT,
+    ROUNDS,
 };
 
 const PING_KEY: &str = "baton/bench/ping";
@@ -257,11 +258,6 @@ struct JournalRounds {
     records_per_commit: f64,
     commit_us: f64,
     held_us: f64,
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 /// The throughput chart without and with `--journal`, alternating in rounds as (1) and (2) do, for the same reason.
