@@ -18,13 +18,14 @@ use anyhow::{anyhow, bail, Context};
 use baton_host::unix_ms;
 use tokio::sync::watch;
 
-/// Where the election is held: etcd's client endpoints, the prefix of the run's keys, and for `etcds://` the
-/// TLS that etcd's client port asks for.
+/// Where the election is held: etcd's client endpoints, the prefix of the run's keys, for `etcds://` the TLS that
+/// etcd's client port asks for, and the etcd user this coordinator signs in as where etcd's auth is on.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Election {
     pub endpoints: Vec<String>,
     pub prefix: String,
     pub tls: Option<EtcdTls>,
+    pub user: Option<EtcdUser>,
 }
 
 /// etcd's client TLS, as etcdctl's `--cacert`, `--cert` and `--key` give it: the CA that signed etcd's server
@@ -35,8 +36,17 @@ pub struct EtcdTls {
     pub identity: Option<(std::path::PathBuf, std::path::PathBuf)>,
 }
 
+/// An etcd user (`etcdctl user add`, with its roles' keys) and the file its password is read from — never the URL,
+/// which `ps`, logs and the journal's header show.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct EtcdUser {
+    pub name: String,
+    pub password_file: std::path::PathBuf,
+}
+
 const FORM: &str =
-    "etcd://HOST:PORT[,HOST:PORT…]/PREFIX or etcds://HOST:PORT[,…]/PREFIX?cacert=FILE[&cert=FILE&key=FILE]";
+    "etcd://HOST:PORT[,HOST:PORT…]/PREFIX or etcds://HOST:PORT[,…]/PREFIX?cacert=FILE[&cert=FILE&key=FILE], \
+                    either with [?|&]user=NAME&password-file=FILE";
 
 impl std::str::FromStr for Election {
     type Err = String;
@@ -47,10 +57,7 @@ impl std::str::FromStr for Election {
             (_, Some(rest)) => (true, rest),
             _ => return Err(format!("`{s}` is not of the form {FORM}")),
         };
-        let (rest, query) = match rest.split_once('?') {
-            Some((rest, query)) => (rest, Some(query)),
-            None => (rest, None),
-        };
+        let (rest, query) = rest.split_once('?').unwrap_or((rest, ""));
         let (hosts, prefix) = rest.split_once('/').ok_or_else(|| format!("`{s}` names no PREFIX: {FORM}"))?;
         let prefix = prefix.trim_end_matches('/');
         if prefix.is_empty() {
@@ -67,38 +74,47 @@ impl std::str::FromStr for Election {
             }
             endpoints.push(format!("{scheme}{host}"));
         }
-        let tls = match (secure, query) {
-            (false, None) => None,
-            (false, Some(_)) => return Err(format!("`{s}`: TLS files are for etcds://, not etcd://")),
-            (true, query) => Some(EtcdTls::of(s, query.unwrap_or(""))?),
+        let mut given: Vec<(&str, &str)> = Vec::new();
+        for pair in query.split('&').filter(|p| !p.is_empty()) {
+            let (name, value) = pair.split_once('=').unwrap_or((pair, ""));
+            if !["cacert", "cert", "key", "user", "password-file"].contains(&name) {
+                return Err(format!("`{s}`: `{name}` is not one of cacert, cert, key, user and password-file"));
+            }
+            if value.is_empty() || given.iter().any(|(n, _)| *n == name) {
+                return Err(format!("`{s}`: `{name}` takes one value"));
+            }
+            given.push((name, value));
+        }
+        let value = |name: &str| given.iter().find(|(n, _)| *n == name).map(|(_, v)| *v);
+        let tls = match (secure, ["cacert", "cert", "key"].iter().any(|n| value(n).is_some())) {
+            (false, false) => None,
+            (false, true) => return Err(format!("`{s}`: TLS files are for etcds://, not etcd://")),
+            (true, _) => Some(EtcdTls::of(s, value("cacert"), value("cert"), value("key"))?),
         };
-        Ok(Election { endpoints, prefix: prefix.to_string(), tls })
+        let user = match (value("user"), value("password-file")) {
+            (Some(name), Some(file)) => Some(EtcdUser { name: name.to_string(), password_file: file.into() }),
+            (None, None) => None,
+            (Some(_), None) => {
+                return Err(format!(
+                    "`{s}`: user=NAME takes its password from password-file=FILE (never written in the URL)"
+                ))
+            }
+            (None, Some(_)) => return Err(format!("`{s}`: password-file=FILE is for the user=NAME it names")),
+        };
+        Ok(Election { endpoints, prefix: prefix.to_string(), tls, user })
     }
 }
 
 impl EtcdTls {
-    fn of(s: &str, query: &str) -> Result<EtcdTls, String> {
-        let (mut cacert, mut cert, mut key) = (None, None, None);
-        for pair in query.split('&').filter(|p| !p.is_empty()) {
-            let (name, value) = pair.split_once('=').unwrap_or((pair, ""));
-            let slot = match name {
-                "cacert" => &mut cacert,
-                "cert" => &mut cert,
-                "key" => &mut key,
-                _ => return Err(format!("`{s}`: `{name}` is not one of cacert, cert and key")),
-            };
-            if value.is_empty() || slot.replace(std::path::PathBuf::from(value)).is_some() {
-                return Err(format!("`{s}`: `{name}` takes one FILE"));
-            }
-        }
+    fn of(s: &str, cacert: Option<&str>, cert: Option<&str>, key: Option<&str>) -> Result<EtcdTls, String> {
         let cacert =
             cacert.ok_or_else(|| format!("`{s}` names no cacert=FILE, the CA that signed etcd's certificate"))?;
         let identity = match (cert, key) {
-            (Some(cert), Some(key)) => Some((cert, key)),
+            (Some(cert), Some(key)) => Some((cert.into(), key.into())),
             (None, None) => None,
             _ => return Err(format!("`{s}`: cert=FILE and key=FILE go together")),
         };
-        Ok(EtcdTls { cacert, identity })
+        Ok(EtcdTls { cacert: cacert.into(), identity })
     }
 
     /// etcd-client's TLS options, from the files as they are now (a certificate renewed since the last connection
@@ -119,20 +135,27 @@ impl EtcdTls {
 }
 
 impl std::fmt::Display for Election {
-    /// As `--election` takes it: `etcd://HOST:PORT[,HOST:PORT…]/PREFIX`, or `etcds://…` with its TLS files.
+    /// As `--election` takes it: `etcd://HOST:PORT[,HOST:PORT…]/PREFIX`, or `etcds://…` with its TLS files, and
+    /// the user and its password's file.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let hosts: Vec<&str> =
             self.endpoints.iter().map(|e| e.trim_start_matches("http://").trim_start_matches("https://")).collect();
-        match &self.tls {
-            None => write!(f, "etcd://{}/{}", hosts.join(","), self.prefix),
-            Some(tls) => {
-                write!(f, "etcds://{}/{}?cacert={}", hosts.join(","), self.prefix, tls.cacert.display())?;
-                if let Some((cert, key)) = &tls.identity {
-                    write!(f, "&cert={}&key={}", cert.display(), key.display())?;
-                }
-                Ok(())
+        let mut query = Vec::new();
+        if let Some(tls) = &self.tls {
+            query.push(format!("cacert={}", tls.cacert.display()));
+            if let Some((cert, key)) = &tls.identity {
+                query.push(format!("cert={}&key={}", cert.display(), key.display()));
             }
         }
+        if let Some(user) = &self.user {
+            query.push(format!("user={}&password-file={}", user.name, user.password_file.display()));
+        }
+        let scheme = if self.tls.is_some() { "etcds" } else { "etcd" };
+        write!(f, "{scheme}://{}/{}", hosts.join(","), self.prefix)?;
+        if !query.is_empty() {
+            write!(f, "?{}", query.join("&"))?;
+        }
+        Ok(())
     }
 }
 
@@ -213,7 +236,7 @@ impl Follower {
                 let options = etcd_client::ConnectOptions::new().with_connect_timeout(Duration::from_secs(2));
                 let options =
                     with_tls(&self.election, options).map_err(|e| etcd_client::Error::InvalidArgs(format!("{e:#}")))?;
-                self.client.insert(etcd_client::Client::connect(&self.election.endpoints, Some(options)).await?)
+                self.client.insert(connect(&self.election, &self.election.endpoints, options).await?)
             }
         };
         let prefix = format!("{}/", self.election.name());
@@ -314,12 +337,65 @@ pub(crate) fn connect_options(election: &Election, lease_s: u64) -> anyhow::Resu
     with_tls(election, options)
 }
 
-/// `options` with the election's TLS, for `etcds://`.
+/// `options` with the election's TLS, for `etcds://`, and a token signed in again when etcd says it expired.
 fn with_tls(election: &Election, options: etcd_client::ConnectOptions) -> anyhow::Result<etcd_client::ConnectOptions> {
+    let options = options.with_auto_token_refresh(true);
     Ok(match &election.tls {
         Some(tls) => options.with_tls(tls.options()?),
         None => options,
     })
+}
+
+/// A client of the election's etcd at `endpoints`, signed in as the election's user where it names one (its
+/// password read from its file now). A sign-in etcd refuses (a wrong password, a user unknown, auth not enabled)
+/// is an error at once; an etcd that does not answer is asked again until it does (said once): a caller that must
+/// not wait that long bounds it.
+pub(crate) async fn connect(
+    election: &Election,
+    endpoints: &[String],
+    options: etcd_client::ConnectOptions,
+) -> Result<etcd_client::Client, etcd_client::Error> {
+    let mut client = etcd_client::Client::connect(endpoints, Some(options)).await?;
+    let Some(user) = &election.user else { return Ok(client) };
+    let password = std::fs::read_to_string(&user.password_file).map_err(|e| {
+        etcd_client::Error::InvalidArgs(format!(
+            "cannot read the password of etcd user `{}` from {}: {e}",
+            user.name,
+            user.password_file.display()
+        ))
+    })?;
+    let password = password.trim_end_matches(['\n', '\r']).to_string();
+    let mut said = false;
+    loop {
+        match client.update_user(Some((user.name.clone(), password.clone()))).await {
+            Ok(()) => return Ok(client),
+            Err(etcd_client::Error::GRpcStatus(s)) if !unanswered(&s) => {
+                return Err(etcd_client::Error::InvalidArgs(format!(
+                    "etcd refused the sign-in of user `{}` (password from {}): {}",
+                    user.name,
+                    user.password_file.display(),
+                    s.message()
+                )))
+            }
+            Err(e) => {
+                if !said {
+                    eprintln!(
+                        "baton: etcd at {} does not answer ({e}): waiting to sign in as `{}`",
+                        endpoints.join(","),
+                        user.name
+                    );
+                    said = true;
+                }
+                tokio::time::sleep(RETRY).await;
+            }
+        }
+    }
+}
+
+/// Whether etcd's answer says only that no member answered (down, unreachable, out of time): asked again.
+fn unanswered(status: &tonic::Status) -> bool {
+    use tonic::Code;
+    matches!(status.code(), Code::Unavailable | Code::DeadlineExceeded | Code::Cancelled | Code::Unknown)
 }
 
 /// Joins the election as `candidate` with a lease of `lease_s` seconds and waits until it wins: standing by,
@@ -327,7 +403,7 @@ fn with_tls(election: &Election, options: etcd_client::ConnectOptions) -> anyhow
 pub async fn win(election: &Election, lease_s: u64, candidate: &str, quiet: bool) -> anyhow::Result<Won> {
     let shown = election.endpoints.join(",");
     let options = connect_options(election, lease_s)?;
-    let mut client = etcd_client::Client::connect(&election.endpoints, Some(options.clone()))
+    let mut client = connect(election, &election.endpoints, options.clone())
         .await
         .with_context(|| format!("cannot reach etcd at {shown}"))?;
     loop {
@@ -437,7 +513,7 @@ async fn stand(
     let (tell, lost) = watch::channel(None);
     let acting = Arc::new(AtomicBool::new(true));
     let lose = Arc::new(Lose { acting: Arc::clone(&acting), tell });
-    let renewing = tokio::spawn(renew(election.endpoints.clone(), options.clone(), lease, lease_s, Arc::clone(&lose)));
+    let renewing = tokio::spawn(renew(election.clone(), options.clone(), lease, lease_s, Arc::clone(&lose)));
     Ok(Candidacy { lease, lost, acting, renewing, lose })
 }
 
@@ -474,13 +550,7 @@ pub(crate) fn refused(e: &etcd_client::Error) -> bool {
 /// Renews `lease` several times in each TTL until it is lost: etcd says it expired, or no renewal was granted in
 /// time for this process to stop acting before it can expire for others. Says why on `tell`, once. Renewals go to
 /// one member at a time; one that does not answer in a sixth of the TTL is left for the next.
-async fn renew(
-    endpoints: Vec<String>,
-    options: etcd_client::ConnectOptions,
-    lease: i64,
-    lease_s: u64,
-    lose: Arc<Lose>,
-) {
+async fn renew(election: Election, options: etcd_client::ConnectOptions, lease: i64, lease_s: u64, lose: Arc<Lose>) {
     let ttl = Duration::from_secs(lease_s);
     let every = ttl / 6;
     // The lease is this process's until a third of the TTL before it could end: etcd counts the TTL from when it
@@ -493,8 +563,8 @@ async fn renew(
         let sent = Instant::now();
         let attempt = async {
             if stream.is_none() {
-                let endpoint = [endpoints[member].as_str()];
-                let mut client = etcd_client::Client::connect(endpoint, Some(options.clone())).await?;
+                let endpoint = [election.endpoints[member].clone()];
+                let mut client = connect(&election, &endpoint, options.clone()).await?;
                 stream = Some(client.lease_keep_alive(lease).await?);
             }
             let (keeper, answers) = stream.as_mut().expect("opened above");
@@ -504,7 +574,7 @@ async fn renew(
         // One try may hang on a member that lost its quorum: the next goes again, perhaps to another member.
         let answered = tokio::time::timeout_at(own_until.min(sent + every).into(), attempt).await;
         if !matches!(answered, Ok(Ok(Some(_)))) {
-            member = (member + 1) % endpoints.len();
+            member = (member + 1) % election.endpoints.len();
         }
         match answered {
             Ok(Ok(Some(answer))) if answer.ttl() > 0 => {
@@ -541,7 +611,8 @@ async fn renew(
 
 #[cfg(test)]
 mod tests {
-    use super::Election;
+    use super::{connect, connect_options, Election, EtcdUser};
+    use std::time::Duration;
 
     #[test]
     fn an_election_is_named_by_etcds_endpoints_and_a_prefix() {
@@ -573,9 +644,57 @@ mod tests {
         for (bad, says) in [
             ("etcds://h:2379/cell1", "cacert"),
             ("etcds://h:2379/cell1?cacert=/ca.pem&cert=/c.pem", "go together"),
-            ("etcds://h:2379/cell1?cacert=/ca.pem&user=anna", "not one of"),
-            ("etcds://h:2379/cell1?cacert=", "one FILE"),
+            ("etcds://h:2379/cell1?cacert=/ca.pem&pasword-file=/p", "not one of"),
+            ("etcds://h:2379/cell1?cacert=", "one value"),
+            ("etcds://h:2379/cell1?cacert=/a.pem&cacert=/b.pem", "one value"),
             ("etcd://h:2379/cell1?cacert=/ca.pem", "etcds://"),
+        ] {
+            let e = bad.parse::<Election>().expect_err(bad);
+            assert!(e.contains(says), "{bad}: {e}");
+        }
+    }
+
+    /// A coordinator that starts before its etcd does waits for it, signed in or not: a sign-in that finds nobody
+    /// is asked again, never taken for a refusal (which would end the coordinator under systemd).
+    #[tokio::test]
+    async fn a_sign_in_that_finds_no_etcd_waits_for_it() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let file = dir.path().join("password");
+        std::fs::write(&file, "secret\n").expect("password file");
+        let closed = std::net::TcpListener::bind("127.0.0.1:0").expect("a free port");
+        let port = closed.local_addr().expect("its address").port();
+        drop(closed);
+        let e: Election = format!("etcd://127.0.0.1:{port}/cell1?user=cell1&password-file={}", file.display())
+            .parse()
+            .expect("valid");
+        let options = connect_options(&e, 1).expect("options");
+        let waited = tokio::time::timeout(Duration::from_millis(1500), connect(&e, &e.endpoints, options)).await;
+        assert!(waited.is_err(), "still asking after 1.5 s: {:?}", waited.map(|r| r.map(|_| ())));
+        let missing =
+            Election { user: Some(EtcdUser { name: "cell1".into(), password_file: dir.path().join("none") }), ..e };
+        let refused = connect(&missing, &missing.endpoints, connect_options(&missing, 1).expect("options")).await;
+        let said = refused.map(|_| ()).expect_err("no password file").to_string();
+        assert!(said.contains("cannot read the password of etcd user `cell1`"), "{said}");
+    }
+
+    /// etcd's users, as etcdctl's `--user NAME` gives one, over either scheme; its password from a file only.
+    #[test]
+    fn an_etcd_user_takes_its_password_from_a_file_never_the_url() {
+        let given = "etcd://h:2379/cell1?user=cell1&password-file=/etc/baton/etcd-password";
+        let e: Election = given.parse().expect("valid");
+        let user = e.user.as_ref().expect("a user");
+        assert_eq!((user.name.as_str(), user.password_file.to_str()), ("cell1", Some("/etc/baton/etcd-password")));
+        assert_eq!(e.tls, None);
+        assert_eq!(e.to_string(), given, "written as it is given");
+        let both = "etcds://h:2379/cell1?cacert=/ca.pem&cert=/c.pem&key=/k&user=cell1&password-file=/p";
+        let e: Election = both.parse().expect("TLS and a user");
+        assert!(e.tls.is_some() && e.user.is_some());
+        assert_eq!(e.to_string(), both);
+        for (bad, says) in [
+            ("etcd://h:2379/cell1?user=cell1", "password-file=FILE"),
+            ("etcd://h:2379/cell1?user=cell1&password=secret", "not one of"),
+            ("etcd://h:2379/cell1?password-file=/p", "user=NAME"),
+            ("etcd://h:2379/cell1?user=&password-file=/p", "one value"),
         ] {
             let e = bad.parse::<Election>().expect_err(bad);
             assert!(e.contains(says), "{bad}: {e}");

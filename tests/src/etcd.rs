@@ -45,7 +45,13 @@ impl Etcd {
     /// Starts a cluster of `n` members and returns once it has a leader. A port found free and taken by another
     /// process before a member could bind it (the tests run side by side) is a start on other ports, not a failure.
     pub async fn start(n: usize) -> Etcd {
-        Etcd::start_with(n, None).await
+        Etcd::start_with(n, None, &[]).await
+    }
+
+    /// One member whose sign-ins (`enable_auth`) expire after `ttl_s` seconds unused, where etcd's default is 300:
+    /// a run outlasts several.
+    pub async fn start_short_tokens(ttl_s: u32) -> Etcd {
+        Etcd::start_with(1, None, &["--auth-token-ttl".to_string(), ttl_s.to_string()]).await
     }
 
     /// One member whose client port speaks TLS as a plant's etcd does: its server certificate `certs/etcd.pem`
@@ -53,12 +59,12 @@ impl Etcd {
     /// certificate that CA signed required of every client (`--client-cert-auth`). A second client port without TLS
     /// serves the test's own health checks and JSON gateway.
     pub async fn start_tls(certs: &std::path::Path) -> Etcd {
-        Etcd::start_with(1, Some(certs)).await
+        Etcd::start_with(1, Some(certs), &[]).await
     }
 
-    async fn start_with(n: usize, tls: Option<&std::path::Path>) -> Etcd {
+    async fn start_with(n: usize, tls: Option<&std::path::Path>, extra: &[String]) -> Etcd {
         for _ in 0..4 {
-            if let Some(etcd) = Etcd::try_start(n, tls).await {
+            if let Some(etcd) = Etcd::try_start(n, tls, extra).await {
                 return etcd;
             }
         }
@@ -66,7 +72,7 @@ impl Etcd {
     }
 
     /// A cluster on free ports, or `None` when a member found one of them taken.
-    async fn try_start(n: usize, tls: Option<&std::path::Path>) -> Option<Etcd> {
+    async fn try_start(n: usize, tls: Option<&std::path::Path>, extra: &[String]) -> Option<Etcd> {
         let binary = etcd();
         let dir = tempfile::tempdir().expect("temp dir");
         let ports: Vec<(u16, u16)> = (0..n).map(|_| (free_port(), free_port())).collect();
@@ -117,6 +123,7 @@ impl Etcd {
                     args.extend(["--cert-file".into(), file("etcd.pem"), "--key-file".into(), file("etcd.key")]);
                     args.extend(["--trusted-ca-file".into(), file("ca.pem"), "--client-cert-auth".into()]);
                 }
+                args.extend(extra.iter().cloned());
                 Member { client, tls_client, args, child: None }
             })
             .collect();
@@ -214,6 +221,37 @@ impl Etcd {
                 (String::from_utf8(key).expect("utf-8 key"), created)
             })
             .collect()
+    }
+
+    /// Turns etcd's auth on as a plant's administrator does with etcdctl (`user add`, `role add`, `role
+    /// grant-permission --prefix … readwrite`, `user grant-role`, `auth enable`): a `root` user, and each of `users`
+    /// (name, password, key prefix) with a role of its own that reads and writes the keys under its prefix alone.
+    /// From then on etcd answers only a client signed in (the JSON gateway included).
+    pub async fn enable_auth(&self, users: &[(&str, &str, &str)]) {
+        use base64::Engine;
+        let b64 = base64::engine::general_purpose::STANDARD;
+        let mut calls = vec![
+            ("/v3/auth/user/add", serde_json::json!({"name": "root", "password": "root-password"})),
+            ("/v3/auth/user/grant", serde_json::json!({"user": "root", "role": "root"})),
+        ];
+        for (name, password, prefix) in users {
+            let mut end = prefix.as_bytes().to_vec();
+            *end.last_mut().expect("a prefix") += 1;
+            let role = format!("{name}-role");
+            let perm =
+                serde_json::json!({"permType": "READWRITE", "key": b64.encode(prefix), "range_end": b64.encode(end)});
+            calls.extend([
+                ("/v3/auth/role/add", serde_json::json!({"name": role})),
+                ("/v3/auth/role/grant", serde_json::json!({"name": role, "perm": perm})),
+                ("/v3/auth/user/add", serde_json::json!({"name": name, "password": password})),
+                ("/v3/auth/user/grant", serde_json::json!({"user": name, "role": role})),
+            ]);
+        }
+        calls.push(("/v3/auth/enable", serde_json::json!({})));
+        for (path, body) in calls {
+            let (status, answer) = self.gateway(path, &body).await;
+            assert_eq!(status, 200, "{path} {body}: {answer}");
+        }
     }
 
     /// Deletes `key`, as an operator with etcdctl would.

@@ -26,6 +26,7 @@ baton_tests::harness_main!(
     tokio a_coordinator_paused_past_its_lease_adds_nothing_to_the_journal_in_etcd_once_it_wakes,
     tokio a_coordinator_whose_leadership_key_is_gone_is_refused_its_next_write_and_stops_acting,
     tokio over_etcds_tls_the_journal_and_the_election_hold_and_without_a_client_certificate_etcd_answers_nothing,
+    tokio with_etcds_auth_on_a_coordinator_signs_in_as_its_user_and_reaches_only_its_own_keys,
 );
 
 const PARTS: &str = "2";
@@ -475,4 +476,65 @@ async fn over_etcds_tls_the_journal_and_the_election_hold_and_without_a_client_c
     let out = cluster.baton(&["replay", "--journal", &journal, "--trace", replayed.to_str().expect("utf-8")]).await;
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(read_trace(&replayed), trace, "the journal read back over TLS is the run");
+}
+
+/// etcd with its auth on, as a plant's administrator sets it up with etcdctl: each cell's coordinator an etcd user
+/// whose role reads and writes its own prefix alone, its password in a file (`?user=NAME&password-file=FILE`).
+/// Signed in, the journal and the election hold and the run completes as the open one does, though etcd's sign-ins
+/// last a second unused (`--auth-token-ttl 1`, where etcd's default is 300) and the run waits longer for its start.
+/// No user, a wrong password and another cell's user are refused, each with etcd's reason.
+async fn with_etcds_auth_on_a_coordinator_signs_in_as_its_user_and_reaches_only_its_own_keys() {
+    let chart = repo("tests/charts/standby_cell.st");
+    let mut cluster = Cluster::with_router().await;
+    let etcd = Etcd::start_short_tokens(1).await;
+    etcd.enable_auth(&[("cell1", "cell1-password", "baton-test/"), ("cell2", "cell2-password", "cell2/")]).await;
+    let password = |file: &str, password: &str| {
+        let path = cluster.dir.path().join(file);
+        std::fs::write(&path, format!("{password}\n")).expect("write a password file");
+        path.display().to_string()
+    };
+    let (right, wrong, other) = (
+        password("cell1.password", "cell1-password"),
+        password("wrong.password", "cell1-passwort"),
+        password("cell2.password", "cell2-password"),
+    );
+    let at = format!("etcd://{}/baton-test", etcd.endpoints());
+    for (election, says) in [
+        (at.clone(), "user name is empty"),
+        (format!("{at}?user=cell1&password-file={wrong}"), "authentication failed"),
+        (format!("{at}?user=cell2&password-file={other}"), "permission denied"),
+    ] {
+        let out = cluster.baton(&["status", "--connect", &cluster.endpoint, "--election", &election, "--json"]).await;
+        let said = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{election}: the election read");
+        assert!(said.contains(says) && said.contains(&etcd.endpoints()), "{election}: {said}");
+    }
+    let journal = format!("{at}?user=cell1&password-file={right}");
+    let parts = format!("parts={PARTS}");
+    let args = ["--set", &parts, "--journal", &journal, "--lease", "2", "--journal-keep", "all", "--wait-start"];
+    let watch = cluster.watch().await;
+    let cmds = watch.declare_subscriber(keys::agent_cmd_any("*")).await.expect("command subscriber");
+    let mut active = cluster.coordinator_joining(&chart, &args);
+    active.wait_ready().await;
+    let read = cluster.status_json(&["--election", &journal]).await.expect("the run answers");
+    let term = read["coordinators"]["active"]["term"].as_u64();
+    assert!(name_of(&read["coordinators"]["active"], &active), "read signed in, the active one is it: {read}");
+    assert_eq!(read["state"], "idle", "{read}");
+    // What is tested is time itself: waiting for an operator's start, the coordinator writes nothing to etcd, and
+    // its sign-in expires (etcd checks once a second). The start is journaled with the expired token, which etcd
+    // refuses: the coordinator signs in again and goes on.
+    tokio::time::sleep(std::time::Duration::from_secs(3)).await;
+    let out = cluster.baton(&["ctl", "--connect", &cluster.endpoint, "start"]).await;
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    robots_picking(&mut cluster, &cmds, &chart).await;
+    let (status, log, trace, summary) = active.finish().await;
+    assert!(status.success(), "{log}");
+    assert_eq!(term, Some(term_in(&log)), "the term it won in etcd, as `baton status` read it:\n{log}");
+    made_every_part_once(&trace, &summary, &log, &chart);
+    let replayed = cluster.dir.path().join("replayed.jsonl");
+    let out = cluster.baton(&["replay", "--journal", &journal, "--trace", replayed.to_str().expect("utf-8")]).await;
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(read_trace(&replayed), trace, "the journal read back from etcd, signed in, is the run");
+    let out = cluster.baton(&["replay", "--journal", &at, "--trace", replayed.to_str().expect("utf-8")]).await;
+    assert!(!out.status.success(), "the journal read without signing in");
 }

@@ -57,7 +57,8 @@ pub struct Run {
     /// folder holds the journal of a run that did not end (the coordinator crashed or was stopped), that
     /// run resumes where it was, with the tokens still out reconciled with their agents. etcd://HOST:PORT[,…]/PREFIX
     /// keeps it in etcd instead, for standby coordinators on other machines: it implies --election at the same
-    /// place, and each write holds only while this coordinator holds the election.
+    /// place, and each write holds only while this coordinator holds the election. etcds://…?cacert=FILE[&cert=FILE&
+    /// key=FILE] reaches etcd over TLS; either form takes user=NAME&password-file=FILE where etcd's auth is on.
     #[arg(long, value_name = "DIR|etcd://…/PREFIX")]
     pub journal: Option<crate::journal::Place>,
     /// With --journal: snapshot the coordinator's state after this many records since the last snapshot, and

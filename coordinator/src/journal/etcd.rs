@@ -417,7 +417,8 @@ struct Link {
 
 impl Link {
     fn start(election: &Election, lease_s: u64) -> anyhow::Result<Link> {
-        let (endpoints, options) = (election.endpoints.clone(), crate::election::connect_options(election, lease_s)?);
+        let options = crate::election::connect_options(election, lease_s)?;
+        let election = election.clone();
         let shown = election.to_string();
         let (calls, mut asked) = tokio::sync::mpsc::unbounded_channel::<Call>();
         let (ready, connected) = std_mpsc::sync_channel::<Result<(), String>>(1);
@@ -427,7 +428,7 @@ impl Link {
                 Err(e) => return drop(ready.send(Err(e.to_string()))),
             };
             runtime.block_on(async move {
-                let client = match Client::connect(&endpoints, Some(options)).await {
+                let client = match crate::election::connect(&election, &election.endpoints, options).await {
                     Ok(client) => client,
                     Err(e) => return drop(ready.send(Err(e.to_string()))),
                 };
