@@ -57,6 +57,9 @@ pub struct AgentConfig {
     pub verbose: bool,
     /// The user's own Zenoh configuration file (TLS, credentials), under Baton's settings.
     pub zenoh_config: Option<std::path::PathBuf>,
+    /// Where the agent remembers, across its restarts, the highest coordinator term each run has shown it
+    /// (`terms.rs`); `None`: nowhere, a restarted agent knows none.
+    pub state_dir: Option<std::path::PathBuf>,
 }
 
 impl AgentConfig {
@@ -163,6 +166,8 @@ struct Host {
     contact_lost: Option<u64>,
     /// The deadline the main loop sleeps until: a command that needs an earlier one wakes it.
     armed: Option<Instant>,
+    /// The highest term of each run, as the agent's processes before this one heard them too.
+    terms: crate::terms::Terms,
 }
 
 /// A Zenoh callback that hands each sample to `handle` under the host's lock, carries out what the runs ask, and
@@ -277,6 +282,7 @@ pub async fn run_until(
         incarnation,
         contact_lost: None,
         armed: None,
+        terms: crate::terms::Terms::open(config.state_dir.as_deref(), &name),
     });
     // Commands to this process only: a second process of the same name (which the check above refuses, but two
     // may start at the same moment) hears none of them. Both are handled in Zenoh's callback (`baton_host::shared`).
@@ -503,7 +509,10 @@ impl Host {
             }
             let what = if matches!(msg, ToAgent::Join { .. }) { "join" } else { "dispatch" };
             // A command of a deposed coordinator's term is logged and traced by the run itself.
-            if let Err(NotTaken::OtherChart) = r.state.handle_message(now, term, msg) {
+            let taken = r.state.handle_message(now, term, msg);
+            // Remembered before what it asked is carried out (after this callback).
+            self.terms.raise(run, r.state.term().0);
+            if let Err(NotTaken::OtherChart) = taken {
                 self.drop_msg(format!("{what} for run {} with another chart version", run.key()));
             }
             return;
@@ -577,6 +586,7 @@ impl Host {
         let now = self.now_ms();
         if let Some(r) = self.runs.get_mut(&update.run) {
             r.state.handle_vars(now, term, &update);
+            self.terms.raise(update.run, r.state.term().0);
         }
     }
 
@@ -589,6 +599,7 @@ impl Host {
                 let (name, roles) = (&self.config.name, &self.config.roles);
                 let mut state = AgentRun::new(name, roles, run, hash.clone(), program, layout, cycle_ms);
                 state.set_incarnation(self.incarnation);
+                state.remember_term(now, self.terms.of(run));
                 if let Some(silent_ms) = self.contact_lost {
                     state.handle_contact(now, Some(silent_ms));
                 }
@@ -603,6 +614,7 @@ impl Host {
                         let _taken = r.state.handle_message(now, term, command);
                     }
                 }
+                self.terms.raise(run, r.state.term().0);
                 eprintln!("joined run {} of chart `{}`", run.key(), r.state.program().name);
                 self.runs.insert(run, r);
             }

@@ -11,6 +11,7 @@
 //!     lease_ms: 10_000,
 //!     verbose: false,
 //!     zenoh_config: None,
+//!     state_dir: None,
 //! };
 //! run(config, Skills::builtin(), Connections::default()).await
 //! # }
@@ -30,6 +31,7 @@ mod roles;
 pub mod ros2;
 pub mod scenario_skills;
 pub mod skill;
+mod terms;
 pub mod trace;
 
 pub use connections::Connections;

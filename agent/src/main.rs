@@ -63,6 +63,11 @@ struct Args {
     /// Default: $XDG_STATE_HOME/baton-agent/pki, else ~/.local/state/baton-agent/pki.
     #[arg(long, value_name = "DIR")]
     opcua_pki: Option<std::path::PathBuf>,
+    /// Where the agent remembers, across restarts, the highest coordinator term each run has shown it, so that a
+    /// restarted agent still refuses a deposed coordinator (terms/NAME.json). Default: $XDG_STATE_HOME/baton-agent,
+    /// else ~/.local/state/baton-agent.
+    #[arg(long, value_name = "DIR")]
+    state_dir: Option<std::path::PathBuf>,
     /// Write this agent's trace to FILE (appended to), one JSON record per line, as programs read it: its start,
     /// its contact with the router, each skill's start, end, cancel and stop, an input refused (`t_ms` is Unix
     /// time).
@@ -73,13 +78,18 @@ struct Args {
     instances: Option<u32>,
 }
 
-/// Where the agent keeps its OPC UA certificates unless told.
-fn default_pki_dir() -> std::path::PathBuf {
+/// Where the agent keeps its state unless told: $XDG_STATE_HOME/baton-agent, else ~/.local/state/baton-agent.
+fn default_state_dir() -> std::path::PathBuf {
     let state = std::env::var_os("XDG_STATE_HOME")
         .map(std::path::PathBuf::from)
         .or_else(|| std::env::var_os("HOME").map(|h| std::path::PathBuf::from(h).join(".local/state")))
         .unwrap_or_else(std::env::temp_dir);
-    state.join("baton-agent").join("pki")
+    state.join("baton-agent")
+}
+
+/// Where the agent keeps its OPC UA certificates unless told.
+fn default_pki_dir() -> std::path::PathBuf {
+    default_state_dir().join("pki")
 }
 
 fn main() -> ExitCode {
@@ -107,6 +117,7 @@ fn agent_main() -> ExitCode {
         lease_ms: args.lease_ms,
         verbose: args.verbose,
         zenoh_config: args.zenoh_config,
+        state_dir: Some(args.state_dir.unwrap_or_else(default_state_dir)),
     };
     let Some(distro) = baton_agent::ros2::Distro::parse(&args.ros_distro) else {
         eprintln!("error: --ros-distro must be jazzy, kilted or humble, not `{}`", args.ros_distro);

@@ -202,6 +202,9 @@ impl Cluster {
         let log = std::fs::File::create(self.dir.path().join(format!("{name}.log"))).expect("agent log");
         let trace = self.agent_trace_path(name, self.agents.iter().filter(|(n, _)| n == name).count());
         cmd.args(["--connect", endpoint, "--name", name]).arg("--trace").arg(trace);
+        // The agent's state (the terms it remembers) in the cluster's folder, never the user's home: an agent of
+        // the same name started again finds it there.
+        cmd.env("XDG_STATE_HOME", self.dir.path().join("state"));
         for r in roles {
             cmd.args(["--role", r]);
         }

@@ -432,14 +432,7 @@ async fn agents_of_a_run_that_ended_normally_report_no_fault() {
 #[tokio::test(flavor = "multi_thread")]
 async fn an_agent_that_heard_a_higher_term_refuses_the_deposed_coordinators_values_and_commands() {
     let mut cluster = Cluster::new();
-    let chart = cluster.dir.path().join("fenced.st");
-    std::fs::write(
-        &chart,
-        "PROGRAM fenced\nVAR go : BOOL; END_VAR\nINITIAL_STEP Start: END_STEP\n\
-         TRANSITION FROM Start TO Work := TRUE; END_TRANSITION\nSTEP Work: {agent := 'r1'} END_STEP\n\
-         TRANSITION FROM Work TO Done := go; END_TRANSITION\nSTEP Done: END_STEP\nEND_PROGRAM\n",
-    )
-    .expect("write the chart");
+    let chart = fenced_chart(&cluster, "", "");
     let mut coordinator = cluster.coordinator(&chart, &[]);
     coordinator.wait_ready().await;
     cluster.agent("r1", &[], &[]);
@@ -471,6 +464,52 @@ async fn an_agent_that_heard_a_higher_term_refuses_the_deposed_coordinators_valu
     cluster.wait_for_agent_trace("r1", "the refused abort", refused("abort")).await;
     let log = cluster.agent_log("r1");
     assert!(log.contains("refused: this run has seen term 9"), "{log}");
+    coordinator.kill().await;
+    tokio::time::timeout(Duration::from_secs(5), session.close()).await.ok();
+}
+
+/// The chart of the fencing tests: Work on r1 (its actions `work`, declared in `actions`), Done once `go` is set.
+fn fenced_chart(cluster: &Cluster, work: &str, actions: &str) -> std::path::PathBuf {
+    let chart = cluster.dir.path().join("fenced.st");
+    let text = format!(
+        "PROGRAM fenced\nVAR go : BOOL; END_VAR\nINITIAL_STEP Start: END_STEP\n\
+         TRANSITION FROM Start TO Work := TRUE; END_TRANSITION\nSTEP Work: {{agent := 'r1'}} {work} END_STEP\n\
+         TRANSITION FROM Work TO Done := go; END_TRANSITION\nSTEP Done: END_STEP\n{actions}END_PROGRAM\n"
+    );
+    std::fs::write(&chart, text).expect("write the chart");
+    chart
+}
+
+/// An agent restarted (SIGKILL, then started again under its name, as systemd does) still refuses the deposed
+/// coordinator: the highest term it had heard is in its state folder. The run's coordinator at term 0 stands for a
+/// deposed one (a command of term 9 reached r1 mid-motion); after r1's restart, the coordinator sends r1 its token's
+/// step again (r1 holds nothing), and r1 refuses it, where a restarted agent that forgot term 9 would move again.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_restarted_agent_remembers_the_highest_term_and_still_refuses_the_deposed_coordinator() {
+    let mut cluster = Cluster::new();
+    let chart = fenced_chart(&cluster, "Move(N);", "ACTION Move: {skill := 'motion', ms := 600000} END_ACTION\n");
+    let mut coordinator = cluster.coordinator(&chart, &[]);
+    coordinator.wait_ready().await;
+    cluster.agent("r1", &[], &[]);
+    cluster.wait_for_agent_trace("r1", "Work's motion", |r| r.event == TraceEvent::SkillStart).await;
+    let session = client(&cluster.endpoint).await;
+    let run = status_of(&session, keys::status_any_run()).await.run;
+    let sync = wire::encode_termed(&ToAgent::Sync { run }, 9);
+    session.put(cmd_key_of(&session, "r1").await, sync).await.expect("put");
+    cluster.wait_for_agent_trace("r1", "term 9", |r| r.event == TraceEvent::Term && message_has(r, "term 9")).await;
+
+    cluster.kill_agent("r1").await;
+    cluster.agent("r1", &[], &["--verbose"]);
+    // The restarted r1 holds nothing: the coordinator (term 0) gives it Work again, and r1 refuses it.
+    let refused = |r: &baton_proto::exec::trace::TraceRecord| {
+        r.event == TraceEvent::StaleTerm && message_has(r, "term 0") && message_has(r, "seen term 9")
+    };
+    let either = |r: &baton_proto::exec::trace::TraceRecord| refused(r) || r.event == TraceEvent::SkillStart;
+    let trace = cluster.wait_for_agent_trace("r1", "Work's dispatch refused or taken", either).await;
+    assert!(trace.iter().any(refused), "the deposed coordinator's dispatch refused: {trace:?}");
+    assert!(!trace.iter().any(|r| r.event == TraceEvent::SkillStart), "r1 moved nothing for term 0: {trace:?}");
+    let log = cluster.agent_log("r1");
+    assert!(log.contains("coordinator term 9 remembered from before this agent's restart"), "{log}");
     coordinator.kill().await;
     tokio::time::timeout(Duration::from_secs(5), session.close()).await.ok();
 }

@@ -471,6 +471,23 @@ impl AgentRun {
         false
     }
 
+    /// Takes `term` as the highest seen of this run before any message: the one an earlier process of this agent
+    /// had heard (`baton-agent`'s state folder). Lower terms are refused from now on, and the log says so.
+    pub fn remember_term(&mut self, now_ms: u64, term: u64) {
+        if term > self.term {
+            self.advance(now_ms);
+            self.log(
+                Level::Info,
+                format!(
+                    "run {}: coordinator term {term} remembered from before this agent's restart: lower terms are \
+                     refused",
+                    self.run.key()
+                ),
+            );
+            self.term = term;
+        }
+    }
+
     /// The highest coordinator term seen of this run, and how many messages of lower ones were refused.
     pub fn term(&self) -> (u64, u64) {
         (self.term, self.stale_terms)
