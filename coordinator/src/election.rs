@@ -236,7 +236,7 @@ impl Follower {
                 let options = etcd_client::ConnectOptions::new().with_connect_timeout(Duration::from_secs(2));
                 let options =
                     with_tls(&self.election, options).map_err(|e| etcd_client::Error::InvalidArgs(format!("{e:#}")))?;
-                self.client.insert(connect(&self.election, &self.election.endpoints, options).await?)
+                self.client.insert(connect(&self.election, &self.election.endpoints, options, true).await?)
             }
         };
         let prefix = format!("{}/", self.election.name());
@@ -348,12 +348,13 @@ fn with_tls(election: &Election, options: etcd_client::ConnectOptions) -> anyhow
 
 /// A client of the election's etcd at `endpoints`, signed in as the election's user where it names one (its
 /// password read from its file now). A sign-in etcd refuses (a wrong password, a user unknown, auth not enabled)
-/// is an error at once; an etcd that does not answer is asked again until it does (said once): a caller that must
-/// not wait that long bounds it.
+/// is an error at once; an etcd that does not answer is asked again until it does (said once) where `wait`, a
+/// caller that must not wait that long bounding it, and is the caller's error otherwise.
 pub(crate) async fn connect(
     election: &Election,
     endpoints: &[String],
     options: etcd_client::ConnectOptions,
+    wait: bool,
 ) -> Result<etcd_client::Client, etcd_client::Error> {
     let mut client = etcd_client::Client::connect(endpoints, Some(options)).await?;
     let Some(user) = &election.user else { return Ok(client) };
@@ -377,6 +378,7 @@ pub(crate) async fn connect(
                     s.message()
                 )))
             }
+            Err(e) if !wait => return Err(e),
             Err(e) => {
                 if !said {
                     eprintln!(
@@ -403,7 +405,7 @@ fn unanswered(status: &tonic::Status) -> bool {
 pub async fn win(election: &Election, lease_s: u64, candidate: &str, quiet: bool) -> anyhow::Result<Won> {
     let shown = election.endpoints.join(",");
     let options = connect_options(election, lease_s)?;
-    let mut client = connect(election, &election.endpoints, options.clone())
+    let mut client = connect(election, &election.endpoints, options.clone(), true)
         .await
         .with_context(|| format!("cannot reach etcd at {shown}"))?;
     loop {
@@ -547,6 +549,9 @@ pub(crate) fn refused(e: &etcd_client::Error) -> bool {
     }
 }
 
+/// A member's client being made (and signed in) for the renewals.
+type SigningIn = tokio::task::JoinHandle<Result<etcd_client::Client, etcd_client::Error>>;
+
 /// Renews `lease` several times in each TTL until it is lost: etcd says it expired, or no renewal was granted in
 /// time for this process to stop acting before it can expire for others. Says why on `tell`, once. Renewals go to
 /// one member at a time; one that does not answer in a sixth of the TTL is left for the next.
@@ -559,12 +564,29 @@ async fn renew(election: Election, options: etcd_client::ConnectOptions, lease: 
     let mut last_error = String::from("no answer");
     let mut member = 0;
     let mut stream = None;
+    // A client of each member, signed in once: where etcd's auth is on, a sign-in costs etcd a bcrypt of the
+    // password (tens of ms, more on a busy machine), which each renewal must not pay again.
+    let mut clients: Vec<Option<etcd_client::Client>> = vec![None; election.endpoints.len()];
+    let mut signing: Vec<Option<SigningIn>> = election.endpoints.iter().map(|_| None).collect();
     loop {
         let sent = Instant::now();
         let attempt = async {
             if stream.is_none() {
-                let endpoint = [election.endpoints[member].clone()];
-                let mut client = connect(&election, &endpoint, options.clone()).await?;
+                if clients[member].is_none() {
+                    // A task of its own, so that an attempt's deadline does not cut the sign-in short: the next
+                    // attempt on this member waits for the same one. A member that does not answer is not waited
+                    // for (`wait` false): it is left for the next (below).
+                    let signing_in = signing[member].get_or_insert_with(|| {
+                        let (election, options) = (election.clone(), options.clone());
+                        let endpoint = [election.endpoints[member].clone()];
+                        tokio::spawn(async move { connect(&election, &endpoint, options, false).await })
+                    });
+                    let signed = signing_in.await;
+                    signing[member] = None;
+                    let signed = signed.map_err(|e| etcd_client::Error::LeaseKeepAliveError(e.to_string()))?;
+                    clients[member] = Some(signed?);
+                }
+                let mut client = clients[member].clone().expect("signed in above");
                 stream = Some(client.lease_keep_alive(lease).await?);
             }
             let (keeper, answers) = stream.as_mut().expect("opened above");
@@ -611,7 +633,7 @@ async fn renew(election: Election, options: etcd_client::ConnectOptions, lease: 
 
 #[cfg(test)]
 mod tests {
-    use super::{connect, connect_options, Election, EtcdUser};
+    use super::{connect, connect_options, refused, Election, EtcdUser};
     use std::time::Duration;
 
     #[test]
@@ -668,11 +690,14 @@ mod tests {
             .parse()
             .expect("valid");
         let options = connect_options(&e, 1).expect("options");
-        let waited = tokio::time::timeout(Duration::from_millis(1500), connect(&e, &e.endpoints, options)).await;
+        let waited = tokio::time::timeout(Duration::from_millis(1500), connect(&e, &e.endpoints, options, true)).await;
         assert!(waited.is_err(), "still asking after 1.5 s: {:?}", waited.map(|r| r.map(|_| ())));
+        // A renewal asks one member at a time, and leaves one that does not answer for the next: not a refusal.
+        let once = connect(&e, &e.endpoints, connect_options(&e, 1).expect("options"), false).await;
+        assert!(once.as_ref().is_err_and(|err| !refused(err)), "{:?}", once.map(|_| ()));
         let missing =
             Election { user: Some(EtcdUser { name: "cell1".into(), password_file: dir.path().join("none") }), ..e };
-        let refused = connect(&missing, &missing.endpoints, connect_options(&missing, 1).expect("options")).await;
+        let refused = connect(&missing, &missing.endpoints, connect_options(&missing, 1).expect("options"), true).await;
         let said = refused.map(|_| ()).expect_err("no password file").to_string();
         assert!(said.contains("cannot read the password of etcd user `cell1`"), "{said}");
     }

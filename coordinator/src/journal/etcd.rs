@@ -428,7 +428,7 @@ impl Link {
                 Err(e) => return drop(ready.send(Err(e.to_string()))),
             };
             runtime.block_on(async move {
-                let client = match crate::election::connect(&election, &election.endpoints, options).await {
+                let client = match crate::election::connect(&election, &election.endpoints, options, true).await {
                     Ok(client) => client,
                     Err(e) => return drop(ready.send(Err(e.to_string()))),
                 };
