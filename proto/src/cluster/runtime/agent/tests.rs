@@ -437,6 +437,26 @@ fn a_deposed_coordinators_commands_and_values_are_refused_once_a_newer_term_is_s
     assert_eq!(a.term(), (7, 4));
 }
 
+/// A run joined again by a restarted agent process starts from the term the process before it had heard
+/// (`remember_term`): a dispatch of a lower term is refused before anything moves, one of that term is taken, and a
+/// lower remembered term (none, 0) changes nothing.
+#[test]
+fn a_remembered_term_refuses_a_deposed_coordinators_dispatch_from_the_first_message() {
+    let f = Fixture::new();
+    let mut a = f.agent("a1");
+    let (run, hash) = (a.run(), a.hash().clone());
+    a.remember_term(0, 9);
+    a.remember_term(0, 0);
+    assert_eq!(a.term(), (9, 0));
+    let stale = dispatch_message(f.dispatch(1, 1, false), run, hash.clone(), Vec::new());
+    assert_eq!(a.handle_message(1, 0, stale), Err(NotTaken::StaleTerm));
+    assert!(started(&run_until(&mut a, 20)).is_empty(), "nothing moved for term 0");
+    assert_eq!(a.tokens_held(), 0);
+    a.handle_message(21, 9, dispatch_message(f.dispatch(1, 1, false), run, hash, Vec::new())).expect("taken");
+    assert_eq!(started(&run_until(&mut a, 40)), vec![f.action("Move")]);
+    assert_eq!(a.term(), (9, 1));
+}
+
 /// A coordinator that stands in no election sends term 0, before and after it restarts from its journal: every
 /// message of it is taken, as before terms existed.
 #[test]
