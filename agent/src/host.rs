@@ -509,9 +509,12 @@ impl Host {
             }
             let what = if matches!(msg, ToAgent::Join { .. }) { "join" } else { "dispatch" };
             // A command of a deposed coordinator's term is logged and traced by the run itself.
+            let before = r.state.term().0;
             let taken = r.state.handle_message(now, term, msg);
-            // Remembered before what it asked is carried out (after this callback).
-            self.terms.raise(run, r.state.term().0);
+            // A term that rose is remembered before what the message asked is carried out (after this callback).
+            if r.state.term().0 > before {
+                self.terms.raise(run, r.state.term().0);
+            }
             if let Err(NotTaken::OtherChart) = taken {
                 self.drop_msg(format!("{what} for run {} with another chart version", run.key()));
             }
@@ -585,8 +588,11 @@ impl Host {
         }
         let now = self.now_ms();
         if let Some(r) = self.runs.get_mut(&update.run) {
+            let before = r.state.term().0;
             r.state.handle_vars(now, term, &update);
-            self.terms.raise(update.run, r.state.term().0);
+            if r.state.term().0 > before {
+                self.terms.raise(update.run, r.state.term().0);
+            }
         }
     }
 

@@ -663,14 +663,19 @@ mod tests {
         let ca_only: Election =
             "etcds://h:2379/cell1?cacert=/ca.pem".parse().expect("a CA alone: no client certificate");
         assert_eq!(ca_only.tls.and_then(|t| t.identity), None);
-        for (bad, says) in [
+        refused_saying(&[
             ("etcds://h:2379/cell1", "cacert"),
             ("etcds://h:2379/cell1?cacert=/ca.pem&cert=/c.pem", "go together"),
             ("etcds://h:2379/cell1?cacert=/ca.pem&pasword-file=/p", "not one of"),
             ("etcds://h:2379/cell1?cacert=", "one value"),
             ("etcds://h:2379/cell1?cacert=/a.pem&cacert=/b.pem", "one value"),
             ("etcd://h:2379/cell1?cacert=/ca.pem", "etcds://"),
-        ] {
+        ]);
+    }
+
+    /// Each place is refused, its message saying what is wrong.
+    fn refused_saying(cases: &[(&str, &str)]) {
+        for (bad, says) in cases {
             let e = bad.parse::<Election>().expect_err(bad);
             assert!(e.contains(says), "{bad}: {e}");
         }
@@ -697,8 +702,8 @@ mod tests {
         assert!(once.as_ref().is_err_and(|err| !refused(err)), "{:?}", once.map(|_| ()));
         let missing =
             Election { user: Some(EtcdUser { name: "cell1".into(), password_file: dir.path().join("none") }), ..e };
-        let refused = connect(&missing, &missing.endpoints, connect_options(&missing, 1).expect("options"), true).await;
-        let said = refused.map(|_| ()).expect_err("no password file").to_string();
+        let unread = connect(&missing, &missing.endpoints, connect_options(&missing, 1).expect("options"), true).await;
+        let said = unread.map(|_| ()).expect_err("no password file").to_string();
         assert!(said.contains("cannot read the password of etcd user `cell1`"), "{said}");
     }
 
@@ -715,14 +720,11 @@ mod tests {
         let e: Election = both.parse().expect("TLS and a user");
         assert!(e.tls.is_some() && e.user.is_some());
         assert_eq!(e.to_string(), both);
-        for (bad, says) in [
+        refused_saying(&[
             ("etcd://h:2379/cell1?user=cell1", "password-file=FILE"),
             ("etcd://h:2379/cell1?user=cell1&password=secret", "not one of"),
             ("etcd://h:2379/cell1?password-file=/p", "user=NAME"),
             ("etcd://h:2379/cell1?user=&password-file=/p", "one value"),
-        ] {
-            let e = bad.parse::<Election>().expect_err(bad);
-            assert!(e.contains(says), "{bad}: {e}");
-        }
+        ]);
     }
 }
